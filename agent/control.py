@@ -1,0 +1,238 @@
+"""One robot's control step: nominal command, barrier rows, QP (thesis eq. 4.12).
+
+:func:`control_step` is the single function the agent process, the in-process simulator and the
+tests all call. It takes plain numbers (the robot's pose, its goal, what its neighbours, the
+obstacles and its leader told it) and returns the command with the barrier values it saw.
+
+Deadlock tie-break (``keep_right``): two formations meeting head-on, or a formation facing an
+obstacle dead ahead, can stall under a pure CBF-QP, because the optimum is symmetric and has no
+sideways part. Every member therefore adds the same formation-level vector to its nominal
+command, computed only from data all members share (their formation's ellipse and goal
+centroid, the other formations' ellipses, the obstacles):
+
+* travel direction g = unit(goal centroid - own centroid), left normal n;
+* a hazard (another formation's ellipse, or an obstacle) is "in the way" when it is ahead
+  (0 < d.g <= |goal centroid - own centroid| + its radius) and inside the corridor
+  |d.n| < own half-width + its half-width + TIEBREAK_MARGIN (half-widths across g: the
+  ellipses' supports, an obstacle's Ds), with d = hazard centre - own centroid;
+* each such hazard pushes sideways, away from the side it lies on; within TIEBREAK_DEAD of the
+  centre line it pushes to the right. Two formations meeting head-on see each other on the same
+  side (the offset is symmetric), so both move to their own right, or both away, and pass;
+* the push fades linearly with the hazard's distance ahead beyond contact (TIEBREAK_RANGE) and
+  is scaled to TIEBREAK_GAIN * max_speed.
+
+Because every member adds the same vector, the formation moves sideways as a whole and its
+shape is untouched; the barriers still decide what is safe.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from time import perf_counter_ns
+from typing import NamedTuple
+
+from leader.ellipse import Ellipse
+
+from . import barriers, unicycle
+from .barriers import Neighbour, Obstacle
+from .qp import STATUS_NOMINAL, QPResult, Row, solve_cbf_qp, solve_exact
+
+TIEBREAK_MARGIN = 0.15  # [m] corridor half-width beyond both radii
+TIEBREAK_DEAD = 0.05  # [m] lateral offsets this small count as dead ahead: keep right
+TIEBREAK_RANGE = 1.0  # [m] distance ahead of contact over which the push fades in
+TIEBREAK_GAIN = 0.35  # push as a fraction of max speed
+
+
+@dataclass(frozen=True)
+class ControlParams:
+    kp: float = 2.0  # eq. 4.2
+    gamma_formation: float = 1.0
+    gamma_obstacle: float = 1.0
+    gamma_formations: float = 1.0
+    epsilon: float = 0.05  # [m]
+    max_speed: float = 0.22  # [m/s]
+    unicycle: bool = False
+    lookahead: float = 0.05  # [m]
+    max_turn_rate: float = 2.84  # [rad/s]
+    tiebreak: bool = True
+    safety: bool = True  # False: the nominal command, no barriers (to show what happens)
+    d_af: float = 0.5  # [m] pairwise distance for the all-to-all baseline (eq. 3.5)
+
+    @classmethod
+    def from_scenario(cls, scenario, safety: bool = True) -> ControlParams:
+        r, c = scenario.robot, scenario.controller
+        return cls(
+            kp=c.kp,
+            gamma_formation=c.gamma.formation,
+            gamma_obstacle=c.gamma.obstacle,
+            gamma_formations=c.gamma.formations,
+            epsilon=c.epsilon,
+            max_speed=r.max_speed,
+            unicycle=r.is_unicycle,
+            lookahead=r.lookahead,
+            max_turn_rate=r.max_turn_rate,
+            tiebreak=c.tiebreak == "keep_right",
+            safety=safety,
+            d_af=c.d_af if c.d_af is not None else 2.0 * r.radius + 0.25,
+        )
+
+    @property
+    def offset(self) -> float:
+        """Control point offset from the body centre [m]."""
+        return self.lookahead if self.unicycle else 0.0
+
+
+class FormationView(NamedTuple):
+    """What every member knows of its own formation, for the tie-break."""
+
+    own: Ellipse  # the formation's ellipse, as its leader estimates it
+    goal_x: float  # [m] goal centroid
+    goal_y: float
+
+
+class StepResult(NamedTuple):
+    ux: float  # [m/s] control-point velocity (the certified command)
+    uy: float
+    v: float  # [m/s] unicycle command (v = |u| for a single integrator)
+    omega: float  # [rad/s]
+    px: float  # [m] control point this step used
+    py: float
+    status: str  # see agent.qp: ok, relaxed, fallback, failed, nominal
+    slack: float  # [m/s]
+    h_formation: float  # smallest barrier value of each kind (inf when there was none)
+    h_obstacle: float
+    h_formations: float
+    nominal_ux: float
+    nominal_uy: float
+    solve_us: float  # [us] wall time of the QP (with any relaxation)
+
+
+def nominal(kp: float, x: float, y: float, gx: float, gy: float, vmax: float):
+    """eq. 4.2 on the body centre, clamped to the speed limit."""
+    ux, uy = kp * (gx - x), kp * (gy - y)
+    n = math.hypot(ux, uy)
+    if n > vmax:
+        ux, uy = ux * vmax / n, uy * vmax / n
+    return ux, uy
+
+
+def tiebreak_push(
+    view: FormationView, others: Sequence[Ellipse], obstacles: Sequence[Obstacle], vmax: float
+) -> tuple[float, float]:
+    """The formation-level sideways push of the module docstring (same for every member)."""
+    own = view.own
+    gx, gy = view.goal_x - own.cx, view.goal_y - own.cy
+    dist = math.hypot(gx, gy)
+    if dist < 1e-6:
+        return (0.0, 0.0)
+    gx, gy = gx / dist, gy / dist
+    nx, ny = -gy, gx  # left
+    push = 0.0  # along n
+    own_w = _half_width(own, nx, ny)
+    hazards = [(e.cx, e.cy, e.a, _half_width(e, nx, ny)) for e in others]
+    hazards += [(o.x, o.y, o.ds, o.ds) for o in obstacles]
+    for hx, hy, hr, hw in hazards:
+        dx, dy = hx - own.cx, hy - own.cy
+        along = dx * gx + dy * gy
+        lateral = dx * nx + dy * ny
+        reach = own_w + hw + TIEBREAK_MARGIN
+        if along <= 0.0 or along > dist + hr or abs(lateral) >= reach:
+            continue
+        contact = own.a + hr  # ahead distance at which the two could touch
+        weight = min(1.0, max(0.0, 1.0 - (along - contact) / TIEBREAK_RANGE))
+        if -TIEBREAK_DEAD <= lateral <= TIEBREAK_DEAD:
+            push -= weight  # dead ahead: keep right
+        else:
+            push -= math.copysign(weight, lateral)  # away from the side the hazard is on
+    push = max(-1.0, min(1.0, push)) * TIEBREAK_GAIN * vmax
+    return (push * nx, push * ny)
+
+
+def _half_width(e: Ellipse, nx: float, ny: float) -> float:
+    """Support of the ellipse along the unit direction (nx, ny): its half-width across it."""
+    c, s = math.cos(e.alpha), math.sin(e.alpha)
+    p, q = nx * c + ny * s, -nx * s + ny * c
+    return math.sqrt((e.a * p) ** 2 + (e.b * q) ** 2)
+
+
+def control_step(
+    params: ControlParams,
+    pose: tuple[float, float, float],
+    goal: tuple[float, float],
+    neighbours: Sequence[Neighbour] = (),
+    obstacles: Sequence[Obstacle] = (),
+    others: Sequence[Ellipse] = (),
+    view: FormationView | None = None,
+    solve=solve_exact,
+    pairwise: Sequence[Neighbour] = (),
+) -> StepResult:
+    """One tick for one robot.
+
+    ``pose`` is the body (x, y, theta); ``neighbours`` carry their control points and last
+    velocities with Df; ``obstacles`` carry Ds for the body (the look-ahead offset is added here
+    for unicycles); ``others`` are the other formations' ellipses; ``pairwise`` are robots of
+    other formations in the all-to-all baseline (eq. 3.5 rows instead of ellipses).
+    """
+    x, y, theta = pose
+    p = params
+    off = p.offset
+    px, py = (unicycle.control_point(x, y, theta, off) if p.unicycle else (x, y))
+    ux, uy = nominal(p.kp, x, y, goal[0], goal[1], p.max_speed)
+    if p.tiebreak and view is not None and p.safety:
+        bx, by = tiebreak_push(view, others, obstacles, p.max_speed)
+        if bx or by:
+            ux, uy = nominal(1.0, 0.0, 0.0, ux + bx, uy + by, p.max_speed)
+    nux, nuy = ux, uy
+
+    soft: list[Row] = []
+    hard: list[Row] = []
+    hf = ho = he = math.inf
+    eps = p.epsilon
+    for n in neighbours:
+        hg, hl, rg, rl = barriers.formation_rows(px, py, n, eps, p.gamma_formation)
+        hf = min(hf, hg, hl)
+        soft.append(rg)
+        soft.append(rl)
+    for o in obstacles:
+        if off:
+            o = Obstacle(o.x, o.y, o.vx, o.vy, o.ds + off)
+        h, row = barriers.obstacle_row(px, py, o, p.gamma_obstacle)
+        ho = min(ho, h)
+        hard.append(row)
+    for e in others:
+        h, row = barriers.ellipse_row(px, py, e, p.gamma_formations)
+        he = min(he, h)
+        hard.append(row)
+    for n in pairwise:
+        h, row = barriers.pairwise_row(px, py, n, p.d_af, p.gamma_formations)
+        he = min(he, h)
+        hard.append(row)
+
+    if p.unicycle:
+        limits = unicycle.limit_rows(theta, p.lookahead, p.max_speed, p.max_turn_rate)
+    else:
+        # Members of a formation share the polygon's orientation (their travel direction), so a
+        # neighbour's last velocity is always inside this robot's own speed polygon.
+        if view is not None and math.hypot(view.goal_x - view.own.cx, view.goal_y - view.own.cy) > 0.05:
+            heading = math.atan2(view.goal_y - view.own.cy, view.goal_x - view.own.cx)
+        else:
+            heading = math.atan2(uy, ux)
+        limits = barriers.speed_rows(p.max_speed, heading)
+
+    t0 = perf_counter_ns()
+    if p.safety:
+        res = solve_cbf_qp(ux, uy, limits, hard, soft, solve)
+    else:
+        u = solve_exact(ux, uy, limits) or (0.0, 0.0)
+        res = QPResult(u[0], u[1], STATUS_NOMINAL, 0.0, True)
+    solve_us = (perf_counter_ns() - t0) * 1e-3
+
+    if p.unicycle:
+        v, w = unicycle.to_unicycle(res.ux, res.uy, theta, p.lookahead)
+    else:
+        v, w = math.hypot(res.ux, res.uy), 0.0
+    return StepResult(
+        res.ux, res.uy, v, w, px, py, res.status, res.slack, hf, ho, he, nux, nuy, solve_us
+    )

@@ -1,0 +1,187 @@
+"""The per-robot quadratic program of eq. 4.1 / 4.12: min |u - u_hat|^2 s.t. rows a . u <= b.
+
+The problem has two variables, so it is solved exactly in plain Python floats by default:
+the incremental algorithm (Seidel's, for a strictly convex objective) keeps the optimum of the
+rows seen so far; when a new row is violated the new optimum lies on that row's line, a 1-D
+problem over an interval cut by the earlier rows. It is exact up to rounding and reports
+infeasibility when an interval empties. qpsolvers backends (osqp, daqp, quadprog, clarabel, ...)
+can be chosen by name instead; they are the oracle the tests compare against.
+
+Infeasible ticks (DESIGN.md, "Control notes"): formation rows ("soft") are relaxed by the
+smallest common slack that restores feasibility; obstacle and inter-formation rows ("hard") and
+the speed limits are never relaxed to reach a goal. If the hard rows and the limits alone are
+infeasible (a barrier already violated, say), the least-risk command is returned: the hard rows
+relaxed by their smallest common slack, inside the speed limits. Every row is normalised so that
+|a| = 1, which makes every slack a velocity [m/s].
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from typing import NamedTuple
+
+Row = tuple[float, float, float]  # (ax, ay, b): ax * ux + ay * uy <= b
+
+FEAS_TOL = 1e-9  # [m/s] a row counts as satisfied within this
+_BISECT_STEPS = 60
+
+STATUS_OK = "ok"
+STATUS_RELAXED = "relaxed"  # formation rows relaxed by `slack`
+STATUS_FALLBACK = "fallback"  # hard rows infeasible: least-risk command
+STATUS_FAILED = "failed"  # solver error: zero command
+STATUS_NOMINAL = "nominal"  # safety off: the nominal command
+
+
+class QPResult(NamedTuple):
+    ux: float
+    uy: float
+    status: str
+    slack: float  # [m/s] relaxation used (0 when status is ok)
+    solved: bool  # False: the command is a fallback, not the optimum of the stated problem
+
+
+def normalized_row(ax: float, ay: float, b: float) -> Row:
+    """Row scaled so that |a| = 1; a zero gradient is kept as (0, 0, b)."""
+    n = math.hypot(ax, ay)
+    if n < 1e-12:
+        return (0.0, 0.0, b)
+    return (ax / n, ay / n, b / n)
+
+
+def solve_exact(ux: float, uy: float, rows: Sequence[Row], tol: float = FEAS_TOL):
+    """Exact minimiser of |u - (ux, uy)|^2 subject to ``rows``; None when infeasible."""
+    x, y = ux, uy
+    for k in range(len(rows)):
+        ax, ay, b = rows[k]
+        if ax * x + ay * y <= b + tol:
+            continue
+        n2 = ax * ax + ay * ay
+        if n2 < 1e-24:
+            return None  # 0 <= b with b < -tol
+        # The optimum now lies on the line a . u = b: u = p + t d with p the projection of
+        # u_hat onto it and d along it; minimise t^2 over the interval the earlier rows allow.
+        r = (ax * ux + ay * uy - b) / n2
+        px, py = ux - r * ax, uy - r * ay
+        dx, dy = -ay, ax
+        lo, hi = -math.inf, math.inf
+        for j in range(k):
+            cx, cy, c = rows[j]
+            den = cx * dx + cy * dy
+            num = c - (cx * px + cy * py)
+            if -1e-15 < den < 1e-15:
+                if num < -tol:
+                    return None
+                continue
+            t = num / den
+            if den > 0.0:
+                if t < hi:
+                    hi = t
+            elif t > lo:
+                lo = t
+        if lo > hi:
+            if lo - hi > tol * 10.0:
+                return None
+            t = 0.5 * (lo + hi)
+        else:
+            t = 0.0 if lo <= 0.0 <= hi else (lo if lo > 0.0 else hi)
+        x, y = px + t * dx, py + t * dy
+    return (x, y)
+
+
+def qpsolvers_solver(name: str, **options) -> Callable[[float, float, Sequence[Row]], tuple]:
+    """A solve function with the same contract as :func:`solve_exact`, backed by
+    ``qpsolvers.solve_qp(..., solver=name)``; tight default tolerances for osqp/clarabel."""
+    import numpy as np
+    import qpsolvers
+
+    if name not in qpsolvers.available_solvers:
+        raise ValueError(
+            f"solver: {name!r} is not available (installed: "
+            f"{', '.join(sorted(qpsolvers.available_solvers))}, or 'exact')"
+        )
+    opts = dict(options)
+    if name == "osqp" and not opts:
+        opts = {"eps_abs": 1e-10, "eps_rel": 1e-10, "polish": True, "max_iter": 100000}
+    if name == "clarabel" and not opts:
+        opts = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10}
+    p = 2.0 * np.eye(2)
+
+    def solve(ux: float, uy: float, rows: Sequence[Row], tol: float = FEAS_TOL):
+        q = np.array([-2.0 * ux, -2.0 * uy])
+        if not rows:
+            return (ux, uy)
+        g = np.array([[r[0], r[1]] for r in rows])
+        h = np.array([r[2] for r in rows])
+        try:
+            x = qpsolvers.solve_qp(p, q, g, h, solver=name, **opts)
+        except Exception:  # noqa: BLE001 - a backend failure is reported as "no solution"
+            return None
+        if x is None or not np.all(np.isfinite(x)):
+            return None
+        if np.max(g @ x - h) > 1e-6:
+            return None
+        return (float(x[0]), float(x[1]))
+
+    solve.__name__ = f"qpsolvers_{name}"
+    return solve
+
+
+def make_solver(name: str | None):
+    """``None`` or ``"exact"``: :func:`solve_exact`; else a qpsolvers backend by name."""
+    if name in (None, "", "exact"):
+        return solve_exact
+    return qpsolvers_solver(name)
+
+
+def _min_slack(rows_fixed: list[Row], rows_relaxed: Sequence[Row], start: tuple[float, float]):
+    """Smallest s >= 0 with rows_fixed and (rows_relaxed + s) feasible; ``start`` satisfies
+    rows_fixed. Returns (s, rows_relaxed shifted by s). Bisection on the exact solver."""
+    hi = max(0.0, max(ax * start[0] + ay * start[1] - b for ax, ay, b in rows_relaxed))
+    hi += FEAS_TOL
+    lo = 0.0
+    for _ in range(_BISECT_STEPS):
+        mid = 0.5 * (lo + hi)
+        shifted = [(ax, ay, b + mid) for ax, ay, b in rows_relaxed]
+        if solve_exact(start[0], start[1], rows_fixed + shifted) is None:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo <= 1e-12 + 1e-9 * hi:
+            break
+    return hi, [(ax, ay, b + hi) for ax, ay, b in rows_relaxed]
+
+
+def solve_cbf_qp(
+    ux: float,
+    uy: float,
+    limits: Sequence[Row],
+    hard: Sequence[Row],
+    soft: Sequence[Row],
+    solve=solve_exact,
+) -> QPResult:
+    """The QP of eq. 4.12 with the relaxation policy of this module's docstring."""
+    base = list(limits) + list(hard)
+    u = solve(ux, uy, base + list(soft))
+    if u is not None:
+        return QPResult(u[0], u[1], STATUS_OK, 0.0, True)
+    u0 = solve_exact(ux, uy, base)
+    if u0 is not None:
+        slack, shifted = _min_slack(base, soft, u0)
+        u = solve(ux, uy, base + shifted) or solve_exact(ux, uy, base + shifted)
+        if u is not None:
+            return QPResult(u[0], u[1], STATUS_RELAXED, slack, True)
+    # The hard rows themselves cannot hold: least-risk command inside the speed limits.
+    lim = list(limits)
+    z = solve_exact(0.0, 0.0, lim)
+    if z is None:
+        return QPResult(0.0, 0.0, STATUS_FAILED, math.inf, False)
+    t, hard_shifted = _min_slack(lim, hard, z)
+    fixed = lim + hard_shifted
+    u1 = solve_exact(ux, uy, fixed)
+    if u1 is None:
+        return QPResult(0.0, 0.0, STATUS_FAILED, math.inf, False)
+    if soft:
+        _, soft_shifted = _min_slack(fixed, soft, u1)
+        u1 = solve_exact(ux, uy, fixed + soft_shifted) or u1
+    return QPResult(u1[0], u1[1], STATUS_FALLBACK, t, False)

@@ -1,0 +1,432 @@
+"""Load and validate a scenario file (DESIGN.md, "Scenario file: a contract").
+
+Every problem is reported as one :class:`ScenarioError` whose message names the culprit by its
+path in the file (``formations[1].edges[0]``) and says what is wrong. Nothing is half-loaded.
+
+Checks, in order: YAML syntax; unknown keys; types and finiteness; positive numbers where only
+positive numbers make sense; unique names; edges naming known robots of the same formation;
+generic rigidity of every formation graph (rank of the rigidity matrix at random positions is
+2n - 3); the leader adjacent to every member; a formation band that keeps bodies apart
+(Df - epsilon >= 2 radius); and a start that satisfies every constraint (formation band, obstacle
+clearance, other formations' ellipses, no two bodies overlapping).
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from leader.ellipse import Ellipse, derive_axes, ellipse_value, estimate, reference_shape
+
+from .model import (
+    SINGLE_INTEGRATOR,
+    UNICYCLE,
+    ControllerSpec,
+    Edge,
+    FormationSpec,
+    Gammas,
+    ObstacleSpec,
+    RobotModel,
+    RobotSpec,
+    Scenario,
+)
+
+ELLIPSE_MARGIN = 0.02  # [m] extra clearance of a derived ellipse beyond bodies and tolerance
+TIEBREAKS = ("keep_right", "none")
+
+_TOP_KEYS = {"name", "dt", "duration", "goal_tolerance", "robot", "controller", "formations",
+             "obstacles"}
+_ROBOT_KEYS = {"model", "max_speed", "max_turn_rate", "lookahead", "radius"}
+_CONTROLLER_KEYS = {"kp", "gamma", "epsilon", "tiebreak", "d_af"}
+_GAMMA_KEYS = {"formation", "obstacle", "formations"}
+_FORMATION_KEYS = {"name", "leader", "robots", "edges", "ellipse"}
+_MEMBER_KEYS = {"start", "goal"}
+_ELLIPSE_KEYS = {"a", "b"}
+_OBSTACLE_KEYS = {"name", "center", "safe_distance", "velocity"}
+
+
+class ScenarioError(ValueError):
+    """An invalid scenario; the message is one line naming the culprit."""
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read, parse and validate the scenario at ``path``."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ScenarioError(f"{p}: cannot read: {exc.strerror or exc}") from None
+    try:
+        return parse_scenario(text, source=str(p))
+    except ScenarioError as exc:
+        msg = str(exc)
+        raise ScenarioError(msg if msg.startswith(str(p)) else f"{p}: {msg}") from None
+
+
+def parse_scenario(text: str, source: str = "<scenario>") -> Scenario:
+    """Parse and validate scenario YAML text."""
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(exc, "problem", None) or "invalid YAML"
+        raise ScenarioError(f"{source}: YAML syntax error{where}: {problem}") from None
+    return scenario_from_dict(data)
+
+
+def scenario_from_dict(data: Any) -> Scenario:
+    """Validate an already-parsed mapping and build the :class:`Scenario`."""
+    top = _mapping(data, "scenario", _TOP_KEYS)
+    name = _string(top.get("name", "scenario"), "name")
+    dt = _positive(top.get("dt", 0.05), "dt")
+    duration = _positive(top.get("duration", 120.0), "duration")
+    if duration < dt:
+        raise ScenarioError(f"duration: {duration} s is shorter than one control period dt={dt} s")
+    tol = _positive(top.get("goal_tolerance", 0.05), "goal_tolerance")
+    robot = _robot_model(top.get("robot", {}))
+    controller = _controller(top.get("controller", {}))
+
+    if "formations" not in top:
+        raise ScenarioError("formations: missing (at least one formation is needed)")
+    raw_formations = top["formations"]
+    if not isinstance(raw_formations, list) or not raw_formations:
+        raise ScenarioError("formations: must be a non-empty list")
+    seen_robots: dict[str, str] = {}
+    formations = []
+    for k, raw in enumerate(raw_formations):
+        formations.append(_formation(raw, f"formations[{k}]", robot, seen_robots))
+    names = [f.name for f in formations]
+    for k, n in enumerate(names):
+        if n in names[:k]:
+            raise ScenarioError(f"formations[{k}].name: duplicate formation name {n!r}")
+
+    raw_obstacles = top.get("obstacles", []) or []
+    if not isinstance(raw_obstacles, list):
+        raise ScenarioError("obstacles: must be a list")
+    obstacles = tuple(_obstacle(o, f"obstacles[{k}]") for k, o in enumerate(raw_obstacles))
+    onames = [o.name for o in obstacles]
+    for k, n in enumerate(onames):
+        if n in onames[:k]:
+            raise ScenarioError(f"obstacles[{k}].name: duplicate obstacle name {n!r}")
+
+    scenario = Scenario(name, dt, duration, tol, robot, controller, tuple(formations), obstacles)
+    _check_bands(scenario)
+    _check_start(scenario)
+    return scenario
+
+
+# ---------------------------------------------------------------------------- sections
+
+
+def _robot_model(raw: Any) -> RobotModel:
+    m = _mapping(raw, "robot", _ROBOT_KEYS)
+    model = _string(m.get("model", SINGLE_INTEGRATOR), "robot.model")
+    if model not in (SINGLE_INTEGRATOR, UNICYCLE):
+        raise ScenarioError(
+            f"robot.model: {model!r} is not one of {SINGLE_INTEGRATOR!r}, {UNICYCLE!r}"
+        )
+    d = RobotModel()
+    return RobotModel(
+        model=model,
+        max_speed=_positive(m.get("max_speed", d.max_speed), "robot.max_speed"),
+        max_turn_rate=_positive(m.get("max_turn_rate", d.max_turn_rate), "robot.max_turn_rate"),
+        lookahead=_positive(m.get("lookahead", d.lookahead), "robot.lookahead"),
+        radius=_positive(m.get("radius", d.radius), "robot.radius"),
+    )
+
+
+def _controller(raw: Any) -> ControllerSpec:
+    m = _mapping(raw, "controller", _CONTROLLER_KEYS)
+    d = ControllerSpec()
+    g = m.get("gamma", 1.0)
+    if isinstance(g, Mapping):
+        gm = _mapping(g, "controller.gamma", _GAMMA_KEYS)
+        gammas = Gammas(
+            **{k: _positive(gm.get(k, 1.0), f"controller.gamma.{k}") for k in sorted(_GAMMA_KEYS)}
+        )
+    else:
+        v = _positive(g, "controller.gamma")
+        gammas = Gammas(v, v, v)
+    tiebreak = _string(m.get("tiebreak", d.tiebreak), "controller.tiebreak")
+    if tiebreak not in TIEBREAKS:
+        raise ScenarioError(f"controller.tiebreak: {tiebreak!r} is not one of {TIEBREAKS}")
+    d_af = m.get("d_af")
+    return ControllerSpec(
+        kp=_positive(m.get("kp", d.kp), "controller.kp"),
+        gamma=gammas,
+        epsilon=_positive(m.get("epsilon", d.epsilon), "controller.epsilon"),
+        tiebreak=tiebreak,
+        d_af=None if d_af is None else _positive(d_af, "controller.d_af"),
+    )
+
+
+def _formation(raw: Any, where: str, robot: RobotModel, seen: dict[str, str]) -> FormationSpec:
+    m = _mapping(raw, where, _FORMATION_KEYS)
+    if "name" not in m:
+        raise ScenarioError(f"{where}.name: missing")
+    name = _identifier(m["name"], f"{where}.name")
+    raw_robots = m.get("robots")
+    if not isinstance(raw_robots, Mapping) or not raw_robots:
+        raise ScenarioError(f"{where}.robots: must be a non-empty mapping of robot name to "
+                            "{start, goal}")
+    robots = []
+    for rid, spec in raw_robots.items():
+        rwhere = f"{where}.robots.{rid}"
+        rid = _identifier(rid, rwhere)
+        if rid in seen:
+            raise ScenarioError(f"{rwhere}: robot {rid!r} is already in formation {seen[rid]!r}")
+        seen[rid] = name
+        rm = _mapping(spec, rwhere, _MEMBER_KEYS)
+        for key in ("start", "goal"):
+            if key not in rm:
+                raise ScenarioError(f"{rwhere}.{key}: missing")
+        start = _vector(rm["start"], f"{rwhere}.start", (2, 3))
+        goal = _vector(rm["goal"], f"{rwhere}.goal", (2,))
+        robots.append((rid, start, goal))
+    ids = [r[0] for r in robots]
+
+    # Default heading: every member faces from the formation's start centroid to its goal centroid.
+    scx = sum(r[1][0] for r in robots) / len(robots)
+    scy = sum(r[1][1] for r in robots) / len(robots)
+    gcx = sum(r[2][0] for r in robots) / len(robots)
+    gcy = sum(r[2][1] for r in robots) / len(robots)
+    heading = math.atan2(gcy - scy, gcx - scx) if math.hypot(gcx - scx, gcy - scy) > 1e-9 else 0.0
+    specs = tuple(
+        RobotSpec(rid, name, (s[0], s[1], s[2] if len(s) == 3 else heading), (g[0], g[1]))
+        for rid, s, g in robots
+    )
+    offset = robot.control_offset
+    ctrl = {r.id: _control_point(r.start, offset) for r in specs}
+
+    raw_edges = m.get("edges", [])
+    if not isinstance(raw_edges, list):
+        raise ScenarioError(f"{where}.edges: must be a list of [i, j] or [i, j, Df]")
+    edges: list[Edge] = []
+    pairs: set[frozenset[str]] = set()
+    for k, e in enumerate(raw_edges):
+        ew = f"{where}.edges[{k}]"
+        if not isinstance(e, list) or len(e) not in (2, 3):
+            raise ScenarioError(f"{ew}: must be [i, j] or [i, j, Df]")
+        i, j = (_string(e[0], f"{ew}[0]"), _string(e[1], f"{ew}[1]"))
+        for endpoint in (i, j):
+            if endpoint not in ids:
+                other = f" (it is in formation {seen[endpoint]!r})" if endpoint in seen else ""
+                raise ScenarioError(f"{ew}: unknown robot {endpoint!r} in formation {name!r}{other}")
+        if i == j:
+            raise ScenarioError(f"{ew}: an edge joins two different robots, got {i!r} twice")
+        pair = frozenset((i, j))
+        if pair in pairs:
+            raise ScenarioError(f"{ew}: duplicate edge between {i!r} and {j!r}")
+        pairs.add(pair)
+        if len(e) == 3:
+            df = _positive(e[2], f"{ew}[2] (Df)")
+        else:
+            df = math.dist(ctrl[i], ctrl[j])
+            if df <= 0.0:
+                raise ScenarioError(f"{ew}: Df omitted and {i!r}, {j!r} start at the same point")
+        edges.append(Edge(i, j, df))
+
+    if len(ids) >= 2 and not is_generically_rigid(ids, [(e.i, e.j) for e in edges]):
+        raise ScenarioError(
+            f"{where}.edges: the graph of formation {name!r} is not rigid "
+            f"({len(edges)} edges for {len(ids)} robots; a rigid graph needs at least "
+            f"{2 * len(ids) - 3} well-placed edges)"
+        )
+
+    if "leader" not in m:
+        raise ScenarioError(f"{where}.leader: missing")
+    leader = _string(m["leader"], f"{where}.leader")
+    if leader not in ids:
+        raise ScenarioError(f"{where}.leader: {leader!r} is not a robot of formation {name!r}")
+    adjacent = {e.j for e in edges if e.i == leader} | {e.i for e in edges if e.j == leader}
+    missing = [r for r in ids if r != leader and r not in adjacent]
+    if missing:
+        raise ScenarioError(
+            f"{where}.leader: {leader!r} is not adjacent to {', '.join(repr(x) for x in missing)}"
+            " (the leader must share an edge with every member)"
+        )
+
+    ellipse = None
+    if m.get("ellipse") is not None:
+        em = _mapping(m["ellipse"], f"{where}.ellipse", _ELLIPSE_KEYS)
+        for key in ("a", "b"):
+            if key not in em:
+                raise ScenarioError(f"{where}.ellipse.{key}: missing")
+        a = _positive(em["a"], f"{where}.ellipse.a")
+        b = _positive(em["b"], f"{where}.ellipse.b")
+        if b > a:
+            raise ScenarioError(f"{where}.ellipse: a={a} is the major semi-axis and must be >= b={b}")
+        ellipse = (a, b)
+    return FormationSpec(name, leader, specs, tuple(edges), ellipse)
+
+
+def _obstacle(raw: Any, where: str) -> ObstacleSpec:
+    m = _mapping(raw, where, _OBSTACLE_KEYS)
+    for key in ("center", "safe_distance"):
+        if key not in m:
+            raise ScenarioError(f"{where}.{key}: missing")
+    name = _identifier(m.get("name", where.replace("[", "").replace("]", "")), f"{where}.name")
+    center = _vector(m["center"], f"{where}.center", (2,))
+    ds = _positive(m["safe_distance"], f"{where}.safe_distance")
+    vel = _vector(m.get("velocity", [0.0, 0.0]), f"{where}.velocity", (2,))
+    return ObstacleSpec(name, (center[0], center[1]), ds, (vel[0], vel[1]))
+
+
+# ---------------------------------------------------------------------------- cross checks
+
+
+def is_generically_rigid(nodes: list[str], edges: list[tuple[str, str]], trials: int = 3) -> bool:
+    """Generic (infinitesimal) rigidity in the plane: the rigidity matrix at random positions
+    has rank 2n - 3 (n >= 2). Random positions avoid the measure-zero degenerate placements."""
+    n = len(nodes)
+    if n < 2:
+        return True
+    index = {v: k for k, v in enumerate(nodes)}
+    rng = random.Random(12345)
+    for _ in range(trials):
+        pos = np.array([[rng.uniform(-1, 1), rng.uniform(-1, 1)] for _ in nodes])
+        r = np.zeros((len(edges), 2 * n))
+        for row, (i, j) in enumerate(edges):
+            a, b = index[i], index[j]
+            d = pos[a] - pos[b]
+            r[row, 2 * a: 2 * a + 2] = d
+            r[row, 2 * b: 2 * b + 2] = -d
+        if len(edges) and np.linalg.matrix_rank(r) == 2 * n - 3:
+            return True
+    return False
+
+
+def formation_axes(scenario: Scenario, formation: FormationSpec) -> tuple[float, float]:
+    """Semi-axes the leader publishes: as written in the file, or derived to enclose every
+    member with room for another robot's body (both control offsets, the tolerance and a margin)."""
+    if formation.ellipse is not None:
+        return formation.ellipse
+    r = scenario.robot
+    clearance = 2.0 * r.radius + 2.0 * r.control_offset + scenario.controller.epsilon
+    shape = reference_shape([_control_point(m.start, r.control_offset) for m in formation.robots])
+    return derive_axes(shape, clearance + ELLIPSE_MARGIN)
+
+
+def start_ellipse(scenario: Scenario, formation: FormationSpec) -> Ellipse:
+    pts = [_control_point(m.start, scenario.robot.control_offset) for m in formation.robots]
+    shape = reference_shape(pts)
+    return estimate(shape, formation_axes(scenario, formation), pts, [(0.0, 0.0)] * len(pts))
+
+
+def _check_bands(s: Scenario) -> None:
+    eps, r = s.controller.epsilon, s.robot.radius
+    for k, f in enumerate(s.formations):
+        for n, e in enumerate(f.edges):
+            if e.df - eps < 2.0 * r - 1e-12:
+                raise ScenarioError(
+                    f"formations[{k}].edges[{n}]: Df - epsilon = {e.df - eps:.3f} m lets the bodies"
+                    f" of {e.i!r} and {e.j!r} overlap (two radii are {2 * r:.3f} m)"
+                )
+
+
+def _check_start(s: Scenario) -> None:
+    eps, offset = s.controller.epsilon, s.robot.control_offset
+    ctrl = {r.id: _control_point(r.start, offset) for r in s.robots}
+    for k, f in enumerate(s.formations):
+        for n, e in enumerate(f.edges):
+            d = math.dist(ctrl[e.i], ctrl[e.j])
+            if abs(d - e.df) > eps + 1e-9:
+                raise ScenarioError(
+                    f"formations[{k}].edges[{n}]: start distance {d:.3f} m between {e.i!r} and "
+                    f"{e.j!r} is outside Df={e.df:.3f} +/- epsilon={eps:.3f} m"
+                )
+    for rid, p in ctrl.items():
+        for k, o in enumerate(s.obstacles):
+            d = math.dist(p, o.center)
+            if d < o.safe_distance + offset:
+                raise ScenarioError(
+                    f"obstacles[{k}]: robot {rid!r} starts {d:.3f} m from obstacle {o.name!r}, "
+                    f"inside its safe distance {o.safe_distance + offset:.3f} m"
+                )
+    ids = list(ctrl)
+    for a in range(len(ids)):
+        for b in range(a + 1, len(ids)):
+            ra, rb = s.robot_spec(ids[a]), s.robot_spec(ids[b])
+            d = math.dist(ra.start[:2], rb.start[:2])
+            if d < 2.0 * s.robot.radius:
+                raise ScenarioError(
+                    f"formations: robots {ids[a]!r} and {ids[b]!r} start {d:.3f} m apart, "
+                    f"closer than two body radii ({2 * s.robot.radius:.3f} m)"
+                )
+    for k, f in enumerate(s.formations):
+        e = start_ellipse(s, f)
+        for other in s.formations:
+            if other is f:
+                continue
+            for m in other.robots:
+                if ellipse_value(e, *ctrl[m.id]) < 0.0:
+                    raise ScenarioError(
+                        f"formations[{k}]: robot {m.id!r} of formation {other.name!r} starts "
+                        f"inside the ellipse of formation {f.name!r}"
+                    )
+
+
+# ---------------------------------------------------------------------------- primitives
+
+
+def _control_point(start: tuple[float, ...], offset: float) -> tuple[float, float]:
+    th = start[2] if len(start) > 2 else 0.0
+    return (start[0] + offset * math.cos(th), start[1] + offset * math.sin(th))
+
+
+def _mapping(raw: Any, where: str, allowed: set[str]) -> Mapping[str, Any]:
+    if raw is None:
+        raw = {}
+    if not isinstance(raw, Mapping):
+        raise ScenarioError(f"{where}: must be a mapping, got {type(raw).__name__}")
+    for key in raw:
+        if key not in allowed:
+            raise ScenarioError(
+                f"{where}: unknown key {key!r} (known: {', '.join(sorted(allowed))})"
+                if where != "scenario"
+                else f"unknown key {key!r} (known: {', '.join(sorted(allowed))})"
+            )
+    return raw
+
+
+def _number(raw: Any, where: str) -> float:
+    if isinstance(raw, bool) or not isinstance(raw, int | float):
+        raise ScenarioError(f"{where}: must be a number, got {raw!r}")
+    v = float(raw)
+    if not math.isfinite(v):
+        raise ScenarioError(f"{where}: must be finite, got {raw!r}")
+    return v
+
+
+def _positive(raw: Any, where: str) -> float:
+    v = _number(raw, where)
+    if v <= 0.0:
+        raise ScenarioError(f"{where}: must be positive, got {raw!r}")
+    return v
+
+
+def _vector(raw: Any, where: str, lengths: tuple[int, ...]) -> tuple[float, ...]:
+    if not isinstance(raw, list | tuple) or len(raw) not in lengths:
+        want = " or ".join(str(n) for n in lengths)
+        raise ScenarioError(f"{where}: must be a list of {want} numbers, got {raw!r}")
+    return tuple(_number(v, f"{where}[{k}]") for k, v in enumerate(raw))
+
+
+def _string(raw: Any, where: str) -> str:
+    if isinstance(raw, bool) or not isinstance(raw, str | int):
+        raise ScenarioError(f"{where}: must be a string, got {raw!r}")
+    return str(raw)
+
+
+def _identifier(raw: Any, where: str) -> str:
+    s = _string(raw, where)
+    if not s or any(c in s for c in "/*$#? \t\n") :
+        raise ScenarioError(f"{where}: {s!r} is not a valid name (no spaces or / * $ # ?)")
+    return s

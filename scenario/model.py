@@ -1,0 +1,148 @@
+"""Typed, frozen view of a scenario file (the contract in DESIGN.md, "Scenario file").
+
+Every number here is already validated by :mod:`scenario.load`; code that receives a
+:class:`Scenario` may rely on it: finite values, known robot names, rigid graphs, a leader
+adjacent to every member and a start that satisfies every constraint.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+SINGLE_INTEGRATOR = "single_integrator"
+UNICYCLE = "unicycle"
+
+
+@dataclass(frozen=True)
+class RobotModel:
+    model: str = SINGLE_INTEGRATOR
+    max_speed: float = 0.22  # [m/s]
+    max_turn_rate: float = 2.84  # [rad/s], unicycle only
+    lookahead: float = 0.05  # [m], l of chapter 6.2, unicycle only
+    radius: float = 0.105  # [m] body radius, for collision checks
+
+    @property
+    def is_unicycle(self) -> bool:
+        return self.model == UNICYCLE
+
+    @property
+    def control_offset(self) -> float:
+        """Distance from the body centre to the point the barriers hold for [m]."""
+        return self.lookahead if self.is_unicycle else 0.0
+
+
+@dataclass(frozen=True)
+class Gammas:
+    """Class-K gains per barrier kind (eq. 4.8-4.11 use one gamma; the scenario may split it)."""
+
+    formation: float = 1.0
+    obstacle: float = 1.0
+    formations: float = 1.0
+
+
+@dataclass(frozen=True)
+class ControllerSpec:
+    kp: float = 2.0  # eq. 4.2
+    gamma: Gammas = Gammas()
+    epsilon: float = 0.05  # [m] formation distance tolerance, eq. 3.3
+    tiebreak: str = "keep_right"  # formation-level deadlock rule, or "none"
+    d_af: float | None = None  # [m] pairwise distance of eq. 3.5 (all-to-all topology only)
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    id: str
+    formation: str
+    start: tuple[float, float, float]  # x, y [m], theta [rad]
+    goal: tuple[float, float]  # [m]
+
+
+@dataclass(frozen=True)
+class Edge:
+    i: str
+    j: str
+    df: float  # [m] desired distance Df_ij
+
+
+@dataclass(frozen=True)
+class FormationSpec:
+    name: str
+    leader: str
+    robots: tuple[RobotSpec, ...]
+    edges: tuple[Edge, ...]
+    ellipse: tuple[float, float] | None  # semi-axes (a, b) [m] as written, or None
+
+    @property
+    def robot_ids(self) -> tuple[str, ...]:
+        return tuple(r.id for r in self.robots)
+
+    def neighbours(self, robot_id: str) -> tuple[tuple[str, float], ...]:
+        """(neighbour id, Df) for every edge at ``robot_id``, in file order."""
+        out = []
+        for e in self.edges:
+            if e.i == robot_id:
+                out.append((e.j, e.df))
+            elif e.j == robot_id:
+                out.append((e.i, e.df))
+        return tuple(out)
+
+    @property
+    def goal_centroid(self) -> tuple[float, float]:
+        n = len(self.robots)
+        return (sum(r.goal[0] for r in self.robots) / n, sum(r.goal[1] for r in self.robots) / n)
+
+    @property
+    def start_centroid(self) -> tuple[float, float]:
+        n = len(self.robots)
+        return (
+            sum(r.start[0] for r in self.robots) / n,
+            sum(r.start[1] for r in self.robots) / n,
+        )
+
+
+@dataclass(frozen=True)
+class ObstacleSpec:
+    name: str
+    center: tuple[float, float]  # [m] at t = 0
+    safe_distance: float  # [m] Ds of eq. 3.4, measured from the robot's centre
+    velocity: tuple[float, float] = (0.0, 0.0)  # [m/s], constant
+
+    def position(self, t: float) -> tuple[float, float]:
+        return (self.center[0] + self.velocity[0] * t, self.center[1] + self.velocity[1] * t)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    dt: float  # [s] control period
+    duration: float  # [s] simulated time limit
+    goal_tolerance: float  # [m]
+    robot: RobotModel
+    controller: ControllerSpec
+    formations: tuple[FormationSpec, ...]
+    obstacles: tuple[ObstacleSpec, ...]
+
+    @property
+    def robots(self) -> tuple[RobotSpec, ...]:
+        return tuple(r for f in self.formations for r in f.robots)
+
+    @property
+    def robot_ids(self) -> tuple[str, ...]:
+        return tuple(r.id for r in self.robots)
+
+    def formation_of(self, robot_id: str) -> FormationSpec:
+        for f in self.formations:
+            if robot_id in f.robot_ids:
+                return f
+        raise KeyError(robot_id)
+
+    def robot_spec(self, robot_id: str) -> RobotSpec:
+        for r in self.robots:
+            if r.id == robot_id:
+                return r
+        raise KeyError(robot_id)
+
+    @property
+    def steps(self) -> int:
+        return int(math.ceil(self.duration / self.dt - 1e-9))

@@ -1,0 +1,238 @@
+"""In-process simulation: every robot through :func:`agent.control.control_step`.
+
+The data each robot sees is what the distributed system hands it: its neighbours' control
+points and last commands (their ``state``), the obstacles, and the ellipses its leader estimates
+from the members' states (:func:`leader.ellipse.estimate`). Kinematics are integrated exactly
+(single integrator, or the unicycle of eq. 6.1 when ``robot.model: unicycle``).
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from agent import unicycle
+from agent.barriers import Neighbour, Obstacle
+from agent.control import ControlParams, FormationView, control_step
+from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
+from leader.ellipse import Ellipse, estimate, reference_shape
+from scenario import Scenario, formation_axes
+
+from .metrics import SafetyMonitor
+
+TOPOLOGIES = ("reduced", "all-to-all")
+
+ROBOT_COLUMNS = (
+    "t", "robot", "formation", "x", "y", "theta", "px", "py", "ux", "uy", "v", "omega",
+    "status", "slack", "h_formation", "h_obstacle", "h_formations",
+)
+
+
+@dataclass(frozen=True)
+class SimOptions:
+    safety: bool = True
+    solver: str = "exact"
+    topology: str = "reduced"
+    stop_at_goal: bool = True
+    record: bool = True
+
+
+@dataclass
+class Series:
+    """Time series of a run, in long form (one row per robot per tick)."""
+
+    robots: list[tuple] = field(default_factory=list)  # ROBOT_COLUMNS
+    ellipses: list[tuple] = field(default_factory=list)  # t, formation, Ellipse fields
+    obstacles: list[tuple] = field(default_factory=list)  # t, name, x, y, safe_distance
+
+
+@dataclass
+class SimResult:
+    summary: dict
+    series: Series
+    scenario: Scenario
+
+
+@dataclass(frozen=True)
+class FleetModel:
+    """Static per-scenario data the control step needs: reference shapes, axes, neighbours."""
+
+    scenario: Scenario
+    params: ControlParams
+    shapes: dict[str, object]
+    axes: dict[str, tuple[float, float]]
+    members: dict[str, tuple[int, ...]]  # formation -> robot indices
+    neighbours: tuple[tuple[tuple[int, float], ...], ...]  # per robot: (index, Df)
+    formation_of: tuple[str, ...]
+
+    @classmethod
+    def build(cls, scenario: Scenario, safety: bool = True) -> FleetModel:
+        ids = scenario.robot_ids
+        index = {rid: k for k, rid in enumerate(ids)}
+        off = scenario.robot.control_offset
+        shapes, axes, members = {}, {}, {}
+        for f in scenario.formations:
+            pts = [unicycle.control_point(*r.start, off) for r in f.robots]
+            shapes[f.name] = reference_shape(pts)
+            axes[f.name] = formation_axes(scenario, f)
+            members[f.name] = tuple(index[r.id] for r in f.robots)
+        nbrs = tuple(
+            tuple((index[j], df) for j, df in scenario.formation_of(rid).neighbours(rid))
+            for rid in ids
+        )
+        return cls(
+            scenario,
+            ControlParams.from_scenario(scenario, safety=safety),
+            shapes,
+            axes,
+            members,
+            nbrs,
+            tuple(scenario.formation_of(rid).name for rid in ids),
+        )
+
+    def ellipses(self, ctrl: list[tuple[float, float]], vel: list[tuple[float, float]]):
+        out = {}
+        for name, idx in self.members.items():
+            out[name] = estimate(
+                self.shapes[name], self.axes[name], [ctrl[k] for k in idx], [vel[k] for k in idx]
+            )
+        return out
+
+
+def simulate(
+    scenario: Scenario,
+    options: SimOptions = SimOptions(),
+    progress: Callable[[int, int, float], None] | None = None,
+) -> SimResult:
+    if options.topology not in TOPOLOGIES:
+        raise ValueError(f"topology: {options.topology!r} is not one of {TOPOLOGIES}")
+    solve = make_solver(options.solver)
+    fleet = FleetModel.build(scenario, safety=options.safety)
+    params = fleet.params
+    robots = scenario.robots
+    ids = scenario.robot_ids
+    n = len(robots)
+    off = params.offset
+    dt = scenario.dt
+    steps = scenario.steps
+    goals = [r.goal for r in robots]
+    goal_centroids = {f.name: f.goal_centroid for f in scenario.formations}
+    state = [list(r.start) for r in robots]  # body x, y, theta
+    vel = [(0.0, 0.0)] * n  # last certified control-point velocity (what `state` carries)
+    monitor = SafetyMonitor(scenario)
+    series = Series()
+    solve_us: list[float] = []
+    counts = {STATUS_RELAXED: 0, STATUS_FALLBACK: 0, STATUS_FAILED: 0}
+    min_h = {"formation": math.inf, "obstacle": math.inf, "formations": math.inf}
+    all_to_all = options.topology == "all-to-all"
+
+    def obstacles_at(t: float) -> list[Obstacle]:
+        return [
+            Obstacle(*o.position(t), o.velocity[0], o.velocity[1], o.safe_distance)
+            for o in scenario.obstacles
+        ]
+
+    monitor.update(0.0, np.array([s[:2] for s in state]), [o[:2] for o in obstacles_at(0.0)])
+    k = 0
+    t = 0.0
+    for k in range(steps):
+        t = k * dt
+        obs = obstacles_at(t)
+        ctrl = [unicycle.control_point(s[0], s[1], s[2], off) for s in state]
+        ellipses = fleet.ellipses(ctrl, vel)
+        results = []
+        for i in range(n):
+            fname = fleet.formation_of[i]
+            nb = [Neighbour(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], df)
+                  for j, df in fleet.neighbours[i]]
+            if all_to_all:
+                others: list[Ellipse] = []
+                pair = [Neighbour(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], 0.0)
+                        for j in range(n) if fleet.formation_of[j] != fname]
+            else:
+                others = [e for name, e in ellipses.items() if name != fname]
+                pair = []
+            gc = goal_centroids[fname]
+            view = FormationView(ellipses[fname], gc[0], gc[1])
+            res = control_step(params, tuple(state[i]), goals[i], nb, obs, others, view, solve, pair)
+            results.append(res)
+            solve_us.append(res.solve_us)
+            if res.status in counts:
+                counts[res.status] += 1
+            min_h["formation"] = min(min_h["formation"], res.h_formation)
+            min_h["obstacle"] = min(min_h["obstacle"], res.h_obstacle)
+            min_h["formations"] = min(min_h["formations"], res.h_formations)
+            if options.record:
+                x, y, th = state[i]
+                series.robots.append((
+                    t, ids[i], fname, x, y, th, res.px, res.py, res.ux, res.uy, res.v, res.omega,
+                    res.status, res.slack, res.h_formation, res.h_obstacle, res.h_formations,
+                ))
+        if options.record:
+            for name, e in ellipses.items():
+                series.ellipses.append((t, name, *e))
+            for o, spec in zip(obs, scenario.obstacles, strict=True):
+                series.obstacles.append((t, spec.name, o.x, o.y, spec.safe_distance))
+        # integrate every robot with its own command (all computed from the same snapshot)
+        for i, res in enumerate(results):
+            x, y, th = state[i]
+            if params.unicycle:
+                state[i] = list(unicycle.integrate(x, y, th, res.v, res.omega, dt))
+            else:
+                state[i] = [x + res.ux * dt, y + res.uy * dt, th]
+            vel[i] = (res.ux, res.uy)
+        t = (k + 1) * dt
+        monitor.update(t, np.array([s[:2] for s in state]), [o[:2] for o in obstacles_at(t)])
+        if progress is not None:
+            progress(k + 1, steps, t)
+        if options.stop_at_goal and monitor.all_reached:
+            break
+
+    edges_total = sum(len(f.edges) for f in scenario.formations)
+    ticks = k + 1
+    summary = {
+        "scenario": scenario.name,
+        "mode": "inprocess",
+        "steps": ticks,
+        "sim_time_s": round(t, 6),
+        **monitor.summary_fields(),
+        "min_h": {key: (v if math.isfinite(v) else None) for key, v in min_h.items()},
+        "qp": {
+            "solves": len(solve_us),
+            "infeasible": counts[STATUS_RELAXED] + counts[STATUS_FALLBACK] + counts[STATUS_FAILED],
+            "solve_us_median": statistics.median(solve_us) if solve_us else None,
+            "relaxed": counts[STATUS_RELAXED],
+            "fallback": counts[STATUS_FALLBACK],
+            "failed": counts[STATUS_FAILED],
+        },
+        "comm": logical_comm(scenario, options.topology, ticks, t, edges_total),
+        "safety": options.safety,
+        "solver": options.solver,
+        "collision_log": monitor.collision_log[:100],
+    }
+    return SimResult(summary, series, scenario)
+
+
+def logical_comm(scenario: Scenario, topology: str, ticks: int, sim_time: float, edges: int):
+    """In-process runs exchange nothing on a network: this is the message count the topology
+    implies (deliveries per tick), marked ``"source": "model"``; bytes are not modelled."""
+    n = len(scenario.robot_ids)
+    leaders = len(scenario.formations)
+    if topology == "reduced":
+        per_tick = 2 * edges + leaders * (leaders - 1) + (n - leaders)
+    else:
+        per_tick = n * (n - 1)
+    messages = per_tick * ticks
+    rate = messages / n / sim_time if sim_time > 0 and n else 0.0
+    return {
+        "topology": topology,
+        "messages": messages,
+        "bytes": None,
+        "messages_per_robot_per_s": rate,
+        "bytes_per_robot_per_s": None,
+        "source": "model",
+    }

@@ -1,0 +1,98 @@
+"""Safety and progress measured on true body positions, for ``summary.json``.
+
+The same monitor serves the in-process simulator and the multi-process world, so both report
+collisions, clearances and formation error the same way (DESIGN.md, "Run output").
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from scenario import Scenario
+
+
+class SafetyMonitor:
+    """Feed it every tick's body positions; read the summary fields at the end."""
+
+    def __init__(self, scenario: Scenario) -> None:
+        self.scenario = scenario
+        ids = scenario.robot_ids
+        self._index = {rid: k for k, rid in enumerate(ids)}
+        self._n = len(ids)
+        self._two_r = 2.0 * scenario.robot.radius
+        self._edges = np.array(
+            [(self._index[e.i], self._index[e.j]) for f in scenario.formations for e in f.edges],
+            dtype=int,
+        ).reshape(-1, 2)
+        self._df = np.array([e.df for f in scenario.formations for e in f.edges])
+        self._goals = np.array([r.goal for r in scenario.robots], dtype=float)
+        self._iu = np.triu_indices(self._n, 1)
+        self._ds = np.array([o.safe_distance for o in scenario.obstacles], dtype=float)
+        self._robot_contact = np.zeros(len(self._iu[0]), dtype=bool)
+        self._obstacle_contact = np.zeros((self._n, len(self._ds)), dtype=bool)
+        self.collisions = 0
+        self.collision_log: list[dict] = []
+        self.min_clearance_robot = math.inf
+        self.min_clearance_obstacle = math.inf
+        self.formation_error_max = 0.0
+        self.time_to_goal: float | None = None
+        self.reached = np.zeros(self._n, dtype=bool)
+
+    def update(self, t: float, positions: np.ndarray, obstacles: Sequence[tuple[float, float]]):
+        """``positions``: (n, 2) body centres in scenario robot order; ``obstacles``: centres."""
+        pos = np.asarray(positions, dtype=float)
+        ids = self.scenario.robot_ids
+        if self._n > 1:
+            diff = pos[:, None, :] - pos[None, :, :]
+            dist = np.sqrt(np.sum(diff * diff, axis=2))[self._iu]
+            clear = dist - self._two_r
+            self.min_clearance_robot = min(self.min_clearance_robot, float(np.min(clear)))
+            contact = clear < 0.0
+            for k in np.nonzero(contact & ~self._robot_contact)[0]:
+                self.collisions += 1
+                a, b = ids[self._iu[0][k]], ids[self._iu[1][k]]
+                self.collision_log.append({"t": round(t, 6), "a": a, "b": b,
+                                           "clearance_m": float(clear[k])})
+            self._robot_contact = contact
+        if len(self._ds):
+            obs = np.asarray(obstacles, dtype=float).reshape(-1, 2)
+            d = np.sqrt(np.sum((pos[:, None, :] - obs[None, :, :]) ** 2, axis=2)) - self._ds
+            self.min_clearance_obstacle = min(self.min_clearance_obstacle, float(np.min(d)))
+            contact = d < 0.0
+            names = [o.name for o in self.scenario.obstacles]
+            for i, j in zip(*np.nonzero(contact & ~self._obstacle_contact), strict=True):
+                self.collisions += 1
+                self.collision_log.append({"t": round(t, 6), "a": ids[i], "b": names[j],
+                                           "clearance_m": float(d[i, j])})
+            self._obstacle_contact = contact
+        if len(self._df):
+            e = pos[self._edges[:, 0]] - pos[self._edges[:, 1]]
+            err = np.abs(np.sqrt(np.sum(e * e, axis=1)) - self._df)
+            self.formation_error_max = max(self.formation_error_max, float(np.max(err)))
+        gd = np.sqrt(np.sum((pos - self._goals) ** 2, axis=1))
+        self.reached = gd <= self.scenario.goal_tolerance
+        if self.time_to_goal is None and bool(np.all(self.reached)):
+            self.time_to_goal = t
+
+    @property
+    def all_reached(self) -> bool:
+        return bool(np.all(self.reached))
+
+    def summary_fields(self) -> dict:
+        return {
+            "all_reached": self.all_reached,
+            "time_to_goal_s": None if self.time_to_goal is None else round(self.time_to_goal, 6),
+            "collisions": self.collisions,
+            "min_clearance_m": {
+                "obstacle": _finite_or_none(self.min_clearance_obstacle),
+                "robot": _finite_or_none(self.min_clearance_robot),
+            },
+            "formation_error_max_m": self.formation_error_max,
+        }
+
+
+def _finite_or_none(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None
