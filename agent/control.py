@@ -10,14 +10,16 @@ sideways part. Every member therefore adds the same formation-level vector to it
 command, computed only from data all members share (their formation's ellipse and goal
 centroid, the other formations' ellipses, the obstacles):
 
-* travel direction g = unit(goal centroid - own centroid), left normal n;
-* a hazard (another formation's ellipse, or an obstacle) is "in the way" when it is ahead
-  (0 < d.g <= |goal centroid - own centroid| + its radius) and inside the corridor
-  |d.n| < own half-width + its half-width + TIEBREAK_MARGIN (half-widths across g: the
-  ellipses' supports, an obstacle's Ds), with d = hazard centre - own centroid;
-* each such hazard pushes sideways, away from the side it lies on; within TIEBREAK_DEAD of the
-  centre line it pushes to the right. Two formations meeting head-on see each other on the same
-  side (the offset is symmetric), so both move to their own right, or both away, and pass;
+* intended motion relative to each hazard (another formation's ellipse, or an obstacle):
+  w = max_speed * g - v_hazard, with g = unit(goal centroid - own centroid), left normal n of w;
+* the hazard is "in the way" when it is ahead along w, not beyond the goal along g, and inside
+  the corridor |d.n| < own half-width + its half-width + TIEBREAK_MARGIN (half-widths across w:
+  the ellipses' supports, an obstacle's Ds), with d = hazard centre - own centroid;
+* each such hazard pushes along n, away from the side it lies on; within TIEBREAK_DEAD of the
+  centre line it pushes to the right. Using the relative motion makes the rule symmetric:
+  two formations meeting head-on see each other on the same side and pass; two crossing at
+  right angles on a collision course both turn right of their relative motion, so one passes
+  behind the other, as ships do;
 * the push fades linearly with the hazard's distance ahead beyond contact (TIEBREAK_RANGE) and
   is scaled to TIEBREAK_GAIN * max_speed.
 
@@ -41,7 +43,7 @@ from .qp import STATUS_NOMINAL, QPResult, Row, solve_cbf_qp, solve_exact
 
 TIEBREAK_MARGIN = 0.15  # [m] corridor half-width beyond both radii
 TIEBREAK_DEAD = 0.05  # [m] lateral offsets this small count as dead ahead: keep right
-TIEBREAK_RANGE = 1.0  # [m] distance ahead of contact over which the push fades in
+TIEBREAK_RANGE = 2.0  # [m] distance ahead of contact over which the push fades in
 TIEBREAK_GAIN = 0.35  # push as a fraction of max speed
 
 
@@ -128,26 +130,38 @@ def tiebreak_push(
     if dist < 1e-6:
         return (0.0, 0.0)
     gx, gy = gx / dist, gy / dist
-    nx, ny = -gy, gx  # left
-    push = 0.0  # along n
-    own_w = _half_width(own, nx, ny)
-    hazards = [(e.cx, e.cy, e.a, _half_width(e, nx, ny)) for e in others]
-    hazards += [(o.x, o.y, o.ds, o.ds) for o in obstacles]
-    for hx, hy, hr, hw in hazards:
+    px = py = 0.0
+    hazards = [(e.cx, e.cy, e.vx, e.vy, e.a, e) for e in others]
+    hazards += [(o.x, o.y, o.vx, o.vy, o.ds, None) for o in obstacles]
+    for hx, hy, hvx, hvy, hr, ell in hazards:
         dx, dy = hx - own.cx, hy - own.cy
-        along = dx * gx + dy * gy
+        if dx * gx + dy * gy > dist + hr:
+            continue  # beyond our goal
+        # Intended motion relative to the hazard: w = vmax g - v_hazard.
+        wx, wy = vmax * gx - hvx, vmax * gy - hvy
+        wn = math.hypot(wx, wy)
+        if wn < 1e-6:
+            continue  # moving along with it: nothing to resolve
+        wx, wy = wx / wn, wy / wn
+        nx, ny = -wy, wx  # left of the relative motion
+        along = dx * wx + dy * wy
         lateral = dx * nx + dy * ny
-        reach = own_w + hw + TIEBREAK_MARGIN
-        if along <= 0.0 or along > dist + hr or abs(lateral) >= reach:
+        hw = _half_width(ell, nx, ny) if ell is not None else hr
+        reach = _half_width(own, nx, ny) + hw + TIEBREAK_MARGIN
+        if along <= 0.0 or abs(lateral) >= reach:
             continue
-        contact = own.a + hr  # ahead distance at which the two could touch
+        contact = own.a + hr  # distance ahead at which the two could touch
         weight = min(1.0, max(0.0, 1.0 - (along - contact) / TIEBREAK_RANGE))
         if -TIEBREAK_DEAD <= lateral <= TIEBREAK_DEAD:
-            push -= weight  # dead ahead: keep right
+            side = -1.0  # dead ahead: keep right
         else:
-            push -= math.copysign(weight, lateral)  # away from the side the hazard is on
-    push = max(-1.0, min(1.0, push)) * TIEBREAK_GAIN * vmax
-    return (push * nx, push * ny)
+            side = -math.copysign(1.0, lateral)  # away from the side the hazard is on
+        px += side * weight * nx
+        py += side * weight * ny
+    n = math.hypot(px, py)
+    if n > 1.0:
+        px, py = px / n, py / n
+    return (px * TIEBREAK_GAIN * vmax, py * TIEBREAK_GAIN * vmax)
 
 
 def _half_width(e: Ellipse, nx: float, ny: float) -> float:

@@ -185,3 +185,4 @@ def solve_cbf_qp(
         _, soft_shifted = _min_slack(fixed, soft, u1)
         u1 = solve_exact(ux, uy, fixed + soft_shifted) or u1
     return QPResult(u1[0], u1[1], STATUS_FALLBACK, t, False)
+

@@ -65,9 +65,11 @@ def plot_trajectories(series: Series, scenario: Scenario, path: Path) -> None:
     last = {}
     for _t, name, x, y, ds in series.obstacles:
         last[name] = (x, y, ds)
+    moving = {o.name for o in scenario.obstacles if o.velocity != (0.0, 0.0)}
     for name, (x, y, ds) in last.items():
         ax.add_patch(Circle((x, y), ds, color="0.2", alpha=0.5))
-        ax.annotate(name, (x, y), fontsize=7, ha="center", va="center")
+        if name in moving or len(last) <= 6:
+            ax.annotate(name, (x, y), fontsize=7, ha="center", va="center")
     ax.set_aspect("equal")
     ax.autoscale_view()
     ax.set_xlabel("x [m]")
