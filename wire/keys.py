@@ -1,0 +1,170 @@
+"""Zenoh key space of formation-cbf (DESIGN.md, "Zenoh key space").
+
+Every key starts with a configurable prefix (default ``warehouse``; it may have several
+``/``-separated chunks, such as ``lab2/warehouse``):
+
+========================================  ===========  ====================================
+key                                       class        from -> to
+========================================  ===========  ====================================
+``{prefix}/robot/{id}/pose``              ``pose``     camera or world -> that robot's agent
+``{prefix}/robot/{id}/state``             ``state``    agent -> its graph neighbours
+``{prefix}/robot/{id}/cmd``               ``cmd``      agent -> robot base or world
+``{prefix}/formation/{fid}/ellipse``      ``ellipse``  leader -> other leaders
+``{prefix}/formation/{fid}/others``       ``others``   leader -> own members
+``{prefix}/obstacles``                    ``obstacles`` camera or world -> agents
+anything else                             ``other``
+========================================  ===========  ====================================
+
+Agents subscribe to exact keys. :func:`all_robots_key` builds the one wildcard the all-to-all
+baseline uses (``{prefix}/robot/*/state``), and exists so that baseline can be measured.
+
+Ids (robot, formation, obstacle) and prefix chunks must be non-empty, at most
+:data:`MAX_ID_LEN` characters, and free of ``/ * $ # ?`` and whitespace; otherwise the builders
+raise ``ValueError`` naming the id. :func:`key_class` never raises on a well-formed prefix: a
+key it does not recognise (including one carrying an invalid id) is ``other``.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+
+logger = logging.getLogger(__name__)
+
+DEFAULT_PREFIX = "warehouse"
+MAX_ID_LEN = 64  # [characters]
+
+POSE = "pose"
+STATE = "state"
+CMD = "cmd"
+ELLIPSE = "ellipse"
+OTHERS = "others"
+OBSTACLES = "obstacles"
+OTHER = "other"
+
+#: Every class name :func:`key_class` can return, in a stable order.
+KEY_CLASSES: tuple[str, ...] = (POSE, STATE, CMD, ELLIPSE, OTHERS, OBSTACLES, OTHER)
+
+ROBOT_CLASSES: tuple[str, ...] = (POSE, STATE, CMD)
+FORMATION_CLASSES: tuple[str, ...] = (ELLIPSE, OTHERS)
+
+_FORBIDDEN = frozenset("/*$#?")
+
+
+def id_problem(value: object) -> str | None:
+    """Why ``value`` is not a valid id, or ``None`` when it is one."""
+    if not isinstance(value, str):
+        return f"must be a str, got {type(value).__name__}"
+    if not value:
+        return "must not be empty"
+    if len(value) > MAX_ID_LEN:
+        return f"must be at most {MAX_ID_LEN} characters, got {len(value)}"
+    for ch in value:
+        if ch in _FORBIDDEN or ch.isspace() or not ch.isprintable():
+            return f"must not contain {ch!r}"
+    return None
+
+
+def validate_id(value: object, name: str = "id") -> str:
+    """Return ``value`` if it is a valid id; otherwise raise ``ValueError`` naming ``name``."""
+    problem = id_problem(value)
+    if problem is not None:
+        raise ValueError(f"{name} {value!r} {problem}")
+    return value  # type: ignore[return-value]
+
+
+def validate_prefix(prefix: object) -> str:
+    """Return ``prefix`` if every ``/``-separated chunk of it is a valid id."""
+    if not isinstance(prefix, str) or not prefix:
+        raise ValueError(f"prefix {prefix!r} must be a non-empty str")
+    for chunk in prefix.split("/"):
+        problem = id_problem(chunk)
+        if problem is not None:
+            raise ValueError(f"prefix {prefix!r}: chunk {chunk!r} {problem}")
+    return prefix
+
+
+def _robot_key(prefix: str, robot_id: str, kind: str) -> str:
+    return f"{validate_prefix(prefix)}/robot/{validate_id(robot_id, 'robot_id')}/{kind}"
+
+
+def _formation_key(prefix: str, formation_id: str, kind: str) -> str:
+    fid = validate_id(formation_id, "formation_id")
+    return f"{validate_prefix(prefix)}/formation/{fid}/{kind}"
+
+
+def pose_key(prefix: str, robot_id: str) -> str:
+    """``{prefix}/robot/{robot_id}/pose``: camera or world -> that robot's agent."""
+    return _robot_key(prefix, robot_id, POSE)
+
+
+def state_key(prefix: str, robot_id: str) -> str:
+    """``{prefix}/robot/{robot_id}/state``: agent -> its graph neighbours."""
+    return _robot_key(prefix, robot_id, STATE)
+
+
+def cmd_key(prefix: str, robot_id: str) -> str:
+    """``{prefix}/robot/{robot_id}/cmd``: agent -> robot base or world."""
+    return _robot_key(prefix, robot_id, CMD)
+
+
+def ellipse_key(prefix: str, formation_id: str) -> str:
+    """``{prefix}/formation/{formation_id}/ellipse``: leader -> other leaders."""
+    return _formation_key(prefix, formation_id, ELLIPSE)
+
+
+def others_key(prefix: str, formation_id: str) -> str:
+    """``{prefix}/formation/{formation_id}/others``: leader -> its own members."""
+    return _formation_key(prefix, formation_id, OTHERS)
+
+
+def obstacles_key(prefix: str) -> str:
+    """``{prefix}/obstacles``: camera or world -> agents."""
+    return f"{validate_prefix(prefix)}/{OBSTACLES}"
+
+
+def all_robots_key(prefix: str, kind: str) -> str:
+    """``{prefix}/robot/*/{kind}``: the wildcard of the all-to-all baseline only."""
+    if kind not in ROBOT_CLASSES:
+        raise ValueError(f"kind {kind!r} must be one of {ROBOT_CLASSES}")
+    return f"{validate_prefix(prefix)}/robot/*/{kind}"
+
+
+def all_formations_key(prefix: str, kind: str) -> str:
+    """``{prefix}/formation/*/{kind}``: every formation's ellipse (or others) key."""
+    if kind not in FORMATION_CLASSES:
+        raise ValueError(f"kind {kind!r} must be one of {FORMATION_CLASSES}")
+    return f"{validate_prefix(prefix)}/formation/*/{kind}"
+
+
+def parse_key(prefix: str, key: object) -> tuple[str, str | None]:
+    """Split a concrete key into ``(class, id)``.
+
+    ``id`` is the robot or formation id, ``None`` for ``obstacles`` and ``other``. Never raises
+    for a valid ``prefix``; ``key`` may be a ``str`` or anything whose ``str()`` is the key
+    (such as a ``zenoh.KeyExpr``).
+    """
+    return _parse_key(validate_prefix(prefix), str(key))
+
+
+@functools.lru_cache(maxsize=4096)
+def _parse_key(prefix: str, key: str) -> tuple[str, str | None]:
+    head = prefix + "/"
+    if not key.startswith(head):
+        return OTHER, None
+    rest = key[len(head):].split("/")
+    if rest == [OBSTACLES]:
+        return OBSTACLES, None
+    if len(rest) != 3 or id_problem(rest[1]) is not None:
+        return OTHER, None
+    group, ident, kind = rest
+    if group == "robot" and kind in ROBOT_CLASSES:
+        return kind, ident
+    if group == "formation" and kind in FORMATION_CLASSES:
+        return kind, ident
+    return OTHER, None
+
+
+def key_class(prefix: str, key: object) -> str:
+    """The class name of a concrete key (one of :data:`KEY_CLASSES`), for traffic counting."""
+    return parse_key(prefix, key)[0]

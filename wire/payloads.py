@@ -1,0 +1,481 @@
+"""Versioned payloads of formation-cbf, one per key class, and their wire format.
+
+Payloads are written with ``zenoh.ext.z_serialize`` (the Zenoh serialization format, readable
+with the zenoh-ext deserializers of zenoh-c, zenoh-cpp and zenoh-rust). In that
+format a ``u8`` is 1 byte, an ``f64`` is 8 bytes little-endian IEEE 754, a ``str`` is its UTF-8
+length as an unsigned LEB128 varint followed by the UTF-8 bytes, a ``list`` is its element count
+as a LEB128 varint followed by the elements, and a tuple is its elements back to back with no
+header. Every payload is one tuple:
+
+=============  =======================================================================  =====
+payload        fields in order (``u8`` version, then ``f64`` unless marked ``str``)      bytes
+=============  =======================================================================  =====
+``Pose``       version, x, y, theta, stamp                                               33
+``State``      version, x, y, ux, uy, stamp                                              41
+``Cmd``        version, v, omega, ux, uy, stamp                                          41
+``EllipseMsg`` version, formation:str, cx, cy, alpha, a, b, vx, vy, alpha_rate, stamp   73+n
+``Others``     version, formation:str, stamp, ellipses:list[E], own:list[E] (0 or 1)  varies
+``Obstacles``  version, stamp, obstacles:list[O]                                         varies
+=============  =======================================================================  =====
+
+where ``E`` is an ellipse without the version, ``(formation:str, cx, cy, alpha, a, b, vx, vy,
+alpha_rate, stamp)``, ``O`` is ``(id:str, x, y, vx, vy, ds)``, and ``n`` is the length of the
+formation id's varint plus its UTF-8 bytes. ``Others.own`` (the leader's own ellipse, or none)
+is a list of 0 or 1 elements because the format has no optional type. The version byte is
+:data:`WIRE_VERSION` for every kind; a decoder accepts exactly that version. Units: metres,
+radians, seconds, metres per second, radians per second; ``stamp`` is the sender's clock in
+seconds. ``Pose`` and ``State`` carry no id: the key names the robot.
+
+Every message validates itself on construction (``ValueError`` naming the field): all floats
+finite, ids valid (see :mod:`wire.keys`), ellipse semi-axes ``a, b > 0``, obstacle ``ds >= 0``,
+at most :data:`MAX_ITEMS` ellipses or obstacles, no repeated formation or obstacle id, and the
+``Others`` own ellipse belonging to its formation and not repeated among the others.
+
+Decoding is defensive: ``decode_*`` raises nothing but :class:`DecodeError` (a ``ValueError``),
+for a payload that is not bytes, empty, longer than :data:`MAX_PAYLOAD_BYTES`, of another
+version, truncated, followed by trailing bytes, holding a non-canonical (over-long) varint,
+invalid UTF-8, more than :data:`MAX_ITEMS` entries, or a message that fails validation
+(non-finite numbers, invalid ids). Decoding is written in Python over ``struct`` rather than with
+``zenoh.ext.z_deserialize``, which can abort the process on a hostile length (see the comment
+above the decoders); tests check both agree on valid payloads.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import numbers
+import struct
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any, TypeAlias
+
+import zenoh
+from zenoh.ext import UInt8, z_serialize
+
+from wire import keys
+
+logger = logging.getLogger(__name__)
+
+WIRE_VERSION = 1
+MAX_ITEMS = 256  # most ellipses (or obstacles) one payload may carry
+MAX_PAYLOAD_BYTES = 65536  # a payload longer than this is rejected before parsing [bytes]
+
+
+class DecodeError(ValueError):
+    """A payload that is not a valid message of the expected kind."""
+
+
+def _finite(obj: object, name: str) -> None:
+    """Check the float field ``name`` of a frozen dataclass and store it as a plain float."""
+    value = getattr(obj, name)
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ValueError(f"{name} must be a real number, got {type(value).__name__}")
+    as_float = float(value)
+    if not math.isfinite(as_float):
+        raise ValueError(f"{name} must be finite, got {as_float!r}")
+    object.__setattr__(obj, name, as_float)
+
+
+def _check_floats(obj: object, names: Iterable[str]) -> None:
+    for name in names:
+        _finite(obj, name)
+
+
+@dataclass(frozen=True, slots=True)
+class Pose:
+    """Measured pose of one robot: ``{prefix}/robot/{id}/pose``. [m, m, rad, s]"""
+
+    x: float
+    y: float
+    theta: float
+    stamp: float
+
+    def __post_init__(self) -> None:
+        _check_floats(self, ("x", "y", "theta", "stamp"))
+
+
+@dataclass(frozen=True, slots=True)
+class State:
+    """Position and current single-integrator command of one robot: ``.../state``.
+
+    [m, m, m/s, m/s, s]; neighbours use ``ux, uy`` as the velocity of appendix A.2.
+    """
+
+    x: float
+    y: float
+    ux: float
+    uy: float
+    stamp: float
+
+    def __post_init__(self) -> None:
+        _check_floats(self, ("x", "y", "ux", "uy", "stamp"))
+
+
+@dataclass(frozen=True, slots=True)
+class Cmd:
+    """Command to a robot base: ``.../cmd``. Unicycle ``v, omega`` and the certified ``ux, uy``.
+
+    [m/s, rad/s, m/s, m/s, s]
+    """
+
+    v: float
+    omega: float
+    ux: float
+    uy: float
+    stamp: float
+
+    def __post_init__(self) -> None:
+        _check_floats(self, ("v", "omega", "ux", "uy", "stamp"))
+
+
+_ELLIPSE_FLOATS = ("cx", "cy", "alpha", "a", "b", "vx", "vy", "alpha_rate", "stamp")
+
+
+@dataclass(frozen=True, slots=True)
+class EllipseMsg:
+    """One formation's bounding ellipse: ``{prefix}/formation/{fid}/ellipse``.
+
+    Centroid ``cx, cy`` [m], orientation ``alpha`` [rad], semi-axes ``a, b`` [m], centroid
+    velocity ``vx, vy`` [m/s], ``alpha_rate`` [rad/s], ``stamp`` [s] (eq. 4.6, appendix A.3).
+    """
+
+    formation: str
+    cx: float
+    cy: float
+    alpha: float
+    a: float
+    b: float
+    vx: float
+    vy: float
+    alpha_rate: float
+    stamp: float
+
+    def __post_init__(self) -> None:
+        keys.validate_id(self.formation, "formation")
+        _check_floats(self, _ELLIPSE_FLOATS)
+        if self.a <= 0.0:
+            raise ValueError(f"a must be > 0, got {self.a!r}")
+        if self.b <= 0.0:
+            raise ValueError(f"b must be > 0, got {self.b!r}")
+
+
+def _ellipse_tuple(value: object, name: str) -> tuple[EllipseMsg, ...]:
+    items = tuple(value)  # type: ignore[call-overload]
+    if len(items) > MAX_ITEMS:
+        raise ValueError(f"{name} must hold at most {MAX_ITEMS} entries, got {len(items)}")
+    for item in items:
+        if not isinstance(item, EllipseMsg):
+            raise ValueError(f"{name} entries must be EllipseMsg, got {type(item).__name__}")
+    return items
+
+
+@dataclass(frozen=True, slots=True)
+class Others:
+    """A leader's republication to its members: ``{prefix}/formation/{fid}/others``.
+
+    ``ellipses`` are the other formations' ellipses; ``own`` is the leader's own formation's
+    ellipse (or ``None`` before it has one).
+    """
+
+    formation: str
+    stamp: float
+    ellipses: tuple[EllipseMsg, ...] = ()
+    own: EllipseMsg | None = None
+
+    def __post_init__(self) -> None:
+        keys.validate_id(self.formation, "formation")
+        _finite(self, "stamp")
+        ellipses = _ellipse_tuple(self.ellipses, "ellipses")
+        object.__setattr__(self, "ellipses", ellipses)
+        seen: set[str] = set()
+        for ellipse in ellipses:
+            if ellipse.formation == self.formation:
+                raise ValueError(
+                    f"ellipses must not contain the own formation {self.formation!r}"
+                )
+            if ellipse.formation in seen:
+                raise ValueError(f"ellipses repeat formation {ellipse.formation!r}")
+            seen.add(ellipse.formation)
+        if self.own is not None:
+            if not isinstance(self.own, EllipseMsg):
+                kind = type(self.own).__name__
+                raise ValueError(f"own must be an EllipseMsg or None, got {kind}")
+            if self.own.formation != self.formation:
+                raise ValueError(
+                    f"own belongs to formation {self.own.formation!r}, not {self.formation!r}"
+                )
+
+
+@dataclass(frozen=True, slots=True)
+class ObstacleMsg:
+    """One circular obstacle: centre ``x, y`` [m], velocity ``vx, vy`` [m/s], ``ds`` [m]."""
+
+    id: str
+    x: float
+    y: float
+    vx: float
+    vy: float
+    ds: float
+
+    def __post_init__(self) -> None:
+        keys.validate_id(self.id, "id")
+        _check_floats(self, ("x", "y", "vx", "vy", "ds"))
+        if self.ds < 0.0:
+            raise ValueError(f"ds must be >= 0, got {self.ds!r}")
+
+
+@dataclass(frozen=True, slots=True)
+class Obstacles:
+    """Every obstacle the camera or world sees: ``{prefix}/obstacles``."""
+
+    stamp: float
+    obstacles: tuple[ObstacleMsg, ...] = ()
+
+    def __post_init__(self) -> None:
+        _finite(self, "stamp")
+        items = tuple(self.obstacles)
+        if len(items) > MAX_ITEMS:
+            raise ValueError(f"obstacles must hold at most {MAX_ITEMS} entries, got {len(items)}")
+        seen: set[str] = set()
+        for item in items:
+            if not isinstance(item, ObstacleMsg):
+                kind = type(item).__name__
+                raise ValueError(f"obstacles entries must be ObstacleMsg, got {kind}")
+            if item.id in seen:
+                raise ValueError(f"obstacles repeat id {item.id!r}")
+            seen.add(item.id)
+        object.__setattr__(self, "obstacles", items)
+
+
+Message: TypeAlias = Pose | State | Cmd | EllipseMsg | Others | Obstacles
+
+# --- encoding ---------------------------------------------------------------------------------
+
+_VERSION = UInt8(WIRE_VERSION)
+
+
+def _ellipse_fields(e: EllipseMsg) -> tuple[Any, ...]:
+    return (e.formation, e.cx, e.cy, e.alpha, e.a, e.b, e.vx, e.vy, e.alpha_rate, e.stamp)
+
+
+def _wire_tuple(msg: Message) -> tuple[Any, ...]:
+    if isinstance(msg, Pose):
+        return (_VERSION, msg.x, msg.y, msg.theta, msg.stamp)
+    if isinstance(msg, State):
+        return (_VERSION, msg.x, msg.y, msg.ux, msg.uy, msg.stamp)
+    if isinstance(msg, Cmd):
+        return (_VERSION, msg.v, msg.omega, msg.ux, msg.uy, msg.stamp)
+    if isinstance(msg, EllipseMsg):
+        return (_VERSION, *_ellipse_fields(msg))
+    if isinstance(msg, Others):
+        own = [] if msg.own is None else [_ellipse_fields(msg.own)]
+        return (
+            _VERSION,
+            msg.formation,
+            msg.stamp,
+            [_ellipse_fields(e) for e in msg.ellipses],
+            own,
+        )
+    if isinstance(msg, Obstacles):
+        return (
+            _VERSION,
+            msg.stamp,
+            [(o.id, o.x, o.y, o.vx, o.vy, o.ds) for o in msg.obstacles],
+        )
+    raise ValueError(f"msg must be one of the wire payload types, got {type(msg).__name__}")
+
+
+def encode(msg: Message) -> bytes:
+    """Serialize ``msg`` (see the module docstring for the layout)."""
+    return z_serialize(_wire_tuple(msg)).to_bytes()
+
+
+def encode_zbytes(msg: Message) -> zenoh.ZBytes:
+    """Like :func:`encode`, as the ``zenoh.ZBytes`` a publisher puts without another copy."""
+    return z_serialize(_wire_tuple(msg))
+
+
+# --- decoding ---------------------------------------------------------------------------------
+#
+# Decoding is plain Python over the bytes, NOT zenoh.ext.z_deserialize: zenoh-python 1.10's
+# z_deserialize reserves a string's memory from the length the payload claims before checking it
+# against the payload, so a 9-byte payload claiming a 2**35-byte string aborts the whole process
+# ("memory allocation of 34359738368 bytes failed"), which no Python ``except`` can catch. Here
+# every length and count is checked against what is left of the payload before anything is read.
+
+_MAX_VARINT_BYTES = 10  # an unsigned LEB128 u64 takes at most 10 bytes
+_FLOATS = {n: struct.Struct(f"<{n}d") for n in (1, 4, 5, 9)}
+
+
+def _as_bytes(payload: object) -> bytes:
+    if isinstance(payload, bytes):
+        return payload
+    if isinstance(payload, bytearray | memoryview):
+        return bytes(payload)
+    if isinstance(payload, zenoh.ZBytes):
+        return payload.to_bytes()
+    raise DecodeError(f"payload must be bytes or zenoh.ZBytes, got {type(payload).__name__}")
+
+
+class _Reader:
+    """A cursor over one payload; every read checks the bytes it needs are there."""
+
+    __slots__ = ("data", "pos")
+
+    def __init__(self, data: bytes, pos: int) -> None:
+        self.data = data
+        self.pos = pos
+
+    def _need(self, n: int, what: str) -> None:
+        if n > len(self.data) - self.pos:
+            raise DecodeError(
+                f"truncated: {what} needs {n} bytes at offset {self.pos}, "
+                f"{len(self.data) - self.pos} left"
+            )
+
+    def floats(self, n: int, what: str) -> tuple[float, ...]:
+        fmt = _FLOATS[n]
+        self._need(fmt.size, what)
+        values = fmt.unpack_from(self.data, self.pos)
+        self.pos += fmt.size
+        return values
+
+    def varint(self, what: str) -> int:
+        value = 0
+        for index in range(_MAX_VARINT_BYTES):
+            self._need(1, what)
+            byte = self.data[self.pos]
+            self.pos += 1
+            value |= (byte & 0x7F) << (7 * index)
+            if not byte & 0x80:
+                if byte == 0 and index > 0:
+                    raise DecodeError(f"non-canonical varint for {what}")
+                return value
+        raise DecodeError(f"varint for {what} longer than {_MAX_VARINT_BYTES} bytes")
+
+    def string(self, what: str) -> str:
+        n = self.varint(what)
+        self._need(n, what)
+        raw = self.data[self.pos : self.pos + n]
+        self.pos += n
+        try:
+            return raw.decode("utf-8")
+        except UnicodeDecodeError:
+            raise DecodeError(f"{what} is not valid UTF-8") from None
+
+    def count(self, what: str, limit: int) -> int:
+        n = self.varint(what)
+        if n > limit:
+            raise DecodeError(f"{what} must hold at most {limit} entries, got {n}")
+        return n
+
+    def ellipse(self, what: str) -> EllipseMsg:
+        formation = self.string(f"{what}.formation")
+        return EllipseMsg(formation, *self.floats(9, what))
+
+    def end(self) -> None:
+        if self.pos != len(self.data):
+            raise DecodeError(
+                f"trailing bytes: {len(self.data) - self.pos} after the message's "
+                f"{self.pos} bytes"
+            )
+
+
+def _decode(payload: object, parse: Callable[[_Reader], Any], kind: str) -> Any:
+    try:
+        data = _as_bytes(payload)
+        if not data:
+            raise DecodeError("empty payload")
+        if len(data) > MAX_PAYLOAD_BYTES:
+            raise DecodeError(f"payload of {len(data)} bytes exceeds {MAX_PAYLOAD_BYTES}")
+        if data[0] != WIRE_VERSION:
+            raise DecodeError(f"unsupported version {data[0]} (expected {WIRE_VERSION})")
+        reader = _Reader(data, 1)
+        try:
+            msg = parse(reader)
+        except DecodeError:
+            raise
+        except (ValueError, TypeError) as exc:  # a field failed the message's own validation
+            raise DecodeError(f"invalid message ({exc})") from None
+        reader.end()
+        return msg
+    except DecodeError as exc:
+        raise DecodeError(f"{kind}: {exc}") from None
+
+
+def _parse_pose(r: _Reader) -> Pose:
+    return Pose(*r.floats(4, "pose"))
+
+
+def _parse_state(r: _Reader) -> State:
+    return State(*r.floats(5, "state"))
+
+
+def _parse_cmd(r: _Reader) -> Cmd:
+    return Cmd(*r.floats(5, "cmd"))
+
+
+def _parse_ellipse(r: _Reader) -> EllipseMsg:
+    return r.ellipse("ellipse")
+
+
+def _parse_others(r: _Reader) -> Others:
+    formation = r.string("formation")
+    (stamp,) = r.floats(1, "stamp")
+    n = r.count("ellipses", MAX_ITEMS)
+    ellipses = tuple(r.ellipse(f"ellipses[{i}]") for i in range(n))
+    n_own = r.count("own", 1)
+    own = r.ellipse("own") if n_own else None
+    return Others(formation, stamp, ellipses, own)
+
+
+def _parse_obstacles(r: _Reader) -> Obstacles:
+    (stamp,) = r.floats(1, "stamp")
+    n = r.count("obstacles", MAX_ITEMS)
+    items = []
+    for i in range(n):
+        name = r.string(f"obstacles[{i}].id")
+        items.append(ObstacleMsg(name, *r.floats(5, f"obstacles[{i}]")))
+    return Obstacles(stamp, tuple(items))
+
+
+def decode_pose(payload: bytes | zenoh.ZBytes) -> Pose:
+    """Decode a ``pose`` payload; raises only :class:`DecodeError`."""
+    return _decode(payload, _parse_pose, "pose")
+
+
+def decode_state(payload: bytes | zenoh.ZBytes) -> State:
+    """Decode a ``state`` payload; raises only :class:`DecodeError`."""
+    return _decode(payload, _parse_state, "state")
+
+
+def decode_cmd(payload: bytes | zenoh.ZBytes) -> Cmd:
+    """Decode a ``cmd`` payload; raises only :class:`DecodeError`."""
+    return _decode(payload, _parse_cmd, "cmd")
+
+
+def decode_ellipse(payload: bytes | zenoh.ZBytes) -> EllipseMsg:
+    """Decode an ``ellipse`` payload; raises only :class:`DecodeError`."""
+    return _decode(payload, _parse_ellipse, "ellipse")
+
+
+def decode_others(payload: bytes | zenoh.ZBytes) -> Others:
+    """Decode an ``others`` payload; raises only :class:`DecodeError`."""
+    return _decode(payload, _parse_others, "others")
+
+
+def decode_obstacles(payload: bytes | zenoh.ZBytes) -> Obstacles:
+    """Decode an ``obstacles`` payload; raises only :class:`DecodeError`."""
+    return _decode(payload, _parse_obstacles, "obstacles")
+
+
+#: The decoder of each key class (see :func:`wire.keys.key_class`).
+DECODERS: dict[str, Callable[[bytes | zenoh.ZBytes], Any]] = {
+    keys.POSE: decode_pose,
+    keys.STATE: decode_state,
+    keys.CMD: decode_cmd,
+    keys.ELLIPSE: decode_ellipse,
+    keys.OTHERS: decode_others,
+    keys.OBSTACLES: decode_obstacles,
+}

@@ -1,0 +1,251 @@
+"""One way for every formation-cbf process to build its ``zenoh.Config``.
+
+Command line -> :class:`ZenohSettings` (frozen, typed) -> ``zenoh.Config``::
+
+    parser = argparse.ArgumentParser()
+    add_zenoh_args(parser)
+    ns = parser.parse_args()
+    with zenoh.open(config_from_args(ns)) as session:
+        ...
+
+Zenoh 1.x configuration keys this module sets (each checked against zenoh-python 1.10 by
+inserting it and opening a session; ``Config.insert_json5`` rejects unknown keys):
+
+=================================  ==========================================================
+key                                value
+=================================  ==========================================================
+``mode``                           ``"peer"``, ``"client"`` or ``"router"``
+``connect/endpoints``              list of ``<proto>/<address>``, e.g. ``tcp/127.0.0.1:7447``
+``listen/endpoints``               list of endpoints (zenoh's default is mode-dependent)
+``scouting/multicast/enabled``     ``false`` unless asked for (multicast scouting off)
+``connect/timeout_ms``             how long ``zenoh.open`` keeps retrying its connect
+                                   endpoints (a client fails at once by default)
+``scouting/delay``                 how long a peer or router ``zenoh.open`` waits for scouting
+                                   (zenoh's default makes it take about 0.5 s; a router
+                                   started by :mod:`wire.router` sets 0)
+``transport/auth/usrpwd/user``,    user/password authentication (:class:`UsrPwdAuth`; see its
+``.../password``,                  TODO)
+``.../dictionary_file``
+=================================  ==========================================================
+
+Multicast scouting is off by default because a warehouse network (and CI) should only talk to
+the endpoints it names; turn it on with ``multicast_scouting=True`` / ``--multicast-scouting``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal, get_args
+
+import zenoh
+
+from wire import keys
+
+logger = logging.getLogger(__name__)
+
+Mode = Literal["peer", "client", "router"]
+MODES: tuple[str, ...] = get_args(Mode)
+
+
+@dataclass(frozen=True, slots=True)
+class UsrPwdAuth:
+    """User/password authentication of zenoh transports (``transport/auth/usrpwd``).
+
+    TODO: this is only a hook. Decide where credentials live on a robot (a file readable by the
+    agent's user only, provisioned by ``deploy``), add command-line flags for it, and test it
+    against a router that requires it; until then no process sets it.
+    """
+
+    user: str
+    password: str
+    dictionary_file: str | None = None  # a router's ``user:password`` lines
+
+
+@dataclass(frozen=True, slots=True)
+class ZenohSettings:
+    """Typed Zenoh session settings; :meth:`to_config` builds the ``zenoh.Config``."""
+
+    mode: Mode = "peer"
+    connect: tuple[str, ...] = ()
+    listen: tuple[str, ...] = ()
+    multicast_scouting: bool = False
+    connect_timeout_s: float | None = None  # None: zenoh's default for the mode [s]
+    scouting_delay_s: float | None = None  # None: zenoh's default (0.5 s in 1.10) [s]
+    config_file: str | None = None  # a zenoh JSON5 file to start from
+    auth: UsrPwdAuth | None = None
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"mode {self.mode!r} must be one of {MODES}")
+        for name in ("connect", "listen"):
+            value = getattr(self, name)
+            if isinstance(value, str):
+                raise ValueError(f"{name} must be a sequence of endpoints, not a single str")
+            endpoints = tuple(value)
+            for endpoint in endpoints:
+                if not isinstance(endpoint, str) or "/" not in endpoint:
+                    raise ValueError(
+                        f"{name} endpoint {endpoint!r} must look like <proto>/<address>"
+                    )
+            object.__setattr__(self, name, endpoints)
+        if not isinstance(self.multicast_scouting, bool):
+            raise ValueError(f"multicast_scouting must be a bool, got {self.multicast_scouting!r}")
+        for name in ("connect_timeout_s", "scouting_delay_s"):
+            value = getattr(self, name)
+            if value is not None and (
+                isinstance(value, bool)
+                or not isinstance(value, int | float)
+                or not math.isfinite(value)
+                or value < 0
+            ):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+
+    def to_config(self) -> zenoh.Config:
+        """Build the ``zenoh.Config``; ``ValueError`` naming the setting zenoh rejects."""
+        if self.config_file is not None:
+            try:
+                conf = zenoh.Config.from_file(self.config_file)
+            except Exception as exc:
+                raise ValueError(f"config_file {self.config_file!r}: {exc}") from None
+        else:
+            conf = zenoh.Config()
+        _insert(conf, "mode", self.mode, "mode")
+        if self.connect:
+            _insert(conf, "connect/endpoints", list(self.connect), "connect")
+        if self.listen:
+            _insert(conf, "listen/endpoints", list(self.listen), "listen")
+        _insert(conf, "scouting/multicast/enabled", self.multicast_scouting, "multicast_scouting")
+        if self.connect_timeout_s is not None:
+            timeout_ms = round(self.connect_timeout_s * 1000.0)
+            _insert(conf, "connect/timeout_ms", timeout_ms, "connect_timeout_s")
+        if self.scouting_delay_s is not None:
+            delay_ms = round(self.scouting_delay_s * 1000.0)
+            _insert(conf, "scouting/delay", delay_ms, "scouting_delay_s")
+        if self.auth is not None:
+            _insert(conf, "transport/auth/usrpwd/user", self.auth.user, "auth.user")
+            _insert(conf, "transport/auth/usrpwd/password", self.auth.password, "auth.password")
+            if self.auth.dictionary_file is not None:
+                _insert(
+                    conf,
+                    "transport/auth/usrpwd/dictionary_file",
+                    self.auth.dictionary_file,
+                    "auth.dictionary_file",
+                )
+        return conf
+
+    def to_argv(self) -> list[str]:
+        """Command-line flags that :func:`add_zenoh_args` parses back into these settings.
+
+        For launchers that start child processes; ``auth`` is not passed on the command line.
+        """
+        argv = ["--mode", self.mode]
+        for endpoint in self.connect:
+            argv += ["--connect", endpoint]
+        for endpoint in self.listen:
+            argv += ["--listen", endpoint]
+        argv.append(
+            "--multicast-scouting" if self.multicast_scouting else "--no-multicast-scouting"
+        )
+        if self.connect_timeout_s is not None:
+            argv += ["--connect-timeout", repr(float(self.connect_timeout_s))]
+        if self.scouting_delay_s is not None:
+            argv += ["--scouting-delay", repr(float(self.scouting_delay_s))]
+        if self.config_file is not None:
+            argv += ["--zenoh-config", self.config_file]
+        return argv
+
+
+def _insert(conf: zenoh.Config, key: str, value: object, name: str) -> None:
+    try:
+        conf.insert_json5(key, json.dumps(value))
+    except Exception as exc:  # zenoh.ZError
+        raise ValueError(f"{name} {value!r} rejected by zenoh ({key}): {exc}") from None
+
+
+def make_config(
+    mode: Mode = "peer",
+    connect: Sequence[str] = (),
+    listen: Sequence[str] = (),
+    multicast_scouting: bool = False,
+    *,
+    connect_timeout_s: float | None = None,
+    scouting_delay_s: float | None = None,
+    config_file: str | None = None,
+    auth: UsrPwdAuth | None = None,
+) -> zenoh.Config:
+    """Build a ``zenoh.Config`` from typed arguments (see :class:`ZenohSettings`)."""
+    return ZenohSettings(
+        mode=mode,
+        connect=tuple(connect),
+        listen=tuple(listen),
+        multicast_scouting=multicast_scouting,
+        connect_timeout_s=connect_timeout_s,
+        scouting_delay_s=scouting_delay_s,
+        config_file=config_file,
+        auth=auth,
+    ).to_config()
+
+
+def add_zenoh_args(parser: argparse.ArgumentParser) -> None:
+    """Add the shared Zenoh flags to ``parser``, in an argument group ``zenoh``.
+
+    Destinations are prefixed ``zenoh_`` so they never clash with a program's own options;
+    ``--key-prefix`` (destination ``key_prefix``) is the key-space prefix of :mod:`wire.keys`.
+    """
+    group = parser.add_argument_group("zenoh")
+    group.add_argument(
+        "--mode", dest="zenoh_mode", choices=MODES, default="peer",
+        help="zenoh session mode (default: peer)",
+    )
+    group.add_argument(
+        "--connect", dest="zenoh_connect", metavar="ENDPOINT", action="append", default=[],
+        help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)",
+    )
+    group.add_argument(
+        "--listen", dest="zenoh_listen", metavar="ENDPOINT", action="append", default=[],
+        help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)",
+    )
+    group.add_argument(
+        "--multicast-scouting", dest="zenoh_multicast_scouting",
+        action=argparse.BooleanOptionalAction, default=False,
+        help="discover peers and routers by UDP multicast (default: off)",
+    )
+    group.add_argument(
+        "--connect-timeout", dest="zenoh_connect_timeout", metavar="SECONDS", type=float,
+        default=None, help="keep retrying the connect endpoints this long when opening",
+    )
+    group.add_argument(
+        "--scouting-delay", dest="zenoh_scouting_delay", metavar="SECONDS", type=float,
+        default=None, help="how long opening a peer or router waits for scouting",
+    )
+    group.add_argument(
+        "--zenoh-config", dest="zenoh_config", metavar="FILE", default=None,
+        help="a zenoh JSON5 configuration file to start from",
+    )
+    group.add_argument(
+        "--key-prefix", dest="key_prefix", metavar="PREFIX", default=keys.DEFAULT_PREFIX,
+        help=f"key-space prefix (default: {keys.DEFAULT_PREFIX})",
+    )
+
+
+def settings_from_args(ns: argparse.Namespace) -> ZenohSettings:
+    """The :class:`ZenohSettings` of a namespace parsed with :func:`add_zenoh_args`."""
+    return ZenohSettings(
+        mode=ns.zenoh_mode,
+        connect=tuple(ns.zenoh_connect),
+        listen=tuple(ns.zenoh_listen),
+        multicast_scouting=ns.zenoh_multicast_scouting,
+        connect_timeout_s=ns.zenoh_connect_timeout,
+        scouting_delay_s=ns.zenoh_scouting_delay,
+        config_file=ns.zenoh_config,
+    )
+
+
+def config_from_args(ns: argparse.Namespace) -> zenoh.Config:
+    """The ``zenoh.Config`` of a namespace parsed with :func:`add_zenoh_args`."""
+    return settings_from_args(ns).to_config()
