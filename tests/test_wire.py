@@ -396,6 +396,18 @@ def test_an_absurd_element_count_fails_fast_without_allocating() -> None:
         decode_obstacles(wire)
 
 
+def test_the_largest_valid_message_fits_under_the_payload_limit() -> None:
+    def big(formation: str) -> EllipseMsg:
+        return EllipseMsg(formation, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0)
+
+    own_id = "\U0001F916" * keys.MAX_ID_LEN  # 4 UTF-8 bytes per character
+    others = tuple(big(f"{i:03d}" + "\U0001F916" * 61) for i in range(payloads.MAX_ITEMS))
+    msg = Others(own_id, 0.0, others, big(own_id))
+    data = encode(msg)
+    assert len(data) <= payloads.MAX_PAYLOAD_BYTES
+    assert decode_others(data) == msg
+
+
 def test_an_oversized_payload_is_rejected_before_parsing() -> None:
     with pytest.raises(DecodeError, match="exceeds"):
         decode_obstacles(b"\x01" + bytes(payloads.MAX_PAYLOAD_BYTES))

@@ -14,6 +14,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import pytest
 import zenoh
@@ -252,3 +253,22 @@ def test_peer_sessions_connect_directly_with_multicast_scouting_off() -> None:
         wait_for_matching(pub)
         pub.put(b"p")
         wait_until(lambda: got == [b"p"])
+
+
+def test_user_password_auth_admits_the_right_password_only(tmp_path: Path) -> None:
+    users = tmp_path / "users.txt"
+    users.write_text("robot:secret\n")
+    endpoint = tcp_endpoint(free_tcp_port())
+    router_auth = zconf.UsrPwdAuth("router", "unused", str(users))
+    router_conf = zconf.make_config(
+        "router", listen=[endpoint], scouting_delay_s=0.0, auth=router_auth
+    )
+    with open_session(router_conf):
+        good = zconf.make_config(
+            "client", connect=[endpoint], auth=zconf.UsrPwdAuth("robot", "secret")
+        )
+        with open_session(good) as session:
+            assert list(session.info.routers_zid())
+        for auth in (zconf.UsrPwdAuth("robot", "wrong"), None):
+            with pytest.raises(zenoh.ZError):
+                zenoh.open(zconf.make_config("client", connect=[endpoint], auth=auth))

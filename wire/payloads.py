@@ -59,7 +59,9 @@ logger = logging.getLogger(__name__)
 
 WIRE_VERSION = 1
 MAX_ITEMS = 256  # most ellipses (or obstacles) one payload may carry
-MAX_PAYLOAD_BYTES = 65536  # a payload longer than this is rejected before parsing [bytes]
+# A payload longer than this is rejected before parsing [bytes]. The largest valid message (an
+# Others with 256 + 1 ellipses whose ids are 64 four-byte UTF-8 characters) is about 85 kB.
+MAX_PAYLOAD_BYTES = 131072
 
 
 class DecodeError(ValueError):

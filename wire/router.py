@@ -90,10 +90,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--multicast-scouting", action=argparse.BooleanOptionalAction, default=False,
         help="discover peers by UDP multicast (default: off)",
     )
-    parser.add_argument("--log-level", default="INFO", help="logging level (default INFO)")
+    parser.add_argument(
+        "--log-level", default="INFO", type=str.upper,
+        choices=["DEBUG", "INFO", "WARNING", "ERROR"], help="logging level (default INFO)",
+    )
     ns = parser.parse_args(argv)
     logging.basicConfig(
-        level=ns.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s"
+        level=ns.log_level, format="%(asctime)s %(name)s %(levelname)s %(message)s"
     )
     listen = ns.listen or [DEFAULT_LISTEN]
 

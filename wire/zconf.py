@@ -56,9 +56,10 @@ MODES: tuple[str, ...] = get_args(Mode)
 class UsrPwdAuth:
     """User/password authentication of zenoh transports (``transport/auth/usrpwd``).
 
-    TODO: this is only a hook. Decide where credentials live on a robot (a file readable by the
-    agent's user only, provisioned by ``deploy``), add command-line flags for it, and test it
-    against a router that requires it; until then no process sets it.
+    The keys work (a test opens a router with a ``dictionary_file`` and clients with the right
+    and a wrong password). TODO: this is only a hook. Decide where credentials live on a robot
+    (a file readable by the agent's user only, provisioned by ``deploy``) and add command-line
+    flags for it; until then no process sets it, and it never travels in ``to_argv``.
     """
 
     user: str
