@@ -1,0 +1,496 @@
+"""One robot's agent process: Zenoh inputs -> :func:`agent.control.control_step` -> Zenoh outputs.
+
+The node is thin: it keeps the latest decoded message per key (a :class:`wire.traffic.Mailbox`
+per key class, fed from Zenoh's threads through ``loop.call_soon_threadsafe``) and, each tick,
+hands ``control_step`` the same inputs the in-process simulator builds
+(:mod:`simulator.inprocess`): the neighbours' control points and last certified velocities from
+their ``state``, the obstacles, the other formations' ellipses and a
+:class:`agent.control.FormationView` of its own formation's ellipse, both from its leader's
+``others`` message. The leader robot's node also runs :class:`leader.role.LeaderRole`.
+
+Subscriptions are exact keys only: its own ``pose``, its neighbours' ``state``, its leader's
+``others`` (members only), the other leaders' ``ellipse`` (leader only, reduced topology) and
+``obstacles``. The all-to-all baseline subscribes to every robot's ``state`` with one wildcard.
+
+A tick, for the pose stamped ``t``:
+
+1. publish ``state`` = (own control point, velocity certified by the previous tick, ``t``);
+2. leader: estimate the ellipse from every member's ``state`` (its own from itself), publish it on
+   ``ellipse`` (reduced topology), then publish ``others`` = the other leaders' ellipses + its own;
+3. if any input is stale (pose, a neighbour's state, ``others``, ``obstacles``; older than
+   ``stale_after``), or a leader misses another formation's ellipse: command zero, count
+   ``stale``; otherwise run ``control_step`` and publish ``cmd`` stamped ``t``.
+
+Two clocks drive ticks. *Real time* (default): ticks against deadlines at 1/period (``next_t +=
+period``, overruns counted), inputs are the latest received, staleness is the local age since
+reception. *Lock-step* (``lockstep=True``, for the simulated world): a tick starts when a new pose
+arrives, and each phase waits (up to ``lockstep_timeout``) for the inputs stamped ``t``, so the
+run is deterministic and equals the in-process simulation; staleness is ``t - stamp``.
+
+Malformed or non-finite payloads are dropped and counted per key class. On stop (SIGINT/SIGTERM
+in ``python -m agent``) the node publishes a zero command, undeclares everything and closes the
+session; :meth:`AgentNode.stats` holds every counter for the launcher.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import zenoh
+
+from agent.barriers import Neighbour, Obstacle
+from agent.config import AgentConfig
+from agent.control import FormationView, StepResult, control_step
+from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, solve_exact
+from agent.unicycle import control_point
+from leader.role import LeaderRole, ellipse_to_msg, msg_to_ellipse
+from wire import keys
+from wire.payloads import (
+    Cmd,
+    EllipseMsg,
+    Obstacles,
+    Others,
+    Pose,
+    State,
+    decode_ellipse,
+    decode_obstacles,
+    decode_others,
+    decode_pose,
+    decode_state,
+)
+from wire.traffic import CountingPublisher, Mailbox, TrafficCounter
+from wire.zconf import ZenohSettings
+
+logger = logging.getLogger(__name__)
+
+STATUS_STALE = "stale"  # trace status of a tick that commanded zero for stale inputs
+TRACE_COLUMNS = ("t", "px", "py", "ux", "uy", "v", "omega", "status", "slack",
+                 "h_formation", "h_obstacle", "h_formations", "solve_us")
+
+
+@dataclass(frozen=True)
+class NodeOptions:
+    lockstep: bool = False  # tick on pose arrival (simulated world) instead of the own clock
+    lockstep_timeout: float = 2.0  # [s] longest wait for one phase's inputs in lock-step
+    trace: bool = True  # keep one row per tick (TRACE_COLUMNS) for the launcher's time series
+    connect_timeout: float = 10.0  # [s] keep retrying the router this long when opening
+
+    def __post_init__(self) -> None:
+        for name in ("lockstep_timeout", "connect_timeout"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{name}: must be a positive number, got {v!r}")
+
+
+def zenoh_config(cfg: AgentConfig, connect_timeout: float | None = None) -> zenoh.Config:
+    """The ``zenoh.Config`` of an agent from its configuration's Zenoh settings."""
+    z = cfg.zenoh
+    return ZenohSettings(
+        mode=z.mode, connect=tuple(z.connect), listen=tuple(z.listen),
+        multicast_scouting=z.multicast_scouting,
+        connect_timeout_s=connect_timeout if z.connect else None,
+    ).to_config()
+
+
+def _stamped(decode: Callable[[bytes], Any]) -> Callable[[bytes], tuple[Any, float]]:
+    """A decoder that also keeps the local reception time (taken on Zenoh's thread)."""
+
+    def run(payload: bytes) -> tuple[Any, float]:
+        return decode(payload), time.monotonic()
+
+    return run
+
+
+def _finite_or_none(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None
+
+
+class AgentNode:
+    """The agent of one robot; ``await node.run(stop)`` until ``stop`` is set."""
+
+    def __init__(self, cfg: AgentConfig, options: NodeOptions = NodeOptions()) -> None:
+        self.cfg = cfg
+        self.options = options
+        p = cfg.prefix
+        self.counter = TrafficCounter(p)
+        self.pose_key = keys.pose_key(p, cfg.robot_id)
+        self.state_key = keys.state_key(p, cfg.robot_id)
+        self.cmd_key = keys.cmd_key(p, cfg.robot_id)
+        self.others_key = keys.others_key(p, cfg.formation)
+        self.obstacles_key = keys.obstacles_key(p)
+        self.all_to_all = cfg.topology == "all-to-all"
+        self.neighbour_keys = {keys.state_key(p, n): df for n, df in cfg.neighbours}
+        self.foreign_keys = tuple(keys.state_key(p, r) for r in cfg.foreign_robots)
+        self.role = LeaderRole(cfg.formation, cfg.leader, p) if cfg.leader is not None else None
+        if self.role is not None:
+            missing = [m for m in self.role.members
+                       if m != cfg.robot_id and keys.state_key(p, m) not in self.neighbour_keys]
+            if missing:
+                raise ValueError(f"leader: {cfg.robot_id} is not adjacent to member {missing[0]}")
+        self.subscribed_keys = self._subscription_keys()
+        # counters
+        self.ticks = 0
+        self.overruns = 0
+        self.stale = 0
+        self.lockstep_timeouts = 0
+        self.status_counts = {STATUS_RELAXED: 0, STATUS_FALLBACK: 0, STATUS_FAILED: 0}
+        self.solve_us: list[float] = []
+        self.tick_us: list[float] = []  # [us] from tick start (or pose arrival) to cmd put
+        self.min_h = {"formation": math.inf, "obstacle": math.inf, "formations": math.inf}
+        self.trace: list[tuple] = []
+        self.ellipse_trace: list[tuple] = []  # leader: (stamp, *Ellipse) per tick
+        self.last_u = (0.0, 0.0)
+        self.last_stamp = 0.0
+        self._cpu0 = time.process_time()
+        self._wall0 = time.monotonic()
+        self._session: zenoh.Session | None = None
+        self._subs: list[Any] = []
+        self._pubs: dict[str, CountingPublisher] = {}
+        self._boxes: dict[str, Mailbox] = {}
+        self._arrived: asyncio.Event | None = None
+        self._stop: asyncio.Event | None = None
+        self._own_others: Others | None = None
+
+    # --- wiring ------------------------------------------------------------------------------
+
+    def _subscription_keys(self) -> dict[str, str]:
+        """Every key this node subscribes to -> the mailbox class that holds it."""
+        subs: dict[str, str] = {}
+        if self.all_to_all:
+            subs[keys.all_robots_key(self.cfg.prefix, keys.STATE)] = keys.STATE
+        else:
+            for k in self.neighbour_keys:
+                subs[k] = keys.STATE
+        if self.role is None:
+            subs[self.others_key] = keys.OTHERS
+        elif not self.all_to_all:
+            for k in self.role.other_keys:
+                subs[k] = keys.ELLIPSE
+        subs[self.obstacles_key] = keys.OBSTACLES
+        subs[self.pose_key] = keys.POSE  # last: once the pose is matched, all else is declared
+        return subs
+
+    def open(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Open the session, declare publishers and the exact subscriptions."""
+        self._arrived = asyncio.Event()
+        self._stop = self._stop or asyncio.Event()
+        decoders = {
+            keys.POSE: decode_pose, keys.STATE: decode_state, keys.OTHERS: decode_others,
+            keys.ELLIPSE: decode_ellipse, keys.OBSTACLES: decode_obstacles,
+        }
+        for cls in set(self.subscribed_keys.values()):
+            self._boxes[cls] = Mailbox(loop, _stamped(decoders[cls]), counter=self.counter)
+        self._session = zenoh.open(zenoh_config(self.cfg, self.options.connect_timeout))
+        s = self._session
+        pub_keys = [self.state_key, self.cmd_key]
+        if self.role is not None:
+            pub_keys += [self.role.others_key] + ([] if self.all_to_all else [self.role.ellipse_key])
+        for k in pub_keys:
+            self._pubs[k] = CountingPublisher(s.declare_publisher(k), self.counter)
+        arrived = self._arrived
+
+        def handler(box: Mailbox) -> Callable[[zenoh.Sample], None]:
+            def on_sample(sample: zenoh.Sample) -> None:
+                box.callback(sample)
+                try:
+                    loop.call_soon_threadsafe(arrived.set)
+                except RuntimeError:  # loop closed: shutting down
+                    pass
+
+            return on_sample
+
+        for k, cls in self.subscribed_keys.items():
+            self._subs.append(s.declare_subscriber(k, handler(self._boxes[cls])))
+        logger.info("%s: subscribed to %s", self.cfg.robot_id, ", ".join(self.subscribed_keys))
+
+    def close(self) -> None:
+        """Zero command, undeclare, close the session (idempotent)."""
+        if self._session is None:
+            return
+        try:
+            self._put_cmd(Cmd(0.0, 0.0, 0.0, 0.0, self.last_stamp))
+        except Exception:  # noqa: BLE001 - shutting down: log, keep closing
+            logger.exception("%s: zero command on exit failed", self.cfg.robot_id)
+        for sub in self._subs:
+            try:
+                sub.undeclare()
+            except Exception:  # noqa: BLE001
+                logger.debug("undeclare failed", exc_info=True)
+        for pub in self._pubs.values():
+            try:
+                pub.undeclare()
+            except Exception:  # noqa: BLE001
+                logger.debug("undeclare failed", exc_info=True)
+        self._subs.clear()
+        self._pubs.clear()
+        self._session.close()
+        self._session = None
+
+    # --- life --------------------------------------------------------------------------------
+
+    async def run(self, stop: asyncio.Event) -> None:
+        """Open, tick until ``stop`` is set, close."""
+        self._stop = stop
+        loop = asyncio.get_running_loop()
+        await loop.run_in_executor(None, self.open, loop)
+        try:
+            if self.options.lockstep:
+                await self._lockstep_loop()
+            else:
+                await self._realtime_loop()
+        finally:
+            self.close()
+
+    async def _realtime_loop(self) -> None:
+        assert self._stop is not None  # set by run()
+        period = self.cfg.period
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            started = time.monotonic()
+            await self.tick(None)
+            self.tick_us.append((time.monotonic() - started) * 1e6)
+            next_t += period
+            now = time.monotonic()
+            if now > next_t:
+                self.overruns += 1
+                next_t = now  # do not try to catch up with a burst of ticks
+            try:
+                await asyncio.wait_for(self._stop.wait(), max(0.0, next_t - time.monotonic()))
+            except TimeoutError:
+                pass
+
+    async def _lockstep_loop(self) -> None:
+        assert self._stop is not None and self._arrived is not None
+        last = -math.inf
+        box = self._boxes[keys.POSE]
+        while not self._stop.is_set():
+            self._arrived.clear()
+            entry = box.latest(self.pose_key)
+            if entry is not None and entry[0].stamp > last:
+                last = entry[0].stamp
+                started = time.monotonic()
+                await self.tick(last)
+                self.tick_us.append((time.monotonic() - started) * 1e6)
+                continue
+            stop_wait = asyncio.ensure_future(self._stop.wait())
+            arrived_wait = asyncio.ensure_future(self._arrived.wait())
+            try:
+                await asyncio.wait({stop_wait, arrived_wait}, return_when=asyncio.FIRST_COMPLETED)
+            finally:
+                stop_wait.cancel()
+                arrived_wait.cancel()
+
+    async def _wait_for(self, ready: Callable[[], bool]) -> bool:
+        """Lock-step: wait until ``ready()`` (True), the timeout or stop (False)."""
+        assert self._arrived is not None and self._stop is not None
+        if ready():
+            return True
+        if not self.options.lockstep:
+            return False
+        deadline = time.monotonic() + self.options.lockstep_timeout
+        while not self._stop.is_set():
+            self._arrived.clear()
+            if ready():
+                return True
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                self.lockstep_timeouts += 1
+                return False
+            try:
+                await asyncio.wait_for(self._arrived.wait(), remaining)
+            except TimeoutError:
+                pass
+        return ready()
+
+    # --- one tick ----------------------------------------------------------------------------
+
+    def _latest(self, cls: str, key: str) -> tuple[Any, float] | None:
+        box = self._boxes.get(cls)
+        return None if box is None else box.latest(key)
+
+    def _fresh(self, entry: tuple[Any, float] | None, t: float | None) -> bool:
+        """Whether a (message, receive time) entry is fresh for the tick at pose stamp ``t``."""
+        if entry is None:
+            return False
+        if t is None:  # real time: local age since reception
+            return time.monotonic() - entry[1] <= self.cfg.stale_after
+        return t - entry[0].stamp <= self.cfg.stale_after + 1e-9
+
+    def _current(self, cls: str, key: str, t: float) -> bool:
+        """Lock-step: the message on ``key`` belongs to the tick stamped ``t`` (or later)."""
+        entry = self._latest(cls, key)
+        return entry is not None and entry[0].stamp >= t
+
+    async def tick(self, t: float | None) -> StepResult | None:
+        """One control tick; ``t`` is the pose stamp in lock-step, ``None`` in real time."""
+        self.ticks += 1
+        cfg = self.cfg
+        pose_entry = self._latest(keys.POSE, self.pose_key)
+        if not self._fresh(pose_entry, t):
+            return self._zero(t, "pose")
+        pose: Pose = pose_entry[0]
+        stamp = pose.stamp
+        self.last_stamp = stamp
+        ts = stamp if t is not None else None  # lock-step freshness reference
+        off = cfg.control.offset
+        px, py = control_point(pose.x, pose.y, pose.theta, off) if cfg.control.unicycle \
+            else (pose.x, pose.y)
+        self._pubs[self.state_key].put_message(State(px, py, *self.last_u, stamp))
+
+        state_keys = tuple(self.neighbour_keys) + (self.foreign_keys if self.all_to_all else ())
+        others_ready = True
+        if self.role is not None:
+            others_ready = await self._lead(px, py, stamp, ts)
+        await self._wait_for(lambda: self._inputs_current(state_keys, stamp))
+
+        # freshness of every input
+        states: dict[str, State] = {}
+        for k in state_keys:
+            entry = self._latest(keys.STATE, k)
+            if not self._fresh(entry, ts):
+                return self._zero(t, "state")
+            states[k] = entry[0]
+        obs_entry = self._latest(keys.OBSTACLES, self.obstacles_key)
+        if not self._fresh(obs_entry, ts):
+            return self._zero(t, "obstacles")
+        if self.role is not None:
+            if not others_ready or self._own_others is None:
+                return self._zero(t, "ellipse")
+            others_msg = self._own_others
+        else:
+            entry = self._latest(keys.OTHERS, self.others_key)
+            if not self._fresh(entry, ts):
+                return self._zero(t, "others")
+            others_msg = entry[0]
+
+        nb = [Neighbour(states[k].x, states[k].y, states[k].ux, states[k].uy, df)
+              for k, df in self.neighbour_keys.items()]
+        obstacles: Obstacles = obs_entry[0]
+        obs = [Obstacle(o.x, o.y, o.vx, o.vy, o.ds) for o in obstacles.obstacles]
+        view = None
+        if others_msg.own is not None:
+            view = FormationView(msg_to_ellipse(others_msg.own), *cfg.formation_goal)
+        if self.all_to_all:
+            ellipses = []
+            pair = [Neighbour(states[k].x, states[k].y, states[k].ux, states[k].uy, 0.0)
+                    for k in self.foreign_keys]
+        else:
+            ellipses = [msg_to_ellipse(m) for m in others_msg.ellipses]
+            pair = []
+        res = control_step(cfg.control, (pose.x, pose.y, pose.theta), cfg.goal, nb, obs,
+                           ellipses, view, solve_exact, pair)
+        self._put_cmd(Cmd(res.v, res.omega, res.ux, res.uy, stamp))
+        self.last_u = (res.ux, res.uy)
+        self.solve_us.append(res.solve_us)
+        if res.status in self.status_counts:
+            self.status_counts[res.status] += 1
+        self.min_h["formation"] = min(self.min_h["formation"], res.h_formation)
+        self.min_h["obstacle"] = min(self.min_h["obstacle"], res.h_obstacle)
+        self.min_h["formations"] = min(self.min_h["formations"], res.h_formations)
+        if self.options.trace:
+            self.trace.append((stamp, res.px, res.py, res.ux, res.uy, res.v, res.omega, res.status,
+                               res.slack, res.h_formation, res.h_obstacle, res.h_formations,
+                               res.solve_us))
+        return res
+
+    def _inputs_current(self, state_keys: tuple[str, ...], stamp: float) -> bool:
+        if not all(self._current(keys.STATE, k, stamp) for k in state_keys):
+            return False
+        if not self._current(keys.OBSTACLES, self.obstacles_key, stamp):
+            return False
+        return self.role is not None or self._current(keys.OTHERS, self.others_key, stamp)
+
+    async def _lead(self, px: float, py: float, stamp: float, ts: float | None) -> bool:
+        """Leader role for this tick: estimate and publish the ellipse, collect the other
+        leaders' ellipses, publish ``others``. False when an ellipse is missing or stale."""
+        role = self.role
+        assert role is not None  # only called on the leader
+        prefix = self.cfg.prefix
+        member_keys = {m: keys.state_key(prefix, m) for m in role.members if m != self.cfg.robot_id}
+        await self._wait_for(lambda: all(self._current(keys.STATE, k, stamp)
+                                         for k in member_keys.values()))
+        members: dict[str, tuple[float, float, float, float]] = {
+            self.cfg.robot_id: (px, py, *self.last_u)}
+        for m, k in member_keys.items():
+            entry = self._latest(keys.STATE, k)
+            if self._fresh(entry, ts):
+                s: State = entry[0]
+                members[m] = (s.x, s.y, s.ux, s.uy)
+        own = role.estimate(members)
+        if own is None:
+            self._own_others = None
+            return False
+        if self.options.trace:
+            self.ellipse_trace.append((stamp, *own))
+        received: dict[str, EllipseMsg] = {}
+        complete = True
+        if not self.all_to_all:
+            self._pubs[role.ellipse_key].put_message(ellipse_to_msg(role.formation, own, stamp))
+            await self._wait_for(lambda: all(self._current(keys.ELLIPSE, k, stamp)
+                                             for k in role.other_keys))
+            for k in role.other_keys:
+                entry = self._latest(keys.ELLIPSE, k)
+                if self._fresh(entry, ts):
+                    received[k] = entry[0]
+            complete = len(received) == len(role.other_keys)
+        self._own_others = role.others(own, received, stamp)
+        if complete:
+            self._pubs[role.others_key].put_message(self._own_others)
+        return complete
+
+    def _zero(self, t: float | None, why: str) -> None:
+        self.stale += 1
+        self.last_u = (0.0, 0.0)
+        stamp = t if t is not None else self.last_stamp
+        self._put_cmd(Cmd(0.0, 0.0, 0.0, 0.0, stamp))
+        logger.debug("%s: stale %s, zero command", self.cfg.robot_id, why)
+        if self.options.trace:
+            nan = math.nan
+            self.trace.append((stamp, nan, nan, 0.0, 0.0, 0.0, 0.0, STATUS_STALE, 0.0,
+                               nan, nan, nan, nan))
+        return None
+
+    def _put_cmd(self, cmd: Cmd) -> None:
+        pub = self._pubs.get(self.cmd_key)
+        if pub is not None:
+            pub.put_message(cmd)
+
+    # --- counters ----------------------------------------------------------------------------
+
+    def stats(self) -> dict[str, Any]:
+        """Every counter, JSON-ready (non-finite numbers as None)."""
+        return {
+            "robot": self.cfg.robot_id,
+            "formation": self.cfg.formation,
+            "leader": self.role is not None,
+            "lockstep": self.options.lockstep,
+            "ticks": self.ticks,
+            "overruns": self.overruns,
+            "stale": self.stale,
+            "lockstep_timeouts": self.lockstep_timeouts,
+            "solves": len(self.solve_us),
+            "relaxed": self.status_counts[STATUS_RELAXED],
+            "fallback": self.status_counts[STATUS_FALLBACK],
+            "failed": self.status_counts[STATUS_FAILED],
+            "solve_us_median": statistics.median(self.solve_us) if self.solve_us else None,
+            "tick_us_median": statistics.median(self.tick_us) if self.tick_us else None,
+            "min_h": {k: _finite_or_none(v) for k, v in self.min_h.items()},
+            "dropped": {cls: box.dropped_malformed for cls, box in self._boxes.items()},
+            "received": {cls: box.received for cls, box in self._boxes.items()},
+            "subscriptions": sorted(self.subscribed_keys),
+            "traffic": self.counter.snapshot(),
+            "cpu_s": time.process_time() - self._cpu0,
+            "wall_s": time.monotonic() - self._wall0,
+            "trace_columns": list(TRACE_COLUMNS),
+            "trace": [[_finite_or_none(v) if isinstance(v, float) else v for v in row]
+                      for row in self.trace],
+            "ellipse_trace": [list(row) for row in self.ellipse_trace],
+        }
+

@@ -1,0 +1,74 @@
+"""The leader role (thesis section 4.2): estimate the formation's ellipse, exchange it with the
+other leaders, hand the others' ellipses (and its own) to the members.
+
+The role runs inside the leader robot's agent (:mod:`agent.node`), which calls it each tick with
+what it already has: the members' ``state`` (the leader is adjacent to all of them), its own
+control point and velocity, and the other leaders' latest ``ellipse`` messages. The role holds
+no network objects: it turns numbers into :class:`wire.payloads.EllipseMsg` and
+:class:`wire.payloads.Others` and the node publishes them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from agent.config import LeaderSettings
+from wire import keys
+from wire.payloads import EllipseMsg, Others
+
+from .ellipse import Ellipse, ReferenceShape, estimate
+
+Kinematic = tuple[float, float, float, float]  # control point x, y [m] and velocity ux, uy [m/s]
+
+
+def ellipse_to_msg(formation: str, e: Ellipse, stamp: float) -> EllipseMsg:
+    """The wire form of ``e`` for ``formation``."""
+    return EllipseMsg(formation, e.cx, e.cy, e.alpha, e.a, e.b, e.vx, e.vy, e.alpha_rate, stamp)
+
+
+def msg_to_ellipse(m: EllipseMsg) -> Ellipse:
+    """The controller's form of a received ellipse."""
+    return Ellipse(m.cx, m.cy, m.alpha, m.a, m.b, m.vx, m.vy, m.alpha_rate)
+
+
+class LeaderRole:
+    """What the leader's agent does for its formation each tick (see the module docstring)."""
+
+    def __init__(self, formation: str, settings: LeaderSettings, prefix: str = keys.DEFAULT_PREFIX):
+        if len(settings.offsets) != len(settings.members):
+            raise ValueError("settings: offsets and members differ in length")
+        if not settings.members:
+            raise ValueError("settings: members must not be empty")
+        self.formation = keys.validate_id(formation, "formation")
+        self.settings = settings
+        self.shape = ReferenceShape(tuple(settings.offsets), settings.alpha0)
+        self.axes = (float(settings.axes[0]), float(settings.axes[1]))
+        self.ellipse_key = keys.ellipse_key(prefix, formation)
+        self.others_key = keys.others_key(prefix, formation)
+        # the other leaders' exact ellipse keys, formation id by key
+        self.other_keys = {
+            keys.ellipse_key(prefix, f): f for f in settings.other_formations
+        }
+
+    @property
+    def members(self) -> tuple[str, ...]:
+        return self.settings.members
+
+    def estimate(self, members: Mapping[str, Kinematic]) -> Ellipse | None:
+        """The ellipse from every member's control point and velocity; ``None`` if one is
+        missing (the leader's own entry comes from its own state, not from the network)."""
+        if any(m not in members for m in self.members):
+            return None
+        pts = [(members[m][0], members[m][1]) for m in self.members]
+        vel = [(members[m][2], members[m][3]) for m in self.members]
+        return estimate(self.shape, self.axes, pts, vel)
+
+    def others(self, own: Ellipse, received: Mapping[str, EllipseMsg], stamp: float) -> Others:
+        """The ``others`` message: every other formation's latest ellipse (``received`` is keyed
+        by ellipse key, as the node's mailbox holds them) and the leader's own."""
+        ellipses = []
+        for key, fid in self.other_keys.items():
+            m = received.get(key)
+            if m is not None and m.formation == fid:
+                ellipses.append(m)
+        return Others(self.formation, stamp, tuple(ellipses), ellipse_to_msg(self.formation, own, stamp))

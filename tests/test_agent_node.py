@@ -1,0 +1,230 @@
+"""The agent process over real Zenoh sessions on loopback (a Python router in a child process,
+explicit ``tcp/127.0.0.1:PORT`` endpoints, multicast scouting off).
+
+The agent under test is r1 of thesis scenario 5.2.2: its graph neighbours are r2 and r4, not r3;
+its leader is r2 (formation F1). The test plays the world and the other robots."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import os
+import signal
+import struct
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Awaitable, Callable, Iterator
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from agent.config import ZenohSettings, build_agent_configs, save_config
+from agent.node import AgentNode, NodeOptions
+from leader.ellipse import Ellipse
+from leader.role import ellipse_to_msg
+from scenario import load_scenario
+from wire import keys, zconf
+from wire.payloads import Cmd, ObstacleMsg, Obstacles, Others, Pose, State, decode_cmd, encode
+from wire.testing import RouterProcess, wait_for_matching
+
+ROOT = Path(__file__).resolve().parent.parent
+SCENARIO = ROOT / "scenarios" / "thesis-5.2.2.yaml"
+P = keys.DEFAULT_PREFIX
+TIMEOUT_S = 10.0
+
+
+@pytest.fixture(scope="module")
+def router() -> Iterator[RouterProcess]:
+    with RouterProcess() as proc:
+        yield proc
+    assert proc.returncode == 0
+
+
+@pytest.fixture(scope="module")
+def configs(router: RouterProcess):
+    zs = ZenohSettings(mode="client", connect=(router.endpoint,))
+    return build_agent_configs(load_scenario(SCENARIO), zenoh=zs)
+
+
+class Peer:
+    """The test's own session: publishes what the world and the other robots would, and
+    records the agent's commands."""
+
+    def __init__(self, endpoint: str) -> None:
+        conf = zconf.make_config("client", connect=[endpoint], connect_timeout_s=TIMEOUT_S)
+        self.session = zenoh.open(conf)
+        self.pubs: dict[str, zenoh.Publisher] = {}
+        self.cmds: list[Cmd] = []
+        self._lock = threading.Lock()
+        self.cmd_sub = self.session.declare_subscriber(keys.cmd_key(P, "r1"), self._on_cmd)
+
+    def _on_cmd(self, sample: zenoh.Sample) -> None:
+        with self._lock:
+            self.cmds.append(decode_cmd(sample.payload.to_bytes()))
+
+    def commands(self) -> list[Cmd]:
+        with self._lock:
+            return list(self.cmds)
+
+    def put(self, key: str, payload: bytes) -> None:
+        if key not in self.pubs:
+            self.pubs[key] = self.session.declare_publisher(key)
+        self.pubs[key].put(payload)
+
+    def wait_subscribed(self, key: str) -> None:
+        if key not in self.pubs:
+            self.pubs[key] = self.session.declare_publisher(key)
+        wait_for_matching(self.pubs[key], TIMEOUT_S)
+
+    def feed(self, t: float, states: bool = True) -> None:
+        """Everything r1 needs for the tick stamped ``t`` (its pose last)."""
+        self.put(keys.obstacles_key(P), encode(Obstacles(t, (ObstacleMsg("o1", 9.0, 9.0, 0, 0, 0.3),))))
+        own = ellipse_to_msg("F1", Ellipse(-3.0, 0.0, 0.0, 0.6, 0.3), t)
+        other = ellipse_to_msg("F2", Ellipse(3.0, 0.3, 0.0, 0.6, 0.3), t)
+        self.put(keys.others_key(P, "F1"), encode(Others("F1", t, (other,), own)))
+        if states:
+            self.put(keys.state_key(P, "r2"), encode(State(-2.75, 0.125, 0.2, 0.0, t)))
+            self.put(keys.state_key(P, "r4"), encode(State(-3.25, -0.125, 0.2, 0.0, t)))
+        self.put(keys.pose_key(P, "r1"), encode(Pose(-3.25, 0.125, 0.0, t)))
+
+    def close(self) -> None:
+        self.session.close()
+
+
+@pytest.fixture
+def peer(router: RouterProcess) -> Iterator[Peer]:
+    p = Peer(router.endpoint)
+    yield p
+    p.close()
+
+
+async def eventually(predicate: Callable[[], bool], timeout_s: float = TIMEOUT_S) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise TimeoutError("condition not met in time")
+        await asyncio.sleep(0.005)
+
+
+def run_node(cfg, options: NodeOptions, peer: Peer, body: Callable[[AgentNode], Awaitable[None]]):
+    """Run an AgentNode on an asyncio loop, wait for its subscriptions, run ``body``, stop it."""
+
+    async def main() -> AgentNode:
+        node = AgentNode(cfg, options)
+        stop = asyncio.Event()
+        task = asyncio.create_task(node.run(stop))
+        try:
+            await asyncio.get_running_loop().run_in_executor(
+                None, peer.wait_subscribed, keys.pose_key(P, cfg.robot_id))
+            await body(node)
+        finally:
+            stop.set()
+            await asyncio.wait_for(task, TIMEOUT_S)
+        return node
+
+    return asyncio.run(main())
+
+
+def test_the_agent_subscribes_to_exactly_its_own_pose_its_neighbours_its_leaders_others_and_obstacles(
+    configs,
+):
+    node = AgentNode(configs["r1"])
+    assert set(node.subscribed_keys) == {
+        keys.pose_key(P, "r1"), keys.state_key(P, "r2"), keys.state_key(P, "r4"),
+        keys.others_key(P, "F1"), keys.obstacles_key(P),
+    }
+    assert not any("*" in k for k in node.subscribed_keys)
+    leader = AgentNode(configs["r2"])
+    assert set(leader.subscribed_keys) == {
+        keys.pose_key(P, "r2"), keys.obstacles_key(P), keys.ellipse_key(P, "F2"),
+        *(keys.state_key(P, r) for r in ("r1", "r3", "r4")),
+    }
+
+
+def test_a_non_neighbours_state_never_reaches_the_agent_but_a_neighbours_does(configs, peer):
+    async def body(node: AgentNode) -> None:
+        for _ in range(5):
+            peer.put(keys.state_key(P, "r3"), encode(State(0.0, 0.0, 0.0, 0.0, 1.0)))
+            peer.put(keys.state_key(P, "r2"), encode(State(1.0, 0.0, 0.0, 0.0, 1.0)))
+        await eventually(lambda: node.counter.snapshot()["recv"]["state"]["messages"] >= 5)
+        await asyncio.sleep(0.2)  # time for any stray r3 sample to arrive
+
+        box = node._boxes[keys.STATE]
+        assert set(box.values()) == {keys.state_key(P, "r2")}
+        assert box.received == 5
+        assert node.counter.snapshot()["recv"]["state"]["messages"] == 5
+
+    run_node(configs["r1"], NodeOptions(lockstep=True), peer, body)
+
+
+def test_fresh_inputs_give_a_command_and_stale_neighbour_states_give_zero_counted_as_stale(
+    configs, peer,
+):
+    cfg = configs["r1"]
+
+    async def body(node: AgentNode) -> None:
+        peer.feed(0.0)
+        await eventually(lambda: any(c.stamp == 0.0 for c in peer.commands()))
+        first = [c for c in peer.commands() if c.stamp == 0.0][-1]
+        assert math.hypot(first.ux, first.uy) > 0.05
+        assert node.stale == 0
+        # neighbour states are now from t=0, far older than stale_after
+        t = 10 * cfg.stale_after
+        peer.feed(t, states=False)
+        await eventually(lambda: any(c.stamp == t for c in peer.commands()))
+        late = [c for c in peer.commands() if c.stamp == t][-1]
+        assert (late.v, late.omega, late.ux, late.uy) == (0.0, 0.0, 0.0, 0.0)
+        assert node.stale == 1
+        assert node.ticks == 2
+
+    run_node(cfg, NodeOptions(lockstep=True, lockstep_timeout=0.3), peer, body)
+
+
+def test_malformed_and_non_finite_payloads_are_dropped_counted_and_do_not_stop_the_agent(
+    configs, peer,
+):
+    nan_state = struct.pack("<B5d", 1, math.nan, 0.0, 0.0, 0.0, 1.0)
+    assert len(nan_state) == len(encode(State(0.0, 0.0, 0.0, 0.0, 1.0)))
+
+    async def body(node: AgentNode) -> None:
+        peer.put(keys.state_key(P, "r2"), b"\x07garbage")
+        peer.put(keys.state_key(P, "r4"), nan_state)
+        peer.put(keys.pose_key(P, "r1"), b"")
+        peer.put(keys.others_key(P, "F1"), b"\x01\xff\xff\xff\xff\xff\xff\xff\xff\xff\x7f")
+        await eventually(lambda: node.stats()["dropped"].get("others", 0) == 1)
+        await eventually(lambda: node.stats()["dropped"]["state"] == 2)
+        assert node.stats()["dropped"]["pose"] == 1
+        peer.feed(0.5)  # the agent still works
+        await eventually(lambda: any(c.stamp == 0.5 for c in peer.commands()))
+        assert node.stale == 0
+
+    run_node(configs["r1"], NodeOptions(lockstep=True, lockstep_timeout=0.3), peer, body)
+
+
+def test_sigterm_makes_the_agent_command_zero_close_and_exit_0(configs, peer, tmp_path):
+    cfg_path = tmp_path / "r1.yaml"
+    save_config(configs["r1"], cfg_path)
+    stats = tmp_path / "r1.json"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, "-m", "agent", "--config", str(cfg_path),
+                             "--stats", str(stats)], env=env, start_new_session=True)
+    try:
+        peer.wait_subscribed(keys.pose_key(P, "r1"))
+        deadline = time.monotonic() + TIMEOUT_S
+        while not any(math.hypot(c.ux, c.uy) > 0.05 for c in peer.commands()):
+            assert time.monotonic() < deadline, "no non-zero command in time"
+            peer.feed(time.time())
+            time.sleep(0.02)
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(TIMEOUT_S) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    time.sleep(0.2)
+    last = peer.commands()[-1]
+    assert (last.v, last.omega, last.ux, last.uy) == (0.0, 0.0, 0.0, 0.0)
+    assert stats.exists()
