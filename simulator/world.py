@@ -1,0 +1,363 @@
+"""The simulated world of ``formation run``: the robots' bodies, the obstacles and the camera.
+
+Each tick the world publishes ``obstacles`` and every robot's ``pose`` (the true pose with
+``--camera truth``; with ``--camera synthetic`` the pose the camera service detects in a rendered
+overhead frame), collects every robot's ``cmd``, integrates the kinematics exactly (single
+integrator, or the unicycle of eq. 6.1 through :func:`agent.unicycle.integrate`) and feeds a
+:class:`simulator.metrics.SafetyMonitor` with the true positions.
+
+Two clocks:
+
+* **lock-step** (default): publish the poses of tick k (stamped with the simulated time
+  ``k * dt``), wait until every robot's command stamped ``k * dt`` has arrived (up to
+  ``cmd_timeout``; a missing command is zero velocity and counted), integrate. Deterministic and
+  as fast as the agents answer. Agents run with ``--lockstep`` and tick on pose arrival.
+* **real time**: integrate on the wall clock at 1/dt with the latest command of each robot (zero
+  if none arrived within ``stale_after``); poses are stamped with ``time.time()``, so the delay
+  from a pose's publication to the command computed from it (which carries the same stamp) is the
+  end-to-end latency, recorded in ``latency_ms``.
+
+The time series rows (:data:`simulator.inprocess.ROBOT_COLUMNS`) hold true poses and the commands
+applied; ``status``, ``slack`` and the ``h_*`` columns are not on the wire, so the world leaves
+them empty (NaN) and the launcher fills them from the agents' own per-tick traces.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+from agent import unicycle
+from scenario import Scenario
+from wire import keys
+from wire.payloads import Cmd, DecodeError, ObstacleMsg, Obstacles, Pose, decode_cmd
+from wire.traffic import CountingPublisher, TrafficCounter
+
+from .inprocess import Series
+from .metrics import SafetyMonitor
+
+logger = logging.getLogger(__name__)
+
+CAMERAS = ("truth", "synthetic")
+NAN = math.nan
+
+
+class WorldAborted(RuntimeError):
+    """The run was stopped from outside (a child crashed, Ctrl-C)."""
+
+
+@dataclass(frozen=True)
+class WorldOptions:
+    realtime: bool = False
+    camera: str = "truth"
+    prefix: str = keys.DEFAULT_PREFIX
+    cmd_timeout: float = 5.0  # [s] lock-step: longest wait for a tick's commands
+    start_timeout: float = 60.0  # [s] longest wait for every agent to subscribe to its pose
+    start_grace: float = 0.5  # [s] after every pose is matched, for the rest to propagate
+    stale_after: float = 0.25  # [s] real time: an older command counts as zero
+    stop_at_goal: bool = True
+    record: bool = True
+
+    def __post_init__(self) -> None:
+        if self.camera not in CAMERAS:
+            raise ValueError(f"camera: {self.camera!r} is not one of {CAMERAS}")
+        for name in ("cmd_timeout", "start_timeout", "stale_after"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name}: must be a positive number, got {v!r}")
+
+
+@dataclass
+class WorldResult:
+    steps: int
+    sim_time: float
+    monitor: SafetyMonitor
+    series: Series
+    traffic: dict
+    missing_cmds: int = 0  # lock-step ticks a robot's command did not arrive in time
+    malformed_cmds: int = 0
+    latency_ms: list[float] = field(default_factory=list)  # real time: pose put -> cmd received
+    stamps: list[float] = field(default_factory=list)  # pose stamp published at tick k
+    wall_s: float = 0.0
+
+
+def step_pose(x: float, y: float, th: float, cmd: Cmd | None, dt: float, is_unicycle: bool):
+    """The body pose after ``dt`` under ``cmd`` (``None``: stand still)."""
+    if cmd is None:
+        return x, y, th
+    if is_unicycle:
+        return unicycle.integrate(x, y, th, cmd.v, cmd.omega, dt)
+    return x + cmd.ux * dt, y + cmd.uy * dt, th
+
+
+class _CmdInbox:
+    """Latest command per robot, filled on Zenoh's threads, read by the world's loop."""
+
+    def __init__(self, prefix: str, counter: TrafficCounter) -> None:
+        self._prefix = prefix
+        self._counter = counter
+        self._cond = threading.Condition()
+        self.latest: dict[str, tuple[Cmd, float]] = {}  # robot -> (cmd, local receive time)
+        self.malformed = 0
+        self.latency_ms: list[float] = []
+        self.measure_latency = False
+
+    def callback(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        data = sample.payload.to_bytes()
+        self._counter.count_recv(key, len(data))
+        rid = keys.parse_key(self._prefix, key)[1]
+        try:
+            cmd = decode_cmd(data)
+        except DecodeError:
+            with self._cond:
+                self.malformed += 1
+            return
+        now = time.monotonic()
+        with self._cond:
+            prev = self.latest.get(rid)
+            if self.measure_latency and (prev is None or prev[0].stamp != cmd.stamp):
+                self.latency_ms.append((time.time() - cmd.stamp) * 1e3)
+            self.latest[rid] = (cmd, now)
+            self._cond.notify_all()
+
+    def wait(self, ready: Callable[[], bool], timeout: float, abort: Callable[[], None]) -> bool:
+        """Wait until ``ready()`` (checked under the lock) or the timeout; ``abort()`` is called
+        between waits, outside the lock, and may raise."""
+        deadline = time.monotonic() + timeout
+        while True:
+            with self._cond:
+                if ready():
+                    return True
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return False
+                self._cond.wait(min(remaining, 0.1))
+                if ready():
+                    return True
+            abort()
+
+
+class World:
+    """The simulated world over one Zenoh session (see the module docstring)."""
+
+    def __init__(self, scenario: Scenario, session: zenoh.Session, options: WorldOptions) -> None:
+        self.scenario = scenario
+        self.session = session
+        self.options = options
+        self.counter = TrafficCounter(options.prefix)
+        self.ids = scenario.robot_ids
+        self.formation_of = {rid: scenario.formation_of(rid).name for rid in self.ids}
+        p = options.prefix
+        for o in scenario.obstacles:
+            keys.validate_id(o.name, "obstacle name")
+        self._pose_pubs = [CountingPublisher(session.declare_publisher(keys.pose_key(p, r)),
+                                             self.counter) for r in self.ids]
+        self._obs_pub = CountingPublisher(session.declare_publisher(keys.obstacles_key(p)),
+                                          self.counter)
+        self.inbox = _CmdInbox(p, self.counter)
+        self._subs = [session.declare_subscriber(keys.cmd_key(p, r), self.inbox.callback)
+                      for r in self.ids]
+        self._camera = None
+        if options.camera == "synthetic":
+            self._camera = _SyntheticCamera(scenario)
+
+    def close(self) -> None:
+        for s in self._subs:
+            s.undeclare()
+        for pub in [*self._pose_pubs, self._obs_pub]:
+            pub.undeclare()
+        self._subs.clear()
+        self._pose_pubs.clear()
+
+    def wait_for_agents(self, abort: Callable[[], None] = lambda: None) -> None:
+        """Wait until every robot's pose has a subscriber (the agent declares it last)."""
+        deadline = time.monotonic() + self.options.start_timeout
+        for rid, pub in zip(self.ids, self._pose_pubs, strict=True):
+            while not pub.publisher.matching_status.matching:
+                abort()
+                if time.monotonic() > deadline:
+                    raise TimeoutError(f"agent {rid} did not subscribe to its pose within "
+                                       f"{self.options.start_timeout} s")
+                time.sleep(0.02)
+        time.sleep(self.options.start_grace)
+
+    # --- the loop ----------------------------------------------------------------------------
+
+    def run(
+        self,
+        progress: Callable[[int, int, float], None] | None = None,
+        abort: Callable[[], None] = lambda: None,
+    ) -> WorldResult:
+        """Run the scenario; ``abort()`` is called while waiting and may raise to stop."""
+        sc = self.scenario
+        opts = self.options
+        dt = sc.dt
+        is_uni = sc.robot.is_unicycle
+        off = sc.robot.control_offset
+        state = [tuple(r.start) for r in sc.robots]
+        n = len(state)
+        monitor = SafetyMonitor(sc)
+        series = Series()
+        inbox = self.inbox
+        inbox.measure_latency = opts.realtime
+        missing = 0
+        stamps: list[float] = []
+        wall0 = time.monotonic()
+        monitor.update(0.0, np.array([s[:2] for s in state]),
+                       [o.position(0.0) for o in sc.obstacles])
+        k = 0
+        t = 0.0
+        next_wall = time.monotonic()
+        for k in range(sc.steps):
+            t = k * dt
+            stamp = time.time() if opts.realtime else t
+            stamps.append(stamp)
+            self._publish(t, stamp, state)
+            if opts.realtime:
+                next_wall += dt
+                while True:
+                    abort()
+                    remaining = next_wall - time.monotonic()
+                    if remaining <= 0:
+                        break
+                    time.sleep(min(remaining, 0.05))
+                now = time.monotonic()
+                with inbox._cond:
+                    got = {r: c for r, (c, rx) in inbox.latest.items()
+                           if now - rx <= opts.stale_after}
+            else:
+                def ready(t: float = t) -> bool:
+                    return all(r in inbox.latest and inbox.latest[r][0].stamp >= t
+                               for r in self.ids)
+
+                inbox.wait(ready, opts.cmd_timeout, abort)
+                with inbox._cond:
+                    got = {r: c for r, (c, _rx) in inbox.latest.items() if c.stamp >= t}
+                missing += sum(1 for r in self.ids if r not in got)
+            cmds = [got.get(r) for r in self.ids]
+            if opts.record:
+                self._record(series, t, state, cmds, off)
+            state = [step_pose(*state[i], cmds[i], dt, is_uni) for i in range(n)]
+            t = (k + 1) * dt
+            monitor.update(t, np.array([s[:2] for s in state]),
+                           [o.position(t) for o in sc.obstacles])
+            if progress is not None:
+                progress(k + 1, sc.steps, t)
+            if opts.stop_at_goal and monitor.all_reached:
+                break
+        return WorldResult(
+            steps=k + 1, sim_time=t, monitor=monitor, series=series,
+            traffic=self.counter.snapshot(), missing_cmds=missing,
+            malformed_cmds=inbox.malformed, latency_ms=list(inbox.latency_ms),
+            wall_s=time.monotonic() - wall0, stamps=stamps,
+        )
+
+    def _publish(self, t: float, stamp: float, state: Sequence[tuple[float, float, float]]) -> None:
+        sc = self.scenario
+        obs = []
+        for o in sc.obstacles:
+            x, y = o.position(t)
+            obs.append(ObstacleMsg(o.name, x, y, o.velocity[0], o.velocity[1], o.safe_distance))
+        self._obs_pub.put_message(Obstacles(stamp, tuple(obs)))
+        if self._camera is not None:
+            seen = self._camera.poses(state, [(m.x, m.y, m.ds) for m in obs], stamp)
+        else:
+            seen = {rid: s for rid, s in zip(self.ids, state, strict=True)}
+        for rid, pub in zip(self.ids, self._pose_pubs, strict=True):
+            p = seen.get(rid)
+            if p is not None:  # an undetected marker publishes nothing: the agent sees it stale
+                pub.put_message(Pose(p[0], p[1], p[2], stamp))
+
+    def _record(self, series: Series, t: float, state, cmds, off: float) -> None:
+        for rid, s, c in zip(self.ids, state, cmds, strict=True):
+            px, py = unicycle.control_point(s[0], s[1], s[2], off)
+            ux, uy, v, w = (0.0, 0.0, 0.0, 0.0) if c is None else (c.ux, c.uy, c.v, c.omega)
+            series.robots.append((t, rid, self.formation_of[rid], s[0], s[1], s[2], px, py,
+                                  ux, uy, v, w, "", NAN, NAN, NAN, NAN))
+        for o in self.scenario.obstacles:
+            x, y = o.position(t)
+            series.obstacles.append((t, o.name, x, y, o.safe_distance))
+
+
+class _SyntheticCamera:
+    """Render an overhead frame of the true poses and detect the markers back (camera_service)."""
+
+    def __init__(self, scenario: Scenario) -> None:
+        try:
+            from camera_service.service import CameraService  # noqa: F401
+        except ImportError as exc:
+            raise ValueError(f"camera: synthetic needs camera_service.service ({exc})") from None
+        raise ValueError("camera: synthetic is not wired to camera_service yet")
+
+    def poses(self, state, obstacles, stamp):  # pragma: no cover - see __init__
+        raise NotImplementedError
+
+
+# --- python -m simulator.world -----------------------------------------------------------------
+
+def world_summary(result: WorldResult) -> dict:
+    return {
+        "steps": result.steps,
+        "sim_time_s": round(result.sim_time, 6),
+        **result.monitor.summary_fields(),
+        "missing_cmds": result.missing_cmds,
+        "malformed_cmds": result.malformed_cmds,
+        "traffic": result.traffic,
+        "wall_s": result.wall_s,
+        "latency_ms": result.latency_ms,
+    }
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from scenario import ScenarioError, load_scenario
+    from wire.zconf import add_zenoh_args, settings_from_args
+
+    parser = argparse.ArgumentParser(prog="python -m simulator.world",
+                                     description="The simulated world of a multi-process run.")
+    parser.add_argument("scenario")
+    parser.add_argument("--realtime", action="store_true")
+    parser.add_argument("--camera", default="truth", choices=CAMERAS)
+    parser.add_argument("--summary", type=Path, default=None, help="write the result here (JSON)")
+    parser.add_argument("--log-level", default="WARNING")
+    add_zenoh_args(parser)
+    ns = parser.parse_args(argv)
+    logging.basicConfig(level=ns.log_level.upper(),
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    try:
+        scenario = load_scenario(ns.scenario)
+        options = WorldOptions(realtime=ns.realtime, camera=ns.camera, prefix=ns.key_prefix)
+        conf = settings_from_args(ns).to_config()
+    except (ScenarioError, ValueError) as exc:
+        print(f"world: {exc}", file=sys.stderr)
+        return 2
+    with zenoh.open(conf) as session:
+        world = World(scenario, session, options)
+        try:
+            world.wait_for_agents()
+            result = world.run()
+        except (KeyboardInterrupt, TimeoutError) as exc:
+            print(f"world: {type(exc).__name__}: {exc}", file=sys.stderr)
+            return 1
+        finally:
+            world.close()
+    summary = world_summary(result)
+    if ns.summary is not None:
+        ns.summary.write_text(json.dumps(summary, default=float), encoding="utf-8")
+    print(json.dumps({k: v for k, v in summary.items() if k not in ("traffic", "latency_ms")}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

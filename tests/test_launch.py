@@ -1,0 +1,153 @@
+"""``formation run``: the whole system as separate processes (router, one agent per robot, the
+simulated world) on loopback, compared with ``formation sim`` on the same scenario."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from formation.cli import main
+
+ROOT = Path(__file__).resolve().parent.parent
+
+TWO_FORMATIONS = """\
+name: two-small
+dt: 0.05
+duration: 40.0
+goal_tolerance: 0.05
+robot: {model: single_integrator, max_speed: 0.22, radius: 0.105}
+controller: {kp: 2.0, gamma: 1.0, epsilon: 0.05}
+formations:
+  - name: A
+    leader: a1
+    robots:
+      a1: {start: [0.0, 0.0], goal: [2.0, 0.0]}
+      a2: {start: [0.0, 0.5], goal: [2.0, 0.5]}
+      a3: {start: [-0.4, 0.25], goal: [1.6, 0.25]}
+    edges: [[a1, a2], [a1, a3], [a2, a3]]
+  - name: B
+    leader: b1
+    robots:
+      b1: {start: [2.0, -0.3], goal: [0.0, -0.3]}
+      b2: {start: [2.4, -0.3], goal: [0.4, -0.3]}
+    edges: [[b1, b2]]
+obstacles:
+  - {name: o1, center: [1.0, -1.0], safe_distance: 0.25}
+"""
+
+LONG = TWO_FORMATIONS.replace("duration: 40.0", "duration: 400.0").replace(
+    "goal: [2.0, 0.0]", "goal: [40.0, 0.0]").replace(
+    "goal: [2.0, 0.5]", "goal: [40.0, 0.5]").replace("goal: [1.6, 0.25]", "goal: [39.6, 0.25]")
+
+
+def run_cli(args: list[str]) -> int:
+    return main(args)
+
+
+def test_run_reaches_every_goal_safely_and_as_fast_as_the_in_process_simulation(tmp_path, capsys):
+    scenario = tmp_path / "two.yaml"
+    scenario.write_text(TWO_FORMATIONS, encoding="utf-8")
+    assert run_cli(["sim", str(scenario), "--out", str(tmp_path / "sim"), "--quiet",
+                    "--no-plots"]) == 0
+    assert run_cli(["run", str(scenario), "--out", str(tmp_path / "run"), "--quiet",
+                    "--no-plots"]) == 0
+    sim = json.loads((tmp_path / "sim" / "summary.json").read_text())
+    run = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert run["mode"] == "multiprocess"
+    assert run["all_reached"] is True
+    assert run["collisions"] == 0
+    assert run["formation_error_max_m"] <= 1.5 * 0.05
+    assert sim["time_to_goal_s"] is not None
+    assert abs(run["time_to_goal_s"] - sim["time_to_goal_s"]) <= 0.15 * sim["time_to_goal_s"]
+    for field in ("scenario", "steps", "sim_time_s", "min_clearance_m", "min_h", "qp", "comm"):
+        assert field in run
+    assert run["qp"]["solves"] == sim["qp"]["solves"]
+    comm = run["comm"]
+    assert comm["topology"] == "reduced"
+    assert comm["messages"] > 0 and comm["bytes"] > 0
+    assert comm["messages_per_robot_per_s"] > 0 and comm["bytes_per_robot_per_s"] > 0
+    assert comm["classes"]["state"]["recv"]["messages"] > 0
+    assert run["agents"]["stale"] == 0 and run["world"]["missing_cmds"] == 0
+    assert (tmp_path / "run" / "robots.csv").read_text() == (tmp_path / "sim" / "robots.csv").read_text()
+
+
+def test_an_invalid_scenario_or_an_unsupported_option_exits_2_before_starting_anything(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(TWO_FORMATIONS.replace("goal_tolerance", "goal_tolerence"), encoding="utf-8")
+    assert run_cli(["run", str(bad), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    good = tmp_path / "good.yaml"
+    good.write_text(TWO_FORMATIONS, encoding="utf-8")
+    assert run_cli(["run", str(good), "--out", str(tmp_path / "o"), "--drop", "0.1"]) == 2
+    assert not (tmp_path / "o" / "processes.json").exists()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def _sessions() -> set[int]:
+    """Session ids of every live process."""
+    out = set()
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if fields[0] != "Z":
+                out.add(int(fields[3]))
+    return out
+
+
+def test_a_run_interrupted_with_sigint_leaves_no_child_process_alive(tmp_path):
+    scenario = tmp_path / "long.yaml"
+    scenario.write_text(LONG, encoding="utf-8")
+    out = tmp_path / "run"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, "-m", "formation", "run", str(scenario), "--out",
+                             str(out), "--quiet", "--no-plots"], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 60
+        while not (out / "processes.json").exists():
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        time.sleep(0.5)
+        pids = json.loads((out / "processes.json").read_text())
+        assert len(pids) == 1 + 5  # router and one agent per robot
+        time.sleep(2.0)  # well inside the run (it needs minutes)
+        assert proc.poll() is None
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+        assert proc.returncode == 130, err
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert not [name for name, pid in pids.items() if _alive(pid)]
+    # each child led its own session: nothing of theirs (grandchildren) is left either
+    assert not set(pids.values()) & _sessions()
+
+
+@pytest.mark.slow
+def test_run_in_real_time_reaches_every_goal(tmp_path):
+    scenario = tmp_path / "two.yaml"
+    scenario.write_text(TWO_FORMATIONS, encoding="utf-8")
+    assert run_cli(["run", str(scenario), "--out", str(tmp_path / "rt"), "--quiet", "--no-plots",
+                    "--realtime"]) == 0
+    run = json.loads((tmp_path / "rt" / "summary.json").read_text())
+    assert run["all_reached"] is True and run["collisions"] == 0
+    assert run["realtime"] is True
+    assert run["world"]["latency_ms"]["samples"] > 0
