@@ -171,6 +171,69 @@ def _half_width(e: Ellipse, nx: float, ny: float) -> float:
     return math.sqrt((e.a * p) ** 2 + (e.b * q) ** 2)
 
 
+class Rows(NamedTuple):
+    """The QP's rows for one tick (all normalised, ``ax * ux + ay * uy <= b``)."""
+
+    limits: list[Row]  # speed (and, for unicycles, turn-rate) limits: never relaxed
+    hard: list[Row]  # obstacles, other formations (or pairwise robots): never relaxed
+    soft: list[Row]  # formation edges: relaxed by the smallest slack only if infeasible
+    h_formation: float  # smallest barrier value of each kind (inf when there is none)
+    h_obstacle: float
+    h_formations: float
+
+
+def build_rows(
+    p: ControlParams,
+    px: float,
+    py: float,
+    theta: float,
+    nominal_u: tuple[float, float],
+    neighbours: Sequence[Neighbour] = (),
+    obstacles: Sequence[Obstacle] = (),
+    others: Sequence[Ellipse] = (),
+    view: FormationView | None = None,
+    pairwise: Sequence[Neighbour] = (),
+) -> Rows:
+    """Every barrier row (eq. 4.12b-e with appendix A's velocity terms) and limit row for the
+    control point (px, py) of a robot with heading ``theta``."""
+    soft: list[Row] = []
+    hard: list[Row] = []
+    hf = ho = he = math.inf
+    eps = p.epsilon
+    for n in neighbours:
+        hg, hl, rg, rl = barriers.formation_rows(px, py, n, eps, p.gamma_formation)
+        hf = min(hf, hg, hl)
+        soft.append(rg)
+        soft.append(rl)
+    off = p.offset
+    for o in obstacles:
+        if off:
+            o = Obstacle(o.x, o.y, o.vx, o.vy, o.ds + off)  # the body stays Ds away
+        h, row = barriers.obstacle_row(px, py, o, p.gamma_obstacle)
+        ho = min(ho, h)
+        hard.append(row)
+    for e in others:
+        h, row = barriers.ellipse_row(px, py, e, p.gamma_formations)
+        he = min(he, h)
+        hard.append(row)
+    for n in pairwise:
+        h, row = barriers.pairwise_row(px, py, n, p.d_af, p.gamma_formations)
+        he = min(he, h)
+        hard.append(row)
+
+    if p.unicycle:
+        limits = unicycle.limit_rows(theta, p.lookahead, p.max_speed, p.max_turn_rate)
+    else:
+        # Members of a formation share the polygon's orientation (their travel direction), so a
+        # neighbour's last velocity is always inside this robot's own speed polygon.
+        if view is not None and math.hypot(view.goal_x - view.own.cx, view.goal_y - view.own.cy) > 0.05:
+            heading = math.atan2(view.goal_y - view.own.cy, view.goal_x - view.own.cx)
+        else:
+            heading = math.atan2(nominal_u[1], nominal_u[0])
+        limits = barriers.speed_rows(p.max_speed, heading)
+    return Rows(limits, hard, soft, hf, ho, he)
+
+
 def control_step(
     params: ControlParams,
     pose: tuple[float, float, float],
@@ -200,40 +263,8 @@ def control_step(
             ux, uy = nominal(1.0, 0.0, 0.0, ux + bx, uy + by, p.max_speed)
     nux, nuy = ux, uy
 
-    soft: list[Row] = []
-    hard: list[Row] = []
-    hf = ho = he = math.inf
-    eps = p.epsilon
-    for n in neighbours:
-        hg, hl, rg, rl = barriers.formation_rows(px, py, n, eps, p.gamma_formation)
-        hf = min(hf, hg, hl)
-        soft.append(rg)
-        soft.append(rl)
-    for o in obstacles:
-        if off:
-            o = Obstacle(o.x, o.y, o.vx, o.vy, o.ds + off)
-        h, row = barriers.obstacle_row(px, py, o, p.gamma_obstacle)
-        ho = min(ho, h)
-        hard.append(row)
-    for e in others:
-        h, row = barriers.ellipse_row(px, py, e, p.gamma_formations)
-        he = min(he, h)
-        hard.append(row)
-    for n in pairwise:
-        h, row = barriers.pairwise_row(px, py, n, p.d_af, p.gamma_formations)
-        he = min(he, h)
-        hard.append(row)
-
-    if p.unicycle:
-        limits = unicycle.limit_rows(theta, p.lookahead, p.max_speed, p.max_turn_rate)
-    else:
-        # Members of a formation share the polygon's orientation (their travel direction), so a
-        # neighbour's last velocity is always inside this robot's own speed polygon.
-        if view is not None and math.hypot(view.goal_x - view.own.cx, view.goal_y - view.own.cy) > 0.05:
-            heading = math.atan2(view.goal_y - view.own.cy, view.goal_x - view.own.cx)
-        else:
-            heading = math.atan2(uy, ux)
-        limits = barriers.speed_rows(p.max_speed, heading)
+    rows = build_rows(p, px, py, theta, (ux, uy), neighbours, obstacles, others, view, pairwise)
+    limits, hard, soft = rows.limits, rows.hard, rows.soft
 
     t0 = perf_counter_ns()
     if p.safety:
@@ -248,5 +279,6 @@ def control_step(
     else:
         v, w = math.hypot(res.ux, res.uy), 0.0
     return StepResult(
-        res.ux, res.uy, v, w, px, py, res.status, res.slack, hf, ho, he, nux, nuy, solve_us
+        res.ux, res.uy, v, w, px, py, res.status, res.slack, rows.h_formation, rows.h_obstacle,
+        rows.h_formations, nux, nuy, solve_us,
     )

@@ -18,6 +18,7 @@ relaxed by their smallest common slack, inside the speed limits. Every row is no
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
@@ -70,7 +71,7 @@ def solve_exact(ux: float, uy: float, rows: Sequence[Row], tol: float = FEAS_TOL
             den = cx * dx + cy * dy
             num = c - (cx * px + cy * py)
             if -1e-15 < den < 1e-15:
-                if num < -tol:
+                if num < -10.0 * tol:
                     return None
                 continue
             t = num / den
@@ -102,10 +103,14 @@ def qpsolvers_solver(name: str, **options) -> Callable[[float, float, Sequence[R
         )
     opts = dict(options)
     if name == "osqp" and not opts:
-        opts = {"eps_abs": 1e-10, "eps_rel": 1e-10, "polish": True, "max_iter": 100000}
+        opts = {"eps_abs": 1e-10, "eps_rel": 1e-10, "polishing": True, "max_iter": 100000}
     if name == "clarabel" and not opts:
         opts = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10}
-    p = 2.0 * np.eye(2)
+    sparse = name in getattr(qpsolvers, "sparse_solvers", ())
+    if sparse:
+        from scipy import sparse as sp  # osqp and friends take CSC matrices without a warning
+
+    p = sp.csc_matrix(2.0 * np.eye(2)) if sparse else 2.0 * np.eye(2)
 
     def solve(ux: float, uy: float, rows: Sequence[Row], tol: float = FEAS_TOL):
         q = np.array([-2.0 * ux, -2.0 * uy])
@@ -114,7 +119,10 @@ def qpsolvers_solver(name: str, **options) -> Callable[[float, float, Sequence[R
         g = np.array([[r[0], r[1]] for r in rows])
         h = np.array([r[2] for r in rows])
         try:
-            x = qpsolvers.solve_qp(p, q, g, h, solver=name, **opts)
+            with warnings.catch_warnings():
+                # osqp 1.x warns that a future default will change; not ours to act on.
+                warnings.simplefilter("ignore", PendingDeprecationWarning)
+                x = qpsolvers.solve_qp(p, q, sp.csc_matrix(g) if sparse else g, h, solver=name, **opts)
         except Exception:  # noqa: BLE001 - a backend failure is reported as "no solution"
             return None
         if x is None or not np.all(np.isfinite(x)):
@@ -149,6 +157,8 @@ def _min_slack(rows_fixed: list[Row], rows_relaxed: Sequence[Row], start: tuple[
             hi = mid
         if hi - lo <= 1e-12 + 1e-9 * hi:
             break
+    # A little extra so the final solve, started elsewhere, finds the same thin set non-empty.
+    hi += 4.0 * FEAS_TOL
     return hi, [(ax, ay, b + hi) for ax, ay, b in rows_relaxed]
 
 

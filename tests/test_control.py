@@ -1,0 +1,107 @@
+"""The control step: commands satisfy the rows they were built from; the tie-break rule."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from agent.barriers import Neighbour, Obstacle
+from agent.control import (
+    ControlParams,
+    FormationView,
+    build_rows,
+    control_step,
+    nominal,
+    tiebreak_push,
+)
+from agent.qp import STATUS_OK, STATUS_RELAXED
+from leader.ellipse import Ellipse
+
+coord = st.floats(-2, 2)
+
+
+@settings(max_examples=300, deadline=None)
+@given(coord, coord, st.floats(-math.pi, math.pi), coord, coord,
+       st.lists(st.tuples(coord, coord, st.floats(-0.2, 0.2), st.floats(-0.2, 0.2)), max_size=3),
+       st.lists(st.tuples(coord, coord, st.floats(0.1, 0.5)), max_size=3),
+       st.booleans())
+def test_every_command_satisfies_every_row_it_was_given(x, y, th, gx, gy, nbrs, obs, uni):
+    p = ControlParams(unicycle=uni)
+    neighbours = [Neighbour(nx, ny, vx, vy, 0.5) for nx, ny, vx, vy in nbrs
+                  if math.hypot(nx - x, ny - y) > 0.1]
+    obstacles = [Obstacle(ox, oy, 0.0, 0.0, ds) for ox, oy, ds in obs]
+    others = [Ellipse(1.5, -1.0, 0.3, 0.6, 0.3, 0.05, 0.0, 0.1)]
+    res = control_step(p, (x, y, th), (gx, gy), neighbours, obstacles, others)
+    rows = build_rows(p, res.px, res.py, th, (res.nominal_ux, res.nominal_uy), neighbours, obstacles,
+                      others)
+    u = (res.ux, res.uy)
+    viol = lambda rs, s=0.0: max((ax * u[0] + ay * u[1] - b - s for ax, ay, b in rs), default=-1)  # noqa: E731
+    if res.status in (STATUS_OK, STATUS_RELAXED):
+        assert viol(rows.limits + rows.hard) <= 1e-8
+        assert viol(rows.soft, res.slack) <= 1e-8
+    else:  # least-risk command: the limits still hold
+        assert viol(rows.limits) <= 1e-8
+    if uni:
+        assert abs(res.v) <= p.max_speed + 1e-8 and abs(res.omega) <= p.max_turn_rate + 1e-6
+    else:
+        assert math.hypot(*u) <= p.max_speed + 1e-8
+
+
+def test_without_constraints_the_command_is_the_clamped_p_controller_of_eq_4_2():
+    p = ControlParams()
+    res = control_step(p, (0.0, 0.0, 0.0), (0.05, 0.02))
+    assert (res.ux, res.uy) == pytest.approx((0.1, 0.04))
+    assert nominal(2.0, 0.0, 0.0, 10.0, 0.0, 0.22) == pytest.approx((0.22, 0.0))
+
+
+def test_no_safety_ignores_the_barriers():
+    obstacle = [Obstacle(0.4, 0.0, 0.0, 0.0, 0.3)]  # right in the way
+    safe = control_step(ControlParams(), (0.0, 0.0, 0.0), (5.0, 0.0), obstacles=obstacle)
+    unsafe = control_step(ControlParams(safety=False), (0.0, 0.0, 0.0), (5.0, 0.0), obstacles=obstacle)
+    assert unsafe.ux == pytest.approx(0.22) and unsafe.status == "nominal"
+    assert safe.ux < unsafe.ux
+
+
+def view(cx, cy, gx, gy, vx=0.0, vy=0.0, alpha=0.0):
+    return FormationView(Ellipse(cx, cy, alpha, 0.6, 0.3, vx, vy, 0.0), gx, gy)
+
+
+def test_formations_meeting_head_on_both_keep_right():
+    a = view(-1.5, 0.0, 5.0, 0.0, vx=0.2)
+    b = view(1.5, 0.0, -5.0, 0.0, vx=-0.2)
+    pa = tiebreak_push(a, [b.own], [], 0.22)
+    pb = tiebreak_push(b, [a.own], [], 0.22)
+    assert pa[1] < 0 and abs(pa[0]) < 1e-12  # A moves +x: right is -y
+    assert pb[1] > 0 and abs(pb[0]) < 1e-12  # B moves -x: right is +y
+
+
+def test_slightly_offset_formations_move_apart_not_across():
+    a = view(-1.5, 0.0, 5.0, 0.0)
+    b = view(1.5, 0.2, -5.0, 0.2)
+    pa = tiebreak_push(a, [b.own], [], 0.22)
+    pb = tiebreak_push(b, [a.own], [], 0.22)
+    assert pa[1] < 0 < pb[1]  # A (below) goes down, B (above) goes up
+
+
+def test_crossing_formations_turn_right_of_their_relative_motion():
+    a = view(-1.5, 0.0, 5.0, 0.0, vx=0.22)  # heading +x
+    b = view(0.0, -1.5, 0.0, 5.0, vy=0.22)  # heading +y, on a collision course
+    pa = tiebreak_push(a, [b.own], [], 0.22)
+    pb = tiebreak_push(b, [a.own], [], 0.22)
+    # Relative motion of A w.r.t. B is along (1, -1): its right is (-1, -1) (A yields, passes
+    # behind); B's relative motion is (-1, 1), right is (1, 1) (B goes ahead).
+    assert pa[0] < 0 and pa[1] < 0 and pb[0] > 0 and pb[1] > 0
+
+
+def test_every_member_gets_the_same_push_and_far_hazards_none():
+    a = view(0.0, 0.0, 5.0, 0.0)
+    obstacle = Obstacle(1.5, 0.1, 0.0, 0.0, 0.3)
+    push = tiebreak_push(a, [], [obstacle], 0.22)
+    assert push[1] < 0  # obstacle slightly left of the path: go right
+    far = Obstacle(1.5, 3.0, 0.0, 0.0, 0.3)
+    assert tiebreak_push(a, [], [far], 0.22) == (0.0, 0.0)
+    behind = Obstacle(-1.5, 0.0, 0.0, 0.0, 0.3)
+    assert tiebreak_push(a, [], [behind], 0.22) == (0.0, 0.0)
