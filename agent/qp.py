@@ -103,9 +103,10 @@ def qpsolvers_solver(name: str, **options) -> Callable[[float, float, Sequence[R
         )
     opts = dict(options)
     if name == "osqp" and not opts:
-        opts = {"eps_abs": 1e-10, "eps_rel": 1e-10, "polishing": True, "max_iter": 100000}
+        opts = {"eps_abs": 1e-10, "eps_rel": 1e-10, "max_iter": 100000,
+                "verbose": False}
     if name == "clarabel" and not opts:
-        opts = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10}
+        opts = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10, "verbose": False}
     sparse = name in getattr(qpsolvers, "sparse_solvers", ())
     if sparse:
         from scipy import sparse as sp  # osqp and friends take CSC matrices without a warning
@@ -120,8 +121,10 @@ def qpsolvers_solver(name: str, **options) -> Callable[[float, float, Sequence[R
         h = np.array([r[2] for r in rows])
         try:
             with warnings.catch_warnings():
-                # osqp 1.x warns that a future default will change; not ours to act on.
+                # osqp 1.x warns that a future default will change, and backends warn on an
+                # infeasible problem: both are answered by the None this function returns.
                 warnings.simplefilter("ignore", PendingDeprecationWarning)
+                warnings.simplefilter("ignore", UserWarning)
                 x = qpsolvers.solve_qp(p, q, sp.csc_matrix(g) if sparse else g, h, solver=name, **opts)
         except Exception:  # noqa: BLE001 - a backend failure is reported as "no solution"
             return None

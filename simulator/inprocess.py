@@ -39,6 +39,7 @@ class SimOptions:
     topology: str = "reduced"
     stop_at_goal: bool = True
     record: bool = True
+    solve_fn: Callable | None = None  # a solve function to use instead of ``solver`` by name
 
 
 @dataclass
@@ -110,7 +111,7 @@ def simulate(
 ) -> SimResult:
     if options.topology not in TOPOLOGIES:
         raise ValueError(f"topology: {options.topology!r} is not one of {TOPOLOGIES}")
-    solve = make_solver(options.solver)
+    solve = options.solve_fn or make_solver(options.solver)
     fleet = FleetModel.build(scenario, safety=options.safety)
     params = fleet.params
     robots = scenario.robots
