@@ -139,6 +139,7 @@ class AgentNode:
         self.ticks = 0
         self.overruns = 0
         self.stale = 0
+        self.waiting = 0  # ticks before the first pose arrived (zero command, not stale)
         self.lockstep_timeouts = 0
         self.status_counts = {STATUS_RELAXED: 0, STATUS_FALLBACK: 0, STATUS_FAILED: 0}
         self.solve_us: list[float] = []
@@ -157,6 +158,7 @@ class AgentNode:
         self._arrived: asyncio.Event | None = None
         self._stop: asyncio.Event | None = None
         self._own_others: Others | None = None
+        self._tick_point: tuple[float, float, float] | None = None
 
     # --- wiring ------------------------------------------------------------------------------
 
@@ -329,10 +331,27 @@ class AgentNode:
         return entry is not None and entry[0].stamp >= t
 
     async def tick(self, t: float | None) -> StepResult | None:
-        """One control tick; ``t`` is the pose stamp in lock-step, ``None`` in real time."""
+        """One control tick; ``t`` is the pose stamp in lock-step, ``None`` in real time.
+
+        Lock-step publishes ``state`` first (with the previous tick's velocity), because the
+        neighbours and the leader wait for it; real time publishes it after the command, with
+        the velocity just certified (zero after a stale tick), the freshest it can share."""
         self.ticks += 1
+        self._tick_point = None
+        try:
+            return await self._tick(t)
+        finally:
+            if t is None and self._tick_point is not None:
+                px, py, stamp = self._tick_point
+                self._pubs[self.state_key].put_message(State(px, py, *self.last_u, stamp))
+
+    async def _tick(self, t: float | None) -> StepResult | None:
         cfg = self.cfg
         pose_entry = self._latest(keys.POSE, self.pose_key)
+        if pose_entry is None:  # not localised yet (start-up): zero, counted apart from stale
+            self.waiting += 1
+            self._put_cmd(Cmd(0.0, 0.0, 0.0, 0.0, self.last_stamp))
+            return None
         if not self._fresh(pose_entry, t):
             return self._zero(t, "pose")
         pose: Pose = pose_entry[0]
@@ -342,7 +361,9 @@ class AgentNode:
         off = cfg.control.offset
         px, py = control_point(pose.x, pose.y, pose.theta, off) if cfg.control.unicycle \
             else (pose.x, pose.y)
-        self._pubs[self.state_key].put_message(State(px, py, *self.last_u, stamp))
+        self._tick_point = (px, py, stamp)
+        if t is not None:  # lock-step: neighbours and the leader wait for this tick's state
+            self._pubs[self.state_key].put_message(State(px, py, *self.last_u, stamp))
 
         state_keys = tuple(self.neighbour_keys) + (self.foreign_keys if self.all_to_all else ())
         others_ready = True
@@ -474,6 +495,7 @@ class AgentNode:
             "ticks": self.ticks,
             "overruns": self.overruns,
             "stale": self.stale,
+            "waiting": self.waiting,
             "lockstep_timeouts": self.lockstep_timeouts,
             "solves": len(self.solve_us),
             "relaxed": self.status_counts[STATUS_RELAXED],

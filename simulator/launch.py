@@ -267,6 +267,7 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
             "ticks": sum(s["ticks"] for s in stats),
             "overruns": sum(s["overruns"] for s in stats),
             "stale": sum(s["stale"] for s in stats),
+            "waiting_for_pose": sum(s.get("waiting", 0) for s in stats),
             "lockstep_timeouts": sum(s.get("lockstep_timeouts", 0) for s in stats),
             "dropped": _sum_dicts(s["dropped"] for s in stats),
             "cpu_s": {s["robot"]: s["cpu_s"] for s in stats},
