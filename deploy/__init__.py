@@ -1,0 +1,1 @@
+"""Deploy: put agents and their configuration on robots over SSH, and control them."""

@@ -1,0 +1,58 @@
+"""``formation deploy INVENTORY SCENARIO [--dry-run|--start|--stop|--status]``.
+
+Without an option: build the wheel once, install it and each robot's files on every robot
+(concurrently), one line per robot (installed / updated / unchanged / FAILED with the reason).
+``--dry-run`` prints the plan and touches nothing; ``--start``, ``--stop`` and ``--status``
+control the agent through each robot's ``run-agent.sh``.
+
+Exit status: 2 for an invalid inventory or scenario (one line naming the culprit); 1 if any
+robot failed (after a summary line naming them: the others were still served) or the wheel
+could not be built; 0 when every robot succeeded.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+
+from formation.cli import EXIT_ERROR, EXIT_OK, UsageError
+from scenario import load_scenario
+
+from . import deployer
+from .inventory import InventoryError, check_against_scenario, load_inventory
+
+logger = logging.getLogger(__name__)
+
+
+def deploy_command(ns: argparse.Namespace) -> int:
+    scenario = load_scenario(ns.scenario)  # ScenarioError -> exit 2
+    try:
+        inventory = load_inventory(ns.inventory)
+        check_against_scenario(inventory, scenario.robot_ids)
+        plan = deployer.make_plan(inventory, scenario)
+    except InventoryError as exc:
+        raise UsageError(str(exc)) from None
+
+    if getattr(ns, "dry_run", False):
+        for line in deployer.describe(plan):
+            print(line)
+        print(f"dry run: {len(plan.robots)} robots planned, nothing touched")
+        return EXIT_OK
+
+    action = next((a for a in deployer.ACTIONS if getattr(ns, a, False)), None)
+    if action is None:
+        try:
+            outcome = deployer.deploy(plan)
+        except deployer.BuildError as exc:
+            print(f"formation deploy: {exc}")
+            return EXIT_ERROR
+        what = "deploy"
+    else:
+        outcome = deployer.control(plan, action)
+        what = action
+    for note in outcome.notes:
+        print(note)
+    for report in outcome.reports:
+        print(deployer.format_report(report))
+    print(deployer.summary_line(outcome, what))
+    return EXIT_ERROR if outcome.failed else EXIT_OK
