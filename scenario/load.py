@@ -119,6 +119,7 @@ def scenario_from_dict(data: Any) -> Scenario:
     scenario = Scenario(name, dt, duration, tol, robot, controller, tuple(formations), obstacles)
     _check_bands(scenario)
     _check_start(scenario)
+    _check_goals(scenario)
     return scenario
 
 
@@ -370,6 +371,40 @@ def _check_start(s: Scenario) -> None:
                     raise ScenarioError(
                         f"formations[{k}]: robot {m.id!r} of formation {other.name!r} starts "
                         f"inside the ellipse of formation {f.name!r}"
+                    )
+
+
+def _check_goals(s: Scenario) -> None:
+    """A goal configuration that breaks a constraint can never be reached: say so up front."""
+    eps, slop = s.controller.epsilon, 2.0 * s.robot.control_offset
+    goals = {r.id: r.goal for r in s.robots}
+    for k, f in enumerate(s.formations):
+        for n, e in enumerate(f.edges):
+            d = math.dist(goals[e.i], goals[e.j])
+            if abs(d - e.df) > eps + slop + 1e-9:
+                raise ScenarioError(
+                    f"formations[{k}].edges[{n}]: goal distance {d:.3f} m between {e.i!r} and "
+                    f"{e.j!r} is outside Df={e.df:.3f} +/- epsilon={eps:.3f} m: the goal is unreachable"
+                )
+    for rid, g in goals.items():
+        for k, o in enumerate(s.obstacles):
+            if o.velocity == (0.0, 0.0) and math.dist(g, o.center) < o.safe_distance:
+                raise ScenarioError(
+                    f"obstacles[{k}]: the goal of robot {rid!r} is inside the safe distance of "
+                    f"obstacle {o.name!r}"
+                )
+    for k, f in enumerate(s.formations):
+        pts = [m.goal for m in f.robots]
+        shape = reference_shape([_control_point(m.start, s.robot.control_offset) for m in f.robots])
+        e = estimate(shape, formation_axes(s, f), pts, [(0.0, 0.0)] * len(pts))
+        for other in s.formations:
+            if other is f:
+                continue
+            for m in other.robots:
+                if ellipse_value(e, *m.goal) < 0.0:
+                    raise ScenarioError(
+                        f"formations[{k}]: the goal of robot {m.id!r} (formation {other.name!r}) "
+                        f"is inside the ellipse of formation {f.name!r} at its goal"
                     )
 
 

@@ -90,6 +90,10 @@ INVALID = [
                                          formations__0__robots__a2__start=[0.25, 0.0]),
      "Df - epsilon = 0.200 m lets the bodies"),
     ("missing formations", variant(formations=DELETE), "formations: missing"),
+    ("goal that breaks the formation", variant(formations__0__robots__a2__goal=[5.0, 0.0]),
+     "goal distance 1.000 m between 'a1' and 'a2'"),
+    ("goal inside a static obstacle", variant(obstacles__0__center=[4.0, 0.1]),
+     "the goal of robot 'a1' is inside the safe distance of obstacle 'o1'"),
     ("ellipse minor axis larger than major", variant(formations__0__ellipse={"a": 0.3, "b": 0.6}),
      "formations[0].ellipse: a=0.3"),
 ]
