@@ -143,6 +143,7 @@ class AgentNode:
         self.lockstep_timeouts = 0
         self.status_counts = {STATUS_RELAXED: 0, STATUS_FALLBACK: 0, STATUS_FAILED: 0}
         self.solve_us: list[float] = []
+        self.pose_age_us: list[float] = []  # [us] real time: pose reception -> tick start
         self.tick_us: list[float] = []  # [us] from tick start (or pose arrival) to cmd put
         self.min_h = {"formation": math.inf, "obstacle": math.inf, "formations": math.inf}
         self.trace: list[tuple] = []
@@ -355,6 +356,8 @@ class AgentNode:
         if not self._fresh(pose_entry, t):
             return self._zero(t, "pose")
         pose: Pose = pose_entry[0]
+        if t is None:
+            self.pose_age_us.append((time.monotonic() - pose_entry[1]) * 1e6)
         stamp = pose.stamp
         self.last_stamp = stamp
         ts = stamp if t is not None else None  # lock-step freshness reference
@@ -503,6 +506,7 @@ class AgentNode:
             "failed": self.status_counts[STATUS_FAILED],
             "solve_us_median": statistics.median(self.solve_us) if self.solve_us else None,
             "tick_us_median": statistics.median(self.tick_us) if self.tick_us else None,
+            "pose_age_us_median": statistics.median(self.pose_age_us) if self.pose_age_us else None,
             "min_h": {k: _finite_or_none(v) for k, v in self.min_h.items()},
             "dropped": {cls: box.dropped_malformed for cls, box in self._boxes.items()},
             "received": {cls: box.received for cls, box in self._boxes.items()},

@@ -93,8 +93,14 @@ class Supervisor:
         for c in self.children:
             code = c.proc.poll()
             if code is not None:
-                raise ChildFailed(f"{c.name} exited with status {code} "
-                                  f"(see {self.log_dir / (c.name + '.log')})")
+                path = self.log_dir / f"{c.name}.log"
+                c.log.flush()
+                try:
+                    tail = path.read_text(encoding="utf-8", errors="replace").strip().splitlines()[-3:]
+                except OSError:
+                    tail = []
+                raise ChildFailed(f"{c.name} exited with status {code} (see {path})"
+                                  + (": " + " | ".join(tail) if tail else ""))
 
     def stop(self, children: Sequence[Child] | None = None, timeout: float = STOP_TIMEOUT_S) -> None:
         """SIGTERM to each child's process group, wait, SIGKILL what is left."""
@@ -273,6 +279,7 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
             "cpu_s": {s["robot"]: s["cpu_s"] for s in stats},
             "wall_s": max((s["wall_s"] for s in stats), default=None),
             "tick_us_median": _median([s["tick_us_median"] for s in stats]),
+            "pose_age_us_median": _median([s.get("pose_age_us_median") for s in stats]),
         },
         "world": {
             "missing_cmds": result.missing_cmds,
