@@ -13,6 +13,7 @@ On each robot, ``install_dir`` holds::
     formation-agent.service    a systemd user unit
     wheels/formation_cbf-*.whl the project, built once on this machine
     venv/                      python3 -m venv --system-site-packages; the wheel installed --no-deps
+                               (--without-pip when the system python has pip: it is used instead)
     .deploy-stamp              digests of the installed wheel and of the files above
     logs/agent.log, run/agent.pid
 
@@ -28,6 +29,7 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import hashlib
+import importlib.util
 import logging
 import os
 import shlex
@@ -224,8 +226,11 @@ def build_wheel(out_dir: Path, root: Path | None = None) -> Path:
         env = {**os.environ, "SOURCE_DATE_EPOCH": SOURCE_DATE_EPOCH, "PIP_NO_INPUT": "1"}
         base = [sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet",
                 "--disable-pip-version-check", "-w", str(out_dir), str(src)]
+        attempts = [base[:4] + ["--no-build-isolation"] + base[4:], base]
+        if not _can_build_without_isolation():
+            attempts = attempts[1:]
         proc = None
-        for argv in (base[:4] + ["--no-build-isolation"] + base[4:], base):
+        for argv in attempts:
             proc = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=600,
                                   check=False)
             if proc.returncode == 0:
@@ -239,6 +244,17 @@ def build_wheel(out_dir: Path, root: Path | None = None) -> Path:
     if not path.is_file():
         raise BuildError(f"pip wheel did not write {path.name}")
     return path
+
+
+def _can_build_without_isolation() -> bool:
+    """Whether this interpreter's setuptools can write wheels (>= 70.1, or with ``wheel``)."""
+    try:
+        from importlib.metadata import version
+
+        major, minor = (int(x) for x in version("setuptools").split(".")[:2])
+    except Exception:  # noqa: BLE001 - not installed or an odd version string
+        return False
+    return (major, minor) >= (70, 1) or importlib.util.find_spec("wheel") is not None
 
 
 # --------------------------------------------------------------------------------- reports
@@ -292,7 +308,7 @@ def install_command(rp: RobotPlan, abs_dir: str, wheel: str, wheel_hash: str,
         steps += [
             f"mv -f {q(wheel)} wheels/",
             f"find wheels -name '*.whl' ! -name {q(wheel)} -delete",
-            f"{{ test -x venv/bin/python || {q(rp.robot.python)} -m venv --system-site-packages venv; }}",
+            _make_venv(q(rp.robot.python)),
             "venv/bin/python -m pip install --quiet --no-deps --no-index --force-reinstall "
             f"--disable-pip-version-check wheels/{q(wheel)}",
             f"{{ {env + ' ' if env else ''}venv/bin/python -c 'import agent.node, agent.base' "
@@ -301,6 +317,15 @@ def install_command(rp: RobotPlan, abs_dir: str, wheel: str, wheel_hash: str,
         ]
     steps.append(f"printf 'wheel=%s\\nfiles=%s\\n' {wheel_hash} {rp.files_digest} > {STAMP_FILE}")
     return " && ".join(steps)
+
+
+def _make_venv(python: str) -> str:
+    """Create ``venv`` unless it exists: without its own pip when the system python has one
+    (the venv's python then runs the system pip, seen through --system-site-packages: 0.2 s
+    instead of the 5 to 20 s that bootstrapping pip into every venv takes)."""
+    return (f"{{ test -x venv/bin/python || {{ {python} -m venv --system-site-packages "
+            f"--without-pip venv && {{ venv/bin/python -c 'import pip' 2>/dev/null || "
+            f"{{ rm -rf venv && {python} -m venv --system-site-packages venv; }}; }}; }}; }}")
 
 
 def _parse_probe(text: str) -> tuple[str, dict[str, str]]:
@@ -345,7 +370,12 @@ async def deploy_robot(rp: RobotPlan, wheel: Path, wheel_hash: str, staging: Pat
     if not done.ok:
         return _failed(rp, "install", done, t0)
     status = "installed" if info.get("venv") != "yes" else "updated"
-    what = "wheel and files" if need_install else "files only"
+    if info.get("venv") != "yes":
+        what = "new virtualenv, wheel and files"
+    elif info.get("wheel") != wheel_hash:
+        what = f"wheel {info.get('wheel', 'none')} -> {wheel_hash} and files"
+    else:
+        what = f"files only ({info.get('files', 'none')} -> {rp.files_digest})"
     detail = f"{what} in {abs_dir}"
     if running:
         detail += f"; agent running (pid {running}): --stop and --start to use the new version"

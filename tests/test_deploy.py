@@ -166,9 +166,24 @@ def kill_agents(install_dirs: list[Path]) -> None:
                 pass
 
 
+@pytest.fixture(scope="module")
+def source_snapshot(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A copy of the source tree, so files others edit meanwhile do not change the wheel."""
+    import tomllib
+
+    snap = tmp_path_factory.mktemp("src")
+    shutil.copy2(ROOT / "pyproject.toml", snap / "pyproject.toml")
+    packages = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
+    for pkg in packages:
+        shutil.copytree(ROOT / pkg, snap / pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    return snap
+
+
 @pytest.fixture
-def fleet(tmp_path: Path, sshd: dict, router: str) -> Iterator[dict]:
+def fleet(tmp_path: Path, sshd: dict, router: str, source_snapshot: Path,
+          monkeypatch: pytest.MonkeyPatch) -> Iterator[dict]:
     """Files of a three-robot deploy: scenario, inventory, install dirs (agents killed at the end)."""
+    monkeypatch.setattr(deployer, "project_root", lambda: source_snapshot)
     scenario = tmp_path / "scenario.yaml"
     scenario.write_text(SCENARIO)
     dirs = [tmp_path / "robots" / f"r{i}" / "formation-cbf" for i in (1, 2, 3)]
