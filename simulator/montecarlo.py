@@ -1,0 +1,186 @@
+"""``formation montecarlo``: random warehouse scenarios, simulated in-process.
+
+Each run draws a layout from its own seed (so a failure can be replayed alone): two shelf rows
+with a cross aisle, 2 to 4 formations of 2 to 4 robots (pairs, triangles, rectangles) crossing
+the floor along the main aisle or through the cross aisle, optionally a forklift driving along an
+outer aisle, and a robot model (single integrator or unicycle). Layouts the validator refuses are
+redrawn from the next sub-seed. ``montecarlo.json`` lists the totals and, for every failed run,
+its seed and its scenario file (written next to it) so it can be replayed with ``formation sim``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import random
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import yaml
+
+from scenario import ScenarioError
+from scenario.load import scenario_from_dict
+
+SHAPES = {
+    "pair": ([(0.0, 0.25), (0.0, -0.25)], [(0, 1)], 0),
+    "triangle": ([(0.3, 0.0), (-0.15, 0.26), (-0.15, -0.26)], [(0, 1), (1, 2), (0, 2)], 0),
+    "rectangle": ([(0.3, 0.15), (0.3, -0.15), (-0.3, -0.15), (-0.3, 0.15)],
+                  [(0, 1), (0, 2), (0, 3), (1, 2), (2, 3)], 0),
+}
+SHELF_Y = 1.8  # [m] shelf rows at +/- this
+SHELF_XS = (-4.2, -3.5, -2.8, -2.1, -1.4, 1.4, 2.1, 2.8, 3.5, 4.2)  # cross aisle at |x| < 1.05
+
+
+def random_scenario(seed: int) -> dict:
+    """One random warehouse scenario as a scenario-file mapping."""
+    rng = random.Random(seed)
+    model = rng.choice(["single_integrator", "unicycle"])
+    n_form = rng.randint(2, 4)
+    # Lanes: main aisle east/west at two heights, cross aisle north/south at two offsets.
+    lanes = [("E", -0.45), ("W", 0.45), ("N", -0.45), ("S", 0.45)]
+    rng.shuffle(lanes)
+    formations = []
+    for k in range(n_form):
+        direction, lane = lanes[k]
+        kind = rng.choice(list(SHAPES))
+        offsets, edges, leader = SHAPES[kind]
+        heading = {"E": 0.0, "W": math.pi, "N": math.pi / 2, "S": -math.pi / 2}[direction]
+        # North/south formations start and end beyond the forklift's aisle, so they cross it
+        # rather than park in it (a forklift does not avoid anything).
+        start_d = rng.uniform(3.2, 4.2) if direction in "EW" else rng.uniform(3.6, 4.0)
+        end_d = rng.uniform(3.2, 4.2) if direction in "EW" else rng.uniform(3.6, 4.0)
+        c, s = math.cos(heading), math.sin(heading)
+        lat = lane + rng.uniform(-0.1, 0.1)
+        sx, sy = -start_d * c - lat * s, -start_d * s + lat * c
+        gx, gy = end_d * c - lat * s, end_d * s + lat * c
+        name = "abcd"[k]
+        robots = {}
+        for j, (ox, oy) in enumerate(offsets):
+            wx, wy = c * ox - s * oy, s * ox + c * oy
+            robots[f"{name}{j + 1}"] = {
+                "start": [round(sx + wx, 4), round(sy + wy, 4)],
+                "goal": [round(gx + wx, 4), round(gy + wy, 4)],
+            }
+        formations.append({
+            "name": name,
+            "leader": f"{name}{leader + 1}",
+            "robots": robots,
+            "edges": [[f"{name}{i + 1}", f"{name}{j + 1}"] for i, j in edges],
+        })
+    obstacles = [
+        {"name": f"shelf-{'n' if y > 0 else 's'}{i}", "center": [x, y], "safe_distance": 0.35}
+        for y in (SHELF_Y, -SHELF_Y) for i, x in enumerate(SHELF_XS)
+    ]
+    if rng.random() < 0.7:
+        y = rng.choice([2.7, -2.7])
+        vx = rng.choice([0.1, 0.15, -0.1, -0.15])
+        obstacles.append({"name": "forklift", "center": [-5.5 if vx > 0 else 5.5, y],
+                          "safe_distance": 0.45, "velocity": [vx, 0.0]})
+    return {
+        "name": f"montecarlo-{seed}",
+        "dt": 0.05,
+        "duration": 150.0,
+        "goal_tolerance": 0.05,
+        "robot": {"model": model, "max_speed": 0.22, "radius": 0.105},
+        "controller": {"kp": 2.0, "gamma": {"formation": 1.0, "obstacle": 0.8, "formations": 0.5},
+                       "epsilon": 0.05},
+        "formations": formations,
+        "obstacles": obstacles,
+    }
+
+
+def valid_scenario(seed: int):
+    """The first valid layout from sub-seeds of ``seed``: (mapping, scenario, sub-seed)."""
+    for sub in range(50):
+        d = random_scenario(seed * 1000 + sub)
+        try:
+            return d, scenario_from_dict(d), seed * 1000 + sub
+        except ScenarioError:
+            continue
+    raise RuntimeError(f"seed {seed}: no valid layout in 50 draws")
+
+
+def run_one(seed: int) -> dict:
+    from .inprocess import SimOptions, simulate
+
+    d, scenario, sub = valid_scenario(seed)
+    s = simulate(scenario, SimOptions(record=False)).summary
+    obstacle_clear = s["min_clearance_m"]["obstacle"]
+    return {
+        "seed": seed,
+        "layout_seed": sub,
+        "model": scenario.robot.model,
+        "formations": len(scenario.formations),
+        "robots": len(scenario.robot_ids),
+        "all_reached": s["all_reached"],
+        "time_to_goal_s": s["time_to_goal_s"],
+        "collisions": s["collisions"],
+        "formation_error_max_m": s["formation_error_max_m"],
+        "epsilon": scenario.controller.epsilon,
+        "min_clearance_obstacle_m": obstacle_clear,
+        "infeasible_ticks": s["qp"]["infeasible"],
+        "fallback_ticks": s["qp"]["fallback"],
+        "scenario": d,
+    }
+
+
+def run_montecarlo(n: int, seed: int, workers: int = 2, progress=None) -> tuple[dict, list[dict]]:
+    seeds = [seed * 100000 + k for k in range(n)]
+    results = []
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        for k, r in enumerate(pool.map(run_one, seeds)):
+            results.append(r)
+            if progress:
+                progress(k + 1, n, 0.0)
+    failed = [r for r in results if not r["all_reached"] or r["collisions"]]
+    deadlocks = [r for r in results if not r["all_reached"] and not r["collisions"]]
+    summary = {
+        "runs": n,
+        "seed": seed,
+        "collisions": sum(r["collisions"] for r in results),
+        "runs_with_collision": sum(1 for r in results if r["collisions"]),
+        "reached_rate": sum(r["all_reached"] for r in results) / n if n else None,
+        "deadlocks": len(deadlocks),
+        "worst_formation_error_m": max((r["formation_error_max_m"] for r in results), default=None),
+        "worst_formation_error_over_epsilon": max(
+            (r["formation_error_max_m"] / r["epsilon"] for r in results), default=None),
+        "min_obstacle_clearance_m": min(
+            (r["min_clearance_obstacle_m"] for r in results
+             if r["min_clearance_obstacle_m"] is not None), default=None),
+        "by_model": {
+            m: {"runs": sum(r["model"] == m for r in results),
+                "reached": sum(r["all_reached"] for r in results if r["model"] == m),
+                "collisions": sum(r["collisions"] for r in results if r["model"] == m)}
+            for m in ("single_integrator", "unicycle")
+        },
+        "failures": [{k: r[k] for k in ("seed", "layout_seed", "model", "all_reached",
+                                         "collisions", "formation_error_max_m")}
+                     for r in failed],
+    }
+    return summary, results
+
+
+def montecarlo_command(ns: argparse.Namespace) -> int:
+    from formation.cli import Progress, UsageError
+
+    if ns.n <= 0:
+        raise UsageError(f"--n: must be a positive number of runs, got {ns.n}")
+    out = Path(ns.out)
+    out.mkdir(parents=True, exist_ok=True)
+    with Progress(f"montecarlo n={ns.n}") as progress:
+        summary, results = run_montecarlo(ns.n, ns.seed, progress=progress.update)
+    for r in results:
+        if not r["all_reached"] or r["collisions"]:
+            (out / f"failure-{r['seed']}.yaml").write_text(yaml.safe_dump(r["scenario"], sort_keys=False))
+    (out / "montecarlo.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    with (out / "runs.jsonl").open("w", encoding="utf-8") as fh:
+        for r in results:
+            fh.write(json.dumps({k: v for k, v in r.items() if k != "scenario"}) + "\n")
+    print(f"montecarlo: {summary['runs']} runs, reached {100 * summary['reached_rate']:.1f}%, "
+          f"collisions {summary['collisions']} (in {summary['runs_with_collision']} runs), "
+          f"deadlocks {summary['deadlocks']}, worst formation error "
+          f"{summary['worst_formation_error_m']:.3f} m")
+    print(f"wrote {out / 'montecarlo.json'}"
+          + (f"; failed scenarios as {out}/failure-SEED.yaml" if summary["failures"] else ""))
+    return 0
