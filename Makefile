@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/formation sim scenarios/warehouse.yaml --out runs/warehouse
+	$(BIN)/formation run scenarios/warehouse.yaml --out runs/warehouse
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
