@@ -155,7 +155,7 @@ def load_inventory(path: str | Path) -> Inventory:
 
 def parse_inventory(data: Any, path: Path) -> Inventory:
     """Validate the parsed YAML of an inventory at ``path`` (for relative local paths)."""
-    folder = path.parent
+    folder = path.parent.resolve()
     top = _mapping(data, "inventory")
     _no_unknown(top, _TOP_KEYS, "")
     if "robots" not in top:
