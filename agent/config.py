@@ -66,6 +66,8 @@ class AgentConfig:
     stale_after: float = 0.25  # [s] inputs older than this are stale: command zero
     base: str = "world"  # where commands go: the simulated world or a real robot base
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
+    cmd_vel_key: str = "cmd_vel"  # real bases: the zenoh-bridge-ros2dds key for /cmd_vel
+    frame_id: str = "base_link"  # real bases (Jazzy TwistStamped): header frame
 
     @property
     def is_leader(self) -> bool:
@@ -167,6 +169,8 @@ def config_from_dict(d: dict[str, Any]) -> AgentConfig:
             stale_after=float(d.pop("stale_after", 0.25)),
             base=str(d.pop("base", "world")),
             zenoh=zenoh,
+            cmd_vel_key=str(d.pop("cmd_vel_key", "cmd_vel")),
+            frame_id=str(d.pop("frame_id", "base_link")),
         )
         d.pop("start", None)
     except KeyError as exc:
