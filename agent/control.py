@@ -25,6 +25,12 @@ centroid, the other formations' ellipses, the obstacles):
 
 Because every member adds the same vector, the formation moves sideways as a whole and its
 shape is untouched; the barriers still decide what is safe.
+
+Jams (three or more formations locked at an intersection) are broken by priority: a formation
+whose centroid has been nearly still for STALL_TIME while away from its goal (:func:`update_stall`,
+computed by every member from the same ellipse) backs away for RETREAT_TIME from each nearby
+formation whose name sorts before its own (:func:`retreat_command`); the formation with priority
+keeps going.
 """
 
 from __future__ import annotations
@@ -45,6 +51,12 @@ TIEBREAK_MARGIN = 0.15  # [m] corridor half-width beyond both radii
 TIEBREAK_DEAD = 0.05  # [m] lateral offsets this small count as dead ahead: keep right
 TIEBREAK_RANGE = 2.0  # [m] distance ahead of contact over which the push fades in
 TIEBREAK_GAIN = 0.35  # push as a fraction of max speed
+STALL_SPEED = 0.02  # [m/s] a formation centroid slower than this is "still"
+STALL_TIME = 4.0  # [s] still this long, away from the goal: a jam
+STALL_GOAL_DISTANCE = 0.3  # [m] closer than this to its goal centroid a formation is not jammed
+RETREAT_TIME = 5.0  # [s] how long a jammed formation backs away
+RETREAT_RANGE = 1.0  # [m] beyond touching ellipses, formations that count for the retreat
+RETREAT_GAIN = 0.5  # retreat speed as a fraction of max speed
 
 
 @dataclass(frozen=True)
@@ -92,6 +104,49 @@ class FormationView(NamedTuple):
     own: Ellipse  # the formation's ellipse, as its leader estimates it
     goal_x: float  # [m] goal centroid
     goal_y: float
+    name: str = ""  # this formation's name (priority: names sort first-come-first)
+    other_names: tuple[str, ...] = ()  # names of ``others``, in the same order
+    retreating: bool = False  # see update_stall
+
+
+class Stall(NamedTuple):
+    """Per-formation memory of the jam rule (every member keeps an identical copy)."""
+
+    still: float = 0.0  # [s] the formation has been nearly still, away from its goal
+    retreat: float = 0.0  # [s] retreat time left
+
+
+def update_stall(prev: Stall, view: FormationView, dt: float) -> Stall:
+    """Jam rule, state part: a formation still for STALL_TIME while away from its goal retreats
+    for RETREAT_TIME. Uses only what every member shares (its formation's ellipse and goal)."""
+    own = view.own
+    far = math.hypot(view.goal_x - own.cx, view.goal_y - own.cy) > STALL_GOAL_DISTANCE
+    slow = math.hypot(own.vx, own.vy) < STALL_SPEED
+    still = prev.still + dt if (far and slow and prev.retreat <= 0.0) else 0.0
+    retreat = max(0.0, prev.retreat - dt)
+    if still >= STALL_TIME:
+        return Stall(0.0, RETREAT_TIME)
+    return Stall(still, retreat)
+
+
+def retreat_command(view: FormationView, others: Sequence[Ellipse], vmax: float):
+    """Jam rule, command part: while retreating, back away from every nearby formation that has
+    priority (a name sorting before ours); None when there is none, i.e. we have priority."""
+    own = view.own
+    rx = ry = 0.0
+    for e, name in zip(others, view.other_names, strict=False):
+        if not name or name >= view.name:
+            continue
+        dx, dy = own.cx - e.cx, own.cy - e.cy
+        d = math.hypot(dx, dy)
+        if d < 1e-9 or d > own.a + e.a + RETREAT_RANGE:
+            continue
+        rx += dx / d
+        ry += dy / d
+    n = math.hypot(rx, ry)
+    if n < 1e-9:
+        return None
+    return (RETREAT_GAIN * vmax * rx / n, RETREAT_GAIN * vmax * ry / n)
 
 
 class StepResult(NamedTuple):
@@ -258,9 +313,13 @@ def control_step(
     px, py = (unicycle.control_point(x, y, theta, off) if p.unicycle else (x, y))
     ux, uy = nominal(p.kp, x, y, goal[0], goal[1], p.max_speed)
     if p.tiebreak and view is not None and p.safety:
-        bx, by = tiebreak_push(view, others, obstacles, p.max_speed)
-        if bx or by:
-            ux, uy = nominal(1.0, 0.0, 0.0, ux + bx, uy + by, p.max_speed)
+        back = retreat_command(view, others, p.max_speed) if view.retreating else None
+        if back is not None:
+            ux, uy = back  # the whole formation backs off the same way
+        else:
+            bx, by = tiebreak_push(view, others, obstacles, p.max_speed)
+            if bx or by:
+                ux, uy = nominal(1.0, 0.0, 0.0, ux + bx, uy + by, p.max_speed)
     nux, nuy = ux, uy
 
     rows = build_rows(p, px, py, theta, (ux, uy), neighbours, obstacles, others, view, pairwise)

@@ -17,7 +17,7 @@ import numpy as np
 
 from agent import unicycle
 from agent.barriers import Neighbour, Obstacle
-from agent.control import ControlParams, FormationView, control_step
+from agent.control import ControlParams, FormationView, Stall, control_step, update_stall
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
 from leader.ellipse import Ellipse, estimate, reference_shape
 from scenario import Scenario, formation_axes
@@ -130,6 +130,7 @@ def simulate(
     counts = {STATUS_RELAXED: 0, STATUS_FALLBACK: 0, STATUS_FAILED: 0}
     min_h = {"formation": math.inf, "obstacle": math.inf, "formations": math.inf}
     all_to_all = options.topology == "all-to-all"
+    stalls = [Stall()] * n  # each robot's copy of its formation's jam state
 
     def obstacles_at(t: float) -> list[Obstacle]:
         return [
@@ -159,6 +160,12 @@ def simulate(
                 pair = []
             gc = goal_centroids[fname]
             view = FormationView(ellipses[fname], gc[0], gc[1])
+            stalls[i] = update_stall(stalls[i], view, dt)
+            view = view._replace(
+                name=fname,
+                other_names=tuple(name for name in ellipses if name != fname),
+                retreating=stalls[i].retreat > 0.0,
+            )
             res = control_step(params, tuple(state[i]), goals[i], nb, obs, others, view, solve, pair)
             results.append(res)
             solve_us.append(res.solve_us)

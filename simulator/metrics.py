@@ -14,6 +14,7 @@ import numpy as np
 from scenario import Scenario
 
 CONTACT_RELEASE = 1e-3  # [m] a contact ends once the clearance exceeds this (onset hysteresis)
+CONTACT_TOL = 1e-6  # [m] overlaps shallower than this are rounding, not contact (1 micrometre)
 
 
 class SafetyMonitor:
@@ -52,7 +53,7 @@ class SafetyMonitor:
             dist = np.sqrt(np.sum(diff * diff, axis=2))[self._iu]
             clear = dist - self._two_r
             self.min_clearance_robot = min(self.min_clearance_robot, float(np.min(clear)))
-            onset = (clear < 0.0) & ~self._robot_contact
+            onset = (clear < -CONTACT_TOL) & ~self._robot_contact
             for k in np.nonzero(onset)[0]:
                 self.collisions += 1
                 a, b = ids[self._iu[0][k]], ids[self._iu[1][k]]
@@ -60,18 +61,18 @@ class SafetyMonitor:
                                            "clearance_m": float(clear[k])})
             # A pair stays "in contact" until it is clearly apart again, so a pair grazing the
             # limit for a while is one collision, not one per tick.
-            self._robot_contact = (clear < 0.0) | (self._robot_contact & (clear <= CONTACT_RELEASE))
+            self._robot_contact = (clear < -CONTACT_TOL) | (self._robot_contact & (clear <= CONTACT_RELEASE))
         if len(self._ds):
             obs = np.asarray(obstacles, dtype=float).reshape(-1, 2)
             d = np.sqrt(np.sum((pos[:, None, :] - obs[None, :, :]) ** 2, axis=2)) - self._ds
             self.min_clearance_obstacle = min(self.min_clearance_obstacle, float(np.min(d)))
             names = [o.name for o in self.scenario.obstacles]
-            onset = (d < 0.0) & ~self._obstacle_contact
+            onset = (d < -CONTACT_TOL) & ~self._obstacle_contact
             for i, j in zip(*np.nonzero(onset), strict=True):
                 self.collisions += 1
                 self.collision_log.append({"t": round(t, 6), "a": ids[i], "b": names[j],
                                            "clearance_m": float(d[i, j])})
-            self._obstacle_contact = (d < 0.0) | (self._obstacle_contact & (d <= CONTACT_RELEASE))
+            self._obstacle_contact = (d < -CONTACT_TOL) | (self._obstacle_contact & (d <= CONTACT_RELEASE))
         if len(self._df):
             e = pos[self._edges[:, 0]] - pos[self._edges[:, 1]]
             err = np.abs(np.sqrt(np.sum(e * e, axis=1)) - self._df)

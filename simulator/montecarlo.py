@@ -22,14 +22,17 @@ import yaml
 from scenario import ScenarioError
 from scenario.load import scenario_from_dict
 
+# Formation shapes sized for loads robots of 0.21 m diameter carry together (a pair under a
+# 0.6 m beam, a triangle under a round table, four under a 0.8 x 0.6 m pallet): offsets from the
+# centre [m], edges (rigid graphs), and the leader's index (adjacent to every member).
 SHAPES = {
-    "pair": ([(0.0, 0.25), (0.0, -0.25)], [(0, 1)], 0),
-    "triangle": ([(0.3, 0.0), (-0.15, 0.26), (-0.15, -0.26)], [(0, 1), (1, 2), (0, 2)], 0),
-    "rectangle": ([(0.3, 0.15), (0.3, -0.15), (-0.3, -0.15), (-0.3, 0.15)],
+    "pair": ([(0.0, 0.3), (0.0, -0.3)], [(0, 1)], 0),
+    "triangle": ([(0.35, 0.0), (-0.175, 0.303), (-0.175, -0.303)], [(0, 1), (1, 2), (0, 2)], 0),
+    "rectangle": ([(0.35, 0.2), (0.35, -0.2), (-0.35, -0.2), (-0.35, 0.2)],
                   [(0, 1), (0, 2), (0, 3), (1, 2), (2, 3)], 0),
 }
 SHELF_Y = 1.8  # [m] shelf rows at +/- this
-SHELF_XS = (-4.2, -3.5, -2.8, -2.1, -1.4, 1.4, 2.1, 2.8, 3.5, 4.2)  # cross aisle at |x| < 1.05
+SHELF_XS = (-4.9, -4.2, -3.5, -2.8, -2.1, 2.1, 2.8, 3.5, 4.2, 4.9)  # cross aisle at |x| < 1.75
 
 
 def random_scenario(seed: int) -> dict:
