@@ -7,6 +7,9 @@ peers) connected to it. Run it as a process::
 
 until SIGINT or SIGTERM (exit status 0), or in-process with :func:`run_router` and a
 ``threading.Event`` that stops it. Multicast scouting is off unless ``--multicast-scouting``.
+``--config FILE`` starts from a zenoh JSON5 file, such as the one :mod:`wire.acl` writes with
+user/password authentication and an access control list; the flags still set mode, endpoints
+and scouting.
 """
 
 from __future__ import annotations
@@ -32,8 +35,10 @@ def router_settings(
     listen: Sequence[str],
     connect: Sequence[str] = (),
     multicast_scouting: bool = False,
+    config_file: str | None = None,
 ) -> ZenohSettings:
-    """The settings of a router listening on ``listen`` (and linking to ``connect`` routers)."""
+    """The settings of a router listening on ``listen`` (and linking to ``connect`` routers),
+    starting from the zenoh JSON5 ``config_file`` if given."""
     if isinstance(listen, str):
         raise ValueError("listen must be a sequence of endpoints, not a single str")
     if not listen:
@@ -44,6 +49,7 @@ def router_settings(
         connect=tuple(connect),
         multicast_scouting=multicast_scouting,
         scouting_delay_s=0.0,  # a router has nothing to wait for before it serves
+        config_file=config_file,
     )
 
 
@@ -54,13 +60,14 @@ def run_router(
     connect: Sequence[str] = (),
     multicast_scouting: bool = False,
     ready_event: threading.Event | None = None,
+    config_file: str | None = None,
 ) -> None:
     """Run a router session until ``stop_event`` is set, then close it.
 
     ``ready_event``, if given, is set once the session is open and listening. Opening errors
     (an endpoint in use, say) propagate as zenoh raises them.
     """
-    conf = router_settings(listen, connect, multicast_scouting).to_config()
+    conf = router_settings(listen, connect, multicast_scouting, config_file).to_config()
     session = zenoh.open(conf)
     try:
         logger.info("router %s listening on %s", session.zid(), ", ".join(listen))
@@ -91,6 +98,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="discover peers by UDP multicast (default: off)",
     )
     parser.add_argument(
+        "--config", metavar="FILE", default=None,
+        help="a zenoh JSON5 file to start from (authentication, access control)",
+    )
+    parser.add_argument(
         "--log-level", default="INFO", type=str.upper,
         choices=["DEBUG", "INFO", "WARNING", "ERROR"], help="logging level (default INFO)",
     )
@@ -109,7 +120,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
     try:
-        run_router(listen, stop, connect=ns.connect, multicast_scouting=ns.multicast_scouting)
+        run_router(listen, stop, connect=ns.connect, multicast_scouting=ns.multicast_scouting,
+                   config_file=ns.config)
     except ValueError as exc:
         print(f"wire.router: {exc}", file=sys.stderr)
         return 2
