@@ -1,5 +1,8 @@
 """``python -m agent --config ROBOT.yaml [--lockstep] [--stats PATH]``: one robot's agent.
 
+``--drop P --delay-ms D --fault-seed S`` inject link faults at the agent's subscribers (for
+``formation run``; see docs/faults.md and :mod:`agent.faults`).
+
 Runs :class:`agent.node.AgentNode` until SIGINT or SIGTERM, then commands zero velocity, closes
 the Zenoh session, writes its counters to ``--stats`` (JSON) and exits 0. Exit status 2 for an
 invalid configuration, 1 when the session cannot be opened or the node fails.
@@ -17,7 +20,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from agent.config import load_config
+from agent.faults import LinkFaults
 from agent.node import AgentNode, NodeOptions
+from wire.acl import read_credentials
 
 logger = logging.getLogger("agent")
 
@@ -48,6 +53,15 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="tick on pose arrival (simulated world) instead of the own clock")
     parser.add_argument("--lockstep-timeout", type=float, default=2.0, metavar="SECONDS",
                         help="longest wait for one tick's inputs in lock-step (default 2)")
+    parser.add_argument("--drop", type=float, default=0.0, metavar="P",
+                        help="lose each received state/ellipse/others message with probability P")
+    parser.add_argument("--delay-ms", type=float, default=0.0, metavar="MS",
+                        help="deliver received state/ellipse/others messages this much later")
+    parser.add_argument("--fault-seed", type=int, default=0, help="seed of the losses")
+    parser.add_argument("--ellipse-hold", type=float, default=10.0, metavar="SECONDS",
+                        help="leader: longest use of another formation's stale ellipse, inflated")
+    parser.add_argument("--zenoh-auth", type=Path, default=None, metavar="FILE",
+                        help="log in to the router with the user:password in FILE (mode 0600)")
     parser.add_argument("--stats", type=Path, default=None, help="write counters here (JSON) at exit")
     parser.add_argument("--no-trace", action="store_true", help="do not keep per-tick rows")
     parser.add_argument("--log-level", default="WARNING")
@@ -56,8 +70,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     try:
         cfg = load_config(ns.config)
+        auth = None if ns.zenoh_auth is None else read_credentials(ns.zenoh_auth)
+        faults = LinkFaults(drop=ns.drop, delay=ns.delay_ms / 1000.0, seed=ns.fault_seed)
         options = NodeOptions(lockstep=ns.lockstep, lockstep_timeout=ns.lockstep_timeout,
-                              trace=not ns.no_trace)
+                              trace=not ns.no_trace, faults=faults, ellipse_hold=ns.ellipse_hold,
+                              auth=auth)
         node = AgentNode(cfg, options)
     except ValueError as exc:
         print(f"agent: {exc}", file=sys.stderr)

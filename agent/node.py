@@ -27,6 +27,18 @@ reception. *Lock-step* (``lockstep=True``, for the simulated world): a tick star
 arrives, and each phase waits (up to ``lockstep_timeout``) for the inputs stamped ``t``, so the
 run is deterministic and equals the in-process simulation; staleness is ``t - stamp``.
 
+In lock-step a tick starts on the first of the frame's pose or obstacles message, so a robot whose
+camera lost its marker still ticks: it waits for its pose like any input and, without one for
+this frame, commands zero (counted ``stale``). An input whose wait timed out is *late*: later
+ticks do not wait for it again until a message arrives on its key, so a dead neighbour, leader or
+camera costs one timeout, not one per tick (counted ``lockstep_timeouts``).
+
+Faults (docs/faults.md): :class:`agent.faults.LinkFaults` in :class:`NodeOptions` drops (seeded,
+per message) and delays the inter-robot classes at this node's subscribers; a lost message counts
+in ``fault_dropped`` and, in lock-step, ends the wait for it. A leader whose copy of another
+formation's ellipse is stale keeps using it inflated by ``max_speed * age`` (both semi-axes), the
+region that formation can have reached, for up to ``ellipse_hold`` seconds, then stops.
+
 Malformed or non-finite payloads are dropped and counted per key class. On stop (SIGINT/SIGTERM
 in ``python -m agent``) the node publishes a zero command, undeclares everything and closes the
 session; :meth:`AgentNode.stats` holds every counter for the launcher.
@@ -48,6 +60,7 @@ import zenoh
 from agent.barriers import Neighbour, Obstacle
 from agent.config import AgentConfig
 from agent.control import FormationView, StepResult, control_step
+from agent.faults import EPS, DelayLine, LinkFaults, lag
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, solve_exact
 from agent.unicycle import control_point
 from leader.role import LeaderRole, ellipse_to_msg, msg_to_ellipse
@@ -66,7 +79,7 @@ from wire.payloads import (
     decode_state,
 )
 from wire.traffic import CountingPublisher, Mailbox, TrafficCounter
-from wire.zconf import ZenohSettings
+from wire.zconf import UsrPwdAuth, ZenohSettings
 
 logger = logging.getLogger(__name__)
 
@@ -81,21 +94,28 @@ class NodeOptions:
     lockstep_timeout: float = 2.0  # [s] longest wait for one phase's inputs in lock-step
     trace: bool = True  # keep one row per tick (TRACE_COLUMNS) for the launcher's time series
     connect_timeout: float = 10.0  # [s] keep retrying the router this long when opening
+    faults: LinkFaults = LinkFaults()  # loss and delay applied to received inter-robot messages
+    ellipse_hold: float = 10.0  # [s] leader: longest use of another formation's stale ellipse
+    auth: UsrPwdAuth | None = None  # log in to the router as this user (access control)
 
     def __post_init__(self) -> None:
-        for name in ("lockstep_timeout", "connect_timeout"):
+        if not isinstance(self.faults, LinkFaults):
+            raise ValueError(f"faults: must be a LinkFaults, got {type(self.faults).__name__}")
+        for name in ("lockstep_timeout", "connect_timeout", "ellipse_hold"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name}: must be a positive number, got {v!r}")
 
 
-def zenoh_config(cfg: AgentConfig, connect_timeout: float | None = None) -> zenoh.Config:
-    """The ``zenoh.Config`` of an agent from its configuration's Zenoh settings."""
+def zenoh_config(cfg: AgentConfig, connect_timeout: float | None = None,
+                 auth: UsrPwdAuth | None = None) -> zenoh.Config:
+    """The ``zenoh.Config`` of an agent from its configuration's Zenoh settings (and the
+    user/password it logs in with, if any)."""
     z = cfg.zenoh
     return ZenohSettings(
         mode=z.mode, connect=tuple(z.connect), listen=tuple(z.listen),
         multicast_scouting=z.multicast_scouting,
-        connect_timeout_s=connect_timeout if z.connect else None,
+        connect_timeout_s=connect_timeout if z.connect else None, auth=auth,
     ).to_config()
 
 
@@ -106,6 +126,14 @@ def _stamped(decode: Callable[[bytes], Any]) -> Callable[[bytes], tuple[Any, flo
         return decode(payload), time.monotonic()
 
     return run
+
+
+def inflate(m: EllipseMsg, grow: float) -> EllipseMsg:
+    """``m`` with both semi-axes grown by ``grow`` [m]: a stale ellipse covering everywhere its
+    formation can have gone since (``grow = max_speed * age``); centre, velocities and stamp
+    are kept."""
+    return EllipseMsg(m.formation, m.cx, m.cy, m.alpha, m.a + grow, m.b + grow, m.vx, m.vy,
+                      m.alpha_rate, m.stamp)
 
 
 def _finite_or_none(v: float) -> float | None:
@@ -141,6 +169,14 @@ class AgentNode:
         self.stale = 0
         self.waiting = 0  # ticks before the first pose arrived (zero command, not stale)
         self.lockstep_timeouts = 0
+        self.inflated = 0  # leader ticks that used another formation's stale ellipse, inflated
+        self.stale_why: dict[str, int] = {}  # stale ticks by the input that was stale
+        self.fault_dropped = {cls: 0 for cls in (keys.STATE, keys.ELLIPSE, keys.OTHERS)}
+        self.fault_delayed = 0
+        self._lost: dict[str, float] = {}  # key -> newest stamp lost to fault injection
+        self._late: set[str] = set()  # lock-step: keys whose last wait timed out
+        self._lag = lag(options.faults.delay, cfg.period)
+        self._delay_line: DelayLine | None = None
         self.status_counts = {STATUS_RELAXED: 0, STATUS_FALLBACK: 0, STATUS_FAILED: 0}
         self.solve_us: list[float] = []
         self.pose_age_us: list[float] = []  # [us] real time: pose reception -> tick start
@@ -190,28 +226,77 @@ class AgentNode:
         }
         for cls in set(self.subscribed_keys.values()):
             self._boxes[cls] = Mailbox(loop, _stamped(decoders[cls]), counter=self.counter)
-        self._session = zenoh.open(zenoh_config(self.cfg, self.options.connect_timeout))
+        self._session = zenoh.open(zenoh_config(self.cfg, self.options.connect_timeout,
+                                                self.options.auth))
         s = self._session
         pub_keys = [self.state_key, self.cmd_key]
         if self.role is not None:
             pub_keys += [self.role.others_key] + ([] if self.all_to_all else [self.role.ellipse_key])
         for k in pub_keys:
             self._pubs[k] = CountingPublisher(s.declare_publisher(k), self.counter)
-        arrived = self._arrived
+        faults = self.options.faults
+        if faults.delay > 0 and self.options.lockstep:
+            self._delay_line = DelayLine(faults.delay, self._offer)
 
-        def handler(box: Mailbox) -> Callable[[zenoh.Sample], None]:
+        def handler(cls: str, box: Mailbox) -> Callable[[zenoh.Sample], None]:
+            decode = decoders[cls]
+            faulty = faults.applies_to(cls)
+
             def on_sample(sample: zenoh.Sample) -> None:
-                box.callback(sample)
+                if faulty and sample.kind != zenoh.SampleKind.DELETE:
+                    self._faulty_sample(loop, cls, decode, str(sample.key_expr),
+                                        sample.payload.to_bytes())
+                else:
+                    box.callback(sample)
                 try:
-                    loop.call_soon_threadsafe(arrived.set)
+                    loop.call_soon_threadsafe(self._on_arrival, str(sample.key_expr))
                 except RuntimeError:  # loop closed: shutting down
                     pass
 
             return on_sample
 
         for k, cls in self.subscribed_keys.items():
-            self._subs.append(s.declare_subscriber(k, handler(self._boxes[cls])))
+            self._subs.append(s.declare_subscriber(k, handler(cls, self._boxes[cls])))
         logger.info("%s: subscribed to %s", self.cfg.robot_id, ", ".join(self.subscribed_keys))
+
+    def _faulty_sample(self, loop: asyncio.AbstractEventLoop, cls: str,
+                       decode: Callable[[bytes], Any], key: str, payload: bytes) -> None:
+        """Zenoh thread: apply :class:`LinkFaults` to one sample of a faulted class."""
+        box = self._boxes[cls]
+        try:
+            stamp = decode(payload).stamp
+        except Exception:  # noqa: BLE001 - malformed: the mailbox decodes it again and counts it
+            box.offer(key, payload)
+            return
+        faults = self.options.faults
+        try:
+            if faults.dropped(self.cfg.robot_id, key, stamp):
+                loop.call_soon_threadsafe(self._mark_lost, cls, key, stamp)
+            elif faults.delay > 0 and self._delay_line is not None:
+                loop.call_soon_threadsafe(self._delay_line.push, key, payload, stamp)
+            elif faults.delay > 0:  # real time: hold it on the wall clock
+                loop.call_soon_threadsafe(loop.call_later, faults.delay, self._offer, key, payload)
+            else:
+                box.offer(key, payload)
+        except RuntimeError:  # loop closed: shutting down
+            pass
+
+    def _offer(self, key: str, payload: bytes) -> None:
+        """Loop thread: hand a (delayed) payload to its mailbox."""
+        cls = self.subscribed_keys.get(key, keys.STATE)  # all-to-all: a wildcard's concrete key
+        self.fault_delayed += 1
+        self._boxes[cls].offer(key, payload)
+        self._on_arrival(key)
+
+    def _mark_lost(self, cls: str, key: str, stamp: float) -> None:
+        self.fault_dropped[cls] += 1
+        self._lost[key] = max(stamp, self._lost.get(key, -math.inf))
+
+    def _on_arrival(self, key: str) -> None:
+        """Loop thread: something arrived on ``key`` (its publisher is alive): wake the tick."""
+        self._late.discard(key)
+        if self._arrived is not None:
+            self._arrived.set()
 
     def close(self) -> None:
         """Zero command, undeclare, close the session (idempotent)."""
@@ -272,12 +357,14 @@ class AgentNode:
     async def _lockstep_loop(self) -> None:
         assert self._stop is not None and self._arrived is not None
         last = -math.inf
-        box = self._boxes[keys.POSE]
+        frame = [(self._boxes[keys.POSE], self.pose_key),
+                 (self._boxes[keys.OBSTACLES], self.obstacles_key)]
         while not self._stop.is_set():
             self._arrived.clear()
-            entry = box.latest(self.pose_key)
-            if entry is not None and entry[0].stamp > last:
-                last = entry[0].stamp
+            newest = max((e[0].stamp for e in (b.latest(k) for b, k in frame) if e is not None),
+                         default=-math.inf)
+            if newest > last:  # a new frame: its pose or its obstacles arrived
+                last = newest
                 started = time.monotonic()
                 await self.tick(last)
                 self.tick_us.append((time.monotonic() - started) * 1e6)
@@ -290,27 +377,38 @@ class AgentNode:
                 stop_wait.cancel()
                 arrived_wait.cancel()
 
-    async def _wait_for(self, ready: Callable[[], bool]) -> bool:
-        """Lock-step: wait until ``ready()`` (True), the timeout or stop (False)."""
+    async def _wait_current(self, inputs: list[tuple[str, str]], t: float) -> bool:
+        """Lock-step: wait until every (class, key) in ``inputs`` that is not late holds the
+        message of the tick stamped ``t`` (True), or the timeout or stop (False). On a timeout
+        the inputs still missing become late: later ticks do not wait for them until a message
+        arrives on their key."""
         assert self._arrived is not None and self._stop is not None
-        if ready():
+
+        def missing() -> list[str]:
+            return [k for cls, k in inputs if k not in self._late and not self._current(cls, k, t)]
+
+        if not missing():
             return True
         if not self.options.lockstep:
             return False
         deadline = time.monotonic() + self.options.lockstep_timeout
         while not self._stop.is_set():
             self._arrived.clear()
-            if ready():
+            if not missing():
                 return True
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 self.lockstep_timeouts += 1
+                late = missing()
+                self._late.update(late)
+                logger.info("%s: tick %.3f: gave up waiting for %s", self.cfg.robot_id, t,
+                            ", ".join(late))
                 return False
             try:
                 await asyncio.wait_for(self._arrived.wait(), remaining)
             except TimeoutError:
                 pass
-        return ready()
+        return not missing()
 
     # --- one tick ----------------------------------------------------------------------------
 
@@ -327,9 +425,14 @@ class AgentNode:
         return t - entry[0].stamp <= self.cfg.stale_after + 1e-9
 
     def _current(self, cls: str, key: str, t: float) -> bool:
-        """Lock-step: the message on ``key`` belongs to the tick stamped ``t`` (or later)."""
+        """Lock-step: the message on ``key`` belongs to the tick stamped ``t`` (or later), or,
+        under added delay, to the newest tick that can have arrived; or it was lost."""
+        need = t - self._lag if self.options.faults.applies_to(cls) else t
         entry = self._latest(cls, key)
-        return entry is not None and entry[0].stamp >= t
+        if entry is not None and entry[0].stamp >= need - EPS:
+            return True
+        lost = self._lost.get(key)
+        return lost is not None and lost >= need - EPS
 
     async def tick(self, t: float | None) -> StepResult | None:
         """One control tick; ``t`` is the pose stamp in lock-step, ``None`` in real time.
@@ -348,13 +451,18 @@ class AgentNode:
 
     async def _tick(self, t: float | None) -> StepResult | None:
         cfg = self.cfg
+        if t is not None:
+            if self._delay_line is not None:
+                self._delay_line.advance(t)
+                await asyncio.sleep(0)  # let the mailboxes store what was just released
+            await self._wait_current([(keys.POSE, self.pose_key)], t)
         pose_entry = self._latest(keys.POSE, self.pose_key)
         if pose_entry is None:  # not localised yet (start-up): zero, counted apart from stale
             self.waiting += 1
-            self._put_cmd(Cmd(0.0, 0.0, 0.0, 0.0, self.last_stamp))
+            self._put_cmd(Cmd(0.0, 0.0, 0.0, 0.0, self.last_stamp if t is None else t))
             return None
-        if not self._fresh(pose_entry, t):
-            return self._zero(t, "pose")
+        if not self._fresh(pose_entry, t) or (t is not None and pose_entry[0].stamp < t - EPS):
+            return self._zero(t, "pose")  # lock-step: no pose in this frame (camera dropout)
         pose: Pose = pose_entry[0]
         if t is None:
             self.pose_age_us.append((time.monotonic() - pose_entry[1]) * 1e6)
@@ -372,7 +480,8 @@ class AgentNode:
         others_ready = True
         if self.role is not None:
             others_ready = await self._lead(px, py, stamp, ts)
-        await self._wait_for(lambda: self._inputs_current(state_keys, stamp))
+        if t is not None:
+            await self._wait_current(self._tick_inputs(state_keys), stamp)
 
         # freshness of every input
         states: dict[str, State] = {}
@@ -424,12 +533,12 @@ class AgentNode:
                                res.solve_us))
         return res
 
-    def _inputs_current(self, state_keys: tuple[str, ...], stamp: float) -> bool:
-        if not all(self._current(keys.STATE, k, stamp) for k in state_keys):
-            return False
-        if not self._current(keys.OBSTACLES, self.obstacles_key, stamp):
-            return False
-        return self.role is not None or self._current(keys.OTHERS, self.others_key, stamp)
+    def _tick_inputs(self, state_keys: tuple[str, ...]) -> list[tuple[str, str]]:
+        inputs = [(keys.STATE, k) for k in state_keys]
+        inputs.append((keys.OBSTACLES, self.obstacles_key))
+        if self.role is None:
+            inputs.append((keys.OTHERS, self.others_key))
+        return inputs
 
     async def _lead(self, px: float, py: float, stamp: float, ts: float | None) -> bool:
         """Leader role for this tick: estimate and publish the ellipse, collect the other
@@ -438,8 +547,8 @@ class AgentNode:
         assert role is not None  # only called on the leader
         prefix = self.cfg.prefix
         member_keys = {m: keys.state_key(prefix, m) for m in role.members if m != self.cfg.robot_id}
-        await self._wait_for(lambda: all(self._current(keys.STATE, k, stamp)
-                                         for k in member_keys.values()))
+        if ts is not None:
+            await self._wait_current([(keys.STATE, k) for k in member_keys.values()], stamp)
         members: dict[str, tuple[float, float, float, float]] = {
             self.cfg.robot_id: (px, py, *self.last_u)}
         for m, k in member_keys.items():
@@ -457,12 +566,21 @@ class AgentNode:
         complete = True
         if not self.all_to_all:
             self._pubs[role.ellipse_key].put_message(ellipse_to_msg(role.formation, own, stamp))
-            await self._wait_for(lambda: all(self._current(keys.ELLIPSE, k, stamp)
-                                             for k in role.other_keys))
+            if ts is not None:
+                await self._wait_current([(keys.ELLIPSE, k) for k in role.other_keys], stamp)
+            inflated = False
             for k in role.other_keys:
                 entry = self._latest(keys.ELLIPSE, k)
+                if entry is None:
+                    continue
                 if self._fresh(entry, ts):
                     received[k] = entry[0]
+                    continue
+                age = (ts - entry[0].stamp) if ts is not None else time.monotonic() - entry[1]
+                if age <= self.options.ellipse_hold:
+                    received[k] = inflate(entry[0], self.cfg.control.max_speed * age)
+                    inflated = True
+            self.inflated += inflated
             complete = len(received) == len(role.other_keys)
         self._own_others = role.others(own, received, stamp)
         if complete:
@@ -470,6 +588,7 @@ class AgentNode:
         return complete
 
     def _zero(self, t: float | None, why: str) -> None:
+        self.stale_why[why] = self.stale_why.get(why, 0) + 1
         self.stale += 1
         self.last_u = (0.0, 0.0)
         stamp = t if t is not None else self.last_stamp
@@ -500,6 +619,10 @@ class AgentNode:
             "stale": self.stale,
             "waiting": self.waiting,
             "lockstep_timeouts": self.lockstep_timeouts,
+            "stale_why": dict(self.stale_why),
+            "inflated": self.inflated,
+            "fault_dropped": dict(self.fault_dropped),
+            "fault_delayed": self.fault_delayed,
             "solves": len(self.solve_us),
             "relaxed": self.status_counts[STATUS_RELAXED],
             "fallback": self.status_counts[STATUS_FALLBACK],

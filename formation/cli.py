@@ -54,6 +54,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--topology", default="reduced", choices=["reduced", "all-to-all"])
     p.add_argument("--drop", type=float, default=0.0, help="message loss probability")
     p.add_argument("--delay-ms", type=float, default=0.0, help="added message delay [ms]")
+    p.add_argument("--fault-seed", type=int, default=0, help="seed of the message losses")
+    p.add_argument("--kill", action="append", metavar="ROBOT@T[:AFTER]",
+                   help="kill ROBOT's agent at simulated time T, restart it AFTER s later")
+    p.add_argument("--camera-dropout", action="append", metavar="ROBOT@T:DURATION",
+                   help="the camera loses ROBOT's marker from T for DURATION s")
+    p.add_argument("--secure", action="store_true",
+                   help="user/password authentication and the fleet's access control list")
     p.add_argument("--no-safety", action="store_true")
     p.add_argument("--port", type=int, default=0, help="router TCP port on 127.0.0.1 (0: free)")
 

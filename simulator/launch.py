@@ -15,6 +15,16 @@ over) the agents get SIGTERM, the launcher collects their counters and traces, a
 :func:`simulator.output.write_run`. Every child is stopped (SIGTERM to its process group, SIGKILL
 after a timeout) on every way out: success, Ctrl-C or SIGTERM, a crashed child, an exception.
 ``DIR/processes.json`` lists the children's PIDs; ``DIR/logs/`` holds their output.
+
+Faults (:class:`FaultPlan`, docs/faults.md): ``--drop P`` and ``--delay-ms D`` are handed to every
+agent, which applies them to the ``state``, ``ellipse`` and ``others`` messages it receives
+(seeded by ``--fault-seed``); ``--kill ROBOT@T[:AFTER]`` SIGKILLs that robot's agent at simulated
+time ``T`` and, with ``AFTER``, starts a new one ``AFTER`` seconds later (in lock-step the world
+waits for it to subscribe, so the restart takes no simulated time beyond ``AFTER``);
+``--camera-dropout ROBOT@T:DURATION`` makes the world stop publishing that robot's pose. Fault
+runs keep the lock-step clock with short timeouts (agents 0.5 s per input, world 2 s per tick of
+commands): a loss is known to the receiver's simulation at once, a silent process costs one
+timeout and is then not waited for until it speaks again. ``summary.json`` gains ``faults``.
 """
 
 from __future__ import annotations
@@ -38,9 +48,11 @@ from typing import IO
 import zenoh
 
 from agent.config import ZenohSettings, build_agent_configs, save_config
+from agent.faults import LinkFaults
 from scenario import Scenario, load_scenario
-from wire import keys, traffic
+from wire import acl, keys, traffic
 from wire.testing import free_tcp_port, tcp_endpoint, wait_for_tcp_port
+from wire.zconf import UsrPwdAuth
 from wire.zconf import ZenohSettings as WireZenohSettings
 
 from .inprocess import Series
@@ -53,6 +65,95 @@ REPO_ROOT = Path(__file__).resolve().parent.parent
 STOP_TIMEOUT_S = 5.0  # [s] SIGTERM -> SIGKILL
 START_TIMEOUT_S = 60.0  # [s] router listening, agents subscribed
 INTER_ROBOT = (keys.STATE, keys.ELLIPSE, keys.OTHERS)  # classes the topology decides
+FAULT_AGENT_TIMEOUT_S = 0.5  # [s] lock-step wait per input of an agent in a fault run
+FAULT_WORLD_TIMEOUT_S = 2.0  # [s] lock-step wait for a tick's commands in a fault run
+
+
+@dataclass(frozen=True)
+class Kill:
+    """SIGKILL ``robot``'s agent at simulated time ``at``; restart it ``restart_after`` later."""
+
+    robot: str
+    at: float  # [s]
+    restart_after: float | None = None  # [s]; None: it stays dead
+
+
+@dataclass(frozen=True)
+class CameraDropout:
+    """The world publishes no pose of ``robot`` from ``at`` for ``duration`` seconds."""
+
+    robot: str
+    at: float  # [s]
+    duration: float  # [s]
+
+
+@dataclass(frozen=True)
+class FaultPlan:
+    """Every fault of one run; the default is none (the run equals ``formation sim``)."""
+
+    drop: float = 0.0  # probability
+    delay_ms: float = 0.0  # [ms]
+    seed: int = 0
+    kills: tuple[Kill, ...] = ()
+    camera_dropouts: tuple[CameraDropout, ...] = ()
+    ellipse_hold: float = 10.0  # [s] see agent.node.NodeOptions
+
+    def __post_init__(self) -> None:
+        LinkFaults(self.drop, self.delay_ms / 1000.0, self.seed)  # ValueError naming the field
+        for k in self.kills:
+            if not (math.isfinite(k.at) and k.at >= 0):
+                raise ValueError(f"kill: {k.robot}: time must be >= 0, got {k.at!r}")
+            if k.restart_after is not None and not (math.isfinite(k.restart_after)
+                                                    and k.restart_after > 0):
+                raise ValueError(f"kill: {k.robot}: restart delay must be > 0, "
+                                 f"got {k.restart_after!r}")
+        for c in self.camera_dropouts:
+            if not (math.isfinite(c.at) and c.at >= 0 and math.isfinite(c.duration)
+                    and c.duration > 0):
+                raise ValueError(f"camera-dropout: {c.robot}: need time >= 0 and duration > 0")
+
+    @property
+    def active(self) -> bool:
+        return bool(self.drop or self.delay_ms or self.kills or self.camera_dropouts)
+
+    @property
+    def link(self) -> LinkFaults:
+        return LinkFaults(self.drop, self.delay_ms / 1000.0, self.seed)
+
+    def check_robots(self, robots: Sequence[str]) -> None:
+        """ValueError naming a fault that names an unknown robot."""
+        for name, items in (("kill", self.kills), ("camera-dropout", self.camera_dropouts)):
+            for item in items:
+                if item.robot not in robots:
+                    raise ValueError(f"{name}: unknown robot {item.robot!r}")
+
+
+def _number(text: str, what: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise ValueError(f"{what}: {text!r} is not a number") from None
+    if not math.isfinite(v):
+        raise ValueError(f"{what}: {text!r} is not a finite number")
+    return v
+
+
+def parse_kill(text: str) -> Kill:
+    """``ROBOT@T`` or ``ROBOT@T:RESTART_AFTER`` (seconds of simulated time)."""
+    robot, sep, rest = text.partition("@")
+    if not sep or not robot:
+        raise ValueError(f"kill: {text!r} is not ROBOT@T[:RESTART_AFTER]")
+    at, sep, after = rest.partition(":")
+    return Kill(robot, _number(at, "kill"), _number(after, "kill") if sep else None)
+
+
+def parse_camera_dropout(text: str) -> CameraDropout:
+    """``ROBOT@T:DURATION`` (seconds of simulated time)."""
+    robot, sep, rest = text.partition("@")
+    at, sep2, duration = rest.partition(":")
+    if not (sep and sep2 and robot):
+        raise ValueError(f"camera-dropout: {text!r} is not ROBOT@T:DURATION")
+    return CameraDropout(robot, _number(at, "camera-dropout"), _number(duration, "camera-dropout"))
 
 
 class ChildFailed(RuntimeError):
@@ -139,8 +240,15 @@ def run_command(ns: argparse.Namespace) -> int:
     """``formation run``; see the module docstring. Returns the exit status."""
     from formation.cli import EXIT_OK, Progress, UsageError, print_summary
 
-    if ns.drop or ns.delay_ms:
-        raise UsageError("--drop and --delay-ms: not yet supported by formation run")
+    try:
+        faults = FaultPlan(
+            drop=ns.drop, delay_ms=ns.delay_ms, seed=getattr(ns, "fault_seed", 0),
+            kills=tuple(parse_kill(k) for k in getattr(ns, "kill", None) or ()),
+            camera_dropouts=tuple(parse_camera_dropout(c)
+                                  for c in getattr(ns, "camera_dropout", None) or ()),
+        )
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     if ns.camera == "synthetic":
         try:
             import camera_service.service  # noqa: F401
@@ -149,10 +257,15 @@ def run_command(ns: argparse.Namespace) -> int:
     if not 0 <= ns.port < 65536:
         raise UsageError(f"--port: {ns.port} is not a TCP port")
     scenario = load_scenario(ns.scenario)  # ScenarioError -> exit 2
+    try:
+        faults.check_robots(scenario.robot_ids)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     out = Path(ns.out)
     summary, series = launch(scenario, out, realtime=ns.realtime, camera=ns.camera,
                              topology=ns.topology, safety=not ns.no_safety, port=ns.port,
-                             progress_factory=lambda: Progress(f"run {scenario.name}", quiet=ns.quiet))
+                             progress_factory=lambda: Progress(f"run {scenario.name}", quiet=ns.quiet),
+                             faults=faults, secure=getattr(ns, "secure", False))
     write_run(summary, series, scenario, out, plots=not ns.no_plots)
     print_summary(summary, out)
     return EXIT_OK
@@ -168,8 +281,16 @@ def launch(
     safety: bool = True,
     port: int = 0,
     progress_factory=None,
+    faults: FaultPlan | None = None,
+    secure: bool = False,
 ) -> tuple[dict, Series]:
-    """Run ``scenario`` as separate processes; returns the summary and the time series."""
+    """Run ``scenario`` as separate processes; returns the summary and the time series.
+
+    ``faults`` injects the faults of :class:`FaultPlan`; ``secure`` runs the router with
+    user/password authentication and the access control list of :mod:`wire.acl`, every process
+    logging in as itself."""
+    faults = faults or FaultPlan()
+    faults.check_robots(scenario.robot_ids)
     out = Path(out)
     for sub in ("configs", "agents", "logs"):
         (out / sub).mkdir(parents=True, exist_ok=True)
@@ -178,10 +299,14 @@ def launch(
     port = port or free_tcp_port()
     endpoint = tcp_endpoint(port)
     sup = Supervisor(out / "logs")
+    fault_run = faults.active
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
-        router = sup.start("router", ["-m", "wire.router", "--listen", endpoint,
-                                      "--log-level", "WARNING"])
+        creds = _secure_setup(scenario, out / "secure", endpoint) if secure else None
+        router_argv = ["-m", "wire.router", "--listen", endpoint, "--log-level", "WARNING"]
+        if creds is not None:
+            router_argv += ["--config", str(creds.router_config)]
+        router = sup.start("router", router_argv)
         deadline = time.monotonic() + START_TIMEOUT_S
         while True:
             sup.check()
@@ -193,38 +318,181 @@ def launch(
                     raise
         zs = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False)
         configs = build_agent_configs(scenario, zenoh=zs, topology=topology, safety=safety)
-        agents = []
+        agent_argv: dict[str, list[str]] = {}
+        agents: dict[str, Child] = {}
         for rid, cfg in configs.items():
             path = out / "configs" / f"{rid}.yaml"
             save_config(cfg, path)
             argv = ["-m", "agent", "--config", str(path), "--stats", str(out / "agents" / f"{rid}.json")]
             if not realtime:
                 argv.append("--lockstep")
-            agents.append(sup.start(f"agent-{rid}", argv))
+            if fault_run:
+                argv += ["--drop", repr(faults.drop), "--delay-ms", repr(faults.delay_ms),
+                         "--fault-seed", str(faults.seed), "--ellipse-hold", repr(faults.ellipse_hold),
+                         "--lockstep-timeout", repr(FAULT_AGENT_TIMEOUT_S)]
+            if creds is not None:
+                argv += ["--zenoh-auth", str(creds.files[rid])]
+            agent_argv[rid] = argv
+            agents[rid] = sup.start(f"agent-{rid}", argv)
         (out / "processes.json").write_text(json.dumps(
             {c.name: c.proc.pid for c in sup.children}, indent=2) + "\n", encoding="utf-8")
         conf = WireZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
-                                 connect_timeout_s=10.0).to_config()
-        options = WorldOptions(realtime=realtime, camera=camera, prefix=keys.DEFAULT_PREFIX,
-                               start_timeout=START_TIMEOUT_S)
+                                 connect_timeout_s=10.0,
+                                 auth=None if creds is None else creds.world).to_config()
+        options = WorldOptions(
+            realtime=realtime, camera=camera, prefix=keys.DEFAULT_PREFIX,
+            start_timeout=START_TIMEOUT_S,
+            cmd_timeout=FAULT_WORLD_TIMEOUT_S if fault_run else WorldOptions.cmd_timeout,
+            camera_dropouts=tuple((c.robot, c.at, c.at + c.duration)
+                                  for c in faults.camera_dropouts))
         with zenoh.open(conf) as session:
             world = World(scenario, session, options)
+            driver = _FaultDriver(faults, sup, world, agents, agent_argv, scenario.dt, realtime)
             try:
                 world.wait_for_agents(abort=sup.check)
                 if progress_factory is not None:
                     with progress_factory() as progress:
-                        result = world.run(progress=progress.update, abort=sup.check)
+                        result = world.run(progress=progress.update, abort=sup.check,
+                                           on_tick=driver.on_tick if fault_run else None)
                 else:
-                    result = world.run(abort=sup.check)
+                    result = world.run(abort=sup.check, on_tick=driver.on_tick if fault_run else None)
             finally:
                 world.close()
-        sup.stop(agents)  # agents write their stats on SIGTERM
+        sup.stop(list(agents.values()))  # agents write their stats on SIGTERM
         sup.stop([router])
     finally:
         sup.stop()
         signal.signal(signal.SIGTERM, previous)
-    stats = [_read_stats(out / "agents" / f"{rid}.json") for rid in configs]
-    return build_summary(scenario, result, stats, topology, realtime, camera, safety)
+    stats = [_read_stats(out / "agents" / f"{rid}.json") if rid in agents
+             else _dead_stats(cfg) for rid, cfg in configs.items()]
+    summary, series = build_summary(scenario, result, stats, topology, realtime, camera, safety)
+    if fault_run:
+        summary["faults"] = fault_summary(faults, result, stats, driver.log)
+    if creds is not None:
+        summary["secure"] = {"auth": "usrpwd", "acl": str(creds.router_config)}
+    return summary, series
+
+
+@dataclass(frozen=True)
+class _Secure:
+    router_config: Path
+    files: dict[str, Path]  # robot -> its credentials file
+    world: UsrPwdAuth
+
+
+def _secure_setup(scenario: Scenario, folder: Path, endpoint: str) -> _Secure:
+    """Fresh credentials for the world (as the camera user) and every robot, the router's
+    dictionary and its configuration with the fleet's access control list (:mod:`wire.acl`),
+    all in ``folder`` (mode 0700, files 0600)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    folder.chmod(0o700)
+    robots = {rid: scenario.formation_of(rid).name for rid in scenario.robot_ids}
+    leaders = {f.name: f.leader for f in scenario.formations}
+    creds = acl.new_credentials([acl.CAMERA_USER, *robots])
+    dictionary = folder / "users.txt"
+    acl.write_dictionary(dictionary, creds)
+    files = {}
+    for rid in robots:
+        files[rid] = folder / f"{rid}.credentials"
+        acl.write_credentials(files[rid], creds[rid])
+    router_conf = folder / "router.json5"
+    acl.write_router_config(router_conf, acl.router_config(
+        [endpoint], acl.fleet_acl(robots, leaders, keys.DEFAULT_PREFIX), dictionary.resolve()))
+    return _Secure(router_conf, files, creds[acl.CAMERA_USER])
+
+
+class _FaultDriver:
+    """Kills and restarts agents at their simulated times (``World.run(on_tick=...)``)."""
+
+    def __init__(self, plan: FaultPlan, sup: Supervisor, world: World, agents: dict[str, Child],
+                 argv: dict[str, list[str]], dt: float, realtime: bool) -> None:
+        self.sup = sup
+        self.world = world
+        self.agents = agents
+        self.argv = argv
+        self.realtime = realtime
+        self.log: list[dict] = []
+        # (tick, order, action, robot): kills before restarts within a tick
+        self.events: list[tuple[int, int, str, str]] = []
+        for k in plan.kills:
+            self.events.append((math.ceil(k.at / dt - 1e-9), 0, "kill", k.robot))
+            if k.restart_after is not None:
+                self.events.append((math.ceil((k.at + k.restart_after) / dt - 1e-9), 1,
+                                    "restart", k.robot))
+        self.events.sort()
+        self.incarnation = dict.fromkeys(agents, 1)
+
+    def on_tick(self, k: int, t: float) -> None:
+        while self.events and self.events[0][0] <= k:
+            _, _, action, rid = self.events.pop(0)
+            if action == "kill":
+                self.kill(rid, t)
+            else:
+                self.restart(rid, t)
+
+    def kill(self, rid: str, t: float) -> None:
+        child = self.agents.pop(rid, None)
+        if child is None:
+            logger.warning("kill %s at t=%.2f s: its agent is not running", rid, t)
+            return
+        _signal_group(child.proc.pid, signal.SIGKILL)
+        self.sup.stop([child])  # reaps it, closes its log
+        gone = self.world.wait_unsubscribed(rid)
+        logger.info("killed agent %s at t=%.2f s (router saw it go: %s)", rid, t, gone)
+        self.log.append({"event": "kill", "robot": rid, "t_s": round(t, 6)})
+
+    def restart(self, rid: str, t: float) -> None:
+        if rid in self.agents:
+            logger.warning("restart %s at t=%.2f s: its agent is still running", rid, t)
+            return
+        self.incarnation[rid] += 1
+        wall0 = time.monotonic()
+        self.agents[rid] = self.sup.start(f"agent-{rid}-{self.incarnation[rid]}", self.argv[rid])
+        if not self.realtime:  # lock-step: the restart takes no simulated time
+            self.world.wait_for_agents(abort=self.sup.check, robots=[rid], grace=False)
+        self.log.append({"event": "restart", "robot": rid, "t_s": round(t, 6),
+                         "start_wall_s": round(time.monotonic() - wall0, 3)})
+
+
+def fault_summary(plan: FaultPlan, result: WorldResult, stats: list[dict], log: list[dict]) -> dict:
+    """``faults`` of ``summary.json``: what was injected and what it did."""
+    dropped = _sum_dicts(s.get("fault_dropped", {}) for s in stats)
+    return {
+        "drop": plan.drop,
+        "delay_ms": plan.delay_ms,
+        "seed": plan.seed,
+        "applies_to": list(INTER_ROBOT),
+        "dropped_messages": sum(dropped.values()),
+        "dropped": dropped,
+        "delayed_messages": sum(s.get("fault_delayed", 0) for s in stats),
+        "kills": [{"robot": k.robot, "at_s": k.at, "restart_after_s": k.restart_after}
+                  for k in plan.kills],
+        "camera_dropouts": [{"robot": c.robot, "at_s": c.at, "duration_s": c.duration}
+                            for c in plan.camera_dropouts],
+        "events": log,
+        "camera_dropped_poses": result.camera_dropped,
+        "zero_commands_applied": result.missing_cmds,
+        "world_cmd_timeouts": result.cmd_timeouts,
+        "agent_lockstep_timeouts": sum(s.get("lockstep_timeouts", 0) for s in stats),
+        "stale_ticks": sum(s["stale"] for s in stats),
+        "stale_ticks_by_input": _sum_dicts(s.get("stale_why", {}) for s in stats),
+        "stale_ticks_by_robot": {s["robot"]: s["stale"] for s in stats},
+        "inflated_ellipse_ticks": sum(s.get("inflated", 0) for s in stats),
+        "counters_lost_with_killed_agents": bool(plan.kills),
+    }
+
+
+def _dead_stats(cfg) -> dict:
+    """Counters of a robot whose agent was killed and not restarted (it wrote none)."""
+    return {
+        "robot": cfg.robot_id, "formation": cfg.formation, "leader": cfg.leader is not None,
+        "killed": True, "ticks": 0, "overruns": 0, "stale": 0, "waiting": 0,
+        "lockstep_timeouts": 0, "solves": 0, "relaxed": 0, "fallback": 0, "failed": 0,
+        "solve_us_median": None, "tick_us_median": None, "pose_age_us_median": None,
+        "min_h": {"formation": None, "obstacle": None, "formations": None},
+        "dropped": {}, "traffic": traffic.empty_snapshot(), "cpu_s": None, "wall_s": 0.0,
+        "trace": [], "ellipse_trace": [],
+    }
 
 
 def _read_stats(path: Path) -> dict:

@@ -11,11 +11,17 @@ Two clocks:
 * **lock-step** (default): publish the poses of tick k (stamped with the simulated time
   ``k * dt``), wait until every robot's command stamped ``k * dt`` has arrived (up to
   ``cmd_timeout``; a missing command is zero velocity and counted), integrate. Deterministic and
-  as fast as the agents answer. Agents run with ``--lockstep`` and tick on pose arrival.
+  as fast as the agents answer. Agents run with ``--lockstep`` and tick on pose arrival. A robot
+  whose command timed out is *late*: later ticks do not wait for it until a command of its
+  arrives again (a killed agent costs one timeout, then its robot just gets zero each tick).
 * **real time**: integrate on the wall clock at 1/dt with the latest command of each robot (zero
   if none arrived within ``stale_after``); poses are stamped with ``time.time()``, so the delay
   from a pose's publication to the command computed from it (which carries the same stamp) is the
   end-to-end latency, recorded in ``latency_ms``.
+
+Faults (docs/faults.md): ``camera_dropouts`` stop publishing a robot's pose over a span of
+simulated time, as a camera that loses that robot's marker would; ``run(on_tick=...)`` lets the
+launcher kill and restart agents at given simulated times.
 
 The time series rows (:data:`simulator.inprocess.ROBOT_COLUMNS`) hold true poses and the commands
 applied; ``status``, ``slack`` and the ``h_*`` columns are not on the wire, so the world leaves
@@ -68,8 +74,12 @@ class WorldOptions:
     stale_after: float = 0.25  # [s] real time: an older command counts as zero
     stop_at_goal: bool = True
     record: bool = True
+    camera_dropouts: tuple[tuple[str, float, float], ...] = ()  # (robot, from, until) [s]
 
     def __post_init__(self) -> None:
+        for rid, t0, t1 in self.camera_dropouts:
+            if not (math.isfinite(t0) and math.isfinite(t1) and 0 <= t0 < t1):
+                raise ValueError(f"camera_dropouts: {rid}: need 0 <= from < until, got {t0}, {t1}")
         if self.camera not in CAMERAS:
             raise ValueError(f"camera: {self.camera!r} is not one of {CAMERAS}")
         for name in ("cmd_timeout", "start_timeout", "stale_after"):
@@ -87,6 +97,8 @@ class WorldResult:
     traffic: dict
     missing_cmds: int = 0  # lock-step ticks a robot's command did not arrive in time
     malformed_cmds: int = 0
+    cmd_timeouts: int = 0  # lock-step: waits for a command that timed out
+    camera_dropped: int = 0  # poses not published (camera dropout)
     latency_ms: list[float] = field(default_factory=list)  # real time: pose put -> cmd received
     stamps: list[float] = field(default_factory=list)  # pose stamp published at tick k
     wall_s: float = 0.0
@@ -109,6 +121,7 @@ class _CmdInbox:
         self._counter = counter
         self._cond = threading.Condition()
         self.latest: dict[str, tuple[Cmd, float]] = {}  # robot -> (cmd, local receive time)
+        self.late: set[str] = set()  # lock-step: robots whose last command timed out
         self.malformed = 0
         self.latency_ms: list[float] = []
         self.measure_latency = False
@@ -130,6 +143,7 @@ class _CmdInbox:
             if self.measure_latency and (prev is None or prev[0].stamp != cmd.stamp):
                 self.latency_ms.append((time.time() - cmd.stamp) * 1e3)
             self.latest[rid] = (cmd, now)
+            self.late.discard(rid)
             self._cond.notify_all()
 
     def wait(self, ready: Callable[[], bool], timeout: float, abort: Callable[[], None]) -> bool:
@@ -170,6 +184,10 @@ class World:
         self._subs = [session.declare_subscriber(keys.cmd_key(p, r), self.inbox.callback)
                       for r in self.ids]
         self._camera = None
+        for rid, _t0, _t1 in options.camera_dropouts:
+            if rid not in self.ids:
+                raise ValueError(f"camera_dropouts: unknown robot {rid!r}")
+        self.camera_dropped = 0
         if options.camera == "synthetic":
             self._camera = _SyntheticCamera(scenario)
 
@@ -181,17 +199,33 @@ class World:
         self._subs.clear()
         self._pose_pubs.clear()
 
-    def wait_for_agents(self, abort: Callable[[], None] = lambda: None) -> None:
-        """Wait until every robot's pose has a subscriber (the agent declares it last)."""
+    def wait_for_agents(self, abort: Callable[[], None] = lambda: None,
+                        robots: Sequence[str] | None = None, grace: bool = True) -> None:
+        """Wait until every robot's (or each of ``robots``') pose has a subscriber (the agent
+        declares it last)."""
         deadline = time.monotonic() + self.options.start_timeout
         for rid, pub in zip(self.ids, self._pose_pubs, strict=True):
+            if robots is not None and rid not in robots:
+                continue
             while not pub.publisher.matching_status.matching:
                 abort()
                 if time.monotonic() > deadline:
                     raise TimeoutError(f"agent {rid} did not subscribe to its pose within "
                                        f"{self.options.start_timeout} s")
                 time.sleep(0.02)
-        time.sleep(self.options.start_grace)
+        if grace:
+            time.sleep(self.options.start_grace)
+
+    def wait_unsubscribed(self, rid: str, timeout: float = 5.0) -> bool:
+        """Wait until nothing subscribes to ``rid``'s pose (its agent is gone); False if the
+        timeout passed first."""
+        pub = self._pose_pubs[self.ids.index(rid)]
+        deadline = time.monotonic() + timeout
+        while pub.publisher.matching_status.matching:
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.01)
+        return True
 
     # --- the loop ----------------------------------------------------------------------------
 
@@ -199,8 +233,10 @@ class World:
         self,
         progress: Callable[[int, int, float], None] | None = None,
         abort: Callable[[], None] = lambda: None,
+        on_tick: Callable[[int, float], None] | None = None,
     ) -> WorldResult:
-        """Run the scenario; ``abort()`` is called while waiting and may raise to stop."""
+        """Run the scenario; ``abort()`` is called while waiting and may raise to stop;
+        ``on_tick(k, t)`` before the poses of tick ``k`` (simulated time ``t``) are published."""
         sc = self.scenario
         opts = self.options
         dt = sc.dt
@@ -213,6 +249,7 @@ class World:
         inbox = self.inbox
         inbox.measure_latency = opts.realtime
         missing = 0
+        timeouts = 0
         stamps: list[float] = []
         wall0 = time.monotonic()
         monitor.update(0.0, np.array([s[:2] for s in state]),
@@ -222,6 +259,8 @@ class World:
         next_wall = time.monotonic()
         for k in range(sc.steps):
             t = k * dt
+            if on_tick is not None:
+                on_tick(k, t)
             stamp = time.time() if opts.realtime else t
             stamps.append(stamp)
             self._publish(t, stamp, state)
@@ -240,11 +279,16 @@ class World:
             else:
                 def ready(t: float = t) -> bool:
                     return all(r in inbox.latest and inbox.latest[r][0].stamp >= t
-                               for r in self.ids)
+                               for r in self.ids if r not in inbox.late)
 
-                inbox.wait(ready, opts.cmd_timeout, abort)
+                if not inbox.wait(ready, opts.cmd_timeout, abort):
+                    timeouts += 1
                 with inbox._cond:
                     got = {r: c for r, (c, _rx) in inbox.latest.items() if c.stamp >= t}
+                    late = [r for r in self.ids if r not in got and r not in inbox.late]
+                    inbox.late.update(late)
+                if late:
+                    logger.info("tick %d: no command from %s in time: zero", k, ", ".join(late))
                 missing += sum(1 for r in self.ids if r not in got)
             cmds = [got.get(r) for r in self.ids]
             if opts.record:
@@ -259,7 +303,8 @@ class World:
                 break
         return WorldResult(
             steps=k + 1, sim_time=t, monitor=monitor, series=series,
-            traffic=self.counter.snapshot(), missing_cmds=missing,
+            traffic=self.counter.snapshot(), missing_cmds=missing, cmd_timeouts=timeouts,
+            camera_dropped=self.camera_dropped,
             malformed_cmds=inbox.malformed, latency_ms=list(inbox.latency_ms),
             wall_s=time.monotonic() - wall0, stamps=stamps,
         )
@@ -277,6 +322,10 @@ class World:
             seen = {rid: s for rid, s in zip(self.ids, state, strict=True)}
         for rid, pub in zip(self.ids, self._pose_pubs, strict=True):
             p = seen.get(rid)
+            if p is not None and any(r == rid and t0 <= t + 1e-9 < t1
+                                     for r, t0, t1 in self.options.camera_dropouts):
+                self.camera_dropped += 1
+                p = None
             if p is not None:  # an undetected marker publishes nothing: the agent sees it stale
                 pub.put_message(Pose(p[0], p[1], p[2], stamp))
 

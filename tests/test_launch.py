@@ -78,13 +78,15 @@ def test_run_reaches_every_goal_safely_and_as_fast_as_the_in_process_simulation(
     assert (tmp_path / "run" / "robots.csv").read_text() == (tmp_path / "sim" / "robots.csv").read_text()
 
 
-def test_an_invalid_scenario_or_an_unsupported_option_exits_2_before_starting_anything(tmp_path):
+def test_an_invalid_scenario_or_an_invalid_fault_option_exits_2_before_starting_anything(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text(TWO_FORMATIONS.replace("goal_tolerance", "goal_tolerence"), encoding="utf-8")
     assert run_cli(["run", str(bad), "--out", str(tmp_path / "o"), "--quiet"]) == 2
     good = tmp_path / "good.yaml"
     good.write_text(TWO_FORMATIONS, encoding="utf-8")
-    assert run_cli(["run", str(good), "--out", str(tmp_path / "o"), "--drop", "0.1"]) == 2
+    assert run_cli(["run", str(good), "--out", str(tmp_path / "o"), "--drop", "1.5"]) == 2
+    assert run_cli(["run", str(good), "--out", str(tmp_path / "o"), "--kill", "z9@1:2"]) == 2
+    assert run_cli(["run", str(good), "--out", str(tmp_path / "o"), "--camera-dropout", "a1@1"]) == 2
     assert not (tmp_path / "o" / "processes.json").exists()
 
 
