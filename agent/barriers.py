@@ -9,6 +9,7 @@ centroid and orientation). Pure functions over floats; no numpy on this hot path
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -125,8 +126,15 @@ def speed_rows(vmax: float, heading: float, sides: int = SPEED_SIDES) -> list[Ro
     """|u| <= vmax as a regular polygon inscribed in the disk, one vertex along ``heading``
     (the nominal direction), so the clamped nominal command itself stays feasible."""
     face = vmax * math.cos(math.pi / sides)
-    rows = []
-    for k in range(sides):
-        phi = heading + math.pi / sides + 2.0 * math.pi * k / sides
-        rows.append((math.cos(phi), math.sin(phi), face))
-    return rows
+    c0, s0 = math.cos(heading), math.sin(heading)
+    return [(c0 * c - s0 * s, s0 * c + c0 * s, face) for c, s in _polygon_normals(sides)]
+
+
+@functools.lru_cache(maxsize=8)
+def _polygon_normals(sides: int) -> tuple[tuple[float, float], ...]:
+    """Unit face normals of the polygon for heading 0: angles pi/sides + 2 pi k / sides."""
+    return tuple(
+        (math.cos(math.pi / sides + 2.0 * math.pi * k / sides),
+         math.sin(math.pi / sides + 2.0 * math.pi * k / sides))
+        for k in range(sides)
+    )

@@ -192,6 +192,8 @@ def tiebreak_push(
         dx, dy = hx - own.cx, hy - own.cy
         if dx * gx + dy * gy > dist + hr:
             continue  # beyond our goal
+        if math.hypot(dx, dy) - (own.a + hr) >= TIEBREAK_RANGE:
+            continue  # too far ahead to weigh anything (cheap test before the geometry)
         # Intended motion relative to the hazard: w = vmax g - v_hazard.
         wx, wy = vmax * gx - hvx, vmax * gy - hvy
         wn = math.hypot(wx, wy)
@@ -250,31 +252,44 @@ def build_rows(
     pairwise: Sequence[Neighbour] = (),
 ) -> Rows:
     """Every barrier row (eq. 4.12b-e with appendix A's velocity terms) and limit row for the
-    control point (px, py) of a robot with heading ``theta``."""
+    control point (px, py) of a robot with heading ``theta``.
+
+    A barrier row with b >= the largest speed the limit rows allow can never be active: it is
+    left out of the QP (exactly: it cannot change the solution, nor any relaxation, since the
+    limits are never relaxed). Its barrier value still counts for the reported minimum."""
     soft: list[Row] = []
     hard: list[Row] = []
     hf = ho = he = math.inf
     eps = p.epsilon
+    if p.unicycle:
+        reach = math.hypot(p.max_speed, p.lookahead * p.max_turn_rate)
+    else:
+        reach = p.max_speed
     for n in neighbours:
         hg, hl, rg, rl = barriers.formation_rows(px, py, n, eps, p.gamma_formation)
         hf = min(hf, hg, hl)
-        soft.append(rg)
-        soft.append(rl)
+        if rg[2] < reach:
+            soft.append(rg)
+        if rl[2] < reach:
+            soft.append(rl)
     off = p.offset
     for o in obstacles:
         if off:
             o = Obstacle(o.x, o.y, o.vx, o.vy, o.ds + off)  # the body stays Ds away
         h, row = barriers.obstacle_row(px, py, o, p.gamma_obstacle)
         ho = min(ho, h)
-        hard.append(row)
+        if row[2] < reach:
+            hard.append(row)
     for e in others:
         h, row = barriers.ellipse_row(px, py, e, p.gamma_formations)
         he = min(he, h)
-        hard.append(row)
+        if row[2] < reach:
+            hard.append(row)
     for n in pairwise:
         h, row = barriers.pairwise_row(px, py, n, p.d_af, p.gamma_formations)
         he = min(he, h)
-        hard.append(row)
+        if row[2] < reach:
+            hard.append(row)
 
     if p.unicycle:
         limits = unicycle.limit_rows(theta, p.lookahead, p.max_speed, p.max_turn_rate)
