@@ -64,6 +64,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="log in to the router with the user:password in FILE (mode 0600)")
     parser.add_argument("--stats", type=Path, default=None, help="write counters here (JSON) at exit")
     parser.add_argument("--no-trace", action="store_true", help="do not keep per-tick rows")
+    parser.add_argument("--clock-ticks", action="store_true",
+                        help="real time: tick on the own clock, not on pose arrival")
     parser.add_argument("--log-level", default="WARNING")
     ns = parser.parse_args(argv)
     logging.basicConfig(level=ns.log_level.upper(),
@@ -74,7 +76,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         faults = LinkFaults(drop=ns.drop, delay=ns.delay_ms / 1000.0, seed=ns.fault_seed)
         options = NodeOptions(lockstep=ns.lockstep, lockstep_timeout=ns.lockstep_timeout,
                               trace=not ns.no_trace, faults=faults, ellipse_hold=ns.ellipse_hold,
-                              auth=auth)
+                              auth=auth, tick_on_pose=not ns.clock_ticks)
         node = AgentNode(cfg, options)
     except ValueError as exc:
         print(f"agent: {exc}", file=sys.stderr)

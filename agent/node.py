@@ -21,11 +21,18 @@ A tick, for the pose stamped ``t``:
    ``stale_after``), or a leader misses another formation's ellipse: command zero, count
    ``stale``; otherwise run ``control_step`` and publish ``cmd`` stamped ``t``.
 
-Two clocks drive ticks. *Real time* (default): ticks against deadlines at 1/period (``next_t +=
-period``, overruns counted), inputs are the latest received, staleness is the local age since
-reception. *Lock-step* (``lockstep=True``, for the simulated world): a tick starts when a new pose
-arrives, and each phase waits (up to ``lockstep_timeout``) for the inputs stamped ``t``, so the
-run is deterministic and equals the in-process simulation; staleness is ``t - stamp``.
+Two clocks drive ticks. *Real time* (default): a tick starts as soon as a new pose arrives, so the
+command leaves one solve after the pose (no wait for the node's own clock phase, up to a period);
+when no new pose has come for ``DEADLINE_PERIODS`` periods the node ticks on its deadline anyway
+(on the pose it has: a silent camera still ends in stale zero commands; counted
+``deadline_ticks``), and a pose arriving within ``MIN_SPACING_PERIODS`` of the previous
+pose-triggered tick waits, so a camera faster than 1/period does not raise the tick rate. A tick
+longer than one period counts as an overrun. ``NodeOptions(tick_on_pose=False)`` ticks on the
+own clock instead (against deadlines at 1/period, ``next_t += period``, overruns counted). Inputs
+are the latest received, staleness is the local age since reception. *Lock-step*
+(``lockstep=True``, for the simulated world): a tick starts when a new pose arrives, and each
+phase waits (up to ``lockstep_timeout``) for the inputs stamped ``t``, so the run is deterministic
+and equals the in-process simulation; staleness is ``t - stamp``.
 
 In lock-step a tick starts on the first of the frame's pose or obstacles message, so a robot whose
 camera lost its marker still ticks: it waits for its pose like any input and, without one for
@@ -83,6 +90,8 @@ from wire.zconf import UsrPwdAuth, ZenohSettings
 
 logger = logging.getLogger(__name__)
 
+DEADLINE_PERIODS = 1.5  # real time: tick without a new pose after this many periods
+MIN_SPACING_PERIODS = 0.5  # real time: pose-triggered ticks at least this many periods apart
 STATUS_STALE = "stale"  # trace status of a tick that commanded zero for stale inputs
 TRACE_COLUMNS = ("t", "px", "py", "ux", "uy", "v", "omega", "status", "slack",
                  "h_formation", "h_obstacle", "h_formations", "solve_us")
@@ -97,6 +106,7 @@ class NodeOptions:
     faults: LinkFaults = LinkFaults()  # loss and delay applied to received inter-robot messages
     ellipse_hold: float = 10.0  # [s] leader: longest use of another formation's stale ellipse
     auth: UsrPwdAuth | None = None  # log in to the router as this user (access control)
+    tick_on_pose: bool = True  # real time: tick on pose arrival (deadline fallback), not the clock
 
     def __post_init__(self) -> None:
         if not isinstance(self.faults, LinkFaults):
@@ -166,6 +176,7 @@ class AgentNode:
         # counters
         self.ticks = 0
         self.overruns = 0
+        self.deadline_ticks = 0  # real time: ticks with no new pose for DEADLINE_PERIODS periods
         self.stale = 0
         self.waiting = 0  # ticks before the first pose arrived (zero command, not stale)
         self.lockstep_timeouts = 0
@@ -193,6 +204,7 @@ class AgentNode:
         self._pubs: dict[str, CountingPublisher] = {}
         self._boxes: dict[str, Mailbox] = {}
         self._arrived: asyncio.Event | None = None
+        self._pose_arrived: asyncio.Event | None = None
         self._stop: asyncio.Event | None = None
         self._own_others: Others | None = None
         self._tick_point: tuple[float, float, float] | None = None
@@ -219,6 +231,7 @@ class AgentNode:
     def open(self, loop: asyncio.AbstractEventLoop) -> None:
         """Open the session, declare publishers and the exact subscriptions."""
         self._arrived = asyncio.Event()
+        self._pose_arrived = asyncio.Event()
         self._stop = self._stop or asyncio.Event()
         decoders = {
             keys.POSE: decode_pose, keys.STATE: decode_state, keys.OTHERS: decode_others,
@@ -297,6 +310,8 @@ class AgentNode:
         self._late.discard(key)
         if self._arrived is not None:
             self._arrived.set()
+        if key == self.pose_key and self._pose_arrived is not None:
+            self._pose_arrived.set()
 
     def close(self) -> None:
         """Zero command, undeclare, close the session (idempotent)."""
@@ -331,6 +346,8 @@ class AgentNode:
         try:
             if self.options.lockstep:
                 await self._lockstep_loop()
+            elif self.options.tick_on_pose:
+                await self._pose_loop()
             else:
                 await self._realtime_loop()
         finally:
@@ -353,6 +370,44 @@ class AgentNode:
                 await asyncio.wait_for(self._stop.wait(), max(0.0, next_t - time.monotonic()))
             except TimeoutError:
                 pass
+
+    async def _pose_loop(self) -> None:
+        """Real time, ticking on pose arrival with a deadline fallback (module docstring)."""
+        assert self._stop is not None and self._pose_arrived is not None
+        loop = asyncio.get_running_loop()
+        period = self.cfg.period
+        box, woken = self._boxes[keys.POSE], self._pose_arrived
+        watch = asyncio.ensure_future(self._stop.wait())
+        watch.add_done_callback(lambda _f: woken.set())  # a stop wakes the wait below
+        last_stamp: float | None = None
+        last_pose_tick = -math.inf
+        deadline = time.monotonic() + DEADLINE_PERIODS * period
+        try:
+            while not self._stop.is_set():
+                woken.clear()
+                entry = box.latest(self.pose_key)
+                new = entry is not None and entry[0].stamp != last_stamp
+                now = time.monotonic()
+                earliest = last_pose_tick + MIN_SPACING_PERIODS * period
+                if (new and now >= earliest) or now >= deadline:
+                    if new:
+                        last_stamp, last_pose_tick = entry[0].stamp, now
+                    else:
+                        self.deadline_ticks += 1
+                    await self.tick(None)
+                    done = time.monotonic()
+                    self.tick_us.append((done - now) * 1e6)
+                    if done - now > period:
+                        self.overruns += 1
+                    deadline = now + DEADLINE_PERIODS * period
+                    continue
+                wake = loop.call_later(max(0.0, (earliest if new else deadline) - now), woken.set)
+                try:
+                    await woken.wait()
+                finally:
+                    wake.cancel()
+        finally:
+            watch.cancel()
 
     async def _lockstep_loop(self) -> None:
         assert self._stop is not None and self._arrived is not None
@@ -616,6 +671,7 @@ class AgentNode:
             "lockstep": self.options.lockstep,
             "ticks": self.ticks,
             "overruns": self.overruns,
+            "deadline_ticks": self.deadline_ticks,
             "stale": self.stale,
             "waiting": self.waiting,
             "lockstep_timeouts": self.lockstep_timeouts,
