@@ -1,0 +1,99 @@
+"""``formation bench --quick``: the smoke mode CI runs. Checks the structure of ``bench.json``
+(every key present, every number finite), never timings: benchmarks are not timed tests."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from agent.control import build_rows
+from formation.bench import bench_command, central_problem, fleet_scenario, fleet_snapshot
+
+AGENT_KEYS = ("rate_hz", "world_rate_hz", "missed_ticks", "agent_overruns", "latency_ms_p50",
+              "latency_ms_p99", "cpu_percent_per_agent_median", "rss_mb_per_agent_median",
+              "latency_parts_ms_median", "load_avg_1min")
+
+
+def _finite_numbers(obj, path: str = "") -> list[str]:
+    """Paths of every non-finite number in a JSON value."""
+    bad = []
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            bad += _finite_numbers(v, f"{path}.{k}")
+    elif isinstance(obj, list):
+        for i, v in enumerate(obj):
+            bad += _finite_numbers(v, f"{path}[{i}]")
+    elif isinstance(obj, float) and not math.isfinite(obj):
+        bad.append(path)
+    return bad
+
+
+@pytest.fixture(scope="module")
+def quick_result(tmp_path_factory) -> tuple[dict, Path]:
+    out = tmp_path_factory.mktemp("bench")
+    assert bench_command(argparse.Namespace(out=str(out), quick=True)) == 0
+    return json.loads((out / "bench.json").read_text(encoding="utf-8")), out
+
+
+def test_quick_bench_writes_json_and_table(quick_result):
+    result, out = quick_result
+    assert (out / "bench.txt").read_text(encoding="utf-8").strip()
+    assert result["machine"]["quick"] is True
+    for key in ("step_us_median", "step", "solvers", "central", "agents", "inprocess"):
+        assert key in result, key
+
+
+def test_quick_bench_numbers_are_finite(quick_result):
+    result, _ = quick_result
+    assert _finite_numbers(result) == []
+    assert result["step_us_median"] > 0
+    assert "exact" in result["step"]["solve_us_median"]
+    assert "exact" in result["solvers"]
+
+
+def test_quick_bench_has_central_and_per_robot_side_by_side(quick_result):
+    result, _ = quick_result
+    assert result["central"]
+    for entry in result["central"].values():
+        assert entry["per_robot_total_us"] > 0
+        assert entry["central_build_us"] > 0
+        assert entry["solve_us"] and set(entry["total_us"]) == set(entry["solve_us"])
+        for v in entry["max_violation"].values():
+            assert v is None or v < 1e-4
+
+
+def test_quick_bench_ran_agent_processes(quick_result):
+    result, _ = quick_result
+    assert result["agents"]
+    for n, entry in result["agents"].items():
+        for key in AGENT_KEYS:
+            assert entry.get(key) is not None, (n, key)
+        assert entry["commands"] > 0
+        assert entry["missed_ticks"] >= 0
+    assert result["inprocess"]["robot_steps_per_s"] > 0
+
+
+def test_fleet_scenario_rejects_a_robot_count_not_a_multiple_of_four():
+    with pytest.raises(ValueError, match="n:"):
+        fleet_scenario(6, 0.02, 1.0)
+
+
+def test_central_problem_holds_every_robot_and_its_rows():
+    scenario = fleet_scenario(8, 0.05, 1.0)
+    params, inputs, edges = fleet_snapshot(scenario)
+    names = [scenario.formation_of(r).name for r in scenario.robot_ids]
+    nominal = [(0.2, 0.0)] * len(inputs)
+    pm, q, g, h = central_problem(params, inputs, names, edges, nominal)
+    assert pm.shape == (16, 16) and q.shape == (16,)
+    single = 0
+    for r, u in zip(inputs, nominal, strict=True):
+        rows = build_rows(params, *r.pose, u, (), r.obstacles, r.others, r.view)
+        single += len(rows.limits) + len(rows.hard)
+    # each robot's own rows + 2 formations x 5 edges x 2 bands + 4 x 4 cross-formation pairs
+    assert g.shape == (single + 20 + 16, 16)
+    assert h.shape == (g.shape[0],)
+    assert (h >= 0).all()  # every barrier holds at the start: standing still is feasible
