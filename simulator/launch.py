@@ -22,7 +22,7 @@ agent, which applies them to the ``state``, ``ellipse`` and ``others`` messages 
 time ``T`` and, with ``AFTER``, starts a new one ``AFTER`` seconds later (in lock-step the world
 waits for it to subscribe, so the restart takes no simulated time beyond ``AFTER``);
 ``--camera-dropout ROBOT@T:DURATION`` makes the world stop publishing that robot's pose. Fault
-runs keep the lock-step clock with short timeouts (agents 0.5 s per input, world 2 s per tick of
+runs keep the lock-step clock with short timeouts (agents 0.3 s per input, world 1.5 s per tick of
 commands): a loss is known to the receiver's simulation at once, a silent process costs one
 timeout and is then not waited for until it speaks again. ``summary.json`` gains ``faults``.
 """
@@ -65,8 +65,8 @@ REPO_ROOT = Path(__file__).resolve().parent.parent
 STOP_TIMEOUT_S = 5.0  # [s] SIGTERM -> SIGKILL
 START_TIMEOUT_S = 60.0  # [s] router listening, agents subscribed
 INTER_ROBOT = (keys.STATE, keys.ELLIPSE, keys.OTHERS)  # classes the topology decides
-FAULT_AGENT_TIMEOUT_S = 0.5  # [s] lock-step wait per input of an agent in a fault run
-FAULT_WORLD_TIMEOUT_S = 2.0  # [s] lock-step wait for a tick's commands in a fault run
+FAULT_AGENT_TIMEOUT_S = 0.3  # [s] lock-step wait per input of an agent in a fault run
+FAULT_WORLD_TIMEOUT_S = 1.5  # [s] lock-step wait for a tick's commands in a fault run
 
 
 @dataclass(frozen=True)
