@@ -233,7 +233,9 @@ def logical_comm(scenario: Scenario, topology: str, ticks: int, sim_time: float,
     if topology == "reduced":
         per_tick = 2 * edges + leaders * (leaders - 1) + (n - leaders)
     else:
-        per_tick = n * (n - 1)
+        # every robot hears every other robot's state; leaders still hand members their own
+        # formation's ellipse (the tie-break reads it)
+        per_tick = n * (n - 1) + (n - leaders)
     messages = per_tick * ticks
     rate = messages / n / sim_time if sim_time > 0 and n else 0.0
     return {
