@@ -227,3 +227,15 @@ def test_formation_run_secure_logs_every_process_in_and_equals_the_open_run(tmp_
     assert all(p.stat().st_mode & 0o777 == 0o600 for p in secure.glob("*.credentials"))
     assert main(["sim", str(scenario), "--out", str(tmp_path / "ref"), "--quiet", "--no-plots"]) == 0
     assert (tmp_path / "sim" / "robots.csv").read_text() == (tmp_path / "ref" / "robots.csv").read_text()
+
+
+def test_python_m_wire_acl_writes_a_fleets_router_files_zenoh_accepts(tmp_path, capsys):
+    assert acl.main([str(ROOT / "scenarios" / "thesis-5.2.2.yaml"), "--out", str(tmp_path / "f")]) == 0
+    folder = tmp_path / "f"
+    conf = zenoh.Config.from_file(str(folder / "router.json5"))
+    assert json.loads(conf.get_json("access_control/default_permission")) == "deny"
+    users = (folder / "users.txt").read_text().splitlines()
+    assert sorted(u.split(":")[0] for u in users) == sorted(
+        ["camera", "r1", "r2", "r3", "r4", "s1", "s2", "s3", "s4"])
+    assert acl.read_credentials(folder / "r1.credentials").user == "r1"
+    assert acl.main([str(tmp_path / "missing.yaml"), "--out", str(tmp_path / "g")]) == 2

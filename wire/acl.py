@@ -171,3 +171,53 @@ def write_router_config(path: str | os.PathLike[str], conf: Mapping[str, Any]) -
     except Exception as exc:  # zenoh.ZError: an unknown key or a bad value
         raise ValueError(f"router config rejected by zenoh: {exc}") from None
     Path(path).write_text(text, encoding="utf-8")
+
+
+def write_fleet_files(scenario_path: str | os.PathLike[str], folder: str | os.PathLike[str],
+                      listen: Sequence[str], prefix: str = keys.DEFAULT_PREFIX) -> list[Path]:
+    """The router's ``router.json5`` and ``users.txt`` and one ``ROBOT.credentials`` per robot
+    (plus ``camera.credentials``) for a scenario's fleet, with fresh passwords, in ``folder``."""
+    from scenario import load_scenario
+
+    sc = load_scenario(scenario_path)
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    out.chmod(0o700)
+    robots = {rid: sc.formation_of(rid).name for rid in sc.robot_ids}
+    creds = new_credentials([CAMERA_USER, *robots])
+    write_dictionary(out / "users.txt", creds)
+    written = [out / "users.txt"]
+    for user, auth in creds.items():
+        write_credentials(out / f"{user}.credentials", auth)
+        written.append(out / f"{user}.credentials")
+    conf = router_config(listen, fleet_acl(robots, {f.name: f.leader for f in sc.formations},
+                                           prefix), (out / "users.txt").resolve())
+    write_router_config(out / "router.json5", conf)
+    return [out / "router.json5", *written]
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m wire.acl SCENARIO --out DIR [--listen ENDPOINT]``: a fleet's router files."""
+    import argparse
+    import sys
+
+    parser = argparse.ArgumentParser(prog="python -m wire.acl", description=main.__doc__)
+    parser.add_argument("scenario")
+    parser.add_argument("--out", required=True, help="folder for the files (mode 0700)")
+    parser.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
+                        help="router endpoint (repeatable; default tcp/0.0.0.0:7447)")
+    parser.add_argument("--key-prefix", default=keys.DEFAULT_PREFIX)
+    ns = parser.parse_args(argv)
+    try:
+        files = write_fleet_files(ns.scenario, ns.out, ns.listen or ["tcp/0.0.0.0:7447"],
+                                  ns.key_prefix)
+    except ValueError as exc:  # ScenarioError is a ValueError too
+        print(f"wire.acl: {exc}", file=sys.stderr)
+        return 2
+    print("wrote " + ", ".join(str(f) for f in files))
+    print(f"run the router with: python -m wire.router --listen ... --config {files[0]}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
