@@ -473,10 +473,10 @@ def _raise_interrupt(signum: int, _frame: FrameType | None) -> None:
     raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
 
 
-def bench_agents(n: int, dt: float, duration: float, work: Path) -> dict:
+def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: bool = True) -> dict:
     """Run ``n`` agent processes in real time against the simulated world for ``duration``
     seconds (see the module docstring); every process started here is stopped on every way out.
-    """
+    ``tick_on_pose=False`` runs the agents with ``--clock-ticks`` (their own clock)."""
     import zenoh
 
     from agent.config import ZenohSettings, build_agent_configs, save_config
@@ -506,7 +506,7 @@ def bench_agents(n: int, dt: float, duration: float, work: Path) -> dict:
             save_config(cfg, path)
             agents[rid] = sup.start(f"agent-{rid}", [
                 "-m", "agent", "--config", str(path), "--stats", str(work / "agents" / f"{rid}.json"),
-                "--no-trace"])
+                "--no-trace", *([] if tick_on_pose else ["--clock-ticks"])])
         conf = WireZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
                                  connect_timeout_s=10.0).to_config()
         options = WorldOptions(realtime=True, stop_at_goal=False, record=False,
@@ -540,8 +540,10 @@ def bench_agents(n: int, dt: float, duration: float, work: Path) -> dict:
             stats.append(json.loads((work / "agents" / f"{rid}.json").read_text(encoding="utf-8")))
         except (OSError, ValueError):
             logger.warning("agent %s wrote no counters", rid)
-    return _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, own_cpu,
-                         (router_cpu0, router_cpu1, router_rss), (load_before, load_after))
+    entry = _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, own_cpu,
+                          (router_cpu0, router_cpu1, router_rss), (load_before, load_after))
+    entry["ticks_on"] = "pose" if tick_on_pose else "clock"
+    return entry
 
 
 def _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, own_cpu, router, loads) -> dict:
