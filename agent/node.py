@@ -69,8 +69,9 @@ from typing import Any
 import zenoh
 
 from agent.barriers import Neighbour, Obstacle
+from agent.base import make_base
 from agent.config import AgentConfig
-from agent.control import FormationView, StepResult, control_step
+from agent.control import FormationView, Stall, StepResult, control_step, update_stall
 from agent.faults import EPS, DelayLine, LinkFaults, lag
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, solve_exact
 from agent.unicycle import control_point
@@ -219,6 +220,8 @@ class AgentNode:
         self._subs: list[Any] = []
         self._rings: list[tuple[Any, Callable[[zenoh.Sample], None]]] = []  # polled subscribers
         self._pubs: dict[str, CountingPublisher] = {}
+        self._base = None  # a real robot base adapter (agent.base), when cfg.base is not "world"
+        self._stall = Stall()  # this member's copy of its formation's jam state
         self._boxes: dict[str, Mailbox] = {}
         self._arrived: asyncio.Event | None = None
         self._pose_arrived: asyncio.Event | None = None
@@ -266,6 +269,10 @@ class AgentNode:
             pub_keys += [self.role.others_key] + ([] if self.all_to_all else [self.role.ellipse_key])
         for k in pub_keys:
             self._pubs[k] = CountingPublisher(s.declare_publisher(k), self.counter)
+        if self.cfg.base != "world":
+            # A real robot base (TurtleBot3 behind zenoh-bridge-ros2dds): every command also goes
+            # to its cmd_vel key as CDR; the cmd key stays for monitoring.
+            self._base = make_base(self.cfg, s)
         faults = self.options.faults
         if faults.delay > 0 and self.options.lockstep:
             self._delay_line = DelayLine(faults.delay, self._offer)
@@ -359,6 +366,12 @@ class AgentNode:
                 pub.undeclare()
             except Exception:  # noqa: BLE001
                 logger.debug("undeclare failed", exc_info=True)
+        if self._base is not None:
+            try:
+                self._base.stop()  # zero velocity on the real base, then undeclare
+            except Exception:  # noqa: BLE001 - shutting down: log, keep closing
+                logger.exception("%s: stopping the base failed", self.cfg.robot_id)
+            self._base = None
         self._subs.clear()
         self._rings.clear()
         self._pubs.clear()
@@ -604,6 +617,12 @@ class AgentNode:
         view = None
         if others_msg.own is not None:
             view = FormationView(msg_to_ellipse(others_msg.own), *cfg.formation_goal)
+            self._stall = update_stall(self._stall, view, cfg.period)  # the jam rule's memory
+            view = view._replace(
+                name=cfg.formation,
+                other_names=tuple(m.formation for m in others_msg.ellipses),
+                retreating=self._stall.retreat > 0.0,
+            )
         if self.all_to_all:
             ellipses = []
             pair = [Neighbour(states[k].x, states[k].y, states[k].ux, states[k].uy, 0.0)
@@ -698,6 +717,8 @@ class AgentNode:
         pub = self._pubs.get(self.cmd_key)
         if pub is not None:
             pub.put_message(cmd)
+        if self._base is not None:
+            self._base.send(cmd.v, cmd.omega, cmd.stamp)
 
     # --- counters ----------------------------------------------------------------------------
 
