@@ -62,6 +62,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="leader: longest use of another formation's stale ellipse, inflated")
     parser.add_argument("--zenoh-auth", type=Path, default=None, metavar="FILE",
                         help="log in to the router with the user:password in FILE (mode 0600)")
+    parser.add_argument("--zenoh-config", type=Path, default=None, metavar="FILE",
+                        help="a full Zenoh JSON5 configuration (as deploy writes it: client of the "
+                             "router, user/password, TLS); replaces the one in --config")
     parser.add_argument("--stats", type=Path, default=None, help="write counters here (JSON) at exit")
     parser.add_argument("--no-trace", action="store_true", help="do not keep per-tick rows")
     parser.add_argument("--clock-ticks", action="store_true",
@@ -76,7 +79,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         faults = LinkFaults(drop=ns.drop, delay=ns.delay_ms / 1000.0, seed=ns.fault_seed)
         options = NodeOptions(lockstep=ns.lockstep, lockstep_timeout=ns.lockstep_timeout,
                               trace=not ns.no_trace, faults=faults, ellipse_hold=ns.ellipse_hold,
-                              auth=auth, tick_on_pose=not ns.clock_ticks)
+                              auth=auth, tick_on_pose=not ns.clock_ticks,
+                              zenoh_config_file=None if ns.zenoh_config is None else str(ns.zenoh_config))
+        if ns.zenoh_config is not None and not ns.zenoh_config.is_file():
+            raise ValueError(f"--zenoh-config: no such file {str(ns.zenoh_config)!r}")
         node = AgentNode(cfg, options)
     except ValueError as exc:
         print(f"agent: {exc}", file=sys.stderr)

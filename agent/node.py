@@ -114,6 +114,7 @@ class NodeOptions:
     ellipse_hold: float = 10.0  # [s] leader: longest use of another formation's stale ellipse
     auth: UsrPwdAuth | None = None  # log in to the router as this user (access control)
     tick_on_pose: bool = True  # real time: tick on pose arrival (deadline fallback), not the clock
+    zenoh_config_file: str | None = None  # a full Zenoh JSON5 config (deploy's, e.g. with TLS)
 
     def __post_init__(self) -> None:
         if not isinstance(self.faults, LinkFaults):
@@ -261,8 +262,11 @@ class AgentNode:
         for cls in set(self.subscribed_keys.values()):
             feed = _Inline() if polled and cls != keys.POSE else loop
             self._boxes[cls] = Mailbox(feed, _stamped(decoders[cls]), counter=self.counter)
-        self._session = zenoh.open(zenoh_config(self.cfg, self.options.connect_timeout,
-                                                self.options.auth))
+        if self.options.zenoh_config_file is not None:
+            conf = zenoh.Config.from_file(self.options.zenoh_config_file)
+        else:
+            conf = zenoh_config(self.cfg, self.options.connect_timeout, self.options.auth)
+        self._session = zenoh.open(conf)
         s = self._session
         pub_keys = [self.state_key, self.cmd_key]
         if self.role is not None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import json
 import threading
 import time
 from pathlib import Path
@@ -25,7 +26,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 @pytest.mark.parametrize("base,decode", [("turtlebot3-humble", decode_twist),
                                          ("turtlebot3-jazzy", decode_twist_stamped)])
-def test_commands_reach_the_cmd_vel_key_as_cdr_and_shutdown_sends_zero(base, decode):
+def test_commands_reach_the_cmd_vel_key_as_cdr_and_shutdown_sends_zero(base, decode, tmp_path):
     with RouterProcess() as router:
         zs = ZenohSettings(mode="client", connect=(router.endpoint,))
         cfg = build_agent_configs(load_scenario(ROOT / "scenarios/thesis-6.5.yaml"), zenoh=zs)["a1"]
@@ -39,7 +40,13 @@ def test_commands_reach_the_cmd_vel_key_as_cdr_and_shutdown_sends_zero(base, dec
 
         peer = zenoh.open(zconf.make_config("client", connect=[router.endpoint]))
         sub = peer.declare_subscriber("a1/cmd_vel", on_sample)
-        node = AgentNode(cfg, NodeOptions())
+        # The Jazzy robot reads a full Zenoh JSON5 file, as `formation deploy` writes it.
+        conf_file = tmp_path / "zenoh.json5"
+        conf_file.write_text(json.dumps({"mode": "client",
+                                         "connect": {"endpoints": [router.endpoint]},
+                                         "scouting": {"multicast": {"enabled": False}}}))
+        options = NodeOptions(zenoh_config_file=str(conf_file) if base.endswith("jazzy") else None)
+        node = AgentNode(cfg, options)
         loop = asyncio.new_event_loop()
         try:
             node.open(loop)
