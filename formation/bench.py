@@ -71,6 +71,7 @@ COLUMN_SPACING = 9.0  # [m] between formations sharing a lane
 TRAVEL = 7.0  # [m] goal ahead of the start (not reached within the benchmark's duration)
 FLEETS = {8: 0.02, 32: 0.02, 64: 0.05}  # agents -> control period [s] (50, 50, 20 Hz)
 FLEET_DURATION = 15.0  # [s] of real time per fleet
+CLOCK_FLEETS = {8: 0.02}  # the same agents ticking on their own clock, for comparison
 QUICK_FLEETS = {4: 0.02}
 QUICK_DURATION = 2.0  # [s]
 
@@ -635,6 +636,8 @@ def run_bench(quick: bool = False, scenario: Path = DEFAULT_SCENARIO,
         base = Path(work) if work is not None else Path(tmp)
         for n, dt in fleets.items():
             agents[str(n)] = bench_agents(n, dt, duration, base / f"agents-{n}")
+        clock = {str(n): bench_agents(n, dt, duration, base / f"clock-{n}", tick_on_pose=False)
+                 for n, dt in ({} if quick else CLOCK_FLEETS).items()}
     return {
         "machine": {"python": platform.python_version(), "processor": platform.processor() or
                     platform.machine(), "cpus": os.cpu_count(), "quick": quick,
@@ -646,6 +649,7 @@ def run_bench(quick: bool = False, scenario: Path = DEFAULT_SCENARIO,
         "solvers": solvers,
         "central": central,
         "agents": agents,
+        "agents_clock_ticks": clock,
         "inprocess": inproc,
     }
 
@@ -685,7 +689,9 @@ def format_table(result: dict) -> str:
     lines.append(f"{'N':>4}{'Hz':>5}{'rate':>7}{'missed':>8}{'overrun':>8}{'p50 ms':>8}"
                  f"{'p99 ms':>8}{'wait':>7}{'tick':>7}{'net':>7}{'cpu %':>7}{'rss MB':>8}"
                  f"{'load':>6}")
-    for n, a in result["agents"].items():
+    fleets = [(n, a) for n, a in result["agents"].items()]
+    fleets += [(f"{n}c", a) for n, a in result.get("agents_clock_ticks", {}).items()]
+    for n, a in fleets:
         parts = a["latency_parts_ms_median"]
         lines.append(
             f"{n:>4}{a['rate_hz_target']:>5.0f}{_f(a['rate_hz']):>7}{a['missed_ticks']:>8}"
@@ -694,6 +700,11 @@ def format_table(result: dict) -> str:
             f"{_f(parts['tick'], '.2f'):>7}{_f(parts['transport_rest'], '.2f'):>7}"
             f"{_f(a['cpu_percent_per_agent_median']):>7}{_f(a['rss_mb_per_agent_median']):>8}"
             f"{_f(a['load_avg_1min']['before']):>6}")
+    if result.get("agents_clock_ticks"):
+        lines.append("  (Nc: agents ticking on their own clock, --clock-ticks; the others tick on pose "
+                     "arrival)")
+    lines.append("  wait: pose received -> tick starts; tick: tick start -> command put; net: the rest "
+                 "(router both ways, Zenoh and Python threads, CPU queueing); medians")
     ip = result["inprocess"]
     lines.append("")
     lines.append(f"in-process simulation, {ip['scenario']} ({ip['robots']} robots, {ip['ticks']} "
