@@ -470,6 +470,16 @@ def _proc_rss_mb(pid: int) -> float | None:
     return None
 
 
+def _machine_busy_s() -> float | None:
+    """CPU time every process of the machine has used since boot [s], from /proc/stat."""
+    try:
+        fields = [int(v) for v in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+    except (OSError, ValueError):
+        return None
+    idle = fields[3] + (fields[4] if len(fields) > 4 else 0)  # idle + iowait
+    return (sum(fields[:8]) - idle) / os.sysconf("SC_CLK_TCK")
+
+
 def _raise_interrupt(signum: int, _frame: FrameType | None) -> None:
     raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
 
@@ -520,8 +530,10 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
                 cpu0 = {rid: _proc_cpu_s(pid) for rid, pid in pids.items()}
                 router_cpu0 = _proc_cpu_s(router.proc.pid)
                 own0 = time.process_time()
+                busy0 = _machine_busy_s()
                 result = world.run(abort=sup.check)
                 own_cpu = time.process_time() - own0
+                busy1 = _machine_busy_s()
                 cpu1 = {rid: _proc_cpu_s(pid) for rid, pid in pids.items()}
                 router_cpu1 = _proc_cpu_s(router.proc.pid)
                 rss = {rid: _proc_rss_mb(pid) for rid, pid in pids.items()}
@@ -541,13 +553,14 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
             stats.append(json.loads((work / "agents" / f"{rid}.json").read_text(encoding="utf-8")))
         except (OSError, ValueError):
             logger.warning("agent %s wrote no counters", rid)
+    busy = None if busy0 is None or busy1 is None else busy1 - busy0
     entry = _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, own_cpu,
-                          (router_cpu0, router_cpu1, router_rss), (load_before, load_after))
+                          (router_cpu0, router_cpu1, router_rss), (load_before, load_after), busy)
     entry["ticks_on"] = "pose" if tick_on_pose else "clock"
     return entry
 
 
-def _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, own_cpu, router, loads) -> dict:
+def _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, own_cpu, router, loads, busy) -> dict:
     wall = result.wall_s
     lat = result.latency_ms
     period_ms = dt * 1e3
@@ -568,6 +581,8 @@ def _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, own_cpu, router, loads)
     if p50 is not None and pose_wait is not None and tick is not None:
         transport = p50 - pose_wait - tick
     r0, r1, rrss = router
+    ours = sum(cpu1[r] - cpu0[r] for r in cpu0 if cpu0[r] is not None and cpu1.get(r) is not None)
+    ours += own_cpu + (0.0 if r0 is None or r1 is None else r1 - r0)
     return {
         "robots": n,
         "rate_hz_target": 1.0 / dt,
@@ -593,6 +608,10 @@ def _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, own_cpu, router, loads)
         "router_rss_mb": rrss,
         "world_cpu_percent": 100.0 * own_cpu / wall if wall > 0 else None,
         "load_avg_1min": {"before": loads[0], "after": loads[1]},
+        "fleet_cpu_percent": 100.0 * ours / wall if wall > 0 else None,
+        # other people's processes on the machine meanwhile (percent of one core; 2 cores = 200)
+        "others_cpu_percent": None if busy is None or wall <= 0 else
+        max(0.0, 100.0 * (busy - ours) / wall),
     }
 
 
@@ -688,7 +707,7 @@ def format_table(result: dict) -> str:
     lines.append("agent processes in real time (pose published -> command received)")
     lines.append(f"{'N':>4}{'Hz':>5}{'rate':>7}{'missed':>8}{'overrun':>8}{'p50 ms':>8}"
                  f"{'p99 ms':>8}{'wait':>7}{'tick':>7}{'net':>7}{'cpu %':>7}{'rss MB':>8}"
-                 f"{'load':>6}")
+                 f"{'all %':>7}{'other %':>8}")
     fleets = [(n, a) for n, a in result["agents"].items()]
     fleets += [(f"{n}c", a) for n, a in result.get("agents_clock_ticks", {}).items()]
     for n, a in fleets:
@@ -699,12 +718,14 @@ def format_table(result: dict) -> str:
             f"{_f(a['latency_ms_p99'], '.2f'):>8}{_f(parts['pose_wait_for_tick'], '.2f'):>7}"
             f"{_f(parts['tick'], '.2f'):>7}{_f(parts['transport_rest'], '.2f'):>7}"
             f"{_f(a['cpu_percent_per_agent_median']):>7}{_f(a['rss_mb_per_agent_median']):>8}"
-            f"{_f(a['load_avg_1min']['before']):>6}")
+            f"{_f(a.get('fleet_cpu_percent'), '.0f'):>7}{_f(a.get('others_cpu_percent'), '.0f'):>8}")
     if result.get("agents_clock_ticks"):
         lines.append("  (Nc: agents ticking on their own clock, --clock-ticks; the others tick on pose "
                      "arrival)")
     lines.append("  wait: pose received -> tick starts; tick: tick start -> command put; net: the rest "
                  "(router both ways, Zenoh and Python threads, CPU queueing); medians")
+    lines.append("  cpu %: per agent (median), of one core; all %: agents + router + world; other %: "
+                 "other people's processes meanwhile (2 cores = 200)")
     ip = result["inprocess"]
     lines.append("")
     lines.append(f"in-process simulation, {ip['scenario']} ({ip['robots']} robots, {ip['ticks']} "
