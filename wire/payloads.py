@@ -79,9 +79,42 @@ def _finite(obj: object, name: str) -> None:
     object.__setattr__(obj, name, as_float)
 
 
+_isfinite = math.isfinite
+
+# Ids already found valid (validity depends on the string alone), so a decoder checks a
+# formation or obstacle id it has seen before with one set lookup. Bounded: cleared when full.
+_VALID_IDS: set[str] = set()
+_VALID_IDS_MAX = 4096
+
+
+def _check_id(value: object, name: str) -> None:
+    """:func:`wire.keys.validate_id`, remembering plain strings that passed."""
+    if type(value) is str and value in _VALID_IDS:
+        return
+    keys.validate_id(value, name)
+    if type(value) is str:
+        if len(_VALID_IDS) >= _VALID_IDS_MAX:
+            _VALID_IDS.clear()
+        _VALID_IDS.add(value)
+
+
 def _check_floats(obj: object, names: Iterable[str]) -> None:
+    """Check the float fields ``names`` of ``obj`` like :func:`_finite`.
+
+    The fast path accepts a plain finite ``float`` as it is (what every decoder and nearly every
+    caller passes: ``float(v)`` of it is ``v``); anything else takes :func:`_finite`, which
+    converts it or raises, so the behaviour is the same either way."""
     for name in names:
-        _finite(obj, name)
+        value = getattr(obj, name)
+        if type(value) is not float or not _isfinite(value):
+            _finite(obj, name)
+
+
+_POSE_FLOATS = ("x", "y", "theta", "stamp")
+_STATE_FLOATS = ("x", "y", "ux", "uy", "stamp")
+_CMD_FLOATS = ("v", "omega", "ux", "uy", "stamp")
+_OBSTACLE_FLOATS = ("x", "y", "vx", "vy", "ds")
+_STAMP = ("stamp",)
 
 
 @dataclass(frozen=True, slots=True)
@@ -94,7 +127,7 @@ class Pose:
     stamp: float
 
     def __post_init__(self) -> None:
-        _check_floats(self, ("x", "y", "theta", "stamp"))
+        _check_floats(self, _POSE_FLOATS)
 
 
 @dataclass(frozen=True, slots=True)
@@ -111,7 +144,7 @@ class State:
     stamp: float
 
     def __post_init__(self) -> None:
-        _check_floats(self, ("x", "y", "ux", "uy", "stamp"))
+        _check_floats(self, _STATE_FLOATS)
 
 
 @dataclass(frozen=True, slots=True)
@@ -128,7 +161,7 @@ class Cmd:
     stamp: float
 
     def __post_init__(self) -> None:
-        _check_floats(self, ("v", "omega", "ux", "uy", "stamp"))
+        _check_floats(self, _CMD_FLOATS)
 
 
 _ELLIPSE_FLOATS = ("cx", "cy", "alpha", "a", "b", "vx", "vy", "alpha_rate", "stamp")
@@ -154,7 +187,7 @@ class EllipseMsg:
     stamp: float
 
     def __post_init__(self) -> None:
-        keys.validate_id(self.formation, "formation")
+        _check_id(self.formation, "formation")
         _check_floats(self, _ELLIPSE_FLOATS)
         if self.a <= 0.0:
             raise ValueError(f"a must be > 0, got {self.a!r}")
@@ -186,8 +219,8 @@ class Others:
     own: EllipseMsg | None = None
 
     def __post_init__(self) -> None:
-        keys.validate_id(self.formation, "formation")
-        _finite(self, "stamp")
+        _check_id(self.formation, "formation")
+        _check_floats(self, _STAMP)
         ellipses = _ellipse_tuple(self.ellipses, "ellipses")
         object.__setattr__(self, "ellipses", ellipses)
         seen: set[str] = set()
@@ -221,8 +254,8 @@ class ObstacleMsg:
     ds: float
 
     def __post_init__(self) -> None:
-        keys.validate_id(self.id, "id")
-        _check_floats(self, ("x", "y", "vx", "vy", "ds"))
+        _check_id(self.id, "id")
+        _check_floats(self, _OBSTACLE_FLOATS)
         if self.ds < 0.0:
             raise ValueError(f"ds must be >= 0, got {self.ds!r}")
 
@@ -235,7 +268,7 @@ class Obstacles:
     obstacles: tuple[ObstacleMsg, ...] = ()
 
     def __post_init__(self) -> None:
-        _finite(self, "stamp")
+        _check_floats(self, _STAMP)
         items = tuple(self.obstacles)
         if len(items) > MAX_ITEMS:
             raise ValueError(f"obstacles must hold at most {MAX_ITEMS} entries, got {len(items)}")
@@ -372,9 +405,40 @@ class _Reader:
             raise DecodeError(f"{what} must hold at most {limit} entries, got {n}")
         return n
 
-    def ellipse(self, what: str) -> EllipseMsg:
+    def _id_and_floats(self, fmt: struct.Struct) -> tuple[str, tuple[float, ...]] | None:
+        """The usual case of an ``(id:str, f64 * k)`` item, read in one go: a one-byte length,
+        valid UTF-8 and every byte present. ``None`` (nothing consumed) for anything else,
+        which the caller then reads field by field, with the checks and messages of
+        :meth:`string` and :meth:`floats`."""
+        data, pos = self.data, self.pos
+        if pos >= len(data) or data[pos] & 0x80:
+            return None
+        start = pos + 1 + data[pos]
+        end = start + fmt.size
+        if end > len(data):
+            return None
+        try:
+            ident = data[pos + 1 : start].decode("utf-8")
+        except UnicodeDecodeError:
+            return None
+        self.pos = end
+        return ident, fmt.unpack_from(data, start)
+
+    def ellipse(self, name: str, index: int | None = None) -> EllipseMsg:
+        """An ellipse without the version; ``name[index]`` names it in error messages."""
+        item = self._id_and_floats(_FLOATS[9])
+        if item is not None:
+            return EllipseMsg(item[0], *item[1])
+        what = name if index is None else f"{name}[{index}]"
         formation = self.string(f"{what}.formation")
         return EllipseMsg(formation, *self.floats(9, what))
+
+    def obstacle(self, index: int) -> ObstacleMsg:
+        item = self._id_and_floats(_FLOATS[5])
+        if item is not None:
+            return ObstacleMsg(item[0], *item[1])
+        name = self.string(f"obstacles[{index}].id")
+        return ObstacleMsg(name, *self.floats(5, f"obstacles[{index}]"))
 
     def end(self) -> None:
         if self.pos != len(self.data):
@@ -426,7 +490,7 @@ def _parse_others(r: _Reader) -> Others:
     formation = r.string("formation")
     (stamp,) = r.floats(1, "stamp")
     n = r.count("ellipses", MAX_ITEMS)
-    ellipses = tuple(r.ellipse(f"ellipses[{i}]") for i in range(n))
+    ellipses = tuple([r.ellipse("ellipses", i) for i in range(n)])
     n_own = r.count("own", 1)
     own = r.ellipse("own") if n_own else None
     return Others(formation, stamp, ellipses, own)
@@ -435,11 +499,7 @@ def _parse_others(r: _Reader) -> Others:
 def _parse_obstacles(r: _Reader) -> Obstacles:
     (stamp,) = r.floats(1, "stamp")
     n = r.count("obstacles", MAX_ITEMS)
-    items = []
-    for i in range(n):
-        name = r.string(f"obstacles[{i}].id")
-        items.append(ObstacleMsg(name, *r.floats(5, f"obstacles[{i}]")))
-    return Obstacles(stamp, tuple(items))
+    return Obstacles(stamp, tuple([r.obstacle(i) for i in range(n)]))
 
 
 def decode_pose(payload: bytes | zenoh.ZBytes) -> Pose:

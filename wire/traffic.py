@@ -44,6 +44,8 @@ Snapshot = dict[str, dict[str, dict[str, int]]]
 
 T = TypeVar("T")
 
+CLASS_CACHE_SIZE = 4096  # keys whose class a TrafficCounter remembers (cleared when full)
+
 
 def empty_snapshot() -> Snapshot:
     """A snapshot with every side and class at zero."""
@@ -69,15 +71,30 @@ class TrafficCounter:
         self._prefix = keys.validate_prefix(prefix)
         self._lock = threading.Lock()
         self._counts = empty_snapshot()
+        # key -> class, so counting a message on a key seen before is a lookup; written from
+        # several threads without the lock (a lost insert only costs one more parse)
+        self._classes: dict[str, str] = {}
 
     @property
     def prefix(self) -> str:
         return self._prefix
 
+    def key_class(self, key: object) -> str:
+        """:func:`wire.keys.key_class` of ``key`` under this counter's prefix, cached."""
+        name = key if type(key) is str else str(key)
+        cls = self._classes.get(name)
+        if cls is None:
+            cls = keys.key_class(self._prefix, name)
+            if len(self._classes) >= CLASS_CACHE_SIZE:
+                self._classes.clear()
+            self._classes[name] = cls
+        return cls
+
     def _count(self, side: str, key: object, nbytes: int) -> None:
-        if isinstance(nbytes, bool) or not isinstance(nbytes, int) or nbytes < 0:
-            raise ValueError(f"nbytes must be an int >= 0, got {nbytes!r}")
-        cls = keys.key_class(self._prefix, key)
+        if type(nbytes) is not int or nbytes < 0:  # the full check only off the usual path
+            if isinstance(nbytes, bool) or not isinstance(nbytes, int) or nbytes < 0:
+                raise ValueError(f"nbytes must be an int >= 0, got {nbytes!r}")
+        cls = self.key_class(key)
         with self._lock:
             entry = self._counts[side][cls]
             entry["messages"] += 1
