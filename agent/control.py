@@ -73,6 +73,7 @@ class ControlParams:
     tiebreak: bool = True
     safety: bool = True  # False: the nominal command, no barriers (to show what happens)
     d_af: float = 0.5  # [m] pairwise distance for the all-to-all baseline (eq. 3.5)
+    period: float = 0.05  # [s] control period (sizes the unicycle's discretisation margin)
 
     @classmethod
     def from_scenario(cls, scenario, safety: bool = True) -> ControlParams:
@@ -90,12 +91,25 @@ class ControlParams:
             tiebreak=c.tiebreak == "keep_right",
             safety=safety,
             d_af=c.d_af if c.d_af is not None else 2.0 * r.radius + 0.25,
+            period=scenario.dt,
         )
 
     @property
     def offset(self) -> float:
         """Control point offset from the body centre [m]."""
         return self.lookahead if self.unicycle else 0.0
+
+    @property
+    def sampling_margin(self) -> float:
+        """[m] extra obstacle clearance for a unicycle's look-ahead point under sampled control.
+
+        Over one period the look-ahead point of a unicycle turning at omega moves off the
+        straight line u dt by up to l (omega dt)^2 / 2; the barrier, which assumed s' = u, then
+        settles that far divided by gamma dt inside its boundary. Ds grows by that bound at the
+        largest turn rate, so the body still keeps Ds (single integrators move exactly: 0)."""
+        if not self.unicycle:
+            return 0.0
+        return 0.5 * self.lookahead * self.max_turn_rate ** 2 * self.period / self.gamma_obstacle
 
 
 class FormationView(NamedTuple):
@@ -273,9 +287,10 @@ def build_rows(
         if rl[2] < reach:
             soft.append(rl)
     off = p.offset
+    grow = off + p.sampling_margin
     for o in obstacles:
-        if off:
-            o = Obstacle(o.x, o.y, o.vx, o.vy, o.ds + off)  # the body stays Ds away
+        if grow:
+            o = Obstacle(o.x, o.y, o.vx, o.vy, o.ds + grow)  # the body stays Ds away
         h, row = barriers.obstacle_row(px, py, o, p.gamma_obstacle)
         ho = min(ho, h)
         if row[2] < reach:

@@ -136,3 +136,15 @@ def test_only_the_formation_without_priority_backs_away():
     assert retreat_command(far, [a.own], 0.22) is None
     step = control_step(ControlParams(), (1.5, 0.0, 0.0), (-5.0, 0.0), others=[a.own], view=b)
     assert step.nominal_ux > 0  # the retreat replaces the drive towards the goal
+
+
+def test_unicycles_keep_a_sampling_margin_around_obstacles_and_integrators_none():
+    uni = ControlParams(unicycle=True, lookahead=0.05, max_turn_rate=2.84, period=0.05,
+                        gamma_obstacle=1.0)
+    assert uni.sampling_margin == pytest.approx(0.5 * 0.05 * 2.84 ** 2 * 0.05)
+    assert ControlParams(unicycle=False).sampling_margin == 0.0
+    obstacle = [Obstacle(1.0, 0.0, 0.0, 0.0, 0.3)]
+    rows = build_rows(uni, 0.0, 0.0, 0.0, (0.2, 0.0), obstacles=obstacle)
+    expected = 1.0 - (0.3 + 0.05 + uni.sampling_margin)  # distance to the grown circle
+    assert math.sqrt(rows.h_obstacle + (0.3 + 0.05 + uni.sampling_margin) ** 2) == pytest.approx(1.0)
+    assert expected > 0
