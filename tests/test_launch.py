@@ -17,30 +17,7 @@ from formation.cli import main
 
 ROOT = Path(__file__).resolve().parent.parent
 
-TWO_FORMATIONS = """\
-name: two-small
-dt: 0.05
-duration: 40.0
-goal_tolerance: 0.05
-robot: {model: single_integrator, max_speed: 0.22, radius: 0.105}
-controller: {kp: 2.0, gamma: 1.0, epsilon: 0.05}
-formations:
-  - name: A
-    leader: a1
-    robots:
-      a1: {start: [0.0, 0.0], goal: [2.0, 0.0]}
-      a2: {start: [0.0, 0.5], goal: [2.0, 0.5]}
-      a3: {start: [-0.4, 0.25], goal: [1.6, 0.25]}
-    edges: [[a1, a2], [a1, a3], [a2, a3]]
-  - name: B
-    leader: b1
-    robots:
-      b1: {start: [2.0, -0.3], goal: [0.0, -0.3]}
-      b2: {start: [2.4, -0.3], goal: [0.4, -0.3]}
-    edges: [[b1, b2]]
-obstacles:
-  - {name: o1, center: [1.0, -1.0], safe_distance: 0.25}
-"""
+TWO_FORMATIONS = (ROOT / "tests" / "scenarios" / "two-small.yaml").read_text(encoding="utf-8")
 
 LONG = TWO_FORMATIONS.replace("duration: 40.0", "duration: 400.0").replace(
     "goal: [2.0, 0.0]", "goal: [40.0, 0.0]").replace(
