@@ -94,12 +94,16 @@ def check_marker_ids(
 
 
 def make_detector(
-    dictionary: str = DEFAULT_DICTIONARY, corner_refinement: str = "subpix"
+    dictionary: str = DEFAULT_DICTIONARY, corner_refinement: str = "contour"
 ) -> cv2.aruco.ArucoDetector:
-    """An ArUco detector tuned for small overhead markers.
+    """An ArUco detector tuned for small overhead markers (3 to 6 px per module).
 
-    ``corner_refinement`` is ``"subpix"`` (default: measured best here, see the tests),
-    ``"contour"``, ``"apriltag"`` or ``"none"``.
+    ``corner_refinement`` is ``"contour"`` (default), ``"subpix"``, ``"apriltag"`` or ``"none"``.
+    Measured on rendered 1280x960 frames of 0.08 m markers (about 4 px per module), over 640
+    random poses: contour refinement gave a median position error of 0.1 mm and heading errors
+    below 1.6 deg; subpix was as good only with a 2 px window and three times worse with 3 to
+    5 px (the window then reaches the neighbouring module); no refinement gave 0.6 mm and up to
+    2.4 deg; apriltag refinement carried a 2 mm bias.
     """
     methods = {
         "none": cv2.aruco.CORNER_REFINE_NONE,
@@ -113,14 +117,19 @@ def make_detector(
         )
     params = cv2.aruco.DetectorParameters()
     params.cornerRefinementMethod = methods[corner_refinement]
-    # Markers 20 to 40 px wide: the default 5 px refinement window reaches across a whole
-    # module; 2 px keeps it on the one edge being refined.
-    params.cornerRefinementWinSize = 2
-    params.relativeCornerRefinmentWinSize = 0.3
+    # subpix only: a 2 px window keeps the refinement on the one edge pair being refined.
+    params.cornerRefinementWinSize = 2  # [px]
+    params.relativeCornerRefinmentWinSize = 1.0  # [modules], caps the window above
     params.cornerRefinementMinAccuracy = 0.01  # [px]
     params.cornerRefinementMaxIterations = 50
-    # Marker perimeter >= 1.5% of the larger image side (19 px of a 1280 px image's 1280).
+    # Marker perimeter >= 1.5% of the larger image side (19 px of a 1280 px image).
     params.minMarkerPerimeterRate = 0.015
+    # Read the bits from a finer, more inset grid: at 2.5 px per module under blur this cut the
+    # missed markers from 82 to 14 of 320; at 4 px per module it costs nothing measurable.
+    params.perspectiveRemovePixelPerCell = 8
+    params.perspectiveRemoveIgnoredMarginPerCell = 0.25
+    # errorCorrectionRate stays at its default: no bit is corrected, so a misread marker is
+    # dropped rather than taken for another robot.
     return cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), params)
 
 
