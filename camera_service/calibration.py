@@ -15,7 +15,7 @@ Frames and units:
 The homography is exact for one plane only. Markers ride on the robots' top plates, so calibrate
 on the plane of the markers (correspondences measured at marker height), not on the bare floor:
 with a camera 3 m up, a marker 0.19 m above the calibrated plane appears displaced away from the
-image centre by about 6% of its distance from the point below the camera.
+image centre by about 7% of its distance from the point below the camera.
 """
 
 from __future__ import annotations

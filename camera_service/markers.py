@@ -99,11 +99,12 @@ def make_detector(
     """An ArUco detector tuned for small overhead markers (3 to 6 px per module).
 
     ``corner_refinement`` is ``"contour"`` (default), ``"subpix"``, ``"apriltag"`` or ``"none"``.
-    Measured on rendered 1280x960 frames of 0.08 m markers (about 4 px per module), over 640
-    random poses: contour refinement gave a median position error of 0.1 mm and heading errors
-    below 1.6 deg; subpix was as good only with a 2 px window and three times worse with 3 to
-    5 px (the window then reaches the neighbouring module); no refinement gave 0.6 mm and up to
-    2.4 deg; apriltag refinement carried a 2 mm bias.
+    Measured on rendered 1280x960 frames of 0.08 m markers (about 4 px per module), 640 random
+    poses each: contour refinement gave a median position error of 0.1 mm and heading errors
+    below 1.7 deg; subpix was about as good with a 2 px window but up to 7 mm and 8 deg off with
+    a 3 to 5 px one (the window then reaches the neighbouring module); no refinement gave
+    0.6 mm median and up to 2.4 deg; apriltag refinement carried a 2 mm bias. Markers need about
+    3 px per module: at 2.9 px (blurred, noisy) 0.5 % went undetected, at 2.5 px 4 %.
     """
     methods = {
         "none": cv2.aruco.CORNER_REFINE_NONE,

@@ -32,7 +32,7 @@ from camera_service.markers import (
 )
 
 MARKER_SIDE = 0.08  # [m] side of the marker's black square on the floor
-QUIET_ZONE = 1.0  # [modules] white border around the marker's black square
+QUIET_ZONE = 1  # [modules] white border around the marker's black square
 ROBOT_RADIUS = 0.105  # [m] TurtleBot3 burger body radius
 BLOB_RADIUS = 0.05  # [m] radius of a robot's coloured disc in blob mode
 SUPERSAMPLE = 4  # marker sub-pixel samples per image pixel, per axis
@@ -218,7 +218,7 @@ def render_aruco_frame(
     *,
     dictionary: str = DEFAULT_DICTIONARY,
     marker_side: float = MARKER_SIDE,
-    quiet_zone: int = int(QUIET_ZONE),
+    quiet_zone: int = QUIET_ZONE,
     robot_radius: float = ROBOT_RADIUS,
     noise_std: float = 0.0,
     blur_sigma: float = 0.0,

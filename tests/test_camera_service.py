@@ -1,10 +1,11 @@
 """camera_service on frames rendered with known poses: real OpenCV detection end to end.
 
-Accuracy bounds below were measured first (``benchmarks/camera_detection.py`` and sweeps of
-2,560 markers per setting on 1280x960 frames, 0.08 m markers, about 4 px per module): ArUco
-position error median 0.08 to 0.16 mm, max 1.42 mm; heading error median 0.13 to 0.20 deg, max
-1.76 deg; colour blobs median 0.2 mm, max 0.83 mm. The asserted bounds leave about a factor of
-two over those maxima for other OpenCV builds and random draws.
+Accuracy bounds below were measured first with ``benchmarks/camera_detection.py`` (1280x960
+frames of a 4 m x 3 m floor, 0.08 m markers, about 4 px per module, headings over the full
+circle; 9,600 markers per setting): with tilt 0.2, noise 3 and blur 0.8 the ArUco position error
+was median 0.13 mm, max 1.45 mm, the heading error median 0.17 deg, max 1.78 deg; sharp frames
+without tilt gave max 1.36 mm and 1.68 deg; colour blobs median 0.23 mm, max 0.91 mm. The bounds
+leave about a factor of two on position and 1.7 on heading over those maxima.
 """
 
 from __future__ import annotations
@@ -214,8 +215,8 @@ def test_detects_every_marker_within_a_millimetre_and_three_degrees(tilt, noise,
 
 def test_at_three_pixels_per_module_almost_every_marker_is_still_found():
     # tilt 0.3: markers at the far edge are 17 px wide, 2.9 px per module, blurred and noisy.
-    # Measured: 1275 of 1280 found, heading max 2.1 deg. Below ~3 px per module use larger
-    # markers (the simulator sizes its markers to the camera).
+    # Measured over 4,800 markers: 0.5 % missed, position max 1.13 mm, heading max 2.67 deg (so
+    # 4 deg here). Below ~3 px per module use larger markers (the simulator sizes its own).
     cal = synthetic_camera(arena=ARENA, tilt=0.3)
     rng = np.random.default_rng(8)
     pos, head, missed = [], [], 0
@@ -229,7 +230,7 @@ def test_at_three_pixels_per_module_almost_every_marker_is_still_found():
         pos += p
         head += h
     assert missed <= 3  # of 144
-    assert max(pos) < POS_MAX and max(head) < HEAD_MAX
+    assert max(pos) < POS_MAX and max(head) < math.radians(4.0)
 
 
 def test_markers_along_the_image_edge_are_found_at_every_rotation():
