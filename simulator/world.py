@@ -119,9 +119,10 @@ def step_pose(x: float, y: float, th: float, cmd: Cmd | None, dt: float, is_unic
 class _CmdInbox:
     """Latest command per robot, filled on Zenoh's threads, read by the world's loop."""
 
-    def __init__(self, prefix: str, counter: TrafficCounter) -> None:
+    def __init__(self, prefix: str, counter: TrafficCounter, robots: Sequence[str]) -> None:
         self._prefix = prefix
         self._counter = counter
+        self._robot_of = {keys.cmd_key(prefix, r): r for r in robots}  # cmd key -> robot
         self._cond = threading.Condition()
         self.latest: dict[str, tuple[Cmd, float]] = {}  # robot -> (cmd, local receive time)
         self.late: set[str] = set()  # lock-step: robots whose last command timed out
@@ -130,10 +131,13 @@ class _CmdInbox:
         self.measure_latency = False
 
     def callback(self, sample: zenoh.Sample) -> None:
+        """The subscriber of every robot's ``cmd`` (one wildcard); other robots' are ignored."""
         key = str(sample.key_expr)
+        rid = self._robot_of.get(key)
+        if rid is None:
+            return
         data = sample.payload.to_bytes()
         self._counter.count_recv(key, len(data))
-        rid = keys.parse_key(self._prefix, key)[1]
         try:
             cmd = decode_cmd(data)
         except DecodeError:
@@ -183,9 +187,10 @@ class World:
                                              self.counter) for r in self.ids]
         self._obs_pub = CountingPublisher(session.declare_publisher(keys.obstacles_key(p)),
                                           self.counter)
-        self.inbox = _CmdInbox(p, self.counter)
-        self._subs = [session.declare_subscriber(keys.cmd_key(p, r), self.inbox.callback)
-                      for r in self.ids]
+        self.inbox = _CmdInbox(p, self.counter, self.ids)
+        # one wildcard subscriber (one Zenoh callback thread) for every robot's command
+        self._subs = [session.declare_subscriber(keys.all_robots_key(p, keys.CMD),
+                                                 self.inbox.callback)]
         self._camera = None
         for rid, _t0, _t1 in options.camera_dropouts:
             if rid not in self.ids:
