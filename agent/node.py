@@ -62,6 +62,7 @@ import logging
 import math
 import statistics
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -99,6 +100,7 @@ DEADLINE_PERIODS = 1.5  # real time: tick without a new pose after this many per
 MIN_SPACING_PERIODS = 0.5  # real time: pose-triggered ticks at least this many periods apart
 RING_CAPACITY = 256  # real time: samples kept per key between two ticks (a flood beyond it
 # loses its oldest samples uncounted; about one per tick arrives in normal operation)
+STATS_WINDOW = 10_000  # per-tick timings kept for the medians in stats() (the newest ticks)
 STATUS_STALE = "stale"  # trace status of a tick that commanded zero for stale inputs
 TRACE_COLUMNS = ("t", "px", "py", "ux", "uy", "v", "omega", "status", "slack",
                  "h_formation", "h_obstacle", "h_formations", "solve_us")
@@ -109,6 +111,7 @@ class NodeOptions:
     lockstep: bool = False  # tick on pose arrival (simulated world) instead of the own clock
     lockstep_timeout: float = 2.0  # [s] longest wait for one phase's inputs in lock-step
     trace: bool = True  # keep one row per tick (TRACE_COLUMNS) for the launcher's time series
+    # (unbounded: about 400 bytes a tick; ``python -m agent --no-trace`` for long runs)
     connect_timeout: float = 10.0  # [s] keep retrying the router this long when opening
     faults: LinkFaults = LinkFaults()  # loss and delay applied to received inter-robot messages
     ellipse_hold: float = 10.0  # [s] leader: longest use of another formation's stale ellipse
@@ -184,8 +187,14 @@ class AgentNode:
         self.all_to_all = cfg.topology == "all-to-all"
         self.neighbour_keys = {keys.state_key(p, n): df for n, df in cfg.neighbours}
         self.foreign_keys = tuple(keys.state_key(p, r) for r in cfg.foreign_robots)
+        # every robot's state this node reads each tick (built once, not per tick)
+        self._state_keys = tuple(self.neighbour_keys) + (self.foreign_keys if self.all_to_all
+                                                         else ())
         self.role = LeaderRole(cfg.formation, cfg.leader, p) if cfg.leader is not None else None
+        self._member_keys: dict[str, str] = {}  # leader: member -> its state key
         if self.role is not None:
+            self._member_keys = {m: keys.state_key(p, m) for m in self.role.members
+                                 if m != cfg.robot_id}
             missing = [m for m in self.role.members
                        if m != cfg.robot_id and keys.state_key(p, m) not in self.neighbour_keys]
             if missing:
@@ -207,9 +216,13 @@ class AgentNode:
         self._lag = lag(options.faults.delay, cfg.period)
         self._delay_line: DelayLine | None = None
         self.status_counts = {STATUS_RELAXED: 0, STATUS_FALLBACK: 0, STATUS_FAILED: 0}
-        self.solve_us: list[float] = []
-        self.pose_age_us: list[float] = []  # [us] real time: pose reception -> tick start
-        self.tick_us: list[float] = []  # [us] from tick start (or pose arrival) to cmd put
+        self.solves = 0
+        # the newest STATS_WINDOW samples only, so a long-running agent's memory stays bounded
+        self.solve_us: deque[float] = deque(maxlen=STATS_WINDOW)
+        self.pose_age_us: deque[float] = deque(maxlen=STATS_WINDOW)  # [us] real time: pose
+        # reception -> tick start
+        self.tick_us: deque[float] = deque(maxlen=STATS_WINDOW)  # [us] from tick start (or pose
+        # arrival) to cmd put
         self.min_h = {"formation": math.inf, "obstacle": math.inf, "formations": math.inf}
         self.trace: list[tuple] = []
         self.ellipse_trace: list[tuple] = []  # leader: (stamp, *Ellipse) per tick
@@ -587,7 +600,7 @@ class AgentNode:
         if t is not None:  # lock-step: neighbours and the leader wait for this tick's state
             self._pubs[self.state_key].put_message(State(px, py, *self.last_u, stamp))
 
-        state_keys = tuple(self.neighbour_keys) + (self.foreign_keys if self.all_to_all else ())
+        state_keys = self._state_keys
         others_ready = True
         if self.role is not None:
             others_ready = await self._lead(px, py, stamp, ts)
@@ -638,6 +651,7 @@ class AgentNode:
                            ellipses, view, solve_exact, pair)
         self._put_cmd(Cmd(res.v, res.omega, res.ux, res.uy, stamp))
         self.last_u = (res.ux, res.uy)
+        self.solves += 1
         self.solve_us.append(res.solve_us)
         if res.status in self.status_counts:
             self.status_counts[res.status] += 1
@@ -662,8 +676,7 @@ class AgentNode:
         leaders' ellipses, publish ``others``. False when an ellipse is missing or stale."""
         role = self.role
         assert role is not None  # only called on the leader
-        prefix = self.cfg.prefix
-        member_keys = {m: keys.state_key(prefix, m) for m in role.members if m != self.cfg.robot_id}
+        member_keys = self._member_keys
         if ts is not None:
             await self._wait_current([(keys.STATE, k) for k in member_keys.values()], stamp)
         members: dict[str, tuple[float, float, float, float]] = {
@@ -727,7 +740,8 @@ class AgentNode:
     # --- counters ----------------------------------------------------------------------------
 
     def stats(self) -> dict[str, Any]:
-        """Every counter, JSON-ready (non-finite numbers as None)."""
+        """Every counter, JSON-ready (non-finite numbers as None). The ``*_us_median`` figures
+        are over the newest ``stats_window`` ticks (:data:`STATS_WINDOW`); the counts over all."""
         return {
             "robot": self.cfg.robot_id,
             "formation": self.cfg.formation,
@@ -743,13 +757,14 @@ class AgentNode:
             "inflated": self.inflated,
             "fault_dropped": dict(self.fault_dropped),
             "fault_delayed": self.fault_delayed,
-            "solves": len(self.solve_us),
+            "solves": self.solves,
             "relaxed": self.status_counts[STATUS_RELAXED],
             "fallback": self.status_counts[STATUS_FALLBACK],
             "failed": self.status_counts[STATUS_FAILED],
             "solve_us_median": statistics.median(self.solve_us) if self.solve_us else None,
             "tick_us_median": statistics.median(self.tick_us) if self.tick_us else None,
             "pose_age_us_median": statistics.median(self.pose_age_us) if self.pose_age_us else None,
+            "stats_window": STATS_WINDOW,  # the three medians above are over the newest ticks
             "min_h": {k: _finite_or_none(v) for k, v in self.min_h.items()},
             "dropped": {cls: box.dropped_malformed for cls, box in self._boxes.items()},
             "received": {cls: box.received for cls, box in self._boxes.items()},

@@ -119,8 +119,11 @@ def wheel_name(root: Path | None = None) -> str:
 
 
 def agent_args(inv: Inventory) -> list[str]:
-    """Arguments of ``python -m agent`` on a robot (paths relative to the install dir)."""
-    args = ["--config", f"./{CONFIG_FILE}", "--log-level", "INFO"]
+    """Arguments of ``python -m agent`` on a robot (paths relative to the install dir).
+
+    ``--no-trace``: a deployed agent runs for hours, and its per-tick trace (about 400 bytes a
+    tick, kept in memory for the launcher's time series) would only grow."""
+    args = ["--config", f"./{CONFIG_FILE}", "--log-level", "INFO", "--no-trace"]
     if has_secrets(inv):
         args += ["--zenoh-config", f"./{ZENOH_FILE}"]
     return args
