@@ -334,8 +334,11 @@ def launch(
                 argv += ["--zenoh-auth", str(creds.files[rid])]
             agent_argv[rid] = argv
             agents[rid] = sup.start(f"agent-{rid}", argv)
-        (out / "processes.json").write_text(json.dumps(
-            {c.name: c.proc.pid for c in sup.children}, indent=2) + "\n", encoding="utf-8")
+        # written whole, then renamed: a reader never sees half a file
+        tmp = out / "processes.json.tmp"
+        tmp.write_text(json.dumps({c.name: c.proc.pid for c in sup.children}, indent=2) + "\n",
+                       encoding="utf-8")
+        tmp.replace(out / "processes.json")
         conf = WireZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
                                  connect_timeout_s=10.0,
                                  auth=None if creds is None else creds.world).to_config()
