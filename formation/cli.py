@@ -9,7 +9,6 @@ to exit codes.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 from collections.abc import Sequence
@@ -209,10 +208,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         print(f"formation {ns.command}: {type(exc).__name__}: {exc}", file=sys.stderr)
         return EXIT_ERROR
-
-
-def dump_json(obj, path: Path) -> None:
-    path.write_text(json.dumps(obj, indent=2, allow_nan=False) + "\n", encoding="utf-8")
 
 
 if __name__ == "__main__":
