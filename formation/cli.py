@@ -138,18 +138,23 @@ COMMANDS = {
 
 
 class Progress:
-    """A one-line progress display on stderr (redrawn in place on a terminal)."""
+    """A one-line progress display on stderr (redrawn in place on a terminal).
+
+    The bar runs against the scenario's duration; a run that ends early (every goal reached)
+    closes it at full with the time it ended."""
 
     def __init__(self, label: str, quiet: bool = False) -> None:
         self.label = label
         self.quiet = quiet
         self.tty = sys.stderr.isatty()
         self._last = -1
+        self._time = 0.0
 
     def __enter__(self) -> Progress:
         return self
 
     def update(self, done: int, total: int, sim_time: float) -> None:
+        self._time = sim_time
         if self.quiet or total <= 0:
             return
         pct = int(100 * done / total)
@@ -157,17 +162,21 @@ class Progress:
         if pct // step == self._last // step and done != total:
             return
         self._last = pct
+        self._draw(done / total, f"{pct:3d}%  t={sim_time:7.2f} s")
+
+    def _draw(self, fraction: float, tail: str) -> None:
         width = 30
-        fill = int(width * done / total)
-        line = f"{self.label} [{'#' * fill}{'.' * (width - fill)}] {pct:3d}%  t={sim_time:7.2f} s"
-        if self.tty:
-            sys.stderr.write("\r" + line)
-        else:
-            sys.stderr.write(line + "\n")
+        fill = int(width * fraction)
+        line = f"{self.label} [{'#' * fill}{'.' * (width - fill)}] {tail}"
+        sys.stderr.write(("\r" + line) if self.tty else (line + "\n"))
         sys.stderr.flush()
 
-    def __exit__(self, *exc) -> None:
-        if not self.quiet and self.tty:
+    def __exit__(self, exc_type, *exc) -> None:
+        if self.quiet:
+            return
+        if exc_type is None and self._last >= 0 and self._last < 100:
+            self._draw(1.0, f"done  t={self._time:7.2f} s")
+        if self.tty:
             sys.stderr.write("\n")
             sys.stderr.flush()
 
