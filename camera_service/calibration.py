@@ -126,10 +126,7 @@ def heading_to_floor(
         raise ValueError(f"angle: must be finite, got {angle}")
     if not (math.isfinite(step) and step > 0.0):
         raise ValueError(f"step: must be a positive number of pixels, got {step}")
-    p1 = p0 + step * np.array([[math.cos(angle), math.sin(angle)]])
-    q = apply_homography(calibration.floor_from_pixel, np.vstack([p0, p1]))
-    d = q[1] - q[0]
-    return math.atan2(d[1], d[0])
+    return _map_direction(calibration.floor_from_pixel, p0, angle, step)
 
 
 def heading_to_pixel(
@@ -144,8 +141,13 @@ def heading_to_pixel(
         raise ValueError(f"theta: must be finite, got {theta}")
     if not (math.isfinite(step) and step > 0.0):
         raise ValueError(f"step: must be a positive distance in metres, got {step}")
-    p1 = p0 + step * np.array([[math.cos(theta), math.sin(theta)]])
-    q = apply_homography(calibration.pixel_from_floor, np.vstack([p0, p1]))
+    return _map_direction(calibration.pixel_from_floor, p0, theta, step)
+
+
+def _map_direction(matrix: np.ndarray, p0: np.ndarray, angle: float, step: float) -> float:
+    """Direction [rad] of the chord from ``p0`` to ``p0 + step * (cos, sin)`` after ``matrix``."""
+    p1 = p0 + step * np.array([[math.cos(angle), math.sin(angle)]])
+    q = apply_homography(matrix, np.vstack([p0, p1]))
     d = q[1] - q[0]
     return math.atan2(d[1], d[0])
 

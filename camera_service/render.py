@@ -81,6 +81,11 @@ def _check_positive(value: float, name: str) -> float:
     return float(value)
 
 
+def _check_robot_radius(robot_radius: float) -> None:
+    if not (math.isfinite(robot_radius) and robot_radius >= 0.0):
+        raise ValueError(f"robot_radius: must be >= 0, got {robot_radius!r}")
+
+
 def _blank(calibration: Calibration) -> np.ndarray:
     width, height = calibration.image_size
     return np.full((height, width, 3), FLOOR_GREY, dtype=np.uint8)
@@ -241,8 +246,7 @@ def render_aruco_frame(
     side = _check_positive(marker_side, "marker_side")
     if not (isinstance(quiet_zone, int) and 0 <= quiet_zone <= 4):
         raise ValueError(f"quiet_zone: must be an int number of modules in 0..4, got {quiet_zone}")
-    if not (math.isfinite(robot_radius) and robot_radius >= 0.0):
-        raise ValueError(f"robot_radius: must be >= 0, got {robot_radius!r}")
+    _check_robot_radius(robot_radius)
     frame = _draw_scene(calibration, checked, _check_obstacles(obstacles), robot_radius)
     modules = aruco_dictionary(dictionary).markerSize + 2 * MARKER_BORDER_BITS
     outer = side * (modules + 2 * quiet_zone) / modules  # [m] side with the quiet zone
@@ -296,8 +300,7 @@ def render_blob_frame(
         raise ValueError(f"hues: no hue for robot {missing[0]!r}")
     colours = {robot: hue_to_bgr(hues[robot]) for robot in checked}
     radius = _check_positive(blob_radius, "blob_radius")
-    if not (math.isfinite(robot_radius) and robot_radius >= 0.0):
-        raise ValueError(f"robot_radius: must be >= 0, got {robot_radius!r}")
+    _check_robot_radius(robot_radius)
     frame = _draw_scene(calibration, checked, _check_obstacles(obstacles), robot_radius)
     for robot, (x, y, _theta) in checked.items():
         _draw_disc(frame, calibration, (x, y), radius, colours[robot])
