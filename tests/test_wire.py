@@ -7,6 +7,7 @@ import argparse
 import asyncio
 import json
 import math
+import os
 import threading
 
 import pytest
@@ -808,3 +809,48 @@ def test_mailbox_callback_reads_zenoh_samples_and_ignores_deletes() -> None:
         assert box.received == 1
 
     asyncio.run(asyncio.wait_for(scenario(), 10.0))
+
+
+def test_an_inline_mailbox_stores_on_the_calling_thread_and_cannot_be_waited_on() -> None:
+    counter = traffic.TrafficCounter()
+    box: traffic.Mailbox[State] = traffic.Mailbox(None, decode_state, counter=counter)
+    key = "warehouse/robot/a1/state"
+    box.offer(key, encode(State(0.0, 0.0, 0.0, 0.0, 1.0)))
+    box.offer(key, b"\x01garbage")
+    assert box.latest(key) == State(0.0, 0.0, 0.0, 0.0, 1.0)  # at once, no loop pass
+    assert (box.received, box.dropped_malformed, box.seq) == (2, 1, 1)
+    assert counter.snapshot()["recv"]["state"]["messages"] == 2
+    with pytest.raises(RuntimeError, match="inline"):
+        asyncio.run(box.wait_update(timeout=0.01))
+    with pytest.raises(RuntimeError, match="inline"):
+        asyncio.run(box.wait_for(key, timeout=0.01))
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.floats(min_value=1e307, max_value=1.7e308), min_size=9, max_size=9),
+       st.sampled_from([1.0, -1.0]))
+def test_huge_finite_fields_whose_sum_overflows_are_still_accepted(values: list[float],
+                                                                    sign: float) -> None:
+    # the constructors' fast check sums the fields; an overflowing sum must fall back to the
+    # field-by-field check, which accepts every finite value
+    v = [sign * x for x in values]
+    assert Pose(*v[:4]).theta == v[2]
+    assert State(*v[:5]).uy == v[3]
+    assert Cmd(*v[:5]).stamp == v[4]
+    e = EllipseMsg("A", v[0], v[1], v[2], abs(v[3]), abs(v[4]), v[5], v[6], v[7], v[8])
+    assert decode_ellipse(encode(e)) == e
+    assert ObstacleMsg("o1", v[0], v[1], v[2], v[3], abs(v[4])).ds == abs(v[4])
+
+
+def test_use_zenoh_threads_sets_a_profile_unless_the_user_chose_their_own(monkeypatch) -> None:
+    monkeypatch.delenv(zconf.RUNTIME_ENV, raising=False)
+    assert zconf.use_zenoh_threads("relay") is True
+    assert os.environ[zconf.RUNTIME_ENV] == zconf.RUNTIME_PROFILES["relay"]
+    # a child that inherited the launcher's profile switches to its own
+    assert zconf.use_zenoh_threads("agent") is True
+    assert os.environ[zconf.RUNTIME_ENV] == zconf.RUNTIME_PROFILES["agent"]
+    monkeypatch.setenv(zconf.RUNTIME_ENV, "(app: (worker_threads: 2))")
+    assert zconf.use_zenoh_threads("agent") is False
+    assert os.environ[zconf.RUNTIME_ENV] == "(app: (worker_threads: 2))"
+    with pytest.raises(KeyError):
+        zconf.use_zenoh_threads("nonsense")

@@ -98,12 +98,24 @@ def _check_id(value: object, name: str) -> None:
         _VALID_IDS.add(value)
 
 
+def _plain_finite(values: tuple[Any, ...]) -> bool:
+    """Whether every value is a plain ``float`` and all are finite, in one pass: the sum of
+    plain floats is finite only if each one is (a sum that overflows to infinity just sends
+    the caller to the field-by-field check, which accepts such values)."""
+    for v in values:
+        if type(v) is not float:
+            return False
+    return _isfinite(sum(values))
+
+
 def _check_floats(obj: object, names: Iterable[str]) -> None:
     """Check the float fields ``names`` of ``obj`` like :func:`_finite`.
 
     The fast path accepts a plain finite ``float`` as it is (what every decoder and nearly every
     caller passes: ``float(v)`` of it is ``v``); anything else takes :func:`_finite`, which
-    converts it or raises, so the behaviour is the same either way."""
+    converts it or raises, so the behaviour is the same either way. The messages' constructors
+    try :func:`_plain_finite` (or the same test written out) first and call this only when
+    it fails."""
     for name in names:
         value = getattr(obj, name)
         if type(value) is not float or not _isfinite(value):
@@ -127,7 +139,10 @@ class Pose:
     stamp: float
 
     def __post_init__(self) -> None:
-        _check_floats(self, _POSE_FLOATS)
+        x, y, theta, stamp = self.x, self.y, self.theta, self.stamp
+        if not (type(x) is float and type(y) is float and type(theta) is float
+                and type(stamp) is float and _isfinite(x + y + theta + stamp)):
+            _check_floats(self, _POSE_FLOATS)
 
 
 @dataclass(frozen=True, slots=True)
@@ -144,7 +159,11 @@ class State:
     stamp: float
 
     def __post_init__(self) -> None:
-        _check_floats(self, _STATE_FLOATS)
+        x, y, ux, uy, stamp = self.x, self.y, self.ux, self.uy, self.stamp
+        if not (type(x) is float and type(y) is float and type(ux) is float
+                and type(uy) is float and type(stamp) is float
+                and _isfinite(x + y + ux + uy + stamp)):
+            _check_floats(self, _STATE_FLOATS)
 
 
 @dataclass(frozen=True, slots=True)
@@ -161,7 +180,11 @@ class Cmd:
     stamp: float
 
     def __post_init__(self) -> None:
-        _check_floats(self, _CMD_FLOATS)
+        v, omega, ux, uy, stamp = self.v, self.omega, self.ux, self.uy, self.stamp
+        if not (type(v) is float and type(omega) is float and type(ux) is float
+                and type(uy) is float and type(stamp) is float
+                and _isfinite(v + omega + ux + uy + stamp)):
+            _check_floats(self, _CMD_FLOATS)
 
 
 _ELLIPSE_FLOATS = ("cx", "cy", "alpha", "a", "b", "vx", "vy", "alpha_rate", "stamp")
@@ -188,7 +211,9 @@ class EllipseMsg:
 
     def __post_init__(self) -> None:
         _check_id(self.formation, "formation")
-        _check_floats(self, _ELLIPSE_FLOATS)
+        if not _plain_finite((self.cx, self.cy, self.alpha, self.a, self.b, self.vx, self.vy,
+                              self.alpha_rate, self.stamp)):
+            _check_floats(self, _ELLIPSE_FLOATS)
         if self.a <= 0.0:
             raise ValueError(f"a must be > 0, got {self.a!r}")
         if self.b <= 0.0:
@@ -255,7 +280,8 @@ class ObstacleMsg:
 
     def __post_init__(self) -> None:
         _check_id(self.id, "id")
-        _check_floats(self, _OBSTACLE_FLOATS)
+        if not _plain_finite((self.x, self.y, self.vx, self.vy, self.ds)):
+            _check_floats(self, _OBSTACLE_FLOATS)
         if self.ds < 0.0:
             raise ValueError(f"ds must be >= 0, got {self.ds!r}")
 

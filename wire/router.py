@@ -23,7 +23,7 @@ from collections.abc import Sequence
 
 import zenoh
 
-from wire.zconf import ZenohSettings
+from wire.zconf import ZenohSettings, use_zenoh_threads
 
 logger = logging.getLogger(__name__)
 
@@ -119,6 +119,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
+    use_zenoh_threads("relay")
     try:
         run_router(listen, stop, connect=ns.connect, multicast_scouting=ns.multicast_scouting,
                    config_file=ns.config)

@@ -220,11 +220,16 @@ class Mailbox(Generic[T]):
     ``received`` counts every sample handed over (valid or not); ``dropped_malformed`` counts
     those the decoder rejected. Both, like :meth:`latest`, are updated on the loop's thread only.
     Construct it on the loop (``Mailbox(asyncio.get_running_loop(), decode_state)``).
+
+    With ``loop=None`` the mailbox is *inline*: :meth:`offer` stores the value on the calling
+    thread at once (no loop pass). The owner makes sure one thread at a time feeds it (the agent
+    feeds its inline mailboxes under its tick lock); :meth:`wait_update` and :meth:`wait_for`
+    need a loop.
     """
 
     def __init__(
         self,
-        loop: asyncio.AbstractEventLoop,
+        loop: asyncio.AbstractEventLoop | None,
         decoder: Callable[[bytes], T],
         *,
         counter: TrafficCounter | None = None,
@@ -251,7 +256,8 @@ class Mailbox(Generic[T]):
         self.offer(str(sample.key_expr), sample.payload.to_bytes())
 
     def offer(self, key: str, payload: bytes) -> None:
-        """Decode ``payload`` (on the calling thread) and hand it to the loop. Never raises."""
+        """Decode ``payload`` (on the calling thread) and hand it to the loop (inline: store it).
+        Never raises."""
         if self._counter is not None:
             try:
                 self._counter.count_recv(key, len(payload))
@@ -267,6 +273,9 @@ class Mailbox(Generic[T]):
         except Exception as exc:
             logger.warning("decoder raised %s on %s: %s", type(exc).__name__, key, exc)
             value, ok = None, False
+        if self._loop is None:  # inline: store it here
+            self._store(key, value, ok)
+            return
         try:
             self._loop.call_soon_threadsafe(self._deliver, key, value, ok)
         except RuntimeError:  # loop closed: the node is shutting down
@@ -274,14 +283,18 @@ class Mailbox(Generic[T]):
 
     # --- loop side -----------------------------------------------------------------------------
 
-    def _deliver(self, key: str, value: T | None, ok: bool) -> None:
+    def _store(self, key: str, value: T | None, ok: bool) -> bool:
         self.received += 1
         if not ok:
             self.dropped_malformed += 1
-            return
+            return False
         self._latest[key] = value  # type: ignore[assignment]
         self._seq += 1
-        self._updated.set()
+        return True
+
+    def _deliver(self, key: str, value: T | None, ok: bool) -> None:
+        if self._store(key, value, ok):
+            self._updated.set()
 
     @property
     def accepted(self) -> int:
@@ -301,8 +314,13 @@ class Mailbox(Generic[T]):
         """A copy of the latest value of every key."""
         return dict(self._latest)
 
+    def _need_loop(self) -> None:
+        if self._loop is None:
+            raise RuntimeError("an inline Mailbox (loop=None) cannot be waited on")
+
     async def wait_update(self, timeout: float | None = None) -> bool:
         """Wait until a value is stored after this call starts; ``False`` on timeout."""
+        self._need_loop()
         start = self._seq
 
         async def changed() -> None:
@@ -318,6 +336,7 @@ class Mailbox(Generic[T]):
 
     async def wait_for(self, key: str, timeout: float | None = None) -> T:
         """The latest value of ``key``, waiting for the first one; ``TimeoutError`` if none."""
+        self._need_loop()
 
         async def first() -> T:
             while key not in self._latest:
