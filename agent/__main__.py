@@ -23,6 +23,7 @@ from agent.config import load_config
 from agent.faults import LinkFaults
 from agent.node import AgentNode, NodeOptions
 from wire.acl import read_credentials
+from wire.zconf import use_zenoh_threads
 
 logger = logging.getLogger("agent")
 
@@ -88,6 +89,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"agent: {exc}", file=sys.stderr)
         return 2
     status = 0
+    use_zenoh_threads("agent")
     try:
         asyncio.run(serve(node))
     except Exception as exc:  # noqa: BLE001 - a process front end: report and exit 1

@@ -21,16 +21,24 @@ A tick, for the pose stamped ``t``:
    ``stale_after``), or a leader misses another formation's ellipse: command zero, count
    ``stale``; otherwise run ``control_step`` and publish ``cmd`` stamped ``t``.
 
-Two clocks drive ticks. *Real time* (default): a tick starts as soon as a new pose arrives, so the
-command leaves one solve after the pose (no wait for the node's own clock phase, up to a period);
-when no new pose has come for ``DEADLINE_PERIODS`` periods the node ticks on its deadline anyway
-(on the pose it has: a silent camera still ends in stale zero commands; counted
-``deadline_ticks``), and a pose arriving within ``MIN_SPACING_PERIODS`` of the previous
-pose-triggered tick waits, so a camera faster than 1/period does not raise the tick rate. A tick
-longer than one period counts as an overrun. In this mode only the pose subscriber has a
-callback (Zenoh wakes a Python thread and then the loop for every sample, about 0.15 ms of CPU
-each on a 2-core x86 machine); every other input waits in a Zenoh ring channel and is drained at
-the start of the tick, so its local reception time is when the tick drained it.
+Two clocks drive ticks. *Real time* (default): a tick runs as soon as a new pose arrives, on the
+Zenoh thread that received it (the pose subscriber's callback is direct, ``indirect=False``), so
+the command leaves one solve after the pose with no thread hand-over: on a loaded 2-core machine
+each hand-over (Zenoh thread -> Python callback thread -> event loop) cost about 0.15 ms of CPU
+and as much latency. Every other input waits in a Zenoh ring channel and is drained at the start
+of the tick, so its local reception time is when the tick drained it. A pose stamped less than
+``MIN_SPACING_PERIODS`` after the pose of the previous tick is stored but not ticked on (the next
+one is), so a camera faster than 1/period does not raise the tick rate; the spacing goes by the
+camera's stamps, not arrival times, so transport jitter never holds a tick back. When no tick
+has run for ``DEADLINE_PERIODS`` periods, the event loop ticks on its deadline anyway (on the
+pose it has: a silent camera still ends in stale zero commands; counted ``deadline_ticks``). The
+loop looks every ``WATCH_PERIODS`` periods (at most half of ``stale_after``, at least the
+deadline) while ticks come, every deadline span after a deadline tick: waking it each period
+would cost about as much CPU as a tick's messaging. A lock keeps
+ticks one at a time whichever thread runs them, and once :meth:`AgentNode.close` starts no tick
+runs. A tick longer than one period counts as an overrun. The tick itself is the same coroutine
+as in lock-step; in real time it never suspends (its waits are lock-step only), so
+:func:`_run_now` drives it to the end on the calling thread.
 ``NodeOptions(tick_on_pose=False)`` ticks on the own clock instead (against deadlines at
 1/period, ``next_t += period``, overruns counted). Inputs are the latest received, staleness is
 the local age since reception. *Lock-step* (``lockstep=True``, for the simulated world): a tick
@@ -61,6 +69,7 @@ import asyncio
 import logging
 import math
 import statistics
+import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -97,7 +106,8 @@ from wire.zconf import UsrPwdAuth, ZenohSettings
 logger = logging.getLogger(__name__)
 
 DEADLINE_PERIODS = 1.5  # real time: tick without a new pose after this many periods
-MIN_SPACING_PERIODS = 0.5  # real time: pose-triggered ticks at least this many periods apart
+MIN_SPACING_PERIODS = 0.75  # real time: a pose stamped sooner after the last ticked one waits
+WATCH_PERIODS = 5.0  # real time: how often the loop looks for a missed deadline while ticks come
 RING_CAPACITY = 256  # real time: samples kept per key between two ticks (a flood beyond it
 # loses its oldest samples uncounted; about one per tick arrives in normal operation)
 STATS_WINDOW = 10_000  # per-tick timings kept for the medians in stats() (the newest ticks)
@@ -149,14 +159,15 @@ def _stamped(decode: Callable[[bytes], Any]) -> Callable[[bytes], tuple[Any, flo
     return run
 
 
-class _Inline:
-    """A stand-in for the event loop, for a :class:`Mailbox` fed only on the loop's own thread
-    (ring channels drained by the tick): it hands each value over at once instead of scheduling
-    it, which saves a self-pipe write and a loop pass per sample."""
-
-    @staticmethod
-    def call_soon_threadsafe(callback: Callable[..., Any], *args: Any) -> None:
-        callback(*args)
+def _run_now(coro: Any) -> Any:
+    """Run a coroutine that does not suspend to its end on the calling thread (a real-time
+    tick, see the module docstring) and return its result."""
+    try:
+        coro.send(None)
+    except StopIteration as done:
+        return done.value
+    coro.close()
+    raise RuntimeError("a real-time tick tried to suspend")
 
 
 def inflate(m: EllipseMsg, grow: float) -> EllipseMsg:
@@ -242,6 +253,12 @@ class AgentNode:
         self._stop: asyncio.Event | None = None
         self._own_others: Others | None = None
         self._tick_point: tuple[float, float, float] | None = None
+        # real time on pose arrival: ticks run on Zenoh's thread or the loop, one at a time
+        self._tick_lock = threading.Lock()
+        self._closing = False  # set (under the lock) when close() starts: no more ticks
+        self._last_pose_stamp: float | None = None  # the pose stamp the last pose tick used
+        self._last_tick = -math.inf  # [s, monotonic] when the last tick of any kind started
+        self._loop: asyncio.AbstractEventLoop | None = None
 
     # --- wiring ------------------------------------------------------------------------------
 
@@ -271,10 +288,13 @@ class AgentNode:
             keys.POSE: decode_pose, keys.STATE: decode_state, keys.OTHERS: decode_others,
             keys.ELLIPSE: decode_ellipse, keys.OBSTACLES: decode_obstacles,
         }
+        self._loop = loop
+        # real time on pose arrival: every mailbox is inline, fed by the tick that drains the
+        # ring channels and by the pose callback, both under the tick lock
         polled = not self.options.lockstep and self.options.tick_on_pose
         for cls in set(self.subscribed_keys.values()):
-            feed = _Inline() if polled and cls != keys.POSE else loop
-            self._boxes[cls] = Mailbox(feed, _stamped(decoders[cls]), counter=self.counter)
+            self._boxes[cls] = Mailbox(None if polled else loop, _stamped(decoders[cls]),
+                                       counter=self.counter)
         if self.options.zenoh_config_file is not None:
             conf = zenoh.Config.from_file(self.options.zenoh_config_file)
         else:
@@ -319,6 +339,9 @@ class AgentNode:
                 cap = wildcard_cap if (self.all_to_all and cls == keys.STATE) else RING_CAPACITY
                 sub = s.declare_subscriber(k, zenoh.handlers.RingChannel(cap))
                 self._rings.append((sub, handler(cls, self._boxes[cls], notify=False)))
+            elif polled:  # the pose: tick right on the Zenoh thread that received it
+                sub = s.declare_subscriber(
+                    k, zenoh.handlers.Callback(self._on_pose_sample, indirect=False))
             else:
                 sub = s.declare_subscriber(k, handler(cls, self._boxes[cls]))
             self._subs.append(sub)
@@ -349,13 +372,15 @@ class AgentNode:
     def _offer(self, key: str, payload: bytes) -> None:
         """Loop thread: hand a (delayed) payload to its mailbox."""
         cls = self.subscribed_keys.get(key, keys.STATE)  # all-to-all: a wildcard's concrete key
-        self.fault_delayed += 1
-        self._boxes[cls].offer(key, payload)
+        with self._tick_lock:  # real time: a tick may be reading the mailboxes on Zenoh's thread
+            self.fault_delayed += 1
+            self._boxes[cls].offer(key, payload)
         self._on_arrival(key)
 
     def _mark_lost(self, cls: str, key: str, stamp: float) -> None:
-        self.fault_dropped[cls] += 1
-        self._lost[key] = max(stamp, self._lost.get(key, -math.inf))
+        with self._tick_lock:
+            self.fault_dropped[cls] += 1
+            self._lost[key] = max(stamp, self._lost.get(key, -math.inf))
 
     def _on_arrival(self, key: str) -> None:
         """Loop thread: something arrived on ``key`` (its publisher is alive): wake the tick."""
@@ -367,6 +392,8 @@ class AgentNode:
 
     def close(self) -> None:
         """Zero command, undeclare, close the session (idempotent)."""
+        with self._tick_lock:  # waits for a tick in progress; none starts after this
+            self._closing = True
         if self._session is None:
             return
         try:
@@ -430,53 +457,67 @@ class AgentNode:
             except TimeoutError:
                 pass
 
-    async def _pose_loop(self) -> None:
-        """Real time, ticking on pose arrival with a deadline fallback (module docstring)."""
-        assert self._stop is not None and self._pose_arrived is not None
-        loop = asyncio.get_running_loop()
-        period = self.cfg.period
-        box, woken = self._boxes[keys.POSE], self._pose_arrived
-        watch = asyncio.ensure_future(self._stop.wait())
-        watch.add_done_callback(lambda _f: woken.set())  # a stop wakes the wait below
-        last_stamp: float | None = None
-        last_pose_tick = -math.inf
-        deadline = time.monotonic() + DEADLINE_PERIODS * period
-        try:
-            while not self._stop.is_set():
-                woken.clear()
-                entry = box.latest(self.pose_key)
-                new = entry is not None and entry[0].stamp != last_stamp
-                now = time.monotonic()
-                earliest = last_pose_tick + MIN_SPACING_PERIODS * period
-                if (new and now >= earliest) or now >= deadline:
-                    if new:
-                        last_stamp, last_pose_tick = entry[0].stamp, now
-                    else:
-                        self.deadline_ticks += 1
-                    await self._drain()
-                    await self.tick(None)
-                    done = time.monotonic()
-                    self.tick_us.append((done - now) * 1e6)
-                    if done - now > period:
-                        self.overruns += 1
-                    deadline = now + DEADLINE_PERIODS * period
-                    continue
-                wake = loop.call_later(max(0.0, (earliest if new else deadline) - now), woken.set)
-                try:
-                    await woken.wait()
-                finally:
-                    wake.cancel()
-        finally:
-            watch.cancel()
+    # --- real time, ticking on pose arrival ---------------------------------------------------
 
-    async def _drain(self) -> None:
-        """Real time: hand every sample waiting in the ring channels to its mailbox (which stores
-        it at once, see :class:`_Inline`); yield once if a fault path scheduled deliveries."""
+    def _on_pose_sample(self, sample: zenoh.Sample) -> None:
+        """Zenoh thread: store the pose and tick on it (module docstring)."""
+        with self._tick_lock:
+            if self._closing:
+                return
+            self._boxes[keys.POSE].callback(sample)
+            self._pose_tick(time.monotonic())
+
+    def _pose_tick(self, now: float) -> bool:
+        """Under the tick lock: tick on the newest pose if it is due (True), else nothing: due
+        when stamped ``MIN_SPACING_PERIODS`` or more after the last ticked pose, or earlier
+        than it (the camera's clock went back)."""
+        entry = self._boxes[keys.POSE].latest(self.pose_key)
+        if entry is None:
+            return False
+        stamp, last = entry[0].stamp, self._last_pose_stamp
+        if last is not None and last <= stamp < last + MIN_SPACING_PERIODS * self.cfg.period:
+            return False
+        self._last_pose_stamp = stamp
+        self._tick_locked(now)
+        return True
+
+    def _tick_locked(self, now: float) -> None:
+        """Under the tick lock: drain the ring channels, tick, time it."""
+        self._last_tick = now
+        self._drain()
+        _run_now(self.tick(None))
+        done = time.monotonic()
+        self.tick_us.append((done - now) * 1e6)
+        if done - now > self.cfg.period:
+            self.overruns += 1
+
+    async def _pose_loop(self) -> None:
+        """The loop's part of real time on pose arrival: the deadline tick when no tick has run
+        for ``DEADLINE_PERIODS`` periods (module docstring)."""
+        assert self._stop is not None
+        period = self.cfg.period
+        span = DEADLINE_PERIODS * period
+        watch = max(span, min(WATCH_PERIODS * period, 0.5 * self.cfg.stale_after))
+        with self._tick_lock:
+            self._last_tick = time.monotonic()  # the first deadline counts from the start
+        while not self._stop.is_set():
+            with self._tick_lock:
+                if self._closing:
+                    return
+                now = time.monotonic()
+                wait = watch
+                if now - self._last_tick >= span:
+                    self.deadline_ticks += 1
+                    self._tick_locked(now)
+                    wait = span
+            await asyncio.sleep(wait)
+
+    def _drain(self) -> None:
+        """Real time: hand every sample waiting in the ring channels to its mailbox (an inline
+        one: stored at once)."""
         for sub, take in self._rings:
             while (sample := sub.try_recv()) is not None:
                 take(sample)
-        if self.options.faults.active:
-            await asyncio.sleep(0)
 
     async def _lockstep_loop(self) -> None:
         assert self._stop is not None and self._arrived is not None

@@ -7,6 +7,8 @@ its leader is r2 (formation F1). The test plays the world and the other robots."
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import json
 import math
 import os
 import signal
@@ -204,14 +206,32 @@ def test_malformed_and_non_finite_payloads_are_dropped_counted_and_do_not_stop_t
     run_node(configs["r1"], NodeOptions(lockstep=True, lockstep_timeout=0.3), peer, body)
 
 
+@contextlib.contextmanager
+def _agent_process(cfg_path: Path, stats: Path, *extra: str) -> Iterator[subprocess.Popen]:
+    """``python -m agent`` for ``cfg_path`` in a session of its own, killed on the way out if
+    it is still running."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, "-m", "agent", "--config", str(cfg_path),
+                             "--stats", str(stats), *extra], env=env, start_new_session=True)
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def _last_command_is_zero(peer: Peer) -> bool:
+    time.sleep(0.2)  # the zero command crosses the router
+    last = peer.commands()[-1]
+    return (last.v, last.omega, last.ux, last.uy) == (0.0, 0.0, 0.0, 0.0)
+
+
 def test_sigterm_makes_the_agent_command_zero_close_and_exit_0(configs, peer, tmp_path):
     cfg_path = tmp_path / "r1.yaml"
     save_config(configs["r1"], cfg_path)
     stats = tmp_path / "r1.json"
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.Popen([sys.executable, "-m", "agent", "--config", str(cfg_path),
-                             "--stats", str(stats)], env=env, start_new_session=True)
-    try:
+    with _agent_process(cfg_path, stats) as proc:
         peer.wait_subscribed(keys.pose_key(P, "r1"))
         deadline = time.monotonic() + TIMEOUT_S
         while not any(math.hypot(c.ux, c.uy) > 0.05 for c in peer.commands()):
@@ -220,11 +240,69 @@ def test_sigterm_makes_the_agent_command_zero_close_and_exit_0(configs, peer, tm
             time.sleep(0.02)
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(TIMEOUT_S) == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    time.sleep(0.2)
-    last = peer.commands()[-1]
-    assert (last.v, last.omega, last.ux, last.uy) == (0.0, 0.0, 0.0, 0.0)
+    assert _last_command_is_zero(peer)
     assert stats.exists()
+
+
+@pytest.mark.slow
+def test_sigterm_while_poses_pour_in_never_hangs_the_agent(configs, peer, tmp_path):
+    # the tick runs on Zenoh's own thread (the pose callback): stopping the process while ticks
+    # run there, again and again, must always end in a zero command and exit 0
+    cfg_path = tmp_path / "r1.yaml"
+    save_config(configs["r1"], cfg_path)
+    for round_ in range(6):
+        stats = tmp_path / f"r1-{round_}.json"
+        with _agent_process(cfg_path, stats, "--no-trace") as proc:
+            peer.wait_subscribed(keys.pose_key(P, "r1"))
+            before = len(peer.commands())
+            t_end = time.monotonic() + 0.4 + 0.1 * round_
+            stamp = time.time()
+            while time.monotonic() < t_end:  # 500 Hz, stamped a period apart: every pose ticks
+                stamp += configs["r1"].period
+                peer.feed(stamp)
+                time.sleep(0.002)
+            assert len(peer.commands()) > before + 20
+            proc.send_signal(signal.SIGTERM)
+            assert proc.wait(TIMEOUT_S) == 0
+        assert json.loads(stats.read_text())["ticks"] > 20
+        assert _last_command_is_zero(peer)
+
+
+class _PoseSample:
+    """What the pose callback reads of a ``zenoh.Sample``."""
+
+    kind = zenoh.SampleKind.PUT
+
+    def __init__(self, key: str, payload: bytes) -> None:
+        self.key_expr = zenoh.KeyExpr(key)
+        self.payload = zenoh.ZBytes(payload)
+
+
+def test_real_time_ticks_go_by_the_pose_stamps_not_by_arrival_times(configs) -> None:
+    from agent.node import MIN_SPACING_PERIODS, _stamped
+    from wire.payloads import decode_pose
+    from wire.traffic import Mailbox
+
+    cfg = configs["r1"]
+    node = AgentNode(cfg, NodeOptions(trace=False))
+    node._boxes[keys.POSE] = Mailbox(None, _stamped(decode_pose))  # as open() sets it up
+    ticked: list[float] = []
+    node._tick_locked = lambda now: ticked.append(node._last_pose_stamp)  # type: ignore[method-assign]
+    period = cfg.period
+    key = keys.pose_key(P, "r1")
+
+    def pose(stamp: float) -> None:
+        node._on_pose_sample(_PoseSample(key, encode(Pose(0.0, 0.0, 0.0, stamp))))
+
+    t0 = 1000.0
+    pose(t0)  # the first pose ticks
+    pose(t0 + 0.5 * period)  # a faster camera: stored, not ticked
+    assert node._boxes[keys.POSE].latest(key)[0].stamp == t0 + 0.5 * period
+    pose(t0 + MIN_SPACING_PERIODS * period)  # due again
+    pose(t0 + MIN_SPACING_PERIODS * period)  # the same pose twice: once
+    pose(t0 - 5.0)  # the camera's clock went back: tick rather than wait for it to catch up
+    pose(t0 - 5.0 + period)
+    assert ticked == [t0, t0 + MIN_SPACING_PERIODS * period, t0 - 5.0, t0 - 5.0 + period]
+    node.close()  # no session yet: only marks it closing
+    pose(t0 + 10.0)  # after close() no tick runs
+    assert len(ticked) == 4
