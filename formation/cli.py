@@ -49,6 +49,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="multi-process simulation over Zenoh")
     _add_sim_args(p)
     p.add_argument("--realtime", action="store_true", help="wall-clock pacing instead of lock-step")
+    p.add_argument("--pose-slots", type=int, default=1, metavar="S",
+                   help="real time, --camera truth: publish the poses in S slots spread over each "
+                        "period instead of all at once (default 1)")
     p.add_argument("--camera", default="truth", choices=["truth", "synthetic"])
     p.add_argument("--topology", default="reduced", choices=["reduced", "all-to-all"])
     p.add_argument("--drop", type=float, default=0.0, help="message loss probability")
@@ -203,7 +206,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
     )
     from scenario import ScenarioError
+    from wire.zconf import use_zenoh_threads
 
+    use_zenoh_threads("relay")  # this process (world, bench); agents and routers set their own
     try:
         return COMMANDS[ns.command](ns)
     except (ScenarioError, UsageError) as exc:

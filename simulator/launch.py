@@ -256,6 +256,11 @@ def run_command(ns: argparse.Namespace) -> int:
             raise UsageError("--camera synthetic: camera_service.service is not available yet") from None
     if not 0 <= ns.port < 65536:
         raise UsageError(f"--port: {ns.port} is not a TCP port")
+    slots = getattr(ns, "pose_slots", 1)
+    if slots < 1:
+        raise UsageError(f"--pose-slots: need an integer >= 1, got {slots}")
+    if slots > 1 and not (ns.realtime and ns.camera == "truth"):
+        raise UsageError("--pose-slots: more than one slot needs --realtime and --camera truth")
     scenario = load_scenario(ns.scenario)  # ScenarioError -> exit 2
     try:
         faults.check_robots(scenario.robot_ids)
@@ -265,7 +270,8 @@ def run_command(ns: argparse.Namespace) -> int:
     summary, series = launch(scenario, out, realtime=ns.realtime, camera=ns.camera,
                              topology=ns.topology, safety=not ns.no_safety, port=ns.port,
                              progress_factory=lambda: Progress(f"run {scenario.name}", quiet=ns.quiet),
-                             faults=faults, secure=getattr(ns, "secure", False))
+                             faults=faults, secure=getattr(ns, "secure", False),
+                             pose_slots=slots)
     write_run(summary, series, scenario, out, plots=not ns.no_plots)
     print_summary(summary, out)
     return EXIT_OK
@@ -283,12 +289,14 @@ def launch(
     progress_factory=None,
     faults: FaultPlan | None = None,
     secure: bool = False,
+    pose_slots: int = 1,
 ) -> tuple[dict, Series]:
     """Run ``scenario`` as separate processes; returns the summary and the time series.
 
     ``faults`` injects the faults of :class:`FaultPlan`; ``secure`` runs the router with
     user/password authentication and the access control list of :mod:`wire.acl`, every process
-    logging in as itself."""
+    logging in as itself. ``pose_slots`` is the world's (:class:`simulator.world.WorldOptions`:
+    real time only)."""
     faults = faults or FaultPlan()
     faults.check_robots(scenario.robot_ids)
     out = Path(out)
@@ -347,7 +355,8 @@ def launch(
             start_timeout=START_TIMEOUT_S,
             cmd_timeout=FAULT_WORLD_TIMEOUT_S if fault_run else WorldOptions.cmd_timeout,
             camera_dropouts=tuple((c.robot, c.at, c.at + c.duration)
-                                  for c in faults.camera_dropouts))
+                                  for c in faults.camera_dropouts),
+            pose_slots=pose_slots)
         with zenoh.open(conf) as session:
             world = World(scenario, session, options)
             driver = _FaultDriver(faults, sup, world, agents, agent_argv, scenario.dt, realtime)

@@ -17,7 +17,12 @@ Two clocks:
 * **real time**: integrate on the wall clock at 1/dt with the latest command of each robot (zero
   if none arrived within ``stale_after``); poses are stamped with ``time.time()``, so the delay
   from a pose's publication to the command computed from it (which carries the same stamp) is the
-  end-to-end latency, recorded in ``latency_ms``.
+  end-to-end latency, recorded in ``latency_ms``. By default every pose of a tick leaves at once,
+  as from one camera frame. ``pose_slots=S`` (real time, ``--camera truth``) spreads them over S
+  evenly spaced slots of the period instead (robot k of N in slot ``k * S // N``), as robots
+  that localise themselves on their own clocks would publish: each slot steps its own robots by
+  ``dt`` and publishes their poses. On one machine this keeps N agents from all waking in the
+  same instant; on robots, where each agent has its own CPU, it makes no difference.
 
 Faults (docs/faults.md): ``camera_dropouts`` stop publishing a robot's pose over a span of
 simulated time, as a camera that loses that robot's marker would; ``run(on_tick=...)`` lets the
@@ -78,8 +83,15 @@ class WorldOptions:
     stop_at_goal: bool = True
     record: bool = True
     camera_dropouts: tuple[tuple[str, float, float], ...] = ()  # (robot, from, until) [s]
+    pose_slots: int = 1  # real time: publication slots per period (1: one camera frame)
 
     def __post_init__(self) -> None:
+        if isinstance(self.pose_slots, bool) or not isinstance(self.pose_slots, int) \
+                or self.pose_slots < 1:
+            raise ValueError(f"pose_slots: must be an integer >= 1, got {self.pose_slots!r}")
+        if self.pose_slots > 1 and not (self.realtime and self.camera == "truth"):
+            raise ValueError("pose_slots: more than one slot needs real time and --camera truth "
+                             "(lock-step and the synthetic camera publish whole frames)")
         for rid, t0, t1 in self.camera_dropouts:
             if not (math.isfinite(t0) and math.isfinite(t1) and 0 <= t0 < t1):
                 raise ValueError(f"camera_dropouts: {rid}: need 0 <= from < until, got {t0}, {t1}")
@@ -114,6 +126,17 @@ def step_pose(x: float, y: float, th: float, cmd: Cmd | None, dt: float, is_unic
     if is_unicycle:
         return unicycle.integrate(x, y, th, cmd.v, cmd.omega, dt)
     return x + cmd.ux * dt, y + cmd.uy * dt, th
+
+
+def _sleep_until(wall: float, abort: Callable[[], None]) -> None:
+    """Sleep until ``time.monotonic()`` reaches ``wall``, calling ``abort()`` (which may raise)
+    at least every 50 ms."""
+    while True:
+        abort()
+        remaining = wall - time.monotonic()
+        if remaining <= 0:
+            return
+        time.sleep(min(remaining, 0.05))
 
 
 class _CmdInbox:
@@ -188,9 +211,12 @@ class World:
         self._obs_pub = CountingPublisher(session.declare_publisher(keys.obstacles_key(p)),
                                           self.counter)
         self.inbox = _CmdInbox(p, self.counter, self.ids)
-        # one wildcard subscriber (one Zenoh callback thread) for every robot's command
-        self._subs = [session.declare_subscriber(keys.all_robots_key(p, keys.CMD),
-                                                 self.inbox.callback)]
+        # one wildcard subscriber for every robot's command, called right on the Zenoh thread
+        # that received it (``indirect=False``: no hand-over to a Python thread per command; the
+        # callback only decodes and stores under the inbox lock)
+        self._subs = [session.declare_subscriber(
+            keys.all_robots_key(p, keys.CMD),
+            zenoh.handlers.Callback(self.inbox.callback, indirect=False))]
         self._camera = None
         for rid, _t0, _t1 in options.camera_dropouts:
             if rid not in self.ids:
@@ -265,21 +291,40 @@ class World:
         k = 0
         t = 0.0
         next_wall = time.monotonic()
+
+        def settle(k: int, t_done: float, done: list | None, cmds: list, t_now: float,
+                   now: list) -> bool:
+            """Record the period that began at ``t_done`` in state ``done`` (None: none ended),
+            check the state ``now`` at ``t_now``, report progress; True to stop."""
+            if done is not None:
+                if opts.record:
+                    self._record(series, t_done, done, cmds, off)
+                monitor.update(t_now, np.array([s[:2] for s in now]),
+                               [o.position(t_now) for o in sc.obstacles])
+            if progress is not None:
+                progress(k + 1, sc.steps, t_now)
+            return opts.stop_at_goal and monitor.all_reached
+
         for k in range(sc.steps):
             t = k * dt
             if on_tick is not None:
                 on_tick(k, t)
+            if opts.pose_slots > 1:
+                # each slot steps its robots over the previous period, then publishes them: the
+                # same rows and checks as below, one period later
+                stamps.append(time.time())
+                before = state
+                state, cmds = self._publish_slots(k, state, next_wall, abort)
+                next_wall += dt
+                if settle(k, t - dt, before if k > 0 else None, cmds, t, state):
+                    break
+                continue
             stamp = time.time() if opts.realtime else t
             stamps.append(stamp)
             self._publish(t, stamp, state)
             if opts.realtime:
                 next_wall += dt
-                while True:
-                    abort()
-                    remaining = next_wall - time.monotonic()
-                    if remaining <= 0:
-                        break
-                    time.sleep(min(remaining, 0.05))
+                _sleep_until(next_wall, abort)
                 now = time.monotonic()
                 with inbox._cond:
                     got = {r: c for r, (c, rx) in inbox.latest.items()
@@ -299,15 +344,10 @@ class World:
                     logger.info("tick %d: no command from %s in time: zero", k, ", ".join(late))
                 missing += sum(1 for r in self.ids if r not in got)
             cmds = [got.get(r) for r in self.ids]
-            if opts.record:
-                self._record(series, t, state, cmds, off)
+            before = state
             state = [step_pose(*state[i], cmds[i], dt, is_uni) for i in range(n)]
             t = (k + 1) * dt
-            monitor.update(t, np.array([s[:2] for s in state]),
-                           [o.position(t) for o in sc.obstacles])
-            if progress is not None:
-                progress(k + 1, sc.steps, t)
-            if opts.stop_at_goal and monitor.all_reached:
+            if settle(k, k * dt, before, cmds, t, state):
                 break
         return WorldResult(
             steps=k + 1, sim_time=t, monitor=monitor, series=series,
@@ -317,25 +357,65 @@ class World:
             wall_s=time.monotonic() - wall0, stamps=stamps,
         )
 
-    def _publish(self, t: float, stamp: float, state: Sequence[tuple[float, float, float]]) -> None:
-        sc = self.scenario
+    def _publish_slots(self, k: int, state: Sequence[tuple[float, float, float]], start: float,
+                       abort: Callable[[], None]) -> tuple[list, list[Cmd | None]]:
+        """Real time with ``pose_slots`` > 1, tick ``k``, starting at wall time ``start``: in
+        slot s (robots i with ``i * slots // n == s``), step those robots by ``dt`` with their
+        latest command (not at ``k == 0``: the start poses go out as they are), then publish
+        their poses. Returns at the period's end with the new state and the commands applied."""
+        opts = self.options
+        dt = self.scenario.dt
+        t = k * dt
+        n, slots = len(state), opts.pose_slots
+        inbox = self.inbox
+        new = list(state)
+        cmds: list[Cmd | None] = [None] * n
+        is_uni = self.scenario.robot.is_unicycle
+        for s in range(slots):
+            _sleep_until(start + s * dt / slots, abort)
+            mine = range(-(-s * n // slots), -(-(s + 1) * n // slots))
+            now = time.monotonic()
+            with inbox._cond:
+                for i in mine:
+                    entry = inbox.latest.get(self.ids[i])
+                    if entry is not None and now - entry[1] <= opts.stale_after:
+                        cmds[i] = entry[0]
+            stamp = time.time()
+            if s == 0:
+                self._publish_obstacles(t, stamp)
+            for i in mine:
+                if k > 0:
+                    new[i] = step_pose(*new[i], cmds[i], dt, is_uni)
+                self._publish_pose(i, t, stamp, new[i])
+        _sleep_until(start + dt, abort)
+        return new, cmds
+
+    def _publish_obstacles(self, t: float, stamp: float) -> list[ObstacleMsg]:
         obs = []
-        for o in sc.obstacles:
+        for o in self.scenario.obstacles:
             x, y = o.position(t)
             obs.append(ObstacleMsg(o.name, x, y, o.velocity[0], o.velocity[1], o.safe_distance))
         self._obs_pub.put_message(Obstacles(stamp, tuple(obs)))
+        return obs
+
+    def _publish_pose(self, i: int, t: float, stamp: float, p: tuple[float, float, float]) -> None:
+        """Publish robot ``i``'s pose, unless its camera dropout covers ``t`` (counted)."""
+        rid = self.ids[i]
+        if any(r == rid and t0 <= t + 1e-9 < t1 for r, t0, t1 in self.options.camera_dropouts):
+            self.camera_dropped += 1
+            return
+        self._pose_pubs[i].put_message(Pose(p[0], p[1], p[2], stamp))
+
+    def _publish(self, t: float, stamp: float, state: Sequence[tuple[float, float, float]]) -> None:
+        obs = self._publish_obstacles(t, stamp)
         if self._camera is not None:
             seen = self._camera.poses(state, [(m.x, m.y, m.ds) for m in obs], stamp)
         else:
             seen = {rid: s for rid, s in zip(self.ids, state, strict=True)}
-        for rid, pub in zip(self.ids, self._pose_pubs, strict=True):
+        for i, rid in enumerate(self.ids):
             p = seen.get(rid)
-            if p is not None and any(r == rid and t0 <= t + 1e-9 < t1
-                                     for r, t0, t1 in self.options.camera_dropouts):
-                self.camera_dropped += 1
-                p = None
             if p is not None:  # an undetected marker publishes nothing: the agent sees it stale
-                pub.put_message(Pose(p[0], p[1], p[2], stamp))
+                self._publish_pose(i, t, stamp, p)
 
     def _record(self, series: Series, t: float, state, cmds, off: float) -> None:
         for rid, s, c in zip(self.ids, state, cmds, strict=True):
@@ -400,7 +480,7 @@ def world_summary(result: WorldResult) -> dict:
 
 def main(argv: Sequence[str] | None = None) -> int:
     from scenario import ScenarioError, load_scenario
-    from wire.zconf import add_zenoh_args, settings_from_args
+    from wire.zconf import add_zenoh_args, settings_from_args, use_zenoh_threads
 
     parser = argparse.ArgumentParser(prog="python -m simulator.world",
                                      description="The simulated world of a multi-process run.")
@@ -420,6 +500,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ScenarioError, ValueError) as exc:
         print(f"world: {exc}", file=sys.stderr)
         return 2
+    use_zenoh_threads("relay")
     with zenoh.open(conf) as session:
         world = World(scenario, session, options)
         try:

@@ -64,6 +64,8 @@ def test_an_invalid_scenario_or_an_invalid_fault_option_exits_2_before_starting_
     assert run_cli(["run", str(good), "--out", str(tmp_path / "o"), "--drop", "1.5"]) == 2
     assert run_cli(["run", str(good), "--out", str(tmp_path / "o"), "--kill", "z9@1:2"]) == 2
     assert run_cli(["run", str(good), "--out", str(tmp_path / "o"), "--camera-dropout", "a1@1"]) == 2
+    assert run_cli(["run", str(good), "--out", str(tmp_path / "o"), "--pose-slots", "0"]) == 2
+    assert run_cli(["run", str(good), "--out", str(tmp_path / "o"), "--pose-slots", "2"]) == 2  # lock-step
     assert not (tmp_path / "o" / "processes.json").exists()
 
 
@@ -129,4 +131,15 @@ def test_run_in_real_time_reaches_every_goal(tmp_path):
     run = json.loads((tmp_path / "rt" / "summary.json").read_text())
     assert run["all_reached"] is True and run["collisions"] == 0
     assert run["realtime"] is True
+    assert run["world"]["latency_ms"]["samples"] > 0
+
+
+@pytest.mark.slow
+def test_run_in_real_time_with_poses_in_slots_reaches_every_goal(tmp_path):
+    scenario = tmp_path / "two.yaml"
+    scenario.write_text(TWO_FORMATIONS, encoding="utf-8")
+    assert run_cli(["run", str(scenario), "--out", str(tmp_path / "rt"), "--quiet", "--no-plots",
+                    "--realtime", "--pose-slots", "2"]) == 0
+    run = json.loads((tmp_path / "rt" / "summary.json").read_text())
+    assert run["all_reached"] is True and run["collisions"] == 0
     assert run["world"]["latency_ms"]["samples"] > 0

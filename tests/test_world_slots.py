@@ -1,0 +1,92 @@
+"""The simulated world's pose slots (``WorldOptions.pose_slots``): in real time the poses of a
+period go out in evenly spaced slots, each slot stepping its own robots first. One real Zenoh
+session on loopback plays the agents: it records every pose and answers with commands."""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from scenario import load_scenario
+from simulator.world import World, WorldOptions
+from wire import keys, zconf
+from wire.payloads import Cmd, decode_pose, encode
+
+ROOT = Path(__file__).resolve().parent.parent
+SCENARIO = ROOT / "tests" / "scenarios" / "two-small.yaml"
+P = keys.DEFAULT_PREFIX
+UX = 0.1  # [m/s] every robot's command
+
+
+@pytest.mark.parametrize("bad", [
+    {"pose_slots": 0}, {"pose_slots": True}, {"pose_slots": 2.0},
+    {"pose_slots": 2},  # lock-step publishes whole frames
+    {"pose_slots": 2, "realtime": True, "camera": "synthetic"},
+])
+def test_pose_slots_are_checked(bad: dict) -> None:
+    with pytest.raises(ValueError, match="pose_slots"):
+        WorldOptions(**bad)
+
+
+def test_slots_spread_each_periods_poses_and_step_each_robot_once_per_period() -> None:
+    scenario = load_scenario(SCENARIO)
+    steps = 12
+    scenario = dataclasses.replace(scenario, duration=steps * scenario.dt)
+    ids = scenario.robot_ids
+    n, slots = len(ids), 2
+    slot_of = {rid: i * slots // n for i, rid in enumerate(ids)}
+    poses: dict[str, list[tuple[float, float]]] = {rid: [] for rid in ids}
+    lock = threading.Lock()
+
+    def on_pose(sample: zenoh.Sample) -> None:
+        rid = str(sample.key_expr).split("/")[-2]
+        p = decode_pose(sample.payload.to_bytes())
+        with lock:
+            poses[rid].append((p.stamp, p.x))
+
+    conf = zconf.make_config("peer", listen=["tcp/127.0.0.1:0"])
+    stop = threading.Event()
+    with zenoh.open(conf) as session:
+        sub = session.declare_subscriber(keys.all_robots_key(P, keys.POSE), on_pose)
+        cmd_pubs = {rid: session.declare_publisher(keys.cmd_key(P, rid)) for rid in ids}
+
+        def agents() -> None:  # every robot keeps commanding UX along x
+            while not stop.is_set():
+                for pub in cmd_pubs.values():
+                    pub.put(encode(Cmd(UX, 0.0, UX, 0.0, time.time())))
+                time.sleep(0.005)
+
+        feeder = threading.Thread(target=agents)
+        feeder.start()
+        world = World(scenario, session, WorldOptions(realtime=True, pose_slots=slots,
+                                                      stop_at_goal=False))
+        try:
+            world.wait_for_agents(grace=False)
+            result = world.run()
+        finally:
+            stop.set()
+            feeder.join()
+            world.close()
+            sub.undeclare()
+    assert result.steps == steps
+    assert all(len(p) == steps for p in poses.values()), {r: len(p) for r, p in poses.items()}
+    for k in range(steps):
+        first = max(poses[r][k][0] for r in ids if slot_of[r] == 0)
+        second = min(poses[r][k][0] for r in ids if slot_of[r] == 1)
+        assert first < second  # slot 1 goes out after slot 0 of the same period ...
+        if k + 1 < steps:
+            nxt = min(poses[r][k + 1][0] for r in ids if slot_of[r] == 0)
+            assert max(poses[r][k][0] for r in ids if slot_of[r] == 1) < nxt  # ... and before the next
+    dt = scenario.dt
+    for rid in ids:  # each period steps every robot once, by its command
+        xs = [x for _stamp, x in poses[rid]]
+        assert xs[-1] - xs[-2] == pytest.approx(UX * dt, abs=1e-12)
+        assert xs[-1] - xs[0] <= UX * dt * (steps - 1) + 1e-12
+    rows = result.series.robots
+    assert len(rows) == (steps - 1) * n  # one row per robot and stepped period
+    assert {row[8] for row in rows[-n:]} == {UX}  # the applied command's ux (ROBOT_COLUMNS)
