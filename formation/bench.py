@@ -16,8 +16,13 @@ Five measurements, written to ``bench.json`` and as a table (``bench.txt`` and s
 * **agents**: N real agent processes (``python -m agent``, real time) over a Zenoh router with
   the simulated world (:class:`simulator.world.World`) publishing poses at the control rate in
   this process; N/4 four-robot formations travelling in parallel lanes, so the run is steady.
-  Reported per fleet: achieved command rate, missed ticks, pose -> command latency (p50, p99) and
-  its parts, CPU and memory (RSS) per agent.
+  Every pose of a tick leaves at once, as from one overhead camera frame. For comparison, one
+  fleet runs with the world publishing each formation's poses in its own slot of the period
+  (``agents_pose_slots``, ``pose_slots`` = N/4), as robots localising on their own clocks would,
+  so the N agents do not all wake in the same instant on this 2-core machine (on robots each
+  agent has its own CPU), and one with agents ticking on their own clock
+  (``agents_clock_ticks``). Reported per fleet: achieved command rate, missed ticks, pose ->
+  command latency (p50, p99) and its parts, CPU and memory (RSS) per agent.
 * **inprocess**: simulation throughput (robot-steps per second) of ``formation sim`` on the
   warehouse scenario.
 
@@ -72,6 +77,7 @@ TRAVEL = 7.0  # [m] goal ahead of the start (not reached within the benchmark's 
 FLEETS = {8: 0.02, 32: 0.02, 64: 0.05}  # agents -> control period [s] (50, 50, 20 Hz)
 FLEET_DURATION = 15.0  # [s] of real time per fleet
 CLOCK_FLEETS = {8: 0.02}  # the same agents ticking on their own clock, for comparison
+SLOT_FLEETS = {32: 0.02}  # the world publishing one formation's poses per slot, for comparison
 QUICK_FLEETS = {4: 0.02}
 QUICK_DURATION = 2.0  # [s]
 
@@ -484,11 +490,17 @@ def _raise_interrupt(signum: int, _frame: FrameType | None) -> None:
     raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
 
 
-def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: bool = True) -> dict:
+def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: bool = True,
+                 pose_slots: int = 1) -> dict:
     """Run ``n`` agent processes in real time against the simulated world for ``duration``
     seconds (see the module docstring); every process started here is stopped on every way out.
-    ``tick_on_pose=False`` runs the agents with ``--clock-ticks`` (their own clock)."""
+    ``tick_on_pose=False`` runs the agents with ``--clock-ticks`` (their own clock);
+    ``pose_slots`` is the world's (:class:`simulator.world.WorldOptions`)."""
     import zenoh
+
+    from wire.zconf import use_zenoh_threads
+
+    use_zenoh_threads("relay")  # as `formation bench` does, for a direct call too
 
     from agent.config import ZenohSettings, build_agent_configs, save_config
     from simulator.launch import START_TIMEOUT_S, Supervisor
@@ -520,7 +532,7 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
                 "--no-trace", *([] if tick_on_pose else ["--clock-ticks"])])
         conf = WireZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
                                  connect_timeout_s=10.0).to_config()
-        options = WorldOptions(realtime=True, stop_at_goal=False, record=False,
+        options = WorldOptions(realtime=True, stop_at_goal=False, record=False, pose_slots=pose_slots,
                                start_timeout=START_TIMEOUT_S + 4.0 * n)
         pids = {rid: c.proc.pid for rid, c in agents.items()}
         with zenoh.open(conf) as session:
@@ -557,6 +569,7 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
     entry = _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, own_cpu,
                           (router_cpu0, router_cpu1, router_rss), (load_before, load_after), busy)
     entry["ticks_on"] = "pose" if tick_on_pose else "clock"
+    entry["pose_slots"] = pose_slots
     return entry
 
 
@@ -655,6 +668,8 @@ def run_bench(quick: bool = False, scenario: Path = DEFAULT_SCENARIO,
         base = Path(work) if work is not None else Path(tmp)
         for n, dt in fleets.items():
             agents[str(n)] = bench_agents(n, dt, duration, base / f"agents-{n}")
+        slots = {str(n): bench_agents(n, dt, duration, base / f"slots-{n}", pose_slots=n // 4)
+                 for n, dt in ({} if quick else SLOT_FLEETS).items()}
         clock = {str(n): bench_agents(n, dt, duration, base / f"clock-{n}", tick_on_pose=False)
                  for n, dt in ({} if quick else CLOCK_FLEETS).items()}
     return {
@@ -668,6 +683,7 @@ def run_bench(quick: bool = False, scenario: Path = DEFAULT_SCENARIO,
         "solvers": solvers,
         "central": central,
         "agents": agents,
+        "agents_pose_slots": slots,
         "agents_clock_ticks": clock,
         "inprocess": inproc,
     }
@@ -705,23 +721,27 @@ def format_table(result: dict) -> str:
                      + "".join(f"{_f(c['total_us'].get(b), '.0f'):>11}" for b in backends))
     lines.append("")
     lines.append("agent processes in real time (pose published -> command received)")
-    lines.append(f"{'N':>4}{'Hz':>5}{'rate':>7}{'missed':>8}{'overrun':>8}{'p50 ms':>8}"
+    lines.append(f"{'N':>4}{'Hz':>5}{'slots':>6}{'rate':>7}{'missed':>8}{'overrun':>8}{'p50 ms':>8}"
                  f"{'p99 ms':>8}{'wait':>7}{'tick':>7}{'net':>7}{'cpu %':>7}{'rss MB':>8}"
                  f"{'all %':>7}{'other %':>8}")
     fleets = [(n, a) for n, a in result["agents"].items()]
+    fleets += [(f"{n}s", a) for n, a in result.get("agents_pose_slots", {}).items()]
     fleets += [(f"{n}c", a) for n, a in result.get("agents_clock_ticks", {}).items()]
     for n, a in fleets:
         parts = a["latency_parts_ms_median"]
         lines.append(
-            f"{n:>4}{a['rate_hz_target']:>5.0f}{_f(a['rate_hz']):>7}{a['missed_ticks']:>8}"
+            f"{n:>4}{a['rate_hz_target']:>5.0f}{a.get('pose_slots', 1):>6}{_f(a['rate_hz']):>7}"
+            f"{a['missed_ticks']:>8}"
             f"{a['agent_overruns']:>8}{_f(a['latency_ms_p50'], '.2f'):>8}"
             f"{_f(a['latency_ms_p99'], '.2f'):>8}{_f(parts['pose_wait_for_tick'], '.2f'):>7}"
             f"{_f(parts['tick'], '.2f'):>7}{_f(parts['transport_rest'], '.2f'):>7}"
             f"{_f(a['cpu_percent_per_agent_median']):>7}{_f(a['rss_mb_per_agent_median']):>8}"
             f"{_f(a.get('fleet_cpu_percent'), '.0f'):>7}{_f(a.get('others_cpu_percent'), '.0f'):>8}")
+    lines.append("  slots: 1 = every pose of a tick at once (one camera frame); Ns: the world publishes "
+                 "each formation's poses in its own slot of the period")
     if result.get("agents_clock_ticks"):
-        lines.append("  (Nc: agents ticking on their own clock, --clock-ticks; the others tick on pose "
-                     "arrival)")
+        lines.append("  Nc: agents ticking on their own clock (--clock-ticks); the others tick on pose "
+                     "arrival")
     lines.append("  wait: pose received -> tick starts; tick: tick start -> command put; net: the rest "
                  "(router both ways, Zenoh and Python threads, CPU queueing); medians")
     lines.append("  cpu %: per agent (median), of one core; all %: agents + router + world; other %: "
