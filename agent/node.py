@@ -249,7 +249,6 @@ class AgentNode:
         self._stall = Stall()  # this member's copy of its formation's jam state
         self._boxes: dict[str, Mailbox] = {}
         self._arrived: asyncio.Event | None = None
-        self._pose_arrived: asyncio.Event | None = None
         self._stop: asyncio.Event | None = None
         self._own_others: Others | None = None
         self._tick_point: tuple[float, float, float] | None = None
@@ -282,7 +281,6 @@ class AgentNode:
     def open(self, loop: asyncio.AbstractEventLoop) -> None:
         """Open the session, declare publishers and the exact subscriptions."""
         self._arrived = asyncio.Event()
-        self._pose_arrived = asyncio.Event()
         self._stop = self._stop or asyncio.Event()
         decoders = {
             keys.POSE: decode_pose, keys.STATE: decode_state, keys.OTHERS: decode_others,
@@ -387,8 +385,6 @@ class AgentNode:
         self._late.discard(key)
         if self._arrived is not None:
             self._arrived.set()
-        if key == self.pose_key and self._pose_arrived is not None:
-            self._pose_arrived.set()
 
     def close(self) -> None:
         """Zero command, undeclare, close the session (idempotent)."""
