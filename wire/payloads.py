@@ -114,8 +114,7 @@ def _check_floats(obj: object, names: Iterable[str]) -> None:
     The fast path accepts a plain finite ``float`` as it is (what every decoder and nearly every
     caller passes: ``float(v)`` of it is ``v``); anything else takes :func:`_finite`, which
     converts it or raises, so the behaviour is the same either way. The messages' constructors
-    try :func:`_plain_finite` (or the same test written out) first and call this only when
-    it fails."""
+    try :func:`_plain_finite` first and call this only when it fails."""
     for name in names:
         value = getattr(obj, name)
         if type(value) is not float or not _isfinite(value):
@@ -139,9 +138,7 @@ class Pose:
     stamp: float
 
     def __post_init__(self) -> None:
-        x, y, theta, stamp = self.x, self.y, self.theta, self.stamp
-        if not (type(x) is float and type(y) is float and type(theta) is float
-                and type(stamp) is float and _isfinite(x + y + theta + stamp)):
+        if not _plain_finite((self.x, self.y, self.theta, self.stamp)):
             _check_floats(self, _POSE_FLOATS)
 
 
@@ -159,10 +156,7 @@ class State:
     stamp: float
 
     def __post_init__(self) -> None:
-        x, y, ux, uy, stamp = self.x, self.y, self.ux, self.uy, self.stamp
-        if not (type(x) is float and type(y) is float and type(ux) is float
-                and type(uy) is float and type(stamp) is float
-                and _isfinite(x + y + ux + uy + stamp)):
+        if not _plain_finite((self.x, self.y, self.ux, self.uy, self.stamp)):
             _check_floats(self, _STATE_FLOATS)
 
 
@@ -180,10 +174,7 @@ class Cmd:
     stamp: float
 
     def __post_init__(self) -> None:
-        v, omega, ux, uy, stamp = self.v, self.omega, self.ux, self.uy, self.stamp
-        if not (type(v) is float and type(omega) is float and type(ux) is float
-                and type(uy) is float and type(stamp) is float
-                and _isfinite(v + omega + ux + uy + stamp)):
+        if not _plain_finite((self.v, self.omega, self.ux, self.uy, self.stamp)):
             _check_floats(self, _CMD_FLOATS)
 
 
