@@ -5,6 +5,7 @@ session on loopback plays the agents: it records every pose and answers with com
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import threading
 import time
 from pathlib import Path
@@ -90,3 +91,19 @@ def test_slots_spread_each_periods_poses_and_step_each_robot_once_per_period() -
     rows = result.series.robots
     assert len(rows) == (steps - 1) * n  # one row per robot and stepped period
     assert {row[8] for row in rows[-n:]} == {UX}  # the applied command's ux (ROBOT_COLUMNS)
+
+
+def test_the_worlds_abort_check_is_rate_limited_but_still_made_while_it_waits() -> None:
+    """The launcher's check polls every child process: the world calls it at most every
+    ABORT_EVERY_S, however many slots a period has, and at least that often while sleeping."""
+    from simulator import world
+
+    calls: list[float] = []
+    check = world._at_most_every(world.ABORT_EVERY_S, lambda: calls.append(time.monotonic()))
+    for _ in range(100):
+        check()
+    assert len(calls) == 1
+    world._sleep_until(time.monotonic() + 6 * world.ABORT_EVERY_S, check)
+    assert len(calls) >= 3  # about 7 on an idle machine
+    gaps = [b - a for a, b in itertools.pairwise(calls)]
+    assert min(gaps) >= world.ABORT_EVERY_S
