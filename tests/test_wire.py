@@ -371,6 +371,44 @@ def test_others_keeps_its_own_ellipse_apart_from_the_others() -> None:
         Obstacles(0.0, (ObstacleMsg("o1", 0, 0, 0, 0, 0), ObstacleMsg("o1", 1, 1, 0, 0, 0)))
 
 
+def _wire(*fields: object) -> bytes:
+    return z_serialize((UInt8(1), *fields)).to_bytes()
+
+
+def test_every_rule_of_others_and_obstacles_holds_for_decoded_payloads_too() -> None:
+    """The decoders check whole lists at once and skip the per-item constructor checks when all
+    pass; a payload breaking any rule still fails, with the constructor's message."""
+    a = ("A", 1.0, 2.0, 0.0, 0.5, 0.25, 1.0, 0.0, -1.0, 3.0)
+    c = ("C", 5.0, 2.0, 0.0, 0.5, 0.25, 1.0, 0.0, -1.0, 3.0)
+    cases = [
+        (decode_others, _wire("B", 0.0, [a, a], []), "repeat formation 'A'"),
+        (decode_others, _wire("A", 0.0, [a], []), "must not contain the own formation"),
+        (decode_others, _wire("B", 0.0, [c], [a]), "own belongs to formation 'A'"),
+        (decode_others, _wire("A", 0.0, [c], [a, a]), "own must hold at most 1"),
+        (decode_others, _wire("B", 0.0, [(*a[:4], 0.0, *a[5:])], []), "a must be > 0"),
+        (decode_others, _wire("B", 0.0, [(*a[:5], -1.0, *a[6:])], []), "b must be > 0"),
+        (decode_others, _wire("B", 0.0, [("bad id", *a[1:])], []), "formation"),
+        (decode_others, _wire("B", math.nan, [a], []), "stamp"),
+        (decode_ellipse, _wire(*a[:4], -0.5, *a[5:]), "a must be > 0"),
+        (decode_obstacles, _wire(0.0, [("o1", 0.0, 0.0, 0.0, 0.0, -0.1)]), "ds must be >= 0"),
+        (decode_obstacles, _wire(0.0, [("o1", 0.0, 0.0, 0.0, 0.0, 0.1)] * 2), "repeat id 'o1'"),
+        (decode_obstacles, _wire(math.inf, []), "stamp"),
+    ]
+    for decode, payload, message in cases:
+        with pytest.raises(DecodeError, match=message):
+            decode(payload)
+    # and the same lists, valid, decode to messages equal to the constructed ones and as frozen
+    got = decode_others(_wire("B", 0.0, [a, c], [("B", *a[1:])]))
+    want = Others("B", 0.0, (EllipseMsg(*a), EllipseMsg(*c)), EllipseMsg("B", *a[1:]))
+    assert got == want and hash(got) == hash(want)
+    with pytest.raises(AttributeError):
+        got.ellipses[0].cx = 0.0  # type: ignore[misc]
+    obstacles = decode_obstacles(_wire(1.0, [("o1", 0.0, 0.0, 0.0, 0.0, 0.1)]))
+    assert obstacles == Obstacles(1.0, (ObstacleMsg("o1", 0.0, 0.0, 0.0, 0.0, 0.1),))
+    with pytest.raises(AttributeError):
+        obstacles.obstacles[0].ds = 1.0  # type: ignore[misc]
+
+
 def test_more_than_256_entries_are_rejected_when_built_and_when_decoded() -> None:
     many = [ObstacleMsg(f"o{i}", 0.0, 0.0, 0.0, 0.0, 0.1) for i in range(payloads.MAX_ITEMS + 1)]
     with pytest.raises(ValueError, match="at most 256"):

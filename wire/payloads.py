@@ -47,7 +47,7 @@ import math
 import numbers
 import struct
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any, TypeAlias
 
 import zenoh
@@ -302,6 +302,70 @@ class Obstacles:
 
 Message: TypeAlias = Pose | State | Cmd | EllipseMsg | Others | Obstacles
 
+
+# --- building messages from decoded fields ----------------------------------------------------
+#
+# A decoder checks a whole list of ellipses or obstacles at once (every float of the message in
+# one sum, the ids against the set of ids already found valid) and, when all pass, builds the
+# items without running each one's checks again: about 2.5 times faster for an ``Others`` of eight
+# ellipses, the message every member decodes each tick. Anything that fails the quick check goes
+# through the constructors, which accept it or raise the usual error naming the field.
+
+_new = object.__new__
+
+
+def _slot_setters(cls: type) -> tuple[Callable[[Any, Any], None], ...]:
+    """The slot setters of a frozen message class's fields, in field order."""
+    return tuple(cls.__dict__[f.name].__set__ for f in fields(cls))
+
+
+def _build_checked(cls: type, setters: tuple[Callable[[Any, Any], None], ...],
+                   values: Iterable[Any]) -> Any:
+    """An instance of the frozen message class ``cls`` holding ``values`` (in field order)
+    without running its checks: only for values already checked as its constructor would."""
+    obj = _new(cls)
+    for put, value in zip(setters, values, strict=True):
+        put(obj, value)
+    return obj
+
+
+_ELLIPSE_SETTERS = _slot_setters(EllipseMsg)
+_OBSTACLE_SETTERS = _slot_setters(ObstacleMsg)
+_OTHERS_SETTERS = _slot_setters(Others)
+_OBSTACLES_SETTERS = _slot_setters(Obstacles)
+_A, _B = 3, 4  # where the semi-axes are among an ellipse's nine floats
+_DS = 4  # where ds is among an obstacle's five floats
+
+Item: TypeAlias = tuple[str, tuple[float, ...]]  # a decoded (id, floats) entry
+
+
+def _ellipses(items: list[Item]) -> tuple[EllipseMsg, ...]:
+    """The ellipses of decoded ``(formation, nine floats)`` items."""
+    total = 0.0
+    for ident, values in items:
+        if ident not in _VALID_IDS or not (values[_A] > 0.0 and values[_B] > 0.0):
+            break
+        total += sum(values)
+    else:
+        if _isfinite(total):
+            return tuple([_build_checked(EllipseMsg, _ELLIPSE_SETTERS, (ident, *values))
+                          for ident, values in items])
+    return tuple([EllipseMsg(ident, *values) for ident, values in items])
+
+
+def _obstacles(items: list[Item]) -> tuple[ObstacleMsg, ...]:
+    """The obstacles of decoded ``(id, five floats)`` items."""
+    total = 0.0
+    for ident, values in items:
+        if ident not in _VALID_IDS or not values[_DS] >= 0.0:
+            break
+        total += sum(values)
+    else:
+        if _isfinite(total):
+            return tuple([_build_checked(ObstacleMsg, _OBSTACLE_SETTERS, (ident, *values))
+                          for ident, values in items])
+    return tuple([ObstacleMsg(ident, *values) for ident, values in items])
+
 # --- encoding ---------------------------------------------------------------------------------
 
 _VERSION = UInt8(WIRE_VERSION)
@@ -441,21 +505,22 @@ class _Reader:
         self.pos = end
         return ident, fmt.unpack_from(data, start)
 
-    def ellipse(self, name: str, index: int | None = None) -> EllipseMsg:
-        """An ellipse without the version; ``name[index]`` names it in error messages."""
-        item = self._id_and_floats(_FLOATS[9])
+    def item(self, fmt: struct.Struct, name: str, index: int | None, id_field: str) -> Item:
+        """An ``(id:str, f64 * k)`` item; ``name[index]`` names it and ``id_field`` its id in
+        error messages."""
+        item = self._id_and_floats(fmt)
         if item is not None:
-            return EllipseMsg(item[0], *item[1])
+            return item
         what = name if index is None else f"{name}[{index}]"
-        formation = self.string(f"{what}.formation")
-        return EllipseMsg(formation, *self.floats(9, what))
+        ident = self.string(f"{what}.{id_field}")
+        return ident, self.floats(fmt.size // 8, what)
 
-    def obstacle(self, index: int) -> ObstacleMsg:
-        item = self._id_and_floats(_FLOATS[5])
-        if item is not None:
-            return ObstacleMsg(item[0], *item[1])
-        name = self.string(f"obstacles[{index}].id")
-        return ObstacleMsg(name, *self.floats(5, f"obstacles[{index}]"))
+    def ellipse(self, name: str, index: int | None = None) -> Item:
+        """An ellipse without the version (``name[index]`` in error messages)."""
+        return self.item(_FLOATS[9], name, index, "formation")
+
+    def obstacle(self, index: int) -> Item:
+        return self.item(_FLOATS[5], "obstacles", index, "id")
 
     def end(self) -> None:
         if self.pos != len(self.data):
@@ -500,23 +565,33 @@ def _parse_cmd(r: _Reader) -> Cmd:
 
 
 def _parse_ellipse(r: _Reader) -> EllipseMsg:
-    return r.ellipse("ellipse")
+    return _ellipses([r.ellipse("ellipse")])[0]
 
 
 def _parse_others(r: _Reader) -> Others:
     formation = r.string("formation")
     (stamp,) = r.floats(1, "stamp")
     n = r.count("ellipses", MAX_ITEMS)
-    ellipses = tuple([r.ellipse("ellipses", i) for i in range(n)])
+    items = [r.ellipse("ellipses", i) for i in range(n)]
     n_own = r.count("own", 1)
-    own = r.ellipse("own") if n_own else None
+    if n_own:
+        items.append(r.ellipse("own"))
+    built = _ellipses(items)
+    ellipses, own = (built[:-1], built[-1]) if n_own else (built, None)
+    names = {e.formation for e in ellipses}
+    if (formation in _VALID_IDS and _isfinite(stamp) and len(names) == n
+            and formation not in names and (own is None or own.formation == formation)):
+        return _build_checked(Others, _OTHERS_SETTERS, (formation, stamp, ellipses, own))
     return Others(formation, stamp, ellipses, own)
 
 
 def _parse_obstacles(r: _Reader) -> Obstacles:
     (stamp,) = r.floats(1, "stamp")
     n = r.count("obstacles", MAX_ITEMS)
-    return Obstacles(stamp, tuple([r.obstacle(i) for i in range(n)]))
+    obstacles = _obstacles([r.obstacle(i) for i in range(n)])
+    if _isfinite(stamp) and len({o.id for o in obstacles}) == n:
+        return _build_checked(Obstacles, _OBSTACLES_SETTERS, (stamp, obstacles))
+    return Obstacles(stamp, obstacles)
 
 
 def decode_pose(payload: bytes | zenoh.ZBytes) -> Pose:
