@@ -382,6 +382,8 @@ def launch(
         summary["faults"] = fault_summary(faults, result, stats, driver.log)
     if creds is not None:
         summary["secure"] = {"auth": "usrpwd", "acl": str(creds.router_config)}
+    if pose_slots > 1:
+        summary["pose_slots"] = pose_slots  # the world spread each period's poses over this many
     return summary, series
 
 
@@ -468,7 +470,7 @@ class _FaultDriver:
 
 def fault_summary(plan: FaultPlan, result: WorldResult, stats: list[dict], log: list[dict]) -> dict:
     """``faults`` of ``summary.json``: what was injected and what it did."""
-    dropped = _sum_dicts(s.get("fault_dropped", {}) for s in stats)
+    dropped = sum_counts(s.get("fault_dropped", {}) for s in stats)
     return {
         "drop": plan.drop,
         "delay_ms": plan.delay_ms,
@@ -487,7 +489,7 @@ def fault_summary(plan: FaultPlan, result: WorldResult, stats: list[dict], log: 
         "world_cmd_timeouts": result.cmd_timeouts,
         "agent_lockstep_timeouts": sum(s.get("lockstep_timeouts", 0) for s in stats),
         "stale_ticks": sum(s["stale"] for s in stats),
-        "stale_ticks_by_input": _sum_dicts(s.get("stale_why", {}) for s in stats),
+        "stale_ticks_by_input": sum_counts(s.get("stale_why", {}) for s in stats),
         "stale_ticks_by_robot": {s["robot"]: s["stale"] for s in stats},
         "inflated_ellipse_ticks": sum(s.get("inflated", 0) for s in stats),
         "counters_lost_with_killed_agents": bool(plan.kills),
@@ -555,7 +557,7 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
             "stale": sum(s["stale"] for s in stats),
             "waiting_for_pose": sum(s.get("waiting", 0) for s in stats),
             "lockstep_timeouts": sum(s.get("lockstep_timeouts", 0) for s in stats),
-            "dropped": _sum_dicts(s["dropped"] for s in stats),
+            "dropped": sum_counts(s["dropped"] for s in stats),
             "cpu_s": {s["robot"]: s["cpu_s"] for s in stats},
             "wall_s": max((s["wall_s"] for s in stats), default=None),
             "tick_us_median": _median([s["tick_us_median"] for s in stats]),
@@ -628,7 +630,8 @@ def _nan(v):
     return math.nan if v is None else v
 
 
-def _sum_dicts(dicts) -> dict:
+def sum_counts(dicts) -> dict:
+    """Counters of several agents (dicts of name -> count) added up per name."""
     out: dict[str, int] = {}
     for d in dicts:
         for k, v in d.items():

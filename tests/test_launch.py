@@ -132,6 +132,7 @@ def test_run_in_real_time_reaches_every_goal(tmp_path):
     assert run["all_reached"] is True and run["collisions"] == 0
     assert run["realtime"] is True
     assert run["world"]["latency_ms"]["samples"] > 0
+    assert "pose_slots" not in run  # whole frames
 
 
 @pytest.mark.slow
@@ -143,3 +144,4 @@ def test_run_in_real_time_with_poses_in_slots_reaches_every_goal(tmp_path):
     run = json.loads((tmp_path / "rt" / "summary.json").read_text())
     assert run["all_reached"] is True and run["collisions"] == 0
     assert run["world"]["latency_ms"]["samples"] > 0
+    assert run["pose_slots"] == 2
