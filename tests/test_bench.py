@@ -74,6 +74,9 @@ def test_quick_bench_ran_agent_processes(quick_result):
             assert entry.get(key) is not None, (n, key)
         assert entry["commands"] > 0
         assert entry["missed_ticks"] >= 0
+        by_input = entry["stale_ticks_by_input"]
+        assert set(by_input) <= {"pose", "state", "obstacles", "others", "ellipse"}
+        assert sum(by_input.values()) == entry["stale_ticks"]
     assert result["inprocess"]["robot_steps_per_s"] > 0
 
 
