@@ -32,9 +32,11 @@ one is), so a camera faster than 1/period does not raise the tick rate; the spac
 camera's stamps, not arrival times, so transport jitter never holds a tick back. When no tick
 has run for ``DEADLINE_PERIODS`` periods, the event loop ticks on its deadline anyway (on the
 pose it has: a silent camera still ends in stale zero commands; counted ``deadline_ticks``). The
-loop looks every ``WATCH_PERIODS`` periods (at most half of ``stale_after``, at least the
-deadline) while ticks come, every deadline span after a deadline tick: waking it each period
-would cost about as much CPU as a tick's messaging. A lock keeps
+loop looks every ``stale_after`` less a deadline span while ticks come (at least a span), every
+span after a deadline tick: the longest wait that still starts the deadline ticks before the
+last pose is stale, so the zero command comes as early as if it looked every period. Each look
+costs an agent about 0.15 ms of CPU on a loaded 2-core machine (8 % of its CPU when it
+looked every 2.5 periods). A lock keeps
 ticks one at a time whichever thread runs them, and once :meth:`AgentNode.close` starts no tick
 runs. A tick longer than one period counts as an overrun. The tick itself is the same coroutine
 as in lock-step; in real time it never suspends (its waits are lock-step only), so
@@ -107,7 +109,6 @@ logger = logging.getLogger(__name__)
 
 DEADLINE_PERIODS = 1.5  # real time: tick without a new pose after this many periods
 MIN_SPACING_PERIODS = 0.75  # real time: a pose stamped sooner after the last ticked one waits
-WATCH_PERIODS = 5.0  # real time: how often the loop looks for a missed deadline while ticks come
 RING_CAPACITY = 256  # real time: samples kept per key between two ticks (a flood beyond it
 # loses its oldest samples uncounted; about one per tick arrives in normal operation)
 STATS_WINDOW = 10_000  # per-tick timings kept for the medians in stats() (the newest ticks)
@@ -493,7 +494,7 @@ class AgentNode:
         assert self._stop is not None
         period = self.cfg.period
         span = DEADLINE_PERIODS * period
-        watch = max(span, min(WATCH_PERIODS * period, 0.5 * self.cfg.stale_after))
+        watch = max(span, self.cfg.stale_after - span)
         with self._tick_lock:
             self._last_tick = time.monotonic()  # the first deadline counts from the start
         while not self._stop.is_set():

@@ -306,3 +306,37 @@ def test_real_time_ticks_go_by_the_pose_stamps_not_by_arrival_times(configs) -> 
     node.close()  # no session yet: only marks it closing
     pose(t0 + 10.0)  # after close() no tick runs
     assert len(ticked) == 4
+
+
+def test_in_real_time_a_silent_camera_ends_in_deadline_ticks_that_command_zero(configs, peer):
+    # while poses come no deadline tick runs; when they stop, the agent ticks on its deadline
+    # and, once the pose is stale, commands zero: no later than if it looked every period
+    from agent.node import DEADLINE_PERIODS
+
+    cfg = configs["r1"]
+    span = DEADLINE_PERIODS * cfg.period
+    seen: dict[str, float] = {}
+
+    async def body(node: AgentNode) -> None:
+        stamp = time.time()
+        t_end = time.monotonic() + 0.3
+        while time.monotonic() < t_end:  # a pose every 5 ms, well inside the deadline span
+            stamp += cfg.period
+            peer.feed(stamp)
+            await asyncio.sleep(0.005)
+        await eventually(lambda: any(math.hypot(c.ux, c.uy) > 0.05 for c in peer.commands()))
+        seen["ticks"], seen["flowing"] = node.ticks, node.deadline_ticks
+        silent = time.monotonic()
+        await eventually(lambda: node.stale_why.get("pose", 0) > 0)
+        seen["zero_after"] = time.monotonic() - silent
+        seen["deadline"] = node.deadline_ticks
+        await asyncio.sleep(0.2)  # the zero command crosses the router
+
+    run_node(cfg, NodeOptions(trace=False), peer, body)
+    assert seen["ticks"] > 20
+    assert seen["flowing"] <= 1  # (a stall of the test's own sender could earn one)
+    assert seen["deadline"] > seen["flowing"]
+    # the pose goes stale stale_after after it arrived; a deadline tick follows within a span
+    assert seen["zero_after"] <= cfg.stale_after + 2 * span + 0.5
+    last = peer.commands()[-1]
+    assert (last.v, last.omega, last.ux, last.uy) == (0.0, 0.0, 0.0, 0.0)
