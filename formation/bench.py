@@ -19,10 +19,9 @@ Five measurements, written to ``bench.json`` and as a table (``bench.txt`` and s
   Every pose of a tick leaves at once, as from one overhead camera frame. For comparison, the
   32- and 64-agent fleets also run with the world publishing each formation's poses in its own
   slot of the period (``agents_pose_slots``, ``pose_slots`` = N/4), as robots localising on
-  their own clocks would,
-  so the N agents do not all wake in the same instant on this 2-core machine (on robots each
-  agent has its own CPU), and one with agents ticking on their own clock
-  (``agents_clock_ticks``). Reported per fleet: achieved command rate, missed ticks, pose ->
+  their own clocks would, so the N agents do not all wake in the same instant on this 2-core
+  machine (on robots each agent has its own CPU), and one fleet runs with agents ticking on
+  their own clock (``agents_clock_ticks``). Reported per fleet: achieved command rate, missed ticks, pose ->
   command latency (p50, p99) and its parts, CPU and memory (RSS) per agent, and the agents'
   stale ticks (zero commands) by the input that was stale.
 * **inprocess**: simulation throughput (robot-steps per second) of ``formation sim`` on the
