@@ -16,11 +16,13 @@ from typing import Any
 
 import yaml
 
-from leader.ellipse import reference_shape
+from geometry.ellipse import reference_shape
+from geometry.limits import BURGER_RADIUS
+from geometry.unicycle import control_point
+from leader.settings import LeaderSettings  # noqa: F401  (re-exported)
 from scenario import Scenario, formation_axes
 
 from .control import ControlParams
-from .unicycle import control_point
 
 CONFIG_VERSION = 1
 TOPOLOGIES = ("reduced", "all-to-all")
@@ -37,17 +39,6 @@ class ZenohSettings:
 
 
 @dataclass(frozen=True)
-class LeaderSettings:
-    """What the leader role needs to estimate and exchange its formation's ellipse."""
-
-    members: tuple[str, ...]  # every member, leader included, in reference order
-    offsets: tuple[tuple[float, float], ...]  # reference offsets of the members' control points
-    alpha0: float  # [rad] principal-axis angle of the reference shape
-    axes: tuple[float, float]  # semi-axes (a, b) [m]
-    other_formations: tuple[str, ...]  # formations whose ellipses this leader subscribes to
-
-
-@dataclass(frozen=True)
 class AgentConfig:
     robot_id: str
     formation: str
@@ -57,7 +48,7 @@ class AgentConfig:
     neighbours: tuple[tuple[str, float], ...]  # (robot id, Df [m])
     control: ControlParams
     period: float  # [s] control period (the scenario's dt)
-    radius: float = 0.105  # [m]
+    radius: float = BURGER_RADIUS  # [m]
     start: tuple[float, float, float] | None = None  # initial pose, for simulation only
     prefix: str = "warehouse"
     topology: str = "reduced"
@@ -160,7 +151,7 @@ def config_from_dict(d: dict[str, Any]) -> AgentConfig:
             neighbours=tuple((str(n), float(df)) for n, df in d.pop("neighbours")),
             control=control,
             period=float(d.pop("period")),
-            radius=float(d.pop("radius", 0.105)),
+            radius=float(d.pop("radius", BURGER_RADIUS)),
             start=None if d.get("start") is None else tuple(map(float, d.pop("start"))),
             prefix=str(d.pop("prefix", "warehouse")),
             topology=str(d.pop("topology", "reduced")),

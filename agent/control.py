@@ -41,7 +41,8 @@ from dataclasses import dataclass
 from time import perf_counter_ns
 from typing import NamedTuple
 
-from leader.ellipse import Ellipse
+from geometry.ellipse import Ellipse
+from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE
 
 from . import barriers, unicycle
 from .barriers import Neighbour, Obstacle
@@ -66,10 +67,10 @@ class ControlParams:
     gamma_obstacle: float = 1.0
     gamma_formations: float = 1.0
     epsilon: float = 0.05  # [m]
-    max_speed: float = 0.22  # [m/s]
+    max_speed: float = BURGER_MAX_SPEED  # [m/s]
     unicycle: bool = False
     lookahead: float = 0.05  # [m]
-    max_turn_rate: float = 2.84  # [rad/s]
+    max_turn_rate: float = BURGER_MAX_TURN_RATE  # [rad/s]
     tiebreak: bool = True
     safety: bool = True  # False: the nominal command, no barriers (to show what happens)
     d_af: float = 0.5  # [m] pairwise distance for the all-to-all baseline (eq. 3.5)

@@ -61,7 +61,8 @@ from types import FrameType
 from agent.barriers import Neighbour, Obstacle
 from agent.control import ControlParams, FormationView, build_rows, control_step
 from agent.qp import Row, qpsolvers_solver, solve_exact
-from leader.ellipse import Ellipse
+from geometry.ellipse import Ellipse
+from geometry.limits import BURGER_MAX_SPEED, BURGER_RADIUS
 
 logger = logging.getLogger(__name__)
 
@@ -256,7 +257,7 @@ def fleet_scenario(n: int, dt: float, duration: float):
         "name": f"bench-fleet-{n}",
         "dt": dt,
         "duration": duration,
-        "robot": {"model": "single_integrator", "max_speed": 0.22, "radius": 0.105},
+        "robot": {"model": "single_integrator", "max_speed": BURGER_MAX_SPEED, "radius": BURGER_RADIUS},
         "controller": {"kp": 2.0, "gamma": {"formation": 1.0, "obstacle": 0.8, "formations": 0.5},
                        "epsilon": 0.04},
         "formations": formations,

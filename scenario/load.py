@@ -22,7 +22,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from leader.ellipse import Ellipse, derive_axes, ellipse_value, estimate, reference_shape
+from geometry.ellipse import Ellipse, derive_axes, ellipse_value, estimate, reference_shape
+from geometry.unicycle import control_point
 
 from .model import (
     SINGLE_INTEGRATOR,
@@ -412,8 +413,8 @@ def _check_goals(s: Scenario) -> None:
 
 
 def _control_point(start: tuple[float, ...], offset: float) -> tuple[float, float]:
-    th = start[2] if len(start) > 2 else 0.0
-    return (start[0] + offset * math.cos(th), start[1] + offset * math.sin(th))
+    """The control point (eq. 6.2) of a start pose (x, y[, theta]); theta defaults to 0."""
+    return control_point(start[0], start[1], start[2] if len(start) > 2 else 0.0, offset)
 
 
 def _mapping(raw: Any, where: str, allowed: set[str]) -> Mapping[str, Any]:

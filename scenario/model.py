@@ -10,6 +10,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE, BURGER_RADIUS
+
 SINGLE_INTEGRATOR = "single_integrator"
 UNICYCLE = "unicycle"
 
@@ -17,10 +19,10 @@ UNICYCLE = "unicycle"
 @dataclass(frozen=True)
 class RobotModel:
     model: str = SINGLE_INTEGRATOR
-    max_speed: float = 0.22  # [m/s]
-    max_turn_rate: float = 2.84  # [rad/s], unicycle only
+    max_speed: float = BURGER_MAX_SPEED  # [m/s]
+    max_turn_rate: float = BURGER_MAX_TURN_RATE  # [rad/s], unicycle only
     lookahead: float = 0.05  # [m], l of chapter 6.2, unicycle only
-    radius: float = 0.105  # [m] body radius, for collision checks
+    radius: float = BURGER_RADIUS  # [m] body radius, for collision checks
 
     @property
     def is_unicycle(self) -> bool:

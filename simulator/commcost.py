@@ -55,6 +55,7 @@ from typing import Any
 
 import yaml
 
+from geometry.limits import BURGER_MAX_SPEED, BURGER_RADIUS
 from scenario import Scenario
 from scenario.load import scenario_from_dict
 from wire import keys
@@ -246,7 +247,7 @@ def crossing_scenario(formations: int, *, duration: float = DURATION, d_af: floa
         "dt": 0.05,
         "duration": float(duration),
         "goal_tolerance": 0.05,
-        "robot": {"model": "single_integrator", "max_speed": 0.22, "radius": 0.105},
+        "robot": {"model": "single_integrator", "max_speed": BURGER_MAX_SPEED, "radius": BURGER_RADIUS},
         "controller": {"kp": 2.0, "gamma": {"formation": 1.0, "obstacle": 1.0, "formations": 0.5},
                        "epsilon": 0.05, "d_af": float(d_af)},
         "formations": out,

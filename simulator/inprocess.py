@@ -2,7 +2,7 @@
 
 The data each robot sees is what the distributed system hands it: its neighbours' control
 points and last commands (their ``state``), the obstacles, and the ellipses its leader estimates
-from the members' states (:func:`leader.ellipse.estimate`). Kinematics are integrated exactly
+from the members' states (:func:`geometry.ellipse.estimate`). Kinematics are integrated exactly
 (single integrator, or the unicycle of eq. 6.1 when ``robot.model: unicycle``).
 """
 
@@ -19,7 +19,7 @@ from agent import unicycle
 from agent.barriers import Neighbour, Obstacle
 from agent.control import ControlParams, FormationView, Stall, control_step, update_stall
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
-from leader.ellipse import Ellipse, estimate, reference_shape
+from geometry.ellipse import Ellipse, estimate, reference_shape
 from scenario import Scenario, formation_axes
 
 from .metrics import SafetyMonitor

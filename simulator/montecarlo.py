@@ -19,6 +19,7 @@ from pathlib import Path
 
 import yaml
 
+from geometry.limits import BURGER_MAX_SPEED, BURGER_RADIUS
 from scenario import ScenarioError
 from scenario.load import scenario_from_dict
 
@@ -85,7 +86,7 @@ def random_scenario(seed: int) -> dict:
         "dt": 0.05,
         "duration": 150.0,
         "goal_tolerance": 0.05,
-        "robot": {"model": model, "max_speed": 0.22, "radius": 0.105},
+        "robot": {"model": model, "max_speed": BURGER_MAX_SPEED, "radius": BURGER_RADIUS},
         "controller": {"kp": 2.0, "gamma": {"formation": 1.0, "obstacle": 0.8, "formations": 0.5},
                        "epsilon": 0.05},
         "formations": formations,
