@@ -29,7 +29,6 @@ timeout and is then not waited for until it speaks again. ``summary.json`` gains
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import math
@@ -49,14 +48,13 @@ import zenoh
 
 from agent.config import ZenohSettings, build_agent_configs, save_config
 from agent.faults import LinkFaults
-from scenario import Scenario, load_scenario
+from scenario import Scenario
 from wire import acl, keys, traffic
 from wire.testing import free_tcp_port, tcp_endpoint, wait_for_tcp_port
 from wire.zconf import UsrPwdAuth
 from wire.zconf import ZenohSettings as WireZenohSettings
 
 from .inprocess import Series
-from .output import write_run
 from .world import World, WorldOptions, WorldResult
 
 logger = logging.getLogger(__name__)
@@ -234,49 +232,6 @@ def _signal_group(pid: int, sig: int) -> None:
 
 def _raise_interrupt(signum: int, _frame: FrameType | None) -> None:
     raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
-
-
-def run_command(ns: argparse.Namespace) -> int:
-    """``formation run``; see the module docstring. Returns the exit status."""
-    from formation.cli import EXIT_OK, Progress, UsageError, print_summary
-
-    try:
-        faults = FaultPlan(
-            drop=ns.drop, delay_ms=ns.delay_ms, seed=getattr(ns, "fault_seed", 0),
-            kills=tuple(parse_kill(k) for k in getattr(ns, "kill", None) or ()),
-            camera_dropouts=tuple(parse_camera_dropout(c)
-                                  for c in getattr(ns, "camera_dropout", None) or ()),
-        )
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    if ns.camera == "synthetic":
-        try:
-            import camera_service.service  # noqa: F401
-        except ImportError:
-            raise UsageError("--camera synthetic: camera_service.service is not available yet") from None
-    if not 0 <= ns.port < 65536:
-        raise UsageError(f"--port: {ns.port} is not a TCP port")
-    slots = getattr(ns, "pose_slots", 1)
-    if slots < 1:
-        raise UsageError(f"--pose-slots: need an integer >= 1, got {slots}")
-    if slots > 1 and not (ns.realtime and ns.camera == "truth"):
-        raise UsageError("--pose-slots: more than one slot needs --realtime and --camera truth")
-    scenario = load_scenario(ns.scenario)  # ScenarioError -> exit 2
-    try:
-        faults.check_robots(scenario.robot_ids)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    out = Path(ns.out)
-    summary, series = launch(scenario, out, realtime=ns.realtime, camera=ns.camera,
-                             topology=ns.topology, safety=not ns.no_safety, port=ns.port,
-                             progress_factory=lambda: Progress(f"run {scenario.name}", quiet=ns.quiet),
-                             faults=faults, secure=getattr(ns, "secure", False),
-                             pose_slots=slots)
-    write_run(summary, series, scenario, out, plots=not ns.no_plots)
-    print_summary(summary, out)
-    return EXIT_OK
-
-
 def launch(
     scenario: Scenario,
     out: Path,

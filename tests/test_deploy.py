@@ -29,11 +29,11 @@ import yaml
 import zenoh
 
 from deploy import deployer
-from deploy.cli import deploy_command
 from deploy.inventory import InventoryError, check_against_scenario, load_inventory
 from deploy.zenoh_config import bridge_config_dict, check_json5, zenoh_config_dict
 from formation.cli import UsageError
 from formation.cli import main as formation_main
+from formation.commands.deploy import deploy_command
 from scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
