@@ -5,20 +5,14 @@ from __future__ import annotations
 
 import json
 import logging
-import signal
 import statistics
-import threading
 import time
 from pathlib import Path
-from types import FrameType
 
 from experiments.fleet_scenario import fleet_scenario
 from experiments.machine import load_avg, machine_busy_s, percentile, proc_cpu_s, proc_rss_mb
 
 logger = logging.getLogger(__name__)
-
-def _raise_interrupt(signum: int, _frame: FrameType | None) -> None:
-    raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
 
 
 def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: bool = True,
@@ -33,10 +27,10 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
 
     use_zenoh_threads("relay")  # as `formation bench` does, for a direct call too
 
-    from agent.config import ZenohSettings, build_agent_configs, save_config
-    from simulator.launch import START_TIMEOUT_S, Supervisor
+    from agent.config import ZenohSettings, build_agent_configs
+    from simulator.fleet import START_TIMEOUT_S, Fleet
     from simulator.world import World, WorldOptions
-    from wire.testing import free_tcp_port, tcp_endpoint, wait_for_tcp_port
+    from wire.ports import free_tcp_port, tcp_endpoint
     from wire.zconf import ZenohSettings as WireZenohSettings
 
     scenario = fleet_scenario(n, dt, duration)
@@ -44,23 +38,12 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
         (work / sub).mkdir(parents=True, exist_ok=True)
     port = free_tcp_port()
     endpoint = tcp_endpoint(port)
-    sup = Supervisor(work / "logs")
-    previous = None
-    if threading.current_thread() is threading.main_thread():
-        previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     load_before = load_avg()
-    try:
-        router = sup.start("router", ["-m", "wire.router", "--listen", endpoint,
-                                      "--log-level", "WARNING"])
-        wait_for_tcp_port(port, timeout_s=START_TIMEOUT_S)
+    with Fleet(work / "logs") as fleet:
+        router = fleet.start_router(endpoint, port)
         zs = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False)
-        agents = {}
-        for rid, cfg in build_agent_configs(scenario, zenoh=zs).items():
-            path = work / "configs" / f"{rid}.yaml"
-            save_config(cfg, path)
-            agents[rid] = sup.start(f"agent-{rid}", [
-                "-m", "agent", "--config", str(path), "--stats", str(work / "agents" / f"{rid}.json"),
-                "--no-trace", *([] if tick_on_pose else ["--clock-ticks"])])
+        agents = fleet.start_agents(build_agent_configs(scenario, zenoh=zs), work,
+                                    lambda _rid: ["--no-trace", *([] if tick_on_pose else ["--clock-ticks"])])
         conf = WireZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
                                  connect_timeout_s=10.0).to_config()
         options = WorldOptions(realtime=True, stop_at_goal=False, record=False, pose_slots=pose_slots,
@@ -69,12 +52,12 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
         with zenoh.open(conf) as session:
             world = World(scenario, session, options)
             try:
-                world.wait_for_agents(abort=sup.check)
+                world.wait_for_agents(abort=fleet.check)
                 cpu0 = {rid: proc_cpu_s(pid) for rid, pid in pids.items()}
                 router_cpu0 = proc_cpu_s(router.proc.pid)
                 own0 = time.process_time()
                 busy0 = machine_busy_s()
-                result = world.run(abort=sup.check)
+                result = world.run(abort=fleet.check)
                 own_cpu = time.process_time() - own0
                 busy1 = machine_busy_s()
                 cpu1 = {rid: proc_cpu_s(pid) for rid, pid in pids.items()}
@@ -84,12 +67,7 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
             finally:
                 world.close()
         load_after = load_avg()
-        sup.stop(list(agents.values()))  # agents write their counters on SIGTERM
-        sup.stop([router])
-    finally:
-        sup.stop()
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        fleet.shut_down(list(agents.values()), router)
     stats = []
     for rid in agents:
         try:
