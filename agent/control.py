@@ -36,9 +36,8 @@ keeps going.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from time import perf_counter_ns
 from typing import NamedTuple
 
 from geometry.ellipse import Ellipse
@@ -330,6 +329,7 @@ def control_step(
     view: FormationView | None = None,
     solve=solve_exact,
     pairwise: Sequence[Neighbour] = (),
+    clock: Callable[[], int] | None = None,
 ) -> StepResult:
     """One tick for one robot.
 
@@ -337,6 +337,8 @@ def control_step(
     velocities with Df; ``obstacles`` carry Ds for the body (the look-ahead offset is added here
     for unicycles); ``others`` are the other formations' ellipses; ``pairwise`` are robots of
     other formations in the all-to-all baseline (eq. 3.5 rows instead of ellipses).
+    ``clock`` (e.g. ``time.perf_counter_ns``) times the QP for ``solve_us``; without one the step
+    reads no clock and ``solve_us`` is 0.
     """
     x, y, theta = pose
     p = params
@@ -356,13 +358,13 @@ def control_step(
     rows = build_rows(p, px, py, theta, (ux, uy), neighbours, obstacles, others, view, pairwise)
     limits, hard, soft = rows.limits, rows.hard, rows.soft
 
-    t0 = perf_counter_ns()
+    t0 = clock() if clock is not None else 0
     if p.safety:
         res = solve_cbf_qp(ux, uy, limits, hard, soft, solve)
     else:
         u = solve_exact(ux, uy, limits) or (0.0, 0.0)
         res = QPResult(u[0], u[1], STATUS_NOMINAL, 0.0, True)
-    solve_us = (perf_counter_ns() - t0) * 1e-3
+    solve_us = (clock() - t0) * 1e-3 if clock is not None else 0.0
 
     if p.unicycle:
         v, w = unicycle.to_unicycle(res.ux, res.uy, theta, p.lookahead)

@@ -686,7 +686,7 @@ class AgentNode:
             ellipses = [msg_to_ellipse(m) for m in others_msg.ellipses]
             pair = []
         res = control_step(cfg.control, (pose.x, pose.y, pose.theta), cfg.goal, nb, obs,
-                           ellipses, view, solve_exact, pair)
+                           ellipses, view, solve_exact, pair, clock=time.perf_counter_ns)
         self._put_cmd(Cmd(res.v, res.omega, res.ux, res.uy, stamp))
         self.last_u = (res.ux, res.uy)
         self.solves += 1

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import statistics
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -166,7 +167,8 @@ def simulate(
                 other_names=tuple(name for name in ellipses if name != fname),
                 retreating=stalls[i].retreat > 0.0,
             )
-            res = control_step(params, tuple(state[i]), goals[i], nb, obs, others, view, solve, pair)
+            res = control_step(params, tuple(state[i]), goals[i], nb, obs, others, view, solve, pair,
+                               clock=time.perf_counter_ns)
             results.append(res)
             solve_us.append(res.solve_us)
             if res.status in counts:
