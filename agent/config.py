@@ -21,6 +21,7 @@ from geometry.limits import BURGER_RADIUS
 from geometry.unicycle import control_point
 from leader.settings import LeaderSettings  # noqa: F401  (re-exported)
 from scenario import Scenario, formation_axes
+from wire.zconf import ZenohSettings
 
 from .control import ControlParams
 
@@ -30,12 +31,15 @@ BASES = ("world", "turtlebot3-humble", "turtlebot3-jazzy")
 STALE_PERIODS = 5  # inputs older than this many control periods are stale
 
 
-@dataclass(frozen=True)
-class ZenohSettings:
-    mode: str = "client"  # peer | client
-    connect: tuple[str, ...] = ()  # e.g. ("tcp/127.0.0.1:7447",)
-    listen: tuple[str, ...] = ()
-    multicast_scouting: bool = False
+# What an agent configuration file holds of its Zenoh settings; the agent's session adds its
+# connect timeout and credentials (command-line options) when it opens.
+AGENT_ZENOH_FIELDS = ("mode", "connect", "listen", "multicast_scouting")
+AGENT_ZENOH_MODE = "client"  # an agent's mode where its file names none
+
+
+def agent_zenoh(**fields: Any) -> ZenohSettings:
+    """The :class:`wire.zconf.ZenohSettings` of an agent: ``mode`` defaults to client."""
+    return ZenohSettings(**{"mode": AGENT_ZENOH_MODE, **fields})
 
 
 @dataclass(frozen=True)
@@ -56,7 +60,7 @@ class AgentConfig:
     leader: LeaderSettings | None = None  # set on the leader robot only
     stale_after: float = 0.25  # [s] inputs older than this are stale: command zero
     base: str = "world"  # where commands go: the simulated world or a real robot base
-    zenoh: ZenohSettings = field(default_factory=ZenohSettings)
+    zenoh: ZenohSettings = field(default_factory=agent_zenoh)
     cmd_vel_key: str = "cmd_vel"  # real bases: the zenoh-bridge-ros2dds key for /cmd_vel
     frame_id: str = "base_link"  # real bases (Jazzy TwistStamped): header frame
 
@@ -78,7 +82,7 @@ def build_agent_configs(
         raise ValueError(f"topology: {topology!r} is not one of {TOPOLOGIES}")
     if base not in BASES:
         raise ValueError(f"base: {base!r} is not one of {BASES}")
-    zenoh = zenoh or ZenohSettings()
+    zenoh = zenoh or agent_zenoh()
     params = ControlParams.from_scenario(scenario, safety=safety)
     off = scenario.robot.control_offset
     out: dict[str, AgentConfig] = {}
@@ -116,7 +120,12 @@ def build_agent_configs(
 
 
 def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
+    extra = [f.name for f in dataclasses.fields(cfg.zenoh)
+             if f.name not in AGENT_ZENOH_FIELDS and getattr(cfg.zenoh, f.name) is not None]
+    if extra:
+        raise ValueError(f"zenoh.{extra[0]}: not part of an agent configuration file")
     d = _plain(dataclasses.asdict(cfg))
+    d["zenoh"] = {k: d["zenoh"][k] for k in AGENT_ZENOH_FIELDS}
     d["version"] = CONFIG_VERSION
     return d
 
@@ -131,8 +140,11 @@ def config_from_dict(d: dict[str, Any]) -> AgentConfig:
         raise ValueError(f"version: expected {CONFIG_VERSION}, got {version!r}")
     try:
         control = ControlParams(**d.pop("control"))
-        zenoh = ZenohSettings(**{k: tuple(v) if isinstance(v, list) else v
-                                 for k, v in d.pop("zenoh", {}).items()})
+        zd = dict(d.pop("zenoh", {}))
+        unknown = sorted(set(zd) - set(AGENT_ZENOH_FIELDS))
+        if unknown:
+            raise TypeError(f"zenoh: unexpected field {unknown[0]!r}")
+        zenoh = agent_zenoh(**{k: tuple(v) if isinstance(v, list) else v for k, v in zd.items()})
         leader = d.pop("leader", None)
         if leader is not None:
             leader = LeaderSettings(

@@ -27,11 +27,11 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
 
     use_zenoh_threads("relay")  # as `formation bench` does, for a direct call too
 
-    from agent.config import ZenohSettings, build_agent_configs
+    from agent.config import build_agent_configs
     from simulator.fleet import START_TIMEOUT_S, Fleet
     from simulator.world import World, WorldOptions
     from wire.ports import free_tcp_port, tcp_endpoint
-    from wire.zconf import ZenohSettings as WireZenohSettings
+    from wire.zconf import ZenohSettings
 
     scenario = fleet_scenario(n, dt, duration)
     for sub in ("configs", "agents", "logs"):
@@ -44,7 +44,7 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
         zs = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False)
         agents = fleet.start_agents(build_agent_configs(scenario, zenoh=zs), work,
                                     lambda _rid: ["--no-trace", *([] if tick_on_pose else ["--clock-ticks"])])
-        conf = WireZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
+        conf = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
                                  connect_timeout_s=10.0).to_config()
         options = WorldOptions(realtime=True, stop_at_goal=False, record=False, pose_slots=pose_slots,
                                start_timeout=START_TIMEOUT_S + 4.0 * n)

@@ -41,13 +41,12 @@ from pathlib import Path
 
 import zenoh
 
-from agent.config import ZenohSettings, build_agent_configs
+from agent.config import build_agent_configs
 from agent.faults import LinkFaults
 from scenario import Scenario
 from wire import acl, keys, traffic
 from wire.ports import free_tcp_port, tcp_endpoint
-from wire.zconf import UsrPwdAuth
-from wire.zconf import ZenohSettings as WireZenohSettings
+from wire.zconf import UsrPwdAuth, ZenohSettings
 
 from .fleet import START_TIMEOUT_S, STOP_TIMEOUT_S, Child, ChildFailed, Fleet, signal_group
 from .inprocess import Series
@@ -195,7 +194,7 @@ def launch(
 
         agents = fleet.start_agents(configs, out, agent_args)
         fleet.write_pids(out / "processes.json")
-        conf = WireZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
+        conf = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
                                  connect_timeout_s=10.0,
                                  auth=None if creds is None else creds.world).to_config()
         options = WorldOptions(

@@ -174,7 +174,7 @@ def source_snapshot(tmp_path_factory: pytest.TempPathFactory) -> Path:
     snap = tmp_path_factory.mktemp("src")
     shutil.copy2(ROOT / "pyproject.toml", snap / "pyproject.toml")
     packages = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
-    for pkg in packages:
+    for pkg in (p for p in packages if "." not in p):  # a subpackage comes with its parent
         shutil.copytree(ROOT / pkg, snap / pkg, ignore=shutil.ignore_patterns("__pycache__"))
     return snap
 
