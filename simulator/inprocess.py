@@ -9,7 +9,6 @@ from the members' states (:func:`geometry.ellipse.estimate`). Kinematics are int
 from __future__ import annotations
 
 import math
-import statistics
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -24,6 +23,7 @@ from geometry.ellipse import Ellipse, estimate, reference_shape
 from scenario import Scenario, formation_axes
 
 from .metrics import SafetyMonitor
+from .summary import qp_fields, run_summary
 
 TOPOLOGIES = ("reduced", "all-to-all")
 
@@ -204,26 +204,13 @@ def simulate(
 
     edges_total = sum(len(f.edges) for f in scenario.formations)
     ticks = k + 1
-    summary = {
-        "scenario": scenario.name,
-        "mode": "inprocess",
-        "steps": ticks,
-        "sim_time_s": round(t, 6),
-        **monitor.summary_fields(),
-        "min_h": {key: (v if math.isfinite(v) else None) for key, v in min_h.items()},
-        "qp": {
-            "solves": len(solve_us),
-            "infeasible": counts[STATUS_RELAXED] + counts[STATUS_FALLBACK] + counts[STATUS_FAILED],
-            "solve_us_median": statistics.median(solve_us) if solve_us else None,
-            "relaxed": counts[STATUS_RELAXED],
-            "fallback": counts[STATUS_FALLBACK],
-            "failed": counts[STATUS_FAILED],
-        },
-        "comm": logical_comm(scenario, options.topology, ticks, t, edges_total),
-        "safety": options.safety,
-        "solver": options.solver,
-        "collision_log": monitor.collision_log[:100],
-    }
+    summary = run_summary(
+        scenario, "inprocess", ticks, t, monitor,
+        {key: (v if math.isfinite(v) else None) for key, v in min_h.items()},
+        qp_fields(len(solve_us), solve_us, counts[STATUS_RELAXED], counts[STATUS_FALLBACK],
+                  counts[STATUS_FAILED]),
+        logical_comm(scenario, options.topology, ticks, t, edges_total),
+        options.safety, options.solver)
     return SimResult(summary, series, scenario)
 
 

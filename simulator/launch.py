@@ -50,6 +50,7 @@ from wire.zconf import UsrPwdAuth, ZenohSettings
 
 from .fleet import START_TIMEOUT_S, STOP_TIMEOUT_S, Child, ChildFailed, Fleet, signal_group
 from .inprocess import Series
+from .summary import qp_fields, run_summary
 from .world import World, WorldOptions, WorldResult
 
 logger = logging.getLogger(__name__)
@@ -374,27 +375,13 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
         vals = [s["min_h"][kind] for s in stats if s["min_h"][kind] is not None]
         min_h[kind] = min(vals) if vals else None
     snap = traffic.merge([result.traffic, *(s["traffic"] for s in stats)])
-    summary = {
-        "scenario": scenario.name,
-        "mode": "multiprocess",
-        "steps": result.steps,
-        "sim_time_s": round(sim_time, 6),
-        **result.monitor.summary_fields(),
-        "min_h": min_h,
-        "qp": {
-            "solves": sum(s["solves"] for s in stats),
-            "infeasible": relaxed + fallback + failed,
-            "solve_us_median": statistics.median(solve_us) if solve_us else None,
-            "relaxed": relaxed,
-            "fallback": fallback,
-            "failed": failed,
-        },
-        "comm": comm_summary(snap, topology, n, sim_time),
-        "safety": safety,
-        "solver": "exact",
-        "realtime": realtime,
-        "camera": camera,
-        "agents": {
+    summary = run_summary(
+        scenario, "multiprocess", result.steps, sim_time, result.monitor, min_h,
+        qp_fields(sum(s["solves"] for s in stats), solve_us, relaxed, fallback, failed),
+        comm_summary(snap, topology, n, sim_time), safety, "exact",
+        realtime=realtime,
+        camera=camera,
+        agents={
             "ticks": sum(s["ticks"] for s in stats),
             "overruns": sum(s["overruns"] for s in stats),
             "stale": sum(s["stale"] for s in stats),
@@ -406,14 +393,13 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
             "tick_us_median": _median([s["tick_us_median"] for s in stats]),
             "pose_age_us_median": _median([s.get("pose_age_us_median") for s in stats]),
         },
-        "world": {
+        world={
             "missing_cmds": result.missing_cmds,
             "malformed_cmds": result.malformed_cmds,
             "wall_s": result.wall_s,
             "latency_ms": _latency(result.latency_ms),
         },
-        "collision_log": result.monitor.collision_log[:100],
-    }
+    )
     return summary, series
 
 
