@@ -80,11 +80,12 @@ from typing import Any
 
 import zenoh
 
-from agent.barriers import Neighbour, Obstacle
+from agent.barriers import Obstacle
 from agent.base import make_base
 from agent.config import AgentConfig
-from agent.control import FormationView, Stall, StepResult, control_step, update_stall
+from agent.control import Stall, StepResult, control_step
 from agent.faults import EPS, DelayLine, LinkFaults, lag
+from agent.inputs import step_inputs
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, solve_exact
 from agent.unicycle import control_point
 from leader.role import LeaderRole, ellipse_to_msg, msg_to_ellipse
@@ -425,8 +426,9 @@ class AgentNode:
         """Open, tick until ``stop`` is set, close."""
         self._stop = stop
         loop = asyncio.get_running_loop()
-        await loop.run_in_executor(None, self.open, loop)
         try:
+            # inside the try: a session opened by an open() that fails half-way is closed too
+            await loop.run_in_executor(None, self.open, loop)
             if self.options.lockstep:
                 await self._lockstep_loop()
             elif self.options.tick_on_pose:
@@ -645,50 +647,54 @@ class AgentNode:
         if t is not None:
             await self._wait_current(self._tick_inputs(state_keys), stamp)
 
-        # freshness of every input
+        fresh = self._fresh_inputs(state_keys, ts, others_ready)
+        if isinstance(fresh, str):
+            return self._zero(t, fresh)
+        states, obstacles, others_msg = fresh
+        obs = [Obstacle(o.x, o.y, o.vx, o.vy, o.ds) for o in obstacles.obstacles]
+        inputs = step_inputs(
+            ((states[k].x, states[k].y, states[k].ux, states[k].uy, df)
+             for k, df in self.neighbour_keys.items()),
+            None if others_msg.own is None else msg_to_ellipse(others_msg.own),
+            cfg.formation, cfg.formation_goal,
+            [(m.formation, msg_to_ellipse(m)) for m in others_msg.ellipses],
+            self._stall, cfg.period,  # the jam rule's memory
+            [(states[k].x, states[k].y, states[k].ux, states[k].uy) for k in self.foreign_keys]
+            if self.all_to_all else None,
+        )
+        self._stall = inputs.stall
+        res = control_step(cfg.control, (pose.x, pose.y, pose.theta), cfg.goal, inputs.neighbours,
+                           obs, inputs.others, inputs.view, solve_exact, inputs.pairwise,
+                           clock=time.perf_counter_ns)
+        self._put_cmd(Cmd(res.v, res.omega, res.ux, res.uy, stamp))
+        self.last_u = (res.ux, res.uy)
+        self._record(res, stamp)
+        return res
+
+    def _fresh_inputs(self, state_keys: tuple[str, ...], ts: float | None, others_ready: bool
+                      ) -> tuple[dict[str, State], Obstacles, Others] | str:
+        """Every input of the step if all are fresh (``ts``: lock-step reference stamp), else
+        the name of the first stale one (the reason counted for the zero command)."""
         states: dict[str, State] = {}
         for k in state_keys:
             entry = self._latest(keys.STATE, k)
             if not self._fresh(entry, ts):
-                return self._zero(t, "state")
+                return "state"
             states[k] = entry[0]
         obs_entry = self._latest(keys.OBSTACLES, self.obstacles_key)
         if not self._fresh(obs_entry, ts):
-            return self._zero(t, "obstacles")
+            return "obstacles"
         if self.role is not None:
             if not others_ready or self._own_others is None:
-                return self._zero(t, "ellipse")
-            others_msg = self._own_others
-        else:
-            entry = self._latest(keys.OTHERS, self.others_key)
-            if not self._fresh(entry, ts):
-                return self._zero(t, "others")
-            others_msg = entry[0]
+                return "ellipse"
+            return states, obs_entry[0], self._own_others
+        entry = self._latest(keys.OTHERS, self.others_key)
+        if not self._fresh(entry, ts):
+            return "others"
+        return states, obs_entry[0], entry[0]
 
-        nb = [Neighbour(states[k].x, states[k].y, states[k].ux, states[k].uy, df)
-              for k, df in self.neighbour_keys.items()]
-        obstacles: Obstacles = obs_entry[0]
-        obs = [Obstacle(o.x, o.y, o.vx, o.vy, o.ds) for o in obstacles.obstacles]
-        view = None
-        if others_msg.own is not None:
-            view = FormationView(msg_to_ellipse(others_msg.own), *cfg.formation_goal)
-            self._stall = update_stall(self._stall, view, cfg.period)  # the jam rule's memory
-            view = view._replace(
-                name=cfg.formation,
-                other_names=tuple(m.formation for m in others_msg.ellipses),
-                retreating=self._stall.retreat > 0.0,
-            )
-        if self.all_to_all:
-            ellipses = []
-            pair = [Neighbour(states[k].x, states[k].y, states[k].ux, states[k].uy, 0.0)
-                    for k in self.foreign_keys]
-        else:
-            ellipses = [msg_to_ellipse(m) for m in others_msg.ellipses]
-            pair = []
-        res = control_step(cfg.control, (pose.x, pose.y, pose.theta), cfg.goal, nb, obs,
-                           ellipses, view, solve_exact, pair, clock=time.perf_counter_ns)
-        self._put_cmd(Cmd(res.v, res.omega, res.ux, res.uy, stamp))
-        self.last_u = (res.ux, res.uy)
+    def _record(self, res: StepResult, stamp: float) -> None:
+        """Count a solved step: statuses, lowest barrier values, solve time, trace row."""
         self.solves += 1
         self.solve_us.append(res.solve_us)
         if res.status in self.status_counts:
@@ -700,7 +706,6 @@ class AgentNode:
             self.trace.append((stamp, res.px, res.py, res.ux, res.uy, res.v, res.omega, res.status,
                                res.slack, res.h_formation, res.h_obstacle, res.h_formations,
                                res.solve_us))
-        return res
 
     def _tick_inputs(self, state_keys: tuple[str, ...]) -> list[tuple[str, str]]:
         inputs = [(keys.STATE, k) for k in state_keys]

@@ -16,10 +16,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from agent import unicycle
-from agent.barriers import Neighbour, Obstacle
-from agent.control import ControlParams, FormationView, Stall, control_step, update_stall
+from agent.barriers import Obstacle
+from agent.control import ControlParams, Stall, control_step
+from agent.inputs import step_inputs
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
-from geometry.ellipse import Ellipse, estimate, reference_shape
+from geometry.ellipse import estimate, reference_shape
 from scenario import Scenario, formation_axes
 
 from .metrics import SafetyMonitor
@@ -150,24 +151,17 @@ def simulate(
         results = []
         for i in range(n):
             fname = fleet.formation_of[i]
-            nb = [Neighbour(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], df)
-                  for j, df in fleet.neighbours[i]]
-            if all_to_all:
-                others: list[Ellipse] = []
-                pair = [Neighbour(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], 0.0)
-                        for j in range(n) if fleet.formation_of[j] != fname]
-            else:
-                others = [e for name, e in ellipses.items() if name != fname]
-                pair = []
-            gc = goal_centroids[fname]
-            view = FormationView(ellipses[fname], gc[0], gc[1])
-            stalls[i] = update_stall(stalls[i], view, dt)
-            view = view._replace(
-                name=fname,
-                other_names=tuple(name for name in ellipses if name != fname),
-                retreating=stalls[i].retreat > 0.0,
+            inputs = step_inputs(
+                ((ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], df) for j, df in fleet.neighbours[i]),
+                ellipses[fname], fname, goal_centroids[fname],
+                [(name, e) for name, e in ellipses.items() if name != fname],
+                stalls[i], dt,
+                [(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1])
+                 for j in range(n) if fleet.formation_of[j] != fname] if all_to_all else None,
             )
-            res = control_step(params, tuple(state[i]), goals[i], nb, obs, others, view, solve, pair,
+            stalls[i] = inputs.stall
+            res = control_step(params, tuple(state[i]), goals[i], inputs.neighbours, obs,
+                               inputs.others, inputs.view, solve, inputs.pairwise,
                                clock=time.perf_counter_ns)
             results.append(res)
             solve_us.append(res.solve_us)
