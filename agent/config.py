@@ -149,22 +149,22 @@ def config_from_dict(d: dict[str, Any]) -> AgentConfig:
         if leader is not None:
             leader = LeaderSettings(
                 members=tuple(leader["members"]),
-                offsets=tuple(tuple(map(float, o)) for o in leader["offsets"]),
+                offsets=tuple(tuple(map(float, o)) for o in leader["offsets"]),  # type: ignore[misc]
                 alpha0=float(leader["alpha0"]),
-                axes=tuple(map(float, leader["axes"])),
+                axes=tuple(map(float, leader["axes"])),  # type: ignore[arg-type]
                 other_formations=tuple(leader["other_formations"]),
             )
         cfg = AgentConfig(
             robot_id=str(d.pop("robot_id")),
             formation=str(d.pop("formation")),
             leader_id=str(d.pop("leader_id")),
-            goal=tuple(map(float, d.pop("goal"))),
-            formation_goal=tuple(map(float, d.pop("formation_goal"))),
+            goal=tuple(map(float, d.pop("goal"))),  # type: ignore[arg-type]
+            formation_goal=tuple(map(float, d.pop("formation_goal"))),  # type: ignore[arg-type]
             neighbours=tuple((str(n), float(df)) for n, df in d.pop("neighbours")),
             control=control,
             period=float(d.pop("period")),
             radius=float(d.pop("radius", BURGER_RADIUS)),
-            start=None if d.get("start") is None else tuple(map(float, d.pop("start"))),
+            start=None if d.get("start") is None else tuple(map(float, d.pop("start"))),  # type: ignore[arg-type]
             prefix=str(d.pop("prefix", "warehouse")),
             topology=str(d.pop("topology", "reduced")),
             foreign_robots=tuple(d.pop("foreign_robots", ())),

@@ -76,12 +76,12 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeGuard
 
 import zenoh
 
 from agent.barriers import Obstacle
-from agent.base import make_base
+from agent.base import Base, make_base
 from agent.config import AgentConfig
 from agent.control import Stall, StepResult, control_step
 from agent.faults import EPS, DelayLine, LinkFaults, lag
@@ -247,7 +247,7 @@ class AgentNode:
         self._subs: list[Any] = []
         self._rings: list[tuple[Any, Callable[[zenoh.Sample], None]]] = []  # polled subscribers
         self._pubs: dict[str, CountingPublisher] = {}
-        self._base = None  # a real robot base adapter (agent.base), when cfg.base is not "world"
+        self._base: Base | None = None  # a real robot base adapter (agent.base), when cfg.base is not "world"
         self._stall = Stall()  # this member's copy of its formation's jam state
         self._boxes: dict[str, Mailbox] = {}
         self._arrived: asyncio.Event | None = None
@@ -334,6 +334,7 @@ class AgentNode:
             return on_sample
 
         wildcard_cap = RING_CAPACITY * max(1, len(self.foreign_keys) + len(self.neighbour_keys))
+        sub: Any
         for k, cls in self.subscribed_keys.items():
             if polled and cls != keys.POSE:
                 cap = wildcard_cap if (self.all_to_all and cls == keys.STATE) else RING_CAPACITY
@@ -580,7 +581,7 @@ class AgentNode:
         box = self._boxes.get(cls)
         return None if box is None else box.latest(key)
 
-    def _fresh(self, entry: tuple[Any, float] | None, t: float | None) -> bool:
+    def _fresh(self, entry: tuple[Any, float] | None, t: float | None) -> TypeGuard[tuple[Any, float]]:
         """Whether a (message, receive time) entry is fresh for the tick at pose stamp ``t``."""
         if entry is None:
             return False
@@ -626,7 +627,8 @@ class AgentNode:
             self._put_cmd(Cmd(0.0, 0.0, 0.0, 0.0, self.last_stamp if t is None else t))
             return None
         if not self._fresh(pose_entry, t) or (t is not None and pose_entry[0].stamp < t - EPS):
-            return self._zero(t, "pose")  # lock-step: no pose in this frame (camera dropout)
+            self._zero(t, "pose")  # lock-step: no pose in this frame (camera dropout)
+            return None
         pose: Pose = pose_entry[0]
         if t is None:
             self.pose_age_us.append((time.monotonic() - pose_entry[1]) * 1e6)
@@ -649,7 +651,8 @@ class AgentNode:
 
         fresh = self._fresh_inputs(state_keys, ts, others_ready)
         if isinstance(fresh, str):
-            return self._zero(t, fresh)
+            self._zero(t, fresh)
+            return None
         states, obstacles, others_msg = fresh
         obs = [Obstacle(o.x, o.y, o.vx, o.vy, o.ds) for o in obstacles.obstacles]
         inputs = step_inputs(

@@ -99,8 +99,9 @@ def _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, own_cpu, router, loads,
         return statistics.median(vals) if vals else None
 
     p50 = statistics.median(lat) if lat else None
-    pose_wait = None if med("pose_age_us_median") is None else med("pose_age_us_median") / 1e3
-    tick = None if med("tick_us_median") is None else med("tick_us_median") / 1e3
+    pose_age, tick_us = med("pose_age_us_median"), med("tick_us_median")
+    pose_wait = None if pose_age is None else pose_age / 1e3
+    tick = None if tick_us is None else tick_us / 1e3
     transport = None
     if p50 is not None and pose_wait is not None and tick is not None:
         transport = p50 - pose_wait - tick

@@ -141,7 +141,7 @@ def bench_solvers(instances, repeat: int, backends: Sequence[str]) -> dict:
         }
     exact = out["exact"]["solve_us_median"]
     for name in out:
-        out[name]["ratio_vs_exact"] = out[name]["solve_us_median"] / exact
+        out[name]["ratio_vs_exact"] = out[name]["solve_us_median"] / exact  # type: ignore[operator]
     return out
 
 
@@ -181,7 +181,7 @@ def bench_step(n: int, backends: Sequence[str] = BACKENDS) -> dict:
         except ValueError:
             continue
         k = max(20, n // 100)
-        solve[name] = statistics.median(timed(lambda fn=fn: fn(nux, nuy, qp_rows), k))
+        solve[name] = statistics.median(timed(lambda fn=fn: fn(nux, nuy, qp_rows), k))  # type: ignore[misc]
     return {
         "step_us_median": statistics.median(full),
         "step_us_p99": percentile(full, 0.99),

@@ -45,7 +45,8 @@ def fleet_snapshot(scenario, speed: float = 0.2) -> tuple[ControlParams, list[Ro
     ctrl = [(r.start[0], r.start[1]) for r in robots]
     vel = [(speed, 0.0)] * len(robots)
     ellipses = fleet.ellipses(ctrl, vel)
-    obs = [Obstacle(*o.center, *o.velocity, o.safe_distance) for o in scenario.obstacles]
+    obs = [Obstacle(o.center[0], o.center[1], o.velocity[0], o.velocity[1], o.safe_distance)
+           for o in scenario.obstacles]
     inputs = []
     for i, r in enumerate(robots):
         fname = fleet.formation_of[i]
@@ -171,8 +172,12 @@ def bench_central(sizes: Sequence[int], backends: Sequence[str], repeat: int,
         steps = all_steps()
         nominal = [(s.nominal_ux, s.nominal_uy) for s in steps]
         dist_times = timed(all_steps, repeat)
-        build_times = timed(lambda params=params, inputs=inputs, fo=formation_of, e=edges,
-                             nom=nominal: central_problem(params, inputs, fo, e, nom), repeat)
+        def build(params: ControlParams = params, inputs: list[RobotInputs] = inputs,
+                  fo: list[str] = formation_of, e: list = edges,
+                  nom: list[tuple[float, float]] = nominal) -> object:
+            return central_problem(params, inputs, fo, e, nom)
+
+        build_times = timed(build, repeat)
         pm, q, g, h = central_problem(params, inputs, formation_of, edges, nominal)
         entry: dict = {
             "robots": n, "variables": 2 * n, "rows": int(g.shape[0]), "nonzeros": int(g.nnz),

@@ -20,7 +20,7 @@ from agent.barriers import Obstacle
 from agent.control import ControlParams, Stall, control_step
 from agent.inputs import step_inputs
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
-from geometry.ellipse import estimate, reference_shape
+from geometry.ellipse import ReferenceShape, estimate, reference_shape
 from scenario import Scenario, formation_axes
 
 from .metrics import SafetyMonitor
@@ -66,7 +66,7 @@ class FleetModel:
 
     scenario: Scenario
     params: ControlParams
-    shapes: dict[str, object]
+    shapes: dict[str, ReferenceShape]
     axes: dict[str, tuple[float, float]]
     members: dict[str, tuple[int, ...]]  # formation -> robot indices
     neighbours: tuple[tuple[tuple[int, float], ...], ...]  # per robot: (index, Df)
@@ -160,7 +160,8 @@ def simulate(
                  for j in range(n) if fleet.formation_of[j] != fname] if all_to_all else None,
             )
             stalls[i] = inputs.stall
-            res = control_step(params, tuple(state[i]), goals[i], inputs.neighbours, obs,
+            pose = (state[i][0], state[i][1], state[i][2])
+            res = control_step(params, pose, goals[i], inputs.neighbours, obs,
                                inputs.others, inputs.view, solve, inputs.pairwise,
                                clock=time.perf_counter_ns)
             results.append(res)

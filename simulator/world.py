@@ -278,7 +278,7 @@ class World:
         for rid, pub in zip(self.ids, self._pose_pubs, strict=True):
             if robots is not None and rid not in robots:
                 continue
-            while not pub.publisher.matching_status.matching:
+            while not pub.publisher.matching_status.matching:  # type: ignore[attr-defined]
                 abort()
                 if time.monotonic() > deadline:
                     raise TimeoutError(f"agent {rid} did not subscribe to its pose within "
@@ -292,7 +292,7 @@ class World:
         timeout passed first."""
         pub = self._pose_pubs[self.ids.index(rid)]
         deadline = time.monotonic() + timeout
-        while pub.publisher.matching_status.matching:
+        while pub.publisher.matching_status.matching:  # type: ignore[attr-defined]
             if time.monotonic() > deadline:
                 return False
             time.sleep(0.01)
@@ -314,7 +314,8 @@ class World:
         dt = sc.dt
         is_uni = sc.robot.is_unicycle
         off = sc.robot.control_offset
-        state = [tuple(r.start) for r in sc.robots]
+        state: list[tuple[float, float, float]] = [
+            (r.start[0], r.start[1], r.start[2]) for r in sc.robots]
         n = len(state)
         monitor = SafetyMonitor(sc)
         series = Series()

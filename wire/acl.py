@@ -179,7 +179,7 @@ def write_fleet_files(scenario_path: str | os.PathLike[str], folder: str | os.Pa
     (plus ``camera.credentials``) for a scenario's fleet, with fresh passwords, in ``folder``."""
     from scenario import load_scenario
 
-    sc = load_scenario(scenario_path)
+    sc = load_scenario(Path(scenario_path))
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
     out.chmod(0o700)
