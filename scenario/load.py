@@ -86,7 +86,7 @@ def scenario_from_dict(data: Any) -> Scenario:
     duration = _positive(top.get("duration", 120.0), "duration")
     if duration < dt:
         raise ScenarioError(f"duration: {duration} s is shorter than one control period dt={dt} s")
-    if duration / dt > limits.MAX_TICKS:
+    if math.ceil(duration / dt - 1e-9) > limits.MAX_TICKS:  # Scenario.steps
         raise ScenarioError(
             f"duration: {excerpt(duration)} s is {duration / dt:.3g} control periods of dt={dt} s,"
             f" more than {limits.MAX_TICKS:,} (shorten it or lengthen dt)"
@@ -190,8 +190,8 @@ def _formation(raw: Any, where: str, robot: RobotModel, seen: dict[str, str]) ->
     _count(raw_robots, f"{where}.robots", limits.MAX_FORMATION_ROBOTS)
     robots = []
     for rid, spec in raw_robots.items():
-        rwhere = f"{where}.robots.{_label(rid)}"
-        rid = _identifier(rid, rwhere)
+        rid = _identifier(rid, f"{where}.robots")
+        rwhere = f"{where}.robots.{rid}"
         if rid in seen:
             raise ScenarioError(f"{rwhere}: robot {rid!r} is already in formation {seen[rid]!r}")
         seen[rid] = name
@@ -559,8 +559,3 @@ def _title(raw: Any, where: str) -> str:
         raise ScenarioError(f"{where}: {excerpt(s)} must be printable and at most 128 "
                             "characters")
     return s
-
-
-def _label(key: Any) -> str:
-    """A mapping key as part of a message's path: itself when short, else an excerpt."""
-    return key if isinstance(key, str) and len(key) <= 64 else excerpt(key)

@@ -219,8 +219,9 @@ def load_yaml(text: str, source: str = "<scenario>") -> Any:
     if len(text) > MAX_FILE_BYTES:
         raise ScenarioError(f"{source}: {len(text)} characters, more than the {MAX_FILE_BYTES}"
                             " a scenario may have")
-    loader = ScenarioLoader(text)
+    loader = None
     try:
+        loader = ScenarioLoader(text)  # the reader checks every character here
         return loader.get_single_data()
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
@@ -236,4 +237,5 @@ def load_yaml(text: str, source: str = "<scenario>") -> Any:
     except RecursionError:  # a guard: MAX_DEPTH keeps the composer far from the limit
         raise ScenarioError(f"{source}: refused: nested too deeply") from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
