@@ -273,7 +273,7 @@ def fleet(n: int) -> dict:
     fleets: nobody in anybody's way."""
     formations = []
     for f in range(n // 4):
-        x0, y0 = (f % 16) * 2.0, (f // 16) * 1.5
+        x0, y0 = (f % 16) * 1.2, (f // 16) * 0.9  # neighbours near each formation's ellipse
         ids = [f"f{f}r{i}" for i in range(4)]
         pts = [(x0, y0), (x0 + 0.5, y0), (x0 + 0.5, y0 + 0.25), (x0, y0 + 0.25)]
         formations.append({
@@ -311,6 +311,7 @@ def test_validation_work_grows_linearly_with_the_robots(monkeypatch):
         s = load_module.scenario_from_dict(fleet(n))
         assert len(s.robots) == n
         totals[n] = dict(work)
+    assert totals[200]["pairs"] > 0 and totals[200]["ellipse"] > 0  # both checks ran
     for key in work:
         assert totals[800][key] <= 4.5 * max(totals[200][key], 1), (key, totals)
         assert totals[800][key] <= 20 * 800, (key, totals)  # a bounded amount per robot
@@ -318,18 +319,19 @@ def test_validation_work_grows_linearly_with_the_robots(monkeypatch):
 
 def test_overlapping_starts_are_still_found_by_the_grid():
     d = fleet(8)
-    d["formations"][1]["robots"]["f1r0"]["start"] = [0.5, 0.1]  # on top of f0r1 (0.5, 0)
-    with pytest.raises(ScenarioError, match="closer than two body radii"):
+    # 0.14 m from f0r1 at (0.5, 0), in the next cell of the 0.21 m grid
+    d["formations"][1]["robots"]["f1r0"]["start"] = [0.64, -0.0]
+    with pytest.raises(ScenarioError, match="robots 'f0r1' and 'f1r0' start 0.140 m apart"):
         load_module.scenario_from_dict(d)
     d = fleet(8)
-    assert math.isclose(load_module.scenario_from_dict(d).robots[4].start[0], 2.0)
+    assert math.isclose(load_module.scenario_from_dict(d).robots[4].start[0], 1.2)
 
 
-def test_a_start_inside_another_formations_ellipse_is_found_by_the_grid_far_from_the_origin():
+def test_a_start_inside_another_formations_ellipse_is_found_by_the_grid():
     d = fleet(128)
     d["formations"].append({"name": "intruder", "leader": "x1",
-                            "robots": {"x1": {"start": [20.25, 1.625], "goal": [20.25, 90.0]},
-                                       "x2": {"start": [20.25, 1.125], "goal": [20.25, 89.5]}},
+                            "robots": {"x1": {"start": [12.25, 1.525], "goal": [12.25, 90.0]},
+                                       "x2": {"start": [12.25, 1.025], "goal": [12.25, 89.5]}},
                             "edges": [["x1", "x2"]]})
     with pytest.raises(ScenarioError, match="inside the ellipse of formation 'f26'"):
         load_module.scenario_from_dict(d)
