@@ -20,6 +20,7 @@ import scenario.load as load_module
 from deploy.inventory import InventoryError, parse_inventory
 from formation.cli import main
 from scenario import ScenarioError, limits, load_scenario, parse_scenario, reader
+from scenario.bench import fleet_mapping as fleet
 from scenario.reader import MAX_FILE_BYTES, excerpt
 from wire import acl, keys
 
@@ -275,27 +276,6 @@ def test_a_name_the_scenario_accepts_is_one_run_and_deploy_accept(name):
 # ------------------------------------------------------------------------- linear work
 
 
-def fleet(n: int) -> dict:
-    """``n`` robots (a multiple of 4) as n/4 rectangles in a grid of lanes, as the benchmark's
-    fleets: nobody in anybody's way."""
-    formations = []
-    for f in range(n // 4):
-        x0, y0 = (f % 16) * 1.2, (f // 16) * 0.9  # neighbours near each formation's ellipse
-        ids = [f"f{f}r{i}" for i in range(4)]
-        pts = [(x0, y0), (x0 + 0.5, y0), (x0 + 0.5, y0 + 0.25), (x0, y0 + 0.25)]
-        formations.append({
-            "name": f"f{f}", "leader": ids[1],
-            "robots": {r: {"start": list(p), "goal": [p[0] + 40.0, p[1]]}
-                       for r, p in zip(ids, pts, strict=True)},
-            "edges": [[ids[0], ids[1]], [ids[0], ids[3]], [ids[1], ids[2]], [ids[1], ids[3]],
-                      [ids[2], ids[3]]]})
-    return {"name": f"fleet-{n}", "dt": 0.05, "duration": 10.0,
-            "robot": {"max_speed": 0.22, "radius": 0.105},
-            "controller": {"kp": 2.0, "gamma": 1.0, "epsilon": 0.04},
-            "formations": formations,
-            "obstacles": [{"name": "o1", "center": [-3.0, -3.0], "safe_distance": 0.35}]}
-
-
 def test_validation_work_grows_linearly_with_the_robots(monkeypatch):
     """Counts the inner checks between robots (pair distances and ellipse tests) and the robot
     lookups by id: 4 times the robots is at most about 4 times the work."""
@@ -347,3 +327,50 @@ def test_a_start_inside_another_formations_ellipse_is_found_by_the_grid():
 def test_load_scenario_reports_a_missing_file_in_one_line(tmp_path):
     with pytest.raises(ScenarioError, match="cannot read"):
         load_scenario(tmp_path / "missing.yaml")
+
+
+# ------------------------------------------------------------------------- --out (issue 12)
+
+
+def test_an_out_that_is_a_file_or_under_a_file_is_exit_2_before_any_work(tmp_path, capsys):
+    scenario_file = _write(tmp_path, GOOD)
+    a_file = tmp_path / "taken"
+    a_file.write_text("x")
+    for out, fragment in ((a_file, "exists and is not a folder"),
+                          (a_file / "sub", "is not a folder")):
+        for argv in (["sim", str(scenario_file), "--out", str(out), "--quiet"],
+                     ["run", str(scenario_file), "--out", str(out), "--quiet"],
+                     ["montecarlo", "--n", "1", "--out", str(out)]):
+            assert main(argv) == 2
+            line = _one_line(capsys)
+            assert "--out" in line and fragment in line
+    assert a_file.read_text() == "x"
+
+
+def test_an_out_on_a_read_only_place_is_exit_2(tmp_path, capsys):
+    scenario_file = _write(tmp_path, GOOD)
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    try:
+        probe = locked / "probe"
+        try:
+            probe.write_text("x")  # root may write anyway: then only /proc is left to try
+            probe.unlink()
+            out = Path("/proc/formation-out-check")
+        except OSError:
+            out = locked
+        assert main(["sim", str(scenario_file), "--out", str(out), "--quiet"]) == 2
+        line = _one_line(capsys)
+        assert "--out" in line and ("not writable" in line or "cannot be created" in line)
+    finally:
+        locked.chmod(0o700)
+
+
+def test_a_valid_out_is_accepted_and_not_created_by_the_check(tmp_path):
+    from formation.outdir import out_problem
+
+    assert out_problem(tmp_path / "new" / "deeper") is None
+    assert not (tmp_path / "new").exists()
+    assert out_problem(tmp_path) is None
+    assert list(tmp_path.iterdir()) == []  # the write probe left nothing
