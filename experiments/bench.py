@@ -1,6 +1,6 @@
 """``formation bench``: how fast the control step, the QP and the multi-process fleet are.
 
-Five measurements, written to ``bench.json`` and as a table (``bench.txt`` and stdout):
+Six measurements, written to ``bench.json`` and as a table (``bench.txt`` and stdout):
 
 * **step**: one robot's full control step (:func:`agent.control.control_step`: nominal command,
   barrier rows, QP) for a robot of a 4-robot formation with 2 obstacles and 3 other formations
@@ -26,6 +26,8 @@ Five measurements, written to ``bench.json`` and as a table (``bench.txt`` and s
   stale ticks (zero commands) by the input that was stale.
 * **inprocess**: simulation throughput (robot-steps per second) of ``formation sim`` on the
   warehouse scenario.
+* **scenario_loading**: validating and loading 100- and 1,000-robot fleet files
+  (:mod:`scenario.bench`).
 
 Definitions: the latency of a command is ``receive time - stamp`` of the pose it was computed
 from, both on this machine's wall clock (the world stamps poses with ``time.time()``). A *missed
@@ -58,6 +60,7 @@ from experiments.agents import bench_agents
 from experiments.central import CENTRAL_BACKENDS, bench_central
 from experiments.machine import load_avg, percentile, timed
 from geometry.ellipse import Ellipse
+from scenario.bench import QUICK_SIZES, SIZES, bench_loading, format_loading
 
 logger = logging.getLogger(__name__)
 
@@ -225,6 +228,7 @@ def run_bench(quick: bool = False, scenario: Path = DEFAULT_SCENARIO,
     central = bench_central((8,) if quick else (8, 32, 128), CENTRAL_BACKENDS,
                             repeat=3 if quick else 15)
     inproc = bench_inprocess(scenario, 10.0 if quick else None)
+    loading = bench_loading(QUICK_SIZES if quick else SIZES, repeat=1 if quick else 5)
     fleets = QUICK_FLEETS if quick else FLEETS
     duration = QUICK_DURATION if quick else FLEET_DURATION
     agents = {}
@@ -250,6 +254,7 @@ def run_bench(quick: bool = False, scenario: Path = DEFAULT_SCENARIO,
         "agents_pose_slots": slots,
         "agents_clock_ticks": clock,
         "inprocess": inproc,
+        "scenario_loading": loading,
     }
 
 
@@ -315,6 +320,8 @@ def format_table(result: dict) -> str:
     lines.append(f"in-process simulation, {ip['scenario']} ({ip['robots']} robots, {ip['ticks']} "
                  f"ticks): {ip['robot_steps_per_s']:.0f} robot-steps/s wall, "
                  f"{_f(ip['robot_steps_per_cpu_s'], '.0f')} per CPU second")
+    if "scenario_loading" in result:
+        lines.append(format_loading(result["scenario_loading"]))
     lines.append(f"machine: {result['machine']['cpus']} CPUs, load average "
                  f"{_f(result['machine']['load_avg_1min_at_start'])} at start")
     return "\n".join(lines)

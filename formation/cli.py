@@ -116,11 +116,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=logging.DEBUG if ns.verbose else logging.WARNING,
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
     )
+    from formation.outdir import check_out
     from scenario import ScenarioError
     from wire.zconf import use_zenoh_threads
 
     use_zenoh_threads("relay")  # this process (world, bench); agents and routers set their own
     try:
+        check_out(ns.command, getattr(ns, "out", None))  # a bad --out: exit 2 before any work
         return COMMANDS[ns.command](ns)
     except (ScenarioError, UsageError) as exc:
         print(f"formation {ns.command}: error: {exc}", file=sys.stderr)

@@ -7,6 +7,7 @@ adjacent to every member and a start that satisfies every constraint.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -125,25 +126,25 @@ class Scenario:
     formations: tuple[FormationSpec, ...]
     obstacles: tuple[ObstacleSpec, ...]
 
-    @property
+    # Derived once per instance (the fields are frozen; dataclasses.replace makes a new one):
+    # lookups by robot id are dict lookups, not scans of every robot.
+    @functools.cached_property
     def robots(self) -> tuple[RobotSpec, ...]:
         return tuple(r for f in self.formations for r in f.robots)
 
-    @property
+    @functools.cached_property
     def robot_ids(self) -> tuple[str, ...]:
         return tuple(r.id for r in self.robots)
 
+    @functools.cached_property
+    def _by_id(self) -> dict[str, tuple[RobotSpec, FormationSpec]]:
+        return {r.id: (r, f) for f in self.formations for r in f.robots}
+
     def formation_of(self, robot_id: str) -> FormationSpec:
-        for f in self.formations:
-            if robot_id in f.robot_ids:
-                return f
-        raise KeyError(robot_id)
+        return self._by_id[robot_id][1]
 
     def robot_spec(self, robot_id: str) -> RobotSpec:
-        for r in self.robots:
-            if r.id == robot_id:
-                return r
-        raise KeyError(robot_id)
+        return self._by_id[robot_id][0]
 
     @property
     def steps(self) -> int:

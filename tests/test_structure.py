@@ -14,9 +14,9 @@ ROOT = Path(__file__).resolve().parents[1]
 # package -> the project packages it may import (anything not listed is forbidden)
 ALLOWED = {
     "geometry": set(),
-    "wire": {"geometry", "scenario"},  # wire.acl reads a scenario for its command line
+    "wire": {"geometry"},
     "leader": {"geometry", "wire"},
-    "scenario": {"geometry"},
+    "scenario": {"geometry", "wire"},  # the one name rule is the key space's (wire.keys)
     "agent": {"geometry", "leader", "scenario", "wire"},
     "camera_service": {"geometry", "scenario", "wire"},
     "simulator": {"geometry", "agent", "leader", "scenario", "wire", "camera_service"},
@@ -24,6 +24,9 @@ ALLOWED = {
     "deploy": {"geometry", "agent", "leader", "scenario", "wire"},
 }
 PROJECT = set(ALLOWED) | {"formation"}
+# The one file allowed an upward import, lazily inside its command line: ``python -m wire.acl``
+# writes the credentials of a scenario's fleet. To move above the scenario layer.
+EXCEPTIONS = {"wire/acl.py": {"scenario"}}
 
 
 def _modules(path: Path) -> set[str]:
@@ -49,9 +52,10 @@ def _imports(path: Path) -> set[str]:
 def test_a_package_imports_only_the_layers_below_it(package: str) -> None:
     bad = {}
     for path in sorted((ROOT / package).rglob("*.py")):
-        up = _imports(path) - ALLOWED[package] - {package}
+        rel = str(path.relative_to(ROOT))
+        up = _imports(path) - ALLOWED[package] - {package} - EXCEPTIONS.get(rel, set())
         if up:
-            bad[str(path.relative_to(ROOT))] = sorted(up)
+            bad[rel] = sorted(up)
     assert not bad, f"imports running up the layers: {bad}"
 
 

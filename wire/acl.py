@@ -51,9 +51,9 @@ CAMERA_RULE = "camera-publish"
 
 
 def _check_user(name: str, what: str) -> str:
-    keys.validate_id(name, what)
-    if ":" in name:
-        raise ValueError(f"{what} {name!r} must not contain ':' (the dictionary separator)")
+    problem = keys.user_problem(name)  # robots' names follow keys.name_problem, stricter
+    if problem is not None:
+        raise ValueError(f"{what} {name!r} {problem}")
     return name
 
 
