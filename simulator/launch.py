@@ -267,11 +267,19 @@ def run_command(ns: argparse.Namespace) -> int:
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     out = Path(ns.out)
-    summary, series = launch(scenario, out, realtime=ns.realtime, camera=ns.camera,
-                             topology=ns.topology, safety=not ns.no_safety, port=ns.port,
-                             progress_factory=lambda: Progress(f"run {scenario.name}", quiet=ns.quiet),
-                             faults=faults, secure=getattr(ns, "secure", False),
-                             pose_slots=slots)
+    from viewer.cli import live_observer
+
+    live, observer = live_observer(ns, scenario)  # --live PORT: the page, fed from the world's session
+    try:
+        summary, series = launch(scenario, out, realtime=ns.realtime, camera=ns.camera,
+                                 topology=ns.topology, safety=not ns.no_safety, port=ns.port,
+                                 progress_factory=lambda: Progress(f"run {scenario.name}",
+                                                                   quiet=ns.quiet),
+                                 faults=faults, secure=getattr(ns, "secure", False),
+                                 pose_slots=slots, observer=observer)
+    finally:
+        if live is not None:
+            live.close()
     write_run(summary, series, scenario, out, plots=not ns.no_plots)
     print_summary(summary, out)
     return EXIT_OK
@@ -290,13 +298,15 @@ def launch(
     faults: FaultPlan | None = None,
     secure: bool = False,
     pose_slots: int = 1,
+    observer=None,
 ) -> tuple[dict, Series]:
     """Run ``scenario`` as separate processes; returns the summary and the time series.
 
     ``faults`` injects the faults of :class:`FaultPlan`; ``secure`` runs the router with
     user/password authentication and the access control list of :mod:`wire.acl`, every process
     logging in as itself. ``pose_slots`` is the world's (:class:`simulator.world.WorldOptions`:
-    real time only)."""
+    real time only). ``observer(session)``, when given, is called with the world's session
+    before the run (a live viewer subscribes on it) and returns what detaches it after."""
     faults = faults or FaultPlan()
     faults.check_robots(scenario.robot_ids)
     out = Path(out)
@@ -359,6 +369,7 @@ def launch(
             pose_slots=pose_slots)
         with zenoh.open(conf) as session:
             world = World(scenario, session, options)
+            detach = observer(session) if observer is not None else None
             driver = _FaultDriver(faults, sup, world, agents, agent_argv, scenario.dt, realtime)
             try:
                 world.wait_for_agents(abort=sup.check)
@@ -369,6 +380,8 @@ def launch(
                 else:
                     result = world.run(abort=sup.check, on_tick=driver.on_tick if fault_run else None)
             finally:
+                if detach is not None:
+                    detach()
                 world.close()
         sup.stop(list(agents.values()))  # agents write their stats on SIGTERM
         sup.stop([router])
