@@ -415,9 +415,10 @@ def _secure_setup(scenario: Scenario, folder: Path, endpoint: str) -> _Secure:
     folder.chmod(0o700)
     robots = {rid: scenario.formation_of(rid).name for rid in scenario.robot_ids}
     leaders = {f.name: f.leader for f in scenario.formations}
-    creds = acl.new_credentials([acl.CAMERA_USER, *robots])
+    creds = acl.new_credentials([acl.CAMERA_USER, acl.VIEWER_USER, *robots])
     dictionary = folder / "users.txt"
     acl.write_dictionary(dictionary, creds)
+    acl.write_credentials(folder / "viewer.credentials", creds[acl.VIEWER_USER])  # view --auth
     files = {}
     for rid in robots:
         files[rid] = folder / f"{rid}.credentials"
