@@ -1,6 +1,6 @@
 """``formation bench``: how fast the control step, the QP and the multi-process fleet are.
 
-Five measurements, written to ``bench.json`` and as a table (``bench.txt`` and stdout):
+Six measurements, written to ``bench.json`` and as a table (``bench.txt`` and stdout):
 
 * **step**: one robot's full control step (:func:`agent.control.control_step`: nominal command,
   barrier rows, QP) for a robot of a 4-robot formation with 2 obstacles and 3 other formations
@@ -26,6 +26,9 @@ Five measurements, written to ``bench.json`` and as a table (``bench.txt`` and s
   stale ticks (zero commands) by the input that was stale.
 * **inprocess**: simulation throughput (robot-steps per second) of ``formation sim`` on the
   warehouse scenario.
+* **viewer** (:mod:`viewer.bench`): ``recording``, the same throughput without the time series,
+  with it, and with ``run.mcap`` written too; ``agents_viewer``, the first fleet of **agents**
+  again with ``formation view`` attached to its router (the latency a live viewer costs).
 
 Definitions: the latency of a command is ``receive time - stamp`` of the pose it was computed
 from, both on this machine's wall clock (the world stamps poses with ``time.time()``). A *missed
@@ -62,6 +65,7 @@ from agent.barriers import Neighbour, Obstacle
 from agent.control import ControlParams, FormationView, build_rows, control_step
 from agent.qp import Row, qpsolvers_solver, solve_exact
 from leader.ellipse import Ellipse
+from viewer.bench import bench_recording
 
 logger = logging.getLogger(__name__)
 
@@ -492,11 +496,12 @@ def _raise_interrupt(signum: int, _frame: FrameType | None) -> None:
 
 
 def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: bool = True,
-                 pose_slots: int = 1) -> dict:
+                 pose_slots: int = 1, viewer: bool = False) -> dict:
     """Run ``n`` agent processes in real time against the simulated world for ``duration``
     seconds (see the module docstring); every process started here is stopped on every way out.
     ``tick_on_pose=False`` runs the agents with ``--clock-ticks`` (their own clock);
-    ``pose_slots`` is the world's (:class:`simulator.world.WorldOptions`)."""
+    ``pose_slots`` is the world's (:class:`simulator.world.WorldOptions`); ``viewer`` attaches
+    ``formation view --connect`` to the router (the live page and Foxglove WebSocket)."""
     import zenoh
 
     from wire.zconf import use_zenoh_threads
@@ -524,6 +529,8 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
                                       "--log-level", "WARNING"])
         wait_for_tcp_port(port, timeout_s=START_TIMEOUT_S)
         zs = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False)
+        if viewer:
+            sup.start("viewer", ["-m", "formation", "view", "--connect", endpoint, "--port", "0"])
         agents = {}
         for rid, cfg in build_agent_configs(scenario, zenoh=zs).items():
             path = work / "configs" / f"{rid}.yaml"
@@ -676,6 +683,9 @@ def run_bench(quick: bool = False, scenario: Path = DEFAULT_SCENARIO,
                  for n, dt in ({} if quick else SLOT_FLEETS).items()}
         clock = {str(n): bench_agents(n, dt, duration, base / f"clock-{n}", tick_on_pose=False)
                  for n, dt in ({} if quick else CLOCK_FLEETS).items()}
+        # the first fleet again with the live viewer attached to its router
+        n, dt = next(iter(fleets.items()))
+        watched = {str(n): bench_agents(n, dt, duration, base / f"viewer-{n}", viewer=True)}
     return {
         "machine": {"python": platform.python_version(), "processor": platform.processor() or
                     platform.machine(), "cpus": os.cpu_count(), "quick": quick,
@@ -690,6 +700,8 @@ def run_bench(quick: bool = False, scenario: Path = DEFAULT_SCENARIO,
         "agents_pose_slots": slots,
         "agents_clock_ticks": clock,
         "inprocess": inproc,
+        "agents_viewer": watched,
+        "recording": bench_recording(scenario, 10.0 if quick else None, rounds=1 if quick else 3),
     }
 
 
@@ -731,6 +743,7 @@ def format_table(result: dict) -> str:
     fleets = [(n, a) for n, a in result["agents"].items()]
     fleets += [(f"{n}s", a) for n, a in result.get("agents_pose_slots", {}).items()]
     fleets += [(f"{n}c", a) for n, a in result.get("agents_clock_ticks", {}).items()]
+    fleets += [(f"{n}v", a) for n, a in result.get("agents_viewer", {}).items()]
     for n, a in fleets:
         parts = a["latency_parts_ms_median"]
         lines.append(
@@ -746,6 +759,7 @@ def format_table(result: dict) -> str:
     if result.get("agents_clock_ticks"):
         lines.append("  Nc: agents ticking on their own clock (--clock-ticks); the others tick on pose "
                      "arrival")
+    lines.append("  Nv: the first fleet again with `formation view` attached to the router")
     lines.append("  wait: pose received -> tick starts; tick: tick start -> command put; net: the rest "
                  "(router both ways, Zenoh and Python threads, CPU queueing); medians")
     lines.append("  cpu %: per agent (median), of one core; all %: agents + router + world; other %: "
@@ -755,6 +769,13 @@ def format_table(result: dict) -> str:
     lines.append(f"in-process simulation, {ip['scenario']} ({ip['robots']} robots, {ip['ticks']} "
                  f"ticks): {ip['robot_steps_per_s']:.0f} robot-steps/s wall, "
                  f"{_f(ip['robot_steps_per_cpu_s'], '.0f')} per CPU second")
+    rec = result.get("recording")
+    if rec:
+        r = rec["robot_steps_per_s"]
+        lines.append(f"  {rec['scenario']}, robot-steps/s: loop alone {r['loop_only']:.0f}, with the "
+                     f"time series {r['with_series']:.0f}, with run.mcap written too "
+                     f"{r['with_mcap']:.0f} ({rec['record_ms_per_tick']:.2f} ms and "
+                     f"{rec['mcap_bytes_per_tick'] / 1e3:.1f} kB per tick of recording)")
     lines.append(f"machine: {result['machine']['cpus']} CPUs, load average "
                  f"{_f(result['machine']['load_avg_1min_at_start'])} at start")
     return "\n".join(lines)

@@ -130,7 +130,8 @@ def test_a_live_run_serves_the_page_and_foxglove_while_a_recorder_attaches(tmp_p
                 time.sleep(0.5)
             assert problem is None, problem
             t1 = shown["t"]
-            assert f"{t1:.2f}" in browser.evaluate("document.getElementById('time').textContent")
+            assert f"t={t1:.2f}" in browser.evaluate("document.title")
+            assert "UTC" in browser.evaluate("document.getElementById('time').textContent")
             browser.evaluate("window.viewerFreeze = false")
             time.sleep(1.5)
             t2 = browser.wait_for(f"window.viewer.t > {t1} && window.viewer.t")

@@ -49,15 +49,16 @@ def _ports(port: int, ws_port: int | None) -> tuple[int, int]:
 
 
 def _open_view(ns: argparse.Namespace, port: int, mode: str, title: str, mcap: Path | None = None):
-    from formation.cli import UsageError
-
     from .server import View
 
-    port, ws_port = _ports(port, getattr(ns, "ws_port", None))
+    asked = getattr(ns, "ws_port", None)
+    port, ws_port = _ports(port, asked)
     try:
-        return View(host=ns.bind, port=port, ws_port=ws_port, mode=mode, title=title, mcap=mcap)
-    except OSError as exc:
-        raise UsageError(f"cannot serve on {ns.bind}:{port}/{ws_port}: {exc}") from None
+        return View(host=ns.bind, port=port, ws_port=ws_port, mode=mode, title=title, mcap=mcap,
+                    ws_fallback=asked is None)
+    except (OSError, RuntimeError) as exc:
+        raise RuntimeError(f"cannot serve on {ns.bind} port {port} (WebSocket {ws_port}): "
+                           f"{exc}") from None
 
 
 def _announce(view: Any) -> None:

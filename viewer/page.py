@@ -9,7 +9,8 @@ server that served it about ten times a second and draws
   formation's colour, a heading tick, the control point when it is off the centre);
 * each robot's smallest barrier value of each kind over the last minute (three charts, zero
   marked);
-* each formation's status, the newest log lines, the shown time, the Foxglove WebSocket's port;
+* each formation's status, the newest log lines, the shown time (simulated seconds; for wall
+  time the UTC clock and the seconds since the first frame), the Foxglove WebSocket's port;
 * for a replay: play/pause, speed and a time slider.
 
 For tests and scripts the page exposes ``window.viewer`` (shown time, sequence number and each
@@ -66,7 +67,7 @@ const KINDS = ["formation", "obstacle", "formations"];
 const WINDOW_S = 60;
 const floor = document.getElementById("floor"), fctx = floor.getContext("2d");
 const chart = document.getElementById("chart"), cctx = chart.getContext("2d");
-let view = null, history = {}, lastT = null, lastSeq = -1, colors = {}, state = null;
+let view = null, history = {}, lastT = null, lastSeq = -1, colors = {}, state = null, t0 = null;
 window.viewer = { t: null, seq: -1, robots: [] };
 window.viewerFreeze = false;
 
@@ -135,7 +136,7 @@ function drawFloor(frame) {
     c.strokeStyle = "#111"; c.lineWidth = 2; c.beginPath();
     c.moveTo(a + 0.55 * rr * Math.cos(th), b - 0.55 * rr * Math.sin(th));
     c.lineTo(a + 1.5 * rr * Math.cos(th), b - 1.5 * rr * Math.sin(th)); c.stroke(); c.lineWidth = 1;
-    if (finite(r.px) && Math.hypot(r.px - r.x, r.py - r.y) > 0.01) {
+    if (finite(r.px) && Math.hypot(r.px - r.x, r.py - r.y) > 0.025) {  // a look-ahead point, not a state lagging the pose
       const [qa, qb] = px(r.px, r.py);
       c.fillStyle = "#fff"; c.beginPath(); c.arc(qa, qb, 2.5, 0, 2 * Math.PI); c.fill();
     }
@@ -191,12 +192,17 @@ function record(frame) {
   }
 }
 
+function clock(t) { return t > 1e8 ? new Date(t * 1000).toISOString().substring(11, 22) : t.toFixed(2); }
 function fmt(v, d) { return finite(v) ? v.toFixed(d) : "-"; }
 function esc(s) { return String(s).replace(/[&<>]/g, ch => ({"&": "&amp;", "<": "&lt;", ">": "&gt;"})[ch]); }
 
 function side(st) {
   const f = st.frame;
-  document.getElementById("time").textContent = "t = " + f.t.toFixed(2) + " s";
+  // simulated seconds, or wall time (a real fleet, a real-time run): then the clock and the time since the first frame
+  if (t0 === null || f.t < t0) t0 = f.t;
+  document.getElementById("time").textContent = f.t > 1e8
+    ? new Date(f.t * 1000).toISOString().substring(11, 22) + " UTC  (+" + (f.t - t0).toFixed(2) + " s)"
+    : "t = " + f.t.toFixed(2) + " s";
   document.title = "formation " + st.mode + " t=" + f.t.toFixed(2);
   const ws = st.ws_port ? ("Foxglove WebSocket: ws://" + location.hostname + ":" + st.ws_port) : "";
   document.getElementById("meta").textContent = st.mode + "  " + ws;
@@ -209,7 +215,7 @@ function side(st) {
     "</td><td>" + fmt(r.h_formation, 3) + "</td><td>" + fmt(r.h_obstacle, 3) + "</td><td>" + fmt(r.h_formations, 3) + "</td></tr>";
   document.getElementById("robots").innerHTML = rows;
   document.getElementById("logs").innerHTML = st.logs.slice().reverse().map(e =>
-    "<div class='" + esc(e.level) + "'>" + e.t.toFixed(2) + " " + esc(e.name) + ": " + esc(e.message) + "</div>").join("");
+    "<div class='" + esc(e.level) + "'>" + clock(e.t) + " " + esc(e.name) + ": " + esc(e.message) + "</div>").join("");
   const pb = st.playback;
   if (st.mode === "replay" && pb && pb.end !== undefined) {
     document.getElementById("controls").style.display = "block";

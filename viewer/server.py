@@ -176,13 +176,27 @@ class View:
     """Page + Foxglove WebSocket (+ optionally ``run.mcap``) around one hub; ``close()`` ends all."""
 
     def __init__(self, host: str = "127.0.0.1", port: int = 0, ws_port: int = 0,
-                 mcap: Path | None = None, mode: str = "live", title: str = "") -> None:
+                 mcap: Path | None = None, mode: str = "live", title: str = "",
+                 ws_fallback: bool = False) -> None:
+        """``ws_fallback``: if ``ws_port`` is taken, serve the WebSocket on a free port instead
+        (the page names it)."""
         self.channels = Channels()
-        if mcap is not None:
-            self.channels.open_mcap(mcap)
-        self.hub = Hub(self.channels, mode=mode)
-        self.hub.ws_port = self.channels.serve(host, ws_port)
-        self.page = PageServer(self.hub, host, port, title)
+        try:
+            try:
+                ws = self.channels.serve(host, ws_port)
+            except RuntimeError:
+                if not ws_fallback or ws_port == 0:
+                    raise
+                logger.info("port %d taken: the Foxglove WebSocket goes on a free port", ws_port)
+                ws = self.channels.serve(host, 0)
+            if mcap is not None:
+                self.channels.open_mcap(mcap)
+            self.hub = Hub(self.channels, mode=mode)
+            self.hub.ws_port = ws
+            self.page = PageServer(self.hub, host, port, title)
+        except BaseException:
+            self.channels.close()
+            raise
         self._closers: list[Callable[[], None]] = []
 
     def on_close(self, fn: Callable[[], None]) -> None:
