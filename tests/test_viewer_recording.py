@@ -112,3 +112,41 @@ def test_frames_from_an_empty_series_are_none():
 
     s = load_scenario(ROOT / "tests" / "scenarios" / "two-small.yaml")
     assert list(frames_from_series(Series(), s)) == []
+
+
+def test_the_fleet_watcher_drops_and_counts_malformed_messages_and_builds_frames_from_the_rest():
+    import math
+    from types import SimpleNamespace
+
+    from viewer.live import FleetWatcher
+    from wire.diag import Diag, encode_diag
+    from wire.payloads import Cmd, Pose, State, encode
+
+    class Session:
+        def declare_subscriber(self, key, handler):
+            return SimpleNamespace(undeclare=lambda: None)
+
+    w = FleetWatcher(Session())
+
+    def put(key: str, data: bytes) -> None:
+        w._on_sample(SimpleNamespace(key_expr=key, payload=SimpleNamespace(to_bytes=lambda: data)))
+
+    assert w.frame() is None
+    put("warehouse/robot/a1/pose", encode(Pose(1.0, 2.0, 0.5, 10.0)))
+    put("warehouse/robot/a1/state", encode(State(1.0, 2.0, 0.1, 0.0, 10.0)))
+    put("warehouse/robot/a1/cmd", encode(Cmd(0.1, 0.0, 0.1, 0.0, 10.0)))
+    put("warehouse/robot/a1/diag", encode_diag(Diag("A", "relaxed", 10.0, 0.02, 0.01, math.inf,
+                                                    2.0, 3.0, 2.0, 200, 0, 4, 0, 0)))
+    put("warehouse/robot/a2/pose", b"\x01garbage")
+    put("warehouse/robot/a1/diag-not", b"ignored")
+    put("other/robot/a3/pose", encode(Pose(0.0, 0.0, 0.0, 99.0)))
+    f = w.frame()
+    assert f["t"] == 10.0
+    (r,) = f["robots"]
+    assert (r["id"], r["formation"], r["status"], r["x"], r["ux"]) == ("a1", "A", "relaxed", 1.0, 0.1)
+    assert r["h_obstacle"] is None and r["h_formation"] == 0.01 and (r["gx"], r["gy"]) == (3.0, 2.0)
+    assert f["formations"][0]["qp"] == "relaxed"
+    assert w.rejected == {"pose": 1}
+    put("warehouse/robot/a1/diag", b"\x01\x01")
+    assert w.frame()["robots"][0]["formation"] == "A"  # the last good diagnostics stay
+    assert w.rejected == {"pose": 1, "diag": 1}

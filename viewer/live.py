@@ -74,9 +74,9 @@ class FleetWatcher:
             return cached[1]
         try:
             value = decode(data)
-        except DecodeError:
+        except DecodeError:  # dropped and counted; the last good one stays
             self.rejected[cls] = self.rejected.get(cls, 0) + 1
-            value = None
+            value = cached[1] if cached is not None else None
         self._decoded[key] = (data, value)
         return value
 
