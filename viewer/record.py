@@ -32,7 +32,7 @@ import functools
 import json
 import logging
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -110,8 +110,22 @@ def _stamp(t: float) -> Timestamp:
     return Timestamp(n // 1_000_000_000, n % 1_000_000_000)
 
 
-def _color(rgb: Sequence[float], a: float = 1.0) -> Color:
+@functools.lru_cache(maxsize=64)
+def _color(rgb: tuple[float, float, float], a: float = 1.0) -> Color:
     return Color(r=rgb[0], g=rgb[1], b=rgb[2], a=a)
+
+
+@functools.lru_cache(maxsize=64)
+def _size(x: float, y: float, z: float) -> Vector3:
+    return Vector3(x=x, y=y, z=z)
+
+
+@functools.lru_cache(maxsize=4096)
+def _goal(rid: str, gx: float, gy: float, rgb: tuple[float, float, float]) -> SceneEntity:
+    """A robot's goal square (static: built once, no timestamp)."""
+    return SceneEntity(frame_id=FRAME_ID, id=f"goal/{rid}",
+                       cubes=[CubePrimitive(pose=_pose(gx, gy, 0.005), size=_size(0.08, 0.08, 0.01),
+                                            color=_color(rgb, 0.6))])
 
 
 def _pose(x: float, y: float, z: float = 0.0, yaw: float = 0.0) -> Pose:
@@ -149,7 +163,7 @@ def scene_update(frame: Frame) -> SceneUpdate:
         rgb = colors[r["formation"]]
         th = r["theta"] or 0.0
         body = CylinderPrimitive(pose=_pose(r["x"], r["y"], BODY_HEIGHT / 2),
-                                 size=Vector3(x=2 * radius, y=2 * radius, z=BODY_HEIGHT),
+                                 size=_size(2 * radius, 2 * radius, BODY_HEIGHT),
                                  bottom_scale=1.0, top_scale=1.0, color=_color(rgb, 0.9))
         arrow = ArrowPrimitive(pose=_pose(r["x"], r["y"], BODY_HEIGHT + 0.01, th),
                                shaft_length=radius * 1.4, shaft_diameter=0.02,
@@ -157,7 +171,7 @@ def scene_update(frame: Frame) -> SceneUpdate:
         spheres = []
         if r["px"] is not None and r["py"] is not None:
             spheres.append(SpherePrimitive(pose=_pose(r["px"], r["py"], BODY_HEIGHT + 0.02),
-                                           size=Vector3(x=0.04, y=0.04, z=0.04),
+                                           size=_size(0.04, 0.04, 0.04),
                                            color=_color((1.0, 1.0, 1.0))))
         label = TextPrimitive(pose=_pose(r["x"], r["y"], BODY_HEIGHT + 0.15), billboard=True,
                               font_size=14, scale_invariant=True, color=_color((0, 0, 0)),
@@ -166,10 +180,7 @@ def scene_update(frame: Frame) -> SceneUpdate:
                                     cylinders=[body], arrows=[arrow], spheres=spheres,
                                     texts=[label]))
         if r["gx"] is not None and r["gy"] is not None:
-            entities.append(SceneEntity(
-                timestamp=stamp, frame_id=FRAME_ID, id=f"goal/{r['id']}",
-                cubes=[CubePrimitive(pose=_pose(r["gx"], r["gy"], 0.005),
-                                     size=Vector3(x=0.08, y=0.08, z=0.01), color=_color(rgb, 0.6))]))
+            entities.append(_goal(r["id"], r["gx"], r["gy"], rgb))
     for e in frame["ellipses"]:
         if None in (e["cx"], e["cy"], e["alpha"], e["a"], e["b"]):
             continue
@@ -186,7 +197,7 @@ def scene_update(frame: Frame) -> SceneUpdate:
         ds = o["ds"]
         core = max(ds - radius, 0.05)  # the obstacle's own body: its safe distance less a robot
         cyl = CylinderPrimitive(pose=_pose(o["x"], o["y"], 0.15),
-                                size=Vector3(x=2 * core, y=2 * core, z=0.3), bottom_scale=1.0,
+                                size=_size(2 * core, 2 * core, 0.3), bottom_scale=1.0,
                                 top_scale=1.0, color=_color((0.35, 0.35, 0.35), 0.9))
         ring = LinePrimitive(type=LinePrimitiveLineType.LineLoop, thickness=0.01,
                              pose=_pose(o["x"], o["y"], 0.005), points=_ring(ds, ds),
