@@ -228,10 +228,18 @@ def test_replay_serves_a_recording_with_play_pause_and_speed(tmp_path):
         assert code == 0
 
 
-def test_replay_of_a_file_that_is_not_a_recording_exits_2(tmp_path):
+def test_bad_viewer_input_exits_2_before_anything_starts(tmp_path):
     from formation.cli import main
 
     bad = tmp_path / "x.mcap"
     bad.write_bytes(b"not an mcap")
     assert main(["replay", str(bad), "--port", "0"]) == 2
     assert main(["replay", str(tmp_path / "missing.mcap"), "--port", "0"]) == 2
+    assert main(["view", "--connect", "tcp/127.0.0.1:9", "--auth", str(tmp_path / "none"),
+                 "--port", "0"]) == 2
+    assert main(["record", "--connect", "tcp/127.0.0.1:9", "--prefix", "a/*", "--out",
+                 str(tmp_path / "rec")]) == 2
+    assert not (tmp_path / "rec").exists()
+    assert main(["run", str(ROOT / "tests" / "scenarios" / "two-small.yaml"), "--out",
+                 str(tmp_path / "run"), "--live", "70000"]) == 2
+    assert not (tmp_path / "run").exists()

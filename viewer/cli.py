@@ -82,6 +82,16 @@ def _session(ns: argparse.Namespace):
     return zenoh.open(conf)
 
 
+def _check_prefix(prefix: str) -> None:
+    from formation.cli import UsageError
+    from wire import keys
+
+    try:
+        keys.validate_prefix(prefix)
+    except ValueError as exc:
+        raise UsageError(f"--prefix: {exc}") from None
+
+
 def _wait(duration: float | None) -> None:
     """Until Ctrl-C, SIGTERM or ``duration`` seconds."""
     stop = threading.Event()
@@ -99,12 +109,10 @@ def _wait(duration: float | None) -> None:
 
 
 def view_command(ns: argparse.Namespace) -> int:
-    from wire import keys
-
     from .live import FleetWatcher
     from .server import LivePump
 
-    keys.validate_prefix(ns.prefix)
+    _check_prefix(ns.prefix)
     view = _open_view(ns, ns.port, "live", f"formation view {ns.connect}")
     try:
         with _session(ns) as session:
@@ -120,13 +128,11 @@ def view_command(ns: argparse.Namespace) -> int:
 
 
 def record_command(ns: argparse.Namespace) -> int:
-    from wire import keys
-
     from .live import FleetWatcher
     from .record import Channels
     from .server import Hub, LivePump
 
-    keys.validate_prefix(ns.prefix)
+    _check_prefix(ns.prefix)
     out = Path(ns.out)
     channels = Channels()
     channels.open_mcap(out / "run.mcap")
