@@ -90,6 +90,7 @@ from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, solve_exact
 from agent.unicycle import control_point
 from leader.role import LeaderRole, ellipse_to_msg, msg_to_ellipse
 from wire import keys
+from wire.diag import DiagPublisher
 from wire.payloads import (
     Cmd,
     EllipseMsg,
@@ -247,6 +248,7 @@ class AgentNode:
         self._subs: list[Any] = []
         self._rings: list[tuple[Any, Callable[[zenoh.Sample], None]]] = []  # polled subscribers
         self._pubs: dict[str, CountingPublisher] = {}
+        self._diag: DiagPublisher | None = None
         self._base: Base | None = None  # a real robot base adapter (agent.base), when cfg.base is not "world"
         self._stall = Stall()  # this member's copy of its formation's jam state
         self._boxes: dict[str, Mailbox] = {}
@@ -306,6 +308,8 @@ class AgentNode:
             pub_keys += [self.role.others_key] + ([] if self.all_to_all else [self.role.ellipse_key])
         for k in pub_keys:
             self._pubs[k] = CountingPublisher(s.declare_publisher(k), self.counter)
+        self._diag = DiagPublisher(s, self.cfg.prefix, self.cfg.robot_id, self.cfg.formation,
+                                   self.cfg.goal)
         if self.cfg.base != "world":
             # A real robot base (TurtleBot3 behind zenoh-bridge-ros2dds): every command also goes
             # to its cmd_vel key as CDR; the cmd key stays for monitoring.
@@ -608,7 +612,10 @@ class AgentNode:
         self.ticks += 1
         self._tick_point = None
         try:
-            return await self._tick(t)
+            res = await self._tick(t)
+            if self._diag is not None:  # viewers' diagnostics: a few a second, not counted
+                self._diag.tick(self, res)
+            return res
         finally:
             if t is None and self._tick_point is not None:
                 px, py, stamp = self._tick_point

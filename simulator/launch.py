@@ -160,13 +160,15 @@ def launch(
     faults: FaultPlan | None = None,
     secure: bool = False,
     pose_slots: int = 1,
+    observer=None,
 ) -> tuple[dict, Series]:
     """Run ``scenario`` as separate processes; returns the summary and the time series.
 
     ``faults`` injects the faults of :class:`FaultPlan`; ``secure`` runs the router with
     user/password authentication and the access control list of :mod:`wire.acl`, every process
     logging in as itself. ``pose_slots`` is the world's (:class:`simulator.world.WorldOptions`:
-    real time only)."""
+    real time only). ``observer(session)``, when given, is called with the world's session
+    before the run (a live viewer subscribes on it) and returns what detaches it after."""
     faults = faults or FaultPlan()
     faults.check_robots(scenario.robot_ids)
     out = Path(out)
@@ -207,6 +209,7 @@ def launch(
             pose_slots=pose_slots)
         with zenoh.open(conf) as session:
             world = World(scenario, session, options)
+            detach = observer(session) if observer is not None else None
             driver = _FaultDriver(faults, fleet, world, agents, scenario.dt, realtime)
             try:
                 world.wait_for_agents(abort=fleet.check)
@@ -217,6 +220,8 @@ def launch(
                 else:
                     result = world.run(abort=fleet.check, on_tick=driver.on_tick if fault_run else None)
             finally:
+                if detach is not None:
+                    detach()
                 world.close()
         fleet.shut_down(list(agents.values()), router)
     stats = [_read_stats(out / "agents" / f"{rid}.json") if rid in agents
@@ -246,9 +251,10 @@ def _secure_setup(scenario: Scenario, folder: Path, endpoint: str) -> _Secure:
     folder.chmod(0o700)
     robots = {rid: scenario.formation_of(rid).name for rid in scenario.robot_ids}
     leaders = {f.name: f.leader for f in scenario.formations}
-    creds = acl.new_credentials([acl.CAMERA_USER, *robots])
+    creds = acl.new_credentials([acl.CAMERA_USER, acl.VIEWER_USER, *robots])
     dictionary = folder / "users.txt"
     acl.write_dictionary(dictionary, creds)
+    acl.write_credentials(folder / "viewer.credentials", creds[acl.VIEWER_USER])  # view --auth
     files = {}
     for rid in robots:
         files[rid] = folder / f"{rid}.credentials"

@@ -19,8 +19,10 @@ ALLOWED = {
     "scenario": {"geometry", "wire"},  # the one name rule is the key space's (wire.keys)
     "agent": {"geometry", "leader", "scenario", "wire"},
     "camera_service": {"geometry", "scenario", "wire"},
-    "simulator": {"geometry", "agent", "leader", "scenario", "wire", "camera_service"},
-    "experiments": {"geometry", "agent", "leader", "scenario", "wire", "camera_service", "simulator"},
+    "simulator": {"geometry", "agent", "leader", "scenario", "wire", "camera_service", "viewer"},
+    "viewer": {"geometry", "wire"},
+    "experiments": {"geometry", "agent", "leader", "scenario", "wire", "camera_service", "simulator",
+                    "viewer"},
     "deploy": {"geometry", "agent", "leader", "scenario", "wire"},
 }
 PROJECT = set(ALLOWED) | {"formation"}

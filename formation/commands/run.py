@@ -41,11 +41,19 @@ def run_command(ns: argparse.Namespace) -> int:
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     out = Path(ns.out)
-    summary, series = launch(scenario, out, realtime=ns.realtime, camera=ns.camera,
-                             topology=ns.topology, safety=not ns.no_safety, port=ns.port,
-                             progress_factory=lambda: Progress(f"run {scenario.name}", quiet=ns.quiet),
-                             faults=faults, secure=getattr(ns, "secure", False),
-                             pose_slots=slots)
+    from formation.commands.view import live_observer
+
+    live, observer = live_observer(ns, scenario)  # --live PORT: the page, fed from the world's session
+    try:
+        summary, series = launch(scenario, out, realtime=ns.realtime, camera=ns.camera,
+                                 topology=ns.topology, safety=not ns.no_safety, port=ns.port,
+                                 progress_factory=lambda: Progress(f"run {scenario.name}",
+                                                                   quiet=ns.quiet),
+                                 faults=faults, secure=getattr(ns, "secure", False),
+                                 pose_slots=slots, observer=observer)
+    finally:
+        if live is not None:
+            live.close()
     write_run(summary, series, scenario, out, plots=not ns.no_plots)
     print_summary(summary, out)
     return EXIT_OK
