@@ -249,7 +249,7 @@ def run_command(ns: argparse.Namespace) -> int:
         )
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    if ns.camera == "synthetic":
+    if ns.camera in ("synthetic", "process"):
         try:
             import camera_service.service  # noqa: F401
         except ImportError:
@@ -271,7 +271,7 @@ def run_command(ns: argparse.Namespace) -> int:
                              topology=ns.topology, safety=not ns.no_safety, port=ns.port,
                              progress_factory=lambda: Progress(f"run {scenario.name}", quiet=ns.quiet),
                              faults=faults, secure=getattr(ns, "secure", False),
-                             pose_slots=slots)
+                             pose_slots=slots, scenario_path=ns.scenario)
     write_run(summary, series, scenario, out, plots=not ns.no_plots)
     print_summary(summary, out)
     return EXIT_OK
@@ -290,14 +290,19 @@ def launch(
     faults: FaultPlan | None = None,
     secure: bool = False,
     pose_slots: int = 1,
+    scenario_path: str | Path | None = None,
 ) -> tuple[dict, Series]:
     """Run ``scenario`` as separate processes; returns the summary and the time series.
 
     ``faults`` injects the faults of :class:`FaultPlan`; ``secure`` runs the router with
     user/password authentication and the access control list of :mod:`wire.acl`, every process
     logging in as itself. ``pose_slots`` is the world's (:class:`simulator.world.WorldOptions`:
-    real time only)."""
+    real time only). ``camera="process"`` also starts the real camera process
+    (``python -m camera_service``) on the frames the world renders; it reads the static obstacles
+    from ``scenario_path``."""
     faults = faults or FaultPlan()
+    if camera == "process" and scenario_path is None:
+        raise ValueError("scenario_path: --camera process needs the scenario file")
     faults.check_robots(scenario.robot_ids)
     out = Path(out)
     for sub in ("configs", "agents", "logs"):
@@ -324,6 +329,9 @@ def launch(
             except TimeoutError:
                 if time.monotonic() > deadline:
                     raise
+        camera_child = None
+        if camera == "process":
+            camera_child = _start_camera(sup, scenario, scenario_path, out, endpoint, creds)
         zs = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False)
         configs = build_agent_configs(scenario, zenoh=zs, topology=topology, safety=safety)
         agent_argv: dict[str, list[str]] = {}
@@ -371,6 +379,8 @@ def launch(
             finally:
                 world.close()
         sup.stop(list(agents.values()))  # agents write their stats on SIGTERM
+        if camera_child is not None:
+            sup.stop([camera_child])  # prints its counters on SIGTERM
         sup.stop([router])
     finally:
         sup.stop()
@@ -382,9 +392,37 @@ def launch(
         summary["faults"] = fault_summary(faults, result, stats, driver.log)
     if creds is not None:
         summary["secure"] = {"auth": "usrpwd", "acl": str(creds.router_config)}
+    if camera == "process":
+        summary["camera_process"] = _camera_stats(out / "logs" / "camera.log")
     if pose_slots > 1:
         summary["pose_slots"] = pose_slots  # the world spread each period's poses over this many
     return summary, series
+
+
+def _start_camera(sup: Supervisor, scenario: Scenario, scenario_path: str | Path, out: Path,
+                  endpoint: str, creds: _Secure | None) -> Child:
+    """``--camera process``: write the camera process's files into ``out/camera`` and start it
+    (logging in as the camera user when secure)."""
+    from camera_service.simcam import FramePublisher, write_camera_files
+
+    geometry = FramePublisher(scenario, None, keys.DEFAULT_PREFIX)
+    config = write_camera_files(geometry, scenario, scenario_path, out / "camera", endpoint,
+                                keys.DEFAULT_PREFIX)
+    argv = ["-m", "camera_service", str(config)]
+    if creds is not None:
+        path = out / "secure" / "camera.credentials"
+        acl.write_credentials(path, creds.world)
+        argv += ["--auth", str(path)]
+    return sup.start("camera", argv)
+
+
+def _camera_stats(log: Path) -> dict | None:
+    """The counters the camera process printed as its last line (None if it printed none)."""
+    try:
+        lines = log.read_text(encoding="utf-8", errors="replace").strip().splitlines()
+        return json.loads(lines[-1])["camera"] if lines else None
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
 
 
 @dataclass(frozen=True)
