@@ -132,7 +132,8 @@ def test_the_acl_denies_by_default_and_lets_each_robot_publish_only_its_own_keys
     assert rules["r1-publish"]["key_exprs"] == [f"{P}/robot/r1/state", f"{P}/robot/r1/cmd"]
     assert rules["r1-publish"]["flows"] == ["ingress"] and rules["r1-publish"]["messages"] == ["put"]
     assert f"{P}/formation/F1/ellipse" in rules["r2-publish"]["key_exprs"]  # r2 leads F1
-    assert rules[acl.CAMERA_RULE]["key_exprs"] == [f"{P}/robot/*/pose", f"{P}/obstacles"]
+    assert rules[acl.CAMERA_RULE]["key_exprs"] == [f"{P}/robot/*/pose", f"{P}/obstacles",
+                                                   f"{P}/camera/frame"]
     subjects = {s["id"]: s["usernames"] for s in a["subjects"]}
     assert subjects == {"camera": ["camera"], "r1": ["r1"], "r2": ["r2"], "s1": ["s1"]}
     policy = {p["id"]: p for p in a["policies"]}
