@@ -26,6 +26,8 @@ Five measurements, written to ``bench.json`` and as a table (``bench.txt`` and s
   stale ticks (zero commands) by the input that was stale.
 * **inprocess**: simulation throughput (robot-steps per second) of ``formation sim`` on the
   warehouse scenario.
+* **camera**: capture -> publish latency (p50, p99) of the real camera process at 1280x960,
+  15 fps, 16 robots (:mod:`camera_service.bench`).
 
 Definitions: the latency of a command is ``receive time - stamp`` of the pose it was computed
 from, both on this machine's wall clock (the world stamps poses with ``time.time()``). A *missed
@@ -676,6 +678,9 @@ def run_bench(quick: bool = False, scenario: Path = DEFAULT_SCENARIO,
                  for n, dt in ({} if quick else SLOT_FLEETS).items()}
         clock = {str(n): bench_agents(n, dt, duration, base / f"clock-{n}", tick_on_pose=False)
                  for n, dt in ({} if quick else CLOCK_FLEETS).items()}
+    from camera_service.bench import bench_camera
+
+    camera = bench_camera(frames=30 if quick else 450)
     return {
         "machine": {"python": platform.python_version(), "processor": platform.processor() or
                     platform.machine(), "cpus": os.cpu_count(), "quick": quick,
@@ -690,6 +695,7 @@ def run_bench(quick: bool = False, scenario: Path = DEFAULT_SCENARIO,
         "agents_pose_slots": slots,
         "agents_clock_ticks": clock,
         "inprocess": inproc,
+        "camera": camera,
     }
 
 
@@ -755,6 +761,10 @@ def format_table(result: dict) -> str:
     lines.append(f"in-process simulation, {ip['scenario']} ({ip['robots']} robots, {ip['ticks']} "
                  f"ticks): {ip['robot_steps_per_s']:.0f} robot-steps/s wall, "
                  f"{_f(ip['robot_steps_per_cpu_s'], '.0f')} per CPU second")
+    if result.get("camera"):
+        from camera_service.bench import format_camera
+
+        lines += ["", *format_camera(result["camera"])]
     lines.append(f"machine: {result['machine']['cpus']} CPUs, load average "
                  f"{_f(result['machine']['load_avg_1min_at_start'])} at start")
     return "\n".join(lines)

@@ -100,3 +100,12 @@ def test_central_problem_holds_every_robot_and_its_rows():
     assert g.shape == (single + 20 + 16, 16)
     assert h.shape == (g.shape[0],)
     assert (h >= 0).all()  # every barrier holds at the start: standing still is feasible
+
+
+def test_quick_bench_ran_the_camera_process_on_every_frame(quick_result):
+    result, out = quick_result
+    cam = result["camera"]
+    assert cam["robots"] == 16 and cam["image"] == [1280, 960]
+    assert cam["frames_handled"] == cam["frames"] and cam["detections_min"] == cam["frames"]
+    assert 0 < cam["latency_ms_p50"] <= cam["latency_ms_p99"]
+    assert "capture -> publish" in (out / "bench.txt").read_text(encoding="utf-8")
