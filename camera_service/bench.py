@@ -9,8 +9,10 @@ stamped with the wall clock at the moment it is published: the capture stamp. Th
 process (``python -m camera_service``, a client of that router, ``source: zenoh:KEY``) decodes,
 detects, publishes the obstacles and the 16 poses, and measures ``publish time - capture
 stamp`` per frame (transfer to it, JPEG decode, detection, floor mapping and the puts); its
-counters come back on stdout when it stops after the last frame. This process also times each
-frame's last pose arriving back (capture -> last pose received, one loopback hop more).
+counters come back on stdout when it is stopped (SIGTERM) after the last frame. A process
+slower than the frame rate drops frames (it keeps the newest); they are counted ``skipped``.
+This process also times each frame's last pose arriving back (capture -> last pose received,
+one loopback hop more).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -42,6 +45,7 @@ MARKER = 0.10  # [m]
 DISTINCT = 30  # frames rendered; the stream cycles through them
 JPEG_QUALITY = 90
 PREFIX = "bench"
+DRAIN_S = 2.0  # [s] after the last frame, before the camera process is stopped
 
 
 def _frames(robots: int, fps: float) -> list[bytes]:
@@ -101,9 +105,9 @@ def bench_camera(robots: int = 16, fps: float = 15.0, frames: int = 450,
         with zenoh.open(make_config("router", listen=[tcp_endpoint(port)])) as session:
             sub = session.declare_subscriber(f"{PREFIX}/robot/*/pose", on_pose)
             pub = session.declare_publisher(frame_key(PREFIX))
-            proc = subprocess.Popen([sys.executable, "-m", "camera_service", str(d / "camera.yaml"),
-                                     "--frames", str(frames)], env=env, stdout=subprocess.PIPE,
-                                    stderr=subprocess.PIPE, text=True)
+            proc = subprocess.Popen([sys.executable, "-m", "camera_service", str(d / "camera.yaml")],
+                                    env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                    text=True)
             try:
                 deadline = time.monotonic() + 60.0
                 while not pub.matching_status.matching:
@@ -122,6 +126,8 @@ def bench_camera(robots: int = 16, fps: float = 15.0, frames: int = 450,
                     stamp = time.time()
                     pub.put(encode_frame(Frame(stamp, "jpeg", jpgs[k % len(jpgs)])))
                     sent.append(stamp)
+                time.sleep(DRAIN_S)  # the last frames' poses
+                proc.send_signal(signal.SIGTERM)  # it prints its counters and exits
                 stdout, stderr = proc.communicate(timeout=60.0)
             finally:
                 if proc.poll() is None:

@@ -367,3 +367,114 @@ def test_an_unseen_obstacle_is_held_with_a_growing_safe_distance_then_dropped():
     assert ds[0] < ds[1] < ds[2] and ds[0] > 0.4
     assert abs(ds[2] - (0.4 + 0.2 * 0.5)) < 0.02  # last speed x age
     assert held[3] == [] and tracker.dropped == 1
+
+
+# --- sources ---------------------------------------------------------------------------------------
+
+
+class _FakeCapture:
+    def __init__(self, script):
+        self.script = script  # list of bools: read succeeds?
+        self.opened = script is not None
+
+    def isOpened(self):  # noqa: N802 - OpenCV's name
+        return self.opened
+
+    def read(self):
+        if self.script:
+            ok = self.script.pop(0)
+            return ok, (np.zeros((4, 4, 3), np.uint8) if ok else None)
+        return False, None
+
+    def release(self):
+        pass
+
+
+def test_a_camera_that_drops_out_is_reopened_with_back_off_and_counted(monkeypatch):
+    from camera_service import sources
+
+    monkeypatch.setattr(sources, "BACKOFF_START_S", 0.01)
+    monkeypatch.setattr(sources, "BACKOFF_MAX_S", 0.04)
+    opens = [[True, True, False], None, None, [True]]  # works, fails, two failed reopens, works
+    src = sources.CaptureSource(0, lambda: False, opener=lambda _t: _FakeCapture(opens.pop(0)))
+    got = [src.read() for _ in range(6)]
+    frames = [g for g in got if g is not None]
+    assert len(frames) == 3 and all(f[0].shape == (4, 4, 3) for f in frames)
+    assert src.counts["read_failures"] == 1 and src.counts["reconnects"] == 3
+    assert src.backoff == 0.01  # reset by the frame after the reconnect
+
+
+def test_a_camera_that_never_opens_is_a_source_error_naming_it():
+    from camera_service.sources import CaptureSource, SourceError
+
+    with pytest.raises(SourceError, match="source: cannot open 3"):
+        CaptureSource(3, lambda: False, opener=lambda _t: _FakeCapture(None))
+
+
+def test_an_image_glob_is_stamped_k_over_fps_and_skips_unreadable_files(tmp_path):
+    from camera_service.sources import EndOfSource, GlobSource
+
+    for k in range(3):
+        cv2.imwrite(str(tmp_path / f"f{k}.png"), np.full((8, 8, 3), k, np.uint8))
+    (tmp_path / "f1.png").write_bytes(b"not a png")
+    src = GlobSource(str(tmp_path / "*.png"), 50.0, lambda: False)
+    items = [src.read() for _ in range(3)]
+    with pytest.raises(EndOfSource):
+        src.read()
+    assert [i[0] is None for i in items] == [False, True, False]
+    np.testing.assert_allclose([i[1] - items[0][1] for i in items], [0.0, 0.02, 0.04], atol=1e-6)
+    assert src.counts["undecodable"] == 1
+
+
+def test_zenoh_frames_that_do_not_decode_are_counted_and_skipped():
+    from camera_service.sources import ZenohSource
+
+    ok, png = cv2.imencode(".png", np.full((6, 8, 3), 9, np.uint8))
+    good = encode_frame(Frame(3.5, "png", png.tobytes()))
+    broken = encode_frame(Frame(4.0, "png", png.tobytes()[:20]))  # a PNG cut short
+    with zenoh.open(make_config("peer")) as session:
+        src = ZenohSource(session, "t/camera/frame")
+        pub = session.declare_publisher("t/camera/frame")
+        got = []
+        for payload in (b"\x07garbage", broken, good):
+            pub.put(payload)
+            for _ in range(20):
+                item = src.read()
+                if item is not None or src.counts["undecodable"] > len(got):
+                    break
+            got.append(item)
+        src.close()
+    assert got[0] is None and got[1] == (None, 4.0)
+    assert got[2][0].shape == (6, 8) and got[2][1] == 3.5  # decoded grey
+    assert src.counts["undecodable"] == 2
+
+
+def test_the_camera_process_stops_cleanly_on_sigterm_and_prints_its_counters(tmp_path):
+    from camera_service.calibration import save_calibration, synthetic_camera
+
+    save_calibration(synthetic_camera(), tmp_path / "calib.yaml")
+    port = free_tcp_port()
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump(
+        {"source": "zenoh:t/camera/frame", "calibration": "calib.yaml",
+         "markers": {"size_m": 0.08}, "robots": {0: "a"}, "prefix": "t",
+         "zenoh": {"mode": "peer", "listen": [tcp_endpoint(port)]}}))
+    proc = subprocess.Popen([sys.executable, "-m", "camera_service", str(tmp_path / "c.yaml")],
+                            env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        with zenoh.open(make_config("peer", connect=[tcp_endpoint(port)],
+                                    connect_timeout_s=20.0)) as session:
+            deadline = time.monotonic() + 30
+            live = None
+            while live is None and time.monotonic() < deadline:
+                for reply in session.get(stats_key("t"), timeout=1.0):
+                    if reply.ok is not None:
+                        live = json.loads(reply.ok.payload.to_string())
+                time.sleep(0.1)
+        assert live is not None and live["frames"] == 0
+        proc.send_signal(15)
+        stdout, stderr = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, stderr
+    assert json.loads(stdout.strip().splitlines()[-1])["camera"]["frames"] == 0
