@@ -117,6 +117,7 @@ def bench_camera(robots: int = 16, fps: float = 15.0, frames: int = 450,
                                               else "timeout"))
                     time.sleep(0.02)
                 time.sleep(0.3)
+                cpu0 = _cpu_s(proc.pid)
                 start = time.monotonic() + 0.1
                 sent = []
                 for k in range(frames):
@@ -127,6 +128,7 @@ def bench_camera(robots: int = 16, fps: float = 15.0, frames: int = 450,
                     pub.put(encode_frame(Frame(stamp, "jpeg", jpgs[k % len(jpgs)])))
                     sent.append(stamp)
                 time.sleep(DRAIN_S)  # the last frames' poses
+                cpu1 = _cpu_s(proc.pid)
                 proc.send_signal(signal.SIGTERM)  # it prints its counters and exits
                 stdout, stderr = proc.communicate(timeout=60.0)
             finally:
@@ -150,7 +152,20 @@ def bench_camera(robots: int = 16, fps: float = 15.0, frames: int = 450,
         "frames_handled": stats["frames"], "frames_skipped": stats["skipped"],
         "detections_min": min(stats["detections"].values()),
         "within_one_period_p99": (stats["latency_ms"]["p99"] or math.inf) <= 1e3 / fps,
+        "cpu_ms_per_frame": (None if cpu0 is None or cpu1 is None or not stats["frames"]
+                             else (cpu1 - cpu0) * 1e3 / stats["frames"]),
+        "load_avg_1min": os.getloadavg()[0],
     }
+
+
+def _cpu_s(pid: int) -> float | None:
+    """utime + stime of a process (all its threads) [s], from /proc/PID/stat."""
+    try:
+        text = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    fields = text[text.rindex(")") + 2:].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def format_camera(c: dict) -> list[str]:
@@ -167,5 +182,6 @@ def format_camera(c: dict) -> list[str]:
         f"{f(c['received_ms_p50'])} ms, p99 {f(c['received_ms_p99'])} ms",
         f"  frames handled {c['frames_handled']}, skipped {c['frames_skipped']}, fewest "
         f"detections of a robot {c['detections_min']}; p99 within one period: "
-        f"{c['within_one_period_p99']}",
+        f"{c['within_one_period_p99']}; camera process CPU {f(c['cpu_ms_per_frame'])} ms per "
+        f"frame; load average {f(c['load_avg_1min'])}",
     ]
