@@ -286,5 +286,6 @@ def calibrate_image(image: np.ndarray, floor: FloorMarkers,
     calibration = Calibration(
         h, size, camera_position=position,
         camera_matrix=None if intrinsics is None else intrinsics[0],
-        dist_coeffs=None if intrinsics is None else intrinsics[1])
+        dist_coeffs=None if intrinsics is None else intrinsics[1],
+        floor_markers=tuple(sorted(floor.markers)))
     return CalibrationReport(calibration, errors, rejected, missing, focal, how)

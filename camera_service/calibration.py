@@ -45,7 +45,7 @@ MAX_TILT = 0.5  # largest accepted perspective tilt (fraction the far edge shrin
 _HORIZON_EPS = 1e-12  # |w| below this: the point maps to infinity
 
 _YAML_KEYS = {"version", "image_size", "floor_from_pixel", "units", "camera_position",
-              "camera_matrix", "dist_coeffs", "residual_m"}
+              "camera_matrix", "dist_coeffs", "residual_m", "floor_markers"}
 
 
 @dataclass(frozen=True, eq=False)
@@ -61,6 +61,7 @@ class Calibration:
     camera_position: tuple[float, float, float] | None = None  # [m] camera centre on the floor frame
     camera_matrix: np.ndarray | None = None  # 3x3 intrinsics (frames are undistorted with them)
     dist_coeffs: np.ndarray | None = None  # OpenCV distortion coefficients
+    floor_markers: tuple[int, ...] = ()  # ids of the floor markers calibrated on (not robots)
     pixel_from_floor: np.ndarray = field(init=False, repr=False)  # 3x3, metres -> pixels
 
     def __post_init__(self) -> None:
@@ -86,6 +87,11 @@ class Calibration:
                 raise ValueError(f"camera_position: expected finite [x, y, z > 0], "
                                  f"got {self.camera_position!r}")
             object.__setattr__(self, "camera_position", c)
+        ids = tuple(self.floor_markers)
+        if not all(isinstance(i, int | np.integer) and not isinstance(i, bool) and i >= 0
+                   for i in ids):
+            raise ValueError(f"floor_markers: expected marker ids, got {self.floor_markers!r}")
+        object.__setattr__(self, "floor_markers", tuple(int(i) for i in ids))
         if (self.camera_matrix is None) != (self.dist_coeffs is None):
             raise ValueError("camera_matrix: camera_matrix and dist_coeffs go together")
         if self.camera_matrix is not None:
@@ -309,6 +315,8 @@ def calibration_to_dict(calibration: Calibration) -> dict[str, object]:
     }
     if calibration.camera_position is not None:
         out["camera_position"] = [float(v) for v in calibration.camera_position]
+    if calibration.floor_markers:
+        out["floor_markers"] = list(calibration.floor_markers)
     if calibration.camera_matrix is not None:
         out["camera_matrix"] = [[float(v) for v in row] for row in calibration.camera_matrix]
         out["dist_coeffs"] = [float(v) for v in calibration.dist_coeffs]
@@ -343,6 +351,10 @@ def calibration_from_dict(data: object) -> Calibration:
                 extra[key] = np.array(data[key], dtype=np.float64)
             except (TypeError, ValueError):
                 raise ValueError(f"{key}: expected numbers") from None
+    if data.get("floor_markers") is not None:
+        if not isinstance(data["floor_markers"], list):
+            raise ValueError(f"floor_markers: expected a list of ids, got {data['floor_markers']!r}")
+        extra["floor_markers"] = tuple(data["floor_markers"])
     if "camera_position" in extra:
         extra["camera_position"] = tuple(extra["camera_position"].ravel())
     return Calibration(matrix, (size[0], size[1]), **extra)

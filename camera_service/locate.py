@@ -8,7 +8,8 @@ the homography, corrects the marker height's parallax
 against the printed one: a square more than :data:`SIZE_TOLERANCE` off is not a marker the
 config describes (a misread, or a marker of another size lying around) and is dropped, counted
 ``implausible``. An id seen twice in one frame is ambiguous: both are dropped (``duplicates``);
-an id nobody owns is counted (``unknown``).
+an id nobody owns is counted (``unknown``), except the calibration's floor markers, which are
+always in view.
 
 Heading convention (:mod:`camera_service.markers`): a robot's heading is its marker's ``x`` axis,
 from the printed marker's left edge to its right edge.
@@ -59,7 +60,8 @@ class Locator:
     def __init__(self, calibration: Calibration, dictionary: str, marker_size: float,
                  height: float = 0.0, wanted: Collection[int] | None = None,
                  overrides: Mapping[int, tuple[float, float]] | None = None) -> None:
-        """``overrides`` maps a marker id to its own ``(size, height)`` [m]."""
+        """``overrides`` maps a marker id to its own ``(size, height)`` [m]; the calibration's
+        floor markers are ignored (not counted unknown)."""
         self.overrides = dict(overrides or {})
         heights = [height, *(h for _s, h in self.overrides.values())]
         if max(heights) > 0.0 and calibration.camera_position is None:
@@ -103,7 +105,8 @@ class Locator:
         unknown, implausible = [], []
         for mid, quad in zip(seen, corners, strict=True):
             if self.wanted is not None and mid not in self.wanted:
-                unknown.append(mid)
+                if mid not in self.calibration.floor_markers:
+                    unknown.append(mid)
                 continue
             if counts[mid] > 1:
                 continue

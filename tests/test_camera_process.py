@@ -160,6 +160,8 @@ def test_calibrate_and_camera_give_poses_and_obstacles_within_the_bounds_over_ze
     assert proc.returncode == 0, stderr
     stats = json.loads(stdout.strip().splitlines()[-1])["camera"]
     assert stats["frames"] == N_FRAMES and stats["wrong_size"] == 0
+    assert stats["unknown_markers"] == 0  # the floor markers in view are known to the calibration
+    assert cal["floor_markers"] == sorted(FLOOR)
 
     # frame k's stamp is the k-th obstacles message's (one per frame, published first)
     stamps = sorted({o.stamp for o in obstacles})
