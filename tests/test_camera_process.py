@@ -480,3 +480,25 @@ def test_the_camera_process_stops_cleanly_on_sigterm_and_prints_its_counters(tmp
             proc.kill()
     assert proc.returncode == 0, stderr
     assert json.loads(stdout.strip().splitlines()[-1])["camera"]["frames"] == 0
+
+
+def test_a_video_file_plays_at_its_own_rate_and_then_ends(tmp_path):
+    from camera_service.sources import EndOfSource, SourceError, VideoFileSource, make_source
+
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 50.0, (64, 48))
+    for k in range(3):
+        writer.write(np.full((48, 64, 3), 40 * k, np.uint8))
+    writer.release()
+    src = make_source(str(path), 15.0, lambda: False)
+    assert isinstance(src, VideoFileSource) and src.fps == 50.0
+    items = [src.read() for _ in range(3)]
+    with pytest.raises(EndOfSource):
+        src.read()
+    src.close()
+    assert [i[0].shape for i in items] == [(48, 64, 3)] * 3
+    np.testing.assert_allclose([i[1] - items[0][1] for i in items], [0.0, 0.02, 0.04], atol=1e-6)
+    with pytest.raises(SourceError, match="no such file"):
+        make_source(str(tmp_path / "missing.mp4"), 15.0, lambda: False)
+    with pytest.raises(SourceError, match="exact key"):
+        make_source("zenoh:lab/**", 15.0, lambda: False, session=object())
