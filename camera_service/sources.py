@@ -11,8 +11,9 @@
 * a glob of image files (``frames/*.png``, sorted by name): frame ``k`` stamped
   ``start + k / fps``, paced to that clock; an unreadable file is counted and skipped.
 * ``zenoh:KEY``: encoded frames (:mod:`wire.frames`) published on ``KEY``; the stamp is the one
-  the frame carries. Decoding happens on the caller's thread; at most :data:`QUEUE` frames wait,
-  older ones are dropped and counted ``skipped`` (the newest frame matters).
+  the frame carries. Decoding happens on the caller's thread; while it works on one frame, only
+  the newest of the frames arriving waits (:data:`QUEUE`), older ones are dropped and counted
+  ``skipped``: a late frame is worth less than the next one.
 
 The first open of a source that does not exist (no such file, no image matching the glob, a
 camera or stream that does not open) is a :class:`SourceError` naming it: exit 2 at start.
@@ -38,7 +39,7 @@ logger = logging.getLogger(__name__)
 
 BACKOFF_START_S = 0.25  # [s] first wait before reopening a failed capture
 BACKOFF_MAX_S = 4.0  # [s] longest wait between two attempts
-QUEUE = 2  # frames a zenoh source keeps waiting (older ones are dropped)
+QUEUE = 1  # frames a zenoh source keeps waiting (an older one is dropped: the newest matters)
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 READ_TIMEOUT_S = 0.2  # [s] longest a read() blocks before returning to check for a stop
 
