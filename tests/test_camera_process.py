@@ -20,6 +20,8 @@ import overhead_rig as rig_mod
 import pytest
 import yaml
 import zenoh
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from camera_service.cli import main as camera_main
 from camera_service.config import ConfigError, config_from_dict
@@ -89,6 +91,14 @@ def lab(tmp_path_factory):
     for k in range(N_FRAMES):
         cv2.imwrite(str(d / "frames" / f"{k:04d}.png"), render(rig, k / FPS, rng))
     (d / "static.yaml").write_text((REPO / "tests/scenarios/two-small.yaml").read_text())
+    # a calibration for the config tests (the first test makes its own with the command)
+    from camera_service.calibrate import calibrate_image
+    from camera_service.calibration import save_calibration
+    from camera_service.config import load_floor
+
+    report = calibrate_image(cv2.imread(str(d / "calib.png")), load_floor(d / "floor.yaml"),
+                             (rig.K, DIST))
+    save_calibration(report.calibration, d / "calib.yaml")
     return d, rig
 
 
@@ -248,8 +258,6 @@ def test_calibrate_refuses_too_few_collinear_or_invalid_markers_in_one_line(lab,
 def test_a_bad_camera_config_or_source_is_one_line_naming_it_and_exit_2(lab, capsys, over,
                                                                        culprit):
     d, _rig = lab
-    if not (d / "calib.yaml").exists():
-        pytest.skip("needs the calibration of the first test")
     cfg = write_config(d, free_tcp_port(), **over)
     assert main(["camera", str(cfg), "--frames", "1"]) == 2
     assert culprit in _one_error_line(capsys)
@@ -502,3 +510,23 @@ def test_a_video_file_plays_at_its_own_rate_and_then_ends(tmp_path):
         make_source(str(tmp_path / "missing.mp4"), 15.0, lambda: False)
     with pytest.raises(SourceError, match="exact key"):
         make_source("zenoh:lab/**", 15.0, lambda: False, session=object())
+
+
+@settings(max_examples=200, deadline=None)
+@given(cx=st.floats(-5, 5), cy=st.floats(-5, 5), cz=st.floats(1.0, 10.0),
+       px=st.floats(-8, 8), py=st.floats(-8, 8), frac=st.floats(0.0, 0.9))
+def test_parallax_correction_puts_a_raised_point_back_under_itself(cx, cy, cz, px, py, frac):
+    from camera_service.calibration import correct_parallax
+
+    h = frac * cz
+    # where the ray from the camera through (px, py, h) meets the floor
+    s = cz / (cz - h)
+    floor = np.array([[cx + (px - cx) * s, cy + (py - cy) * s]])
+    np.testing.assert_allclose(correct_parallax(floor, (cx, cy, cz), h)[0], [px, py], atol=1e-9)
+
+
+def test_the_source_option_overrides_the_config_and_a_bad_one_is_named(lab, capsys):
+    d, _rig = lab
+    cfg = write_config(d, free_tcp_port())
+    assert main(["camera", str(cfg), "--source", str(d / "nope.mp4")]) == 2
+    assert "nope.mp4" in _one_error_line(capsys)
