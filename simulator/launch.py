@@ -254,6 +254,9 @@ def run_command(ns: argparse.Namespace) -> int:
             import camera_service.service  # noqa: F401
         except ImportError:
             raise UsageError("--camera synthetic: camera_service.service is not available yet") from None
+    if ns.camera == "process" and faults.camera_dropouts:
+        raise UsageError("--camera-dropout: not with --camera process (the camera process "
+                         "publishes the poses)")
     if not 0 <= ns.port < 65536:
         raise UsageError(f"--port: {ns.port} is not a TCP port")
     slots = getattr(ns, "pose_slots", 1)

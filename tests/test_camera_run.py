@@ -60,3 +60,12 @@ def test_agents_reach_their_goals_on_poses_from_the_real_camera_process(tmp_path
     assert all(n == stats["frames"] for n in stats["detections"].values())  # every robot, always
     assert stats["obstacle_frames"] == stats["frames"]  # the cart, tracked in every frame
     assert abs(cam["time_to_goal_s"] - sim["time_to_goal_s"]) <= 0.15 * sim["time_to_goal_s"]
+
+
+def test_camera_dropouts_are_refused_with_the_camera_process_before_anything_starts(tmp_path,
+                                                                                   capsys):
+    scenario = Path(__file__).parent / "scenarios" / "two-pairs-camera.yaml"
+    assert main(["run", str(scenario), "--out", str(tmp_path / "o"), "--camera", "process",
+                 "--camera-dropout", "a1@1:1"]) == 2
+    assert "--camera-dropout" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
