@@ -84,6 +84,8 @@ class FramePublisher:
 
     def wait_subscribed(self, timeout: float, abort=lambda: None) -> None:
         """Wait until the camera process subscribes to the frames."""
+        if self.publisher is None:
+            raise RuntimeError("camera: this FramePublisher has no session")
         deadline = time.monotonic() + timeout
         while not self.publisher.matching_status.matching:
             abort()
@@ -93,7 +95,9 @@ class FramePublisher:
             time.sleep(0.02)
 
     def undeclare(self) -> None:
-        self.publisher.undeclare()
+        if self.publisher is not None:
+            self.publisher.undeclare()
+            self.publisher = None
 
 
 def write_camera_files(pub: FramePublisher, scenario: object, scenario_path: str | Path,
