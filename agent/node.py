@@ -458,7 +458,7 @@ class AgentNode:
                 next_t = now  # do not try to catch up with a burst of ticks
             try:
                 await asyncio.wait_for(self._stop.wait(), max(0.0, next_t - time.monotonic()))
-            except TimeoutError:
+            except (TimeoutError, asyncio.TimeoutError):  # distinct classes on 3.10
                 pass
 
     # --- real time, ticking on pose arrival ---------------------------------------------------
@@ -575,7 +575,7 @@ class AgentNode:
                 return False
             try:
                 await asyncio.wait_for(self._arrived.wait(), remaining)
-            except TimeoutError:
+            except (TimeoutError, asyncio.TimeoutError):  # distinct classes on 3.10
                 pass
         return not missing()
 

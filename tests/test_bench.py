@@ -111,3 +111,14 @@ def test_quick_bench_measures_recording_and_a_watched_fleet(quick_result):
     (n, watched), = result["agents_viewer"].items()
     assert n in result["agents"] and watched["commands"] > 0
     assert f"{n}v" in (out / "bench.txt").read_text(encoding="utf-8")
+def test_quick_bench_ran_the_camera_process_and_accounted_for_every_frame(quick_result):
+    result, out = quick_result
+    cam = result["camera"]
+    assert cam["robots"] == 16 and cam["image"] == [1280, 960]
+    # a loaded machine may skip frames (the camera keeps only the newest waiting one): every
+    # frame is handled or counted as skipped, and every handled frame found every robot
+    assert cam["frames_handled"] >= 1
+    assert cam["frames_handled"] + cam["frames_skipped"] == cam["frames"]
+    assert cam["detections_min"] == cam["frames_handled"]
+    assert 0 < cam["latency_ms_p50"] <= cam["latency_ms_p99"]
+    assert "capture -> publish" in (out / "bench.txt").read_text(encoding="utf-8")
