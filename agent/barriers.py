@@ -26,6 +26,16 @@ class Neighbour(NamedTuple):
     df: float  # [m] desired distance Df_ij
 
 
+class Partner(NamedTuple):
+    """A robot this one could touch, as its ``state`` message gives it (separation rows)."""
+
+    x: float  # [m] control point (the body centre, or a unicycle's look-ahead point)
+    y: float
+    vx: float  # [m/s] its last certified control-point velocity
+    vy: float
+    theta: float = 0.0  # [rad] heading (used for unicycles only)
+
+
 class Obstacle(NamedTuple):
     x: float
     y: float
@@ -114,6 +124,62 @@ def pairwise_row(px: float, py: float, n: Neighbour, d_af: float, gamma: float):
     """All-to-all baseline: keep |p_i - p_j| >= D_Af from a robot of another formation, as an
     obstacle moving with that robot's velocity (eq. 3.5 in the form of 4.5 / A.1)."""
     return obstacle_row(px, py, Obstacle(n.x, n.y, n.vx, n.vy, d_af), gamma)
+
+
+# ------------------------------------------------------------- separation (bodies), hard
+
+
+def body_map(theta: float, unicycle: bool) -> tuple[float, float, float]:
+    """The symmetric 2x2 map M (m11, m12, m22) from the control-point velocity u to the body
+    centre's velocity: the identity for a single integrator; e e^T for a unicycle (eq. 6.2:
+    the body moves along its heading e with v = e . u, the turn does not move it)."""
+    if not unicycle:
+        return (1.0, 0.0, 1.0)
+    c, s = math.cos(theta), math.sin(theta)
+    return (c * c, c * s, s * s)
+
+
+def separation_row(
+    bi: tuple[float, float], mi: tuple[float, float, float], vi: tuple[float, float],
+    bj: tuple[float, float], mj: tuple[float, float, float], vj: tuple[float, float],
+    dsep: float, gamma: float, drift: float = 0.0,
+) -> tuple[float, Row]:
+    """Robot i's share of the pair barrier h_ij = |b_i - b_j|^2 - dsep^2 on the body centres.
+
+    The pair needs  g_i . u_i + g_j . u_j >= -gamma h + 2 |d| drift_pair  (d = b_i - b_j,
+    g_i = 2 M_i d, g_j = -2 M_j d; eq. 3.5 with A.1's form, both robots moving). Each robot
+    knows both last velocities v_i, v_j (its own, and the neighbour's from its ``state``), so
+    both compute the same slack of that condition at (v_i, v_j):
+
+        c = gamma h + g_i . v_i + g_j . v_j - 2 |d| (drift_i + drift_j)
+
+    and split it with the same weights, lambda_i = |g_i|^2 / (|g_i|^2 + |g_j|^2) (one half each
+    for single integrators; more to the robot whose heading can act, for unicycles). Robot i
+    takes the row  g_i . (u_i - v_i) >= -lambda_i c,  robot j the mirror row. Adding the two
+    rows gives the pair condition for ANY u_i, u_j the two QPs return at once: neither robot
+    counts on the other keeping its velocity (unlike A.2's neighbour term), each only on the
+    other meeting its own row. This is the reciprocal (ORCA-style) split in CBF form: with
+    c >= 0 (the pair is safe at its current velocities) u_i = v_i is allowed, so two robots
+    moving together are not slowed; only the change towards each other is shared out.
+
+    Sampled time: with d_k+1 = d_k + dt (M_i u_i - M_j u_j) + e (e the bodies' arc error,
+    |e| <= (drift_i + drift_j) dt),  h_k+1 = h_k + 2 d.(...) dt + 2 d.e + |...|^2
+    >= h_k (1 - gamma dt) >= 0  whenever gamma dt <= 1: the continuous rate condition holds
+    exactly for single integrators (drift 0, the square term only helps); a unicycle body's
+    arc leaves the straight line by at most v omega dt^2 / 2 per period, which the caller
+    passes as drift = v_max omega_max dt / 2.
+
+    Returns (h, row) with the row normalised (a zero gradient is kept as 0 <= b)."""
+    dx, dy = bi[0] - bj[0], bi[1] - bj[1]
+    h = dx * dx + dy * dy - dsep * dsep
+    gix, giy = 2.0 * (mi[0] * dx + mi[1] * dy), 2.0 * (mi[1] * dx + mi[2] * dy)
+    gjx, gjy = -2.0 * (mj[0] * dx + mj[1] * dy), -2.0 * (mj[1] * dx + mj[2] * dy)
+    gvi = gix * vi[0] + giy * vi[1]
+    c = gamma * h + gvi + gjx * vj[0] + gjy * vj[1] - 4.0 * math.hypot(dx, dy) * drift
+    ni, nj = gix * gix + giy * giy, gjx * gjx + gjy * gjy
+    lam = ni / (ni + nj) if ni + nj > 1e-18 else 0.5
+    # g_i . u >= g_i . v_i - lambda c   <=>   -g_i . u <= lambda c - g_i . v_i
+    return h, normalized_row(-gix, -giy, lam * c - gvi)
 
 
 # -------------------------------------------------------------------------- speed limits

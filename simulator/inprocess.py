@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from agent import unicycle
-from agent.barriers import Neighbour, Obstacle
+from agent.barriers import Neighbour, Obstacle, Partner
 from agent.control import ControlParams, FormationView, Stall, control_step, update_stall
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
 from leader.ellipse import Ellipse, estimate, reference_shape
@@ -69,6 +69,7 @@ class FleetModel:
     members: dict[str, tuple[int, ...]]  # formation -> robot indices
     neighbours: tuple[tuple[tuple[int, float], ...], ...]  # per robot: (index, Df)
     formation_of: tuple[str, ...]
+    partners: tuple[tuple[int, ...], ...] = ()  # per robot: the other members (separation rows)
 
     @classmethod
     def build(cls, scenario: Scenario, safety: bool = True) -> FleetModel:
@@ -85,6 +86,8 @@ class FleetModel:
             tuple((index[j], df) for j, df in scenario.formation_of(rid).neighbours(rid))
             for rid in ids
         )
+        formation_of = tuple(scenario.formation_of(rid).name for rid in ids)
+        partners = tuple(tuple(j for j in members[formation_of[i]] if j != i) for i in range(len(ids)))
         return cls(
             scenario,
             ControlParams.from_scenario(scenario, safety=safety),
@@ -92,7 +95,8 @@ class FleetModel:
             axes,
             members,
             nbrs,
-            tuple(scenario.formation_of(rid).name for rid in ids),
+            formation_of,
+            partners,
         )
 
     def ellipses(self, ctrl: list[tuple[float, float]], vel: list[tuple[float, float]]):
@@ -130,6 +134,7 @@ def simulate(
     counts = {STATUS_RELAXED: 0, STATUS_FALLBACK: 0, STATUS_FAILED: 0}
     min_h = {"formation": math.inf, "obstacle": math.inf, "formations": math.inf}
     all_to_all = options.topology == "all-to-all"
+    escape_ticks = 0  # robot-ticks whose nominal was the formation-level escape
     stalls = [Stall()] * n  # each robot's copy of its formation's jam state
 
     def obstacles_at(t: float) -> list[Obstacle]:
@@ -151,13 +156,20 @@ def simulate(
             fname = fleet.formation_of[i]
             nb = [Neighbour(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], df)
                   for j, df in fleet.neighbours[i]]
+            # Every other member of the formation (graph neighbour or not: the agent subscribes to
+            # their states) gets a hard separation row; in all-to-all every foreign robot too.
+            part_idx = fleet.partners[i]
+            hazards = [e for name, e in ellipses.items() if name != fname]
             if all_to_all:
                 others: list[Ellipse] = []
                 pair = [Neighbour(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], 0.0)
                         for j in range(n) if fleet.formation_of[j] != fname]
+                part_idx = part_idx + tuple(j for j in range(n) if fleet.formation_of[j] != fname)
             else:
-                others = [e for name, e in ellipses.items() if name != fname]
+                others = hazards
                 pair = []
+            partners = [Partner(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], state[j][2])
+                        for j in part_idx]
             gc = goal_centroids[fname]
             view = FormationView(ellipses[fname], gc[0], gc[1])
             stalls[i] = update_stall(stalls[i], view, dt)
@@ -166,11 +178,13 @@ def simulate(
                 other_names=tuple(name for name in ellipses if name != fname),
                 retreating=stalls[i].retreat > 0.0,
             )
-            res = control_step(params, tuple(state[i]), goals[i], nb, obs, others, view, solve, pair)
+            res = control_step(params, tuple(state[i]), goals[i], nb, obs, others, view, solve, pair,
+                               partners, vel[i], hazards)
             results.append(res)
             solve_us.append(res.solve_us)
             if res.status in counts:
                 counts[res.status] += 1
+            escape_ticks += res.escape
             min_h["formation"] = min(min_h["formation"], res.h_formation)
             min_h["obstacle"] = min(min_h["obstacle"], res.h_obstacle)
             min_h["formations"] = min(min_h["formations"], res.h_formations)
@@ -216,6 +230,7 @@ def simulate(
             "relaxed": counts[STATUS_RELAXED],
             "fallback": counts[STATUS_FALLBACK],
             "failed": counts[STATUS_FAILED],
+            "escape": escape_ticks,
         },
         "comm": logical_comm(scenario, options.topology, ticks, t, edges_total),
         "safety": options.safety,
