@@ -111,14 +111,13 @@ class ControlParams:
 
     @property
     def separation(self) -> float:
-        """[m] distance the separation rows keep between two body centres."""
-        return 2.0 * self.radius + SEP_MARGIN
-
-    @property
-    def body_drift(self) -> float:
-        """[m/s] bound on how far a unicycle body's arc leaves its straight-line prediction per
-        second of a period: v_max omega_max dt / 2 (0 for single integrators, which move exactly)."""
-        return 0.5 * self.max_speed * self.max_turn_rate * self.period if self.unicycle else 0.0
+        """[m] distance the separation rows keep between two body centres: two radii, plus for
+        unicycles the look-ahead point's sampling error (:attr:`sampling_margin`, with the
+        separation's gamma), since the pair barrier is written on the points."""
+        margin = 0.0
+        if self.unicycle:
+            margin = 0.5 * self.lookahead * self.max_turn_rate ** 2 * self.period / self.gamma_formation
+        return 2.0 * self.radius + SEP_MARGIN + margin
 
     @property
     def sampling_margin(self) -> float:
@@ -333,14 +332,10 @@ def build_rows(
             hard.append(row)
     hs = math.inf
     if partners:
-        uni = p.unicycle
-        mi = barriers.body_map(theta, uni)
-        bi = (px - off * math.cos(theta), py - off * math.sin(theta)) if uni else (px, py)
-        dsep, drift, gamma = p.separation, 0.0, p.gamma_formation
+        dsep, gamma = p.separation, p.gamma_formation
         for q in partners:
-            bj = (q.x - off * math.cos(q.theta), q.y - off * math.sin(q.theta)) if uni else (q.x, q.y)
-            h, row = barriers.separation_row(bi, mi, last_u, bj, barriers.body_map(q.theta, uni),
-                                             (q.vx, q.vy), dsep, gamma, drift)
+            h, gi, gj = barriers.separation_terms((px, py), theta, (q.x, q.y), q.theta, dsep, off)
+            row = barriers.separation_row(h, gi, last_u, gj, (q.vx, q.vy), gamma)
             hs = min(hs, h)
             if row[2] < reach:
                 hard.append(row)

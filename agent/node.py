@@ -80,7 +80,7 @@ from typing import Any
 
 import zenoh
 
-from agent.barriers import Neighbour, Obstacle
+from agent.barriers import Neighbour, Obstacle, Partner
 from agent.base import make_base
 from agent.config import AgentConfig
 from agent.control import FormationView, Stall, StepResult, control_step, update_stall
@@ -199,9 +199,13 @@ class AgentNode:
         self.all_to_all = cfg.topology == "all-to-all"
         self.neighbour_keys = {keys.state_key(p, n): df for n, df in cfg.neighbours}
         self.foreign_keys = tuple(keys.state_key(p, r) for r in cfg.foreign_robots)
+        # separation rows: every other member (graph neighbour or not), then foreign robots
+        self.partner_keys = tuple(keys.state_key(p, r) for r in cfg.partners)
+        self._sep_keys = self.partner_keys + (self.foreign_keys if self.all_to_all else ())
         # every robot's state this node reads each tick (built once, not per tick)
-        self._state_keys = tuple(self.neighbour_keys) + (self.foreign_keys if self.all_to_all
-                                                         else ())
+        extra = tuple(k for k in self.partner_keys if k not in self.neighbour_keys)
+        self._state_keys = tuple(self.neighbour_keys) + extra + (self.foreign_keys if self.all_to_all
+                                                                 else ())
         self.role = LeaderRole(cfg.formation, cfg.leader, p) if cfg.leader is not None else None
         self._member_keys: dict[str, str] = {}  # leader: member -> its state key
         if self.role is not None:
@@ -252,7 +256,7 @@ class AgentNode:
         self._arrived: asyncio.Event | None = None
         self._stop: asyncio.Event | None = None
         self._own_others: Others | None = None
-        self._tick_point: tuple[float, float, float] | None = None
+        self._tick_point: tuple[float, float, float, float] | None = None
         # real time on pose arrival: ticks run on Zenoh's thread or the loop, one at a time
         self._tick_lock = threading.Lock()
         self._closing = False  # set (under the lock) when close() starts: no more ticks
@@ -270,9 +274,11 @@ class AgentNode:
         else:
             for k in self.neighbour_keys:
                 subs[k] = keys.STATE
+            for k in self.partner_keys:  # members that are not graph neighbours (separation)
+                subs[k] = keys.STATE
         if self.role is None:
             subs[self.others_key] = keys.OTHERS
-        elif not self.all_to_all:
+        else:  # both topologies: the tie-break and the jam rule read the other ellipses
             for k in self.role.other_keys:
                 subs[k] = keys.ELLIPSE
         subs[self.obstacles_key] = keys.OBSTACLES
@@ -302,7 +308,7 @@ class AgentNode:
         s = self._session
         pub_keys = [self.state_key, self.cmd_key]
         if self.role is not None:
-            pub_keys += [self.role.others_key] + ([] if self.all_to_all else [self.role.ellipse_key])
+            pub_keys += [self.role.others_key, self.role.ellipse_key]
         for k in pub_keys:
             self._pubs[k] = CountingPublisher(s.declare_publisher(k), self.counter)
         if self.cfg.base != "world":
@@ -608,8 +614,8 @@ class AgentNode:
             return await self._tick(t)
         finally:
             if t is None and self._tick_point is not None:
-                px, py, stamp = self._tick_point
-                self._pubs[self.state_key].put_message(State(px, py, *self.last_u, stamp))
+                px, py, stamp, th = self._tick_point
+                self._pubs[self.state_key].put_message(State(px, py, *self.last_u, stamp, th))
 
     async def _tick(self, t: float | None) -> StepResult | None:
         cfg = self.cfg
@@ -634,9 +640,9 @@ class AgentNode:
         off = cfg.control.offset
         px, py = control_point(pose.x, pose.y, pose.theta, off) if cfg.control.unicycle \
             else (pose.x, pose.y)
-        self._tick_point = (px, py, stamp)
+        self._tick_point = (px, py, stamp, pose.theta)
         if t is not None:  # lock-step: neighbours and the leader wait for this tick's state
-            self._pubs[self.state_key].put_message(State(px, py, *self.last_u, stamp))
+            self._pubs[self.state_key].put_message(State(px, py, *self.last_u, stamp, pose.theta))
 
         state_keys = self._state_keys
         others_ready = True
@@ -678,15 +684,18 @@ class AgentNode:
                 other_names=tuple(m.formation for m in others_msg.ellipses),
                 retreating=self._stall.retreat > 0.0,
             )
+        hazards = [msg_to_ellipse(m) for m in others_msg.ellipses]
         if self.all_to_all:
             ellipses = []
             pair = [Neighbour(states[k].x, states[k].y, states[k].ux, states[k].uy, 0.0)
                     for k in self.foreign_keys]
         else:
-            ellipses = [msg_to_ellipse(m) for m in others_msg.ellipses]
+            ellipses = hazards
             pair = []
+        partners = [Partner(states[k].x, states[k].y, states[k].ux, states[k].uy, states[k].theta)
+                    for k in self._sep_keys]
         res = control_step(cfg.control, (pose.x, pose.y, pose.theta), cfg.goal, nb, obs,
-                           ellipses, view, solve_exact, pair)
+                           ellipses, view, solve_exact, pair, partners, self.last_u, hazards)
         self._put_cmd(Cmd(res.v, res.omega, res.ux, res.uy, stamp))
         self.last_u = (res.ux, res.uy)
         self.solves += 1
@@ -732,24 +741,24 @@ class AgentNode:
             self.ellipse_trace.append((stamp, *own))
         received: dict[str, EllipseMsg] = {}
         complete = True
-        if not self.all_to_all:
-            self._pubs[role.ellipse_key].put_message(ellipse_to_msg(role.formation, own, stamp))
-            if ts is not None:
-                await self._wait_current([(keys.ELLIPSE, k) for k in role.other_keys], stamp)
-            inflated = False
-            for k in role.other_keys:
-                entry = self._latest(keys.ELLIPSE, k)
-                if entry is None:
-                    continue
-                if self._fresh(entry, ts):
-                    received[k] = entry[0]
-                    continue
-                age = (ts - entry[0].stamp) if ts is not None else time.monotonic() - entry[1]
-                if age <= self.options.ellipse_hold:
-                    received[k] = inflate(entry[0], self.cfg.control.max_speed * age)
-                    inflated = True
-            self.inflated += inflated
-            complete = len(received) == len(role.other_keys)
+        # both topologies (all-to-all: for the tie-break and the jam rule, not for rows)
+        self._pubs[role.ellipse_key].put_message(ellipse_to_msg(role.formation, own, stamp))
+        if ts is not None:
+            await self._wait_current([(keys.ELLIPSE, k) for k in role.other_keys], stamp)
+        inflated = False
+        for k in role.other_keys:
+            entry = self._latest(keys.ELLIPSE, k)
+            if entry is None:
+                continue
+            if self._fresh(entry, ts):
+                received[k] = entry[0]
+                continue
+            age = (ts - entry[0].stamp) if ts is not None else time.monotonic() - entry[1]
+            if age <= self.options.ellipse_hold:
+                received[k] = inflate(entry[0], self.cfg.control.max_speed * age)
+                inflated = True
+        self.inflated += inflated
+        complete = len(received) == len(role.other_keys)
         self._own_others = role.others(own, received, stamp)
         if complete:
             self._pubs[role.others_key].put_message(self._own_others)

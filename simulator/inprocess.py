@@ -245,12 +245,13 @@ def logical_comm(scenario: Scenario, topology: str, ticks: int, sim_time: float,
     implies (deliveries per tick), marked ``"source": "model"``; bytes are not modelled."""
     n = len(scenario.robot_ids)
     leaders = len(scenario.formations)
+    exchange = leaders * (leaders - 1)  # leaders' ellipses: both topologies (tie-break, jam rule)
     if topology == "reduced":
-        per_tick = 2 * edges + leaders * (leaders - 1) + (n - leaders)
+        # every robot hears every other member of its formation (formation and separation rows)
+        per_tick = sum(len(f.robots) * (len(f.robots) - 1) for f in scenario.formations)
+        per_tick += exchange + (n - leaders)
     else:
-        # every robot hears every other robot's state; leaders still hand members their own
-        # formation's ellipse (the tie-break reads it)
-        per_tick = n * (n - 1) + (n - leaders)
+        per_tick = n * (n - 1) + exchange + (n - leaders)
     messages = per_tick * ticks
     rate = messages / n / sim_time if sim_time > 0 and n else 0.0
     return {
