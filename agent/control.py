@@ -111,13 +111,10 @@ class ControlParams:
 
     @property
     def separation(self) -> float:
-        """[m] distance the separation rows keep between two body centres: two radii, plus for
-        unicycles the look-ahead point's sampling error (:attr:`sampling_margin`, with the
-        separation's gamma), since the pair barrier is written on the points."""
-        margin = 0.0
-        if self.unicycle:
-            margin = 0.5 * self.lookahead * self.max_turn_rate ** 2 * self.period / self.gamma_formation
-        return 2.0 * self.radius + SEP_MARGIN + margin
+        """[m] distance the separation rows keep between two body centres: two radii (for
+        unicycles the pair barrier adds l HEADING_SMOOTH, 1 cm for a TurtleBot, which covers
+        the look-ahead points' second-order sampling error: :func:`agent.barriers.separation_terms`)."""
+        return 2.0 * self.radius + SEP_MARGIN
 
     @property
     def sampling_margin(self) -> float:
