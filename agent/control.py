@@ -265,12 +265,13 @@ class Rows(NamedTuple):
     """The QP's rows for one tick (all normalised, ``ax * ux + ay * uy <= b``)."""
 
     limits: list[Row]  # speed (and, for unicycles, turn-rate) limits: never relaxed
-    hard: list[Row]  # obstacles, other formations (or pairwise robots): never relaxed
+    hard: list[Row]  # other formations' ellipses (or pairwise robots): never relaxed
     soft: list[Row]  # formation edges: relaxed by the smallest slack only if infeasible
     h_formation: float  # smallest barrier value of each kind (inf when there is none)
     h_obstacle: float
     h_formations: float
     h_separation: float = math.inf
+    contact: Sequence[Row] = ()  # obstacles and body separation: hard, kept in a fallback
 
 
 def build_rows(
@@ -295,6 +296,7 @@ def build_rows(
     limits are never relaxed). Its barrier value still counts for the reported minimum."""
     soft: list[Row] = []
     hard: list[Row] = []
+    contact: list[Row] = []
     hf = ho = he = math.inf
     eps = p.epsilon
     if p.unicycle:
@@ -316,7 +318,7 @@ def build_rows(
         h, row = barriers.obstacle_row(px, py, o, p.gamma_obstacle)
         ho = min(ho, h)
         if row[2] < reach:
-            hard.append(row)
+            contact.append(row)
     for e in others:
         h, row = barriers.ellipse_row(px, py, e, p.gamma_formations)
         he = min(he, h)
@@ -335,7 +337,7 @@ def build_rows(
             row = barriers.separation_row(h, gi, last_u, gj, (q.vx, q.vy), gamma)
             hs = min(hs, h)
             if row[2] < reach:
-                hard.append(row)
+                contact.append(row)
 
     if p.unicycle:
         limits = unicycle.limit_rows(theta, p.lookahead, p.max_speed, p.max_turn_rate)
@@ -347,7 +349,7 @@ def build_rows(
         else:
             heading = math.atan2(nominal_u[1], nominal_u[0])
         limits = barriers.speed_rows(p.max_speed, heading)
-    return Rows(limits, hard, soft, hf, ho, he, hs)
+    return Rows(limits, hard, soft, hf, ho, he, hs, contact)
 
 
 def escape_command(
@@ -461,7 +463,7 @@ def control_step(
 
     t0 = perf_counter_ns()
     if p.safety:
-        res = solve_cbf_qp(ux, uy, limits, hard, soft, solve)
+        res = solve_cbf_qp(ux, uy, limits, hard, soft, solve, rows.contact)
     else:
         u = solve_exact(ux, uy, limits) or (0.0, 0.0)
         res = QPResult(u[0], u[1], STATUS_NOMINAL, 0.0, True)

@@ -203,7 +203,7 @@ def bench_step(n: int, backends: Sequence[str] = BACKENDS) -> dict:
     res = control_step(p, pose, goal, nb, obs, others, view)
     rows = build_rows(p, pose[0], pose[1], pose[2], (res.nominal_ux, res.nominal_uy), nb, obs,
                       others, view)
-    qp_rows = rows.limits + rows.hard + rows.soft
+    qp_rows = rows.limits + list(rows.contact) + rows.hard + rows.soft
     nux, nuy = res.nominal_ux, res.nominal_uy
     full = _timed(lambda: control_step(p, pose, goal, nb, obs, others, view), n)
     build = _timed(lambda: build_rows(p, pose[0], pose[1], pose[2], (nux, nuy), nb, obs, others,
@@ -328,7 +328,7 @@ def central_problem(params: ControlParams, inputs: Sequence[RobotInputs], format
     for i, r in enumerate(inputs):
         built = build_rows(params, r.pose[0], r.pose[1], r.pose[2], nominal[i], (), r.obstacles,
                            r.others, r.view)
-        single = np.array(built.limits + built.hard, dtype=float).reshape(-1, 3)
+        single = np.array(built.limits + list(built.contact) + built.hard, dtype=float).reshape(-1, 3)
         k = len(single)
         idx = np.arange(m, m + k)
         rows_i += [idx, idx]

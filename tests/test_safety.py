@@ -115,7 +115,7 @@ def test_two_unicycles_swapping_places_keep_their_bodies_apart_for_the_whole_run
 
 def test_separation_terms_match_finite_differences_of_the_unicycle_barrier():
     la, dsep = 0.05, 0.21
-    pi, pj, ti, tj = (0.1, 0.2), (0.35, 0.1), 0.7, -1.9
+    pi, pj, ti, tj = (0.1, 0.2), (0.45, 0.1), 0.7, -1.9
     ui, uj = (0.13, -0.05), (-0.02, 0.17)
 
     def h_at(t: float) -> float:
@@ -159,7 +159,7 @@ def test_a_parked_formation_on_a_fast_hazards_path_steps_aside_and_a_static_or_p
 def test_a_formation_crossing_the_path_of_a_hazard_as_fast_as_itself_gives_way():
     p = ControlParams()
     crossing = _view(0.0, -1.2, 0.0, 6.0)  # wants to cross y = 0 going north
-    forklift = Obstacle(-3.0, 0.0, 0.21, 0.0, 0.5)  # crossing at 0.95 x top speed
+    forklift = Obstacle(-1.5, 0.0, 0.21, 0.0, 0.5)  # crossing at 0.95 x top speed, close
     ux, uy = escape_command(p, crossing, [forklift])
     assert uy <= 1e-9  # no motion towards the hazard's path line: it waits or backs off
     # a slow hazard far off leaves it alone: it crosses well ahead
