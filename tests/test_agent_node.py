@@ -322,6 +322,7 @@ def test_in_real_time_a_silent_camera_ends_in_deadline_ticks_that_command_zero(c
 
     async def body(node: AgentNode) -> None:
         stamp = time.time()
+        peer.feed(stamp)  # declares the publishers (and waits for their match) before the clock runs
         t_end = time.monotonic() + 0.3
         while time.monotonic() < t_end:  # a pose every 5 ms, well inside the deadline span
             stamp += cfg.period
