@@ -31,6 +31,19 @@ whose centroid has been nearly still for STALL_TIME while away from its goal (:f
 computed by every member from the same ellipse) backs away for RETREAT_TIME from each nearby
 formation whose name sorts before its own (:func:`retreat_command`); the formation with priority
 keeps going.
+
+Escape (:func:`escape_command`): a barrier that only lets robots back away cannot outrun a hazard
+faster than they are. For each moving obstacle every member computes, from shared data only, the
+closest approach of its formation's intended motion (eq. 4.2 on the centroid; zero when parked)
+relative to the hazard; if it comes within the hazard's Ds + the members' half-width across its
+path + ESCAPE_MARGIN, the formation's nominal becomes one vector for all members: sideways, away
+from the hazard's path line, plus the intended motion without its part towards that line, so a
+formation gives way rather than crossing ahead of a hazard about as fast as itself. Where that
+cannot be done in time, the hard rows meet and the QP returns the least-risk command (counted).
+
+Separation (:func:`agent.barriers.separation_row`): every pair of robots that can touch gets a
+hard row with a reciprocal split of the pair's slack; see that function for why two robots
+acting at once cannot both cross.
 """
 
 from __future__ import annotations
