@@ -178,7 +178,7 @@ def bench_step(n: int, backends: Sequence[str] = BACKENDS) -> dict:
     res = control_step(p, pose, goal, nb, obs, others, view, clock=time.perf_counter_ns)
     rows = build_rows(p, pose[0], pose[1], pose[2], (res.nominal_ux, res.nominal_uy), nb, obs,
                       others, view)
-    qp_rows = rows.limits + rows.hard + rows.soft
+    qp_rows = rows.limits + list(rows.contact) + rows.hard + rows.soft
     nux, nuy = res.nominal_ux, res.nominal_uy
     full = timed(lambda: control_step(p, pose, goal, nb, obs, others, view, clock=time.perf_counter_ns), n)
     build = timed(lambda: build_rows(p, pose[0], pose[1], pose[2], (nux, nuy), nb, obs, others,
