@@ -23,6 +23,7 @@ from agent.config import load_config
 from agent.faults import LinkFaults
 from agent.node import AgentNode, NodeOptions
 from wire.acl import read_credentials
+from wire.lifeline import watch_parent
 from wire.zconf import use_zenoh_threads
 
 logger = logging.getLogger("agent")
@@ -39,6 +40,9 @@ async def serve(node: AgentNode) -> None:
     finally:
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.remove_signal_handler(sig)
+        # stopping already: a second SIGTERM (the parent-death signal and the lifeline pipe
+        # both send one) must not kill the process before it wrote its counters
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
 
 def write_stats(node: AgentNode, path: Path) -> None:
@@ -89,6 +93,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"agent: {exc}", file=sys.stderr)
         return 2
     status = 0
+    watch_parent()  # started by formation run: stop (zero command) if the launcher dies
     use_zenoh_threads("agent")
     try:
         asyncio.run(serve(node))

@@ -50,8 +50,9 @@ import zenoh
 from agent.config import ZenohSettings, build_agent_configs, save_config
 from agent.faults import LinkFaults
 from scenario import Scenario, load_scenario
-from wire import acl, keys, traffic
-from wire.testing import free_tcp_port, tcp_endpoint, wait_for_tcp_port
+from wire import acl, keys, lifeline, traffic
+from wire.router import IN_USE, RouterClash, new_router_id, wait_for_router
+from wire.testing import free_tcp_port, tcp_endpoint
 from wire.zconf import UsrPwdAuth
 from wire.zconf import ZenohSettings as WireZenohSettings
 
@@ -180,8 +181,10 @@ class Supervisor:
     def start(self, name: str, argv: Sequence[str]) -> Child:
         log = (self.log_dir / f"{name}.log").open("wb")
         try:
-            proc = subprocess.Popen([sys.executable, *argv], env=self.env, stdin=subprocess.DEVNULL,
-                                    stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+            env, fds = lifeline.child_env(self.env)  # it stops itself if we die (no orphans)
+            proc = subprocess.Popen([sys.executable, *argv], env=env, stdin=subprocess.DEVNULL,
+                                    stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
+                                    pass_fds=fds)
         except BaseException:
             log.close()
             raise
@@ -309,21 +312,27 @@ def launch(
     sup = Supervisor(out / "logs")
     fault_run = faults.active
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    previous_hup = signal.signal(signal.SIGHUP, _raise_interrupt)  # the terminal closed
     try:
         creds = _secure_setup(scenario, out / "secure", endpoint) if secure else None
-        router_argv = ["-m", "wire.router", "--listen", endpoint, "--log-level", "WARNING"]
+        router_id = new_router_id()  # this run's token: the readiness check wants this router
+        router_argv = ["-m", "wire.router", "--listen", endpoint, "--log-level", "WARNING",
+                       "--id", router_id]
         if creds is not None:
             router_argv += ["--config", str(creds.router_config)]
         router = sup.start("router", router_argv)
-        deadline = time.monotonic() + START_TIMEOUT_S
-        while True:
-            sup.check()
-            try:
-                wait_for_tcp_port(port, timeout_s=0.2)
-                break
-            except TimeoutError:
-                if time.monotonic() > deadline:
-                    raise
+        try:
+            wait_for_router(endpoint, router_id, timeout_s=START_TIMEOUT_S, alive=sup.check,
+                            auth=None if creds is None else creds.world)
+        except ChildFailed as exc:
+            if IN_USE in str(exc):
+                raise RouterClash(f"port {port} on 127.0.0.1 is in use by another process: "
+                                  f"choose another --port (or 0 for a free one)") from None
+            raise
+        except RouterClash:
+            raise RouterClash(f"port {port} on 127.0.0.1 is served by another run's Zenoh router, "
+                              f"not this run's: choose another --port (or 0 for a free one)"
+                              ) from None
         zs = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False)
         configs = build_agent_configs(scenario, zenoh=zs, topology=topology, safety=safety)
         agent_argv: dict[str, list[str]] = {}
@@ -375,6 +384,7 @@ def launch(
     finally:
         sup.stop()
         signal.signal(signal.SIGTERM, previous)
+        signal.signal(signal.SIGHUP, previous_hup)
     stats = [_read_stats(out / "agents" / f"{rid}.json") if rid in agents
              else _dead_stats(cfg) for rid, cfg in configs.items()]
     summary, series = build_summary(scenario, result, stats, topology, realtime, camera, safety)

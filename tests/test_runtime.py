@@ -1,0 +1,162 @@
+"""The multi-process runtime under a careless user: a launcher killed or hung up leaves no
+process, two runs on one port do not mix, over real processes and real Zenoh (issue 14)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+import zenoh
+
+from wire import lifeline
+from wire.testing import RouterProcess
+from wire.zconf import make_config
+
+ROOT = Path(__file__).resolve().parent.parent
+TWO = (ROOT / "tests" / "scenarios" / "two-small.yaml").read_text(encoding="utf-8")
+LONG = TWO.replace("duration: 40.0", "duration: 400.0").replace(
+    "goal: [2.0, 0.0]", "goal: [40.0, 0.0]").replace(
+    "goal: [2.0, 0.5]", "goal: [40.0, 0.5]").replace("goal: [1.6, 0.25]", "goal: [39.6, 0.25]")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def _start_run(tmp_path: Path, *extra: str) -> tuple[subprocess.Popen, Path]:
+    scenario = tmp_path / "long.yaml"
+    scenario.write_text(LONG, encoding="utf-8")
+    out = tmp_path / "run"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, "-m", "formation", "run", str(scenario), "--out",
+                             str(out), "--quiet", "--no-plots", *extra], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            start_new_session=True)  # its own session: SIGHUP reaches it alone
+    return proc, out
+
+
+def _wait_running(proc: subprocess.Popen, out: Path) -> dict[str, int]:
+    deadline = time.monotonic() + 60
+    while not (out / "processes.json").exists():
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
+    pids = json.loads((out / "processes.json").read_text())
+    _wait_commands(out, [n.removeprefix("agent-") for n in pids if n.startswith("agent-")])
+    assert proc.poll() is None  # well inside the run (it needs minutes)
+    return pids
+
+
+def _wait_commands(out: Path, robots: list[str], timeout: float = 60.0) -> None:
+    """Wait until every robot's agent has published a command (the fleet is running)."""
+    cfg = yaml.safe_load((out / "configs" / f"{robots[0]}.yaml").read_text())
+    seen: set[str] = set()
+    done = threading.Event()
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        seen.add(str(sample.key_expr).split("/")[-2])
+        if seen >= set(robots):
+            done.set()
+
+    with zenoh.open(_client_config(out, cfg["zenoh"]["connect"])) as session:
+        session.declare_subscriber("warehouse/robot/*/cmd", on_sample)
+        assert done.wait(timeout), f"commands only from {sorted(seen)}"
+
+
+def _client_config(out: Path, connect: list[str]) -> zenoh.Config:
+    return make_config("client", connect)
+
+
+def _wait_gone(pids: dict[str, int], timeout: float) -> list[str]:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        left = [name for name, pid in pids.items() if _alive(pid)]
+        if not left:
+            return []
+        time.sleep(0.1)
+    return [name for name, pid in pids.items() if _alive(pid)]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGHUP])
+def test_a_launcher_killed_or_hung_up_leaves_no_process_behind(tmp_path, sig):
+    proc, out = _start_run(tmp_path)
+    pids: dict[str, int] = {}
+    try:
+        pids = _wait_running(proc, out)
+        assert len(pids) == 1 + 5
+        os.kill(proc.pid, sig)
+        proc.communicate(timeout=30)
+        left = _wait_gone(pids, 8.0)
+    finally:
+        for pid in [proc.pid, *pids.values()]:
+            if _alive(pid):
+                os.kill(pid, signal.SIGKILL)
+        proc.wait()
+    assert not left, f"still running {sig.name} after the launcher: {left}"
+    # the agents stopped through their own shutdown (zero command, counters), not a kill
+    assert sorted(p.stem for p in (out / "agents").glob("*.json")) == ["a1", "a2", "a3", "b1", "b2"]
+
+
+def test_a_child_whose_launcher_is_gone_is_told_through_the_lifeline_pipe():
+    env, fds = lifeline.child_env(os.environ)
+    assert env[lifeline.PARENT_ENV] == str(os.getpid())
+    # a child that watches its parent (this process's child: a shell in between, killed below)
+    code = ("import time, sys, threading; from wire import lifeline; ev = threading.Event(); "
+            "lifeline.watch_parent(ev.set) or sys.exit(3); "
+            "print('watching', flush=True); ev.wait(20) and print('told', flush=True)")
+    # the parent is an intermediate python that starts the watcher with the lifeline, then dies
+    parent = ("import os, subprocess, sys; from wire import lifeline; "
+              "env, fds = lifeline.child_env(os.environ); "
+              f"p = subprocess.Popen([sys.executable, '-c', {code!r}], env=env, pass_fds=fds); "
+              "print(p.pid, flush=True); sys.stdin.read(); os._exit(0)")
+    proc = subprocess.Popen([sys.executable, "-c", parent], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                            text=True)
+    child = int(proc.stdout.readline())
+    assert proc.stdout.readline().strip() == "watching"
+    assert _alive(child)
+    proc.stdin.close()  # the intermediate parent exits: the watcher must notice
+    proc.wait(10)
+    assert proc.stdout.readline().strip() == "told"  # from the watcher, which shares the pipe
+    proc.stdout.close()
+    assert _wait_gone({"watcher": child}, 10.0) == []
+
+
+def test_a_second_run_on_a_taken_port_is_refused_naming_the_port(tmp_path):
+    """The first run's router serves the port; the second run must not publish into it."""
+    with RouterProcess() as first:
+        seen: list[str] = []
+        lock = threading.Lock()
+        conf = make_config("client", [first.endpoint])
+        with zenoh.open(conf) as session:
+            def on_sample(sample: zenoh.Sample) -> None:
+                with lock:
+                    seen.append(str(sample.key_expr))
+
+            sub = session.declare_subscriber("warehouse/**", on_sample)
+            scenario = tmp_path / "two.yaml"
+            scenario.write_text(TWO, encoding="utf-8")
+            proc = subprocess.run(
+                [sys.executable, "-m", "formation", "run", str(scenario), "--out",
+                 str(tmp_path / "second"), "--quiet", "--no-plots", "--port", str(first.port)],
+                env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True, text=True,
+                timeout=120)
+            time.sleep(0.3)
+            sub.undeclare()
+    assert proc.returncode == 1, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"port {first.port}" in lines[0], proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert seen == []  # nothing of the second run reached the first
