@@ -49,6 +49,7 @@ import zenoh
 
 from agent.config import ZenohSettings, build_agent_configs, save_config
 from agent.faults import LinkFaults
+from leader.succession import formation_successor
 from scenario import Scenario, load_scenario
 from wire import acl, keys, lifeline, traffic
 from wire.router import IN_USE, RouterClash, new_router_id, wait_for_router
@@ -273,7 +274,7 @@ def run_command(ns: argparse.Namespace) -> int:
     summary, series = launch(scenario, out, realtime=ns.realtime, camera=ns.camera,
                              topology=ns.topology, safety=not ns.no_safety, port=ns.port,
                              progress_factory=lambda: Progress(f"run {scenario.name}", quiet=ns.quiet),
-                             faults=faults, secure=getattr(ns, "secure", False),
+                             faults=faults, secure=not getattr(ns, "insecure", False),
                              pose_slots=slots)
     write_run(summary, series, scenario, out, plots=not ns.no_plots)
     print_summary(summary, out)
@@ -291,7 +292,7 @@ def launch(
     port: int = 0,
     progress_factory=None,
     faults: FaultPlan | None = None,
-    secure: bool = False,
+    secure: bool = True,
     pose_slots: int = 1,
 ) -> tuple[dict, Series]:
     """Run ``scenario`` as separate processes; returns the summary and the time series.
@@ -391,7 +392,11 @@ def launch(
     if fault_run:
         summary["faults"] = fault_summary(faults, result, stats, driver.log)
     if creds is not None:
-        summary["secure"] = {"auth": "usrpwd", "acl": str(creds.router_config)}
+        summary["secure"] = {"auth": "usrpwd", "acl": str(creds.router_config),
+                             "manager": str(out / "secure" / MANAGER_FILE),
+                             "viewer": str(out / "secure" / VIEWER_FILE)}
+    else:
+        summary["secure"] = False
     if pose_slots > 1:
         summary["pose_slots"] = pose_slots  # the world spread each period's poses over this many
     return summary, series
@@ -404,24 +409,38 @@ class _Secure:
     world: UsrPwdAuth
 
 
+MANAGER_FILE = "manager.json5"  # in OUT/secure: the fleet manager's credentials (goals)
+VIEWER_FILE = "viewer.json5"  # in OUT/secure: a read-only viewer's credentials
+
+
 def _secure_setup(scenario: Scenario, folder: Path, endpoint: str) -> _Secure:
-    """Fresh credentials for the world (as the camera user) and every robot, the router's
-    dictionary and its configuration with the fleet's access control list (:mod:`wire.acl`),
-    all in ``folder`` (mode 0700, files 0600)."""
+    """Fresh credentials for the world (as the camera user), every robot, the fleet manager and
+    a viewer; the router's dictionary and its configuration with the fleet's access control
+    list (:mod:`wire.acl`), all in ``folder`` (mode 0700, files 0600). ``manager.json5`` and
+    ``viewer.json5`` are Zenoh configuration fragments (the router's endpoint, the user and
+    password) that client commands take with ``--auth FILE``."""
     folder.mkdir(parents=True, exist_ok=True)
     folder.chmod(0o700)
+    for old in folder.iterdir():  # a previous run's credentials are void
+        if old.is_file():
+            old.unlink()
     robots = {rid: scenario.formation_of(rid).name for rid in scenario.robot_ids}
     leaders = {f.name: f.leader for f in scenario.formations}
-    creds = acl.new_credentials([acl.CAMERA_USER, *robots])
+    successors = {f.name: s for f in scenario.formations
+                  if (s := formation_successor(f)) is not None}
+    creds = acl.new_credentials([acl.CAMERA_USER, acl.MANAGER_USER, acl.VIEWER_USER, *robots])
     dictionary = folder / "users.txt"
     acl.write_dictionary(dictionary, creds)
     files = {}
     for rid in robots:
         files[rid] = folder / f"{rid}.credentials"
         acl.write_credentials(files[rid], creds[rid])
+    for name, user in ((MANAGER_FILE, acl.MANAGER_USER), (VIEWER_FILE, acl.VIEWER_USER)):
+        acl.write_client_file(folder / name, creds[user], [endpoint])
     router_conf = folder / "router.json5"
     acl.write_router_config(router_conf, acl.router_config(
-        [endpoint], acl.fleet_acl(robots, leaders, keys.DEFAULT_PREFIX), dictionary.resolve()))
+        [endpoint], acl.fleet_acl(robots, leaders, keys.DEFAULT_PREFIX, successors=successors),
+        dictionary.resolve()))
     return _Secure(router_conf, files, creds[acl.CAMERA_USER])
 
 

@@ -500,7 +500,8 @@ def world_summary(result: WorldResult) -> dict:
 
 def main(argv: Sequence[str] | None = None) -> int:
     from scenario import ScenarioError, load_scenario
-    from wire.zconf import add_zenoh_args, settings_from_args, use_zenoh_threads
+    from wire.lifeline import watch_parent
+    from wire.zconf import add_zenoh_args, open_session, settings_from_args, use_zenoh_threads
 
     parser = argparse.ArgumentParser(prog="python -m simulator.world",
                                      description="The simulated world of a multi-process run.")
@@ -516,12 +517,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         scenario = load_scenario(ns.scenario)
         options = WorldOptions(realtime=ns.realtime, camera=ns.camera, prefix=ns.key_prefix)
-        conf = settings_from_args(ns).to_config()
+        settings = settings_from_args(ns)
+        settings.to_config()  # ValueError naming a setting zenoh rejects
     except (ScenarioError, ValueError) as exc:
         print(f"world: {exc}", file=sys.stderr)
         return 2
+    watch_parent()  # started by a launcher: stop when it dies
     use_zenoh_threads("relay")
-    with zenoh.open(conf) as session:
+    try:
+        session = open_session(settings, "world")  # says so when the credentials are refused
+    except ConnectionError as exc:
+        print(exc, file=sys.stderr)
+        return 1
+    with session:
         world = World(scenario, session, options)
         try:
             world.wait_for_agents()

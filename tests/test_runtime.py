@@ -16,9 +16,9 @@ import pytest
 import yaml
 import zenoh
 
-from wire import lifeline
+from wire import lifeline, zconf
 from wire.testing import RouterProcess
-from wire.zconf import make_config
+from wire.zconf import ZenohSettings, make_config
 
 ROOT = Path(__file__).resolve().parent.parent
 TWO = (ROOT / "tests" / "scenarios" / "two-small.yaml").read_text(encoding="utf-8")
@@ -76,7 +76,12 @@ def _wait_commands(out: Path, robots: list[str], timeout: float = 60.0) -> None:
 
 
 def _client_config(out: Path, connect: list[str]) -> zenoh.Config:
-    return make_config("client", connect)
+    """The viewer's credentials the run wrote (access control is on by default)."""
+    viewer = out / "secure" / "viewer.json5"
+    assert viewer.is_file()
+    found = zconf.read_auth_file(viewer)
+    assert list(found.connect) == connect
+    return ZenohSettings(mode="client", connect=found.connect, auth=found.auth).to_config()
 
 
 def _wait_gone(pids: dict[str, int], timeout: float) -> list[str]:
