@@ -17,6 +17,7 @@ from typing import Any
 import yaml
 
 from leader.ellipse import reference_shape
+from leader.succession import formation_successor
 from scenario import Scenario, formation_axes
 
 from .control import ControlParams
@@ -63,6 +64,8 @@ class AgentConfig:
     topology: str = "reduced"
     foreign_robots: tuple[str, ...] = ()  # all-to-all only: robots of other formations
     leader: LeaderSettings | None = None  # set on the leader robot only
+    # set on the member that takes the leader role when the leader dies (leader.succession)
+    standby: LeaderSettings | None = None
     stale_after: float = 0.25  # [s] inputs older than this are stale: command zero
     base: str = "world"  # where commands go: the simulated world or a real robot base
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
@@ -101,6 +104,7 @@ def build_agent_configs(
             other_formations=tuple(g.name for g in scenario.formations if g.name != f.name),
         )
         foreign = tuple(r for r in scenario.robot_ids if r not in f.robot_ids)
+        heir = formation_successor(f)
         for r in f.robots:
             out[r.id] = AgentConfig(
                 robot_id=r.id,
@@ -117,6 +121,7 @@ def build_agent_configs(
                 topology=topology,
                 foreign_robots=foreign if topology == "all-to-all" else (),
                 leader=leader if r.id == f.leader else None,
+                standby=leader if r.id == heir else None,
                 stale_after=STALE_PERIODS * scenario.dt,
                 base=base,
                 zenoh=zenoh,
@@ -142,15 +147,8 @@ def config_from_dict(d: dict[str, Any]) -> AgentConfig:
         control = ControlParams(**d.pop("control"))
         zenoh = ZenohSettings(**{k: tuple(v) if isinstance(v, list) else v
                                  for k, v in d.pop("zenoh", {}).items()})
-        leader = d.pop("leader", None)
-        if leader is not None:
-            leader = LeaderSettings(
-                members=tuple(leader["members"]),
-                offsets=tuple(tuple(map(float, o)) for o in leader["offsets"]),
-                alpha0=float(leader["alpha0"]),
-                axes=tuple(map(float, leader["axes"])),
-                other_formations=tuple(leader["other_formations"]),
-            )
+        leader = _leader_settings(d.pop("leader", None))
+        standby = _leader_settings(d.pop("standby", None))
         cfg = AgentConfig(
             robot_id=str(d.pop("robot_id")),
             formation=str(d.pop("formation")),
@@ -166,6 +164,7 @@ def config_from_dict(d: dict[str, Any]) -> AgentConfig:
             topology=str(d.pop("topology", "reduced")),
             foreign_robots=tuple(d.pop("foreign_robots", ())),
             leader=leader,
+            standby=standby,
             stale_after=float(d.pop("stale_after", 0.25)),
             base=str(d.pop("base", "world")),
             zenoh=zenoh,
@@ -188,6 +187,18 @@ def config_from_dict(d: dict[str, Any]) -> AgentConfig:
     if cfg.base not in BASES:
         raise ValueError(f"base: {cfg.base!r} is not one of {BASES}")
     return cfg
+
+
+def _leader_settings(d: dict[str, Any] | None) -> LeaderSettings | None:
+    if d is None:
+        return None
+    return LeaderSettings(
+        members=tuple(d["members"]),
+        offsets=tuple(tuple(map(float, o)) for o in d["offsets"]),
+        alpha0=float(d["alpha0"]),
+        axes=tuple(map(float, d["axes"])),
+        other_formations=tuple(d["other_formations"]),
+    )
 
 
 def save_config(cfg: AgentConfig, path: str | Path) -> None:

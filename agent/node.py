@@ -60,6 +60,14 @@ in ``fault_dropped`` and, in lock-step, ends the wait for it. A leader whose cop
 formation's ellipse is stale keeps using it inflated by ``max_speed * age`` (both semi-axes), the
 region that formation can have reached, for up to ``ellipse_hold`` seconds, then stops.
 
+Fault containment (:mod:`leader.succession`): the leader's node holds a Zenoh liveliness token
+(``{prefix}/formation/{fid}/leader``); the formation's successor (``cfg.standby``) watches it and,
+when it goes, takes the leader role for the formation, which now stands still: it publishes the
+ellipse estimated from the members' last positions at rest, exchanges ellipses with the other
+leaders and relays them on ``others``, so the other formations keep avoiding it without
+inflating a stale ellipse; it steps down when the token comes back (``takeovers``,
+``acting_leader_ticks``).
+
 Malformed or non-finite payloads are dropped and counted per key class. On stop (SIGINT/SIGTERM
 in ``python -m agent``) the node publishes a zero command, undeclares everything and closes the
 session; :meth:`AgentNode.stats` holds every counter for the launcher.
@@ -88,6 +96,7 @@ from agent.faults import EPS, DelayLine, LinkFaults, lag
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, solve_exact
 from agent.unicycle import control_point
 from leader.role import LeaderRole, ellipse_to_msg, msg_to_ellipse
+from leader.succession import leader_token_key
 from wire import keys
 from wire.payloads import (
     Cmd,
@@ -259,6 +268,14 @@ class AgentNode:
         self._last_pose_stamp: float | None = None  # the pose stamp the last pose tick used
         self._last_tick = -math.inf  # [s, monotonic] when the last tick of any kind started
         self._loop: asyncio.AbstractEventLoop | None = None
+        # fault containment (leader.succession): the leader holds a liveliness token; its
+        # successor watches it and takes the role of a standing formation when it goes
+        self.acting = False  # this successor leads now, for a dead leader
+        self.takeovers = 0  # times this successor led at least one tick for a dead leader
+        self.acting_ticks = 0
+        self._acting_since_tick = False
+        self._token: Any = None
+        self._subscribe: Callable[[str, str], None] | None = None  # set by open()
 
     # --- wiring ------------------------------------------------------------------------------
 
@@ -344,6 +361,33 @@ class AgentNode:
             else:
                 sub = s.declare_subscriber(k, handler(cls, self._boxes[cls]))
             self._subs.append(sub)
+        def subscribe(k: str, cls: str) -> None:
+            """Declare one more subscriber (a successor taking the leader role)."""
+            if cls not in self._boxes:
+                self._boxes[cls] = Mailbox(None if polled else loop, _stamped(decoders[cls]),
+                                           counter=self.counter)
+            if polled:
+                sub = s.declare_subscriber(k, zenoh.handlers.RingChannel(RING_CAPACITY))
+                self._rings.append((sub, handler(cls, self._boxes[cls], notify=False)))
+            else:
+                sub = s.declare_subscriber(k, handler(cls, self._boxes[cls]))
+            self._subs.append(sub)
+            self.subscribed_keys[k] = cls
+
+        self._subscribe = subscribe
+        token_key = leader_token_key(self.cfg.prefix, self.cfg.formation)
+        if self.role is not None:
+            self._token = s.liveliness().declare_token(token_key)
+        elif self.cfg.standby is not None:
+            def on_token(sample: zenoh.Sample) -> None:
+                alive = sample.kind == zenoh.SampleKind.PUT
+                try:
+                    loop.call_soon_threadsafe(self._on_leader_token, alive)
+                except RuntimeError:  # loop closed: shutting down
+                    pass
+
+            self._subs.append(s.liveliness().declare_subscriber(token_key, on_token,
+                                                                history=True))
         logger.info("%s: subscribed to %s", self.cfg.robot_id, ", ".join(self.subscribed_keys))
 
     def _faulty_sample(self, loop: asyncio.AbstractEventLoop, cls: str,
@@ -397,6 +441,12 @@ class AgentNode:
             self._put_cmd(Cmd(0.0, 0.0, 0.0, 0.0, self.last_stamp))
         except Exception:  # noqa: BLE001 - shutting down: log, keep closing
             logger.exception("%s: zero command on exit failed", self.cfg.robot_id)
+        if self._token is not None:
+            try:
+                self._token.undeclare()
+            except Exception:  # noqa: BLE001
+                logger.debug("undeclare failed", exc_info=True)
+            self._token = None
         for sub in self._subs:
             try:
                 sub.undeclare()
@@ -418,6 +468,56 @@ class AgentNode:
         self._pubs.clear()
         self._session.close()
         self._session = None
+
+    # --- fault containment ---------------------------------------------------------------------
+
+    def _on_leader_token(self, alive: bool) -> None:
+        """Loop thread: the leader's liveliness token came (``alive``) or went."""
+        with self._tick_lock:
+            if self._closing or self._session is None:
+                return
+            if not alive and not self.acting:
+                self._take_over()
+            elif alive and self.acting:
+                self._step_down()
+
+    def _take_over(self) -> None:
+        """Under the tick lock: lead this formation for its dead leader (leader.succession).
+        The formation stands still (its members' neighbour, the dead robot, is stale, so they
+        command zero); this agent publishes its ellipse, at rest, and relays the others."""
+        settings = self.cfg.standby
+        assert settings is not None and self._session is not None and self._subscribe is not None
+        role = LeaderRole(self.cfg.formation, settings, self.cfg.prefix)
+        member_keys = {m: keys.state_key(self.cfg.prefix, m) for m in role.members
+                       if m != self.cfg.robot_id}
+        missing = [m for m, k in member_keys.items() if k not in self.neighbour_keys]
+        if missing:
+            logger.error("%s: cannot lead %s: not adjacent to %s", self.cfg.robot_id,
+                         self.cfg.formation, ", ".join(missing))
+            return
+        for k in [role.others_key] + ([] if self.all_to_all else [role.ellipse_key]):
+            if k not in self._pubs:
+                self._pubs[k] = CountingPublisher(self._session.declare_publisher(k), self.counter)
+        if not self.all_to_all:
+            for k in role.other_keys:
+                if k not in self.subscribed_keys:
+                    self._subscribe(k, keys.ELLIPSE)
+        self.role = role
+        self._member_keys = member_keys
+        self.acting = True
+        self._acting_since_tick = False  # counted as a takeover once it leads a tick (not when
+        # the leader merely closed first at the end of a run)
+        logger.warning("%s: leader %s of %s is gone: leading the standing formation",
+                       self.cfg.robot_id, self.cfg.leader_id, self.cfg.formation)
+
+    def _step_down(self) -> None:
+        """Under the tick lock: the leader is back; be a member again."""
+        self.role = None
+        self._member_keys = {}
+        self._own_others = None
+        self.acting = False
+        logger.warning("%s: leader %s of %s is back: member again", self.cfg.robot_id,
+                       self.cfg.leader_id, self.cfg.formation)
 
     # --- life --------------------------------------------------------------------------------
 
@@ -724,6 +824,14 @@ class AgentNode:
             if self._fresh(entry, ts):
                 s: State = entry[0]
                 members[m] = (s.x, s.y, s.ux, s.uy)
+            elif self.acting and entry is not None:  # the dead leader's robot, standing still
+                members[m] = (entry[0].x, entry[0].y, 0.0, 0.0)
+        if self.acting:  # a standing formation: its ellipse at rest
+            self.acting_ticks += 1
+            if not self._acting_since_tick:
+                self._acting_since_tick = True
+                self.takeovers += 1
+            members = {m: (x, y, 0.0, 0.0) for m, (x, y, _, _) in members.items()}
         own = role.estimate(members)
         if own is None:
             self._own_others = None
@@ -793,6 +901,8 @@ class AgentNode:
             "lockstep_timeouts": self.lockstep_timeouts,
             "stale_why": dict(self.stale_why),
             "inflated": self.inflated,
+            "takeovers": self.takeovers,
+            "acting_leader_ticks": self.acting_ticks,
             "fault_dropped": dict(self.fault_dropped),
             "fault_delayed": self.fault_delayed,
             "solves": self.solves,

@@ -521,6 +521,8 @@ def fault_summary(plan: FaultPlan, result: WorldResult, stats: list[dict], log: 
         "stale_ticks_by_input": sum_counts(s.get("stale_why", {}) for s in stats),
         "stale_ticks_by_robot": {s["robot"]: s["stale"] for s in stats},
         "inflated_ellipse_ticks": sum(s.get("inflated", 0) for s in stats),
+        "leader_takeovers": {s["robot"]: s["takeovers"] for s in stats if s.get("takeovers")},
+        "acting_leader_ticks": sum(s.get("acting_leader_ticks", 0) for s in stats),
         "counters_lost_with_killed_agents": bool(plan.kills),
     }
 
@@ -599,8 +601,27 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
             "latency_ms": _latency(result.latency_ms),
         },
         "collision_log": result.monitor.collision_log[:100],
+        "time_to_goal_by_formation_s": formation_goal_times(scenario, series),
     }
     return summary, series
+
+
+def formation_goal_times(scenario: Scenario, series: Series) -> dict[str, float | None]:
+    """When each formation first had every robot within ``goal_tolerance`` of its goal (None
+    if never): with a dead leader one formation stands still while the others go on."""
+    goal = {r.id: r.goal for r in scenario.robots}
+    tol = scenario.goal_tolerance
+    at: dict[float, set[str]] = {}
+    for row in series.robots:
+        t, rid, x, y = row[0], row[1], row[3], row[4]
+        gx, gy = goal[rid]
+        if math.hypot(x - gx, y - gy) <= tol:
+            at.setdefault(t, set()).add(rid)
+    out: dict[str, float | None] = {}
+    for f in scenario.formations:
+        ids = set(f.robot_ids)
+        out[f.name] = next((round(t, 6) for t in sorted(at) if ids <= at[t]), None)
+    return out
 
 
 def comm_summary(snap: dict, topology: str, n: int, sim_time: float) -> dict:

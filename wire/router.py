@@ -41,7 +41,7 @@ logger = logging.getLogger(__name__)
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
 POLL_INTERVAL_S = 0.1  # how often the stop event is checked, so signals are handled [s]
-_ROUTER_ID = re.compile(r"^[0-9a-f]{32}$")
+_ROUTER_ID = re.compile(r"^[1-9a-f][0-9a-f]{31}$")
 IN_USE = "Address already in use"  # in zenoh's error when a listen endpoint is taken
 
 
@@ -50,13 +50,15 @@ class RouterClash(RuntimeError):
 
 
 def new_router_id() -> str:
-    """A fresh random router id for one run (128 bits, 32 lowercase hex digits)."""
-    return secrets.token_hex(16)
+    """A fresh random router id for one run (32 lowercase hex digits, 124 random bits: zenoh
+    refuses an id written with a leading 0)."""
+    return secrets.choice("123456789abcdef") + secrets.token_hex(16)[1:]
 
 
 def check_router_id(router_id: str) -> str:
     if not _ROUTER_ID.match(router_id):
-        raise ValueError(f"router id {router_id!r} must be 32 lowercase hex digits")
+        raise ValueError(f"router id {router_id!r} must be 32 lowercase hex digits, "
+                         f"the first not 0")
     return router_id
 
 
