@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import errno
 import json
 import logging
 import signal
@@ -47,7 +48,11 @@ async def serve(node: AgentNode) -> None:
 
 def write_stats(node: AgentNode, path: Path) -> None:
     tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(node.stats(), allow_nan=False), encoding="utf-8")
+    try:
+        tmp.write_text(json.dumps(node.stats(), allow_nan=False), encoding="utf-8")
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise
     tmp.replace(path)  # the launcher never reads a half-written file
 
 
@@ -102,7 +107,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"agent {cfg.robot_id}: {type(exc).__name__}: {exc}", file=sys.stderr)
         status = 1
     if ns.stats is not None:
-        write_stats(node, ns.stats)
+        try:
+            write_stats(node, ns.stats)
+        except OSError as exc:  # a full disk, say: say so, do not die with a traceback
+            why = "disk full" if exc.errno in (errno.ENOSPC, errno.EDQUOT) else (exc.strerror or exc)
+            print(f"agent {cfg.robot_id}: cannot write counters to {ns.stats}: {why}",
+                  file=sys.stderr)
+            status = 1
     return status
 
 

@@ -34,6 +34,7 @@ import json
 import logging
 import math
 import os
+import shutil
 import signal
 import statistics
 import subprocess
@@ -58,7 +59,7 @@ from wire.zconf import UsrPwdAuth
 from wire.zconf import ZenohSettings as WireZenohSettings
 
 from .inprocess import Series
-from .output import write_run
+from .output import OutputError, write_run
 from .world import World, WorldOptions, WorldResult
 
 logger = logging.getLogger(__name__)
@@ -544,7 +545,18 @@ def _read_stats(path: Path) -> dict:
     try:
         return json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:
+        if _disk_full(path.parent):
+            raise OutputError(f"disk full: {path.parent} has no room for the agents' counters "
+                              f"({path.name} missing; run output not saved)") from None
         raise ChildFailed(f"agent counters {path} missing or unreadable: {exc}") from None
+
+
+def _disk_full(folder: Path, room: int = 256 * 1024) -> bool:
+    """Whether the file system of ``folder`` has less than ``room`` bytes free."""
+    try:
+        return shutil.disk_usage(folder).free < room
+    except OSError:
+        return False
 
 
 def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], topology: str,
@@ -596,6 +608,7 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
         },
         "world": {
             "missing_cmds": result.missing_cmds,
+            "zero_cmds": result.zero_cmds,
             "malformed_cmds": result.malformed_cmds,
             "wall_s": result.wall_s,
             "latency_ms": _latency(result.latency_ms),

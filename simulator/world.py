@@ -110,7 +110,9 @@ class WorldResult:
     monitor: SafetyMonitor
     series: Series
     traffic: dict
-    missing_cmds: int = 0  # lock-step ticks a robot's command did not arrive in time
+    missing_cmds: int = 0  # robot-ticks without a command (lock-step: not in time; real time:
+    # none fresher than stale_after): the robot got zero velocity
+    zero_cmds: int = 0  # robot-ticks whose applied command was zero (the agent stopped it)
     malformed_cmds: int = 0
     cmd_timeouts: int = 0  # lock-step: waits for a command that timed out
     camera_dropped: int = 0  # poses not published (camera dropout)
@@ -303,6 +305,7 @@ class World:
         inbox = self.inbox
         inbox.measure_latency = opts.realtime
         missing = 0
+        zero = 0
         timeouts = 0
         stamps: list[float] = []
         wall0 = time.monotonic()
@@ -336,6 +339,9 @@ class World:
                 before = state
                 state, cmds = self._publish_slots(k, state, next_wall, abort)
                 next_wall += dt
+                if k > 0:  # tick 0 only publishes: nothing was applied
+                    missing += sum(c is None for c in cmds)
+                    zero += sum(_is_zero(c) for c in cmds)
                 if settle(k, t - dt, before if k > 0 else None, cmds, t, state):
                     break
                 continue
@@ -364,6 +370,9 @@ class World:
                     logger.info("tick %d: no command from %s in time: zero", k, ", ".join(late))
                 missing += sum(1 for r in self.ids if r not in got)
             cmds = [got.get(r) for r in self.ids]
+            if opts.realtime:  # a stalled router or agent: no fresh command, the robot stops
+                missing += sum(c is None for c in cmds)
+            zero += sum(_is_zero(c) for c in cmds)
             before = state
             state = [step_pose(*state[i], cmds[i], dt, is_uni) for i in range(n)]
             t = (k + 1) * dt
@@ -371,7 +380,8 @@ class World:
                 break
         return WorldResult(
             steps=k + 1, sim_time=t, monitor=monitor, series=series,
-            traffic=self.counter.snapshot(), missing_cmds=missing, cmd_timeouts=timeouts,
+            traffic=self.counter.snapshot(), missing_cmds=missing, zero_cmds=zero,
+            cmd_timeouts=timeouts,
             camera_dropped=self.camera_dropped,
             malformed_cmds=inbox.malformed, latency_ms=list(inbox.latency_ms),
             wall_s=time.monotonic() - wall0, stamps=stamps,
@@ -491,11 +501,16 @@ def world_summary(result: WorldResult) -> dict:
         "sim_time_s": round(result.sim_time, 6),
         **result.monitor.summary_fields(),
         "missing_cmds": result.missing_cmds,
+        "zero_cmds": result.zero_cmds,
         "malformed_cmds": result.malformed_cmds,
         "traffic": result.traffic,
         "wall_s": result.wall_s,
         "latency_ms": result.latency_ms,
     }
+
+
+def _is_zero(c: Cmd | None) -> bool:
+    return c is not None and c.v == 0.0 and c.omega == 0.0 and c.ux == 0.0 and c.uy == 0.0
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -10,6 +10,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -232,3 +233,58 @@ def test_when_a_leader_dies_for_good_its_successor_leads_and_the_other_formation
     assert s["time_to_goal_by_formation_s"]["F1"] is None  # its load hangs on the dead robot
     assert s["faults"]["leader_takeovers"] == {"r4": 1}
     assert s["faults"]["inflated_ellipse_ticks"] <= 20  # F1's ellipse came back within a second
+
+
+# --- lost runs: a full disk is named, a stalled router is counted --------------------------------
+
+@pytest.fixture
+def tiny_disk(tmp_path) -> Iterator[Path]:
+    """A 200 kB tmpfs (needs root and mount permission; skipped otherwise)."""
+    where = tmp_path / "tiny"
+    where.mkdir()
+    proc = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=200k", "tmpfs", str(where)],
+                          capture_output=True, text=True)
+    if proc.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {proc.stderr.strip()}")
+    try:
+        yield where
+    finally:
+        subprocess.run(["umount", str(where)], check=False)
+
+
+def test_a_full_disk_is_reported_in_one_line_and_leaves_no_partial_file(tiny_disk):
+    out = tiny_disk / "sim"
+    proc = subprocess.run(
+        [sys.executable, "-m", "formation", "sim", str(ROOT / "tests" / "scenarios" / "two-small.yaml"),
+         "--out", str(out), "--quiet"],
+        env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 1, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "disk full" in lines[0] and str(out) in lines[0], proc.stderr
+    assert list(out.iterdir()) == []  # no summary beside a cut robots.csv, no temporary file
+
+
+def test_a_router_stalled_for_two_seconds_shows_up_as_missing_commands(tmp_path):
+    """Real time: SIGSTOP of the router for 2 s; every robot got no command for about 40 ticks,
+    and the summary must say so (it said missing_cmds: 0)."""
+    scenario = tmp_path / "two.yaml"
+    scenario.write_text(TWO, encoding="utf-8")
+    out = tmp_path / "rt"
+    proc = subprocess.Popen([sys.executable, "-m", "formation", "run", str(scenario), "--out",
+                             str(out), "--quiet", "--no-plots", "--realtime"],
+                            env=dict(os.environ, PYTHONPATH=str(ROOT)), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        pids = _wait_running(proc, out)
+        os.kill(pids["router"], signal.SIGSTOP)
+        time.sleep(2.0)
+        os.kill(pids["router"], signal.SIGCONT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["world"]["missing_cmds"] >= 5 * 25, s["world"]  # 5 robots, most of 40 ticks each
+    assert s["collisions"] == 0
