@@ -5,14 +5,20 @@ user/password (``transport/auth/usrpwd``, the router holding a ``user:password``
 and filters messages with the ACL of :func:`fleet_acl`, whose subjects are matched by user name:
 
 * robot ``r`` (user ``r``) may publish (``put``, ingress to the router) only on
-  ``{prefix}/robot/r/state`` and ``{prefix}/robot/r/cmd`` and, if it leads formation ``f``, on
-  ``{prefix}/formation/f/ellipse`` and ``{prefix}/formation/f/others``;
+  ``{prefix}/robot/r/state``, ``.../cmd``, ``.../diag`` and its base's command key (``r/cmd_vel``
+  unless told otherwise: ``zenoh-bridge-ros2dds`` with namespace ``r``); the bridge, logged in
+  as ``r``, may subscribe to that key and be sent what is put there. If ``r`` leads formation
+  ``f``, or is its successor (:mod:`leader.succession`, the member that takes over when the
+  leader dies), also on ``{prefix}/formation/f/ellipse``, ``others``, ``status`` and ``plan``,
+  hold the liveliness token ``{prefix}/formation/f/leader`` and answer ``status`` queries;
 * the camera service or simulated world (user :data:`CAMERA_USER`) may publish only the poses
   ``{prefix}/robot/*/pose`` and ``{prefix}/obstacles``;
-* every fleet user may declare subscribers under ``{prefix}/**`` and be sent (``put``, egress)
-  what is published there;
-* ``default_permission`` is ``deny``: anything else (another robot's keys, queries, queryables,
-  liveliness, keys outside the prefix) is dropped by the router.
+* the fleet manager (:data:`MANAGER_USER`) may publish goals ``{prefix}/formation/*/goal`` and
+  query ``status``; a viewer (:data:`VIEWER_USER`) may only read and query ``status``;
+* every fleet user may declare subscribers and liveliness subscribers under ``{prefix}/**`` and be
+  sent (``put``, ``delete``, liveliness tokens, replies; egress) what is published there;
+* ``default_permission`` is ``deny``: anything else (another robot's keys, a member's ellipse,
+  queryables, keys outside the prefix) is dropped by the router.
 
 Schema (zenoh 1.x, ``DEFAULT_CONFIG.json5`` of eclipse-zenoh/zenoh)::
 
