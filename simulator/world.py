@@ -232,6 +232,7 @@ class World:
         self._obs_pub = CountingPublisher(session.declare_publisher(keys.obstacles_key(p)),
                                           self.counter)
         self.inbox = _CmdInbox(p, self.counter, self.ids)
+        self.result: WorldResult | None = None  # the last run's, also when it was aborted
         # one wildcard subscriber for every robot's command, called right on the Zenoh thread
         # that received it (``indirect=False``: no hand-over to a Python thread per command; the
         # callback only decodes and stores under the inbox lock)
@@ -328,64 +329,72 @@ class World:
                 progress(k + 1, sc.steps, t_now)
             return opts.stop_at_goal and monitor.all_reached
 
-        for k in range(sc.steps):
-            t = k * dt
-            if on_tick is not None:
-                on_tick(k, t)
-            if opts.pose_slots > 1:
-                # each slot steps its robots over the previous period, then publishes them: the
-                # same rows and checks as below, one period later
-                stamps.append(time.time())
-                before = state
-                state, cmds = self._publish_slots(k, state, next_wall, abort)
-                next_wall += dt
-                if k > 0:  # tick 0 only publishes: nothing was applied
-                    missing += sum(c is None for c in cmds)
-                    zero += sum(_is_zero(c) for c in cmds)
-                if settle(k, t - dt, before if k > 0 else None, cmds, t, state):
-                    break
-                continue
-            stamp = time.time() if opts.realtime else t
-            stamps.append(stamp)
-            self._publish(t, stamp, state)
-            if opts.realtime:
-                next_wall += dt
-                _sleep_until(next_wall, abort)
-                now = time.monotonic()
-                with inbox._cond:
-                    got = {r: c for r, (c, rx) in inbox.latest.items()
-                           if now - rx <= opts.stale_after}
-            else:
-                def ready(t: float = t) -> bool:
-                    return all(r in inbox.latest and inbox.latest[r][0].stamp >= t
-                               for r in self.ids if r not in inbox.late)
+        def result(steps: int, sim_time: float) -> WorldResult:
+            return WorldResult(
+                steps=steps, sim_time=sim_time, monitor=monitor, series=series,
+                traffic=self.counter.snapshot(), missing_cmds=missing, zero_cmds=zero,
+                cmd_timeouts=timeouts, camera_dropped=self.camera_dropped,
+                malformed_cmds=inbox.malformed, latency_ms=list(inbox.latency_ms),
+                wall_s=time.monotonic() - wall0, stamps=stamps,
+            )
 
-                if not inbox.wait(ready, opts.cmd_timeout, abort):
-                    timeouts += 1
-                with inbox._cond:
-                    got = {r: c for r, (c, _rx) in inbox.latest.items() if c.stamp >= t}
-                    late = [r for r in self.ids if r not in got and r not in inbox.late]
-                    inbox.late.update(late)
-                if late:
-                    logger.info("tick %d: no command from %s in time: zero", k, ", ".join(late))
-                missing += sum(1 for r in self.ids if r not in got)
-            cmds = [got.get(r) for r in self.ids]
-            if opts.realtime:  # a stalled router or agent: no fresh command, the robot stops
-                missing += sum(c is None for c in cmds)
-            zero += sum(_is_zero(c) for c in cmds)
-            before = state
-            state = [step_pose(*state[i], cmds[i], dt, is_uni) for i in range(n)]
-            t = (k + 1) * dt
-            if settle(k, k * dt, before, cmds, t, state):
-                break
-        return WorldResult(
-            steps=k + 1, sim_time=t, monitor=monitor, series=series,
-            traffic=self.counter.snapshot(), missing_cmds=missing, zero_cmds=zero,
-            cmd_timeouts=timeouts,
-            camera_dropped=self.camera_dropped,
-            malformed_cmds=inbox.malformed, latency_ms=list(inbox.latency_ms),
-            wall_s=time.monotonic() - wall0, stamps=stamps,
-        )
+        try:
+            for k in range(sc.steps):
+                t = k * dt
+                if on_tick is not None:
+                    on_tick(k, t)
+                if opts.pose_slots > 1:
+                    # each slot steps its robots over the previous period, then publishes them: the
+                    # same rows and checks as below, one period later
+                    stamps.append(time.time())
+                    before = state
+                    state, cmds = self._publish_slots(k, state, next_wall, abort)
+                    next_wall += dt
+                    if k > 0:  # tick 0 only publishes: nothing was applied
+                        missing += sum(c is None for c in cmds)
+                        zero += sum(_is_zero(c) for c in cmds)
+                    if settle(k, t - dt, before if k > 0 else None, cmds, t, state):
+                        break
+                    continue
+                stamp = time.time() if opts.realtime else t
+                stamps.append(stamp)
+                self._publish(t, stamp, state)
+                if opts.realtime:
+                    next_wall += dt
+                    _sleep_until(next_wall, abort)
+                    now = time.monotonic()
+                    with inbox._cond:
+                        got = {r: c for r, (c, rx) in inbox.latest.items()
+                               if now - rx <= opts.stale_after}
+                else:
+                    def ready(t: float = t) -> bool:
+                        return all(r in inbox.latest and inbox.latest[r][0].stamp >= t
+                                   for r in self.ids if r not in inbox.late)
+
+                    if not inbox.wait(ready, opts.cmd_timeout, abort):
+                        timeouts += 1
+                    with inbox._cond:
+                        got = {r: c for r, (c, _rx) in inbox.latest.items() if c.stamp >= t}
+                        late = [r for r in self.ids if r not in got and r not in inbox.late]
+                        inbox.late.update(late)
+                    if late:
+                        logger.info("tick %d: no command from %s in time: zero", k, ", ".join(late))
+                    missing += sum(1 for r in self.ids if r not in got)
+                cmds = [got.get(r) for r in self.ids]
+                if opts.realtime:  # a stalled router or agent: no fresh command, the robot stops
+                    missing += sum(c is None for c in cmds)
+                zero += sum(_is_zero(c) for c in cmds)
+                before = state
+                state = [step_pose(*state[i], cmds[i], dt, is_uni) for i in range(n)]
+                t = (k + 1) * dt
+                if settle(k, k * dt, before, cmds, t, state):
+                    break
+        except BaseException:
+            # aborted (a child died, Ctrl-C): what was measured over the ticks completed
+            self.result = result(k, k * dt)
+            raise
+        self.result = result(k + 1, t)
+        return self.result
 
     def _publish_slots(self, k: int, state: Sequence[tuple[float, float, float]], start: float,
                        abort: Callable[[], None]) -> tuple[list, list[Cmd | None]]:
