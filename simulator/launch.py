@@ -243,7 +243,7 @@ def _raise_interrupt(signum: int, _frame: FrameType | None) -> None:
 
 def run_command(ns: argparse.Namespace) -> int:
     """``formation run``; see the module docstring. Returns the exit status."""
-    from formation.cli import EXIT_OK, Progress, UsageError, print_summary
+    from formation.cli import EXIT_ERROR, EXIT_OK, Progress, UsageError, print_summary
 
     try:
         faults = FaultPlan(
@@ -272,11 +272,17 @@ def run_command(ns: argparse.Namespace) -> int:
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     out = Path(ns.out)
-    summary, series = launch(scenario, out, realtime=ns.realtime, camera=ns.camera,
-                             topology=ns.topology, safety=not ns.no_safety, port=ns.port,
-                             progress_factory=lambda: Progress(f"run {scenario.name}", quiet=ns.quiet),
-                             faults=faults, secure=not getattr(ns, "insecure", False),
-                             pose_slots=slots)
+    try:
+        summary, series = launch(
+            scenario, out, realtime=ns.realtime, camera=ns.camera, topology=ns.topology,
+            safety=not ns.no_safety, port=ns.port,
+            progress_factory=lambda: Progress(f"run {scenario.name}", quiet=ns.quiet),
+            faults=faults, secure=not getattr(ns, "insecure", False), pose_slots=slots)
+    except RunAborted as stop:  # the run started: its summary says why and what it measured
+        write_run(stop.summary, stop.series, scenario, out, plots=not ns.no_plots)
+        print(f"formation run: aborted: {stop}; wrote {out / 'summary.json'} with what was "
+              f"measured until then ({stop.summary['steps']} ticks)", file=sys.stderr)
+        return 130 if stop.interrupted else EXIT_ERROR
     write_run(summary, series, scenario, out, plots=not ns.no_plots)
     print_summary(summary, out)
     return EXIT_OK
@@ -304,6 +310,7 @@ def launch(
     real time only)."""
     faults = faults or FaultPlan()
     faults.check_robots(scenario.robot_ids)
+    stopped: BaseException | None = None  # why a started run ended early
     out = Path(out)
     for sub in ("configs", "agents", "logs"):
         (out / sub).mkdir(parents=True, exist_ok=True)
@@ -373,22 +380,29 @@ def launch(
             driver = _FaultDriver(faults, sup, world, agents, agent_argv, scenario.dt, realtime)
             try:
                 world.wait_for_agents(abort=sup.check)
-                if progress_factory is not None:
-                    with progress_factory() as progress:
-                        result = world.run(progress=progress.update, abort=sup.check,
+                try:
+                    if progress_factory is not None:
+                        with progress_factory() as progress:
+                            result = world.run(progress=progress.update, abort=sup.check,
+                                               on_tick=driver.on_tick if fault_run else None)
+                    else:
+                        result = world.run(abort=sup.check,
                                            on_tick=driver.on_tick if fault_run else None)
-                else:
-                    result = world.run(abort=sup.check, on_tick=driver.on_tick if fault_run else None)
+                except (ChildFailed, KeyboardInterrupt, TimeoutError) as exc:
+                    if world.result is None:
+                        raise
+                    result, stopped = world.result, exc  # the run started: keep what it measured
             finally:
                 world.close()
-        sup.stop(list(agents.values()))  # agents write their stats on SIGTERM
+        # agents write their stats on SIGTERM (also after the router died); the router last
+        sup.stop(list(agents.values()))
         sup.stop([router])
     finally:
         sup.stop()
         signal.signal(signal.SIGTERM, previous)
         signal.signal(signal.SIGHUP, previous_hup)
-    stats = [_read_stats(out / "agents" / f"{rid}.json") if rid in agents
-             else _dead_stats(cfg) for rid, cfg in configs.items()]
+    stats = [_stats_of(out / "agents" / f"{rid}.json", cfg, lost_ok=stopped is not None)
+             if rid in agents else _dead_stats(cfg) for rid, cfg in configs.items()]
     summary, series = build_summary(scenario, result, stats, topology, realtime, camera, safety)
     if fault_run:
         summary["faults"] = fault_summary(faults, result, stats, driver.log)
@@ -400,7 +414,43 @@ def launch(
         summary["secure"] = False
     if pose_slots > 1:
         summary["pose_slots"] = pose_slots  # the world spread each period's poses over this many
+    if stopped is not None:
+        summary["aborted"] = abort_reason(stopped)
+        lost = sorted(s["robot"] for s in stats if s.get("counters_lost"))
+        if lost:
+            summary["aborted_counters_lost"] = lost
+        raise RunAborted(summary["aborted"], summary, series, stopped)
     return summary, series
+
+
+class RunAborted(RuntimeError):
+    """A run that had started stopped early; ``summary`` (with ``aborted``) and ``series`` hold
+    what it measured until then, for :func:`simulator.output.write_run`."""
+
+    def __init__(self, reason: str, summary: dict, series: Series, cause: BaseException) -> None:
+        super().__init__(reason)
+        self.summary = summary
+        self.series = series
+        self.cause = cause
+
+    @property
+    def interrupted(self) -> bool:
+        return isinstance(self.cause, KeyboardInterrupt)
+
+
+def abort_reason(exc: BaseException) -> str:
+    """``aborted`` of summary.json: why the run stopped early, in one line."""
+    if isinstance(exc, KeyboardInterrupt):
+        return f"interrupted ({exc.args[0] if exc.args else 'Ctrl-C'})"
+    return f"{exc}".splitlines()[0] if str(exc) else type(exc).__name__
+
+
+def _stats_of(path: Path, cfg, lost_ok: bool) -> dict:
+    """An agent's counters; in an aborted run an agent that wrote none (it died with the run)
+    counts as lost instead of failing the summary."""
+    if lost_ok and not path.is_file():
+        return {**_dead_stats(cfg), "killed": False, "counters_lost": True}
+    return _read_stats(path)
 
 
 @dataclass(frozen=True)

@@ -288,3 +288,29 @@ def test_a_router_stalled_for_two_seconds_shows_up_as_missing_commands(tmp_path)
     s = json.loads((out / "summary.json").read_text())
     assert s["world"]["missing_cmds"] >= 5 * 25, s["world"]  # 5 robots, most of 40 ticks each
     assert s["collisions"] == 0
+
+
+@pytest.mark.parametrize("victim", ["router", "agent-a2"])
+def test_a_run_whose_router_or_agent_is_killed_still_writes_its_summary_saying_aborted(
+        tmp_path, victim):
+    proc, out = _start_run(tmp_path)
+    try:
+        pids = _wait_running(proc, out)
+        time.sleep(1.0)  # some ticks to measure
+        os.kill(pids[victim], signal.SIGKILL)
+        err = proc.communicate(timeout=60)[1].decode()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 1, err
+    assert f"aborted: {victim} exited" in err and "Traceback" not in err, err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["aborted"].startswith(f"{victim} exited with status -9")
+    assert s["steps"] > 0 and s["sim_time_s"] > 0 and s["collisions"] == 0
+    assert (out / "robots.csv").read_text().count("\n") > 5 * s["steps"] // 2
+    if victim == "router":  # every agent outlived it and wrote its counters
+        assert "aborted_counters_lost" not in s
+    else:
+        assert s["aborted_counters_lost"] == ["a2"]
+    assert _wait_gone(pids, 10.0) == []
