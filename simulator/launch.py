@@ -664,14 +664,18 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
             "latency_ms": _latency(result.latency_ms),
         },
         "collision_log": result.monitor.collision_log[:100],
-        "time_to_goal_by_formation_s": formation_goal_times(scenario, series),
+        "time_to_goal_by_formation_s": formation_goal_times(
+            scenario, series, result.monitor.time_to_goal),
     }
     return summary, series
 
 
-def formation_goal_times(scenario: Scenario, series: Series) -> dict[str, float | None]:
+def formation_goal_times(scenario: Scenario, series: Series,
+                         all_reached_at: float | None = None) -> dict[str, float | None]:
     """When each formation first had every robot within ``goal_tolerance`` of its goal (None
-    if never): with a dead leader one formation stands still while the others go on."""
+    if never): with a dead leader one formation stands still while the others go on. The
+    series ends with the state the last tick started from, so a formation first seen there
+    when every robot reached (``all_reached_at``, the run's end) gets that time."""
     goal = {r.id: r.goal for r in scenario.robots}
     tol = scenario.goal_tolerance
     at: dict[float, set[str]] = {}
@@ -683,7 +687,10 @@ def formation_goal_times(scenario: Scenario, series: Series) -> dict[str, float 
     out: dict[str, float | None] = {}
     for f in scenario.formations:
         ids = set(f.robot_ids)
-        out[f.name] = next((round(t, 6) for t in sorted(at) if ids <= at[t]), None)
+        first = next((round(t, 6) for t in sorted(at) if ids <= at[t]), None)
+        if first is None and all_reached_at is not None:
+            first = round(all_reached_at, 6)
+        out[f.name] = first
     return out
 
 
