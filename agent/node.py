@@ -112,7 +112,7 @@ from wire.payloads import (
     decode_state,
 )
 from wire.traffic import CountingPublisher, Mailbox, TrafficCounter
-from wire.zconf import UsrPwdAuth, ZenohSettings
+from wire.zconf import UsrPwdAuth, ZenohSettings, explain_open_failure, read_auth_file
 
 logger = logging.getLogger(__name__)
 
@@ -315,7 +315,10 @@ class AgentNode:
             conf = zenoh.Config.from_file(self.options.zenoh_config_file)
         else:
             conf = zenoh_config(self.cfg, self.options.connect_timeout, self.options.auth)
-        self._session = zenoh.open(conf)
+        try:
+            self._session = zenoh.open(conf)
+        except Exception as exc:  # noqa: BLE001 - zenoh says "Timeout!" for refused credentials
+            raise ConnectionError(self._open_failure(exc)) from None
         s = self._session
         pub_keys = [self.state_key, self.cmd_key]
         if self.role is not None:
@@ -389,6 +392,17 @@ class AgentNode:
             self._subs.append(s.liveliness().declare_subscriber(token_key, on_token,
                                                                 history=True))
         logger.info("%s: subscribed to %s", self.cfg.robot_id, ", ".join(self.subscribed_keys))
+
+    def _open_failure(self, exc: BaseException) -> str:
+        """Why the session did not open, in words (refused credentials, no router)."""
+        connect, auth = tuple(self.cfg.zenoh.connect), self.options.auth
+        if self.options.zenoh_config_file is not None:
+            try:
+                found = read_auth_file(self.options.zenoh_config_file)
+                connect, auth = found.connect or connect, found.auth
+            except ValueError:  # no credentials in it
+                pass
+        return explain_open_failure(exc, connect, auth)
 
     def _faulty_sample(self, loop: asyncio.AbstractEventLoop, cls: str,
                        decode: Callable[[bytes], Any], key: str, payload: bytes) -> None:

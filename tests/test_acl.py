@@ -357,3 +357,24 @@ def test_python_m_wire_acl_lets_each_robot_drive_its_base(tmp_path):
     finally:
         proc.terminate()
         proc.wait(10)
+
+
+def test_an_agent_with_refused_credentials_says_so(router, tmp_path):
+    import asyncio
+
+    from agent.config import ZenohSettings as AgentZenoh
+    from agent.config import build_agent_configs
+    from agent.node import AgentNode, NodeOptions
+    from scenario import load_scenario
+
+    path = tmp_path / "pairs.yaml"
+    path.write_text(PAIRS, encoding="utf-8")
+    cfg = build_agent_configs(load_scenario(path), zenoh=AgentZenoh(
+        mode="client", connect=(router.endpoint,)))["a1"]
+    node = AgentNode(cfg, NodeOptions(connect_timeout=1.0, auth=UsrPwdAuth("a1", "wrong")))
+    loop = asyncio.new_event_loop()
+    try:
+        with pytest.raises(ConnectionError, match="refused the credentials of user 'a1'"):
+            node.open(loop)
+    finally:
+        loop.close()
