@@ -86,27 +86,9 @@ def fleet_acl(
     user, may subscribe to it. ``manager_user`` (goals) and ``viewer_user`` (read only) are
     left out when None. ValueError names an invalid id or a leader not in ``robots``.
     """
-    keys.validate_prefix(prefix)
-    _check_user(camera_user, "camera_user")
-    if not robots:
-        raise ValueError("robots: must not be empty")
-    services = [u for u in (camera_user, manager_user, viewer_user) if u is not None]
-    for u in services[1:]:
-        _check_user(u, "user")
-    if len(set(services)) != len(services):
-        raise ValueError(f"users: the service users {services} must differ")
-    for rid, fid in robots.items():
-        _check_user(rid, "robot id")
-        keys.validate_id(fid, "formation id")
-        if rid in services:
-            raise ValueError(f"robot id {rid!r} is a service user's name")
-    for fid, leader in leaders.items():
-        if robots.get(leader) != fid:
-            raise ValueError(f"leaders: {leader!r} is not a robot of formation {fid!r}")
     successors = dict(successors or {})
-    for fid, rid in successors.items():
-        if robots.get(rid) != fid:
-            raise ValueError(f"successors: {rid!r} is not a robot of formation {fid!r}")
+    _check_fleet(robots, leaders, successors, prefix,
+                 [u for u in (camera_user, manager_user, viewer_user) if u is not None])
     cmd_vel = dict(cmd_vel or {})
     fp = f"{prefix}/formation"
     rules: list[dict[str, Any]] = []
@@ -162,6 +144,28 @@ def fleet_acl(
         subject(rid, own)
     return {"enabled": True, "default_permission": "deny", "rules": rules,
             "subjects": subjects, "policies": policies}
+
+
+def _check_fleet(robots: Mapping[str, str], leaders: Mapping[str, str],
+                 successors: Mapping[str, str], prefix: str, services: list[str]) -> None:
+    """ValueError naming the first invalid id, clash or leader/successor outside its formation."""
+    keys.validate_prefix(prefix)
+    _check_user(services[0], "camera_user")
+    if not robots:
+        raise ValueError("robots: must not be empty")
+    for u in services[1:]:
+        _check_user(u, "user")
+    if len(set(services)) != len(services):
+        raise ValueError(f"users: the service users {services} must differ")
+    for rid, fid in robots.items():
+        _check_user(rid, "robot id")
+        keys.validate_id(fid, "formation id")
+        if rid in services:
+            raise ValueError(f"robot id {rid!r} is a service user's name")
+    for what, chosen in (("leaders", leaders), ("successors", successors)):
+        for fid, rid in chosen.items():
+            if robots.get(rid) != fid:
+                raise ValueError(f"{what}: {rid!r} is not a robot of formation {fid!r}")
 
 
 def default_cmd_vel_key(robot: str) -> str:
