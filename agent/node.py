@@ -84,20 +84,22 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeGuard
 
 import zenoh
 
-from agent.barriers import Neighbour, Obstacle
-from agent.base import make_base
+from agent.barriers import Obstacle
+from agent.base import Base, make_base
 from agent.config import AgentConfig
-from agent.control import FormationView, Stall, StepResult, control_step, update_stall
+from agent.control import Stall, StepResult, control_step
 from agent.faults import EPS, DelayLine, LinkFaults, lag
+from agent.inputs import step_inputs
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, solve_exact
 from agent.unicycle import control_point
 from leader.role import LeaderRole, ellipse_to_msg, msg_to_ellipse
 from leader.succession import leader_token_key
 from wire import keys
+from wire.diag import DiagPublisher
 from wire.payloads import (
     Cmd,
     EllipseMsg,
@@ -255,7 +257,8 @@ class AgentNode:
         self._subs: list[Any] = []
         self._rings: list[tuple[Any, Callable[[zenoh.Sample], None]]] = []  # polled subscribers
         self._pubs: dict[str, CountingPublisher] = {}
-        self._base = None  # a real robot base adapter (agent.base), when cfg.base is not "world"
+        self._diag: DiagPublisher | None = None
+        self._base: Base | None = None  # a real robot base adapter (agent.base), when cfg.base is not "world"
         self._stall = Stall()  # this member's copy of its formation's jam state
         self._boxes: dict[str, Mailbox] = {}
         self._arrived: asyncio.Event | None = None
@@ -311,20 +314,14 @@ class AgentNode:
         for cls in set(self.subscribed_keys.values()):
             self._boxes[cls] = Mailbox(None if polled else loop, _stamped(decoders[cls]),
                                        counter=self.counter)
-        if self.options.zenoh_config_file is not None:
-            conf = zenoh.Config.from_file(self.options.zenoh_config_file)
-        else:
-            conf = zenoh_config(self.cfg, self.options.connect_timeout, self.options.auth)
-        try:
-            self._session = zenoh.open(conf)
-        except Exception as exc:  # noqa: BLE001 - zenoh says "Timeout!" for refused credentials
-            raise ConnectionError(self._open_failure(exc)) from None
-        s = self._session
+        self._session = s = self._open_session()
         pub_keys = [self.state_key, self.cmd_key]
         if self.role is not None:
             pub_keys += [self.role.others_key] + ([] if self.all_to_all else [self.role.ellipse_key])
         for k in pub_keys:
             self._pubs[k] = CountingPublisher(s.declare_publisher(k), self.counter)
+        self._diag = DiagPublisher(s, self.cfg.prefix, self.cfg.robot_id, self.cfg.formation,
+                                   self.cfg.goal)
         if self.cfg.base != "world":
             # A real robot base (TurtleBot3 behind zenoh-bridge-ros2dds): every command also goes
             # to its cmd_vel key as CDR; the cmd key stays for monitoring.
@@ -353,6 +350,7 @@ class AgentNode:
             return on_sample
 
         wildcard_cap = RING_CAPACITY * max(1, len(self.foreign_keys) + len(self.neighbour_keys))
+        sub: Any
         for k, cls in self.subscribed_keys.items():
             if polled and cls != keys.POSE:
                 cap = wildcard_cap if (self.all_to_all and cls == keys.STATE) else RING_CAPACITY
@@ -364,34 +362,54 @@ class AgentNode:
             else:
                 sub = s.declare_subscriber(k, handler(cls, self._boxes[cls]))
             self._subs.append(sub)
-        def subscribe(k: str, cls: str) -> None:
-            """Declare one more subscriber (a successor taking the leader role)."""
-            if cls not in self._boxes:
-                self._boxes[cls] = Mailbox(None if polled else loop, _stamped(decoders[cls]),
-                                           counter=self.counter)
-            if polled:
-                sub = s.declare_subscriber(k, zenoh.handlers.RingChannel(RING_CAPACITY))
-                self._rings.append((sub, handler(cls, self._boxes[cls], notify=False)))
-            else:
-                sub = s.declare_subscriber(k, handler(cls, self._boxes[cls]))
-            self._subs.append(sub)
-            self.subscribed_keys[k] = cls
+        self._subscribe = lambda k, cls: self._subscribe_more(s, k, cls, handler, decoders, polled)
+        self._declare_succession(s, loop)
+        logger.info("%s: subscribed to %s", self.cfg.robot_id, ", ".join(self.subscribed_keys))
 
-        self._subscribe = subscribe
+    def _subscribe_more(self, s: zenoh.Session, k: str, cls: str, handler: Callable[..., Any],
+                        decoders: dict[str, Callable[[bytes], Any]], polled: bool) -> None:
+        """Declare one more subscriber after open (a successor taking the leader role), as
+        :meth:`open` declares them."""
+        if cls not in self._boxes:
+            self._boxes[cls] = Mailbox(None if polled else self._loop, _stamped(decoders[cls]),
+                                       counter=self.counter)
+        sub: Any
+        if polled:
+            sub = s.declare_subscriber(k, zenoh.handlers.RingChannel(RING_CAPACITY))
+            self._rings.append((sub, handler(cls, self._boxes[cls], notify=False)))
+        else:
+            sub = s.declare_subscriber(k, handler(cls, self._boxes[cls]))
+        self._subs.append(sub)
+        self.subscribed_keys[k] = cls
+
+    def _declare_succession(self, s: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
+        """The leader holds its formation's liveliness token; the successor watches it."""
         token_key = leader_token_key(self.cfg.prefix, self.cfg.formation)
         if self.role is not None:
             self._token = s.liveliness().declare_token(token_key)
-        elif self.cfg.standby is not None:
-            def on_token(sample: zenoh.Sample) -> None:
-                alive = sample.kind == zenoh.SampleKind.PUT
-                try:
-                    loop.call_soon_threadsafe(self._on_leader_token, alive)
-                except RuntimeError:  # loop closed: shutting down
-                    pass
+            return
+        if self.cfg.standby is None:
+            return
 
-            self._subs.append(s.liveliness().declare_subscriber(token_key, on_token,
-                                                                history=True))
-        logger.info("%s: subscribed to %s", self.cfg.robot_id, ", ".join(self.subscribed_keys))
+        def on_token(sample: zenoh.Sample) -> None:
+            alive = sample.kind == zenoh.SampleKind.PUT
+            try:
+                loop.call_soon_threadsafe(self._on_leader_token, alive)
+            except RuntimeError:  # loop closed: shutting down
+                pass
+
+        self._subs.append(s.liveliness().declare_subscriber(token_key, on_token, history=True))
+
+    def _open_session(self) -> zenoh.Session:
+        """The agent's session; ``ConnectionError`` saying why it did not open."""
+        if self.options.zenoh_config_file is not None:
+            conf = zenoh.Config.from_file(self.options.zenoh_config_file)
+        else:
+            conf = zenoh_config(self.cfg, self.options.connect_timeout, self.options.auth)
+        try:
+            return zenoh.open(conf)
+        except Exception as exc:  # noqa: BLE001 - zenoh says "Timeout!" for refused credentials
+            raise ConnectionError(self._open_failure(exc)) from None
 
     def _open_failure(self, exc: BaseException) -> str:
         """Why the session did not open, in words (refused credentials, no router)."""
@@ -539,8 +557,9 @@ class AgentNode:
         """Open, tick until ``stop`` is set, close."""
         self._stop = stop
         loop = asyncio.get_running_loop()
-        await loop.run_in_executor(None, self.open, loop)
         try:
+            # inside the try: a session opened by an open() that fails half-way is closed too
+            await loop.run_in_executor(None, self.open, loop)
             if self.options.lockstep:
                 await self._lockstep_loop()
             elif self.options.tick_on_pose:
@@ -692,7 +711,7 @@ class AgentNode:
         box = self._boxes.get(cls)
         return None if box is None else box.latest(key)
 
-    def _fresh(self, entry: tuple[Any, float] | None, t: float | None) -> bool:
+    def _fresh(self, entry: tuple[Any, float] | None, t: float | None) -> TypeGuard[tuple[Any, float]]:
         """Whether a (message, receive time) entry is fresh for the tick at pose stamp ``t``."""
         if entry is None:
             return False
@@ -719,7 +738,10 @@ class AgentNode:
         self.ticks += 1
         self._tick_point = None
         try:
-            return await self._tick(t)
+            res = await self._tick(t)
+            if self._diag is not None:  # viewers' diagnostics: a few a second, not counted
+                self._diag.tick(self, res)
+            return res
         finally:
             if t is None and self._tick_point is not None:
                 px, py, stamp = self._tick_point
@@ -738,7 +760,8 @@ class AgentNode:
             self._put_cmd(Cmd(0.0, 0.0, 0.0, 0.0, self.last_stamp if t is None else t))
             return None
         if not self._fresh(pose_entry, t) or (t is not None and pose_entry[0].stamp < t - EPS):
-            return self._zero(t, "pose")  # lock-step: no pose in this frame (camera dropout)
+            self._zero(t, "pose")  # lock-step: no pose in this frame (camera dropout)
+            return None
         pose: Pose = pose_entry[0]
         if t is None:
             self.pose_age_us.append((time.monotonic() - pose_entry[1]) * 1e6)
@@ -759,50 +782,55 @@ class AgentNode:
         if t is not None:
             await self._wait_current(self._tick_inputs(state_keys), stamp)
 
-        # freshness of every input
+        fresh = self._fresh_inputs(state_keys, ts, others_ready)
+        if isinstance(fresh, str):
+            self._zero(t, fresh)
+            return None
+        states, obstacles, others_msg = fresh
+        obs = [Obstacle(o.x, o.y, o.vx, o.vy, o.ds) for o in obstacles.obstacles]
+        inputs = step_inputs(
+            ((states[k].x, states[k].y, states[k].ux, states[k].uy, df)
+             for k, df in self.neighbour_keys.items()),
+            None if others_msg.own is None else msg_to_ellipse(others_msg.own),
+            cfg.formation, cfg.formation_goal,
+            [(m.formation, msg_to_ellipse(m)) for m in others_msg.ellipses],
+            self._stall, cfg.period,  # the jam rule's memory
+            [(states[k].x, states[k].y, states[k].ux, states[k].uy) for k in self.foreign_keys]
+            if self.all_to_all else None,
+        )
+        self._stall = inputs.stall
+        res = control_step(cfg.control, (pose.x, pose.y, pose.theta), cfg.goal, inputs.neighbours,
+                           obs, inputs.others, inputs.view, solve_exact, inputs.pairwise,
+                           clock=time.perf_counter_ns)
+        self._put_cmd(Cmd(res.v, res.omega, res.ux, res.uy, stamp))
+        self.last_u = (res.ux, res.uy)
+        self._record(res, stamp)
+        return res
+
+    def _fresh_inputs(self, state_keys: tuple[str, ...], ts: float | None, others_ready: bool
+                      ) -> tuple[dict[str, State], Obstacles, Others] | str:
+        """Every input of the step if all are fresh (``ts``: lock-step reference stamp), else
+        the name of the first stale one (the reason counted for the zero command)."""
         states: dict[str, State] = {}
         for k in state_keys:
             entry = self._latest(keys.STATE, k)
             if not self._fresh(entry, ts):
-                return self._zero(t, "state")
+                return "state"
             states[k] = entry[0]
         obs_entry = self._latest(keys.OBSTACLES, self.obstacles_key)
         if not self._fresh(obs_entry, ts):
-            return self._zero(t, "obstacles")
+            return "obstacles"
         if self.role is not None:
             if not others_ready or self._own_others is None:
-                return self._zero(t, "ellipse")
-            others_msg = self._own_others
-        else:
-            entry = self._latest(keys.OTHERS, self.others_key)
-            if not self._fresh(entry, ts):
-                return self._zero(t, "others")
-            others_msg = entry[0]
+                return "ellipse"
+            return states, obs_entry[0], self._own_others
+        entry = self._latest(keys.OTHERS, self.others_key)
+        if not self._fresh(entry, ts):
+            return "others"
+        return states, obs_entry[0], entry[0]
 
-        nb = [Neighbour(states[k].x, states[k].y, states[k].ux, states[k].uy, df)
-              for k, df in self.neighbour_keys.items()]
-        obstacles: Obstacles = obs_entry[0]
-        obs = [Obstacle(o.x, o.y, o.vx, o.vy, o.ds) for o in obstacles.obstacles]
-        view = None
-        if others_msg.own is not None:
-            view = FormationView(msg_to_ellipse(others_msg.own), *cfg.formation_goal)
-            self._stall = update_stall(self._stall, view, cfg.period)  # the jam rule's memory
-            view = view._replace(
-                name=cfg.formation,
-                other_names=tuple(m.formation for m in others_msg.ellipses),
-                retreating=self._stall.retreat > 0.0,
-            )
-        if self.all_to_all:
-            ellipses = []
-            pair = [Neighbour(states[k].x, states[k].y, states[k].ux, states[k].uy, 0.0)
-                    for k in self.foreign_keys]
-        else:
-            ellipses = [msg_to_ellipse(m) for m in others_msg.ellipses]
-            pair = []
-        res = control_step(cfg.control, (pose.x, pose.y, pose.theta), cfg.goal, nb, obs,
-                           ellipses, view, solve_exact, pair)
-        self._put_cmd(Cmd(res.v, res.omega, res.ux, res.uy, stamp))
-        self.last_u = (res.ux, res.uy)
+    def _record(self, res: StepResult, stamp: float) -> None:
+        """Count a solved step: statuses, lowest barrier values, solve time, trace row."""
         self.solves += 1
         self.solve_us.append(res.solve_us)
         if res.status in self.status_counts:
@@ -814,7 +842,6 @@ class AgentNode:
             self.trace.append((stamp, res.px, res.py, res.ux, res.uy, res.v, res.omega, res.status,
                                res.slack, res.h_formation, res.h_obstacle, res.h_formations,
                                res.solve_us))
-        return res
 
     def _tick_inputs(self, state_keys: tuple[str, ...]) -> list[tuple[str, str]]:
         inputs = [(keys.STATE, k) for k in state_keys]
@@ -831,22 +858,7 @@ class AgentNode:
         member_keys = self._member_keys
         if ts is not None:
             await self._wait_current([(keys.STATE, k) for k in member_keys.values()], stamp)
-        members: dict[str, tuple[float, float, float, float]] = {
-            self.cfg.robot_id: (px, py, *self.last_u)}
-        for m, k in member_keys.items():
-            entry = self._latest(keys.STATE, k)
-            if self._fresh(entry, ts):
-                s: State = entry[0]
-                members[m] = (s.x, s.y, s.ux, s.uy)
-            elif self.acting and entry is not None:  # the dead leader's robot, standing still
-                members[m] = (entry[0].x, entry[0].y, 0.0, 0.0)
-        if self.acting:  # a standing formation: its ellipse at rest
-            self.acting_ticks += 1
-            if not self._acting_since_tick:
-                self._acting_since_tick = True
-                self.takeovers += 1
-            members = {m: (x, y, 0.0, 0.0) for m, (x, y, _, _) in members.items()}
-        own = role.estimate(members)
+        own = role.estimate(self._members_now(px, py, ts))
         if own is None:
             self._own_others = None
             return False
@@ -876,6 +888,26 @@ class AgentNode:
         if complete:
             self._pubs[role.others_key].put_message(self._own_others)
         return complete
+
+    def _members_now(self, px: float, py: float,
+                     ts: float | None) -> dict[str, tuple[float, float, float, float]]:
+        """Leader: every member's control point and velocity it has fresh (its own from
+        itself). A successor leading for a dead leader (``acting``) also takes the dead robot's
+        last state, and every velocity as zero: the formation stands still."""
+        members: dict[str, tuple[float, float, float, float]] = {
+            self.cfg.robot_id: (px, py, *self.last_u)}
+        for m, k in self._member_keys.items():
+            entry = self._latest(keys.STATE, k)
+            if entry is not None and (self._fresh(entry, ts) or self.acting):
+                s: State = entry[0]
+                members[m] = (s.x, s.y, s.ux, s.uy)
+        if self.acting:  # a standing formation: its ellipse at rest
+            self.acting_ticks += 1
+            if not self._acting_since_tick:
+                self._acting_since_tick = True
+                self.takeovers += 1
+            members = {m: (x, y, 0.0, 0.0) for m, (x, y, _, _) in members.items()}
+        return members
 
     def _zero(self, t: float | None, why: str) -> None:
         self.stale_why[why] = self.stale_why.get(why, 0) + 1

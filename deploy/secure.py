@@ -35,8 +35,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from leader.succession import formation_successor
 from scenario import Scenario
+from scenario.succession import formation_successor
 from wire import acl
 from wire.zconf import UsrPwdAuth
 

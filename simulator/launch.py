@@ -29,44 +29,35 @@ timeout and is then not waited for until it speaks again. ``summary.json`` gains
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import math
-import os
 import shutil
 import signal
 import statistics
-import subprocess
-import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from types import FrameType
-from typing import IO
 
 import zenoh
 
-from agent.config import ZenohSettings, build_agent_configs, save_config
+from agent.config import build_agent_configs
 from agent.faults import LinkFaults
-from leader.succession import formation_successor
-from scenario import Scenario, load_scenario
-from wire import acl, keys, lifeline, traffic
-from wire.router import IN_USE, RouterClash, new_router_id, wait_for_router
-from wire.testing import free_tcp_port, tcp_endpoint
-from wire.zconf import UsrPwdAuth
-from wire.zconf import ZenohSettings as WireZenohSettings
+from scenario import Scenario
+from scenario.succession import formation_successor
+from wire import acl, keys, traffic
+from wire.ports import free_tcp_port, tcp_endpoint
+from wire.zconf import UsrPwdAuth, ZenohSettings
 
+from .fleet import START_TIMEOUT_S, STOP_TIMEOUT_S, Child, ChildFailed, Fleet, signal_group
 from .inprocess import Series
-from .output import OutputError, write_run
+from .output import OutputError
+from .summary import qp_fields, run_summary
 from .world import World, WorldOptions, WorldResult
 
 logger = logging.getLogger(__name__)
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
-STOP_TIMEOUT_S = 5.0  # [s] SIGTERM -> SIGKILL
-START_TIMEOUT_S = 60.0  # [s] router listening, agents subscribed
 INTER_ROBOT = (keys.STATE, keys.ELLIPSE, keys.OTHERS)  # classes the topology decides
 FAULT_AGENT_TIMEOUT_S = 0.3  # [s] lock-step wait per input of an agent in a fault run
 FAULT_WORLD_TIMEOUT_S = 1.5  # [s] lock-step wait for a tick's commands in a fault run
@@ -159,135 +150,6 @@ def parse_camera_dropout(text: str) -> CameraDropout:
     return CameraDropout(robot, _number(at, "camera-dropout"), _number(duration, "camera-dropout"))
 
 
-class ChildFailed(RuntimeError):
-    """A child process exited while the run needed it."""
-
-
-@dataclass
-class Child:
-    name: str
-    proc: subprocess.Popen
-    log: IO[bytes]
-
-
-class Supervisor:
-    """Starts children in their own process groups and stops every one of them."""
-
-    def __init__(self, log_dir: Path) -> None:
-        self.log_dir = log_dir
-        self.children: list[Child] = []
-        self.env = dict(os.environ)
-        self.env["PYTHONPATH"] = os.pathsep.join(
-            p for p in (str(REPO_ROOT), self.env.get("PYTHONPATH", "")) if p)
-
-    def start(self, name: str, argv: Sequence[str]) -> Child:
-        log = (self.log_dir / f"{name}.log").open("wb")
-        try:
-            env, fds = lifeline.child_env(self.env)  # it stops itself if we die (no orphans)
-            proc = subprocess.Popen([sys.executable, *argv], env=env, stdin=subprocess.DEVNULL,
-                                    stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
-                                    pass_fds=fds)
-        except BaseException:
-            log.close()
-            raise
-        child = Child(name, proc, log)
-        self.children.append(child)
-        return child
-
-    def check(self) -> None:
-        """Raise :class:`ChildFailed` if any child has exited."""
-        for c in self.children:
-            code = c.proc.poll()
-            if code is not None:
-                path = self.log_dir / f"{c.name}.log"
-                c.log.flush()
-                try:
-                    tail = path.read_text(encoding="utf-8", errors="replace").strip().splitlines()[-3:]
-                except OSError:
-                    tail = []
-                raise ChildFailed(f"{c.name} exited with status {code} (see {path})"
-                                  + (": " + " | ".join(tail) if tail else ""))
-
-    def stop(self, children: Sequence[Child] | None = None, timeout: float = STOP_TIMEOUT_S) -> None:
-        """SIGTERM to each child's process group, wait, SIGKILL what is left."""
-        targets = list(self.children if children is None else children)
-        for c in targets:
-            if c.proc.poll() is None:
-                _signal_group(c.proc.pid, signal.SIGTERM)
-        deadline = time.monotonic() + timeout
-        for c in targets:
-            try:
-                c.proc.wait(max(0.0, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                logger.warning("%s (pid %d) ignored SIGTERM; killing it", c.name, c.proc.pid)
-            _signal_group(c.proc.pid, signal.SIGKILL)  # whatever is left in its group
-            if c.proc.poll() is None:
-                c.proc.wait(timeout)
-            c.log.close()
-        if children is None:
-            self.children.clear()
-        else:
-            self.children = [c for c in self.children if c not in targets]
-
-
-def _signal_group(pid: int, sig: int) -> None:
-    try:
-        os.killpg(pid, sig)
-    except (ProcessLookupError, PermissionError):
-        pass
-
-
-def _raise_interrupt(signum: int, _frame: FrameType | None) -> None:
-    raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
-
-
-def run_command(ns: argparse.Namespace) -> int:
-    """``formation run``; see the module docstring. Returns the exit status."""
-    from formation.cli import EXIT_ERROR, EXIT_OK, Progress, UsageError, print_summary
-
-    try:
-        faults = FaultPlan(
-            drop=ns.drop, delay_ms=ns.delay_ms, seed=getattr(ns, "fault_seed", 0),
-            kills=tuple(parse_kill(k) for k in getattr(ns, "kill", None) or ()),
-            camera_dropouts=tuple(parse_camera_dropout(c)
-                                  for c in getattr(ns, "camera_dropout", None) or ()),
-        )
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    if ns.camera == "synthetic":
-        try:
-            import camera_service.service  # noqa: F401
-        except ImportError:
-            raise UsageError("--camera synthetic: camera_service.service is not available yet") from None
-    if not 0 <= ns.port < 65536:
-        raise UsageError(f"--port: {ns.port} is not a TCP port")
-    slots = getattr(ns, "pose_slots", 1)
-    if slots < 1:
-        raise UsageError(f"--pose-slots: need an integer >= 1, got {slots}")
-    if slots > 1 and not (ns.realtime and ns.camera == "truth"):
-        raise UsageError("--pose-slots: more than one slot needs --realtime and --camera truth")
-    scenario = load_scenario(ns.scenario)  # ScenarioError -> exit 2
-    try:
-        faults.check_robots(scenario.robot_ids)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    out = Path(ns.out)
-    try:
-        summary, series = launch(
-            scenario, out, realtime=ns.realtime, camera=ns.camera, topology=ns.topology,
-            safety=not ns.no_safety, port=ns.port,
-            progress_factory=lambda: Progress(f"run {scenario.name}", quiet=ns.quiet),
-            faults=faults, secure=not getattr(ns, "insecure", False), pose_slots=slots)
-    except RunAborted as stop:  # the run started: its summary says why and what it measured
-        write_run(stop.summary, stop.series, scenario, out, plots=not ns.no_plots)
-        print(f"formation run: aborted: {stop}; wrote {out / 'summary.json'} with what was "
-              f"measured until then ({stop.summary['steps']} ticks)", file=sys.stderr)
-        return 130 if stop.interrupted else EXIT_ERROR
-    write_run(summary, series, scenario, out, plots=not ns.no_plots)
-    print_summary(summary, out)
-    return EXIT_OK
-
-
 def launch(
     scenario: Scenario,
     out: Path,
@@ -301,13 +163,15 @@ def launch(
     faults: FaultPlan | None = None,
     secure: bool = True,
     pose_slots: int = 1,
+    observer=None,
 ) -> tuple[dict, Series]:
     """Run ``scenario`` as separate processes; returns the summary and the time series.
 
     ``faults`` injects the faults of :class:`FaultPlan`; ``secure`` runs the router with
     user/password authentication and the access control list of :mod:`wire.acl`, every process
     logging in as itself. ``pose_slots`` is the world's (:class:`simulator.world.WorldOptions`:
-    real time only)."""
+    real time only). ``observer(session)``, when given, is called with the world's session
+    before the run (a live viewer subscribes on it) and returns what detaches it after."""
     faults = faults or FaultPlan()
     faults.check_robots(scenario.robot_ids)
     stopped: BaseException | None = None  # why a started run ended early
@@ -318,54 +182,27 @@ def launch(
         old.unlink()
     port = port or free_tcp_port()
     endpoint = tcp_endpoint(port)
-    sup = Supervisor(out / "logs")
     fault_run = faults.active
-    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
-    previous_hup = signal.signal(signal.SIGHUP, _raise_interrupt)  # the terminal closed
-    try:
+    with Fleet(out / "logs") as fleet:
         creds = _secure_setup(scenario, out / "secure", endpoint) if secure else None
-        router_id = new_router_id()  # this run's token: the readiness check wants this router
-        router_argv = ["-m", "wire.router", "--listen", endpoint, "--log-level", "WARNING",
-                       "--id", router_id]
-        if creds is not None:
-            router_argv += ["--config", str(creds.router_config)]
-        router = sup.start("router", router_argv)
-        try:
-            wait_for_router(endpoint, router_id, timeout_s=START_TIMEOUT_S, alive=sup.check,
-                            auth=None if creds is None else creds.world)
-        except ChildFailed as exc:
-            if IN_USE in str(exc):
-                raise RouterClash(f"port {port} on 127.0.0.1 is in use by another process: "
-                                  f"choose another --port (or 0 for a free one)") from None
-            raise
-        except RouterClash:
-            raise RouterClash(f"port {port} on 127.0.0.1 is served by another run's Zenoh router, "
-                              f"not this run's: choose another --port (or 0 for a free one)"
-                              ) from None
+        router = fleet.start_router(endpoint, port, None if creds is None else creds.router_config,
+                                    auth=None if creds is None else creds.world)
         zs = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False)
         configs = build_agent_configs(scenario, zenoh=zs, topology=topology, safety=safety)
-        agent_argv: dict[str, list[str]] = {}
-        agents: dict[str, Child] = {}
-        for rid, cfg in configs.items():
-            path = out / "configs" / f"{rid}.yaml"
-            save_config(cfg, path)
-            argv = ["-m", "agent", "--config", str(path), "--stats", str(out / "agents" / f"{rid}.json")]
-            if not realtime:
-                argv.append("--lockstep")
+
+        def agent_args(rid: str) -> list[str]:
+            argv = [] if realtime else ["--lockstep"]
             if fault_run:
                 argv += ["--drop", repr(faults.drop), "--delay-ms", repr(faults.delay_ms),
                          "--fault-seed", str(faults.seed), "--ellipse-hold", repr(faults.ellipse_hold),
                          "--lockstep-timeout", repr(FAULT_AGENT_TIMEOUT_S)]
             if creds is not None:
                 argv += ["--zenoh-auth", str(creds.files[rid])]
-            agent_argv[rid] = argv
-            agents[rid] = sup.start(f"agent-{rid}", argv)
-        # written whole, then renamed: a reader never sees half a file
-        tmp = out / "processes.json.tmp"
-        tmp.write_text(json.dumps({c.name: c.proc.pid for c in sup.children}, indent=2) + "\n",
-                       encoding="utf-8")
-        tmp.replace(out / "processes.json")
-        conf = WireZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
+            return argv
+
+        agents = fleet.start_agents(configs, out, agent_args)
+        fleet.write_pids(out / "processes.json")
+        conf = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
                                  connect_timeout_s=10.0,
                                  auth=None if creds is None else creds.world).to_config()
         options = WorldOptions(
@@ -377,50 +214,42 @@ def launch(
             pose_slots=pose_slots)
         with zenoh.open(conf) as session:
             world = World(scenario, session, options)
-            driver = _FaultDriver(faults, sup, world, agents, agent_argv, scenario.dt, realtime)
+            detach = observer(session) if observer is not None else None
+            driver = _FaultDriver(faults, fleet, world, agents, scenario.dt, realtime)
             try:
-                world.wait_for_agents(abort=sup.check)
+                world.wait_for_agents(abort=fleet.check)
                 try:
-                    if progress_factory is not None:
-                        with progress_factory() as progress:
-                            result = world.run(progress=progress.update, abort=sup.check,
-                                               on_tick=driver.on_tick if fault_run else None)
-                    else:
-                        result = world.run(abort=sup.check,
-                                           on_tick=driver.on_tick if fault_run else None)
+                    result = _run_world(world, fleet, progress_factory,
+                                        driver.on_tick if fault_run else None)
                 except (ChildFailed, KeyboardInterrupt, TimeoutError) as exc:
                     if world.result is None:
                         raise
                     result, stopped = world.result, exc  # the run started: keep what it measured
             finally:
+                if detach is not None:
+                    detach()
                 world.close()
-        # agents write their stats on SIGTERM (also after the router died); the router last
-        sup.stop(list(agents.values()))
-        sup.stop([router])
-    finally:
-        sup.stop()
-        signal.signal(signal.SIGTERM, previous)
-        signal.signal(signal.SIGHUP, previous_hup)
+        # the agents write their counters on SIGTERM (also after the router died); router last
+        fleet.shut_down(list(agents.values()), router)
     stats = [_stats_of(out / "agents" / f"{rid}.json", cfg, lost_ok=stopped is not None)
              if rid in agents else _dead_stats(cfg) for rid, cfg in configs.items()]
     summary, series = build_summary(scenario, result, stats, topology, realtime, camera, safety)
     if fault_run:
         summary["faults"] = fault_summary(faults, result, stats, driver.log)
-    if creds is not None:
-        summary["secure"] = {"auth": "usrpwd", "acl": str(creds.router_config),
-                             "manager": str(out / "secure" / MANAGER_FILE),
-                             "viewer": str(out / "secure" / VIEWER_FILE)}
-    else:
-        summary["secure"] = False
+    summary["secure"] = False if creds is None else creds.summary()
     if pose_slots > 1:
         summary["pose_slots"] = pose_slots  # the world spread each period's poses over this many
     if stopped is not None:
-        summary["aborted"] = abort_reason(stopped)
-        lost = sorted(s["robot"] for s in stats if s.get("counters_lost"))
-        if lost:
-            summary["aborted_counters_lost"] = lost
+        _mark_aborted(summary, stats, stopped)
         raise RunAborted(summary["aborted"], summary, series, stopped)
     return summary, series
+
+
+def _run_world(world: World, fleet: Fleet, progress_factory, on_tick) -> WorldResult:
+    if progress_factory is None:
+        return world.run(abort=fleet.check, on_tick=on_tick)
+    with progress_factory() as progress:
+        return world.run(progress=progress.update, abort=fleet.check, on_tick=on_tick)
 
 
 class RunAborted(RuntimeError):
@@ -445,6 +274,13 @@ def abort_reason(exc: BaseException) -> str:
     return f"{exc}".splitlines()[0] if str(exc) else type(exc).__name__
 
 
+def _mark_aborted(summary: dict, stats: list[dict], exc: BaseException) -> None:
+    summary["aborted"] = abort_reason(exc)
+    lost = sorted(s["robot"] for s in stats if s.get("counters_lost"))
+    if lost:
+        summary["aborted_counters_lost"] = lost
+
+
 def _stats_of(path: Path, cfg, lost_ok: bool) -> dict:
     """An agent's counters; in an aborted run an agent that wrote none (it died with the run)
     counts as lost instead of failing the summary."""
@@ -458,6 +294,12 @@ class _Secure:
     router_config: Path
     files: dict[str, Path]  # robot -> its credentials file
     world: UsrPwdAuth
+    folder: Path
+
+    def summary(self) -> dict:
+        """``secure`` of summary.json."""
+        return {"auth": "usrpwd", "acl": str(self.router_config),
+                "manager": str(self.folder / MANAGER_FILE), "viewer": str(self.folder / VIEWER_FILE)}
 
 
 MANAGER_FILE = "manager.json5"  # in OUT/secure: the fleet manager's credentials (goals)
@@ -469,7 +311,8 @@ def _secure_setup(scenario: Scenario, folder: Path, endpoint: str) -> _Secure:
     a viewer; the router's dictionary and its configuration with the fleet's access control
     list (:mod:`wire.acl`), all in ``folder`` (mode 0700, files 0600). ``manager.json5`` and
     ``viewer.json5`` are Zenoh configuration fragments (the router's endpoint, the user and
-    password) that client commands take with ``--auth FILE``."""
+    password) that client commands take with ``--auth FILE`` (``viewer.credentials``, the
+    viewer's ``user:password`` line, is kept for older scripts)."""
     folder.mkdir(parents=True, exist_ok=True)
     folder.chmod(0o700)
     for old in folder.iterdir():  # a previous run's credentials are void
@@ -482,6 +325,7 @@ def _secure_setup(scenario: Scenario, folder: Path, endpoint: str) -> _Secure:
     creds = acl.new_credentials([acl.CAMERA_USER, acl.MANAGER_USER, acl.VIEWER_USER, *robots])
     dictionary = folder / "users.txt"
     acl.write_dictionary(dictionary, creds)
+    acl.write_credentials(folder / "viewer.credentials", creds[acl.VIEWER_USER])
     files = {}
     for rid in robots:
         files[rid] = folder / f"{rid}.credentials"
@@ -492,18 +336,18 @@ def _secure_setup(scenario: Scenario, folder: Path, endpoint: str) -> _Secure:
     acl.write_router_config(router_conf, acl.router_config(
         [endpoint], acl.fleet_acl(robots, leaders, keys.DEFAULT_PREFIX, successors=successors),
         dictionary.resolve()))
-    return _Secure(router_conf, files, creds[acl.CAMERA_USER])
+    return _Secure(router_conf, files, creds[acl.CAMERA_USER], folder)
 
 
 class _FaultDriver:
     """Kills and restarts agents at their simulated times (``World.run(on_tick=...)``)."""
 
-    def __init__(self, plan: FaultPlan, sup: Supervisor, world: World, agents: dict[str, Child],
-                 argv: dict[str, list[str]], dt: float, realtime: bool) -> None:
-        self.sup = sup
+    def __init__(self, plan: FaultPlan, fleet: Fleet, world: World, agents: dict[str, Child],
+                 dt: float, realtime: bool) -> None:
+        self.fleet = fleet
         self.world = world
         self.agents = agents
-        self.argv = argv
+        self.argv = fleet.agent_argv
         self.realtime = realtime
         self.log: list[dict] = []
         # (tick, order, action, robot): kills before restarts within a tick
@@ -529,8 +373,8 @@ class _FaultDriver:
         if child is None:
             logger.warning("kill %s at t=%.2f s: its agent is not running", rid, t)
             return
-        _signal_group(child.proc.pid, signal.SIGKILL)
-        self.sup.stop([child])  # reaps it, closes its log
+        signal_group(child.proc.pid, signal.SIGKILL)
+        self.fleet.stop([child])  # reaps it, closes its log
         gone = self.world.wait_unsubscribed(rid)
         logger.info("killed agent %s at t=%.2f s (router saw it go: %s)", rid, t, gone)
         self.log.append({"event": "kill", "robot": rid, "t_s": round(t, 6)})
@@ -541,9 +385,9 @@ class _FaultDriver:
             return
         self.incarnation[rid] += 1
         wall0 = time.monotonic()
-        self.agents[rid] = self.sup.start(f"agent-{rid}-{self.incarnation[rid]}", self.argv[rid])
+        self.agents[rid] = self.fleet.start(f"agent-{rid}-{self.incarnation[rid]}", self.argv[rid])
         if not self.realtime:  # lock-step: the restart takes no simulated time
-            self.world.wait_for_agents(abort=self.sup.check, robots=[rid], grace=False)
+            self.world.wait_for_agents(abort=self.fleet.check, robots=[rid], grace=False)
         self.log.append({"event": "restart", "robot": rid, "t_s": round(t, 6),
                          "start_wall_s": round(time.monotonic() - wall0, 3)})
 
@@ -624,27 +468,13 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
         vals = [s["min_h"][kind] for s in stats if s["min_h"][kind] is not None]
         min_h[kind] = min(vals) if vals else None
     snap = traffic.merge([result.traffic, *(s["traffic"] for s in stats)])
-    summary = {
-        "scenario": scenario.name,
-        "mode": "multiprocess",
-        "steps": result.steps,
-        "sim_time_s": round(sim_time, 6),
-        **result.monitor.summary_fields(),
-        "min_h": min_h,
-        "qp": {
-            "solves": sum(s["solves"] for s in stats),
-            "infeasible": relaxed + fallback + failed,
-            "solve_us_median": statistics.median(solve_us) if solve_us else None,
-            "relaxed": relaxed,
-            "fallback": fallback,
-            "failed": failed,
-        },
-        "comm": comm_summary(snap, topology, n, sim_time),
-        "safety": safety,
-        "solver": "exact",
-        "realtime": realtime,
-        "camera": camera,
-        "agents": {
+    summary = run_summary(
+        scenario, "multiprocess", result.steps, sim_time, result.monitor, min_h,
+        qp_fields(sum(s["solves"] for s in stats), solve_us, relaxed, fallback, failed),
+        comm_summary(snap, topology, n, sim_time), safety, "exact",
+        realtime=realtime,
+        camera=camera,
+        agents={
             "ticks": sum(s["ticks"] for s in stats),
             "overruns": sum(s["overruns"] for s in stats),
             "stale": sum(s["stale"] for s in stats),
@@ -656,17 +486,16 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
             "tick_us_median": _median([s["tick_us_median"] for s in stats]),
             "pose_age_us_median": _median([s.get("pose_age_us_median") for s in stats]),
         },
-        "world": {
+        world={
             "missing_cmds": result.missing_cmds,
             "zero_cmds": result.zero_cmds,
             "malformed_cmds": result.malformed_cmds,
             "wall_s": result.wall_s,
             "latency_ms": _latency(result.latency_ms),
         },
-        "collision_log": result.monitor.collision_log[:100],
-        "time_to_goal_by_formation_s": formation_goal_times(
-            scenario, series, result.monitor.time_to_goal),
-    }
+        time_to_goal_by_formation_s=formation_goal_times(scenario, series,
+                                                         result.monitor.time_to_goal),
+    )
     return summary, series
 
 
@@ -770,3 +599,7 @@ def _latency(ms: list[float]) -> dict | None:
     xs = sorted(ms)
     return {"samples": len(xs), "median_ms": statistics.median(xs),
             "p99_ms": xs[min(len(xs) - 1, int(math.ceil(0.99 * len(xs))) - 1)], "max_ms": xs[-1]}
+
+
+Supervisor = Fleet  # the former name, kept for callers outside this package
+__all__ = ["START_TIMEOUT_S", "STOP_TIMEOUT_S", "Child", "ChildFailed", "Fleet", "Supervisor"]

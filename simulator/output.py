@@ -6,7 +6,8 @@ Shared by ``formation sim`` and ``formation run`` so both write the same files:
 * ``robots.csv`` - one row per robot per tick (:data:`simulator.inprocess.ROBOT_COLUMNS`);
 * ``ellipses.csv``, ``obstacles.csv`` - per tick;
 * ``trajectories.png`` - paths, obstacles and ellipse snapshots (like thesis Figs. 5.2, 5.11, 5.15);
-* ``safety.png`` - the smallest barrier value of each kind per robot over time (Figs. 5.3, 5.4, 5.12).
+* ``safety.png`` - the smallest barrier value of each kind per robot over time (Figs. 5.3, 5.4, 5.12);
+* ``run.mcap`` - the run for Foxglove or Lichtblick (:func:`viewer.record.write_recording`).
 """
 
 from __future__ import annotations
@@ -14,9 +15,11 @@ from __future__ import annotations
 import csv
 import json
 import math
+import shutil
 from pathlib import Path
 
 from scenario import Scenario
+from viewer.record import write_recording
 
 from .inprocess import ROBOT_COLUMNS, Series
 
@@ -25,6 +28,7 @@ OBSTACLE_COLUMNS = ("t", "obstacle", "x", "y", "safe_distance")
 
 
 PLOTS = ("trajectories.png", "safety.png")
+STAGING = ".writing"  # in the output folder: this run's files until they are all written
 
 
 class OutputError(OSError):
@@ -37,19 +41,20 @@ def write_run(summary: dict, series: Series, scenario: Scenario, out: Path, plot
     summary beside another run's or half-written series. On failure nothing of this run is
     left and :class:`OutputError` says why (``disk full`` for ENOSPC)."""
     out = Path(out)
+    staging = out / STAGING  # every file is written here first, then renamed into out
     written: list[tuple[Path, Path]] = []  # (temporary, final)
 
     def tmp(name: str) -> Path:
-        final = out / name
-        t = out / f".{final.stem}.tmp{final.suffix}"
-        written.append((t, final))
-        return t
+        written.append((staging / name, out / name))
+        return staging / name
 
     try:
-        out.mkdir(parents=True, exist_ok=True)
+        staging.mkdir(parents=True, exist_ok=True)
         _write_csv(tmp("robots.csv"), ROBOT_COLUMNS, series.robots)
         _write_csv(tmp("ellipses.csv"), ELLIPSE_COLUMNS, series.ellipses)
         _write_csv(tmp("obstacles.csv"), OBSTACLE_COLUMNS, series.obstacles)
+        write_recording(summary, series, scenario, staging)
+        tmp("run.mcap")
         if plots and series.robots:
             from .plots import plot_safety, plot_trajectories
 
@@ -63,12 +68,9 @@ def write_run(summary: dict, series: Series, scenario: Scenario, out: Path, plot
                 (out / name).unlink(missing_ok=True)
         for t, final in written:
             t.replace(final)  # summary.json last
+        staging.rmdir()
     except OSError as exc:
-        for t, _ in written:
-            try:
-                t.unlink(missing_ok=True)
-            except OSError:
-                pass
+        shutil.rmtree(staging, ignore_errors=True)
         raise output_error(exc, out) from None
 
 
@@ -76,7 +78,7 @@ def output_error(exc: OSError, out: Path) -> OutputError:
     """An :class:`OutputError` that names the folder and says "disk full" for ENOSPC/EDQUOT."""
     import errno
 
-    where = exc.filename or out
+    where = out
     if exc.errno in (errno.ENOSPC, errno.EDQUOT):
         return OutputError(f"disk full: cannot write {where} (run output not saved)")
     return OutputError(f"cannot write {where}: {exc.strerror or exc}")

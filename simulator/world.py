@@ -197,6 +197,24 @@ class _CmdInbox:
             self.late.discard(rid)
             self._cond.notify_all()
 
+    def fresh(self, now: float, max_age: float, robots: Sequence[str] | None = None) -> dict[str, Cmd]:
+        """The latest command of each robot (of ``robots``; default every one heard) received no
+        more than ``max_age`` before ``now`` (``time.monotonic()``)."""
+        with self._cond:
+            if robots is None:
+                return {r: c for r, (c, rx) in self.latest.items() if now - rx <= max_age}
+            entries = ((r, self.latest.get(r)) for r in robots)
+            return {r: e[0] for r, e in entries if e is not None and now - e[1] <= max_age}
+
+    def take_since(self, t: float, robots: Sequence[str]) -> tuple[dict[str, Cmd], list[str]]:
+        """Lock-step: the commands stamped ``t`` or later, and the robots of ``robots`` that sent
+        none and were not late already (now marked late)."""
+        with self._cond:
+            got = {r: c for r, (c, _rx) in self.latest.items() if c.stamp >= t}
+            late = [r for r in robots if r not in got and r not in self.late]
+            self.late.update(late)
+        return got, late
+
     def wait(self, ready: Callable[[], bool], timeout: float, abort: Callable[[], None]) -> bool:
         """Wait until ``ready()`` (checked under the lock) or the timeout; ``abort()`` is called
         between waits, outside the lock, and may raise."""
@@ -263,7 +281,7 @@ class World:
         for rid, pub in zip(self.ids, self._pose_pubs, strict=True):
             if robots is not None and rid not in robots:
                 continue
-            while not pub.publisher.matching_status.matching:
+            while not pub.publisher.matching_status.matching:  # type: ignore[attr-defined]
                 abort()
                 if time.monotonic() > deadline:
                     raise TimeoutError(f"agent {rid} did not subscribe to its pose within "
@@ -277,7 +295,7 @@ class World:
         timeout passed first."""
         pub = self._pose_pubs[self.ids.index(rid)]
         deadline = time.monotonic() + timeout
-        while pub.publisher.matching_status.matching:
+        while pub.publisher.matching_status.matching:  # type: ignore[attr-defined]
             if time.monotonic() > deadline:
                 return False
             time.sleep(0.01)
@@ -299,15 +317,14 @@ class World:
         dt = sc.dt
         is_uni = sc.robot.is_unicycle
         off = sc.robot.control_offset
-        state = [tuple(r.start) for r in sc.robots]
+        state: list[tuple[float, float, float]] = [
+            (r.start[0], r.start[1], r.start[2]) for r in sc.robots]
         n = len(state)
         monitor = SafetyMonitor(sc)
         series = Series()
         inbox = self.inbox
         inbox.measure_latency = opts.realtime
-        missing = 0
-        zero = 0
-        timeouts = 0
+        counts = _Counts()
         stamps: list[float] = []
         wall0 = time.monotonic()
         monitor.update(0.0, np.array([s[:2] for s in state]),
@@ -332,10 +349,10 @@ class World:
         def result(steps: int, sim_time: float) -> WorldResult:
             return WorldResult(
                 steps=steps, sim_time=sim_time, monitor=monitor, series=series,
-                traffic=self.counter.snapshot(), missing_cmds=missing, zero_cmds=zero,
-                cmd_timeouts=timeouts, camera_dropped=self.camera_dropped,
-                malformed_cmds=inbox.malformed, latency_ms=list(inbox.latency_ms),
-                wall_s=time.monotonic() - wall0, stamps=stamps,
+                traffic=self.counter.snapshot(), missing_cmds=counts.missing,
+                zero_cmds=counts.zero, cmd_timeouts=counts.timeouts,
+                camera_dropped=self.camera_dropped, malformed_cmds=inbox.malformed,
+                latency_ms=list(inbox.latency_ms), wall_s=time.monotonic() - wall0, stamps=stamps,
             )
 
         try:
@@ -351,8 +368,7 @@ class World:
                     state, cmds = self._publish_slots(k, state, next_wall, abort)
                     next_wall += dt
                     if k > 0:  # tick 0 only publishes: nothing was applied
-                        missing += sum(c is None for c in cmds)
-                        zero += sum(_is_zero(c) for c in cmds)
+                        counts.applied(cmds)
                     if settle(k, t - dt, before if k > 0 else None, cmds, t, state):
                         break
                     continue
@@ -362,28 +378,11 @@ class World:
                 if opts.realtime:
                     next_wall += dt
                     _sleep_until(next_wall, abort)
-                    now = time.monotonic()
-                    with inbox._cond:
-                        got = {r: c for r, (c, rx) in inbox.latest.items()
-                               if now - rx <= opts.stale_after}
+                    got = inbox.fresh(time.monotonic(), opts.stale_after)
                 else:
-                    def ready(t: float = t) -> bool:
-                        return all(r in inbox.latest and inbox.latest[r][0].stamp >= t
-                                   for r in self.ids if r not in inbox.late)
-
-                    if not inbox.wait(ready, opts.cmd_timeout, abort):
-                        timeouts += 1
-                    with inbox._cond:
-                        got = {r: c for r, (c, _rx) in inbox.latest.items() if c.stamp >= t}
-                        late = [r for r in self.ids if r not in got and r not in inbox.late]
-                        inbox.late.update(late)
-                    if late:
-                        logger.info("tick %d: no command from %s in time: zero", k, ", ".join(late))
-                    missing += sum(1 for r in self.ids if r not in got)
+                    got = self._lockstep_commands(k, t, abort, counts)
                 cmds = [got.get(r) for r in self.ids]
-                if opts.realtime:  # a stalled router or agent: no fresh command, the robot stops
-                    missing += sum(c is None for c in cmds)
-                zero += sum(_is_zero(c) for c in cmds)
+                counts.applied(cmds)  # no command (either clock): zero velocity, counted
                 before = state
                 state = [step_pose(*state[i], cmds[i], dt, is_uni) for i in range(n)]
                 t = (k + 1) * dt
@@ -395,6 +394,23 @@ class World:
             raise
         self.result = result(k + 1, t)
         return self.result
+
+    def _lockstep_commands(self, k: int, t: float, abort: Callable[[], None],
+                           counts: _Counts) -> dict[str, Cmd]:
+        """Lock-step: wait (up to ``cmd_timeout``) for every robot's command of tick ``k``
+        stamped ``t`` (robots late since a timeout not waited for); the commands that came."""
+        inbox = self.inbox
+
+        def ready() -> bool:
+            return all(r in inbox.latest and inbox.latest[r][0].stamp >= t
+                       for r in self.ids if r not in inbox.late)
+
+        if not inbox.wait(ready, self.options.cmd_timeout, abort):
+            counts.timeouts += 1
+        got, late = inbox.take_since(t, self.ids)
+        if late:
+            logger.info("tick %d: no command from %s in time: zero", k, ", ".join(late))
+        return got
 
     def _publish_slots(self, k: int, state: Sequence[tuple[float, float, float]], start: float,
                        abort: Callable[[], None]) -> tuple[list, list[Cmd | None]]:
@@ -413,12 +429,9 @@ class World:
         for s in range(slots):
             _sleep_until(start + s * dt / slots, abort)
             mine = range(-(-s * n // slots), -(-(s + 1) * n // slots))
-            now = time.monotonic()
-            with inbox._cond:
-                for i in mine:
-                    entry = inbox.latest.get(self.ids[i])
-                    if entry is not None and now - entry[1] <= opts.stale_after:
-                        cmds[i] = entry[0]
+            fresh = inbox.fresh(time.monotonic(), opts.stale_after, [self.ids[i] for i in mine])
+            for i in mine:
+                cmds[i] = fresh.get(self.ids[i])
             stamp = time.time()
             if s == 0:
                 self._publish_obstacles(t, stamp)
@@ -516,6 +529,19 @@ def world_summary(result: WorldResult) -> dict:
         "wall_s": result.wall_s,
         "latency_ms": result.latency_ms,
     }
+
+
+@dataclass
+class _Counts:
+    """What a run counts about the commands it applied."""
+
+    missing: int = 0  # robot-ticks with no command: zero velocity
+    zero: int = 0  # robot-ticks whose command was zero
+    timeouts: int = 0  # lock-step waits for a tick's commands that timed out
+
+    def applied(self, cmds: Sequence[Cmd | None]) -> None:
+        self.missing += sum(c is None for c in cmds)
+        self.zero += sum(_is_zero(c) for c in cmds)
 
 
 def _is_zero(c: Cmd | None) -> bool:

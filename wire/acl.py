@@ -47,21 +47,22 @@ from pathlib import Path
 from typing import Any
 
 from wire import keys
+from wire.diag import diag_key
 from wire.zconf import UsrPwdAuth, client_auth_config
 
 logger = logging.getLogger(__name__)
 
 CAMERA_USER = "camera"  # the camera service, or the simulated world that stands in for it
 MANAGER_USER = "manager"  # the fleet manager: sends goals, reads everything
-VIEWER_USER = "viewer"  # a read-only viewer (view, record, status)
+VIEWER_USER = "viewer"  # read-only: the live page, recorders, status
 FLEET_READ_RULE = "fleet-read"
 CAMERA_RULE = "camera-publish"
 
 
 def _check_user(name: str, what: str) -> str:
-    keys.validate_id(name, what)
-    if ":" in name:
-        raise ValueError(f"{what} {name!r} must not contain ':' (the dictionary separator)")
+    problem = keys.user_problem(name)  # robots' names follow keys.name_problem, stricter
+    if problem is not None:
+        raise ValueError(f"{what} {name!r} {problem}")
     return name
 
 
@@ -126,7 +127,7 @@ def fleet_acl(
         base_key = cmd_vel.get(rid) or default_cmd_vel_key(rid)
         own = [rule(f"{rid}-publish", ["put"], ["ingress"],
                     [keys.state_key(prefix, rid), keys.cmd_key(prefix, rid),
-                     f"{prefix}/robot/{rid}/diag", base_key]),
+                     diag_key(prefix, rid), base_key]),
                rule(f"{rid}-base", ["declare_subscriber"], ["ingress", "egress"], [base_key]),
                rule(f"{rid}-base-deliver", ["put"], ["egress"], [base_key])]
         if rid in lead:
@@ -253,10 +254,10 @@ def write_fleet_files(scenario_path: str | os.PathLike[str], folder: str | os.Pa
     """The router's ``router.json5`` and ``users.txt`` and one ``ROBOT.credentials`` per robot
     (plus ``camera``, ``manager`` and ``viewer``) for a scenario's fleet, with fresh passwords,
     in ``folder``. ``cmd_vel_key`` is each robot's base command key (``{robot}`` replaced)."""
-    from leader.succession import formation_successor
     from scenario import load_scenario
+    from scenario.succession import formation_successor
 
-    sc = load_scenario(scenario_path)
+    sc = load_scenario(Path(scenario_path))
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
     out.chmod(0o700)

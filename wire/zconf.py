@@ -330,11 +330,23 @@ def client_auth_config(auth: UsrPwdAuth, connect: Sequence[str]) -> dict:
 
 def read_auth_file(path: str | os.PathLike[str]) -> AuthFile:
     """The user, password and endpoints of a Zenoh JSON5 configuration (fragment) with
-    ``transport/auth/usrpwd``; ValueError naming the file and what is wrong with it. Parsed by
-    zenoh itself, so comments and every JSON5 form zenoh takes are accepted."""
+    ``transport/auth/usrpwd`` (parsed by zenoh itself, so comments and every JSON5 form zenoh
+    takes are accepted), or of a one-line ``user:password`` file (``*.credentials``);
+    ValueError naming the file and what is wrong with it."""
     name = os.fspath(path)
     if not os.path.isfile(name):
         raise ValueError(f"--auth: no such file {name!r}")
+    try:
+        with open(name, encoding="utf-8") as fh:
+            head = fh.read(4096)
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"--auth {name}: cannot read: {exc}") from None
+    line = head.strip()
+    if line and "\n" not in line and not line.startswith(("{", "/")):  # user:password, one line
+        user, sep, password = line.partition(":")
+        if not (sep and user and password):
+            raise ValueError(f"--auth {name}: expected user:password or a Zenoh JSON5 file")
+        return AuthFile(name, UsrPwdAuth(user, password), ())
     try:
         conf = zenoh.Config.from_file(name)
     except Exception as exc:  # zenoh.ZError: not JSON5, an unknown key

@@ -1,0 +1,24 @@
+"""``formation check SCENARIO``: validate a scenario file, nothing else."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from formation.exits import EXIT_OK
+
+
+def cmd_check(ns: argparse.Namespace) -> int:
+    from scenario import load_scenario
+    from scenario.succession import formation_successor
+
+    s = load_scenario(ns.scenario)
+    n = len(s.robot_ids)
+    for f in s.formations:
+        if formation_successor(f) is None:
+            print(f"{ns.scenario}: warning: formation {f.name!r} has no member adjacent to every "
+                  f"other member: if its leader {f.leader!r} dies, nobody takes over and the "
+                  f"other formations stop avoiding it after the ellipse hold", file=sys.stderr)
+    print(f"{ns.scenario}: ok ({s.name}: {len(s.formations)} formations, {n} robots, "
+          f"{len(s.obstacles)} obstacles, {s.robot.model})")
+    return EXIT_OK
