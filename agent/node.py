@@ -82,7 +82,7 @@ import statistics
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, TypeGuard
 
@@ -367,7 +367,7 @@ class AgentNode:
         logger.info("%s: subscribed to %s", self.cfg.robot_id, ", ".join(self.subscribed_keys))
 
     def _subscribe_more(self, s: zenoh.Session, k: str, cls: str, handler: Callable[..., Any],
-                        decoders: dict[str, Callable[[bytes], Any]], polled: bool) -> None:
+                        decoders: Mapping[str, Callable[..., Any]], polled: bool) -> None:
         """Declare one more subscriber after open (a successor taking the leader role), as
         :meth:`open` declares them."""
         if cls not in self._boxes:

@@ -13,8 +13,11 @@ Shared by ``formation sim`` and ``formation run`` so both write the same files:
 from __future__ import annotations
 
 import csv
+import errno
 import json
+import logging
 import math
+import os
 import shutil
 from pathlib import Path
 
@@ -29,6 +32,7 @@ OBSTACLE_COLUMNS = ("t", "obstacle", "x", "y", "safe_distance")
 
 PLOTS = ("trajectories.png", "safety.png")
 STAGING = ".writing"  # in the output folder: this run's files until they are all written
+NO_ROOM = 64 * 1024  # [bytes] free below this after a failed write: the disk is full
 
 
 class OutputError(OSError):
@@ -53,7 +57,7 @@ def write_run(summary: dict, series: Series, scenario: Scenario, out: Path, plot
         _write_csv(tmp("robots.csv"), ROBOT_COLUMNS, series.robots)
         _write_csv(tmp("ellipses.csv"), ELLIPSE_COLUMNS, series.ellipses)
         _write_csv(tmp("obstacles.csv"), OBSTACLE_COLUMNS, series.obstacles)
-        write_recording(summary, series, scenario, staging)
+        _record(summary, series, scenario, staging)
         tmp("run.mcap")
         if plots and series.robots:
             from .plots import plot_safety, plot_trajectories
@@ -74,10 +78,26 @@ def write_run(summary: dict, series: Series, scenario: Scenario, out: Path, plot
         raise output_error(exc, out) from None
 
 
+def _record(summary: dict, series: Series, scenario: Scenario, folder: Path) -> None:
+    """``folder/run.mcap``; the MCAP writer reports a full disk as its own error (after a
+    warning per message it could not log, here kept quiet): that becomes ENOSPC."""
+    quiet = logging.getLogger("foxglove")
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)
+    try:
+        write_recording(summary, series, scenario, folder)
+    except OSError:
+        raise
+    except Exception:
+        if shutil.disk_usage(folder).free < NO_ROOM:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(folder / "run.mcap")) from None
+        raise
+    finally:
+        quiet.setLevel(level)
+
+
 def output_error(exc: OSError, out: Path) -> OutputError:
     """An :class:`OutputError` that names the folder and says "disk full" for ENOSPC/EDQUOT."""
-    import errno
-
     where = out
     if exc.errno in (errno.ENOSPC, errno.EDQUOT):
         return OutputError(f"disk full: cannot write {where} (run output not saved)")

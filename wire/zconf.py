@@ -358,12 +358,14 @@ def read_auth_file(path: str | os.PathLike[str]) -> AuthFile:
         except Exception:  # noqa: BLE001 - zenoh.ZError: no such key
             return None
 
-    user, password = get("transport/auth/usrpwd/user"), get("transport/auth/usrpwd/password")
-    if not (isinstance(user, str) and user and isinstance(password, str) and password):
+    found_user = get("transport/auth/usrpwd/user")
+    found_password = get("transport/auth/usrpwd/password")
+    if not (isinstance(found_user, str) and found_user and isinstance(found_password, str)
+            and found_password):
         raise ValueError(f"--auth {name}: no transport/auth/usrpwd user and password in it")
     endpoints = get("connect/endpoints")
     connect = tuple(e for e in endpoints if isinstance(e, str)) if isinstance(endpoints, list) else ()
-    return AuthFile(name, UsrPwdAuth(user, password), connect)
+    return AuthFile(name, UsrPwdAuth(found_user, found_password), connect)
 
 
 def open_session(settings: ZenohSettings, what: str = "zenoh") -> zenoh.Session:
