@@ -937,7 +937,8 @@ class AgentNode:
         return {
             "robot": self.cfg.robot_id,
             "formation": self.cfg.formation,
-            "leader": self.role is not None,
+            "leader": self.cfg.leader is not None,  # by configuration (see takeovers)
+            "acting_leader": self.acting,  # a successor leading for a dead leader at the end
             "lockstep": self.options.lockstep,
             "ticks": self.ticks,
             "overruns": self.overruns,
