@@ -6,7 +6,7 @@ fleet its own Zenoh user, each with only the rights it needs (:func:`wire.acl.fl
 * robot ``r`` (user ``r``): its own ``state``, ``cmd`` and ``diag``, its base's ``cmd_vel`` key
   (the inventory's ``cmd_vel_key``; ``zenoh-bridge-ros2dds`` on the robot logs in as the same
   user and may subscribe to that key only), and, for the leader and the member that takes over
-  when the leader dies (:mod:`leader.succession`), the formation's ``ellipse``, ``others``,
+  when the leader dies (:mod:`scenario.succession`), the formation's ``ellipse``, ``others``,
   ``status``, ``plan`` and the leader's liveliness token;
 * ``camera``: the poses and the obstacles;
 * ``manager``: goals (and status queries);

@@ -8,7 +8,7 @@ and filters messages with the ACL of :func:`fleet_acl`, whose subjects are match
   ``{prefix}/robot/r/state``, ``.../cmd``, ``.../diag`` and its base's command key (``r/cmd_vel``
   unless told otherwise: ``zenoh-bridge-ros2dds`` with namespace ``r``); the bridge, logged in
   as ``r``, may subscribe to that key and be sent what is put there. If ``r`` leads formation
-  ``f``, or is its successor (:mod:`leader.succession`, the member that takes over when the
+  ``f``, or is its successor (:mod:`scenario.succession`, the member that takes over when the
   leader dies), also on ``{prefix}/formation/f/ellipse``, ``others``, ``status`` and ``plan``,
   hold the liveliness token ``{prefix}/formation/f/leader`` and answer ``status`` queries;
 * the camera service or simulated world (user :data:`CAMERA_USER`) may publish only the poses
@@ -81,7 +81,7 @@ def fleet_acl(
 
     ``robots`` maps robot id -> formation id (the robot's user name is its id); ``leaders`` maps
     formation id -> leader robot id; ``successors`` formation id -> the member that takes the
-    leader role when the leader dies (:mod:`leader.succession`): it gets the leader's rights.
+    leader role when the leader dies (:mod:`scenario.succession`): it gets the leader's rights.
     ``cmd_vel`` maps robot id -> its base's command key (:func:`default_cmd_vel_key` when
     absent): the robot's user may put there, and the base's bridge, logged in as the same
     user, may subscribe to it. ``manager_user`` (goals) and ``viewer_user`` (read only) are
