@@ -376,8 +376,8 @@ def open_session(settings: ZenohSettings, what: str = "zenoh") -> zenoh.Session:
     except ValueError:
         raise
     except Exception as exc:  # noqa: BLE001 - zenoh.ZError says only "Timeout!" for most causes
-        raise ConnectionError(f"{what}: {explain_open_failure(exc, settings.connect, settings.auth)}"
-                              ) from None
+        why = explain_open_failure(exc, settings.connect, settings.auth)
+        raise ConnectionError(f"{what}: {why}" if what else why) from None
 
 
 def explain_open_failure(exc: BaseException, connect: Sequence[str],

@@ -79,7 +79,7 @@ def _session(ns: argparse.Namespace):
         settings.to_config()
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    return open_session(settings, "view")  # says so when the router refuses the credentials
+    return open_session(settings, "")  # says so when the router refuses the credentials
 
 
 def _check_prefix(prefix: str) -> None:
