@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import errno
 import json
 import logging
 import signal
@@ -23,6 +24,7 @@ from agent.config import load_config
 from agent.faults import LinkFaults
 from agent.node import AgentNode, NodeOptions
 from wire.acl import read_credentials
+from wire.lifeline import watch_parent
 from wire.zconf import use_zenoh_threads
 
 logger = logging.getLogger("agent")
@@ -39,11 +41,18 @@ async def serve(node: AgentNode) -> None:
     finally:
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.remove_signal_handler(sig)
+        # stopping already: a second SIGTERM (the parent-death signal and the lifeline pipe
+        # both send one) must not kill the process before it wrote its counters
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
 
 def write_stats(node: AgentNode, path: Path) -> None:
     tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(node.stats(), allow_nan=False), encoding="utf-8")
+    try:
+        tmp.write_text(json.dumps(node.stats(), allow_nan=False), encoding="utf-8")
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise
     tmp.replace(path)  # the launcher never reads a half-written file
 
 
@@ -89,6 +98,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"agent: {exc}", file=sys.stderr)
         return 2
     status = 0
+    watch_parent()  # started by formation run: stop (zero command) if the launcher dies
     use_zenoh_threads("agent")
     try:
         asyncio.run(serve(node))
@@ -97,7 +107,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"agent {cfg.robot_id}: {type(exc).__name__}: {exc}", file=sys.stderr)
         status = 1
     if ns.stats is not None:
-        write_stats(node, ns.stats)
+        try:
+            write_stats(node, ns.stats)
+        except OSError as exc:  # a full disk, say: say so, do not die with a traceback
+            why = "disk full" if exc.errno in (errno.ENOSPC, errno.EDQUOT) else (exc.strerror or exc)
+            print(f"agent {cfg.robot_id}: cannot write counters to {ns.stats}: {why}",
+                  file=sys.stderr)
+            status = 1
     return status
 
 

@@ -21,6 +21,7 @@ from geometry.limits import BURGER_RADIUS
 from geometry.unicycle import control_point
 from leader.settings import LeaderSettings  # noqa: F401  (re-exported)
 from scenario import Scenario, formation_axes
+from scenario.succession import formation_successor
 from wire.zconf import ZenohSettings
 
 from .control import ControlParams
@@ -59,6 +60,8 @@ class AgentConfig:
     foreign_robots: tuple[str, ...] = ()  # all-to-all only: robots of other formations
     partners: tuple[str, ...] = ()  # every other member of the formation: separation rows
     leader: LeaderSettings | None = None  # set on the leader robot only
+    # set on the member that takes the leader role when the leader dies (leader.succession)
+    standby: LeaderSettings | None = None
     stale_after: float = 0.25  # [s] inputs older than this are stale: command zero
     base: str = "world"  # where commands go: the simulated world or a real robot base
     zenoh: ZenohSettings = field(default_factory=agent_zenoh)
@@ -97,6 +100,7 @@ def build_agent_configs(
             other_formations=tuple(g.name for g in scenario.formations if g.name != f.name),
         )
         foreign = tuple(r for r in scenario.robot_ids if r not in f.robot_ids)
+        heir = formation_successor(f)
         for r in f.robots:
             out[r.id] = AgentConfig(
                 robot_id=r.id,
@@ -114,6 +118,7 @@ def build_agent_configs(
                 foreign_robots=foreign if topology == "all-to-all" else (),
                 partners=tuple(m for m in f.robot_ids if m != r.id),
                 leader=leader if r.id == f.leader else None,
+                standby=leader if r.id == heir else None,
                 stale_after=STALE_PERIODS * scenario.dt,
                 base=base,
                 zenoh=zenoh,
@@ -147,15 +152,8 @@ def config_from_dict(d: dict[str, Any]) -> AgentConfig:
         if unknown:
             raise TypeError(f"zenoh: unexpected field {unknown[0]!r}")
         zenoh = agent_zenoh(**{k: tuple(v) if isinstance(v, list) else v for k, v in zd.items()})
-        leader = d.pop("leader", None)
-        if leader is not None:
-            leader = LeaderSettings(
-                members=tuple(leader["members"]),
-                offsets=tuple(tuple(map(float, o)) for o in leader["offsets"]),  # type: ignore[misc]
-                alpha0=float(leader["alpha0"]),
-                axes=tuple(map(float, leader["axes"])),  # type: ignore[arg-type]
-                other_formations=tuple(leader["other_formations"]),
-            )
+        leader = _leader_settings(d.pop("leader", None))
+        standby = _leader_settings(d.pop("standby", None))
         cfg = AgentConfig(
             robot_id=str(d.pop("robot_id")),
             formation=str(d.pop("formation")),
@@ -172,6 +170,7 @@ def config_from_dict(d: dict[str, Any]) -> AgentConfig:
             foreign_robots=tuple(d.pop("foreign_robots", ())),
             partners=tuple(str(m) for m in d.pop("partners", ())),
             leader=leader,
+            standby=standby,
             stale_after=float(d.pop("stale_after", 0.25)),
             base=str(d.pop("base", "world")),
             zenoh=zenoh,
@@ -194,6 +193,18 @@ def config_from_dict(d: dict[str, Any]) -> AgentConfig:
     if cfg.base not in BASES:
         raise ValueError(f"base: {cfg.base!r} is not one of {BASES}")
     return cfg
+
+
+def _leader_settings(d: dict[str, Any] | None) -> LeaderSettings | None:
+    if d is None:
+        return None
+    return LeaderSettings(
+        members=tuple(d["members"]),
+        offsets=tuple(tuple(map(float, o)) for o in d["offsets"]),  # type: ignore[misc]
+        alpha0=float(d["alpha0"]),
+        axes=tuple(map(float, d["axes"])),  # type: ignore[arg-type]
+        other_formations=tuple(d["other_formations"]),
+    )
 
 
 def save_config(cfg: AgentConfig, path: str | Path) -> None:

@@ -60,6 +60,14 @@ in ``fault_dropped`` and, in lock-step, ends the wait for it. A leader whose cop
 formation's ellipse is stale keeps using it inflated by ``max_speed * age`` (both semi-axes), the
 region that formation can have reached, for up to ``ellipse_hold`` seconds, then stops.
 
+Fault containment (:mod:`leader.succession`): the leader's node holds a Zenoh liveliness token
+(``{prefix}/formation/{fid}/leader``); the formation's successor (``cfg.standby``) watches it and,
+when it goes, takes the leader role for the formation, which now stands still: it publishes the
+ellipse estimated from the members' last positions at rest, exchanges ellipses with the other
+leaders and relays them on ``others``, so the other formations keep avoiding it without
+inflating a stale ellipse; it steps down when the token comes back (``takeovers``,
+``acting_leader_ticks``).
+
 Malformed or non-finite payloads are dropped and counted per key class. On stop (SIGINT/SIGTERM
 in ``python -m agent``) the node publishes a zero command, undeclares everything and closes the
 session; :meth:`AgentNode.stats` holds every counter for the launcher.
@@ -74,7 +82,7 @@ import statistics
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, TypeGuard
 
@@ -89,6 +97,7 @@ from agent.inputs import step_inputs
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, solve_exact
 from agent.unicycle import control_point
 from leader.role import LeaderRole, ellipse_to_msg, msg_to_ellipse
+from leader.succession import leader_token_key
 from wire import keys
 from wire.diag import DiagPublisher
 from wire.payloads import (
@@ -105,7 +114,7 @@ from wire.payloads import (
     decode_state,
 )
 from wire.traffic import CountingPublisher, Mailbox, TrafficCounter
-from wire.zconf import UsrPwdAuth, ZenohSettings
+from wire.zconf import UsrPwdAuth, ZenohSettings, explain_open_failure, read_auth_file
 
 logger = logging.getLogger(__name__)
 
@@ -265,6 +274,14 @@ class AgentNode:
         self._last_pose_stamp: float | None = None  # the pose stamp the last pose tick used
         self._last_tick = -math.inf  # [s, monotonic] when the last tick of any kind started
         self._loop: asyncio.AbstractEventLoop | None = None
+        # fault containment (leader.succession): the leader holds a liveliness token; its
+        # successor watches it and takes the role of a standing formation when it goes
+        self.acting = False  # this successor leads now, for a dead leader
+        self.takeovers = 0  # times this successor led at least one tick for a dead leader
+        self.acting_ticks = 0
+        self._acting_since_tick = False
+        self._token: Any = None
+        self._subscribe: Callable[[str, str], None] | None = None  # set by open()
 
     # --- wiring ------------------------------------------------------------------------------
 
@@ -302,12 +319,7 @@ class AgentNode:
         for cls in set(self.subscribed_keys.values()):
             self._boxes[cls] = Mailbox(None if polled else loop, _stamped(decoders[cls]),
                                        counter=self.counter)
-        if self.options.zenoh_config_file is not None:
-            conf = zenoh.Config.from_file(self.options.zenoh_config_file)
-        else:
-            conf = zenoh_config(self.cfg, self.options.connect_timeout, self.options.auth)
-        self._session = zenoh.open(conf)
-        s = self._session
+        self._session = s = self._open_session()
         pub_keys = [self.state_key, self.cmd_key]
         if self.role is not None:
             pub_keys += [self.role.others_key, self.role.ellipse_key]
@@ -355,7 +367,65 @@ class AgentNode:
             else:
                 sub = s.declare_subscriber(k, handler(cls, self._boxes[cls]))
             self._subs.append(sub)
+        self._subscribe = lambda k, cls: self._subscribe_more(s, k, cls, handler, decoders, polled)
+        self._declare_succession(s, loop)
         logger.info("%s: subscribed to %s", self.cfg.robot_id, ", ".join(self.subscribed_keys))
+
+    def _subscribe_more(self, s: zenoh.Session, k: str, cls: str, handler: Callable[..., Any],
+                        decoders: Mapping[str, Callable[..., Any]], polled: bool) -> None:
+        """Declare one more subscriber after open (a successor taking the leader role), as
+        :meth:`open` declares them."""
+        if cls not in self._boxes:
+            self._boxes[cls] = Mailbox(None if polled else self._loop, _stamped(decoders[cls]),
+                                       counter=self.counter)
+        sub: Any
+        if polled:
+            sub = s.declare_subscriber(k, zenoh.handlers.RingChannel(RING_CAPACITY))
+            self._rings.append((sub, handler(cls, self._boxes[cls], notify=False)))
+        else:
+            sub = s.declare_subscriber(k, handler(cls, self._boxes[cls]))
+        self._subs.append(sub)
+        self.subscribed_keys[k] = cls
+
+    def _declare_succession(self, s: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
+        """The leader holds its formation's liveliness token; the successor watches it."""
+        token_key = leader_token_key(self.cfg.prefix, self.cfg.formation)
+        if self.role is not None:
+            self._token = s.liveliness().declare_token(token_key)
+            return
+        if self.cfg.standby is None:
+            return
+
+        def on_token(sample: zenoh.Sample) -> None:
+            alive = sample.kind == zenoh.SampleKind.PUT
+            try:
+                loop.call_soon_threadsafe(self._on_leader_token, alive)
+            except RuntimeError:  # loop closed: shutting down
+                pass
+
+        self._subs.append(s.liveliness().declare_subscriber(token_key, on_token, history=True))
+
+    def _open_session(self) -> zenoh.Session:
+        """The agent's session; ``ConnectionError`` saying why it did not open."""
+        if self.options.zenoh_config_file is not None:
+            conf = zenoh.Config.from_file(self.options.zenoh_config_file)
+        else:
+            conf = zenoh_config(self.cfg, self.options.connect_timeout, self.options.auth)
+        try:
+            return zenoh.open(conf)
+        except Exception as exc:  # noqa: BLE001 - zenoh says "Timeout!" for refused credentials
+            raise ConnectionError(self._open_failure(exc)) from None
+
+    def _open_failure(self, exc: BaseException) -> str:
+        """Why the session did not open, in words (refused credentials, no router)."""
+        connect, auth = tuple(self.cfg.zenoh.connect), self.options.auth
+        if self.options.zenoh_config_file is not None:
+            try:
+                found = read_auth_file(self.options.zenoh_config_file)
+                connect, auth = found.connect or connect, found.auth
+            except ValueError:  # no credentials in it
+                pass
+        return explain_open_failure(exc, connect, auth)
 
     def _faulty_sample(self, loop: asyncio.AbstractEventLoop, cls: str,
                        decode: Callable[[bytes], Any], key: str, payload: bytes) -> None:
@@ -408,6 +478,12 @@ class AgentNode:
             self._put_cmd(Cmd(0.0, 0.0, 0.0, 0.0, self.last_stamp))
         except Exception:  # noqa: BLE001 - shutting down: log, keep closing
             logger.exception("%s: zero command on exit failed", self.cfg.robot_id)
+        if self._token is not None:
+            try:
+                self._token.undeclare()
+            except Exception:  # noqa: BLE001
+                logger.debug("undeclare failed", exc_info=True)
+            self._token = None
         for sub in self._subs:
             try:
                 sub.undeclare()
@@ -429,6 +505,56 @@ class AgentNode:
         self._pubs.clear()
         self._session.close()
         self._session = None
+
+    # --- fault containment ---------------------------------------------------------------------
+
+    def _on_leader_token(self, alive: bool) -> None:
+        """Loop thread: the leader's liveliness token came (``alive``) or went."""
+        with self._tick_lock:
+            if self._closing or self._session is None:
+                return
+            if not alive and not self.acting:
+                self._take_over()
+            elif alive and self.acting:
+                self._step_down()
+
+    def _take_over(self) -> None:
+        """Under the tick lock: lead this formation for its dead leader (leader.succession).
+        The formation stands still (its members' neighbour, the dead robot, is stale, so they
+        command zero); this agent publishes its ellipse, at rest, and relays the others."""
+        settings = self.cfg.standby
+        assert settings is not None and self._session is not None and self._subscribe is not None
+        role = LeaderRole(self.cfg.formation, settings, self.cfg.prefix)
+        member_keys = {m: keys.state_key(self.cfg.prefix, m) for m in role.members
+                       if m != self.cfg.robot_id}
+        missing = [m for m, k in member_keys.items() if k not in self.neighbour_keys]
+        if missing:
+            logger.error("%s: cannot lead %s: not adjacent to %s", self.cfg.robot_id,
+                         self.cfg.formation, ", ".join(missing))
+            return
+        for k in [role.others_key] + ([] if self.all_to_all else [role.ellipse_key]):
+            if k not in self._pubs:
+                self._pubs[k] = CountingPublisher(self._session.declare_publisher(k), self.counter)
+        if not self.all_to_all:
+            for k in role.other_keys:
+                if k not in self.subscribed_keys:
+                    self._subscribe(k, keys.ELLIPSE)
+        self.role = role
+        self._member_keys = member_keys
+        self.acting = True
+        self._acting_since_tick = False  # counted as a takeover once it leads a tick (not when
+        # the leader merely closed first at the end of a run)
+        logger.warning("%s: leader %s of %s is gone: leading the standing formation",
+                       self.cfg.robot_id, self.cfg.leader_id, self.cfg.formation)
+
+    def _step_down(self) -> None:
+        """Under the tick lock: the leader is back; be a member again."""
+        self.role = None
+        self._member_keys = {}
+        self._own_others = None
+        self.acting = False
+        logger.warning("%s: leader %s of %s is back: member again", self.cfg.robot_id,
+                       self.cfg.leader_id, self.cfg.formation)
 
     # --- life --------------------------------------------------------------------------------
 
@@ -739,14 +865,7 @@ class AgentNode:
         member_keys = self._member_keys
         if ts is not None:
             await self._wait_current([(keys.STATE, k) for k in member_keys.values()], stamp)
-        members: dict[str, tuple[float, float, float, float]] = {
-            self.cfg.robot_id: (px, py, *self.last_u)}
-        for m, k in member_keys.items():
-            entry = self._latest(keys.STATE, k)
-            if self._fresh(entry, ts):
-                s: State = entry[0]
-                members[m] = (s.x, s.y, s.ux, s.uy)
-        own = role.estimate(members)
+        own = role.estimate(self._members_now(px, py, ts))
         if own is None:
             self._own_others = None
             return False
@@ -777,6 +896,26 @@ class AgentNode:
             self._pubs[role.others_key].put_message(self._own_others)
         return complete
 
+    def _members_now(self, px: float, py: float,
+                     ts: float | None) -> dict[str, tuple[float, float, float, float]]:
+        """Leader: every member's control point and velocity it has fresh (its own from
+        itself). A successor leading for a dead leader (``acting``) also takes the dead robot's
+        last state, and every velocity as zero: the formation stands still."""
+        members: dict[str, tuple[float, float, float, float]] = {
+            self.cfg.robot_id: (px, py, *self.last_u)}
+        for m, k in self._member_keys.items():
+            entry = self._latest(keys.STATE, k)
+            if entry is not None and (self._fresh(entry, ts) or self.acting):
+                s: State = entry[0]
+                members[m] = (s.x, s.y, s.ux, s.uy)
+        if self.acting:  # a standing formation: its ellipse at rest
+            self.acting_ticks += 1
+            if not self._acting_since_tick:
+                self._acting_since_tick = True
+                self.takeovers += 1
+            members = {m: (x, y, 0.0, 0.0) for m, (x, y, _, _) in members.items()}
+        return members
+
     def _zero(self, t: float | None, why: str) -> None:
         self.stale_why[why] = self.stale_why.get(why, 0) + 1
         self.stale += 1
@@ -805,7 +944,8 @@ class AgentNode:
         return {
             "robot": self.cfg.robot_id,
             "formation": self.cfg.formation,
-            "leader": self.role is not None,
+            "leader": self.cfg.leader is not None,  # by configuration (see takeovers)
+            "acting_leader": self.acting,  # a successor leading for a dead leader at the end
             "lockstep": self.options.lockstep,
             "ticks": self.ticks,
             "overruns": self.overruns,
@@ -815,6 +955,8 @@ class AgentNode:
             "lockstep_timeouts": self.lockstep_timeouts,
             "stale_why": dict(self.stale_why),
             "inflated": self.inflated,
+            "takeovers": self.takeovers,
+            "acting_leader_ticks": self.acting_ticks,
             "fault_dropped": dict(self.fault_dropped),
             "fault_delayed": self.fault_delayed,
             "solves": self.solves,

@@ -68,8 +68,7 @@ def camera_command(ns: argparse.Namespace, prog: str = "formation camera") -> in
     from camera_service.config import ConfigError, load_config
     from camera_service.node import CameraNode
     from camera_service.sources import SourceError, make_source, source_kind
-    from wire.acl import read_credentials
-    from wire.zconf import use_zenoh_threads
+    from wire.zconf import read_auth_file, use_zenoh_threads
 
     if ns.frames is not None and ns.frames < 1:
         return _fail(prog, f"--frames: need N >= 1, got {ns.frames}")
@@ -79,7 +78,7 @@ def camera_command(ns: argparse.Namespace, prog: str = "formation camera") -> in
             cfg = replace(cfg, source=ns.source)
         settings = cfg.zenoh
         if ns.auth is not None:
-            settings = replace(settings, auth=read_credentials(ns.auth))
+            settings = replace(settings, auth=read_auth_file(ns.auth).auth)
         conf = settings.to_config()
     except (ConfigError, ValueError) as exc:
         return _fail(prog, f"{ns.config}: {exc}" if isinstance(exc, ConfigError)

@@ -54,6 +54,7 @@ from scenario import Scenario
 
 from . import scripts
 from .inventory import Inventory, InventoryError, RobotHost
+from .secure import fleet_secrets, robot_auth
 from .ssh import Result, SshTarget, scp_argv, scp_files, ssh_argv, ssh_run
 from .zenoh_config import agent_zenoh_settings, bridge_json5, has_secrets, zenoh_json5
 
@@ -168,12 +169,18 @@ def agent_configs(inv: Inventory, scenario: Scenario) -> dict[str, AgentConfig]:
     return out
 
 
-def make_plan(inv: Inventory, scenario: Scenario, wheel: str | None = None) -> Plan:
-    """Every robot's files and SSH target; ``InventoryError`` if a file cannot be generated."""
+def make_plan(inv: Inventory, scenario: Scenario, wheel: str | None = None, *,
+              write_secrets: bool = True) -> Plan:
+    """Every robot's files and SSH target; ``InventoryError`` if a file cannot be generated.
+
+    With ``zenoh.access_control`` every robot gets its own Zenoh user (:mod:`deploy.secure`);
+    the credentials folder is written unless ``write_secrets`` is False (a dry run)."""
     if has_secrets(inv) and not _agent_takes_zenoh_config():
         raise InventoryError(
             "zenoh.user/zenoh.tls: this version's agent takes no --zenoh-config, so "
             "authentication and TLS settings could not reach it")
+    secrets = (fleet_secrets(inv, scenario, write=write_secrets) if inv.zenoh.access_control
+               else None)
     configs = agent_configs(inv, scenario)
     robots = []
     with tempfile.TemporaryDirectory(prefix="formation-deploy-") as tmp:
@@ -182,9 +189,10 @@ def make_plan(inv: Inventory, scenario: Scenario, wheel: str | None = None) -> P
             save_config(configs[r.id], path)
             files = {CONFIG_FILE: path.read_bytes()}
             try:
-                files[ZENOH_FILE] = zenoh_json5(inv, r).encode()
+                auth = robot_auth(secrets, r.id)
+                files[ZENOH_FILE] = zenoh_json5(inv, r, auth).encode()
                 if inv.base != "world":
-                    files[BRIDGE_FILE] = bridge_json5(inv, r).encode()
+                    files[BRIDGE_FILE] = bridge_json5(inv, r, auth).encode()
             except ValueError as exc:
                 raise InventoryError(f"robot {r.id}: {exc}") from None
             files[scripts.RUN_SCRIPT] = scripts.run_script(r.id, agent_args(inv), r.env).encode()

@@ -12,7 +12,11 @@ Example (every key is listed; the commented ones are optional)::
       router: tcp/192.168.0.10:7447   # the router on the camera PC
       mode: client                    # client | peer
       # peer_port: 7447               # peer mode: every robot listens here, and dials the others
-      # user: formation               # user/password authentication ...
+      # access_control: true          # one Zenoh user per robot, camera, manager, viewer, and
+      #                               # the router's ACL (deploy.secure; default: on in client
+      #                               # mode without zenoh.user)
+      # secrets: secure               # where their credentials and router.json5 are kept
+      # user: formation               # one user for the whole fleet instead (no ACL) ...
       # password_file: zenoh-password # ... the password's file (first line), beside this file
       # tls: {root_ca: ca.pem, certificate: robot.pem, private_key: robot-key.pem}
     defaults:                         # any per-robot key, for every robot
@@ -62,7 +66,9 @@ _TOP_KEYS = {"prefix", "base", "topology", "known_hosts", "connect_timeout", "en
              "defaults", "robots"}
 _ROBOT_KEYS = {"id", "host", "port", "user", "key", "install_dir", "python", "cmd_vel_key",
                "frame_id", "env"}
-_ZENOH_KEYS = {"router", "mode", "peer_port", "user", "password_file", "tls"}
+_ZENOH_KEYS = {"router", "mode", "peer_port", "user", "password_file", "tls", "access_control",
+               "secrets"}
+DEFAULT_SECRETS = "secure"
 _TLS_KEYS = {"root_ca", "certificate", "private_key"}
 _ENV_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws)/\S+:\d+$")
@@ -92,6 +98,8 @@ class FleetZenoh:
     user: str | None = None
     password_file: Path | None = None
     tls: TlsSettings | None = None
+    access_control: bool = False  # per-process users and the router's ACL (deploy.secure)
+    secrets: Path = Path(DEFAULT_SECRETS)  # their credentials, router.json5
 
 
 @dataclass(frozen=True)
@@ -308,8 +316,19 @@ def _zenoh(value: Any, folder: Path) -> FleetZenoh:
         )
         if router is not None and not router.startswith("tls/"):
             raise InventoryError(f"zenoh.router: {router!r} must be a tls/ endpoint with zenoh.tls")
+    access_control = z.get("access_control", mode == "client" and user is None)
+    if not isinstance(access_control, bool):
+        raise InventoryError(f"zenoh.access_control: must be true or false, got {access_control!r}")
+    if access_control and user is not None:
+        raise InventoryError("zenoh.access_control: one user per robot; drop zenoh.user and "
+                             "zenoh.password_file (or set access_control: false)")
+    if access_control and mode != "client":
+        raise InventoryError("zenoh.access_control: needs mode client (peers bypass the "
+                             "router that enforces it)")
+    secrets = _local_path(z.get("secrets", DEFAULT_SECRETS), "zenoh.secrets", folder)
     return FleetZenoh(router=router, mode=mode, peer_port=peer_port, user=user,
-                      password_file=password_file, tls=tls)
+                      password_file=password_file, tls=tls, access_control=access_control,
+                      secrets=secrets)
 
 
 def _mapping(value: Any, name: str) -> dict[str, Any]:

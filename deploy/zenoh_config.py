@@ -12,8 +12,9 @@ Two files per robot, both plain JSON (which is JSON5), each checked by zenoh its
   ``namespace`` = the part of ``cmd_vel_key`` before ``/cmd_vel``, so ``/cmd_vel`` of robot a1
   is the key ``a1/cmd_vel`` and no robot hears another's commands.
 
-Optional security, recorded into both: ``transport/auth/usrpwd`` {user, password} (the password
-read from the inventory's ``password_file``), and ``transport/link/tls`` with the PEM files
+Optional security, recorded into both: ``transport/auth/usrpwd`` {user, password} (the robot's
+own user with ``zenoh.access_control``, :mod:`deploy.secure`; else the fleet's user with the
+password read from the inventory's ``password_file``), and ``transport/link/tls`` with the PEM files
 embedded as ``*_base64`` (``root_ca_certificate_base64``; for mutual TLS also
 ``connect_certificate_base64``, ``connect_private_key_base64`` and ``enable_mtls: true``), so
 each file is self-contained. Such a file holds a secret: the deployer gives it mode 0600.
@@ -29,7 +30,7 @@ from typing import Any
 
 import zenoh
 
-from wire.zconf import ZenohSettings
+from wire.zconf import UsrPwdAuth, ZenohSettings
 
 from .inventory import Inventory, InventoryError, RobotHost
 
@@ -57,10 +58,12 @@ def agent_zenoh_settings(inv: Inventory, robot: RobotHost) -> ZenohSettings:
 
 
 def has_secrets(inv: Inventory) -> bool:
-    return inv.zenoh.user is not None or inv.zenoh.tls is not None
+    z = inv.zenoh
+    return z.user is not None or z.tls is not None or z.access_control
 
 
-def zenoh_config_dict(inv: Inventory, robot: RobotHost) -> dict[str, Any]:
+def zenoh_config_dict(inv: Inventory, robot: RobotHost,
+                      auth: UsrPwdAuth | None = None) -> dict[str, Any]:
     """The agent session's configuration as a dict (see the module docstring)."""
     mode, connect, listen = robot_endpoints(inv, robot)
     conf: dict[str, Any] = {
@@ -70,11 +73,12 @@ def zenoh_config_dict(inv: Inventory, robot: RobotHost) -> dict[str, Any]:
     }
     if listen:
         conf["listen"] = {"endpoints": list(listen)}
-    _add_security(conf, inv)
+    _add_security(conf, inv, auth)
     return conf
 
 
-def bridge_config_dict(inv: Inventory, robot: RobotHost) -> dict[str, Any]:
+def bridge_config_dict(inv: Inventory, robot: RobotHost,
+                       auth: UsrPwdAuth | None = None) -> dict[str, Any]:
     """``zenoh-bridge-ros2dds``'s configuration on ``robot`` (see the module docstring)."""
     z = inv.zenoh
     if z.mode == "client":
@@ -94,7 +98,7 @@ def bridge_config_dict(inv: Inventory, robot: RobotHost) -> dict[str, Any]:
             raise InventoryError(f"robots ({robot.id}).cmd_vel_key: {key!r} must be cmd_vel or "
                                  f"end with /cmd_vel (the bridge's namespace in front)")
         conf["namespace"] = key[: -len("/cmd_vel")]
-    _add_security(conf, inv)
+    _add_security(conf, inv, auth)
     return conf
 
 
@@ -114,19 +118,23 @@ def check_json5(text: str) -> None:
         raise ValueError(f"zenoh rejects the generated configuration: {exc}") from None
 
 
-def zenoh_json5(inv: Inventory, robot: RobotHost) -> str:
-    return to_json5(zenoh_config_dict(inv, robot), f"Zenoh session of robot {robot.id}'s agent")
+def zenoh_json5(inv: Inventory, robot: RobotHost, auth: UsrPwdAuth | None = None) -> str:
+    return to_json5(zenoh_config_dict(inv, robot, auth),
+                    f"Zenoh session of robot {robot.id}'s agent")
 
 
-def bridge_json5(inv: Inventory, robot: RobotHost) -> str:
-    return to_json5(bridge_config_dict(inv, robot),
+def bridge_json5(inv: Inventory, robot: RobotHost, auth: UsrPwdAuth | None = None) -> str:
+    return to_json5(bridge_config_dict(inv, robot, auth),
                     f"zenoh-bridge-ros2dds on robot {robot.id}: zenoh-bridge-ros2dds -c THIS_FILE")
 
 
-def _add_security(conf: dict[str, Any], inv: Inventory) -> None:
+def _add_security(conf: dict[str, Any], inv: Inventory, auth: UsrPwdAuth | None = None) -> None:
+    """``auth``: the robot's own user (access control); else the inventory's fleet user."""
     z = inv.zenoh
     transport: dict[str, Any] = {}
-    if z.user is not None and z.password_file is not None:
+    if auth is not None:
+        transport["auth"] = {"usrpwd": {"user": auth.user, "password": auth.password}}
+    elif z.user is not None and z.password_file is not None:
         password = _read(z.password_file, "zenoh.password_file").splitlines()
         if not password or not password[0]:
             raise InventoryError(f"zenoh.password_file: {z.password_file} has no password")

@@ -72,8 +72,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="kill ROBOT's agent at simulated time T, restart it AFTER s later")
     p.add_argument("--camera-dropout", action="append", metavar="ROBOT@T:DURATION",
                    help="the camera loses ROBOT's marker from T for DURATION s")
-    p.add_argument("--secure", action="store_true",
-                   help="user/password authentication and the fleet's access control list")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--secure", action="store_true",
+                   help="user/password authentication and the fleet's access control list "
+                        "(the default; kept for old scripts)")
+    g.add_argument("--insecure", action="store_true",
+                   help="no authentication, no access control (anyone on the port can command)")
     p.add_argument("--no-safety", action="store_true")
     p.add_argument("--port", type=int, default=0, help="router TCP port on 127.0.0.1 (0: free)")
     p.add_argument("--live", type=int, default=None, metavar="PORT",

@@ -28,7 +28,9 @@ from types import FrameType, TracebackType
 from typing import IO, Any
 
 from agent.config import AgentConfig, save_config
-from wire.ports import wait_for_tcp_port
+from wire import lifeline
+from wire.router import IN_USE, RouterClash, new_router_id, wait_for_router
+from wire.zconf import UsrPwdAuth
 
 logger = logging.getLogger(__name__)
 
@@ -69,6 +71,7 @@ class Fleet:
             p for p in (str(REPO_ROOT), self.env.get("PYTHONPATH", "")) if p)
         self.signalled: int | None = None  # the stop signal received, if any
         self._previous: Any = None
+        self._previous_hup: Any = None
         self._installed = False
 
     # ------------------------------------------------------------------ lifecycle
@@ -76,6 +79,7 @@ class Fleet:
     def __enter__(self) -> Fleet:
         if threading.current_thread() is threading.main_thread():
             self._previous = signal.signal(signal.SIGTERM, self._on_signal)
+            self._previous_hup = signal.signal(signal.SIGHUP, self._on_signal)  # terminal closed
             self._installed = True
         return self
 
@@ -86,6 +90,7 @@ class Fleet:
         finally:
             if self._installed:
                 signal.signal(signal.SIGTERM, self._previous)
+                signal.signal(signal.SIGHUP, self._previous_hup)
                 self._installed = False
 
     def _on_signal(self, signum: int, _frame: FrameType | None) -> None:
@@ -98,8 +103,10 @@ class Fleet:
         """``python ARGV`` as child ``name`` in its own process group."""
         log = (self.log_dir / f"{name}.log").open("wb")
         try:
-            proc = subprocess.Popen([sys.executable, *argv], env=self.env, stdin=subprocess.DEVNULL,
-                                    stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+            env, fds = lifeline.child_env(self.env)  # it stops itself if we die (no orphans)
+            proc = subprocess.Popen([sys.executable, *argv], env=env, stdin=subprocess.DEVNULL,
+                                    stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
+                                    pass_fds=fds)
         except BaseException:
             log.close()
             raise
@@ -152,22 +159,29 @@ class Fleet:
     # ------------------------------------------------------------------ the fleet's parts
 
     def start_router(self, endpoint: str, port: int, config: Path | None = None,
-                     timeout: float = START_TIMEOUT_S) -> Child:
-        """``python -m wire.router`` listening on ``endpoint``; returns once ``port`` accepts
-        connections (``TimeoutError`` after ``timeout``, :meth:`check` meanwhile)."""
-        argv = ["-m", "wire.router", "--listen", endpoint, "--log-level", "WARNING"]
+                     timeout: float = START_TIMEOUT_S, auth: UsrPwdAuth | None = None) -> Child:
+        """``python -m wire.router`` listening on ``endpoint`` with a fresh per-run id; returns
+        once that very router answers there (:func:`wire.router.wait_for_router`, logging in as
+        ``auth``; ``TimeoutError`` after ``timeout``, :meth:`check` meanwhile). A port that
+        another process (another run's router, say) holds is :class:`RouterClash`, naming it."""
+        router_id = new_router_id()
+        argv = ["-m", "wire.router", "--listen", endpoint, "--log-level", "WARNING",
+                "--id", router_id]
         if config is not None:
             argv += ["--config", str(config)]
         router = self.start("router", argv)
-        deadline = time.monotonic() + timeout
-        while True:
-            self.check()
-            try:
-                wait_for_tcp_port(port, timeout_s=0.2)
-                return router
-            except TimeoutError:
-                if time.monotonic() > deadline:
-                    raise
+        try:
+            wait_for_router(endpoint, router_id, timeout_s=timeout, alive=self.check, auth=auth)
+        except ChildFailed as exc:
+            if IN_USE in str(exc):
+                raise RouterClash(f"port {port} on 127.0.0.1 is in use by another process: "
+                                  f"choose another --port (or 0 for a free one)") from None
+            raise
+        except RouterClash:
+            raise RouterClash(f"port {port} on 127.0.0.1 is served by another run's Zenoh router, "
+                              f"not this run's: choose another --port (or 0 for a free one)"
+                              ) from None
+        return router
 
     def start_agents(self, configs: Mapping[str, AgentConfig], folder: Path,
                      extra_argv: Callable[[str], Sequence[str]] = lambda _rid: ()) -> dict[str, Child]:
@@ -191,8 +205,11 @@ class Fleet:
                        encoding="utf-8")
         tmp.replace(path)
 
-    def shut_down(self, agents: Sequence[Child], router: Child) -> None:
+    def shut_down(self, agents: Sequence[Child], router: Child, services: Sequence[Child] = ()) -> None:
         """The orderly end of a run: the agents first (they write their counters on SIGTERM),
-        then the router."""
+        then ``services`` (e.g. the camera process, which prints its counters on SIGTERM), then
+        the router."""
         self.stop(agents)
+        if services:
+            self.stop(services)
         self.stop([router])

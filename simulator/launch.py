@@ -32,6 +32,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import shutil
 import signal
 import statistics
 import time
@@ -44,12 +45,14 @@ import zenoh
 from agent.config import build_agent_configs
 from agent.faults import LinkFaults
 from scenario import Scenario
+from scenario.succession import formation_successor
 from wire import acl, keys, traffic
 from wire.ports import free_tcp_port, tcp_endpoint
 from wire.zconf import UsrPwdAuth, ZenohSettings
 
 from .fleet import START_TIMEOUT_S, STOP_TIMEOUT_S, Child, ChildFailed, Fleet, signal_group
 from .inprocess import Series
+from .output import OutputError
 from .summary import qp_fields, run_summary
 from .world import World, WorldOptions, WorldResult
 
@@ -158,7 +161,7 @@ def launch(
     port: int = 0,
     progress_factory=None,
     faults: FaultPlan | None = None,
-    secure: bool = False,
+    secure: bool = True,
     pose_slots: int = 1,
     observer=None,
     scenario_path: str | Path | None = None,
@@ -177,6 +180,7 @@ def launch(
     if camera == "process" and scenario_path is None:
         raise ValueError("scenario_path: --camera process needs the scenario file")
     faults.check_robots(scenario.robot_ids)
+    stopped: BaseException | None = None  # why a started run ended early
     out = Path(out)
     for sub in ("configs", "agents", "logs"):
         (out / sub).mkdir(parents=True, exist_ok=True)
@@ -187,7 +191,8 @@ def launch(
     fault_run = faults.active
     with Fleet(out / "logs") as fleet:
         creds = _secure_setup(scenario, out / "secure", endpoint) if secure else None
-        router = fleet.start_router(endpoint, port, None if creds is None else creds.router_config)
+        router = fleet.start_router(endpoint, port, None if creds is None else creds.router_config,
+                                    auth=None if creds is None else creds.world)
         camera_child = None
         if camera == "process" and scenario_path is not None:  # checked above
             camera_child = _start_camera(fleet, scenario, scenario_path, out, endpoint, creds)
@@ -222,31 +227,32 @@ def launch(
             driver = _FaultDriver(faults, fleet, world, agents, scenario.dt, realtime)
             try:
                 world.wait_for_agents(abort=fleet.check)
-                if progress_factory is not None:
-                    with progress_factory() as progress:
-                        result = world.run(progress=progress.update, abort=fleet.check,
-                                           on_tick=driver.on_tick if fault_run else None)
-                else:
-                    result = world.run(abort=fleet.check, on_tick=driver.on_tick if fault_run else None)
+                try:
+                    result = _run_world(world, fleet, progress_factory,
+                                        driver.on_tick if fault_run else None)
+                except (ChildFailed, KeyboardInterrupt, TimeoutError) as exc:
+                    if world.result is None:
+                        raise
+                    result, stopped = world.result, exc  # the run started: keep what it measured
             finally:
                 if detach is not None:
                     detach()
                 world.close()
-        fleet.stop(list(agents.values()))  # agents write their stats on SIGTERM
-        if camera_child is not None:
-            fleet.stop([camera_child])  # prints its counters on SIGTERM
-        fleet.stop([router])
-    stats = [_read_stats(out / "agents" / f"{rid}.json") if rid in agents
-             else _dead_stats(cfg) for rid, cfg in configs.items()]
+        # the agents write their counters on SIGTERM (also after the router died); router last
+        fleet.shut_down(list(agents.values()), router, [] if camera_child is None else [camera_child])
+    stats = [_stats_of(out / "agents" / f"{rid}.json", cfg, lost_ok=stopped is not None)
+             if rid in agents else _dead_stats(cfg) for rid, cfg in configs.items()]
     summary, series = build_summary(scenario, result, stats, topology, realtime, camera, safety)
     if fault_run:
         summary["faults"] = fault_summary(faults, result, stats, driver.log)
-    if creds is not None:
-        summary["secure"] = {"auth": "usrpwd", "acl": str(creds.router_config)}
+    summary["secure"] = False if creds is None else creds.summary()
     if camera == "process":
         summary["camera_process"] = _camera_stats(out / "logs" / "camera.log")
     if pose_slots > 1:
         summary["pose_slots"] = pose_slots  # the world spread each period's poses over this many
+    if stopped is not None:
+        _mark_aborted(summary, stats, stopped)
+        raise RunAborted(summary["aborted"], summary, series, stopped)
     return summary, series
 
 
@@ -274,6 +280,48 @@ def _camera_stats(log: Path) -> dict | None:
         return json.loads(lines[-1])["camera"] if lines else None
     except (OSError, ValueError, KeyError, TypeError):
         return None
+def _run_world(world: World, fleet: Fleet, progress_factory, on_tick) -> WorldResult:
+    if progress_factory is None:
+        return world.run(abort=fleet.check, on_tick=on_tick)
+    with progress_factory() as progress:
+        return world.run(progress=progress.update, abort=fleet.check, on_tick=on_tick)
+
+
+class RunAborted(RuntimeError):
+    """A run that had started stopped early; ``summary`` (with ``aborted``) and ``series`` hold
+    what it measured until then, for :func:`simulator.output.write_run`."""
+
+    def __init__(self, reason: str, summary: dict, series: Series, cause: BaseException) -> None:
+        super().__init__(reason)
+        self.summary = summary
+        self.series = series
+        self.cause = cause
+
+    @property
+    def interrupted(self) -> bool:
+        return isinstance(self.cause, KeyboardInterrupt)
+
+
+def abort_reason(exc: BaseException) -> str:
+    """``aborted`` of summary.json: why the run stopped early, in one line."""
+    if isinstance(exc, KeyboardInterrupt):
+        return f"interrupted ({exc.args[0] if exc.args else 'Ctrl-C'})"
+    return f"{exc}".splitlines()[0] if str(exc) else type(exc).__name__
+
+
+def _mark_aborted(summary: dict, stats: list[dict], exc: BaseException) -> None:
+    summary["aborted"] = abort_reason(exc)
+    lost = sorted(s["robot"] for s in stats if s.get("counters_lost"))
+    if lost:
+        summary["aborted_counters_lost"] = lost
+
+
+def _stats_of(path: Path, cfg, lost_ok: bool) -> dict:
+    """An agent's counters; in an aborted run an agent that wrote none (it died with the run)
+    counts as lost instead of failing the summary."""
+    if lost_ok and not path.is_file():
+        return {**_dead_stats(cfg), "killed": False, "counters_lost": True}
+    return _read_stats(path)
 
 
 @dataclass(frozen=True)
@@ -281,28 +329,49 @@ class _Secure:
     router_config: Path
     files: dict[str, Path]  # robot -> its credentials file
     world: UsrPwdAuth
+    folder: Path
+
+    def summary(self) -> dict:
+        """``secure`` of summary.json."""
+        return {"auth": "usrpwd", "acl": str(self.router_config),
+                "manager": str(self.folder / MANAGER_FILE), "viewer": str(self.folder / VIEWER_FILE)}
+
+
+MANAGER_FILE = "manager.json5"  # in OUT/secure: the fleet manager's credentials (goals)
+VIEWER_FILE = "viewer.json5"  # in OUT/secure: a read-only viewer's credentials
 
 
 def _secure_setup(scenario: Scenario, folder: Path, endpoint: str) -> _Secure:
-    """Fresh credentials for the world (as the camera user) and every robot, the router's
-    dictionary and its configuration with the fleet's access control list (:mod:`wire.acl`),
-    all in ``folder`` (mode 0700, files 0600)."""
+    """Fresh credentials for the world (as the camera user), every robot, the fleet manager and
+    a viewer; the router's dictionary and its configuration with the fleet's access control
+    list (:mod:`wire.acl`), all in ``folder`` (mode 0700, files 0600). ``manager.json5`` and
+    ``viewer.json5`` are Zenoh configuration fragments (the router's endpoint, the user and
+    password) that client commands take with ``--auth FILE`` (``viewer.credentials``, the
+    viewer's ``user:password`` line, is kept for older scripts)."""
     folder.mkdir(parents=True, exist_ok=True)
     folder.chmod(0o700)
+    for old in folder.iterdir():  # a previous run's credentials are void
+        if old.is_file():
+            old.unlink()
     robots = {rid: scenario.formation_of(rid).name for rid in scenario.robot_ids}
     leaders = {f.name: f.leader for f in scenario.formations}
-    creds = acl.new_credentials([acl.CAMERA_USER, acl.VIEWER_USER, *robots])
+    successors = {f.name: s for f in scenario.formations
+                  if (s := formation_successor(f)) is not None}
+    creds = acl.new_credentials([acl.CAMERA_USER, acl.MANAGER_USER, acl.VIEWER_USER, *robots])
     dictionary = folder / "users.txt"
     acl.write_dictionary(dictionary, creds)
-    acl.write_credentials(folder / "viewer.credentials", creds[acl.VIEWER_USER])  # view --auth
+    acl.write_credentials(folder / "viewer.credentials", creds[acl.VIEWER_USER])
     files = {}
     for rid in robots:
         files[rid] = folder / f"{rid}.credentials"
         acl.write_credentials(files[rid], creds[rid])
+    for name, user in ((MANAGER_FILE, acl.MANAGER_USER), (VIEWER_FILE, acl.VIEWER_USER)):
+        acl.write_client_file(folder / name, creds[user], [endpoint])
     router_conf = folder / "router.json5"
     acl.write_router_config(router_conf, acl.router_config(
-        [endpoint], acl.fleet_acl(robots, leaders, keys.DEFAULT_PREFIX), dictionary.resolve()))
-    return _Secure(router_conf, files, creds[acl.CAMERA_USER])
+        [endpoint], acl.fleet_acl(robots, leaders, keys.DEFAULT_PREFIX, successors=successors),
+        dictionary.resolve()))
+    return _Secure(router_conf, files, creds[acl.CAMERA_USER], folder)
 
 
 class _FaultDriver:
@@ -382,6 +451,8 @@ def fault_summary(plan: FaultPlan, result: WorldResult, stats: list[dict], log: 
         "stale_ticks_by_input": sum_counts(s.get("stale_why", {}) for s in stats),
         "stale_ticks_by_robot": {s["robot"]: s["stale"] for s in stats},
         "inflated_ellipse_ticks": sum(s.get("inflated", 0) for s in stats),
+        "leader_takeovers": {s["robot"]: s["takeovers"] for s in stats if s.get("takeovers")},
+        "acting_leader_ticks": sum(s.get("acting_leader_ticks", 0) for s in stats),
         "counters_lost_with_killed_agents": bool(plan.kills),
     }
 
@@ -403,7 +474,18 @@ def _read_stats(path: Path) -> dict:
     try:
         return json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:
+        if _disk_full(path.parent):
+            raise OutputError(f"disk full: {path.parent} has no room for the agents' counters "
+                              f"({path.name} missing; run output not saved)") from None
         raise ChildFailed(f"agent counters {path} missing or unreadable: {exc}") from None
+
+
+def _disk_full(folder: Path, room: int = 256 * 1024) -> bool:
+    """Whether the file system of ``folder`` has less than ``room`` bytes free."""
+    try:
+        return shutil.disk_usage(folder).free < room
+    except OSError:
+        return False
 
 
 def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], topology: str,
@@ -441,12 +523,39 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
         },
         world={
             "missing_cmds": result.missing_cmds,
+            "zero_cmds": result.zero_cmds,
             "malformed_cmds": result.malformed_cmds,
             "wall_s": result.wall_s,
             "latency_ms": _latency(result.latency_ms),
         },
+        time_to_goal_by_formation_s=formation_goal_times(scenario, series,
+                                                         result.monitor.time_to_goal),
     )
     return summary, series
+
+
+def formation_goal_times(scenario: Scenario, series: Series,
+                         all_reached_at: float | None = None) -> dict[str, float | None]:
+    """When each formation first had every robot within ``goal_tolerance`` of its goal (None
+    if never): with a dead leader one formation stands still while the others go on. The
+    series ends with the state the last tick started from, so a formation first seen there
+    when every robot reached (``all_reached_at``, the run's end) gets that time."""
+    goal = {r.id: r.goal for r in scenario.robots}
+    tol = scenario.goal_tolerance
+    at: dict[float, set[str]] = {}
+    for row in series.robots:
+        t, rid, x, y = row[0], row[1], row[3], row[4]
+        gx, gy = goal[rid]
+        if math.hypot(x - gx, y - gy) <= tol:
+            at.setdefault(t, set()).add(rid)
+    out: dict[str, float | None] = {}
+    for f in scenario.formations:
+        ids = set(f.robot_ids)
+        first = next((round(t, 6) for t in sorted(at) if ids <= at[t]), None)
+        if first is None and all_reached_at is not None:
+            first = round(all_reached_at, 6)
+        out[f.name] = first
+    return out
 
 
 def comm_summary(snap: dict, topology: str, n: int, sim_time: float) -> dict:

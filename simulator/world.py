@@ -115,7 +115,9 @@ class WorldResult:
     monitor: SafetyMonitor
     series: Series
     traffic: dict
-    missing_cmds: int = 0  # lock-step ticks a robot's command did not arrive in time
+    missing_cmds: int = 0  # robot-ticks without a command (lock-step: not in time; real time:
+    # none fresher than stale_after): the robot got zero velocity
+    zero_cmds: int = 0  # robot-ticks whose applied command was zero (the agent stopped it)
     malformed_cmds: int = 0
     cmd_timeouts: int = 0  # lock-step: waits for a command that timed out
     camera_dropped: int = 0  # poses not published (camera dropout)
@@ -253,6 +255,7 @@ class World:
         self._obs_pub = CountingPublisher(session.declare_publisher(keys.obstacles_key(p)),
                                           self.counter)
         self.inbox = _CmdInbox(p, self.counter, self.ids)
+        self.result: WorldResult | None = None  # the last run's, also when it was aborted
         # one wildcard subscriber for every robot's command, called right on the Zenoh thread
         # that received it (``indirect=False``: no hand-over to a Python thread per command; the
         # callback only decodes and stores under the inbox lock)
@@ -335,8 +338,7 @@ class World:
         series = Series()
         inbox = self.inbox
         inbox.measure_latency = opts.realtime
-        missing = 0
-        timeouts = 0
+        counts = _Counts()
         stamps: list[float] = []
         wall0 = time.monotonic()
         monitor.update(0.0, np.array([s[:2] for s in state]),
@@ -358,51 +360,71 @@ class World:
                 progress(k + 1, sc.steps, t_now)
             return opts.stop_at_goal and monitor.all_reached
 
-        for k in range(sc.steps):
-            t = k * dt
-            if on_tick is not None:
-                on_tick(k, t)
-            if opts.pose_slots > 1:
-                # each slot steps its robots over the previous period, then publishes them: the
-                # same rows and checks as below, one period later
-                stamps.append(time.time())
-                before = state
-                state, cmds = self._publish_slots(k, state, next_wall, abort)
-                next_wall += dt
-                if settle(k, t - dt, before if k > 0 else None, cmds, t, state):
-                    break
-                continue
-            stamp = time.time() if opts.realtime else t
-            stamps.append(stamp)
-            self._publish(t, stamp, state)
-            if opts.realtime:
-                next_wall += dt
-                _sleep_until(next_wall, abort)
-                got = inbox.fresh(time.monotonic(), opts.stale_after)
-            else:
-                def ready(t: float = t) -> bool:
-                    return all(r in inbox.latest and inbox.latest[r][0].stamp >= t
-                               for r in self.ids if r not in inbox.late)
+        def result(steps: int, sim_time: float) -> WorldResult:
+            return WorldResult(
+                steps=steps, sim_time=sim_time, monitor=monitor, series=series,
+                traffic=self.counter.snapshot(), missing_cmds=counts.missing,
+                zero_cmds=counts.zero, cmd_timeouts=counts.timeouts,
+                camera_dropped=self.camera_dropped, malformed_cmds=inbox.malformed,
+                latency_ms=list(inbox.latency_ms), wall_s=time.monotonic() - wall0, stamps=stamps,
+            )
 
-                if not inbox.wait(ready, opts.cmd_timeout, abort):
-                    timeouts += 1
-                got, late = inbox.take_since(t, self.ids)
-                if late:
-                    logger.info("tick %d: no command from %s in time: zero", k, ", ".join(late))
-                missing += sum(1 for r in self.ids if r not in got)
-            cmds = [got.get(r) for r in self.ids]
-            before = state
-            state = [step_pose(*state[i], cmds[i], dt, is_uni) for i in range(n)]
-            t = (k + 1) * dt
-            if settle(k, k * dt, before, cmds, t, state):
-                break
-        return WorldResult(
-            steps=k + 1, sim_time=t, monitor=monitor, series=series,
-            traffic=self.counter.snapshot(), missing_cmds=missing, cmd_timeouts=timeouts,
-            camera_dropped=self.camera_dropped,
-            malformed_cmds=inbox.malformed, latency_ms=list(inbox.latency_ms),
-            wall_s=time.monotonic() - wall0, stamps=stamps,
-        )
+        try:
+            for k in range(sc.steps):
+                t = k * dt
+                if on_tick is not None:
+                    on_tick(k, t)
+                if opts.pose_slots > 1:
+                    # each slot steps its robots over the previous period, then publishes them: the
+                    # same rows and checks as below, one period later
+                    stamps.append(time.time())
+                    before = state
+                    state, cmds = self._publish_slots(k, state, next_wall, abort)
+                    next_wall += dt
+                    if k > 0:  # tick 0 only publishes: nothing was applied
+                        counts.applied(cmds)
+                    if settle(k, t - dt, before if k > 0 else None, cmds, t, state):
+                        break
+                    continue
+                stamp = time.time() if opts.realtime else t
+                stamps.append(stamp)
+                self._publish(t, stamp, state)
+                if opts.realtime:
+                    next_wall += dt
+                    _sleep_until(next_wall, abort)
+                    got = inbox.fresh(time.monotonic(), opts.stale_after)
+                else:
+                    got = self._lockstep_commands(k, t, abort, counts)
+                cmds = [got.get(r) for r in self.ids]
+                counts.applied(cmds)  # no command (either clock): zero velocity, counted
+                before = state
+                state = [step_pose(*state[i], cmds[i], dt, is_uni) for i in range(n)]
+                t = (k + 1) * dt
+                if settle(k, k * dt, before, cmds, t, state):
+                    break
+        except BaseException:
+            # aborted (a child died, Ctrl-C): what was measured over the ticks completed
+            self.result = result(k, k * dt)
+            raise
+        self.result = result(k + 1, t)
+        return self.result
+
+    def _lockstep_commands(self, k: int, t: float, abort: Callable[[], None],
+                           counts: _Counts) -> dict[str, Cmd]:
+        """Lock-step: wait (up to ``cmd_timeout``) for every robot's command of tick ``k``
+        stamped ``t`` (robots late since a timeout not waited for); the commands that came."""
+        inbox = self.inbox
+
+        def ready() -> bool:
+            return all(r in inbox.latest and inbox.latest[r][0].stamp >= t
+                       for r in self.ids if r not in inbox.late)
+
+        if not inbox.wait(ready, self.options.cmd_timeout, abort):
+            counts.timeouts += 1
+        got, late = inbox.take_since(t, self.ids)
+        if late:
+            logger.info("tick %d: no command from %s in time: zero", k, ", ".join(late))
+        return got
 
     def _publish_slots(self, k: int, state: Sequence[tuple[float, float, float]], start: float,
                        abort: Callable[[], None]) -> tuple[list, list[Cmd | None]]:
@@ -519,6 +541,7 @@ def world_summary(result: WorldResult) -> dict:
         "sim_time_s": round(result.sim_time, 6),
         **result.monitor.summary_fields(),
         "missing_cmds": result.missing_cmds,
+        "zero_cmds": result.zero_cmds,
         "malformed_cmds": result.malformed_cmds,
         "traffic": result.traffic,
         "wall_s": result.wall_s,
@@ -526,9 +549,27 @@ def world_summary(result: WorldResult) -> dict:
     }
 
 
+@dataclass
+class _Counts:
+    """What a run counts about the commands it applied."""
+
+    missing: int = 0  # robot-ticks with no command: zero velocity
+    zero: int = 0  # robot-ticks whose command was zero
+    timeouts: int = 0  # lock-step waits for a tick's commands that timed out
+
+    def applied(self, cmds: Sequence[Cmd | None]) -> None:
+        self.missing += sum(c is None for c in cmds)
+        self.zero += sum(_is_zero(c) for c in cmds)
+
+
+def _is_zero(c: Cmd | None) -> bool:
+    return c is not None and c.v == 0.0 and c.omega == 0.0 and c.ux == 0.0 and c.uy == 0.0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     from scenario import ScenarioError, load_scenario
-    from wire.zconf import add_zenoh_args, settings_from_args, use_zenoh_threads
+    from wire.lifeline import watch_parent
+    from wire.zconf import add_zenoh_args, open_session, settings_from_args, use_zenoh_threads
 
     parser = argparse.ArgumentParser(prog="python -m simulator.world",
                                      description="The simulated world of a multi-process run.")
@@ -544,12 +585,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         scenario = load_scenario(ns.scenario)
         options = WorldOptions(realtime=ns.realtime, camera=ns.camera, prefix=ns.key_prefix)
-        conf = settings_from_args(ns).to_config()
+        settings = settings_from_args(ns)
+        settings.to_config()  # ValueError naming a setting zenoh rejects
     except (ScenarioError, ValueError) as exc:
         print(f"world: {exc}", file=sys.stderr)
         return 2
+    watch_parent()  # started by a launcher: stop when it dies
     use_zenoh_threads("relay")
-    with zenoh.open(conf) as session:
+    try:
+        session = open_session(settings, "world")  # says so when the credentials are refused
+    except ConnectionError as exc:
+        print(exc, file=sys.stderr)
+        return 1
+    with session:
         world = World(scenario, session, options)
         try:
             world.wait_for_agents()

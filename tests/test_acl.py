@@ -16,14 +16,15 @@ import pytest
 import zenoh
 
 from formation.cli import main
-from wire import acl, keys
+from wire import acl, keys, zconf
 from wire.testing import free_tcp_port, tcp_endpoint, wait_for_tcp_port
 from wire.zconf import UsrPwdAuth, ZenohSettings
 
 ROOT = Path(__file__).resolve().parent.parent
 P = keys.DEFAULT_PREFIX
-ROBOTS = {"r1": "F1", "r2": "F1", "s1": "F2"}
+ROBOTS = {"r1": "F1", "r2": "F1", "r3": "F1", "s1": "F2"}
 LEADERS = {"F1": "r2", "F2": "s1"}
+SUCCESSORS = {"F1": "r3"}  # r3 takes over F1 if r2 dies; r1 never leads
 PAIRS = """\
 name: two-pairs
 dt: 0.05
@@ -55,11 +56,13 @@ class SecureRouter:
     def __init__(self, folder: Path) -> None:
         self.port = free_tcp_port()
         self.endpoint = tcp_endpoint(self.port)
-        self.creds = acl.new_credentials([acl.CAMERA_USER, *ROBOTS])
+        self.creds = acl.new_credentials([acl.CAMERA_USER, acl.MANAGER_USER, acl.VIEWER_USER,
+                                          *ROBOTS])
         acl.write_dictionary(folder / "users.txt", self.creds)
         self.config = folder / "router.json5"
         acl.write_router_config(self.config, acl.router_config(
-            [self.endpoint], acl.fleet_acl(ROBOTS, LEADERS), (folder / "users.txt").resolve()))
+            [self.endpoint], acl.fleet_acl(ROBOTS, LEADERS, successors=SUCCESSORS),
+            (folder / "users.txt").resolve()))
         env = dict(os.environ, PYTHONPATH=str(ROOT))
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "wire.router", "--listen", self.endpoint, "--config",
@@ -130,14 +133,14 @@ def test_the_acl_denies_by_default_and_lets_each_robot_publish_only_its_own_keys
     assert a["enabled"] is True and a["default_permission"] == "deny"
     rules = {r["id"]: r for r in a["rules"]}
     assert rules["r1-publish"]["key_exprs"] == [f"{P}/robot/r1/state", f"{P}/robot/r1/cmd",
-                                                f"{P}/robot/r1/diag"]
+                                                f"{P}/robot/r1/diag", "r1/cmd_vel"]
     assert rules["r1-publish"]["flows"] == ["ingress"] and rules["r1-publish"]["messages"] == ["put"]
-    assert f"{P}/formation/F1/ellipse" in rules["r2-publish"]["key_exprs"]  # r2 leads F1
+    assert f"{P}/formation/F1/ellipse" in rules["r2-lead"]["key_exprs"]  # r2 leads F1
+    assert "r1-lead" not in rules
     assert rules[acl.CAMERA_RULE]["key_exprs"] == [f"{P}/robot/*/pose", f"{P}/obstacles",
                                                    f"{P}/camera/frame"]
     subjects = {s["id"]: s["usernames"] for s in a["subjects"]}
-    assert subjects == {"camera": ["camera"], "viewer": ["viewer"], "r1": ["r1"], "r2": ["r2"],
-                        "s1": ["s1"]}
+    assert subjects == {u: [u] for u in ("camera", "manager", "viewer", *ROBOTS)}
     policy = {p["id"]: p for p in a["policies"]}
     assert policy["r1-policy"]["subjects"] == ["r1"] and "r1-publish" in policy["r1-policy"]["rules"]
     assert "r2-publish" not in policy["r1-policy"]["rules"]
@@ -149,7 +152,8 @@ def test_the_acl_denies_by_default_and_lets_each_robot_publish_only_its_own_keys
     ({"r/1": "F1"}, {}, "robot id"),
     ({"r:1": "F1"}, {}, "robot id"),
     ({"r1": "F1"}, {"F1": "r9"}, "leaders"),
-    ({"camera": "F1"}, {}, "camera user"),
+    ({"camera": "F1"}, {}, "service user"),
+    ({"viewer": "F1"}, {}, "service user"),
 ])
 def test_invalid_fleets_are_refused_naming_the_culprit(robots, leaders, name):
     with pytest.raises(ValueError, match=name):
@@ -239,6 +243,153 @@ def test_python_m_wire_acl_writes_a_fleets_router_files_zenoh_accepts(tmp_path, 
     assert json.loads(conf.get_json("access_control/default_permission")) == "deny"
     users = (folder / "users.txt").read_text().splitlines()
     assert sorted(u.split(":")[0] for u in users) == sorted(
-        ["camera", "viewer", "r1", "r2", "r3", "r4", "s1", "s2", "s3", "s4"])
+        ["camera", "manager", "viewer", "r1", "r2", "r3", "r4", "s1", "s2", "s3", "s4"])
     assert acl.read_credentials(folder / "r1.credentials").user == "r1"
     assert acl.main([str(tmp_path / "missing.yaml"), "--out", str(tmp_path / "g")]) == 2
+
+
+def test_a_robot_drives_its_own_base_and_no_other(router):
+    """The base's bridge logs in as its robot: it subscribes to the robot's cmd_vel key."""
+    bridge = Listener(router, "r1/cmd_vel", user="r1")
+    try:
+        publish(router, router.creds["r2"], "r1/cmd_vel", b"r2")
+        publish(router, router.creds["r1"], "r1/cmd_vel", b"r1")
+        time.sleep(SETTLE_S)
+        assert bridge.payloads() == [b"r1"] * N
+    finally:
+        bridge.close()
+
+
+def test_the_successor_may_lead_and_a_plain_member_may_not(router):
+    key = keys.ellipse_key(P, "F1")
+    other_leader = Listener(router, key, user="s1")
+    try:
+        publish(router, router.creds["r1"], key, b"member")
+        publish(router, router.creds["r3"], key, b"successor")
+        time.sleep(SETTLE_S)
+        assert other_leader.payloads() == [b"successor"] * N
+    finally:
+        other_leader.close()
+
+
+def test_the_manager_sends_goals_and_the_viewer_only_reads(router):
+    goal = f"{P}/formation/F1/goal"
+    leader = Listener(router, goal, user="r2")
+    viewer = Listener(router, keys.state_key(P, "r1"), user=acl.VIEWER_USER)
+    try:
+        publish(router, router.creds[acl.VIEWER_USER], goal, b"viewer")
+        publish(router, router.creds[acl.MANAGER_USER], goal, b"manager")
+        publish(router, router.creds["r1"], keys.state_key(P, "r1"), b"state")
+        publish(router, router.creds[acl.VIEWER_USER], keys.state_key(P, "r1"), b"forged")
+        time.sleep(SETTLE_S)
+        assert leader.payloads() == [b"manager"] * N
+        assert viewer.payloads() == [b"state"] * N
+    finally:
+        leader.close()
+        viewer.close()
+
+
+def test_the_successor_sees_the_leaders_liveliness_token_go(router):
+    token_key = f"{P}/formation/F1/leader"
+    events: list[str] = []
+    watcher = router.session(router.creds["r3"])
+    leader = router.session(router.creds["r2"])
+    try:
+        token = leader.liveliness().declare_token(token_key)
+        time.sleep(SETTLE_S)
+        watcher.liveliness().declare_subscriber(
+            token_key, lambda s: events.append(str(s.kind)), history=True)
+        time.sleep(SETTLE_S)
+        assert events == ["SampleKind.PUT"]
+        token.undeclare()
+        time.sleep(SETTLE_S)
+        assert events == ["SampleKind.PUT", "SampleKind.DELETE"]
+        forged = router.session(router.creds["r1"])  # a member may not pose as the leader
+        try:
+            forged.liveliness().declare_token(token_key)
+            time.sleep(SETTLE_S)
+            assert events == ["SampleKind.PUT", "SampleKind.DELETE"]
+        finally:
+            forged.close()
+    finally:
+        leader.close()
+        watcher.close()
+
+
+def test_refused_credentials_are_reported_as_such(router, tmp_path):
+    path = tmp_path / "manager.json5"
+    acl.write_client_file(path, UsrPwdAuth(acl.MANAGER_USER, "wrong"), [router.endpoint])
+    found = zconf.read_auth_file(path)
+    assert found.connect == (router.endpoint,) and found.auth.user == acl.MANAGER_USER
+    settings = ZenohSettings(mode="client", connect=found.connect, connect_timeout_s=1.0,
+                             auth=found.auth)
+    with pytest.raises(ConnectionError, match="refused the credentials of user 'manager'"):
+        zconf.open_session(settings, "status")
+    acl.write_client_file(path, router.creds[acl.MANAGER_USER], [router.endpoint])
+    with zconf.open_session(ZenohSettings(mode="client", connect=(router.endpoint,),
+                                          auth=zconf.read_auth_file(path).auth)):
+        pass
+
+
+def test_python_m_wire_acl_lets_each_robot_drive_its_base(tmp_path):
+    """The router files ``python -m wire.acl`` writes: r1's agent puts on r1/cmd_vel and the
+    bridge (logged in as r1) gets every put (it got 0 of 10 before)."""
+    port = free_tcp_port()
+    folder = tmp_path / "f"
+    assert acl.main([str(ROOT / "scenarios" / "thesis-5.2.2.yaml"), "--out", str(folder),
+                     "--listen", tcp_endpoint(port)]) == 0
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, "-m", "wire.router", "--listen", tcp_endpoint(port),
+                             "--config", str(folder / "router.json5"), "--log-level", "WARNING"],
+                            env=env, stdin=subprocess.DEVNULL)
+    try:
+        wait_for_tcp_port(port, timeout_s=15.0)
+        r1 = acl.read_credentials(folder / "r1.credentials")
+        conf = ZenohSettings(mode="client", connect=(tcp_endpoint(port),), auth=r1).to_config()
+        got: list[bytes] = []
+        with zenoh.open(conf) as bridge, zenoh.open(conf) as agent:
+            bridge.declare_subscriber("r1/cmd_vel", lambda s: got.append(s.payload.to_bytes()))
+            pub = agent.declare_publisher("r1/cmd_vel")
+            time.sleep(SETTLE_S)
+            for _ in range(10):
+                pub.put(b"twist")
+            time.sleep(SETTLE_S)
+        assert got == [b"twist"] * 10
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
+def test_an_agent_with_refused_credentials_says_so(router, tmp_path):
+    import asyncio
+
+    from agent.config import ZenohSettings as AgentZenoh
+    from agent.config import build_agent_configs
+    from agent.node import AgentNode, NodeOptions
+    from scenario import load_scenario
+
+    path = tmp_path / "pairs.yaml"
+    path.write_text(PAIRS, encoding="utf-8")
+    cfg = build_agent_configs(load_scenario(path), zenoh=AgentZenoh(
+        mode="client", connect=(router.endpoint,)))["a1"]
+    node = AgentNode(cfg, NodeOptions(connect_timeout=1.0, auth=UsrPwdAuth("a1", "wrong")))
+    loop = asyncio.new_event_loop()
+    try:
+        with pytest.raises(ConnectionError, match="refused the credentials of user 'a1'"):
+            node.open(loop)
+    finally:
+        loop.close()
+
+
+def test_a_client_command_takes_auth_file_and_says_when_it_is_refused(router, tmp_path):
+    """``--auth FILE`` (wire.zconf.add_zenoh_args), here on ``python -m simulator.world``."""
+    bad = tmp_path / "stale-manager.json5"
+    acl.write_client_file(bad, UsrPwdAuth(acl.MANAGER_USER, "from-another-run"), [router.endpoint])
+    proc = subprocess.run(
+        [sys.executable, "-m", "simulator.world", str(ROOT / "tests" / "scenarios" / "two-small.yaml"),
+         "--auth", str(bad)], env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True,
+        text=True, timeout=60)
+    assert proc.returncode == 1
+    assert proc.stderr.strip().splitlines() == [
+        f"world: the router at {router.endpoint} refused the credentials of user 'manager' "
+        "(wrong user or password, or not this router's credentials)"]

@@ -35,6 +35,7 @@ from formation.cli import UsageError
 from formation.cli import main as formation_main
 from formation.commands.deploy import deploy_command
 from scenario import load_scenario
+from wire import zconf
 
 ROOT = Path(__file__).resolve().parent.parent
 SSHD = Path("/usr/sbin/sshd")
@@ -131,17 +132,23 @@ def sshd(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict]:
 
 @pytest.fixture
 def router() -> Iterator[str]:
-    """A zenoh router (``python -m wire.router``) on a free loopback port."""
-    port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
+    """A free loopback endpoint for the fleet's router (started by the test that needs it,
+    with the configuration deploy writes: :func:`start_router`)."""
+    yield f"tcp/127.0.0.1:{free_port()}"
+
+
+def start_router(endpoint: str, config: Path) -> subprocess.Popen:
+    """``python -m wire.router`` with ``config`` (deploy's router.json5: users and ACL)."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen([sys.executable, "-m", "wire.router", "--listen", endpoint],
-                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen([sys.executable, "-m", "wire.router", "--listen", endpoint,
+                             "--config", str(config), "--log-level", "WARNING"], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        wait_port(port)
-        yield endpoint
-    finally:
+        wait_port(int(endpoint.rsplit(":", 1)[1]))
+    except BaseException:
         stop_process(proc)
+        raise
+    return proc
 
 
 def robot_env() -> dict[str, str]:
@@ -190,7 +197,7 @@ def fleet(tmp_path: Path, sshd: dict, router: str, source_snapshot: Path,
     a, b = sshd["ports"]
     inv = {
         "prefix": "warehouse",
-        "base": "world",
+        "base": "turtlebot3-humble",  # commands also go to {id}/cmd_vel, as to a real base
         "connect_timeout": 5,
         "zenoh": {"router": router, "mode": "client"},
         "defaults": {"user": getpass.getuser(), "key": str(sshd["key"]), "host": "127.0.0.1",
@@ -250,10 +257,13 @@ def test_deploy_status_start_stop_and_redeploy_over_real_ssh(
                      ".deploy-stamp"):
             assert (d / name).is_file(), name
         assert os.access(d / "run-agent.sh", os.X_OK)
-        assert not (d / "zenoh-bridge.json5").exists()  # world base: no bridge
         cfg = yaml.safe_load((d / "robot.yaml").read_text())
         assert cfg["robot_id"] == rid and cfg["zenoh"]["connect"] == [fleet["router"]]
         check_json5((d / "zenoh.json5").read_text())
+        # each robot logs in as itself, its base's bridge too; the files are private
+        for name in ("zenoh.json5", "zenoh-bridge.json5"):
+            assert zconf.read_auth_file(d / name).auth.user == rid
+            assert (d / name).stat().st_mode & 0o777 == 0o600
         assert list((d / "wheels").glob("formation_cbf-*.whl"))
         # the wheel is installed in the venv, which is the one the agent imports from
         py = d / "venv" / "bin" / "python"
@@ -263,6 +273,13 @@ def test_deploy_status_start_stop_and_redeploy_over_real_ssh(
             capture_output=True, text=True, env=env, cwd="/", check=True).stdout.strip()
         assert where.startswith(str(d / "venv")), where
         assert (d / "venv" / "pyvenv.cfg").read_text().count("include-system-site-packages = true")
+    secure = fleet["tmp"] / "secure"
+    assert secure.stat().st_mode & 0o777 == 0o700
+    assert sorted(p.name for p in secure.iterdir()) == [
+        "camera.json5", "manager.json5", "router.json5", "users.txt", "viewer.json5"]
+    assert all(p.stat().st_mode & 0o777 == 0o600 for p in secure.iterdir())
+    assert sorted(ln.split(":")[0] for ln in (secure / "users.txt").read_text().splitlines()) == [
+        "camera", "manager", "r1", "r2", "r3", "viewer"]
 
     code, out = run_cli(capsys, inv, scen, "--status")
     assert code == 0, out
@@ -275,8 +292,12 @@ def test_deploy_status_start_stop_and_redeploy_over_real_ssh(
     for rid in ("r1", "r2", "r3"):
         assert " unchanged " in lines_of(out, rid)[0], out
 
-    # start: every supervisor runs, the agents come up and publish their state on zenoh
-    subscriber = StateWatcher(fleet["router"], ["r1", "r2", "r3"])
+    # start: every supervisor runs, the agents come up (each as its own Zenoh user, through the
+    # router with the very files deploy wrote) and publish their state and base commands
+    router = start_router(fleet["router"], secure / "router.json5")
+    subscriber = StateWatcher(fleet["router"], ["r1", "r2", "r3"], secure / "camera.json5")
+    bridge = BaseWatcher(dirs[0] / "zenoh-bridge.json5")  # r1's bridge, as installed
+    intruder = BaseWatcher(dirs[1] / "zenoh.json5", "r1/cmd_vel")  # r2's user, on r1's base key
     try:
         code, out = run_cli(capsys, inv, scen, "--start")
         assert code == 0, out
@@ -290,6 +311,8 @@ def test_deploy_status_start_stop_and_redeploy_over_real_ssh(
             os.kill(pid, 0)  # the supervisor process exists
         got = subscriber.wait_for_states(timeout=30.0)
         assert got == {"r1", "r2", "r3"}, (got, agent_logs(dirs))
+        assert bridge.wait(timeout=10.0), agent_logs(dirs)  # a base command arrived on cmd_vel
+        assert intruder.count == 0  # another robot's user cannot listen to r1's base
         code, out = run_cli(capsys, inv, scen, "--status")
         assert code == 0
         for rid in ("r1", "r2", "r3"):
@@ -299,6 +322,9 @@ def test_deploy_status_start_stop_and_redeploy_over_real_ssh(
         assert code == 0 and all(f"pid {p} (already)" in out for p in pids.values()), out
     finally:
         subscriber.close()
+        bridge.close()
+        intruder.close()
+        stop_process(router)
 
     code, out = run_cli(capsys, inv, scen, "--stop")
     assert code == 0, out
@@ -330,18 +356,40 @@ def agent_logs(dirs: list[Path]) -> str:
     return "\n".join(out)
 
 
-class StateWatcher:
-    """Publishes each robot's pose on the router and records which robots publish ``state``."""
+class BaseWatcher:
+    """A session opened from a robot's installed ``zenoh-bridge.json5`` (its user and the
+    bridge's namespace), counting what arrives on ``key`` (``cmd_vel``: the namespaced base
+    key, as zenoh-bridge-ros2dds would receive it)."""
 
-    def __init__(self, router: str, robots: list[str]) -> None:
+    def __init__(self, config: Path, key: str = "cmd_vel") -> None:
+        self.session = zenoh.open(zenoh.Config.from_file(str(config)))
+        self.count = 0
+        self.event = threading.Event()
+        self.sub = self.session.declare_subscriber(key, self._on)
+
+    def _on(self, _sample: zenoh.Sample) -> None:
+        self.count += 1
+        self.event.set()
+
+    def wait(self, timeout: float) -> bool:
+        return self.event.wait(timeout)
+
+    def close(self) -> None:
+        self.session.close()
+
+
+class StateWatcher:
+    """Publishes each robot's pose on the router and records which robots publish ``state``
+    (logged in as the camera service, with deploy's ``camera.json5``)."""
+
+    def __init__(self, router: str, robots: list[str], auth: Path) -> None:
         from wire import keys
         from wire.payloads import Pose, encode
 
-        conf = zenoh.Config()
-        conf.insert_json5("mode", '"client"')
-        conf.insert_json5("connect/endpoints", f'["{router}"]')
-        conf.insert_json5("scouting/multicast/enabled", "false")
-        self.session = zenoh.open(conf)
+        found = zconf.read_auth_file(auth)
+        assert found.connect == (router,)
+        self.session = zenoh.open(zconf.ZenohSettings(mode="client", connect=found.connect,
+                                                      auth=found.auth).to_config())
         self.seen: set[str] = set()
         self.event = threading.Event()
         self.robots = robots
@@ -469,6 +517,7 @@ def mutate(path: str, value: object) -> dict:
     ("robots.1.install_dir", "formation", "robots[1] (r2).install_dir"),
     ("base", "turtlebot4", "base: 'turtlebot4'"),
     ("zenoh.mode", "router", "zenoh.mode"),
+    ("zenoh.access_control", "yes", "zenoh.access_control: must be true or false"),
     ("zenoh.router", "192.168.0.10", "zenoh.router"),
     ("zenoh.router", KeyError, "zenoh.router: required in client mode"),
     ("robots.1.id", "r1", "duplicate robot id 'r1'"),

@@ -102,7 +102,8 @@ def test_a_live_run_serves_the_page_and_foxglove_while_a_recorder_attaches(tmp_p
                         and all(r["status"] for r in s["frame"]["robots"]), proc=run)
         assert st["mode"] == "live" and st["ws_port"]
         recorder = formation("record", "--connect", tcp_endpoint(router), "--out",
-                             str(tmp_path / "rec"), "--duration", "4")
+                             str(tmp_path / "rec"), "--duration", "4",
+                             "--auth", str(tmp_path / "run" / "secure" / "viewer.json5"))
 
         # the Foxglove WebSocket: scene updates arrive, and move on
         got = foxglove_messages(st["ws_port"], {SCENE_TOPIC, FLEET_TOPIC}, 3)

@@ -5,16 +5,20 @@ user/password (``transport/auth/usrpwd``, the router holding a ``user:password``
 and filters messages with the ACL of :func:`fleet_acl`, whose subjects are matched by user name:
 
 * robot ``r`` (user ``r``) may publish (``put``, ingress to the router) only on
-  ``{prefix}/robot/r/state``, ``{prefix}/robot/r/cmd`` and ``{prefix}/robot/r/diag`` and, if it
-  leads formation ``f``, on ``{prefix}/formation/f/ellipse`` and ``{prefix}/formation/f/others``;
-* the viewer (user :data:`VIEWER_USER`: ``formation view``, ``formation record``) may only
-  subscribe and be sent what is published: it publishes nothing;
+  ``{prefix}/robot/r/state``, ``.../cmd``, ``.../diag`` and its base's command key (``r/cmd_vel``
+  unless told otherwise: ``zenoh-bridge-ros2dds`` with namespace ``r``); the bridge, logged in
+  as ``r``, may subscribe to that key and be sent what is put there. If ``r`` leads formation
+  ``f``, or is its successor (:mod:`scenario.succession`, the member that takes over when the
+  leader dies), also on ``{prefix}/formation/f/ellipse``, ``others``, ``status`` and ``plan``,
+  hold the liveliness token ``{prefix}/formation/f/leader`` and answer ``status`` queries;
 * the camera service or simulated world (user :data:`CAMERA_USER`) may publish only the poses
   ``{prefix}/robot/*/pose``, ``{prefix}/obstacles`` and the frames ``{prefix}/camera/frame``;
-* every fleet user may declare subscribers under ``{prefix}/**`` and be sent (``put``, egress)
-  what is published there;
-* ``default_permission`` is ``deny``: anything else (another robot's keys, queries, queryables,
-  liveliness, keys outside the prefix) is dropped by the router.
+* the fleet manager (:data:`MANAGER_USER`) may publish goals ``{prefix}/formation/*/goal`` and
+  query ``status``; a viewer (:data:`VIEWER_USER`) may only read and query ``status``;
+* every fleet user may declare subscribers and liveliness subscribers under ``{prefix}/**`` and be
+  sent (``put``, ``delete``, liveliness tokens, replies; egress) what is published there;
+* ``default_permission`` is ``deny``: anything else (another robot's keys, a member's ellipse,
+  queryables, keys outside the prefix) is dropped by the router.
 
 Schema (zenoh 1.x, ``DEFAULT_CONFIG.json5`` of eclipse-zenoh/zenoh)::
 
@@ -44,14 +48,15 @@ from typing import Any
 
 from wire import keys
 from wire.diag import diag_key
-from wire.zconf import UsrPwdAuth
+from wire.zconf import UsrPwdAuth, client_auth_config
 
 logger = logging.getLogger(__name__)
 
 CAMERA_USER = "camera"  # the camera service, or the simulated world that stands in for it
+MANAGER_USER = "manager"  # the fleet manager: sends goals, reads everything
+VIEWER_USER = "viewer"  # read-only: the live page, recorders, status
 FLEET_READ_RULE = "fleet-read"
 CAMERA_RULE = "camera-publish"
-VIEWER_USER = "viewer"  # read-only: the live page and recorders of a fleet
 
 
 def _check_user(name: str, what: str) -> str:
@@ -66,55 +71,110 @@ def fleet_acl(
     leaders: Mapping[str, str],
     prefix: str = keys.DEFAULT_PREFIX,
     camera_user: str = CAMERA_USER,
+    *,
+    successors: Mapping[str, str] | None = None,
+    cmd_vel: Mapping[str, str] | None = None,
+    manager_user: str | None = MANAGER_USER,
+    viewer_user: str | None = VIEWER_USER,
 ) -> dict[str, Any]:
     """The ``access_control`` section for a fleet (see the module docstring).
 
     ``robots`` maps robot id -> formation id (the robot's user name is its id); ``leaders`` maps
-    formation id -> leader robot id. ValueError names an invalid id or a leader not in
-    ``robots``.
+    formation id -> leader robot id; ``successors`` formation id -> the member that takes the
+    leader role when the leader dies (:mod:`scenario.succession`): it gets the leader's rights.
+    ``cmd_vel`` maps robot id -> its base's command key (:func:`default_cmd_vel_key` when
+    absent): the robot's user may put there, and the base's bridge, logged in as the same
+    user, may subscribe to it. ``manager_user`` (goals) and ``viewer_user`` (read only) are
+    left out when None. ValueError names an invalid id or a leader not in ``robots``.
     """
+    successors = dict(successors or {})
+    _check_fleet(robots, leaders, successors, prefix,
+                 [u for u in (camera_user, manager_user, viewer_user) if u is not None])
+    cmd_vel = dict(cmd_vel or {})
+    fp = f"{prefix}/formation"
+    rules: list[dict[str, Any]] = []
+
+    def rule(rid: str, messages: list[str], flows: list[str], key_exprs: list[str]) -> str:
+        rules.append({"id": rid, "messages": messages, "flows": flows, "permission": "allow",
+                      "key_exprs": key_exprs})
+        return rid
+
+    common = [
+        rule(FLEET_READ_RULE, ["declare_subscriber", "declare_liveliness_subscriber",
+                               "liveliness_query"], ["ingress", "egress"], [f"{prefix}/**"]),
+        rule("fleet-deliver", ["put", "delete", "liveliness_token", "reply"], ["egress"],
+             [f"{prefix}/**"]),
+    ]
+    subjects: list[dict[str, Any]] = []
+    policies: list[dict[str, Any]] = []
+
+    def subject(user: str, own: list[str]) -> None:
+        subjects.append({"id": user, "usernames": [user]})
+        policies.append({"id": f"{user}-policy", "rules": [*common, *own], "subjects": [user]})
+
+    subject(camera_user, [rule(CAMERA_RULE, ["put"], ["ingress"],
+                               [f"{prefix}/robot/*/pose", keys.obstacles_key(prefix),
+                                f"{prefix}/camera/frame"])])
+    if manager_user is not None:
+        subject(manager_user, [
+            rule("manager-goal", ["put"], ["ingress"], [f"{fp}/*/goal"]),
+            rule("manager-query", ["query"], ["ingress"], [f"{fp}/*/status"]),
+        ])
+    if viewer_user is not None:  # reads everything, may ask the leaders' status, writes nothing
+        subject(viewer_user, [rule("viewer-query", ["query"], ["ingress"], [f"{fp}/*/status"])])
+    lead = {leader: fid for fid, leader in leaders.items()}
+    lead.update({rid: fid for fid, rid in successors.items()})
+    for rid in robots:
+        base_key = cmd_vel.get(rid) or default_cmd_vel_key(rid)
+        own = [rule(f"{rid}-publish", ["put"], ["ingress"],
+                    [keys.state_key(prefix, rid), keys.cmd_key(prefix, rid),
+                     diag_key(prefix, rid), base_key]),
+               rule(f"{rid}-base", ["declare_subscriber"], ["ingress", "egress"], [base_key]),
+               rule(f"{rid}-base-deliver", ["put"], ["egress"], [base_key])]
+        if rid in lead:
+            f = lead[rid]
+            own += [
+                rule(f"{rid}-lead", ["put"], ["ingress"],
+                     [keys.ellipse_key(prefix, f), keys.others_key(prefix, f),
+                      f"{fp}/{f}/status", f"{fp}/{f}/plan"]),
+                rule(f"{rid}-lead-token", ["liveliness_token"], ["ingress"],
+                     [f"{fp}/{f}/leader"]),
+                rule(f"{rid}-lead-status", ["declare_queryable", "reply"], ["ingress"],
+                     [f"{fp}/{f}/status"]),
+                rule(f"{rid}-lead-asked", ["query"], ["egress"], [f"{fp}/{f}/status"]),
+            ]
+        subject(rid, own)
+    return {"enabled": True, "default_permission": "deny", "rules": rules,
+            "subjects": subjects, "policies": policies}
+
+
+def _check_fleet(robots: Mapping[str, str], leaders: Mapping[str, str],
+                 successors: Mapping[str, str], prefix: str, services: list[str]) -> None:
+    """ValueError naming the first invalid id, clash or leader/successor outside its formation."""
     keys.validate_prefix(prefix)
-    _check_user(camera_user, "camera_user")
+    _check_user(services[0], "camera_user")
     if not robots:
         raise ValueError("robots: must not be empty")
+    for u in services[1:]:
+        _check_user(u, "user")
+    if len(set(services)) != len(services):
+        raise ValueError(f"users: the service users {services} must differ")
     for rid, fid in robots.items():
         _check_user(rid, "robot id")
         keys.validate_id(fid, "formation id")
-        if rid in (camera_user, VIEWER_USER):
-            raise ValueError(f"robot id {rid!r} is the {rid} user")
-    for fid, leader in leaders.items():
-        if robots.get(leader) != fid:
-            raise ValueError(f"leaders: {leader!r} is not a robot of formation {fid!r}")
-    rules: list[dict[str, Any]] = [
-        {"id": FLEET_READ_RULE, "messages": ["declare_subscriber"],
-         "flows": ["ingress", "egress"], "permission": "allow", "key_exprs": [f"{prefix}/**"]},
-        {"id": "fleet-deliver", "messages": ["put"], "flows": ["egress"], "permission": "allow",
-         "key_exprs": [f"{prefix}/**"]},
-        {"id": CAMERA_RULE, "messages": ["put"], "flows": ["ingress"], "permission": "allow",
-         "key_exprs": [f"{prefix}/robot/*/pose", keys.obstacles_key(prefix),
-                       f"{prefix}/camera/frame"]},
-    ]
-    subjects: list[dict[str, Any]] = [{"id": camera_user, "usernames": [camera_user]},
-                                      {"id": VIEWER_USER, "usernames": [VIEWER_USER]}]
-    policies: list[dict[str, Any]] = [
-        {"id": f"{camera_user}-policy", "rules": [FLEET_READ_RULE, "fleet-deliver", CAMERA_RULE],
-         "subjects": [camera_user]},
-        {"id": f"{VIEWER_USER}-policy", "rules": [FLEET_READ_RULE, "fleet-deliver"],
-         "subjects": [VIEWER_USER]},
-    ]
-    led = {leader: fid for fid, leader in leaders.items()}
-    for rid in robots:
-        own = [keys.state_key(prefix, rid), keys.cmd_key(prefix, rid), diag_key(prefix, rid)]
-        if rid in led:
-            own += [keys.ellipse_key(prefix, led[rid]), keys.others_key(prefix, led[rid])]
-        rules.append({"id": f"{rid}-publish", "messages": ["put"], "flows": ["ingress"],
-                      "permission": "allow", "key_exprs": own})
-        subjects.append({"id": rid, "usernames": [rid]})
-        policies.append({"id": f"{rid}-policy",
-                         "rules": [FLEET_READ_RULE, "fleet-deliver", f"{rid}-publish"],
-                         "subjects": [rid]})
-    return {"enabled": True, "default_permission": "deny", "rules": rules,
-            "subjects": subjects, "policies": policies}
+        if rid in services:
+            raise ValueError(f"robot id {rid!r} is a service user's name")
+    for what, chosen in (("leaders", leaders), ("successors", successors)):
+        for fid, rid in chosen.items():
+            if robots.get(rid) != fid:
+                raise ValueError(f"{what}: {rid!r} is not a robot of formation {fid!r}")
+
+
+def default_cmd_vel_key(robot: str) -> str:
+    """The key of ``robot``'s base commands where none is configured: ``{robot}/cmd_vel``, the
+    key ``zenoh-bridge-ros2dds`` with ``namespace: {robot}`` maps ``/cmd_vel`` to (as deploy
+    sets it up)."""
+    return f"{robot}/cmd_vel"
 
 
 def router_config(
@@ -157,6 +217,14 @@ def write_credentials(path: str | os.PathLike[str], auth: UsrPwdAuth) -> None:
     _write_private(Path(path), f"{auth.user}:{auth.password}\n")
 
 
+def write_client_file(path: str | os.PathLike[str], auth: UsrPwdAuth,
+                      connect: Sequence[str]) -> None:
+    """A client's credentials as a Zenoh JSON5 fragment (:func:`wire.zconf.client_auth_config`:
+    the router's endpoints, the user and password; mode 0600), for ``--auth FILE``."""
+    text = json.dumps(client_auth_config(auth, connect), indent=2) + "\n"
+    _write_private(Path(path), text)
+
+
 def read_credentials(path: str | os.PathLike[str]) -> UsrPwdAuth:
     """The ``user:password`` of a file written by :func:`write_credentials`."""
     try:
@@ -182,24 +250,30 @@ def write_router_config(path: str | os.PathLike[str], conf: Mapping[str, Any]) -
 
 
 def write_fleet_files(scenario_path: str | os.PathLike[str], folder: str | os.PathLike[str],
-                      listen: Sequence[str], prefix: str = keys.DEFAULT_PREFIX) -> list[Path]:
+                      listen: Sequence[str], prefix: str = keys.DEFAULT_PREFIX,
+                      cmd_vel_key: str = "{robot}/cmd_vel") -> list[Path]:
     """The router's ``router.json5`` and ``users.txt`` and one ``ROBOT.credentials`` per robot
-    (plus ``camera.credentials``) for a scenario's fleet, with fresh passwords, in ``folder``."""
+    (plus ``camera``, ``manager`` and ``viewer``) for a scenario's fleet, with fresh passwords,
+    in ``folder``. ``cmd_vel_key`` is each robot's base command key (``{robot}`` replaced)."""
     from scenario import load_scenario
+    from scenario.succession import formation_successor
 
     sc = load_scenario(Path(scenario_path))
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
     out.chmod(0o700)
     robots = {rid: sc.formation_of(rid).name for rid in sc.robot_ids}
-    creds = new_credentials([CAMERA_USER, VIEWER_USER, *robots])
+    successors = {f.name: s for f in sc.formations if (s := formation_successor(f)) is not None}
+    creds = new_credentials([CAMERA_USER, MANAGER_USER, VIEWER_USER, *robots])
     write_dictionary(out / "users.txt", creds)
     written = [out / "users.txt"]
     for user, auth in creds.items():
         write_credentials(out / f"{user}.credentials", auth)
         written.append(out / f"{user}.credentials")
+    cmd_vel = {rid: cmd_vel_key.format(robot=rid) for rid in robots}
     conf = router_config(listen, fleet_acl(robots, {f.name: f.leader for f in sc.formations},
-                                           prefix), (out / "users.txt").resolve())
+                                           prefix, successors=successors, cmd_vel=cmd_vel),
+                         (out / "users.txt").resolve())
     write_router_config(out / "router.json5", conf)
     return [out / "router.json5", *written]
 
@@ -215,10 +289,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
                         help="router endpoint (repeatable; default tcp/0.0.0.0:7447)")
     parser.add_argument("--key-prefix", default=keys.DEFAULT_PREFIX)
+    parser.add_argument("--cmd-vel-key", default="{robot}/cmd_vel", metavar="TEMPLATE",
+                        help="each robot's base command key, {robot} replaced by its id "
+                             "(default {robot}/cmd_vel: zenoh-bridge-ros2dds with "
+                             "namespace {robot}, as formation deploy sets it up)")
     ns = parser.parse_args(argv)
+    if "{robot}" not in ns.cmd_vel_key:
+        print("wire.acl: --cmd-vel-key must contain {robot} (one base key per robot)",
+              file=sys.stderr)
+        return 2
     try:
         files = write_fleet_files(ns.scenario, ns.out, ns.listen or ["tcp/0.0.0.0:7447"],
-                                  ns.key_prefix)
+                                  ns.key_prefix, ns.cmd_vel_key)
     except ValueError as exc:  # ScenarioError is a ValueError too
         print(f"wire.acl: {exc}", file=sys.stderr)
         return 2

@@ -77,10 +77,9 @@ MODES: tuple[str, ...] = get_args(Mode)
 class UsrPwdAuth:
     """User/password authentication of zenoh transports (``transport/auth/usrpwd``).
 
-    The keys work (a test opens a router with a ``dictionary_file`` and clients with the right
-    and a wrong password). TODO: this is only a hook. Decide where credentials live on a robot
-    (a file readable by the agent's user only, provisioned by ``deploy``) and add command-line
-    flags for it; until then no process sets it, and it never travels in ``to_argv``.
+    ``formation run`` gives each process its own (access control, :mod:`wire.acl`); client
+    commands read theirs from a file with ``--auth FILE`` (:func:`read_auth_file`); deploy
+    installs one per robot in its ``zenoh.json5``. It never travels in ``to_argv``.
     """
 
     user: str
@@ -271,22 +270,144 @@ def add_zenoh_args(parser: argparse.ArgumentParser) -> None:
         help="a zenoh JSON5 configuration file to start from",
     )
     group.add_argument(
+        "--auth", dest="zenoh_auth_file", metavar="FILE", default=None,
+        help="log in with the user/password of this Zenoh JSON5 file (e.g. formation run's "
+             "OUT/secure/manager.json5 or viewer.json5); its endpoints unless --connect",
+    )
+    group.add_argument(
         "--key-prefix", dest="key_prefix", metavar="PREFIX", default=keys.DEFAULT_PREFIX,
         help=f"key-space prefix (default: {keys.DEFAULT_PREFIX})",
     )
 
 
 def settings_from_args(ns: argparse.Namespace) -> ZenohSettings:
-    """The :class:`ZenohSettings` of a namespace parsed with :func:`add_zenoh_args`."""
+    """The :class:`ZenohSettings` of a namespace parsed with :func:`add_zenoh_args`.
+
+    With ``--auth FILE`` the user and password come from that file (:func:`read_auth_file`),
+    and so do the endpoints when no ``--connect`` is given; the mode is then ``client``."""
+    auth = None
+    connect = tuple(ns.zenoh_connect)
+    mode = ns.zenoh_mode
+    auth_file = getattr(ns, "zenoh_auth_file", None)
+    if auth_file is not None:
+        found = read_auth_file(auth_file)
+        auth = found.auth
+        connect = connect or found.connect
+        if mode == "peer" and not ns.zenoh_listen:
+            mode = "client"  # credentials are for a router: talk to it, not to peers
     return ZenohSettings(
-        mode=ns.zenoh_mode,
-        connect=tuple(ns.zenoh_connect),
+        mode=mode,
+        connect=connect,
         listen=tuple(ns.zenoh_listen),
         multicast_scouting=ns.zenoh_multicast_scouting,
         connect_timeout_s=ns.zenoh_connect_timeout,
         scouting_delay_s=ns.zenoh_scouting_delay,
         config_file=ns.zenoh_config,
+        auth=auth,
     )
+
+
+@dataclass(frozen=True, slots=True)
+class AuthFile:
+    """What a credentials file (``secure/manager.json5`` and the like) holds."""
+
+    path: str
+    auth: UsrPwdAuth
+    connect: tuple[str, ...]  # the router's endpoints, if the file names them
+
+
+def client_auth_config(auth: UsrPwdAuth, connect: Sequence[str]) -> dict:
+    """A client's Zenoh configuration fragment: the router's endpoints, no multicast scouting,
+    and the user/password (as ``formation run`` writes ``secure/manager.json5``); plain JSON,
+    which is JSON5."""
+    return {
+        "mode": "client",
+        "connect": {"endpoints": list(connect)},
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {"auth": {"usrpwd": {"user": auth.user, "password": auth.password}}},
+    }
+
+
+def read_auth_file(path: str | os.PathLike[str]) -> AuthFile:
+    """The user, password and endpoints of a Zenoh JSON5 configuration (fragment) with
+    ``transport/auth/usrpwd`` (parsed by zenoh itself, so comments and every JSON5 form zenoh
+    takes are accepted), or of a one-line ``user:password`` file (``*.credentials``);
+    ValueError naming the file and what is wrong with it."""
+    name = os.fspath(path)
+    if not os.path.isfile(name):
+        raise ValueError(f"--auth: no such file {name!r}")
+    try:
+        with open(name, encoding="utf-8") as fh:
+            head = fh.read(4096)
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"--auth {name}: cannot read: {exc}") from None
+    line = head.strip()
+    if line and "\n" not in line and not line.startswith(("{", "/")):  # user:password, one line
+        user, sep, password = line.partition(":")
+        if not (sep and user and password):
+            raise ValueError(f"--auth {name}: expected user:password or a Zenoh JSON5 file")
+        return AuthFile(name, UsrPwdAuth(user, password), ())
+    try:
+        conf = zenoh.Config.from_file(name)
+    except Exception as exc:  # zenoh.ZError: not JSON5, an unknown key
+        raise ValueError(f"--auth {name}: not a Zenoh configuration: {exc}") from None
+
+    def get(key: str) -> object:
+        try:
+            return json.loads(conf.get_json(key))
+        except Exception:  # noqa: BLE001 - zenoh.ZError: no such key
+            return None
+
+    found_user = get("transport/auth/usrpwd/user")
+    found_password = get("transport/auth/usrpwd/password")
+    if not (isinstance(found_user, str) and found_user and isinstance(found_password, str)
+            and found_password):
+        raise ValueError(f"--auth {name}: no transport/auth/usrpwd user and password in it")
+    endpoints = get("connect/endpoints")
+    connect = tuple(e for e in endpoints if isinstance(e, str)) if isinstance(endpoints, list) else ()
+    return AuthFile(name, UsrPwdAuth(found_user, found_password), connect)
+
+
+def open_session(settings: ZenohSettings, what: str = "zenoh") -> zenoh.Session:
+    """``zenoh.open`` with a message that says why it failed (:func:`explain_open_failure`)
+    as a ``ConnectionError``."""
+    try:
+        return zenoh.open(settings.to_config())
+    except ValueError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - zenoh.ZError says only "Timeout!" for most causes
+        why = explain_open_failure(exc, settings.connect, settings.auth)
+        raise ConnectionError(f"{what}: {why}" if what else why) from None
+
+
+def explain_open_failure(exc: BaseException, connect: Sequence[str],
+                         auth: UsrPwdAuth | None) -> str:
+    """Why opening a client session failed, in words: zenoh reports refused credentials and an
+    absent router alike (``Timeout!``), so look whether something listens on the endpoints."""
+    reachable = [e for e in connect if _tcp_reachable(e)]
+    if connect and not reachable:
+        return f"no router answers on {', '.join(connect)} ({exc})"
+    if auth is not None and reachable:
+        return (f"the router at {reachable[0]} refused the credentials of user {auth.user!r} "
+                f"(wrong user or password, or not this router's credentials)")
+    if reachable:
+        return (f"{reachable[0]} accepts connections but no Zenoh session opened: a router that "
+                f"wants credentials (--auth FILE)? ({exc})")
+    return str(exc)
+
+
+def _tcp_reachable(endpoint: str, timeout_s: float = 1.0) -> bool:
+    import socket
+
+    proto, _, address = endpoint.partition("/")
+    if proto not in ("tcp", "tls") or ":" not in address:
+        return False
+    host, _, port = address.split("#", 1)[0].rpartition(":")
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s):
+            return True
+    except (OSError, ValueError):
+        return False
 
 
 def config_from_args(ns: argparse.Namespace) -> zenoh.Config:

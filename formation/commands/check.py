@@ -16,6 +16,15 @@ def cmd_check(ns: argparse.Namespace) -> int:
     n = len(s.robot_ids)
     for w in scenario_warnings(s):
         print(f"{ns.scenario}: warning: {w}", file=sys.stderr)
+    from scenario.succession import formation_successor
+
+    s = load_scenario(ns.scenario)
+    n = len(s.robot_ids)
+    for f in s.formations:
+        if formation_successor(f) is None:
+            print(f"{ns.scenario}: warning: formation {f.name!r} has no member adjacent to every "
+                  f"other member: if its leader {f.leader!r} dies, nobody takes over and the "
+                  f"other formations stop avoiding it after the ellipse hold", file=sys.stderr)
     print(f"{ns.scenario}: ok ({s.name}: {len(s.formations)} formations, {n} robots, "
           f"{len(s.obstacles)} obstacles, {s.robot.model})")
     return EXIT_OK

@@ -28,7 +28,8 @@ def deploy_command(ns: argparse.Namespace) -> int:
     try:
         inventory = load_inventory(ns.inventory)
         check_against_scenario(inventory, scenario.robot_ids)
-        plan = deployer.make_plan(inventory, scenario)
+        plan = deployer.make_plan(inventory, scenario,
+                                  write_secrets=not getattr(ns, "dry_run", False))
     except InventoryError as exc:
         raise UsageError(str(exc)) from None
 
@@ -51,6 +52,11 @@ def deploy_command(ns: argparse.Namespace) -> int:
         what = action
     for note in outcome.notes:
         print(note)
+    if inventory.zenoh.access_control and action is None:
+        print(f"access control: one Zenoh user per robot; the router's files and the camera, "
+              f"manager and viewer credentials are in {inventory.zenoh.secrets}/ "
+              f"(python -m wire.router --listen {inventory.zenoh.router} --config "
+              f"{inventory.zenoh.secrets / 'router.json5'})")
     for report in outcome.reports:
         print(deployer.format_report(report))
     print(deployer.summary_line(outcome, what))

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
-from formation.exits import EXIT_OK, UsageError
+from formation.exits import EXIT_ERROR, EXIT_OK, UsageError
 from formation.progress import Progress, print_summary
 from scenario import load_scenario
-from simulator.launch import FaultPlan, launch, parse_camera_dropout, parse_kill
+from simulator.launch import FaultPlan, RunAborted, launch, parse_camera_dropout, parse_kill
 from simulator.output import write_run
 
 
@@ -52,9 +53,14 @@ def run_command(ns: argparse.Namespace) -> int:
                                  topology=ns.topology, safety=not ns.no_safety, port=ns.port,
                                  progress_factory=lambda: Progress(f"run {scenario.name}",
                                                                    quiet=ns.quiet),
-                                 faults=faults, secure=getattr(ns, "secure", False),
+                                 faults=faults, secure=not getattr(ns, "insecure", False),
                                  pose_slots=slots, observer=observer,
                                  scenario_path=ns.scenario)
+    except RunAborted as stop:  # the run started: its summary says why and what it measured
+        write_run(stop.summary, stop.series, scenario, out, plots=not ns.no_plots)
+        print(f"formation run: aborted: {stop}; wrote {out / 'summary.json'} with what was "
+              f"measured until then ({stop.summary['steps']} ticks)", file=sys.stderr)
+        return 130 if stop.interrupted else EXIT_ERROR
     finally:
         if live is not None:
             live.close()

@@ -23,7 +23,8 @@ def add_client_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--connect", required=True, metavar="EP",
                    help="Zenoh endpoint of the fleet's router, e.g. tcp/192.168.1.10:7447")
     p.add_argument("--prefix", default="warehouse", help="key prefix (default warehouse)")
-    p.add_argument("--auth", metavar="FILE", help="credentials file (user:password)")
+    p.add_argument("--auth", metavar="FILE",
+                   help="credentials: OUT/secure/viewer.json5 of formation run (or user:password)")
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="stop after S seconds (default: until Ctrl-C)")
 
@@ -67,19 +68,18 @@ def _announce(view: Any) -> None:
 
 
 def _session(ns: argparse.Namespace):
-    import zenoh
 
     from formation.exits import UsageError
-    from wire.acl import read_credentials
-    from wire.zconf import ZenohSettings
+    from wire.zconf import ZenohSettings, open_session, read_auth_file
 
-    try:
-        auth = read_credentials(ns.auth) if ns.auth else None
-        conf = ZenohSettings(mode="client", connect=(ns.connect,), multicast_scouting=False,
-                             connect_timeout_s=10.0, auth=auth).to_config()
+    try:  # --auth: OUT/secure/viewer.json5 of formation run, or a user:password file
+        auth = read_auth_file(ns.auth).auth if ns.auth else None
+        settings = ZenohSettings(mode="client", connect=(ns.connect,), multicast_scouting=False,
+                                 connect_timeout_s=10.0, auth=auth)
+        settings.to_config()
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    return zenoh.open(conf)
+    return open_session(settings, "")  # says so when the router refuses the credentials
 
 
 def _check_prefix(prefix: str) -> None:
