@@ -18,6 +18,7 @@ import yaml
 
 from leader.ellipse import reference_shape
 from scenario import Scenario, formation_axes
+from wire.stamps import CLOCK_TOLERANCE_S
 
 from .control import ControlParams
 from .unicycle import control_point
@@ -25,7 +26,7 @@ from .unicycle import control_point
 CONFIG_VERSION = 1
 TOPOLOGIES = ("reduced", "all-to-all")
 BASES = ("world", "turtlebot3-humble", "turtlebot3-jazzy")
-STALE_PERIODS = 5  # inputs older than this many control periods are stale
+STALE_PERIODS = 5  # inputs older than this many pose periods (at least control periods) are stale
 
 
 @dataclass(frozen=True)
@@ -64,6 +65,10 @@ class AgentConfig:
     foreign_robots: tuple[str, ...] = ()  # all-to-all only: robots of other formations
     leader: LeaderSettings | None = None  # set on the leader robot only
     stale_after: float = 0.25  # [s] inputs older than this are stale: command zero
+    clock_tolerance: float = CLOCK_TOLERANCE_S  # [s] real time: a stamp this far ahead of the
+    # agent's clock is still accepted (camera PC and robots synchronised by chrony)
+    pose_period: float | None = None  # [s] how often poses really come (e.g. 1/15 for a 15 fps
+    # camera); None: every control period
     base: str = "world"  # where commands go: the simulated world or a real robot base
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
     cmd_vel_key: str = "cmd_vel"  # real bases: the zenoh-bridge-ros2dds key for /cmd_vel
@@ -81,8 +86,14 @@ def build_agent_configs(
     topology: str = "reduced",
     safety: bool = True,
     base: str = "world",
+    pose_period: float | None = None,
+    clock_tolerance: float = CLOCK_TOLERANCE_S,
 ) -> dict[str, AgentConfig]:
-    """One :class:`AgentConfig` per robot of ``scenario``."""
+    """One :class:`AgentConfig` per robot of ``scenario``. ``pose_period`` [s] is how often the
+    camera really delivers a pose (None: every ``dt``); the stale limit is
+    :data:`STALE_PERIODS` of the longer of the two, so the margins hold at the camera's rate."""
+    if pose_period is not None and not (math.isfinite(pose_period) and pose_period > 0):
+        raise ValueError(f"pose_period: must be a positive number, got {pose_period!r}")
     if topology not in TOPOLOGIES:
         raise ValueError(f"topology: {topology!r} is not one of {TOPOLOGIES}")
     if base not in BASES:
@@ -117,7 +128,9 @@ def build_agent_configs(
                 topology=topology,
                 foreign_robots=foreign if topology == "all-to-all" else (),
                 leader=leader if r.id == f.leader else None,
-                stale_after=STALE_PERIODS * scenario.dt,
+                stale_after=STALE_PERIODS * max(scenario.dt, pose_period or scenario.dt),
+                clock_tolerance=clock_tolerance,
+                pose_period=pose_period,
                 base=base,
                 zenoh=zenoh,
             )
@@ -167,20 +180,25 @@ def config_from_dict(d: dict[str, Any]) -> AgentConfig:
             foreign_robots=tuple(d.pop("foreign_robots", ())),
             leader=leader,
             stale_after=float(d.pop("stale_after", 0.25)),
+            clock_tolerance=float(d.pop("clock_tolerance", CLOCK_TOLERANCE_S)),
+            pose_period=None if d.get("pose_period") is None else float(d.pop("pose_period")),
             base=str(d.pop("base", "world")),
             zenoh=zenoh,
             cmd_vel_key=str(d.pop("cmd_vel_key", "cmd_vel")),
             frame_id=str(d.pop("frame_id", "base_link")),
         )
         d.pop("start", None)
+        d.pop("pose_period", None)
     except KeyError as exc:
         raise ValueError(f"agent config: missing field {exc.args[0]!r}") from None
     except TypeError as exc:
         raise ValueError(f"agent config: {exc}") from None
     if d:
         raise ValueError(f"agent config: unknown field {sorted(d)[0]!r}")
-    for name in ("period", "stale_after"):
+    for name in ("period", "stale_after", "clock_tolerance", "pose_period"):
         v = getattr(cfg, name)
+        if v is None and name == "pose_period":
+            continue
         if not (math.isfinite(v) and v > 0):
             raise ValueError(f"{name}: must be a positive number, got {v!r}")
     if cfg.topology not in TOPOLOGIES:

@@ -18,6 +18,7 @@ import numpy as np
 from agent import unicycle
 from agent.barriers import Neighbour, Obstacle
 from agent.control import ControlParams, FormationView, Stall, control_step, update_stall
+from agent.hard_rows import HardRowCounter
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
 from leader.ellipse import Ellipse, estimate, reference_shape
 from scenario import Scenario, formation_axes
@@ -128,6 +129,7 @@ def simulate(
     series = Series()
     solve_us: list[float] = []
     counts = {STATUS_RELAXED: 0, STATUS_FALLBACK: 0, STATUS_FAILED: 0}
+    hard = HardRowCounter()  # ticks on which a hard row was not met (agent.hard_rows)
     min_h = {"formation": math.inf, "obstacle": math.inf, "formations": math.inf}
     all_to_all = options.topology == "all-to-all"
     stalls = [Stall()] * n  # each robot's copy of its formation's jam state
@@ -168,6 +170,7 @@ def simulate(
             )
             res = control_step(params, tuple(state[i]), goals[i], nb, obs, others, view, solve, pair)
             results.append(res)
+            hard.add(res)
             solve_us.append(res.solve_us)
             if res.status in counts:
                 counts[res.status] += 1
@@ -209,6 +212,7 @@ def simulate(
         "sim_time_s": round(t, 6),
         **monitor.summary_fields(),
         "min_h": {key: (v if math.isfinite(v) else None) for key, v in min_h.items()},
+        "hard_row_unmet_ticks": hard.ticks,
         "qp": {
             "solves": len(solve_us),
             "infeasible": counts[STATUS_RELAXED] + counts[STATUS_FALLBACK] + counts[STATUS_FAILED],
@@ -216,6 +220,8 @@ def simulate(
             "relaxed": counts[STATUS_RELAXED],
             "fallback": counts[STATUS_FALLBACK],
             "failed": counts[STATUS_FAILED],
+            "hard_row_unmet_ticks": hard.ticks,
+            "hard_row_unmet": dict(hard.by_reason),
         },
         "comm": logical_comm(scenario, options.topology, ticks, t, edges_total),
         "safety": options.safety,

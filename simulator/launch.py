@@ -51,6 +51,7 @@ from agent.config import ZenohSettings, build_agent_configs, save_config
 from agent.faults import LinkFaults
 from scenario import Scenario, load_scenario
 from wire import acl, keys, traffic
+from wire.stamps import merge_counts
 from wire.testing import free_tcp_port, tcp_endpoint, wait_for_tcp_port
 from wire.zconf import UsrPwdAuth
 from wire.zconf import ZenohSettings as WireZenohSettings
@@ -461,7 +462,8 @@ class _FaultDriver:
             return
         self.incarnation[rid] += 1
         wall0 = time.monotonic()
-        self.agents[rid] = self.sup.start(f"agent-{rid}-{self.incarnation[rid]}", self.argv[rid])
+        argv = self.argv[rid] + ([] if self.realtime else ["--sim-start", repr(t)])
+        self.agents[rid] = self.sup.start(f"agent-{rid}-{self.incarnation[rid]}", argv)
         if not self.realtime:  # lock-step: the restart takes no simulated time
             self.world.wait_for_agents(abort=self.sup.check, robots=[rid], grace=False)
         self.log.append({"event": "restart", "robot": rid, "t_s": round(t, 6),
@@ -526,6 +528,7 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
     relaxed = sum(s["relaxed"] for s in stats)
     fallback = sum(s["fallback"] for s in stats)
     failed = sum(s["failed"] for s in stats)
+    hard_unmet = sum(s.get("hard_row_unmet_ticks", 0) for s in stats)
     min_h = {}
     for kind in ("formation", "obstacle", "formations"):
         vals = [s["min_h"][kind] for s in stats if s["min_h"][kind] is not None]
@@ -538,6 +541,7 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
         "sim_time_s": round(sim_time, 6),
         **result.monitor.summary_fields(),
         "min_h": min_h,
+        "hard_row_unmet_ticks": hard_unmet,
         "qp": {
             "solves": sum(s["solves"] for s in stats),
             "infeasible": relaxed + fallback + failed,
@@ -545,6 +549,8 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
             "relaxed": relaxed,
             "fallback": fallback,
             "failed": failed,
+            "hard_row_unmet_ticks": hard_unmet,
+            "hard_row_unmet": sum_counts(s.get("hard_row_unmet", {}) for s in stats),
         },
         "comm": comm_summary(snap, topology, n, sim_time),
         "safety": safety,
@@ -558,6 +564,13 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
             "waiting_for_pose": sum(s.get("waiting", 0) for s in stats),
             "lockstep_timeouts": sum(s.get("lockstep_timeouts", 0) for s in stats),
             "dropped": sum_counts(s["dropped"] for s in stats),
+            "stale_why": sum_counts(s.get("stale_why", {}) for s in stats),
+            "stamp_rejected": merge_counts([s.get("stamp_rejected", {}) for s in stats]),
+            "implausible": sum_counts(s.get("implausible", {}) for s in stats),
+            "obstacles_missing": sum(s.get("obstacles_missing", 0) for s in stats),
+            "obstacle_held_ticks": sum(s.get("obstacle_held_ticks", 0) for s in stats),
+            "obstacles_dropped_after_hold": sum(s.get("obstacles_dropped_after_hold", 0)
+                                                for s in stats),
             "cpu_s": {s["robot"]: s["cpu_s"] for s in stats},
             "wall_s": max((s["wall_s"] for s in stats), default=None),
             "tick_us_median": _median([s["tick_us_median"] for s in stats]),
@@ -566,6 +579,7 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
         "world": {
             "missing_cmds": result.missing_cmds,
             "malformed_cmds": result.malformed_cmds,
+            "stamp_rejected": result.stamp_rejected,
             "wall_s": result.wall_s,
             "latency_ms": _latency(result.latency_ms),
         },

@@ -10,14 +10,22 @@ Two clocks:
 
 * **lock-step** (default): publish the poses of tick k (stamped with the simulated time
   ``k * dt``), wait until every robot's command stamped ``k * dt`` has arrived (up to
-  ``cmd_timeout``; a missing command is zero velocity and counted), integrate. Deterministic and
+  ``cmd_timeout``; a missing command is zero velocity and counted), integrate. Every command
+  passes the one stamp check (:mod:`wire.stamps`) against the tick's simulated time: one stamped
+  after the tick (a forged or runaway stamp) or older than the last kept is refused and counted
+  (``stamp_rejected``), so it neither counts toward the step barrier nor replaces a good one;
+  the barrier counts only well-formed commands stamped exactly ``k * dt``. Nothing a peer sends
+  can make the world step early or wait longer than ``cmd_timeout``. Deterministic and
   as fast as the agents answer. Agents run with ``--lockstep`` and tick on pose arrival. A robot
   whose command timed out is *late*: later ticks do not wait for it until a command of its
   arrives again (a killed agent costs one timeout, then its robot just gets zero each tick).
 * **real time**: integrate on the wall clock at 1/dt with the latest command of each robot (zero
   if none arrived within ``stale_after``); poses are stamped with ``time.time()``, so the delay
   from a pose's publication to the command computed from it (which carries the same stamp) is the
-  end-to-end latency, recorded in ``latency_ms``. By default every pose of a tick leaves at once,
+  end-to-end latency, recorded in ``latency_ms``. A command is applied while its *stamp* is at
+  most ``stale_after`` old on the world's clock (not by when it arrived: a command computed from
+  a pose delayed by a router stall is not applied); a robot without one gets zero, counted in
+  ``missing_cmds`` as in lock-step. By default every pose of a tick leaves at once,
   as from one camera frame. ``pose_slots=S`` (real time, ``--camera truth``) spreads them over S
   evenly spaced slots of the period instead (robot k of N in slot ``k * S // N``), as robots
   that localise themselves on their own clocks would publish: each slot steps its own robots by
@@ -53,6 +61,7 @@ from agent import unicycle
 from scenario import Scenario
 from wire import keys
 from wire.payloads import Cmd, DecodeError, ObstacleMsg, Obstacles, Pose, decode_cmd
+from wire.stamps import CLOCK_TOLERANCE_S, EPS, StampCounter
 from wire.traffic import CountingPublisher, TrafficCounter
 
 from .inprocess import Series
@@ -112,6 +121,7 @@ class WorldResult:
     traffic: dict
     missing_cmds: int = 0  # lock-step ticks a robot's command did not arrive in time
     malformed_cmds: int = 0
+    stamp_rejected: dict = field(default_factory=dict)  # commands refused by the stamp check
     cmd_timeouts: int = 0  # lock-step: waits for a command that timed out
     camera_dropped: int = 0  # poses not published (camera dropout)
     latency_ms: list[float] = field(default_factory=list)  # real time: pose put -> cmd received
@@ -161,9 +171,14 @@ def _sleep_until(wall: float, abort: Callable[[], None]) -> None:
 class _CmdInbox:
     """Latest command per robot, filled on Zenoh's threads, read by the world's loop."""
 
-    def __init__(self, prefix: str, counter: TrafficCounter, robots: Sequence[str]) -> None:
+    def __init__(self, prefix: str, counter: TrafficCounter, robots: Sequence[str],
+                 stale_after: float = 0.25) -> None:
         self._prefix = prefix
         self._counter = counter
+        self.stamps = StampCounter()  # commands refused by the stamp check
+        self.stale_after = stale_after
+        self.realtime = False
+        self.now_t = 0.0  # lock-step: the simulated time of the tick under way
         self._robot_of = {keys.cmd_key(prefix, r): r for r in robots}  # cmd key -> robot
         self._cond = threading.Condition()
         self.latest: dict[str, tuple[Cmd, float]] = {}  # robot -> (cmd, local receive time)
@@ -189,6 +204,14 @@ class _CmdInbox:
         now = time.monotonic()
         with self._cond:
             prev = self.latest.get(rid)
+            if self.realtime:
+                clock, tolerance = time.time(), CLOCK_TOLERANCE_S
+            else:
+                clock, tolerance = self.now_t, 0.0  # only this tick's (or older) commands
+            if not self.stamps.check(keys.CMD, clock, cmd.stamp,
+                                     None if prev is None else prev[0].stamp, tolerance,
+                                     self.stale_after):
+                return
             if self.measure_latency and (prev is None or prev[0].stamp != cmd.stamp):
                 self.latency_ms.append((time.time() - cmd.stamp) * 1e3)
             self.latest[rid] = (cmd, now)
@@ -229,7 +252,8 @@ class World:
                                              self.counter) for r in self.ids]
         self._obs_pub = CountingPublisher(session.declare_publisher(keys.obstacles_key(p)),
                                           self.counter)
-        self.inbox = _CmdInbox(p, self.counter, self.ids)
+        self.inbox = _CmdInbox(p, self.counter, self.ids, options.stale_after)
+        self.inbox.realtime = options.realtime
         # one wildcard subscriber for every robot's command, called right on the Zenoh thread
         # that received it (``indirect=False``: no hand-over to a Python thread per command; the
         # callback only decodes and stores under the inbox lock)
@@ -341,23 +365,28 @@ class World:
                 continue
             stamp = time.time() if opts.realtime else t
             stamps.append(stamp)
+            if not opts.realtime:
+                with inbox._cond:
+                    inbox.now_t = t  # before the poses: no command for t exists yet
             self._publish(t, stamp, state)
             if opts.realtime:
                 next_wall += dt
                 _sleep_until(next_wall, abort)
-                now = time.monotonic()
-                with inbox._cond:
-                    got = {r: c for r, (c, rx) in inbox.latest.items()
-                           if now - rx <= opts.stale_after}
+                now = time.time()
+                with inbox._cond:  # judged by the command's stamp, not by its arrival
+                    got = {r: c for r, (c, _rx) in inbox.latest.items()
+                           if now - c.stamp <= opts.stale_after}
+                missing += sum(1 for r in self.ids if r not in got)
             else:
                 def ready(t: float = t) -> bool:
-                    return all(r in inbox.latest and inbox.latest[r][0].stamp >= t
+                    return all(r in inbox.latest and abs(inbox.latest[r][0].stamp - t) <= EPS
                                for r in self.ids if r not in inbox.late)
 
                 if not inbox.wait(ready, opts.cmd_timeout, abort):
                     timeouts += 1
                 with inbox._cond:
-                    got = {r: c for r, (c, _rx) in inbox.latest.items() if c.stamp >= t}
+                    got = {r: c for r, (c, _rx) in inbox.latest.items()
+                           if abs(c.stamp - t) <= EPS}
                     late = [r for r in self.ids if r not in got and r not in inbox.late]
                     inbox.late.update(late)
                 if late:
@@ -373,7 +402,8 @@ class World:
             steps=k + 1, sim_time=t, monitor=monitor, series=series,
             traffic=self.counter.snapshot(), missing_cmds=missing, cmd_timeouts=timeouts,
             camera_dropped=self.camera_dropped,
-            malformed_cmds=inbox.malformed, latency_ms=list(inbox.latency_ms),
+            malformed_cmds=inbox.malformed, stamp_rejected=inbox.stamps.snapshot(),
+            latency_ms=list(inbox.latency_ms),
             wall_s=time.monotonic() - wall0, stamps=stamps,
         )
 
@@ -394,11 +424,11 @@ class World:
         for s in range(slots):
             _sleep_until(start + s * dt / slots, abort)
             mine = range(-(-s * n // slots), -(-(s + 1) * n // slots))
-            now = time.monotonic()
+            wall = time.time()
             with inbox._cond:
                 for i in mine:
                     entry = inbox.latest.get(self.ids[i])
-                    if entry is not None and now - entry[1] <= opts.stale_after:
+                    if entry is not None and wall - entry[0].stamp <= opts.stale_after:
                         cmds[i] = entry[0]
             stamp = time.time()
             if s == 0:
@@ -492,6 +522,7 @@ def world_summary(result: WorldResult) -> dict:
         **result.monitor.summary_fields(),
         "missing_cmds": result.missing_cmds,
         "malformed_cmds": result.malformed_cmds,
+        "stamp_rejected": result.stamp_rejected,
         "traffic": result.traffic,
         "wall_s": result.wall_s,
         "latency_ms": result.latency_ms,
