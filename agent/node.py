@@ -311,9 +311,14 @@ class AgentNode:
         def accept(_key: str, value: tuple[Any, float], prev: tuple[Any, float] | None) -> bool:
             msg = value[0]
             last = None if prev is None else prev[0].stamp
-            if not counter.check(cls, self._now(), msg.stamp, last, self._tolerance, stale_after):
+            now = self._now()
+            if not counter.check(cls, now, msg.stamp, last, self._tolerance, stale_after):
                 return False
-            if not self._plausible(cls, msg, None if prev is None else prev[0]):
+            # plausible after the kept message while that one is fresh; a stale one says nothing
+            # any more (a robot carried elsewhere, or a forged first pose: it blocks for at most
+            # stale_after)
+            ref = None if prev is None or now - prev[0].stamp > stale_after else prev[0]
+            if not self._plausible(cls, msg, ref):
                 self.implausible[cls] = self.implausible.get(cls, 0) + 1
                 self._implausible_pending.add(cls)
                 logger.info("%s: implausible %s refused", self.cfg.robot_id, cls)
@@ -771,16 +776,16 @@ class AgentNode:
                 return self._zero(t, "others")
             others_msg = entry[0]
 
+        obstacles: Obstacles = obs_entry[0]
+        memory = self.obstacle_memory
+        memory.update(obstacles)
+        held = memory.held(stamp if t is not None else time.time())
         if self._implausible_pending:  # an input broke physics since the last tick
             self._implausible_pending.clear()
             return self._zero(t, IMPLAUSIBLE)
         nb = [Neighbour(states[k].x, states[k].y, states[k].ux, states[k].uy, df)
               for k, df in self.neighbour_keys.items()]
-        obstacles: Obstacles = obs_entry[0]
         obs = [Obstacle(o.x, o.y, o.vx, o.vy, o.ds) for o in obstacles.obstacles]
-        memory = self.obstacle_memory
-        memory.update(obstacles)
-        held = memory.held(stamp if t is not None else time.time())
         if held:  # obstacles missing from the newest list: avoided where they can have gone
             self.obstacle_held_ticks += 1
             obs += [held_obstacle(o, age, px, py) for o, age in held]
