@@ -112,7 +112,7 @@ from wire.payloads import (
     decode_pose,
     decode_state,
 )
-from wire.stamps import LOCKSTEP_AHEAD_PERIODS, StampCounter, check_stamp
+from wire.stamps import LOCKSTEP_AHEAD_PERIODS, StampCounter, check_stamp, validate_window
 from wire.traffic import CountingPublisher, Mailbox, TrafficCounter
 from wire.zconf import UsrPwdAuth, ZenohSettings
 
@@ -252,6 +252,7 @@ class AgentNode:
         self._frame = options.sim_start
         self._tolerance = (LOCKSTEP_AHEAD_PERIODS * cfg.period if options.lockstep
                            else cfg.clock_tolerance)
+        validate_window(self._tolerance, cfg.stale_after)
         self._last_pose_used: float | None = None
         self.fault_dropped = {cls: 0 for cls in (keys.STATE, keys.ELLIPSE, keys.OTHERS)}
         self.fault_delayed = 0

@@ -262,6 +262,8 @@ def run_command(ns: argparse.Namespace) -> int:
         raise UsageError(f"--pose-slots: need an integer >= 1, got {slots}")
     if slots > 1 and not (ns.realtime and ns.camera == "truth"):
         raise UsageError("--pose-slots: more than one slot needs --realtime and --camera truth")
+    if getattr(ns, "clock_offset_ms", 0.0) and not ns.realtime:
+        raise UsageError("--clock-offset-ms: needs --realtime (lock-step runs on simulated time)")
     scenario = load_scenario(ns.scenario)  # ScenarioError -> exit 2
     try:
         faults.check_robots(scenario.robot_ids)
@@ -272,7 +274,8 @@ def run_command(ns: argparse.Namespace) -> int:
                              topology=ns.topology, safety=not ns.no_safety, port=ns.port,
                              progress_factory=lambda: Progress(f"run {scenario.name}", quiet=ns.quiet),
                              faults=faults, secure=getattr(ns, "secure", False),
-                             pose_slots=slots)
+                             pose_slots=slots,
+                             clock_offset=getattr(ns, "clock_offset_ms", 0.0) / 1000.0)
     write_run(summary, series, scenario, out, plots=not ns.no_plots)
     print_summary(summary, out)
     return EXIT_OK
@@ -291,6 +294,7 @@ def launch(
     faults: FaultPlan | None = None,
     secure: bool = False,
     pose_slots: int = 1,
+    clock_offset: float = 0.0,
 ) -> tuple[dict, Series]:
     """Run ``scenario`` as separate processes; returns the summary and the time series.
 
@@ -357,7 +361,7 @@ def launch(
             cmd_timeout=FAULT_WORLD_TIMEOUT_S if fault_run else WorldOptions.cmd_timeout,
             camera_dropouts=tuple((c.robot, c.at, c.at + c.duration)
                                   for c in faults.camera_dropouts),
-            pose_slots=pose_slots)
+            pose_slots=pose_slots, clock_offset=clock_offset)
         with zenoh.open(conf) as session:
             world = World(scenario, session, options)
             driver = _FaultDriver(faults, sup, world, agents, agent_argv, scenario.dt, realtime)
@@ -383,6 +387,8 @@ def launch(
         summary["faults"] = fault_summary(faults, result, stats, driver.log)
     if creds is not None:
         summary["secure"] = {"auth": "usrpwd", "acl": str(creds.router_config)}
+    if clock_offset:
+        summary["clock_offset_s"] = clock_offset  # the camera's clock ahead of the agents'
     if pose_slots > 1:
         summary["pose_slots"] = pose_slots  # the world spread each period's poses over this many
     return summary, series

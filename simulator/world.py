@@ -93,6 +93,8 @@ class WorldOptions:
     record: bool = True
     camera_dropouts: tuple[tuple[str, float, float], ...] = ()  # (robot, from, until) [s]
     pose_slots: int = 1  # real time: publication slots per period (1: one camera frame)
+    clock_offset: float = 0.0  # [s] real time: the camera's clock runs this far ahead of the
+    # agents' (negative: behind); poses are stamped, and commands judged, on the camera's clock
 
     def __post_init__(self) -> None:
         if isinstance(self.pose_slots, bool) or not isinstance(self.pose_slots, int) \
@@ -104,6 +106,12 @@ class WorldOptions:
         for rid, t0, t1 in self.camera_dropouts:
             if not (math.isfinite(t0) and math.isfinite(t1) and 0 <= t0 < t1):
                 raise ValueError(f"camera_dropouts: {rid}: need 0 <= from < until, got {t0}, {t1}")
+        if not (isinstance(self.clock_offset, int | float) and math.isfinite(self.clock_offset)
+                and abs(self.clock_offset) <= 10.0):
+            raise ValueError(f"clock_offset: must be a number of seconds within +-10, "
+                             f"got {self.clock_offset!r}")
+        if self.clock_offset and not self.realtime:
+            raise ValueError("clock_offset: needs real time (lock-step runs on simulated time)")
         if self.camera not in CAMERAS:
             raise ValueError(f"camera: {self.camera!r} is not one of {CAMERAS}")
         for name in ("cmd_timeout", "start_timeout", "stale_after"):
@@ -178,6 +186,7 @@ class _CmdInbox:
         self.stamps = StampCounter()  # commands refused by the stamp check
         self.stale_after = stale_after
         self.realtime = False
+        self.clock_offset = 0.0  # [s] real time: the camera's clock minus the wall clock
         self.now_t = 0.0  # lock-step: the simulated time of the tick under way
         self._robot_of = {keys.cmd_key(prefix, r): r for r in robots}  # cmd key -> robot
         self._cond = threading.Condition()
@@ -205,7 +214,7 @@ class _CmdInbox:
         with self._cond:
             prev = self.latest.get(rid)
             if self.realtime:
-                clock, tolerance = time.time(), CLOCK_TOLERANCE_S
+                clock, tolerance = time.time() + self.clock_offset, CLOCK_TOLERANCE_S
             else:
                 clock, tolerance = self.now_t, 0.0  # only this tick's (or older) commands
             if not self.stamps.check(keys.CMD, clock, cmd.stamp,
@@ -213,7 +222,7 @@ class _CmdInbox:
                                      self.stale_after):
                 return
             if self.measure_latency and (prev is None or prev[0].stamp != cmd.stamp):
-                self.latency_ms.append((time.time() - cmd.stamp) * 1e3)
+                self.latency_ms.append((time.time() + self.clock_offset - cmd.stamp) * 1e3)
             self.latest[rid] = (cmd, now)
             self.late.discard(rid)
             self._cond.notify_all()
@@ -254,6 +263,7 @@ class World:
                                           self.counter)
         self.inbox = _CmdInbox(p, self.counter, self.ids, options.stale_after)
         self.inbox.realtime = options.realtime
+        self.inbox.clock_offset = options.clock_offset
         # one wildcard subscriber for every robot's command, called right on the Zenoh thread
         # that received it (``indirect=False``: no hand-over to a Python thread per command; the
         # callback only decodes and stores under the inbox lock)
@@ -356,14 +366,14 @@ class World:
             if opts.pose_slots > 1:
                 # each slot steps its robots over the previous period, then publishes them: the
                 # same rows and checks as below, one period later
-                stamps.append(time.time())
+                stamps.append(time.time() + opts.clock_offset)
                 before = state
                 state, cmds = self._publish_slots(k, state, next_wall, abort)
                 next_wall += dt
                 if settle(k, t - dt, before if k > 0 else None, cmds, t, state):
                     break
                 continue
-            stamp = time.time() if opts.realtime else t
+            stamp = time.time() + opts.clock_offset if opts.realtime else t
             stamps.append(stamp)
             if not opts.realtime:
                 with inbox._cond:
@@ -372,7 +382,7 @@ class World:
             if opts.realtime:
                 next_wall += dt
                 _sleep_until(next_wall, abort)
-                now = time.time()
+                now = time.time() + opts.clock_offset
                 with inbox._cond:  # judged by the command's stamp, not by its arrival
                     got = {r: c for r, (c, _rx) in inbox.latest.items()
                            if now - c.stamp <= opts.stale_after}
@@ -424,13 +434,13 @@ class World:
         for s in range(slots):
             _sleep_until(start + s * dt / slots, abort)
             mine = range(-(-s * n // slots), -(-(s + 1) * n // slots))
-            wall = time.time()
+            wall = time.time() + opts.clock_offset
             with inbox._cond:
                 for i in mine:
                     entry = inbox.latest.get(self.ids[i])
                     if entry is not None and wall - entry[0].stamp <= opts.stale_after:
                         cmds[i] = entry[0]
-            stamp = time.time()
+            stamp = wall
             if s == 0:
                 self._publish_obstacles(t, stamp)
             for i in mine:

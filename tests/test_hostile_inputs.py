@@ -21,6 +21,7 @@ import time
 from collections import deque
 from pathlib import Path
 
+import pytest
 import zenoh
 
 from formation.cli import main
@@ -231,3 +232,28 @@ def test_old_forged_and_implausible_inputs_in_real_time_are_refused_counted_and_
            for s in sc.robot_ids}
     assert all(p["implausible"].get("pose", 0) > 0 for p in per.values())
     assert all(p["implausible"].get("state", 0) > 0 for p in per.values())
+
+
+@pytest.mark.parametrize("offset_ms, reason", [(60, None), (250, "future")])
+def test_a_camera_clock_off_by_more_than_the_window_stops_the_robots_and_is_counted(
+        tmp_path, offset_ms, reason):
+    # the world stamps poses on a camera clock offset_ms ahead of the agents' (chrony keeps real
+    # ones within a few ms): inside the window (0.1 s ahead, stale_after less latency behind)
+    # the run goes on; beyond it every pose is refused, counted, and no robot moves
+    scenario = tmp_path / "short.yaml"
+    scenario.write_text(TWO.read_text(encoding="utf-8").replace("duration: 40.0", "duration: 2.0"),
+                        encoding="utf-8")
+    assert main(["run", str(scenario), "--out", str(tmp_path / "run"), "--quiet", "--no-plots",
+                 "--realtime", "--clock-offset-ms", str(offset_ms)]) == 0
+    run = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert run["clock_offset_s"] == offset_ms / 1000.0 and run["collisions"] == 0
+    rejected = run["agents"]["stamp_rejected"].get("pose", {})
+    if reason is None:
+        assert not rejected and run["qp"]["solves"] > 100
+    else:
+        assert rejected[reason] > 50 and run["qp"]["solves"] == 0
+        assert run["agents"]["waiting_for_pose"] > 20  # zero commands, counted
+
+
+def test_a_clock_offset_needs_real_time(tmp_path):
+    assert main(["run", str(TWO), "--out", str(tmp_path / "o"), "--clock-offset-ms", "50"]) == 2
