@@ -133,3 +133,15 @@ def test_summary_json_counts_hard_row_ticks_apart_from_minimal_formation_relaxat
     line = capsys.readouterr().out
     assert "minimally relaxed (by design)" in line and "every hard row met" in line
     assert (out / "safety.png").exists()
+
+
+def test_a_run_that_enters_an_obstacle_counts_and_says_its_hard_row_ticks(tmp_path, capsys):
+    # safety off: the pair drives through the forklift's safe distance; every tick with the
+    # obstacle barrier below zero is counted, in the summary and in the summary line
+    out = tmp_path / "unsafe"
+    assert main(["sim", str(ROOT / "tests" / "scenarios" / "crossing-forklift.yaml"), "--out",
+                 str(out), "--quiet", "--no-plots", "--no-safety"]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["collisions"] > 0 and s["min_h"]["obstacle"] < 0
+    assert s["hard_row_unmet_ticks"] == s["qp"]["hard_row_unmet"]["obstacle"] > 0
+    assert f"hard rows NOT met on {s['hard_row_unmet_ticks']} ticks" in capsys.readouterr().out
