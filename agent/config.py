@@ -100,6 +100,9 @@ def build_agent_configs(
         raise ValueError(f"base: {base!r} is not one of {BASES}")
     zenoh = zenoh or ZenohSettings()
     params = ControlParams.from_scenario(scenario, safety=safety)
+    if pose_period is not None and pose_period > scenario.dt:
+        # ticks come with the poses: the unicycle's sampling margin is sized for their period
+        params = dataclasses.replace(params, period=pose_period)
     off = scenario.robot.control_offset
     out: dict[str, AgentConfig] = {}
     for f in scenario.formations:

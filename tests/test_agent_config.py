@@ -91,3 +91,15 @@ def test_the_stale_limit_follows_a_camera_slower_than_the_control_period(tmp_pat
     d["clock_tolerance"] = -1.0
     with pytest.raises(ValueError, match="clock_tolerance"):
         config_from_dict(d)
+
+
+def test_a_unicycles_sampling_margin_is_sized_for_the_camera_period_not_the_control_period():
+    scenario = load_scenario(ROOT / "tests/scenarios/unicycle-crossing.yaml")
+    dt = scenario.dt
+    base = build_agent_configs(scenario)
+    slow = build_agent_configs(scenario, pose_period=2 * dt)
+    rid = scenario.robot_ids[0]
+    assert base[rid].control.period == dt
+    assert slow[rid].control.period == 2 * dt
+    assert slow[rid].control.sampling_margin == pytest.approx(2 * base[rid].control.sampling_margin)
+    assert base[rid].control.sampling_margin > 0
