@@ -76,16 +76,17 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeGuard
 
 import zenoh
 
-from agent.barriers import Neighbour, Obstacle
-from agent.base import make_base
+from agent.barriers import Obstacle
+from agent.base import Base, make_base
 from agent.config import AgentConfig
-from agent.control import FormationView, Stall, StepResult, control_step, update_stall
+from agent.control import Stall, StepResult, control_step
 from agent.faults import EPS, DelayLine, LinkFaults, lag
 from agent.hard_rows import HardRowCounter
+from agent.inputs import step_inputs
 from agent.plausibility import (
     JUMP_MARGIN_M,
     ObstacleMemory,
@@ -112,7 +113,7 @@ from wire.payloads import (
     decode_pose,
     decode_state,
 )
-from wire.stamps import LOCKSTEP_AHEAD_PERIODS, StampCounter, check_stamp, validate_window
+from wire.stamps import FUTURE, LOCKSTEP_AHEAD_PERIODS, StampCounter, check_stamp, validate_window
 from wire.traffic import CountingPublisher, Mailbox, TrafficCounter
 from wire.zconf import UsrPwdAuth, ZenohSettings
 
@@ -241,6 +242,7 @@ class AgentNode:
         self.stale_why: dict[str, int] = {}  # stale ticks by the input that was stale
         # the one stamp check (wire.stamps) at every mailbox: rejections per class and reason
         self.stamps = StampCounter()
+        self.lockstep_catch_ups = 0  # lock-step: future frames taken after the world went on
         self.implausible: dict[str, int] = {}  # inputs refused as physically impossible, by class
         self._implausible_pending: set[str] = set()  # classes refused since the last tick
         self._speed = speed_bound(cfg.control)  # [m/s] plausibility bound
@@ -279,7 +281,7 @@ class AgentNode:
         self._subs: list[Any] = []
         self._rings: list[tuple[Any, Callable[[zenoh.Sample], None]]] = []  # polled subscribers
         self._pubs: dict[str, CountingPublisher] = {}
-        self._base = None  # a real robot base adapter (agent.base), when cfg.base is not "world"
+        self._base: Base | None = None  # a real robot base adapter (agent.base), when cfg.base is not "world"
         self._stall = Stall()  # this member's copy of its formation's jam state
         self._boxes: dict[str, Mailbox] = {}
         self._arrived: asyncio.Event | None = None
@@ -313,7 +315,12 @@ class AgentNode:
             msg = value[0]
             last = None if prev is None else prev[0].stamp
             now = self._now()
-            if not counter.check(cls, now, msg.stamp, last, self._tolerance, stale_after):
+            reason = check_stamp(now, msg.stamp, last, self._tolerance, stale_after)
+            if reason == FUTURE and self._starved():
+                reason = None  # lock-step: the world went on without this agent; catch up
+                self.lockstep_catch_ups += 1
+            if reason is not None:
+                counter.count(cls, reason)
                 return False
             # plausible after the kept message while that one is fresh; a stale one says nothing
             # any more (a robot carried elsewhere, or a forged first pose: it blocks for at most
@@ -327,6 +334,13 @@ class AgentNode:
             return True
 
         return accept
+
+    def _starved(self) -> bool:
+        """Lock-step: this agent has ticked before but not for ``lockstep_timeout``: the world
+        stopped waiting for it (it was late) and its frames may now run more than the window
+        ahead; the next one is taken (counted ``lockstep_catch_ups``), not refused for ever."""
+        return (self.options.lockstep and self.ticks > 0
+                and time.monotonic() - self._last_tick > self.options.lockstep_timeout)
 
     def _plausible(self, cls: str, msg: Any, prev: Any | None) -> bool:
         """Whether ``msg`` is physically possible after ``prev`` (agent.plausibility)."""
@@ -419,6 +433,7 @@ class AgentNode:
             return on_sample
 
         wildcard_cap = RING_CAPACITY * max(1, len(self.foreign_keys) + len(self.neighbour_keys))
+        sub: Any
         for k, cls in self.subscribed_keys.items():
             if polled and cls != keys.POSE:
                 cap = wildcard_cap if (self.all_to_all and cls == keys.STATE) else RING_CAPACITY
@@ -530,8 +545,9 @@ class AgentNode:
         """Open, tick until ``stop`` is set, close."""
         self._stop = stop
         loop = asyncio.get_running_loop()
-        await loop.run_in_executor(None, self.open, loop)
         try:
+            # inside the try: a session opened by an open() that fails half-way is closed too
+            await loop.run_in_executor(None, self.open, loop)
             if self.options.lockstep:
                 await self._lockstep_loop()
             elif self.options.tick_on_pose:
@@ -633,7 +649,7 @@ class AgentNode:
             if newest > last:  # a new frame: its pose or its obstacles arrived
                 last = newest
                 self._frame = max(self._frame, last)  # the lock-step clock (wire.stamps)
-                started = time.monotonic()
+                started = self._last_tick = time.monotonic()
                 await self.tick(last)
                 self.tick_us.append((time.monotonic() - started) * 1e6)
                 continue
@@ -684,7 +700,7 @@ class AgentNode:
         box = self._boxes.get(cls)
         return None if box is None else box.latest(key)
 
-    def _fresh(self, entry: tuple[Any, float] | None, t: float | None) -> bool:
+    def _fresh(self, entry: tuple[Any, float] | None, t: float | None) -> TypeGuard[tuple[Any, float]]:
         """Whether a (message, receive time) entry is fresh for the tick at pose stamp ``t``
         (lock-step) or now (real time: by its stamp against the wall clock, not by when it
         arrived): the stale part of :func:`wire.stamps.check_stamp` (future stamps and older
@@ -732,11 +748,13 @@ class AgentNode:
             self._put_cmd(Cmd(0.0, 0.0, 0.0, 0.0, self.last_stamp if t is None else t))
             return None
         if not self._fresh(pose_entry, t) or (t is not None and pose_entry[0].stamp < t - EPS):
-            return self._zero(t, "pose")  # lock-step: no pose in this frame (camera dropout)
+            self._zero(t, "pose")  # lock-step: no pose in this frame (camera dropout)
+            return None
         pose: Pose = pose_entry[0]
         if check_stamp(self._now() if t is None else t, pose.stamp, self._last_pose_used,
                        self._tolerance, cfg.stale_after) is not None:
-            return self._zero(t, "pose")  # (cannot happen: the mailbox keeps stamps in order)
+            self._zero(t, "pose")  # (cannot happen: the mailbox keeps stamps in order)
+            return None
         self._last_pose_used = pose.stamp
         if t is None:
             self.pose_age_us.append((time.monotonic() - pose_entry[1]) * 1e6)
@@ -757,62 +775,76 @@ class AgentNode:
         if t is not None:
             await self._wait_current(self._tick_inputs(state_keys), stamp)
 
-        # freshness of every input
+        fresh = self._fresh_inputs(state_keys, ts, others_ready)
+        if isinstance(fresh, str):
+            self._zero(t, fresh)
+            return None
+        states, obstacles, others_msg = fresh
+        obs = self._obstacles(obstacles, stamp if t is not None else time.time(), px, py)
+        if self._implausible_pending:  # an input broke physics since the last tick
+            self._implausible_pending.clear()
+            self._zero(t, IMPLAUSIBLE)
+            return None
+        inputs = step_inputs(
+            ((states[k].x, states[k].y, states[k].ux, states[k].uy, df)
+             for k, df in self.neighbour_keys.items()),
+            None if others_msg.own is None else msg_to_ellipse(others_msg.own),
+            cfg.formation, cfg.formation_goal,
+            [(m.formation, msg_to_ellipse(m)) for m in others_msg.ellipses],
+            self._stall, cfg.period,  # the jam rule's memory
+            [(states[k].x, states[k].y, states[k].ux, states[k].uy) for k in self.foreign_keys]
+            if self.all_to_all else None,
+        )
+        self._stall = inputs.stall
+        res = control_step(cfg.control, (pose.x, pose.y, pose.theta), cfg.goal, inputs.neighbours,
+                           obs, inputs.others, inputs.view, solve_exact, inputs.pairwise,
+                           clock=time.perf_counter_ns)
+        if t is None and time.time() - stamp > cfg.stale_after:
+            self._zero(t, POSE_AT_SEND)  # never send a command from a pose gone stale
+            return None
+        self._put_cmd(Cmd(res.v, res.omega, res.ux, res.uy, stamp))
+        self.last_u = (res.ux, res.uy)
+        self._record(res, stamp)
+        return res
+
+    def _fresh_inputs(self, state_keys: tuple[str, ...], ts: float | None, others_ready: bool
+                      ) -> tuple[dict[str, State], Obstacles, Others] | str:
+        """Every input of the step if all are fresh (``ts``: lock-step reference stamp), else
+        the name of the first stale one (the reason counted for the zero command)."""
         states: dict[str, State] = {}
         for k in state_keys:
             entry = self._latest(keys.STATE, k)
             if not self._fresh(entry, ts):
-                return self._zero(t, "state")
+                return "state"
             states[k] = entry[0]
         obs_entry = self._latest(keys.OBSTACLES, self.obstacles_key)
         if not self._fresh(obs_entry, ts):
-            return self._zero(t, "obstacles")
+            return "obstacles"
         if self.role is not None:
             if not others_ready or self._own_others is None:
-                return self._zero(t, "ellipse")
-            others_msg = self._own_others
-        else:
-            entry = self._latest(keys.OTHERS, self.others_key)
-            if not self._fresh(entry, ts):
-                return self._zero(t, "others")
-            others_msg = entry[0]
+                return "ellipse"
+            return states, obs_entry[0], self._own_others
+        entry = self._latest(keys.OTHERS, self.others_key)
+        if not self._fresh(entry, ts):
+            return "others"
+        return states, obs_entry[0], entry[0]
 
-        obstacles: Obstacles = obs_entry[0]
+    def _obstacles(self, obstacles: Obstacles, now: float, px: float, py: float) -> list[Obstacle]:
+        """The step's obstacles: the newest list's, plus those missing from it but seen within
+        the hold time, grown where they can have gone (agent.plausibility; counted)."""
         memory = self.obstacle_memory
         memory.update(obstacles)
-        held = memory.held(stamp if t is not None else time.time())
-        if self._implausible_pending:  # an input broke physics since the last tick
-            self._implausible_pending.clear()
-            return self._zero(t, IMPLAUSIBLE)
-        nb = [Neighbour(states[k].x, states[k].y, states[k].ux, states[k].uy, df)
-              for k, df in self.neighbour_keys.items()]
         obs = [Obstacle(o.x, o.y, o.vx, o.vy, o.ds) for o in obstacles.obstacles]
-        if held:  # obstacles missing from the newest list: avoided where they can have gone
+        held = memory.held(now)
+        if held:
             self.obstacle_held_ticks += 1
             obs += [held_obstacle(o, age, px, py) for o, age in held]
-        view = None
-        if others_msg.own is not None:
-            view = FormationView(msg_to_ellipse(others_msg.own), *cfg.formation_goal)
-            self._stall = update_stall(self._stall, view, cfg.period)  # the jam rule's memory
-            view = view._replace(
-                name=cfg.formation,
-                other_names=tuple(m.formation for m in others_msg.ellipses),
-                retreating=self._stall.retreat > 0.0,
-            )
-        if self.all_to_all:
-            ellipses = []
-            pair = [Neighbour(states[k].x, states[k].y, states[k].ux, states[k].uy, 0.0)
-                    for k in self.foreign_keys]
-        else:
-            ellipses = [msg_to_ellipse(m) for m in others_msg.ellipses]
-            pair = []
-        res = control_step(cfg.control, (pose.x, pose.y, pose.theta), cfg.goal, nb, obs,
-                           ellipses, view, solve_exact, pair)
-        if t is None and time.time() - stamp > cfg.stale_after:
-            return self._zero(t, POSE_AT_SEND)  # never send a command from a stale pose
-        self._put_cmd(Cmd(res.v, res.omega, res.ux, res.uy, stamp))
+        return obs
+
+    def _record(self, res: StepResult, stamp: float) -> None:
+        """Count a solved step: statuses, lowest barrier values, hard rows not met, solve time,
+        trace row."""
         self.hard.add(res)
-        self.last_u = (res.ux, res.uy)
         self.solves += 1
         self.solve_us.append(res.solve_us)
         if res.status in self.status_counts:
@@ -824,7 +856,6 @@ class AgentNode:
             self.trace.append((stamp, res.px, res.py, res.ux, res.uy, res.v, res.omega, res.status,
                                res.slack, res.h_formation, res.h_obstacle, res.h_formations,
                                res.solve_us))
-        return res
 
     def _tick_inputs(self, state_keys: tuple[str, ...]) -> list[tuple[str, str]]:
         inputs = [(keys.STATE, k) for k in state_keys]
@@ -917,6 +948,7 @@ class AgentNode:
             "lockstep_timeouts": self.lockstep_timeouts,
             "stale_why": dict(self.stale_why),
             "stamp_rejected": self.stamps.snapshot(),
+            "lockstep_catch_ups": self.lockstep_catch_ups,
             "implausible": dict(self.implausible),
             "obstacles_missing": self.obstacle_memory.missing,
             "obstacles_dropped_after_hold": self.obstacle_memory.dropped,

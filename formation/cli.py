@@ -12,13 +12,12 @@ import argparse
 import logging
 import sys
 from collections.abc import Sequence
-from pathlib import Path
 
-EXIT_OK, EXIT_ERROR, EXIT_INVALID = 0, 1, 2
+from .exits import EXIT_ERROR, EXIT_INVALID, EXIT_OK, UsageError
+from .progress import Progress, print_summary
 
-
-class UsageError(ValueError):
-    """Invalid input detected by a subcommand: exit status 2, one line."""
+__all__ = ["EXIT_ERROR", "EXIT_INVALID", "EXIT_OK", "Progress", "UsageError", "build_parser", "main",
+           "print_summary"]
 
 
 def _add_sim_args(p: argparse.ArgumentParser) -> None:
@@ -93,36 +92,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def cmd_check(ns: argparse.Namespace) -> int:
-    from scenario import load_scenario
-
-    s = load_scenario(ns.scenario)
-    n = len(s.robot_ids)
-    print(f"{ns.scenario}: ok ({s.name}: {len(s.formations)} formations, {n} robots, "
-          f"{len(s.obstacles)} obstacles, {s.robot.model})")
-    return EXIT_OK
-
-
-def cmd_sim(ns: argparse.Namespace) -> int:
-    from agent.qp import make_solver
-    from scenario import load_scenario
-    from simulator.inprocess import SimOptions, simulate
-    from simulator.output import write_run
-
-    scenario = load_scenario(ns.scenario)
-    try:
-        make_solver(ns.solver)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    out = Path(ns.out)
-    opts = SimOptions(safety=not ns.no_safety, solver=ns.solver, topology=ns.topology)
-    with Progress(f"sim {scenario.name}", quiet=ns.quiet) as progress:
-        result = simulate(scenario, opts, progress=progress.update)
-    write_run(result.summary, result.series, scenario, out, plots=not ns.no_plots)
-    print_summary(result.summary, out)
-    return EXIT_OK
-
-
 def _lazy(module: str, func: str):
     def run(ns: argparse.Namespace) -> int:
         import importlib
@@ -133,84 +102,14 @@ def _lazy(module: str, func: str):
 
 
 COMMANDS = {
-    "check": cmd_check,
-    "sim": cmd_sim,
-    "run": _lazy("simulator.launch", "run_command"),
-    "commcost": _lazy("simulator.commcost", "commcost_command"),
-    "montecarlo": _lazy("simulator.montecarlo", "montecarlo_command"),
-    "bench": _lazy("formation.bench", "bench_command"),
-    "deploy": _lazy("deploy.cli", "deploy_command"),
+    "check": _lazy("formation.commands.check", "cmd_check"),
+    "sim": _lazy("formation.commands.sim", "cmd_sim"),
+    "run": _lazy("formation.commands.run", "run_command"),
+    "commcost": _lazy("formation.commands.commcost", "commcost_command"),
+    "montecarlo": _lazy("formation.commands.montecarlo", "montecarlo_command"),
+    "bench": _lazy("formation.commands.bench", "bench_command"),
+    "deploy": _lazy("formation.commands.deploy", "deploy_command"),
 }
-
-
-class Progress:
-    """A one-line progress display on stderr (redrawn in place on a terminal).
-
-    The bar runs against the scenario's duration; a run that ends early (every goal reached)
-    closes it at full with the time it ended."""
-
-    def __init__(self, label: str, quiet: bool = False) -> None:
-        self.label = label
-        self.quiet = quiet
-        self.tty = sys.stderr.isatty()
-        self._last = -1
-        self._time = 0.0
-
-    def __enter__(self) -> Progress:
-        return self
-
-    def update(self, done: int, total: int, sim_time: float) -> None:
-        self._time = sim_time
-        if self.quiet or total <= 0:
-            return
-        pct = int(100 * done / total)
-        step = 1 if self.tty else 10
-        if pct // step == self._last // step and done != total:
-            return
-        self._last = pct
-        self._draw(done / total, f"{pct:3d}%  t={sim_time:7.2f} s")
-
-    def _draw(self, fraction: float, tail: str) -> None:
-        width = 30
-        fill = int(width * fraction)
-        line = f"{self.label} [{'#' * fill}{'.' * (width - fill)}] {tail}"
-        sys.stderr.write(("\r" + line) if self.tty else (line + "\n"))
-        sys.stderr.flush()
-
-    def __exit__(self, exc_type, *exc) -> None:
-        if self.quiet:
-            return
-        if exc_type is None and self._last >= 0 and self._last < 100:
-            self._draw(1.0, f"done  t={self._time:7.2f} s")
-        if self.tty:
-            sys.stderr.write("\n")
-            sys.stderr.flush()
-
-
-def _qp_words(summary: dict) -> str:
-    """The QP part of the summary line: formation rows relaxed minimally when the QP was
-    infeasible (by design) apart from ticks on which a hard row was not met (a failure)."""
-    qp = summary["qp"]
-    hard = summary.get("hard_row_unmet_ticks", qp.get("hard_row_unmet_ticks"))
-    words = (f"formation rows minimally relaxed (by design) on {qp.get('relaxed', 0)} of "
-             f"{qp['solves']} ticks")
-    if hard is not None:
-        words += f"; hard rows NOT met on {hard} ticks" if hard else "; every hard row met"
-    return words
-
-
-def print_summary(summary: dict, out: Path) -> None:
-    ok = summary["all_reached"] and summary["collisions"] == 0
-    ttg = summary["time_to_goal_s"]
-    print(
-        f"{summary['scenario']} ({summary['mode']}): "
-        f"{'all robots reached their goals' if summary['all_reached'] else 'NOT all goals reached'}"
-        f"{f' at t={ttg:.2f} s' if ttg is not None else ''}; collisions {summary['collisions']}; "
-        f"max formation error {summary['formation_error_max_m']:.4f} m; "
-        f"{_qp_words(summary)}"
-        + ("" if ok else "  [UNSAFE OR INCOMPLETE]")
-    )
-    print(f"wrote {out / 'summary.json'} and figures in {out}/")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -220,11 +119,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=logging.DEBUG if ns.verbose else logging.WARNING,
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
     )
+    from formation.outdir import check_out
     from scenario import ScenarioError
     from wire.zconf import use_zenoh_threads
 
     use_zenoh_threads("relay")  # this process (world, bench); agents and routers set their own
     try:
+        check_out(ns.command, getattr(ns, "out", None))  # a bad --out: exit 2 before any work
         return COMMANDS[ns.command](ns)
     except (ScenarioError, UsageError) as exc:
         print(f"formation {ns.command}: error: {exc}", file=sys.stderr)

@@ -29,42 +29,33 @@ timeout and is then not waited for until it speaks again. ``summary.json`` gains
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import math
-import os
 import signal
 import statistics
-import subprocess
-import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from types import FrameType
-from typing import IO
 
 import zenoh
 
-from agent.config import ZenohSettings, build_agent_configs, save_config
+from agent.config import build_agent_configs
 from agent.faults import LinkFaults
-from scenario import Scenario, load_scenario
+from scenario import Scenario
 from wire import acl, keys, traffic
+from wire.ports import free_tcp_port, tcp_endpoint
 from wire.stamps import merge_counts
-from wire.testing import free_tcp_port, tcp_endpoint, wait_for_tcp_port
-from wire.zconf import UsrPwdAuth
-from wire.zconf import ZenohSettings as WireZenohSettings
+from wire.zconf import UsrPwdAuth, ZenohSettings
 
+from .fleet import START_TIMEOUT_S, STOP_TIMEOUT_S, Child, ChildFailed, Fleet, signal_group
 from .inprocess import Series
-from .output import write_run
+from .summary import qp_fields, run_summary
 from .world import World, WorldOptions, WorldResult
 
 logger = logging.getLogger(__name__)
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
-STOP_TIMEOUT_S = 5.0  # [s] SIGTERM -> SIGKILL
-START_TIMEOUT_S = 60.0  # [s] router listening, agents subscribed
 INTER_ROBOT = (keys.STATE, keys.ELLIPSE, keys.OTHERS)  # classes the topology decides
 FAULT_AGENT_TIMEOUT_S = 0.3  # [s] lock-step wait per input of an agent in a fault run
 FAULT_WORLD_TIMEOUT_S = 1.5  # [s] lock-step wait for a tick's commands in a fault run
@@ -157,130 +148,6 @@ def parse_camera_dropout(text: str) -> CameraDropout:
     return CameraDropout(robot, _number(at, "camera-dropout"), _number(duration, "camera-dropout"))
 
 
-class ChildFailed(RuntimeError):
-    """A child process exited while the run needed it."""
-
-
-@dataclass
-class Child:
-    name: str
-    proc: subprocess.Popen
-    log: IO[bytes]
-
-
-class Supervisor:
-    """Starts children in their own process groups and stops every one of them."""
-
-    def __init__(self, log_dir: Path) -> None:
-        self.log_dir = log_dir
-        self.children: list[Child] = []
-        self.env = dict(os.environ)
-        self.env["PYTHONPATH"] = os.pathsep.join(
-            p for p in (str(REPO_ROOT), self.env.get("PYTHONPATH", "")) if p)
-
-    def start(self, name: str, argv: Sequence[str]) -> Child:
-        log = (self.log_dir / f"{name}.log").open("wb")
-        try:
-            proc = subprocess.Popen([sys.executable, *argv], env=self.env, stdin=subprocess.DEVNULL,
-                                    stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
-        except BaseException:
-            log.close()
-            raise
-        child = Child(name, proc, log)
-        self.children.append(child)
-        return child
-
-    def check(self) -> None:
-        """Raise :class:`ChildFailed` if any child has exited."""
-        for c in self.children:
-            code = c.proc.poll()
-            if code is not None:
-                path = self.log_dir / f"{c.name}.log"
-                c.log.flush()
-                try:
-                    tail = path.read_text(encoding="utf-8", errors="replace").strip().splitlines()[-3:]
-                except OSError:
-                    tail = []
-                raise ChildFailed(f"{c.name} exited with status {code} (see {path})"
-                                  + (": " + " | ".join(tail) if tail else ""))
-
-    def stop(self, children: Sequence[Child] | None = None, timeout: float = STOP_TIMEOUT_S) -> None:
-        """SIGTERM to each child's process group, wait, SIGKILL what is left."""
-        targets = list(self.children if children is None else children)
-        for c in targets:
-            if c.proc.poll() is None:
-                _signal_group(c.proc.pid, signal.SIGTERM)
-        deadline = time.monotonic() + timeout
-        for c in targets:
-            try:
-                c.proc.wait(max(0.0, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                logger.warning("%s (pid %d) ignored SIGTERM; killing it", c.name, c.proc.pid)
-            _signal_group(c.proc.pid, signal.SIGKILL)  # whatever is left in its group
-            if c.proc.poll() is None:
-                c.proc.wait(timeout)
-            c.log.close()
-        if children is None:
-            self.children.clear()
-        else:
-            self.children = [c for c in self.children if c not in targets]
-
-
-def _signal_group(pid: int, sig: int) -> None:
-    try:
-        os.killpg(pid, sig)
-    except (ProcessLookupError, PermissionError):
-        pass
-
-
-def _raise_interrupt(signum: int, _frame: FrameType | None) -> None:
-    raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
-
-
-def run_command(ns: argparse.Namespace) -> int:
-    """``formation run``; see the module docstring. Returns the exit status."""
-    from formation.cli import EXIT_OK, Progress, UsageError, print_summary
-
-    try:
-        faults = FaultPlan(
-            drop=ns.drop, delay_ms=ns.delay_ms, seed=getattr(ns, "fault_seed", 0),
-            kills=tuple(parse_kill(k) for k in getattr(ns, "kill", None) or ()),
-            camera_dropouts=tuple(parse_camera_dropout(c)
-                                  for c in getattr(ns, "camera_dropout", None) or ()),
-        )
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    if ns.camera == "synthetic":
-        try:
-            import camera_service.service  # noqa: F401
-        except ImportError:
-            raise UsageError("--camera synthetic: camera_service.service is not available yet") from None
-    if not 0 <= ns.port < 65536:
-        raise UsageError(f"--port: {ns.port} is not a TCP port")
-    slots = getattr(ns, "pose_slots", 1)
-    if slots < 1:
-        raise UsageError(f"--pose-slots: need an integer >= 1, got {slots}")
-    if slots > 1 and not (ns.realtime and ns.camera == "truth"):
-        raise UsageError("--pose-slots: more than one slot needs --realtime and --camera truth")
-    if getattr(ns, "clock_offset_ms", 0.0) and not ns.realtime:
-        raise UsageError("--clock-offset-ms: needs --realtime (lock-step runs on simulated time)")
-    scenario = load_scenario(ns.scenario)  # ScenarioError -> exit 2
-    try:
-        faults.check_robots(scenario.robot_ids)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    out = Path(ns.out)
-    summary, series = launch(scenario, out, realtime=ns.realtime, camera=ns.camera,
-                             topology=ns.topology, safety=not ns.no_safety, port=ns.port,
-                             progress_factory=lambda: Progress(f"run {scenario.name}", quiet=ns.quiet),
-                             faults=faults, secure=getattr(ns, "secure", False),
-                             pose_slots=slots,
-                             clock_offset=getattr(ns, "clock_offset_ms", 0.0) / 1000.0)
-    write_run(summary, series, scenario, out, plots=not ns.no_plots)
-    print_summary(summary, out)
-    return EXIT_OK
-
-
 def launch(
     scenario: Scenario,
     out: Path,
@@ -311,48 +178,26 @@ def launch(
         old.unlink()
     port = port or free_tcp_port()
     endpoint = tcp_endpoint(port)
-    sup = Supervisor(out / "logs")
     fault_run = faults.active
-    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
-    try:
+    with Fleet(out / "logs") as fleet:
         creds = _secure_setup(scenario, out / "secure", endpoint) if secure else None
-        router_argv = ["-m", "wire.router", "--listen", endpoint, "--log-level", "WARNING"]
-        if creds is not None:
-            router_argv += ["--config", str(creds.router_config)]
-        router = sup.start("router", router_argv)
-        deadline = time.monotonic() + START_TIMEOUT_S
-        while True:
-            sup.check()
-            try:
-                wait_for_tcp_port(port, timeout_s=0.2)
-                break
-            except TimeoutError:
-                if time.monotonic() > deadline:
-                    raise
+        router = fleet.start_router(endpoint, port, None if creds is None else creds.router_config)
         zs = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False)
         configs = build_agent_configs(scenario, zenoh=zs, topology=topology, safety=safety)
-        agent_argv: dict[str, list[str]] = {}
-        agents: dict[str, Child] = {}
-        for rid, cfg in configs.items():
-            path = out / "configs" / f"{rid}.yaml"
-            save_config(cfg, path)
-            argv = ["-m", "agent", "--config", str(path), "--stats", str(out / "agents" / f"{rid}.json")]
-            if not realtime:
-                argv.append("--lockstep")
+
+        def agent_args(rid: str) -> list[str]:
+            argv = [] if realtime else ["--lockstep"]
             if fault_run:
                 argv += ["--drop", repr(faults.drop), "--delay-ms", repr(faults.delay_ms),
                          "--fault-seed", str(faults.seed), "--ellipse-hold", repr(faults.ellipse_hold),
                          "--lockstep-timeout", repr(FAULT_AGENT_TIMEOUT_S)]
             if creds is not None:
                 argv += ["--zenoh-auth", str(creds.files[rid])]
-            agent_argv[rid] = argv
-            agents[rid] = sup.start(f"agent-{rid}", argv)
-        # written whole, then renamed: a reader never sees half a file
-        tmp = out / "processes.json.tmp"
-        tmp.write_text(json.dumps({c.name: c.proc.pid for c in sup.children}, indent=2) + "\n",
-                       encoding="utf-8")
-        tmp.replace(out / "processes.json")
-        conf = WireZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
+            return argv
+
+        agents = fleet.start_agents(configs, out, agent_args)
+        fleet.write_pids(out / "processes.json")
+        conf = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
                                  connect_timeout_s=10.0,
                                  auth=None if creds is None else creds.world).to_config()
         options = WorldOptions(
@@ -364,22 +209,18 @@ def launch(
             pose_slots=pose_slots, clock_offset=clock_offset)
         with zenoh.open(conf) as session:
             world = World(scenario, session, options)
-            driver = _FaultDriver(faults, sup, world, agents, agent_argv, scenario.dt, realtime)
+            driver = _FaultDriver(faults, fleet, world, agents, scenario.dt, realtime)
             try:
-                world.wait_for_agents(abort=sup.check)
+                world.wait_for_agents(abort=fleet.check)
                 if progress_factory is not None:
                     with progress_factory() as progress:
-                        result = world.run(progress=progress.update, abort=sup.check,
+                        result = world.run(progress=progress.update, abort=fleet.check,
                                            on_tick=driver.on_tick if fault_run else None)
                 else:
-                    result = world.run(abort=sup.check, on_tick=driver.on_tick if fault_run else None)
+                    result = world.run(abort=fleet.check, on_tick=driver.on_tick if fault_run else None)
             finally:
                 world.close()
-        sup.stop(list(agents.values()))  # agents write their stats on SIGTERM
-        sup.stop([router])
-    finally:
-        sup.stop()
-        signal.signal(signal.SIGTERM, previous)
+        fleet.shut_down(list(agents.values()), router)
     stats = [_read_stats(out / "agents" / f"{rid}.json") if rid in agents
              else _dead_stats(cfg) for rid, cfg in configs.items()]
     summary, series = build_summary(scenario, result, stats, topology, realtime, camera, safety)
@@ -425,12 +266,12 @@ def _secure_setup(scenario: Scenario, folder: Path, endpoint: str) -> _Secure:
 class _FaultDriver:
     """Kills and restarts agents at their simulated times (``World.run(on_tick=...)``)."""
 
-    def __init__(self, plan: FaultPlan, sup: Supervisor, world: World, agents: dict[str, Child],
-                 argv: dict[str, list[str]], dt: float, realtime: bool) -> None:
-        self.sup = sup
+    def __init__(self, plan: FaultPlan, fleet: Fleet, world: World, agents: dict[str, Child],
+                 dt: float, realtime: bool) -> None:
+        self.fleet = fleet
         self.world = world
         self.agents = agents
-        self.argv = argv
+        self.argv = fleet.agent_argv
         self.realtime = realtime
         self.log: list[dict] = []
         # (tick, order, action, robot): kills before restarts within a tick
@@ -456,8 +297,8 @@ class _FaultDriver:
         if child is None:
             logger.warning("kill %s at t=%.2f s: its agent is not running", rid, t)
             return
-        _signal_group(child.proc.pid, signal.SIGKILL)
-        self.sup.stop([child])  # reaps it, closes its log
+        signal_group(child.proc.pid, signal.SIGKILL)
+        self.fleet.stop([child])  # reaps it, closes its log
         gone = self.world.wait_unsubscribed(rid)
         logger.info("killed agent %s at t=%.2f s (router saw it go: %s)", rid, t, gone)
         self.log.append({"event": "kill", "robot": rid, "t_s": round(t, 6)})
@@ -469,9 +310,10 @@ class _FaultDriver:
         self.incarnation[rid] += 1
         wall0 = time.monotonic()
         argv = self.argv[rid] + ([] if self.realtime else ["--sim-start", repr(t)])
-        self.agents[rid] = self.sup.start(f"agent-{rid}-{self.incarnation[rid]}", argv)
+        self.agents[rid] = self.fleet.start(f"agent-{rid}-{self.incarnation[rid]}", argv)
         if not self.realtime:  # lock-step: the restart takes no simulated time
-            self.world.wait_for_agents(abort=self.sup.check, robots=[rid], grace=False)
+            self.world.wait_for_agents(abort=self.fleet.check, robots=[rid], grace=False)
+            self.world.inbox.expect(rid)  # and waits for its commands from the first tick
         self.log.append({"event": "restart", "robot": rid, "t_s": round(t, 6),
                          "start_wall_s": round(time.monotonic() - wall0, 3)})
 
@@ -540,30 +382,14 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
         vals = [s["min_h"][kind] for s in stats if s["min_h"][kind] is not None]
         min_h[kind] = min(vals) if vals else None
     snap = traffic.merge([result.traffic, *(s["traffic"] for s in stats)])
-    summary = {
-        "scenario": scenario.name,
-        "mode": "multiprocess",
-        "steps": result.steps,
-        "sim_time_s": round(sim_time, 6),
-        **result.monitor.summary_fields(),
-        "min_h": min_h,
-        "hard_row_unmet_ticks": hard_unmet,
-        "qp": {
-            "solves": sum(s["solves"] for s in stats),
-            "infeasible": relaxed + fallback + failed,
-            "solve_us_median": statistics.median(solve_us) if solve_us else None,
-            "relaxed": relaxed,
-            "fallback": fallback,
-            "failed": failed,
-            "hard_row_unmet_ticks": hard_unmet,
-            "hard_row_unmet": sum_counts(s.get("hard_row_unmet", {}) for s in stats),
-        },
-        "comm": comm_summary(snap, topology, n, sim_time),
-        "safety": safety,
-        "solver": "exact",
-        "realtime": realtime,
-        "camera": camera,
-        "agents": {
+    summary = run_summary(
+        scenario, "multiprocess", result.steps, sim_time, result.monitor, min_h,
+        qp_fields(sum(s["solves"] for s in stats), solve_us, relaxed, fallback, failed,
+                  hard_unmet, sum_counts(s.get("hard_row_unmet", {}) for s in stats)),
+        comm_summary(snap, topology, n, sim_time), safety, "exact",
+        realtime=realtime,
+        camera=camera,
+        agents={
             "ticks": sum(s["ticks"] for s in stats),
             "overruns": sum(s["overruns"] for s in stats),
             "stale": sum(s["stale"] for s in stats),
@@ -572,6 +398,7 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
             "dropped": sum_counts(s["dropped"] for s in stats),
             "stale_why": sum_counts(s.get("stale_why", {}) for s in stats),
             "stamp_rejected": merge_counts([s.get("stamp_rejected", {}) for s in stats]),
+            "lockstep_catch_ups": sum(s.get("lockstep_catch_ups", 0) for s in stats),
             "implausible": sum_counts(s.get("implausible", {}) for s in stats),
             "obstacles_missing": sum(s.get("obstacles_missing", 0) for s in stats),
             "obstacle_held_ticks": sum(s.get("obstacle_held_ticks", 0) for s in stats),
@@ -582,15 +409,14 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
             "tick_us_median": _median([s["tick_us_median"] for s in stats]),
             "pose_age_us_median": _median([s.get("pose_age_us_median") for s in stats]),
         },
-        "world": {
+        world={
             "missing_cmds": result.missing_cmds,
             "malformed_cmds": result.malformed_cmds,
             "stamp_rejected": result.stamp_rejected,
             "wall_s": result.wall_s,
             "latency_ms": _latency(result.latency_ms),
         },
-        "collision_log": result.monitor.collision_log[:100],
-    }
+    )
     return summary, series
 
 
@@ -670,3 +496,7 @@ def _latency(ms: list[float]) -> dict | None:
     xs = sorted(ms)
     return {"samples": len(xs), "median_ms": statistics.median(xs),
             "p99_ms": xs[min(len(xs) - 1, int(math.ceil(0.99 * len(xs))) - 1)], "max_ms": xs[-1]}
+
+
+Supervisor = Fleet  # the former name, kept for callers outside this package
+__all__ = ["START_TIMEOUT_S", "STOP_TIMEOUT_S", "Child", "ChildFailed", "Fleet", "Supervisor"]

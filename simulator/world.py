@@ -227,6 +227,38 @@ class _CmdInbox:
             self.late.discard(rid)
             self._cond.notify_all()
 
+    def expect(self, rid: str) -> None:
+        """Lock-step: wait for ``rid``'s commands again (a restarted agent), instead of only once
+        one of them arrives: the world does not run ahead of it."""
+        with self._cond:
+            self.late.discard(rid)
+
+    def begin_tick(self, t: float) -> None:
+        """Lock-step: the tick at simulated time ``t`` starts (before its poses go out): the
+        stamp check's clock for the commands that arrive from now on."""
+        with self._cond:
+            self.now_t = t
+
+    def fresh(self, now: float, max_age: float, robots: Sequence[str] | None = None) -> dict[str, Cmd]:
+        """The latest command of each robot (of ``robots``; default every one heard) whose
+        *stamp* is at most ``max_age`` before ``now`` (the camera's clock: ``time.time()`` plus
+        the clock offset), however late it arrived."""
+        with self._cond:
+            if robots is None:
+                return {r: c for r, (c, _rx) in self.latest.items() if now - c.stamp <= max_age}
+            entries = ((r, self.latest.get(r)) for r in robots)
+            return {r: e[0] for r, e in entries if e is not None and now - e[0].stamp <= max_age}
+
+    def take_since(self, t: float, robots: Sequence[str]) -> tuple[dict[str, Cmd], list[str]]:
+        """Lock-step: the commands stamped exactly ``t`` (the step barrier counts nothing else),
+        and the robots of ``robots`` that sent none and were not late already (now marked
+        late)."""
+        with self._cond:
+            got = {r: c for r, (c, _rx) in self.latest.items() if abs(c.stamp - t) <= EPS}
+            late = [r for r in robots if r not in got and r not in self.late]
+            self.late.update(late)
+        return got, late
+
     def wait(self, ready: Callable[[], bool], timeout: float, abort: Callable[[], None]) -> bool:
         """Wait until ``ready()`` (checked under the lock) or the timeout; ``abort()`` is called
         between waits, outside the lock, and may raise."""
@@ -294,7 +326,7 @@ class World:
         for rid, pub in zip(self.ids, self._pose_pubs, strict=True):
             if robots is not None and rid not in robots:
                 continue
-            while not pub.publisher.matching_status.matching:
+            while not pub.publisher.matching_status.matching:  # type: ignore[attr-defined]
                 abort()
                 if time.monotonic() > deadline:
                     raise TimeoutError(f"agent {rid} did not subscribe to its pose within "
@@ -308,7 +340,7 @@ class World:
         timeout passed first."""
         pub = self._pose_pubs[self.ids.index(rid)]
         deadline = time.monotonic() + timeout
-        while pub.publisher.matching_status.matching:
+        while pub.publisher.matching_status.matching:  # type: ignore[attr-defined]
             if time.monotonic() > deadline:
                 return False
             time.sleep(0.01)
@@ -330,7 +362,8 @@ class World:
         dt = sc.dt
         is_uni = sc.robot.is_unicycle
         off = sc.robot.control_offset
-        state = [tuple(r.start) for r in sc.robots]
+        state: list[tuple[float, float, float]] = [
+            (r.start[0], r.start[1], r.start[2]) for r in sc.robots]
         n = len(state)
         monitor = SafetyMonitor(sc)
         series = Series()
@@ -376,16 +409,13 @@ class World:
             stamp = time.time() + opts.clock_offset if opts.realtime else t
             stamps.append(stamp)
             if not opts.realtime:
-                with inbox._cond:
-                    inbox.now_t = t  # before the poses: no command for t exists yet
+                inbox.begin_tick(t)  # before the poses: no command for t exists yet
             self._publish(t, stamp, state)
             if opts.realtime:
                 next_wall += dt
                 _sleep_until(next_wall, abort)
-                now = time.time() + opts.clock_offset
-                with inbox._cond:  # judged by the command's stamp, not by its arrival
-                    got = {r: c for r, (c, _rx) in inbox.latest.items()
-                           if now - c.stamp <= opts.stale_after}
+                # judged by the command's stamp, not by its arrival
+                got = inbox.fresh(time.time() + opts.clock_offset, opts.stale_after)
                 missing += sum(1 for r in self.ids if r not in got)
             else:
                 def ready(t: float = t) -> bool:
@@ -394,11 +424,7 @@ class World:
 
                 if not inbox.wait(ready, opts.cmd_timeout, abort):
                     timeouts += 1
-                with inbox._cond:
-                    got = {r: c for r, (c, _rx) in inbox.latest.items()
-                           if abs(c.stamp - t) <= EPS}
-                    late = [r for r in self.ids if r not in got and r not in inbox.late]
-                    inbox.late.update(late)
+                got, late = inbox.take_since(t, self.ids)
                 if late:
                     logger.info("tick %d: no command from %s in time: zero", k, ", ".join(late))
                 missing += sum(1 for r in self.ids if r not in got)
@@ -434,13 +460,10 @@ class World:
         for s in range(slots):
             _sleep_until(start + s * dt / slots, abort)
             mine = range(-(-s * n // slots), -(-(s + 1) * n // slots))
-            wall = time.time() + opts.clock_offset
-            with inbox._cond:
-                for i in mine:
-                    entry = inbox.latest.get(self.ids[i])
-                    if entry is not None and wall - entry[0].stamp <= opts.stale_after:
-                        cmds[i] = entry[0]
-            stamp = wall
+            stamp = time.time() + opts.clock_offset  # the camera's clock
+            fresh = inbox.fresh(stamp, opts.stale_after, [self.ids[i] for i in mine])
+            for i in mine:
+                cmds[i] = fresh.get(self.ids[i])
             if s == 0:
                 self._publish_obstacles(t, stamp)
             for i in mine:

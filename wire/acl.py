@@ -51,9 +51,9 @@ CAMERA_RULE = "camera-publish"
 
 
 def _check_user(name: str, what: str) -> str:
-    keys.validate_id(name, what)
-    if ":" in name:
-        raise ValueError(f"{what} {name!r} must not contain ':' (the dictionary separator)")
+    problem = keys.user_problem(name)  # robots' names follow keys.name_problem, stricter
+    if problem is not None:
+        raise ValueError(f"{what} {name!r} {problem}")
     return name
 
 
@@ -179,7 +179,7 @@ def write_fleet_files(scenario_path: str | os.PathLike[str], folder: str | os.Pa
     (plus ``camera.credentials``) for a scenario's fleet, with fresh passwords, in ``folder``."""
     from scenario import load_scenario
 
-    sc = load_scenario(scenario_path)
+    sc = load_scenario(Path(scenario_path))
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
     out.chmod(0o700)

@@ -1,0 +1,54 @@
+"""``formation run SCENARIO --out DIR``: the multi-process run over Zenoh (see :mod:`simulator.launch`)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from formation.exits import EXIT_OK, UsageError
+from formation.progress import Progress, print_summary
+from scenario import load_scenario
+from simulator.launch import FaultPlan, launch, parse_camera_dropout, parse_kill
+from simulator.output import write_run
+
+
+def run_command(ns: argparse.Namespace) -> int:
+    """``formation run``; see the module docstring. Returns the exit status."""
+    try:
+        faults = FaultPlan(
+            drop=ns.drop, delay_ms=ns.delay_ms, seed=getattr(ns, "fault_seed", 0),
+            kills=tuple(parse_kill(k) for k in getattr(ns, "kill", None) or ()),
+            camera_dropouts=tuple(parse_camera_dropout(c)
+                                  for c in getattr(ns, "camera_dropout", None) or ()),
+        )
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if ns.camera == "synthetic":
+        try:
+            import camera_service.service  # noqa: F401
+        except ImportError:
+            raise UsageError("--camera synthetic: camera_service.service is not available yet") from None
+    if not 0 <= ns.port < 65536:
+        raise UsageError(f"--port: {ns.port} is not a TCP port")
+    slots = getattr(ns, "pose_slots", 1)
+    if slots < 1:
+        raise UsageError(f"--pose-slots: need an integer >= 1, got {slots}")
+    if slots > 1 and not (ns.realtime and ns.camera == "truth"):
+        raise UsageError("--pose-slots: more than one slot needs --realtime and --camera truth")
+    if getattr(ns, "clock_offset_ms", 0.0) and not ns.realtime:
+        raise UsageError("--clock-offset-ms: needs --realtime (lock-step runs on simulated time)")
+    scenario = load_scenario(ns.scenario)  # ScenarioError -> exit 2
+    try:
+        faults.check_robots(scenario.robot_ids)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    out = Path(ns.out)
+    summary, series = launch(scenario, out, realtime=ns.realtime, camera=ns.camera,
+                             topology=ns.topology, safety=not ns.no_safety, port=ns.port,
+                             progress_factory=lambda: Progress(f"run {scenario.name}", quiet=ns.quiet),
+                             faults=faults, secure=getattr(ns, "secure", False),
+                             pose_slots=slots,
+                             clock_offset=getattr(ns, "clock_offset_ms", 0.0) / 1000.0)
+    write_run(summary, series, scenario, out, plots=not ns.no_plots)
+    print_summary(summary, out)
+    return EXIT_OK
