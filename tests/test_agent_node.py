@@ -344,3 +344,29 @@ def test_in_real_time_a_silent_camera_ends_in_deadline_ticks_that_command_zero(c
     assert seen["zero_after"] <= cfg.stale_after + 2 * span + 0.5
     last = peer.commands()[-1]
     assert (last.v, last.omega, last.ux, last.uy) == (0.0, 0.0, 0.0, 0.0)
+
+
+def test_lock_step_refuses_frames_beyond_its_window_unless_the_world_went_on_without_it(configs):
+    from agent.node import _stamped
+    from wire.payloads import decode_pose
+    from wire.traffic import Mailbox
+
+    cfg = configs["r1"]
+    node = AgentNode(cfg, NodeOptions(lockstep=True, lockstep_timeout=0.3, sim_start=4.0))
+    box = Mailbox(None, _stamped(decode_pose), accept=node._acceptor(keys.POSE))
+    key = keys.pose_key(P, "r1")
+
+    def offer(stamp: float) -> bool:
+        before = box.rejected
+        box.offer(key, encode(Pose(-3.25, 0.125, 0.0, stamp)))
+        return box.rejected == before
+
+    assert not offer(0.0)  # before the time this (restarted) agent joined at: stale
+    assert offer(4.0) and offer(4.0 + cfg.period)  # its frame, and the next one
+    assert not offer(30.0)  # far ahead of the frame it is on: refused, blocks nothing
+    assert offer(4.0 + 2 * cfg.period)
+    assert node.stamps.snapshot()["pose"] == {"future": 1, "stale": 1, "older": 0}
+    # it ticked, then nothing for longer than lockstep_timeout: the world stopped waiting for
+    # it, so the next frame is taken even though it is beyond the window
+    node.ticks, node._last_tick = 1, time.monotonic() - 1.0
+    assert offer(12.0) and node.lockstep_catch_ups == 1
