@@ -16,11 +16,12 @@ logger = logging.getLogger(__name__)
 
 
 def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: bool = True,
-                 pose_slots: int = 1) -> dict:
+                 pose_slots: int = 1, viewer: bool = False) -> dict:
     """Run ``n`` agent processes in real time against the simulated world for ``duration``
     seconds (see the module docstring); every process started here is stopped on every way out.
     ``tick_on_pose=False`` runs the agents with ``--clock-ticks`` (their own clock);
-    ``pose_slots`` is the world's (:class:`simulator.world.WorldOptions`)."""
+    ``pose_slots`` is the world's (:class:`simulator.world.WorldOptions`); ``viewer`` attaches
+    ``formation view --connect`` to the router (the live page and Foxglove WebSocket)."""
     import zenoh
 
     from wire.zconf import use_zenoh_threads
@@ -44,6 +45,8 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
         zs = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False)
         agents = fleet.start_agents(build_agent_configs(scenario, zenoh=zs), work,
                                     lambda _rid: ["--no-trace", *([] if tick_on_pose else ["--clock-ticks"])])
+        if viewer:
+            fleet.start("viewer", ["-m", "formation", "view", "--connect", endpoint, "--port", "0"])
         conf = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
                                  connect_timeout_s=10.0).to_config()
         options = WorldOptions(realtime=True, stop_at_goal=False, record=False, pose_slots=pose_slots,

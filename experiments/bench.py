@@ -1,6 +1,6 @@
 """``formation bench``: how fast the control step, the QP and the multi-process fleet are.
 
-Six measurements, written to ``bench.json`` and as a table (``bench.txt`` and stdout):
+Eight measurements, written to ``bench.json`` and as a table (``bench.txt`` and stdout):
 
 * **step**: one robot's full control step (:func:`agent.control.control_step`: nominal command,
   barrier rows, QP) for a robot of a 4-robot formation with 2 obstacles and 3 other formations
@@ -26,6 +26,11 @@ Six measurements, written to ``bench.json`` and as a table (``bench.txt`` and st
   stale ticks (zero commands) by the input that was stale.
 * **inprocess**: simulation throughput (robot-steps per second) of ``formation sim`` on the
   warehouse scenario.
+* **viewer** (:mod:`experiments.recording`): ``recording``, the same throughput without the time series,
+  with it, and with ``run.mcap`` written too; ``agents_viewer``, the first fleet of **agents**
+  again with ``formation view`` attached to its router (the latency a live viewer costs).
+* **camera**: capture -> publish latency (p50, p99) of the real camera process at 1280x960,
+  15 fps, 16 robots (:mod:`camera_service.bench`).
 * **scenario_loading**: validating and loading 100- and 1,000-robot fleet files
   (:mod:`scenario.bench`).
 
@@ -59,6 +64,7 @@ from agent.qp import Row, qpsolvers_solver, solve_exact
 from experiments.agents import bench_agents
 from experiments.central import CENTRAL_BACKENDS, bench_central
 from experiments.machine import load_avg, percentile, timed
+from experiments.recording import bench_recording
 from geometry.ellipse import Ellipse
 from scenario.bench import QUICK_SIZES, SIZES, bench_loading, format_loading
 
@@ -172,7 +178,7 @@ def bench_step(n: int, backends: Sequence[str] = BACKENDS) -> dict:
     res = control_step(p, pose, goal, nb, obs, others, view, clock=time.perf_counter_ns)
     rows = build_rows(p, pose[0], pose[1], pose[2], (res.nominal_ux, res.nominal_uy), nb, obs,
                       others, view)
-    qp_rows = rows.limits + rows.hard + rows.soft
+    qp_rows = rows.limits + list(rows.contact) + rows.hard + rows.soft
     nux, nuy = res.nominal_ux, res.nominal_uy
     full = timed(lambda: control_step(p, pose, goal, nb, obs, others, view, clock=time.perf_counter_ns), n)
     build = timed(lambda: build_rows(p, pose[0], pose[1], pose[2], (nux, nuy), nb, obs, others,
@@ -240,6 +246,12 @@ def run_bench(quick: bool = False, scenario: Path = DEFAULT_SCENARIO,
                  for n, dt in ({} if quick else SLOT_FLEETS).items()}
         clock = {str(n): bench_agents(n, dt, duration, base / f"clock-{n}", tick_on_pose=False)
                  for n, dt in ({} if quick else CLOCK_FLEETS).items()}
+        # the first fleet again with the live viewer attached to its router
+        n, dt = next(iter(fleets.items()))
+        watched = {str(n): bench_agents(n, dt, duration, base / f"viewer-{n}", viewer=True)}
+    from camera_service.bench import bench_camera
+
+    camera = bench_camera(frames=30 if quick else 450)
     return {
         "machine": {"python": platform.python_version(), "processor": platform.processor() or
                     platform.machine(), "cpus": os.cpu_count(), "quick": quick,
@@ -255,6 +267,9 @@ def run_bench(quick: bool = False, scenario: Path = DEFAULT_SCENARIO,
         "agents_clock_ticks": clock,
         "inprocess": inproc,
         "scenario_loading": loading,
+        "agents_viewer": watched,
+        "camera": camera,
+        "recording": bench_recording(scenario, 10.0 if quick else None, rounds=1 if quick else 3),
     }
 
 
@@ -296,6 +311,7 @@ def format_table(result: dict) -> str:
     fleets = [(n, a) for n, a in result["agents"].items()]
     fleets += [(f"{n}s", a) for n, a in result.get("agents_pose_slots", {}).items()]
     fleets += [(f"{n}c", a) for n, a in result.get("agents_clock_ticks", {}).items()]
+    fleets += [(f"{n}v", a) for n, a in result.get("agents_viewer", {}).items()]
     for n, a in fleets:
         parts = a["latency_parts_ms_median"]
         lines.append(
@@ -311,6 +327,7 @@ def format_table(result: dict) -> str:
     if result.get("agents_clock_ticks"):
         lines.append("  Nc: agents ticking on their own clock (--clock-ticks); the others tick on pose "
                      "arrival")
+    lines.append("  Nv: the first fleet again with `formation view` attached to the router")
     lines.append("  wait: pose received -> tick starts; tick: tick start -> command put; net: the rest "
                  "(router both ways, Zenoh and Python threads, CPU queueing); medians")
     lines.append("  cpu %: per agent (median), of one core; all %: agents + router + world; other %: "
@@ -320,6 +337,17 @@ def format_table(result: dict) -> str:
     lines.append(f"in-process simulation, {ip['scenario']} ({ip['robots']} robots, {ip['ticks']} "
                  f"ticks): {ip['robot_steps_per_s']:.0f} robot-steps/s wall, "
                  f"{_f(ip['robot_steps_per_cpu_s'], '.0f')} per CPU second")
+    rec = result.get("recording")
+    if rec:
+        r = rec["robot_steps_per_s"]
+        lines.append(f"  {rec['scenario']}, robot-steps/s: loop alone {r['loop_only']:.0f}, with the "
+                     f"time series {r['with_series']:.0f}, with run.mcap written too "
+                     f"{r['with_mcap']:.0f} ({rec['record_ms_per_tick']:.2f} ms and "
+                     f"{rec['mcap_bytes_per_tick'] / 1e3:.1f} kB per tick of recording)")
+    if result.get("camera"):
+        from camera_service.bench import format_camera
+
+        lines += ["", *format_camera(result["camera"])]
     if "scenario_loading" in result:
         lines.append(format_loading(result["scenario_loading"]))
     lines.append(f"machine: {result['machine']['cpus']} CPUs, load average "

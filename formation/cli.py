@@ -27,6 +27,16 @@ def _add_sim_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress display")
 
 
+def _add_view_args(p: argparse.ArgumentParser, client: bool = False, serve: bool = True,
+                   port: bool = True) -> None:
+    from formation.commands.view import add_client_args, add_serve_args
+
+    if client:
+        add_client_args(p)
+    if serve:
+        add_serve_args(p, port=port)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="formation",
@@ -54,7 +64,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pose-slots", type=int, default=1, metavar="S",
                    help="real time, --camera truth: publish the poses in S slots spread over each "
                         "period instead of all at once (default 1)")
-    p.add_argument("--camera", default="truth", choices=["truth", "synthetic"])
+    p.add_argument("--camera", default="truth", choices=["truth", "synthetic", "process"],
+                   help="poses from the truth, from frames detected in the world (synthetic), or "
+                        "from the real camera process on rendered frames (process)")
     p.add_argument("--topology", default="reduced", choices=["reduced", "all-to-all"])
     p.add_argument("--drop", type=float, default=0.0, help="message loss probability")
     p.add_argument("--delay-ms", type=float, default=0.0, help="added message delay [ms]")
@@ -67,6 +79,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="user/password authentication and the fleet's access control list")
     p.add_argument("--no-safety", action="store_true")
     p.add_argument("--port", type=int, default=0, help="router TCP port on 127.0.0.1 (0: free)")
+    p.add_argument("--live", type=int, default=None, metavar="PORT",
+                   help="serve the live page on http://127.0.0.1:PORT/ (and Foxglove on PORT+1)")
+    _add_view_args(p, port=False)
 
     p = sub.add_parser("commcost", help="communication cost of both topologies")
     p.add_argument("--formations", default="2,4,8")
@@ -81,6 +96,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True)
     p.add_argument("--quick", action="store_true", help="smoke mode (CI)")
 
+    p = sub.add_parser("view", help="the live page of a running fleet (read-only)")
+    _add_view_args(p, client=True)
+    p = sub.add_parser("record", help="record a running fleet into DIR/run.mcap")
+    _add_view_args(p, client=True, serve=False)
+    p.add_argument("--out", required=True)
+    p = sub.add_parser("replay", help="serve a recording (run.mcap) to the page")
+    p.add_argument("recording", help="a run.mcap")
+    _add_view_args(p)
+    p.add_argument("--speed", type=float, default=None, help="start at this speed (default 1)")
+    p.add_argument("--loop", action="store_true", help="start again at the end")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="stop after S seconds (default: until Ctrl-C)")
+
     p = sub.add_parser("deploy", help="put agents on robots over SSH")
     p.add_argument("inventory")
     p.add_argument("scenario")
@@ -89,6 +117,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--start", action="store_true")
     g.add_argument("--stop", action="store_true")
     g.add_argument("--status", action="store_true")
+
+    from camera_service.cli import add_parsers as add_camera_parsers  # camera, calibrate
+    COMMANDS.update(add_camera_parsers(sub))
     return parser
 
 
@@ -109,6 +140,9 @@ COMMANDS = {
     "montecarlo": _lazy("formation.commands.montecarlo", "montecarlo_command"),
     "bench": _lazy("formation.commands.bench", "bench_command"),
     "deploy": _lazy("formation.commands.deploy", "deploy_command"),
+    "view": _lazy("formation.commands.view", "view_command"),
+    "record": _lazy("formation.commands.view", "record_command"),
+    "replay": _lazy("formation.commands.view", "replay_command"),
 }
 
 

@@ -161,6 +161,8 @@ def launch(
     faults: FaultPlan | None = None,
     secure: bool = False,
     pose_slots: int = 1,
+    observer=None,
+    scenario_path: str | Path | None = None,
     clock_offset: float = 0.0,
 ) -> tuple[dict, Series]:
     """Run ``scenario`` as separate processes; returns the summary and the time series.
@@ -168,8 +170,14 @@ def launch(
     ``faults`` injects the faults of :class:`FaultPlan`; ``secure`` runs the router with
     user/password authentication and the access control list of :mod:`wire.acl`, every process
     logging in as itself. ``pose_slots`` is the world's (:class:`simulator.world.WorldOptions`:
-    real time only)."""
+    real time only). ``observer(session)``, when given, is called with the world's session
+    before the run (a live viewer subscribes on it) and returns what detaches it after.
+    ``camera="process"`` also starts the real camera process
+    (``python -m camera_service``) on the frames the world renders; it reads the static obstacles
+    from ``scenario_path``."""
     faults = faults or FaultPlan()
+    if camera == "process" and scenario_path is None:
+        raise ValueError("scenario_path: --camera process needs the scenario file")
     faults.check_robots(scenario.robot_ids)
     out = Path(out)
     for sub in ("configs", "agents", "logs"):
@@ -182,6 +190,9 @@ def launch(
     with Fleet(out / "logs") as fleet:
         creds = _secure_setup(scenario, out / "secure", endpoint) if secure else None
         router = fleet.start_router(endpoint, port, None if creds is None else creds.router_config)
+        camera_child = None
+        if camera == "process" and scenario_path is not None:  # checked above
+            camera_child = _start_camera(fleet, scenario, scenario_path, out, endpoint, creds)
         zs = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False)
         configs = build_agent_configs(scenario, zenoh=zs, topology=topology, safety=safety)
 
@@ -209,6 +220,7 @@ def launch(
             pose_slots=pose_slots, clock_offset=clock_offset)
         with zenoh.open(conf) as session:
             world = World(scenario, session, options)
+            detach = observer(session) if observer is not None else None
             driver = _FaultDriver(faults, fleet, world, agents, scenario.dt, realtime)
             try:
                 world.wait_for_agents(abort=fleet.check)
@@ -219,8 +231,13 @@ def launch(
                 else:
                     result = world.run(abort=fleet.check, on_tick=driver.on_tick if fault_run else None)
             finally:
+                if detach is not None:
+                    detach()
                 world.close()
-        fleet.shut_down(list(agents.values()), router)
+        fleet.stop(list(agents.values()))  # agents write their stats on SIGTERM
+        if camera_child is not None:
+            fleet.stop([camera_child])  # prints its counters on SIGTERM
+        fleet.stop([router])
     stats = [_read_stats(out / "agents" / f"{rid}.json") if rid in agents
              else _dead_stats(cfg) for rid, cfg in configs.items()]
     summary, series = build_summary(scenario, result, stats, topology, realtime, camera, safety)
@@ -228,11 +245,37 @@ def launch(
         summary["faults"] = fault_summary(faults, result, stats, driver.log)
     if creds is not None:
         summary["secure"] = {"auth": "usrpwd", "acl": str(creds.router_config)}
-    if clock_offset:
-        summary["clock_offset_s"] = clock_offset  # the camera's clock ahead of the agents'
+    if camera == "process":
+        summary["camera_process"] = _camera_stats(out / "logs" / "camera.log")
     if pose_slots > 1:
         summary["pose_slots"] = pose_slots  # the world spread each period's poses over this many
     return summary, series
+
+
+def _start_camera(fleet: Fleet, scenario: Scenario, scenario_path: str | Path, out: Path,
+                  endpoint: str, creds: _Secure | None) -> Child:
+    """``--camera process``: write the camera process's files into ``out/camera`` and start it
+    (logging in as the camera user when secure)."""
+    from camera_service.simcam import FramePublisher, write_camera_files
+
+    geometry = FramePublisher(scenario, None, keys.DEFAULT_PREFIX)
+    config = write_camera_files(geometry, scenario, scenario_path, out / "camera", endpoint,
+                                keys.DEFAULT_PREFIX)
+    argv = ["-m", "camera_service", str(config)]
+    if creds is not None:
+        path = out / "secure" / "camera.credentials"
+        acl.write_credentials(path, creds.world)
+        argv += ["--auth", str(path)]
+    return fleet.start("camera", argv)
+
+
+def _camera_stats(log: Path) -> dict | None:
+    """The counters the camera process printed as its last line (None if it printed none)."""
+    try:
+        lines = log.read_text(encoding="utf-8", errors="replace").strip().splitlines()
+        return json.loads(lines[-1])["camera"] if lines else None
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
 
 
 @dataclass(frozen=True)
@@ -250,9 +293,10 @@ def _secure_setup(scenario: Scenario, folder: Path, endpoint: str) -> _Secure:
     folder.chmod(0o700)
     robots = {rid: scenario.formation_of(rid).name for rid in scenario.robot_ids}
     leaders = {f.name: f.leader for f in scenario.formations}
-    creds = acl.new_credentials([acl.CAMERA_USER, *robots])
+    creds = acl.new_credentials([acl.CAMERA_USER, acl.VIEWER_USER, *robots])
     dictionary = folder / "users.txt"
     acl.write_dictionary(dictionary, creds)
+    acl.write_credentials(folder / "viewer.credentials", creds[acl.VIEWER_USER])  # view --auth
     files = {}
     for rid in robots:
         files[rid] = folder / f"{rid}.credentials"
@@ -413,6 +457,7 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
             "missing_cmds": result.missing_cmds,
             "malformed_cmds": result.malformed_cmds,
             "stamp_rejected": result.stamp_rejected,
+            "clock_offset_s": result.clock_offset,  # real time: the camera's clock ahead
             "wall_s": result.wall_s,
             "latency_ms": _latency(result.latency_ms),
         },

@@ -20,11 +20,13 @@ COLLISION_LOG_MAX = 100  # collision_log entries kept in summary.json
 
 
 def qp_fields(solves: int, solve_us: Sequence[float], relaxed: int, fallback: int,
-              failed: int, hard_unmet: int = 0,
-              hard_reasons: dict[str, int] | None = None) -> dict[str, Any]:
+              failed: int, hard_unmet: int = 0, hard_reasons: dict[str, int] | None = None,
+              **extra: int) -> dict[str, Any]:
     """``qp`` of the summary: solves, the ticks whose QP was not solved as posed (relaxed,
-    fallback or failed), the median solve time [us], and the ticks on which a hard row was not
-    met (agent.hard_rows; relaxed formation rows are by design and not among them)."""
+    fallback or failed), the median solve time [us], the ticks on which a hard row was not met
+    (agent.hard_rows; relaxed formation rows are by design and not among them); ``extra``
+    counts (e.g. ``escape``: ticks on which the formation stepped out of a hazard's way)
+    follow."""
     return {
         "solves": solves,
         "infeasible": relaxed + fallback + failed,
@@ -34,6 +36,7 @@ def qp_fields(solves: int, solve_us: Sequence[float], relaxed: int, fallback: in
         "failed": failed,
         "hard_row_unmet_ticks": hard_unmet,
         "hard_row_unmet": dict(hard_reasons or {}),
+        **extra,
     }
 
 

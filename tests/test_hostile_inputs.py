@@ -246,7 +246,7 @@ def test_a_camera_clock_off_by_more_than_the_window_stops_the_robots_and_is_coun
     assert main(["run", str(scenario), "--out", str(tmp_path / "run"), "--quiet", "--no-plots",
                  "--realtime", "--clock-offset-ms", str(offset_ms)]) == 0
     run = json.loads((tmp_path / "run" / "summary.json").read_text())
-    assert run["clock_offset_s"] == offset_ms / 1000.0 and run["collisions"] == 0
+    assert run["world"]["clock_offset_s"] == offset_ms / 1000.0 and run["collisions"] == 0
     rejected = run["agents"]["stamp_rejected"].get("pose", {})
     if reason is None:
         assert not rejected and run["qp"]["solves"] > 100

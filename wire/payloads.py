@@ -11,7 +11,7 @@ header. Every payload is one tuple:
 payload        fields in order (``u8`` version, then ``f64`` unless marked ``str``)      bytes
 =============  =======================================================================  =====
 ``Pose``       version, x, y, theta, stamp                                               33
-``State``      version, x, y, ux, uy, stamp                                              41
+``State``      version (2), x, y, ux, uy, theta, stamp                                   49
 ``Cmd``        version, v, omega, ux, uy, stamp                                          41
 ``EllipseMsg`` version, formation:str, cx, cy, alpha, a, b, vx, vy, alpha_rate, stamp   73+n
 ``Others``     version, formation:str, stamp, ellipses:list[E], own:list[E] (0 or 1)  varies
@@ -58,6 +58,9 @@ from wire import keys
 logger = logging.getLogger(__name__)
 
 WIRE_VERSION = 1
+#: ``state`` is at version 2 (it gained the heading); a version-1 decoder refuses it by its
+#: version byte ("unsupported version 2"), and this decoder refuses version-1 states.
+STATE_VERSION = 2
 MAX_ITEMS = 256  # most ellipses (or obstacles) one payload may carry
 # A payload longer than this is rejected before parsing [bytes]. The largest valid message (an
 # Others with 256 + 1 ellipses whose ids are 64 four-byte UTF-8 characters) is about 85 kB.
@@ -122,7 +125,7 @@ def _check_floats(obj: object, names: Iterable[str]) -> None:
 
 
 _POSE_FLOATS = ("x", "y", "theta", "stamp")
-_STATE_FLOATS = ("x", "y", "ux", "uy", "stamp")
+_STATE_FLOATS = ("x", "y", "ux", "uy", "stamp", "theta")
 _CMD_FLOATS = ("v", "omega", "ux", "uy", "stamp")
 _OBSTACLE_FLOATS = ("x", "y", "vx", "vy", "ds")
 _STAMP = ("stamp",)
@@ -146,7 +149,9 @@ class Pose:
 class State:
     """Position and current single-integrator command of one robot: ``.../state``.
 
-    [m, m, m/s, m/s, s]; neighbours use ``ux, uy`` as the velocity of appendix A.2.
+    [m, m, m/s, m/s, s, rad]; neighbours use ``ux, uy`` as the velocity of appendix A.2 and
+    of the separation rows, ``theta`` (the body heading, wire version 2: :data:`STATE_VERSION`)
+    to place a unicycle's body behind its look-ahead point ``x, y``.
     """
 
     x: float
@@ -154,9 +159,10 @@ class State:
     ux: float
     uy: float
     stamp: float
+    theta: float = 0.0
 
     def __post_init__(self) -> None:
-        if not _plain_finite((self.x, self.y, self.ux, self.uy, self.stamp)):
+        if not _plain_finite((self.x, self.y, self.ux, self.uy, self.stamp, self.theta)):
             _check_floats(self, _STATE_FLOATS)
 
 
@@ -368,6 +374,7 @@ def _ellipses(items: list[Item]) -> tuple[EllipseMsg, ...]:
 # --- encoding ---------------------------------------------------------------------------------
 
 _VERSION = UInt8(WIRE_VERSION)
+_STATE_VERSION = UInt8(STATE_VERSION)
 
 
 def _ellipse_fields(e: EllipseMsg) -> tuple[Any, ...]:
@@ -378,7 +385,7 @@ def _wire_tuple(msg: Message) -> tuple[Any, ...]:
     if isinstance(msg, Pose):
         return (_VERSION, msg.x, msg.y, msg.theta, msg.stamp)
     if isinstance(msg, State):
-        return (_VERSION, msg.x, msg.y, msg.ux, msg.uy, msg.stamp)
+        return (_STATE_VERSION, msg.x, msg.y, msg.ux, msg.uy, msg.theta, msg.stamp)
     if isinstance(msg, Cmd):
         return (_VERSION, msg.v, msg.omega, msg.ux, msg.uy, msg.stamp)
     if isinstance(msg, EllipseMsg):
@@ -420,7 +427,7 @@ def encode_zbytes(msg: Message) -> zenoh.ZBytes:
 # every length and count is checked against what is left of the payload before anything is read.
 
 _MAX_VARINT_BYTES = 10  # an unsigned LEB128 u64 takes at most 10 bytes
-_FLOATS = {n: struct.Struct(f"<{n}d") for n in (1, 4, 5, 9)}
+_FLOATS = {n: struct.Struct(f"<{n}d") for n in (1, 4, 5, 6, 9)}
 
 
 def _as_bytes(payload: object) -> bytes:
@@ -529,15 +536,16 @@ class _Reader:
             )
 
 
-def _decode(payload: object, parse: Callable[[_Reader], Any], kind: str) -> Any:
+def _decode(payload: object, parse: Callable[[_Reader], Any], kind: str,
+            version: int = WIRE_VERSION) -> Any:
     try:
         data = _as_bytes(payload)
         if not data:
             raise DecodeError("empty payload")
         if len(data) > MAX_PAYLOAD_BYTES:
             raise DecodeError(f"payload of {len(data)} bytes exceeds {MAX_PAYLOAD_BYTES}")
-        if data[0] != WIRE_VERSION:
-            raise DecodeError(f"unsupported version {data[0]} (expected {WIRE_VERSION})")
+        if data[0] != version:
+            raise DecodeError(f"unsupported version {data[0]} (expected {version})")
         reader = _Reader(data, 1)
         try:
             msg = parse(reader)
@@ -556,7 +564,8 @@ def _parse_pose(r: _Reader) -> Pose:
 
 
 def _parse_state(r: _Reader) -> State:
-    return State(*r.floats(5, "state"))
+    x, y, ux, uy, theta, stamp = r.floats(6, "state")
+    return State(x, y, ux, uy, stamp, theta)
 
 
 def _parse_cmd(r: _Reader) -> Cmd:
@@ -601,7 +610,7 @@ def decode_pose(payload: bytes | zenoh.ZBytes) -> Pose:
 
 def decode_state(payload: bytes | zenoh.ZBytes) -> State:
     """Decode a ``state`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_state, "state")
+    return _decode(payload, _parse_state, "state", STATE_VERSION)
 
 
 def decode_cmd(payload: bytes | zenoh.ZBytes) -> Cmd:

@@ -23,11 +23,14 @@ def run_command(ns: argparse.Namespace) -> int:
         )
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    if ns.camera == "synthetic":
+    if ns.camera in ("synthetic", "process"):
         try:
             import camera_service.service  # noqa: F401
         except ImportError:
             raise UsageError("--camera synthetic: camera_service.service is not available yet") from None
+    if ns.camera == "process" and faults.camera_dropouts:
+        raise UsageError("--camera-dropout: not with --camera process (the camera process "
+                         "publishes the poses)")
     if not 0 <= ns.port < 65536:
         raise UsageError(f"--port: {ns.port} is not a TCP port")
     slots = getattr(ns, "pose_slots", 1)
@@ -43,12 +46,21 @@ def run_command(ns: argparse.Namespace) -> int:
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     out = Path(ns.out)
-    summary, series = launch(scenario, out, realtime=ns.realtime, camera=ns.camera,
-                             topology=ns.topology, safety=not ns.no_safety, port=ns.port,
-                             progress_factory=lambda: Progress(f"run {scenario.name}", quiet=ns.quiet),
-                             faults=faults, secure=getattr(ns, "secure", False),
-                             pose_slots=slots,
-                             clock_offset=getattr(ns, "clock_offset_ms", 0.0) / 1000.0)
+    from formation.commands.view import live_observer
+
+    live, observer = live_observer(ns, scenario)  # --live PORT: the page, fed from the world's session
+    try:
+        summary, series = launch(scenario, out, realtime=ns.realtime, camera=ns.camera,
+                                 topology=ns.topology, safety=not ns.no_safety, port=ns.port,
+                                 progress_factory=lambda: Progress(f"run {scenario.name}",
+                                                                   quiet=ns.quiet),
+                                 faults=faults, secure=getattr(ns, "secure", False),
+                                 pose_slots=slots, observer=observer,
+                                 scenario_path=ns.scenario,
+                                 clock_offset=getattr(ns, "clock_offset_ms", 0.0) / 1000.0)
+    finally:
+        if live is not None:
+            live.close()
     write_run(summary, series, scenario, out, plots=not ns.no_plots)
     print_summary(summary, out)
     return EXIT_OK
