@@ -22,6 +22,7 @@ from geometry.unicycle import control_point
 from leader.settings import LeaderSettings  # noqa: F401  (re-exported)
 from scenario import Scenario, formation_axes
 from scenario.succession import formation_successor
+from wire.stamps import CLOCK_TOLERANCE_S
 from wire.zconf import ZenohSettings
 
 from .control import ControlParams
@@ -29,7 +30,7 @@ from .control import ControlParams
 CONFIG_VERSION = 1
 TOPOLOGIES = ("reduced", "all-to-all")
 BASES = ("world", "turtlebot3-humble", "turtlebot3-jazzy")
-STALE_PERIODS = 5  # inputs older than this many control periods are stale
+STALE_PERIODS = 5  # inputs older than this many pose periods (at least control periods) are stale
 
 
 # What an agent configuration file holds of its Zenoh settings; the agent's session adds its
@@ -63,6 +64,10 @@ class AgentConfig:
     # set on the member that takes the leader role when the leader dies (leader.succession)
     standby: LeaderSettings | None = None
     stale_after: float = 0.25  # [s] inputs older than this are stale: command zero
+    clock_tolerance: float = CLOCK_TOLERANCE_S  # [s] real time: a stamp this far ahead of the
+    # agent's clock is still accepted (camera PC and robots synchronised by chrony)
+    pose_period: float | None = None  # [s] how often poses really come (e.g. 1/15 for a 15 fps
+    # camera); None: every control period
     base: str = "world"  # where commands go: the simulated world or a real robot base
     zenoh: ZenohSettings = field(default_factory=agent_zenoh)
     cmd_vel_key: str = "cmd_vel"  # real bases: the zenoh-bridge-ros2dds key for /cmd_vel
@@ -80,14 +85,23 @@ def build_agent_configs(
     topology: str = "reduced",
     safety: bool = True,
     base: str = "world",
+    pose_period: float | None = None,
+    clock_tolerance: float = CLOCK_TOLERANCE_S,
 ) -> dict[str, AgentConfig]:
-    """One :class:`AgentConfig` per robot of ``scenario``."""
+    """One :class:`AgentConfig` per robot of ``scenario``. ``pose_period`` [s] is how often the
+    camera really delivers a pose (None: every ``dt``); the stale limit is
+    :data:`STALE_PERIODS` of the longer of the two, so the margins hold at the camera's rate."""
+    if pose_period is not None and not (math.isfinite(pose_period) and pose_period > 0):
+        raise ValueError(f"pose_period: must be a positive number, got {pose_period!r}")
     if topology not in TOPOLOGIES:
         raise ValueError(f"topology: {topology!r} is not one of {TOPOLOGIES}")
     if base not in BASES:
         raise ValueError(f"base: {base!r} is not one of {BASES}")
     zenoh = zenoh or agent_zenoh()
     params = ControlParams.from_scenario(scenario, safety=safety)
+    if pose_period is not None and pose_period > scenario.dt:
+        # ticks come with the poses: the unicycle's sampling margin is sized for their period
+        params = dataclasses.replace(params, period=pose_period)
     off = scenario.robot.control_offset
     out: dict[str, AgentConfig] = {}
     for f in scenario.formations:
@@ -119,7 +133,9 @@ def build_agent_configs(
                 partners=tuple(m for m in f.robot_ids if m != r.id),
                 leader=leader if r.id == f.leader else None,
                 standby=leader if r.id == heir else None,
-                stale_after=STALE_PERIODS * scenario.dt,
+                stale_after=STALE_PERIODS * max(scenario.dt, pose_period or scenario.dt),
+                clock_tolerance=clock_tolerance,
+                pose_period=pose_period,
                 base=base,
                 zenoh=zenoh,
             )
@@ -172,21 +188,24 @@ def config_from_dict(d: dict[str, Any]) -> AgentConfig:
             leader=leader,
             standby=standby,
             stale_after=float(d.pop("stale_after", 0.25)),
+            clock_tolerance=float(d.pop("clock_tolerance", CLOCK_TOLERANCE_S)),
+            pose_period=None if d.get("pose_period") is None else float(d.pop("pose_period")),
             base=str(d.pop("base", "world")),
             zenoh=zenoh,
             cmd_vel_key=str(d.pop("cmd_vel_key", "cmd_vel")),
             frame_id=str(d.pop("frame_id", "base_link")),
         )
         d.pop("start", None)
+        d.pop("pose_period", None)
     except KeyError as exc:
         raise ValueError(f"agent config: missing field {exc.args[0]!r}") from None
     except TypeError as exc:
         raise ValueError(f"agent config: {exc}") from None
     if d:
         raise ValueError(f"agent config: unknown field {sorted(d)[0]!r}")
-    for name in ("period", "stale_after"):
-        v = getattr(cfg, name)
-        if not (math.isfinite(v) and v > 0):
+    for name, v in (("period", cfg.period), ("stale_after", cfg.stale_after),
+                    ("clock_tolerance", cfg.clock_tolerance), ("pose_period", cfg.pose_period)):
+        if v is not None and not (math.isfinite(v) and v > 0):
             raise ValueError(f"{name}: must be a positive number, got {v!r}")
     if cfg.topology not in TOPOLOGIES:
         raise ValueError(f"topology: {cfg.topology!r} is not one of {TOPOLOGIES}")

@@ -93,7 +93,17 @@ from agent.base import Base, make_base
 from agent.config import AgentConfig
 from agent.control import Stall, StepResult, control_step
 from agent.faults import EPS, DelayLine, LinkFaults, lag
+from agent.hard_rows import HardRowCounter
 from agent.inputs import step_inputs
+from agent.plausibility import (
+    JUMP_MARGIN_M,
+    ObstacleMemory,
+    ellipses_ok,
+    held_obstacle,
+    jump_ok,
+    speed_bound,
+    velocity_ok,
+)
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, solve_exact
 from agent.unicycle import control_point
 from leader.role import LeaderRole, ellipse_to_msg, msg_to_ellipse
@@ -113,6 +123,7 @@ from wire.payloads import (
     decode_pose,
     decode_state,
 )
+from wire.stamps import FUTURE, LOCKSTEP_AHEAD_PERIODS, StampCounter, check_stamp, validate_window
 from wire.traffic import CountingPublisher, Mailbox, TrafficCounter
 from wire.zconf import UsrPwdAuth, ZenohSettings, explain_open_failure, read_auth_file
 
@@ -124,6 +135,8 @@ RING_CAPACITY = 256  # real time: samples kept per key between two ticks (a floo
 # loses its oldest samples uncounted; about one per tick arrives in normal operation)
 STATS_WINDOW = 10_000  # per-tick timings kept for the medians in stats() (the newest ticks)
 STATUS_STALE = "stale"  # trace status of a tick that commanded zero for stale inputs
+IMPLAUSIBLE = "implausible"  # stale_why: a tick that commanded zero after an implausible input
+POSE_AT_SEND = "pose_at_send"  # stale_why: the pose went stale while the command was computed
 TRACE_COLUMNS = ("t", "px", "py", "ux", "uy", "v", "omega", "status", "slack",
                  "h_formation", "h_obstacle", "h_formations", "solve_us")
 
@@ -140,10 +153,15 @@ class NodeOptions:
     auth: UsrPwdAuth | None = None  # log in to the router as this user (access control)
     tick_on_pose: bool = True  # real time: tick on pose arrival (deadline fallback), not the clock
     zenoh_config_file: str | None = None  # a full Zenoh JSON5 config (deploy's, e.g. with TLS)
+    sim_start: float = 0.0  # [s] lock-step: the simulated time the agent starts at (a restarted
+    # agent joins a run under way); stamps beyond it plus LOCKSTEP_AHEAD_PERIODS are refused
 
     def __post_init__(self) -> None:
         if not isinstance(self.faults, LinkFaults):
             raise ValueError(f"faults: must be a LinkFaults, got {type(self.faults).__name__}")
+        if not (isinstance(self.sim_start, int | float) and math.isfinite(self.sim_start)
+                and self.sim_start >= 0):
+            raise ValueError(f"sim_start: must be a finite number >= 0, got {self.sim_start!r}")
         for name in ("lockstep_timeout", "connect_timeout", "ellipse_hold"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
@@ -235,6 +253,22 @@ class AgentNode:
         self.lockstep_timeouts = 0
         self.inflated = 0  # leader ticks that used another formation's stale ellipse, inflated
         self.stale_why: dict[str, int] = {}  # stale ticks by the input that was stale
+        # the one stamp check (wire.stamps) at every mailbox: rejections per class and reason
+        self.stamps = StampCounter()
+        self.lockstep_catch_ups = 0  # lock-step: future frames taken after the world went on
+        self.implausible: dict[str, int] = {}  # inputs refused as physically impossible, by class
+        self._implausible_pending: set[str] = set()  # classes refused since the last tick
+        self._speed = speed_bound(cfg.control)  # [m/s] plausibility bound
+        self.obstacle_memory = ObstacleMemory()
+        self.obstacle_held_ticks = 0  # ticks that avoided an obstacle missing from the list
+        self.hard = HardRowCounter()  # ticks on which a hard row was not met
+        self._pose_period = cfg.pose_period or cfg.period  # [s] how often poses really come
+        # the receiver's clock: simulated (the frame it is on) in lock-step, wall time otherwise
+        self._frame = options.sim_start
+        self._tolerance = (LOCKSTEP_AHEAD_PERIODS * cfg.period if options.lockstep
+                           else cfg.clock_tolerance)
+        validate_window(self._tolerance, cfg.stale_after)
+        self._last_pose_used: float | None = None
         self.fault_dropped = {cls: 0 for cls in (keys.STATE, keys.ELLIPSE, keys.OTHERS)}
         self.fault_delayed = 0
         self._lost: dict[str, float] = {}  # key -> newest stamp lost to fault injection
@@ -271,6 +305,7 @@ class AgentNode:
         # real time on pose arrival: ticks run on Zenoh's thread or the loop, one at a time
         self._tick_lock = threading.Lock()
         self._closing = False  # set (under the lock) when close() starts: no more ticks
+        self.zero_sent = False  # the zero command of the way out has been published
         self._last_pose_stamp: float | None = None  # the pose stamp the last pose tick used
         self._last_tick = -math.inf  # [s, monotonic] when the last tick of any kind started
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -282,6 +317,70 @@ class AgentNode:
         self._acting_since_tick = False
         self._token: Any = None
         self._subscribe: Callable[[str, str], None] | None = None  # set by open()
+
+    # --- what is accepted ---------------------------------------------------------------------
+
+    def _now(self) -> float:
+        """The receiver's clock for the stamp check: the frame it is on in lock-step (simulated
+        time), the wall clock otherwise (stamps are the camera's ``time.time()``)."""
+        return self._frame if self.options.lockstep else time.time()
+
+    def _acceptor(self, cls: str) -> Callable[[str, tuple[Any, float], tuple[Any, float] | None],
+                                              bool]:
+        """The mailbox's ``accept`` for class ``cls``: the stamp check (future, stale, older than
+        the one kept; counted per reason), then plausibility against the one kept (counted;
+        the next tick commands zero). Runs where the mailbox stores: the loop's thread, or
+        under the tick lock."""
+        counter, stale_after = self.stamps, self.cfg.stale_after
+
+        def accept(_key: str, value: tuple[Any, float], prev: tuple[Any, float] | None) -> bool:
+            msg = value[0]
+            last = None if prev is None else prev[0].stamp
+            now = self._now()
+            reason = check_stamp(now, msg.stamp, last, self._tolerance, stale_after)
+            if reason == FUTURE and self._starved():
+                reason = None  # lock-step: the world went on without this agent; catch up
+                self.lockstep_catch_ups += 1
+            if reason is not None:
+                counter.count(cls, reason)
+                return False
+            # plausible after the kept message while that one is fresh; a stale one says nothing
+            # any more (a robot carried elsewhere, or a forged first pose: it blocks for at most
+            # stale_after)
+            ref = None if prev is None or now - prev[0].stamp > stale_after else prev[0]
+            if not self._plausible(cls, msg, ref):
+                self.implausible[cls] = self.implausible.get(cls, 0) + 1
+                self._implausible_pending.add(cls)
+                logger.info("%s: implausible %s refused", self.cfg.robot_id, cls)
+                return False
+            return True
+
+        return accept
+
+    def _starved(self) -> bool:
+        """Lock-step: this agent has ticked before but not for ``lockstep_timeout``: the world
+        stopped waiting for it (it was late) and its frames may now run more than the window
+        ahead; the next one is taken (counted ``lockstep_catch_ups``), not refused for ever."""
+        return (self.options.lockstep and self.ticks > 0
+                and time.monotonic() - self._last_tick > self.options.lockstep_timeout)
+
+    def _plausible(self, cls: str, msg: Any, prev: Any | None) -> bool:
+        """Whether ``msg`` is physically possible after ``prev`` (agent.plausibility)."""
+        speed = self._speed
+        if cls == keys.POSE:
+            return prev is None or jump_ok(prev.x, prev.y, prev.stamp, msg.x, msg.y, msg.stamp,
+                                           speed, JUMP_MARGIN_M)
+        if cls == keys.STATE:
+            if not velocity_ok(msg.ux, msg.uy, speed):
+                return False
+            return prev is None or jump_ok(prev.x, prev.y, prev.stamp, msg.x, msg.y, msg.stamp,
+                                           speed, JUMP_MARGIN_M)
+        if cls == keys.ELLIPSE:
+            return velocity_ok(msg.vx, msg.vy, speed)
+        if cls == keys.OTHERS:
+            return ellipses_ok(msg.ellipses, speed) and (
+                msg.own is None or velocity_ok(msg.own.vx, msg.own.vy, speed))
+        return True
 
     # --- wiring ------------------------------------------------------------------------------
 
@@ -318,7 +417,7 @@ class AgentNode:
         polled = not self.options.lockstep and self.options.tick_on_pose
         for cls in set(self.subscribed_keys.values()):
             self._boxes[cls] = Mailbox(None if polled else loop, _stamped(decoders[cls]),
-                                       counter=self.counter)
+                                       counter=self.counter, accept=self._acceptor(cls))
         self._session = s = self._open_session()
         pub_keys = [self.state_key, self.cmd_key]
         if self.role is not None:
@@ -476,6 +575,7 @@ class AgentNode:
             return
         try:
             self._put_cmd(Cmd(0.0, 0.0, 0.0, 0.0, self.last_stamp))
+            self.zero_sent = True
         except Exception:  # noqa: BLE001 - shutting down: log, keep closing
             logger.exception("%s: zero command on exit failed", self.cfg.robot_id)
         if self._token is not None:
@@ -555,6 +655,23 @@ class AgentNode:
         self.acting = False
         logger.warning("%s: leader %s of %s is back: member again", self.cfg.robot_id,
                        self.cfg.leader_id, self.cfg.formation)
+    def emergency_zero(self) -> bool:
+        """From any thread and without the tick lock (a shutdown that overran its time limit):
+        publish the zero command unless :meth:`close` already did. True once it is sent."""
+        if self.zero_sent:
+            return True
+        pub = self._pubs.get(self.cmd_key)
+        if pub is None:
+            return False
+        try:
+            pub.put_message(Cmd(0.0, 0.0, 0.0, 0.0, self.last_stamp))
+            if self._base is not None:
+                self._base.send(0.0, 0.0, self.last_stamp)
+        except Exception:  # noqa: BLE001 - last resort: report, the caller exits anyway
+            logger.exception("%s: emergency zero command failed", self.cfg.robot_id)
+            return False
+        self.zero_sent = True
+        return True
 
     # --- life --------------------------------------------------------------------------------
 
@@ -630,7 +747,7 @@ class AgentNode:
         """The loop's part of real time on pose arrival: the deadline tick when no tick has run
         for ``DEADLINE_PERIODS`` periods (module docstring)."""
         assert self._stop is not None
-        period = self.cfg.period
+        period = max(self.cfg.period, self._pose_period)  # a slower camera: its own rate
         span = DEADLINE_PERIODS * period
         watch = max(span, self.cfg.stale_after - span)
         with self._tick_lock:
@@ -665,7 +782,8 @@ class AgentNode:
                          default=-math.inf)
             if newest > last:  # a new frame: its pose or its obstacles arrived
                 last = newest
-                started = time.monotonic()
+                self._frame = max(self._frame, last)  # the lock-step clock (wire.stamps)
+                started = self._last_tick = time.monotonic()
                 await self.tick(last)
                 self.tick_us.append((time.monotonic() - started) * 1e6)
                 continue
@@ -717,12 +835,14 @@ class AgentNode:
         return None if box is None else box.latest(key)
 
     def _fresh(self, entry: tuple[Any, float] | None, t: float | None) -> TypeGuard[tuple[Any, float]]:
-        """Whether a (message, receive time) entry is fresh for the tick at pose stamp ``t``."""
+        """Whether a (message, receive time) entry is fresh for the tick at pose stamp ``t``
+        (lock-step) or now (real time: by its stamp against the wall clock, not by when it
+        arrived): the stale part of :func:`wire.stamps.check_stamp` (future stamps and older
+        ones never reach a mailbox)."""
         if entry is None:
             return False
-        if t is None:  # real time: local age since reception
-            return time.monotonic() - entry[1] <= self.cfg.stale_after
-        return t - entry[0].stamp <= self.cfg.stale_after + 1e-9
+        now = time.time() if t is None else t
+        return now - entry[0].stamp <= self.cfg.stale_after + 1e-9
 
     def _current(self, cls: str, key: str, t: float) -> bool:
         """Lock-step: the message on ``key`` belongs to the tick stamped ``t`` (or later), or,
@@ -768,6 +888,11 @@ class AgentNode:
             self._zero(t, "pose")  # lock-step: no pose in this frame (camera dropout)
             return None
         pose: Pose = pose_entry[0]
+        if check_stamp(self._now() if t is None else t, pose.stamp, self._last_pose_used,
+                       self._tolerance, cfg.stale_after) is not None:
+            self._zero(t, "pose")  # (cannot happen: the mailbox keeps stamps in order)
+            return None
+        self._last_pose_used = pose.stamp
         if t is None:
             self.pose_age_us.append((time.monotonic() - pose_entry[1]) * 1e6)
         stamp = pose.stamp
@@ -792,7 +917,11 @@ class AgentNode:
             self._zero(t, fresh)
             return None
         states, obstacles, others_msg = fresh
-        obs = [Obstacle(o.x, o.y, o.vx, o.vy, o.ds) for o in obstacles.obstacles]
+        obs = self._obstacles(obstacles, stamp if t is not None else time.time(), px, py)
+        if self._implausible_pending:  # an input broke physics since the last tick
+            self._implausible_pending.clear()
+            self._zero(t, IMPLAUSIBLE)
+            return None
         inputs = step_inputs(
             ((states[k].x, states[k].y, states[k].ux, states[k].uy, df)
              for k, df in self.neighbour_keys.items()),
@@ -809,6 +938,9 @@ class AgentNode:
         res = control_step(cfg.control, (pose.x, pose.y, pose.theta), cfg.goal, inputs.neighbours,
                            obs, inputs.others, inputs.view, solve_exact, inputs.pairwise,
                            inputs.partners, self.last_u, inputs.hazards, clock=time.perf_counter_ns)
+        if t is None and time.time() - stamp > cfg.stale_after:
+            self._zero(t, POSE_AT_SEND)  # never send a command from a pose gone stale
+            return None
         self._put_cmd(Cmd(res.v, res.omega, res.ux, res.uy, stamp))
         self.last_u = (res.ux, res.uy)
         self._record(res, stamp)
@@ -836,8 +968,22 @@ class AgentNode:
             return "others"
         return states, obs_entry[0], entry[0]
 
+    def _obstacles(self, obstacles: Obstacles, now: float, px: float, py: float) -> list[Obstacle]:
+        """The step's obstacles: the newest list's, plus those missing from it but seen within
+        the hold time, grown where they can have gone (agent.plausibility; counted)."""
+        memory = self.obstacle_memory
+        memory.update(obstacles)
+        obs = [Obstacle(o.x, o.y, o.vx, o.vy, o.ds) for o in obstacles.obstacles]
+        held = memory.held(now)
+        if held:
+            self.obstacle_held_ticks += 1
+            obs += [held_obstacle(o, age, px, py) for o, age in held]
+        return obs
+
     def _record(self, res: StepResult, stamp: float) -> None:
-        """Count a solved step: statuses, lowest barrier values, solve time, trace row."""
+        """Count a solved step: statuses, lowest barrier values, hard rows not met, solve time,
+        trace row."""
+        self.hard.add(res)
         self.solves += 1
         self.solve_us.append(res.solve_us)
         if res.status in self.status_counts:
@@ -954,6 +1100,14 @@ class AgentNode:
             "waiting": self.waiting,
             "lockstep_timeouts": self.lockstep_timeouts,
             "stale_why": dict(self.stale_why),
+            "stamp_rejected": self.stamps.snapshot(),
+            "lockstep_catch_ups": self.lockstep_catch_ups,
+            "implausible": dict(self.implausible),
+            "obstacles_missing": self.obstacle_memory.missing,
+            "obstacles_dropped_after_hold": self.obstacle_memory.dropped,
+            "obstacle_held_ticks": self.obstacle_held_ticks,
+            "hard_row_unmet_ticks": self.hard.ticks,
+            "hard_row_unmet": dict(self.hard.by_reason),
             "inflated": self.inflated,
             "takeovers": self.takeovers,
             "acting_leader_ticks": self.acting_ticks,
@@ -969,6 +1123,7 @@ class AgentNode:
             "stats_window": STATS_WINDOW,  # the three medians above are over the newest ticks
             "min_h": {k: _finite_or_none(v) for k, v in self.min_h.items()},
             "dropped": {cls: box.dropped_malformed for cls, box in self._boxes.items()},
+            "rejected": {cls: box.rejected for cls, box in self._boxes.items()},
             "received": {cls: box.received for cls, box in self._boxes.items()},
             "subscriptions": sorted(self.subscribed_keys),
             "traffic": self.counter.snapshot(),

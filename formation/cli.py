@@ -58,6 +58,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="multi-process simulation over Zenoh")
     _add_sim_args(p)
     p.add_argument("--realtime", action="store_true", help="wall-clock pacing instead of lock-step")
+    p.add_argument("--clock-offset-ms", type=float, default=0.0, metavar="MS",
+                   help="real time: stamp poses on a camera clock this far ahead of the agents' "
+                        "(negative: behind), to see what clock offset the fleet tolerates")
     p.add_argument("--pose-slots", type=int, default=1, metavar="S",
                    help="real time, --camera truth: publish the poses in S slots spread over each "
                         "period instead of all at once (default 1)")

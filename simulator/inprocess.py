@@ -18,6 +18,7 @@ import numpy as np
 from agent import unicycle
 from agent.barriers import Obstacle
 from agent.control import ControlParams, Stall, control_step
+from agent.hard_rows import HardRowCounter
 from agent.inputs import step_inputs
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
 from geometry.ellipse import ReferenceShape, estimate, reference_shape
@@ -134,6 +135,7 @@ def simulate(
     series = Series()
     solve_us: list[float] = []
     counts = {STATUS_RELAXED: 0, STATUS_FALLBACK: 0, STATUS_FAILED: 0}
+    hard = HardRowCounter()  # ticks on which a hard row was not met (agent.hard_rows)
     min_h = {"formation": math.inf, "obstacle": math.inf, "formations": math.inf}
     all_to_all = options.topology == "all-to-all"
     escape_ticks = 0  # robot-ticks whose nominal was the formation-level escape
@@ -173,6 +175,7 @@ def simulate(
                                inputs.others, inputs.view, solve, inputs.pairwise,
                                inputs.partners, vel[i], inputs.hazards, clock=time.perf_counter_ns)
             results.append(res)
+            hard.add(res)
             solve_us.append(res.solve_us)
             if res.status in counts:
                 counts[res.status] += 1
@@ -212,7 +215,7 @@ def simulate(
         scenario, "inprocess", ticks, t, monitor,
         {key: (v if math.isfinite(v) else None) for key, v in min_h.items()},
         qp_fields(len(solve_us), solve_us, counts[STATUS_RELAXED], counts[STATUS_FALLBACK],
-                  counts[STATUS_FAILED], escape=escape_ticks),
+                  counts[STATUS_FAILED], hard.ticks, hard.by_reason, escape=escape_ticks),
         logical_comm(scenario, options.topology, ticks, t, edges_total),
         options.safety, options.solver)
     return SimResult(summary, series, scenario)

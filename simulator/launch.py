@@ -48,6 +48,7 @@ from scenario import Scenario
 from scenario.succession import formation_successor
 from wire import acl, keys, traffic
 from wire.ports import free_tcp_port, tcp_endpoint
+from wire.stamps import merge_counts
 from wire.zconf import UsrPwdAuth, ZenohSettings
 
 from .fleet import START_TIMEOUT_S, STOP_TIMEOUT_S, Child, ChildFailed, Fleet, signal_group
@@ -165,6 +166,7 @@ def launch(
     pose_slots: int = 1,
     observer=None,
     scenario_path: str | Path | None = None,
+    clock_offset: float = 0.0,
 ) -> tuple[dict, Series]:
     """Run ``scenario`` as separate processes; returns the summary and the time series.
 
@@ -220,7 +222,7 @@ def launch(
             cmd_timeout=FAULT_WORLD_TIMEOUT_S if fault_run else WorldOptions.cmd_timeout,
             camera_dropouts=tuple((c.robot, c.at, c.at + c.duration)
                                   for c in faults.camera_dropouts),
-            pose_slots=pose_slots)
+            pose_slots=pose_slots, clock_offset=clock_offset)
         with zenoh.open(conf) as session:
             world = World(scenario, session, options)
             detach = observer(session) if observer is not None else None
@@ -420,9 +422,11 @@ class _FaultDriver:
             return
         self.incarnation[rid] += 1
         wall0 = time.monotonic()
-        self.agents[rid] = self.fleet.start(f"agent-{rid}-{self.incarnation[rid]}", self.argv[rid])
+        argv = self.argv[rid] + ([] if self.realtime else ["--sim-start", repr(t)])
+        self.agents[rid] = self.fleet.start(f"agent-{rid}-{self.incarnation[rid]}", argv)
         if not self.realtime:  # lock-step: the restart takes no simulated time
             self.world.wait_for_agents(abort=self.fleet.check, robots=[rid], grace=False)
+            self.world.inbox.expect(rid)  # and waits for its commands from the first tick
         self.log.append({"event": "restart", "robot": rid, "t_s": round(t, 6),
                          "start_wall_s": round(time.monotonic() - wall0, 3)})
 
@@ -498,6 +502,7 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
     relaxed = sum(s["relaxed"] for s in stats)
     fallback = sum(s["fallback"] for s in stats)
     failed = sum(s["failed"] for s in stats)
+    hard_unmet = sum(s.get("hard_row_unmet_ticks", 0) for s in stats)
     min_h = {}
     for kind in ("formation", "obstacle", "formations"):
         vals = [s["min_h"][kind] for s in stats if s["min_h"][kind] is not None]
@@ -505,7 +510,8 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
     snap = traffic.merge([result.traffic, *(s["traffic"] for s in stats)])
     summary = run_summary(
         scenario, "multiprocess", result.steps, sim_time, result.monitor, min_h,
-        qp_fields(sum(s["solves"] for s in stats), solve_us, relaxed, fallback, failed),
+        qp_fields(sum(s["solves"] for s in stats), solve_us, relaxed, fallback, failed,
+                  hard_unmet, sum_counts(s.get("hard_row_unmet", {}) for s in stats)),
         comm_summary(snap, topology, n, sim_time), safety, "exact",
         realtime=realtime,
         camera=camera,
@@ -516,6 +522,14 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
             "waiting_for_pose": sum(s.get("waiting", 0) for s in stats),
             "lockstep_timeouts": sum(s.get("lockstep_timeouts", 0) for s in stats),
             "dropped": sum_counts(s["dropped"] for s in stats),
+            "stale_why": sum_counts(s.get("stale_why", {}) for s in stats),
+            "stamp_rejected": merge_counts([s.get("stamp_rejected", {}) for s in stats]),
+            "lockstep_catch_ups": sum(s.get("lockstep_catch_ups", 0) for s in stats),
+            "implausible": sum_counts(s.get("implausible", {}) for s in stats),
+            "obstacles_missing": sum(s.get("obstacles_missing", 0) for s in stats),
+            "obstacle_held_ticks": sum(s.get("obstacle_held_ticks", 0) for s in stats),
+            "obstacles_dropped_after_hold": sum(s.get("obstacles_dropped_after_hold", 0)
+                                                for s in stats),
             "cpu_s": {s["robot"]: s["cpu_s"] for s in stats},
             "wall_s": max((s["wall_s"] for s in stats), default=None),
             "tick_us_median": _median([s["tick_us_median"] for s in stats]),
@@ -525,6 +539,8 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
             "missing_cmds": result.missing_cmds,
             "zero_cmds": result.zero_cmds,
             "malformed_cmds": result.malformed_cmds,
+            "stamp_rejected": result.stamp_rejected,
+            "clock_offset_s": result.clock_offset,  # real time: the camera's clock ahead
             "wall_s": result.wall_s,
             "latency_ms": _latency(result.latency_ms),
         },

@@ -12,6 +12,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib.patches import Circle, Ellipse  # noqa: E402
 
+from agent.hard_rows import unmet_hard_rows  # noqa: E402
 from scenario import Scenario  # noqa: E402
 
 from .inprocess import ROBOT_COLUMNS, Series  # noqa: E402
@@ -96,6 +97,7 @@ def plot_safety(series: Series, scenario: Scenario, path: Path) -> None:
                if any(math.isfinite(v) for r in by_robot.values() for _, v in r[k])]
     if not present:
         present = kinds[:1]
+    unmet = hard_row_ticks(series)
     fig, axes = plt.subplots(len(present), 1, figsize=(9, 2.8 * len(present)), sharex=True,
                              squeeze=False)
     colors = _colors(len(scenario.robot_ids))
@@ -104,6 +106,13 @@ def plot_safety(series: Series, scenario: Scenario, path: Path) -> None:
             pts = [(t, v) for t, v in by_robot[rid][key] if math.isfinite(v)]
             if pts:
                 ax.plot([p[0] for p in pts], [p[1] for p in pts], lw=1.0, color=c, label=rid)
+        # a barrier of this kind below zero, or a fallback/failed QP (shown on the hard kinds)
+        marks = [m for m in unmet if key[2:] in m[2]
+                 or (key != "h_formation" and {"fallback", "failed"} & set(m[2]))]
+        if marks:  # ticks on which a hard row was not met (agent.hard_rows)
+            ax.plot([m[0] for m in marks], [m[1].get(key, 0.0) for m in marks], "x", color="red",
+                    ms=6, mew=1.5, label="hard row not met", zorder=5)
+            label += f"  [hard row not met: {len({m[0] for m in marks})} ticks, red x]"
         ax.axhline(0.0, color="k", lw=0.8)
         ax.set_ylabel("min h")
         ax.set_title(label, fontsize=9)
@@ -114,7 +123,24 @@ def plot_safety(series: Series, scenario: Scenario, path: Path) -> None:
     handles, labels = axes[0, 0].get_legend_handles_labels()
     if len(labels) <= 16:
         axes[0, 0].legend(handles, labels, fontsize=7, ncol=min(8, len(labels)), loc="upper right")
-    fig.suptitle(f"{scenario.name}: safety functions per robot (must stay >= 0)", fontsize=10)
+    total = len({(m[0], m[3]) for m in unmet})
+    fig.suptitle(f"{scenario.name}: safety functions per robot (must stay >= 0); "
+                 f"robot-ticks with a hard row not met: {total}", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def hard_row_ticks(series: Series) -> list[tuple[float, dict[str, float], tuple[str, ...], str]]:
+    """Every robot row of ``series`` on which a hard row was not met: (t, its finite h values
+    by column, the reasons of :func:`agent.hard_rows.unmet_hard_rows`, robot)."""
+    out = []
+    for row in series.robots:
+        h = {k: row[_COL[k]] for k in ("h_obstacle", "h_formations")}
+        status = row[_COL["status"]]
+        kinds = unmet_hard_rows(status if isinstance(status, str) else None, h)
+        if kinds:
+            finite = {k: v for k, v in (*h.items(), ("h_formation", row[_COL["h_formation"]]))
+                      if isinstance(v, float) and math.isfinite(v)}
+            out.append((row[_COL["t"]], finite, kinds, row[_COL["robot"]]))
+    return out

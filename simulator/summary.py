@@ -2,7 +2,8 @@
 (:mod:`simulator.inprocess`) and the multi-process run (:mod:`simulator.launch`).
 
 The key order is the file's: scenario, mode, steps, sim_time_s, the safety monitor's fields,
-min_h, qp, comm, safety, solver, then what only one kind of run has, then collision_log.
+min_h, hard_row_unmet_ticks (also in qp), qp, comm, safety, solver, then what only one kind of
+run has, then collision_log.
 """
 
 from __future__ import annotations
@@ -19,10 +20,13 @@ COLLISION_LOG_MAX = 100  # collision_log entries kept in summary.json
 
 
 def qp_fields(solves: int, solve_us: Sequence[float], relaxed: int, fallback: int,
-              failed: int, **extra: int) -> dict[str, Any]:
+              failed: int, hard_unmet: int = 0, hard_reasons: dict[str, int] | None = None,
+              **extra: int) -> dict[str, Any]:
     """``qp`` of the summary: solves, the ticks whose QP was not solved as posed (relaxed,
-    fallback or failed), and the median solve time [us]; ``extra`` counts (e.g. ``escape``:
-    ticks on which the formation stepped out of a hazard's way) follow."""
+    fallback or failed), the median solve time [us], the ticks on which a hard row was not met
+    (agent.hard_rows; relaxed formation rows are by design and not among them); ``extra``
+    counts (e.g. ``escape``: ticks on which the formation stepped out of a hazard's way)
+    follow."""
     return {
         "solves": solves,
         "infeasible": relaxed + fallback + failed,
@@ -30,6 +34,8 @@ def qp_fields(solves: int, solve_us: Sequence[float], relaxed: int, fallback: in
         "relaxed": relaxed,
         "fallback": fallback,
         "failed": failed,
+        "hard_row_unmet_ticks": hard_unmet,
+        "hard_row_unmet": dict(hard_reasons or {}),
         **extra,
     }
 
@@ -46,6 +52,7 @@ def run_summary(scenario: Scenario, mode: str, steps: int, sim_time: float, moni
         "sim_time_s": round(sim_time, 6),
         **monitor.summary_fields(),
         "min_h": min_h,
+        "hard_row_unmet_ticks": qp.get("hard_row_unmet_ticks", 0),
         "qp": qp,
         "comm": comm,
         "safety": safety,

@@ -12,14 +12,22 @@ Two clocks:
 
 * **lock-step** (default): publish the poses of tick k (stamped with the simulated time
   ``k * dt``), wait until every robot's command stamped ``k * dt`` has arrived (up to
-  ``cmd_timeout``; a missing command is zero velocity and counted), integrate. Deterministic and
+  ``cmd_timeout``; a missing command is zero velocity and counted), integrate. Every command
+  passes the one stamp check (:mod:`wire.stamps`) against the tick's simulated time: one stamped
+  after the tick (a forged or runaway stamp) or older than the last kept is refused and counted
+  (``stamp_rejected``), so it neither counts toward the step barrier nor replaces a good one;
+  the barrier counts only well-formed commands stamped exactly ``k * dt``. Nothing a peer sends
+  can make the world step early or wait longer than ``cmd_timeout``. Deterministic and
   as fast as the agents answer. Agents run with ``--lockstep`` and tick on pose arrival. A robot
   whose command timed out is *late*: later ticks do not wait for it until a command of its
   arrives again (a killed agent costs one timeout, then its robot just gets zero each tick).
 * **real time**: integrate on the wall clock at 1/dt with the latest command of each robot (zero
   if none arrived within ``stale_after``); poses are stamped with ``time.time()``, so the delay
   from a pose's publication to the command computed from it (which carries the same stamp) is the
-  end-to-end latency, recorded in ``latency_ms``. By default every pose of a tick leaves at once,
+  end-to-end latency, recorded in ``latency_ms``. A command is applied while its *stamp* is at
+  most ``stale_after`` old on the world's clock (not by when it arrived: a command computed from
+  a pose delayed by a router stall is not applied); a robot without one gets zero, counted in
+  ``missing_cmds`` as in lock-step. By default every pose of a tick leaves at once,
   as from one camera frame. ``pose_slots=S`` (real time, ``--camera truth``) spreads them over S
   evenly spaced slots of the period instead (robot k of N in slot ``k * S // N``), as robots
   that localise themselves on their own clocks would publish: each slot steps its own robots by
@@ -55,6 +63,7 @@ from agent import unicycle
 from scenario import Scenario
 from wire import keys
 from wire.payloads import Cmd, DecodeError, ObstacleMsg, Obstacles, Pose, decode_cmd
+from wire.stamps import CLOCK_TOLERANCE_S, EPS, StampCounter
 from wire.traffic import CountingPublisher, TrafficCounter
 
 from .inprocess import Series
@@ -86,6 +95,8 @@ class WorldOptions:
     record: bool = True
     camera_dropouts: tuple[tuple[str, float, float], ...] = ()  # (robot, from, until) [s]
     pose_slots: int = 1  # real time: publication slots per period (1: one camera frame)
+    clock_offset: float = 0.0  # [s] real time: the camera's clock runs this far ahead of the
+    # agents' (negative: behind); poses are stamped, and commands judged, on the camera's clock
 
     def __post_init__(self) -> None:
         if isinstance(self.pose_slots, bool) or not isinstance(self.pose_slots, int) \
@@ -97,6 +108,12 @@ class WorldOptions:
         for rid, t0, t1 in self.camera_dropouts:
             if not (math.isfinite(t0) and math.isfinite(t1) and 0 <= t0 < t1):
                 raise ValueError(f"camera_dropouts: {rid}: need 0 <= from < until, got {t0}, {t1}")
+        if not (isinstance(self.clock_offset, int | float) and math.isfinite(self.clock_offset)
+                and abs(self.clock_offset) <= 10.0):
+            raise ValueError(f"clock_offset: must be a number of seconds within +-10, "
+                             f"got {self.clock_offset!r}")
+        if self.clock_offset and not self.realtime:
+            raise ValueError("clock_offset: needs real time (lock-step runs on simulated time)")
         if self.camera not in CAMERAS:
             raise ValueError(f"camera: {self.camera!r} is not one of {CAMERAS}")
         if self.camera == "process" and self.camera_dropouts:
@@ -119,6 +136,8 @@ class WorldResult:
     # none fresher than stale_after): the robot got zero velocity
     zero_cmds: int = 0  # robot-ticks whose applied command was zero (the agent stopped it)
     malformed_cmds: int = 0
+    stamp_rejected: dict = field(default_factory=dict)  # commands refused by the stamp check
+    clock_offset: float = 0.0  # [s] real time: the camera's clock ahead of the agents'
     cmd_timeouts: int = 0  # lock-step: waits for a command that timed out
     camera_dropped: int = 0  # poses not published (camera dropout)
     latency_ms: list[float] = field(default_factory=list)  # real time: pose put -> cmd received
@@ -168,9 +187,15 @@ def _sleep_until(wall: float, abort: Callable[[], None]) -> None:
 class _CmdInbox:
     """Latest command per robot, filled on Zenoh's threads, read by the world's loop."""
 
-    def __init__(self, prefix: str, counter: TrafficCounter, robots: Sequence[str]) -> None:
+    def __init__(self, prefix: str, counter: TrafficCounter, robots: Sequence[str],
+                 stale_after: float = 0.25) -> None:
         self._prefix = prefix
         self._counter = counter
+        self.stamps = StampCounter()  # commands refused by the stamp check
+        self.stale_after = stale_after
+        self.realtime = False
+        self.clock_offset = 0.0  # [s] real time: the camera's clock minus the wall clock
+        self.now_t = 0.0  # lock-step: the simulated time of the tick under way
         self._robot_of = {keys.cmd_key(prefix, r): r for r in robots}  # cmd key -> robot
         self._cond = threading.Condition()
         self.latest: dict[str, tuple[Cmd, float]] = {}  # robot -> (cmd, local receive time)
@@ -196,26 +221,48 @@ class _CmdInbox:
         now = time.monotonic()
         with self._cond:
             prev = self.latest.get(rid)
+            if self.realtime:
+                clock, tolerance = time.time() + self.clock_offset, CLOCK_TOLERANCE_S
+            else:
+                clock, tolerance = self.now_t, 0.0  # only this tick's (or older) commands
+            if not self.stamps.check(keys.CMD, clock, cmd.stamp,
+                                     None if prev is None else prev[0].stamp, tolerance,
+                                     self.stale_after):
+                return
             if self.measure_latency and (prev is None or prev[0].stamp != cmd.stamp):
-                self.latency_ms.append((time.time() - cmd.stamp) * 1e3)
+                self.latency_ms.append((time.time() + self.clock_offset - cmd.stamp) * 1e3)
             self.latest[rid] = (cmd, now)
             self.late.discard(rid)
             self._cond.notify_all()
 
+    def expect(self, rid: str) -> None:
+        """Lock-step: wait for ``rid``'s commands again (a restarted agent), instead of only once
+        one of them arrives: the world does not run ahead of it."""
+        with self._cond:
+            self.late.discard(rid)
+
+    def begin_tick(self, t: float) -> None:
+        """Lock-step: the tick at simulated time ``t`` starts (before its poses go out): the
+        stamp check's clock for the commands that arrive from now on."""
+        with self._cond:
+            self.now_t = t
+
     def fresh(self, now: float, max_age: float, robots: Sequence[str] | None = None) -> dict[str, Cmd]:
-        """The latest command of each robot (of ``robots``; default every one heard) received no
-        more than ``max_age`` before ``now`` (``time.monotonic()``)."""
+        """The latest command of each robot (of ``robots``; default every one heard) whose
+        *stamp* is at most ``max_age`` before ``now`` (the camera's clock: ``time.time()`` plus
+        the clock offset), however late it arrived."""
         with self._cond:
             if robots is None:
-                return {r: c for r, (c, rx) in self.latest.items() if now - rx <= max_age}
+                return {r: c for r, (c, _rx) in self.latest.items() if now - c.stamp <= max_age}
             entries = ((r, self.latest.get(r)) for r in robots)
-            return {r: e[0] for r, e in entries if e is not None and now - e[1] <= max_age}
+            return {r: e[0] for r, e in entries if e is not None and now - e[0].stamp <= max_age}
 
     def take_since(self, t: float, robots: Sequence[str]) -> tuple[dict[str, Cmd], list[str]]:
-        """Lock-step: the commands stamped ``t`` or later, and the robots of ``robots`` that sent
-        none and were not late already (now marked late)."""
+        """Lock-step: the commands stamped exactly ``t`` (the step barrier counts nothing else),
+        and the robots of ``robots`` that sent none and were not late already (now marked
+        late)."""
         with self._cond:
-            got = {r: c for r, (c, _rx) in self.latest.items() if c.stamp >= t}
+            got = {r: c for r, (c, _rx) in self.latest.items() if abs(c.stamp - t) <= EPS}
             late = [r for r in robots if r not in got and r not in self.late]
             self.late.update(late)
         return got, late
@@ -254,7 +301,9 @@ class World:
                                              self.counter) for r in self.ids]
         self._obs_pub = CountingPublisher(session.declare_publisher(keys.obstacles_key(p)),
                                           self.counter)
-        self.inbox = _CmdInbox(p, self.counter, self.ids)
+        self.inbox = _CmdInbox(p, self.counter, self.ids, options.stale_after)
+        self.inbox.realtime = options.realtime
+        self.inbox.clock_offset = options.clock_offset
         self.result: WorldResult | None = None  # the last run's, also when it was aborted
         # one wildcard subscriber for every robot's command, called right on the Zenoh thread
         # that received it (``indirect=False``: no hand-over to a Python thread per command; the
@@ -366,6 +415,7 @@ class World:
                 traffic=self.counter.snapshot(), missing_cmds=counts.missing,
                 zero_cmds=counts.zero, cmd_timeouts=counts.timeouts,
                 camera_dropped=self.camera_dropped, malformed_cmds=inbox.malformed,
+                stamp_rejected=inbox.stamps.snapshot(), clock_offset=opts.clock_offset,
                 latency_ms=list(inbox.latency_ms), wall_s=time.monotonic() - wall0, stamps=stamps,
             )
 
@@ -377,7 +427,7 @@ class World:
                 if opts.pose_slots > 1:
                     # each slot steps its robots over the previous period, then publishes them: the
                     # same rows and checks as below, one period later
-                    stamps.append(time.time())
+                    stamps.append(time.time() + opts.clock_offset)
                     before = state
                     state, cmds = self._publish_slots(k, state, next_wall, abort)
                     next_wall += dt
@@ -386,13 +436,16 @@ class World:
                     if settle(k, t - dt, before if k > 0 else None, cmds, t, state):
                         break
                     continue
-                stamp = time.time() if opts.realtime else t
+                stamp = time.time() + opts.clock_offset if opts.realtime else t
                 stamps.append(stamp)
+                if not opts.realtime:
+                    inbox.begin_tick(t)  # before the poses: no command for t exists yet
                 self._publish(t, stamp, state)
                 if opts.realtime:
                     next_wall += dt
                     _sleep_until(next_wall, abort)
-                    got = inbox.fresh(time.monotonic(), opts.stale_after)
+                    # judged by the command's stamp, not by its arrival
+                    got = inbox.fresh(time.time() + opts.clock_offset, opts.stale_after)
                 else:
                     got = self._lockstep_commands(k, t, abort, counts)
                 cmds = [got.get(r) for r in self.ids]
@@ -416,7 +469,7 @@ class World:
         inbox = self.inbox
 
         def ready() -> bool:
-            return all(r in inbox.latest and inbox.latest[r][0].stamp >= t
+            return all(r in inbox.latest and abs(inbox.latest[r][0].stamp - t) <= EPS
                        for r in self.ids if r not in inbox.late)
 
         if not inbox.wait(ready, self.options.cmd_timeout, abort):
@@ -443,10 +496,10 @@ class World:
         for s in range(slots):
             _sleep_until(start + s * dt / slots, abort)
             mine = range(-(-s * n // slots), -(-(s + 1) * n // slots))
-            fresh = inbox.fresh(time.monotonic(), opts.stale_after, [self.ids[i] for i in mine])
+            stamp = time.time() + opts.clock_offset  # the camera's clock
+            fresh = inbox.fresh(stamp, opts.stale_after, [self.ids[i] for i in mine])
             for i in mine:
                 cmds[i] = fresh.get(self.ids[i])
-            stamp = time.time()
             if s == 0:
                 self._publish_obstacles(t, stamp)
             for i in mine:
@@ -543,6 +596,7 @@ def world_summary(result: WorldResult) -> dict:
         "missing_cmds": result.missing_cmds,
         "zero_cmds": result.zero_cmds,
         "malformed_cmds": result.malformed_cmds,
+        "stamp_rejected": result.stamp_rejected,
         "traffic": result.traffic,
         "wall_s": result.wall_s,
         "latency_ms": result.latency_ms,

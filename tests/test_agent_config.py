@@ -71,3 +71,35 @@ def test_missing_field_is_named(configs, tmp_path):
     path.write_text(yaml.safe_dump(d))
     with pytest.raises(ValueError, match="missing field 'goal'"):
         load_config(path)
+
+
+def test_the_stale_limit_follows_a_camera_slower_than_the_control_period(tmp_path):
+    scenario = load_scenario(ROOT / "scenarios/thesis-5.2.2.yaml")  # dt 0.05 s
+    fast = build_agent_configs(scenario)["r1"]
+    assert fast.stale_after == pytest.approx(5 * 0.05) and fast.pose_period is None
+    cam15 = build_agent_configs(scenario, pose_period=1 / 15, clock_tolerance=0.05)["r1"]
+    assert cam15.stale_after == pytest.approx(5 / 15)  # five camera frames, not five ticks
+    assert cam15.clock_tolerance == 0.05
+    save_config(cam15, tmp_path / "r1.yaml")
+    assert load_config(tmp_path / "r1.yaml") == cam15
+    from agent.node import AgentNode
+
+    assert AgentNode(cam15)._pose_period == pytest.approx(1 / 15)
+    with pytest.raises(ValueError, match="pose_period"):
+        build_agent_configs(scenario, pose_period=0.0)
+    d = config_to_dict(cam15)
+    d["clock_tolerance"] = -1.0
+    with pytest.raises(ValueError, match="clock_tolerance"):
+        config_from_dict(d)
+
+
+def test_a_unicycles_sampling_margin_is_sized_for_the_camera_period_not_the_control_period():
+    scenario = load_scenario(ROOT / "tests/scenarios/unicycle-crossing.yaml")
+    dt = scenario.dt
+    base = build_agent_configs(scenario)
+    slow = build_agent_configs(scenario, pose_period=2 * dt)
+    rid = scenario.robot_ids[0]
+    assert base[rid].control.period == dt
+    assert slow[rid].control.period == 2 * dt
+    assert slow[rid].control.sampling_margin == pytest.approx(2 * base[rid].control.sampling_margin)
+    assert base[rid].control.sampling_margin > 0

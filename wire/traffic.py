@@ -218,7 +218,10 @@ class Mailbox(Generic[T]):
     """Latest decoded value per key, fed from zenoh threads, read on an asyncio loop.
 
     ``received`` counts every sample handed over (valid or not); ``dropped_malformed`` counts
-    those the decoder rejected. Both, like :meth:`latest`, are updated on the loop's thread only.
+    those the decoder rejected; ``rejected`` those the optional ``accept(key, value, previous)``
+    refused (the owner's stamp and plausibility checks, :mod:`wire.stamps`: a refused value never
+    replaces the stored one, so one bad message cannot block the good ones after it). All of
+    them, like :meth:`latest`, are updated on the loop's thread only.
     Construct it on the loop (``Mailbox(asyncio.get_running_loop(), decode_state)``).
 
     With ``loop=None`` the mailbox is *inline*: :meth:`offer` stores the value on the calling
@@ -233,15 +236,18 @@ class Mailbox(Generic[T]):
         decoder: Callable[[bytes], T],
         *,
         counter: TrafficCounter | None = None,
+        accept: Callable[[str, T, T | None], bool] | None = None,
     ) -> None:
         self._loop = loop
         self._decoder = decoder
         self._counter = counter
+        self._accept = accept
         self._latest: dict[str, T] = {}
         self._updated = asyncio.Event()
         self._seq = 0
         self.received = 0
         self.dropped_malformed = 0
+        self.rejected = 0  # decoded, but refused by ``accept``
         self.dropped_closed = 0  # samples that arrived after the loop closed (thread side)
 
     # --- zenoh thread side ---------------------------------------------------------------------
@@ -288,6 +294,10 @@ class Mailbox(Generic[T]):
         if not ok:
             self.dropped_malformed += 1
             return False
+        if self._accept is not None and not self._accept(key, value,  # type: ignore[arg-type]
+                                                         self._latest.get(key)):
+            self.rejected += 1
+            return False
         self._latest[key] = value  # type: ignore[assignment]
         self._seq += 1
         return True
@@ -298,8 +308,8 @@ class Mailbox(Generic[T]):
 
     @property
     def accepted(self) -> int:
-        """Samples decoded and stored (``received - dropped_malformed``)."""
-        return self.received - self.dropped_malformed
+        """Samples decoded and stored (``received - dropped_malformed - rejected``)."""
+        return self.received - self.dropped_malformed - self.rejected
 
     @property
     def seq(self) -> int:

@@ -39,6 +39,8 @@ def run_command(ns: argparse.Namespace) -> int:
         raise UsageError(f"--pose-slots: need an integer >= 1, got {slots}")
     if slots > 1 and not (ns.realtime and ns.camera == "truth"):
         raise UsageError("--pose-slots: more than one slot needs --realtime and --camera truth")
+    if getattr(ns, "clock_offset_ms", 0.0) and not ns.realtime:
+        raise UsageError("--clock-offset-ms: needs --realtime (lock-step runs on simulated time)")
     scenario = load_scenario(ns.scenario)  # ScenarioError -> exit 2
     try:
         faults.check_robots(scenario.robot_ids)
@@ -55,7 +57,8 @@ def run_command(ns: argparse.Namespace) -> int:
                                                                    quiet=ns.quiet),
                                  faults=faults, secure=not getattr(ns, "insecure", False),
                                  pose_slots=slots, observer=observer,
-                                 scenario_path=ns.scenario)
+                                 scenario_path=ns.scenario,
+                                 clock_offset=getattr(ns, "clock_offset_ms", 0.0) / 1000.0)
     except RunAborted as stop:  # the run started: its summary says why and what it measured
         write_run(stop.summary, stop.series, scenario, out, plots=not ns.no_plots)
         print(f"formation run: aborted: {stop}; wrote {out / 'summary.json'} with what was "
