@@ -23,7 +23,7 @@ from agent.config import load_config
 from agent.faults import LinkFaults
 from agent.node import AgentNode, NodeOptions
 from wire.acl import read_credentials
-from wire.zconf import use_zenoh_threads
+from wire.zconf import UsrPwdAuth, use_zenoh_threads
 
 logger = logging.getLogger("agent")
 
@@ -47,8 +47,9 @@ def write_stats(node: AgentNode, path: Path) -> None:
     tmp.replace(path)  # the launcher never reads a half-written file
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m agent", description=__doc__.split("\n")[0])
+def build_parser(prog: str = "python -m agent", description: str = "") -> argparse.ArgumentParser:
+    """The options of one agent (shared with the agent host, :mod:`agent.host`)."""
+    parser = argparse.ArgumentParser(prog=prog, description=description or __doc__.split("\n")[0])
     parser.add_argument("--config", required=True, help="the robot's agent configuration (YAML)")
     parser.add_argument("--lockstep", action="store_true",
                         help="tick on pose arrival (simulated world) instead of the own clock")
@@ -71,19 +72,29 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--clock-ticks", action="store_true",
                         help="real time: tick on the own clock, not on pose arrival")
     parser.add_argument("--log-level", default="WARNING")
+    return parser
+
+
+def node_options(ns: argparse.Namespace, auth: UsrPwdAuth | None) -> NodeOptions:
+    """The :class:`NodeOptions` of parsed agent options (ValueError on a bad value)."""
+    faults = LinkFaults(drop=ns.drop, delay=ns.delay_ms / 1000.0, seed=ns.fault_seed)
+    if ns.zenoh_config is not None and not ns.zenoh_config.is_file():
+        raise ValueError(f"--zenoh-config: no such file {str(ns.zenoh_config)!r}")
+    return NodeOptions(lockstep=ns.lockstep, lockstep_timeout=ns.lockstep_timeout,
+                       trace=not ns.no_trace, faults=faults, ellipse_hold=ns.ellipse_hold,
+                       auth=auth, tick_on_pose=not ns.clock_ticks,
+                       zenoh_config_file=None if ns.zenoh_config is None else str(ns.zenoh_config))
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
     ns = parser.parse_args(argv)
     logging.basicConfig(level=ns.log_level.upper(),
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     try:
         cfg = load_config(ns.config)
         auth = None if ns.zenoh_auth is None else read_credentials(ns.zenoh_auth)
-        faults = LinkFaults(drop=ns.drop, delay=ns.delay_ms / 1000.0, seed=ns.fault_seed)
-        options = NodeOptions(lockstep=ns.lockstep, lockstep_timeout=ns.lockstep_timeout,
-                              trace=not ns.no_trace, faults=faults, ellipse_hold=ns.ellipse_hold,
-                              auth=auth, tick_on_pose=not ns.clock_ticks,
-                              zenoh_config_file=None if ns.zenoh_config is None else str(ns.zenoh_config))
-        if ns.zenoh_config is not None and not ns.zenoh_config.is_file():
-            raise ValueError(f"--zenoh-config: no such file {str(ns.zenoh_config)!r}")
+        options = node_options(ns, auth)
         node = AgentNode(cfg, options)
     except ValueError as exc:
         print(f"agent: {exc}", file=sys.stderr)

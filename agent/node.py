@@ -297,11 +297,7 @@ class AgentNode:
         for cls in set(self.subscribed_keys.values()):
             self._boxes[cls] = Mailbox(None if polled else loop, _stamped(decoders[cls]),
                                        counter=self.counter)
-        if self.options.zenoh_config_file is not None:
-            conf = zenoh.Config.from_file(self.options.zenoh_config_file)
-        else:
-            conf = zenoh_config(self.cfg, self.options.connect_timeout, self.options.auth)
-        self._session = zenoh.open(conf)
+        self._session = self._open_session()
         s = self._session
         pub_keys = [self.state_key, self.cmd_key]
         if self.role is not None:
@@ -351,6 +347,18 @@ class AgentNode:
                 sub = s.declare_subscriber(k, handler(cls, self._boxes[cls]))
             self._subs.append(sub)
         logger.info("%s: subscribed to %s", self.cfg.robot_id, ", ".join(self.subscribed_keys))
+
+    def _open_session(self) -> zenoh.Session:
+        """This node's Zenoh session (an agent host, :mod:`agent.host`, may hand it a shared one)."""
+        if self.options.zenoh_config_file is not None:
+            conf = zenoh.Config.from_file(self.options.zenoh_config_file)
+        else:
+            conf = zenoh_config(self.cfg, self.options.connect_timeout, self.options.auth)
+        return zenoh.open(conf)
+
+    def _close_session(self, session: zenoh.Session) -> None:
+        """Close what :meth:`_open_session` opened."""
+        session.close()
 
     def _faulty_sample(self, loop: asyncio.AbstractEventLoop, cls: str,
                        decode: Callable[[bytes], Any], key: str, payload: bytes) -> None:
@@ -422,8 +430,8 @@ class AgentNode:
         self._subs.clear()
         self._rings.clear()
         self._pubs.clear()
-        self._session.close()
-        self._session = None
+        session, self._session = self._session, None
+        self._close_session(session)
 
     # --- life --------------------------------------------------------------------------------
 

@@ -72,6 +72,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the camera loses ROBOT's marker from T for DURATION s")
     p.add_argument("--secure", action="store_true",
                    help="user/password authentication and the fleet's access control list")
+    p.add_argument("--agents-per-process", type=int, default=1, metavar="K",
+                   help="run the agents K to a process (an agent host; default 1: one per robot)")
+    p.add_argument("--shared-session", action="store_true",
+                   help="with an agent host: one Zenoh session per host, not one per agent")
     p.add_argument("--no-safety", action="store_true")
     p.add_argument("--port", type=int, default=0, help="router TCP port on 127.0.0.1 (0: free)")
     p.add_argument("--live", type=int, default=None, metavar="PORT",

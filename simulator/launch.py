@@ -48,7 +48,15 @@ from wire import acl, keys, traffic
 from wire.ports import free_tcp_port, tcp_endpoint
 from wire.zconf import UsrPwdAuth, ZenohSettings
 
-from .fleet import START_TIMEOUT_S, STOP_TIMEOUT_S, Child, ChildFailed, Fleet, signal_group
+from .fleet import (
+    START_TIMEOUT_S,
+    STOP_TIMEOUT_S,
+    Child,
+    ChildFailed,
+    Fleet,
+    signal_group,
+    unique_children,
+)
 from .inprocess import Series
 from .summary import qp_fields, run_summary
 from .world import World, WorldOptions, WorldResult
@@ -161,6 +169,8 @@ def launch(
     secure: bool = False,
     pose_slots: int = 1,
     observer=None,
+    agents_per_process: int = 1,
+    shared_session: bool = False,
 ) -> tuple[dict, Series]:
     """Run ``scenario`` as separate processes; returns the summary and the time series.
 
@@ -168,9 +178,17 @@ def launch(
     user/password authentication and the access control list of :mod:`wire.acl`, every process
     logging in as itself. ``pose_slots`` is the world's (:class:`simulator.world.WorldOptions`:
     real time only). ``observer(session)``, when given, is called with the world's session
-    before the run (a live viewer subscribes on it) and returns what detaches it after."""
+    before the run (a live viewer subscribes on it) and returns what detaches it after.
+    ``agents_per_process`` K > 1 runs the agents K to an agent host (:mod:`agent.host`;
+    ``shared_session``: one Zenoh session per host); killing an agent (``--kill``) then needs K = 1."""
     faults = faults or FaultPlan()
     faults.check_robots(scenario.robot_ids)
+    if agents_per_process < 1:
+        raise ValueError(f"agents per process: need an integer >= 1, got {agents_per_process!r}")
+    if faults.kills and agents_per_process > 1:
+        raise ValueError("kill: an agent host runs several robots; kills need one agent per process")
+    if shared_session and secure:
+        raise ValueError("shared session: each robot logs in as itself with secure; not both")
     out = Path(out)
     for sub in ("configs", "agents", "logs"):
         (out / sub).mkdir(parents=True, exist_ok=True)
@@ -195,7 +213,8 @@ def launch(
                 argv += ["--zenoh-auth", str(creds.files[rid])]
             return argv
 
-        agents = fleet.start_agents(configs, out, agent_args)
+        agents = fleet.start_agents(configs, out, agent_args, per_process=agents_per_process,
+                                    shared_session=shared_session)
         fleet.write_pids(out / "processes.json")
         conf = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
                                  connect_timeout_s=10.0,
@@ -223,7 +242,7 @@ def launch(
                 if detach is not None:
                     detach()
                 world.close()
-        fleet.shut_down(list(agents.values()), router)
+        fleet.shut_down(unique_children(agents.values()), router)  # a host once
     stats = [_read_stats(out / "agents" / f"{rid}.json") if rid in agents
              else _dead_stats(cfg) for rid, cfg in configs.items()]
     summary, series = build_summary(scenario, result, stats, topology, realtime, camera, safety)
@@ -233,6 +252,9 @@ def launch(
         summary["secure"] = {"auth": "usrpwd", "acl": str(creds.router_config)}
     if pose_slots > 1:
         summary["pose_slots"] = pose_slots  # the world spread each period's poses over this many
+    if agents_per_process > 1 or shared_session:
+        summary["agents_per_process"] = agents_per_process
+        summary["shared_session"] = shared_session
     return summary, series
 
 

@@ -35,6 +35,14 @@ def run_command(ns: argparse.Namespace) -> int:
         raise UsageError(f"--pose-slots: need an integer >= 1, got {slots}")
     if slots > 1 and not (ns.realtime and ns.camera == "truth"):
         raise UsageError("--pose-slots: more than one slot needs --realtime and --camera truth")
+    per_process = getattr(ns, "agents_per_process", 1)
+    if per_process < 1:
+        raise UsageError(f"--agents-per-process: need an integer >= 1, got {per_process}")
+    if per_process > 1 and faults.kills:
+        raise UsageError("--kill: needs one agent per process (--agents-per-process 1)")
+    shared = getattr(ns, "shared_session", False)
+    if shared and getattr(ns, "secure", False):
+        raise UsageError("--shared-session: not with --secure (each robot logs in as itself)")
     scenario = load_scenario(ns.scenario)  # ScenarioError -> exit 2
     try:
         faults.check_robots(scenario.robot_ids)
@@ -50,7 +58,8 @@ def run_command(ns: argparse.Namespace) -> int:
                                  progress_factory=lambda: Progress(f"run {scenario.name}",
                                                                    quiet=ns.quiet),
                                  faults=faults, secure=getattr(ns, "secure", False),
-                                 pose_slots=slots, observer=observer)
+                                 pose_slots=slots, observer=observer,
+                                 agents_per_process=per_process, shared_session=shared)
     finally:
         if live is not None:
             live.close()
