@@ -94,6 +94,15 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("bench", help="benchmarks")
     p.add_argument("--out", required=True)
     p.add_argument("--quick", action="store_true", help="smoke mode (CI)")
+    p.add_argument("--fleets", default=None, metavar="N@HZ,...",
+                   help="only these agent fleets, e.g. 32@50,256@20 (real time)")
+    p.add_argument("--agents-per-process", type=int, default=1, metavar="K",
+                   help="with --fleets: K agents to an agent host (default 1)")
+    p.add_argument("--shared-session", action="store_true",
+                   help="with --fleets: one Zenoh session per agent host")
+    p.add_argument("--repeat", type=int, default=1, metavar="R", help="with --fleets: run each R times")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="with --fleets: seconds of real time per run (default 15)")
 
     p = sub.add_parser("view", help="the live page of a running fleet (read-only)")
     _add_view_args(p, client=True)

@@ -154,3 +154,28 @@ def test_sigterm_to_the_host_makes_every_agent_command_zero_and_write_its_counte
             stats = json.loads((tmp_path / f"{rid}.json").read_text())
             assert stats["robot"] == rid and stats["solves"] > 0 and stats["host_agents"] == 2
         peer.session.close()
+
+
+def test_bench_fleets_runs_each_chosen_fleet_repeatedly_with_its_latency_parts_and_load(tmp_path):
+    out = tmp_path / "bench"
+    assert main(["bench", "--out", str(out), "--fleets", "4@20", "--agents-per-process", "2",
+                 "--repeat", "2", "--duration", "1.5"]) == 0
+    result = json.loads((out / "bench.json").read_text())
+    assert result["agents_per_process"] == 2 and result["shared_session"] is False
+    assert [(f["fleet"], f["round"]) for f in result["fleets"]] == [("4@20", 1), ("4@20", 2)]
+    for f in result["fleets"]:
+        assert f["robots"] == 4 and f["agents_per_process"] == 2
+        assert f["commands"] > 0 and f["latency_ms_p99"] >= f["latency_ms_p50"] > 0
+        assert set(f["latency_parts_ms_median"]) == {"pose_wait_for_tick", "tick", "transport_rest"}
+        assert all(math.isfinite(v) for v in f["latency_parts_ms_median"].values())
+        assert f["load_avg_1min"]["before"] is not None
+    rows = [line.split() for line in (out / "bench.txt").read_text().splitlines()]
+    assert sum(1 for r in rows if r[:2] == ["4", "20"]) == 2  # one table row per run
+
+
+@pytest.mark.parametrize("args", [["--fleets", "32at50"], ["--fleets", "0@20"], ["--fleets", "8@-5"],
+                                  ["--agents-per-process", "2"],
+                                  ["--fleets", "8@20", "--repeat", "0"]])
+def test_bench_with_a_bad_fleet_option_exits_2_before_running_anything(tmp_path, args):
+    assert main(["bench", "--out", str(tmp_path / "b"), *args]) == 2
+    assert not (tmp_path / "b" / "bench.json").exists()
