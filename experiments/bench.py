@@ -285,16 +285,19 @@ def parse_fleets(text: str) -> list[tuple[int, float]]:
 
 def run_fleets(fleets: Sequence[tuple[int, float]], per_process: int = 1,
                shared_session: bool = False, repeat: int = 1,
-               duration: float = FLEET_DURATION, work: Path | None = None) -> dict:
+               duration: float = FLEET_DURATION, work: Path | None = None,
+               pose_slots: int = 1) -> dict:
     """Only the **agents** part, for the fleets asked (``formation bench --fleets``): each fleet
-    ``repeat`` times in a row, every run with its own load average and latency parts."""
+    ``repeat`` times in a row, every run with its own load average and latency parts;
+    ``pose_slots`` is the world's (capped at one slot per formation)."""
     runs = []
     with tempfile.TemporaryDirectory(prefix="bench-fleets-") as tmp:
         base = Path(work) if work is not None else Path(tmp)
         for n, dt in fleets:
             for r in range(repeat):
                 entry = bench_agents(n, dt, duration, base / f"fleet-{n}-{round(1 / dt)}-{r}",
-                                     per_process=per_process, shared_session=shared_session)
+                                     per_process=per_process, shared_session=shared_session,
+                                     pose_slots=max(1, min(pose_slots, n // 4)))
                 entry["fleet"] = f"{n}@{1 / dt:g}"
                 entry["round"] = r + 1
                 runs.append(entry)
@@ -304,6 +307,7 @@ def run_fleets(fleets: Sequence[tuple[int, float]], per_process: int = 1,
                     "load_avg_1min_at_start": runs[0]["load_avg_1min"]["before"] if runs else None},
         "agents_per_process": per_process,
         "shared_session": shared_session,
+        "pose_slots": pose_slots,
         "fleets": runs,
     }
 

@@ -101,6 +101,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--shared-session", action="store_true",
                    help="with --fleets: one Zenoh session per agent host")
     p.add_argument("--repeat", type=int, default=1, metavar="R", help="with --fleets: run each R times")
+    p.add_argument("--pose-slots", type=int, default=1, metavar="S",
+                   help="with --fleets: the world spreads each period's poses over S slots "
+                        "(at most one per formation; default 1: one camera frame)")
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="with --fleets: seconds of real time per run (default 15)")
 

@@ -175,7 +175,7 @@ def test_bench_fleets_runs_each_chosen_fleet_repeatedly_with_its_latency_parts_a
 
 @pytest.mark.parametrize("args", [["--fleets", "32at50"], ["--fleets", "0@20"], ["--fleets", "8@-5"],
                                   ["--agents-per-process", "2"],
-                                  ["--fleets", "8@20", "--repeat", "0"]])
+                                  ["--fleets", "8@20", "--repeat", "0"], ["--pose-slots", "2"]])
 def test_bench_with_a_bad_fleet_option_exits_2_before_running_anything(tmp_path, args):
     assert main(["bench", "--out", str(tmp_path / "b"), *args]) == 2
     assert not (tmp_path / "b" / "bench.json").exists()

@@ -22,18 +22,20 @@ def bench_command(ns: argparse.Namespace) -> int:
         fleets = None if fleets_arg is None else parse_fleets(fleets_arg)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    if per_process < 1 or repeat < 1:
-        raise UsageError("--agents-per-process and --repeat: need integers >= 1")
+    slots = getattr(ns, "pose_slots", 1)
+    if per_process < 1 or repeat < 1 or slots < 1:
+        raise UsageError("--agents-per-process, --repeat and --pose-slots: need integers >= 1")
     if duration is not None and not duration > 0:
         raise UsageError(f"--duration: need seconds > 0, got {duration}")
-    if fleets is None and (per_process != 1 or repeat != 1 or duration is not None
+    if fleets is None and (per_process != 1 or repeat != 1 or duration is not None or slots != 1
                            or getattr(ns, "shared_session", False)):
-        raise UsageError("--agents-per-process, --shared-session, --repeat and --duration go with --fleets")
+        raise UsageError("--agents-per-process, --shared-session, --repeat, --duration and "
+                         "--pose-slots go with --fleets")
     out = Path(ns.out)
     out.mkdir(parents=True, exist_ok=True)
     if fleets is not None:
         result = run_fleets(fleets, per_process, getattr(ns, "shared_session", False), repeat,
-                            **({} if duration is None else {"duration": duration}))
+                            pose_slots=slots, **({} if duration is None else {"duration": duration}))
         (out / "bench.json").write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
         table = format_fleets(result)
         (out / "bench.txt").write_text(table + "\n", encoding="utf-8")
