@@ -5,9 +5,14 @@ For big simulations on few cores (``formation run --agents-per-process K``, issu
 Zenoh keys and its own counters file, exactly as ``python -m agent --config CONFIG --stats STATS
 [--zenoh-auth AUTH]`` would run it; every other option (``--lockstep``, faults, ``--no-trace``,
 ...) is :mod:`agent.__main__`'s and applies to all of them. The nodes run as tasks of one asyncio
-loop; in real time each ticks on its own pose on the Zenoh thread that received it, as in a process
-of its own, under its own tick lock. One process per robot stays the default and what deploy
-installs.
+loop. In real time a pose callback only stores the pose (on Zenoh's thread) and queues its node;
+the host's one tick thread (:class:`TickWorker`) ticks each queued node on its newest pose, under
+the node's own tick lock, with the same tick code as a process of its own: while the host keeps
+up every pose gets its tick, and a host that falls behind skips to each robot's newest pose
+(``superseded_poses`` in its counters) instead of working through a backlog, so its latency stays
+bounded. ``--direct-ticks`` ticks on Zenoh's thread instead, as a single agent does (measured
+against each other in docs/performance.md). One process per robot stays the default and what
+deploy installs.
 
 Sessions: by default each node opens its own Zenoh session (a client of the router, as a separate
 process would). ``--shared-session`` gives every node of the host one session instead: fewer
@@ -29,7 +34,9 @@ import asyncio
 import logging
 import signal
 import sys
+import threading
 import time
+from collections import deque
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -38,6 +45,7 @@ import zenoh
 from agent.__main__ import build_parser, node_options, write_stats
 from agent.config import load_config
 from agent.node import AgentNode, NodeOptions, zenoh_config
+from wire import keys
 from wire.acl import read_credentials
 from wire.zconf import use_zenoh_threads
 
@@ -57,15 +65,72 @@ class SharedSession:
             self.session.close()
 
 
+class TickWorker:
+    """Real time: the host's one thread that runs its agents' pose ticks (see the module
+    docstring). A pose callback only stores the pose and queues its node (once); the worker
+    ticks each queued node on its newest pose, so a host that falls behind skips to the newest
+    pose of each robot instead of working through a backlog of old ones."""
+
+    def __init__(self) -> None:
+        self._due: deque[HostedNode] = deque()
+        self._queued: set[int] = set()
+        self._cond = threading.Condition()
+        self._stopped = False
+        self.superseded = 0  # poses stored but never ticked on (a newer one came first)
+        self._thread = threading.Thread(target=self._run, name="agent-host-ticks", daemon=True)
+        self._thread.start()
+
+    def mark(self, node: HostedNode) -> None:
+        with self._cond:
+            if id(node) in self._queued:
+                node.superseded += 1
+                return
+            self._queued.add(id(node))
+            self._due.append(node)
+            self._cond.notify()
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._due and not self._stopped:
+                    self._cond.wait()
+                if self._stopped:
+                    return
+                node = self._due.popleft()
+                self._queued.discard(id(node))
+            with node._tick_lock:
+                if not node._closing:
+                    node._pose_tick(time.monotonic())
+
+    def stop(self) -> None:
+        with self._cond:
+            self._stopped = True
+            self._cond.notify()
+        self._thread.join(5.0)
+
+
 class HostedNode(AgentNode):
-    """An :class:`AgentNode` that may use its host's shared session (never closing it itself)."""
+    """An :class:`AgentNode` that may use its host's shared session (never closing it itself)
+    and, in real time, its host's :class:`TickWorker`."""
 
     def __init__(self, cfg, options: NodeOptions, shared: SharedSession | None = None,
-                 host_agents: int = 1) -> None:
+                 host_agents: int = 1, worker: TickWorker | None = None) -> None:
         super().__init__(cfg, options)
         self.shared = shared
         self.host_agents = host_agents
+        self.worker = worker
+        self.superseded = 0
         self._host_cpu0 = time.process_time()
+
+    def _on_pose_sample(self, sample) -> None:
+        if self.worker is None:
+            super()._on_pose_sample(sample)
+            return
+        with self._tick_lock:
+            if self._closing:
+                return
+            self._boxes[keys.POSE].callback(sample)
+        self.worker.mark(self)
 
     def _open_session(self) -> zenoh.Session:
         return super()._open_session() if self.shared is None else self.shared.session
@@ -80,6 +145,7 @@ class HostedNode(AgentNode):
         s = super().stats()
         s["cpu_s"] = (time.process_time() - self._host_cpu0) / self.host_agents
         s["host_agents"] = self.host_agents
+        s["superseded_poses"] = self.superseded
         return s
 
 
@@ -124,6 +190,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="one robot's agent configuration, counters file and credentials")
     parser.add_argument("--shared-session", action="store_true",
                         help="one Zenoh session for every agent of the host (not with AUTH)")
+    parser.add_argument("--direct-ticks", action="store_true",
+                        help="real time: tick on Zenoh's thread as a process of its own does, "
+                             "not on the host's tick thread (for comparison)")
     ns = parser.parse_args(argv)
     logging.basicConfig(level=ns.log_level.upper(),
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
@@ -154,16 +223,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     shared = None
     status = 0
     nodes: list[HostedNode] = []
+    opt0 = planned[0][1]
+    worker = None if (ns.direct_ticks or opt0.lockstep or not opt0.tick_on_pose) else TickWorker()
     try:
         if ns.shared_session:
-            cfg0, opt0, _ = planned[0]
-            shared = SharedSession(zenoh.open(zenoh_config(cfg0, opt0.connect_timeout)), k)
-        nodes = [HostedNode(cfg, options, shared, k) for cfg, options, _ in planned]
+            shared = SharedSession(zenoh.open(zenoh_config(planned[0][0], opt0.connect_timeout)), k)
+        nodes = [HostedNode(cfg, options, shared, k, worker) for cfg, options, _ in planned]
         asyncio.run(serve_all(nodes))
     except Exception as exc:  # noqa: BLE001 - a process front end: report and exit 1
         logger.exception("agent host (%s) failed", ", ".join(ids))
         print(f"agent host: {type(exc).__name__}: {exc}", file=sys.stderr)
         status = 1
+    finally:
+        if worker is not None:
+            worker.stop()
     for node, (_, _, stats) in zip(nodes, planned, strict=False):
         write_stats(node, stats)
     return status
