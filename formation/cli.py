@@ -74,8 +74,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="user/password authentication and the fleet's access control list")
     p.add_argument("--agents-per-process", type=int, default=1, metavar="K",
                    help="run the agents K to a process (an agent host; default 1: one per robot)")
-    p.add_argument("--shared-session", action="store_true",
-                   help="with an agent host: one Zenoh session per host, not one per agent")
+    p.add_argument("--session-per-agent", action="store_true",
+                   help="with --agents-per-process K > 1: each agent opens its own Zenoh session "
+                        "(default: one per host; always with --secure)")
     p.add_argument("--no-safety", action="store_true")
     p.add_argument("--port", type=int, default=0, help="router TCP port on 127.0.0.1 (0: free)")
     p.add_argument("--live", type=int, default=None, metavar="PORT",
@@ -98,8 +99,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="only these agent fleets, e.g. 32@50,256@20 (real time)")
     p.add_argument("--agents-per-process", type=int, default=1, metavar="K",
                    help="with --fleets: K agents to an agent host (default 1)")
-    p.add_argument("--shared-session", action="store_true",
-                   help="with --fleets: one Zenoh session per agent host")
+    p.add_argument("--session-per-agent", action="store_true",
+                   help="with --fleets and K > 1: each agent opens its own Zenoh session "
+                        "(default: one per host)")
     p.add_argument("--repeat", type=int, default=1, metavar="R", help="with --fleets: run each R times")
     p.add_argument("--pose-slots", type=int, default=1, metavar="S",
                    help="with --fleets: the world spreads each period's poses over S slots "

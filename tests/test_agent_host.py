@@ -32,8 +32,8 @@ P = keys.DEFAULT_PREFIX
 TIMEOUT_S = 15.0
 
 
-@pytest.mark.parametrize("extra", [["--agents-per-process", "4"],
-                                   ["--agents-per-process", "3", "--shared-session"]],
+@pytest.mark.parametrize("extra", [["--agents-per-process", "4", "--session-per-agent"],
+                                   ["--agents-per-process", "3"]],
                          ids=["own-sessions", "shared-session"])
 def test_a_lockstep_run_with_agent_hosts_writes_the_same_robots_csv_as_the_in_process_simulation(
         tmp_path, extra):
@@ -49,6 +49,7 @@ def test_a_lockstep_run_with_agent_hosts_writes_the_same_robots_csv_as_the_in_pr
         [f"host-{i}" for i in range(math.ceil(len(robots) / k))]
     assert not any(p.startswith("agent-") for p in procs)
     assert run["agents_per_process"] == k
+    assert run["shared_session"] is ("--session-per-agent" not in extra)
     assert run["agents"]["stale"] == 0 and run["world"]["missing_cmds"] == 0
     for rid in robots:  # every hosted agent wrote its own counters
         stats = json.loads((tmp_path / "run" / "agents" / f"{rid}.json").read_text())
@@ -62,7 +63,7 @@ def test_kills_and_a_bad_agents_per_process_exit_2_before_starting_anything(tmp_
     robot = load_scenario(TWO_SMALL).robot_ids[0]
     assert main(["run", str(TWO_SMALL), "--out", str(out), "--agents-per-process", "2",
                  "--kill", f"{robot}@1"]) == 2
-    assert main(["run", str(TWO_SMALL), "--out", str(out), "--shared-session", "--secure"]) == 2
+    assert main(["run", str(TWO_SMALL), "--out", str(out), "--agents-per-process", "-3"]) == 2
     assert not (out / "processes.json").exists()
 
 
@@ -161,7 +162,7 @@ def test_bench_fleets_runs_each_chosen_fleet_repeatedly_with_its_latency_parts_a
     assert main(["bench", "--out", str(out), "--fleets", "4@20", "--agents-per-process", "2",
                  "--repeat", "2", "--duration", "1.5"]) == 0
     result = json.loads((out / "bench.json").read_text())
-    assert result["agents_per_process"] == 2 and result["shared_session"] is False
+    assert result["agents_per_process"] == 2 and result["shared_session"] is True  # the default
     assert [(f["fleet"], f["round"]) for f in result["fleets"]] == [("4@20", 1), ("4@20", 2)]
     for f in result["fleets"]:
         assert f["robots"] == 4 and f["agents_per_process"] == 2
@@ -174,7 +175,7 @@ def test_bench_fleets_runs_each_chosen_fleet_repeatedly_with_its_latency_parts_a
 
 
 @pytest.mark.parametrize("args", [["--fleets", "32at50"], ["--fleets", "0@20"], ["--fleets", "8@-5"],
-                                  ["--agents-per-process", "2"],
+                                  ["--agents-per-process", "2"], ["--session-per-agent"],
                                   ["--fleets", "8@20", "--repeat", "0"], ["--pose-slots", "2"]])
 def test_bench_with_a_bad_fleet_option_exits_2_before_running_anything(tmp_path, args):
     assert main(["bench", "--out", str(tmp_path / "b"), *args]) == 2

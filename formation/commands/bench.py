@@ -13,7 +13,7 @@ from formation.exits import UsageError
 
 def bench_command(ns: argparse.Namespace) -> int:
     """``formation bench --out DIR [--quick]``, or ``--fleets N@HZ,... [--agents-per-process K]
-    [--shared-session] [--repeat R] [--duration S]``: only those agent fleets."""
+    [--session-per-agent] [--repeat R] [--duration S]``: only those agent fleets."""
     fleets_arg = getattr(ns, "fleets", None)
     per_process = getattr(ns, "agents_per_process", 1)
     repeat = getattr(ns, "repeat", 1)
@@ -27,14 +27,15 @@ def bench_command(ns: argparse.Namespace) -> int:
         raise UsageError("--agents-per-process, --repeat and --pose-slots: need integers >= 1")
     if duration is not None and not duration > 0:
         raise UsageError(f"--duration: need seconds > 0, got {duration}")
+    own = getattr(ns, "session_per_agent", False)
     if fleets is None and (per_process != 1 or repeat != 1 or duration is not None or slots != 1
-                           or getattr(ns, "shared_session", False)):
-        raise UsageError("--agents-per-process, --shared-session, --repeat, --duration and "
+                           or own):
+        raise UsageError("--agents-per-process, --session-per-agent, --repeat, --duration and "
                          "--pose-slots go with --fleets")
     out = Path(ns.out)
     out.mkdir(parents=True, exist_ok=True)
     if fleets is not None:
-        result = run_fleets(fleets, per_process, getattr(ns, "shared_session", False), repeat,
+        result = run_fleets(fleets, per_process, per_process > 1 and not own, repeat,
                             pose_slots=slots, **({} if duration is None else {"duration": duration}))
         (out / "bench.json").write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
         table = format_fleets(result)

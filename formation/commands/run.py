@@ -40,9 +40,10 @@ def run_command(ns: argparse.Namespace) -> int:
         raise UsageError(f"--agents-per-process: need an integer >= 1, got {per_process}")
     if per_process > 1 and faults.kills:
         raise UsageError("--kill: needs one agent per process (--agents-per-process 1)")
-    shared = getattr(ns, "shared_session", False)
-    if shared and getattr(ns, "secure", False):
-        raise UsageError("--shared-session: not with --secure (each robot logs in as itself)")
+    # an agent host shares one Zenoh session among its agents (measured cheaper, docs/performance.md)
+    # unless asked otherwise or --secure (each robot logs in as itself)
+    shared = (per_process > 1 and not getattr(ns, "session_per_agent", False)
+              and not getattr(ns, "secure", False))
     scenario = load_scenario(ns.scenario)  # ScenarioError -> exit 2
     try:
         faults.check_robots(scenario.robot_ids)
