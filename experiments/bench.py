@@ -39,6 +39,10 @@ robot drove a period on an older command); agents also count their own deadline 
 is ``utime + stime`` from ``/proc/PID/stat`` over the steady run (all threads, Zenoh's included),
 as a percentage of one core; memory is ``VmRSS`` of ``/proc/PID/status`` at the end of the run.
 
+``formation bench --fleets N@HZ,...`` (:func:`run_fleets`) runs only the **agents** part for the
+fleets asked, optionally in agent hosts (``--agents-per-process K``, :mod:`agent.host`), each fleet
+``--repeat`` times, every run with its own load average.
+
 The machine's load average is recorded beside every timing: this is a shared 2-core machine, and
 timings taken under other people's load are upper bounds.
 """
