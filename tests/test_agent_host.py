@@ -33,8 +33,9 @@ TIMEOUT_S = 15.0
 
 
 @pytest.mark.parametrize("extra", [["--agents-per-process", "4", "--session-per-agent"],
-                                   ["--agents-per-process", "3"]],
-                         ids=["own-sessions", "shared-session"])
+                                   ["--agents-per-process", "3"],
+                                   ["--agents-per-process", "4", "--secure"]],
+                         ids=["own-sessions", "shared-session", "secure-own-logins"])
 def test_a_lockstep_run_with_agent_hosts_writes_the_same_robots_csv_as_the_in_process_simulation(
         tmp_path, extra):
     assert main(["sim", str(TWO_SMALL), "--out", str(tmp_path / "sim"), "--quiet",
@@ -49,7 +50,7 @@ def test_a_lockstep_run_with_agent_hosts_writes_the_same_robots_csv_as_the_in_pr
         [f"host-{i}" for i in range(math.ceil(len(robots) / k))]
     assert not any(p.startswith("agent-") for p in procs)
     assert run["agents_per_process"] == k
-    assert run["shared_session"] is ("--session-per-agent" not in extra)
+    assert run["shared_session"] is not ("--session-per-agent" in extra or "--secure" in extra)
     assert run["agents"]["stale"] == 0 and run["world"]["missing_cmds"] == 0
     for rid in robots:  # every hosted agent wrote its own counters
         stats = json.loads((tmp_path / "run" / "agents" / f"{rid}.json").read_text())
