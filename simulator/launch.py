@@ -6,7 +6,10 @@ scouting off:
 
 * a Zenoh router (``python -m wire.router``);
 * one agent per robot (``python -m agent --config DIR/configs/ROBOT.yaml``, ``--lockstep`` unless
-  ``--realtime``), each writing its counters to ``DIR/agents/ROBOT.json`` when it stops.
+  ``--realtime``), each writing its counters to ``DIR/agents/ROBOT.json`` when it stops. With
+  ``--agents-per-process K`` the agents run K to an agent host (``python -m agent.host``, child
+  ``host-I``; :mod:`agent.host`), one Zenoh session per host unless ``--session-per-agent`` or
+  ``--secure``; each robot keeps its own configuration, keys and counters file.
 
 The simulated world (:class:`simulator.world.World`) runs in the launcher's own process on a
 client session, so progress is shown as it goes. When every goal is reached (or the duration is
