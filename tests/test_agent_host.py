@@ -181,3 +181,15 @@ def test_bench_fleets_runs_each_chosen_fleet_repeatedly_with_its_latency_parts_a
 def test_bench_with_a_bad_fleet_option_exits_2_before_running_anything(tmp_path, args):
     assert main(["bench", "--out", str(tmp_path / "b"), *args]) == 2
     assert not (tmp_path / "b" / "bench.json").exists()
+
+
+def test_a_real_time_run_with_agent_hosts_reaches_every_goal_with_every_agent_ticking(tmp_path):
+    assert main(["run", str(TWO_SMALL), "--out", str(tmp_path / "rt"), "--quiet", "--no-plots",
+                 "--realtime", "--agents-per-process", "4"]) == 0
+    run = json.loads((tmp_path / "rt" / "summary.json").read_text())
+    assert run["all_reached"] is True and run["collisions"] == 0
+    assert run["realtime"] is True and run["agents_per_process"] == 4
+    assert run["world"]["latency_ms"]["samples"] > 0
+    for rid in load_scenario(TWO_SMALL).robot_ids:  # the host's tick thread served every robot
+        stats = json.loads((tmp_path / "rt" / "agents" / f"{rid}.json").read_text())
+        assert stats["solves"] > 0 and "superseded_poses" in stats
