@@ -44,7 +44,7 @@ from agent.faults import LinkFaults  # noqa: E402
 from agent.node import AgentNode, NodeOptions  # noqa: E402
 from wire.acl import read_credentials  # noqa: E402
 from wire.lifeline import watch_parent  # noqa: E402
-from wire.zconf import use_zenoh_threads  # noqa: E402
+from wire.zconf import UsrPwdAuth, use_zenoh_threads  # noqa: E402
 
 logger = logging.getLogger("agent")
 
@@ -129,8 +129,9 @@ def _emergency_exit(node: AgentNode, stats: Path | None, done: threading.Event,
     os._exit(0)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m agent", description=__doc__.split("\n")[0])
+def build_parser(prog: str = "python -m agent", description: str = "") -> argparse.ArgumentParser:
+    """The options of one agent (shared with the agent host, :mod:`agent.host`)."""
+    parser = argparse.ArgumentParser(prog=prog, description=description or __doc__.split("\n")[0])
     parser.add_argument("--config", required=True, help="the robot's agent configuration (YAML)")
     parser.add_argument("--lockstep", action="store_true",
                         help="tick on pose arrival (simulated world) instead of the own clock")
@@ -156,6 +157,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--clock-ticks", action="store_true",
                         help="real time: tick on the own clock, not on pose arrival")
     parser.add_argument("--log-level", default="WARNING")
+    return parser
+
+
+def node_options(ns: argparse.Namespace, auth: UsrPwdAuth | None) -> NodeOptions:
+    """The :class:`NodeOptions` of parsed agent options (ValueError on a bad value)."""
+    faults = LinkFaults(drop=ns.drop, delay=ns.delay_ms / 1000.0, seed=ns.fault_seed)
+    if ns.zenoh_config is not None and not ns.zenoh_config.is_file():
+        raise ValueError(f"--zenoh-config: no such file {str(ns.zenoh_config)!r}")
+    return NodeOptions(lockstep=ns.lockstep, lockstep_timeout=ns.lockstep_timeout,
+                       trace=not ns.no_trace, faults=faults, ellipse_hold=ns.ellipse_hold,
+                       auth=auth, tick_on_pose=not ns.clock_ticks, sim_start=ns.sim_start,
+                       zenoh_config_file=None if ns.zenoh_config is None else str(ns.zenoh_config))
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
     ns = parser.parse_args(argv)
     watch = SignalWatch()  # first: before any thread starts
     logging.basicConfig(level=ns.log_level.upper(),
@@ -163,13 +180,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         cfg = load_config(ns.config)
         auth = None if ns.zenoh_auth is None else read_credentials(ns.zenoh_auth)
-        faults = LinkFaults(drop=ns.drop, delay=ns.delay_ms / 1000.0, seed=ns.fault_seed)
-        options = NodeOptions(lockstep=ns.lockstep, lockstep_timeout=ns.lockstep_timeout,
-                              trace=not ns.no_trace, faults=faults, ellipse_hold=ns.ellipse_hold,
-                              auth=auth, tick_on_pose=not ns.clock_ticks, sim_start=ns.sim_start,
-                              zenoh_config_file=None if ns.zenoh_config is None else str(ns.zenoh_config))
-        if ns.zenoh_config is not None and not ns.zenoh_config.is_file():
-            raise ValueError(f"--zenoh-config: no such file {str(ns.zenoh_config)!r}")
+        options = node_options(ns, auth)
         node = AgentNode(cfg, options)
     except ValueError as exc:
         print(f"agent: {exc}", file=sys.stderr)

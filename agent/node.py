@@ -476,7 +476,7 @@ class AgentNode:
         :meth:`open` declares them."""
         if cls not in self._boxes:
             self._boxes[cls] = Mailbox(None if polled else self._loop, _stamped(decoders[cls]),
-                                       counter=self.counter)
+                                       counter=self.counter, accept=self._acceptor(cls))
         sub: Any
         if polled:
             sub = s.declare_subscriber(k, zenoh.handlers.RingChannel(RING_CAPACITY))
@@ -505,7 +505,8 @@ class AgentNode:
         self._subs.append(s.liveliness().declare_subscriber(token_key, on_token, history=True))
 
     def _open_session(self) -> zenoh.Session:
-        """The agent's session; ``ConnectionError`` saying why it did not open."""
+        """This node's Zenoh session (an agent host, :mod:`agent.host`, may hand it a shared
+        one); ``ConnectionError`` saying why it did not open."""
         if self.options.zenoh_config_file is not None:
             conf = zenoh.Config.from_file(self.options.zenoh_config_file)
         else:
@@ -525,6 +526,10 @@ class AgentNode:
             except ValueError:  # no credentials in it
                 pass
         return explain_open_failure(exc, connect, auth)
+
+    def _close_session(self, session: zenoh.Session) -> None:
+        """Close what :meth:`_open_session` opened."""
+        session.close()
 
     def _faulty_sample(self, loop: asyncio.AbstractEventLoop, cls: str,
                        decode: Callable[[bytes], Any], key: str, payload: bytes) -> None:
@@ -603,8 +608,8 @@ class AgentNode:
         self._subs.clear()
         self._rings.clear()
         self._pubs.clear()
-        self._session.close()
-        self._session = None
+        session, self._session = self._session, None
+        self._close_session(session)
 
     # --- fault containment ---------------------------------------------------------------------
 
@@ -655,6 +660,7 @@ class AgentNode:
         self.acting = False
         logger.warning("%s: leader %s of %s is back: member again", self.cfg.robot_id,
                        self.cfg.leader_id, self.cfg.formation)
+
     def emergency_zero(self) -> bool:
         """From any thread and without the tick lock (a shutdown that overran its time limit):
         publish the zero command unless :meth:`close` already did. True once it is sent."""

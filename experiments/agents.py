@@ -16,12 +16,16 @@ logger = logging.getLogger(__name__)
 
 
 def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: bool = True,
-                 pose_slots: int = 1, viewer: bool = False) -> dict:
+                 pose_slots: int = 1, viewer: bool = False, per_process: int = 1,
+                 shared_session: bool = False) -> dict:
     """Run ``n`` agent processes in real time against the simulated world for ``duration``
     seconds (see the module docstring); every process started here is stopped on every way out.
     ``tick_on_pose=False`` runs the agents with ``--clock-ticks`` (their own clock);
     ``pose_slots`` is the world's (:class:`simulator.world.WorldOptions`); ``viewer`` attaches
-    ``formation view --connect`` to the router (the live page and Foxglove WebSocket)."""
+    ``formation view --connect`` to the router (the live page and Foxglove WebSocket);
+    ``per_process`` K > 1 runs the agents K to an agent host (:mod:`agent.host`, one Zenoh session
+    per host with ``shared_session``): each agent's CPU and memory are then its host's divided by
+    the agents it runs."""
     import zenoh
 
     from wire.zconf import use_zenoh_threads
@@ -29,7 +33,7 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
     use_zenoh_threads("relay")  # as `formation bench` does, for a direct call too
 
     from agent.config import build_agent_configs
-    from simulator.fleet import START_TIMEOUT_S, Fleet
+    from simulator.fleet import START_TIMEOUT_S, Fleet, unique_children
     from simulator.world import World, WorldOptions
     from wire.ports import free_tcp_port, tcp_endpoint
     from wire.zconf import ZenohSettings
@@ -44,33 +48,36 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
         router = fleet.start_router(endpoint, port)
         zs = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False)
         agents = fleet.start_agents(build_agent_configs(scenario, zenoh=zs), work,
-                                    lambda _rid: ["--no-trace", *([] if tick_on_pose else ["--clock-ticks"])])
+                                    lambda _rid: ["--no-trace", *([] if tick_on_pose else ["--clock-ticks"])],
+                                    per_process=per_process, shared_session=shared_session)
         if viewer:
             fleet.start("viewer", ["-m", "formation", "view", "--connect", endpoint, "--port", "0"])
         conf = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
                                  connect_timeout_s=10.0).to_config()
         options = WorldOptions(realtime=True, stop_at_goal=False, record=False, pose_slots=pose_slots,
                                start_timeout=START_TIMEOUT_S + 4.0 * n)
-        pids = {rid: c.proc.pid for rid, c in agents.items()}
+        hosts = unique_children(agents.values())
+        pids = {h.name: h.proc.pid for h in hosts}
+        share = {h.name: 1.0 / sum(1 for c in agents.values() if c is h) for h in hosts}
         with zenoh.open(conf) as session:
             world = World(scenario, session, options)
             try:
                 world.wait_for_agents(abort=fleet.check)
-                cpu0 = {rid: proc_cpu_s(pid) for rid, pid in pids.items()}
+                cpu0 = {name: proc_cpu_s(pid) for name, pid in pids.items()}
                 router_cpu0 = proc_cpu_s(router.proc.pid)
                 own0 = time.process_time()
                 busy0 = machine_busy_s()
                 result = world.run(abort=fleet.check)
                 own_cpu = time.process_time() - own0
                 busy1 = machine_busy_s()
-                cpu1 = {rid: proc_cpu_s(pid) for rid, pid in pids.items()}
+                cpu1 = {name: proc_cpu_s(pid) for name, pid in pids.items()}
                 router_cpu1 = proc_cpu_s(router.proc.pid)
-                rss = {rid: proc_rss_mb(pid) for rid, pid in pids.items()}
+                rss = {name: proc_rss_mb(pid) for name, pid in pids.items()}
                 router_rss = proc_rss_mb(router.proc.pid)
             finally:
                 world.close()
         load_after = load_avg()
-        fleet.shut_down(list(agents.values()), router)
+        fleet.shut_down(hosts, router)
     stats = []
     for rid in agents:
         try:
@@ -78,14 +85,18 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
         except (OSError, ValueError):
             logger.warning("agent %s wrote no counters", rid)
     busy = None if busy0 is None or busy1 is None else busy1 - busy0
-    entry = _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, own_cpu,
+    entry = _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, share, own_cpu,
                           (router_cpu0, router_cpu1, router_rss), (load_before, load_after), busy)
     entry["ticks_on"] = "pose" if tick_on_pose else "clock"
     entry["pose_slots"] = pose_slots
+    entry["agents_per_process"] = per_process
+    entry["shared_session"] = shared_session
     return entry
 
 
-def _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, own_cpu, router, loads, busy) -> dict:
+def _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, share, own_cpu, router, loads, busy) -> dict:
+    """One fleet's figures; ``cpu0``/``cpu1``/``rss`` are per agent process (or host), ``share``
+    the part of each that one agent counts as its own (1/K for a host of K)."""
     from simulator.launch import sum_counts
 
     wall = result.wall_s
@@ -93,9 +104,9 @@ def _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, own_cpu, router, loads,
     period_ms = dt * 1e3
     poses = n * result.steps - result.camera_dropped
     in_time = sum(1 for x in lat if x <= period_ms)
-    cpu_pct = [100.0 * (cpu1[r] - cpu0[r]) / wall for r in cpu0
+    cpu_pct = [100.0 * share[r] * (cpu1[r] - cpu0[r]) / wall for r in cpu0
                if cpu0[r] is not None and cpu1.get(r) is not None and wall > 0]
-    rss_mb = [v for v in rss.values() if v is not None]
+    rss_mb = [share[r] * v for r, v in rss.items() if v is not None]
 
     def med(key: str) -> float | None:
         vals = [s[key] for s in stats if s.get(key) is not None]

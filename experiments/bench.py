@@ -41,6 +41,10 @@ robot drove a period on an older command); agents also count their own deadline 
 is ``utime + stime`` from ``/proc/PID/stat`` over the steady run (all threads, Zenoh's included),
 as a percentage of one core; memory is ``VmRSS`` of ``/proc/PID/status`` at the end of the run.
 
+``formation bench --fleets N@HZ,...`` (:func:`run_fleets`) runs only the **agents** part for the
+fleets asked, optionally in agent hosts (``--agents-per-process K``, :mod:`agent.host`), each fleet
+``--repeat`` times, every run with its own load average.
+
 The machine's load average is recorded beside every timing: this is a shared 2-core machine, and
 timings taken under other people's load are upper bounds.
 """
@@ -273,8 +277,86 @@ def run_bench(quick: bool = False, scenario: Path = DEFAULT_SCENARIO,
     }
 
 
+def parse_fleets(text: str) -> list[tuple[int, float]]:
+    """``N@HZ,N@HZ,...`` (e.g. ``32@50,256@20``) -> [(agents, control period [s]), ...];
+    ValueError naming the bad item."""
+    fleets = []
+    for item in text.split(","):
+        n, sep, hz = item.strip().partition("@")
+        try:
+            agents, rate = int(n), float(hz)
+        except ValueError:
+            agents, rate = 0, 0.0
+        if not sep or agents < 1 or not (math.isfinite(rate) and 0 < rate <= 1000):
+            raise ValueError(f"--fleets: {item.strip()!r} is not AGENTS@HZ (e.g. 32@50)")
+        fleets.append((agents, 1.0 / rate))
+    return fleets
+
+
+def run_fleets(fleets: Sequence[tuple[int, float]], per_process: int = 1,
+               shared_session: bool = False, repeat: int = 1,
+               duration: float = FLEET_DURATION, work: Path | None = None,
+               pose_slots: int = 1) -> dict:
+    """Only the **agents** part, for the fleets asked (``formation bench --fleets``): each fleet
+    ``repeat`` times in a row, every run with its own load average and latency parts;
+    ``pose_slots`` is the world's (capped at one slot per formation)."""
+    runs = []
+    with tempfile.TemporaryDirectory(prefix="bench-fleets-") as tmp:
+        base = Path(work) if work is not None else Path(tmp)
+        for n, dt in fleets:
+            for r in range(repeat):
+                entry = bench_agents(n, dt, duration, base / f"fleet-{n}-{round(1 / dt)}-{r}",
+                                     per_process=per_process, shared_session=shared_session,
+                                     pose_slots=max(1, min(pose_slots, n // 4)))
+                entry["fleet"] = f"{n}@{1 / dt:g}"
+                entry["round"] = r + 1
+                runs.append(entry)
+    return {
+        "machine": {"python": platform.python_version(), "processor": platform.processor() or
+                    platform.machine(), "cpus": os.cpu_count(), "quick": False,
+                    "load_avg_1min_at_start": runs[0]["load_avg_1min"]["before"] if runs else None},
+        "agents_per_process": per_process,
+        "shared_session": shared_session,
+        "pose_slots": pose_slots,
+        "fleets": runs,
+    }
+
+
+def format_fleets(result: dict) -> str:
+    """The table of a :func:`run_fleets` result, one row per run, with the load average."""
+    k = result["agents_per_process"]
+    lines = [f"agent fleets in real time (pose published -> command received), "
+             f"{k} agent(s) per process" + (", one Zenoh session per host"
+                                            if result["shared_session"] else ""),
+             FLEET_HEADER + f"{'load':>11}"]
+    for a in result["fleets"]:
+        load = a["load_avg_1min"]
+        lines.append(_fleet_row(str(a["robots"]), a)
+                     + f"{_f(load['before']):>5}->{_f(load['after']):<5}")
+    lines.append("  wait: pose received -> tick starts; tick: tick start -> command put; net: the rest; "
+                 "medians. load: 1-minute load average before -> after the run")
+    lines.append(f"machine: {result['machine']['cpus']} CPUs")
+    return "\n".join(lines)
+
+
 def _f(v, fmt: str = ".1f", none: str = "-") -> str:
     return none if v is None else format(v, fmt)
+
+
+FLEET_HEADER = (f"{'N':>4}{'Hz':>5}{'slots':>6}{'rate':>7}{'missed':>8}{'overrun':>8}{'p50 ms':>8}"
+                f"{'p99 ms':>8}{'wait':>7}{'tick':>7}{'net':>7}{'cpu %':>7}{'rss MB':>8}"
+                f"{'all %':>7}{'other %':>8}")
+
+
+def _fleet_row(label: str, a: dict) -> str:
+    parts = a["latency_parts_ms_median"]
+    return (f"{label:>4}{a['rate_hz_target']:>5.0f}{a.get('pose_slots', 1):>6}{_f(a['rate_hz']):>7}"
+            f"{a['missed_ticks']:>8}"
+            f"{a['agent_overruns']:>8}{_f(a['latency_ms_p50'], '.2f'):>8}"
+            f"{_f(a['latency_ms_p99'], '.2f'):>8}{_f(parts['pose_wait_for_tick'], '.2f'):>7}"
+            f"{_f(parts['tick'], '.2f'):>7}{_f(parts['transport_rest'], '.2f'):>7}"
+            f"{_f(a['cpu_percent_per_agent_median']):>7}{_f(a['rss_mb_per_agent_median']):>8}"
+            f"{_f(a.get('fleet_cpu_percent'), '.0f'):>7}{_f(a.get('others_cpu_percent'), '.0f'):>8}")
 
 
 def format_table(result: dict) -> str:
@@ -305,23 +387,13 @@ def format_table(result: dict) -> str:
                      + "".join(f"{_f(c['total_us'].get(b), '.0f'):>11}" for b in backends))
     lines.append("")
     lines.append("agent processes in real time (pose published -> command received)")
-    lines.append(f"{'N':>4}{'Hz':>5}{'slots':>6}{'rate':>7}{'missed':>8}{'overrun':>8}{'p50 ms':>8}"
-                 f"{'p99 ms':>8}{'wait':>7}{'tick':>7}{'net':>7}{'cpu %':>7}{'rss MB':>8}"
-                 f"{'all %':>7}{'other %':>8}")
+    lines.append(FLEET_HEADER)
     fleets = [(n, a) for n, a in result["agents"].items()]
     fleets += [(f"{n}s", a) for n, a in result.get("agents_pose_slots", {}).items()]
     fleets += [(f"{n}c", a) for n, a in result.get("agents_clock_ticks", {}).items()]
     fleets += [(f"{n}v", a) for n, a in result.get("agents_viewer", {}).items()]
     for n, a in fleets:
-        parts = a["latency_parts_ms_median"]
-        lines.append(
-            f"{n:>4}{a['rate_hz_target']:>5.0f}{a.get('pose_slots', 1):>6}{_f(a['rate_hz']):>7}"
-            f"{a['missed_ticks']:>8}"
-            f"{a['agent_overruns']:>8}{_f(a['latency_ms_p50'], '.2f'):>8}"
-            f"{_f(a['latency_ms_p99'], '.2f'):>8}{_f(parts['pose_wait_for_tick'], '.2f'):>7}"
-            f"{_f(parts['tick'], '.2f'):>7}{_f(parts['transport_rest'], '.2f'):>7}"
-            f"{_f(a['cpu_percent_per_agent_median']):>7}{_f(a['rss_mb_per_agent_median']):>8}"
-            f"{_f(a.get('fleet_cpu_percent'), '.0f'):>7}{_f(a.get('others_cpu_percent'), '.0f'):>8}")
+        lines.append(_fleet_row(str(n), a))
     lines.append("  slots: 1 = every pose of a tick at once (one camera frame); Ns: the world publishes "
                  "each formation's poses in its own slot of the period")
     if result.get("agents_clock_ticks"):

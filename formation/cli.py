@@ -81,6 +81,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "(the default; kept for old scripts)")
     g.add_argument("--insecure", action="store_true",
                    help="no authentication, no access control (anyone on the port can command)")
+    p.add_argument("--agents-per-process", type=int, default=1, metavar="K",
+                   help="run the agents K to a process (an agent host; default 1: one per robot)")
+    p.add_argument("--session-per-agent", action="store_true",
+                   help="with --agents-per-process K > 1: each agent opens its own Zenoh session "
+                        "(default: one per host, with --insecure; each robot logs in as itself otherwise)")
     p.add_argument("--no-safety", action="store_true")
     p.add_argument("--port", type=int, default=0, help="router TCP port on 127.0.0.1 (0: free)")
     p.add_argument("--live", type=int, default=None, metavar="PORT",
@@ -99,6 +104,19 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("bench", help="benchmarks")
     p.add_argument("--out", required=True)
     p.add_argument("--quick", action="store_true", help="smoke mode (CI)")
+    p.add_argument("--fleets", default=None, metavar="N@HZ,...",
+                   help="only these agent fleets, e.g. 32@50,256@20 (real time)")
+    p.add_argument("--agents-per-process", type=int, default=1, metavar="K",
+                   help="with --fleets: K agents to an agent host (default 1)")
+    p.add_argument("--session-per-agent", action="store_true",
+                   help="with --fleets and K > 1: each agent opens its own Zenoh session "
+                        "(default: one per host)")
+    p.add_argument("--repeat", type=int, default=1, metavar="R", help="with --fleets: run each R times")
+    p.add_argument("--pose-slots", type=int, default=1, metavar="S",
+                   help="with --fleets: the world spreads each period's poses over S slots "
+                        "(at most one per formation; default 1: one camera frame)")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="with --fleets: seconds of real time per run (default 15)")
 
     p = sub.add_parser("view", help="the live page of a running fleet (read-only)")
     _add_view_args(p, client=True)

@@ -21,7 +21,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType, TracebackType
@@ -184,18 +184,47 @@ class Fleet:
         return router
 
     def start_agents(self, configs: Mapping[str, AgentConfig], folder: Path,
-                     extra_argv: Callable[[str], Sequence[str]] = lambda _rid: ()) -> dict[str, Child]:
+                     extra_argv: Callable[[str], Sequence[str]] = lambda _rid: (),
+                     per_process: int = 1, shared_session: bool = False) -> dict[str, Child]:
         """One ``python -m agent`` per robot: its configuration saved as
         ``FOLDER/configs/ROBOT.yaml``, its counters written to ``FOLDER/agents/ROBOT.json`` when
-        it stops, ``extra_argv(robot)`` appended to its arguments."""
+        it stops, ``extra_argv(robot)`` appended to its arguments.
+
+        ``per_process`` K > 1: the robots, in order, K at a time in one agent host
+        (``python -m agent.host``, child ``host-I``), each with its own configuration, counters
+        and credentials (``--zenoh-auth`` of ``extra_argv``); the rest of ``extra_argv`` must
+        be the same for every robot of a host. ``shared_session``: one Zenoh session per host.
+        Every robot of a host maps to the same :class:`Child`."""
+        if per_process < 1:
+            raise ValueError(f"per_process: need an integer >= 1, got {per_process!r}")
         agents: dict[str, Child] = {}
+        ids = list(configs)
         for rid, cfg in configs.items():
-            path = folder / "configs" / f"{rid}.yaml"
-            save_config(cfg, path)
-            argv = ["-m", "agent", "--config", str(path),
-                    "--stats", str(folder / "agents" / f"{rid}.json"), *extra_argv(rid)]
-            self.agent_argv[rid] = argv
-            agents[rid] = self.start(f"agent-{rid}", argv)
+            save_config(cfg, folder / "configs" / f"{rid}.yaml")
+        if per_process == 1 and not shared_session:
+            for rid in ids:
+                argv = ["-m", "agent", "--config", str(folder / "configs" / f"{rid}.yaml"),
+                        "--stats", str(folder / "agents" / f"{rid}.json"), *extra_argv(rid)]
+                self.agent_argv[rid] = argv
+                agents[rid] = self.start(f"agent-{rid}", argv)
+            return agents
+        for i in range(0, len(ids), per_process):
+            group = ids[i:i + per_process]
+            argv = ["-m", "agent.host"] + (["--shared-session"] if shared_session else [])
+            common: list[str] | None = None
+            for rid in group:
+                rest, auth = _split_auth(list(extra_argv(rid)))
+                if common is None:
+                    common = rest
+                elif rest != common:
+                    raise ValueError(f"per_process: robot {rid} has options of its own: {rest}")
+                spec = f"{folder / 'configs' / f'{rid}.yaml'},{folder / 'agents' / f'{rid}.json'}"
+                argv += ["--agent", spec + ("" if auth is None else f",{auth}")]
+            argv += common or []
+            host = self.start(f"host-{i // per_process}", argv)
+            for rid in group:
+                self.agent_argv[rid] = argv
+                agents[rid] = host
         return agents
 
     def write_pids(self, path: Path) -> None:
@@ -213,3 +242,19 @@ class Fleet:
         if services:
             self.stop(services)
         self.stop([router])
+
+
+def _split_auth(argv: list[str]) -> tuple[list[str], str | None]:
+    """``argv`` without its ``--zenoh-auth FILE``, and FILE (None if absent)."""
+    if "--zenoh-auth" not in argv:
+        return argv, None
+    i = argv.index("--zenoh-auth")
+    return argv[:i] + argv[i + 2:], argv[i + 1]
+
+
+def unique_children(children: Iterable[Child]) -> list[Child]:
+    """``children`` without repeats (an agent host appears once per robot it runs), in order."""
+    seen: dict[int, Child] = {}
+    for c in children:
+        seen.setdefault(id(c), c)
+    return list(seen.values())

@@ -6,7 +6,10 @@ scouting off:
 
 * a Zenoh router (``python -m wire.router``);
 * one agent per robot (``python -m agent --config DIR/configs/ROBOT.yaml``, ``--lockstep`` unless
-  ``--realtime``), each writing its counters to ``DIR/agents/ROBOT.json`` when it stops.
+  ``--realtime``), each writing its counters to ``DIR/agents/ROBOT.json`` when it stops. With
+  ``--agents-per-process K`` the agents run K to an agent host (``python -m agent.host``, child
+  ``host-I``; :mod:`agent.host`), one Zenoh session per host unless ``--session-per-agent`` or
+  ``--secure``; each robot keeps its own configuration, keys and counters file.
 
 The simulated world (:class:`simulator.world.World`) runs in the launcher's own process on a
 client session, so progress is shown as it goes. When every goal is reached (or the duration is
@@ -51,7 +54,15 @@ from wire.ports import free_tcp_port, tcp_endpoint
 from wire.stamps import merge_counts
 from wire.zconf import UsrPwdAuth, ZenohSettings
 
-from .fleet import START_TIMEOUT_S, STOP_TIMEOUT_S, Child, ChildFailed, Fleet, signal_group
+from .fleet import (
+    START_TIMEOUT_S,
+    STOP_TIMEOUT_S,
+    Child,
+    ChildFailed,
+    Fleet,
+    signal_group,
+    unique_children,
+)
 from .inprocess import Series
 from .output import OutputError
 from .summary import qp_fields, run_summary
@@ -167,6 +178,8 @@ def launch(
     observer=None,
     scenario_path: str | Path | None = None,
     clock_offset: float = 0.0,
+    agents_per_process: int = 1,
+    shared_session: bool = False,
 ) -> tuple[dict, Series]:
     """Run ``scenario`` as separate processes; returns the summary and the time series.
 
@@ -177,12 +190,16 @@ def launch(
     before the run (a live viewer subscribes on it) and returns what detaches it after.
     ``camera="process"`` also starts the real camera process
     (``python -m camera_service``) on the frames the world renders; it reads the static obstacles
-    from ``scenario_path``."""
+    from ``scenario_path``.
+
+    ``agents_per_process`` K > 1 runs the agents K to an agent host (:mod:`agent.host`;
+    ``shared_session``: one Zenoh session per host); killing an agent (``--kill``) then needs K = 1."""
     faults = faults or FaultPlan()
     if camera == "process" and scenario_path is None:
         raise ValueError("scenario_path: --camera process needs the scenario file")
     faults.check_robots(scenario.robot_ids)
     stopped: BaseException | None = None  # why a started run ended early
+    _check_hosting(agents_per_process, shared_session, faults, secure)
     out = Path(out)
     for sub in ("configs", "agents", "logs"):
         (out / sub).mkdir(parents=True, exist_ok=True)
@@ -211,7 +228,8 @@ def launch(
                 argv += ["--zenoh-auth", str(creds.files[rid])]
             return argv
 
-        agents = fleet.start_agents(configs, out, agent_args)
+        agents = fleet.start_agents(configs, out, agent_args, per_process=agents_per_process,
+                                    shared_session=shared_session)
         fleet.write_pids(out / "processes.json")
         conf = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
                                  connect_timeout_s=10.0,
@@ -241,21 +259,44 @@ def launch(
                     detach()
                 world.close()
         # the agents write their counters on SIGTERM (also after the router died); router last
-        fleet.shut_down(list(agents.values()), router, [] if camera_child is None else [camera_child])
+        fleet.shut_down(unique_children(agents.values()), router,  # a host once
+                        [] if camera_child is None else [camera_child])
     stats = [_stats_of(out / "agents" / f"{rid}.json", cfg, lost_ok=stopped is not None)
              if rid in agents else _dead_stats(cfg) for rid, cfg in configs.items()]
     summary, series = build_summary(scenario, result, stats, topology, realtime, camera, safety)
     if fault_run:
         summary["faults"] = fault_summary(faults, result, stats, driver.log)
     summary["secure"] = False if creds is None else creds.summary()
-    if camera == "process":
-        summary["camera_process"] = _camera_stats(out / "logs" / "camera.log")
-    if pose_slots > 1:
-        summary["pose_slots"] = pose_slots  # the world spread each period's poses over this many
+    summary.update(_run_options(out, camera, pose_slots, agents_per_process, shared_session))
     if stopped is not None:
         _mark_aborted(summary, stats, stopped)
         raise RunAborted(summary["aborted"], summary, series, stopped)
     return summary, series
+
+
+def _run_options(out: Path, camera: str, pose_slots: int, agents_per_process: int,
+                 shared_session: bool) -> dict:
+    """The summary fields of the options a run used beyond the defaults."""
+    extra: dict = {}
+    if camera == "process":
+        extra["camera_process"] = _camera_stats(out / "logs" / "camera.log")
+    if pose_slots > 1:
+        extra["pose_slots"] = pose_slots  # the world spread each period's poses over this many
+    if agents_per_process > 1 or shared_session:
+        extra["agents_per_process"] = agents_per_process
+        extra["shared_session"] = shared_session
+    return extra
+
+
+def _check_hosting(agents_per_process: int, shared_session: bool, faults: FaultPlan,
+                   secure: bool) -> None:
+    """ValueError where the agent-host options cannot run together."""
+    if agents_per_process < 1:
+        raise ValueError(f"agents per process: need an integer >= 1, got {agents_per_process!r}")
+    if faults.kills and agents_per_process > 1:
+        raise ValueError("kill: an agent host runs several robots; kills need one agent per process")
+    if shared_session and secure:
+        raise ValueError("shared session: each robot logs in as itself with secure; not both")
 
 
 def _start_camera(fleet: Fleet, scenario: Scenario, scenario_path: str | Path, out: Path,

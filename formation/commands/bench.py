@@ -7,13 +7,43 @@ import json
 import sys
 from pathlib import Path
 
-from experiments.bench import format_table, run_bench
+from experiments.bench import format_fleets, format_table, parse_fleets, run_bench, run_fleets
+from formation.exits import UsageError
 
 
 def bench_command(ns: argparse.Namespace) -> int:
-    """``formation bench --out DIR [--quick]``."""
+    """``formation bench --out DIR [--quick]``, or ``--fleets N@HZ,... [--agents-per-process K]
+    [--session-per-agent] [--repeat R] [--duration S]``: only those agent fleets."""
+    fleets_arg = getattr(ns, "fleets", None)
+    per_process = getattr(ns, "agents_per_process", 1)
+    repeat = getattr(ns, "repeat", 1)
+    duration = getattr(ns, "duration", None)
+    try:
+        fleets = None if fleets_arg is None else parse_fleets(fleets_arg)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    slots = getattr(ns, "pose_slots", 1)
+    if per_process < 1 or repeat < 1 or slots < 1:
+        raise UsageError("--agents-per-process, --repeat and --pose-slots: need integers >= 1")
+    if duration is not None and not duration > 0:
+        raise UsageError(f"--duration: need seconds > 0, got {duration}")
+    own = getattr(ns, "session_per_agent", False)
+    if fleets is None and (per_process != 1 or repeat != 1 or duration is not None or slots != 1
+                           or own):
+        raise UsageError("--agents-per-process, --session-per-agent, --repeat, --duration and "
+                         "--pose-slots go with --fleets")
     out = Path(ns.out)
     out.mkdir(parents=True, exist_ok=True)
+    if fleets is not None:
+        result = run_fleets(fleets, per_process, per_process > 1 and not own, repeat,
+                            pose_slots=slots, **({} if duration is None else {"duration": duration}))
+        (out / "bench.json").write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+        table = format_fleets(result)
+        (out / "bench.txt").write_text(table + "\n", encoding="utf-8")
+        print(table)
+        print(f"wrote {out / 'bench.json'}")
+        sys.stdout.flush()
+        return 0
     result = run_bench(quick=ns.quick)
     (out / "bench.json").write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
     table = format_table(result)

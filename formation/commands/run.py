@@ -41,6 +41,15 @@ def run_command(ns: argparse.Namespace) -> int:
         raise UsageError("--pose-slots: more than one slot needs --realtime and --camera truth")
     if getattr(ns, "clock_offset_ms", 0.0) and not ns.realtime:
         raise UsageError("--clock-offset-ms: needs --realtime (lock-step runs on simulated time)")
+    per_process = getattr(ns, "agents_per_process", 1)
+    if per_process < 1:
+        raise UsageError(f"--agents-per-process: need an integer >= 1, got {per_process}")
+    if per_process > 1 and faults.kills:
+        raise UsageError("--kill: needs one agent per process (--agents-per-process 1)")
+    # an agent host shares one Zenoh session among its agents (measured cheaper, docs/performance.md)
+    # unless asked otherwise or under access control (the default: each robot logs in as itself)
+    shared = (per_process > 1 and not getattr(ns, "session_per_agent", False)
+              and getattr(ns, "insecure", False))
     scenario = load_scenario(ns.scenario)  # ScenarioError -> exit 2
     try:
         faults.check_robots(scenario.robot_ids)
@@ -58,7 +67,8 @@ def run_command(ns: argparse.Namespace) -> int:
                                  faults=faults, secure=not getattr(ns, "insecure", False),
                                  pose_slots=slots, observer=observer,
                                  scenario_path=ns.scenario,
-                                 clock_offset=getattr(ns, "clock_offset_ms", 0.0) / 1000.0)
+                                 clock_offset=getattr(ns, "clock_offset_ms", 0.0) / 1000.0,
+                                 agents_per_process=per_process, shared_session=shared)
     except RunAborted as stop:  # the run started: its summary says why and what it measured
         write_run(stop.summary, stop.series, scenario, out, plots=not ns.no_plots)
         print(f"formation run: aborted: {stop}; wrote {out / 'summary.json'} with what was "

@@ -1,0 +1,268 @@
+"""``python -m agent.host --agent CONFIG,STATS[,AUTH] ... [agent options]``: K agents, one process.
+
+For big simulations on few cores (``formation run --agents-per-process K``, issue 18): each
+``--agent`` is one robot's :class:`agent.node.AgentNode` with its own configuration, its own
+Zenoh keys and its own counters file, exactly as ``python -m agent --config CONFIG --stats STATS
+[--zenoh-auth AUTH]`` would run it; every other option (``--lockstep``, faults, ``--no-trace``,
+...) is :mod:`agent.__main__`'s and applies to all of them. The nodes run as tasks of one asyncio
+loop. In real time a pose callback only stores the pose (on Zenoh's thread) and queues its node;
+the host's one tick thread (:class:`TickWorker`) ticks each queued node on its newest pose, under
+the node's own tick lock, with the same tick code as a process of its own: while the host keeps
+up every pose gets its tick, and a host that falls behind skips to each robot's newest pose
+(``superseded_poses`` in its counters) instead of working through a backlog, so its latency stays
+bounded. ``--direct-ticks`` ticks on Zenoh's thread instead, as a single agent does (measured
+against each other in docs/performance.md). One process per robot stays the default and what
+deploy installs.
+
+Sessions: by default each node opens its own Zenoh session (a client of the router, as a separate
+process would). ``--shared-session`` gives every node of the host one session instead: fewer
+sessions and links on the router, and the nodes' messages to each other stay in the process. It
+is refused with per-robot credentials (``AUTH``), since each robot must log in as itself for the
+router's access control list. docs/performance.md has both measured.
+
+SIGINT or SIGTERM stops every node: each publishes its zero command, undeclares and closes (its
+session, or its share of the common one, closed last), and writes its counters to its STATS file.
+A node that fails stops the host (the others get their zero command too); exit status 1 then, 2
+for an invalid configuration or ``--agent``. ``cpu_s`` in a node's counters is its share of the
+host's CPU time (the host's divided by K; ``host_agents`` says K).
+"""
+
+from __future__ import annotations
+
+import signal
+
+# SIGINT/SIGTERM blocked before anything else is imported, as in agent.__main__ (a native thread
+# started by an import would otherwise take them with their default action: no zero command)
+if __name__ == "__main__":
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+
+import argparse  # noqa: E402
+import asyncio  # noqa: E402
+import logging  # noqa: E402
+import sys  # noqa: E402
+import threading  # noqa: E402
+import time  # noqa: E402
+from collections import deque  # noqa: E402
+from collections.abc import Sequence  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import zenoh  # noqa: E402
+
+from agent.__main__ import SignalWatch, build_parser, node_options, write_stats  # noqa: E402
+from agent.config import load_config  # noqa: E402
+from agent.node import AgentNode, NodeOptions, zenoh_config  # noqa: E402
+from wire import keys  # noqa: E402
+from wire.acl import read_credentials  # noqa: E402
+from wire.lifeline import watch_parent  # noqa: E402
+from wire.zconf import use_zenoh_threads  # noqa: E402
+
+logger = logging.getLogger("agent.host")
+
+
+class SharedSession:
+    """One Zenoh session lent to several nodes; closed when the last one gives it back."""
+
+    def __init__(self, session: zenoh.Session, users: int) -> None:
+        self.session = session
+        self.users = users
+
+    def give_back(self) -> None:
+        self.users -= 1
+        if self.users == 0:
+            self.session.close()
+
+
+class TickWorker:
+    """Real time: the host's one thread that runs its agents' pose ticks (see the module
+    docstring). A pose callback only stores the pose and queues its node (once); the worker
+    ticks each queued node on its newest pose, so a host that falls behind skips to the newest
+    pose of each robot instead of working through a backlog of old ones."""
+
+    def __init__(self) -> None:
+        self._due: deque[HostedNode] = deque()
+        self._queued: set[int] = set()
+        self._cond = threading.Condition()
+        self._stopped = False
+        self.superseded = 0  # poses stored but never ticked on (a newer one came first)
+        self._thread = threading.Thread(target=self._run, name="agent-host-ticks", daemon=True)
+        self._thread.start()
+
+    def mark(self, node: HostedNode) -> None:
+        with self._cond:
+            if id(node) in self._queued:
+                node.superseded += 1
+                return
+            self._queued.add(id(node))
+            self._due.append(node)
+            self._cond.notify()
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._due and not self._stopped:
+                    self._cond.wait()
+                if self._stopped:
+                    return
+                node = self._due.popleft()
+                self._queued.discard(id(node))
+            with node._tick_lock:
+                if not node._closing:
+                    node._pose_tick(time.monotonic())
+
+    def stop(self) -> None:
+        with self._cond:
+            self._stopped = True
+            self._cond.notify()
+        self._thread.join(5.0)
+
+
+class HostedNode(AgentNode):
+    """An :class:`AgentNode` that may use its host's shared session (never closing it itself)
+    and, in real time, its host's :class:`TickWorker`."""
+
+    def __init__(self, cfg, options: NodeOptions, shared: SharedSession | None = None,
+                 host_agents: int = 1, worker: TickWorker | None = None) -> None:
+        super().__init__(cfg, options)
+        self.shared = shared
+        self.host_agents = host_agents
+        self.worker = worker
+        self.superseded = 0
+        self._host_cpu0 = time.process_time()
+
+    def _on_pose_sample(self, sample) -> None:
+        if self.worker is None:
+            super()._on_pose_sample(sample)
+            return
+        with self._tick_lock:
+            if self._closing:
+                return
+            self._boxes[keys.POSE].callback(sample)
+        self.worker.mark(self)
+
+    def _open_session(self) -> zenoh.Session:
+        return super()._open_session() if self.shared is None else self.shared.session
+
+    def _close_session(self, session: zenoh.Session) -> None:
+        if self.shared is None:
+            super()._close_session(session)
+        else:
+            self.shared.give_back()
+
+    def stats(self) -> dict:
+        s = super().stats()
+        s["cpu_s"] = (time.process_time() - self._host_cpu0) / self.host_agents
+        s["host_agents"] = self.host_agents
+        s["superseded_poses"] = self.superseded
+        return s
+
+
+def parse_agent(text: str) -> tuple[Path, Path, Path | None]:
+    """``CONFIG,STATS`` or ``CONFIG,STATS,AUTH``."""
+    parts = text.split(",")
+    if len(parts) not in (2, 3) or not all(parts):
+        raise ValueError(f"--agent: {text!r} is not CONFIG,STATS[,AUTH]")
+    return Path(parts[0]), Path(parts[1]), Path(parts[2]) if len(parts) == 3 else None
+
+
+async def serve_all(nodes: Sequence[AgentNode], watch: SignalWatch | None = None) -> None:
+    """Run every node until SIGINT/SIGTERM (through ``watch``, the agent's signal thread, as
+    :mod:`agent.__main__` does; else asyncio's handlers) or until one fails; every node closes
+    either way."""
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+
+    def set_stop() -> None:
+        try:
+            loop.call_soon_threadsafe(stop.set)  # queued even when the self-pipe is full
+        except RuntimeError:  # loop closed: nothing left to stop
+            pass
+
+    if watch is not None:
+        watch.on_signal(set_stop)
+    else:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
+
+    async def one(node: AgentNode) -> None:
+        try:
+            await node.run(stop)
+        finally:
+            stop.set()  # one node ending (a failure) ends the host: the others command zero
+
+    try:
+        results = await asyncio.gather(*(one(n) for n in nodes), return_exceptions=True)
+    finally:
+        if watch is None:
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                loop.remove_signal_handler(sig)
+    for node, res in zip(nodes, results, strict=True):
+        if isinstance(res, BaseException):
+            raise RuntimeError(f"agent {node.cfg.robot_id}: {type(res).__name__}: {res}") from res
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser(prog="python -m agent.host", description=__doc__.split("\n")[0])
+    for action in parser._actions:  # --config is per agent here (in --agent)
+        if action.dest == "config":
+            action.required = False
+            action.help = argparse.SUPPRESS
+    parser.add_argument("--agent", action="append", default=[], metavar="CONFIG,STATS[,AUTH]",
+                        help="one robot's agent configuration, counters file and credentials")
+    parser.add_argument("--shared-session", action="store_true",
+                        help="one Zenoh session for every agent of the host (not with AUTH)")
+    parser.add_argument("--direct-ticks", action="store_true",
+                        help="real time: tick on Zenoh's thread as a process of its own does, "
+                             "not on the host's tick thread (for comparison)")
+    ns = parser.parse_args(argv)
+    watch = SignalWatch()  # first: before any thread starts (threads inherit the blocked mask)
+    logging.basicConfig(level=ns.log_level.upper(),
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    try:
+        if ns.config is not None or ns.stats is not None or ns.zenoh_auth is not None:
+            raise ValueError("--config, --stats and --zenoh-auth go in --agent CONFIG,STATS[,AUTH]")
+        specs = [parse_agent(a) for a in ns.agent]
+        if not specs:
+            raise ValueError("--agent: give at least one")
+        if ns.shared_session and any(auth is not None for _, _, auth in specs):
+            raise ValueError("--shared-session: each robot with credentials needs its own session")
+        if ns.shared_session and ns.zenoh_config is not None:
+            raise ValueError("--shared-session: not with --zenoh-config")
+        planned = []
+        for config, stats, auth in specs:
+            cfg = load_config(config)
+            options = node_options(ns, None if auth is None else read_credentials(auth))
+            planned.append((cfg, options, stats))
+        ids = [cfg.robot_id for cfg, _, _ in planned]
+        dup = next((r for r in ids if ids.count(r) > 1), None)
+        if dup is not None:
+            raise ValueError(f"--agent: robot {dup!r} given twice")
+    except ValueError as exc:
+        print(f"agent host: {exc}", file=sys.stderr)
+        return 2
+    watch_parent()  # started by formation run: stop (zero commands) if the launcher dies
+    use_zenoh_threads("agent")
+    k = len(planned)
+    shared = None
+    status = 0
+    nodes: list[HostedNode] = []
+    opt0 = planned[0][1]
+    worker = None if (ns.direct_ticks or opt0.lockstep or not opt0.tick_on_pose) else TickWorker()
+    try:
+        if ns.shared_session:
+            shared = SharedSession(zenoh.open(zenoh_config(planned[0][0], opt0.connect_timeout)), k)
+        nodes = [HostedNode(cfg, options, shared, k, worker) for cfg, options, _ in planned]
+        asyncio.run(serve_all(nodes, watch))
+    except Exception as exc:  # noqa: BLE001 - a process front end: report and exit 1
+        logger.exception("agent host (%s) failed", ", ".join(ids))
+        print(f"agent host: {type(exc).__name__}: {exc}", file=sys.stderr)
+        status = 1
+    finally:
+        if worker is not None:
+            worker.stop()
+    for node, (_, _, stats) in zip(nodes, planned, strict=False):
+        write_stats(node, stats)
+    return status
+
+
+if __name__ == "__main__":
+    sys.exit(main())
