@@ -435,16 +435,21 @@ def comm_summary(snap: dict, topology: str, n: int, sim_time: float) -> dict:
 
 def merge_traces(result: WorldResult, stats: list[dict], dt: float) -> Series:
     """The world's rows with ``status``, ``slack`` and ``h_*`` from each agent's trace entry for
-    the pose the world published at that tick; leaders' ellipses become ``ellipses`` rows."""
+    the pose the world published at that tick; leaders' ellipses become ``ellipses`` rows.
+
+    With pose slots each robot's pose of a tick goes out with its own slot's stamp
+    (``result.robot_stamps``), which is the stamp its agent's trace is keyed by."""
     by_key: dict[tuple[str, float], list] = {}
     for s in stats:
         for row in s["trace"]:
             by_key[(s["robot"], row[0])] = row
+    index: dict[str, int] = {}
     series = Series(obstacles=result.series.obstacles)
     for row in result.series.robots:
         t, rid = row[0], row[1]
         k = round(t / dt) if dt else 0
-        stamp = result.stamps[k] if k < len(result.stamps) else t
+        i = index.setdefault(rid, len(index))
+        stamp = _stamp_of(result, k, i, t)
         tr = by_key.get((rid, stamp))
         if tr is None:
             series.robots.append(row)
@@ -452,6 +457,8 @@ def merge_traces(result: WorldResult, stats: list[dict], dt: float) -> Series:
         status, slack, hf, ho, he = tr[7], tr[8], tr[9], tr[10], tr[11]
         series.robots.append((*row[:12], status, _nan(slack), _nan(hf), _nan(ho), _nan(he)))
     t_of = {stamp: k * dt for k, stamp in enumerate(result.stamps)}
+    for k, sent in enumerate(result.robot_stamps):
+        t_of.update((stamp, k * dt) for stamp in sent if math.isfinite(stamp))
     for s in stats:
         for row in s.get("ellipse_trace", []):
             t = t_of.get(row[0])
@@ -459,6 +466,13 @@ def merge_traces(result: WorldResult, stats: list[dict], dt: float) -> Series:
                 series.ellipses.append((t, s["formation"], *row[1:]))
     series.ellipses.sort(key=lambda r: (r[0], r[1]))
     return series
+
+
+def _stamp_of(result: WorldResult, k: int, i: int, t: float) -> float:
+    """The stamp of robot ``i``'s pose at tick ``k`` (the tick's, or its slot's)."""
+    if k < len(result.robot_stamps) and i < len(result.robot_stamps[k]):
+        return result.robot_stamps[k][i]
+    return result.stamps[k] if k < len(result.stamps) else t
 
 
 def _nan(v):

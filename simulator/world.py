@@ -116,6 +116,8 @@ class WorldResult:
     camera_dropped: int = 0  # poses not published (camera dropout)
     latency_ms: list[float] = field(default_factory=list)  # real time: pose put -> cmd received
     stamps: list[float] = field(default_factory=list)  # pose stamp published at tick k
+    # pose slots > 1: the stamp each robot's pose of tick k went out with (its slot's); else empty
+    robot_stamps: list[list[float]] = field(default_factory=list)
     wall_s: float = 0.0
 
 
@@ -324,6 +326,7 @@ class World:
         missing = 0
         timeouts = 0
         stamps: list[float] = []
+        robot_stamps: list[list[float]] = []
         wall0 = time.monotonic()
         monitor.update(0.0, np.array([s[:2] for s in state]),
                        [o.position(0.0) for o in sc.obstacles])
@@ -353,7 +356,7 @@ class World:
                 # same rows and checks as below, one period later
                 stamps.append(time.time())
                 before = state
-                state, cmds = self._publish_slots(k, state, next_wall, abort)
+                state, cmds = self._publish_slots(k, state, next_wall, abort, robot_stamps)
                 next_wall += dt
                 if settle(k, t - dt, before if k > 0 else None, cmds, t, state):
                     break
@@ -387,15 +390,18 @@ class World:
             traffic=self.counter.snapshot(), missing_cmds=missing, cmd_timeouts=timeouts,
             camera_dropped=self.camera_dropped,
             malformed_cmds=inbox.malformed, latency_ms=list(inbox.latency_ms),
-            wall_s=time.monotonic() - wall0, stamps=stamps,
+            wall_s=time.monotonic() - wall0, stamps=stamps, robot_stamps=robot_stamps,
         )
 
     def _publish_slots(self, k: int, state: Sequence[tuple[float, float, float]], start: float,
-                       abort: Callable[[], None]) -> tuple[list, list[Cmd | None]]:
+                       abort: Callable[[], None], robot_stamps: list[list[float]],
+                       ) -> tuple[list, list[Cmd | None]]:
         """Real time with ``pose_slots`` > 1, tick ``k``, starting at wall time ``start``: in
         slot s (robots i with ``i * slots // n == s``), step those robots by ``dt`` with their
         latest command (not at ``k == 0``: the start poses go out as they are), then publish
-        their poses. Returns at the period's end with the new state and the commands applied."""
+        their poses. Returns at the period's end with the new state and the commands applied;
+        appends the stamp each robot's pose went out with to ``robot_stamps`` (the agents' traces
+        are keyed by it)."""
         opts = self.options
         dt = self.scenario.dt
         t = k * dt
@@ -404,6 +410,8 @@ class World:
         new = list(state)
         cmds: list[Cmd | None] = [None] * n
         is_uni = self.scenario.robot.is_unicycle
+        sent = [math.nan] * n
+        robot_stamps.append(sent)
         for s in range(slots):
             _sleep_until(start + s * dt / slots, abort)
             mine = range(-(-s * n // slots), -(-(s + 1) * n // slots))
@@ -416,6 +424,7 @@ class World:
             for i in mine:
                 if k > 0:
                     new[i] = step_pose(*new[i], cmds[i], dt, is_uni)
+                sent[i] = stamp
                 self._publish_pose(i, t, stamp, new[i])
         _sleep_until(start + dt, abort)
         return new, cmds
