@@ -20,9 +20,18 @@ __all__ = ["EXIT_ERROR", "EXIT_INVALID", "EXIT_OK", "Progress", "UsageError", "b
            "print_summary"]
 
 
+def _add_out(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="output folder, created if missing; a re-run replaces the previous run's "
+                        "output in it")
+    p.add_argument("--force", action="store_true",
+                   help="write into an --out folder that holds other files (they are left as "
+                        "they are)")
+
+
 def _add_sim_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenario", help="scenario YAML file")
-    p.add_argument("--out", required=True, help="output folder (created if missing)")
+    _add_out(p)
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
     p.add_argument("--quiet", action="store_true", help="no progress display")
 
@@ -80,15 +89,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("commcost", help="communication cost of both topologies")
     p.add_argument("--formations", default="2,4,8")
-    p.add_argument("--out", required=True)
+    _add_out(p)
 
     p = sub.add_parser("montecarlo", help="random warehouse scenarios, in-process")
     p.add_argument("--n", type=int, default=40)
     p.add_argument("--seed", type=int, default=11)
-    p.add_argument("--out", required=True)
+    _add_out(p)
 
     p = sub.add_parser("bench", help="benchmarks")
-    p.add_argument("--out", required=True)
+    _add_out(p)
     p.add_argument("--quick", action="store_true", help="smoke mode (CI)")
 
     p = sub.add_parser("view", help="the live page of a running fleet (read-only)")
@@ -145,14 +154,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=logging.DEBUG if ns.verbose else logging.WARNING,
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
     )
-    from formation.outdir import check_out
+    from formation.outdir import FOLDER_COMMANDS, OutputFolder, check_out
     from scenario import ScenarioError
     from wire.zconf import use_zenoh_threads
 
     use_zenoh_threads("relay")  # this process (world, bench); agents and routers set their own
     try:
         check_out(ns.command, getattr(ns, "out", None))  # a bad --out: exit 2 before any work
-        return COMMANDS[ns.command](ns)
+        if ns.command not in FOLDER_COMMANDS:
+            return COMMANDS[ns.command](ns)
+        # the run owns its --out: locked, the previous run's output replaced (formation.outdir)
+        with OutputFolder(ns.out, force=ns.force) as folder:
+            ns.out_folder = folder
+            return COMMANDS[ns.command](ns)
     except (ScenarioError, UsageError) as exc:
         print(f"formation {ns.command}: error: {exc}", file=sys.stderr)
         return EXIT_INVALID

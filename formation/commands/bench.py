@@ -5,15 +5,14 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
 from experiments.bench import format_table, run_bench
+from formation.outdir import begin_output
 
 
 def bench_command(ns: argparse.Namespace) -> int:
     """``formation bench --out DIR [--quick]``."""
-    out = Path(ns.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = begin_output(ns)
     result = run_bench(quick=ns.quick)
     (out / "bench.json").write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
     table = format_table(result)

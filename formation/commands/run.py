@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from formation.exits import EXIT_OK, UsageError
+from formation.outdir import begin_output
 from formation.progress import Progress, print_summary
 from scenario import load_scenario
 from simulator.launch import FaultPlan, launch, parse_camera_dropout, parse_kill
@@ -40,7 +40,7 @@ def run_command(ns: argparse.Namespace) -> int:
         faults.check_robots(scenario.robot_ids)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    out = Path(ns.out)
+    out = begin_output(ns)
     from formation.commands.view import live_observer
 
     live, observer = live_observer(ns, scenario)  # --live PORT: the page, fed from the world's session
@@ -55,5 +55,5 @@ def run_command(ns: argparse.Namespace) -> int:
         if live is not None:
             live.close()
     write_run(summary, series, scenario, out, plots=not ns.no_plots)
-    print_summary(summary, out)
+    print_summary(summary, out, plots=not ns.no_plots)
     return EXIT_OK
