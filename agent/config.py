@@ -63,6 +63,7 @@ class AgentConfig:
     zenoh: ZenohSettings = field(default_factory=agent_zenoh)
     cmd_vel_key: str = "cmd_vel"  # real bases: the zenoh-bridge-ros2dds key for /cmd_vel
     frame_id: str = "base_link"  # real bases (Jazzy TwistStamped): header frame
+    solver: str = "exact"  # QP solver (agent.qp.make_solver): exact or a qpsolvers backend
 
     @property
     def is_leader(self) -> bool:
@@ -76,6 +77,7 @@ def build_agent_configs(
     topology: str = "reduced",
     safety: bool = True,
     base: str = "world",
+    solver: str = "exact",
 ) -> dict[str, AgentConfig]:
     """One :class:`AgentConfig` per robot of ``scenario``."""
     if topology not in TOPOLOGIES:
@@ -115,6 +117,7 @@ def build_agent_configs(
                 stale_after=STALE_PERIODS * scenario.dt,
                 base=base,
                 zenoh=zenoh,
+                solver=solver,
             )
     return out
 
@@ -126,6 +129,8 @@ def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
         raise ValueError(f"zenoh.{extra[0]}: not part of an agent configuration file")
     d = _plain(dataclasses.asdict(cfg))
     d["zenoh"] = {k: d["zenoh"][k] for k in AGENT_ZENOH_FIELDS}
+    if d["solver"] == "exact":
+        del d["solver"]  # the default: files stay as they were before the field existed
     d["version"] = CONFIG_VERSION
     return d
 
@@ -174,6 +179,7 @@ def config_from_dict(d: dict[str, Any]) -> AgentConfig:
             zenoh=zenoh,
             cmd_vel_key=str(d.pop("cmd_vel_key", "cmd_vel")),
             frame_id=str(d.pop("frame_id", "base_link")),
+            solver=str(d.pop("solver", "exact")),
         )
         d.pop("start", None)
     except KeyError as exc:

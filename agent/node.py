@@ -86,7 +86,7 @@ from agent.config import AgentConfig
 from agent.control import Stall, StepResult, control_step
 from agent.faults import EPS, DelayLine, LinkFaults, lag
 from agent.inputs import step_inputs
-from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, solve_exact
+from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
 from agent.unicycle import control_point
 from leader.role import LeaderRole, ellipse_to_msg, msg_to_ellipse
 from wire import keys
@@ -230,6 +230,7 @@ class AgentNode:
         self._lag = lag(options.faults.delay, cfg.period)
         self._delay_line: DelayLine | None = None
         self.status_counts = {STATUS_RELAXED: 0, STATUS_FALLBACK: 0, STATUS_FAILED: 0}
+        self._solve = make_solver(cfg.solver)  # the config's QP solver (exact by default)
         self.solves = 0
         # the newest STATS_WINDOW samples only, so a long-running agent's memory stays bounded
         self.solve_us: deque[float] = deque(maxlen=STATS_WINDOW)
@@ -674,7 +675,7 @@ class AgentNode:
         )
         self._stall = inputs.stall
         res = control_step(cfg.control, (pose.x, pose.y, pose.theta), cfg.goal, inputs.neighbours,
-                           obs, inputs.others, inputs.view, solve_exact, inputs.pairwise,
+                           obs, inputs.others, inputs.view, self._solve, inputs.pairwise,
                            clock=time.perf_counter_ns)
         self._put_cmd(Cmd(res.v, res.omega, res.ux, res.uy, stamp))
         self.last_u = (res.ux, res.uy)

@@ -161,13 +161,15 @@ def launch(
     secure: bool = False,
     pose_slots: int = 1,
     observer=None,
+    solver: str = "exact",
 ) -> tuple[dict, Series]:
     """Run ``scenario`` as separate processes; returns the summary and the time series.
 
     ``faults`` injects the faults of :class:`FaultPlan`; ``secure`` runs the router with
     user/password authentication and the access control list of :mod:`wire.acl`, every process
     logging in as itself. ``pose_slots`` is the world's (:class:`simulator.world.WorldOptions`:
-    real time only). ``observer(session)``, when given, is called with the world's session
+    real time only). ``solver`` is the agents' QP solver (:func:`agent.qp.make_solver`).
+    ``observer(session)``, when given, is called with the world's session
     before the run (a live viewer subscribes on it) and returns what detaches it after."""
     faults = faults or FaultPlan()
     faults.check_robots(scenario.robot_ids)
@@ -183,7 +185,8 @@ def launch(
         creds = _secure_setup(scenario, out / "secure", endpoint) if secure else None
         router = fleet.start_router(endpoint, port, None if creds is None else creds.router_config)
         zs = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False)
-        configs = build_agent_configs(scenario, zenoh=zs, topology=topology, safety=safety)
+        configs = build_agent_configs(scenario, zenoh=zs, topology=topology, safety=safety,
+                                      solver=solver)
 
         def agent_args(rid: str) -> list[str]:
             argv = [] if realtime else ["--lockstep"]
@@ -226,7 +229,8 @@ def launch(
         fleet.shut_down(list(agents.values()), router)
     stats = [_read_stats(out / "agents" / f"{rid}.json") if rid in agents
              else _dead_stats(cfg) for rid, cfg in configs.items()]
-    summary, series = build_summary(scenario, result, stats, topology, realtime, camera, safety)
+    summary, series = build_summary(scenario, result, stats, topology, realtime, camera, safety,
+                                    solver)
     if fault_run:
         summary["faults"] = fault_summary(faults, result, stats, driver.log)
     if creds is not None:
@@ -367,7 +371,8 @@ def _read_stats(path: Path) -> dict:
 
 
 def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], topology: str,
-                  realtime: bool, camera: str, safety: bool) -> tuple[dict, Series]:
+                  realtime: bool, camera: str, safety: bool,
+                  solver: str = "exact") -> tuple[dict, Series]:
     """``summary.json`` of a multi-process run, and the time series with the agents' traces."""
     series = merge_traces(result, stats, scenario.dt)
     n = len(scenario.robot_ids)
@@ -384,7 +389,7 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
     summary = run_summary(
         scenario, "multiprocess", result.steps, sim_time, result.monitor, min_h,
         qp_fields(sum(s["solves"] for s in stats), solve_us, relaxed, fallback, failed),
-        comm_summary(snap, topology, n, sim_time), safety, "exact",
+        comm_summary(snap, topology, n, sim_time), safety, solver,
         realtime=realtime,
         camera=camera,
         agents={

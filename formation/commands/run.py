@@ -36,6 +36,13 @@ def run_command(ns: argparse.Namespace) -> int:
     if slots > 1 and not (ns.realtime and ns.camera == "truth"):
         raise UsageError("--pose-slots: more than one slot needs --realtime and --camera truth")
     scenario = load_scenario(ns.scenario)  # ScenarioError -> exit 2
+    solver = getattr(ns, "solver", "exact")
+    try:
+        from agent.qp import make_solver
+
+        make_solver(solver)  # an unknown or missing backend: exit 2 before any process starts
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     try:
         faults.check_robots(scenario.robot_ids)
     except ValueError as exc:
@@ -50,7 +57,7 @@ def run_command(ns: argparse.Namespace) -> int:
                                  progress_factory=lambda: Progress(f"run {scenario.name}",
                                                                    quiet=ns.quiet),
                                  faults=faults, secure=getattr(ns, "secure", False),
-                                 pose_slots=slots, observer=observer)
+                                 pose_slots=slots, observer=observer, solver=solver)
     finally:
         if live is not None:
             live.close()
