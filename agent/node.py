@@ -104,6 +104,7 @@ from wire.payloads import (
     decode_pose,
     decode_state,
 )
+from wire.shutdown import STEP_LIMIT_S, within
 from wire.traffic import CountingPublisher, Mailbox, TrafficCounter
 from wire.zconf import UsrPwdAuth, ZenohSettings
 
@@ -183,6 +184,15 @@ def inflate(m: EllipseMsg, grow: float) -> EllipseMsg:
 
 def _finite_or_none(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
+
+
+def _undeclare_all(handles: list[Any]) -> None:
+    """Undeclare each subscriber and publisher; one that fails does not stop the others."""
+    for h in handles:
+        try:
+            h.undeclare()
+        except Exception:  # noqa: BLE001 - shutting down: log, keep closing
+            logger.debug("undeclare failed", exc_info=True)
 
 
 class AgentNode:
@@ -394,37 +404,33 @@ class AgentNode:
         if self._arrived is not None:
             self._arrived.set()
 
-    def close(self) -> None:
-        """Zero command, undeclare, close the session (idempotent)."""
-        with self._tick_lock:  # waits for a tick in progress; none starts after this
-            self._closing = True
+    def close(self, step_limit: float = STEP_LIMIT_S) -> None:
+        """Zero command, undeclare, close the session (idempotent). Every step waits at most
+        ``step_limit`` seconds (:func:`wire.shutdown.within`): a step that hangs (a router that
+        is gone) is logged and left behind, and closing goes on, zero command first."""
+        rid = self.cfg.robot_id
+        got = self._tick_lock.acquire(timeout=step_limit)  # a tick in progress ends first
+        self._closing = True  # no tick starts after this
+        if got:
+            self._tick_lock.release()
+        else:
+            logger.warning("%s: a tick still runs after %.1f s: closing anyway", rid, step_limit)
         if self._session is None:
             return
-        try:
-            self._put_cmd(Cmd(0.0, 0.0, 0.0, 0.0, self.last_stamp))
-        except Exception:  # noqa: BLE001 - shutting down: log, keep closing
-            logger.exception("%s: zero command on exit failed", self.cfg.robot_id)
-        for sub in self._subs:
-            try:
-                sub.undeclare()
-            except Exception:  # noqa: BLE001
-                logger.debug("undeclare failed", exc_info=True)
-        for pub in self._pubs.values():
-            try:
-                pub.undeclare()
-            except Exception:  # noqa: BLE001
-                logger.debug("undeclare failed", exc_info=True)
+        within(step_limit, f"{rid}: zero command on exit",
+               lambda: self._put_cmd(Cmd(0.0, 0.0, 0.0, 0.0, self.last_stamp)))
+        handles = [*self._subs, *self._pubs.values()]
+        within(step_limit, f"{rid}: undeclaring {len(handles)} subscribers and publishers",
+               lambda: _undeclare_all(handles))
         if self._base is not None:
-            try:
-                self._base.stop()  # zero velocity on the real base, then undeclare
-            except Exception:  # noqa: BLE001 - shutting down: log, keep closing
-                logger.exception("%s: stopping the base failed", self.cfg.robot_id)
+            base = self._base  # zero velocity on the real base, then undeclare
+            within(step_limit, f"{rid}: stopping the base", base.stop)
             self._base = None
         self._subs.clear()
         self._rings.clear()
         self._pubs.clear()
-        self._session.close()
-        self._session = None
+        session, self._session = self._session, None
+        within(step_limit, f"{rid}: closing the Zenoh session", session.close)
 
     # --- life --------------------------------------------------------------------------------
 

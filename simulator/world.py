@@ -45,6 +45,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import zenoh
@@ -53,6 +54,7 @@ from agent import unicycle
 from scenario import Scenario
 from wire import keys
 from wire.payloads import Cmd, DecodeError, ObstacleMsg, Obstacles, Pose, decode_cmd
+from wire.shutdown import STEP_LIMIT_S, within
 from wire.traffic import CountingPublisher, TrafficCounter
 
 from .inprocess import Series
@@ -119,6 +121,11 @@ class WorldResult:
     # pose slots > 1: the stamp each robot's pose of tick k went out with (its slot's); else empty
     robot_stamps: list[list[float]] = field(default_factory=list)
     wall_s: float = 0.0
+
+
+def _undeclare(handles: Sequence[Any]) -> None:
+    for h in handles:
+        h.undeclare()
 
 
 def step_pose(x: float, y: float, th: float, cmd: Cmd | None, dt: float, is_unicycle: bool):
@@ -264,11 +271,13 @@ class World:
         if options.camera == "synthetic":
             self._camera = _SyntheticCamera(scenario)
 
-    def close(self) -> None:
-        for s in self._subs:
-            s.undeclare()
-        for pub in [*self._pose_pubs, self._obs_pub]:
-            pub.undeclare()
+    def close(self, step_limit: float = STEP_LIMIT_S) -> None:
+        """Undeclare the world's subscribers and publishers, each step waiting at most
+        ``step_limit`` seconds (:func:`wire.shutdown.within`: a hung step is logged, not waited
+        for); the session is its owner's to close."""
+        subs, pubs = list(self._subs), [*self._pose_pubs, self._obs_pub]
+        within(step_limit, f"world: undeclaring {len(subs)} subscribers", lambda: _undeclare(subs))
+        within(step_limit, f"world: undeclaring {len(pubs)} publishers", lambda: _undeclare(pubs))
         self._subs.clear()
         self._pose_pubs.clear()
 
