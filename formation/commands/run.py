@@ -47,11 +47,11 @@ def run_command(ns: argparse.Namespace) -> int:
         faults.check_robots(scenario.robot_ids)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    out = begin_output(ns)
     from formation.commands.view import live_observer
 
     live, observer = live_observer(ns, scenario)  # --live PORT: the page, fed from the world's session
     try:
+        out = begin_output(ns)  # the input is valid (a bad --live port included): replace the output
         summary, series = launch(scenario, out, realtime=ns.realtime, camera=ns.camera,
                                  topology=ns.topology, safety=not ns.no_safety, port=ns.port,
                                  progress_factory=lambda: Progress(f"run {scenario.name}",
