@@ -80,22 +80,20 @@ from typing import Any, TypeGuard
 
 import zenoh
 
-from agent import leader_step, schedule
 from agent.barriers import Obstacle
 from agent.base import Base, make_base
 from agent.config import AgentConfig
 from agent.control import Stall, StepResult, control_step
 from agent.faults import EPS, DelayLine, LinkFaults, lag
 from agent.inputs import step_inputs
-from agent.leader_step import inflate  # noqa: F401  (moved; re-exported)
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
-from agent.schedule import DEADLINE_PERIODS, MIN_SPACING_PERIODS, _run_now  # noqa: F401  (moved; re-exported)
 from agent.unicycle import control_point
-from leader.role import LeaderRole, msg_to_ellipse
+from leader.role import LeaderRole, ellipse_to_msg, msg_to_ellipse
 from wire import keys
 from wire.diag import DiagPublisher
 from wire.payloads import (
     Cmd,
+    EllipseMsg,
     Obstacles,
     Others,
     Pose,
@@ -112,6 +110,8 @@ from wire.zconf import UsrPwdAuth, ZenohSettings
 
 logger = logging.getLogger(__name__)
 
+DEADLINE_PERIODS = 1.5  # real time: tick without a new pose after this many periods
+MIN_SPACING_PERIODS = 0.75  # real time: a pose stamped sooner after the last ticked one waits
 RING_CAPACITY = 256  # real time: samples kept per key between two ticks (a flood beyond it
 # loses its oldest samples uncounted; about one per tick arrives in normal operation)
 STATS_WINDOW = 10_000  # per-tick timings kept for the medians in stats() (the newest ticks)
@@ -161,6 +161,25 @@ def _stamped(decode: Callable[[bytes], Any]) -> Callable[[bytes], tuple[Any, flo
         return decode(payload), time.monotonic()
 
     return run
+
+
+def _run_now(coro: Any) -> Any:
+    """Run a coroutine that does not suspend to its end on the calling thread (a real-time
+    tick, see the module docstring) and return its result."""
+    try:
+        coro.send(None)
+    except StopIteration as done:
+        return done.value
+    coro.close()
+    raise RuntimeError("a real-time tick tried to suspend")
+
+
+def inflate(m: EllipseMsg, grow: float) -> EllipseMsg:
+    """``m`` with both semi-axes grown by ``grow`` [m]: a stale ellipse covering everywhere its
+    formation can have gone since (``grow = max_speed * age``); centre, velocities and stamp
+    are kept."""
+    return EllipseMsg(m.formation, m.cx, m.cy, m.alpha, m.a + grow, m.b + grow, m.vx, m.vy,
+                      m.alpha_rate, m.stamp)
 
 
 def _finite_or_none(v: float) -> float | None:
@@ -432,34 +451,107 @@ class AgentNode:
             self.close()
 
     async def _realtime_loop(self) -> None:
-        """Moved to :func:`agent.schedule.realtime_loop`."""
-        await schedule.realtime_loop(self)
+        assert self._stop is not None  # set by run()
+        period = self.cfg.period
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            started = time.monotonic()
+            await self.tick(None)
+            self.tick_us.append((time.monotonic() - started) * 1e6)
+            next_t += period
+            now = time.monotonic()
+            if now > next_t:
+                self.overruns += 1
+                next_t = now  # do not try to catch up with a burst of ticks
+            try:
+                await asyncio.wait_for(self._stop.wait(), max(0.0, next_t - time.monotonic()))
+            except TimeoutError:
+                pass
 
     # --- real time, ticking on pose arrival ---------------------------------------------------
 
     def _on_pose_sample(self, sample: zenoh.Sample) -> None:
-        """Moved to :func:`agent.schedule.on_pose_sample`."""
-        schedule.on_pose_sample(self, sample)
+        """Zenoh thread: store the pose and tick on it (module docstring)."""
+        with self._tick_lock:
+            if self._closing:
+                return
+            self._boxes[keys.POSE].callback(sample)
+            self._pose_tick(time.monotonic())
 
     def _pose_tick(self, now: float) -> bool:
-        """Moved to :func:`agent.schedule.pose_tick`."""
-        return schedule.pose_tick(self, now)
+        """Under the tick lock: tick on the newest pose if it is due (True), else nothing: due
+        when stamped ``MIN_SPACING_PERIODS`` or more after the last ticked pose, or earlier
+        than it (the camera's clock went back)."""
+        entry = self._boxes[keys.POSE].latest(self.pose_key)
+        if entry is None:
+            return False
+        stamp, last = entry[0].stamp, self._last_pose_stamp
+        if last is not None and last <= stamp < last + MIN_SPACING_PERIODS * self.cfg.period:
+            return False
+        self._last_pose_stamp = stamp
+        self._tick_locked(now)
+        return True
 
     def _tick_locked(self, now: float) -> None:
-        """Moved to :func:`agent.schedule.tick_locked`."""
-        schedule.tick_locked(self, now)
+        """Under the tick lock: drain the ring channels, tick, time it."""
+        self._last_tick = now
+        self._drain()
+        _run_now(self.tick(None))
+        done = time.monotonic()
+        self.tick_us.append((done - now) * 1e6)
+        if done - now > self.cfg.period:
+            self.overruns += 1
 
     async def _pose_loop(self) -> None:
-        """Moved to :func:`agent.schedule.pose_loop`."""
-        await schedule.pose_loop(self)
+        """The loop's part of real time on pose arrival: the deadline tick when no tick has run
+        for ``DEADLINE_PERIODS`` periods (module docstring)."""
+        assert self._stop is not None
+        period = self.cfg.period
+        span = DEADLINE_PERIODS * period
+        watch = max(span, self.cfg.stale_after - span)
+        with self._tick_lock:
+            self._last_tick = time.monotonic()  # the first deadline counts from the start
+        while not self._stop.is_set():
+            with self._tick_lock:
+                if self._closing:
+                    return
+                now = time.monotonic()
+                wait = watch
+                if now - self._last_tick >= span:
+                    self.deadline_ticks += 1
+                    self._tick_locked(now)
+                    wait = span
+            await asyncio.sleep(wait)
 
     def _drain(self) -> None:
-        """Moved to :func:`agent.schedule.drain`."""
-        schedule.drain(self)
+        """Real time: hand every sample waiting in the ring channels to its mailbox (an inline
+        one: stored at once)."""
+        for sub, take in self._rings:
+            while (sample := sub.try_recv()) is not None:
+                take(sample)
 
     async def _lockstep_loop(self) -> None:
-        """Moved to :func:`agent.schedule.lockstep_loop`."""
-        await schedule.lockstep_loop(self)
+        assert self._stop is not None and self._arrived is not None
+        last = -math.inf
+        frame = [(self._boxes[keys.POSE], self.pose_key),
+                 (self._boxes[keys.OBSTACLES], self.obstacles_key)]
+        while not self._stop.is_set():
+            self._arrived.clear()
+            newest = max((e[0].stamp for e in (b.latest(k) for b, k in frame) if e is not None),
+                         default=-math.inf)
+            if newest > last:  # a new frame: its pose or its obstacles arrived
+                last = newest
+                started = time.monotonic()
+                await self.tick(last)
+                self.tick_us.append((time.monotonic() - started) * 1e6)
+                continue
+            stop_wait = asyncio.ensure_future(self._stop.wait())
+            arrived_wait = asyncio.ensure_future(self._arrived.wait())
+            try:
+                await asyncio.wait({stop_wait, arrived_wait}, return_when=asyncio.FIRST_COMPLETED)
+            finally:
+                stop_wait.cancel()
+                arrived_wait.cancel()
 
     async def _wait_current(self, inputs: list[tuple[str, str]], t: float) -> bool:
         """Lock-step: wait until every (class, key) in ``inputs`` that is not late holds the
@@ -640,8 +732,50 @@ class AgentNode:
         return inputs
 
     async def _lead(self, px: float, py: float, stamp: float, ts: float | None) -> bool:
-        """Moved to :func:`agent.leader_step.lead`."""
-        return await leader_step.lead(self, px, py, stamp, ts)
+        """Leader role for this tick: estimate and publish the ellipse, collect the other
+        leaders' ellipses, publish ``others``. False when an ellipse is missing or stale."""
+        role = self.role
+        assert role is not None  # only called on the leader
+        member_keys = self._member_keys
+        if ts is not None:
+            await self._wait_current([(keys.STATE, k) for k in member_keys.values()], stamp)
+        members: dict[str, tuple[float, float, float, float]] = {
+            self.cfg.robot_id: (px, py, *self.last_u)}
+        for m, k in member_keys.items():
+            entry = self._latest(keys.STATE, k)
+            if self._fresh(entry, ts):
+                s: State = entry[0]
+                members[m] = (s.x, s.y, s.ux, s.uy)
+        own = role.estimate(members)
+        if own is None:
+            self._own_others = None
+            return False
+        if self.options.trace:
+            self.ellipse_trace.append((stamp, *own))
+        received: dict[str, EllipseMsg] = {}
+        complete = True
+        if not self.all_to_all:
+            self._pubs[role.ellipse_key].put_message(ellipse_to_msg(role.formation, own, stamp))
+            if ts is not None:
+                await self._wait_current([(keys.ELLIPSE, k) for k in role.other_keys], stamp)
+            inflated = False
+            for k in role.other_keys:
+                entry = self._latest(keys.ELLIPSE, k)
+                if entry is None:
+                    continue
+                if self._fresh(entry, ts):
+                    received[k] = entry[0]
+                    continue
+                age = (ts - entry[0].stamp) if ts is not None else time.monotonic() - entry[1]
+                if age <= self.options.ellipse_hold:
+                    received[k] = inflate(entry[0], self.cfg.control.max_speed * age)
+                    inflated = True
+            self.inflated += inflated
+            complete = len(received) == len(role.other_keys)
+        self._own_others = role.others(own, received, stamp)
+        if complete:
+            self._pubs[role.others_key].put_message(self._own_others)
+        return complete
 
     def _zero(self, t: float | None, why: str) -> None:
         self.stale_why[why] = self.stale_why.get(why, 0) + 1
