@@ -72,6 +72,7 @@ class AgentConfig:
     zenoh: ZenohSettings = field(default_factory=agent_zenoh)
     cmd_vel_key: str = "cmd_vel"  # real bases: the zenoh-bridge-ros2dds key for /cmd_vel
     frame_id: str = "base_link"  # real bases (Jazzy TwistStamped): header frame
+    solver: str = "exact"  # QP solver (agent.qp.make_solver): exact or a qpsolvers backend
 
     @property
     def is_leader(self) -> bool:
@@ -87,6 +88,7 @@ def build_agent_configs(
     base: str = "world",
     pose_period: float | None = None,
     clock_tolerance: float = CLOCK_TOLERANCE_S,
+    solver: str = "exact",
 ) -> dict[str, AgentConfig]:
     """One :class:`AgentConfig` per robot of ``scenario``. ``pose_period`` [s] is how often the
     camera really delivers a pose (None: every ``dt``); the stale limit is
@@ -138,6 +140,7 @@ def build_agent_configs(
                 pose_period=pose_period,
                 base=base,
                 zenoh=zenoh,
+                solver=solver,
             )
     return out
 
@@ -149,6 +152,8 @@ def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
         raise ValueError(f"zenoh.{extra[0]}: not part of an agent configuration file")
     d = _plain(dataclasses.asdict(cfg))
     d["zenoh"] = {k: d["zenoh"][k] for k in AGENT_ZENOH_FIELDS}
+    if d["solver"] == "exact":
+        del d["solver"]  # the default: files stay as they were before the field existed
     d["version"] = CONFIG_VERSION
     return d
 
@@ -194,6 +199,7 @@ def config_from_dict(d: dict[str, Any]) -> AgentConfig:
             zenoh=zenoh,
             cmd_vel_key=str(d.pop("cmd_vel_key", "cmd_vel")),
             frame_id=str(d.pop("frame_id", "base_link")),
+            solver=str(d.pop("solver", "exact")),
         )
         d.pop("start", None)
         d.pop("pose_period", None)

@@ -104,7 +104,7 @@ from agent.plausibility import (
     speed_bound,
     velocity_ok,
 )
-from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, solve_exact
+from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
 from agent.unicycle import control_point
 from leader.role import LeaderRole, ellipse_to_msg, msg_to_ellipse
 from leader.succession import leader_token_key
@@ -123,6 +123,7 @@ from wire.payloads import (
     decode_pose,
     decode_state,
 )
+from wire.shutdown import STEP_LIMIT_S, within
 from wire.stamps import FUTURE, LOCKSTEP_AHEAD_PERIODS, StampCounter, check_stamp, validate_window
 from wire.traffic import CountingPublisher, Mailbox, TrafficCounter
 from wire.zconf import UsrPwdAuth, ZenohSettings, explain_open_failure, read_auth_file
@@ -212,6 +213,15 @@ def _finite_or_none(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
 
+def _undeclare_all(handles: list[Any]) -> None:
+    """Undeclare each subscriber and publisher; one that fails does not stop the others."""
+    for h in handles:
+        try:
+            h.undeclare()
+        except Exception:  # noqa: BLE001 - shutting down: log, keep closing
+            logger.debug("undeclare failed", exc_info=True)
+
+
 class AgentNode:
     """The agent of one robot; ``await node.run(stop)`` until ``stop`` is set."""
 
@@ -276,6 +286,7 @@ class AgentNode:
         self._lag = lag(options.faults.delay, cfg.period)
         self._delay_line: DelayLine | None = None
         self.status_counts = {STATUS_RELAXED: 0, STATUS_FALLBACK: 0, STATUS_FAILED: 0}
+        self._solve = make_solver(cfg.solver)  # the config's QP solver (exact by default)
         self.solves = 0
         # the newest STATS_WINDOW samples only, so a long-running agent's memory stays bounded
         self.solve_us: deque[float] = deque(maxlen=STATS_WINDOW)
@@ -572,44 +583,38 @@ class AgentNode:
         if self._arrived is not None:
             self._arrived.set()
 
-    def close(self) -> None:
-        """Zero command, undeclare, close the session (idempotent)."""
-        with self._tick_lock:  # waits for a tick in progress; none starts after this
-            self._closing = True
+    def close(self, step_limit: float = STEP_LIMIT_S) -> None:
+        """Zero command, undeclare, close the session (idempotent). Every step waits at most
+        ``step_limit`` seconds (:func:`wire.shutdown.within`): a step that hangs (a router that
+        is gone) is logged and left behind, and closing goes on, zero command first."""
+        rid = self.cfg.robot_id
+        got = self._tick_lock.acquire(timeout=step_limit)  # a tick in progress ends first
+        self._closing = True  # no tick starts after this
+        if got:
+            self._tick_lock.release()
+        else:
+            logger.warning("%s: a tick still runs after %.1f s: closing anyway", rid, step_limit)
         if self._session is None:
             return
-        try:
+
+        def zero() -> None:
             self._put_cmd(Cmd(0.0, 0.0, 0.0, 0.0, self.last_stamp))
             self.zero_sent = True
-        except Exception:  # noqa: BLE001 - shutting down: log, keep closing
-            logger.exception("%s: zero command on exit failed", self.cfg.robot_id)
-        if self._token is not None:
-            try:
-                self._token.undeclare()
-            except Exception:  # noqa: BLE001
-                logger.debug("undeclare failed", exc_info=True)
-            self._token = None
-        for sub in self._subs:
-            try:
-                sub.undeclare()
-            except Exception:  # noqa: BLE001
-                logger.debug("undeclare failed", exc_info=True)
-        for pub in self._pubs.values():
-            try:
-                pub.undeclare()
-            except Exception:  # noqa: BLE001
-                logger.debug("undeclare failed", exc_info=True)
+
+        within(step_limit, f"{rid}: zero command on exit", zero)
+        token, self._token = self._token, None
+        handles = [*([] if token is None else [token]), *self._subs, *self._pubs.values()]
+        within(step_limit, f"{rid}: undeclaring {len(handles)} tokens, subscribers and publishers",
+               lambda: _undeclare_all(handles))
         if self._base is not None:
-            try:
-                self._base.stop()  # zero velocity on the real base, then undeclare
-            except Exception:  # noqa: BLE001 - shutting down: log, keep closing
-                logger.exception("%s: stopping the base failed", self.cfg.robot_id)
+            base = self._base  # zero velocity on the real base, then undeclare
+            within(step_limit, f"{rid}: stopping the base", base.stop)
             self._base = None
         self._subs.clear()
         self._rings.clear()
         self._pubs.clear()
         session, self._session = self._session, None
-        self._close_session(session)
+        within(step_limit, f"{rid}: closing the Zenoh session", lambda: self._close_session(session))
 
     # --- fault containment ---------------------------------------------------------------------
 
@@ -942,7 +947,7 @@ class AgentNode:
         )
         self._stall = inputs.stall
         res = control_step(cfg.control, (pose.x, pose.y, pose.theta), cfg.goal, inputs.neighbours,
-                           obs, inputs.others, inputs.view, solve_exact, inputs.pairwise,
+                           obs, inputs.others, inputs.view, self._solve, inputs.pairwise,
                            inputs.partners, self.last_u, inputs.hazards, clock=time.perf_counter_ns)
         if t is None and time.time() - stamp > cfg.stale_after:
             self._zero(t, POSE_AT_SEND)  # never send a command from a pose gone stale

@@ -38,8 +38,10 @@ def add_camera_args(p: argparse.ArgumentParser) -> None:
 
 def add_calibrate_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("image", help="overhead image of the floor markers")
-    p.add_argument("--floor-markers", required=True, metavar="FLOOR.yaml")
-    p.add_argument("--out", required=True, metavar="CALIB.yaml")
+    p.add_argument("--floor-markers", required=True, metavar="FLOOR.yaml",
+                   help="the floor markers' dictionary, printed size and surveyed centres")
+    p.add_argument("--out", required=True, metavar="CALIB.yaml",
+                   help="where to write the calibration")
     p.add_argument("--intrinsics", default=None, metavar="INTR.yaml",
                    help="camera_matrix and dist_coeffs of the lens (frames are undistorted)")
     p.add_argument("--camera-height", type=float, default=None, metavar="M",

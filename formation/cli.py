@@ -20,11 +20,51 @@ __all__ = ["EXIT_ERROR", "EXIT_INVALID", "EXIT_OK", "Progress", "UsageError", "b
            "print_summary"]
 
 
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Every option's help ends with its default, unless the text names it already or there is
+    none to name (a flag, an option without a default)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        if ("default" in text.lower() or any(action.default is v for v in (None, False, argparse.SUPPRESS))
+                or action.required or not action.option_strings):
+            return text
+        return text + " (default: %(default)s)"
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("formation-cbf")
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        return "unknown (not installed)"
+
+
+def _add_out(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="output folder, created if missing; a re-run replaces the previous run's "
+                        "output in it")
+    p.add_argument("--force", action="store_true",
+                   help="write into an --out folder that holds other files (they are left as "
+                        "they are)")
+
+
 def _add_sim_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenario", help="scenario YAML file")
-    p.add_argument("--out", required=True, help="output folder (created if missing)")
+    _add_out(p)
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
     p.add_argument("--quiet", action="store_true", help="no progress display")
+
+
+def _add_solver(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--solver", default="exact", metavar="NAME",
+                   help="QP solver: exact, or a qpsolvers backend (osqp, daqp, ...)")
+
+
+def _add_topology(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--topology", default="reduced", choices=["reduced", "all-to-all"],
+                   help="who hears whom: neighbours and leaders only, or every robot")
 
 
 def _add_view_args(p: argparse.ArgumentParser, client: bool = False, serve: bool = True,
@@ -39,23 +79,32 @@ def _add_view_args(p: argparse.ArgumentParser, client: bool = False, serve: bool
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="formation",
+        prog="formation", formatter_class=_HelpFormatter,
         description="Distributed CBF formation control for warehouse robots over Zenoh.",
+        epilog="Exit status: 0 the command did its work, 2 invalid input (one line naming it), "
+               "1 anything else. 'formation COMMAND --help' for a command's options.",
     )
-    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="log debug messages, and show a traceback on an unexpected error")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}",
+                        help="print the installed version and exit")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
+                                help="what to do (one of the commands below)")
 
-    p = sub.add_parser("check", help="validate a scenario file, nothing else")
-    p.add_argument("scenario")
+    def add(name: str, text: str) -> argparse.ArgumentParser:
+        return sub.add_parser(name, help=text, description=text[:1].upper() + text[1:] + ".",
+                              formatter_class=_HelpFormatter)
 
-    p = sub.add_parser("sim", help="in-process simulation of a scenario")
+    p = add("check", "validate a scenario file, nothing else")
+    p.add_argument("scenario", help="scenario YAML file")
+
+    p = add("sim", "in-process simulation of a scenario")
     _add_sim_args(p)
     p.add_argument("--no-safety", action="store_true", help="barriers off (nominal control only)")
-    p.add_argument("--solver", default="exact",
-                   help="QP solver: exact (default) or a qpsolvers backend (osqp, daqp, ...)")
-    p.add_argument("--topology", default="reduced", choices=["reduced", "all-to-all"])
+    _add_solver(p)
+    _add_topology(p)
 
-    p = sub.add_parser("run", help="multi-process simulation over Zenoh")
+    p = add("run", "multi-process simulation over Zenoh (router, one agent per robot, world)")
     _add_sim_args(p)
     p.add_argument("--realtime", action="store_true", help="wall-clock pacing instead of lock-step")
     p.add_argument("--clock-offset-ms", type=float, default=0.0, metavar="MS",
@@ -67,7 +116,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--camera", default="truth", choices=["truth", "synthetic", "process"],
                    help="poses from the truth, from frames detected in the world (synthetic), or "
                         "from the real camera process on rendered frames (process)")
-    p.add_argument("--topology", default="reduced", choices=["reduced", "all-to-all"])
+    _add_topology(p)
+    _add_solver(p)
     p.add_argument("--drop", type=float, default=0.0, help="message loss probability")
     p.add_argument("--delay-ms", type=float, default=0.0, help="added message delay [ms]")
     p.add_argument("--fault-seed", type=int, default=0, help="seed of the message losses")
@@ -86,24 +136,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--session-per-agent", action="store_true",
                    help="with --agents-per-process K > 1: each agent opens its own Zenoh session "
                         "(default: one per host, with --insecure; each robot logs in as itself otherwise)")
-    p.add_argument("--no-safety", action="store_true")
+    p.add_argument("--no-safety", action="store_true", help="barriers off (nominal control only)")
     p.add_argument("--port", type=int, default=0, help="router TCP port on 127.0.0.1 (0: free)")
     p.add_argument("--live", type=int, default=None, metavar="PORT",
                    help="serve the live page on http://127.0.0.1:PORT/ (and Foxglove on PORT+1)")
     _add_view_args(p, port=False)
 
-    p = sub.add_parser("commcost", help="communication cost of both topologies")
-    p.add_argument("--formations", default="2,4,8")
-    p.add_argument("--out", required=True)
+    p = add("commcost", "communication cost of both topologies (multi-process runs)")
+    p.add_argument("--formations", default="2,4,8", metavar="N,N,...",
+                   help="numbers of formations to run, each with both topologies")
+    _add_out(p)
 
-    p = sub.add_parser("montecarlo", help="random warehouse scenarios, in-process")
-    p.add_argument("--n", type=int, default=40)
-    p.add_argument("--seed", type=int, default=11)
-    p.add_argument("--out", required=True)
+    p = add("montecarlo", "random warehouse scenarios, in-process")
+    p.add_argument("--n", type=int, default=40, help="number of random scenarios")
+    p.add_argument("--seed", type=int, default=11, help="seed of the first scenario's layout")
+    _add_out(p)
 
-    p = sub.add_parser("bench", help="benchmarks")
-    p.add_argument("--out", required=True)
-    p.add_argument("--quick", action="store_true", help="smoke mode (CI)")
+    p = add("bench", "benchmarks: solver, control step, fleet CPU")
+    _add_out(p)
+    p.add_argument("--quick", action="store_true", help="smoke mode (CI): small and short")
     p.add_argument("--fleets", default=None, metavar="N@HZ,...",
                    help="only these agent fleets, e.g. 32@50,256@20 (real time)")
     p.add_argument("--agents-per-process", type=int, default=1, metavar="K",
@@ -118,12 +169,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="with --fleets: seconds of real time per run (default 15)")
 
-    p = sub.add_parser("view", help="the live page of a running fleet (read-only)")
+    p = add("view", "the live page of a running fleet (read-only)")
     _add_view_args(p, client=True)
-    p = sub.add_parser("record", help="record a running fleet into DIR/run.mcap")
+
+    p = add("record", "record a running fleet into DIR/run.mcap")
     _add_view_args(p, client=True, serve=False)
-    p.add_argument("--out", required=True)
-    p = sub.add_parser("replay", help="serve a recording (run.mcap) to the page")
+    p.add_argument("--out", required=True, metavar="DIR", help="folder of the recording (run.mcap)")
+
+    p = add("replay", "serve a recording (run.mcap) to the page")
     p.add_argument("recording", help="a run.mcap")
     _add_view_args(p)
     p.add_argument("--speed", type=float, default=None, help="start at this speed (default 1)")
@@ -131,14 +184,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="stop after S seconds (default: until Ctrl-C)")
 
-    p = sub.add_parser("deploy", help="put agents on robots over SSH")
-    p.add_argument("inventory")
-    p.add_argument("scenario")
+    p = add("deploy", "put agents on robots over SSH (without an option: install or update)")
+    p.add_argument("inventory", help="inventory YAML file: the robots, their hosts and SSH keys")
+    p.add_argument("scenario", help="scenario YAML file naming the same robots")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--dry-run", action="store_true")
-    g.add_argument("--start", action="store_true")
-    g.add_argument("--stop", action="store_true")
-    g.add_argument("--status", action="store_true")
+    g.add_argument("--dry-run", action="store_true",
+                   help="check the inventory (SSH keys included) and print the plan; touch nothing")
+    g.add_argument("--start", action="store_true", help="start each robot's agent")
+    g.add_argument("--stop", action="store_true", help="stop each robot's agent")
+    g.add_argument("--status", action="store_true", help="report each robot's agent")
 
     from camera_service.cli import add_parsers as add_camera_parsers  # camera, calibrate
     COMMANDS.update(add_camera_parsers(sub))
@@ -175,14 +229,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=logging.DEBUG if ns.verbose else logging.WARNING,
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
     )
-    from formation.outdir import check_out
+    from formation.outdir import FOLDER_COMMANDS, OutputFolder, check_out
     from scenario import ScenarioError
     from wire.zconf import use_zenoh_threads
 
     use_zenoh_threads("relay")  # this process (world, bench); agents and routers set their own
     try:
         check_out(ns.command, getattr(ns, "out", None))  # a bad --out: exit 2 before any work
-        return COMMANDS[ns.command](ns)
+        if ns.command not in FOLDER_COMMANDS:
+            return COMMANDS[ns.command](ns)
+        # the run owns its --out: locked, the previous run's output replaced (formation.outdir)
+        with OutputFolder(ns.out, force=ns.force) as folder:
+            ns.out_folder = folder
+            return COMMANDS[ns.command](ns)
     except (ScenarioError, UsageError) as exc:
         print(f"formation {ns.command}: error: {exc}", file=sys.stderr)
         return EXIT_INVALID

@@ -9,21 +9,28 @@ from pathlib import Path
 class Progress:
     """A one-line progress display on stderr (redrawn in place on a terminal).
 
-    The bar runs against the scenario's duration; a run that ends early (every goal reached)
-    closes it at full with the time it ended."""
+    ``unit="time"``: the bar runs against the scenario's duration and shows the simulated time.
+    A run that ends early (it stops when every goal is reached) is not drawn as full: its last
+    line says where and why it ended (``ended early at t=9.60 s of 40.00 s: every goal
+    reached``). ``unit="runs"``: the bar counts finished runs (``12/40 runs``)."""
 
-    def __init__(self, label: str, quiet: bool = False) -> None:
+    def __init__(self, label: str, quiet: bool = False, unit: str = "time") -> None:
+        if unit not in ("time", "runs"):
+            raise ValueError(f"unit: {unit!r} is not 'time' or 'runs'")
         self.label = label
         self.quiet = quiet
+        self.unit = unit
         self.tty = sys.stderr.isatty()
         self._last = -1
         self._time = 0.0
+        self._done = 0
+        self._total = 0
 
     def __enter__(self) -> Progress:
         return self
 
     def update(self, done: int, total: int, sim_time: float) -> None:
-        self._time = sim_time
+        self._time, self._done, self._total = sim_time, done, total
         if self.quiet or total <= 0:
             return
         pct = int(100 * done / total)
@@ -31,7 +38,13 @@ class Progress:
         if pct // step == self._last // step and done != total:
             return
         self._last = pct
-        self._draw(done / total, f"{pct:3d}%  t={sim_time:7.2f} s")
+        self._draw(done / total, f"{pct:3d}%  {self._where()}")
+
+    def _where(self) -> str:
+        if self.unit == "runs":
+            return f"{self._done}/{self._total} runs"
+        duration = self._time * self._total / self._done if self._done else 0.0
+        return f"t={self._time:7.2f} s of {duration:.2f} s"
 
     def _draw(self, fraction: float, tail: str) -> None:
         width = 30
@@ -43,34 +56,41 @@ class Progress:
     def __exit__(self, exc_type, *exc) -> None:
         if self.quiet:
             return
-        if exc_type is None and self._last >= 0 and self._last < 100:
-            self._draw(1.0, f"done  t={self._time:7.2f} s")
+        if exc_type is None and 0 < self._done < self._total and self.unit == "time":
+            # the run stopped before its duration: every goal was reached (the only early stop)
+            self._draw(self._done / self._total,
+                       f"ended early at {self._where()}: every goal reached")
         if self.tty:
             sys.stderr.write("\n")
             sys.stderr.flush()
 
 
-def _qp_words(summary: dict) -> str:
-    """The QP part of the summary line: formation rows relaxed minimally when the QP was
-    infeasible (by design) apart from ticks on which a hard row was not met (a failure)."""
-    qp = summary["qp"]
-    hard = summary.get("hard_row_unmet_ticks", qp.get("hard_row_unmet_ticks"))
-    words = (f"formation rows minimally relaxed (by design) on {qp.get('relaxed', 0)} of "
-             f"{qp['solves']} ticks")
-    if hard is not None:
-        words += f"; hard rows NOT met on {hard} ticks" if hard else "; every hard row met"
+def qp_words(qp: dict, hard_ticks: int | None = None) -> str:
+    """The QP counters of a summary in words: a formation relaxation is by design (the formation
+    tolerance bends, minimally, when the QP is infeasible); ticks on which a hard row was not met
+    (``hard_ticks``: the summary's ``hard_row_unmet_ticks``; the fallback ticks where a summary
+    has none) and solver errors are what would alarm."""
+    solves = qp["solves"]
+    relaxed = qp.get("relaxed", 0)
+    hard = qp.get("fallback", 0) if hard_ticks is None else hard_ticks
+    failed = qp.get("failed", 0)
+    words = (f"formation tolerance relaxed (by design, minimal) on {relaxed:,} of {solves:,} "
+             f"ticks; hard rows unmet: {hard:,}")
+    if failed:
+        words += f"; solver failures: {failed:,}"
     return words
 
 
-def print_summary(summary: dict, out: Path) -> None:
+def print_summary(summary: dict, out: Path, plots: bool = True) -> None:
     ok = summary["all_reached"] and summary["collisions"] == 0
     ttg = summary["time_to_goal_s"]
+    qp = summary["qp"]
     print(
         f"{summary['scenario']} ({summary['mode']}): "
         f"{'all robots reached their goals' if summary['all_reached'] else 'NOT all goals reached'}"
         f"{f' at t={ttg:.2f} s' if ttg is not None else ''}; collisions {summary['collisions']}; "
         f"max formation error {summary['formation_error_max_m']:.4f} m; "
-        f"{_qp_words(summary)}"
+        f"{qp_words(qp, summary.get('hard_row_unmet_ticks', qp.get('hard_row_unmet_ticks')))}"
         + ("" if ok else "  [UNSAFE OR INCOMPLETE]")
     )
-    print(f"wrote {out / 'summary.json'} and figures in {out}/")
+    print(f"wrote {out / 'summary.json'}" + (f" and figures in {out}/" if plots else f" in {out}/"))

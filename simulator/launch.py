@@ -180,13 +180,15 @@ def launch(
     clock_offset: float = 0.0,
     agents_per_process: int = 1,
     shared_session: bool = False,
+    solver: str = "exact",
 ) -> tuple[dict, Series]:
     """Run ``scenario`` as separate processes; returns the summary and the time series.
 
     ``faults`` injects the faults of :class:`FaultPlan`; ``secure`` runs the router with
     user/password authentication and the access control list of :mod:`wire.acl`, every process
     logging in as itself. ``pose_slots`` is the world's (:class:`simulator.world.WorldOptions`:
-    real time only). ``observer(session)``, when given, is called with the world's session
+    real time only). ``solver`` is the agents' QP solver (:func:`agent.qp.make_solver`).
+    ``observer(session)``, when given, is called with the world's session
     before the run (a live viewer subscribes on it) and returns what detaches it after.
     ``camera="process"`` also starts the real camera process
     (``python -m camera_service``) on the frames the world renders; it reads the static obstacles
@@ -216,7 +218,8 @@ def launch(
         if camera == "process" and scenario_path is not None:  # checked above
             camera_child = _start_camera(fleet, scenario, scenario_path, out, endpoint, creds)
         zs = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False)
-        configs = build_agent_configs(scenario, zenoh=zs, topology=topology, safety=safety)
+        configs = build_agent_configs(scenario, zenoh=zs, topology=topology, safety=safety,
+                                      solver=solver)
 
         def agent_args(rid: str) -> list[str]:
             argv = [] if realtime else ["--lockstep"]
@@ -263,7 +266,8 @@ def launch(
                         [] if camera_child is None else [camera_child])
     stats = [_stats_of(out / "agents" / f"{rid}.json", cfg, lost_ok=stopped is not None)
              if rid in agents else _dead_stats(cfg) for rid, cfg in configs.items()]
-    summary, series = build_summary(scenario, result, stats, topology, realtime, camera, safety)
+    summary, series = build_summary(scenario, result, stats, topology, realtime, camera, safety,
+                                    solver)
     if fault_run:
         summary["faults"] = fault_summary(faults, result, stats, driver.log)
     summary["secure"] = False if creds is None else creds.summary()
@@ -534,7 +538,8 @@ def _disk_full(folder: Path, room: int = 256 * 1024) -> bool:
 
 
 def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], topology: str,
-                  realtime: bool, camera: str, safety: bool) -> tuple[dict, Series]:
+                  realtime: bool, camera: str, safety: bool,
+                  solver: str = "exact") -> tuple[dict, Series]:
     """``summary.json`` of a multi-process run, and the time series with the agents' traces."""
     series = merge_traces(result, stats, scenario.dt)
     n = len(scenario.robot_ids)
@@ -553,7 +558,7 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
         scenario, "multiprocess", result.steps, sim_time, result.monitor, min_h,
         qp_fields(sum(s["solves"] for s in stats), solve_us, relaxed, fallback, failed,
                   hard_unmet, sum_counts(s.get("hard_row_unmet", {}) for s in stats)),
-        comm_summary(snap, topology, n, sim_time), safety, "exact",
+        comm_summary(snap, topology, n, sim_time), safety, solver,
         realtime=realtime,
         camera=camera,
         agents={
@@ -641,16 +646,21 @@ def comm_summary(snap: dict, topology: str, n: int, sim_time: float) -> dict:
 
 def merge_traces(result: WorldResult, stats: list[dict], dt: float) -> Series:
     """The world's rows with ``status``, ``slack`` and ``h_*`` from each agent's trace entry for
-    the pose the world published at that tick; leaders' ellipses become ``ellipses`` rows."""
+    the pose the world published at that tick; leaders' ellipses become ``ellipses`` rows.
+
+    With pose slots each robot's pose of a tick goes out with its own slot's stamp
+    (``result.robot_stamps``), which is the stamp its agent's trace is keyed by."""
     by_key: dict[tuple[str, float], list] = {}
     for s in stats:
         for row in s["trace"]:
             by_key[(s["robot"], row[0])] = row
+    index: dict[str, int] = {}
     series = Series(obstacles=result.series.obstacles)
     for row in result.series.robots:
         t, rid = row[0], row[1]
         k = round(t / dt) if dt else 0
-        stamp = result.stamps[k] if k < len(result.stamps) else t
+        i = index.setdefault(rid, len(index))
+        stamp = _stamp_of(result, k, i, t)
         tr = by_key.get((rid, stamp))
         if tr is None:
             series.robots.append(row)
@@ -658,6 +668,8 @@ def merge_traces(result: WorldResult, stats: list[dict], dt: float) -> Series:
         status, slack, hf, ho, he = tr[7], tr[8], tr[9], tr[10], tr[11]
         series.robots.append((*row[:12], status, _nan(slack), _nan(hf), _nan(ho), _nan(he)))
     t_of = {stamp: k * dt for k, stamp in enumerate(result.stamps)}
+    for k, sent in enumerate(result.robot_stamps):
+        t_of.update((stamp, k * dt) for stamp in sent if math.isfinite(stamp))
     for s in stats:
         for row in s.get("ellipse_trace", []):
             t = t_of.get(row[0])
@@ -665,6 +677,13 @@ def merge_traces(result: WorldResult, stats: list[dict], dt: float) -> Series:
                 series.ellipses.append((t, s["formation"], *row[1:]))
     series.ellipses.sort(key=lambda r: (r[0], r[1]))
     return series
+
+
+def _stamp_of(result: WorldResult, k: int, i: int, t: float) -> float:
+    """The stamp of robot ``i``'s pose at tick ``k`` (the tick's, or its slot's)."""
+    if k < len(result.robot_stamps) and i < len(result.robot_stamps[k]):
+        return result.robot_stamps[k][i]
+    return result.stamps[k] if k < len(result.stamps) else t
 
 
 def _nan(v):

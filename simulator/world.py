@@ -55,6 +55,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import zenoh
@@ -63,6 +64,7 @@ from agent import unicycle
 from scenario import Scenario
 from wire import keys
 from wire.payloads import Cmd, DecodeError, ObstacleMsg, Obstacles, Pose, decode_cmd
+from wire.shutdown import STEP_LIMIT_S, within
 from wire.stamps import CLOCK_TOLERANCE_S, EPS, StampCounter
 from wire.traffic import CountingPublisher, TrafficCounter
 
@@ -142,7 +144,14 @@ class WorldResult:
     camera_dropped: int = 0  # poses not published (camera dropout)
     latency_ms: list[float] = field(default_factory=list)  # real time: pose put -> cmd received
     stamps: list[float] = field(default_factory=list)  # pose stamp published at tick k
+    # pose slots > 1: the stamp each robot's pose of tick k went out with (its slot's); else empty
+    robot_stamps: list[list[float]] = field(default_factory=list)
     wall_s: float = 0.0
+
+
+def _undeclare(handles: Sequence[Any]) -> None:
+    for h in handles:
+        h.undeclare()
 
 
 def step_pose(x: float, y: float, th: float, cmd: Cmd | None, dt: float, is_unicycle: bool):
@@ -324,11 +333,13 @@ class World:
 
             self.frames = FramePublisher(scenario, session, p)
 
-    def close(self) -> None:
-        for s in self._subs:
-            s.undeclare()
-        for pub in [*self._pose_pubs, self._obs_pub]:
-            pub.undeclare()
+    def close(self, step_limit: float = STEP_LIMIT_S) -> None:
+        """Undeclare the world's subscribers and publishers, each step waiting at most
+        ``step_limit`` seconds (:func:`wire.shutdown.within`: a hung step is logged, not waited
+        for); the session is its owner's to close."""
+        subs, pubs = list(self._subs), [*self._pose_pubs, self._obs_pub]
+        within(step_limit, f"world: undeclaring {len(subs)} subscribers", lambda: _undeclare(subs))
+        within(step_limit, f"world: undeclaring {len(pubs)} publishers", lambda: _undeclare(pubs))
         self._subs.clear()
         self._pose_pubs.clear()
         if self.frames is not None:
@@ -389,6 +400,7 @@ class World:
         inbox.measure_latency = opts.realtime
         counts = _Counts()
         stamps: list[float] = []
+        robot_stamps: list[list[float]] = []
         wall0 = time.monotonic()
         monitor.update(0.0, np.array([s[:2] for s in state]),
                        [o.position(0.0) for o in sc.obstacles])
@@ -417,6 +429,7 @@ class World:
                 camera_dropped=self.camera_dropped, malformed_cmds=inbox.malformed,
                 stamp_rejected=inbox.stamps.snapshot(), clock_offset=opts.clock_offset,
                 latency_ms=list(inbox.latency_ms), wall_s=time.monotonic() - wall0, stamps=stamps,
+                robot_stamps=robot_stamps,
             )
 
         try:
@@ -429,7 +442,7 @@ class World:
                     # same rows and checks as below, one period later
                     stamps.append(time.time() + opts.clock_offset)
                     before = state
-                    state, cmds = self._publish_slots(k, state, next_wall, abort)
+                    state, cmds = self._publish_slots(k, state, next_wall, abort, robot_stamps)
                     next_wall += dt
                     if k > 0:  # tick 0 only publishes: nothing was applied
                         counts.applied(cmds)
@@ -480,11 +493,14 @@ class World:
         return got
 
     def _publish_slots(self, k: int, state: Sequence[tuple[float, float, float]], start: float,
-                       abort: Callable[[], None]) -> tuple[list, list[Cmd | None]]:
+                       abort: Callable[[], None], robot_stamps: list[list[float]],
+                       ) -> tuple[list, list[Cmd | None]]:
         """Real time with ``pose_slots`` > 1, tick ``k``, starting at wall time ``start``: in
         slot s (robots i with ``i * slots // n == s``), step those robots by ``dt`` with their
         latest command (not at ``k == 0``: the start poses go out as they are), then publish
-        their poses. Returns at the period's end with the new state and the commands applied."""
+        their poses. Returns at the period's end with the new state and the commands applied;
+        appends the stamp each robot's pose went out with to ``robot_stamps`` (the agents' traces
+        are keyed by it)."""
         opts = self.options
         dt = self.scenario.dt
         t = k * dt
@@ -493,6 +509,8 @@ class World:
         new = list(state)
         cmds: list[Cmd | None] = [None] * n
         is_uni = self.scenario.robot.is_unicycle
+        sent = [math.nan] * n
+        robot_stamps.append(sent)
         for s in range(slots):
             _sleep_until(start + s * dt / slots, abort)
             mine = range(-(-s * n // slots), -(-(s + 1) * n // slots))
@@ -505,6 +523,7 @@ class World:
             for i in mine:
                 if k > 0:
                     new[i] = step_pose(*new[i], cmds[i], dt, is_uni)
+                sent[i] = stamp
                 self._publish_pose(i, t, stamp, new[i])
         _sleep_until(start + dt, abort)
         return new, cmds

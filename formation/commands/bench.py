@@ -5,10 +5,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
 from experiments.bench import format_fleets, format_table, parse_fleets, run_bench, run_fleets
 from formation.exits import UsageError
+from formation.outdir import begin_output
 
 
 def bench_command(ns: argparse.Namespace) -> int:
@@ -32,8 +32,7 @@ def bench_command(ns: argparse.Namespace) -> int:
                            or own):
         raise UsageError("--agents-per-process, --session-per-agent, --repeat, --duration and "
                          "--pose-slots go with --fleets")
-    out = Path(ns.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = begin_output(ns)
     if fleets is not None:
         result = run_fleets(fleets, per_process, per_process > 1 and not own, repeat,
                             pose_slots=slots, **({} if duration is None else {"duration": duration}))

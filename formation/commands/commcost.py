@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 from typing import Any
 
 from experiments.commcost import outcome, paired, parse_formations, ratio, run_commcost, write_outputs
 from formation.exits import EXIT_OK, UsageError
+from formation.outdir import begin_output
 from formation.progress import Progress
 from scenario import Scenario
 
@@ -18,7 +18,7 @@ def commcost_command(ns: argparse.Namespace) -> int:
         formations = parse_formations(ns.formations)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    out = Path(ns.out)
+    out = begin_output(ns)
     label = {"text": "commcost"}
 
     def on_run(index: int, total: int, topology: str, scenario: Scenario) -> None:

@@ -2,7 +2,8 @@
 
 Without an option: build the wheel once, install it and each robot's files on every robot
 (concurrently), one line per robot (installed / updated / unchanged / FAILED with the reason).
-``--dry-run`` prints the plan and touches nothing; ``--start``, ``--stop`` and ``--status``
+``--dry-run`` checks the inventory (each robot's SSH key must exist) and prints the plan,
+touching nothing; ``--start``, ``--stop`` and ``--status``
 control the agent through each robot's ``run-agent.sh``.
 
 Exit status: 2 for an invalid inventory or scenario (one line naming the culprit); 1 if any
@@ -16,11 +17,19 @@ import argparse
 import logging
 
 from deploy import deployer
-from deploy.inventory import InventoryError, check_against_scenario, load_inventory
+from deploy.inventory import Inventory, InventoryError, check_against_scenario, load_inventory
 from formation.exits import EXIT_ERROR, EXIT_OK, UsageError
 from scenario import load_scenario
 
 logger = logging.getLogger(__name__)
+
+
+def _check_keys(inventory: Inventory) -> None:
+    """Every robot's SSH key is a file on this machine; else exit 2 naming the first missing."""
+    for r in inventory.robots:
+        if not r.key.is_file():
+            what = "is not a file" if r.key.exists() else "does not exist"
+            raise UsageError(f"{inventory.path}: robot {r.id!r}: SSH key {r.key} {what}")
 
 
 def deploy_command(ns: argparse.Namespace) -> int:
@@ -32,6 +41,8 @@ def deploy_command(ns: argparse.Namespace) -> int:
                                   write_secrets=not getattr(ns, "dry_run", False))
     except InventoryError as exc:
         raise UsageError(str(exc)) from None
+    _check_keys(inventory)  # before a dry run says all is well, and before any SSH
+
 
     if getattr(ns, "dry_run", False):
         for line in deployer.describe(plan):

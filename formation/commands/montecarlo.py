@@ -4,21 +4,20 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
 import yaml
 
 from experiments.montecarlo import run_montecarlo
 from formation.exits import UsageError
+from formation.outdir import begin_output
 from formation.progress import Progress
 
 
 def montecarlo_command(ns: argparse.Namespace) -> int:
     if ns.n <= 0:
         raise UsageError(f"--n: must be a positive number of runs, got {ns.n}")
-    out = Path(ns.out)
-    out.mkdir(parents=True, exist_ok=True)
-    with Progress(f"montecarlo n={ns.n}") as progress:
+    out = begin_output(ns)
+    with Progress(f"montecarlo n={ns.n}", unit="runs") as progress:
         summary, results = run_montecarlo(ns.n, ns.seed, progress=progress.update)
     for r in results:
         if not r["all_reached"] or r["collisions"]:

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 from formation.exits import EXIT_ERROR, EXIT_OK, UsageError
+from formation.outdir import begin_output
 from formation.progress import Progress, print_summary
 from scenario import load_scenario
 from simulator.launch import FaultPlan, RunAborted, launch, parse_camera_dropout, parse_kill
@@ -51,15 +51,22 @@ def run_command(ns: argparse.Namespace) -> int:
     shared = (per_process > 1 and not getattr(ns, "session_per_agent", False)
               and getattr(ns, "insecure", False))
     scenario = load_scenario(ns.scenario)  # ScenarioError -> exit 2
+    solver = getattr(ns, "solver", "exact")
+    try:
+        from agent.qp import make_solver
+
+        make_solver(solver)  # an unknown or missing backend: exit 2 before any process starts
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     try:
         faults.check_robots(scenario.robot_ids)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    out = Path(ns.out)
     from formation.commands.view import live_observer
 
     live, observer = live_observer(ns, scenario)  # --live PORT: the page, fed from the world's session
     try:
+        out = begin_output(ns)  # the input is valid (a bad --live port included): replace the output
         summary, series = launch(scenario, out, realtime=ns.realtime, camera=ns.camera,
                                  topology=ns.topology, safety=not ns.no_safety, port=ns.port,
                                  progress_factory=lambda: Progress(f"run {scenario.name}",
@@ -68,7 +75,8 @@ def run_command(ns: argparse.Namespace) -> int:
                                  pose_slots=slots, observer=observer,
                                  scenario_path=ns.scenario,
                                  clock_offset=getattr(ns, "clock_offset_ms", 0.0) / 1000.0,
-                                 agents_per_process=per_process, shared_session=shared)
+                                 agents_per_process=per_process, shared_session=shared,
+                                 solver=solver)
     except RunAborted as stop:  # the run started: its summary says why and what it measured
         write_run(stop.summary, stop.series, scenario, out, plots=not ns.no_plots)
         print(f"formation run: aborted: {stop}; wrote {out / 'summary.json'} with what was "
@@ -78,5 +86,5 @@ def run_command(ns: argparse.Namespace) -> int:
         if live is not None:
             live.close()
     write_run(summary, series, scenario, out, plots=not ns.no_plots)
-    print_summary(summary, out)
+    print_summary(summary, out, plots=not ns.no_plots)
     return EXIT_OK

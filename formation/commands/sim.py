@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from formation.exits import EXIT_OK, UsageError
+from formation.outdir import begin_output
 from formation.progress import Progress, print_summary
 
 
@@ -20,10 +20,10 @@ def cmd_sim(ns: argparse.Namespace) -> int:
         make_solver(ns.solver)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    out = Path(ns.out)
+    out = begin_output(ns)
     opts = SimOptions(safety=not ns.no_safety, solver=ns.solver, topology=ns.topology)
     with Progress(f"sim {scenario.name}", quiet=ns.quiet) as progress:
         result = simulate(scenario, opts, progress=progress.update)
     write_run(result.summary, result.series, scenario, out, plots=not ns.no_plots)
-    print_summary(result.summary, out)
+    print_summary(result.summary, out, plots=not ns.no_plots)
     return EXIT_OK

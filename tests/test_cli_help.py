@@ -1,0 +1,136 @@
+"""The command line's own contract (issue 12): every argument says what it is and its default,
+``--version`` comes from the installed package, ``run --solver`` reaches the agents like
+``sim --solver``, and ``deploy --dry-run`` checks the SSH keys."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from importlib.metadata import version
+from pathlib import Path
+
+import pytest
+import yaml
+
+from agent.config import build_agent_configs, config_from_dict, config_to_dict
+from formation.cli import build_parser, main
+from scenario import load_scenario
+
+ROOT = Path(__file__).resolve().parent.parent
+SCENARIO = ROOT / "tests" / "scenarios" / "two-small.yaml"
+
+
+def _subparsers(parser: argparse.ArgumentParser):
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            yield from action.choices.items()
+
+
+def test_every_argument_of_every_subcommand_has_help_text_and_its_default():
+    parser = build_parser()
+    missing, no_default = [], []
+    commands = dict(_subparsers(parser))
+    assert {"check", "sim", "run", "commcost", "montecarlo", "bench", "deploy", "view", "record",
+            "replay"} <= set(commands)
+    for name, sub in [("formation", parser), *commands.items()]:
+        formatter = sub._get_formatter()
+        for action in sub._actions:
+            if not (action.help or "").strip():
+                missing.append(f"{name} {'/'.join(action.option_strings) or action.dest}")
+                continue
+            shown = formatter._get_help_string(action) or ""
+            has_default = action.option_strings and not action.required and not any(
+                action.default is v for v in (None, False, argparse.SUPPRESS))
+            if has_default and "default" not in shown.lower():
+                no_default.append(f"{name} {action.option_strings[0]}")
+    assert missing == [] and no_default == []
+    for choice in next(a for a in parser._actions
+                       if isinstance(a, argparse._SubParsersAction))._choices_actions:
+        assert (choice.help or "").strip(), choice.dest
+
+
+def test_help_shows_defaults(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["montecarlo", "--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    assert "(default: 40)" in out and "(default: 11)" in out and "--force" in out
+
+
+def test_version_comes_from_the_package_metadata(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0
+    assert capsys.readouterr().out.strip() == f"formation {version('formation-cbf')}"
+
+
+def test_the_solver_goes_into_the_agent_configs_and_exact_files_stay_as_they_were():
+    scenario = load_scenario(SCENARIO)
+    exact = build_agent_configs(scenario)
+    osqp = build_agent_configs(scenario, solver="osqp")
+    assert all(c.solver == "exact" for c in exact.values())
+    assert "solver" not in config_to_dict(exact["a1"])
+    d = config_to_dict(osqp["a1"])
+    assert d["solver"] == "osqp"
+    assert config_from_dict(yaml.safe_load(yaml.safe_dump(d))) == osqp["a1"]
+
+
+def test_run_with_an_unknown_solver_is_exit_2_before_anything_starts(tmp_path, capsys):
+    out = tmp_path / "o"
+    assert main(["run", str(SCENARIO), "--out", str(out), "--solver", "nonesuch", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "nonesuch" in err and "\n" not in err
+    assert not out.exists()
+
+
+def test_run_with_a_qpsolvers_backend_runs_the_agents_on_it(tmp_path):
+    out = tmp_path / "o"
+    assert main(["run", str(SCENARIO), "--out", str(out), "--solver", "osqp", "--quiet",
+                 "--no-plots"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["solver"] == "osqp" and summary["all_reached"] and summary["collisions"] == 0
+    assert yaml.safe_load((out / "configs" / "a1.yaml").read_text())["solver"] == "osqp"
+
+
+DEPLOY_SCENARIO = """\
+name: deploy-pair
+dt: 0.05
+duration: 10.0
+robot: {max_speed: 0.22, radius: 0.105}
+controller: {kp: 2.0, gamma: 1.0, epsilon: 0.05}
+formations:
+  - name: P
+    leader: r1
+    robots:
+      r1: {start: [0.0, 0.0], goal: [1.0, 0.0]}
+      r2: {start: [0.0, 0.5], goal: [1.0, 0.5]}
+    edges: [[r1, r2]]
+"""
+
+
+def _deploy_files(tmp_path: Path, key: str) -> tuple[Path, Path]:
+    scen = tmp_path / "s.yaml"
+    scen.write_text(DEPLOY_SCENARIO)
+    inv = tmp_path / "inv.yaml"
+    inv.write_text(yaml.safe_dump({
+        "base": "turtlebot3-humble",
+        "zenoh": {"router": "tcp/192.168.0.10:7447", "mode": "client"},
+        "defaults": {"user": "ubuntu", "key": key},
+        "robots": [{"id": "r1", "host": "192.168.0.21"}, {"id": "r2", "host": "192.168.0.22"}],
+    }, sort_keys=False))
+    return inv, scen
+
+
+def test_deploy_dry_run_with_a_missing_ssh_key_is_exit_2_naming_it(tmp_path, capsys):
+    inv, scen = _deploy_files(tmp_path, "no-such-key")
+    assert main(["deploy", str(inv), str(scen), "--dry-run"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "SSH key" in err and str(tmp_path / "no-such-key") in err
+    assert "'r1'" in err
+
+
+def test_deploy_dry_run_with_the_key_present_prints_the_plan(tmp_path, capsys):
+    inv, scen = _deploy_files(tmp_path, "id_test")
+    (tmp_path / "id_test").write_text("not a real key; a dry run never uses it\n")
+    assert main(["deploy", str(inv), str(scen), "--dry-run"]) == 0
+    assert "dry run: 2 robots planned" in capsys.readouterr().out

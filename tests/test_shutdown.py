@@ -1,0 +1,106 @@
+"""Shutdown steps have time limits (issue 12): a Zenoh undeclare or session close that hangs
+(a router that is gone) is logged and left behind, and the agent and the world still close,
+the agent's zero command first."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from pathlib import Path
+
+from agent.config import build_agent_configs
+from agent.node import AgentNode
+from scenario import load_scenario
+from simulator.world import World
+from wire.shutdown import within
+
+ROOT = Path(__file__).resolve().parent.parent
+LIMIT = 0.2
+
+
+class Hangs:
+    """A publisher, subscriber or session whose undeclare/close never returns (until freed)."""
+
+    def __init__(self, release: threading.Event) -> None:
+        self.release = release
+        self.put: list = []
+
+    def put_message(self, msg) -> None:
+        self.put.append(msg)
+
+    def undeclare(self) -> None:
+        self.release.wait()
+
+    def close(self) -> None:
+        self.release.wait()
+
+
+def test_within_waits_at_most_its_limit_and_reports_a_step_that_hangs(caplog):
+    release = threading.Event()
+    started = time.monotonic()
+    with caplog.at_level(logging.WARNING):
+        assert within(LIMIT, "a hung step", release.wait) is False
+    assert time.monotonic() - started < LIMIT + 0.5
+    assert "a hung step did not finish within" in caplog.text
+    release.set()
+    assert within(LIMIT, "a quick step", lambda: None) is True
+
+
+def test_a_step_that_raises_is_logged_and_shutting_down_goes_on(caplog):
+    def boom() -> None:
+        raise RuntimeError("gone")
+
+    with caplog.at_level(logging.WARNING):
+        assert within(LIMIT, "undeclare", boom) is True
+    assert "undeclare failed: gone" in caplog.text
+
+
+def test_the_agent_closes_in_bounded_time_when_every_zenoh_step_hangs_zero_command_first(caplog):
+    cfg = build_agent_configs(load_scenario(ROOT / "tests" / "scenarios" / "two-small.yaml"))["a1"]
+    node = AgentNode(cfg)
+    release = threading.Event()
+    cmd_pub, session = Hangs(release), Hangs(release)
+    node._pubs = {node.cmd_key: cmd_pub}
+    node._subs = [Hangs(release)]
+    node._session = session
+    try:
+        started = time.monotonic()
+        with caplog.at_level(logging.WARNING):
+            node.close(step_limit=LIMIT)
+        took = time.monotonic() - started
+        assert took < 3 * LIMIT + 1.0  # undeclare and session close: two limits, not forever
+        assert [(m.v, m.omega) for m in cmd_pub.put] == [(0.0, 0.0)]
+        assert node._session is None and node._pubs == {} and node._subs == []
+        assert "closing the Zenoh session did not finish" in caplog.text
+        node.close(step_limit=LIMIT)  # idempotent
+    finally:
+        release.set()
+
+
+def test_the_agent_closes_even_while_a_tick_holds_its_lock():
+    cfg = build_agent_configs(load_scenario(ROOT / "tests" / "scenarios" / "two-small.yaml"))["a1"]
+    node = AgentNode(cfg)
+    node._tick_lock.acquire()  # a tick that never ends
+    try:
+        started = time.monotonic()
+        node.close(step_limit=LIMIT)
+        assert time.monotonic() - started < LIMIT + 0.5
+        assert node._closing
+    finally:
+        node._tick_lock.release()
+
+
+def test_the_world_closes_in_bounded_time_when_undeclaring_hangs():
+    release = threading.Event()
+    world = object.__new__(World)  # only what close() touches
+    world._subs = [Hangs(release)]
+    world._pose_pubs = [Hangs(release), Hangs(release)]
+    world._obs_pub = Hangs(release)
+    try:
+        started = time.monotonic()
+        world.close(step_limit=LIMIT)
+        assert time.monotonic() - started < 2 * LIMIT + 1.0
+        assert world._subs == [] and world._pose_pubs == []
+    finally:
+        release.set()
