@@ -34,6 +34,7 @@ from .metrics import SafetyMonitor  # noqa: E402
 _COL = {name: k for k, name in enumerate(ROBOT_COLUMNS)}
 SNAPSHOTS = 5  # instants at which robots, ellipses and moving obstacles are drawn together
 MARGIN_M = 0.5  # [m] around the robots' extent (and at least 5 % of the larger span)
+OBSTACLE_REACH_M = 0.5  # [m] more, at most, to show whole a static obstacle at the edge
 COLLISION_GID = "collision"  # gid of the collision markers (tests find them by it)
 LEGEND_SAFE_DISK = "obstacle: disk of radius Ds (safe distance; robot centres stay outside)"
 LEGEND_MOVING = "moving obstacle at the snapshot times (its Ds disk; darker = later)"
@@ -133,10 +134,23 @@ def robot_extent(series: Series, scenario: Scenario) -> tuple[float, float, floa
 
 
 def robot_limits(series: Series, scenario: Scenario) -> tuple[tuple[float, float], tuple[float, float]]:
-    """Axis limits: the robots' extent plus :data:`MARGIN_M` (or 5 % of the larger span)."""
+    """Axis limits: the robots' extent plus :data:`MARGIN_M` (or 5 % of the larger span), grown
+    by at most :data:`OBSTACLE_REACH_M` to show whole the static obstacles that reach into it."""
     x0, x1, y0, y1 = robot_extent(series, scenario)
     m = max(MARGIN_M, 0.05 * max(x1 - x0, y1 - y0))
-    return (x0 - m, x1 + m), (y0 - m, y1 + m)
+    x0, x1, y0, y1 = x0 - m, x1 + m, y0 - m, y1 + m
+    bx0, bx1, by0, by1 = x0, x1, y0, y1
+    for o in scenario.obstacles:
+        if o.velocity != (0.0, 0.0):
+            continue
+        (cx, cy), r = o.center, o.safe_distance
+        if cx + r < bx0 or cx - r > bx1 or cy + r < by0 or cy - r > by1:
+            continue  # off the robots' area
+        x0 = min(x0, max(cx - r, bx0 - OBSTACLE_REACH_M))
+        x1 = max(x1, min(cx + r, bx1 + OBSTACLE_REACH_M))
+        y0 = min(y0, max(cy - r, by0 - OBSTACLE_REACH_M))
+        y1 = max(y1, min(cy + r, by1 + OBSTACLE_REACH_M))
+    return (x0, x1), (y0, y1)
 
 
 # --- labels that do not overlap -------------------------------------------------------------------

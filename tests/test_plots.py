@@ -19,6 +19,7 @@ from simulator.plots import (
     LEGEND_MOVING,
     LEGEND_SAFE_DISK,
     MARGIN_M,
+    OBSTACLE_REACH_M,
     robot_extent,
     safety_figure,
     snapshot_times,
@@ -50,13 +51,15 @@ def _legend_texts(fig) -> list[str]:
 
 def test_the_axes_cover_the_robots_plus_a_margin_and_not_a_far_away_obstacle(crate_run):
     scenario, result = crate_run
-    # The crate drives on to x = -1.5 by the end of its track in a longer run: push it far away.
-    far = replace(scenario, obstacles=(replace(scenario.obstacles[0], center=(40.0, 0.05)),))
+    # A forklift whose track ends 40 m away and a static shelf 30 m away stay off the figure.
+    far = replace(scenario, obstacles=(
+        replace(scenario.obstacles[0], center=(40.0, 0.05)),
+        replace(scenario.obstacles[0], name="shelf", center=(0.0, 30.0), velocity=(0.0, 0.0))))
     fig = trajectory_figure(result.series, far)
     try:
         x0, x1, y0, y1 = robot_extent(result.series, far)
         ax = fig.axes[0]
-        m = max(MARGIN_M, 0.05 * max(x1 - x0, y1 - y0)) + 1e-9
+        m = max(MARGIN_M, 0.05 * max(x1 - x0, y1 - y0)) + OBSTACLE_REACH_M + 1e-9
         lx, ly = ax.get_xlim(), ax.get_ylim()
         assert x0 - m <= lx[0] <= x0 and x1 <= lx[1] <= x1 + m
         assert y0 - m <= ly[0] <= y0 and y1 <= ly[1] <= y1 + m
