@@ -10,6 +10,7 @@ cover where the robots go (plus a margin), not every obstacle's whole track.
 from __future__ import annotations
 
 import math
+import re
 from bisect import bisect_left
 from collections import defaultdict
 from collections.abc import Sequence
@@ -157,14 +158,43 @@ def robot_limits(series: Series, scenario: Scenario) -> tuple[tuple[float, float
 
 _OFFSETS = [(round(r * math.cos(math.pi / 2 + k * math.pi / 4)),
              round(r * math.sin(math.pi / 2 + k * math.pi / 4)))
-            for r in (15, 28, 42, 56) for k in range(8)]  # [points] rings of tries around a spot
+            for r in (15, 28, 42, 56, 72, 90) for k in range(8)]  # [points] rings of tries around a spot
+
+
+_TIME_LABEL = re.compile(r"^(.*?)t=(\S+)s$")
+MERGE_M = 0.3  # [m] time labels of one thing closer than this become one label
+
+
+def merge_time_labels(labels: list[tuple[float, float, str, object]]
+                      ) -> list[tuple[float, float, str, object]]:
+    """Join the ``t=...`` labels of one thing (same name and colour) at nearly the same place,
+    such as a formation that waited: ``t=75s`` and ``t=112s`` -> ``t=75, 112s``."""
+    merged: list[list] = []  # [x, y, prefix, [times], colour]
+    others = []
+    for x, y, text, color in labels:
+        m = _TIME_LABEL.match(text)
+        if m is None:
+            others.append((x, y, text, color))
+            continue
+        prefix, t = m.group(1), m.group(2)
+        for entry in merged:
+            if (entry[2] == prefix and entry[4] == color
+                    and math.hypot(entry[0] - x, entry[1] - y) < MERGE_M):
+                entry[3].append(t)
+                break
+        else:
+            merged.append([x, y, prefix, [t], color])
+    return [(x, y, f"{prefix}t={', '.join(times)}s", color)
+            for x, y, prefix, times, color in merged] + others
 
 
 def _place_labels(fig: Figure, ax, labels: list[tuple[float, float, str, object]]) -> None:
-    """Annotate each (x, y, text, colour), trying offsets until it overlaps no earlier label."""
+    """Annotate each (x, y, text, colour), trying offsets until it lies inside the axes and
+    overlaps no earlier label (failing that, at the nearest offset)."""
     renderer = fig.canvas.get_renderer()
+    inside = ax.get_window_extent(renderer)
     placed = []
-    for x, y, text, color in labels:
+    for x, y, text, color in merge_time_labels(labels):
         chosen = None
         for dx, dy in _OFFSETS:
             ann = ax.annotate(text, (x, y), xytext=(dx, dy), textcoords="offset points",
@@ -172,14 +202,18 @@ def _place_labels(fig: Figure, ax, labels: list[tuple[float, float, str, object]
                               bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none",
                                     "alpha": 0.75},
                               arrowprops={"arrowstyle": "-", "color": color, "lw": 0.4})
+            ann.update_positions(renderer)
             box = Text.get_window_extent(ann, renderer).expanded(1.05, 1.1)  # text, not arrow
-            if not any(box.overlaps(other) for other in placed):
+            within = (inside.x0 <= box.x0 and box.x1 <= inside.x1
+                      and inside.y0 <= box.y0 and box.y1 <= inside.y1)
+            if within and not any(box.overlaps(other) for other in placed):
                 chosen = box
                 break
             ann.remove()
-        if chosen is None:  # every place taken: keep the last try rather than drop the label
-            ann = ax.annotate(text, (x, y), xytext=_OFFSETS[-1], textcoords="offset points",
+        if chosen is None:  # every place taken: next to its point rather than dropped
+            ann = ax.annotate(text, (x, y), xytext=_OFFSETS[0], textcoords="offset points",
                               fontsize=6.5, ha="center", va="center", color=color)
+            ann.update_positions(renderer)
             chosen = Text.get_window_extent(ann, renderer)
         placed.append(chosen)
 

@@ -98,8 +98,10 @@ def test_time_labels_do_not_overlap(crate_run):
         renderer = fig.canvas.get_renderer()
         from matplotlib.text import Text
 
-        boxes = [Text.get_window_extent(t, renderer) for t in fig.axes[0].texts
-                 if "t=" in t.get_text()]
+        texts = [t for t in fig.axes[0].texts if "t=" in t.get_text()]
+        for t in texts:
+            t.update_positions(renderer)
+        boxes = [Text.get_window_extent(t, renderer) for t in texts]
         assert len(boxes) >= 10
         for i, a in enumerate(boxes):
             for b in boxes[i + 1:]:
