@@ -15,17 +15,20 @@ from bisect import bisect_left
 from collections import defaultdict
 from collections.abc import Sequence
 from pathlib import Path
+from typing import cast
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Circle, Ellipse, Patch  # noqa: E402
 from matplotlib.text import Text  # noqa: E402
 from matplotlib.ticker import FixedLocator, FormatStrFormatter, NullLocator  # noqa: E402
+from matplotlib.transforms import Bbox  # noqa: E402
 
 from scenario import Scenario  # noqa: E402
 
@@ -191,9 +194,9 @@ def merge_time_labels(labels: list[tuple[float, float, str, object]]
 def _place_labels(fig: Figure, ax, labels: list[tuple[float, float, str, object]]) -> None:
     """Annotate each (x, y, text, colour), trying offsets until it lies inside the axes and
     overlaps no earlier label (failing that, at the nearest offset)."""
-    renderer = fig.canvas.get_renderer()
+    renderer = cast(FigureCanvasAgg, fig.canvas).get_renderer()  # the Agg backend (module top)
     inside = ax.get_window_extent(renderer)
-    placed = []
+    placed: list[Bbox] = []
     for x, y, text, color in merge_time_labels(labels):
         chosen = None
         for dx, dy in _OFFSETS:
@@ -439,9 +442,9 @@ def safety_figure(series: Series, scenario: Scenario) -> Figure:
 
     fig, axes = plt.subplots(len(present), 1, figsize=(10, 2.6 * len(present) + 0.6), sharex=True,
                              squeeze=False)
-    handles: dict[str, object] = {}
+    handles: dict[str, Line2D] = {}
     for ax, (key, label) in zip(axes[:, 0], present, strict=True):
-        values = []
+        values: list[float] = []
         for rid in scenario.robot_ids:
             pts = [(t, v) for t, v in by_robot[rid][key] if isinstance(v, float) and math.isfinite(v)]
             if not pts:
