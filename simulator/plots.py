@@ -1,24 +1,52 @@
-"""Figures people expect from a run (thesis chapter 5): trajectories and safety functions."""
+"""Figures people expect from a run (thesis chapter 5): trajectories and safety functions.
+
+``trajectories.png`` draws the robots and every moving obstacle at the same few instants
+("snapshots", labelled ``t=...``), so a path that seems to cross an obstacle can be read against
+where the obstacle was at that time; collisions are marked where and when they began. The axes
+cover where the robots go (plus a margin), not every obstacle's whole track.
+``safety.png`` shows the smallest barrier value of each kind per robot over time.
+"""
 
 from __future__ import annotations
 
 import math
+import re
+from bisect import bisect_left
 from collections import defaultdict
+from collections.abc import Sequence
 from pathlib import Path
+from typing import cast
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-from matplotlib.patches import Circle, Ellipse  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
+from matplotlib.patches import Circle, Ellipse, Patch  # noqa: E402
+from matplotlib.text import Text  # noqa: E402
+from matplotlib.ticker import FixedLocator, FormatStrFormatter, NullLocator  # noqa: E402
+from matplotlib.transforms import Bbox  # noqa: E402
 
 from agent.hard_rows import unmet_hard_rows  # noqa: E402
 from scenario import Scenario  # noqa: E402
 
 from .inprocess import ROBOT_COLUMNS, Series  # noqa: E402
+from .metrics import SafetyMonitor  # noqa: E402
 
 _COL = {name: k for k, name in enumerate(ROBOT_COLUMNS)}
-SNAPSHOTS = 5  # ellipse snapshots along the run
+SNAPSHOTS = 5  # instants at which robots, ellipses and moving obstacles are drawn together
+MARGIN_M = 0.5  # [m] around the robots' extent (and at least 5 % of the larger span)
+OBSTACLE_REACH_M = 0.5  # [m] more, at most, to show whole a static obstacle at the edge
+COLLISION_GID = "collision"  # gid of the collision markers (tests find them by it)
+LEGEND_SAFE_DISK = "obstacle: disk of radius Ds (safe distance; robot centres stay outside)"
+LEGEND_MOVING = "moving obstacle at the snapshot times (its Ds disk; darker = later)"
+LEGEND_BODY = "robot body at the snapshot times (radius r)"
+LEGEND_ELLIPSE = "formation ellipse at the snapshot times"
+LEGEND_COLLISION = "collision (where and when it began)"
+LEGEND_OBSTACLE_PATH = "moving obstacle's track"
 
 
 def _colors(n: int):
@@ -26,109 +54,451 @@ def _colors(n: int):
     return [cmap(k % cmap.N) for k in range(n)]
 
 
-def plot_trajectories(series: Series, scenario: Scenario, path: Path) -> None:
-    by_robot = defaultdict(list)
+# --- time matching -------------------------------------------------------------------------------
+
+def snapshot_times(times: Sequence[float], count: int = SNAPSHOTS) -> list[float]:
+    """``count`` instants of ``times`` (sorted, distinct), evenly spread from first to last."""
+    if not times:
+        return []
+    n = len(times)
+    picks = {min(n - 1, round(k * (n - 1) / max(1, count - 1))) for k in range(count)}
+    return [times[k] for k in sorted(picks)]
+
+
+def _nearest(times: Sequence[float], t: float) -> float:
+    """The element of sorted ``times`` nearest to ``t`` (series may sample slightly differently)."""
+    k = bisect_left(times, t)
+    if k == 0:
+        return times[0]
+    if k == len(times):
+        return times[-1]
+    return times[k] if times[k] - t < t - times[k - 1] else times[k - 1]
+
+
+def _robot_tracks(series: Series) -> dict[str, list[tuple[float, float, float]]]:
+    by_robot: dict[str, list[tuple[float, float, float]]] = defaultdict(list)
     for row in series.robots:
         by_robot[row[_COL["robot"]]].append((row[_COL["t"]], row[_COL["x"]], row[_COL["y"]]))
+    return by_robot
+
+
+# --- collisions -----------------------------------------------------------------------------------
+
+def collision_onsets(series: Series, scenario: Scenario) -> list[dict]:
+    """Each collision's onset, found by the run's own :class:`SafetyMonitor` replayed on the series.
+
+    Returns ``{"t", "a", "b", "x", "y"}`` per onset: (x, y) is the midpoint of two robots that
+    touched, or the robot's centre when it entered an obstacle's safe distance.
+    """
+    index = {rid: k for k, rid in enumerate(scenario.robot_ids)}
+    poses: dict[float, np.ndarray] = {}
+    for row in series.robots:
+        t = row[_COL["t"]]
+        if t not in poses:
+            poses[t] = np.full((len(index), 2), np.nan)
+        k = index.get(row[_COL["robot"]])
+        if k is not None:
+            poses[t][k] = (row[_COL["x"]], row[_COL["y"]])
+    obstacles: dict[float, dict[str, tuple[float, float]]] = defaultdict(dict)
+    for t, name, x, y, _ds in series.obstacles:
+        obstacles[t][name] = (x, y)
+    obstacle_times = sorted(obstacles)
+    monitor = SafetyMonitor(scenario)
+    onsets: list[dict] = []
+    for t in sorted(poses):
+        pos = poses[t]
+        if np.isnan(pos).any():
+            continue  # a tick where not every robot was recorded (should not happen)
+        if scenario.obstacles:
+            seen = obstacles[_nearest(obstacle_times, t)] if obstacle_times else {}
+            centres = [seen.get(o.name, o.position(t)) for o in scenario.obstacles]
+        else:
+            centres = []
+        seen_before = len(monitor.collision_log)
+        monitor.update(t, pos, centres)
+        for entry in monitor.collision_log[seen_before:]:
+            a = pos[index[entry["a"]]]
+            if entry["b"] in index:
+                b = pos[index[entry["b"]]]
+                x, y = (a[0] + b[0]) / 2.0, (a[1] + b[1]) / 2.0
+            else:
+                x, y = a[0], a[1]
+            onsets.append({"t": entry["t"], "a": entry["a"], "b": entry["b"],
+                           "x": float(x), "y": float(y)})
+    return onsets
+
+
+# --- axis limits ----------------------------------------------------------------------------------
+
+def robot_extent(series: Series, scenario: Scenario) -> tuple[float, float, float, float]:
+    """(xmin, xmax, ymin, ymax) covered by the robots' bodies, starts and goals."""
+    xs = [row[_COL["x"]] for row in series.robots] + [r.goal[0] for r in scenario.robots]
+    ys = [row[_COL["y"]] for row in series.robots] + [r.goal[1] for r in scenario.robots]
+    r = scenario.robot.radius
+    return min(xs) - r, max(xs) + r, min(ys) - r, max(ys) + r
+
+
+def robot_limits(series: Series, scenario: Scenario) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Axis limits: the robots' extent plus :data:`MARGIN_M` (or 5 % of the larger span), grown
+    by at most :data:`OBSTACLE_REACH_M` to show whole the static obstacles that reach into it."""
+    x0, x1, y0, y1 = robot_extent(series, scenario)
+    m = max(MARGIN_M, 0.05 * max(x1 - x0, y1 - y0))
+    x0, x1, y0, y1 = x0 - m, x1 + m, y0 - m, y1 + m
+    bx0, bx1, by0, by1 = x0, x1, y0, y1
+    for o in scenario.obstacles:
+        if o.velocity != (0.0, 0.0):
+            continue
+        (cx, cy), r = o.center, o.safe_distance
+        if cx + r < bx0 or cx - r > bx1 or cy + r < by0 or cy - r > by1:
+            continue  # off the robots' area
+        x0 = min(x0, max(cx - r, bx0 - OBSTACLE_REACH_M))
+        x1 = max(x1, min(cx + r, bx1 + OBSTACLE_REACH_M))
+        y0 = min(y0, max(cy - r, by0 - OBSTACLE_REACH_M))
+        y1 = max(y1, min(cy + r, by1 + OBSTACLE_REACH_M))
+    return (x0, x1), (y0, y1)
+
+
+# --- labels that do not overlap -------------------------------------------------------------------
+
+_OFFSETS = [(round(r * math.cos(math.pi / 2 + k * math.pi / 4)),
+             round(r * math.sin(math.pi / 2 + k * math.pi / 4)))
+            for r in (15, 28, 42, 56, 72, 90) for k in range(8)]  # [points] rings of tries around a spot
+
+
+_TIME_LABEL = re.compile(r"^(.*?)t=(\S+)s$")
+MERGE_M = 0.3  # [m] time labels of one thing closer than this become one label
+
+
+def merge_time_labels(labels: list[tuple[float, float, str, object]]
+                      ) -> list[tuple[float, float, str, object]]:
+    """Join the ``t=...`` labels of one thing (same name and colour) at nearly the same place,
+    such as a formation that waited: ``t=75s`` and ``t=112s`` -> ``t=75, 112s``."""
+    merged: list[list] = []  # [x, y, prefix, [times], colour]
+    others = []
+    for x, y, text, color in labels:
+        m = _TIME_LABEL.match(text)
+        if m is None:
+            others.append((x, y, text, color))
+            continue
+        prefix, t = m.group(1), m.group(2)
+        for entry in merged:
+            if (entry[2] == prefix and entry[4] == color
+                    and math.hypot(entry[0] - x, entry[1] - y) < MERGE_M):
+                entry[3].append(t)
+                break
+        else:
+            merged.append([x, y, prefix, [t], color])
+    return [(x, y, f"{prefix}t={', '.join(times)}s", color)
+            for x, y, prefix, times, color in merged] + others
+
+
+def _place_labels(fig: Figure, ax, labels: list[tuple[float, float, str, object]]) -> None:
+    """Annotate each (x, y, text, colour), trying offsets until it lies inside the axes and
+    overlaps no earlier label (failing that, at the nearest offset)."""
+    renderer = cast(FigureCanvasAgg, fig.canvas).get_renderer()  # the Agg backend (module top)
+    inside = ax.get_window_extent(renderer)
+    placed: list[Bbox] = []
+    for x, y, text, color in merge_time_labels(labels):
+        chosen = None
+        for dx, dy in _OFFSETS:
+            ann = ax.annotate(text, (x, y), xytext=(dx, dy), textcoords="offset points",
+                              fontsize=6.5, ha="center", va="center", color=color,
+                              bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none",
+                                    "alpha": 0.75},
+                              arrowprops={"arrowstyle": "-", "color": color, "lw": 0.4})
+            ann.update_positions(renderer)
+            box = Text.get_window_extent(ann, renderer).expanded(1.05, 1.1)  # text, not arrow
+            within = (inside.x0 <= box.x0 and box.x1 <= inside.x1
+                      and inside.y0 <= box.y0 and box.y1 <= inside.y1)
+            if within and not any(box.overlaps(other) for other in placed):
+                chosen = box
+                break
+            ann.remove()
+        if chosen is None:  # every place taken: next to its point rather than dropped
+            ann = ax.annotate(text, (x, y), xytext=_OFFSETS[0], textcoords="offset points",
+                              fontsize=6.5, ha="center", va="center", color=color)
+            ann.update_positions(renderer)
+            chosen = Text.get_window_extent(ann, renderer)
+        placed.append(chosen)
+
+
+# --- the trajectories figure ----------------------------------------------------------------------
+
+def _draw_obstacles(ax, series: Series, scenario: Scenario) -> None:
+    """Static obstacles: their safe-distance disk, named when there are few."""
+    moving = {o.name for o in scenario.obstacles if o.velocity != (0.0, 0.0)}
+    few = len(scenario.obstacles) <= 6
+    for o in scenario.obstacles:
+        if o.name in moving:
+            continue
+        ax.add_patch(Circle(o.center, o.safe_distance, color="0.45", alpha=0.35, lw=0))
+        if few:
+            ax.annotate(o.name, o.center, fontsize=7, ha="center", va="center")
+
+
+def _draw_snapshots(ax, series: Series, scenario: Scenario, fcolor: dict,
+                    snaps: list[float]) -> list[tuple[float, float, str, object]]:
+    """Robots, ellipses and moving obstacles at the same instants; returns the labels to place."""
+    labels: list[tuple[float, float, str, object]] = []
+    if not snaps:
+        return labels
+    robot_times = sorted({row[_COL["t"]] for row in series.robots})
+    robot_at = {_nearest(robot_times, t): t for t in snaps}
+    formation_of = {r: f.name for f in scenario.formations for r in f.robot_ids}
+    bodies: dict[float, dict[str, list[tuple[float, float]]]] = defaultdict(lambda: defaultdict(list))
+    for row in series.robots:
+        if row[_COL["t"]] in robot_at:
+            fname = formation_of.get(row[_COL["robot"]], "")
+            bodies[robot_at[row[_COL["t"]]]][fname].append((row[_COL["x"]], row[_COL["y"]]))
+    for t, by_formation in bodies.items():
+        for fname, pts in by_formation.items():
+            c = fcolor.get(fname, "k")
+            for p in pts:
+                ax.add_patch(Circle(p, scenario.robot.radius, fc=c, ec=c, alpha=0.25, lw=0.6))
+            cx = sum(p[0] for p in pts) / len(pts)
+            cy = sum(p[1] for p in pts) / len(pts)
+            labels.append((cx, cy, f"t={t:.0f}s", c))
+
+    ellipse_times = sorted({row[0] for row in series.ellipses})
+    if ellipse_times:
+        ellipse_at = {_nearest(ellipse_times, t) for t in snaps}
+        for row in series.ellipses:
+            t, name, cx, cy, alpha, a, b = row[:7]
+            if t in ellipse_at:
+                ax.add_patch(Ellipse((cx, cy), 2 * a, 2 * b, angle=math.degrees(alpha), fill=False,
+                                     ls="--", lw=0.9, color=fcolor.get(name, "k")))
+
+    moving = {o.name for o in scenario.obstacles if o.velocity != (0.0, 0.0)}
+    obstacle_times = sorted({row[0] for row in series.obstacles})
+    if moving and obstacle_times:
+        obstacle_at = {_nearest(obstacle_times, t): t for t in snaps}
+        track: dict[str, list[tuple[float, float]]] = defaultdict(list)
+        for t, name, x, y, ds in series.obstacles:
+            if name not in moving:
+                continue
+            track[name].append((x, y))
+            if t in obstacle_at:
+                k = sorted(obstacle_at).index(t)
+                shade = 0.75 - 0.55 * k / max(1, len(obstacle_at) - 1)  # later = darker
+                ax.add_patch(Circle((x, y), ds, fc=str(shade), ec="0.15", alpha=0.35, lw=0.6))
+                labels.append((x, y, f"{name} t={obstacle_at[t]:.0f}s", "0.15"))
+        for pts in track.values():
+            ax.plot([p[0] for p in pts], [p[1] for p in pts], ":", color="0.3", lw=0.8)
+    return labels
+
+
+COLLISIONS_LISTED = 8  # the rest are counted
+
+
+def _mark_collisions(ax, onsets: list[dict], labels: list) -> None:
+    """A red X at each collision's onset, numbered; the numbers are explained in a corner box."""
+    lines = []
+    for k, c in enumerate(onsets, start=1):
+        ax.plot(c["x"], c["y"], "X", color="red", ms=10, mec="darkred", mew=0.8, zorder=5,
+                gid=COLLISION_GID)
+        labels.append((c["x"], c["y"], str(k), "red"))
+        if k <= COLLISIONS_LISTED:
+            lines.append(f"{k}: {c['a']} / {c['b']} at t={c['t']:.2f} s")
+    if len(onsets) > COLLISIONS_LISTED:
+        lines.append(f"... and {len(onsets) - COLLISIONS_LISTED} more")
+    if lines:
+        ax.text(0.005, 0.01, "collisions (onset)\n" + "\n".join(lines), transform=ax.transAxes,
+                fontsize=6.5, color="darkred", va="bottom", ha="left", zorder=6,
+                bbox={"boxstyle": "round,pad=0.3", "fc": "white", "ec": "red", "alpha": 0.85})
+
+
+def _legend_handles(scenario: Scenario, fcolor: dict, collided: bool) -> list:
+    handles: list = [Line2D([], [], color=fcolor[f.name], lw=1.2, label=f"formation {f.name} path")
+                     for f in scenario.formations]
+    handles += [Line2D([], [], ls="", marker="o", color="0.3", ms=5, label="start"),
+                Line2D([], [], ls="", marker="x", color="0.3", ms=7, mew=2, label="goal"),
+                Patch(fc="0.3", alpha=0.25, label=LEGEND_BODY),
+                Line2D([], [], ls="--", color="0.3", lw=0.9, label=LEGEND_ELLIPSE)]
+    if any(o.velocity == (0.0, 0.0) for o in scenario.obstacles):
+        handles.append(Patch(fc="0.45", alpha=0.35, label=LEGEND_SAFE_DISK))
+    if any(o.velocity != (0.0, 0.0) for o in scenario.obstacles):
+        handles += [Patch(fc="0.5", ec="0.15", alpha=0.35, label=LEGEND_MOVING),
+                    Line2D([], [], ls=":", color="0.3", lw=0.8, label=LEGEND_OBSTACLE_PATH)]
+    if collided:
+        handles.append(Line2D([], [], ls="", marker="X", color="red", ms=9, label=LEGEND_COLLISION))
+    return handles
+
+
+def trajectory_figure(series: Series, scenario: Scenario) -> Figure:
+    """The trajectories figure (not saved): see the module docstring."""
+    by_robot = _robot_tracks(series)
     formations = [f.name for f in scenario.formations]
     fcolor = dict(zip(formations, _colors(len(formations)), strict=True))
-    times = sorted({row[0] for row in series.ellipses})
-    snap_t = set()
-    if times:
-        for k in range(SNAPSHOTS):
-            snap_t.add(times[min(len(times) - 1, round(k * (len(times) - 1) / max(1, SNAPSHOTS - 1)))])
+    snaps = snapshot_times(sorted({row[_COL["t"]] for row in series.robots}))
 
-    fig, ax = plt.subplots(figsize=(9, 6.5))
+    if series.robots:
+        xlim, ylim = robot_limits(series, scenario)
+    else:
+        xlim, ylim = (-1.0, 1.0), (-1.0, 1.0)
+    width = 9.0  # [in] of the axes; the height follows the robots' extent, within reason
+    height = min(9.0, max(2.8, width * (ylim[1] - ylim[0]) / (xlim[1] - xlim[0])))
+    handles = _legend_handles(scenario, fcolor, collided=False)  # a collision adds one row at most
+    legend_h = 0.9 + 0.17 * math.ceil((len(handles) + 1) / 2)
+    fig, ax = plt.subplots(figsize=(width, height + legend_h), layout="constrained")
     for f in scenario.formations:
         c = fcolor[f.name]
         for r in f.robots:
             pts = by_robot.get(r.id, [])
             if not pts:
                 continue
-            ax.plot([p[1] for p in pts], [p[2] for p in pts], "-", color=c, lw=1.2, alpha=0.85)
-            ax.plot(pts[0][1], pts[0][2], "o", color=c, ms=5)
-            ax.plot(r.goal[0], r.goal[1], "x", color=c, ms=7, mew=2)
-            ax.add_patch(Circle(pts[-1][1:], scenario.robot.radius, fill=False, color=c, lw=0.8))
-        ax.plot([], [], "-", color=c, label=f"formation {f.name}")
-    for row in series.ellipses:
-        t, name, cx, cy, alpha, a, b = row[:7]
-        if t in snap_t:
-            ax.add_patch(Ellipse((cx, cy), 2 * a, 2 * b, angle=math.degrees(alpha), fill=False,
-                                 ls="--", lw=0.9, color=fcolor.get(name, "k")))
-            ax.annotate(f"t={t:.0f}s", (cx, cy), fontsize=6, ha="center", color="0.3")
-    seen = set()
-    for t, name, x, y, ds in series.obstacles:
-        if name not in seen:
-            ax.add_patch(Circle((x, y), ds, color="0.5", alpha=0.35))
-            seen.add(name)
-        if t in snap_t:
-            ax.add_patch(Circle((x, y), ds, fill=False, color="0.4", lw=0.6, ls=":"))
-    last = {}
-    for _t, name, x, y, ds in series.obstacles:
-        last[name] = (x, y, ds)
-    moving = {o.name for o in scenario.obstacles if o.velocity != (0.0, 0.0)}
-    for name, (x, y, ds) in last.items():
-        ax.add_patch(Circle((x, y), ds, color="0.2", alpha=0.5))
-        if name in moving or len(last) <= 6:
-            ax.annotate(name, (x, y), fontsize=7, ha="center", va="center")
-    ax.set_aspect("equal")
-    ax.autoscale_view()
+            ax.plot([p[1] for p in pts], [p[2] for p in pts], "-", color=c, lw=1.0, alpha=0.85)
+            ax.plot(pts[0][1], pts[0][2], "o", color=c, ms=4)
+            ax.plot(r.goal[0], r.goal[1], "x", color=c, ms=6, mew=1.5)
+    _draw_obstacles(ax, series, scenario)
+    labels = _draw_snapshots(ax, series, scenario, fcolor, snaps)
+    onsets = collision_onsets(series, scenario)
+    _mark_collisions(ax, onsets, labels)
+
+    ax.set_aspect("equal", adjustable="box")  # the limits stay those of the robots
+    ax.set_xlim(*xlim)
+    ax.set_ylim(*ylim)
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.set_title(f"{scenario.name}: trajectories (o start, x goal, dashed: ellipse snapshots)")
-    ax.legend(loc="best", fontsize=8)
+    ax.set_title(f"{scenario.name}: trajectories; robots, ellipses and moving obstacles drawn at "
+                 "the same instants", fontsize=10)
     ax.grid(True, lw=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.legend(handles=_legend_handles(scenario, fcolor, bool(onsets)), fontsize=7, ncol=2,
+               loc="outside lower center")
+    fig.canvas.draw()  # lays out the axes (equal aspect) so the labels can be placed in it
+    _place_labels(fig, ax, labels)
+    return fig
+
+
+def plot_trajectories(series: Series, scenario: Scenario, path: Path) -> None:
+    fig = trajectory_figure(series, scenario)
+    fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
 
 
-def plot_safety(series: Series, scenario: Scenario, path: Path) -> None:
-    kinds = [("h_formation", "formation maintenance  h (eq. 4.3/4.4) [m²]"),
-             ("h_obstacle", "obstacle avoidance  h (eq. 4.5) [m²]"),
-             ("h_formations", "other formations  h (eq. 4.6)")]
+# --- the safety figure ----------------------------------------------------------------------------
+
+SAFETY_KINDS = (("h_formation", "formation maintenance  h (eq. 4.3/4.4) [m²]"),
+                ("h_obstacle", "obstacle avoidance  h (eq. 4.5) [m²]"),
+                ("h_formations", "other formations  h (eq. 4.6)"))
+MAX_ROBOT_LEGEND = 16  # more robots than this: colour and label by formation
+
+
+def symlog_scale(values: Sequence[float]) -> tuple[float, tuple[float, float]] | None:
+    """(linthresh, ylim) for a symlog axis fitted to ``values``, or None when linear suits them.
+
+    Linear suits values within a factor 20 of their low positive values (1st percentile). Otherwise
+    those values set the linear band (at least 1e-4 of the largest), and the axis starts just below
+    the smallest value (or just below 0 when none is negative), so no empty band is drawn.
+    """
+    v = np.asarray([x for x in values if math.isfinite(x)], dtype=float)
+    if v.size == 0:
+        return None
+    top, low = float(v.max()), float(v.min())
+    pos = v[v > 0]
+    if top <= 0 or pos.size == 0:
+        return None
+    # Negative values (violations) stay in the linear band, where they read as they are.
+    linthresh = max(float(np.percentile(pos, 1)), -low, top * 1e-4)
+    if top < 20.0 * linthresh:
+        return None  # close to one decade: a linear axis reads better
+    linthresh = 10.0 ** math.floor(math.log10(linthresh))  # a decade, so it gets a round tick
+    bottom = low * 1.3 if low < 0 else -0.1 * linthresh
+    return linthresh, (bottom, top * 1.5)
+
+
+def symlog_ticks(linthresh: float, ylim: tuple[float, float]) -> list[float]:
+    """0, one round tick below it when the axis goes negative, and the decades above linthresh."""
+    low, top = ylim
+    ticks = [0.0]
+    if low < -0.5 * linthresh:  # real negative values, not the small pad below 0
+        mag = 10.0 ** math.floor(math.log10(-low))
+        ticks.insert(0, -mag * math.floor(-low / mag))
+    k = math.ceil(math.log10(linthresh))
+    while 10.0**k <= top:
+        ticks.append(10.0**k)
+        k += 1
+    return ticks
+
+
+def safety_figure(series: Series, scenario: Scenario) -> Figure:
+    """The safety figure (not saved): one panel per barrier kind that has values."""
     by_robot: defaultdict[str, defaultdict[str, list]] = defaultdict(lambda: defaultdict(list))
     for row in series.robots:
         rid = row[_COL["robot"]]
-        for key, _ in kinds:
-            v = row[_COL[key]]
-            by_robot[rid][key].append((row[_COL["t"]], v))
-    present = [(k, label) for k, label in kinds
-               if any(math.isfinite(v) for r in by_robot.values() for _, v in r[k])]
+        for key, _ in SAFETY_KINDS:
+            by_robot[rid][key].append((row[_COL["t"]], row[_COL[key]]))
+    present = [(k, label) for k, label in SAFETY_KINDS
+               if any(isinstance(v, float) and math.isfinite(v)
+                      for r in by_robot.values() for _, v in r[k])]
     if not present:
-        present = kinds[:1]
+        present = list(SAFETY_KINDS[:1])
+    by_formation = len(scenario.robot_ids) > MAX_ROBOT_LEGEND
+    formation_of = {r: f.name for f in scenario.formations for r in f.robot_ids}
+    if by_formation:
+        names = [f.name for f in scenario.formations]
+        colour = dict(zip(names, _colors(len(names)), strict=True))
+        robot_colour = {rid: colour[formation_of[rid]] for rid in scenario.robot_ids}
+    else:
+        robot_colour = dict(zip(scenario.robot_ids, _colors(len(scenario.robot_ids)), strict=True))
+
     unmet = hard_row_ticks(series)
-    fig, axes = plt.subplots(len(present), 1, figsize=(9, 2.8 * len(present)), sharex=True,
+    fig, axes = plt.subplots(len(present), 1, figsize=(10, 2.6 * len(present) + 0.6), sharex=True,
                              squeeze=False)
-    colors = _colors(len(scenario.robot_ids))
+    handles: dict[str, Line2D] = {}
     for ax, (key, label) in zip(axes[:, 0], present, strict=True):
-        for c, rid in zip(colors, scenario.robot_ids, strict=True):
-            pts = [(t, v) for t, v in by_robot[rid][key] if math.isfinite(v)]
-            if pts:
-                ax.plot([p[0] for p in pts], [p[1] for p in pts], lw=1.0, color=c, label=rid)
-        # a barrier of this kind below zero, or a fallback/failed QP (shown on the hard kinds)
-        marks = [m for m in unmet if key[2:] in m[2]
-                 or (key != "h_formation" and {"fallback", "failed"} & set(m[2]))]
-        if marks:  # ticks on which a hard row was not met (agent.hard_rows)
-            ax.plot([m[0] for m in marks], [m[1].get(key, 0.0) for m in marks], "x", color="red",
-                    ms=6, mew=1.5, label="hard row not met", zorder=5)
-            label += f"  [hard row not met: {len({m[0] for m in marks})} ticks, red x]"
+        values: list[float] = []
+        for rid in scenario.robot_ids:
+            pts = [(t, v) for t, v in by_robot[rid][key] if isinstance(v, float) and math.isfinite(v)]
+            if not pts:
+                continue
+            name = formation_of[rid] if by_formation else rid
+            (line,) = ax.plot([p[0] for p in pts], [p[1] for p in pts], lw=1.0,
+                              color=robot_colour[rid])
+            handles.setdefault(f"formation {name}" if by_formation else name, line)
+            values.extend(p[1] for p in pts)
+        label = _mark_unmet(ax, key, label, unmet)
         ax.axhline(0.0, color="k", lw=0.8)
         ax.set_ylabel("min h")
         ax.set_title(label, fontsize=9)
-        if key == "h_formations":
-            ax.set_yscale("symlog", linthresh=1.0)
+        scale = symlog_scale(values)
+        if scale is not None:
+            linthresh, ylim = scale
+            ax.set_yscale("symlog", linthresh=linthresh, linscale=1.5)
+            ax.set_ylim(*ylim)
+            ax.yaxis.set_major_locator(FixedLocator(symlog_ticks(linthresh, ylim)))
+            ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+            ax.yaxis.set_minor_locator(NullLocator())
         ax.grid(True, lw=0.3)
     axes[-1, 0].set_xlabel("t [s]")
-    handles, labels = axes[0, 0].get_legend_handles_labels()
-    if len(labels) <= 16:
-        axes[0, 0].legend(handles, labels, fontsize=7, ncol=min(8, len(labels)), loc="upper right")
     total = len({(m[0], m[3]) for m in unmet})
-    fig.suptitle(f"{scenario.name}: safety functions per robot (must stay >= 0); "
-                 f"robot-ticks with a hard row not met: {total}", fontsize=10)
-    fig.tight_layout()
+    fig.suptitle(f"{scenario.name}: smallest safety function of each kind per robot "
+                 f"(safe while >= 0, black line); robot-ticks with a hard row not met: {total}",
+                 fontsize=10)
+    fig.tight_layout(rect=(0, 0, 0.84, 1))
+    fig.legend(list(handles.values()), list(handles.keys()), fontsize=7, loc="upper left",
+               bbox_to_anchor=(0.845, 0.93), title="robot" if not by_formation else None,
+               title_fontsize=7)
+    return fig
+
+
+def plot_safety(series: Series, scenario: Scenario, path: Path) -> None:
+    fig = safety_figure(series, scenario)
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def _mark_unmet(ax, key: str, label: str,
+                unmet: list[tuple[float, dict[str, float], tuple[str, ...], str]]) -> str:
+    """Red crosses on ``ax`` at the ticks on which a hard row was not met (a barrier of this
+    kind below zero, or a fallback/failed QP, shown on the hard kinds); the panel title says
+    how many."""
+    marks = [m for m in unmet if key[2:] in m[2]
+             or (key != "h_formation" and {"fallback", "failed"} & set(m[2]))]
+    if not marks:
+        return label
+    ax.plot([m[0] for m in marks], [m[1].get(key, 0.0) for m in marks], "x", color="red",
+            ms=6, mew=1.5, label="hard row not met", zorder=5)
+    return label + f"  [hard row not met: {len({m[0] for m in marks})} ticks, red x]"
 
 
 def hard_row_ticks(series: Series) -> list[tuple[float, dict[str, float], tuple[str, ...], str]]:

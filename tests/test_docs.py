@@ -1,0 +1,211 @@
+"""The docs stand alone and their commands work as written.
+
+Every command in a fenced ``sh`` or ``bash`` block of README.md and docs/*.md is checked:
+
+* cheap ones (``formation check``, anything with ``--help``, ``--dry-run``) run as written, from
+  a scratch folder that holds the project's scenarios and docs, with ``.venv/bin/`` meaning the
+  bin folder of the interpreter running the tests;
+* long ones (simulations, benchmarks, ``make``) are parsed by the real argument parser, scripts
+  must exist and answer ``--help``, modules must import, make targets must exist;
+* blocks marked ``sh hardware`` (they need robots or a lab network) are parsed, not run, and a
+  ``formation`` command in them needs a dry run of the same subcommand in the same file that runs;
+* every project path a command names exists (paths under ``runs/`` are what commands write).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import re
+import shlex
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+import yaml
+
+from formation import clidoc
+from formation.cli import build_parser
+
+ROOT = Path(__file__).resolve().parent.parent
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+BIN = Path(sys.executable).parent
+BLOCK = re.compile(r"^```(sh|bash)([^\n]*)\n(.*?)^```", re.M | re.S)
+PATHLIKE = re.compile(r"^(scenarios|docs|benchmarks|tests|deploy|runs)/|\.(ya?ml|py|md|json|mcap)$")
+PLAIN_TOOLS = {"cp", "mkdir", "ls", "cat"}  # shell tools a long block may use around a command
+
+
+@dataclass(frozen=True)
+class Command:
+    doc: str
+    argv: tuple[str, ...]
+    marks: frozenset[str]
+
+    def __str__(self) -> str:
+        return f"{self.doc}: {shlex.join(self.argv)}"
+
+
+def _commands() -> list[Command]:
+    found = []
+    for doc in DOCS:
+        for match in BLOCK.finditer(doc.read_text(encoding="utf-8")):
+            marks = frozenset(match.group(2).split())
+            text = match.group(3).replace("\\\n", " ")
+            for line in text.splitlines():
+                argv = shlex.split(line, comments=True)
+                if argv:
+                    found.append(Command(doc.relative_to(ROOT).as_posix(), tuple(argv), marks))
+    return found
+
+
+COMMANDS = _commands()
+
+
+def _program(cmd: Command) -> tuple[str, list[str]]:
+    """(what runs, its arguments): ``formation``, ``python``, ``make`` or a plain tool."""
+    head, *args = cmd.argv
+    if head in (".venv/bin/formation",):
+        return "formation", args
+    if head in (".venv/bin/python", ".venv/bin/python3"):
+        if args[:2] == ["-m", "formation"]:
+            return "formation", args[2:]
+        return "python", args
+    if head == "make" or head in PLAIN_TOOLS:
+        return head, args
+    if "hardware" in cmd.marks:
+        return "hardware-tool", args
+    pytest.fail(f"{cmd}: write `.venv/bin/formation` or `.venv/bin/python` (the project's "
+                f"environment), or mark the block `sh hardware`")
+
+
+def _cheap(cmd: Command) -> bool:
+    program, args = _program(cmd)
+    if "hardware" in cmd.marks or "long" in cmd.marks:
+        return False
+    if program == "formation":
+        return bool({"--help", "-h", "--dry-run"} & set(args)) or args[:1] == ["check"]
+    return program == "python" and "--help" in args
+
+
+def _parse(args: list[str]) -> None:
+    if {"--help", "-h"} & set(args):
+        return  # the run itself checks it
+    try:
+        build_parser().parse_args(args)
+    except SystemExit as exc:
+        pytest.fail(f"formation {shlex.join(args)}: not accepted by the parser ({exc})")
+
+
+def _sandbox(tmp_path: Path) -> tuple[Path, dict[str, str]]:
+    """A scratch folder with the project's inputs, and an environment with the key of deploy.md."""
+    work = tmp_path / "work"
+    work.mkdir()
+    for name in ("scenarios", "docs", "benchmarks", "tests", "Makefile"):
+        (work / name).symlink_to(ROOT / name)
+    home = tmp_path / "home"
+    (home / ".ssh").mkdir(parents=True)
+    (home / ".ssh" / "turtlebots").write_text("not a real key\n")  # deploy.md, step 2
+    env = dict(os.environ, HOME=str(home), PYTHONPATH=str(ROOT))
+    return work, env
+
+
+def test_the_docs_hold_commands_and_mark_hardware():
+    assert len(COMMANDS) >= 15
+    assert any(_cheap(c) for c in COMMANDS)
+    assert any("hardware" in c.marks for c in COMMANDS)
+
+
+@pytest.mark.parametrize("cmd", [c for c in COMMANDS if _cheap(c)], ids=str)
+def test_a_cheap_command_in_the_docs_runs_as_written(cmd: Command, tmp_path: Path):
+    work, env = _sandbox(tmp_path)
+    argv = [str(BIN / Path(cmd.argv[0]).name), *cmd.argv[1:]]
+    done = subprocess.run(argv, cwd=work, env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, f"{cmd}\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}"
+
+
+@pytest.mark.parametrize("cmd", [c for c in COMMANDS if not _cheap(c)], ids=str)
+def test_a_long_or_hardware_command_in_the_docs_is_valid(cmd: Command):
+    program, args = _program(cmd)
+    if program == "formation":
+        _parse(args)
+    elif program == "python":
+        if args[0] == "-m":
+            assert importlib.util.find_spec(args[1]) is not None, f"{cmd}: no module {args[1]}"
+        else:
+            script = ROOT / args[0]
+            assert script.is_file(), f"{cmd}: no script {args[0]}"
+            done = subprocess.run([sys.executable, str(script), "--help"], cwd=ROOT,
+                                  capture_output=True, text=True, timeout=120)
+            assert done.returncode == 0, f"{cmd} --help\n{done.stderr[-2000:]}"
+    elif program == "make":
+        makefile = (ROOT / "Makefile").read_text(encoding="utf-8")
+        for target in args:
+            assert re.search(rf"^{re.escape(target)}:", makefile, re.M), f"{cmd}: no target"
+
+
+@pytest.mark.parametrize("cmd", COMMANDS, ids=str)
+def test_every_project_path_a_command_names_exists(cmd: Command):
+    if "hardware" in cmd.marks and _program(cmd)[0] == "hardware-tool":
+        return  # paths on a robot or the camera PC
+    for token in cmd.argv[1:]:
+        if token.startswith(("runs/", "-", "~", "/", "http")) or not PATHLIKE.search(token):
+            continue
+        assert (ROOT / token).exists(), f"{cmd}: {token} does not exist"
+
+
+def test_every_formation_command_that_needs_hardware_has_a_tested_dry_run():
+    for cmd in COMMANDS:
+        program, args = _program(cmd)
+        if "hardware" not in cmd.marks or program != "formation":
+            continue
+        assert any(_cheap(c) and c.doc == cmd.doc and "--dry-run" in c.argv
+                   and _program(c)[1][:1] == args[:1] for c in COMMANDS), f"{cmd}: no dry run"
+
+
+def test_no_doc_points_outside_the_project():
+    for doc in DOCS:
+        text = doc.read_text(encoding="utf-8")
+        assert "../shared" not in text, doc
+        assert "DESIGN.md" not in text, doc  # the contracts live in docs/ now
+
+
+def test_the_thesis_is_cited_by_its_title():
+    readme = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())
+    assert "Coordination of Multi Robot Systems for Warehouse Automation" in readme
+
+
+def test_the_command_line_reference_matches_the_parser():
+    text = (ROOT / "docs" / "cli.md").read_text(encoding="utf-8")
+    assert text == clidoc.updated(text), (
+        "docs/cli.md is out of date: run .venv/bin/python -m formation.clidoc --write docs/cli.md")
+    for sub in ("check", "sim", "run", "commcost", "montecarlo", "bench", "deploy", "view",
+                "record", "replay"):
+        assert f"### `formation {sub}`" in text
+
+
+def test_the_scenario_example_in_the_docs_is_a_valid_scenario(tmp_path: Path):
+    from scenario import load_scenario
+
+    text = (ROOT / "docs" / "scenarios.md").read_text(encoding="utf-8")
+    example = re.search(r"^```yaml\n(.*?)^```", text, re.M | re.S).group(1)
+    path = tmp_path / "example.yaml"
+    path.write_text(example, encoding="utf-8")
+    scenario = load_scenario(path)
+    assert scenario.name == "two_formations_crossing" and len(scenario.robot_ids) == 2
+
+
+def test_the_example_inventory_is_the_one_deploy_md_shows():
+    text = (ROOT / "docs" / "deploy.md").read_text(encoding="utf-8")
+    shown = re.search(r"^```yaml\n(.*?)^```", text, re.M | re.S).group(1)
+    assert shown == (ROOT / "docs" / "examples" / "lab.yaml").read_text(encoding="utf-8")
+
+
+def test_the_calibration_example_in_camera_md_loads():
+    from camera_service.calibration import calibration_from_dict
+
+    text = (ROOT / "docs" / "camera.md").read_text(encoding="utf-8")
+    example = re.search(r"^```yaml\n(.*?)^```", text, re.M | re.S).group(1)
+    calibration = calibration_from_dict(yaml.safe_load(example))
+    assert calibration.image_size == (1280, 960)
