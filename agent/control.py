@@ -41,6 +41,7 @@ from dataclasses import dataclass
 from time import perf_counter_ns
 from typing import NamedTuple
 
+from geometry.shapes import Shape
 from leader.ellipse import Ellipse
 
 from . import barriers, unicycle
@@ -264,6 +265,7 @@ def build_rows(
     others: Sequence[Ellipse] = (),
     view: FormationView | None = None,
     pairwise: Sequence[Neighbour] = (),
+    shapes: Sequence[Shape] = (),
 ) -> Rows:
     """Every barrier row (eq. 4.12b-e with appendix A's velocity terms) and limit row for the
     control point (px, py) of a robot with heading ``theta``.
@@ -292,6 +294,11 @@ def build_rows(
         if grow:
             o = Obstacle(o.x, o.y, o.vx, o.vy, o.ds + grow)  # the body stays Ds away
         h, row = barriers.obstacle_row(px, py, o, p.gamma_obstacle)
+        ho = min(ho, h)
+        if row[2] < reach:
+            hard.append(row)
+    for sh in shapes:  # walls and shelves: the body stays Ds from the shape itself
+        h, row = barriers.shape_row(px, py, sh, p.gamma_obstacle, grow)
         ho = min(ho, h)
         if row[2] < reach:
             hard.append(row)
@@ -329,13 +336,15 @@ def control_step(
     view: FormationView | None = None,
     solve=solve_exact,
     pairwise: Sequence[Neighbour] = (),
+    shapes: Sequence[Shape] = (),
 ) -> StepResult:
     """One tick for one robot.
 
     ``pose`` is the body (x, y, theta); ``neighbours`` carry their control points and last
     velocities with Df; ``obstacles`` carry Ds for the body (the look-ahead offset is added here
     for unicycles); ``others`` are the other formations' ellipses; ``pairwise`` are robots of
-    other formations in the all-to-all baseline (eq. 3.5 rows instead of ellipses).
+    other formations in the all-to-all baseline (eq. 3.5 rows instead of ellipses);
+    ``shapes`` are the static walls and shelves (Ds from the shape, offset added likewise).
     """
     x, y, theta = pose
     p = params
@@ -352,7 +361,8 @@ def control_step(
                 ux, uy = nominal(1.0, 0.0, 0.0, ux + bx, uy + by, p.max_speed)
     nux, nuy = ux, uy
 
-    rows = build_rows(p, px, py, theta, (ux, uy), neighbours, obstacles, others, view, pairwise)
+    rows = build_rows(p, px, py, theta, (ux, uy), neighbours, obstacles, others, view, pairwise,
+                      shapes)
     limits, hard, soft = rows.limits, rows.hard, rows.soft
 
     t0 = perf_counter_ns()
