@@ -10,6 +10,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from geometry.shapes import Shape
+
 SINGLE_INTEGRATOR = "single_integrator"
 UNICYCLE = "unicycle"
 
@@ -48,6 +50,7 @@ class ControllerSpec:
     epsilon: float = 0.05  # [m] formation distance tolerance, eq. 3.3
     tiebreak: str = "keep_right"  # formation-level deadlock rule, or "none"
     d_af: float | None = None  # [m] pairwise distance of eq. 3.5 (all-to-all topology only)
+    planner: str = "visibility"  # route around walls and boxes, or "none"
 
 
 @dataclass(frozen=True)
@@ -72,6 +75,7 @@ class FormationSpec:
     robots: tuple[RobotSpec, ...]
     edges: tuple[Edge, ...]
     ellipse: tuple[float, float] | None  # semi-axes (a, b) [m] as written, or None
+    waypoints: tuple[tuple[float, float], ...] = ()  # [m] the centroid passes these in order
 
     @property
     def robot_ids(self) -> tuple[str, ...]:
@@ -122,6 +126,7 @@ class Scenario:
     controller: ControllerSpec
     formations: tuple[FormationSpec, ...]
     obstacles: tuple[ObstacleSpec, ...]
+    shapes: tuple[Shape, ...] = ()  # static walls (segments) and shelves (boxes)
 
     @property
     def robots(self) -> tuple[RobotSpec, ...]:

@@ -19,8 +19,10 @@ from agent import unicycle
 from agent.barriers import Neighbour, Obstacle
 from agent.control import ControlParams, FormationView, Stall, control_step, update_stall
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
+from geometry.route import advance, member_target
 from leader.ellipse import Ellipse, estimate, reference_shape
 from scenario import Scenario, formation_axes
+from scenario.routes import goal_offsets, initial_route
 
 from .metrics import SafetyMonitor
 
@@ -121,7 +123,10 @@ def simulate(
     dt = scenario.dt
     steps = scenario.steps
     goals = [r.goal for r in robots]
-    goal_centroids = {f.name: f.goal_centroid for f in scenario.formations}
+    routes = {f.name: initial_route(scenario, f) for f in scenario.formations}
+    route_index = dict.fromkeys(routes, 0)
+    offsets = [o for f in scenario.formations for o in goal_offsets(f)]
+    shapes = scenario.shapes
     state = [list(r.start) for r in robots]  # body x, y, theta
     vel = [(0.0, 0.0)] * n  # last certified control-point velocity (what `state` carries)
     monitor = SafetyMonitor(scenario)
@@ -146,6 +151,8 @@ def simulate(
         obs = obstacles_at(t)
         ctrl = [unicycle.control_point(s[0], s[1], s[2], off) for s in state]
         ellipses = fleet.ellipses(ctrl, vel)
+        for name, e in ellipses.items():  # every member walks its formation's route alike
+            route_index[name] = advance(routes[name], route_index[name], e.cx, e.cy)
         results = []
         for i in range(n):
             fname = fleet.formation_of[i]
@@ -158,15 +165,18 @@ def simulate(
             else:
                 others = [e for name, e in ellipses.items() if name != fname]
                 pair = []
-            gc = goal_centroids[fname]
-            view = FormationView(ellipses[fname], gc[0], gc[1])
+            route, ri = routes[fname], route_index[fname]
+            wx, wy = route[ri]
+            view = FormationView(ellipses[fname], wx, wy)
             stalls[i] = update_stall(stalls[i], view, dt)
             view = view._replace(
                 name=fname,
                 other_names=tuple(name for name in ellipses if name != fname),
                 retreating=stalls[i].retreat > 0.0,
             )
-            res = control_step(params, tuple(state[i]), goals[i], nb, obs, others, view, solve, pair)
+            target = member_target(route, ri, goals[i], offsets[i])
+            res = control_step(params, tuple(state[i]), target, nb, obs, others, view, solve, pair,
+                               shapes)
             results.append(res)
             solve_us.append(res.solve_us)
             if res.status in counts:
@@ -222,6 +232,8 @@ def simulate(
         "solver": options.solver,
         "collision_log": monitor.collision_log[:100],
     }
+    if any(len(r) > 1 for r in routes.values()):
+        summary["routes"] = {name: [list(p) for p in r] for name, r in routes.items()}
     return SimResult(summary, series, scenario)
 
 

@@ -1,0 +1,134 @@
+"""A formation's route around walls and shelves, and the rule that walks it.
+
+The barriers keep every robot safe but cannot see past a shelf: a goal straight behind one is a
+local minimum of the CBF-QP (the nominal command of eq. 4.2 points into the shelf, the barrier
+cancels it). The leader therefore plans a route for its formation's centroid:
+
+* every wall and shelf is inflated by the formation's radius (the largest distance of a member
+  from the centroid in the goal shape), its safe distance Ds and :data:`ROUTE_MARGIN`;
+* the candidate waypoints are the vertices of an octagon circumscribing each inflated shape
+  (each octagon edge is tangent to the rounded outline, so a path along it keeps the
+  clearance), keeping those clear of every other inflated shape;
+* a straight leg between two points is usable when it keeps every shape's inflated clearance,
+  or, for a leg starting or ending closer than that (a formation starting or parking next to a
+  wall), no less than its ends already have;
+* A* over that visibility graph, legs checked lazily, Euclidean length as cost and heuristic.
+
+Circles are left to the barriers (they may move), so a scenario without walls and boxes gets the
+one-waypoint route (the goal) and behaves as before. No route found: the goal alone.
+
+Tracking (:func:`advance`): the formation heads for waypoint k; once its centroid is within
+:data:`ADVANCE_RADIUS` of it, for waypoint k + 1; the last waypoint is the goal. Each member's
+target is the current waypoint plus its offset in the goal shape (:func:`member_target`).
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from collections.abc import Sequence
+
+from .shapes import Shape, path_clearance, segment_distance, shape_distance
+
+Point = tuple[float, float]
+
+ROUTE_MARGIN = 0.15  # [m] clearance of the centroid's route beyond formation radius and Ds
+ADVANCE_RADIUS = 0.15  # [m] the centroid this close to a waypoint moves on to the next
+_TAN_8 = math.tan(math.pi / 8.0)
+_VERTEX_GROW = 1.02  # octagon vertices sit this much beyond the inflated outline
+
+
+def formation_radius(offsets: Sequence[Point]) -> float:
+    """Largest distance of a member from the centroid [m] (whatever the heading)."""
+    return max((math.hypot(x, y) for x, y in offsets), default=0.0)
+
+
+def plan_route(start: Point, goal: Point, shapes: Sequence[Shape], radius: float,
+               margin: float = ROUTE_MARGIN) -> tuple[Point, ...]:
+    """The centroid's waypoints from ``start`` to ``goal`` (``goal`` last, ``start`` not
+    included) around ``shapes`` inflated by ``radius`` + Ds + ``margin``."""
+    goal = (float(goal[0]), float(goal[1]))
+    if not shapes:
+        return (goal,)
+    need = [sh.ds + radius + margin for sh in shapes]
+    reach = [math.hypot(sh.hx, sh.hy) for sh in shapes]  # circumradius, for a quick reject
+
+    def gap(p: Point, j: int) -> float:
+        return max(0.0, shape_distance(p[0], p[1], shapes[j])[0])
+
+    nodes: list[Point] = [(float(start[0]), float(start[1])), goal]
+    for j, sh in enumerate(shapes):
+        r = need[j] * _VERTEX_GROW
+        for su, sv in ((sh.hx + r, sh.hy + r * _TAN_8), (sh.hx + r * _TAN_8, sh.hy + r)):
+            for cu, cv in ((1, 1), (-1, 1), (-1, -1), (1, -1)):
+                p = sh.local_to_world(cu * su, cv * sv)
+                if all(gap(p, k) >= need[k] for k in range(len(shapes))):
+                    nodes.append(p)
+    end_gap = [[gap(p, j) for j in range(len(shapes))] for p in nodes[:2]]
+
+    def usable(a: int, b: int) -> bool:
+        pa, pb = nodes[a], nodes[b]
+        for j, sh in enumerate(shapes):
+            want = need[j]
+            if a < 2:
+                want = min(want, end_gap[a][j])
+            if b < 2:
+                want = min(want, end_gap[b][j])
+            # quick accept: the leg passes the shape's circumcircle with room to spare
+            if segment_distance(sh.cx, sh.cy, *pa, *pb)[0] - reach[j] >= want:
+                continue
+            if path_clearance(pa, pb, sh) < want - 1e-9:
+                return False
+        return True
+
+    # A* from node 0 to node 1
+    best = {0: 0.0}
+    parent: dict[int, int] = {}
+    done: set[int] = set()
+    heap = [(math.dist(nodes[0], goal), 0.0, 0)]
+    while heap:
+        _, g, a = heapq.heappop(heap)
+        if a in done:
+            continue
+        done.add(a)
+        if a == 1:
+            path = [1]
+            while path[-1] != 0:
+                path.append(parent[path[-1]])
+            return tuple(nodes[k] for k in reversed(path[:-1]))
+        for b in range(1, len(nodes)):
+            if b in done:
+                continue
+            ng = g + math.dist(nodes[a], nodes[b])
+            if ng >= best.get(b, math.inf) or not usable(a, b):
+                continue
+            best[b] = ng
+            parent[b] = a
+            heapq.heappush(heap, (ng + math.dist(nodes[b], goal), ng, b))
+    return (goal,)
+
+
+def advance(route: Sequence[Point], index: int, cx: float, cy: float,
+            radius: float = ADVANCE_RADIUS) -> int:
+    """The waypoint to head for, given the formation centroid (cx, cy): past every waypoint
+    the centroid is already within ``radius`` of, never past the last (the goal)."""
+    while index < len(route) - 1 and math.hypot(route[index][0] - cx, route[index][1] - cy) <= radius:
+        index += 1
+    return index
+
+
+def member_target(route: Sequence[Point], index: int, goal: Point, offset: Point) -> Point:
+    """A member's target: its own goal on the last leg, else the waypoint plus its offset."""
+    if index >= len(route) - 1:
+        return goal
+    wx, wy = route[index]
+    return (wx + offset[0], wy + offset[1])
+
+
+def route_length(start: Point, route: Sequence[Point]) -> float:
+    """Length of the polyline start -> route[0] -> ... [m]."""
+    total, p = 0.0, start
+    for w in route:
+        total += math.dist(p, w)
+        p = w
+    return total
