@@ -16,13 +16,20 @@ payload        fields in order (``u8`` version, then ``f64`` unless marked ``str
 ``EllipseMsg`` version, formation:str, cx, cy, alpha, a, b, vx, vy, alpha_rate, stamp   73+n
 ``Others``     version, formation:str, stamp, ellipses:list[E], own:list[E] (0 or 1)  varies
 ``Obstacles``  version, stamp, obstacles:list[O]                                         varies
+``Obstacles``  version 2, stamp, obstacles:list[O], shapes:list[S]                       varies
 =============  =======================================================================  =====
 
 where ``E`` is an ellipse without the version, ``(formation:str, cx, cy, alpha, a, b, vx, vy,
 alpha_rate, stamp)``, ``O`` is ``(id:str, x, y, vx, vy, ds)``, and ``n`` is the length of the
-formation id's varint plus its UTF-8 bytes. ``Others.own`` (the leader's own ellipse, or none)
-is a list of 0 or 1 elements because the format has no optional type. The version byte is
-:data:`WIRE_VERSION` for every kind; a decoder accepts exactly that version. Units: metres,
+formation id's varint plus its UTF-8 bytes. ``S`` is a wall or shelf, ``(id:str, kind:u8, cx, cy,
+hx, hy, yaw, ds)``: kind 1 a segment (centre, half length ``hx``, ``hy = 0``, direction ``yaw``),
+kind 2 a box (centre, half sizes, yaw); see :mod:`geometry.shapes`. ``Others.own`` (the
+leader's own ellipse, or none) is a list of 0 or 1 elements because the format has no
+optional type. The version byte is
+:data:`WIRE_VERSION` for every kind; a decoder accepts exactly that version, except that an
+``Obstacles`` carrying walls or shelves is written as :data:`SHAPES_VERSION` (a decoder that
+predates shapes refuses it with "unsupported version 2"; circles alone keep version 1, byte for
+byte as before). Units: metres,
 radians, seconds, metres per second, radians per second; ``stamp`` is the sender's clock in
 seconds. ``Pose`` and ``State`` carry no id: the key names the robot.
 
@@ -58,6 +65,9 @@ from wire import keys
 logger = logging.getLogger(__name__)
 
 WIRE_VERSION = 1
+SHAPES_VERSION = 2  # Obstacles with walls or shelves
+SHAPE_SEGMENT = 1  # ShapeMsg.kind
+SHAPE_BOX = 2
 MAX_ITEMS = 256  # most ellipses (or obstacles) one payload may carry
 # A payload longer than this is rejected before parsing [bytes]. The largest valid message (an
 # Others with 256 + 1 ellipses whose ids are 64 four-byte UTF-8 characters) is about 85 kB.
@@ -277,18 +287,52 @@ class ObstacleMsg:
             raise ValueError(f"ds must be >= 0, got {self.ds!r}")
 
 
+_SHAPE_FLOATS = ("cx", "cy", "hx", "hy", "yaw", "ds")
+
+
+@dataclass(frozen=True, slots=True)
+class ShapeMsg:
+    """One static wall (``kind`` :data:`SHAPE_SEGMENT`: centre, half length ``hx``, ``hy`` 0,
+    direction ``yaw``) or shelf (:data:`SHAPE_BOX`: centre, half sizes, yaw) with its ``ds``.
+    [m, m, m, m, rad, m]"""
+
+    id: str
+    kind: int
+    cx: float
+    cy: float
+    hx: float
+    hy: float
+    yaw: float
+    ds: float
+
+    def __post_init__(self) -> None:
+        _check_id(self.id, "id")
+        if type(self.kind) is not int or self.kind not in (SHAPE_SEGMENT, SHAPE_BOX):
+            raise ValueError(f"kind must be {SHAPE_SEGMENT} (segment) or {SHAPE_BOX} (box), "
+                             f"got {self.kind!r}")
+        _check_floats(self, _SHAPE_FLOATS)
+        if self.hx < 0.0 or self.hy < 0.0 or self.ds < 0.0:
+            raise ValueError(f"hx, hy and ds must be >= 0, got {self.hx!r}, {self.hy!r}, {self.ds!r}")
+        if self.kind == SHAPE_SEGMENT and self.hy != 0.0:
+            raise ValueError(f"a segment has hy = 0, got {self.hy!r}")
+
+
 @dataclass(frozen=True, slots=True)
 class Obstacles:
-    """Every obstacle the camera or world sees: ``{prefix}/obstacles``."""
+    """Every obstacle the camera or world sees: ``{prefix}/obstacles``: circles (moving or not)
+    and static walls and shelves."""
 
     stamp: float
     obstacles: tuple[ObstacleMsg, ...] = ()
+    shapes: tuple[ShapeMsg, ...] = ()
 
     def __post_init__(self) -> None:
         _check_floats(self, _STAMP)
         items = tuple(self.obstacles)
-        if len(items) > MAX_ITEMS:
-            raise ValueError(f"obstacles must hold at most {MAX_ITEMS} entries, got {len(items)}")
+        shapes = tuple(self.shapes)
+        if len(items) + len(shapes) > MAX_ITEMS:
+            raise ValueError(f"obstacles must hold at most {MAX_ITEMS} entries, got "
+                             f"{len(items) + len(shapes)}")
         seen: set[str] = set()
         for item in items:
             if not isinstance(item, ObstacleMsg):
@@ -297,7 +341,14 @@ class Obstacles:
             if item.id in seen:
                 raise ValueError(f"obstacles repeat id {item.id!r}")
             seen.add(item.id)
+        for sh in shapes:
+            if not isinstance(sh, ShapeMsg):
+                raise ValueError(f"shapes entries must be ShapeMsg, got {type(sh).__name__}")
+            if sh.id in seen:
+                raise ValueError(f"obstacles repeat id {sh.id!r}")
+            seen.add(sh.id)
         object.__setattr__(self, "obstacles", items)
+        object.__setattr__(self, "shapes", shapes)
 
 
 Message: TypeAlias = Pose | State | Cmd | EllipseMsg | Others | Obstacles
@@ -368,6 +419,7 @@ def _ellipses(items: list[Item]) -> tuple[EllipseMsg, ...]:
 # --- encoding ---------------------------------------------------------------------------------
 
 _VERSION = UInt8(WIRE_VERSION)
+_SHAPES_VERSION = UInt8(SHAPES_VERSION)
 
 
 def _ellipse_fields(e: EllipseMsg) -> tuple[Any, ...]:
@@ -391,6 +443,13 @@ def _wire_tuple(msg: Message) -> tuple[Any, ...]:
             msg.stamp,
             [_ellipse_fields(e) for e in msg.ellipses],
             own,
+        )
+    if isinstance(msg, Obstacles) and msg.shapes:
+        return (
+            _SHAPES_VERSION,
+            msg.stamp,
+            [(o.id, o.x, o.y, o.vx, o.vy, o.ds) for o in msg.obstacles],
+            [(sh.id, UInt8(sh.kind), sh.cx, sh.cy, sh.hx, sh.hy, sh.yaw, sh.ds) for sh in msg.shapes],
         )
     if isinstance(msg, Obstacles):
         return (
@@ -420,7 +479,7 @@ def encode_zbytes(msg: Message) -> zenoh.ZBytes:
 # every length and count is checked against what is left of the payload before anything is read.
 
 _MAX_VARINT_BYTES = 10  # an unsigned LEB128 u64 takes at most 10 bytes
-_FLOATS = {n: struct.Struct(f"<{n}d") for n in (1, 4, 5, 9)}
+_FLOATS = {n: struct.Struct(f"<{n}d") for n in (1, 4, 5, 6, 9)}
 
 
 def _as_bytes(payload: object) -> bytes:
@@ -521,6 +580,14 @@ class _Reader:
     def obstacle(self, index: int) -> Item:
         return self.item(_FLOATS[5], "obstacles", index, "id")
 
+    def shape(self, index: int) -> ShapeMsg:
+        what = f"shapes[{index}]"
+        ident = self.string(f"{what}.id")
+        self._need(1, f"{what}.kind")
+        kind = self.data[self.pos]
+        self.pos += 1
+        return ShapeMsg(ident, kind, *self.floats(6, what))
+
     def end(self) -> None:
         if self.pos != len(self.data):
             raise DecodeError(
@@ -529,15 +596,21 @@ class _Reader:
             )
 
 
-def _decode(payload: object, parse: Callable[[_Reader], Any], kind: str) -> Any:
+def _decode(payload: object, parse: Callable[[_Reader], Any], kind: str,
+            parsers: dict[int, Callable[[_Reader], Any]] | None = None) -> Any:
+    """Decode ``payload`` with ``parse`` (version :data:`WIRE_VERSION`), or with the parser
+    ``parsers`` names for its version byte."""
     try:
         data = _as_bytes(payload)
         if not data:
             raise DecodeError("empty payload")
         if len(data) > MAX_PAYLOAD_BYTES:
             raise DecodeError(f"payload of {len(data)} bytes exceeds {MAX_PAYLOAD_BYTES}")
-        if data[0] != WIRE_VERSION:
-            raise DecodeError(f"unsupported version {data[0]} (expected {WIRE_VERSION})")
+        if parsers is not None and data[0] in parsers:
+            parse = parsers[data[0]]
+        elif data[0] != WIRE_VERSION:
+            known = " or ".join(str(v) for v in sorted(parsers or (WIRE_VERSION,)))
+            raise DecodeError(f"unsupported version {data[0]} (expected {known})")
         reader = _Reader(data, 1)
         try:
             msg = parse(reader)
@@ -590,8 +663,21 @@ def _parse_obstacles(r: _Reader) -> Obstacles:
     items = [r.obstacle(i) for i in range(n)]
     obstacles = _build_items(ObstacleMsg, _OBSTACLE_SETTERS, items, _ds_not_negative)
     if _isfinite(stamp) and len({o.id for o in obstacles}) == n:
-        return _build_trusted(Obstacles, _OBSTACLES_SETTERS, (stamp, obstacles))
+        return _build_trusted(Obstacles, _OBSTACLES_SETTERS, (stamp, obstacles, ()))
     return Obstacles(stamp, obstacles)
+
+
+def _parse_obstacles_with_shapes(r: _Reader) -> Obstacles:
+    """Version 2: the circles as in version 1, then the walls and shelves."""
+    (stamp,) = r.floats(1, "stamp")
+    n = r.count("obstacles", MAX_ITEMS)
+    items = [r.obstacle(i) for i in range(n)]
+    obstacles = _build_items(ObstacleMsg, _OBSTACLE_SETTERS, items, _ds_not_negative)
+    m = r.count("shapes", MAX_ITEMS - n)
+    return Obstacles(stamp, obstacles, tuple(r.shape(i) for i in range(m)))
+
+
+_OBSTACLES_PARSERS = {WIRE_VERSION: _parse_obstacles, SHAPES_VERSION: _parse_obstacles_with_shapes}
 
 
 def decode_pose(payload: bytes | zenoh.ZBytes) -> Pose:
@@ -621,7 +707,7 @@ def decode_others(payload: bytes | zenoh.ZBytes) -> Others:
 
 def decode_obstacles(payload: bytes | zenoh.ZBytes) -> Obstacles:
     """Decode an ``obstacles`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_obstacles, "obstacles")
+    return _decode(payload, _parse_obstacles, "obstacles", _OBSTACLES_PARSERS)
 
 
 #: The decoder of each key class (see :func:`wire.keys.key_class`).
