@@ -10,9 +10,10 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-from matplotlib.patches import Circle, Ellipse  # noqa: E402
+from matplotlib.patches import Circle, Ellipse, Polygon  # noqa: E402
 
 from scenario import Scenario  # noqa: E402
+from scenario.routes import initial_route  # noqa: E402
 
 from .inprocess import ROBOT_COLUMNS, Series  # noqa: E402
 
@@ -23,6 +24,33 @@ SNAPSHOTS = 5  # ellipse snapshots along the run
 def _colors(n: int):
     cmap = plt.get_cmap("tab10" if n <= 10 else "tab20")
     return [cmap(k % cmap.N) for k in range(n)]
+
+
+def draw_shapes_and_routes(ax, scenario: Scenario, fcolor: dict) -> None:
+    """Walls and shelves (filled, with their safe distance dotted) and each formation's route
+    (dash-dot from its start centroid through its waypoints, waypoints as diamonds)."""
+    for sh in scenario.shapes:
+        pts = sh.corners()
+        if sh.kind == "segment":
+            ax.plot([p[0] for p in pts], [p[1] for p in pts], "-", color="0.15", lw=2.5,
+                    solid_capstyle="butt")
+        else:
+            ax.add_patch(Polygon(pts, closed=True, color="0.35", alpha=0.6))
+        band = [sh.local_to_world(math.copysign(sh.hx, math.cos(a)) + sh.ds * math.cos(a),
+                                  math.copysign(sh.hy, math.sin(a)) + sh.ds * math.sin(a))
+                for a in (2 * math.pi * (k + 0.5) / 64 for k in range(65))]
+        ax.plot([p[0] for p in band], [p[1] for p in band], ":", color="0.3", lw=0.7)
+        if len(scenario.shapes) <= 24:
+            ax.annotate(sh.name, (sh.cx, sh.cy), fontsize=6, ha="center", va="center", color="0.1")
+    for f in scenario.formations:
+        route = initial_route(scenario, f)
+        if len(route) < 2:
+            continue
+        pts = [f.start_centroid, *route]
+        c = fcolor.get(f.name, "k")
+        ax.plot([p[0] for p in pts], [p[1] for p in pts], "-.", color=c, lw=0.9, alpha=0.8)
+        ax.plot([p[0] for p in route[:-1]], [p[1] for p in route[:-1]], "D", color=c, ms=4,
+                mfc="none")
 
 
 def plot_trajectories(series: Series, scenario: Scenario, path: Path) -> None:
@@ -70,6 +98,7 @@ def plot_trajectories(series: Series, scenario: Scenario, path: Path) -> None:
         ax.add_patch(Circle((x, y), ds, color="0.2", alpha=0.5))
         if name in moving or len(last) <= 6:
             ax.annotate(name, (x, y), fontsize=7, ha="center", va="center")
+    draw_shapes_and_routes(ax, scenario, fcolor)
     ax.set_aspect("equal")
     ax.autoscale_view()
     ax.set_xlabel("x [m]")

@@ -14,7 +14,7 @@ from scenario.routes import initial_route, route_radius
 from simulator.inprocess import SimOptions, simulate
 
 ROOT = Path(__file__).resolve().parent.parent
-NAV = sorted((ROOT / "tests" / "scenarios").glob("nav-*.yaml"))
+NAV = sorted((ROOT / "tests" / "scenarios").glob("nav-*.yaml")) + [ROOT / "scenarios" / "warehouse.yaml"]
 
 BASE = """
 name: t
