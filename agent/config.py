@@ -18,6 +18,7 @@ import yaml
 
 from leader.ellipse import reference_shape
 from scenario import Scenario, formation_axes
+from scenario.routes import initial_route
 
 from .control import ControlParams
 from .unicycle import control_point
@@ -68,6 +69,8 @@ class AgentConfig:
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
     cmd_vel_key: str = "cmd_vel"  # real bases: the zenoh-bridge-ros2dds key for /cmd_vel
     frame_id: str = "base_link"  # real bases (Jazzy TwistStamped): header frame
+    # the formation centroid's route (waypoints, the goal centroid last); () = the goal alone
+    route: tuple[tuple[float, float], ...] = ()
 
     @property
     def is_leader(self) -> bool:
@@ -92,6 +95,7 @@ def build_agent_configs(
     off = scenario.robot.control_offset
     out: dict[str, AgentConfig] = {}
     for f in scenario.formations:
+        route = initial_route(scenario, f)
         shape = reference_shape([control_point(*r.start, off) for r in f.robots])
         leader = LeaderSettings(
             members=f.robot_ids,
@@ -120,6 +124,7 @@ def build_agent_configs(
                 stale_after=STALE_PERIODS * scenario.dt,
                 base=base,
                 zenoh=zenoh,
+                route=route if len(route) > 1 else (),
             )
     return out
 
@@ -171,6 +176,7 @@ def config_from_dict(d: dict[str, Any]) -> AgentConfig:
             zenoh=zenoh,
             cmd_vel_key=str(d.pop("cmd_vel_key", "cmd_vel")),
             frame_id=str(d.pop("frame_id", "base_link")),
+            route=tuple((float(x), float(y)) for x, y in d.pop("route", ())),
         )
         d.pop("start", None)
     except KeyError as exc:

@@ -53,6 +53,7 @@ from agent import unicycle
 from scenario import Scenario
 from wire import keys
 from wire.payloads import Cmd, DecodeError, ObstacleMsg, Obstacles, Pose, decode_cmd
+from wire.shapes import shape_to_msg
 from wire.traffic import CountingPublisher, TrafficCounter
 
 from .inprocess import Series
@@ -227,6 +228,7 @@ class World:
             keys.validate_id(o.name, "obstacle name")
         self._pose_pubs = [CountingPublisher(session.declare_publisher(keys.pose_key(p, r)),
                                              self.counter) for r in self.ids]
+        self._shape_msgs = tuple(shape_to_msg(sh) for sh in scenario.shapes)  # static walls, shelves
         self._obs_pub = CountingPublisher(session.declare_publisher(keys.obstacles_key(p)),
                                           self.counter)
         self.inbox = _CmdInbox(p, self.counter, self.ids)
@@ -415,7 +417,7 @@ class World:
         for o in self.scenario.obstacles:
             x, y = o.position(t)
             obs.append(ObstacleMsg(o.name, x, y, o.velocity[0], o.velocity[1], o.safe_distance))
-        self._obs_pub.put_message(Obstacles(stamp, tuple(obs)))
+        self._obs_pub.put_message(Obstacles(stamp, tuple(obs), self._shape_msgs))
         return obs
 
     def _publish_pose(self, i: int, t: float, stamp: float, p: tuple[float, float, float]) -> None:
