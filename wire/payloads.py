@@ -479,7 +479,7 @@ def encode_zbytes(msg: Message) -> zenoh.ZBytes:
 # every length and count is checked against what is left of the payload before anything is read.
 
 _MAX_VARINT_BYTES = 10  # an unsigned LEB128 u64 takes at most 10 bytes
-_FLOATS = {n: struct.Struct(f"<{n}d") for n in (1, 4, 5, 6, 9)}
+_FLOATS = {n: struct.Struct(f"<{n}d") for n in range(1, 10)}
 
 
 def _as_bytes(payload: object) -> bytes:
@@ -719,3 +719,233 @@ DECODERS: dict[str, Callable[[bytes | zenoh.ZBytes], Any]] = {
     keys.OTHERS: decode_others,
     keys.OBSTACLES: decode_obstacles,
 }
+
+
+# --- navigation: goal, plan, status (DESIGN.md key space) ------------------------------------
+#
+# ``GoalMsg``    version, formation:str, x, y, heading:list[f64] (0 or 1), waypoints:list[(x, y)],
+#                stamp
+# ``PlanMsg``    version, formation:str, goal_stamp, cx, cy, heading:list[f64] (0 or 1),
+#                route:list[(x, y)], members:list[(id:str, gx, gy)], stamp
+# ``StatusMsg``  version, formation:str, state:str, leader:str, goal_stamp, gx, gy,
+#                heading:list[f64] (0 or 1), distance, waypoint, waypoints, wx, wy, stamp
+#
+# ``goal_stamp`` names a goal: the stamp the leader gave it when it accepted it (the fleet
+# manager's stamp in real time, simulated time on arrival in lock-step). A member adopts a plan
+# whose goal_stamp is newer than the one it follows. ``waypoint`` and ``waypoints`` (the index
+# of the current waypoint and the route's length; the goal is the last) are whole numbers
+# carried as f64.
+
+MAX_WAYPOINTS = 64  # most waypoints in a goal or route
+STATUS_STATES = ("moving", "reached", "stalled", "stopped")
+
+
+def _points(value: object, name: str, limit: int) -> tuple[tuple[float, float], ...]:
+    pts = tuple(tuple(p) for p in value)  # type: ignore[attr-defined]
+    if len(pts) > limit:
+        raise ValueError(f"{name} must hold at most {limit} points, got {len(pts)}")
+    out = []
+    for k, p in enumerate(pts):
+        if len(p) != 2:
+            raise ValueError(f"{name}[{k}] must be (x, y), got {p!r}")
+        x, y = p
+        for v in (x, y):
+            if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
+                raise ValueError(f"{name}[{k}] must hold finite numbers, got {p!r}")
+        out.append((float(x), float(y)))
+    return tuple(out)
+
+
+def _optional_angle(obj: object, name: str) -> None:
+    value = getattr(obj, name)
+    if value is not None:
+        _finite(obj, name)
+
+
+@dataclass(frozen=True, slots=True)
+class GoalMsg:
+    """A new goal for a formation: ``{prefix}/formation/{fid}/goal`` (fleet manager -> leader).
+
+    Centroid ``x, y`` [m]; ``heading`` [rad] turns the formation's goal shape (the shape as
+    written in the scenario's goals is heading 0), ``None`` keeps the current one; the centroid
+    passes ``waypoints`` in order first (none: the leader plans a route); ``stamp`` [s]."""
+
+    formation: str
+    x: float
+    y: float
+    heading: float | None = None
+    waypoints: tuple[tuple[float, float], ...] = ()
+    stamp: float = 0.0
+
+    def __post_init__(self) -> None:
+        _check_id(self.formation, "formation")
+        _check_floats(self, ("x", "y", "stamp"))
+        _optional_angle(self, "heading")
+        object.__setattr__(self, "waypoints", _points(self.waypoints, "waypoints", MAX_WAYPOINTS))
+
+
+@dataclass(frozen=True, slots=True)
+class PlanMsg:
+    """A leader's plan for its members: ``{prefix}/formation/{fid}/plan``: the goal it follows
+    (``goal_stamp``, centroid, heading), the centroid's route (the goal last) and each member's
+    goal ``(id, x, y)``."""
+
+    formation: str
+    goal_stamp: float
+    cx: float
+    cy: float
+    heading: float | None
+    route: tuple[tuple[float, float], ...]
+    members: tuple[tuple[str, float, float], ...]
+    stamp: float
+
+    def __post_init__(self) -> None:
+        _check_id(self.formation, "formation")
+        _check_floats(self, ("goal_stamp", "cx", "cy", "stamp"))
+        _optional_angle(self, "heading")
+        route = _points(self.route, "route", MAX_WAYPOINTS)
+        if not route:
+            raise ValueError("route must hold at least the goal")
+        object.__setattr__(self, "route", route)
+        members = tuple(tuple(m) for m in self.members)
+        if len(members) > MAX_ITEMS:
+            raise ValueError(f"members must hold at most {MAX_ITEMS} entries, got {len(members)}")
+        seen: set[str] = set()
+        out = []
+        for k, m in enumerate(members):
+            if len(m) != 3:
+                raise ValueError(f"members[{k}] must be (id, x, y), got {m!r}")
+            _check_id(m[0], f"members[{k}].id")
+            if m[0] in seen:
+                raise ValueError(f"members repeat id {m[0]!r}")
+            seen.add(m[0])
+            out.append((m[0], *_points([m[1:]], f"members[{k}]", 1)[0]))
+        object.__setattr__(self, "members", tuple(out))
+
+    def goal_of(self, robot_id: str) -> tuple[float, float] | None:
+        for rid, x, y in self.members:
+            if rid == robot_id:
+                return (x, y)
+        return None
+
+
+@dataclass(frozen=True, slots=True)
+class StatusMsg:
+    """A leader's report: ``{prefix}/formation/{fid}/status`` (published about once a second
+    and answered as a queryable). ``state`` is one of :data:`STATUS_STATES`; the goal it
+    follows (``goal_stamp``, centroid, heading), the centroid's ``distance`` to go along the
+    route [m], the current waypoint (index, route length, position) and the leader's id."""
+
+    formation: str
+    state: str
+    leader: str
+    goal_stamp: float
+    gx: float
+    gy: float
+    heading: float | None
+    distance: float
+    waypoint: int
+    waypoints: int
+    wx: float
+    wy: float
+    stamp: float
+
+    def __post_init__(self) -> None:
+        _check_id(self.formation, "formation")
+        _check_id(self.leader, "leader")
+        if self.state not in STATUS_STATES:
+            raise ValueError(f"state must be one of {STATUS_STATES}, got {self.state!r}")
+        _check_floats(self, ("goal_stamp", "gx", "gy", "distance", "wx", "wy", "stamp"))
+        _optional_angle(self, "heading")
+        for name in ("waypoint", "waypoints"):
+            v = getattr(self, name)
+            if isinstance(v, float) and v.is_integer():
+                v = int(v)
+                object.__setattr__(self, name, v)
+            if type(v) is not int or not 0 <= v <= MAX_WAYPOINTS:
+                raise ValueError(f"{name} must be a whole number in [0, {MAX_WAYPOINTS}], got {v!r}")
+        if self.distance < 0.0:
+            raise ValueError(f"distance must be >= 0, got {self.distance!r}")
+
+
+def _heading_list(h: float | None) -> list[float]:
+    return [] if h is None else [h]
+
+
+def encode_nav(msg: GoalMsg | PlanMsg | StatusMsg) -> bytes:
+    """Serialize a goal, plan or status (layouts above)."""
+    if isinstance(msg, GoalMsg):
+        t: tuple[Any, ...] = (_VERSION, msg.formation, msg.x, msg.y, _heading_list(msg.heading),
+                              list(msg.waypoints), msg.stamp)
+    elif isinstance(msg, PlanMsg):
+        t = (_VERSION, msg.formation, msg.goal_stamp, msg.cx, msg.cy, _heading_list(msg.heading),
+             list(msg.route), list(msg.members), msg.stamp)
+    elif isinstance(msg, StatusMsg):
+        t = (_VERSION, msg.formation, msg.state, msg.leader, msg.goal_stamp, msg.gx, msg.gy,
+             _heading_list(msg.heading), msg.distance, float(msg.waypoint), float(msg.waypoints),
+             msg.wx, msg.wy, msg.stamp)
+    else:
+        raise ValueError(f"msg must be a GoalMsg, PlanMsg or StatusMsg, got {type(msg).__name__}")
+    return z_serialize(t).to_bytes()
+
+
+def _read_heading(r: _Reader) -> float | None:
+    n = r.count("heading", 1)
+    return r.floats(1, "heading")[0] if n else None
+
+
+def _read_points(r: _Reader, name: str) -> list[tuple[float, float]]:
+    n = r.count(name, MAX_WAYPOINTS)
+    return [r.floats(2, f"{name}[{k}]") for k in range(n)]  # type: ignore[misc]
+
+
+def _parse_goal(r: _Reader) -> GoalMsg:
+    formation = r.string("formation")
+    x, y = r.floats(2, "x, y")
+    heading = _read_heading(r)
+    waypoints = _read_points(r, "waypoints")
+    (stamp,) = r.floats(1, "stamp")
+    return GoalMsg(formation, x, y, heading, tuple(waypoints), stamp)
+
+
+def _parse_plan(r: _Reader) -> PlanMsg:
+    formation = r.string("formation")
+    goal_stamp, cx, cy = r.floats(3, "goal_stamp, cx, cy")
+    heading = _read_heading(r)
+    route = _read_points(r, "route")
+    n = r.count("members", MAX_ITEMS)
+    members = []
+    for k in range(n):
+        rid = r.string(f"members[{k}].id")
+        members.append((rid, *r.floats(2, f"members[{k}]")))
+    (stamp,) = r.floats(1, "stamp")
+    return PlanMsg(formation, goal_stamp, cx, cy, heading, tuple(route), tuple(members), stamp)
+
+
+def _parse_status(r: _Reader) -> StatusMsg:
+    formation = r.string("formation")
+    state = r.string("state")
+    leader = r.string("leader")
+    goal_stamp, gx, gy = r.floats(3, "goal_stamp, gx, gy")
+    heading = _read_heading(r)
+    distance, waypoint, waypoints, wx, wy, stamp = r.floats(6, "distance .. stamp")
+    return StatusMsg(formation, state, leader, goal_stamp, gx, gy, heading, distance, waypoint,
+                     waypoints, wx, wy, stamp)
+
+
+def decode_goal(payload: bytes | zenoh.ZBytes) -> GoalMsg:
+    """Decode a ``goal`` payload; raises only :class:`DecodeError`."""
+    return _decode(payload, _parse_goal, "goal")
+
+
+def decode_plan(payload: bytes | zenoh.ZBytes) -> PlanMsg:
+    """Decode a ``plan`` payload; raises only :class:`DecodeError`."""
+    return _decode(payload, _parse_plan, "plan")
+
+
+def decode_status(payload: bytes | zenoh.ZBytes) -> StatusMsg:
+    """Decode a ``status`` payload; raises only :class:`DecodeError`."""
+    return _decode(payload, _parse_status, "status")
+
+
+DECODERS.update({keys.GOAL: decode_goal, keys.PLAN: decode_plan, keys.STATUS: decode_status})
