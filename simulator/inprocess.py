@@ -19,10 +19,10 @@ from agent import unicycle
 from agent.barriers import Neighbour, Obstacle
 from agent.control import ControlParams, FormationView, Stall, control_step, update_stall
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
-from geometry.route import advance, member_target
 from leader.ellipse import Ellipse, estimate, reference_shape
+from leader.navigation import Follower
 from scenario import Scenario, formation_axes
-from scenario.routes import goal_offsets, initial_route
+from scenario.routes import initial_route
 
 from .metrics import SafetyMonitor
 
@@ -122,10 +122,10 @@ def simulate(
     off = params.offset
     dt = scenario.dt
     steps = scenario.steps
-    goals = [r.goal for r in robots]
     routes = {f.name: initial_route(scenario, f) for f in scenario.formations}
-    route_index = dict.fromkeys(routes, 0)
-    offsets = [o for f in scenario.formations for o in goal_offsets(f)]
+    # every member walks its formation's route with the ellipse its leader hands it
+    followers = [Follower(r.id, r.goal, f.goal_centroid, routes[f.name])
+                 for f in scenario.formations for r in f.robots]
     shapes = scenario.shapes
     state = [list(r.start) for r in robots]  # body x, y, theta
     vel = [(0.0, 0.0)] * n  # last certified control-point velocity (what `state` carries)
@@ -151,8 +151,6 @@ def simulate(
         obs = obstacles_at(t)
         ctrl = [unicycle.control_point(s[0], s[1], s[2], off) for s in state]
         ellipses = fleet.ellipses(ctrl, vel)
-        for name, e in ellipses.items():  # every member walks its formation's route alike
-            route_index[name] = advance(routes[name], route_index[name], e.cx, e.cy)
         results = []
         for i in range(n):
             fname = fleet.formation_of[i]
@@ -165,16 +163,15 @@ def simulate(
             else:
                 others = [e for name, e in ellipses.items() if name != fname]
                 pair = []
-            route, ri = routes[fname], route_index[fname]
-            wx, wy = route[ri]
-            view = FormationView(ellipses[fname], wx, wy)
+            own = ellipses[fname]
+            target, (wx, wy) = followers[i].step(own.cx, own.cy)
+            view = FormationView(own, wx, wy)
             stalls[i] = update_stall(stalls[i], view, dt)
             view = view._replace(
                 name=fname,
                 other_names=tuple(name for name in ellipses if name != fname),
                 retreating=stalls[i].retreat > 0.0,
             )
-            target = member_target(route, ri, goals[i], offsets[i])
             res = control_step(params, tuple(state[i]), target, nb, obs, others, view, solve, pair,
                                shapes)
             results.append(res)
