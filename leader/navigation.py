@@ -30,6 +30,8 @@ from geometry.route import Point, advance, formation_radius, member_target, plan
 from geometry.shapes import Shape, shape_distance
 from wire.payloads import GoalMsg, PlanMsg, StatusMsg
 
+SAME_GOAL = "the goal followed already"  # accept(): nothing changes, not counted as refused
+
 
 class Follower:
     """One member's walk along its formation's route (see the module docstring)."""
@@ -93,6 +95,13 @@ class Navigator:
         self.route = tuple(route) if route else (self.goal,)
         self.rejected = 0  # goals refused (inside an obstacle, stale, another formation's)
 
+    def same(self, msg: GoalMsg) -> bool:
+        """Whether ``msg`` asks for the goal followed now (a fleet manager may send it again)."""
+        return (math.isfinite(self.goal_stamp) and msg.formation == self.formation
+                and (msg.x, msg.y) == self.goal
+                and (msg.heading is None or msg.heading == self.heading)
+                and (not msg.waypoints or tuple(msg.waypoints) + (self.goal,) == self.route))
+
     def problem(self, msg: GoalMsg, shapes: Sequence[Shape]) -> str | None:
         """Why the leader refuses ``msg``, or None."""
         if msg.formation != self.formation:
@@ -113,6 +122,8 @@ class Navigator:
         """Take ``msg`` as the formation's goal, stamped ``stamp`` (its own stamp in real time,
         the tick's simulated time in lock-step); the route starts at ``centroid``. Returns why it
         was refused, or None when it was taken (then :meth:`plan` is the new plan)."""
+        if self.same(msg):
+            return SAME_GOAL
         why = self.problem(msg, shapes)
         if why is None and not stamp > self.goal_stamp:
             why = f"goal stamped {stamp} is not newer than the one followed"

@@ -8,7 +8,7 @@ import pytest
 
 from geometry.route import ROUTE_MARGIN
 from geometry.shapes import box, path_clearance
-from leader.navigation import Follower, Navigator
+from leader.navigation import SAME_GOAL, Follower, Navigator
 from wire.payloads import GoalMsg, PlanMsg
 
 REF = {"a1": (0.25, 0.0), "a2": (-0.25, 0.0)}
@@ -94,3 +94,13 @@ def test_status_says_moving_reached_stalled_or_stopped_with_the_distance_to_go()
     f.step(2.0, 2.0)
     f.step(4.0, 0.01)
     assert nav.status(f, (4.0, 0.01), False, False, 3.0).state == "reached"
+
+
+def test_the_same_goal_sent_again_changes_nothing_and_is_not_counted_as_refused():
+    nav = navigator()
+    assert nav.accept(GoalMsg("A", 4.0, 0.0, 0.3, (), 5.0), 5.0, (0.0, 0.0), [SHELF]) is None
+    route = nav.route
+    assert nav.accept(GoalMsg("A", 4.0, 0.0, None, (), 6.0), 6.0, (1.0, 1.0), [SHELF]) == SAME_GOAL
+    assert nav.accept(GoalMsg("A", 4.0, 0.0, 0.3, (), 7.0), 7.0, (1.0, 1.0), [SHELF]) == SAME_GOAL
+    assert nav.goal_stamp == 5.0 and nav.route == route and nav.rejected == 0
+    assert nav.accept(GoalMsg("A", 4.0, 0.0, 0.6, (), 8.0), 8.0, (1.0, 1.0), [SHELF]) is None
