@@ -71,6 +71,10 @@ class AgentConfig:
     frame_id: str = "base_link"  # real bases (Jazzy TwistStamped): header frame
     # the formation centroid's route (waypoints, the goal centroid last); () = the goal alone
     route: tuple[tuple[float, float], ...] = ()
+    # leader only: every member's goal as the scenario gives it (the goal shape at heading 0)
+    member_goals: tuple[tuple[str, float, float], ...] = ()
+    planner: bool = True  # the leader plans routes around walls and shelves for new goals
+    goal_tolerance: float = 0.05  # [m]
 
     @property
     def is_leader(self) -> bool:
@@ -125,6 +129,10 @@ def build_agent_configs(
                 base=base,
                 zenoh=zenoh,
                 route=route if len(route) > 1 else (),
+                member_goals=(tuple((m.id, *m.goal) for m in f.robots) if r.id == f.leader
+                              else ()),
+                planner=scenario.controller.planner != "none",
+                goal_tolerance=scenario.goal_tolerance,
             )
     return out
 
@@ -177,6 +185,9 @@ def config_from_dict(d: dict[str, Any]) -> AgentConfig:
             cmd_vel_key=str(d.pop("cmd_vel_key", "cmd_vel")),
             frame_id=str(d.pop("frame_id", "base_link")),
             route=tuple((float(x), float(y)) for x, y in d.pop("route", ())),
+            member_goals=tuple((str(m), float(x), float(y)) for m, x, y in d.pop("member_goals", ())),
+            planner=bool(d.pop("planner", True)),
+            goal_tolerance=float(d.pop("goal_tolerance", 0.05)),
         )
         d.pop("start", None)
     except KeyError as exc:

@@ -85,6 +85,7 @@ from agent.base import make_base
 from agent.config import AgentConfig
 from agent.control import FormationView, Stall, StepResult, control_step, update_stall
 from agent.faults import EPS, DelayLine, LinkFaults, lag
+from agent.navigation import STALLED_AFTER_S, NavPart
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, solve_exact
 from agent.unicycle import control_point
 from leader.role import LeaderRole, ellipse_to_msg, msg_to_ellipse
@@ -212,6 +213,7 @@ class AgentNode:
             if missing:
                 raise ValueError(f"leader: {cfg.robot_id} is not adjacent to member {missing[0]}")
         self.subscribed_keys = self._subscription_keys()
+        self.nav = NavPart(cfg, leader=self.role is not None)  # routes, goals, plan, status
         # counters
         self.ticks = 0
         self.overruns = 0
@@ -305,6 +307,7 @@ class AgentNode:
             pub_keys += [self.role.others_key] + ([] if self.all_to_all else [self.role.ellipse_key])
         for k in pub_keys:
             self._pubs[k] = CountingPublisher(s.declare_publisher(k), self.counter)
+        self.nav.open(s, self.counter)
         if self.cfg.base != "world":
             # A real robot base (TurtleBot3 behind zenoh-bridge-ros2dds): every command also goes
             # to its cmd_vel key as CDR; the cmd key stays for monitoring.
@@ -397,6 +400,7 @@ class AgentNode:
             self._put_cmd(Cmd(0.0, 0.0, 0.0, 0.0, self.last_stamp))
         except Exception:  # noqa: BLE001 - shutting down: log, keep closing
             logger.exception("%s: zero command on exit failed", self.cfg.robot_id)
+        self.nav.close(self.last_stamp)
         for sub in self._subs:
             try:
                 sub.undeclare()
@@ -669,9 +673,13 @@ class AgentNode:
               for k, df in self.neighbour_keys.items()]
         obstacles: Obstacles = obs_entry[0]
         obs = [Obstacle(o.x, o.y, o.vx, o.vy, o.ds) for o in obstacles.obstacles]
+        shapes = self.nav.update_shapes(obstacles.shapes)
         view = None
+        target = self.nav.follower.goal
         if others_msg.own is not None:
-            view = FormationView(msg_to_ellipse(others_msg.own), *cfg.formation_goal)
+            own = msg_to_ellipse(others_msg.own)
+            target, waypoint = self.nav.step(stamp, t is not None, own.cx, own.cy)
+            view = FormationView(own, *waypoint)
             self._stall = update_stall(self._stall, view, cfg.period)  # the jam rule's memory
             view = view._replace(
                 name=cfg.formation,
@@ -685,8 +693,11 @@ class AgentNode:
         else:
             ellipses = [msg_to_ellipse(m) for m in others_msg.ellipses]
             pair = []
-        res = control_step(cfg.control, (pose.x, pose.y, pose.theta), cfg.goal, nb, obs,
-                           ellipses, view, solve_exact, pair)
+        res = control_step(cfg.control, (pose.x, pose.y, pose.theta), target, nb, obs,
+                           ellipses, view, solve_exact, pair, shapes)
+        if self.role is not None:
+            stall = self._stall
+            self.nav.report(stamp, stall.still >= STALLED_AFTER_S or stall.retreat > 0.0, False)
         self._put_cmd(Cmd(res.v, res.omega, res.ux, res.uy, stamp))
         self.last_u = (res.ux, res.uy)
         self.solves += 1
@@ -761,6 +772,8 @@ class AgentNode:
         self.last_u = (0.0, 0.0)
         stamp = t if t is not None else self.last_stamp
         self._put_cmd(Cmd(0.0, 0.0, 0.0, 0.0, stamp))
+        if self.role is not None:
+            self.nav.report(stamp, False, True)
         logger.debug("%s: stale %s, zero command", self.cfg.robot_id, why)
         if self.options.trace:
             nan = math.nan
@@ -793,6 +806,7 @@ class AgentNode:
             "lockstep_timeouts": self.lockstep_timeouts,
             "stale_why": dict(self.stale_why),
             "inflated": self.inflated,
+            "nav": self.nav.stats(),
             "fault_dropped": dict(self.fault_dropped),
             "fault_delayed": self.fault_delayed,
             "solves": self.solves,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -170,3 +171,18 @@ def test_shape_distance_agrees_with_the_planner_and_monitor_sign_convention():
     shelf = box("s", (0.0, 0.0), (1.0, 1.0), 0.0, 0.1)
     assert shape_distance(0.0, 0.0, shelf)[0] == pytest.approx(-0.5)
     assert path_clearance((0.0, 0.0), (3.0, 0.0), shelf) == 0.0
+
+
+def test_multi_process_lock_step_walks_the_same_routes_as_the_in_process_simulation(tmp_path):
+    from formation.cli import main
+
+    path = ROOT / "tests" / "scenarios" / "nav-swap-aisles.yaml"
+    assert main(["sim", str(path), "--out", str(tmp_path / "sim"), "--quiet", "--no-plots"]) == 0
+    assert main(["run", str(path), "--out", str(tmp_path / "run"), "--quiet", "--no-plots"]) == 0
+    run = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert run["mode"] == "multiprocess" and run["all_reached"] and run["collisions"] == 0
+    assert min(run["min_clearance_shape_m"].values()) >= -0.005
+    assert run["formation_error_max_m"] <= 1.5 * 0.04
+    assert run["agents"]["stale"] == 0
+    assert run["comm"]["classes"]["status"]["put"]["messages"] > 0  # the leaders report
+    assert (tmp_path / "run" / "robots.csv").read_text() == (tmp_path / "sim" / "robots.csv").read_text()
