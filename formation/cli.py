@@ -65,6 +65,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="user/password authentication and the fleet's access control list")
     p.add_argument("--no-safety", action="store_true")
     p.add_argument("--port", type=int, default=0, help="router TCP port on 127.0.0.1 (0: free)")
+    p.add_argument("--hold", action="store_true",
+                   help="keep the fleet up after every goal (until --duration or Ctrl-C); send goals "
+                        "with 'formation goal'")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="simulated seconds to run (default: the scenario's duration)")
+
+    from . import navcmd
+
+    navcmd.add_parsers(sub)
 
     p = sub.add_parser("commcost", help="communication cost of both topologies")
     p.add_argument("--formations", default="2,4,8")
@@ -96,7 +105,7 @@ def cmd_check(ns: argparse.Namespace) -> int:
     s = load_scenario(ns.scenario)
     n = len(s.robot_ids)
     print(f"{ns.scenario}: ok ({s.name}: {len(s.formations)} formations, {n} robots, "
-          f"{len(s.obstacles)} obstacles, {s.robot.model})")
+          f"{len(s.obstacles)} obstacles, {len(s.shapes)} walls and shelves, {s.robot.model})")
     return EXIT_OK
 
 
@@ -137,6 +146,8 @@ COMMANDS = {
     "montecarlo": _lazy("simulator.montecarlo", "montecarlo_command"),
     "bench": _lazy("formation.bench", "bench_command"),
     "deploy": _lazy("deploy.cli", "deploy_command"),
+    "goal": _lazy("formation.navcmd", "goal_command"),
+    "status": _lazy("formation.navcmd", "status_command"),
 }
 
 

@@ -30,6 +30,7 @@ timeout and is then not waited for until it speaks again. ``summary.json`` gains
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import math
@@ -38,6 +39,7 @@ import signal
 import statistics
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -51,6 +53,7 @@ from agent.config import ZenohSettings, build_agent_configs, save_config
 from agent.faults import LinkFaults
 from scenario import Scenario, load_scenario
 from wire import acl, keys, traffic
+from wire.payloads import DecodeError, decode_status
 from wire.testing import free_tcp_port, tcp_endpoint, wait_for_tcp_port
 from wire.zconf import UsrPwdAuth
 from wire.zconf import ZenohSettings as WireZenohSettings
@@ -262,6 +265,17 @@ def run_command(ns: argparse.Namespace) -> int:
     if slots > 1 and not (ns.realtime and ns.camera == "truth"):
         raise UsageError("--pose-slots: more than one slot needs --realtime and --camera truth")
     scenario = load_scenario(ns.scenario)  # ScenarioError -> exit 2
+    duration = getattr(ns, "duration", None)
+    if duration is not None:
+        if not (math.isfinite(duration) and duration >= scenario.dt):
+            raise UsageError(f"--duration: need at least one period ({scenario.dt} s), got {duration}")
+        scenario = dataclasses.replace(scenario, duration=duration)
+    hold = getattr(ns, "hold", False)
+
+    def announce(endpoint: str) -> None:
+        if hold:
+            print(f"fleet up, goals to: formation goal FID X Y --connect {endpoint}", flush=True)
+
     try:
         faults.check_robots(scenario.robot_ids)
     except ValueError as exc:
@@ -271,7 +285,7 @@ def run_command(ns: argparse.Namespace) -> int:
                              topology=ns.topology, safety=not ns.no_safety, port=ns.port,
                              progress_factory=lambda: Progress(f"run {scenario.name}", quiet=ns.quiet),
                              faults=faults, secure=getattr(ns, "secure", False),
-                             pose_slots=slots)
+                             pose_slots=slots, hold=hold, announce=announce)
     write_run(summary, series, scenario, out, plots=not ns.no_plots)
     print_summary(summary, out)
     return EXIT_OK
@@ -290,13 +304,18 @@ def launch(
     faults: FaultPlan | None = None,
     secure: bool = False,
     pose_slots: int = 1,
+    hold: bool = False,
+    announce=None,
 ) -> tuple[dict, Series]:
     """Run ``scenario`` as separate processes; returns the summary and the time series.
 
     ``faults`` injects the faults of :class:`FaultPlan`; ``secure`` runs the router with
     user/password authentication and the access control list of :mod:`wire.acl`, every process
     logging in as itself. ``pose_slots`` is the world's (:class:`simulator.world.WorldOptions`:
-    real time only)."""
+    real time only). ``hold`` keeps the fleet up after every goal is reached, until the
+    scenario's duration or SIGINT/SIGTERM (which then end the run normally, with its summary);
+    ``announce(endpoint)`` is called once every agent is up (the endpoint is also written to
+    ``out/endpoint``). The summary's ``formations_status`` holds each leader's last status."""
     faults = faults or FaultPlan()
     faults.check_robots(scenario.robot_ids)
     out = Path(out)
@@ -308,7 +327,13 @@ def launch(
     endpoint = tcp_endpoint(port)
     sup = Supervisor(out / "logs")
     fault_run = faults.active
-    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    stop_requested = threading.Event()
+
+    def _request_stop(signum: int, _frame: FrameType | None) -> None:
+        stop_requested.set()
+
+    previous = signal.signal(signal.SIGTERM, _request_stop if hold else _raise_interrupt)
+    previous_int = signal.signal(signal.SIGINT, _request_stop) if hold else None
     try:
         creds = _secure_setup(scenario, out / "secure", endpoint) if secure else None
         router_argv = ["-m", "wire.router", "--listen", endpoint, "--log-level", "WARNING"]
@@ -356,25 +381,33 @@ def launch(
             cmd_timeout=FAULT_WORLD_TIMEOUT_S if fault_run else WorldOptions.cmd_timeout,
             camera_dropouts=tuple((c.robot, c.at, c.at + c.duration)
                                   for c in faults.camera_dropouts),
-            pose_slots=pose_slots)
+            pose_slots=pose_slots, stop_at_goal=not hold)
         with zenoh.open(conf) as session:
             world = World(scenario, session, options)
+            statuses = StatusBoard(session, keys.DEFAULT_PREFIX)
             driver = _FaultDriver(faults, sup, world, agents, agent_argv, scenario.dt, realtime)
             try:
                 world.wait_for_agents(abort=sup.check)
+                (out / "endpoint").write_text(endpoint + "\n", encoding="utf-8")
+                if announce is not None:
+                    announce(endpoint)
+                tick = driver.on_tick if fault_run else None
                 if progress_factory is not None:
                     with progress_factory() as progress:
                         result = world.run(progress=progress.update, abort=sup.check,
-                                           on_tick=driver.on_tick if fault_run else None)
+                                           on_tick=tick, stop=stop_requested.is_set)
                 else:
-                    result = world.run(abort=sup.check, on_tick=driver.on_tick if fault_run else None)
+                    result = world.run(abort=sup.check, on_tick=tick, stop=stop_requested.is_set)
             finally:
                 world.close()
+                statuses.close()
         sup.stop(list(agents.values()))  # agents write their stats on SIGTERM
         sup.stop([router])
     finally:
         sup.stop()
         signal.signal(signal.SIGTERM, previous)
+        if previous_int is not None:
+            signal.signal(signal.SIGINT, previous_int)
     stats = [_read_stats(out / "agents" / f"{rid}.json") if rid in agents
              else _dead_stats(cfg) for rid, cfg in configs.items()]
     summary, series = build_summary(scenario, result, stats, topology, realtime, camera, safety)
@@ -384,7 +417,42 @@ def launch(
         summary["secure"] = {"auth": "usrpwd", "acl": str(creds.router_config)}
     if pose_slots > 1:
         summary["pose_slots"] = pose_slots  # the world spread each period's poses over this many
+    if hold:
+        summary["hold"] = True
+    board = statuses.latest()
+    if board:
+        summary["formations_status"] = board
     return summary, series
+
+
+class StatusBoard:
+    """The newest ``status`` of every formation's leader, heard on the launcher's session."""
+
+    def __init__(self, session: zenoh.Session, prefix: str) -> None:
+        self._lock = threading.Lock()
+        self._latest: dict[str, dict] = {}
+        self._sub = session.declare_subscriber(f"{prefix}/formation/*/status", self._on_status)
+
+    def _on_status(self, sample: zenoh.Sample) -> None:
+        try:
+            s = decode_status(sample.payload.to_bytes())
+        except DecodeError:
+            return
+        with self._lock:
+            self._latest[s.formation] = {
+                "state": s.state, "goal": [s.gx, s.gy], "heading": s.heading,
+                "distance_m": s.distance, "waypoint": s.waypoint, "waypoints": s.waypoints,
+                "leader": s.leader, "stamp": s.stamp}
+
+    def latest(self) -> dict[str, dict]:
+        with self._lock:
+            return {k: dict(v) for k, v in sorted(self._latest.items())}
+
+    def close(self) -> None:
+        try:
+            self._sub.undeclare()
+        except Exception:  # noqa: BLE001 - the session may be closing
+            logger.debug("status board undeclare failed", exc_info=True)
 
 
 @dataclass(frozen=True)

@@ -289,9 +289,11 @@ class World:
         progress: Callable[[int, int, float], None] | None = None,
         abort: Callable[[], None] = lambda: None,
         on_tick: Callable[[int, float], None] | None = None,
+        stop: Callable[[], bool] = lambda: False,
     ) -> WorldResult:
         """Run the scenario; ``abort()`` is called while waiting and may raise to stop;
-        ``on_tick(k, t)`` before the poses of tick ``k`` (simulated time ``t``) are published."""
+        ``on_tick(k, t)`` before the poses of tick ``k`` (simulated time ``t``) are published;
+        ``stop()`` True ends the run after the tick in progress (``formation run --hold``)."""
         sc = self.scenario
         opts = self.options
         abort = _at_most_every(ABORT_EVERY_S, abort)
@@ -325,7 +327,7 @@ class World:
                                [o.position(t_now) for o in sc.obstacles])
             if progress is not None:
                 progress(k + 1, sc.steps, t_now)
-            return opts.stop_at_goal and monitor.all_reached
+            return (opts.stop_at_goal and monitor.all_reached) or stop()
 
         for k in range(sc.steps):
             t = k * dt
