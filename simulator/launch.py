@@ -67,7 +67,9 @@ logger = logging.getLogger(__name__)
 REPO_ROOT = Path(__file__).resolve().parent.parent
 STOP_TIMEOUT_S = 5.0  # [s] SIGTERM -> SIGKILL
 START_TIMEOUT_S = 60.0  # [s] router listening, agents subscribed
-INTER_ROBOT = (keys.STATE, keys.ELLIPSE, keys.OTHERS)  # classes the topology decides
+# control traffic between robots: the classes the topology decides, and the leader's plans to
+# its members (sent only when a goal arrives at run time, and then once a second)
+INTER_ROBOT = (keys.STATE, keys.ELLIPSE, keys.OTHERS, keys.PLAN)
 FAULT_AGENT_TIMEOUT_S = 0.3  # [s] lock-step wait per input of an agent in a fault run
 FAULT_WORLD_TIMEOUT_S = 1.5  # [s] lock-step wait for a tick's commands in a fault run
 
@@ -543,7 +545,7 @@ def fault_summary(plan: FaultPlan, result: WorldResult, stats: list[dict], log: 
         "drop": plan.drop,
         "delay_ms": plan.delay_ms,
         "seed": plan.seed,
-        "applies_to": list(INTER_ROBOT),
+        "applies_to": [keys.STATE, keys.ELLIPSE, keys.OTHERS],  # what agent.faults affects
         "dropped_messages": sum(dropped.values()),
         "dropped": dropped,
         "delayed_messages": sum(s.get("fault_delayed", 0) for s in stats),
@@ -646,7 +648,8 @@ def comm_summary(snap: dict, topology: str, n: int, sim_time: float) -> dict:
     """``comm`` of the contract, from traffic counted at publishers and subscribers.
 
     ``messages``/``bytes`` are the deliveries received by agents on the classes the topology
-    decides (``state``, ``ellipse``, ``others``), comparable to the in-process model; ``classes``
+    decides (``state``, ``ellipse``, ``others``) and the leaders' ``plan`` (none unless goals
+    arrive at run time), comparable to the in-process model; ``classes``
     breaks every class down into what was put and what was received.
     """
     recv = snap["recv"]
