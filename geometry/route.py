@@ -28,7 +28,7 @@ import heapq
 import math
 from collections.abc import Sequence
 
-from .shapes import Shape, path_clearance, segment_distance, shape_distance
+from .shapes import Shape, path_clearance, shape_distance
 
 Point = tuple[float, float]
 
@@ -51,7 +51,7 @@ def plan_route(start: Point, goal: Point, shapes: Sequence[Shape], radius: float
     if not shapes:
         return (goal,)
     need = [sh.ds + radius + margin for sh in shapes]
-    reach = [math.hypot(sh.hx, sh.hy) for sh in shapes]  # circumradius, for a quick reject
+    frames = [(math.cos(sh.yaw), math.sin(sh.yaw)) for sh in shapes]
 
     def gap(p: Point, j: int) -> float:
         return max(0.0, shape_distance(p[0], p[1], shapes[j])[0])
@@ -74,8 +74,8 @@ def plan_route(start: Point, goal: Point, shapes: Sequence[Shape], radius: float
                 want = min(want, end_gap[a][j])
             if b < 2:
                 want = min(want, end_gap[b][j])
-            # quick accept: the leg passes the shape's circumcircle with room to spare
-            if segment_distance(sh.cx, sh.cy, *pa, *pb)[0] - reach[j] >= want:
+            # quick accept: the leg misses the shape's rectangle grown by the clearance wanted
+            if not _hits_grown_box(pa, pb, sh, frames[j], want):
                 continue
             if path_clearance(pa, pb, sh) < want - 1e-9:
                 return False
@@ -106,6 +106,31 @@ def plan_route(start: Point, goal: Point, shapes: Sequence[Shape], radius: float
             parent[b] = a
             heapq.heappush(heap, (ng + math.dist(nodes[b], goal), ng, b))
     return (goal,)
+
+
+def _hits_grown_box(p0: Point, p1: Point, sh: Shape, frame: tuple[float, float], grow: float) -> bool:
+    """Whether the leg p0-p1 meets the shape's rectangle grown by ``grow`` on every side
+    (Liang-Barsky clipping in the shape's frame). False means the leg keeps at least ``grow``
+    from the shape; True says nothing (the grown rectangle's corners are square)."""
+    c, s = frame
+    x0, y0 = p0[0] - sh.cx, p0[1] - sh.cy
+    x1, y1 = p1[0] - sh.cx, p1[1] - sh.cy
+    u0, v0 = c * x0 + s * y0, -s * x0 + c * y0
+    du, dv = c * (x1 - x0) + s * (y1 - y0), -s * (x1 - x0) + c * (y1 - y0)
+    hu, hv = sh.hx + grow, sh.hy + grow
+    lo, hi = 0.0, 1.0
+    for d, q0, h in ((du, u0, hu), (dv, v0, hv)):
+        if d == 0.0:
+            if abs(q0) > h:
+                return False
+            continue
+        t0, t1 = (-h - q0) / d, (h - q0) / d
+        if t0 > t1:
+            t0, t1 = t1, t0
+        lo, hi = max(lo, t0), min(hi, t1)
+        if lo > hi:
+            return False
+    return True
 
 
 def advance(route: Sequence[Point], index: int, cx: float, cy: float,
