@@ -46,6 +46,18 @@ logger = logging.getLogger(__name__)
 STATUS_PERIOD_S = 1.0  # [s] status publication period (stamp time: simulated in lock-step)
 REPUBLISH_S = 1.0  # [s] the leader puts its plan again this often
 STALLED_AFTER_S = 2.0  # [s] still this long away from the goal (the jam rule's clock): stalled
+GOAL_FUTURE_S = 1.0  # [s] real time: a goal stamped further ahead of the leader's clock is refused
+GOAL_MAX_AGE_S = 5.0  # [s] real time: an older goal is refused (the goal command re-sends each second)
+
+
+def stamp_problem(goal_stamp: float, now: float) -> str | None:
+    """Real time: why a goal's stamp is refused against the leader's clock ``now``, or None
+    (too far in the future, then too old; "older than the goal followed" is the Navigator's)."""
+    if goal_stamp > now + GOAL_FUTURE_S:
+        return f"goal stamped {goal_stamp - now:.3f} s in the future"
+    if goal_stamp < now - GOAL_MAX_AGE_S:
+        return f"goal stamped {now - goal_stamp:.3f} s ago (more than {GOAL_MAX_AGE_S} s)"
+    return None
 
 
 class NavPart:
@@ -167,7 +179,11 @@ class NavPart:
             plan, self._plan = self._plan, None
         nav = self.navigator
         if nav is not None and goal is not None:
-            why = nav.accept(goal, stamp if lockstep else goal.stamp, (cx, cy), self.shapes)
+            why = None if lockstep else stamp_problem(goal.stamp, stamp)
+            if why is not None:
+                nav.rejected += 1
+            else:
+                why = nav.accept(goal, stamp if lockstep else goal.stamp, (cx, cy), self.shapes)
             if why is None:
                 self.goals += 1
                 new = nav.plan(stamp)

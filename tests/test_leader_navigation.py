@@ -104,3 +104,12 @@ def test_the_same_goal_sent_again_changes_nothing_and_is_not_counted_as_refused(
     assert nav.accept(GoalMsg("A", 4.0, 0.0, 0.3, (), 7.0), 7.0, (1.0, 1.0), [SHELF]) == SAME_GOAL
     assert nav.goal_stamp == 5.0 and nav.route == route and nav.rejected == 0
     assert nav.accept(GoalMsg("A", 4.0, 0.0, 0.6, (), 8.0), 8.0, (1.0, 1.0), [SHELF]) is None
+
+
+def test_real_time_goal_stamps_far_ahead_or_stale_are_refused():
+    from agent.navigation import GOAL_FUTURE_S, GOAL_MAX_AGE_S, stamp_problem
+
+    assert stamp_problem(100.0, 100.0) is None
+    assert stamp_problem(100.0 + GOAL_FUTURE_S * 0.5, 100.0) is None
+    assert "in the future" in stamp_problem(100.0 + GOAL_FUTURE_S + 0.1, 100.0)
+    assert "ago" in stamp_problem(100.0 - GOAL_MAX_AGE_S - 0.1, 100.0)
