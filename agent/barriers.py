@@ -13,6 +13,8 @@ import functools
 import math
 from typing import NamedTuple
 
+from geometry.circle import circle_h
+from geometry.ellipse import ellipse_terms
 from geometry.shapes import Shape, shape_distance
 
 from .qp import Row, normalized_row
@@ -61,13 +63,13 @@ def formation_rows(px: float, py: float, n: Neighbour, eps: float, gamma: float)
 
 def obstacle_h(px: float, py: float, o: Obstacle) -> float:
     """h_obs of eq. 4.5."""
-    return (px - o.x) ** 2 + (py - o.y) ** 2 - o.ds * o.ds
+    return circle_h(px, py, o.x, o.y, o.ds)
 
 
 def obstacle_row(px: float, py: float, o: Obstacle, gamma: float) -> tuple[float, Row]:
     """Appendix A.1 (4): -2 (p - p_obs) . u <= gamma h - 2 (p - p_obs) . p_obs'."""
     dx, dy = px - o.x, py - o.y
-    h = dx * dx + dy * dy - o.ds * o.ds
+    h = circle_h(px, py, o.x, o.y, o.ds)
     return h, normalized_row(-2.0 * dx, -2.0 * dy, gamma * h - 2.0 * (dx * o.vx + dy * o.vy))
 
 
@@ -83,23 +85,6 @@ def shape_row(px: float, py: float, sh: Shape, gamma: float, grow: float = 0.0) 
 # ------------------------------------------------------------ other formations, eq. 4.6
 
 
-def ellipse_terms(px: float, py: float, cx: float, cy: float, alpha: float, a: float, b: float):
-    """h of eq. 4.6 with its partial derivatives: (h, dh/dpx, dh/dpy, dh/dalpha).
-
-    In the ellipse frame u = R(alpha)^T (p - c): h = u1^2/a^2 + u2^2/b^2 - 1, which expands to
-    eq. 4.6; dh/dp matches appendix A.3 (14, 15), dh/dc = -dh/dp (16, 17) and dh/dalpha =
-    2 u1 u2 (1/a^2 - 1/b^2) is (18) rewritten.
-    """
-    c, s = math.cos(alpha), math.sin(alpha)
-    dx, dy = px - cx, py - cy
-    u1 = c * dx + s * dy
-    u2 = -s * dx + c * dy
-    ia2, ib2 = 1.0 / (a * a), 1.0 / (b * b)
-    h = u1 * u1 * ia2 + u2 * u2 * ib2 - 1.0
-    g1, g2 = 2.0 * u1 * ia2, 2.0 * u2 * ib2
-    return h, g1 * c - g2 * s, g1 * s + g2 * c, 2.0 * u1 * u2 * (ia2 - ib2)
-
-
 def ellipse_class_k(h: float, gamma: float) -> float:
     """Extended class-K function for the ellipse barrier: gamma h (1 + max(h, 0)).
 
@@ -112,7 +97,7 @@ def ellipse_class_k(h: float, gamma: float) -> float:
 
 def ellipse_row(px: float, py: float, e, gamma: float) -> tuple[float, Row]:
     """Appendix A.3 (19): -dh/dp . u <= alpha(h) + dh/dc . c' + dh/dalpha . alpha', with
-    alpha = :func:`ellipse_class_k`. ``e`` is a :class:`leader.ellipse.Ellipse`."""
+    alpha = :func:`ellipse_class_k`. ``e`` is a :class:`geometry.ellipse.Ellipse`."""
     h, gx, gy, ga = ellipse_terms(px, py, e.cx, e.cy, e.alpha, e.a, e.b)
     b = ellipse_class_k(h, gamma) - (gx * e.vx + gy * e.vy) + ga * e.alpha_rate
     return h, normalized_row(-gx, -gy, b)

@@ -34,10 +34,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE
+
 logger = logging.getLogger(__name__)
 
-BURGER_MAX_SPEED = 0.22  # [m/s] TurtleBot3 burger
-BURGER_MAX_TURN_RATE = 2.84  # [rad/s] TurtleBot3 burger
 CDR_LE_HEADER = b"\x00\x01\x00\x00"  # encapsulation: CDR little endian, options 0
 DEFAULT_FRAME_ID = "base_link"
 DEFAULT_CMD_VEL_KEY = "cmd_vel"

@@ -16,12 +16,15 @@ from typing import Any
 
 import yaml
 
-from leader.ellipse import reference_shape
+from geometry.ellipse import reference_shape
+from geometry.limits import BURGER_RADIUS
+from geometry.unicycle import control_point
+from leader.settings import LeaderSettings  # noqa: F401  (re-exported)
 from scenario import Scenario, formation_axes
 from scenario.routes import initial_route
+from wire.zconf import ZenohSettings
 
 from .control import ControlParams
-from .unicycle import control_point
 
 CONFIG_VERSION = 1
 TOPOLOGIES = ("reduced", "all-to-all")
@@ -29,23 +32,15 @@ BASES = ("world", "turtlebot3-humble", "turtlebot3-jazzy")
 STALE_PERIODS = 5  # inputs older than this many control periods are stale
 
 
-@dataclass(frozen=True)
-class ZenohSettings:
-    mode: str = "client"  # peer | client
-    connect: tuple[str, ...] = ()  # e.g. ("tcp/127.0.0.1:7447",)
-    listen: tuple[str, ...] = ()
-    multicast_scouting: bool = False
+# What an agent configuration file holds of its Zenoh settings; the agent's session adds its
+# connect timeout and credentials (command-line options) when it opens.
+AGENT_ZENOH_FIELDS = ("mode", "connect", "listen", "multicast_scouting")
+AGENT_ZENOH_MODE = "client"  # an agent's mode where its file names none
 
 
-@dataclass(frozen=True)
-class LeaderSettings:
-    """What the leader role needs to estimate and exchange its formation's ellipse."""
-
-    members: tuple[str, ...]  # every member, leader included, in reference order
-    offsets: tuple[tuple[float, float], ...]  # reference offsets of the members' control points
-    alpha0: float  # [rad] principal-axis angle of the reference shape
-    axes: tuple[float, float]  # semi-axes (a, b) [m]
-    other_formations: tuple[str, ...]  # formations whose ellipses this leader subscribes to
+def agent_zenoh(**fields: Any) -> ZenohSettings:
+    """The :class:`wire.zconf.ZenohSettings` of an agent: ``mode`` defaults to client."""
+    return ZenohSettings(**{"mode": AGENT_ZENOH_MODE, **fields})
 
 
 @dataclass(frozen=True)
@@ -58,7 +53,7 @@ class AgentConfig:
     neighbours: tuple[tuple[str, float], ...]  # (robot id, Df [m])
     control: ControlParams
     period: float  # [s] control period (the scenario's dt)
-    radius: float = 0.105  # [m]
+    radius: float = BURGER_RADIUS  # [m]
     start: tuple[float, float, float] | None = None  # initial pose, for simulation only
     prefix: str = "warehouse"
     topology: str = "reduced"
@@ -66,7 +61,7 @@ class AgentConfig:
     leader: LeaderSettings | None = None  # set on the leader robot only
     stale_after: float = 0.25  # [s] inputs older than this are stale: command zero
     base: str = "world"  # where commands go: the simulated world or a real robot base
-    zenoh: ZenohSettings = field(default_factory=ZenohSettings)
+    zenoh: ZenohSettings = field(default_factory=agent_zenoh)
     cmd_vel_key: str = "cmd_vel"  # real bases: the zenoh-bridge-ros2dds key for /cmd_vel
     frame_id: str = "base_link"  # real bases (Jazzy TwistStamped): header frame
     # the formation centroid's route (waypoints, the goal centroid last); () = the goal alone
@@ -94,7 +89,7 @@ def build_agent_configs(
         raise ValueError(f"topology: {topology!r} is not one of {TOPOLOGIES}")
     if base not in BASES:
         raise ValueError(f"base: {base!r} is not one of {BASES}")
-    zenoh = zenoh or ZenohSettings()
+    zenoh = zenoh or agent_zenoh()
     params = ControlParams.from_scenario(scenario, safety=safety)
     off = scenario.robot.control_offset
     out: dict[str, AgentConfig] = {}
@@ -138,7 +133,12 @@ def build_agent_configs(
 
 
 def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
+    extra = [f.name for f in dataclasses.fields(cfg.zenoh)
+             if f.name not in AGENT_ZENOH_FIELDS and getattr(cfg.zenoh, f.name) is not None]
+    if extra:
+        raise ValueError(f"zenoh.{extra[0]}: not part of an agent configuration file")
     d = _plain(dataclasses.asdict(cfg))
+    d["zenoh"] = {k: d["zenoh"][k] for k in AGENT_ZENOH_FIELDS}
     d["version"] = CONFIG_VERSION
     return d
 
@@ -153,28 +153,31 @@ def config_from_dict(d: dict[str, Any]) -> AgentConfig:
         raise ValueError(f"version: expected {CONFIG_VERSION}, got {version!r}")
     try:
         control = ControlParams(**d.pop("control"))
-        zenoh = ZenohSettings(**{k: tuple(v) if isinstance(v, list) else v
-                                 for k, v in d.pop("zenoh", {}).items()})
+        zd = dict(d.pop("zenoh", {}))
+        unknown = sorted(set(zd) - set(AGENT_ZENOH_FIELDS))
+        if unknown:
+            raise TypeError(f"zenoh: unexpected field {unknown[0]!r}")
+        zenoh = agent_zenoh(**{k: tuple(v) if isinstance(v, list) else v for k, v in zd.items()})
         leader = d.pop("leader", None)
         if leader is not None:
             leader = LeaderSettings(
                 members=tuple(leader["members"]),
-                offsets=tuple(tuple(map(float, o)) for o in leader["offsets"]),
+                offsets=tuple(tuple(map(float, o)) for o in leader["offsets"]),  # type: ignore[misc]
                 alpha0=float(leader["alpha0"]),
-                axes=tuple(map(float, leader["axes"])),
+                axes=tuple(map(float, leader["axes"])),  # type: ignore[arg-type]
                 other_formations=tuple(leader["other_formations"]),
             )
         cfg = AgentConfig(
             robot_id=str(d.pop("robot_id")),
             formation=str(d.pop("formation")),
             leader_id=str(d.pop("leader_id")),
-            goal=tuple(map(float, d.pop("goal"))),
-            formation_goal=tuple(map(float, d.pop("formation_goal"))),
+            goal=tuple(map(float, d.pop("goal"))),  # type: ignore[arg-type]
+            formation_goal=tuple(map(float, d.pop("formation_goal"))),  # type: ignore[arg-type]
             neighbours=tuple((str(n), float(df)) for n, df in d.pop("neighbours")),
             control=control,
             period=float(d.pop("period")),
-            radius=float(d.pop("radius", 0.105)),
-            start=None if d.get("start") is None else tuple(map(float, d.pop("start"))),
+            radius=float(d.pop("radius", BURGER_RADIUS)),
+            start=None if d.get("start") is None else tuple(map(float, d.pop("start"))),  # type: ignore[arg-type]
             prefix=str(d.pop("prefix", "warehouse")),
             topology=str(d.pop("topology", "reduced")),
             foreign_robots=tuple(d.pop("foreign_robots", ())),

@@ -36,13 +36,13 @@ keeps going.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from time import perf_counter_ns
 from typing import NamedTuple
 
+from geometry.ellipse import Ellipse
+from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE
 from geometry.shapes import Shape
-from leader.ellipse import Ellipse
 
 from . import barriers, unicycle
 from .barriers import Neighbour, Obstacle
@@ -67,10 +67,10 @@ class ControlParams:
     gamma_obstacle: float = 1.0
     gamma_formations: float = 1.0
     epsilon: float = 0.05  # [m]
-    max_speed: float = 0.22  # [m/s]
+    max_speed: float = BURGER_MAX_SPEED  # [m/s]
     unicycle: bool = False
     lookahead: float = 0.05  # [m]
-    max_turn_rate: float = 2.84  # [rad/s]
+    max_turn_rate: float = BURGER_MAX_TURN_RATE  # [rad/s]
     tiebreak: bool = True
     safety: bool = True  # False: the nominal command, no barriers (to show what happens)
     d_af: float = 0.5  # [m] pairwise distance for the all-to-all baseline (eq. 3.5)
@@ -337,6 +337,7 @@ def control_step(
     solve=solve_exact,
     pairwise: Sequence[Neighbour] = (),
     shapes: Sequence[Shape] = (),
+    clock: Callable[[], int] | None = None,
 ) -> StepResult:
     """One tick for one robot.
 
@@ -345,6 +346,8 @@ def control_step(
     for unicycles); ``others`` are the other formations' ellipses; ``pairwise`` are robots of
     other formations in the all-to-all baseline (eq. 3.5 rows instead of ellipses);
     ``shapes`` are the static walls and shelves (Ds from the shape, offset added likewise).
+    ``clock`` (e.g. ``time.perf_counter_ns``) times the QP for ``solve_us``; without one the step
+    reads no clock and ``solve_us`` is 0.
     """
     x, y, theta = pose
     p = params
@@ -365,13 +368,13 @@ def control_step(
                       shapes)
     limits, hard, soft = rows.limits, rows.hard, rows.soft
 
-    t0 = perf_counter_ns()
+    t0 = clock() if clock is not None else 0
     if p.safety:
         res = solve_cbf_qp(ux, uy, limits, hard, soft, solve)
     else:
         u = solve_exact(ux, uy, limits) or (0.0, 0.0)
         res = QPResult(u[0], u[1], STATUS_NOMINAL, 0.0, True)
-    solve_us = (perf_counter_ns() - t0) * 1e-3
+    solve_us = (clock() - t0) * 1e-3 if clock is not None else 0.0
 
     if p.unicycle:
         v, w = unicycle.to_unicycle(res.ux, res.uy, theta, p.lookahead)

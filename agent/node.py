@@ -76,20 +76,22 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeGuard
 
 import zenoh
 
-from agent.barriers import Neighbour, Obstacle
-from agent.base import make_base
+from agent.barriers import Obstacle
+from agent.base import Base, make_base
 from agent.config import AgentConfig
-from agent.control import FormationView, Stall, StepResult, control_step, update_stall
+from agent.control import Stall, StepResult, control_step
 from agent.faults import EPS, DelayLine, LinkFaults, lag
+from agent.inputs import step_inputs
 from agent.navigation import STALLED_AFTER_S, NavPart
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, solve_exact
 from agent.unicycle import control_point
 from leader.role import LeaderRole, ellipse_to_msg, msg_to_ellipse
 from wire import keys
+from wire.diag import DiagPublisher
 from wire.payloads import (
     Cmd,
     EllipseMsg,
@@ -248,7 +250,8 @@ class AgentNode:
         self._subs: list[Any] = []
         self._rings: list[tuple[Any, Callable[[zenoh.Sample], None]]] = []  # polled subscribers
         self._pubs: dict[str, CountingPublisher] = {}
-        self._base = None  # a real robot base adapter (agent.base), when cfg.base is not "world"
+        self._diag: DiagPublisher | None = None
+        self._base: Base | None = None  # a real robot base adapter (agent.base), when cfg.base is not "world"
         self._stall = Stall()  # this member's copy of its formation's jam state
         self._boxes: dict[str, Mailbox] = {}
         self._arrived: asyncio.Event | None = None
@@ -307,6 +310,8 @@ class AgentNode:
             pub_keys += [self.role.others_key] + ([] if self.all_to_all else [self.role.ellipse_key])
         for k in pub_keys:
             self._pubs[k] = CountingPublisher(s.declare_publisher(k), self.counter)
+        self._diag = DiagPublisher(s, self.cfg.prefix, self.cfg.robot_id, self.cfg.formation,
+                                   self.cfg.goal)
         self.nav.open(s, self.counter)
         if self.cfg.base != "world":
             # A real robot base (TurtleBot3 behind zenoh-bridge-ros2dds): every command also goes
@@ -336,6 +341,7 @@ class AgentNode:
             return on_sample
 
         wildcard_cap = RING_CAPACITY * max(1, len(self.foreign_keys) + len(self.neighbour_keys))
+        sub: Any
         for k, cls in self.subscribed_keys.items():
             if polled and cls != keys.POSE:
                 cap = wildcard_cap if (self.all_to_all and cls == keys.STATE) else RING_CAPACITY
@@ -429,8 +435,9 @@ class AgentNode:
         """Open, tick until ``stop`` is set, close."""
         self._stop = stop
         loop = asyncio.get_running_loop()
-        await loop.run_in_executor(None, self.open, loop)
         try:
+            # inside the try: a session opened by an open() that fails half-way is closed too
+            await loop.run_in_executor(None, self.open, loop)
             if self.options.lockstep:
                 await self._lockstep_loop()
             elif self.options.tick_on_pose:
@@ -582,7 +589,7 @@ class AgentNode:
         box = self._boxes.get(cls)
         return None if box is None else box.latest(key)
 
-    def _fresh(self, entry: tuple[Any, float] | None, t: float | None) -> bool:
+    def _fresh(self, entry: tuple[Any, float] | None, t: float | None) -> TypeGuard[tuple[Any, float]]:
         """Whether a (message, receive time) entry is fresh for the tick at pose stamp ``t``."""
         if entry is None:
             return False
@@ -609,7 +616,10 @@ class AgentNode:
         self.ticks += 1
         self._tick_point = None
         try:
-            return await self._tick(t)
+            res = await self._tick(t)
+            if self._diag is not None:  # viewers' diagnostics: a few a second, not counted
+                self._diag.tick(self, res)
+            return res
         finally:
             if t is None and self._tick_point is not None:
                 px, py, stamp = self._tick_point
@@ -628,7 +638,8 @@ class AgentNode:
             self._put_cmd(Cmd(0.0, 0.0, 0.0, 0.0, self.last_stamp if t is None else t))
             return None
         if not self._fresh(pose_entry, t) or (t is not None and pose_entry[0].stamp < t - EPS):
-            return self._zero(t, "pose")  # lock-step: no pose in this frame (camera dropout)
+            self._zero(t, "pose")  # lock-step: no pose in this frame (camera dropout)
+            return None
         pose: Pose = pose_entry[0]
         if t is None:
             self.pose_age_us.append((time.monotonic() - pose_entry[1]) * 1e6)
@@ -649,57 +660,62 @@ class AgentNode:
         if t is not None:
             await self._wait_current(self._tick_inputs(state_keys), stamp)
 
-        # freshness of every input
-        states: dict[str, State] = {}
-        for k in state_keys:
-            entry = self._latest(keys.STATE, k)
-            if not self._fresh(entry, ts):
-                return self._zero(t, "state")
-            states[k] = entry[0]
-        obs_entry = self._latest(keys.OBSTACLES, self.obstacles_key)
-        if not self._fresh(obs_entry, ts):
-            return self._zero(t, "obstacles")
-        if self.role is not None:
-            if not others_ready or self._own_others is None:
-                return self._zero(t, "ellipse")
-            others_msg = self._own_others
-        else:
-            entry = self._latest(keys.OTHERS, self.others_key)
-            if not self._fresh(entry, ts):
-                return self._zero(t, "others")
-            others_msg = entry[0]
-
-        nb = [Neighbour(states[k].x, states[k].y, states[k].ux, states[k].uy, df)
-              for k, df in self.neighbour_keys.items()]
-        obstacles: Obstacles = obs_entry[0]
+        fresh = self._fresh_inputs(state_keys, ts, others_ready)
+        if isinstance(fresh, str):
+            self._zero(t, fresh)
+            return None
+        states, obstacles, others_msg = fresh
         obs = [Obstacle(o.x, o.y, o.vx, o.vy, o.ds) for o in obstacles.obstacles]
         shapes = self.nav.update_shapes(obstacles.shapes)
-        view = None
-        target = self.nav.follower.goal
-        if others_msg.own is not None:
-            own = msg_to_ellipse(others_msg.own)
+        own = None if others_msg.own is None else msg_to_ellipse(others_msg.own)
+        target, waypoint = self.nav.follower.goal, cfg.formation_goal
+        if own is not None:  # walk the route (the leader takes new goals first)
             target, waypoint = self.nav.step(stamp, t is not None, own.cx, own.cy)
-            view = FormationView(own, *waypoint)
-            self._stall = update_stall(self._stall, view, cfg.period)  # the jam rule's memory
-            view = view._replace(
-                name=cfg.formation,
-                other_names=tuple(m.formation for m in others_msg.ellipses),
-                retreating=self._stall.retreat > 0.0,
-            )
-        if self.all_to_all:
-            ellipses = []
-            pair = [Neighbour(states[k].x, states[k].y, states[k].ux, states[k].uy, 0.0)
-                    for k in self.foreign_keys]
-        else:
-            ellipses = [msg_to_ellipse(m) for m in others_msg.ellipses]
-            pair = []
-        res = control_step(cfg.control, (pose.x, pose.y, pose.theta), target, nb, obs,
-                           ellipses, view, solve_exact, pair, shapes)
+        inputs = step_inputs(
+            ((states[k].x, states[k].y, states[k].ux, states[k].uy, df)
+             for k, df in self.neighbour_keys.items()),
+            own, cfg.formation, waypoint,
+            [(m.formation, msg_to_ellipse(m)) for m in others_msg.ellipses],
+            self._stall, cfg.period,  # the jam rule's memory
+            [(states[k].x, states[k].y, states[k].ux, states[k].uy) for k in self.foreign_keys]
+            if self.all_to_all else None,
+        )
+        self._stall = inputs.stall
+        res = control_step(cfg.control, (pose.x, pose.y, pose.theta), target, inputs.neighbours,
+                           obs, inputs.others, inputs.view, solve_exact, inputs.pairwise,
+                           shapes=shapes, clock=time.perf_counter_ns)
         if self.role is not None:
             stall = self._stall
             self.nav.report(stamp, stall.still >= STALLED_AFTER_S or stall.retreat > 0.0, False)
         self._put_cmd(Cmd(res.v, res.omega, res.ux, res.uy, stamp))
         self.last_u = (res.ux, res.uy)
+        self._record(res, stamp)
+        return res
+
+    def _fresh_inputs(self, state_keys: tuple[str, ...], ts: float | None, others_ready: bool
+                      ) -> tuple[dict[str, State], Obstacles, Others] | str:
+        """Every input of the step if all are fresh (``ts``: lock-step reference stamp), else
+        the name of the first stale one (the reason counted for the zero command)."""
+        states: dict[str, State] = {}
+        for k in state_keys:
+            entry = self._latest(keys.STATE, k)
+            if not self._fresh(entry, ts):
+                return "state"
+            states[k] = entry[0]
+        obs_entry = self._latest(keys.OBSTACLES, self.obstacles_key)
+        if not self._fresh(obs_entry, ts):
+            return "obstacles"
+        if self.role is not None:
+            if not others_ready or self._own_others is None:
+                return "ellipse"
+            return states, obs_entry[0], self._own_others
+        entry = self._latest(keys.OTHERS, self.others_key)
+        if not self._fresh(entry, ts):
+            return "others"
+        return states, obs_entry[0], entry[0]
+
+    def _record(self, res: StepResult, stamp: float) -> None:
+        """Count a solved step: statuses, lowest barrier values, solve time, trace row."""
         self.solves += 1
         self.solve_us.append(res.solve_us)
         if res.status in self.status_counts:
@@ -711,7 +727,6 @@ class AgentNode:
             self.trace.append((stamp, res.px, res.py, res.ux, res.uy, res.v, res.omega, res.status,
                                res.slack, res.h_formation, res.h_obstacle, res.h_formations,
                                res.solve_us))
-        return res
 
     def _tick_inputs(self, state_keys: tuple[str, ...]) -> list[tuple[str, str]]:
         inputs = [(keys.STATE, k) for k in state_keys]

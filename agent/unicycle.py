@@ -9,12 +9,9 @@ from __future__ import annotations
 
 import math
 
+from geometry.unicycle import control_point  # noqa: F401  (re-exported)
+
 from .qp import Row
-
-
-def control_point(x: float, y: float, theta: float, lookahead: float) -> tuple[float, float]:
-    """s(p, theta) of Fig. 6.2."""
-    return (x + lookahead * math.cos(theta), y + lookahead * math.sin(theta))
 
 
 def to_unicycle(ux: float, uy: float, theta: float, lookahead: float) -> tuple[float, float]:

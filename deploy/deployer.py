@@ -43,6 +43,7 @@ import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from agent.config import AgentConfig, build_agent_configs, save_config
 from scenario import Scenario
@@ -147,7 +148,7 @@ def agent_configs(inv: Inventory, scenario: Scenario) -> dict[str, AgentConfig]:
     names = {f.name for f in dataclasses.fields(AgentConfig)}
     out = {}
     for r in inv.robots:
-        changes: dict[str, object] = {"zenoh": agent_zenoh_settings(inv, r)}
+        changes: dict[str, Any] = {"zenoh": agent_zenoh_settings(inv, r)}
         if "cmd_vel_key" in names:
             changes["cmd_vel_key"] = r.cmd_vel
         if "frame_id" in names:

@@ -231,10 +231,9 @@ def _robot(d: dict[str, Any], label: str, folder: Path,
         if name not in d:
             raise InventoryError(f"{label}: missing key {name!r}")
     rid = _str(d["id"], f"{label}.id")
-    try:
-        keys.validate_id(rid, f"{label}.id")
-    except ValueError as exc:
-        raise InventoryError(str(exc)) from None
+    problem = keys.name_problem(rid)  # the scenario's rule for robot names
+    if problem is not None:
+        raise InventoryError(f"{label}.id {rid[:64]!r} {problem}")
     host = _str(d["host"], f"{label}.host")
     if not _HOST.match(host):
         raise InventoryError(f"{label}.host: {host!r} is not a host name or address")

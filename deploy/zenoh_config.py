@@ -29,7 +29,7 @@ from typing import Any
 
 import zenoh
 
-from agent.config import ZenohSettings
+from wire.zconf import ZenohSettings
 
 from .inventory import Inventory, InventoryError, RobotHost
 
@@ -50,9 +50,10 @@ def robot_endpoints(inv: Inventory, robot: RobotHost) -> tuple[str, tuple[str, .
 
 
 def agent_zenoh_settings(inv: Inventory, robot: RobotHost) -> ZenohSettings:
-    """The :class:`agent.config.ZenohSettings` recorded in ``robot``'s agent configuration."""
+    """The :class:`wire.zconf.ZenohSettings` recorded in ``robot``'s agent configuration."""
     mode, connect, listen = robot_endpoints(inv, robot)
-    return ZenohSettings(mode=mode, connect=connect, listen=listen, multicast_scouting=False)
+    return ZenohSettings(mode=mode, connect=connect, listen=listen,  # type: ignore[arg-type]
+                         multicast_scouting=False)  # mode: checked by the inventory loader
 
 
 def has_secrets(inv: Inventory) -> bool:

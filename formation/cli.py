@@ -12,13 +12,12 @@ import argparse
 import logging
 import sys
 from collections.abc import Sequence
-from pathlib import Path
 
-EXIT_OK, EXIT_ERROR, EXIT_INVALID = 0, 1, 2
+from .exits import EXIT_ERROR, EXIT_INVALID, EXIT_OK, UsageError
+from .progress import Progress, print_summary
 
-
-class UsageError(ValueError):
-    """Invalid input detected by a subcommand: exit status 2, one line."""
+__all__ = ["EXIT_ERROR", "EXIT_INVALID", "EXIT_OK", "Progress", "UsageError", "build_parser", "main",
+           "print_summary"]
 
 
 def _add_sim_args(p: argparse.ArgumentParser) -> None:
@@ -26,6 +25,16 @@ def _add_sim_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output folder (created if missing)")
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
     p.add_argument("--quiet", action="store_true", help="no progress display")
+
+
+def _add_view_args(p: argparse.ArgumentParser, client: bool = False, serve: bool = True,
+                   port: bool = True) -> None:
+    from formation.commands.view import add_client_args, add_serve_args
+
+    if client:
+        add_client_args(p)
+    if serve:
+        add_serve_args(p, port=port)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -70,10 +79,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "with 'formation goal'")
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="simulated seconds to run (default: the scenario's duration)")
-
-    from . import navcmd
-
-    navcmd.add_parsers(sub)
+    p.add_argument("--live", type=int, default=None, metavar="PORT",
+                   help="serve the live page on http://127.0.0.1:PORT/ (and Foxglove on PORT+1)")
+    _add_view_args(p, port=False)
 
     p = sub.add_parser("commcost", help="communication cost of both topologies")
     p.add_argument("--formations", default="2,4,8")
@@ -88,6 +96,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True)
     p.add_argument("--quick", action="store_true", help="smoke mode (CI)")
 
+    p = sub.add_parser("view", help="the live page of a running fleet (read-only)")
+    _add_view_args(p, client=True)
+    p = sub.add_parser("record", help="record a running fleet into DIR/run.mcap")
+    _add_view_args(p, client=True, serve=False)
+    p.add_argument("--out", required=True)
+    p = sub.add_parser("replay", help="serve a recording (run.mcap) to the page")
+    p.add_argument("recording", help="a run.mcap")
+    _add_view_args(p)
+    p.add_argument("--speed", type=float, default=None, help="start at this speed (default 1)")
+    p.add_argument("--loop", action="store_true", help="start again at the end")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="stop after S seconds (default: until Ctrl-C)")
+
     p = sub.add_parser("deploy", help="put agents on robots over SSH")
     p.add_argument("inventory")
     p.add_argument("scenario")
@@ -96,37 +117,11 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--start", action="store_true")
     g.add_argument("--stop", action="store_true")
     g.add_argument("--status", action="store_true")
+
+    from formation.commands.goal import add_parsers as add_goal_parsers
+
+    add_goal_parsers(sub)
     return parser
-
-
-def cmd_check(ns: argparse.Namespace) -> int:
-    from scenario import load_scenario
-
-    s = load_scenario(ns.scenario)
-    n = len(s.robot_ids)
-    print(f"{ns.scenario}: ok ({s.name}: {len(s.formations)} formations, {n} robots, "
-          f"{len(s.obstacles)} obstacles, {len(s.shapes)} walls and shelves, {s.robot.model})")
-    return EXIT_OK
-
-
-def cmd_sim(ns: argparse.Namespace) -> int:
-    from agent.qp import make_solver
-    from scenario import load_scenario
-    from simulator.inprocess import SimOptions, simulate
-    from simulator.output import write_run
-
-    scenario = load_scenario(ns.scenario)
-    try:
-        make_solver(ns.solver)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    out = Path(ns.out)
-    opts = SimOptions(safety=not ns.no_safety, solver=ns.solver, topology=ns.topology)
-    with Progress(f"sim {scenario.name}", quiet=ns.quiet) as progress:
-        result = simulate(scenario, opts, progress=progress.update)
-    write_run(result.summary, result.series, scenario, out, plots=not ns.no_plots)
-    print_summary(result.summary, out)
-    return EXIT_OK
 
 
 def _lazy(module: str, func: str):
@@ -139,74 +134,19 @@ def _lazy(module: str, func: str):
 
 
 COMMANDS = {
-    "check": cmd_check,
-    "sim": cmd_sim,
-    "run": _lazy("simulator.launch", "run_command"),
-    "commcost": _lazy("simulator.commcost", "commcost_command"),
-    "montecarlo": _lazy("simulator.montecarlo", "montecarlo_command"),
-    "bench": _lazy("formation.bench", "bench_command"),
-    "deploy": _lazy("deploy.cli", "deploy_command"),
-    "goal": _lazy("formation.navcmd", "goal_command"),
-    "status": _lazy("formation.navcmd", "status_command"),
+    "check": _lazy("formation.commands.check", "cmd_check"),
+    "sim": _lazy("formation.commands.sim", "cmd_sim"),
+    "run": _lazy("formation.commands.run", "run_command"),
+    "commcost": _lazy("formation.commands.commcost", "commcost_command"),
+    "montecarlo": _lazy("formation.commands.montecarlo", "montecarlo_command"),
+    "bench": _lazy("formation.commands.bench", "bench_command"),
+    "deploy": _lazy("formation.commands.deploy", "deploy_command"),
+    "view": _lazy("formation.commands.view", "view_command"),
+    "record": _lazy("formation.commands.view", "record_command"),
+    "replay": _lazy("formation.commands.view", "replay_command"),
+    "goal": _lazy("formation.commands.goal", "goal_command"),
+    "status": _lazy("formation.commands.goal", "status_command"),
 }
-
-
-class Progress:
-    """A one-line progress display on stderr (redrawn in place on a terminal).
-
-    The bar runs against the scenario's duration; a run that ends early (every goal reached)
-    closes it at full with the time it ended."""
-
-    def __init__(self, label: str, quiet: bool = False) -> None:
-        self.label = label
-        self.quiet = quiet
-        self.tty = sys.stderr.isatty()
-        self._last = -1
-        self._time = 0.0
-
-    def __enter__(self) -> Progress:
-        return self
-
-    def update(self, done: int, total: int, sim_time: float) -> None:
-        self._time = sim_time
-        if self.quiet or total <= 0:
-            return
-        pct = int(100 * done / total)
-        step = 1 if self.tty else 10
-        if pct // step == self._last // step and done != total:
-            return
-        self._last = pct
-        self._draw(done / total, f"{pct:3d}%  t={sim_time:7.2f} s")
-
-    def _draw(self, fraction: float, tail: str) -> None:
-        width = 30
-        fill = int(width * fraction)
-        line = f"{self.label} [{'#' * fill}{'.' * (width - fill)}] {tail}"
-        sys.stderr.write(("\r" + line) if self.tty else (line + "\n"))
-        sys.stderr.flush()
-
-    def __exit__(self, exc_type, *exc) -> None:
-        if self.quiet:
-            return
-        if exc_type is None and self._last >= 0 and self._last < 100:
-            self._draw(1.0, f"done  t={self._time:7.2f} s")
-        if self.tty:
-            sys.stderr.write("\n")
-            sys.stderr.flush()
-
-
-def print_summary(summary: dict, out: Path) -> None:
-    ok = summary["all_reached"] and summary["collisions"] == 0
-    ttg = summary["time_to_goal_s"]
-    print(
-        f"{summary['scenario']} ({summary['mode']}): "
-        f"{'all robots reached their goals' if summary['all_reached'] else 'NOT all goals reached'}"
-        f"{f' at t={ttg:.2f} s' if ttg is not None else ''}; collisions {summary['collisions']}; "
-        f"max formation error {summary['formation_error_max_m']:.4f} m; "
-        f"QP infeasible ticks {summary['qp']['infeasible']}/{summary['qp']['solves']}"
-        + ("" if ok else "  [UNSAFE OR INCOMPLETE]")
-    )
-    print(f"wrote {out / 'summary.json'} and figures in {out}/")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -216,11 +156,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=logging.DEBUG if ns.verbose else logging.WARNING,
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
     )
+    from formation.outdir import check_out
     from scenario import ScenarioError
     from wire.zconf import use_zenoh_threads
 
     use_zenoh_threads("relay")  # this process (world, bench); agents and routers set their own
     try:
+        check_out(ns.command, getattr(ns, "out", None))  # a bad --out: exit 2 before any work
         return COMMANDS[ns.command](ns)
     except (ScenarioError, UsageError) as exc:
         print(f"formation {ns.command}: error: {exc}", file=sys.stderr)

@@ -12,11 +12,11 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from agent.config import LeaderSettings
+from geometry.ellipse import Ellipse, ReferenceShape, estimate
 from wire import keys
 from wire.payloads import EllipseMsg, Others
 
-from .ellipse import Ellipse, ReferenceShape, estimate
+from .settings import LeaderSettings
 
 Kinematic = tuple[float, float, float, float]  # control point x, y [m] and velocity ux, uy [m/s]
 

@@ -1,14 +1,21 @@
 """Load and validate a scenario file (DESIGN.md, "Scenario file: a contract").
 
 Every problem is reported as one :class:`ScenarioError` whose message names the culprit by its
-path in the file (``formations[1].edges[0]``) and says what is wrong. Nothing is half-loaded.
+path in the file (``formations[1].edges[0]``) and says what is wrong, quoting at most a short
+excerpt of the value. Nothing is half-loaded.
 
-Checks, in order: YAML syntax; unknown keys; types and finiteness; positive numbers where only
-positive numbers make sense; unique names; edges naming known robots of the same formation;
-generic rigidity of every formation graph (rank of the rigidity matrix at random positions is
-2n - 3); the leader adjacent to every member; a formation band that keeps bodies apart
-(Df - epsilon >= 2 radius); and a start that satisfies every constraint (formation band, obstacle
-clearance, other formations' ellipses, no two bodies overlapping).
+Checks, in order: the file (a regular UTF-8 file of bounded size, YAML within the limits of
+:mod:`scenario.reader`: depth, aliases, duplicate keys, huge integers); unknown keys; types,
+finiteness and the range of every number and count (:mod:`scenario.limits`); names that follow
+the one name rule (:func:`wire.keys.name_problem`); unique names; edges naming known robots of the
+same formation; generic rigidity of every formation graph (rank of the rigidity matrix at random
+positions is 2n - 3); the leader adjacent to every member; a formation band that keeps bodies
+apart (Df - epsilon >= 2 radius); and a start that satisfies every constraint (formation band,
+obstacle clearance, other formations' ellipses, no two bodies overlapping).
+
+The work grows linearly with the robots: formations have a bounded size, and the checks between
+robots of different formations look only at neighbours found through a spatial grid
+(:mod:`scenario.spatial`).
 """
 
 from __future__ import annotations
@@ -20,13 +27,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
+from geometry.ellipse import Ellipse, derive_axes, ellipse_value, estimate, reference_shape
+from geometry.unicycle import control_point
+from wire.keys import name_problem
 from geometry.shapes import Shape, shape_distance
 from geometry.shapes import box as box_shape
 from geometry.shapes import segment as segment_shape
-from leader.ellipse import Ellipse, derive_axes, ellipse_value, estimate, reference_shape
 
+from . import limits
+from .limits import Range
 from .model import (
     SINGLE_INTEGRATOR,
     UNICYCLE,
@@ -39,6 +49,8 @@ from .model import (
     RobotSpec,
     Scenario,
 )
+from .reader import ScenarioError, excerpt, load_yaml, read_text
+from .spatial import Grid
 
 ELLIPSE_MARGIN = 0.02  # [m] extra clearance of a derived ellipse beyond bodies and tolerance
 TIEBREAKS = ("keep_right", "none")
@@ -56,17 +68,10 @@ _BOX_KEYS = {"center", "size", "yaw"}
 PLANNERS = ("visibility", "none")
 
 
-class ScenarioError(ValueError):
-    """An invalid scenario; the message is one line naming the culprit."""
-
-
 def load_scenario(path: str | Path) -> Scenario:
     """Read, parse and validate the scenario at ``path``."""
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ScenarioError(f"{p}: cannot read: {exc.strerror or exc}") from None
+    text = read_text(p)
     try:
         return parse_scenario(text, source=str(p))
     except ScenarioError as exc:
@@ -76,25 +81,23 @@ def load_scenario(path: str | Path) -> Scenario:
 
 def parse_scenario(text: str, source: str = "<scenario>") -> Scenario:
     """Parse and validate scenario YAML text."""
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        problem = getattr(exc, "problem", None) or "invalid YAML"
-        raise ScenarioError(f"{source}: YAML syntax error{where}: {problem}") from None
-    return scenario_from_dict(data)
+    return scenario_from_dict(load_yaml(text, source))
 
 
 def scenario_from_dict(data: Any) -> Scenario:
     """Validate an already-parsed mapping and build the :class:`Scenario`."""
     top = _mapping(data, "scenario", _TOP_KEYS)
-    name = _string(top.get("name", "scenario"), "name")
-    dt = _positive(top.get("dt", 0.05), "dt")
+    name = _title(top.get("name", "scenario"), "name")
+    dt = _in(top.get("dt", 0.05), "dt", limits.DT)
     duration = _positive(top.get("duration", 120.0), "duration")
     if duration < dt:
         raise ScenarioError(f"duration: {duration} s is shorter than one control period dt={dt} s")
-    tol = _positive(top.get("goal_tolerance", 0.05), "goal_tolerance")
+    if math.ceil(duration / dt - 1e-9) > limits.MAX_TICKS:  # Scenario.steps
+        raise ScenarioError(
+            f"duration: {excerpt(duration)} s is {duration / dt:.3g} control periods of dt={dt} s,"
+            f" more than {limits.MAX_TICKS:,} (shorten it or lengthen dt)"
+        )
+    tol = _in(top.get("goal_tolerance", 0.05), "goal_tolerance", limits.GOAL_TOLERANCE)
     robot = _robot_model(top.get("robot", {}))
     controller = _controller(top.get("controller", {}))
 
@@ -103,31 +106,38 @@ def scenario_from_dict(data: Any) -> Scenario:
     raw_formations = top["formations"]
     if not isinstance(raw_formations, list) or not raw_formations:
         raise ScenarioError("formations: must be a non-empty list")
+    _count(raw_formations, "formations", limits.MAX_FORMATIONS)
     seen_robots: dict[str, str] = {}
     formations = []
+    formation_names: set[str] = set()
     for k, raw in enumerate(raw_formations):
-        formations.append(_formation(raw, f"formations[{k}]", robot, seen_robots))
-    names = [f.name for f in formations]
-    for k, n in enumerate(names):
-        if n in names[:k]:
-            raise ScenarioError(f"formations[{k}].name: duplicate formation name {n!r}")
+        f = _formation(raw, f"formations[{k}]", robot, seen_robots)
+        if f.name in formation_names:
+            raise ScenarioError(f"formations[{k}].name: duplicate formation name {f.name!r}")
+        formation_names.add(f.name)
+        formations.append(f)
 
     raw_obstacles = top.get("obstacles", []) or []
     if not isinstance(raw_obstacles, list):
         raise ScenarioError("obstacles: must be a list")
-    parsed = [_obstacle(o, f"obstacles[{k}]") for k, o in enumerate(raw_obstacles)]
-    onames = [o.name for o in parsed]
-    for k, n in enumerate(onames):
-        if n in onames[:k]:
-            raise ScenarioError(f"obstacles[{k}].name: duplicate obstacle name {n!r}")
+    _count(raw_obstacles, "obstacles", limits.MAX_OBSTACLES)
+    parsed: list[ObstacleSpec | Shape] = []
+    obstacle_names: set[str] = set()
+    for k, raw in enumerate(raw_obstacles):
+        o = _obstacle(raw, f"obstacles[{k}]")
+        if o.name in obstacle_names:
+            raise ScenarioError(f"obstacles[{k}].name: duplicate obstacle name {o.name!r}")
+        obstacle_names.add(o.name)
+        parsed.append(o)
     obstacles = tuple(o for o in parsed if isinstance(o, ObstacleSpec))
     shapes = tuple(o for o in parsed if isinstance(o, Shape))
 
-    scenario = Scenario(name, dt, duration, tol, robot, controller, tuple(formations), obstacles,
-                        shapes)
+    scenario = Scenario(name, dt, duration, tol, robot, controller, tuple(formations),
+                        obstacles, shapes)
+    axes = [formation_axes(scenario, f) for f in scenario.formations]
     _check_bands(scenario)
-    _check_start(scenario)
-    _check_goals(scenario)
+    _check_start(scenario, axes)
+    _check_goals(scenario, axes)
     _check_shapes(scenario, [k for k, o in enumerate(parsed) if isinstance(o, Shape)])
     return scenario
 
@@ -140,15 +150,16 @@ def _robot_model(raw: Any) -> RobotModel:
     model = _string(m.get("model", SINGLE_INTEGRATOR), "robot.model")
     if model not in (SINGLE_INTEGRATOR, UNICYCLE):
         raise ScenarioError(
-            f"robot.model: {model!r} is not one of {SINGLE_INTEGRATOR!r}, {UNICYCLE!r}"
+            f"robot.model: {excerpt(model)} is not one of {SINGLE_INTEGRATOR!r}, {UNICYCLE!r}"
         )
     d = RobotModel()
     return RobotModel(
         model=model,
-        max_speed=_positive(m.get("max_speed", d.max_speed), "robot.max_speed"),
-        max_turn_rate=_positive(m.get("max_turn_rate", d.max_turn_rate), "robot.max_turn_rate"),
-        lookahead=_positive(m.get("lookahead", d.lookahead), "robot.lookahead"),
-        radius=_positive(m.get("radius", d.radius), "robot.radius"),
+        max_speed=_in(m.get("max_speed", d.max_speed), "robot.max_speed", limits.MAX_SPEED),
+        max_turn_rate=_in(m.get("max_turn_rate", d.max_turn_rate), "robot.max_turn_rate",
+                          limits.MAX_TURN_RATE),
+        lookahead=_in(m.get("lookahead", d.lookahead), "robot.lookahead", limits.LOOKAHEAD),
+        radius=_in(m.get("radius", d.radius), "robot.radius", limits.RADIUS),
     )
 
 
@@ -158,25 +169,24 @@ def _controller(raw: Any) -> ControllerSpec:
     g = m.get("gamma", 1.0)
     if isinstance(g, Mapping):
         gm = _mapping(g, "controller.gamma", _GAMMA_KEYS)
-        gammas = Gammas(
-            **{k: _positive(gm.get(k, 1.0), f"controller.gamma.{k}") for k in sorted(_GAMMA_KEYS)}
-        )
+        gammas = Gammas(**{k: _in(gm.get(k, 1.0), f"controller.gamma.{k}", limits.GAMMA)
+                           for k in sorted(_GAMMA_KEYS)})
     else:
-        v = _positive(g, "controller.gamma")
+        v = _in(g, "controller.gamma", limits.GAMMA)
         gammas = Gammas(v, v, v)
     tiebreak = _string(m.get("tiebreak", d.tiebreak), "controller.tiebreak")
     if tiebreak not in TIEBREAKS:
-        raise ScenarioError(f"controller.tiebreak: {tiebreak!r} is not one of {TIEBREAKS}")
+        raise ScenarioError(f"controller.tiebreak: {excerpt(tiebreak)} is not one of {TIEBREAKS}")
     d_af = m.get("d_af")
     planner = _string(m.get("planner", d.planner), "controller.planner")
     if planner not in PLANNERS:
         raise ScenarioError(f"controller.planner: {planner!r} is not one of {PLANNERS}")
     return ControllerSpec(
-        kp=_positive(m.get("kp", d.kp), "controller.kp"),
+        kp=_in(m.get("kp", d.kp), "controller.kp", limits.GAIN),
         gamma=gammas,
-        epsilon=_positive(m.get("epsilon", d.epsilon), "controller.epsilon"),
+        epsilon=_in(m.get("epsilon", d.epsilon), "controller.epsilon", limits.EPSILON),
         tiebreak=tiebreak,
-        d_af=None if d_af is None else _positive(d_af, "controller.d_af"),
+        d_af=None if d_af is None else _in(d_af, "controller.d_af", limits.DISTANCE),
         planner=planner,
     )
 
@@ -190,10 +200,11 @@ def _formation(raw: Any, where: str, robot: RobotModel, seen: dict[str, str]) ->
     if not isinstance(raw_robots, Mapping) or not raw_robots:
         raise ScenarioError(f"{where}.robots: must be a non-empty mapping of robot name to "
                             "{start, goal}")
+    _count(raw_robots, f"{where}.robots", limits.MAX_FORMATION_ROBOTS)
     robots = []
     for rid, spec in raw_robots.items():
+        rid = _identifier(rid, f"{where}.robots")
         rwhere = f"{where}.robots.{rid}"
-        rid = _identifier(rid, rwhere)
         if rid in seen:
             raise ScenarioError(f"{rwhere}: robot {rid!r} is already in formation {seen[rid]!r}")
         seen[rid] = name
@@ -201,10 +212,12 @@ def _formation(raw: Any, where: str, robot: RobotModel, seen: dict[str, str]) ->
         for key in ("start", "goal"):
             if key not in rm:
                 raise ScenarioError(f"{rwhere}.{key}: missing")
-        start = _vector(rm["start"], f"{rwhere}.start", (2, 3))
-        goal = _vector(rm["goal"], f"{rwhere}.goal", (2,))
+        start = _vector(rm["start"], f"{rwhere}.start", (2, 3), limits.COORDINATE)
+        if len(start) == 3:
+            _in(start[2], f"{rwhere}.start[2] (heading)", limits.HEADING)
+        goal = _vector(rm["goal"], f"{rwhere}.goal", (2,), limits.COORDINATE)
         robots.append((rid, start, goal))
-    ids = [r[0] for r in robots]
+    ids = {r[0] for r in robots}
 
     # Default heading: every member faces from the formation's start centroid to its goal centroid.
     scx = sum(r[1][0] for r in robots) / len(robots)
@@ -222,17 +235,22 @@ def _formation(raw: Any, where: str, robot: RobotModel, seen: dict[str, str]) ->
     raw_edges = m.get("edges", [])
     if not isinstance(raw_edges, list):
         raise ScenarioError(f"{where}.edges: must be a list of [i, j] or [i, j, Df]")
+    pair_count = len(ids) * (len(ids) - 1) // 2
+    if len(raw_edges) > pair_count:
+        raise ScenarioError(f"{where}.edges: {len(raw_edges)} edges, more than the {pair_count} "
+                            f"pairs of its {len(ids)} robots")
     edges: list[Edge] = []
     pairs: set[frozenset[str]] = set()
     for k, e in enumerate(raw_edges):
         ew = f"{where}.edges[{k}]"
         if not isinstance(e, list) or len(e) not in (2, 3):
-            raise ScenarioError(f"{ew}: must be [i, j] or [i, j, Df]")
+            raise ScenarioError(f"{ew}: must be [i, j] or [i, j, Df], got {excerpt(e)}")
         i, j = (_string(e[0], f"{ew}[0]"), _string(e[1], f"{ew}[1]"))
         for endpoint in (i, j):
             if endpoint not in ids:
                 other = f" (it is in formation {seen[endpoint]!r})" if endpoint in seen else ""
-                raise ScenarioError(f"{ew}: unknown robot {endpoint!r} in formation {name!r}{other}")
+                raise ScenarioError(f"{ew}: unknown robot {excerpt(endpoint)} in formation "
+                                    f"{name!r}{other}")
         if i == j:
             raise ScenarioError(f"{ew}: an edge joins two different robots, got {i!r} twice")
         pair = frozenset((i, j))
@@ -240,14 +258,15 @@ def _formation(raw: Any, where: str, robot: RobotModel, seen: dict[str, str]) ->
             raise ScenarioError(f"{ew}: duplicate edge between {i!r} and {j!r}")
         pairs.add(pair)
         if len(e) == 3:
-            df = _positive(e[2], f"{ew}[2] (Df)")
+            df = _in(e[2], f"{ew}[2] (Df)", limits.DISTANCE)
         else:
             df = math.dist(ctrl[i], ctrl[j])
             if df <= 0.0:
                 raise ScenarioError(f"{ew}: Df omitted and {i!r}, {j!r} start at the same point")
         edges.append(Edge(i, j, df))
 
-    if len(ids) >= 2 and not is_generically_rigid(ids, [(e.i, e.j) for e in edges]):
+    order = [r[0] for r in robots]
+    if len(ids) >= 2 and not is_generically_rigid(order, [(e.i, e.j) for e in edges]):
         raise ScenarioError(
             f"{where}.edges: the graph of formation {name!r} is not rigid "
             f"({len(edges)} edges for {len(ids)} robots; a rigid graph needs at least "
@@ -258,9 +277,10 @@ def _formation(raw: Any, where: str, robot: RobotModel, seen: dict[str, str]) ->
         raise ScenarioError(f"{where}.leader: missing")
     leader = _string(m["leader"], f"{where}.leader")
     if leader not in ids:
-        raise ScenarioError(f"{where}.leader: {leader!r} is not a robot of formation {name!r}")
+        raise ScenarioError(f"{where}.leader: {excerpt(leader)} is not a robot of formation "
+                            f"{name!r}")
     adjacent = {e.j for e in edges if e.i == leader} | {e.i for e in edges if e.j == leader}
-    missing = [r for r in ids if r != leader and r not in adjacent]
+    missing = [r for r in order if r != leader and r not in adjacent]
     if missing:
         raise ScenarioError(
             f"{where}.leader: {leader!r} is not adjacent to {', '.join(repr(x) for x in missing)}"
@@ -273,16 +293,18 @@ def _formation(raw: Any, where: str, robot: RobotModel, seen: dict[str, str]) ->
         for key in ("a", "b"):
             if key not in em:
                 raise ScenarioError(f"{where}.ellipse.{key}: missing")
-        a = _positive(em["a"], f"{where}.ellipse.a")
-        b = _positive(em["b"], f"{where}.ellipse.b")
+        a = _in(em["a"], f"{where}.ellipse.a", limits.DISTANCE)
+        b = _in(em["b"], f"{where}.ellipse.b", limits.DISTANCE)
         if b > a:
             raise ScenarioError(f"{where}.ellipse: a={a} is the major semi-axis and must be >= b={b}")
         ellipse = (a, b)
     raw_wp = m.get("waypoints", []) or []
     if not isinstance(raw_wp, list):
         raise ScenarioError(f"{where}.waypoints: must be a list of [x, y]")
+    _count(raw_wp, f"{where}.waypoints", limits.MAX_WAYPOINTS)
     waypoints = tuple(
-        tuple(_vector(w, f"{where}.waypoints[{k}]", (2,))) for k, w in enumerate(raw_wp)
+        (p[0], p[1]) for p in (_vector(w, f"{where}.waypoints[{k}]", (2,), limits.COORDINATE)
+                               for k, w in enumerate(raw_wp))
     )
     return FormationSpec(name, leader, specs, tuple(edges), ellipse, waypoints)
 
@@ -295,9 +317,9 @@ def _obstacle(raw: Any, where: str) -> ObstacleSpec | Shape:
         if key not in m:
             raise ScenarioError(f"{where}.{key}: missing")
     name = _identifier(m.get("name", where.replace("[", "").replace("]", "")), f"{where}.name")
-    center = _vector(m["center"], f"{where}.center", (2,))
-    ds = _positive(m["safe_distance"], f"{where}.safe_distance")
-    vel = _vector(m.get("velocity", [0.0, 0.0]), f"{where}.velocity", (2,))
+    center = _vector(m["center"], f"{where}.center", (2,), limits.COORDINATE)
+    ds = _in(m["safe_distance"], f"{where}.safe_distance", limits.DISTANCE)
+    vel = _vector(m.get("velocity", [0.0, 0.0]), f"{where}.velocity", (2,), limits.OBSTACLE_SPEED)
     return ObstacleSpec(name, (center[0], center[1]), ds, (vel[0], vel[1]))
 
 
@@ -311,13 +333,13 @@ def _shape(m: Mapping[str, Any], where: str) -> Shape:
     if "safe_distance" not in m:
         raise ScenarioError(f"{where}.safe_distance: missing")
     name = _identifier(m.get("name", where.replace("[", "").replace("]", "")), f"{where}.name")
-    ds = _positive(m["safe_distance"], f"{where}.safe_distance")
+    ds = _in(m["safe_distance"], f"{where}.safe_distance", limits.DISTANCE)
     if kind == "segment":
         raw = m["segment"]
         if not isinstance(raw, list) or len(raw) != 2:
             raise ScenarioError(f"{where}.segment: must be [[x, y], [x, y]], got {raw!r}")
-        a = _vector(raw[0], f"{where}.segment[0]", (2,))
-        b = _vector(raw[1], f"{where}.segment[1]", (2,))
+        a = _vector(raw[0], f"{where}.segment[0]", (2,), limits.COORDINATE)
+        b = _vector(raw[1], f"{where}.segment[1]", (2,), limits.COORDINATE)
         if math.dist(a, b) <= 0.0:
             raise ScenarioError(f"{where}.segment: both ends are the same point")
         return segment_shape(name, (a[0], a[1]), (b[0], b[1]), ds)
@@ -325,11 +347,11 @@ def _shape(m: Mapping[str, Any], where: str) -> Shape:
     for key in ("center", "size"):
         if key not in bm:
             raise ScenarioError(f"{where}.box.{key}: missing")
-    center = _vector(bm["center"], f"{where}.box.center", (2,))
-    size = _vector(bm["size"], f"{where}.box.size", (2,))
+    center = _vector(bm["center"], f"{where}.box.center", (2,), limits.COORDINATE)
+    size = _vector(bm["size"], f"{where}.box.size", (2,), limits.COORDINATE)
     for k in (0, 1):
-        _positive(size[k], f"{where}.box.size[{k}]")
-    yaw = _number(bm.get("yaw", 0.0), f"{where}.box.yaw")
+        _in(size[k], f"{where}.box.size[{k}]", limits.DISTANCE)
+    yaw = _in(bm.get("yaw", 0.0), f"{where}.box.yaw", limits.HEADING)
     return box_shape(name, (center[0], center[1]), (size[0], size[1]), yaw, ds)
 
 
@@ -393,10 +415,13 @@ def formation_axes(scenario: Scenario, formation: FormationSpec) -> tuple[float,
     return derive_axes(shape, clearance + ELLIPSE_MARGIN)
 
 
-def start_ellipse(scenario: Scenario, formation: FormationSpec) -> Ellipse:
+def start_ellipse(scenario: Scenario, formation: FormationSpec,
+                  axes: tuple[float, float] | None = None) -> Ellipse:
     pts = [_control_point(m.start, scenario.robot.control_offset) for m in formation.robots]
     shape = reference_shape(pts)
-    return estimate(shape, formation_axes(scenario, formation), pts, [(0.0, 0.0)] * len(pts))
+    if axes is None:
+        axes = formation_axes(scenario, formation)
+    return estimate(shape, axes, pts, [(0.0, 0.0)] * len(pts))
 
 
 def _check_bands(s: Scenario) -> None:
@@ -410,7 +435,7 @@ def _check_bands(s: Scenario) -> None:
                 )
 
 
-def _check_start(s: Scenario) -> None:
+def _check_start(s: Scenario, axes: list[tuple[float, float]]) -> None:
     eps, offset = s.controller.epsilon, s.robot.control_offset
     ctrl = {r.id: _control_point(r.start, offset) for r in s.robots}
     for k, f in enumerate(s.formations):
@@ -429,30 +454,26 @@ def _check_start(s: Scenario) -> None:
                     f"obstacles[{k}]: robot {rid!r} starts {d:.3f} m from obstacle {o.name!r}, "
                     f"inside its safe distance {o.safe_distance + offset:.3f} m"
                 )
-    ids = list(ctrl)
-    for a in range(len(ids)):
-        for b in range(a + 1, len(ids)):
-            ra, rb = s.robot_spec(ids[a]), s.robot_spec(ids[b])
-            d = math.dist(ra.start[:2], rb.start[:2])
-            if d < 2.0 * s.robot.radius:
-                raise ScenarioError(
-                    f"formations: robots {ids[a]!r} and {ids[b]!r} start {d:.3f} m apart, "
-                    f"closer than two body radii ({2 * s.robot.radius:.3f} m)"
-                )
-    for k, f in enumerate(s.formations):
-        e = start_ellipse(s, f)
-        for other in s.formations:
-            if other is f:
-                continue
-            for m in other.robots:
-                if ellipse_value(e, *ctrl[m.id]) < 0.0:
-                    raise ScenarioError(
-                        f"formations[{k}]: robot {m.id!r} of formation {other.name!r} starts "
-                        f"inside the ellipse of formation {f.name!r}"
-                    )
+    robots = s.robots
+    overlap = _first_overlap([r.start[:2] for r in robots], 2.0 * s.robot.radius)
+    if overlap is not None:
+        a, b = overlap
+        d = math.dist(robots[a].start[:2], robots[b].start[:2])
+        raise ScenarioError(
+            f"formations: robots {robots[a].id!r} and {robots[b].id!r} start {d:.3f} m apart, "
+            f"closer than two body radii ({2 * s.robot.radius:.3f} m)"
+        )
+    ellipses = [start_ellipse(s, f, ab) for f, ab in zip(s.formations, axes, strict=True)]
+    hit = _first_intrusion(s, ellipses, [ctrl[r.id] for r in robots])
+    if hit is not None:
+        k, m = hit
+        raise ScenarioError(
+            f"formations[{k}]: robot {robots[m].id!r} of formation {robots[m].formation!r} starts "
+            f"inside the ellipse of formation {s.formations[k].name!r}"
+        )
 
 
-def _check_goals(s: Scenario) -> None:
+def _check_goals(s: Scenario, axes: list[tuple[float, float]]) -> None:
     """A goal configuration that breaks a constraint can never be reached: say so up front."""
     eps, slop = s.controller.epsilon, 2.0 * s.robot.control_offset
     goals = {r.id: r.goal for r in s.robots}
@@ -471,27 +492,67 @@ def _check_goals(s: Scenario) -> None:
                     f"obstacles[{k}]: the goal of robot {rid!r} is inside the safe distance of "
                     f"obstacle {o.name!r}"
                 )
-    for k, f in enumerate(s.formations):
+    ellipses = []
+    for f, ab in zip(s.formations, axes, strict=True):
         pts = [m.goal for m in f.robots]
         shape = reference_shape([_control_point(m.start, s.robot.control_offset) for m in f.robots])
-        e = estimate(shape, formation_axes(s, f), pts, [(0.0, 0.0)] * len(pts))
-        for other in s.formations:
-            if other is f:
-                continue
-            for m in other.robots:
-                if ellipse_value(e, *m.goal) < 0.0:
-                    raise ScenarioError(
-                        f"formations[{k}]: the goal of robot {m.id!r} (formation {other.name!r}) "
-                        f"is inside the ellipse of formation {f.name!r} at its goal"
-                    )
+        ellipses.append(estimate(shape, ab, pts, [(0.0, 0.0)] * len(pts)))
+    robots = s.robots
+    hit = _first_intrusion(s, ellipses, [r.goal for r in robots])
+    if hit is not None:
+        k, m = hit
+        raise ScenarioError(
+            f"formations[{k}]: the goal of robot {robots[m].id!r} (formation "
+            f"{robots[m].formation!r}) is inside the ellipse of formation "
+            f"{s.formations[k].name!r} at its goal"
+        )
+
+
+def _first_overlap(points: list[tuple[float, ...]], min_distance: float) -> tuple[int, int] | None:
+    """The first pair (a, b), a < b, of ``points`` closer than ``min_distance``: the smallest b,
+    then the smallest a. A grid of ``min_distance`` cells: each point is compared only with
+    the earlier points of its 3 x 3 block of cells, and those not closer than ``min_distance``
+    to each other are at most a few per cell, so the work is linear in the points."""
+    grid = Grid(min_distance)
+    for b, (x, y) in enumerate(points):
+        close = [a for a in grid.near(x, y) if _closer(points[a], (x, y), min_distance)]
+        if close:
+            return min(close), b
+        grid.add(b, x, y)
+    return None
+
+
+def _closer(p: tuple[float, ...], q: tuple[float, ...], distance: float) -> bool:
+    """Whether the points ``p`` and ``q`` are closer than ``distance`` (the inner pair check)."""
+    return math.dist(p[:2], q[:2]) < distance
+
+
+def _first_intrusion(s: Scenario, ellipses: list[Ellipse],
+                     points: list[tuple[float, float]]) -> tuple[int, int] | None:
+    """The first (formation k, robot index m) with robot m, of another formation, inside
+    ``ellipses[k]`` at ``points[m]``: the smallest k, then the smallest m. Only the robots in the
+    grid cells under each ellipse's bounding box are tested."""
+    robots = s.robots
+    cell = max(2.0 * s.robot.radius, float(np.median([e.a for e in ellipses])))
+    grid = Grid(cell)
+    for m, (x, y) in enumerate(points):
+        grid.add(m, x, y)
+    for k, (f, e) in enumerate(zip(s.formations, ellipses, strict=True)):
+        c, sn = math.cos(e.alpha), math.sin(e.alpha)
+        hx, hy = math.hypot(e.a * c, e.b * sn), math.hypot(e.a * sn, e.b * c)
+        inside = [m for m in grid.in_box(e.cx - hx, e.cy - hy, e.cx + hx, e.cy + hy)
+                  if robots[m].formation != f.name and ellipse_value(e, *points[m]) < 0.0]
+        if inside:
+            return k, min(inside)
+    return None
 
 
 # ---------------------------------------------------------------------------- primitives
 
 
 def _control_point(start: tuple[float, ...], offset: float) -> tuple[float, float]:
-    th = start[2] if len(start) > 2 else 0.0
-    return (start[0] + offset * math.cos(th), start[1] + offset * math.sin(th))
+    """The control point (eq. 6.2) of a start pose (x, y[, theta]); theta defaults to 0."""
+    return control_point(start[0], start[1], start[2] if len(start) > 2 else 0.0, offset)
 
 
 def _mapping(raw: Any, where: str, allowed: set[str]) -> Mapping[str, Any]:
@@ -501,45 +562,80 @@ def _mapping(raw: Any, where: str, allowed: set[str]) -> Mapping[str, Any]:
         raise ScenarioError(f"{where}: must be a mapping, got {type(raw).__name__}")
     for key in raw:
         if key not in allowed:
+            known = ", ".join(sorted(allowed))
             raise ScenarioError(
-                f"{where}: unknown key {key!r} (known: {', '.join(sorted(allowed))})"
+                f"{where}: unknown key {excerpt(key)} (known: {known})"
                 if where != "scenario"
-                else f"unknown key {key!r} (known: {', '.join(sorted(allowed))})"
+                else f"unknown key {excerpt(key)} (known: {known})"
             )
     return raw
 
 
+def _count(items: Any, where: str, most: int) -> None:
+    if len(items) > most:
+        raise ScenarioError(f"{where}: {len(items)} entries, more than the {most} allowed")
+
+
 def _number(raw: Any, where: str) -> float:
     if isinstance(raw, bool) or not isinstance(raw, int | float):
-        raise ScenarioError(f"{where}: must be a number, got {raw!r}")
+        raise ScenarioError(f"{where}: must be a number, got {excerpt(raw)}")
     v = float(raw)
     if not math.isfinite(v):
-        raise ScenarioError(f"{where}: must be finite, got {raw!r}")
+        raise ScenarioError(f"{where}: must be finite, got {excerpt(raw)}")
     return v
 
 
 def _positive(raw: Any, where: str) -> float:
     v = _number(raw, where)
     if v <= 0.0:
-        raise ScenarioError(f"{where}: must be positive, got {raw!r}")
+        raise ScenarioError(f"{where}: must be positive, got {excerpt(raw)}")
     return v
 
 
-def _vector(raw: Any, where: str, lengths: tuple[int, ...]) -> tuple[float, ...]:
+def _in(raw: Any, where: str, allowed: Range) -> float:
+    """A finite number in ``allowed``; a non-positive one where only positive ones make sense
+    is reported as such (with the range)."""
+    v = _number(raw, where)
+    if not allowed.contains(v):
+        what = "must be positive" if v <= 0.0 <= allowed.lo else "out of range"
+        raise ScenarioError(f"{where}: {what}, got {excerpt(raw)} (allowed: {allowed.text()})")
+    return v
+
+
+def _vector(raw: Any, where: str, lengths: tuple[int, ...],
+            allowed: Range | None = None) -> tuple[float, ...]:
     if not isinstance(raw, list | tuple) or len(raw) not in lengths:
         want = " or ".join(str(n) for n in lengths)
-        raise ScenarioError(f"{where}: must be a list of {want} numbers, got {raw!r}")
-    return tuple(_number(v, f"{where}[{k}]") for k, v in enumerate(raw))
+        raise ScenarioError(f"{where}: must be a list of {want} numbers, got {excerpt(raw)}")
+    values = tuple(_number(v, f"{where}[{k}]") for k, v in enumerate(raw))
+    if allowed is not None:
+        for k, v in enumerate(values[:2]):
+            _in(v, f"{where}[{k}]", allowed)
+    return values
 
 
 def _string(raw: Any, where: str) -> str:
     if isinstance(raw, bool) or not isinstance(raw, str | int):
-        raise ScenarioError(f"{where}: must be a string, got {raw!r}")
+        raise ScenarioError(f"{where}: must be a string, got {excerpt(raw)}")
+    if isinstance(raw, int) and abs(raw) >= 10**18:
+        raise ScenarioError(f"{where}: must be a string, got {excerpt(raw)}")
     return str(raw)
 
 
 def _identifier(raw: Any, where: str) -> str:
+    """A robot, formation or obstacle name: :func:`wire.keys.name_problem`, the rule that
+    ``formation run`` and ``deploy`` apply too."""
     s = _string(raw, where)
-    if not s or any(c in s for c in "/*$#? \t\n") :
-        raise ScenarioError(f"{where}: {s!r} is not a valid name (no spaces or / * $ # ?)")
+    problem = name_problem(s)
+    if problem is not None:
+        raise ScenarioError(f"{where}: {excerpt(s)} is not a valid name: it {problem}")
+    return s
+
+
+def _title(raw: Any, where: str) -> str:
+    """The scenario's own name: printable, at most 128 characters (it labels runs and plots)."""
+    s = _string(raw, where)
+    if len(s) > 128 or not s.isprintable():
+        raise ScenarioError(f"{where}: {excerpt(s)} must be printable and at most 128 "
+                            "characters")
     return s

@@ -7,9 +7,11 @@ adjacent to every member and a start that satisfies every constraint.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
+from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE, BURGER_RADIUS
 from geometry.shapes import Shape
 
 SINGLE_INTEGRATOR = "single_integrator"
@@ -19,10 +21,10 @@ UNICYCLE = "unicycle"
 @dataclass(frozen=True)
 class RobotModel:
     model: str = SINGLE_INTEGRATOR
-    max_speed: float = 0.22  # [m/s]
-    max_turn_rate: float = 2.84  # [rad/s], unicycle only
+    max_speed: float = BURGER_MAX_SPEED  # [m/s]
+    max_turn_rate: float = BURGER_MAX_TURN_RATE  # [rad/s], unicycle only
     lookahead: float = 0.05  # [m], l of chapter 6.2, unicycle only
-    radius: float = 0.105  # [m] body radius, for collision checks
+    radius: float = BURGER_RADIUS  # [m] body radius, for collision checks
 
     @property
     def is_unicycle(self) -> bool:
@@ -128,25 +130,25 @@ class Scenario:
     obstacles: tuple[ObstacleSpec, ...]
     shapes: tuple[Shape, ...] = ()  # static walls (segments) and shelves (boxes)
 
-    @property
+    # Derived once per instance (the fields are frozen; dataclasses.replace makes a new one):
+    # lookups by robot id are dict lookups, not scans of every robot.
+    @functools.cached_property
     def robots(self) -> tuple[RobotSpec, ...]:
         return tuple(r for f in self.formations for r in f.robots)
 
-    @property
+    @functools.cached_property
     def robot_ids(self) -> tuple[str, ...]:
         return tuple(r.id for r in self.robots)
 
+    @functools.cached_property
+    def _by_id(self) -> dict[str, tuple[RobotSpec, FormationSpec]]:
+        return {r.id: (r, f) for f in self.formations for r in f.robots}
+
     def formation_of(self, robot_id: str) -> FormationSpec:
-        for f in self.formations:
-            if robot_id in f.robot_ids:
-                return f
-        raise KeyError(robot_id)
+        return self._by_id[robot_id][1]
 
     def robot_spec(self, robot_id: str) -> RobotSpec:
-        for r in self.robots:
-            if r.id == robot_id:
-                return r
-        raise KeyError(robot_id)
+        return self._by_id[robot_id][0]
 
     @property
     def steps(self) -> int:

@@ -2,29 +2,31 @@
 
 The data each robot sees is what the distributed system hands it: its neighbours' control
 points and last commands (their ``state``), the obstacles, and the ellipses its leader estimates
-from the members' states (:func:`leader.ellipse.estimate`). Kinematics are integrated exactly
+from the members' states (:func:`geometry.ellipse.estimate`). Kinematics are integrated exactly
 (single integrator, or the unicycle of eq. 6.1 when ``robot.model: unicycle``).
 """
 
 from __future__ import annotations
 
 import math
-import statistics
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from agent import unicycle
-from agent.barriers import Neighbour, Obstacle
-from agent.control import ControlParams, FormationView, Stall, control_step, update_stall
+from agent.barriers import Obstacle
+from agent.control import ControlParams, Stall, control_step
+from agent.inputs import step_inputs
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
-from leader.ellipse import Ellipse, estimate, reference_shape
+from geometry.ellipse import ReferenceShape, estimate, reference_shape
 from leader.navigation import Follower
 from scenario import Scenario, formation_axes
 from scenario.routes import initial_route
 
 from .metrics import SafetyMonitor
+from .summary import qp_fields, run_summary
 
 TOPOLOGIES = ("reduced", "all-to-all")
 
@@ -66,7 +68,7 @@ class FleetModel:
 
     scenario: Scenario
     params: ControlParams
-    shapes: dict[str, object]
+    shapes: dict[str, ReferenceShape]
     axes: dict[str, tuple[float, float]]
     members: dict[str, tuple[int, ...]]  # formation -> robot indices
     neighbours: tuple[tuple[tuple[int, float], ...], ...]  # per robot: (index, Df)
@@ -154,26 +156,21 @@ def simulate(
         results = []
         for i in range(n):
             fname = fleet.formation_of[i]
-            nb = [Neighbour(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], df)
-                  for j, df in fleet.neighbours[i]]
-            if all_to_all:
-                others: list[Ellipse] = []
-                pair = [Neighbour(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], 0.0)
-                        for j in range(n) if fleet.formation_of[j] != fname]
-            else:
-                others = [e for name, e in ellipses.items() if name != fname]
-                pair = []
             own = ellipses[fname]
-            target, (wx, wy) = followers[i].step(own.cx, own.cy)
-            view = FormationView(own, wx, wy)
-            stalls[i] = update_stall(stalls[i], view, dt)
-            view = view._replace(
-                name=fname,
-                other_names=tuple(name for name in ellipses if name != fname),
-                retreating=stalls[i].retreat > 0.0,
+            target, waypoint = followers[i].step(own.cx, own.cy)
+            inputs = step_inputs(
+                ((ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], df) for j, df in fleet.neighbours[i]),
+                own, fname, waypoint,
+                [(name, e) for name, e in ellipses.items() if name != fname],
+                stalls[i], dt,
+                [(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1])
+                 for j in range(n) if fleet.formation_of[j] != fname] if all_to_all else None,
             )
-            res = control_step(params, tuple(state[i]), target, nb, obs, others, view, solve, pair,
-                               shapes)
+            stalls[i] = inputs.stall
+            pose = (state[i][0], state[i][1], state[i][2])
+            res = control_step(params, pose, target, inputs.neighbours, obs,
+                               inputs.others, inputs.view, solve, inputs.pairwise,
+                               shapes=shapes, clock=time.perf_counter_ns)
             results.append(res)
             solve_us.append(res.solve_us)
             if res.status in counts:
@@ -209,26 +206,13 @@ def simulate(
 
     edges_total = sum(len(f.edges) for f in scenario.formations)
     ticks = k + 1
-    summary = {
-        "scenario": scenario.name,
-        "mode": "inprocess",
-        "steps": ticks,
-        "sim_time_s": round(t, 6),
-        **monitor.summary_fields(),
-        "min_h": {key: (v if math.isfinite(v) else None) for key, v in min_h.items()},
-        "qp": {
-            "solves": len(solve_us),
-            "infeasible": counts[STATUS_RELAXED] + counts[STATUS_FALLBACK] + counts[STATUS_FAILED],
-            "solve_us_median": statistics.median(solve_us) if solve_us else None,
-            "relaxed": counts[STATUS_RELAXED],
-            "fallback": counts[STATUS_FALLBACK],
-            "failed": counts[STATUS_FAILED],
-        },
-        "comm": logical_comm(scenario, options.topology, ticks, t, edges_total),
-        "safety": options.safety,
-        "solver": options.solver,
-        "collision_log": monitor.collision_log[:100],
-    }
+    summary = run_summary(
+        scenario, "inprocess", ticks, t, monitor,
+        {key: (v if math.isfinite(v) else None) for key, v in min_h.items()},
+        qp_fields(len(solve_us), solve_us, counts[STATUS_RELAXED], counts[STATUS_FALLBACK],
+                  counts[STATUS_FAILED]),
+        logical_comm(scenario, options.topology, ticks, t, edges_total),
+        options.safety, options.solver)
     if any(len(r) > 1 for r in routes.values()):
         summary["routes"] = {name: [list(p) for p in r] for name, r in routes.items()}
     return SimResult(summary, series, scenario)

@@ -29,44 +29,34 @@ timeout and is then not waited for until it speaks again. ``summary.json`` gains
 
 from __future__ import annotations
 
-import argparse
-import dataclasses
 import json
 import logging
 import math
-import os
 import signal
 import statistics
-import subprocess
-import sys
 import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from types import FrameType
-from typing import IO
 
 import zenoh
 
-from agent.config import ZenohSettings, build_agent_configs, save_config
+from agent.config import build_agent_configs
 from agent.faults import LinkFaults
-from scenario import Scenario, load_scenario
+from scenario import Scenario
 from wire import acl, keys, traffic
 from wire.payloads import DecodeError, decode_status
-from wire.testing import free_tcp_port, tcp_endpoint, wait_for_tcp_port
-from wire.zconf import UsrPwdAuth
-from wire.zconf import ZenohSettings as WireZenohSettings
+from wire.ports import free_tcp_port, tcp_endpoint
+from wire.zconf import UsrPwdAuth, ZenohSettings
 
+from .fleet import START_TIMEOUT_S, STOP_TIMEOUT_S, Child, ChildFailed, Fleet, signal_group
 from .inprocess import Series
-from .output import write_run
+from .summary import qp_fields, run_summary
 from .world import World, WorldOptions, WorldResult
 
 logger = logging.getLogger(__name__)
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
-STOP_TIMEOUT_S = 5.0  # [s] SIGTERM -> SIGKILL
-START_TIMEOUT_S = 60.0  # [s] router listening, agents subscribed
 # control traffic between robots: the classes the topology decides, and the leader's plans to
 # its members (sent only when a goal arrives at run time, and then once a second)
 INTER_ROBOT = (keys.STATE, keys.ELLIPSE, keys.OTHERS, keys.PLAN)
@@ -161,138 +151,6 @@ def parse_camera_dropout(text: str) -> CameraDropout:
     return CameraDropout(robot, _number(at, "camera-dropout"), _number(duration, "camera-dropout"))
 
 
-class ChildFailed(RuntimeError):
-    """A child process exited while the run needed it."""
-
-
-@dataclass
-class Child:
-    name: str
-    proc: subprocess.Popen
-    log: IO[bytes]
-
-
-class Supervisor:
-    """Starts children in their own process groups and stops every one of them."""
-
-    def __init__(self, log_dir: Path) -> None:
-        self.log_dir = log_dir
-        self.children: list[Child] = []
-        self.env = dict(os.environ)
-        self.env["PYTHONPATH"] = os.pathsep.join(
-            p for p in (str(REPO_ROOT), self.env.get("PYTHONPATH", "")) if p)
-
-    def start(self, name: str, argv: Sequence[str]) -> Child:
-        log = (self.log_dir / f"{name}.log").open("wb")
-        try:
-            proc = subprocess.Popen([sys.executable, *argv], env=self.env, stdin=subprocess.DEVNULL,
-                                    stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
-        except BaseException:
-            log.close()
-            raise
-        child = Child(name, proc, log)
-        self.children.append(child)
-        return child
-
-    def check(self) -> None:
-        """Raise :class:`ChildFailed` if any child has exited."""
-        for c in self.children:
-            code = c.proc.poll()
-            if code is not None:
-                path = self.log_dir / f"{c.name}.log"
-                c.log.flush()
-                try:
-                    tail = path.read_text(encoding="utf-8", errors="replace").strip().splitlines()[-3:]
-                except OSError:
-                    tail = []
-                raise ChildFailed(f"{c.name} exited with status {code} (see {path})"
-                                  + (": " + " | ".join(tail) if tail else ""))
-
-    def stop(self, children: Sequence[Child] | None = None, timeout: float = STOP_TIMEOUT_S) -> None:
-        """SIGTERM to each child's process group, wait, SIGKILL what is left."""
-        targets = list(self.children if children is None else children)
-        for c in targets:
-            if c.proc.poll() is None:
-                _signal_group(c.proc.pid, signal.SIGTERM)
-        deadline = time.monotonic() + timeout
-        for c in targets:
-            try:
-                c.proc.wait(max(0.0, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                logger.warning("%s (pid %d) ignored SIGTERM; killing it", c.name, c.proc.pid)
-            _signal_group(c.proc.pid, signal.SIGKILL)  # whatever is left in its group
-            if c.proc.poll() is None:
-                c.proc.wait(timeout)
-            c.log.close()
-        if children is None:
-            self.children.clear()
-        else:
-            self.children = [c for c in self.children if c not in targets]
-
-
-def _signal_group(pid: int, sig: int) -> None:
-    try:
-        os.killpg(pid, sig)
-    except (ProcessLookupError, PermissionError):
-        pass
-
-
-def _raise_interrupt(signum: int, _frame: FrameType | None) -> None:
-    raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
-
-
-def run_command(ns: argparse.Namespace) -> int:
-    """``formation run``; see the module docstring. Returns the exit status."""
-    from formation.cli import EXIT_OK, Progress, UsageError, print_summary
-
-    try:
-        faults = FaultPlan(
-            drop=ns.drop, delay_ms=ns.delay_ms, seed=getattr(ns, "fault_seed", 0),
-            kills=tuple(parse_kill(k) for k in getattr(ns, "kill", None) or ()),
-            camera_dropouts=tuple(parse_camera_dropout(c)
-                                  for c in getattr(ns, "camera_dropout", None) or ()),
-        )
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    if ns.camera == "synthetic":
-        try:
-            import camera_service.service  # noqa: F401
-        except ImportError:
-            raise UsageError("--camera synthetic: camera_service.service is not available yet") from None
-    if not 0 <= ns.port < 65536:
-        raise UsageError(f"--port: {ns.port} is not a TCP port")
-    slots = getattr(ns, "pose_slots", 1)
-    if slots < 1:
-        raise UsageError(f"--pose-slots: need an integer >= 1, got {slots}")
-    if slots > 1 and not (ns.realtime and ns.camera == "truth"):
-        raise UsageError("--pose-slots: more than one slot needs --realtime and --camera truth")
-    scenario = load_scenario(ns.scenario)  # ScenarioError -> exit 2
-    duration = getattr(ns, "duration", None)
-    if duration is not None:
-        if not (math.isfinite(duration) and duration >= scenario.dt):
-            raise UsageError(f"--duration: need at least one period ({scenario.dt} s), got {duration}")
-        scenario = dataclasses.replace(scenario, duration=duration)
-    hold = getattr(ns, "hold", False)
-
-    def announce(endpoint: str) -> None:
-        if hold:
-            print(f"fleet up, goals to: formation goal FID X Y --connect {endpoint}", flush=True)
-
-    try:
-        faults.check_robots(scenario.robot_ids)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    out = Path(ns.out)
-    summary, series = launch(scenario, out, realtime=ns.realtime, camera=ns.camera,
-                             topology=ns.topology, safety=not ns.no_safety, port=ns.port,
-                             progress_factory=lambda: Progress(f"run {scenario.name}", quiet=ns.quiet),
-                             faults=faults, secure=getattr(ns, "secure", False),
-                             pose_slots=slots, hold=hold, announce=announce)
-    write_run(summary, series, scenario, out, plots=not ns.no_plots)
-    print_summary(summary, out)
-    return EXIT_OK
-
-
 def launch(
     scenario: Scenario,
     out: Path,
@@ -306,6 +164,7 @@ def launch(
     faults: FaultPlan | None = None,
     secure: bool = False,
     pose_slots: int = 1,
+    observer=None,
     hold: bool = False,
     announce=None,
 ) -> tuple[dict, Series]:
@@ -314,10 +173,12 @@ def launch(
     ``faults`` injects the faults of :class:`FaultPlan`; ``secure`` runs the router with
     user/password authentication and the access control list of :mod:`wire.acl`, every process
     logging in as itself. ``pose_slots`` is the world's (:class:`simulator.world.WorldOptions`:
-    real time only). ``hold`` keeps the fleet up after every goal is reached, until the
-    scenario's duration or SIGINT/SIGTERM (which then end the run normally, with its summary);
-    ``announce(endpoint)`` is called once every agent is up (the endpoint is also written to
-    ``out/endpoint``). The summary's ``formations_status`` holds each leader's last status."""
+    real time only). ``observer(session)``, when given, is called with the world's session
+    before the run (a live viewer subscribes on it) and returns what detaches it after.
+    ``hold`` keeps the fleet up after every goal is reached, until the scenario's duration or
+    SIGINT/SIGTERM (which then end the run normally, with its summary); ``announce(endpoint)`` is
+    called once every agent is up (the endpoint is also written to ``out/endpoint``). The
+    summary's ``formations_status`` holds each leader's last status."""
     faults = faults or FaultPlan()
     faults.check_robots(scenario.robot_ids)
     out = Path(out)
@@ -325,56 +186,54 @@ def launch(
         (out / sub).mkdir(parents=True, exist_ok=True)
     for old in (out / "agents").glob("*.json"):
         old.unlink()
+    stop_requested = threading.Event()
+    previous_int = None
+    if hold and threading.current_thread() is threading.main_thread():
+        previous_int = signal.signal(signal.SIGINT, lambda _s, _f: stop_requested.set())
+    try:
+        summary, series = _launch(scenario, out, realtime, camera, topology, safety, port,
+                                  progress_factory, faults, secure, pose_slots, observer, hold,
+                                  announce, stop_requested)
+    finally:
+        if previous_int is not None:
+            signal.signal(signal.SIGINT, previous_int)
+    return summary, series
+
+
+def _launch(scenario: Scenario, out: Path, realtime: bool, camera: str, topology: str,
+            safety: bool, port: int, progress_factory, faults: FaultPlan, secure: bool,
+            pose_slots: int, observer, hold: bool, announce,
+            stop_requested: threading.Event) -> tuple[dict, Series]:
+    """:func:`launch` once its arguments are checked and its folders made."""
     port = port or free_tcp_port()
     endpoint = tcp_endpoint(port)
-    sup = Supervisor(out / "logs")
     fault_run = faults.active
-    stop_requested = threading.Event()
+    with Fleet(out / "logs") as fleet:
 
-    def _request_stop(signum: int, _frame: FrameType | None) -> None:
-        stop_requested.set()
+        def abort() -> None:
+            if hold and fleet.signalled is not None:
+                stop_requested.set()  # SIGTERM ends a held run like Ctrl-C: normally
+                return
+            fleet.check()
 
-    previous = signal.signal(signal.SIGTERM, _request_stop if hold else _raise_interrupt)
-    previous_int = signal.signal(signal.SIGINT, _request_stop) if hold else None
-    try:
         creds = _secure_setup(scenario, out / "secure", endpoint) if secure else None
-        router_argv = ["-m", "wire.router", "--listen", endpoint, "--log-level", "WARNING"]
-        if creds is not None:
-            router_argv += ["--config", str(creds.router_config)]
-        router = sup.start("router", router_argv)
-        deadline = time.monotonic() + START_TIMEOUT_S
-        while True:
-            sup.check()
-            try:
-                wait_for_tcp_port(port, timeout_s=0.2)
-                break
-            except TimeoutError:
-                if time.monotonic() > deadline:
-                    raise
+        router = fleet.start_router(endpoint, port, None if creds is None else creds.router_config)
         zs = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False)
         configs = build_agent_configs(scenario, zenoh=zs, topology=topology, safety=safety)
-        agent_argv: dict[str, list[str]] = {}
-        agents: dict[str, Child] = {}
-        for rid, cfg in configs.items():
-            path = out / "configs" / f"{rid}.yaml"
-            save_config(cfg, path)
-            argv = ["-m", "agent", "--config", str(path), "--stats", str(out / "agents" / f"{rid}.json")]
-            if not realtime:
-                argv.append("--lockstep")
+
+        def agent_args(rid: str) -> list[str]:
+            argv = [] if realtime else ["--lockstep"]
             if fault_run:
                 argv += ["--drop", repr(faults.drop), "--delay-ms", repr(faults.delay_ms),
                          "--fault-seed", str(faults.seed), "--ellipse-hold", repr(faults.ellipse_hold),
                          "--lockstep-timeout", repr(FAULT_AGENT_TIMEOUT_S)]
             if creds is not None:
                 argv += ["--zenoh-auth", str(creds.files[rid])]
-            agent_argv[rid] = argv
-            agents[rid] = sup.start(f"agent-{rid}", argv)
-        # written whole, then renamed: a reader never sees half a file
-        tmp = out / "processes.json.tmp"
-        tmp.write_text(json.dumps({c.name: c.proc.pid for c in sup.children}, indent=2) + "\n",
-                       encoding="utf-8")
-        tmp.replace(out / "processes.json")
-        conf = WireZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
+            return argv
+
+        agents = fleet.start_agents(configs, out, agent_args)
+        fleet.write_pids(out / "processes.json")
+        conf = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
                                  connect_timeout_s=10.0,
                                  auth=None if creds is None else creds.world).to_config()
         options = WorldOptions(
@@ -387,29 +246,27 @@ def launch(
         with zenoh.open(conf) as session:
             world = World(scenario, session, options)
             statuses = StatusBoard(session, keys.DEFAULT_PREFIX)
-            driver = _FaultDriver(faults, sup, world, agents, agent_argv, scenario.dt, realtime)
+            detach = observer(session) if observer is not None else None
+            driver = _FaultDriver(faults, fleet, world, agents, scenario.dt, realtime)
             try:
-                world.wait_for_agents(abort=sup.check)
+                world.wait_for_agents(abort=fleet.check)
                 (out / "endpoint").write_text(endpoint + "\n", encoding="utf-8")
                 if announce is not None:
                     announce(endpoint)
                 tick = driver.on_tick if fault_run else None
+                stop = stop_requested.is_set
                 if progress_factory is not None:
                     with progress_factory() as progress:
-                        result = world.run(progress=progress.update, abort=sup.check,
-                                           on_tick=tick, stop=stop_requested.is_set)
+                        result = world.run(progress=progress.update, abort=abort, on_tick=tick,
+                                           stop=stop)
                 else:
-                    result = world.run(abort=sup.check, on_tick=tick, stop=stop_requested.is_set)
+                    result = world.run(abort=abort, on_tick=tick, stop=stop)
             finally:
+                if detach is not None:
+                    detach()
                 world.close()
                 statuses.close()
-        sup.stop(list(agents.values()))  # agents write their stats on SIGTERM
-        sup.stop([router])
-    finally:
-        sup.stop()
-        signal.signal(signal.SIGTERM, previous)
-        if previous_int is not None:
-            signal.signal(signal.SIGINT, previous_int)
+        fleet.shut_down(list(agents.values()), router)
     stats = [_read_stats(out / "agents" / f"{rid}.json") if rid in agents
              else _dead_stats(cfg) for rid, cfg in configs.items()]
     summary, series = build_summary(scenario, result, stats, topology, realtime, camera, safety)
@@ -472,9 +329,10 @@ def _secure_setup(scenario: Scenario, folder: Path, endpoint: str) -> _Secure:
     folder.chmod(0o700)
     robots = {rid: scenario.formation_of(rid).name for rid in scenario.robot_ids}
     leaders = {f.name: f.leader for f in scenario.formations}
-    creds = acl.new_credentials([acl.CAMERA_USER, *robots])
+    creds = acl.new_credentials([acl.CAMERA_USER, acl.VIEWER_USER, *robots])
     dictionary = folder / "users.txt"
     acl.write_dictionary(dictionary, creds)
+    acl.write_credentials(folder / "viewer.credentials", creds[acl.VIEWER_USER])  # view --auth
     files = {}
     for rid in robots:
         files[rid] = folder / f"{rid}.credentials"
@@ -488,12 +346,12 @@ def _secure_setup(scenario: Scenario, folder: Path, endpoint: str) -> _Secure:
 class _FaultDriver:
     """Kills and restarts agents at their simulated times (``World.run(on_tick=...)``)."""
 
-    def __init__(self, plan: FaultPlan, sup: Supervisor, world: World, agents: dict[str, Child],
-                 argv: dict[str, list[str]], dt: float, realtime: bool) -> None:
-        self.sup = sup
+    def __init__(self, plan: FaultPlan, fleet: Fleet, world: World, agents: dict[str, Child],
+                 dt: float, realtime: bool) -> None:
+        self.fleet = fleet
         self.world = world
         self.agents = agents
-        self.argv = argv
+        self.argv = fleet.agent_argv
         self.realtime = realtime
         self.log: list[dict] = []
         # (tick, order, action, robot): kills before restarts within a tick
@@ -519,8 +377,8 @@ class _FaultDriver:
         if child is None:
             logger.warning("kill %s at t=%.2f s: its agent is not running", rid, t)
             return
-        _signal_group(child.proc.pid, signal.SIGKILL)
-        self.sup.stop([child])  # reaps it, closes its log
+        signal_group(child.proc.pid, signal.SIGKILL)
+        self.fleet.stop([child])  # reaps it, closes its log
         gone = self.world.wait_unsubscribed(rid)
         logger.info("killed agent %s at t=%.2f s (router saw it go: %s)", rid, t, gone)
         self.log.append({"event": "kill", "robot": rid, "t_s": round(t, 6)})
@@ -531,9 +389,9 @@ class _FaultDriver:
             return
         self.incarnation[rid] += 1
         wall0 = time.monotonic()
-        self.agents[rid] = self.sup.start(f"agent-{rid}-{self.incarnation[rid]}", self.argv[rid])
+        self.agents[rid] = self.fleet.start(f"agent-{rid}-{self.incarnation[rid]}", self.argv[rid])
         if not self.realtime:  # lock-step: the restart takes no simulated time
-            self.world.wait_for_agents(abort=self.sup.check, robots=[rid], grace=False)
+            self.world.wait_for_agents(abort=self.fleet.check, robots=[rid], grace=False)
         self.log.append({"event": "restart", "robot": rid, "t_s": round(t, 6),
                          "start_wall_s": round(time.monotonic() - wall0, 3)})
 
@@ -601,27 +459,13 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
         vals = [s["min_h"][kind] for s in stats if s["min_h"][kind] is not None]
         min_h[kind] = min(vals) if vals else None
     snap = traffic.merge([result.traffic, *(s["traffic"] for s in stats)])
-    summary = {
-        "scenario": scenario.name,
-        "mode": "multiprocess",
-        "steps": result.steps,
-        "sim_time_s": round(sim_time, 6),
-        **result.monitor.summary_fields(),
-        "min_h": min_h,
-        "qp": {
-            "solves": sum(s["solves"] for s in stats),
-            "infeasible": relaxed + fallback + failed,
-            "solve_us_median": statistics.median(solve_us) if solve_us else None,
-            "relaxed": relaxed,
-            "fallback": fallback,
-            "failed": failed,
-        },
-        "comm": comm_summary(snap, topology, n, sim_time),
-        "safety": safety,
-        "solver": "exact",
-        "realtime": realtime,
-        "camera": camera,
-        "agents": {
+    summary = run_summary(
+        scenario, "multiprocess", result.steps, sim_time, result.monitor, min_h,
+        qp_fields(sum(s["solves"] for s in stats), solve_us, relaxed, fallback, failed),
+        comm_summary(snap, topology, n, sim_time), safety, "exact",
+        realtime=realtime,
+        camera=camera,
+        agents={
             "ticks": sum(s["ticks"] for s in stats),
             "overruns": sum(s["overruns"] for s in stats),
             "stale": sum(s["stale"] for s in stats),
@@ -633,14 +477,13 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
             "tick_us_median": _median([s["tick_us_median"] for s in stats]),
             "pose_age_us_median": _median([s.get("pose_age_us_median") for s in stats]),
         },
-        "world": {
+        world={
             "missing_cmds": result.missing_cmds,
             "malformed_cmds": result.malformed_cmds,
             "wall_s": result.wall_s,
             "latency_ms": _latency(result.latency_ms),
         },
-        "collision_log": result.monitor.collision_log[:100],
-    }
+    )
     return summary, series
 
 
@@ -648,8 +491,7 @@ def comm_summary(snap: dict, topology: str, n: int, sim_time: float) -> dict:
     """``comm`` of the contract, from traffic counted at publishers and subscribers.
 
     ``messages``/``bytes`` are the deliveries received by agents on the classes the topology
-    decides (``state``, ``ellipse``, ``others``) and the leaders' ``plan`` (none unless goals
-    arrive at run time), comparable to the in-process model; ``classes``
+    decides (``state``, ``ellipse``, ``others``), comparable to the in-process model; ``classes``
     breaks every class down into what was put and what was received.
     """
     recv = snap["recv"]
@@ -721,3 +563,7 @@ def _latency(ms: list[float]) -> dict | None:
     xs = sorted(ms)
     return {"samples": len(xs), "median_ms": statistics.median(xs),
             "p99_ms": xs[min(len(xs) - 1, int(math.ceil(0.99 * len(xs))) - 1)], "max_ms": xs[-1]}
+
+
+Supervisor = Fleet  # the former name, kept for callers outside this package
+__all__ = ["START_TIMEOUT_S", "STOP_TIMEOUT_S", "Child", "ChildFailed", "Fleet", "Supervisor"]

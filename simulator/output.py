@@ -6,7 +6,8 @@ Shared by ``formation sim`` and ``formation run`` so both write the same files:
 * ``robots.csv`` - one row per robot per tick (:data:`simulator.inprocess.ROBOT_COLUMNS`);
 * ``ellipses.csv``, ``obstacles.csv`` - per tick;
 * ``trajectories.png`` - paths, obstacles and ellipse snapshots (like thesis Figs. 5.2, 5.11, 5.15);
-* ``safety.png`` - the smallest barrier value of each kind per robot over time (Figs. 5.3, 5.4, 5.12).
+* ``safety.png`` - the smallest barrier value of each kind per robot over time (Figs. 5.3, 5.4, 5.12);
+* ``run.mcap`` - the run for Foxglove or Lichtblick (:func:`viewer.record.write_recording`).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import math
 from pathlib import Path
 
 from scenario import Scenario
+from viewer.record import write_recording
 
 from .inprocess import ROBOT_COLUMNS, Series
 
@@ -33,6 +35,7 @@ def write_run(summary: dict, series: Series, scenario: Scenario, out: Path, plot
     _write_csv(out / "robots.csv", ROBOT_COLUMNS, series.robots)
     _write_csv(out / "ellipses.csv", ELLIPSE_COLUMNS, series.ellipses)
     _write_csv(out / "obstacles.csv", OBSTACLE_COLUMNS, series.obstacles)
+    write_recording(summary, series, scenario, out)
     if plots and series.robots:
         from .plots import plot_safety, plot_trajectories
 

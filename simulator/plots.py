@@ -115,7 +115,7 @@ def plot_safety(series: Series, scenario: Scenario, path: Path) -> None:
     kinds = [("h_formation", "formation maintenance  h (eq. 4.3/4.4) [m²]"),
              ("h_obstacle", "obstacle avoidance  h (eq. 4.5) [m²]"),
              ("h_formations", "other formations  h (eq. 4.6)")]
-    by_robot = defaultdict(lambda: defaultdict(list))
+    by_robot: defaultdict[str, defaultdict[str, list]] = defaultdict(lambda: defaultdict(list))
     for row in series.robots:
         rid = row[_COL["robot"]]
         for key, _ in kinds:

@@ -196,6 +196,24 @@ class _CmdInbox:
             self.late.discard(rid)
             self._cond.notify_all()
 
+    def fresh(self, now: float, max_age: float, robots: Sequence[str] | None = None) -> dict[str, Cmd]:
+        """The latest command of each robot (of ``robots``; default every one heard) received no
+        more than ``max_age`` before ``now`` (``time.monotonic()``)."""
+        with self._cond:
+            if robots is None:
+                return {r: c for r, (c, rx) in self.latest.items() if now - rx <= max_age}
+            entries = ((r, self.latest.get(r)) for r in robots)
+            return {r: e[0] for r, e in entries if e is not None and now - e[1] <= max_age}
+
+    def take_since(self, t: float, robots: Sequence[str]) -> tuple[dict[str, Cmd], list[str]]:
+        """Lock-step: the commands stamped ``t`` or later, and the robots of ``robots`` that sent
+        none and were not late already (now marked late)."""
+        with self._cond:
+            got = {r: c for r, (c, _rx) in self.latest.items() if c.stamp >= t}
+            late = [r for r in robots if r not in got and r not in self.late]
+            self.late.update(late)
+        return got, late
+
     def wait(self, ready: Callable[[], bool], timeout: float, abort: Callable[[], None]) -> bool:
         """Wait until ``ready()`` (checked under the lock) or the timeout; ``abort()`` is called
         between waits, outside the lock, and may raise."""
@@ -262,7 +280,7 @@ class World:
         for rid, pub in zip(self.ids, self._pose_pubs, strict=True):
             if robots is not None and rid not in robots:
                 continue
-            while not pub.publisher.matching_status.matching:
+            while not pub.publisher.matching_status.matching:  # type: ignore[attr-defined]
                 abort()
                 if time.monotonic() > deadline:
                     raise TimeoutError(f"agent {rid} did not subscribe to its pose within "
@@ -276,7 +294,7 @@ class World:
         timeout passed first."""
         pub = self._pose_pubs[self.ids.index(rid)]
         deadline = time.monotonic() + timeout
-        while pub.publisher.matching_status.matching:
+        while pub.publisher.matching_status.matching:  # type: ignore[attr-defined]
             if time.monotonic() > deadline:
                 return False
             time.sleep(0.01)
@@ -300,7 +318,8 @@ class World:
         dt = sc.dt
         is_uni = sc.robot.is_unicycle
         off = sc.robot.control_offset
-        state = [tuple(r.start) for r in sc.robots]
+        state: list[tuple[float, float, float]] = [
+            (r.start[0], r.start[1], r.start[2]) for r in sc.robots]
         n = len(state)
         monitor = SafetyMonitor(sc)
         series = Series()
@@ -349,10 +368,7 @@ class World:
             if opts.realtime:
                 next_wall += dt
                 _sleep_until(next_wall, abort)
-                now = time.monotonic()
-                with inbox._cond:
-                    got = {r: c for r, (c, rx) in inbox.latest.items()
-                           if now - rx <= opts.stale_after}
+                got = inbox.fresh(time.monotonic(), opts.stale_after)
             else:
                 def ready(t: float = t) -> bool:
                     return all(r in inbox.latest and inbox.latest[r][0].stamp >= t
@@ -360,10 +376,7 @@ class World:
 
                 if not inbox.wait(ready, opts.cmd_timeout, abort):
                     timeouts += 1
-                with inbox._cond:
-                    got = {r: c for r, (c, _rx) in inbox.latest.items() if c.stamp >= t}
-                    late = [r for r in self.ids if r not in got and r not in inbox.late]
-                    inbox.late.update(late)
+                got, late = inbox.take_since(t, self.ids)
                 if late:
                     logger.info("tick %d: no command from %s in time: zero", k, ", ".join(late))
                 missing += sum(1 for r in self.ids if r not in got)
@@ -398,12 +411,9 @@ class World:
         for s in range(slots):
             _sleep_until(start + s * dt / slots, abort)
             mine = range(-(-s * n // slots), -(-(s + 1) * n // slots))
-            now = time.monotonic()
-            with inbox._cond:
-                for i in mine:
-                    entry = inbox.latest.get(self.ids[i])
-                    if entry is not None and now - entry[1] <= opts.stale_after:
-                        cmds[i] = entry[0]
+            fresh = inbox.fresh(time.monotonic(), opts.stale_after, [self.ids[i] for i in mine])
+            for i in mine:
+                cmds[i] = fresh.get(self.ids[i])
             stamp = time.time()
             if s == 0:
                 self._publish_obstacles(t, stamp)

@@ -129,12 +129,14 @@ def test_the_acl_denies_by_default_and_lets_each_robot_publish_only_its_own_keys
     a = acl.fleet_acl(ROBOTS, LEADERS)
     assert a["enabled"] is True and a["default_permission"] == "deny"
     rules = {r["id"]: r for r in a["rules"]}
-    assert rules["r1-publish"]["key_exprs"] == [f"{P}/robot/r1/state", f"{P}/robot/r1/cmd"]
+    assert rules["r1-publish"]["key_exprs"] == [f"{P}/robot/r1/state", f"{P}/robot/r1/cmd",
+                                                f"{P}/robot/r1/diag"]
     assert rules["r1-publish"]["flows"] == ["ingress"] and rules["r1-publish"]["messages"] == ["put"]
     assert f"{P}/formation/F1/ellipse" in rules["r2-publish"]["key_exprs"]  # r2 leads F1
     assert rules[acl.CAMERA_RULE]["key_exprs"] == [f"{P}/robot/*/pose", f"{P}/obstacles"]
     subjects = {s["id"]: s["usernames"] for s in a["subjects"]}
-    assert subjects == {"camera": ["camera"], "r1": ["r1"], "r2": ["r2"], "s1": ["s1"]}
+    assert subjects == {"camera": ["camera"], "viewer": ["viewer"], "r1": ["r1"], "r2": ["r2"],
+                        "s1": ["s1"]}
     policy = {p["id"]: p for p in a["policies"]}
     assert policy["r1-policy"]["subjects"] == ["r1"] and "r1-publish" in policy["r1-policy"]["rules"]
     assert "r2-publish" not in policy["r1-policy"]["rules"]
@@ -236,6 +238,6 @@ def test_python_m_wire_acl_writes_a_fleets_router_files_zenoh_accepts(tmp_path, 
     assert json.loads(conf.get_json("access_control/default_permission")) == "deny"
     users = (folder / "users.txt").read_text().splitlines()
     assert sorted(u.split(":")[0] for u in users) == sorted(
-        ["camera", "r1", "r2", "r3", "r4", "s1", "s2", "s3", "s4"])
+        ["camera", "viewer", "r1", "r2", "r3", "r4", "s1", "s2", "s3", "s4"])
     assert acl.read_credentials(folder / "r1.credentials").user == "r1"
     assert acl.main([str(tmp_path / "missing.yaml"), "--out", str(tmp_path / "g")]) == 2

@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="module")
 def configs():
     scenario = load_scenario(ROOT / "scenarios/thesis-5.2.2.yaml")
-    return build_agent_configs(scenario, zenoh=ZenohSettings(connect=("tcp/127.0.0.1:7447",)))
+    return build_agent_configs(scenario, zenoh=ZenohSettings(mode="client", connect=("tcp/127.0.0.1:7447",)))
 
 
 def test_each_robot_knows_only_its_neighbours_and_the_leader_its_members(configs):

@@ -100,3 +100,14 @@ def test_central_problem_holds_every_robot_and_its_rows():
     assert g.shape == (single + 20 + 16, 16)
     assert h.shape == (g.shape[0],)
     assert (h >= 0).all()  # every barrier holds at the start: standing still is feasible
+
+
+def test_quick_bench_measures_recording_and_a_watched_fleet(quick_result):
+    result, out = quick_result
+    rec = result["recording"]
+    assert set(rec["robot_steps_per_s"]) == {"loop_only", "with_series", "with_mcap"}
+    assert all(v > 0 for v in rec["robot_steps_per_s"].values())
+    assert rec["mcap_bytes"] > 0 and rec["record_ms_per_tick"] > 0
+    (n, watched), = result["agents_viewer"].items()
+    assert n in result["agents"] and watched["commands"] > 0
+    assert f"{n}v" in (out / "bench.txt").read_text(encoding="utf-8")

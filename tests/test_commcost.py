@@ -10,9 +10,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from formation.cli import main
-from scenario.load import scenario_from_dict
-from simulator.commcost import (
+from experiments.commcost import (
     CSV_COLUMNS,
     analytic_bytes,
     analytic_deliveries,
@@ -24,6 +22,8 @@ from simulator.commcost import (
     wildcard_echo,
     write_outputs,
 )
+from formation.cli import main
+from scenario.load import scenario_from_dict
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

@@ -29,11 +29,11 @@ import yaml
 import zenoh
 
 from deploy import deployer
-from deploy.cli import deploy_command
 from deploy.inventory import InventoryError, check_against_scenario, load_inventory
 from deploy.zenoh_config import bridge_config_dict, check_json5, zenoh_config_dict
 from formation.cli import UsageError
 from formation.cli import main as formation_main
+from formation.commands.deploy import deploy_command
 from scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -174,7 +174,7 @@ def source_snapshot(tmp_path_factory: pytest.TempPathFactory) -> Path:
     snap = tmp_path_factory.mktemp("src")
     shutil.copy2(ROOT / "pyproject.toml", snap / "pyproject.toml")
     packages = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
-    for pkg in packages:
+    for pkg in (p for p in packages if "." not in p):  # a subpackage comes with its parent
         shutil.copytree(ROOT / pkg, snap / pkg, ignore=shutil.ignore_patterns("__pycache__"))
     return snap
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from formation import navcmd
+from formation.commands import goal as navcmd
 from wire.zconf import ZenohSettings
 
 ROOT = Path(__file__).resolve().parent.parent

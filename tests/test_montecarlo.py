@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import json
 
+from experiments.montecarlo import random_scenario, valid_scenario
 from formation.cli import main
-from simulator.montecarlo import random_scenario, valid_scenario
 
 
 def test_layouts_are_valid_reproducible_and_cover_both_robot_models():

@@ -9,7 +9,7 @@ from collections.abc import Iterator
 import pytest
 import zenoh
 
-from formation import navcmd
+from formation.commands import goal as navcmd
 from geometry.shapes import box
 from leader.navigation import Follower, Navigator
 from wire import keys

@@ -5,5 +5,6 @@
 - :mod:`wire.zconf`: ``zenoh.Config`` from typed settings or command-line flags.
 - :mod:`wire.router`: a Python router session (``python -m wire.router``).
 - :mod:`wire.traffic`: traffic counters, a counting publisher, the asyncio mailbox.
-- :mod:`wire.testing`: loopback helpers for tests and benchmarks (free ports, a router process).
+- :mod:`wire.ports`: loopback ports: a free one, its endpoint, waiting for a listener.
+- :mod:`wire.testing`: loopback helpers for tests and benchmarks (a router process, matching).
 """

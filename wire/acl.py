@@ -5,8 +5,10 @@ user/password (``transport/auth/usrpwd``, the router holding a ``user:password``
 and filters messages with the ACL of :func:`fleet_acl`, whose subjects are matched by user name:
 
 * robot ``r`` (user ``r``) may publish (``put``, ingress to the router) only on
-  ``{prefix}/robot/r/state`` and ``{prefix}/robot/r/cmd`` and, if it leads formation ``f``, on
-  ``{prefix}/formation/f/ellipse`` and ``{prefix}/formation/f/others``;
+  ``{prefix}/robot/r/state``, ``{prefix}/robot/r/cmd`` and ``{prefix}/robot/r/diag`` and, if it
+  leads formation ``f``, on ``{prefix}/formation/f/ellipse`` and ``{prefix}/formation/f/others``;
+* the viewer (user :data:`VIEWER_USER`: ``formation view``, ``formation record``) may only
+  subscribe and be sent what is published: it publishes nothing;
 * the camera service or simulated world (user :data:`CAMERA_USER`) may publish only the poses
   ``{prefix}/robot/*/pose`` and ``{prefix}/obstacles``;
 * every fleet user may declare subscribers under ``{prefix}/**`` and be sent (``put``, egress)
@@ -41,6 +43,7 @@ from pathlib import Path
 from typing import Any
 
 from wire import keys
+from wire.diag import diag_key
 from wire.zconf import UsrPwdAuth
 
 logger = logging.getLogger(__name__)
@@ -48,12 +51,13 @@ logger = logging.getLogger(__name__)
 CAMERA_USER = "camera"  # the camera service, or the simulated world that stands in for it
 FLEET_READ_RULE = "fleet-read"
 CAMERA_RULE = "camera-publish"
+VIEWER_USER = "viewer"  # read-only: the live page and recorders of a fleet
 
 
 def _check_user(name: str, what: str) -> str:
-    keys.validate_id(name, what)
-    if ":" in name:
-        raise ValueError(f"{what} {name!r} must not contain ':' (the dictionary separator)")
+    problem = keys.user_problem(name)  # robots' names follow keys.name_problem, stricter
+    if problem is not None:
+        raise ValueError(f"{what} {name!r} {problem}")
     return name
 
 
@@ -76,8 +80,8 @@ def fleet_acl(
     for rid, fid in robots.items():
         _check_user(rid, "robot id")
         keys.validate_id(fid, "formation id")
-        if rid == camera_user:
-            raise ValueError(f"robot id {rid!r} is the camera user")
+        if rid in (camera_user, VIEWER_USER):
+            raise ValueError(f"robot id {rid!r} is the {rid} user")
     for fid, leader in leaders.items():
         if robots.get(leader) != fid:
             raise ValueError(f"leaders: {leader!r} is not a robot of formation {fid!r}")
@@ -89,14 +93,17 @@ def fleet_acl(
         {"id": CAMERA_RULE, "messages": ["put"], "flows": ["ingress"], "permission": "allow",
          "key_exprs": [f"{prefix}/robot/*/pose", keys.obstacles_key(prefix)]},
     ]
-    subjects: list[dict[str, Any]] = [{"id": camera_user, "usernames": [camera_user]}]
+    subjects: list[dict[str, Any]] = [{"id": camera_user, "usernames": [camera_user]},
+                                      {"id": VIEWER_USER, "usernames": [VIEWER_USER]}]
     policies: list[dict[str, Any]] = [
         {"id": f"{camera_user}-policy", "rules": [FLEET_READ_RULE, "fleet-deliver", CAMERA_RULE],
          "subjects": [camera_user]},
+        {"id": f"{VIEWER_USER}-policy", "rules": [FLEET_READ_RULE, "fleet-deliver"],
+         "subjects": [VIEWER_USER]},
     ]
     led = {leader: fid for fid, leader in leaders.items()}
     for rid in robots:
-        own = [keys.state_key(prefix, rid), keys.cmd_key(prefix, rid)]
+        own = [keys.state_key(prefix, rid), keys.cmd_key(prefix, rid), diag_key(prefix, rid)]
         if rid in led:
             own += [keys.ellipse_key(prefix, led[rid]), keys.others_key(prefix, led[rid])]
         rules.append({"id": f"{rid}-publish", "messages": ["put"], "flows": ["ingress"],
@@ -179,12 +186,12 @@ def write_fleet_files(scenario_path: str | os.PathLike[str], folder: str | os.Pa
     (plus ``camera.credentials``) for a scenario's fleet, with fresh passwords, in ``folder``."""
     from scenario import load_scenario
 
-    sc = load_scenario(scenario_path)
+    sc = load_scenario(Path(scenario_path))
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
     out.chmod(0o700)
     robots = {rid: sc.formation_of(rid).name for rid in sc.robot_ids}
-    creds = new_credentials([CAMERA_USER, *robots])
+    creds = new_credentials([CAMERA_USER, VIEWER_USER, *robots])
     write_dictionary(out / "users.txt", creds)
     written = [out / "users.txt"]
     for user, auth in creds.items():

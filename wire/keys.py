@@ -190,3 +190,28 @@ def _parse_key(prefix: str, key: str) -> tuple[str, str | None]:
 def key_class(prefix: str, key: object) -> str:
     """The class name of a concrete key (one of :data:`KEY_CLASSES`), for traffic counting."""
     return parse_key(prefix, key)[0]
+
+
+#: User names of the fleet's services in the router's access control (``wire.acl``): no robot,
+#: formation or obstacle may be called so.
+RESERVED_NAMES: frozenset[str] = frozenset({"camera"})
+
+
+def user_problem(value: object) -> str | None:
+    """Why ``value`` cannot be a Zenoh user name of the fleet (a valid id without ``:``, which
+    separates user and password in the router's dictionary), or ``None``."""
+    problem = id_problem(value)
+    if problem is None and ":" in value:  # type: ignore[operator]
+        problem = "must not contain ':'"
+    return problem
+
+
+def name_problem(value: object) -> str | None:
+    """The one rule for robot, formation and obstacle names, shared by ``formation check``,
+    ``sim``, ``run`` and ``deploy``: a valid id (at most :data:`MAX_ID_LEN` characters, no
+    ``/ * $ # ?``, whitespace such as U+00A0 or invisible characters such as U+200B and U+202E),
+    no ``:``, and not one of :data:`RESERVED_NAMES`. ``None`` when ``value`` follows it."""
+    problem = user_problem(value)
+    if problem is None and value in RESERVED_NAMES:
+        problem = "is reserved (a service's user name)"
+    return problem

@@ -222,7 +222,7 @@ class EllipseMsg:
 
 
 def _ellipse_tuple(value: object, name: str) -> tuple[EllipseMsg, ...]:
-    items = tuple(value)  # type: ignore[call-overload]
+    items: tuple[Any, ...] = tuple(value)  # type: ignore[arg-type]
     if len(items) > MAX_ITEMS:
         raise ValueError(f"{name} must hold at most {MAX_ITEMS} entries, got {len(items)}")
     for item in items:
@@ -374,7 +374,7 @@ def _build_trusted(cls: type, setters: tuple[Callable[[Any, Any], None], ...],
                    values: Iterable[Any]) -> Any:
     """An instance of the frozen message class ``cls`` holding ``values`` (in field order)
     without running its checks: only for values already checked as its constructor would."""
-    obj = _new(cls)
+    obj: Any = _new(cls)
     for put, value in zip(setters, values, strict=True):
         put(obj, value)
     return obj

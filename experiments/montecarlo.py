@@ -10,15 +10,11 @@ its seed and its scenario file (written next to it) so it can be replayed with `
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
 import random
 from concurrent.futures import ProcessPoolExecutor
-from pathlib import Path
 
-import yaml
-
+from geometry.limits import BURGER_MAX_SPEED, BURGER_RADIUS
 from scenario import ScenarioError
 from scenario.load import scenario_from_dict
 
@@ -85,7 +81,7 @@ def random_scenario(seed: int) -> dict:
         "dt": 0.05,
         "duration": 150.0,
         "goal_tolerance": 0.05,
-        "robot": {"model": model, "max_speed": 0.22, "radius": 0.105},
+        "robot": {"model": model, "max_speed": BURGER_MAX_SPEED, "radius": BURGER_RADIUS},
         "controller": {"kp": 2.0, "gamma": {"formation": 1.0, "obstacle": 0.8, "formations": 0.5},
                        "epsilon": 0.05},
         "formations": formations,
@@ -105,7 +101,7 @@ def valid_scenario(seed: int):
 
 
 def run_one(seed: int) -> dict:
-    from .inprocess import SimOptions, simulate
+    from simulator.inprocess import SimOptions, simulate
 
     d, scenario, sub = valid_scenario(seed)
     s = simulate(scenario, SimOptions(record=False)).summary
@@ -162,28 +158,3 @@ def run_montecarlo(n: int, seed: int, workers: int = 2, progress=None) -> tuple[
                      for r in failed],
     }
     return summary, results
-
-
-def montecarlo_command(ns: argparse.Namespace) -> int:
-    from formation.cli import Progress, UsageError
-
-    if ns.n <= 0:
-        raise UsageError(f"--n: must be a positive number of runs, got {ns.n}")
-    out = Path(ns.out)
-    out.mkdir(parents=True, exist_ok=True)
-    with Progress(f"montecarlo n={ns.n}") as progress:
-        summary, results = run_montecarlo(ns.n, ns.seed, progress=progress.update)
-    for r in results:
-        if not r["all_reached"] or r["collisions"]:
-            (out / f"failure-{r['seed']}.yaml").write_text(yaml.safe_dump(r["scenario"], sort_keys=False))
-    (out / "montecarlo.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
-    with (out / "runs.jsonl").open("w", encoding="utf-8") as fh:
-        for r in results:
-            fh.write(json.dumps({k: v for k, v in r.items() if k != "scenario"}) + "\n")
-    print(f"montecarlo: {summary['runs']} runs, reached {100 * summary['reached_rate']:.1f}%, "
-          f"collisions {summary['collisions']} (in {summary['runs_with_collision']} runs), "
-          f"deadlocks {summary['deadlocks']}, worst formation error "
-          f"{summary['worst_formation_error_m']:.3f} m")
-    print(f"wrote {out / 'montecarlo.json'}"
-          + (f"; failed scenarios as {out}/failure-SEED.yaml" if summary["failures"] else ""))
-    return 0

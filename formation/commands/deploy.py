@@ -15,11 +15,10 @@ from __future__ import annotations
 import argparse
 import logging
 
-from formation.cli import EXIT_ERROR, EXIT_OK, UsageError
+from deploy import deployer
+from deploy.inventory import InventoryError, check_against_scenario, load_inventory
+from formation.exits import EXIT_ERROR, EXIT_OK, UsageError
 from scenario import load_scenario
-
-from . import deployer
-from .inventory import InventoryError, check_against_scenario, load_inventory
 
 logger = logging.getLogger(__name__)
 

@@ -43,7 +43,6 @@ pairs of formations meet there one encounter at a time rather than all at once.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import logging
@@ -55,6 +54,7 @@ from typing import Any
 
 import yaml
 
+from geometry.limits import BURGER_MAX_SPEED, BURGER_RADIUS
 from scenario import Scenario
 from scenario.load import scenario_from_dict
 from wire import keys
@@ -246,7 +246,7 @@ def crossing_scenario(formations: int, *, duration: float = DURATION, d_af: floa
         "dt": 0.05,
         "duration": float(duration),
         "goal_tolerance": 0.05,
-        "robot": {"model": "single_integrator", "max_speed": 0.22, "radius": 0.105},
+        "robot": {"model": "single_integrator", "max_speed": BURGER_MAX_SPEED, "radius": BURGER_RADIUS},
         "controller": {"kp": 2.0, "gamma": {"formation": 1.0, "obstacle": 1.0, "formations": 0.5},
                        "epsilon": 0.05, "d_af": float(d_af)},
         "formations": out,
@@ -349,8 +349,8 @@ def run_commcost(
     scenario)`` is called before a run and ``on_done(row)`` after it; ``progress_factory`` is
     handed to :func:`simulator.launch.launch`.
     """
-    from .launch import launch
-    from .output import write_run
+    from simulator.launch import launch
+    from simulator.output import write_run
 
     out = Path(out)
     (out / "scenarios").mkdir(parents=True, exist_ok=True)
@@ -405,11 +405,11 @@ def _cell(v: Any) -> Any:
     return "" if v is None else v
 
 
-def _ratio(a: float, b: float) -> float:
+def ratio(a: float, b: float) -> float:
     return a / b if b else math.nan
 
 
-def _outcome(r: dict[str, Any]) -> str:
+def outcome(r: dict[str, Any]) -> str:
     ttg = r["time_to_goal_s"]
     reached = f"reached at {ttg:.1f} s" if r["all_reached"] else "NOT reached"
     return f"{reached}, {r['collisions']} collisions"
@@ -427,11 +427,11 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
         lines.append(
             f"| {red['formations']} | {red['robots']} "
             f"| {red['messages_per_robot_per_s']:.1f} | {a2a['messages_per_robot_per_s']:.1f} "
-            f"| {_ratio(red['messages_per_robot_per_s'], a2a['messages_per_robot_per_s']):.3f} "
+            f"| {ratio(red['messages_per_robot_per_s'], a2a['messages_per_robot_per_s']):.3f} "
             f"| {red['bytes_per_robot_per_s']:.0f} | {a2a['bytes_per_robot_per_s']:.0f} "
-            f"| {_ratio(red['bytes_per_robot_per_s'], a2a['bytes_per_robot_per_s']):.3f} "
+            f"| {ratio(red['bytes_per_robot_per_s'], a2a['bytes_per_robot_per_s']):.3f} "
             f"| {red['constraints_per_robot']:.2f} | {a2a['constraints_per_robot']:.2f} "
-            f"| {_outcome(red)} | {_outcome(a2a)} |")
+            f"| {outcome(red)} | {outcome(a2a)} |")
     lines += [
         "",
         "Deliveries per control tick, measured (analytic), and the wildcard echo measured apart:",
@@ -501,7 +501,7 @@ def plot(rows: Sequence[dict[str, Any]], path: Path) -> None:
             ax.plot([r["robots"] for r in pts], [r[key] for r in pts], marker=marker, color=colour,
                     linestyle="none", markersize=7, label=f"{topology}, measured")
         for red, a2a in pairs:
-            ax.annotate(f"{_ratio(red[key], a2a[key]):.2f}x", (red["robots"], red[key]),
+            ax.annotate(f"{ratio(red[key], a2a[key]):.2f}x", (red["robots"], red[key]),
                         textcoords="offset points", xytext=(-24, 8), fontsize=8, color="tab:blue")
         ax.set_yscale("log")
         ax.set_xlabel("robots (measured at formations " + ", ".join(map(str, measured_sizes)) + ")")
@@ -523,40 +523,3 @@ def write_outputs(rows: Sequence[dict[str, Any]], out: Path) -> None:
     write_markdown(rows, out / "commcost.md")
     plot(rows, out / "commcost.png")
     (out / "commcost.json").write_text(json.dumps(list(rows), indent=2) + "\n", encoding="utf-8")
-
-
-# --------------------------------------------------------------------------- command line
-
-
-def commcost_command(ns: argparse.Namespace) -> int:
-    """``formation commcost --formations 2,4,8 --out DIR``; returns the exit status."""
-    from formation.cli import EXIT_OK, Progress, UsageError
-
-    try:
-        formations = parse_formations(ns.formations)
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
-    out = Path(ns.out)
-    label = {"text": "commcost"}
-
-    def on_run(index: int, total: int, topology: str, scenario: Scenario) -> None:
-        label["text"] = f"[{index}/{total}] {topology:10s} {scenario.name}"
-        print(f"[{index}/{total}] {topology}: {len(scenario.formations)} formations, "
-              f"{len(scenario.robot_ids)} agent processes", flush=True)
-
-    def on_done(r: dict[str, Any]) -> None:
-        print(f"      {r['messages_per_robot_per_s']:.1f} msgs/robot/s "
-              f"(analytic {r['analytic_messages_per_robot_per_s']:.1f}), "
-              f"{r['bytes_per_robot_per_s']:.0f} B/robot/s; {_outcome(r)}; "
-              f"{r['steps']} ticks in {r['wall_s']:.1f} s", flush=True)
-
-    rows = run_commcost(formations, out, on_run=on_run, on_done=on_done,
-                        progress_factory=lambda: Progress(label["text"]))
-    write_outputs(rows, out)
-    for red, a2a in paired(rows):
-        print(f"{red['formations']} formations ({red['robots']} robots): reduced / all-to-all = "
-              f"{_ratio(red['messages_per_robot_per_s'], a2a['messages_per_robot_per_s']):.3f} "
-              f"in messages, {_ratio(red['bytes_per_robot_per_s'], a2a['bytes_per_robot_per_s']):.3f}"
-              " in bytes")
-    print(f"wrote {out / 'commcost.csv'}, {out / 'commcost.md'}, {out / 'commcost.png'}")
-    return EXIT_OK

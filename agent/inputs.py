@@ -1,0 +1,66 @@
+"""The assembly of one robot's control-step inputs from what it knows this tick: pure, shared by
+the agent (:mod:`agent.node`, from received messages) and the in-process simulator
+(:mod:`simulator.inprocess`, from the fleet's state).
+
+No clock, no network: numbers in, the arguments of :func:`agent.control.control_step` out, with
+the formation's jam-rule memory (:class:`agent.control.Stall`) carried from tick to tick.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from typing import NamedTuple
+
+from geometry.ellipse import Ellipse
+
+from .barriers import Neighbour
+from .control import FormationView, Stall, update_stall
+
+Kinematic = tuple[float, float, float, float]  # control point x, y [m], velocity vx, vy [m/s]
+
+
+class StepInputs(NamedTuple):
+    """What :func:`agent.control.control_step` is handed besides pose, goal and obstacles."""
+
+    neighbours: list[Neighbour]
+    others: list[Ellipse]  # other formations' ellipses (empty in the all-to-all baseline)
+    view: FormationView | None  # own formation, for the tie-break; None without its ellipse
+    pairwise: list[Neighbour]  # all-to-all baseline: robots of other formations (eq. 3.5)
+    stall: Stall  # the jam rule's memory after this tick
+
+
+def step_inputs(
+    neighbours: Iterable[tuple[float, float, float, float, float]],
+    own: Ellipse | None,
+    formation: str,
+    formation_goal: tuple[float, float],
+    others: Sequence[tuple[str, Ellipse]],
+    stall: Stall,
+    period: float,
+    foreign: Iterable[Kinematic] | None = None,
+) -> StepInputs:
+    """Inputs of one robot's step.
+
+    ``neighbours`` are (x, y, vx, vy, Df) of its graph neighbours; ``own`` is its formation's
+    ellipse (None: no view, the stall memory is kept as it is); ``others`` are the other
+    formations' (name, ellipse) in the order the view names them; ``period`` [s] advances the
+    jam rule; ``foreign`` (all-to-all baseline only) are the robots of other formations, which
+    then replace the ellipses as pairwise rows.
+    """
+    nb = [Neighbour(x, y, vx, vy, df) for x, y, vx, vy, df in neighbours]
+    view = None
+    if own is not None:
+        view = FormationView(own, *formation_goal)
+        stall = update_stall(stall, view, period)
+        view = view._replace(
+            name=formation,
+            other_names=tuple(name for name, _e in others),
+            retreating=stall.retreat > 0.0,
+        )
+    if foreign is not None:
+        ellipses: list[Ellipse] = []
+        pair = [Neighbour(x, y, vx, vy, 0.0) for x, y, vx, vy in foreign]
+    else:
+        ellipses = [e for _name, e in others]
+        pair = []
+    return StepInputs(nb, ellipses, view, pair, stall)

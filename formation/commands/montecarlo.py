@@ -1,0 +1,36 @@
+"""``formation montecarlo --n N --seed S --out DIR``: see :mod:`experiments.montecarlo`."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import yaml
+
+from experiments.montecarlo import run_montecarlo
+from formation.exits import UsageError
+from formation.progress import Progress
+
+
+def montecarlo_command(ns: argparse.Namespace) -> int:
+    if ns.n <= 0:
+        raise UsageError(f"--n: must be a positive number of runs, got {ns.n}")
+    out = Path(ns.out)
+    out.mkdir(parents=True, exist_ok=True)
+    with Progress(f"montecarlo n={ns.n}") as progress:
+        summary, results = run_montecarlo(ns.n, ns.seed, progress=progress.update)
+    for r in results:
+        if not r["all_reached"] or r["collisions"]:
+            (out / f"failure-{r['seed']}.yaml").write_text(yaml.safe_dump(r["scenario"], sort_keys=False))
+    (out / "montecarlo.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    with (out / "runs.jsonl").open("w", encoding="utf-8") as fh:
+        for r in results:
+            fh.write(json.dumps({k: v for k, v in r.items() if k != "scenario"}) + "\n")
+    print(f"montecarlo: {summary['runs']} runs, reached {100 * summary['reached_rate']:.1f}%, "
+          f"collisions {summary['collisions']} (in {summary['runs_with_collision']} runs), "
+          f"deadlocks {summary['deadlocks']}, worst formation error "
+          f"{summary['worst_formation_error_m']:.3f} m")
+    print(f"wrote {out / 'montecarlo.json'}"
+          + (f"; failed scenarios as {out}/failure-SEED.yaml" if summary["failures"] else ""))
+    return 0

@@ -1,0 +1,29 @@
+"""``formation sim SCENARIO --out DIR``: the in-process simulation."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from formation.exits import EXIT_OK, UsageError
+from formation.progress import Progress, print_summary
+
+
+def cmd_sim(ns: argparse.Namespace) -> int:
+    from agent.qp import make_solver
+    from scenario import load_scenario
+    from simulator.inprocess import SimOptions, simulate
+    from simulator.output import write_run
+
+    scenario = load_scenario(ns.scenario)
+    try:
+        make_solver(ns.solver)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    out = Path(ns.out)
+    opts = SimOptions(safety=not ns.no_safety, solver=ns.solver, topology=ns.topology)
+    with Progress(f"sim {scenario.name}", quiet=ns.quiet) as progress:
+        result = simulate(scenario, opts, progress=progress.update)
+    write_run(result.summary, result.series, scenario, out, plots=not ns.no_plots)
+    print_summary(result.summary, out)
+    return EXIT_OK

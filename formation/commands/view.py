@@ -1,0 +1,204 @@
+"""``formation view``, ``formation record``, ``formation replay`` and ``formation run --live``.
+
+formation/cli.py only parses arguments (:func:`add_view_args` and friends) and calls the
+``*_command`` functions here. Every command serves or writes until Ctrl-C, or for
+``--duration`` seconds of wall time when given.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+logger = logging.getLogger(__name__)
+
+
+def add_client_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--connect", required=True, metavar="EP",
+                   help="Zenoh endpoint of the fleet's router, e.g. tcp/192.168.1.10:7447")
+    p.add_argument("--prefix", default="warehouse", help="key prefix (default warehouse)")
+    p.add_argument("--auth", metavar="FILE", help="credentials file (user:password)")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="stop after S seconds (default: until Ctrl-C)")
+
+
+def add_serve_args(p: argparse.ArgumentParser, port: bool = True) -> None:
+    if port:
+        p.add_argument("--port", type=int, default=8080, help="the page's HTTP port (default 8080)")
+    p.add_argument("--ws-port", type=int, default=None,
+                   help="the Foxglove WebSocket's port (default: the page's port + 1)")
+    p.add_argument("--bind", default="127.0.0.1", metavar="ADDR",
+                   help="address to serve on (default 127.0.0.1; 0.0.0.0 for a lab network)")
+
+
+def _ports(port: int, ws_port: int | None) -> tuple[int, int]:
+    from formation.exits import UsageError
+
+    for name, value in (("--port", port), ("--ws-port", ws_port)):
+        if value is not None and not 0 <= value < 65536:
+            raise UsageError(f"{name}: {value} is not a TCP port")
+    if ws_port is None:
+        ws_port = port + 1 if 0 < port < 65535 else 0
+    return port, ws_port
+
+
+def _open_view(ns: argparse.Namespace, port: int, mode: str, title: str, mcap: Path | None = None):
+    from viewer.server import View
+
+    asked = getattr(ns, "ws_port", None)
+    port, ws_port = _ports(port, asked)
+    try:
+        return View(host=ns.bind, port=port, ws_port=ws_port, mode=mode, title=title, mcap=mcap,
+                    ws_fallback=asked is None)
+    except (OSError, RuntimeError) as exc:
+        raise RuntimeError(f"cannot serve on {ns.bind} port {port} (WebSocket {ws_port}): "
+                           f"{exc}") from None
+
+
+def _announce(view: Any) -> None:
+    print(f"page: {view.page.url}  Foxglove WebSocket: ws://{view.page.url.split('//')[1].split(':')[0]}"
+          f":{view.hub.ws_port}", flush=True)
+
+
+def _session(ns: argparse.Namespace):
+    import zenoh
+
+    from formation.exits import UsageError
+    from wire.acl import read_credentials
+    from wire.zconf import ZenohSettings
+
+    try:
+        auth = read_credentials(ns.auth) if ns.auth else None
+        conf = ZenohSettings(mode="client", connect=(ns.connect,), multicast_scouting=False,
+                             connect_timeout_s=10.0, auth=auth).to_config()
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    return zenoh.open(conf)
+
+
+def _check_prefix(prefix: str) -> None:
+    from formation.exits import UsageError
+    from wire import keys
+
+    try:
+        keys.validate_prefix(prefix)
+    except ValueError as exc:
+        raise UsageError(f"--prefix: {exc}") from None
+
+
+def _wait(duration: float | None) -> None:
+    """Until Ctrl-C, SIGTERM or ``duration`` seconds."""
+    stop = threading.Event()
+    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        deadline = None if duration is None else time.monotonic() + duration
+        while not stop.is_set():
+            if deadline is not None and time.monotonic() >= deadline:
+                break
+            stop.wait(0.2)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def view_command(ns: argparse.Namespace) -> int:
+    from viewer.live import FleetWatcher
+    from viewer.server import LivePump
+
+    _check_prefix(ns.prefix)
+    view = _open_view(ns, ns.port, "live", f"formation view {ns.connect}")
+    try:
+        with _session(ns) as session:
+            watcher = FleetWatcher(session, ns.prefix)
+            pump = LivePump(watcher, view.hub)
+            _announce(view)
+            _wait(ns.duration)
+            pump.close()
+            watcher.close()
+    finally:
+        view.close()
+    return 0
+
+
+def record_command(ns: argparse.Namespace) -> int:
+    from viewer.live import FleetWatcher
+    from viewer.record import Channels
+    from viewer.server import Hub, LivePump
+
+    _check_prefix(ns.prefix)
+    out = Path(ns.out)
+    channels = Channels()
+    channels.open_mcap(out / "run.mcap")
+    hub = Hub(channels, mode="record")
+    try:
+        with _session(ns) as session:
+            watcher = FleetWatcher(session, ns.prefix)
+            pump = LivePump(watcher, hub, period=0.05)
+            print(f"recording {ns.connect} into {out / 'run.mcap'} (Ctrl-C to stop)", flush=True)
+            _wait(ns.duration)
+            pump.close()
+            watcher.close()
+            if watcher.rejected:
+                hub.log(hub.frame["t"] if hub.frame else 0.0, "warning", "viewer",
+                        f"rejected messages: {watcher.rejected}")
+    finally:
+        channels.close()
+    print(f"wrote {out / 'run.mcap'} ({hub.seq} frames)")
+    return 0
+
+
+def replay_command(ns: argparse.Namespace) -> int:
+    from formation.exits import UsageError
+    from viewer.server import ReplayPlayer, read_recording
+
+    path = Path(ns.recording)
+    try:
+        frames, logs = read_recording(path)
+    except OSError as exc:
+        raise UsageError(f"{path}: {exc.strerror or exc}") from None
+    except Exception as exc:  # noqa: BLE001 - an unreadable file is invalid input
+        raise UsageError(f"{path}: not a readable recording ({exc})") from None
+    view = _open_view(ns, ns.port, "replay", f"formation replay {path.name}")
+    player = ReplayPlayer(frames, logs, view.hub, loop=ns.loop)
+    if ns.speed is not None:
+        player.control({"speed": ns.speed})
+    view.on_close(player.close)
+    try:
+        _announce(view)
+        _wait(ns.duration)
+    finally:
+        view.close()
+    return 0
+
+
+def live_observer(ns: argparse.Namespace, scenario: Any) -> tuple[Any, Callable | None]:
+    """``formation run --live PORT``: the view, and the observer :func:`simulator.launch.launch`
+    calls with the world's session (it returns the function that detaches it)."""
+    port = getattr(ns, "live", None)
+    if port is None:
+        return None, None
+    from viewer.live import FleetWatcher
+    from viewer.server import LivePump
+
+    view = _open_view(ns, port, "live", f"formation run {scenario.name}")
+    _announce(view)
+
+    def observe(session: Any) -> Callable[[], None]:
+        watcher = FleetWatcher(session, radius=scenario.robot.radius,
+                               tolerance=scenario.goal_tolerance)
+        pump = LivePump(watcher, view.hub)
+
+        def detach() -> None:
+            pump.close()
+            watcher.close()
+
+        return detach
+
+    return view, observe

@@ -1,0 +1,53 @@
+"""``summary.json`` of a run, built in one place for the in-process simulator
+(:mod:`simulator.inprocess`) and the multi-process run (:mod:`simulator.launch`).
+
+The key order is the file's: scenario, mode, steps, sim_time_s, the safety monitor's fields,
+min_h, qp, comm, safety, solver, then what only one kind of run has, then collision_log.
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections.abc import Sequence
+from typing import Any
+
+from scenario import Scenario
+
+from .metrics import SafetyMonitor
+
+COLLISION_LOG_MAX = 100  # collision_log entries kept in summary.json
+
+
+def qp_fields(solves: int, solve_us: Sequence[float], relaxed: int, fallback: int,
+              failed: int) -> dict[str, Any]:
+    """``qp`` of the summary: solves, the ticks whose QP was not solved as posed (relaxed,
+    fallback or failed), and the median solve time [us]."""
+    return {
+        "solves": solves,
+        "infeasible": relaxed + fallback + failed,
+        "solve_us_median": statistics.median(solve_us) if solve_us else None,
+        "relaxed": relaxed,
+        "fallback": fallback,
+        "failed": failed,
+    }
+
+
+def run_summary(scenario: Scenario, mode: str, steps: int, sim_time: float, monitor: SafetyMonitor,
+                min_h: dict[str, float | None], qp: dict[str, Any], comm: dict[str, Any],
+                safety: bool, solver: str, **extra: Any) -> dict[str, Any]:
+    """The summary of a run of ``scenario`` (see the module docstring); ``extra`` goes after
+    ``solver`` in the order given."""
+    return {
+        "scenario": scenario.name,
+        "mode": mode,
+        "steps": steps,
+        "sim_time_s": round(sim_time, 6),
+        **monitor.summary_fields(),
+        "min_h": min_h,
+        "qp": qp,
+        "comm": comm,
+        "safety": safety,
+        "solver": solver,
+        **extra,
+        "collision_log": monitor.collision_log[:COLLISION_LOG_MAX],
+    }

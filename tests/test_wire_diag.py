@@ -1,0 +1,112 @@
+"""The ``diag`` payload: round trip, defensive decoding, and its key outside the control classes."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from wire import keys
+from wire.diag import Diag, decode_diag, diag_key, encode_diag
+from wire.payloads import DecodeError
+
+
+def sample(**kw) -> Diag:
+    values = dict(formation="A", status="relaxed", stamp=12.5, slack=0.01, h_formation=0.02,
+                  h_obstacle=math.inf, h_formations=1.5, goal_x=2.0, goal_y=-1.0, ticks=250,
+                  stale=3, relaxed=7, fallback=0, dropped=1)
+    values.update(kw)
+    return Diag(**values)
+
+
+def test_a_diag_survives_encoding_with_infinite_barriers_kept():
+    d = sample()
+    back = decode_diag(encode_diag(d))
+    assert back == d and back.h_obstacle == math.inf
+
+
+@given(st.binary(max_size=200))
+def test_arbitrary_bytes_decode_to_a_diag_or_raise_decode_error(data):
+    try:
+        decode_diag(data)
+    except DecodeError:
+        pass
+
+
+def test_truncated_or_trailing_or_non_finite_counters_are_rejected():
+    raw = encode_diag(sample())
+    for bad in (raw[:-1], raw + b"\0", b"", bytes([9]) + raw[1:]):
+        with pytest.raises(DecodeError):
+            decode_diag(bad)
+    with pytest.raises(ValueError):
+        sample(stamp=math.nan)
+    with pytest.raises(ValueError):
+        sample(status="two words")
+
+
+def test_the_diag_key_is_counted_as_other_not_as_control_traffic():
+    key = diag_key("warehouse", "a1")
+    assert key == "warehouse/robot/a1/diag"
+    assert keys.key_class("warehouse", key) == keys.OTHER
+
+
+def test_with_access_control_a_robot_publishes_its_own_diag_and_the_viewer_only_reads(tmp_path):
+    import os
+    import subprocess
+    import sys
+    import threading
+    import time
+    from pathlib import Path
+
+    import zenoh
+
+    from wire import acl
+    from wire.testing import free_tcp_port, tcp_endpoint, wait_for_tcp_port
+    from wire.zconf import ZenohSettings
+
+    root = Path(__file__).resolve().parent.parent
+    port = free_tcp_port()
+    ep = tcp_endpoint(port)
+    creds = acl.new_credentials([acl.CAMERA_USER, acl.VIEWER_USER, "r1", "r2"])
+    acl.write_dictionary(tmp_path / "users.txt", creds)
+    acl.write_router_config(tmp_path / "router.json5", acl.router_config(
+        [ep], acl.fleet_acl({"r1": "F", "r2": "F"}, {"F": "r1"}), (tmp_path / "users.txt").resolve()))
+    router = subprocess.Popen([sys.executable, "-m", "wire.router", "--listen", ep, "--config",
+                               str(tmp_path / "router.json5"), "--log-level", "ERROR"],
+                              env=dict(os.environ, PYTHONPATH=str(root)), stdin=subprocess.DEVNULL)
+
+    def session(user: str) -> zenoh.Session:
+        return zenoh.open(ZenohSettings(mode="client", connect=(ep,), connect_timeout_s=5.0,
+                                        auth=creds[user]).to_config())
+
+    got: dict[str, list[bytes]] = {"viewer": [], "camera": []}
+    lock = threading.Lock()
+
+    def keep(who: str):
+        def on(sample: zenoh.Sample) -> None:
+            with lock:
+                got[who].append(sample.payload.to_bytes())
+        return on
+
+    try:
+        wait_for_tcp_port(port, timeout_s=15.0)
+        with session(acl.VIEWER_USER) as viewer, session(acl.CAMERA_USER) as world, \
+                session("r1") as r1, session("r2") as r2:
+            viewer.declare_subscriber("warehouse/robot/*/diag", keep("viewer"))
+            world.declare_subscriber("warehouse/robot/*/cmd", keep("camera"))
+            pubs = [(r1.declare_publisher(diag_key("warehouse", "r1")), b"own"),
+                    (r2.declare_publisher(diag_key("warehouse", "r1")), b"forged"),
+                    (viewer.declare_publisher(keys.cmd_key("warehouse", "r1")), b"viewer-cmd")]
+            time.sleep(0.5)
+            for pub, tag in pubs:
+                for _ in range(3):
+                    pub.put(tag)
+            time.sleep(0.5)
+        with lock:
+            assert got["viewer"] == [b"own"] * 3  # r2 may not publish r1's diagnostics
+            assert got["camera"] == []  # the viewer commands nothing
+    finally:
+        router.terminate()
+        router.wait(timeout=10)

@@ -1,0 +1,153 @@
+"""Watch a running fleet over Zenoh, read-only, and turn what it says into frames.
+
+:class:`FleetWatcher` subscribes with wildcards to the keys a viewer may read (every robot's
+``pose``, ``state``, ``cmd`` and ``diag``, every formation's ``ellipse``, the ``obstacles``);
+its callbacks only keep the newest payload of each key (raw bytes, no decoding on Zenoh's
+threads). :meth:`FleetWatcher.frame` decodes the newest of each with the defensive decoders of
+:mod:`wire.payloads` and :mod:`wire.diag` (a malformed payload is dropped and counted in
+``rejected``) and builds a :mod:`viewer.frame` frame. The frame's time is the newest pose stamp
+(simulated seconds in lock-step, wall time on real fleets).
+
+It never publishes anything, so it works with any fleet, simulated or real, that the session's
+credentials may read.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable
+from typing import Any
+
+import zenoh
+
+from wire import keys
+from wire.diag import DIAG, all_diag_key, decode_diag
+from wire.payloads import DecodeError, decode_cmd, decode_ellipse, decode_obstacles, decode_pose, decode_state
+
+from .frame import Frame, formation_status, num
+
+# robot key kind -> (field of a robot's entry, decoder); poses are handled apart (they set the time)
+_ROBOT_KINDS = {keys.STATE: ("state", decode_state), keys.CMD: ("cmd", decode_cmd),
+                DIAG: ("diag", decode_diag)}
+
+logger = logging.getLogger(__name__)
+
+DEFAULT_RADIUS = 0.105  # [m] TurtleBot3 burger, when the fleet does not say
+DEFAULT_TOLERANCE = 0.05  # [m]
+
+
+class FleetWatcher:
+    """Newest payload per key of a fleet's key space (see the module docstring)."""
+
+    def __init__(self, session: zenoh.Session, prefix: str = keys.DEFAULT_PREFIX,
+                 radius: float = DEFAULT_RADIUS, tolerance: float = DEFAULT_TOLERANCE) -> None:
+        self.prefix = keys.validate_prefix(prefix)
+        self.radius = radius
+        self.tolerance = tolerance
+        self._lock = threading.Lock()
+        self._latest: dict[str, bytes] = {}
+        self.received = 0
+        self.rejected: dict[str, int] = {}
+        self._decoded: dict[str, tuple[bytes, Any]] = {}  # key -> (payload, decoded) cache
+        p = self.prefix
+        exprs = [keys.all_robots_key(p, keys.POSE), keys.all_robots_key(p, keys.STATE),
+                 keys.all_robots_key(p, keys.CMD), all_diag_key(p),
+                 keys.all_formations_key(p, keys.ELLIPSE), keys.obstacles_key(p)]
+        self._subs = [session.declare_subscriber(
+            e, zenoh.handlers.Callback(self._on_sample, indirect=False)) for e in exprs]
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        data = sample.payload.to_bytes()
+        key = str(sample.key_expr)
+        with self._lock:
+            self._latest[key] = data
+            self.received += 1
+
+    def close(self) -> None:
+        for s in self._subs:
+            try:
+                s.undeclare()
+            except Exception:  # noqa: BLE001 - the session may be closed already
+                logger.debug("undeclare failed", exc_info=True)
+        self._subs.clear()
+
+    def _decode(self, key: str, data: bytes, decode: Callable[[bytes], Any], cls: str) -> Any:
+        cached = self._decoded.get(key)
+        if cached is not None and cached[0] is data:
+            return cached[1]
+        try:
+            value = decode(data)
+        except DecodeError:  # dropped and counted; the last good one stays
+            self.rejected[cls] = self.rejected.get(cls, 0) + 1
+            value = cached[1] if cached is not None else None
+        self._decoded[key] = (data, value)
+        return value
+
+    def frame(self) -> Frame | None:
+        """The fleet as it was last heard of; ``None`` before any pose arrived."""
+        with self._lock:
+            latest = dict(self._latest)
+        head = self.prefix + "/"
+        robots: dict[str, dict[str, Any]] = {}
+        ellipses = []
+        obstacles: list[dict] = []
+        t = None
+        for key, data in latest.items():
+            if not key.startswith(head):
+                continue
+            parts = key[len(head):].split("/")
+            if parts == [keys.OBSTACLES]:
+                msg = self._decode(key, data, decode_obstacles, keys.OBSTACLES)
+                if msg is not None:
+                    obstacles = [{"name": o.id, "x": o.x, "y": o.y, "ds": o.ds}
+                                 for o in msg.obstacles]
+                continue
+            if len(parts) != 3:
+                continue
+            group, ident, kind = parts
+            if group == "formation" and kind == keys.ELLIPSE:
+                e = self._decode(key, data, decode_ellipse, keys.ELLIPSE)
+                if e is not None:
+                    ellipses.append({"formation": e.formation, "cx": e.cx, "cy": e.cy,
+                                     "alpha": e.alpha, "a": e.a, "b": e.b})
+                continue
+            if group != "robot":
+                continue
+            r = robots.setdefault(ident, {})
+            if kind == keys.POSE:
+                msg = self._decode(key, data, decode_pose, keys.POSE)
+                if msg is not None:
+                    r["pose"] = msg
+                    t = msg.stamp if t is None else max(t, msg.stamp)
+            elif kind in _ROBOT_KINDS:
+                field, decode = _ROBOT_KINDS[kind]
+                r[field] = self._decode(key, data, decode, kind)
+        if t is None:
+            return None
+        out_robots = []
+        for rid in sorted(robots):
+            r = robots[rid]
+            pose, state, cmd, diag = (r.get(k) for k in ("pose", "state", "cmd", "diag"))
+            if pose is None:
+                continue
+            out_robots.append({
+                "id": rid,
+                "formation": diag.formation if diag is not None else "?",
+                "x": pose.x, "y": pose.y, "theta": pose.theta,
+                "px": state.x if state else None, "py": state.y if state else None,
+                "ux": cmd.ux if cmd else None, "uy": cmd.uy if cmd else None,
+                "v": cmd.v if cmd else None, "omega": cmd.omega if cmd else None,
+                "status": diag.status if diag is not None else "",
+                "slack": num(diag.slack) if diag is not None else None,
+                "h_formation": num(diag.h_formation) if diag is not None else None,
+                "h_obstacle": num(diag.h_obstacle) if diag is not None else None,
+                "h_formations": num(diag.h_formations) if diag is not None else None,
+                "gx": diag.goal_x if diag is not None else None,
+                "gy": diag.goal_y if diag is not None else None,
+            })
+        names = sorted({r["formation"] for r in out_robots})
+        ellipses.sort(key=lambda e: e["formation"])
+        return {"t": t, "radius": self.radius, "robots": out_robots, "ellipses": ellipses,
+                "obstacles": obstacles,
+                "formations": [formation_status(n, out_robots, self.tolerance) for n in names]}

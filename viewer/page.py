@@ -1,0 +1,273 @@
+# ruff: noqa: E501 - the page's inline JavaScript keeps its own line lengths
+"""The built-in page: one HTML document with inline CSS and JavaScript, drawn on canvases.
+
+Nothing to install and nothing fetched from elsewhere (no CDN): the page polls ``/state`` of the
+server that served it about ten times a second and draws
+
+* the floor seen from above, fitted to the fleet and following it: obstacles (grey, with a ring
+  at their safe distance), formation ellipses, goals (squares), robots (discs in their
+  formation's colour, a heading tick, the control point when it is off the centre);
+* each robot's smallest barrier value of each kind over the last minute (three charts, zero
+  marked);
+* each formation's status, the newest log lines, the shown time (simulated seconds; for wall
+  time the UTC clock and the seconds since the first frame), the Foxglove WebSocket's port;
+* for a replay: play/pause, speed and a time slider.
+
+For tests and scripts the page exposes ``window.viewer`` (shown time, sequence number and each
+robot's projected position in CSS pixels of the viewport) and keeps the shown time in
+``document.title`` and in ``#time``; ``window.viewerFreeze = true`` stops redrawing.
+"""
+
+from __future__ import annotations
+
+import html
+
+PALETTE = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf")
+
+_PAGE = r"""<!doctype html>
+<html lang="en"><head><meta charset="utf-8">
+<title>formation view</title>
+<style>
+ body { font: 13px/1.35 system-ui, sans-serif; margin: 8px; background: #fafafa; color: #222; }
+ #wrap { display: flex; gap: 12px; align-items: flex-start; }
+ canvas { background: #fff; border: 1px solid #ccc; display: block; }
+ #side { min-width: 300px; max-width: 420px; }
+ table { border-collapse: collapse; margin: 4px 0 8px; }
+ td, th { padding: 1px 6px; border-bottom: 1px solid #eee; text-align: left; }
+ #time { font-size: 20px; font-weight: 600; }
+ #logs { font-family: monospace; font-size: 11px; max-height: 220px; overflow-y: auto;
+         white-space: pre-wrap; background: #fff; border: 1px solid #ddd; padding: 4px; }
+ .warning { color: #a60; } .error { color: #c00; }
+ #controls { display: none; margin: 6px 0; }
+ .sw { display: inline-block; width: 10px; height: 10px; margin-right: 4px; }
+</style></head>
+<body>
+<div id="wrap">
+ <div>
+  <canvas id="floor" width="720" height="540"></canvas>
+  <canvas id="chart" width="720" height="270"></canvas>
+ </div>
+ <div id="side">
+  <div id="time">waiting for the fleet...</div>
+  <div id="meta"></div>
+  <div id="controls">
+   <button id="play">pause</button>
+   speed <select id="speed"></select>
+   <input id="seek" type="range" min="0" max="1000" value="0" style="width: 220px">
+  </div>
+  <h4>Formations</h4><table id="formations"></table>
+  <h4>Robots</h4><table id="robots"></table>
+  <h4>Log</h4><div id="logs"></div>
+ </div>
+</div>
+<script>
+"use strict";
+const PALETTE = __PALETTE__;
+const KINDS = ["formation", "obstacle", "formations"];
+const WINDOW_S = 60;
+const floor = document.getElementById("floor"), fctx = floor.getContext("2d");
+const chart = document.getElementById("chart"), cctx = chart.getContext("2d");
+let view = null, history = {}, lastT = null, lastSeq = -1, colors = {}, state = null, t0 = null;
+window.viewer = { t: null, seq: -1, robots: [] };
+window.viewerFreeze = false;
+
+function colorOf(formation) {
+  if (!(formation in colors)) colors[formation] = PALETTE[Object.keys(colors).length % PALETTE.length];
+  return colors[formation];
+}
+function finite(v) { return typeof v === "number" && isFinite(v); }
+
+function fit(frame) {
+  // the box around every robot and ellipse, 1 m of margin, at least 4 m across
+  let x0 = Infinity, y0 = Infinity, x1 = -Infinity, y1 = -Infinity;
+  const add = (x, y, r) => { x0 = Math.min(x0, x - r); x1 = Math.max(x1, x + r);
+                             y0 = Math.min(y0, y - r); y1 = Math.max(y1, y + r); };
+  for (const r of frame.robots) if (finite(r.x)) add(r.x, r.y, 1.0);
+  for (const e of frame.ellipses) if (finite(e.cx)) add(e.cx, e.cy, Math.max(e.a, e.b) + 0.5);
+  if (!isFinite(x0)) return view;
+  const cx = (x0 + x1) / 2, cy = (y0 + y1) / 2;
+  const w = Math.max(x1 - x0, 4, (y1 - y0) * floor.width / floor.height);
+  const target = { cx: cx, cy: cy, s: floor.width / w };
+  if (!view) return target;
+  const k = 0.25;  // follow smoothly
+  return { cx: view.cx + k * (target.cx - view.cx), cy: view.cy + k * (target.cy - view.cy),
+           s: view.s + k * (target.s - view.s) };
+}
+function px(x, y) { return [floor.width / 2 + (x - view.cx) * view.s,
+                            floor.height / 2 - (y - view.cy) * view.s]; }
+
+function drawFloor(frame) {
+  view = fit(frame);
+  const c = fctx;
+  c.clearRect(0, 0, floor.width, floor.height);
+  // 1 m grid
+  c.strokeStyle = "#eee"; c.lineWidth = 1;
+  const gx0 = Math.floor(view.cx - floor.width / 2 / view.s), gx1 = Math.ceil(view.cx + floor.width / 2 / view.s);
+  const gy0 = Math.floor(view.cy - floor.height / 2 / view.s), gy1 = Math.ceil(view.cy + floor.height / 2 / view.s);
+  for (let g = gx0; g <= gx1; g++) { const [a] = px(g, 0); c.beginPath(); c.moveTo(a, 0); c.lineTo(a, floor.height); c.stroke(); }
+  for (let g = gy0; g <= gy1; g++) { const [, b] = px(0, g); c.beginPath(); c.moveTo(0, b); c.lineTo(floor.width, b); c.stroke(); }
+  const rad = frame.radius || 0.105;
+  for (const o of frame.obstacles) {
+    if (!finite(o.x)) continue;
+    const [a, b] = px(o.x, o.y);
+    c.fillStyle = "#888"; c.beginPath(); c.arc(a, b, Math.max(o.ds - rad, 0.05) * view.s, 0, 2 * Math.PI); c.fill();
+    c.strokeStyle = "#e5602a"; c.setLineDash([5, 4]); c.beginPath(); c.arc(a, b, o.ds * view.s, 0, 2 * Math.PI); c.stroke();
+    c.setLineDash([]);
+  }
+  for (const e of frame.ellipses) {
+    if (!finite(e.cx) || !finite(e.a)) continue;
+    const [a, b] = px(e.cx, e.cy);
+    c.strokeStyle = colorOf(e.formation); c.lineWidth = 2;
+    c.beginPath(); c.ellipse(a, b, e.a * view.s, e.b * view.s, -e.alpha, 0, 2 * Math.PI); c.stroke();
+  }
+  c.lineWidth = 1;
+  for (const r of frame.robots) {
+    if (!finite(r.gx)) continue;
+    const [a, b] = px(r.gx, r.gy);
+    c.strokeStyle = colorOf(r.formation); c.strokeRect(a - 4, b - 4, 8, 8);
+  }
+  const shown = [];
+  const rect = floor.getBoundingClientRect(), sx = rect.width / floor.width, sy = rect.height / floor.height;
+  for (const r of frame.robots) {
+    if (!finite(r.x)) continue;
+    const [a, b] = px(r.x, r.y), rr = Math.max(rad * view.s, 4), col = colorOf(r.formation);
+    c.fillStyle = col; c.beginPath(); c.arc(a, b, rr, 0, 2 * Math.PI); c.fill();
+    const th = r.theta || 0;
+    c.strokeStyle = "#111"; c.lineWidth = 2; c.beginPath();
+    c.moveTo(a + 0.55 * rr * Math.cos(th), b - 0.55 * rr * Math.sin(th));
+    c.lineTo(a + 1.5 * rr * Math.cos(th), b - 1.5 * rr * Math.sin(th)); c.stroke(); c.lineWidth = 1;
+    if (finite(r.px) && Math.hypot(r.px - r.x, r.py - r.y) > 0.025) {  // a look-ahead point, not a state lagging the pose
+      const [qa, qb] = px(r.px, r.py);
+      c.fillStyle = "#fff"; c.beginPath(); c.arc(qa, qb, 2.5, 0, 2 * Math.PI); c.fill();
+    }
+    if (r.status && r.status !== "ok") {
+      c.strokeStyle = r.status === "relaxed" ? "#e0a000" : "#c00"; c.lineWidth = 3;
+      c.beginPath(); c.arc(a, b, rr + 3, 0, 2 * Math.PI); c.stroke(); c.lineWidth = 1;
+    }
+    c.fillStyle = "#222"; c.font = "11px sans-serif"; c.fillText(r.id, a + rr + 2, b - rr - 2);
+    shown.push({ id: r.id, x: r.x, y: r.y, color: col,
+                 cx: rect.left + a * sx, cy: rect.top + b * sy, r: rr * sx });
+  }
+  return shown;
+}
+
+function drawChart(frame) {
+  const c = cctx, W = chart.width, H = chart.height / KINDS.length;
+  c.clearRect(0, 0, W, chart.height);
+  const t1 = frame.t, t0 = t1 - WINDOW_S;
+  KINDS.forEach((kind, k) => {
+    const top = k * H;
+    let lo = 0, hi = 0.1;
+    for (const id in history) for (const p of history[id].pts) {
+      const v = p[k + 1]; if (finite(v)) { lo = Math.min(lo, v); hi = Math.max(hi, v); } }
+    hi = Math.min(hi, Math.max(lo + 0.1, 5)); // far-away barriers would flatten the rest
+    const y = v => top + H - 14 - (Math.min(v, hi) - lo) / (hi - lo) * (H - 24);
+    c.strokeStyle = "#ddd"; c.strokeRect(0.5, top + 0.5, W - 1, H - 1);
+    c.strokeStyle = "#c00"; c.setLineDash([4, 3]); c.beginPath(); c.moveTo(0, y(0)); c.lineTo(W, y(0)); c.stroke(); c.setLineDash([]);
+    c.fillStyle = "#333"; c.font = "11px sans-serif";
+    c.fillText("min h_" + kind + "  [" + lo.toFixed(2) + ", " + hi.toFixed(2) + "]", 6, top + 12);
+    for (const id in history) {
+      const h = history[id]; c.strokeStyle = colorOf(h.formation); c.beginPath();
+      let pen = false;
+      for (const p of h.pts) {
+        const v = p[k + 1];
+        if (!finite(v) || p[0] < t0) { pen = false; continue; }
+        const X = (p[0] - t0) / WINDOW_S * W, Y = y(v);
+        if (pen) c.lineTo(X, Y); else c.moveTo(X, Y);
+        pen = true;
+      }
+      c.stroke();
+    }
+  });
+}
+
+function record(frame) {
+  if (lastT !== null && frame.t < lastT) history = {};  // a replay jumped back
+  lastT = frame.t;
+  for (const r of frame.robots) {
+    const h = history[r.id] || (history[r.id] = { formation: r.formation, pts: [] });
+    h.formation = r.formation;
+    h.pts.push([frame.t, r.h_formation, r.h_obstacle, r.h_formations]);
+    while (h.pts.length && h.pts[0][0] < frame.t - WINDOW_S) h.pts.shift();
+  }
+}
+
+function clock(t) { return t > 1e8 ? new Date(t * 1000).toISOString().substring(11, 22) : t.toFixed(2); }
+function fmt(v, d) { return finite(v) ? v.toFixed(d) : "-"; }
+function esc(s) { return String(s).replace(/[&<>]/g, ch => ({"&": "&amp;", "<": "&lt;", ">": "&gt;"})[ch]); }
+
+function side(st) {
+  const f = st.frame;
+  // simulated seconds, or wall time (a real fleet, a real-time run): then the clock and the time since the first frame
+  if (t0 === null || f.t < t0) t0 = f.t;
+  document.getElementById("time").textContent = f.t > 1e8
+    ? new Date(f.t * 1000).toISOString().substring(11, 22) + " UTC  (+" + (f.t - t0).toFixed(2) + " s)"
+    : "t = " + f.t.toFixed(2) + " s";
+  document.title = "formation " + st.mode + " t=" + f.t.toFixed(2);
+  const ws = st.ws_port ? ("Foxglove WebSocket: ws://" + location.hostname + ":" + st.ws_port) : "";
+  document.getElementById("meta").textContent = st.mode + "  " + ws;
+  let rows = "<tr><th>formation</th><th>status</th><th>QP</th><th>to go [m]</th></tr>";
+  for (const fm of f.formations) rows += "<tr><td><span class='sw' style='background:" + colorOf(fm.name) +
+    "'></span>" + esc(fm.name) + "</td><td>" + esc(fm.status) + "</td><td>" + esc(fm.qp) + "</td><td>" + fmt(fm.distance, 2) + "</td></tr>";
+  document.getElementById("formations").innerHTML = rows;
+  rows = "<tr><th>robot</th><th>QP</th><th>slack</th><th>h_form</th><th>h_obs</th><th>h_ell</th></tr>";
+  for (const r of f.robots) rows += "<tr><td>" + esc(r.id) + "</td><td>" + esc(r.status) + "</td><td>" + fmt(r.slack, 3) +
+    "</td><td>" + fmt(r.h_formation, 3) + "</td><td>" + fmt(r.h_obstacle, 3) + "</td><td>" + fmt(r.h_formations, 3) + "</td></tr>";
+  document.getElementById("robots").innerHTML = rows;
+  document.getElementById("logs").innerHTML = st.logs.slice().reverse().map(e =>
+    "<div class='" + esc(e.level) + "'>" + clock(e.t) + " " + esc(e.name) + ": " + esc(e.message) + "</div>").join("");
+  const pb = st.playback;
+  if (st.mode === "replay" && pb && pb.end !== undefined) {
+    document.getElementById("controls").style.display = "block";
+    document.getElementById("play").textContent = pb.playing ? "pause" : "play";
+    const sel = document.getElementById("speed");
+    if (!sel.options.length) for (const s of [0.25, 0.5, 1, 2, 4, 8, 16]) sel.add(new Option(s + "x", s));
+    sel.value = String(pb.speed);
+    const span = Math.max(pb.end - pb.start, 1e-9);
+    document.getElementById("seek").value = Math.round((pb.time - pb.start) / span * 1000);
+  }
+}
+
+async function control(req) {
+  await fetch("/control", { method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(req) });
+}
+document.getElementById("play").onclick = () => control({ playing: !(state && state.playback.playing) });
+document.getElementById("speed").onchange = e => control({ speed: parseFloat(e.target.value) });
+document.getElementById("seek").onchange = e => {
+  const pb = state.playback; control({ seek: pb.start + (pb.end - pb.start) * e.target.value / 1000 });
+};
+
+async function poll() {
+  try {
+    if (!window.viewerFreeze) {
+      const st = await (await fetch("/state", { cache: "no-store" })).json();
+      state = st;
+      if (st.frame && st.seq !== lastSeq) {
+        lastSeq = st.seq;
+        record(st.frame);
+        const robots = drawFloor(st.frame);
+        drawChart(st.frame);
+        side(st);
+        window.viewer = { t: st.frame.t, seq: st.seq, mode: st.mode, robots: robots };
+      }
+    }
+  } catch (err) {
+    document.getElementById("meta").textContent = "no connection: " + err;
+  }
+  setTimeout(poll, 100);
+}
+poll();
+</script>
+</body></html>
+"""
+
+
+def render_page(title: str = "") -> str:
+    """The page, with ``title`` (escaped) as its first title."""
+    import json
+
+    page = _PAGE.replace("__PALETTE__", json.dumps(list(PALETTE)))
+    if title:
+        page = page.replace("<title>formation view</title>",
+                            f"<title>{html.escape(title)}</title>", 1)
+    return page

@@ -1,0 +1,335 @@
+"""Frames onto Foxglove channels: an MCAP recording, a Foxglove WebSocket, or both at once.
+
+:class:`Channels` owns one ``foxglove.Context`` with three channels; whatever sinks are opened
+on that context (``run.mcap`` through :meth:`Channels.open_mcap`, a WebSocket server through
+:meth:`Channels.serve`) get the same messages:
+
+=============  ==========================  ======================================================
+topic          schema                      what
+=============  ==========================  ======================================================
+``/scene``     ``foxglove.SceneUpdate``    the floor each tick, frame ``floor``: robots (body
+               (protobuf)                  cylinder, heading arrow, control point, label), formation
+                                           ellipses, obstacles (with a ring at their safe distance),
+                                           goals. Each tick replaces every entity (same ids).
+``/fleet``     JSON, ``jsonschema``        the whole :mod:`viewer.frame` frame: commands, QP status,
+                                           slack, smallest barrier values, formation status (plot
+                                           e.g. ``/fleet.robots[:]{id=="a1"}.h_obstacle``)
+``/log``       ``foxglove.Log`` (protobuf)  stale inputs, relaxed rows and fallbacks (at onset),
+                                           collisions, faults, rejected messages
+=============  ==========================  ======================================================
+
+Only those two Foxglove schemas and a JSON-schema channel: Foxglove (2.x) and Lichtblick (1.x)
+render all three (3D, Plot / Raw Messages, Log panels). Message log times are the frame's time
+in nanoseconds: simulated seconds for simulations (the run starts at 0), wall time for fleets.
+
+:func:`write_recording` writes ``run.mcap`` of a finished run from its time series, after the
+control loop (so recording costs the loop nothing); :func:`run_logs` derives the log messages.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import logging
+import math
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import foxglove
+from foxglove.channels import LogChannel, SceneUpdateChannel
+from foxglove.messages import (
+    ArrowPrimitive,
+    Color,
+    CubePrimitive,
+    CylinderPrimitive,
+    LinePrimitive,
+    LinePrimitiveLineType,
+    Log,
+    LogLevel,
+    Point3,
+    Pose,
+    Quaternion,
+    SceneEntity,
+    SceneUpdate,
+    SpherePrimitive,
+    TextPrimitive,
+    Timestamp,
+    Vector3,
+)
+
+from .frame import Frame
+
+logger = logging.getLogger(__name__)
+
+SCENE_TOPIC, FLEET_TOPIC, LOG_TOPIC = "/scene", "/fleet", "/log"
+FRAME_ID = "floor"
+RENDERED_SCHEMAS = ("foxglove.SceneUpdate", "foxglove.Log")  # + JSON-schema channels
+ELLIPSE_POINTS = 48
+BODY_HEIGHT = 0.19  # [m] TurtleBot3 burger
+# formation colours (RGB 0..1), the same order as the page's palette
+PALETTE = ((0.12, 0.47, 0.71), (0.84, 0.15, 0.16), (0.17, 0.63, 0.17), (0.58, 0.40, 0.74),
+           (1.00, 0.50, 0.05), (0.55, 0.34, 0.29), (0.89, 0.47, 0.76), (0.09, 0.75, 0.81))
+
+_N = 0.0
+
+FLEET_SCHEMA: dict[str, Any] = {
+    "title": "formation.Fleet",
+    "type": "object",
+    "properties": {
+        "t": {"type": "number", "description": "time [s]"},
+        "radius": {"type": "number"},
+        "robots": {"type": "array", "items": {"type": "object", "properties": {
+            "id": {"type": "string"}, "formation": {"type": "string"}, "status": {"type": "string"},
+            **{k: {"type": ["number", "null"]} for k in (
+                "x", "y", "theta", "px", "py", "ux", "uy", "v", "omega", "slack",
+                "h_formation", "h_obstacle", "h_formations", "gx", "gy")}}}},
+        "ellipses": {"type": "array", "items": {"type": "object", "properties": {
+            "formation": {"type": "string"},
+            **{k: {"type": ["number", "null"]} for k in ("cx", "cy", "alpha", "a", "b")}}}},
+        "obstacles": {"type": "array", "items": {"type": "object", "properties": {
+            "name": {"type": "string"},
+            **{k: {"type": ["number", "null"]} for k in ("x", "y", "ds")}}}},
+        "formations": {"type": "array", "items": {"type": "object", "properties": {
+            "name": {"type": "string"}, "status": {"type": "string"}, "qp": {"type": "string"},
+            **{k: {"type": ["number", "null"]} for k in ("gx", "gy", "distance")}}}},
+    },
+}
+
+LEVELS = {"debug": LogLevel.Debug, "info": LogLevel.Info, "warning": LogLevel.Warning,
+          "error": LogLevel.Error}
+
+
+def ns(t: float) -> int:
+    """Seconds -> integer nanoseconds (MCAP log time)."""
+    return int(round(t * 1e9))
+
+
+def _stamp(t: float) -> Timestamp:
+    n = max(ns(t), 0)
+    return Timestamp(n // 1_000_000_000, n % 1_000_000_000)
+
+
+@functools.lru_cache(maxsize=64)
+def _color(rgb: tuple[float, float, float], a: float = 1.0) -> Color:
+    return Color(r=rgb[0], g=rgb[1], b=rgb[2], a=a)
+
+
+@functools.lru_cache(maxsize=64)
+def _size(x: float, y: float, z: float) -> Vector3:
+    return Vector3(x=x, y=y, z=z)
+
+
+@functools.lru_cache(maxsize=4096)
+def _goal(rid: str, gx: float, gy: float, rgb: tuple[float, float, float]) -> SceneEntity:
+    """A robot's goal square (static: built once, no timestamp)."""
+    return SceneEntity(frame_id=FRAME_ID, id=f"goal/{rid}",
+                       cubes=[CubePrimitive(pose=_pose(gx, gy, 0.005), size=_size(0.08, 0.08, 0.01),
+                                            color=_color(rgb, 0.6))])
+
+
+def _pose(x: float, y: float, z: float = 0.0, yaw: float = 0.0) -> Pose:
+    return Pose(position=Vector3(x=x, y=y, z=z),
+                orientation=Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2)))
+
+
+@functools.lru_cache(maxsize=256)
+def _ring(a: float, b: float) -> list[Point3]:
+    """An ellipse of semi-axes ``a`` (along x) and ``b`` around the origin; the line's pose
+    places and turns it (semi-axes rarely change, so the points are built once)."""
+    return [Point3(x=a * math.cos(2 * math.pi * k / ELLIPSE_POINTS),
+                   y=b * math.sin(2 * math.pi * k / ELLIPSE_POINTS), z=0.0)
+            for k in range(ELLIPSE_POINTS)]
+
+
+def formation_colors(frame: Frame) -> dict[str, tuple[float, float, float]]:
+    """Formation -> colour, by order of first appearance among the frame's robots."""
+    out: dict[str, tuple[float, float, float]] = {}
+    for r in frame["robots"]:
+        if r["formation"] not in out:
+            out[r["formation"]] = PALETTE[len(out) % len(PALETTE)]
+    return out
+
+
+def scene_update(frame: Frame) -> SceneUpdate:
+    """The ``/scene`` message of a frame (see the module docstring)."""
+    stamp = _stamp(frame["t"])
+    radius = frame.get("radius") or 0.105
+    colors = formation_colors(frame)
+    entities = []
+    for r in frame["robots"]:
+        if r["x"] is None or r["y"] is None:
+            continue
+        rgb = colors[r["formation"]]
+        th = r["theta"] or 0.0
+        body = CylinderPrimitive(pose=_pose(r["x"], r["y"], BODY_HEIGHT / 2),
+                                 size=_size(2 * radius, 2 * radius, BODY_HEIGHT),
+                                 bottom_scale=1.0, top_scale=1.0, color=_color(rgb, 0.9))
+        arrow = ArrowPrimitive(pose=_pose(r["x"], r["y"], BODY_HEIGHT + 0.01, th),
+                               shaft_length=radius * 1.4, shaft_diameter=0.02,
+                               head_length=0.06, head_diameter=0.06, color=_color((0.1, 0.1, 0.1)))
+        spheres = []
+        if r["px"] is not None and r["py"] is not None:
+            spheres.append(SpherePrimitive(pose=_pose(r["px"], r["py"], BODY_HEIGHT + 0.02),
+                                           size=_size(0.04, 0.04, 0.04),
+                                           color=_color((1.0, 1.0, 1.0))))
+        label = TextPrimitive(pose=_pose(r["x"], r["y"], BODY_HEIGHT + 0.15), billboard=True,
+                              font_size=14, scale_invariant=True, color=_color((0, 0, 0)),
+                              text=f"{r['id']} {r['status']}".strip())
+        entities.append(SceneEntity(timestamp=stamp, frame_id=FRAME_ID, id=f"robot/{r['id']}",
+                                    cylinders=[body], arrows=[arrow], spheres=spheres,
+                                    texts=[label]))
+        if r["gx"] is not None and r["gy"] is not None:
+            entities.append(_goal(r["id"], r["gx"], r["gy"], rgb))
+    for e in frame["ellipses"]:
+        if None in (e["cx"], e["cy"], e["alpha"], e["a"], e["b"]):
+            continue
+        rgb = colors.get(e["formation"], PALETTE[0])
+        line = LinePrimitive(type=LinePrimitiveLineType.LineLoop, thickness=0.02,
+                             pose=_pose(e["cx"], e["cy"], 0.01, e["alpha"]),
+                             points=_ring(e["a"], e["b"]),
+                             color=_color(rgb))
+        entities.append(SceneEntity(timestamp=stamp, frame_id=FRAME_ID,
+                                    id=f"ellipse/{e['formation']}", lines=[line]))
+    for o in frame["obstacles"]:
+        if None in (o["x"], o["y"], o["ds"]):
+            continue
+        ds = o["ds"]
+        core = max(ds - radius, 0.05)  # the obstacle's own body: its safe distance less a robot
+        cyl = CylinderPrimitive(pose=_pose(o["x"], o["y"], 0.15),
+                                size=_size(2 * core, 2 * core, 0.3), bottom_scale=1.0,
+                                top_scale=1.0, color=_color((0.35, 0.35, 0.35), 0.9))
+        ring = LinePrimitive(type=LinePrimitiveLineType.LineLoop, thickness=0.01,
+                             pose=_pose(o["x"], o["y"], 0.005), points=_ring(ds, ds),
+                             color=_color((0.9, 0.3, 0.1)))
+        entities.append(SceneEntity(timestamp=stamp, frame_id=FRAME_ID, id=f"obstacle/{o['name']}",
+                                    cylinders=[cyl], lines=[ring]))
+    return SceneUpdate(entities=entities)
+
+
+class Channels:
+    """The recording's channels on their own ``foxglove.Context`` (see the module docstring)."""
+
+    def __init__(self) -> None:
+        self.context = foxglove.Context()
+        self.scene = SceneUpdateChannel(SCENE_TOPIC, context=self.context)
+        self.fleet = foxglove.Channel(FLEET_TOPIC, schema=FLEET_SCHEMA, message_encoding="json",
+                                      context=self.context)
+        self.logs = LogChannel(LOG_TOPIC, context=self.context)
+        self._writer: Any = None
+        self._server: Any = None
+
+    def open_mcap(self, path: Path) -> None:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._writer = foxglove.open_mcap(path, allow_overwrite=True, context=self.context)
+
+    def serve(self, host: str = "127.0.0.1", port: int = 0, name: str = "formation-cbf") -> int:
+        """Start the Foxglove WebSocket server on this context; returns its port."""
+        from foxglove.websocket import Capability
+
+        self._server = foxglove.start_server(name=name, host=host, port=port, context=self.context,
+                                             capabilities=[Capability.Time])
+        return int(self._server.port)
+
+    def frame(self, frame: Frame) -> None:
+        """Log one frame on ``/scene`` and ``/fleet`` at the frame's time."""
+        t = ns(frame["t"])
+        self.scene.log(scene_update(frame), log_time=t)
+        self.fleet.log(json.dumps(frame, allow_nan=False).encode("utf-8"), log_time=t)
+        if self._server is not None:
+            self._server.broadcast_time(max(t, 0))
+
+    def log(self, t: float, level: str, name: str, message: str) -> None:
+        self.logs.log(Log(timestamp=_stamp(t), level=LEVELS.get(level, LogLevel.Info),
+                          message=message, name=name), log_time=ns(t))
+
+    def close(self) -> None:
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+        if self._server is not None:
+            self._server.stop()
+            self._server = None
+
+
+# --- logs of a finished run ---------------------------------------------------------------------
+
+ONSET_LEVEL = {"relaxed": "warning", "fallback": "error", "failed": "error", "stale": "warning"}
+ONSET_TEXT = {
+    "relaxed": "formation rows relaxed (slack {slack})",
+    "fallback": "hard rows infeasible: least-risk command",
+    "failed": "QP solver failed: zero command",
+    "stale": "stale input: zero command",
+}
+
+
+def status_logs(frames: Iterable[Frame]) -> Iterable[tuple[float, str, str, str]]:
+    """``(t, level, name, message)`` each time a robot's QP status becomes relaxed, fallback,
+    failed or stale (the onset; the tick count follows when it ends)."""
+    current: dict[str, tuple[str, float, int]] = {}  # robot -> (status, since, ticks)
+    for f in frames:
+        for r in f["robots"]:
+            s = r["status"]
+            rid = r["id"]
+            prev = current.get(rid)
+            if prev is not None and prev[0] == s:
+                current[rid] = (s, prev[1], prev[2] + 1)
+                continue
+            if prev is not None and prev[0] in ONSET_LEVEL:
+                yield (f["t"], "info", rid, f"{prev[0]} ended after {prev[2]} ticks")
+            current[rid] = (s, f["t"], 1)
+            if s in ONSET_LEVEL:
+                slack = "n/a" if r["slack"] is None else f"{r['slack']:.4f}"
+                yield (f["t"], ONSET_LEVEL[s], rid, ONSET_TEXT[s].format(slack=slack))
+
+
+def summary_logs(summary: dict, t_end: float) -> list[tuple[float, str, str, str]]:
+    """Log lines from a run's ``summary.json``: collisions and fault events at their times,
+    rejected messages and missing commands at the end."""
+    out: list[tuple[float, str, str, str]] = []
+    for c in summary.get("collision_log") or ():
+        out.append((float(c["t"]), "error", "safety",
+                    f"collision {c['a']} - {c['b']}: clearance {c['clearance_m']:.4f} m"))
+    faults = summary.get("faults") or {}
+    for ev in faults.get("events") or ():
+        out.append((float(ev["t_s"]), "warning", "faults", f"{ev['event']} agent {ev['robot']}"))
+    for c in faults.get("camera_dropouts") or ():
+        out.append((float(c["at_s"]), "warning", "faults",
+                    f"camera loses {c['robot']} for {c['duration_s']} s"))
+    agents = summary.get("agents") or {}
+    dropped = {k: v for k, v in (agents.get("dropped") or {}).items() if v}
+    if dropped:
+        out.append((t_end, "warning", "agents", f"rejected messages: {json.dumps(dropped)}"))
+    if agents.get("stale"):
+        out.append((t_end, "warning", "agents", f"stale ticks (zero command): {agents['stale']}"))
+    world = summary.get("world") or {}
+    for key in ("missing_cmds", "malformed_cmds"):
+        if world.get(key):
+            out.append((t_end, "warning", "world", f"{key.replace('_', ' ')}: {world[key]}"))
+    return out
+
+
+def write_recording(summary: dict, series: Any, scenario: Any, out: Path) -> Path:
+    """``out/run.mcap`` of a finished run: one ``/scene`` and ``/fleet`` message per tick, and
+    the logs of :func:`status_logs` and :func:`summary_logs`, in time order."""
+    from .frame import frames_from_series
+
+    path = Path(out) / "run.mcap"
+    ch = Channels()
+    ch.open_mcap(path)
+    try:
+        frames = list(frames_from_series(series, scenario))
+        t_end = frames[-1]["t"] if frames else 0.0
+        logs = sorted([*status_logs(frames), *summary_logs(summary, t_end)], key=lambda e: e[0])
+        k = 0
+        for f in frames:
+            while k < len(logs) and logs[k][0] <= f["t"]:
+                ch.log(*logs[k])
+                k += 1
+            ch.frame(f)
+        for entry in logs[k:]:
+            ch.log(*entry)
+    finally:
+        ch.close()
+    return path

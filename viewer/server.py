@@ -1,0 +1,355 @@
+"""The live page's server: one hub of frames, an HTTP server for the page, a Foxglove WebSocket.
+
+* :class:`Hub` holds the newest frame (and a sequence number), the newest log lines, and hands
+  every frame it gets to a :class:`viewer.record.Channels` (the Foxglove WebSocket, and
+  ``run.mcap`` for ``formation record``).
+* :class:`PageServer` serves, from a thread of its own, ``GET /`` (the page of
+  :mod:`viewer.page`: inline JavaScript and a canvas, nothing to install, nothing fetched from
+  elsewhere), ``GET /state`` (the newest frame as JSON, with the logs and the WebSocket's port)
+  and ``POST /control`` (replay: play, pause, speed, seek).
+* :class:`LivePump` polls a :class:`viewer.live.FleetWatcher` a few times a second and
+  publishes what it sees; :class:`ReplayPlayer` plays the frames of a recording.
+
+Nothing here runs on the control loop's thread: the pump and the player have their own.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+from typing import Any
+
+from .frame import Frame
+from .record import ONSET_LEVEL, ONSET_TEXT, Channels
+
+logger = logging.getLogger(__name__)
+
+LOG_LINES = 50  # the page shows the newest log lines
+LIVE_PERIOD_S = 0.1  # [s] how often a live pump looks at the fleet
+
+
+class Hub:
+    """The newest frame, for the page and the Foxglove channels (thread-safe)."""
+
+    def __init__(self, channels: Channels | None = None, mode: str = "live") -> None:
+        self.channels = channels
+        self.mode = mode
+        self.ws_port: int | None = None
+        self._lock = threading.Lock()
+        self.frame: Frame | None = None
+        self.seq = 0
+        self.logs: deque[dict] = deque(maxlen=LOG_LINES)
+        self._status: dict[str, str] = {}
+        self.playback: dict[str, Any] = {}
+        self.control: Callable[[dict], dict] | None = None
+
+    def publish(self, frame: Frame) -> None:
+        """A new frame: kept for the page, logged on the channels, its status changes logged."""
+        for r in frame["robots"] if self.mode != "replay" else ():  # a replay has its logs
+            s = r.get("status") or ""
+            if self._status.get(r["id"]) != s:
+                self._status[r["id"]] = s
+                if s in ONSET_LEVEL:
+                    slack = "n/a" if r.get("slack") is None else f"{r['slack']:.4f}"
+                    self.log(frame["t"], ONSET_LEVEL[s], r["id"], ONSET_TEXT[s].format(slack=slack))
+        with self._lock:
+            self.frame = frame
+            self.seq += 1
+        if self.channels is not None:
+            self.channels.frame(frame)
+
+    def log(self, t: float, level: str, name: str, message: str, record: bool = True) -> None:
+        with self._lock:
+            self.logs.append({"t": t, "level": level, "name": name, "message": message})
+        if record and self.channels is not None:
+            self.channels.log(t, level, name, message)
+
+    def state(self) -> dict:
+        with self._lock:
+            return {"seq": self.seq, "mode": self.mode, "ws_port": self.ws_port,
+                    "frame": self.frame, "logs": list(self.logs), "playback": dict(self.playback)}
+
+
+class _Handler(BaseHTTPRequestHandler):
+    hub: Hub
+    page: bytes
+
+    def log_message(self, fmt: str, *args: Any) -> None:  # quiet: debug log, not stderr
+        logger.debug("http: " + fmt, *args)
+
+    def _send(self, code: int, body: bytes, ctype: str) -> None:
+        self.send_response(code)
+        self.send_header("Content-Type", ctype)
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Cache-Control", "no-store")
+        self.end_headers()
+        self.wfile.write(body)
+
+    def do_GET(self) -> None:  # noqa: N802 - http.server's name
+        path = self.path.split("?", 1)[0]
+        if path in ("/", "/index.html"):
+            self._send(200, self.page, "text/html; charset=utf-8")
+        elif path == "/state":
+            body = json.dumps(self.hub.state(), allow_nan=False).encode("utf-8")
+            self._send(200, body, "application/json")
+        else:
+            self._send(404, b"not found\n", "text/plain")
+
+    def do_POST(self) -> None:  # noqa: N802
+        if self.path != "/control" or self.hub.control is None:
+            self._send(404, b"not found\n", "text/plain")
+            return
+        try:
+            n = int(self.headers.get("Content-Length", "0"))
+            if not 0 <= n <= 4096:
+                raise ValueError("body too long")
+            req = json.loads(self.rfile.read(n) or b"{}")
+            if not isinstance(req, dict):
+                raise ValueError("expected a JSON object")
+            reply = self.hub.control(req)
+        except (ValueError, TypeError) as exc:
+            self._send(400, json.dumps({"error": str(exc)}).encode(), "application/json")
+            return
+        self._send(200, json.dumps(reply).encode(), "application/json")
+
+
+class PageServer:
+    """The page and its ``/state`` on ``http://HOST:PORT/`` (a daemon thread)."""
+
+    def __init__(self, hub: Hub, host: str = "127.0.0.1", port: int = 0, title: str = "") -> None:
+        from .page import render_page
+
+        handler = type("Handler", (_Handler,), {"hub": hub, "page": render_page(title).encode()})
+        self.httpd = ThreadingHTTPServer((host, port), handler)
+        self.httpd.daemon_threads = True
+        self.host = host
+        self.port = int(self.httpd.server_address[1])
+        self._thread = threading.Thread(target=self.httpd.serve_forever, name="viewer-http",
+                                        daemon=True)
+        self._thread.start()
+
+    @property
+    def url(self) -> str:
+        host = "127.0.0.1" if self.host in ("", "0.0.0.0") else self.host
+        return f"http://{host}:{self.port}/"
+
+    def close(self) -> None:
+        self.httpd.shutdown()
+        self.httpd.server_close()
+
+
+class LivePump:
+    """Every ``period`` seconds, publish the watcher's frame when its time moved on."""
+
+    def __init__(self, watcher: Any, hub: Hub, period: float = LIVE_PERIOD_S) -> None:
+        self.watcher = watcher
+        self.hub = hub
+        self.period = period
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="viewer-pump", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        last_t = None
+        while not self._stop.wait(self.period):
+            try:
+                frame = self.watcher.frame()
+            except Exception:  # noqa: BLE001 - a viewer never takes anything down
+                logger.exception("viewer: building a frame failed")
+                continue
+            if frame is not None and frame["t"] != last_t:
+                last_t = frame["t"]
+                self.hub.publish(frame)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+
+
+class View:
+    """Page + Foxglove WebSocket (+ optionally ``run.mcap``) around one hub; ``close()`` ends all."""
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 0, ws_port: int = 0,
+                 mcap: Path | None = None, mode: str = "live", title: str = "",
+                 ws_fallback: bool = False) -> None:
+        """``ws_fallback``: if ``ws_port`` is taken, serve the WebSocket on a free port instead
+        (the page names it)."""
+        self.channels = Channels()
+        try:
+            try:
+                ws = self.channels.serve(host, ws_port)
+            except RuntimeError:
+                if not ws_fallback or ws_port == 0:
+                    raise
+                logger.info("port %d taken: the Foxglove WebSocket goes on a free port", ws_port)
+                ws = self.channels.serve(host, 0)
+            if mcap is not None:
+                self.channels.open_mcap(mcap)
+            self.hub = Hub(self.channels, mode=mode)
+            self.hub.ws_port = ws
+            self.page = PageServer(self.hub, host, port, title)
+        except BaseException:
+            self.channels.close()
+            raise
+        self._closers: list[Callable[[], None]] = []
+
+    def on_close(self, fn: Callable[[], None]) -> None:
+        self._closers.append(fn)
+
+    def close(self) -> None:
+        for fn in reversed(self._closers):
+            try:
+                fn()
+            except Exception:  # noqa: BLE001
+                logger.debug("viewer close step failed", exc_info=True)
+        self.page.close()
+        self.channels.close()
+
+
+# --- replay ---------------------------------------------------------------------------------------
+
+def read_recording(path: Path) -> tuple[list[Frame], list[dict]]:
+    """The ``/fleet`` frames and ``/log`` lines of a ``run.mcap`` (ValueError if it has none)."""
+    from mcap.reader import make_reader
+
+    from .record import FLEET_TOPIC, LOG_TOPIC
+
+    frames: list[Frame] = []
+    logs: list[dict] = []
+    with Path(path).open("rb") as fh:
+        reader = make_reader(fh)
+        for _schema, channel, message in reader.iter_messages(topics=[FLEET_TOPIC, LOG_TOPIC],
+                                                              log_time_order=True):
+            if channel.topic == FLEET_TOPIC:
+                frames.append(json.loads(message.data))
+            else:
+                logs.append({"t": message.log_time / 1e9, **_log_fields(message.data)})
+    if not frames:
+        raise ValueError(f"{path}: no {FLEET_TOPIC} frames (not a formation-cbf recording?)")
+    return frames, logs
+
+
+def _log_fields(data: bytes) -> dict:
+    """level, name and message of an encoded ``foxglove.Log`` (protobuf: fields 2, 3, 4, 5)."""
+    out = {"level": "info", "name": "", "message": ""}
+    levels = {1: "debug", 2: "info", 3: "warning", 4: "error", 5: "error"}
+    pos = 0
+    try:
+        while pos < len(data):
+            tag, pos = _varint(data, pos)
+            field, wire = tag >> 3, tag & 7
+            if wire == 0:
+                value, pos = _varint(data, pos)
+                if field == 2:
+                    out["level"] = levels.get(value, "info")
+            elif wire == 2:
+                n, pos = _varint(data, pos)
+                chunk = data[pos:pos + n]
+                pos += n
+                if field in (3, 4):
+                    out["message" if field == 3 else "name"] = chunk.decode("utf-8", "replace")
+            elif wire == 5:
+                pos += 4
+            elif wire == 1:
+                pos += 8
+            else:
+                break
+    except IndexError:
+        pass
+    return out
+
+
+def _varint(data: bytes, pos: int) -> tuple[int, int]:
+    value = shift = 0
+    while True:
+        b = data[pos]
+        pos += 1
+        value |= (b & 0x7F) << shift
+        if not b & 0x80:
+            return value, pos
+        shift += 7
+
+
+class ReplayPlayer:
+    """Plays recorded frames into a hub on their own clock: play, pause, speed, seek."""
+
+    SPEEDS = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0)
+
+    def __init__(self, frames: Sequence[Frame], logs: Sequence[dict], hub: Hub,
+                 loop: bool = False) -> None:
+        self.frames = list(frames)
+        self.times = [f["t"] for f in self.frames]
+        self.logs = sorted(logs, key=lambda e: e["t"])
+        self.hub = hub
+        self.loop = loop
+        self.playing = True
+        self.speed = 1.0
+        self._pos = self.times[0]  # recording time shown [s]
+        self._index = -1
+        self._log_index = 0
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        hub.control = self.control
+        self._update_playback()
+        self._thread = threading.Thread(target=self._run, name="viewer-replay", daemon=True)
+        self._thread.start()
+
+    def _update_playback(self) -> None:
+        self.hub.playback = {"playing": self.playing, "speed": self.speed,
+                             "start": self.times[0], "end": self.times[-1], "time": self._pos}
+
+    def control(self, req: dict) -> dict:
+        with self._lock:
+            if "playing" in req:
+                self.playing = bool(req["playing"])
+            if "speed" in req:
+                speed = float(req["speed"])
+                if not 0.01 <= speed <= 100.0:
+                    raise ValueError(f"speed {speed} must be within 0.01 and 100")
+                self.speed = speed
+            if "seek" in req:
+                t = float(req["seek"])
+                self._pos = min(max(t, self.times[0]), self.times[-1])
+                self._index = -1
+                self._log_index = 0
+            self._update_playback()
+            return dict(self.hub.playback)
+
+    def _run(self) -> None:
+        import bisect
+
+        last = time.monotonic()
+        while not self._stop.wait(0.05):
+            now = time.monotonic()
+            with self._lock:
+                if self.playing:
+                    self._pos += (now - last) * self.speed
+                    if self._pos >= self.times[-1]:
+                        if self.loop:
+                            self._pos, self._index, self._log_index = self.times[0], -1, 0
+                        else:
+                            self._pos = self.times[-1]
+                            self.playing = False
+                k = max(bisect.bisect_right(self.times, self._pos + 1e-9) - 1, 0)
+                new = k != self._index
+                self._index = k
+                logs = []
+                while self._log_index < len(self.logs) and self.logs[self._log_index]["t"] <= self._pos:
+                    logs.append(self.logs[self._log_index])
+                    self._log_index += 1
+                self._update_playback()
+            last = now
+            for e in logs:
+                self.hub.log(e["t"], e["level"], e["name"], e["message"], record=False)
+            if new:
+                self.hub.publish(self.frames[k])
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
