@@ -254,6 +254,18 @@ class Rows(NamedTuple):
     h_formations: float
 
 
+def _shape_rows(px: float, py: float, shapes: Sequence[Shape], gamma: float, grow: float,
+                reach: float, hard: list[Row]) -> float:
+    """Append the rows of the walls and shelves that can be active to ``hard``; the smallest h."""
+    hmin = math.inf
+    for sh in shapes:
+        h, row = barriers.shape_row(px, py, sh, gamma, grow)
+        hmin = min(hmin, h)
+        if row[2] < reach:
+            hard.append(row)
+    return hmin
+
+
 def build_rows(
     p: ControlParams,
     px: float,
@@ -297,11 +309,8 @@ def build_rows(
         ho = min(ho, h)
         if row[2] < reach:
             hard.append(row)
-    for sh in shapes:  # walls and shelves: the body stays Ds from the shape itself
-        h, row = barriers.shape_row(px, py, sh, p.gamma_obstacle, grow)
-        ho = min(ho, h)
-        if row[2] < reach:
-            hard.append(row)
+    if shapes:  # walls and shelves: the body stays Ds from the shape itself
+        ho = min(ho, _shape_rows(px, py, shapes, p.gamma_obstacle, grow, reach, hard))
     for e in others:
         h, row = barriers.ellipse_row(px, py, e, p.gamma_formations)
         he = min(he, h)

@@ -50,38 +50,52 @@ def plan_route(start: Point, goal: Point, shapes: Sequence[Shape], radius: float
     goal = (float(goal[0]), float(goal[1]))
     if not shapes:
         return (goal,)
-    need = [sh.ds + radius + margin for sh in shapes]
-    frames = [(math.cos(sh.yaw), math.sin(sh.yaw)) for sh in shapes]
+    legs = _Legs((float(start[0]), float(start[1])), goal, shapes, radius + margin)
+    path = _astar(legs.nodes, legs.usable)
+    return tuple(legs.nodes[k] for k in path) if path else (goal,)
 
-    def gap(p: Point, j: int) -> float:
-        return max(0.0, shape_distance(p[0], p[1], shapes[j])[0])
 
-    nodes: list[Point] = [(float(start[0]), float(start[1])), goal]
-    for j, sh in enumerate(shapes):
-        r = need[j] * _VERTEX_GROW
-        for su, sv in ((sh.hx + r, sh.hy + r * _TAN_8), (sh.hx + r * _TAN_8, sh.hy + r)):
-            for cu, cv in ((1, 1), (-1, 1), (-1, -1), (1, -1)):
-                p = sh.local_to_world(cu * su, cv * sv)
-                if all(gap(p, k) >= need[k] for k in range(len(shapes))):
-                    nodes.append(p)
-    end_gap = [[gap(p, j) for j in range(len(shapes))] for p in nodes[:2]]
+class _Legs:
+    """The visibility graph: node 0 the start, node 1 the goal, then the octagon vertices clear
+    of every inflated shape; :meth:`usable` checks a leg lazily."""
 
-    def usable(a: int, b: int) -> bool:
-        pa, pb = nodes[a], nodes[b]
+    def __init__(self, start: Point, goal: Point, shapes: Sequence[Shape], grow: float) -> None:
+        self.shapes = shapes
+        self.need = [sh.ds + grow for sh in shapes]
+        self.frames = [(math.cos(sh.yaw), math.sin(sh.yaw)) for sh in shapes]
+        self.nodes: list[Point] = [start, goal]
         for j, sh in enumerate(shapes):
-            want = need[j]
-            if a < 2:
-                want = min(want, end_gap[a][j])
-            if b < 2:
-                want = min(want, end_gap[b][j])
+            r = self.need[j] * _VERTEX_GROW
+            for su, sv in ((sh.hx + r, sh.hy + r * _TAN_8), (sh.hx + r * _TAN_8, sh.hy + r)):
+                for cu, cv in ((1, 1), (-1, 1), (-1, -1), (1, -1)):
+                    p = sh.local_to_world(cu * su, cv * sv)
+                    if all(self.gap(p, k) >= self.need[k] for k in range(len(shapes))):
+                        self.nodes.append(p)
+        self.end_gap = [[self.gap(p, j) for j in range(len(shapes))] for p in self.nodes[:2]]
+
+    def gap(self, p: Point, j: int) -> float:
+        return max(0.0, shape_distance(p[0], p[1], self.shapes[j])[0])
+
+    def usable(self, a: int, b: int) -> bool:
+        """Whether the leg between nodes a and b keeps every shape's clearance (a leg from the
+        start or to the goal: no less than that end already has)."""
+        pa, pb = self.nodes[a], self.nodes[b]
+        for j, sh in enumerate(self.shapes):
+            want = self.need[j]
+            for end in (a, b):
+                if end < 2:
+                    want = min(want, self.end_gap[end][j])
             # quick accept: the leg misses the shape's rectangle grown by the clearance wanted
-            if not _hits_grown_box(pa, pb, sh, frames[j], want):
-                continue
-            if path_clearance(pa, pb, sh) < want - 1e-9:
+            if _hits_grown_box(pa, pb, sh, self.frames[j], want) and \
+                    path_clearance(pa, pb, sh) < want - 1e-9:
                 return False
         return True
 
-    # A* from node 0 to node 1
+
+def _astar(nodes: Sequence[Point], usable) -> list[int] | None:
+    """Shortest path from node 0 to node 1 (Euclidean cost and heuristic), legs checked lazily
+    with ``usable(a, b)``: the node indices after the start, or None."""
+    goal = nodes[1]
     best = {0: 0.0}
     parent: dict[int, int] = {}
     done: set[int] = set()
@@ -95,7 +109,7 @@ def plan_route(start: Point, goal: Point, shapes: Sequence[Shape], radius: float
             path = [1]
             while path[-1] != 0:
                 path.append(parent[path[-1]])
-            return tuple(nodes[k] for k in reversed(path[:-1]))
+            return list(reversed(path[:-1]))
         for b in range(1, len(nodes)):
             if b in done:
                 continue
@@ -105,7 +119,7 @@ def plan_route(start: Point, goal: Point, shapes: Sequence[Shape], radius: float
             best[b] = ng
             parent[b] = a
             heapq.heappush(heap, (ng + math.dist(nodes[b], goal), ng, b))
-    return (goal,)
+    return None
 
 
 def _hits_grown_box(p0: Point, p1: Point, sh: Shape, frame: tuple[float, float], grow: float) -> bool:

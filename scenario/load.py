@@ -29,11 +29,11 @@ from typing import Any
 import numpy as np
 
 from geometry.ellipse import Ellipse, derive_axes, ellipse_value, estimate, reference_shape
-from geometry.unicycle import control_point
-from wire.keys import name_problem
 from geometry.shapes import Shape, shape_distance
 from geometry.shapes import box as box_shape
 from geometry.shapes import segment as segment_shape
+from geometry.unicycle import control_point
+from wire.keys import name_problem
 
 from . import limits
 from .limits import Range

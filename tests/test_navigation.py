@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -140,7 +141,7 @@ def test_navigation_scenarios_reach_every_goal_safely_in_process(path):
 def test_without_a_route_the_formation_stalls_in_front_of_the_shelf():
     text = (ROOT / "tests" / "scenarios" / "nav-behind-shelf.yaml").read_text(encoding="utf-8")
     s = parse_scenario(text.replace("epsilon: 0.04}", "epsilon: 0.04, planner: none}"))
-    s = s.__class__(**{**s.__dict__, "duration": 40.0})
+    s = dataclasses.replace(s, duration=40.0)
     summary = simulate(s, SimOptions(record=False)).summary
     assert not summary["all_reached"]
     assert summary["collisions"] == 0  # the barriers still hold

@@ -53,7 +53,7 @@ import logging
 import math
 import numbers
 import struct
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, fields
 from typing import Any, TypeAlias
 
@@ -597,7 +597,7 @@ class _Reader:
 
 
 def _decode(payload: object, parse: Callable[[_Reader], Any], kind: str,
-            parsers: dict[int, Callable[[_Reader], Any]] | None = None) -> Any:
+            parsers: Mapping[int, Callable[[_Reader], Any]] | None = None) -> Any:
     """Decode ``payload`` with ``parse`` (version :data:`WIRE_VERSION`), or with the parser
     ``parsers`` names for its version byte."""
     try:
@@ -815,11 +815,13 @@ class PlanMsg:
         for k, m in enumerate(members):
             if len(m) != 3:
                 raise ValueError(f"members[{k}] must be (id, x, y), got {m!r}")
-            _check_id(m[0], f"members[{k}].id")
-            if m[0] in seen:
-                raise ValueError(f"members repeat id {m[0]!r}")
-            seen.add(m[0])
-            out.append((m[0], *_points([m[1:]], f"members[{k}]", 1)[0]))
+            rid = m[0]
+            _check_id(rid, f"members[{k}].id")
+            assert isinstance(rid, str)  # _check_id accepts only a str
+            if rid in seen:
+                raise ValueError(f"members repeat id {rid!r}")
+            seen.add(rid)
+            out.append((rid, *_points([m[1:]], f"members[{k}]", 1)[0]))
         object.__setattr__(self, "members", tuple(out))
 
     def goal_of(self, robot_id: str) -> tuple[float, float] | None:
@@ -914,10 +916,11 @@ def _parse_plan(r: _Reader) -> PlanMsg:
     heading = _read_heading(r)
     route = _read_points(r, "route")
     n = r.count("members", MAX_ITEMS)
-    members = []
+    members: list[tuple[str, float, float]] = []
     for k in range(n):
         rid = r.string(f"members[{k}].id")
-        members.append((rid, *r.floats(2, f"members[{k}]")))
+        x, y = r.floats(2, f"members[{k}]")
+        members.append((rid, x, y))
     (stamp,) = r.floats(1, "stamp")
     return PlanMsg(formation, goal_stamp, cx, cy, heading, tuple(route), tuple(members), stamp)
 
@@ -929,8 +932,9 @@ def _parse_status(r: _Reader) -> StatusMsg:
     goal_stamp, gx, gy = r.floats(3, "goal_stamp, gx, gy")
     heading = _read_heading(r)
     distance, waypoint, waypoints, wx, wy, stamp = r.floats(6, "distance .. stamp")
-    return StatusMsg(formation, state, leader, goal_stamp, gx, gy, heading, distance, waypoint,
-                     waypoints, wx, wy, stamp)
+    # whole numbers carried as f64: StatusMsg checks them and makes them ints
+    return StatusMsg(formation, state, leader, goal_stamp, gx, gy, heading, distance,
+                     waypoint, waypoints, wx, wy, stamp)  # type: ignore[arg-type]
 
 
 def decode_goal(payload: bytes | zenoh.ZBytes) -> GoalMsg:
