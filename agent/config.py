@@ -58,6 +58,7 @@ class AgentConfig:
     prefix: str = "warehouse"
     topology: str = "reduced"
     foreign_robots: tuple[str, ...] = ()  # all-to-all only: robots of other formations
+    partners: tuple[str, ...] = ()  # every other member of the formation: separation rows
     leader: LeaderSettings | None = None  # set on the leader robot only
     stale_after: float = 0.25  # [s] inputs older than this are stale: command zero
     base: str = "world"  # where commands go: the simulated world or a real robot base
@@ -119,6 +120,7 @@ def build_agent_configs(
                 prefix=prefix,
                 topology=topology,
                 foreign_robots=foreign if topology == "all-to-all" else (),
+                partners=tuple(m for m in f.robot_ids if m != r.id),
                 leader=leader if r.id == f.leader else None,
                 stale_after=STALE_PERIODS * scenario.dt,
                 base=base,
@@ -181,6 +183,7 @@ def config_from_dict(d: dict[str, Any]) -> AgentConfig:
             prefix=str(d.pop("prefix", "warehouse")),
             topology=str(d.pop("topology", "reduced")),
             foreign_robots=tuple(d.pop("foreign_robots", ())),
+            partners=tuple(str(m) for m in d.pop("partners", ())),
             leader=leader,
             stale_after=float(d.pop("stale_after", 0.25)),
             base=str(d.pop("base", "world")),

@@ -31,6 +31,19 @@ whose centroid has been nearly still for STALL_TIME while away from its goal (:f
 computed by every member from the same ellipse) backs away for RETREAT_TIME from each nearby
 formation whose name sorts before its own (:func:`retreat_command`); the formation with priority
 keeps going.
+
+Escape (:func:`escape_command`): a barrier that only lets robots back away cannot outrun a hazard
+faster than they are. For each moving obstacle every member computes, from shared data only, the
+closest approach of its formation's intended motion (eq. 4.2 on the centroid; zero when parked)
+relative to the hazard; if it comes within the hazard's Ds + the members' half-width across its
+path + ESCAPE_MARGIN, the formation's nominal becomes one vector for all members: sideways, away
+from the hazard's path line, plus the intended motion without its part towards that line, so a
+formation gives way rather than crossing ahead of a hazard about as fast as itself. Where that
+cannot be done in time, the hard rows meet and the QP returns the least-risk command (counted).
+
+Separation (:func:`agent.barriers.separation_row`): every pair of robots that can touch gets a
+hard row with a reciprocal split of the pair's slack; see that function for why two robots
+acting at once cannot both cross.
 """
 
 from __future__ import annotations
@@ -45,7 +58,7 @@ from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE
 from geometry.shapes import Shape
 
 from . import barriers, unicycle
-from .barriers import Neighbour, Obstacle
+from .barriers import Neighbour, Obstacle, Partner
 from .qp import STATUS_NOMINAL, QPResult, Row, solve_cbf_qp, solve_exact
 
 TIEBREAK_MARGIN = 0.15  # [m] corridor half-width beyond both radii
@@ -58,6 +71,14 @@ STALL_GOAL_DISTANCE = 0.3  # [m] closer than this to its goal centroid a formati
 RETREAT_TIME = 5.0  # [s] how long a jammed formation backs away
 RETREAT_RANGE = 1.0  # [m] beyond touching ellipses, formations that count for the retreat
 RETREAT_GAIN = 0.5  # retreat speed as a fraction of max speed
+ESCAPE_MIN_SPEED = 0.02  # [m/s] obstacles slower than this are static for the escape rule
+ESCAPE_RANGE = 6.0  # [m] moving hazards farther than this from the centroid are ignored
+ESCAPE_HORIZON = 20.0  # [s] closest approaches further ahead than this do not count yet
+ESCAPE_MARGIN = 0.15  # [m] lateral room beyond the hazard's Ds and the members' half-width
+ESCAPE_PAD = 0.02  # [m] the ellipse's pad beyond the members (leader.ellipse derives it so)
+ESCAPE_OVERSHOOT = 0.05  # [m] the sideways step aims this far beyond the room needed
+ESCAPE_GAIN = 2.0  # [1/s] sideways speed per metre still to clear
+SEP_MARGIN = 0.0  # [m] separation rows keep bodies this much beyond touching
 
 
 @dataclass(frozen=True)
@@ -75,6 +96,7 @@ class ControlParams:
     safety: bool = True  # False: the nominal command, no barriers (to show what happens)
     d_af: float = 0.5  # [m] pairwise distance for the all-to-all baseline (eq. 3.5)
     period: float = 0.05  # [s] control period (sizes the unicycle's discretisation margin)
+    radius: float = 0.105  # [m] body radius: separation rows keep bodies 2 r + SEP_MARGIN apart
 
     @classmethod
     def from_scenario(cls, scenario, safety: bool = True) -> ControlParams:
@@ -93,12 +115,20 @@ class ControlParams:
             safety=safety,
             d_af=c.d_af if c.d_af is not None else 2.0 * r.radius + 0.25,
             period=scenario.dt,
+            radius=r.radius,
         )
 
     @property
     def offset(self) -> float:
         """Control point offset from the body centre [m]."""
         return self.lookahead if self.unicycle else 0.0
+
+    @property
+    def separation(self) -> float:
+        """[m] distance the separation rows keep between two body centres: two radii (for
+        unicycles the pair barrier adds l HEADING_SMOOTH, 1 cm for a TurtleBot, which covers
+        the look-ahead points' second-order sampling error: :func:`agent.barriers.separation_terms`)."""
+        return 2.0 * self.radius + SEP_MARGIN
 
     @property
     def sampling_margin(self) -> float:
@@ -179,6 +209,8 @@ class StepResult(NamedTuple):
     nominal_ux: float
     nominal_uy: float
     solve_us: float  # [us] wall time of the QP (with any relaxation)
+    h_separation: float = math.inf  # smallest separation barrier value (bodies, all partners)
+    escape: bool = False  # the formation-level escape from a moving hazard set the nominal
 
 
 def nominal(kp: float, x: float, y: float, gx: float, gy: float, vmax: float):
@@ -247,11 +279,13 @@ class Rows(NamedTuple):
     """The QP's rows for one tick (all normalised, ``ax * ux + ay * uy <= b``)."""
 
     limits: list[Row]  # speed (and, for unicycles, turn-rate) limits: never relaxed
-    hard: list[Row]  # obstacles, other formations (or pairwise robots): never relaxed
+    hard: list[Row]  # other formations' ellipses (or pairwise robots): never relaxed
     soft: list[Row]  # formation edges: relaxed by the smallest slack only if infeasible
     h_formation: float  # smallest barrier value of each kind (inf when there is none)
     h_obstacle: float
     h_formations: float
+    h_separation: float = math.inf
+    contact: Sequence[Row] = ()  # obstacles and body separation: hard, kept in a fallback
 
 
 def _shape_rows(px: float, py: float, shapes: Sequence[Shape], gamma: float, grow: float,
@@ -277,6 +311,8 @@ def build_rows(
     others: Sequence[Ellipse] = (),
     view: FormationView | None = None,
     pairwise: Sequence[Neighbour] = (),
+    partners: Sequence[Partner] = (),
+    last_u: tuple[float, float] = (0.0, 0.0),
     shapes: Sequence[Shape] = (),
 ) -> Rows:
     """Every barrier row (eq. 4.12b-e with appendix A's velocity terms) and limit row for the
@@ -287,6 +323,7 @@ def build_rows(
     limits are never relaxed). Its barrier value still counts for the reported minimum."""
     soft: list[Row] = []
     hard: list[Row] = []
+    contact: list[Row] = []
     hf = ho = he = math.inf
     eps = p.epsilon
     if p.unicycle:
@@ -308,9 +345,9 @@ def build_rows(
         h, row = barriers.obstacle_row(px, py, o, p.gamma_obstacle)
         ho = min(ho, h)
         if row[2] < reach:
-            hard.append(row)
-    if shapes:  # walls and shelves: the body stays Ds from the shape itself
-        ho = min(ho, _shape_rows(px, py, shapes, p.gamma_obstacle, grow, reach, hard))
+            contact.append(row)
+    if shapes:  # walls and shelves: the body stays Ds from the shape itself (hard, like circles)
+        ho = min(ho, _shape_rows(px, py, shapes, p.gamma_obstacle, grow, reach, contact))
     for e in others:
         h, row = barriers.ellipse_row(px, py, e, p.gamma_formations)
         he = min(he, h)
@@ -321,18 +358,97 @@ def build_rows(
         he = min(he, h)
         if row[2] < reach:
             hard.append(row)
+    hs, sep = _separation_rows(p, px, py, theta, partners, last_u, reach)
+    contact += sep
+    limits = _limit_rows(p, theta, view, nominal_u)
+    return Rows(limits, hard, soft, hf, ho, he, hs, contact)
 
+
+def _separation_rows(p: ControlParams, px: float, py: float, theta: float,
+                     partners: Sequence[Partner], last_u: tuple[float, float],
+                     reach: float) -> tuple[float, list[Row]]:
+    """The smallest separation barrier value and the hard separation rows that can be active."""
+    hs = math.inf
+    rows: list[Row] = []
+    dsep, gamma, off = p.separation, p.gamma_formation, p.offset
+    for q in partners:
+        h, gi, gj = barriers.separation_terms((px, py), theta, (q.x, q.y), q.theta, dsep, off)
+        row = barriers.separation_row(h, gi, last_u, gj, (q.vx, q.vy), gamma)
+        hs = min(hs, h)
+        if row[2] < reach:
+            rows.append(row)
+    return hs, rows
+
+
+def _limit_rows(p: ControlParams, theta: float, view: FormationView | None,
+                nominal_u: tuple[float, float]) -> list[Row]:
+    """Speed (and for unicycles turn-rate) limit rows."""
     if p.unicycle:
-        limits = unicycle.limit_rows(theta, p.lookahead, p.max_speed, p.max_turn_rate)
+        return unicycle.limit_rows(theta, p.lookahead, p.max_speed, p.max_turn_rate)
+    # Members of a formation share the polygon's orientation (their travel direction), so a
+    # neighbour's last velocity is always inside this robot's own speed polygon.
+    if view is not None and math.hypot(view.goal_x - view.own.cx, view.goal_y - view.own.cy) > 0.05:
+        heading = math.atan2(view.goal_y - view.own.cy, view.goal_x - view.own.cx)
     else:
-        # Members of a formation share the polygon's orientation (their travel direction), so a
-        # neighbour's last velocity is always inside this robot's own speed polygon.
-        if view is not None and math.hypot(view.goal_x - view.own.cx, view.goal_y - view.own.cy) > 0.05:
-            heading = math.atan2(view.goal_y - view.own.cy, view.goal_x - view.own.cx)
-        else:
-            heading = math.atan2(nominal_u[1], nominal_u[0])
-        limits = barriers.speed_rows(p.max_speed, heading)
-    return Rows(limits, hard, soft, hf, ho, he)
+        heading = math.atan2(nominal_u[1], nominal_u[0])
+    return barriers.speed_rows(p.max_speed, heading)
+
+
+def escape_command(
+    p: ControlParams, view: FormationView, obstacles: Sequence[Obstacle],
+) -> tuple[float, float] | None:
+    """The formation-level escape from moving hazards (module docstring, "Escape"): the same
+    vector for every member, or None when no moving hazard threatens the formation."""
+    own = view.own
+    vmax = p.max_speed
+    # The formation's intended motion: eq. 4.2 on the centroid (zero once parked at the goal).
+    wx, wy = nominal(p.kp, own.cx, own.cy, view.goal_x, view.goal_y, vmax)
+    ex = ey = 0.0
+    threat = False
+    pad = 2.0 * p.radius + 2.0 * p.offset + p.epsilon + ESCAPE_PAD
+    for o in obstacles:
+        speed = math.hypot(o.vx, o.vy)
+        if speed < ESCAPE_MIN_SPEED:
+            continue
+        hx, hy = o.vx / speed, o.vy / speed  # the hazard's heading; n its left normal
+        nx, ny = -hy, hx
+        rx, ry = own.cx - o.x, own.cy - o.y
+        along, lat = rx * hx + ry * hy, rx * nx + ry * ny
+        half = max(0.0, _half_width(own, nx, ny) - pad)  # members' body centres across its path
+        need = o.ds + half + ESCAPE_MARGIN
+        if along < -(need + _half_width(own, hx, hy)) or math.hypot(rx, ry) > ESCAPE_RANGE:
+            continue  # passed us, or too far to matter yet
+        # Closest approach under the intended motion (relative velocity w - v_hazard).
+        vx, vy = wx - o.vx, wy - o.vy
+        v2 = vx * vx + vy * vy
+        tca = max(0.0, -(rx * vx + ry * vy) / v2) if v2 > 1e-12 else 0.0
+        miss = math.hypot(rx + vx * tca, ry + vy * tca)
+        if miss >= need or tca > ESCAPE_HORIZON:
+            continue
+        threat = True
+        side = math.copysign(1.0, lat) if abs(lat) > TIEBREAK_DEAD else -1.0  # else: its right
+        gap = max(0.0, need + ESCAPE_OVERSHOOT - abs(lat))  # aim a little beyond, to get there
+        ex += side * nx * gap
+        ey += side * ny * gap
+        # Keep from the intended motion only what does not carry us towards its path line.
+        toward = (wx * nx + wy * ny) * side
+        if toward < 0.0:
+            wx, wy = wx - toward * side * nx, wy - toward * side * ny
+        if abs(lat) < need and wx * hx + wy * hy < 0.0 and along > 0.0:
+            par = wx * hx + wy * hy  # still in its path and driving towards it: stop that
+            wx, wy = wx - par * hx, wy - par * hy
+    if not threat:
+        return None
+    lx, ly = ESCAPE_GAIN * ex, ESCAPE_GAIN * ey
+    ln = math.hypot(lx, ly)
+    if ln > vmax:
+        return (lx * vmax / ln, ly * vmax / ln)
+    # Sideways first; what speed is left goes to the (filtered) intended motion.
+    rest = math.sqrt(max(0.0, vmax * vmax - ln * ln))
+    wn = math.hypot(wx, wy)
+    if wn > rest:
+        wx, wy = wx * rest / wn, wy * rest / wn
+    return (lx + wx, ly + wy)
 
 
 def control_step(
@@ -345,6 +461,9 @@ def control_step(
     view: FormationView | None = None,
     solve=solve_exact,
     pairwise: Sequence[Neighbour] = (),
+    partners: Sequence[Partner] = (),
+    last_u: tuple[float, float] = (0.0, 0.0),
+    hazards: Sequence[Ellipse] | None = None,
     shapes: Sequence[Shape] = (),
     clock: Callable[[], int] | None = None,
 ) -> StepResult:
@@ -352,8 +471,13 @@ def control_step(
 
     ``pose`` is the body (x, y, theta); ``neighbours`` carry their control points and last
     velocities with Df; ``obstacles`` carry Ds for the body (the look-ahead offset is added here
-    for unicycles); ``others`` are the other formations' ellipses; ``pairwise`` are robots of
-    other formations in the all-to-all baseline (eq. 3.5 rows instead of ellipses);
+    for unicycles); ``others`` are the other formations' ellipses (barrier rows); ``pairwise``
+    are robots of other formations in the all-to-all baseline (eq. 3.5 rows instead of
+    ellipses); ``partners`` are the robots this one could touch that get a hard separation row
+    (every other member of its formation, and in all-to-all every foreign robot), with
+    ``last_u`` this robot's own last certified velocity, as its ``state`` told them; ``hazards``
+    are the other formations' ellipses for the formation-level rules only (tie-break, jam;
+    default: ``others``), so all-to-all keeps those rules without ellipse rows.
     ``shapes`` are the static walls and shelves (Ds from the shape, offset added likewise).
     ``clock`` (e.g. ``time.perf_counter_ns``) times the QP for ``solve_us``; without one the step
     reads no clock and ``solve_us`` is 0.
@@ -363,23 +487,30 @@ def control_step(
     off = p.offset
     px, py = (unicycle.control_point(x, y, theta, off) if p.unicycle else (x, y))
     ux, uy = nominal(p.kp, x, y, goal[0], goal[1], p.max_speed)
+    if hazards is None:
+        hazards = others
+    escaping = False
     if p.tiebreak and view is not None and p.safety:
-        back = retreat_command(view, others, p.max_speed) if view.retreating else None
-        if back is not None:
+        esc = escape_command(p, view, obstacles)
+        back = retreat_command(view, hazards, p.max_speed) if view.retreating else None
+        if esc is not None:
+            ux, uy = esc  # the whole formation steps out of a moving hazard's way
+            escaping = True
+        elif back is not None:
             ux, uy = back  # the whole formation backs off the same way
         else:
-            bx, by = tiebreak_push(view, others, obstacles, p.max_speed)
+            bx, by = tiebreak_push(view, hazards, obstacles, p.max_speed)
             if bx or by:
                 ux, uy = nominal(1.0, 0.0, 0.0, ux + bx, uy + by, p.max_speed)
     nux, nuy = ux, uy
 
     rows = build_rows(p, px, py, theta, (ux, uy), neighbours, obstacles, others, view, pairwise,
-                      shapes)
+                      partners, last_u, shapes)
     limits, hard, soft = rows.limits, rows.hard, rows.soft
 
     t0 = clock() if clock is not None else 0
     if p.safety:
-        res = solve_cbf_qp(ux, uy, limits, hard, soft, solve)
+        res = solve_cbf_qp(ux, uy, limits, hard, soft, solve, rows.contact)
     else:
         u = solve_exact(ux, uy, limits) or (0.0, 0.0)
         res = QPResult(u[0], u[1], STATUS_NOMINAL, 0.0, True)
@@ -391,5 +522,5 @@ def control_step(
         v, w = math.hypot(res.ux, res.uy), 0.0
     return StepResult(
         res.ux, res.uy, v, w, px, py, res.status, res.slack, rows.h_formation, rows.h_obstacle,
-        rows.h_formations, nux, nuy, solve_us,
+        rows.h_formations, nux, nuy, solve_us, rows.h_separation, escaping,
     )

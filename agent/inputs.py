@@ -13,10 +13,11 @@ from typing import NamedTuple
 
 from geometry.ellipse import Ellipse
 
-from .barriers import Neighbour
+from .barriers import Neighbour, Partner
 from .control import FormationView, Stall, update_stall
 
 Kinematic = tuple[float, float, float, float]  # control point x, y [m], velocity vx, vy [m/s]
+Heading = tuple[float, float, float, float, float]  # a Kinematic and the heading theta [rad]
 
 
 class StepInputs(NamedTuple):
@@ -27,6 +28,8 @@ class StepInputs(NamedTuple):
     view: FormationView | None  # own formation, for the tie-break; None without its ellipse
     pairwise: list[Neighbour]  # all-to-all baseline: robots of other formations (eq. 3.5)
     stall: Stall  # the jam rule's memory after this tick
+    partners: list[Partner]  # robots it could touch: a hard separation row each
+    hazards: list[Ellipse]  # every other formation's ellipse, for the formation-level rules
 
 
 def step_inputs(
@@ -37,7 +40,8 @@ def step_inputs(
     others: Sequence[tuple[str, Ellipse]],
     stall: Stall,
     period: float,
-    foreign: Iterable[Kinematic] | None = None,
+    foreign: Iterable[Heading] | None = None,
+    members: Iterable[Heading] = (),
 ) -> StepInputs:
     """Inputs of one robot's step.
 
@@ -45,7 +49,10 @@ def step_inputs(
     ellipse (None: no view, the stall memory is kept as it is); ``others`` are the other
     formations' (name, ellipse) in the order the view names them; ``period`` [s] advances the
     jam rule; ``foreign`` (all-to-all baseline only) are the robots of other formations, which
-    then replace the ellipses as pairwise rows.
+    then replace the ellipses as pairwise rows; ``members`` are the other members of its formation
+    (graph neighbours or not). Each member, and in all-to-all each foreign robot, is a partner of a
+    hard separation row; the other formations' ellipses stay hazards for the formation-level rules
+    (tie-break, jam) in both topologies.
     """
     nb = [Neighbour(x, y, vx, vy, df) for x, y, vx, vy, df in neighbours]
     view = None
@@ -57,10 +64,14 @@ def step_inputs(
             other_names=tuple(name for name, _e in others),
             retreating=stall.retreat > 0.0,
         )
+    hazards = [e for _name, e in others]
+    partners = [Partner(*m) for m in members]
     if foreign is not None:
+        foreign = list(foreign)
         ellipses: list[Ellipse] = []
-        pair = [Neighbour(x, y, vx, vy, 0.0) for x, y, vx, vy in foreign]
+        pair = [Neighbour(x, y, vx, vy, 0.0) for x, y, vx, vy, _th in foreign]
+        partners += [Partner(*f) for f in foreign]
     else:
-        ellipses = [e for _name, e in others]
+        ellipses = hazards
         pair = []
-    return StepInputs(nb, ellipses, view, pair, stall)
+    return StepInputs(nb, ellipses, view, pair, stall, partners, hazards)

@@ -202,9 +202,12 @@ class AgentNode:
         self.all_to_all = cfg.topology == "all-to-all"
         self.neighbour_keys = {keys.state_key(p, n): df for n, df in cfg.neighbours}
         self.foreign_keys = tuple(keys.state_key(p, r) for r in cfg.foreign_robots)
+        # separation rows: every other member (graph neighbour or not), then foreign robots
+        self.partner_keys = tuple(keys.state_key(p, r) for r in cfg.partners)
         # every robot's state this node reads each tick (built once, not per tick)
-        self._state_keys = tuple(self.neighbour_keys) + (self.foreign_keys if self.all_to_all
-                                                         else ())
+        extra = tuple(k for k in self.partner_keys if k not in self.neighbour_keys)
+        self._state_keys = tuple(self.neighbour_keys) + extra + (self.foreign_keys if self.all_to_all
+                                                                 else ())
         self.role = LeaderRole(cfg.formation, cfg.leader, p) if cfg.leader is not None else None
         self._member_keys: dict[str, str] = {}  # leader: member -> its state key
         if self.role is not None:
@@ -257,7 +260,7 @@ class AgentNode:
         self._arrived: asyncio.Event | None = None
         self._stop: asyncio.Event | None = None
         self._own_others: Others | None = None
-        self._tick_point: tuple[float, float, float] | None = None
+        self._tick_point: tuple[float, float, float, float] | None = None
         # real time on pose arrival: ticks run on Zenoh's thread or the loop, one at a time
         self._tick_lock = threading.Lock()
         self._closing = False  # set (under the lock) when close() starts: no more ticks
@@ -275,9 +278,11 @@ class AgentNode:
         else:
             for k in self.neighbour_keys:
                 subs[k] = keys.STATE
+            for k in self.partner_keys:  # members that are not graph neighbours (separation)
+                subs[k] = keys.STATE
         if self.role is None:
             subs[self.others_key] = keys.OTHERS
-        elif not self.all_to_all:
+        else:  # both topologies: the tie-break and the jam rule read the other ellipses
             for k in self.role.other_keys:
                 subs[k] = keys.ELLIPSE
         subs[self.obstacles_key] = keys.OBSTACLES
@@ -307,7 +312,7 @@ class AgentNode:
         s = self._session
         pub_keys = [self.state_key, self.cmd_key]
         if self.role is not None:
-            pub_keys += [self.role.others_key] + ([] if self.all_to_all else [self.role.ellipse_key])
+            pub_keys += [self.role.others_key, self.role.ellipse_key]
         for k in pub_keys:
             self._pubs[k] = CountingPublisher(s.declare_publisher(k), self.counter)
         self._diag = DiagPublisher(s, self.cfg.prefix, self.cfg.robot_id, self.cfg.formation,
@@ -462,7 +467,7 @@ class AgentNode:
                 next_t = now  # do not try to catch up with a burst of ticks
             try:
                 await asyncio.wait_for(self._stop.wait(), max(0.0, next_t - time.monotonic()))
-            except TimeoutError:
+            except (TimeoutError, asyncio.TimeoutError):  # distinct classes on 3.10
                 pass
 
     # --- real time, ticking on pose arrival ---------------------------------------------------
@@ -579,7 +584,7 @@ class AgentNode:
                 return False
             try:
                 await asyncio.wait_for(self._arrived.wait(), remaining)
-            except TimeoutError:
+            except (TimeoutError, asyncio.TimeoutError):  # distinct classes on 3.10
                 pass
         return not missing()
 
@@ -622,8 +627,8 @@ class AgentNode:
             return res
         finally:
             if t is None and self._tick_point is not None:
-                px, py, stamp = self._tick_point
-                self._pubs[self.state_key].put_message(State(px, py, *self.last_u, stamp))
+                px, py, stamp, th = self._tick_point
+                self._pubs[self.state_key].put_message(State(px, py, *self.last_u, stamp, th))
 
     async def _tick(self, t: float | None) -> StepResult | None:
         cfg = self.cfg
@@ -649,9 +654,9 @@ class AgentNode:
         off = cfg.control.offset
         px, py = control_point(pose.x, pose.y, pose.theta, off) if cfg.control.unicycle \
             else (pose.x, pose.y)
-        self._tick_point = (px, py, stamp)
+        self._tick_point = (px, py, stamp, pose.theta)
         if t is not None:  # lock-step: neighbours and the leader wait for this tick's state
-            self._pubs[self.state_key].put_message(State(px, py, *self.last_u, stamp))
+            self._pubs[self.state_key].put_message(State(px, py, *self.last_u, stamp, pose.theta))
 
         state_keys = self._state_keys
         others_ready = True
@@ -677,13 +682,16 @@ class AgentNode:
             own, cfg.formation, waypoint,
             [(m.formation, msg_to_ellipse(m)) for m in others_msg.ellipses],
             self._stall, cfg.period,  # the jam rule's memory
-            [(states[k].x, states[k].y, states[k].ux, states[k].uy) for k in self.foreign_keys]
-            if self.all_to_all else None,
+            [(states[k].x, states[k].y, states[k].ux, states[k].uy, states[k].theta)
+             for k in self.foreign_keys] if self.all_to_all else None,
+            [(states[k].x, states[k].y, states[k].ux, states[k].uy, states[k].theta)
+             for k in self.partner_keys],
         )
         self._stall = inputs.stall
         res = control_step(cfg.control, (pose.x, pose.y, pose.theta), target, inputs.neighbours,
                            obs, inputs.others, inputs.view, solve_exact, inputs.pairwise,
-                           shapes=shapes, clock=time.perf_counter_ns)
+                           inputs.partners, self.last_u, inputs.hazards, shapes=shapes,
+                           clock=time.perf_counter_ns)
         if self.role is not None:
             stall = self._stall
             self.nav.report(stamp, stall.still >= STALLED_AFTER_S or stall.retreat > 0.0, False)
@@ -758,24 +766,24 @@ class AgentNode:
             self.ellipse_trace.append((stamp, *own))
         received: dict[str, EllipseMsg] = {}
         complete = True
-        if not self.all_to_all:
-            self._pubs[role.ellipse_key].put_message(ellipse_to_msg(role.formation, own, stamp))
-            if ts is not None:
-                await self._wait_current([(keys.ELLIPSE, k) for k in role.other_keys], stamp)
-            inflated = False
-            for k in role.other_keys:
-                entry = self._latest(keys.ELLIPSE, k)
-                if entry is None:
-                    continue
-                if self._fresh(entry, ts):
-                    received[k] = entry[0]
-                    continue
-                age = (ts - entry[0].stamp) if ts is not None else time.monotonic() - entry[1]
-                if age <= self.options.ellipse_hold:
-                    received[k] = inflate(entry[0], self.cfg.control.max_speed * age)
-                    inflated = True
-            self.inflated += inflated
-            complete = len(received) == len(role.other_keys)
+        # both topologies (all-to-all: for the tie-break and the jam rule, not for rows)
+        self._pubs[role.ellipse_key].put_message(ellipse_to_msg(role.formation, own, stamp))
+        if ts is not None:
+            await self._wait_current([(keys.ELLIPSE, k) for k in role.other_keys], stamp)
+        inflated = False
+        for k in role.other_keys:
+            entry = self._latest(keys.ELLIPSE, k)
+            if entry is None:
+                continue
+            if self._fresh(entry, ts):
+                received[k] = entry[0]
+                continue
+            age = (ts - entry[0].stamp) if ts is not None else time.monotonic() - entry[1]
+            if age <= self.options.ellipse_hold:
+                received[k] = inflate(entry[0], self.cfg.control.max_speed * age)
+                inflated = True
+        self.inflated += inflated
+        complete = len(received) == len(role.other_keys)
         self._own_others = role.others(own, received, stamp)
         if complete:
             self._pubs[role.others_key].put_message(self._own_others)

@@ -172,9 +172,17 @@ def solve_cbf_qp(
     hard: Sequence[Row],
     soft: Sequence[Row],
     solve=solve_exact,
+    contact: Sequence[Row] = (),
 ) -> QPResult:
-    """The QP of eq. 4.12 with the relaxation policy of this module's docstring."""
-    base = list(limits) + list(hard)
+    """The QP of eq. 4.12 with the relaxation policy of this module's docstring.
+
+    ``contact`` rows are hard rows whose violation is a contact (obstacle safe distances, body
+    separation), as opposed to hard rows with a built-in margin (other formations' ellipses,
+    eq. 3.5's D_Af): when the hard rows cannot all hold, the least-risk command keeps the
+    contact rows exact if the limits allow and relaxes only the margin rows; only when the
+    contact rows alone are infeasible are all hard rows relaxed together."""
+    hard = list(contact) + list(hard)
+    base = list(limits) + hard
     u = solve(ux, uy, base + list(soft))
     if u is not None:
         return QPResult(u[0], u[1], STATUS_OK, 0.0, True)
@@ -189,6 +197,10 @@ def solve_cbf_qp(
     z = solve_exact(0.0, 0.0, lim)
     if z is None:
         return QPResult(0.0, 0.0, STATUS_FAILED, math.inf, False)
+    margin = hard[len(contact):]
+    zc = solve_exact(0.0, 0.0, lim + list(contact)) if contact and margin else None
+    if zc is not None:
+        lim, hard, z = lim + list(contact), margin, zc  # contacts stay exact
     t, hard_shifted = _min_slack(lim, hard, z)
     fixed = lim + hard_shifted
     u1 = solve_exact(ux, uy, fixed)

@@ -12,10 +12,16 @@ Frames and units:
 - image: pixels, ``u`` to the right, ``v`` down, integer coordinates at pixel centres (OpenCV's
   convention, so the image spans ``[-0.5, width - 0.5]``).
 
-The homography is exact for one plane only. Markers ride on the robots' top plates, so calibrate
-on the plane of the markers (correspondences measured at marker height), not on the bare floor:
-with a camera 3 m up, a marker 0.19 m above the calibrated plane appears displaced away from the
-image centre by about 7% of its distance from the point below the camera.
+The homography is exact for one plane only. Markers ride on the robots' top plates, 0.19 m
+above the floor on a TurtleBot3 burger: with a camera 3 m up, such a marker mapped through the
+floor homography lands about 7 % of its distance from the camera's nadir too far out (30 mm at
+0.5 m from the nadir). Parallax correction (:func:`correct_parallax`): the floor homography maps
+a pixel to the point where its ray meets the floor; the marker lies on that ray, at height ``h``.
+With the camera's centre ``C = (cx, cy, cz)`` in floor coordinates (``camera_position``, found by
+``formation calibrate``), the marker's floor position is ``C_xy + (q - C_xy) (1 - h / cz)``: a
+scaling about the nadir, so headings are unchanged. This holds for any camera orientation.
+A calibration may also hold the lens's ``camera_matrix`` and ``dist_coeffs``; the homography is
+then in the pixels of the undistorted image (the frames are undistorted before detection).
 """
 
 from __future__ import annotations
@@ -38,7 +44,8 @@ DEFAULT_MARGIN = 16  # [px] border left around the arena in the synthetic image
 MAX_TILT = 0.5  # largest accepted perspective tilt (fraction the far edge shrinks)
 _HORIZON_EPS = 1e-12  # |w| below this: the point maps to infinity
 
-_YAML_KEYS = {"version", "image_size", "floor_from_pixel", "units"}
+_YAML_KEYS = {"version", "image_size", "floor_from_pixel", "units", "camera_position",
+              "camera_matrix", "dist_coeffs", "residual_m", "floor_markers"}
 
 
 @dataclass(frozen=True, eq=False)
@@ -51,6 +58,10 @@ class Calibration:
 
     floor_from_pixel: np.ndarray  # 3x3, pixels -> metres
     image_size: tuple[int, int]  # [px] width, height
+    camera_position: tuple[float, float, float] | None = None  # [m] camera centre on the floor frame
+    camera_matrix: np.ndarray | None = None  # 3x3 intrinsics (frames are undistorted with them)
+    dist_coeffs: np.ndarray | None = None  # OpenCV distortion coefficients
+    floor_markers: tuple[int, ...] = ()  # ids of the floor markers calibrated on (not robots)
     pixel_from_floor: np.ndarray = field(init=False, repr=False)  # 3x3, metres -> pixels
 
     def __post_init__(self) -> None:
@@ -70,6 +81,40 @@ class Calibration:
         object.__setattr__(self, "floor_from_pixel", h)
         object.__setattr__(self, "image_size", size)
         object.__setattr__(self, "pixel_from_floor", inverse)
+        if self.camera_position is not None:
+            c = tuple(float(v) for v in self.camera_position)
+            if len(c) != 3 or not all(math.isfinite(v) for v in c) or c[2] <= 0.0:
+                raise ValueError(f"camera_position: expected finite [x, y, z > 0], "
+                                 f"got {self.camera_position!r}")
+            object.__setattr__(self, "camera_position", c)
+        ids = tuple(self.floor_markers)
+        if not all(isinstance(i, int | np.integer) and not isinstance(i, bool) and i >= 0
+                   for i in ids):
+            raise ValueError(f"floor_markers: expected marker ids, got {self.floor_markers!r}")
+        object.__setattr__(self, "floor_markers", tuple(int(i) for i in ids))
+        if (self.camera_matrix is None) != (self.dist_coeffs is None):
+            raise ValueError("camera_matrix: camera_matrix and dist_coeffs go together")
+        if self.camera_matrix is not None:
+            k = np.array(self.camera_matrix, dtype=np.float64)
+            d = np.array(self.dist_coeffs, dtype=np.float64).ravel()
+            if k.shape != (3, 3) or not np.all(np.isfinite(k)) or k[0, 0] <= 0 or k[1, 1] <= 0:
+                raise ValueError("camera_matrix: expected a finite 3x3 matrix with fx, fy > 0")
+            if d.size not in (4, 5, 8, 12, 14) or not np.all(np.isfinite(d)):
+                raise ValueError("dist_coeffs: expected 4, 5, 8, 12 or 14 finite numbers")
+            k.setflags(write=False)
+            d.setflags(write=False)
+            object.__setattr__(self, "camera_matrix", k)
+            object.__setattr__(self, "dist_coeffs", d)
+
+
+def correct_parallax(points: np.ndarray, camera_position: tuple[float, float, float],
+                     height: float) -> np.ndarray:
+    """Floor points ``(N, 2)`` of rays through a plane ``height`` above the floor -> the points
+    of that plane (their floor x, y). See the module docstring; exact for a pinhole camera."""
+    cx, cy, cz = camera_position
+    scale = 1.0 - height / cz
+    centre = np.array([cx, cy])
+    return centre + (np.asarray(points, dtype=np.float64) - centre) * scale
 
 
 def _as_points(points: object, name: str) -> tuple[np.ndarray, bool]:
@@ -262,12 +307,20 @@ def synthetic_camera(
 
 def calibration_to_dict(calibration: Calibration) -> dict[str, object]:
     """A plain, YAML-friendly dictionary of the calibration."""
-    return {
+    out: dict[str, object] = {
         "version": CALIBRATION_VERSION,
         "units": "m",
         "image_size": [int(s) for s in calibration.image_size],
         "floor_from_pixel": [[float(v) for v in row] for row in calibration.floor_from_pixel],
     }
+    if calibration.camera_position is not None:
+        out["camera_position"] = [float(v) for v in calibration.camera_position]
+    if calibration.floor_markers:
+        out["floor_markers"] = list(calibration.floor_markers)
+    if calibration.camera_matrix is not None:
+        out["camera_matrix"] = [[float(v) for v in row] for row in calibration.camera_matrix]
+        out["dist_coeffs"] = [float(v) for v in calibration.dist_coeffs]
+    return out
 
 
 def calibration_from_dict(data: object) -> Calibration:
@@ -291,7 +344,20 @@ def calibration_from_dict(data: object) -> Calibration:
         matrix = np.array(data["floor_from_pixel"], dtype=np.float64)
     except (TypeError, ValueError):
         raise ValueError("floor_from_pixel: expected a 3x3 list of numbers") from None
-    return Calibration(matrix, (size[0], size[1]))
+    extra: dict[str, object] = {}
+    for key in ("camera_position", "camera_matrix", "dist_coeffs"):
+        if data.get(key) is not None:
+            try:
+                extra[key] = np.array(data[key], dtype=np.float64)
+            except (TypeError, ValueError):
+                raise ValueError(f"{key}: expected numbers") from None
+    if data.get("floor_markers") is not None:
+        if not isinstance(data["floor_markers"], list):
+            raise ValueError(f"floor_markers: expected a list of ids, got {data['floor_markers']!r}")
+        extra["floor_markers"] = tuple(data["floor_markers"])
+    if "camera_position" in extra:
+        extra["camera_position"] = tuple(extra["camera_position"].ravel())
+    return Calibration(matrix, (size[0], size[1]), **extra)
 
 
 def save_calibration(calibration: Calibration, path: str | Path) -> None:

@@ -38,8 +38,12 @@ import subprocess
 import sys
 import tempfile
 import time
-import tomllib
 import zipfile
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10: the robots' side runs there, deploy needs 3.11
+    tomllib = None  # type: ignore[assignment]
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -112,9 +116,16 @@ def project_root() -> Path:
     return root
 
 
+def _pyproject(root: Path) -> dict:
+    if tomllib is None:
+        raise BuildError("formation deploy needs Python 3.11 or newer on this machine (tomllib); "
+                         "the robots may run 3.10")
+    return tomllib.loads((root / "pyproject.toml").read_text("utf-8"))
+
+
 def wheel_name(root: Path | None = None) -> str:
     """The file name ``pip wheel`` gives the project (pure Python, any platform)."""
-    meta = tomllib.loads(((root or project_root()) / "pyproject.toml").read_text("utf-8"))
+    meta = _pyproject(root or project_root())
     name = meta["project"]["name"].replace("-", "_")
     return f"{name}-{meta['project']['version']}-py3-none-any.whl"
 
@@ -214,7 +225,7 @@ def build_wheel(out_dir: Path, root: Path | None = None) -> Path:
     back to an isolated build (which fetches the build requirements) when that fails.
     """
     root = root or project_root()
-    meta = tomllib.loads((root / "pyproject.toml").read_text("utf-8"))
+    meta = _pyproject(root)
     packages = meta.get("tool", {}).get("setuptools", {}).get("packages", [])
     out_dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="formation-wheel-") as tmp:

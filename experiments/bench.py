@@ -1,6 +1,6 @@
 """``formation bench``: how fast the control step, the QP and the multi-process fleet are.
 
-Seven measurements, written to ``bench.json`` and as a table (``bench.txt`` and stdout):
+Eight measurements, written to ``bench.json`` and as a table (``bench.txt`` and stdout):
 
 * **step**: one robot's full control step (:func:`agent.control.control_step`: nominal command,
   barrier rows, QP) for a robot of a 4-robot formation with 2 obstacles and 3 other formations
@@ -29,6 +29,8 @@ Seven measurements, written to ``bench.json`` and as a table (``bench.txt`` and 
 * **viewer** (:mod:`experiments.recording`): ``recording``, the same throughput without the time series,
   with it, and with ``run.mcap`` written too; ``agents_viewer``, the first fleet of **agents**
   again with ``formation view`` attached to its router (the latency a live viewer costs).
+* **camera**: capture -> publish latency (p50, p99) of the real camera process at 1280x960,
+  15 fps, 16 robots (:mod:`camera_service.bench`).
 * **scenario_loading**: validating and loading 100- and 1,000-robot fleet files
   (:mod:`scenario.bench`).
 
@@ -176,7 +178,7 @@ def bench_step(n: int, backends: Sequence[str] = BACKENDS) -> dict:
     res = control_step(p, pose, goal, nb, obs, others, view, clock=time.perf_counter_ns)
     rows = build_rows(p, pose[0], pose[1], pose[2], (res.nominal_ux, res.nominal_uy), nb, obs,
                       others, view)
-    qp_rows = rows.limits + rows.hard + rows.soft
+    qp_rows = rows.limits + list(rows.contact) + rows.hard + rows.soft
     nux, nuy = res.nominal_ux, res.nominal_uy
     full = timed(lambda: control_step(p, pose, goal, nb, obs, others, view, clock=time.perf_counter_ns), n)
     build = timed(lambda: build_rows(p, pose[0], pose[1], pose[2], (nux, nuy), nb, obs, others,
@@ -247,6 +249,9 @@ def run_bench(quick: bool = False, scenario: Path = DEFAULT_SCENARIO,
         # the first fleet again with the live viewer attached to its router
         n, dt = next(iter(fleets.items()))
         watched = {str(n): bench_agents(n, dt, duration, base / f"viewer-{n}", viewer=True)}
+    from camera_service.bench import bench_camera
+
+    camera = bench_camera(frames=30 if quick else 450)
     return {
         "machine": {"python": platform.python_version(), "processor": platform.processor() or
                     platform.machine(), "cpus": os.cpu_count(), "quick": quick,
@@ -263,6 +268,7 @@ def run_bench(quick: bool = False, scenario: Path = DEFAULT_SCENARIO,
         "inprocess": inproc,
         "scenario_loading": loading,
         "agents_viewer": watched,
+        "camera": camera,
         "recording": bench_recording(scenario, 10.0 if quick else None, rounds=1 if quick else 3),
     }
 
@@ -338,6 +344,10 @@ def format_table(result: dict) -> str:
                      f"time series {r['with_series']:.0f}, with run.mcap written too "
                      f"{r['with_mcap']:.0f} ({rec['record_ms_per_tick']:.2f} ms and "
                      f"{rec['mcap_bytes_per_tick'] / 1e3:.1f} kB per tick of recording)")
+    if result.get("camera"):
+        from camera_service.bench import format_camera
+
+        lines += ["", *format_camera(result["camera"])]
     if "scenario_loading" in result:
         lines.append(format_loading(result["scenario_loading"]))
     lines.append(f"machine: {result['machine']['cpus']} CPUs, load average "

@@ -86,7 +86,7 @@ def central_problem(params: ControlParams, inputs: Sequence[RobotInputs], format
     for i, r in enumerate(inputs):
         built = build_rows(params, r.pose[0], r.pose[1], r.pose[2], nominal[i], (), r.obstacles,
                            r.others, r.view)
-        single = np.array(built.limits + built.hard, dtype=float).reshape(-1, 3)
+        single = np.array(built.limits + list(built.contact) + built.hard, dtype=float).reshape(-1, 3)
         k = len(single)
         idx = np.arange(m, m + k)
         rows_i += [idx, idx]

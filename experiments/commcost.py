@@ -15,11 +15,14 @@ What is counted
     topologies. Per control tick, with N robots, L formations (one leader each), formation sizes
     n_f and E graph edges in all:
 
-    * reduced: ``state`` 2E (every robot hears its graph neighbours), ``ellipse`` L(L-1), ``others``
-      N - L (every member hears its leader);
-    * all-to-all: ``state`` N(N-1) (every robot hears every other robot), ``ellipse`` 0, ``others``
-      N - L (the leader still hands its members their own formation's ellipse, which the
-      controller's formation-level tie-break reads; it carries no other formation's ellipse).
+    * reduced: ``state`` sum n_f (n_f - 1) (every robot hears every other member of its
+      formation: its graph neighbours for the formation rows, the others for the hard separation
+      rows; 2E before those rows existed), ``ellipse`` L(L-1), ``others`` N - L (every member
+      hears its leader);
+    * all-to-all: ``state`` N(N-1) (every robot hears every other robot), ``ellipse`` L(L-1) and
+      ``others`` N - L: the leaders still exchange ellipses and hand them to their members,
+      because the formation-level tie-break and jam rule read them (without them the baseline
+      was a less capable controller); the ellipses give no barrier rows there.
 
     The all-to-all agent subscribes with one wildcard (``robot/*/state``), and Zenoh also delivers
     each agent's own ``state`` to that subscriber inside its own session: N more deliveries per
@@ -119,10 +122,11 @@ def analytic_deliveries(sizes: Sequence[int], edges: Sequence[int], topology: st
     _check_fleet(sizes, edges, topology)
     n, formations = sum(sizes), len(sizes)
     members = n - formations  # every robot but the leaders hears its leader's ``others``
+    leaders = formations * (formations - 1)
     if topology == "reduced":
-        return {keys.STATE: 2 * sum(edges), keys.ELLIPSE: formations * (formations - 1),
+        return {keys.STATE: sum(m * (m - 1) for m in sizes), keys.ELLIPSE: leaders,
                 keys.OTHERS: members}
-    return {keys.STATE: n * (n - 1), keys.ELLIPSE: 0, keys.OTHERS: members}
+    return {keys.STATE: n * (n - 1), keys.ELLIPSE: leaders, keys.OTHERS: members}
 
 
 def wildcard_echo(n_robots: int, topology: str) -> int:
@@ -134,17 +138,19 @@ def wildcard_echo(n_robots: int, topology: str) -> int:
 
 def constraints_per_robot(sizes: Sequence[int], edges: Sequence[int], topology: str) -> float:
     """Mean number of barrier rows in a robot's QP that depend on communication: two formation
-    rows per incident edge (eq. 4.3, 4.4) plus one row per other formation's ellipse (eq. 4.6,
-    reduced) or per robot of another formation (eq. 3.5, all-to-all). The speed-limit rows and
-    obstacle rows, the same in both topologies, are not included."""
+    rows per incident edge (eq. 4.3, 4.4), one separation row per other member of its formation,
+    plus one row per other formation's ellipse (eq. 4.6, reduced) or two per robot of another
+    formation (eq. 3.5 and a separation row, all-to-all). The speed-limit rows and obstacle
+    rows, the same in both topologies, are not included."""
     _check_fleet(sizes, edges, topology)
     n, formations = sum(sizes), len(sizes)
     formation_rows = 4 * sum(edges)  # 2 rows at each end of every edge
+    separation = sum(s * (s - 1) for s in sizes)
     if topology == "reduced":
         avoid = n * (formations - 1)
     else:
-        avoid = n * n - sum(s * s for s in sizes)
-    return (formation_rows + avoid) / n
+        avoid = 2 * (n * n - sum(s * s for s in sizes))
+    return (formation_rows + separation + avoid) / n
 
 
 def fleet_of(scenario: Scenario) -> tuple[list[int], list[int]]:
@@ -165,11 +171,10 @@ def analytic_bytes(scenario: Scenario, topology: str) -> dict[str, int]:
     names = [f.name for f in scenario.formations]
     ellipse_bytes = others_bytes = 0
     for f in scenario.formations:
-        others = tuple(ellipse(g) for g in names if g != f.name) if topology == "reduced" else ()
+        others = tuple(ellipse(g) for g in names if g != f.name)
         msg = Others(f.name, 0.0, others, ellipse(f.name))
         others_bytes += (len(f.robots) - 1) * len(encode(msg))
-        if topology == "reduced":
-            ellipse_bytes += (len(names) - 1) * len(encode(ellipse(f.name)))
+        ellipse_bytes += (len(names) - 1) * len(encode(ellipse(f.name)))
     return {keys.STATE: counts[keys.STATE] * state, keys.ELLIPSE: ellipse_bytes,
             keys.OTHERS: others_bytes}
 

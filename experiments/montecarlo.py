@@ -120,6 +120,7 @@ def run_one(seed: int) -> dict:
         "min_clearance_obstacle_m": obstacle_clear,
         "infeasible_ticks": s["qp"]["infeasible"],
         "fallback_ticks": s["qp"]["fallback"],
+        "escape_ticks": s["qp"]["escape"],
         "scenario": d,
     }
 
@@ -144,6 +145,11 @@ def run_montecarlo(n: int, seed: int, workers: int = 2, progress=None) -> tuple[
         "worst_formation_error_m": max((r["formation_error_max_m"] for r in results), default=None),
         "worst_formation_error_over_epsilon": max(
             (r["formation_error_max_m"] / r["epsilon"] for r in results), default=None),
+        "runs_over_1_5_epsilon": sum(
+            1 for r in results if r["formation_error_max_m"] > 1.5 * r["epsilon"]),
+        "fallback_ticks": sum(r["fallback_ticks"] for r in results),
+        "runs_with_fallback": sum(1 for r in results if r["fallback_ticks"]),
+        "escape_ticks": sum(r.get("escape_ticks", 0) for r in results),
         "min_obstacle_clearance_m": min(
             (r["min_clearance_obstacle_m"] for r in results
              if r["min_clearance_obstacle_m"] is not None), default=None),

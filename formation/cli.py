@@ -61,7 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pose-slots", type=int, default=1, metavar="S",
                    help="real time, --camera truth: publish the poses in S slots spread over each "
                         "period instead of all at once (default 1)")
-    p.add_argument("--camera", default="truth", choices=["truth", "synthetic"])
+    p.add_argument("--camera", default="truth", choices=["truth", "synthetic", "process"],
+                   help="poses from the truth, from frames detected in the world (synthetic), or "
+                        "from the real camera process on rendered frames (process)")
     p.add_argument("--topology", default="reduced", choices=["reduced", "all-to-all"])
     p.add_argument("--drop", type=float, default=0.0, help="message loss probability")
     p.add_argument("--delay-ms", type=float, default=0.0, help="added message delay [ms]")
@@ -117,6 +119,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--start", action="store_true")
     g.add_argument("--stop", action="store_true")
     g.add_argument("--status", action="store_true")
+
+    from camera_service.cli import add_parsers as add_camera_parsers  # camera, calibrate
+    COMMANDS.update(add_camera_parsers(sub))
 
     from formation.commands.goal import add_parsers as add_goal_parsers
 

@@ -639,3 +639,21 @@ def _title(raw: Any, where: str) -> str:
         raise ScenarioError(f"{where}: {excerpt(s)} must be printable and at most 128 "
                             "characters")
     return s
+
+
+def scenario_warnings(s: Scenario) -> list[str]:
+    """Things a valid file allows that the user should know: one line each, naming the culprit.
+
+    An edge whose band reaches two body radii (Df - epsilon = 2 r, e.g. a 0.25 m edge with
+    epsilon 0.04 and r 0.105) lets the formation rows alone bring the bodies into contact;
+    the controller's hard separation rows (:func:`agent.barriers.separation_row`) keep them apart."""
+    eps, r = s.controller.epsilon, s.robot.radius
+    out = []
+    for k, f in enumerate(s.formations):
+        for n, e in enumerate(f.edges):
+            if e.df - eps < 2.0 * r + 1e-6:
+                out.append(
+                    f"formations[{k}].edges[{n}]: Df - epsilon = {e.df - eps:.3f} m lets the bodies of "
+                    f"{e.i!r} and {e.j!r} touch (two radii are {2 * r:.3f} m); the separation rows "
+                    f"keep them apart")
+    return out

@@ -73,6 +73,7 @@ class FleetModel:
     members: dict[str, tuple[int, ...]]  # formation -> robot indices
     neighbours: tuple[tuple[tuple[int, float], ...], ...]  # per robot: (index, Df)
     formation_of: tuple[str, ...]
+    partners: tuple[tuple[int, ...], ...] = ()  # per robot: the other members (separation rows)
 
     @classmethod
     def build(cls, scenario: Scenario, safety: bool = True) -> FleetModel:
@@ -89,6 +90,8 @@ class FleetModel:
             tuple((index[j], df) for j, df in scenario.formation_of(rid).neighbours(rid))
             for rid in ids
         )
+        formation_of = tuple(scenario.formation_of(rid).name for rid in ids)
+        partners = tuple(tuple(j for j in members[formation_of[i]] if j != i) for i in range(len(ids)))
         return cls(
             scenario,
             ControlParams.from_scenario(scenario, safety=safety),
@@ -96,7 +99,8 @@ class FleetModel:
             axes,
             members,
             nbrs,
-            tuple(scenario.formation_of(rid).name for rid in ids),
+            formation_of,
+            partners,
         )
 
     def ellipses(self, ctrl: list[tuple[float, float]], vel: list[tuple[float, float]]):
@@ -137,6 +141,7 @@ def simulate(
     counts = {STATUS_RELAXED: 0, STATUS_FALLBACK: 0, STATUS_FAILED: 0}
     min_h = {"formation": math.inf, "obstacle": math.inf, "formations": math.inf}
     all_to_all = options.topology == "all-to-all"
+    escape_ticks = 0  # robot-ticks whose nominal was the formation-level escape
     stalls = [Stall()] * n  # each robot's copy of its formation's jam state
 
     def obstacles_at(t: float) -> list[Obstacle]:
@@ -156,6 +161,8 @@ def simulate(
         results = []
         for i in range(n):
             fname = fleet.formation_of[i]
+            # Every other member of the formation (graph neighbour or not: the agent subscribes to
+            # their states) gets a hard separation row; in all-to-all every foreign robot too.
             own = ellipses[fname]
             target, waypoint = followers[i].step(own.cx, own.cy)
             inputs = step_inputs(
@@ -163,18 +170,21 @@ def simulate(
                 own, fname, waypoint,
                 [(name, e) for name, e in ellipses.items() if name != fname],
                 stalls[i], dt,
-                [(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1])
+                [(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], state[j][2])
                  for j in range(n) if fleet.formation_of[j] != fname] if all_to_all else None,
+                [(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], state[j][2]) for j in fleet.partners[i]],
             )
             stalls[i] = inputs.stall
             pose = (state[i][0], state[i][1], state[i][2])
             res = control_step(params, pose, target, inputs.neighbours, obs,
                                inputs.others, inputs.view, solve, inputs.pairwise,
-                               shapes=shapes, clock=time.perf_counter_ns)
+                               inputs.partners, vel[i], inputs.hazards, shapes=shapes,
+                               clock=time.perf_counter_ns)
             results.append(res)
             solve_us.append(res.solve_us)
             if res.status in counts:
                 counts[res.status] += 1
+            escape_ticks += res.escape
             min_h["formation"] = min(min_h["formation"], res.h_formation)
             min_h["obstacle"] = min(min_h["obstacle"], res.h_obstacle)
             min_h["formations"] = min(min_h["formations"], res.h_formations)
@@ -210,7 +220,7 @@ def simulate(
         scenario, "inprocess", ticks, t, monitor,
         {key: (v if math.isfinite(v) else None) for key, v in min_h.items()},
         qp_fields(len(solve_us), solve_us, counts[STATUS_RELAXED], counts[STATUS_FALLBACK],
-                  counts[STATUS_FAILED]),
+                  counts[STATUS_FAILED], escape=escape_ticks),
         logical_comm(scenario, options.topology, ticks, t, edges_total),
         options.safety, options.solver)
     if any(len(r) > 1 for r in routes.values()):
@@ -223,12 +233,13 @@ def logical_comm(scenario: Scenario, topology: str, ticks: int, sim_time: float,
     implies (deliveries per tick), marked ``"source": "model"``; bytes are not modelled."""
     n = len(scenario.robot_ids)
     leaders = len(scenario.formations)
+    exchange = leaders * (leaders - 1)  # leaders' ellipses: both topologies (tie-break, jam rule)
     if topology == "reduced":
-        per_tick = 2 * edges + leaders * (leaders - 1) + (n - leaders)
+        # every robot hears every other member of its formation (formation and separation rows)
+        per_tick = sum(len(f.robots) * (len(f.robots) - 1) for f in scenario.formations)
+        per_tick += exchange + (n - leaders)
     else:
-        # every robot hears every other robot's state; leaders still hand members their own
-        # formation's ellipse (the tie-break reads it)
-        per_tick = n * (n - 1) + (n - leaders)
+        per_tick = n * (n - 1) + exchange + (n - leaders)
     messages = per_tick * ticks
     rate = messages / n / sim_time if sim_time > 0 and n else 0.0
     return {

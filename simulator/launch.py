@@ -165,6 +165,7 @@ def launch(
     secure: bool = False,
     pose_slots: int = 1,
     observer=None,
+    scenario_path: str | Path | None = None,
     hold: bool = False,
     announce=None,
 ) -> tuple[dict, Series]:
@@ -175,11 +176,16 @@ def launch(
     logging in as itself. ``pose_slots`` is the world's (:class:`simulator.world.WorldOptions`:
     real time only). ``observer(session)``, when given, is called with the world's session
     before the run (a live viewer subscribes on it) and returns what detaches it after.
+    ``camera="process"`` also starts the real camera process
+    (``python -m camera_service``) on the frames the world renders; it reads the static obstacles
+    from ``scenario_path``.
     ``hold`` keeps the fleet up after every goal is reached, until the scenario's duration or
     SIGINT/SIGTERM (which then end the run normally, with its summary); ``announce(endpoint)`` is
     called once every agent is up (the endpoint is also written to ``out/endpoint``). The
     summary's ``formations_status`` holds each leader's last status."""
     faults = faults or FaultPlan()
+    if camera == "process" and scenario_path is None:
+        raise ValueError("scenario_path: --camera process needs the scenario file")
     faults.check_robots(scenario.robot_ids)
     out = Path(out)
     for sub in ("configs", "agents", "logs"):
@@ -193,7 +199,7 @@ def launch(
     try:
         summary, series = _launch(scenario, out, realtime, camera, topology, safety, port,
                                   progress_factory, faults, secure, pose_slots, observer, hold,
-                                  announce, stop_requested)
+                                  announce, stop_requested, scenario_path)
     finally:
         if previous_int is not None:
             signal.signal(signal.SIGINT, previous_int)
@@ -203,7 +209,8 @@ def launch(
 def _launch(scenario: Scenario, out: Path, realtime: bool, camera: str, topology: str,
             safety: bool, port: int, progress_factory, faults: FaultPlan, secure: bool,
             pose_slots: int, observer, hold: bool, announce,
-            stop_requested: threading.Event) -> tuple[dict, Series]:
+            stop_requested: threading.Event,
+            scenario_path: str | Path | None) -> tuple[dict, Series]:
     """:func:`launch` once its arguments are checked and its folders made."""
     port = port or free_tcp_port()
     endpoint = tcp_endpoint(port)
@@ -218,6 +225,9 @@ def _launch(scenario: Scenario, out: Path, realtime: bool, camera: str, topology
 
         creds = _secure_setup(scenario, out / "secure", endpoint) if secure else None
         router = fleet.start_router(endpoint, port, None if creds is None else creds.router_config)
+        camera_child = None
+        if camera == "process" and scenario_path is not None:  # checked above
+            camera_child = _start_camera(fleet, scenario, scenario_path, out, endpoint, creds)
         zs = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False)
         configs = build_agent_configs(scenario, zenoh=zs, topology=topology, safety=safety)
 
@@ -266,7 +276,10 @@ def _launch(scenario: Scenario, out: Path, realtime: bool, camera: str, topology
                     detach()
                 world.close()
                 statuses.close()
-        fleet.shut_down(list(agents.values()), router)
+        fleet.stop(list(agents.values()))  # agents write their stats on SIGTERM
+        if camera_child is not None:
+            fleet.stop([camera_child])  # prints its counters on SIGTERM
+        fleet.stop([router])
     stats = [_read_stats(out / "agents" / f"{rid}.json") if rid in agents
              else _dead_stats(cfg) for rid, cfg in configs.items()]
     summary, series = build_summary(scenario, result, stats, topology, realtime, camera, safety)
@@ -274,14 +287,20 @@ def _launch(scenario: Scenario, out: Path, realtime: bool, camera: str, topology
         summary["faults"] = fault_summary(faults, result, stats, driver.log)
     if creds is not None:
         summary["secure"] = {"auth": "usrpwd", "acl": str(creds.router_config)}
+    if camera == "process":
+        summary["camera_process"] = _camera_stats(out / "logs" / "camera.log")
     if pose_slots > 1:
         summary["pose_slots"] = pose_slots  # the world spread each period's poses over this many
+    _navigation_fields(summary, hold, statuses.latest())
+    return summary, series
+
+
+def _navigation_fields(summary: dict, hold: bool, board: dict[str, dict]) -> None:
+    """``hold`` (a held run) and ``formations_status`` (each leader's last status)."""
     if hold:
         summary["hold"] = True
-    board = statuses.latest()
     if board:
         summary["formations_status"] = board
-    return summary, series
 
 
 class StatusBoard:
@@ -312,6 +331,32 @@ class StatusBoard:
             self._sub.undeclare()
         except Exception:  # noqa: BLE001 - the session may be closing
             logger.debug("status board undeclare failed", exc_info=True)
+
+
+def _start_camera(fleet: Fleet, scenario: Scenario, scenario_path: str | Path, out: Path,
+                  endpoint: str, creds: _Secure | None) -> Child:
+    """``--camera process``: write the camera process's files into ``out/camera`` and start it
+    (logging in as the camera user when secure)."""
+    from camera_service.simcam import FramePublisher, write_camera_files
+
+    geometry = FramePublisher(scenario, None, keys.DEFAULT_PREFIX)
+    config = write_camera_files(geometry, scenario, scenario_path, out / "camera", endpoint,
+                                keys.DEFAULT_PREFIX)
+    argv = ["-m", "camera_service", str(config)]
+    if creds is not None:
+        path = out / "secure" / "camera.credentials"
+        acl.write_credentials(path, creds.world)
+        argv += ["--auth", str(path)]
+    return fleet.start("camera", argv)
+
+
+def _camera_stats(log: Path) -> dict | None:
+    """The counters the camera process printed as its last line (None if it printed none)."""
+    try:
+        lines = log.read_text(encoding="utf-8", errors="replace").strip().splitlines()
+        return json.loads(lines[-1])["camera"] if lines else None
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
 
 
 @dataclass(frozen=True)

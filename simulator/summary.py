@@ -19,9 +19,10 @@ COLLISION_LOG_MAX = 100  # collision_log entries kept in summary.json
 
 
 def qp_fields(solves: int, solve_us: Sequence[float], relaxed: int, fallback: int,
-              failed: int) -> dict[str, Any]:
+              failed: int, **extra: int) -> dict[str, Any]:
     """``qp`` of the summary: solves, the ticks whose QP was not solved as posed (relaxed,
-    fallback or failed), and the median solve time [us]."""
+    fallback or failed), and the median solve time [us]; ``extra`` counts (e.g. ``escape``:
+    ticks on which the formation stepped out of a hazard's way) follow."""
     return {
         "solves": solves,
         "infeasible": relaxed + fallback + failed,
@@ -29,6 +30,7 @@ def qp_fields(solves: int, solve_us: Sequence[float], relaxed: int, fallback: in
         "relaxed": relaxed,
         "fallback": fallback,
         "failed": failed,
+        **extra,
     }
 
 

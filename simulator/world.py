@@ -2,8 +2,10 @@
 
 Each tick the world publishes ``obstacles`` and every robot's ``pose`` (the true pose with
 ``--camera truth``; with ``--camera synthetic`` the pose the camera service detects in a rendered
-overhead frame), collects every robot's ``cmd``, integrates the kinematics exactly (single
-integrator, or the unicycle of eq. 6.1 through :func:`agent.unicycle.integrate`) and feeds a
+overhead frame; with ``--camera process`` it publishes only the rendered frame, and the real
+camera process, :mod:`camera_service.simcam`, publishes poses and obstacles), collects every
+robot's ``cmd``, integrates the kinematics exactly (single integrator, or the unicycle of eq. 6.1
+through :func:`agent.unicycle.integrate`) and feeds a
 :class:`simulator.metrics.SafetyMonitor` with the true positions.
 
 Two clocks:
@@ -61,7 +63,7 @@ from .metrics import SafetyMonitor
 
 logger = logging.getLogger(__name__)
 
-CAMERAS = ("truth", "synthetic")
+CAMERAS = ("truth", "synthetic", "process")
 SYNTH_IMAGE = (1920, 1440)  # [px] the synthetic camera's frame
 SYNTH_TILT = 0.1  # perspective tilt of the synthetic camera (far edge 10 % shorter)
 SYNTH_MARKER_PX = 26.0  # [px] smallest marker side the synthetic camera must resolve
@@ -98,6 +100,9 @@ class WorldOptions:
                 raise ValueError(f"camera_dropouts: {rid}: need 0 <= from < until, got {t0}, {t1}")
         if self.camera not in CAMERAS:
             raise ValueError(f"camera: {self.camera!r} is not one of {CAMERAS}")
+        if self.camera == "process" and self.camera_dropouts:
+            raise ValueError("camera_dropouts: not with --camera process (the real camera "
+                             "process publishes the poses)")
         for name in ("cmd_timeout", "start_timeout", "stale_after"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
@@ -263,6 +268,11 @@ class World:
         self.camera_dropped = 0
         if options.camera == "synthetic":
             self._camera = _SyntheticCamera(scenario)
+        self.frames = None  # --camera process: frames out, the camera process does the rest
+        if options.camera == "process":
+            from camera_service.simcam import FramePublisher
+
+            self.frames = FramePublisher(scenario, session, p)
 
     def close(self) -> None:
         for s in self._subs:
@@ -271,12 +281,16 @@ class World:
             pub.undeclare()
         self._subs.clear()
         self._pose_pubs.clear()
+        if self.frames is not None:
+            self.frames.undeclare()
 
     def wait_for_agents(self, abort: Callable[[], None] = lambda: None,
                         robots: Sequence[str] | None = None, grace: bool = True) -> None:
         """Wait until every robot's (or each of ``robots``') pose has a subscriber (the agent
         declares it last)."""
         deadline = time.monotonic() + self.options.start_timeout
+        if self.frames is not None:
+            self.frames.wait_subscribed(self.options.start_timeout, abort)
         for rid, pub in zip(self.ids, self._pose_pubs, strict=True):
             if robots is not None and rid not in robots:
                 continue
@@ -441,6 +455,10 @@ class World:
         self._pose_pubs[i].put_message(Pose(p[0], p[1], p[2], stamp))
 
     def _publish(self, t: float, stamp: float, state: Sequence[tuple[float, float, float]]) -> None:
+        if self.frames is not None:  # the camera process publishes poses and obstacles
+            self.frames.publish(state, [(o.name, *o.position(t), o.safe_distance)
+                                        for o in self.scenario.obstacles], stamp)
+            return
         obs = self._publish_obstacles(t, stamp)
         if self._camera is not None:
             seen = self._camera.poses(state, [(m.x, m.y, m.ds) for m in obs], stamp)

@@ -133,7 +133,8 @@ def test_the_acl_denies_by_default_and_lets_each_robot_publish_only_its_own_keys
                                                 f"{P}/robot/r1/diag"]
     assert rules["r1-publish"]["flows"] == ["ingress"] and rules["r1-publish"]["messages"] == ["put"]
     assert f"{P}/formation/F1/ellipse" in rules["r2-publish"]["key_exprs"]  # r2 leads F1
-    assert rules[acl.CAMERA_RULE]["key_exprs"] == [f"{P}/robot/*/pose", f"{P}/obstacles"]
+    assert rules[acl.CAMERA_RULE]["key_exprs"] == [f"{P}/robot/*/pose", f"{P}/obstacles",
+                                                   f"{P}/camera/frame"]
     subjects = {s["id"]: s["usernames"] for s in a["subjects"]}
     assert subjects == {"camera": ["camera"], "viewer": ["viewer"], "r1": ["r1"], "r2": ["r2"],
                         "s1": ["s1"]}

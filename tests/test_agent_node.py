@@ -1,8 +1,9 @@
 """The agent process over real Zenoh sessions on loopback (a Python router in a child process,
 explicit ``tcp/127.0.0.1:PORT`` endpoints, multicast scouting off).
 
-The agent under test is r1 of thesis scenario 5.2.2: its graph neighbours are r2 and r4, not r3;
-its leader is r2 (formation F1). The test plays the world and the other robots."""
+The agent under test is r1 of thesis scenario 5.2.2: its graph neighbours are r2 and r4, not r3
+(whose state it still reads, for the separation rows); its leader is r2 (formation F1). The
+test plays the world and the other robots."""
 
 from __future__ import annotations
 
@@ -90,6 +91,7 @@ class Peer:
         if states:
             self.put(keys.state_key(P, "r2"), encode(State(-2.75, 0.125, 0.2, 0.0, t)))
             self.put(keys.state_key(P, "r4"), encode(State(-3.25, -0.125, 0.2, 0.0, t)))
+            self.put(keys.state_key(P, "r3"), encode(State(-2.75, -0.125, 0.2, 0.0, t)))
         self.put(keys.pose_key(P, "r1"), encode(Pose(-3.25, 0.125, 0.0, t)))
 
     def close(self) -> None:
@@ -130,12 +132,13 @@ def run_node(cfg, options: NodeOptions, peer: Peer, body: Callable[[AgentNode], 
     return asyncio.run(main())
 
 
-def test_the_agent_subscribes_to_exactly_its_own_pose_its_neighbours_its_leaders_others_and_obstacles(
+def test_the_agent_subscribes_to_exactly_its_own_pose_its_members_its_leaders_others_and_obstacles(
     configs,
 ):
     node = AgentNode(configs["r1"])
     assert set(node.subscribed_keys) == {
         keys.pose_key(P, "r1"), keys.state_key(P, "r2"), keys.state_key(P, "r4"),
+        keys.state_key(P, "r3"),  # not a graph neighbour: a separation partner
         keys.others_key(P, "F1"), keys.obstacles_key(P),
     }
     assert not any("*" in k for k in node.subscribed_keys)
@@ -146,13 +149,13 @@ def test_the_agent_subscribes_to_exactly_its_own_pose_its_neighbours_its_leaders
     }
 
 
-def test_a_non_neighbours_state_never_reaches_the_agent_but_a_neighbours_does(configs, peer):
+def test_another_formations_robot_state_never_reaches_the_agent_but_a_neighbours_does(configs, peer):
     async def body(node: AgentNode) -> None:
         for _ in range(5):
-            peer.put(keys.state_key(P, "r3"), encode(State(0.0, 0.0, 0.0, 0.0, 1.0)))
+            peer.put(keys.state_key(P, "s1"), encode(State(0.0, 0.0, 0.0, 0.0, 1.0)))
             peer.put(keys.state_key(P, "r2"), encode(State(1.0, 0.0, 0.0, 0.0, 1.0)))
         await eventually(lambda: node.counter.snapshot()["recv"]["state"]["messages"] >= 5)
-        await asyncio.sleep(0.2)  # time for any stray r3 sample to arrive
+        await asyncio.sleep(0.2)  # time for any stray s1 sample to arrive
 
         box = node._boxes[keys.STATE]
         assert set(box.values()) == {keys.state_key(P, "r2")}
@@ -188,7 +191,7 @@ def test_fresh_inputs_give_a_command_and_stale_neighbour_states_give_zero_counte
 def test_malformed_and_non_finite_payloads_are_dropped_counted_and_do_not_stop_the_agent(
     configs, peer,
 ):
-    nan_state = struct.pack("<B5d", 1, math.nan, 0.0, 0.0, 0.0, 1.0)
+    nan_state = struct.pack("<B6d", 2, math.nan, 0.0, 0.0, 0.0, 0.0, 1.0)
     assert len(nan_state) == len(encode(State(0.0, 0.0, 0.0, 0.0, 1.0)))
 
     async def body(node: AgentNode) -> None:
@@ -319,6 +322,7 @@ def test_in_real_time_a_silent_camera_ends_in_deadline_ticks_that_command_zero(c
 
     async def body(node: AgentNode) -> None:
         stamp = time.time()
+        peer.feed(stamp)  # declares the publishers (and waits for their match) before the clock runs
         t_end = time.monotonic() + 0.3
         while time.monotonic() < t_end:  # a pose every 5 ms, well inside the deadline span
             stamp += cfg.period

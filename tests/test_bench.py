@@ -95,7 +95,7 @@ def test_central_problem_holds_every_robot_and_its_rows():
     single = 0
     for r, u in zip(inputs, nominal, strict=True):
         rows = build_rows(params, *r.pose, u, (), r.obstacles, r.others, r.view)
-        single += len(rows.limits) + len(rows.hard)
+        single += len(rows.limits) + len(rows.hard) + len(rows.contact)
     # each robot's own rows + 2 formations x 5 edges x 2 bands + 4 x 4 cross-formation pairs
     assert g.shape == (single + 20 + 16, 16)
     assert h.shape == (g.shape[0],)
@@ -111,3 +111,14 @@ def test_quick_bench_measures_recording_and_a_watched_fleet(quick_result):
     (n, watched), = result["agents_viewer"].items()
     assert n in result["agents"] and watched["commands"] > 0
     assert f"{n}v" in (out / "bench.txt").read_text(encoding="utf-8")
+def test_quick_bench_ran_the_camera_process_and_accounted_for_every_frame(quick_result):
+    result, out = quick_result
+    cam = result["camera"]
+    assert cam["robots"] == 16 and cam["image"] == [1280, 960]
+    # a loaded machine may skip frames (the camera keeps only the newest waiting one): every
+    # frame is handled or counted as skipped, and every handled frame found every robot
+    assert cam["frames_handled"] >= 1
+    assert cam["frames_handled"] + cam["frames_skipped"] == cam["frames"]
+    assert cam["detections_min"] == cam["frames_handled"]
+    assert 0 < cam["latency_ms_p50"] <= cam["latency_ms_p99"]
+    assert "capture -> publish" in (out / "bench.txt").read_text(encoding="utf-8")

@@ -28,18 +28,19 @@ from scenario.load import scenario_from_dict
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
-def test_two_pairs_exchange_eight_deliveries_per_tick_reduced_and_fourteen_all_to_all():
+def test_two_pairs_exchange_eight_deliveries_per_tick_reduced_and_sixteen_all_to_all():
     # reduced: each pair's two robots hear each other (4), the two leaders hear each other's
     # ellipse (2), each member hears its leader's others (2).
     assert analytic_deliveries([2, 2], [1, 1], "reduced") == {"state": 4, "ellipse": 2, "others": 2}
-    # all-to-all: 4 robots x 3 others, plus the same two others messages.
-    assert analytic_deliveries([2, 2], [1, 1], "all-to-all") == {"state": 12, "ellipse": 0, "others": 2}
+    # all-to-all: 4 robots x 3 others, plus the same ellipses (tie-break, jam rule) and others.
+    assert analytic_deliveries([2, 2], [1, 1], "all-to-all") == {"state": 12, "ellipse": 2, "others": 2}
 
 
 def test_pair_and_rectangle_counts_match_a_hand_count():
-    # pair (1 edge) + rectangle with a diagonal (5 edges): degrees 1,1 and 3,2,3,2 sum to 12.
-    assert analytic_deliveries([2, 4], [1, 5], "reduced") == {"state": 12, "ellipse": 2, "others": 4}
-    assert analytic_deliveries([2, 4], [1, 5], "all-to-all") == {"state": 30, "ellipse": 0, "others": 4}
+    # pair + rectangle: every robot hears every other member of its formation (separation rows
+    # need the one member that is not a graph neighbour too): 2 x 1 + 4 x 3 = 14.
+    assert analytic_deliveries([2, 4], [1, 5], "reduced") == {"state": 14, "ellipse": 2, "others": 4}
+    assert analytic_deliveries([2, 4], [1, 5], "all-to-all") == {"state": 30, "ellipse": 2, "others": 4}
     assert wildcard_echo(6, "all-to-all") == 6
     assert wildcard_echo(6, "reduced") == 0
 
@@ -48,24 +49,26 @@ def test_eight_formation_fleet_is_below_a_quarter_of_all_to_all():
     sizes, edges = [2, 4] * 4, [1, 5] * 4
     red = sum(analytic_deliveries(sizes, edges, "reduced").values())
     a2a = sum(analytic_deliveries(sizes, edges, "all-to-all").values())
-    assert (red, a2a) == (48 + 56 + 16, 552 + 16)
-    assert red / a2a < 0.35
+    assert (red, a2a) == (56 + 56 + 16, 552 + 56 + 16)
+    assert red / a2a < 0.25
 
 
-def test_constraint_rows_count_formation_rows_and_one_row_per_ellipse_or_foreign_robot():
-    # two pairs: each robot has 2 formation rows, plus 1 ellipse (reduced) or 2 robots (all-to-all)
-    assert constraints_per_robot([2, 2], [1, 1], "reduced") == 3.0
-    assert constraints_per_robot([2, 2], [1, 1], "all-to-all") == 4.0
+def test_constraint_rows_count_formation_and_separation_rows_and_the_rows_for_other_formations():
+    # two pairs: each robot has 2 formation rows and 1 separation row, plus 1 ellipse (reduced)
+    # or 2 rows for each of 2 foreign robots (eq. 3.5 and separation, all-to-all)
+    assert constraints_per_robot([2, 2], [1, 1], "reduced") == 4.0
+    assert constraints_per_robot([2, 2], [1, 1], "all-to-all") == 7.0
 
 
 def test_payload_bytes_of_a_pair_and_a_rectangle_match_the_wire_layout():
-    # State 41 B; an ellipse of formation "f0" 73 + 3 B; Others = 1 version + 3 id + 8 stamp
-    # + 1 list count + 75 B per other ellipse + 1 list count + 75 B for its own ellipse.
+    # State 49 B (version 2, with the heading); an ellipse of formation "f0" 73 + 3 B; Others =
+    # 1 version + 3 id + 8 stamp + 1 list count + 75 B per other ellipse + 1 list count + 75 B
+    # for its own ellipse. All-to-all now exchanges the same ellipses (tie-break, jam rule).
     sc = scenario_from_dict(crossing_scenario(2))
-    assert analytic_bytes(sc, "reduced") == {"state": 12 * 41, "ellipse": 2 * 76,
+    assert analytic_bytes(sc, "reduced") == {"state": 14 * 49, "ellipse": 2 * 76,
                                              "others": 4 * (14 + 2 * 75)}
-    assert analytic_bytes(sc, "all-to-all") == {"state": 30 * 41, "ellipse": 0,
-                                                "others": 4 * (14 + 75)}
+    assert analytic_bytes(sc, "all-to-all") == {"state": 30 * 49, "ellipse": 2 * 76,
+                                                "others": 4 * (14 + 2 * 75)}
 
 
 @given(st.lists(st.integers(2, 6), min_size=2, max_size=10))

@@ -40,7 +40,7 @@ def test_every_command_satisfies_every_row_it_was_given(x, y, th, gx, gy, nbrs, 
     u = (res.ux, res.uy)
     viol = lambda rs, s=0.0: max((ax * u[0] + ay * u[1] - b - s for ax, ay, b in rs), default=-1)  # noqa: E731
     if res.status in (STATUS_OK, STATUS_RELAXED):
-        assert viol(rows.limits + rows.hard) <= 1e-8
+        assert viol(rows.limits + rows.hard + list(rows.contact)) <= 1e-8
         assert viol(rows.soft, res.slack) <= 1e-8
     else:  # least-risk command: the limits still hold
         assert viol(rows.limits) <= 1e-8

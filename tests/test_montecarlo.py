@@ -26,7 +26,10 @@ def test_a_small_run_writes_montecarlo_json(tmp_path, capsys):
     assert main(["montecarlo", "--n", "2", "--seed", "3", "--out", str(out)]) == 0
     summary = json.loads((out / "montecarlo.json").read_text())
     assert summary["runs"] == 2 and summary["seed"] == 3
-    assert {"collisions", "reached_rate", "deadlocks", "worst_formation_error_m", "failures"} <= set(summary)
+    assert {"collisions", "reached_rate", "deadlocks", "worst_formation_error_m", "failures",
+            "runs_over_1_5_epsilon", "fallback_ticks"} <= set(summary)
+    assert summary["fallback_ticks"] == sum(r["fallback_ticks"] for r in
+                                            map(json.loads, (out / "runs.jsonl").read_text().splitlines()))
     assert 0.0 <= summary["reached_rate"] <= 1.0
     runs = [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines()]
     assert [r["seed"] for r in runs] == [300000, 300001]

@@ -36,7 +36,7 @@ def brute_outline_distance(sh, px, py, n=4000):
 @given(coord, coord, coord, coord, coord, coord)
 def test_segment_gradient_matches_finite_differences(px, py, ax, ay, bx, by):
     d, gx, gy = segment_distance(px, py, ax, ay, bx, by)
-    assume(d > 1e-3)
+    assume(d > 0.05)  # closer, the central difference's own error (about H / 4d) exceeds the tolerance
 
     def f(x, y):
         return segment_distance(x, y, ax, ay, bx, by)[0]
@@ -156,7 +156,7 @@ def test_qp_with_shape_rows_agrees_with_the_qpsolvers_oracle():
             continue
         nux, nuy = rng.uniform(-0.22, 0.22), rng.uniform(-0.22, 0.22)
         rows = build_rows(params, px, py, 0.0, (nux, nuy), shapes=walls)
-        all_rows = rows.limits + rows.hard
+        all_rows = rows.limits + rows.hard + list(rows.contact)  # shapes are contact rows
         mine = solve_exact(nux, nuy, all_rows)
         ref = oracle(nux, nuy, all_rows)
         assert mine is not None and ref is not None  # the start is safe: u = 0 is feasible

@@ -10,7 +10,7 @@ and filters messages with the ACL of :func:`fleet_acl`, whose subjects are match
 * the viewer (user :data:`VIEWER_USER`: ``formation view``, ``formation record``) may only
   subscribe and be sent what is published: it publishes nothing;
 * the camera service or simulated world (user :data:`CAMERA_USER`) may publish only the poses
-  ``{prefix}/robot/*/pose`` and ``{prefix}/obstacles``;
+  ``{prefix}/robot/*/pose``, ``{prefix}/obstacles`` and the frames ``{prefix}/camera/frame``;
 * every fleet user may declare subscribers under ``{prefix}/**`` and be sent (``put``, egress)
   what is published there;
 * ``default_permission`` is ``deny``: anything else (another robot's keys, queries, queryables,
@@ -91,7 +91,8 @@ def fleet_acl(
         {"id": "fleet-deliver", "messages": ["put"], "flows": ["egress"], "permission": "allow",
          "key_exprs": [f"{prefix}/**"]},
         {"id": CAMERA_RULE, "messages": ["put"], "flows": ["ingress"], "permission": "allow",
-         "key_exprs": [f"{prefix}/robot/*/pose", keys.obstacles_key(prefix)]},
+         "key_exprs": [f"{prefix}/robot/*/pose", keys.obstacles_key(prefix),
+                       f"{prefix}/camera/frame"]},
     ]
     subjects: list[dict[str, Any]] = [{"id": camera_user, "usernames": [camera_user]},
                                       {"id": VIEWER_USER, "usernames": [VIEWER_USER]}]

@@ -11,7 +11,7 @@ header. Every payload is one tuple:
 payload        fields in order (``u8`` version, then ``f64`` unless marked ``str``)      bytes
 =============  =======================================================================  =====
 ``Pose``       version, x, y, theta, stamp                                               33
-``State``      version, x, y, ux, uy, stamp                                              41
+``State``      version (2), x, y, ux, uy, theta, stamp                                   49
 ``Cmd``        version, v, omega, ux, uy, stamp                                          41
 ``EllipseMsg`` version, formation:str, cx, cy, alpha, a, b, vx, vy, alpha_rate, stamp   73+n
 ``Others``     version, formation:str, stamp, ellipses:list[E], own:list[E] (0 or 1)  varies
@@ -68,6 +68,9 @@ WIRE_VERSION = 1
 SHAPES_VERSION = 2  # Obstacles with walls or shelves
 SHAPE_SEGMENT = 1  # ShapeMsg.kind
 SHAPE_BOX = 2
+#: ``state`` is at version 2 (it gained the heading); a version-1 decoder refuses it by its
+#: version byte ("unsupported version 2"), and this decoder refuses version-1 states.
+STATE_VERSION = 2
 MAX_ITEMS = 256  # most ellipses (or obstacles) one payload may carry
 # A payload longer than this is rejected before parsing [bytes]. The largest valid message (an
 # Others with 256 + 1 ellipses whose ids are 64 four-byte UTF-8 characters) is about 85 kB.
@@ -132,7 +135,7 @@ def _check_floats(obj: object, names: Iterable[str]) -> None:
 
 
 _POSE_FLOATS = ("x", "y", "theta", "stamp")
-_STATE_FLOATS = ("x", "y", "ux", "uy", "stamp")
+_STATE_FLOATS = ("x", "y", "ux", "uy", "stamp", "theta")
 _CMD_FLOATS = ("v", "omega", "ux", "uy", "stamp")
 _OBSTACLE_FLOATS = ("x", "y", "vx", "vy", "ds")
 _STAMP = ("stamp",)
@@ -156,7 +159,9 @@ class Pose:
 class State:
     """Position and current single-integrator command of one robot: ``.../state``.
 
-    [m, m, m/s, m/s, s]; neighbours use ``ux, uy`` as the velocity of appendix A.2.
+    [m, m, m/s, m/s, s, rad]; neighbours use ``ux, uy`` as the velocity of appendix A.2 and
+    of the separation rows, ``theta`` (the body heading, wire version 2: :data:`STATE_VERSION`)
+    to place a unicycle's body behind its look-ahead point ``x, y``.
     """
 
     x: float
@@ -164,9 +169,10 @@ class State:
     ux: float
     uy: float
     stamp: float
+    theta: float = 0.0
 
     def __post_init__(self) -> None:
-        if not _plain_finite((self.x, self.y, self.ux, self.uy, self.stamp)):
+        if not _plain_finite((self.x, self.y, self.ux, self.uy, self.stamp, self.theta)):
             _check_floats(self, _STATE_FLOATS)
 
 
@@ -420,6 +426,7 @@ def _ellipses(items: list[Item]) -> tuple[EllipseMsg, ...]:
 
 _VERSION = UInt8(WIRE_VERSION)
 _SHAPES_VERSION = UInt8(SHAPES_VERSION)
+_STATE_VERSION = UInt8(STATE_VERSION)
 
 
 def _ellipse_fields(e: EllipseMsg) -> tuple[Any, ...]:
@@ -430,7 +437,7 @@ def _wire_tuple(msg: Message) -> tuple[Any, ...]:
     if isinstance(msg, Pose):
         return (_VERSION, msg.x, msg.y, msg.theta, msg.stamp)
     if isinstance(msg, State):
-        return (_VERSION, msg.x, msg.y, msg.ux, msg.uy, msg.stamp)
+        return (_STATE_VERSION, msg.x, msg.y, msg.ux, msg.uy, msg.theta, msg.stamp)
     if isinstance(msg, Cmd):
         return (_VERSION, msg.v, msg.omega, msg.ux, msg.uy, msg.stamp)
     if isinstance(msg, EllipseMsg):
@@ -597,9 +604,10 @@ class _Reader:
 
 
 def _decode(payload: object, parse: Callable[[_Reader], Any], kind: str,
+            version: int = WIRE_VERSION,
             parsers: Mapping[int, Callable[[_Reader], Any]] | None = None) -> Any:
-    """Decode ``payload`` with ``parse`` (version :data:`WIRE_VERSION`), or with the parser
-    ``parsers`` names for its version byte."""
+    """Decode ``payload`` with ``parse`` (version ``version``), or with the parser ``parsers``
+    names for its version byte."""
     try:
         data = _as_bytes(payload)
         if not data:
@@ -608,8 +616,8 @@ def _decode(payload: object, parse: Callable[[_Reader], Any], kind: str,
             raise DecodeError(f"payload of {len(data)} bytes exceeds {MAX_PAYLOAD_BYTES}")
         if parsers is not None and data[0] in parsers:
             parse = parsers[data[0]]
-        elif data[0] != WIRE_VERSION:
-            known = " or ".join(str(v) for v in sorted(parsers or (WIRE_VERSION,)))
+        elif data[0] != version:
+            known = " or ".join(str(v) for v in sorted(parsers or (version,)))
             raise DecodeError(f"unsupported version {data[0]} (expected {known})")
         reader = _Reader(data, 1)
         try:
@@ -629,7 +637,8 @@ def _parse_pose(r: _Reader) -> Pose:
 
 
 def _parse_state(r: _Reader) -> State:
-    return State(*r.floats(5, "state"))
+    x, y, ux, uy, theta, stamp = r.floats(6, "state")
+    return State(x, y, ux, uy, stamp, theta)
 
 
 def _parse_cmd(r: _Reader) -> Cmd:
@@ -687,7 +696,7 @@ def decode_pose(payload: bytes | zenoh.ZBytes) -> Pose:
 
 def decode_state(payload: bytes | zenoh.ZBytes) -> State:
     """Decode a ``state`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_state, "state")
+    return _decode(payload, _parse_state, "state", STATE_VERSION)
 
 
 def decode_cmd(payload: bytes | zenoh.ZBytes) -> Cmd:
@@ -707,7 +716,7 @@ def decode_others(payload: bytes | zenoh.ZBytes) -> Others:
 
 def decode_obstacles(payload: bytes | zenoh.ZBytes) -> Obstacles:
     """Decode an ``obstacles`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_obstacles, "obstacles", _OBSTACLES_PARSERS)
+    return _decode(payload, _parse_obstacles, "obstacles", parsers=_OBSTACLES_PARSERS)
 
 
 #: The decoder of each key class (see :func:`wire.keys.key_class`).

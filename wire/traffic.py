@@ -330,7 +330,7 @@ class Mailbox(Generic[T]):
 
         try:
             await asyncio.wait_for(changed(), timeout)
-        except TimeoutError:
+        except (TimeoutError, asyncio.TimeoutError):  # distinct classes on 3.10
             return False
         return True
 

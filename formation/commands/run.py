@@ -25,11 +25,14 @@ def run_command(ns: argparse.Namespace) -> int:
         )
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    if ns.camera == "synthetic":
+    if ns.camera in ("synthetic", "process"):
         try:
             import camera_service.service  # noqa: F401
         except ImportError:
             raise UsageError("--camera synthetic: camera_service.service is not available yet") from None
+    if ns.camera == "process" and faults.camera_dropouts:
+        raise UsageError("--camera-dropout: not with --camera process (the camera process "
+                         "publishes the poses)")
     if not 0 <= ns.port < 65536:
         raise UsageError(f"--port: {ns.port} is not a TCP port")
     slots = getattr(ns, "pose_slots", 1)
@@ -52,7 +55,8 @@ def run_command(ns: argparse.Namespace) -> int:
                                  progress_factory=lambda: Progress(f"run {scenario.name}",
                                                                    quiet=ns.quiet),
                                  faults=faults, secure=getattr(ns, "secure", False),
-                                 pose_slots=slots, observer=observer, hold=hold,
+                                 pose_slots=slots, observer=observer,
+                                 scenario_path=ns.scenario, hold=hold,
                                  announce=_announce if hold else None)
     finally:
         if live is not None:

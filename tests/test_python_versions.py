@@ -1,0 +1,61 @@
+"""What `formation deploy` runs on a robot works on the robot's stock Python (issue 17, item 6):
+Ubuntu 22.04 / ROS 2 Humble has 3.10, 24.04 / Jazzy 3.12. The agent imports only these packages
+(checked below), a minimum-version checker (vermin) finds nothing newer than 3.10 in them, and
+every interpreter of those versions this machine has compiles them."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+ROBOT_PACKAGES = ("agent", "leader", "scenario", "wire")  # what `python -m agent` imports
+OURS = ("agent", "leader", "scenario", "wire", "deploy", "camera_service", "simulator", "formation")
+
+
+def test_the_agent_imports_nothing_of_ours_beyond_the_robot_packages():
+    code = ("import sys, agent.__main__, agent.node; print(' '.join(sorted({m.split('.')[0] "
+            f"for m in sys.modules if m.split('.')[0] in {OURS!r}}})))")
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert set(out) <= set(ROBOT_PACKAGES), out
+
+
+def test_a_minimum_version_checker_finds_nothing_newer_than_python_3_10_in_the_robot_code():
+    pytest.importorskip("vermin")
+    run = "import sys, vermin; sys.argv[0] = 'vermin'; sys.exit(vermin.main())"
+    res = subprocess.run([sys.executable, "-c", run, "--no-tips", "--violations",
+                          "--eval-annotations", "-t=3.10-", *ROBOT_PACKAGES], cwd=REPO,
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stdout + res.stderr
+
+
+def _interpreter(version: str) -> str | None:
+    """A working ``python{version}``: on the PATH, or one pyenv holds but has not enabled."""
+    candidates = [shutil.which(f"python{version}"), f"/usr/bin/python{version}",
+                  *map(str, sorted(Path.home().glob(f".pyenv/versions/{version}*/bin/python{version}")))]
+    for found in filter(None, candidates):
+        try:
+            ok = subprocess.run([found, "-c", "import sys; print(sys.version_info[:2])"],
+                                capture_output=True, text=True, timeout=20)
+        except OSError:
+            continue
+        if ok.returncode == 0 and f"({version.replace('.', ', ')})" in ok.stdout:
+            return found
+    return None
+
+
+@pytest.mark.parametrize("version", ["3.10", "3.12"])
+def test_the_robot_code_compiles_with_each_robot_python_this_machine_has(version, tmp_path):
+    python = _interpreter(version)
+    if python is None:
+        pytest.skip(f"no python{version} on this machine")
+    for package in ROBOT_PACKAGES:
+        res = subprocess.run([python, "-m", "compileall", "-q", "-d", package, str(REPO / package)],
+                             capture_output=True, text=True,
+                             env={"PYTHONPYCACHEPREFIX": str(tmp_path), "PATH": "/usr/bin:/bin"})
+        assert res.returncode == 0, res.stdout + res.stderr
