@@ -15,6 +15,7 @@ from typing import NamedTuple
 
 from geometry.circle import circle_h
 from geometry.ellipse import ellipse_terms
+from geometry.shapes import Shape, shape_distance
 
 from .qp import Row, normalized_row
 
@@ -80,6 +81,15 @@ def obstacle_row(px: float, py: float, o: Obstacle, gamma: float) -> tuple[float
     dx, dy = px - o.x, py - o.y
     h = circle_h(px, py, o.x, o.y, o.ds)
     return h, normalized_row(-2.0 * dx, -2.0 * dy, gamma * h - 2.0 * (dx * o.vx + dy * o.vy))
+
+
+def shape_row(px: float, py: float, sh: Shape, gamma: float, grow: float = 0.0) -> tuple[float, Row]:
+    """A static wall or shelf (:mod:`geometry.shapes`): h = d(p) - (Ds + grow), eq. 4.5
+    generalised to the distance from the shape; the row is -dd/dp . u <= gamma h (the shape
+    does not move, so no dh/dt term; dd/dp is a unit vector, so the row is normalised)."""
+    d, gx, gy = shape_distance(px, py, sh)
+    h = d - sh.ds - grow
+    return h, (-gx, -gy, gamma * h)
 
 
 # ------------------------------------------------------------ other formations, eq. 4.6

@@ -21,6 +21,7 @@ from geometry.limits import BURGER_RADIUS
 from geometry.unicycle import control_point
 from leader.settings import LeaderSettings  # noqa: F401  (re-exported)
 from scenario import Scenario, formation_axes
+from scenario.routes import initial_route
 from scenario.succession import formation_successor
 from wire.stamps import CLOCK_TOLERANCE_S
 from wire.zconf import ZenohSettings
@@ -73,6 +74,12 @@ class AgentConfig:
     cmd_vel_key: str = "cmd_vel"  # real bases: the zenoh-bridge-ros2dds key for /cmd_vel
     frame_id: str = "base_link"  # real bases (Jazzy TwistStamped): header frame
     solver: str = "exact"  # QP solver (agent.qp.make_solver): exact or a qpsolvers backend
+    # the formation centroid's route (waypoints, the goal centroid last); () = the goal alone
+    route: tuple[tuple[float, float], ...] = ()
+    # leader only: every member's goal as the scenario gives it (the goal shape at heading 0)
+    member_goals: tuple[tuple[str, float, float], ...] = ()
+    planner: bool = True  # the leader plans routes around walls and shelves for new goals
+    goal_tolerance: float = 0.05  # [m]
 
     @property
     def is_leader(self) -> bool:
@@ -107,6 +114,7 @@ def build_agent_configs(
     off = scenario.robot.control_offset
     out: dict[str, AgentConfig] = {}
     for f in scenario.formations:
+        route = initial_route(scenario, f)
         shape = reference_shape([control_point(*r.start, off) for r in f.robots])
         leader = LeaderSettings(
             members=f.robot_ids,
@@ -141,6 +149,11 @@ def build_agent_configs(
                 base=base,
                 zenoh=zenoh,
                 solver=solver,
+                route=route if len(route) > 1 else (),
+                member_goals=(tuple((m.id, *m.goal) for m in f.robots) if r.id == f.leader
+                              else ()),
+                planner=scenario.controller.planner != "none",
+                goal_tolerance=scenario.goal_tolerance,
             )
     return out
 
@@ -200,6 +213,10 @@ def config_from_dict(d: dict[str, Any]) -> AgentConfig:
             cmd_vel_key=str(d.pop("cmd_vel_key", "cmd_vel")),
             frame_id=str(d.pop("frame_id", "base_link")),
             solver=str(d.pop("solver", "exact")),
+            route=tuple((float(x), float(y)) for x, y in d.pop("route", ())),
+            member_goals=tuple((str(m), float(x), float(y)) for m, x, y in d.pop("member_goals", ())),
+            planner=bool(d.pop("planner", True)),
+            goal_tolerance=float(d.pop("goal_tolerance", 0.05)),
         )
         d.pop("start", None)
         d.pop("pose_period", None)

@@ -55,6 +55,7 @@ from typing import NamedTuple
 
 from geometry.ellipse import Ellipse
 from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE
+from geometry.shapes import Shape
 
 from . import barriers, unicycle
 from .barriers import Neighbour, Obstacle, Partner
@@ -287,6 +288,18 @@ class Rows(NamedTuple):
     contact: Sequence[Row] = ()  # obstacles and body separation: hard, kept in a fallback
 
 
+def _shape_rows(px: float, py: float, shapes: Sequence[Shape], gamma: float, grow: float,
+                reach: float, hard: list[Row]) -> float:
+    """Append the rows of the walls and shelves that can be active to ``hard``; the smallest h."""
+    hmin = math.inf
+    for sh in shapes:
+        h, row = barriers.shape_row(px, py, sh, gamma, grow)
+        hmin = min(hmin, h)
+        if row[2] < reach:
+            hard.append(row)
+    return hmin
+
+
 def build_rows(
     p: ControlParams,
     px: float,
@@ -300,6 +313,7 @@ def build_rows(
     pairwise: Sequence[Neighbour] = (),
     partners: Sequence[Partner] = (),
     last_u: tuple[float, float] = (0.0, 0.0),
+    shapes: Sequence[Shape] = (),
 ) -> Rows:
     """Every barrier row (eq. 4.12b-e with appendix A's velocity terms) and limit row for the
     control point (px, py) of a robot with heading ``theta``.
@@ -332,6 +346,8 @@ def build_rows(
         ho = min(ho, h)
         if row[2] < reach:
             contact.append(row)
+    if shapes:  # walls and shelves: the body stays Ds from the shape itself (hard, like circles)
+        ho = min(ho, _shape_rows(px, py, shapes, p.gamma_obstacle, grow, reach, contact))
     for e in others:
         h, row = barriers.ellipse_row(px, py, e, p.gamma_formations)
         he = min(he, h)
@@ -448,6 +464,7 @@ def control_step(
     partners: Sequence[Partner] = (),
     last_u: tuple[float, float] = (0.0, 0.0),
     hazards: Sequence[Ellipse] | None = None,
+    shapes: Sequence[Shape] = (),
     clock: Callable[[], int] | None = None,
 ) -> StepResult:
     """One tick for one robot.
@@ -461,6 +478,7 @@ def control_step(
     ``last_u`` this robot's own last certified velocity, as its ``state`` told them; ``hazards``
     are the other formations' ellipses for the formation-level rules only (tie-break, jam;
     default: ``others``), so all-to-all keeps those rules without ellipse rows.
+    ``shapes`` are the static walls and shelves (Ds from the shape, offset added likewise).
     ``clock`` (e.g. ``time.perf_counter_ns``) times the QP for ``solve_us``; without one the step
     reads no clock and ``solve_us`` is 0.
     """
@@ -487,7 +505,7 @@ def control_step(
     nux, nuy = ux, uy
 
     rows = build_rows(p, px, py, theta, (ux, uy), neighbours, obstacles, others, view, pairwise,
-                      partners, last_u)
+                      partners, last_u, shapes)
     limits, hard, soft = rows.limits, rows.hard, rows.soft
 
     t0 = clock() if clock is not None else 0

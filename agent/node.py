@@ -95,6 +95,7 @@ from agent.control import Stall, StepResult, control_step
 from agent.faults import EPS, DelayLine, LinkFaults, lag
 from agent.hard_rows import HardRowCounter
 from agent.inputs import step_inputs
+from agent.navigation import STALLED_AFTER_S, NavPart
 from agent.plausibility import (
     JUMP_MARGIN_M,
     ObstacleMemory,
@@ -254,6 +255,7 @@ class AgentNode:
             if missing:
                 raise ValueError(f"leader: {cfg.robot_id} is not adjacent to member {missing[0]}")
         self.subscribed_keys = self._subscription_keys()
+        self.nav = NavPart(cfg, leader=self.role is not None)  # routes, goals, plan, status
         # counters
         self.ticks = 0
         self.overruns = 0
@@ -437,6 +439,7 @@ class AgentNode:
             self._pubs[k] = CountingPublisher(s.declare_publisher(k), self.counter)
         self._diag = DiagPublisher(s, self.cfg.prefix, self.cfg.robot_id, self.cfg.formation,
                                    self.cfg.goal)
+        self.nav.open(s, self.counter)
         if self.cfg.base != "world":
             # A real robot base (TurtleBot3 behind zenoh-bridge-ros2dds): every command also goes
             # to its cmd_vel key as CDR; the cmd key stays for monitoring.
@@ -606,6 +609,7 @@ class AgentNode:
         handles = [*([] if token is None else [token]), *self._subs, *self._pubs.values()]
         within(step_limit, f"{rid}: undeclaring {len(handles)} tokens, subscribers and publishers",
                lambda: _undeclare_all(handles))
+        self.nav.close(self.last_stamp)
         if self._base is not None:
             base = self._base  # zero velocity on the real base, then undeclare
             within(step_limit, f"{rid}: stopping the base", base.stop)
@@ -933,11 +937,15 @@ class AgentNode:
             self._implausible_pending.clear()
             self._zero(t, IMPLAUSIBLE)
             return None
+        shapes = self.nav.update_shapes(obstacles.shapes)
+        own = None if others_msg.own is None else msg_to_ellipse(others_msg.own)
+        target, waypoint = self.nav.follower.goal, cfg.formation_goal
+        if own is not None:  # walk the route (the leader takes new goals first)
+            target, waypoint = self.nav.step(stamp, t is not None, own.cx, own.cy)
         inputs = step_inputs(
             ((states[k].x, states[k].y, states[k].ux, states[k].uy, df)
              for k, df in self.neighbour_keys.items()),
-            None if others_msg.own is None else msg_to_ellipse(others_msg.own),
-            cfg.formation, cfg.formation_goal,
+            own, cfg.formation, waypoint,
             [(m.formation, msg_to_ellipse(m)) for m in others_msg.ellipses],
             self._stall, cfg.period,  # the jam rule's memory
             [(states[k].x, states[k].y, states[k].ux, states[k].uy, states[k].theta)
@@ -946,12 +954,16 @@ class AgentNode:
              for k in self.partner_keys],
         )
         self._stall = inputs.stall
-        res = control_step(cfg.control, (pose.x, pose.y, pose.theta), cfg.goal, inputs.neighbours,
+        res = control_step(cfg.control, (pose.x, pose.y, pose.theta), target, inputs.neighbours,
                            obs, inputs.others, inputs.view, self._solve, inputs.pairwise,
-                           inputs.partners, self.last_u, inputs.hazards, clock=time.perf_counter_ns)
+                           inputs.partners, self.last_u, inputs.hazards, shapes=shapes,
+                           clock=time.perf_counter_ns)
         if t is None and time.time() - stamp > cfg.stale_after:
             self._zero(t, POSE_AT_SEND)  # never send a command from a pose gone stale
             return None
+        if self.role is not None:
+            stall = self._stall
+            self.nav.report(stamp, stall.still >= STALLED_AFTER_S or stall.retreat > 0.0, False)
         self._put_cmd(Cmd(res.v, res.omega, res.ux, res.uy, stamp))
         self.last_u = (res.ux, res.uy)
         self._record(res, stamp)
@@ -1079,6 +1091,8 @@ class AgentNode:
         self.last_u = (0.0, 0.0)
         stamp = t if t is not None else self.last_stamp
         self._put_cmd(Cmd(0.0, 0.0, 0.0, 0.0, stamp))
+        if self.role is not None:
+            self.nav.report(stamp, False, True)
         logger.debug("%s: stale %s, zero command", self.cfg.robot_id, why)
         if self.options.trace:
             nan = math.nan
@@ -1122,6 +1136,7 @@ class AgentNode:
             "inflated": self.inflated,
             "takeovers": self.takeovers,
             "acting_leader_ticks": self.acting_ticks,
+            "nav": self.nav.stats(),
             "fault_dropped": dict(self.fault_dropped),
             "fault_delayed": self.fault_delayed,
             "solves": self.solves,

@@ -38,6 +38,7 @@ import yaml
 
 from camera_service.calibration import Calibration, load_calibration
 from camera_service.markers import aruco_dictionary, dictionary_size
+from geometry.shapes import Shape
 from wire import keys
 from wire.zconf import MODES, UsrPwdAuth, ZenohSettings
 
@@ -85,6 +86,7 @@ class ServiceConfig:
     robots: Mapping[int, str]  # marker id -> robot id
     obstacles: Mapping[int, MovingObstacle]  # marker id -> obstacle
     static_obstacles: tuple[StaticObstacle, ...] = ()
+    static_shapes: tuple[Shape, ...] = ()  # the scenario's walls and shelves
     fps: float = DEFAULT_FPS
     dictionary: str = "DICT_4X4_50"
     marker_size: float = 0.10  # [m]
@@ -209,10 +211,9 @@ def _zenoh(raw: Any, base: Path) -> ZenohSettings:
         raise ConfigError(f"zenoh: {exc}") from None
 
 
-def _static_obstacles(path: Path) -> tuple[StaticObstacle, ...]:
-    """The scenario's obstacles that do not move. Circles only today: other shapes a scenario
-    may gain (walls, boxes) are left to the scenario module and the wire format that carries
-    them; they are not an error here."""
+def _static_obstacles(path: Path) -> tuple[tuple[StaticObstacle, ...], tuple[Shape, ...]]:
+    """The scenario's obstacles that do not move: its circles without a velocity, and its walls
+    and shelves (published as they are, :mod:`geometry.shapes`)."""
     from scenario import ScenarioError, load_scenario
 
     try:
@@ -226,7 +227,7 @@ def _static_obstacles(path: Path) -> tuple[StaticObstacle, ...]:
             continue  # a moving obstacle of a simulation, or a shape that is not a circle
         out.append(StaticObstacle(o.name, float(centre[0]), float(centre[1]),
                                   float(o.safe_distance)))
-    return tuple(out)
+    return tuple(out), tuple(scenario.shapes)
 
 
 def config_from_dict(data: Any, base: Path, path: str = "<config>") -> ServiceConfig:
@@ -283,10 +284,11 @@ def config_from_dict(data: Any, base: Path, path: str = "<config>") -> ServiceCo
         obstacles[mid] = MovingObstacle(s["name"], ds, osize, ohigh)
     if not robots and not obstacles:
         raise ConfigError("robots: no robot and no obstacle marker to look for")
-    statics = ()
+    statics: tuple[StaticObstacle, ...] = ()
+    shapes: tuple[Shape, ...] = ()
     if m.get("static_obstacles") is not None:
-        statics = _static_obstacles(_path(m["static_obstacles"], "static_obstacles", base))
-    names = [o.name for o in obstacles.values()] + [o.name for o in statics]
+        statics, shapes = _static_obstacles(_path(m["static_obstacles"], "static_obstacles", base))
+    names = [o.name for o in obstacles.values()] + [o.name for o in statics] + [s.name for s in shapes]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         raise ConfigError(f"obstacles: name {dup[0]!r} is used twice")
@@ -310,7 +312,7 @@ def config_from_dict(data: Any, base: Path, path: str = "<config>") -> ServiceCo
                           f"({calibration.camera_position[2]:.3f} m)")
     return ServiceConfig(
         source=source, calibration=calibration, robots=robots, obstacles=obstacles,
-        static_obstacles=statics, fps=fps, dictionary=dictionary, marker_size=size_m,
+        static_obstacles=statics, static_shapes=shapes, fps=fps, dictionary=dictionary, marker_size=size_m,
         marker_height=height, prefix=prefix, zenoh=zenoh, obstacle_hold_s=hold, path=path)
 
 

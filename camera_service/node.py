@@ -40,6 +40,7 @@ from camera_service.tracking import ObstacleTracker
 from wire import keys
 from wire.frames import stats_key
 from wire.payloads import ObstacleMsg, Obstacles, Pose, encode_zbytes
+from wire.shapes import shape_to_msg
 
 logger = logging.getLogger(__name__)
 
@@ -73,6 +74,7 @@ class CameraNode:
                                        cfg.obstacle_hold_s)
         self.statics = tuple(ObstacleMsg(o.name, o.x, o.y, 0.0, 0.0, o.safe_distance)
                              for o in cfg.static_obstacles)
+        self.static_shapes = tuple(shape_to_msg(sh) for sh in cfg.static_shapes)  # walls, shelves
         self._pose_pubs = {rid: session.declare_publisher(keys.pose_key(cfg.prefix, rid))
                            for rid in cfg.robots.values()}
         self._obs_pub = session.declare_publisher(keys.obstacles_key(cfg.prefix))
@@ -176,7 +178,7 @@ class CameraNode:
                           for mid, p in found.poses.items() if mid in cfg.obstacles}
         tracked = self.tracker.step(seen_obstacles, stamp)
         moving = tuple(ObstacleMsg(t.name, t.x, t.y, t.vx, t.vy, t.ds) for t in tracked)
-        self._obs_pub.put(encode_zbytes(Obstacles(stamp, self.statics + moving)))
+        self._obs_pub.put(encode_zbytes(Obstacles(stamp, self.statics + moving, self.static_shapes)))
         if moving:
             self._count("obstacle_frames")
         seen = 0

@@ -138,6 +138,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default: one per host, with --insecure; each robot logs in as itself otherwise)")
     p.add_argument("--no-safety", action="store_true", help="barriers off (nominal control only)")
     p.add_argument("--port", type=int, default=0, help="router TCP port on 127.0.0.1 (0: free)")
+    p.add_argument("--hold", action="store_true",
+                   help="keep the fleet up after every goal (until --duration or Ctrl-C); send goals "
+                        "with 'formation goal'")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="simulated seconds to run (default: the scenario's duration)")
     p.add_argument("--live", type=int, default=None, metavar="PORT",
                    help="serve the live page on http://127.0.0.1:PORT/ (and Foxglove on PORT+1)")
     _add_view_args(p, port=False)
@@ -196,6 +201,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     from camera_service.cli import add_parsers as add_camera_parsers  # camera, calibrate
     COMMANDS.update(add_camera_parsers(sub))
+
+    from formation.commands.goal import add_parsers as add_goal_parsers
+
+    add_goal_parsers(sub)
     return parser
 
 
@@ -219,6 +228,8 @@ COMMANDS = {
     "view": _lazy("formation.commands.view", "view_command"),
     "record": _lazy("formation.commands.view", "record_command"),
     "replay": _lazy("formation.commands.view", "replay_command"),
+    "goal": _lazy("formation.commands.goal", "goal_command"),
+    "status": _lazy("formation.commands.goal", "status_command"),
 }
 
 

@@ -9,4 +9,8 @@ The bottom layer of the project: :mod:`agent`, :mod:`leader`, :mod:`scenario` an
   of eq. 4.7 and the ellipse barrier h of eq. 4.6 with its derivatives.
 * :mod:`geometry.circle` - the distance barrier of a disk (eq. 4.5, also eq. 3.5).
 * :mod:`geometry.limits` - the TurtleBot3 burger's speed and turn-rate limits.
+* :mod:`geometry.shapes` - walls (segments) and shelves (boxes): distance, gradient, barrier
+  value of eq. 4.5 generalised to a shape.
+* :mod:`geometry.route` - a formation's route around the walls and boxes (visibility graph)
+  and the waypoint tracking rule.
 """

@@ -63,6 +63,7 @@ OBSTACLE_SPEED = Range(-20.0, 20.0, "m/s")  # per axis: a vehicle at 72 km/h
 MAX_FORMATIONS = 256  # a leader's payload holds at most 256 other ellipses (wire.payloads)
 MAX_OBSTACLES = 256  # an obstacles payload holds at most 256 (wire.payloads.MAX_ITEMS)
 MAX_FORMATION_ROBOTS = 64  # members of one formation (its leader relays to each of them)
+MAX_WAYPOINTS = 63  # a formation's waypoints: the route with its goal fits a plan (wire.payloads, 64)
 
 #: (setting, range) for the documentation table; counts are listed as text.
 TABLE: tuple[tuple[str, str], ...] = (

@@ -29,6 +29,9 @@ from typing import Any
 import numpy as np
 
 from geometry.ellipse import Ellipse, derive_axes, ellipse_value, estimate, reference_shape
+from geometry.shapes import Shape, shape_distance
+from geometry.shapes import box as box_shape
+from geometry.shapes import segment as segment_shape
 from geometry.unicycle import control_point
 from wire.keys import name_problem
 
@@ -55,12 +58,14 @@ TIEBREAKS = ("keep_right", "none")
 _TOP_KEYS = {"name", "dt", "duration", "goal_tolerance", "robot", "controller", "formations",
              "obstacles"}
 _ROBOT_KEYS = {"model", "max_speed", "max_turn_rate", "lookahead", "radius"}
-_CONTROLLER_KEYS = {"kp", "gamma", "epsilon", "tiebreak", "d_af"}
+_CONTROLLER_KEYS = {"kp", "gamma", "epsilon", "tiebreak", "d_af", "planner"}
 _GAMMA_KEYS = {"formation", "obstacle", "formations"}
-_FORMATION_KEYS = {"name", "leader", "robots", "edges", "ellipse"}
+_FORMATION_KEYS = {"name", "leader", "robots", "edges", "ellipse", "waypoints"}
 _MEMBER_KEYS = {"start", "goal"}
 _ELLIPSE_KEYS = {"a", "b"}
-_OBSTACLE_KEYS = {"name", "center", "safe_distance", "velocity"}
+_OBSTACLE_KEYS = {"name", "center", "safe_distance", "velocity", "segment", "box"}
+_BOX_KEYS = {"center", "size", "yaw"}
+PLANNERS = ("visibility", "none")
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -116,21 +121,24 @@ def scenario_from_dict(data: Any) -> Scenario:
     if not isinstance(raw_obstacles, list):
         raise ScenarioError("obstacles: must be a list")
     _count(raw_obstacles, "obstacles", limits.MAX_OBSTACLES)
-    obstacles = []
+    parsed: list[ObstacleSpec | Shape] = []
     obstacle_names: set[str] = set()
     for k, raw in enumerate(raw_obstacles):
         o = _obstacle(raw, f"obstacles[{k}]")
         if o.name in obstacle_names:
             raise ScenarioError(f"obstacles[{k}].name: duplicate obstacle name {o.name!r}")
         obstacle_names.add(o.name)
-        obstacles.append(o)
+        parsed.append(o)
+    obstacles = tuple(o for o in parsed if isinstance(o, ObstacleSpec))
+    shapes = tuple(o for o in parsed if isinstance(o, Shape))
 
     scenario = Scenario(name, dt, duration, tol, robot, controller, tuple(formations),
-                        tuple(obstacles))
+                        obstacles, shapes)
     axes = [formation_axes(scenario, f) for f in scenario.formations]
     _check_bands(scenario)
     _check_start(scenario, axes)
     _check_goals(scenario, axes)
+    _check_shapes(scenario, [k for k, o in enumerate(parsed) if isinstance(o, Shape)])
     return scenario
 
 
@@ -170,12 +178,16 @@ def _controller(raw: Any) -> ControllerSpec:
     if tiebreak not in TIEBREAKS:
         raise ScenarioError(f"controller.tiebreak: {excerpt(tiebreak)} is not one of {TIEBREAKS}")
     d_af = m.get("d_af")
+    planner = _string(m.get("planner", d.planner), "controller.planner")
+    if planner not in PLANNERS:
+        raise ScenarioError(f"controller.planner: {planner!r} is not one of {PLANNERS}")
     return ControllerSpec(
         kp=_in(m.get("kp", d.kp), "controller.kp", limits.GAIN),
         gamma=gammas,
         epsilon=_in(m.get("epsilon", d.epsilon), "controller.epsilon", limits.EPSILON),
         tiebreak=tiebreak,
         d_af=None if d_af is None else _in(d_af, "controller.d_af", limits.DISTANCE),
+        planner=planner,
     )
 
 
@@ -286,11 +298,21 @@ def _formation(raw: Any, where: str, robot: RobotModel, seen: dict[str, str]) ->
         if b > a:
             raise ScenarioError(f"{where}.ellipse: a={a} is the major semi-axis and must be >= b={b}")
         ellipse = (a, b)
-    return FormationSpec(name, leader, specs, tuple(edges), ellipse)
+    raw_wp = m.get("waypoints", []) or []
+    if not isinstance(raw_wp, list):
+        raise ScenarioError(f"{where}.waypoints: must be a list of [x, y]")
+    _count(raw_wp, f"{where}.waypoints", limits.MAX_WAYPOINTS)
+    waypoints = tuple(
+        (p[0], p[1]) for p in (_vector(w, f"{where}.waypoints[{k}]", (2,), limits.COORDINATE)
+                               for k, w in enumerate(raw_wp))
+    )
+    return FormationSpec(name, leader, specs, tuple(edges), ellipse, waypoints)
 
 
-def _obstacle(raw: Any, where: str) -> ObstacleSpec:
+def _obstacle(raw: Any, where: str) -> ObstacleSpec | Shape:
     m = _mapping(raw, where, _OBSTACLE_KEYS)
+    if "segment" in m or "box" in m:
+        return _shape(m, where)
     for key in ("center", "safe_distance"):
         if key not in m:
             raise ScenarioError(f"{where}.{key}: missing")
@@ -299,6 +321,63 @@ def _obstacle(raw: Any, where: str) -> ObstacleSpec:
     ds = _in(m["safe_distance"], f"{where}.safe_distance", limits.DISTANCE)
     vel = _vector(m.get("velocity", [0.0, 0.0]), f"{where}.velocity", (2,), limits.OBSTACLE_SPEED)
     return ObstacleSpec(name, (center[0], center[1]), ds, (vel[0], vel[1]))
+
+
+def _shape(m: Mapping[str, Any], where: str) -> Shape:
+    """A wall (``segment: [[x, y], [x, y]]``) or a shelf (``box: {center, size, yaw}``)."""
+    kind = "segment" if "segment" in m else "box"
+    for key in ("center", "velocity", "box" if kind == "segment" else "segment"):
+        if key in m:
+            raise ScenarioError(f"{where}.{key}: not allowed on a {kind} (only circles have a "
+                                "center and move; an obstacle is one of circle, segment, box)")
+    if "safe_distance" not in m:
+        raise ScenarioError(f"{where}.safe_distance: missing")
+    name = _identifier(m.get("name", where.replace("[", "").replace("]", "")), f"{where}.name")
+    ds = _in(m["safe_distance"], f"{where}.safe_distance", limits.DISTANCE)
+    if kind == "segment":
+        raw = m["segment"]
+        if not isinstance(raw, list) or len(raw) != 2:
+            raise ScenarioError(f"{where}.segment: must be [[x, y], [x, y]], got {raw!r}")
+        a = _vector(raw[0], f"{where}.segment[0]", (2,), limits.COORDINATE)
+        b = _vector(raw[1], f"{where}.segment[1]", (2,), limits.COORDINATE)
+        if math.dist(a, b) <= 0.0:
+            raise ScenarioError(f"{where}.segment: both ends are the same point")
+        return segment_shape(name, (a[0], a[1]), (b[0], b[1]), ds)
+    bm = _mapping(m["box"], f"{where}.box", _BOX_KEYS)
+    for key in ("center", "size"):
+        if key not in bm:
+            raise ScenarioError(f"{where}.box.{key}: missing")
+    center = _vector(bm["center"], f"{where}.box.center", (2,), limits.COORDINATE)
+    size = _vector(bm["size"], f"{where}.box.size", (2,), limits.COORDINATE)
+    for k in (0, 1):
+        _in(size[k], f"{where}.box.size[{k}]", limits.DISTANCE)
+    yaw = _in(bm.get("yaw", 0.0), f"{where}.box.yaw", limits.HEADING)
+    return box_shape(name, (center[0], center[1]), (size[0], size[1]), yaw, ds)
+
+
+def _check_shapes(s: Scenario, where: list[int]) -> None:
+    """No start, goal or waypoint inside a wall's or shelf's safe distance (or the shelf)."""
+    offset = s.robot.control_offset
+    for k, sh in zip(where, s.shapes, strict=True):
+        for r in s.robots:
+            start = _control_point(r.start, offset)
+            for what, p, slack in (("starts", start, offset), ("has its goal", r.goal, 0.0)):
+                d = shape_distance(p[0], p[1], sh)[0]
+                if d <= 0.0 and sh.kind == "box":
+                    raise ScenarioError(f"obstacles[{k}]: robot {r.id!r} {what} inside {sh.kind} "
+                                        f"{sh.name!r}")
+                if d < sh.ds + slack:
+                    raise ScenarioError(
+                        f"obstacles[{k}]: robot {r.id!r} {what} {d:.3f} m from {sh.kind} "
+                        f"{sh.name!r}, inside its safe distance {sh.ds + slack:.3f} m"
+                    )
+        for fk, f in enumerate(s.formations):
+            for wk, w in enumerate(f.waypoints):
+                if shape_distance(w[0], w[1], sh)[0] < sh.ds:
+                    raise ScenarioError(
+                        f"formations[{fk}].waypoints[{wk}]: inside the safe distance of "
+                        f"{sh.kind} {sh.name!r} (obstacles[{k}])"
+                    )
 
 
 # ---------------------------------------------------------------------------- cross checks

@@ -12,6 +12,7 @@ import math
 from dataclasses import dataclass
 
 from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE, BURGER_RADIUS
+from geometry.shapes import Shape
 
 SINGLE_INTEGRATOR = "single_integrator"
 UNICYCLE = "unicycle"
@@ -51,6 +52,7 @@ class ControllerSpec:
     epsilon: float = 0.05  # [m] formation distance tolerance, eq. 3.3
     tiebreak: str = "keep_right"  # formation-level deadlock rule, or "none"
     d_af: float | None = None  # [m] pairwise distance of eq. 3.5 (all-to-all topology only)
+    planner: str = "visibility"  # route around walls and boxes, or "none"
 
 
 @dataclass(frozen=True)
@@ -75,6 +77,7 @@ class FormationSpec:
     robots: tuple[RobotSpec, ...]
     edges: tuple[Edge, ...]
     ellipse: tuple[float, float] | None  # semi-axes (a, b) [m] as written, or None
+    waypoints: tuple[tuple[float, float], ...] = ()  # [m] the centroid passes these in order
 
     @property
     def robot_ids(self) -> tuple[str, ...]:
@@ -125,6 +128,7 @@ class Scenario:
     controller: ControllerSpec
     formations: tuple[FormationSpec, ...]
     obstacles: tuple[ObstacleSpec, ...]
+    shapes: tuple[Shape, ...] = ()  # static walls (segments) and shelves (boxes)
 
     # Derived once per instance (the fields are frozen; dataclasses.replace makes a new one):
     # lookups by robot id are dict lookups, not scans of every robot.

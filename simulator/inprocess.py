@@ -22,7 +22,9 @@ from agent.hard_rows import HardRowCounter
 from agent.inputs import step_inputs
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
 from geometry.ellipse import ReferenceShape, estimate, reference_shape
+from leader.navigation import Follower
 from scenario import Scenario, formation_axes
+from scenario.routes import initial_route
 
 from .metrics import SafetyMonitor
 from .summary import qp_fields, run_summary
@@ -127,8 +129,11 @@ def simulate(
     off = params.offset
     dt = scenario.dt
     steps = scenario.steps
-    goals = [r.goal for r in robots]
-    goal_centroids = {f.name: f.goal_centroid for f in scenario.formations}
+    routes = {f.name: initial_route(scenario, f) for f in scenario.formations}
+    # every member walks its formation's route with the ellipse its leader hands it
+    followers = [Follower(r.id, r.goal, f.goal_centroid, routes[f.name])
+                 for f in scenario.formations for r in f.robots]
+    shapes = scenario.shapes
     state = [list(r.start) for r in robots]  # body x, y, theta
     vel = [(0.0, 0.0)] * n  # last certified control-point velocity (what `state` carries)
     monitor = SafetyMonitor(scenario)
@@ -160,9 +165,11 @@ def simulate(
             fname = fleet.formation_of[i]
             # Every other member of the formation (graph neighbour or not: the agent subscribes to
             # their states) gets a hard separation row; in all-to-all every foreign robot too.
+            own = ellipses[fname]
+            target, waypoint = followers[i].step(own.cx, own.cy)
             inputs = step_inputs(
                 ((ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], df) for j, df in fleet.neighbours[i]),
-                ellipses[fname], fname, goal_centroids[fname],
+                own, fname, waypoint,
                 [(name, e) for name, e in ellipses.items() if name != fname],
                 stalls[i], dt,
                 [(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], state[j][2])
@@ -171,9 +178,10 @@ def simulate(
             )
             stalls[i] = inputs.stall
             pose = (state[i][0], state[i][1], state[i][2])
-            res = control_step(params, pose, goals[i], inputs.neighbours, obs,
+            res = control_step(params, pose, target, inputs.neighbours, obs,
                                inputs.others, inputs.view, solve, inputs.pairwise,
-                               inputs.partners, vel[i], inputs.hazards, clock=time.perf_counter_ns)
+                               inputs.partners, vel[i], inputs.hazards, shapes=shapes,
+                               clock=time.perf_counter_ns)
             results.append(res)
             hard.add(res)
             solve_us.append(res.solve_us)
@@ -218,6 +226,8 @@ def simulate(
                   counts[STATUS_FAILED], hard.ticks, hard.by_reason, escape=escape_ticks),
         logical_comm(scenario, options.topology, ticks, t, edges_total),
         options.safety, options.solver)
+    if any(len(r) > 1 for r in routes.values()):
+        summary["routes"] = {name: [list(p) for p in r] for name, r in routes.items()}
     return SimResult(summary, series, scenario)
 
 

@@ -38,8 +38,9 @@ import math
 import shutil
 import signal
 import statistics
+import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -50,6 +51,7 @@ from agent.faults import LinkFaults
 from scenario import Scenario
 from scenario.succession import formation_successor
 from wire import acl, keys, traffic
+from wire.payloads import DecodeError, decode_status
 from wire.ports import free_tcp_port, tcp_endpoint
 from wire.stamps import merge_counts
 from wire.zconf import UsrPwdAuth, ZenohSettings
@@ -70,7 +72,9 @@ from .world import World, WorldOptions, WorldResult
 
 logger = logging.getLogger(__name__)
 
-INTER_ROBOT = (keys.STATE, keys.ELLIPSE, keys.OTHERS)  # classes the topology decides
+# control traffic between robots: the classes the topology decides, and the leader's plans to
+# its members (sent only when a goal arrives at run time, and then once a second)
+INTER_ROBOT = (keys.STATE, keys.ELLIPSE, keys.OTHERS, keys.PLAN)
 FAULT_AGENT_TIMEOUT_S = 0.3  # [s] lock-step wait per input of an agent in a fault run
 FAULT_WORLD_TIMEOUT_S = 1.5  # [s] lock-step wait for a tick's commands in a fault run
 
@@ -181,6 +185,8 @@ def launch(
     agents_per_process: int = 1,
     shared_session: bool = False,
     solver: str = "exact",
+    hold: bool = False,
+    announce=None,
 ) -> tuple[dict, Series]:
     """Run ``scenario`` as separate processes; returns the summary and the time series.
 
@@ -195,22 +201,56 @@ def launch(
     from ``scenario_path``.
 
     ``agents_per_process`` K > 1 runs the agents K to an agent host (:mod:`agent.host`;
-    ``shared_session``: one Zenoh session per host); killing an agent (``--kill``) then needs K = 1."""
+    ``shared_session``: one Zenoh session per host); killing an agent (``--kill``) then needs K = 1.
+    ``hold`` keeps the fleet up after every goal is reached, until the scenario's duration or
+    SIGINT/SIGTERM (which then end the run normally, with its summary); ``announce(endpoint)`` is
+    called once every agent is up (the endpoint is also written to ``out/endpoint``). The
+    summary's ``formations_status`` holds each leader's last status."""
     faults = faults or FaultPlan()
     if camera == "process" and scenario_path is None:
         raise ValueError("scenario_path: --camera process needs the scenario file")
     faults.check_robots(scenario.robot_ids)
-    stopped: BaseException | None = None  # why a started run ended early
     _check_hosting(agents_per_process, shared_session, faults, secure)
     out = Path(out)
     for sub in ("configs", "agents", "logs"):
         (out / sub).mkdir(parents=True, exist_ok=True)
     for old in (out / "agents").glob("*.json"):
         old.unlink()
+    stop_requested = threading.Event()
+    previous_int = None
+    if hold and threading.current_thread() is threading.main_thread():
+        previous_int = signal.signal(signal.SIGINT, lambda _s, _f: stop_requested.set())
+    try:
+        summary, series = _launch(scenario, out, realtime, camera, topology, safety, port,
+                                  progress_factory, faults, secure, pose_slots, observer, hold,
+                                  announce, stop_requested, scenario_path,
+                                  clock_offset=clock_offset, agents_per_process=agents_per_process,
+                                  shared_session=shared_session, solver=solver)
+    finally:
+        if previous_int is not None:
+            signal.signal(signal.SIGINT, previous_int)
+    return summary, series
+
+
+def _launch(scenario: Scenario, out: Path, realtime: bool, camera: str, topology: str,
+            safety: bool, port: int, progress_factory, faults: FaultPlan, secure: bool,
+            pose_slots: int, observer, hold: bool, announce,
+            stop_requested: threading.Event,
+            scenario_path: str | Path | None, *, clock_offset: float, agents_per_process: int,
+            shared_session: bool, solver: str) -> tuple[dict, Series]:
+    """:func:`launch` once its arguments are checked and its folders made."""
+    stopped: BaseException | None = None  # why a started run ended early
     port = port or free_tcp_port()
     endpoint = tcp_endpoint(port)
     fault_run = faults.active
     with Fleet(out / "logs") as fleet:
+
+        def abort() -> None:
+            if hold and fleet.signalled is not None:
+                stop_requested.set()  # SIGTERM ends a held run like Ctrl-C: normally
+                return
+            fleet.check()
+
         creds = _secure_setup(scenario, out / "secure", endpoint) if secure else None
         router = fleet.start_router(endpoint, port, None if creds is None else creds.router_config,
                                     auth=None if creds is None else creds.world)
@@ -243,16 +283,20 @@ def launch(
             cmd_timeout=FAULT_WORLD_TIMEOUT_S if fault_run else WorldOptions.cmd_timeout,
             camera_dropouts=tuple((c.robot, c.at, c.at + c.duration)
                                   for c in faults.camera_dropouts),
-            pose_slots=pose_slots, clock_offset=clock_offset)
+            pose_slots=pose_slots, clock_offset=clock_offset, stop_at_goal=not hold)
         with zenoh.open(conf) as session:
             world = World(scenario, session, options)
+            statuses = StatusBoard(session, keys.DEFAULT_PREFIX)
             detach = observer(session) if observer is not None else None
             driver = _FaultDriver(faults, fleet, world, agents, scenario.dt, realtime)
             try:
                 world.wait_for_agents(abort=fleet.check)
+                (out / "endpoint").write_text(endpoint + "\n", encoding="utf-8")
+                if announce is not None:
+                    announce(endpoint)
                 try:
-                    result = _run_world(world, fleet, progress_factory,
-                                        driver.on_tick if fault_run else None)
+                    result = _run_world(world, progress_factory, abort,
+                                        driver.on_tick if fault_run else None, stop_requested.is_set)
                 except (ChildFailed, KeyboardInterrupt, TimeoutError) as exc:
                     if world.result is None:
                         raise
@@ -261,6 +305,8 @@ def launch(
                 if detach is not None:
                     detach()
                 world.close()
+                board = statuses.latest()  # each leader's last status
+                statuses.close()
         # the agents write their counters on SIGTERM (also after the router died); router last
         fleet.shut_down(unique_children(agents.values()), router,  # a host once
                         [] if camera_child is None else [camera_child])
@@ -272,6 +318,7 @@ def launch(
         summary["faults"] = fault_summary(faults, result, stats, driver.log)
     summary["secure"] = False if creds is None else creds.summary()
     summary.update(_run_options(out, camera, pose_slots, agents_per_process, shared_session))
+    _navigation_fields(summary, hold, board)
     if stopped is not None:
         _mark_aborted(summary, stats, stopped)
         raise RunAborted(summary["aborted"], summary, series, stopped)
@@ -303,6 +350,44 @@ def _check_hosting(agents_per_process: int, shared_session: bool, faults: FaultP
         raise ValueError("shared session: each robot logs in as itself with secure; not both")
 
 
+def _navigation_fields(summary: dict, hold: bool, board: dict[str, dict]) -> None:
+    """``hold`` (a held run) and ``formations_status`` (each leader's last status)."""
+    if hold:
+        summary["hold"] = True
+    if board:
+        summary["formations_status"] = board
+
+
+class StatusBoard:
+    """The newest ``status`` of every formation's leader, heard on the launcher's session."""
+
+    def __init__(self, session: zenoh.Session, prefix: str) -> None:
+        self._lock = threading.Lock()
+        self._latest: dict[str, dict] = {}
+        self._sub = session.declare_subscriber(f"{prefix}/formation/*/status", self._on_status)
+
+    def _on_status(self, sample: zenoh.Sample) -> None:
+        try:
+            s = decode_status(sample.payload.to_bytes())
+        except DecodeError:
+            return
+        with self._lock:
+            self._latest[s.formation] = {
+                "state": s.state, "goal": [s.gx, s.gy], "heading": s.heading,
+                "distance_m": s.distance, "waypoint": s.waypoint, "waypoints": s.waypoints,
+                "leader": s.leader, "stamp": s.stamp}
+
+    def latest(self) -> dict[str, dict]:
+        with self._lock:
+            return {k: dict(v) for k, v in sorted(self._latest.items())}
+
+    def close(self) -> None:
+        try:
+            self._sub.undeclare()
+        except Exception:  # noqa: BLE001 - the session may be closing
+            logger.debug("status board undeclare failed", exc_info=True)
+
+
 def _start_camera(fleet: Fleet, scenario: Scenario, scenario_path: str | Path, out: Path,
                   endpoint: str, creds: _Secure | None) -> Child:
     """``--camera process``: write the camera process's files into ``out/camera`` and start it
@@ -327,11 +412,12 @@ def _camera_stats(log: Path) -> dict | None:
         return json.loads(lines[-1])["camera"] if lines else None
     except (OSError, ValueError, KeyError, TypeError):
         return None
-def _run_world(world: World, fleet: Fleet, progress_factory, on_tick) -> WorldResult:
+def _run_world(world: World, progress_factory, abort: Callable[[], None], on_tick,
+               stop: Callable[[], bool]) -> WorldResult:
     if progress_factory is None:
-        return world.run(abort=fleet.check, on_tick=on_tick)
+        return world.run(abort=abort, on_tick=on_tick, stop=stop)
     with progress_factory() as progress:
-        return world.run(progress=progress.update, abort=fleet.check, on_tick=on_tick)
+        return world.run(progress=progress.update, abort=abort, on_tick=on_tick, stop=stop)
 
 
 class RunAborted(RuntimeError):
@@ -483,7 +569,7 @@ def fault_summary(plan: FaultPlan, result: WorldResult, stats: list[dict], log: 
         "drop": plan.drop,
         "delay_ms": plan.delay_ms,
         "seed": plan.seed,
-        "applies_to": list(INTER_ROBOT),
+        "applies_to": [keys.STATE, keys.ELLIPSE, keys.OTHERS],  # what agent.faults affects
         "dropped_messages": sum(dropped.values()),
         "dropped": dropped,
         "delayed_messages": sum(s.get("fault_delayed", 0) for s in stats),

@@ -11,6 +11,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from geometry.shapes import shape_distance
 from scenario import Scenario
 
 CONTACT_RELEASE = 1e-3  # [m] a contact ends once the clearance exceeds this (onset hysteresis)
@@ -40,6 +41,9 @@ class SafetyMonitor:
         self.collision_log: list[dict] = []
         self.min_clearance_robot = math.inf
         self.min_clearance_obstacle = math.inf
+        self._shapes = scenario.shapes
+        self._shape_contact = np.zeros((self._n, len(self._shapes)), dtype=bool)
+        self.min_clearance_shape = dict.fromkeys((sh.name for sh in self._shapes), math.inf)
         self.formation_error_max = 0.0
         self.time_to_goal: float | None = None
         self.reached = np.zeros(self._n, dtype=bool)
@@ -73,6 +77,8 @@ class SafetyMonitor:
                 self.collision_log.append({"t": round(t, 6), "a": ids[i], "b": names[j],
                                            "clearance_m": float(d[i, j])})
             self._obstacle_contact = (d < -CONTACT_TOL) | (self._obstacle_contact & (d <= CONTACT_RELEASE))
+        if self._shapes:
+            self._update_shapes(t, pos)
         if len(self._df):
             e = pos[self._edges[:, 0]] - pos[self._edges[:, 1]]
             err = np.abs(np.sqrt(np.sum(e * e, axis=1)) - self._df)
@@ -81,6 +87,23 @@ class SafetyMonitor:
         self.reached = gd <= self.scenario.goal_tolerance
         if self.time_to_goal is None and bool(np.all(self.reached)):
             self.time_to_goal = t
+
+    def _update_shapes(self, t: float, pos: np.ndarray) -> None:
+        """Walls and shelves: clearance = distance from the shape (signed, negative inside a
+        box) less Ds, per robot and shape; an intrusion counts like a circle's."""
+        ids = self.scenario.robot_ids
+        for j, sh in enumerate(self._shapes):
+            for i in range(self._n):
+                d = shape_distance(float(pos[i, 0]), float(pos[i, 1]), sh)[0] - sh.ds
+                if d < self.min_clearance_shape[sh.name]:
+                    self.min_clearance_shape[sh.name] = d
+                self.min_clearance_obstacle = min(self.min_clearance_obstacle, d)
+                inside = d < -CONTACT_TOL
+                if inside and not self._shape_contact[i, j]:
+                    self.collisions += 1
+                    self.collision_log.append({"t": round(t, 6), "a": ids[i], "b": sh.name,
+                                               "clearance_m": float(d)})
+                self._shape_contact[i, j] = inside or (self._shape_contact[i, j] and d <= CONTACT_RELEASE)
 
     @property
     def all_reached(self) -> bool:
@@ -96,6 +119,9 @@ class SafetyMonitor:
                 "robot": _finite_or_none(self.min_clearance_robot),
             },
             "formation_error_max_m": self.formation_error_max,
+            **({"min_clearance_shape_m": {k: _finite_or_none(v)
+                                          for k, v in self.min_clearance_shape.items()}}
+               if self._shapes else {}),
         }
 
 

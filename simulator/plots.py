@@ -25,13 +25,14 @@ import numpy as np  # noqa: E402
 from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
-from matplotlib.patches import Circle, Ellipse, Patch  # noqa: E402
+from matplotlib.patches import Circle, Ellipse, Patch, Polygon  # noqa: E402
 from matplotlib.text import Text  # noqa: E402
 from matplotlib.ticker import FixedLocator, FormatStrFormatter, NullLocator  # noqa: E402
 from matplotlib.transforms import Bbox  # noqa: E402
 
 from agent.hard_rows import unmet_hard_rows  # noqa: E402
 from scenario import Scenario  # noqa: E402
+from scenario.routes import initial_route  # noqa: E402
 
 from .inprocess import ROBOT_COLUMNS, Series  # noqa: E402
 from .metrics import SafetyMonitor  # noqa: E402
@@ -52,6 +53,33 @@ LEGEND_OBSTACLE_PATH = "moving obstacle's track"
 def _colors(n: int):
     cmap = plt.get_cmap("tab10" if n <= 10 else "tab20")
     return [cmap(k % cmap.N) for k in range(n)]
+
+
+def draw_shapes_and_routes(ax, scenario: Scenario, fcolor: dict) -> None:
+    """Walls and shelves (filled, with their safe distance dotted) and each formation's route
+    (dash-dot from its start centroid through its waypoints, waypoints as diamonds)."""
+    for sh in scenario.shapes:
+        pts = sh.corners()
+        if sh.kind == "segment":
+            ax.plot([p[0] for p in pts], [p[1] for p in pts], "-", color="0.15", lw=2.5,
+                    solid_capstyle="butt")
+        else:
+            ax.add_patch(Polygon(pts, closed=True, color="0.35", alpha=0.6))
+        band = [sh.local_to_world(math.copysign(sh.hx, math.cos(a)) + sh.ds * math.cos(a),
+                                  math.copysign(sh.hy, math.sin(a)) + sh.ds * math.sin(a))
+                for a in (2 * math.pi * (k + 0.5) / 64 for k in range(65))]
+        ax.plot([p[0] for p in band], [p[1] for p in band], ":", color="0.3", lw=0.7)
+        if len(scenario.shapes) <= 24:
+            ax.annotate(sh.name, (sh.cx, sh.cy), fontsize=6, ha="center", va="center", color="0.1")
+    for f in scenario.formations:
+        route = initial_route(scenario, f)
+        if len(route) < 2:
+            continue
+        pts = [f.start_centroid, *route]
+        c = fcolor.get(f.name, "k")
+        ax.plot([p[0] for p in pts], [p[1] for p in pts], "-.", color=c, lw=0.9, alpha=0.8)
+        ax.plot([p[0] for p in route[:-1]], [p[1] for p in route[:-1]], "D", color=c, ms=4,
+                mfc="none")
 
 
 # --- time matching -------------------------------------------------------------------------------
@@ -350,6 +378,7 @@ def trajectory_figure(series: Series, scenario: Scenario) -> Figure:
             ax.plot(pts[0][1], pts[0][2], "o", color=c, ms=4)
             ax.plot(r.goal[0], r.goal[1], "x", color=c, ms=6, mew=1.5)
     _draw_obstacles(ax, series, scenario)
+    draw_shapes_and_routes(ax, scenario, fcolor)
     labels = _draw_snapshots(ax, series, scenario, fcolor, snaps)
     onsets = collision_onsets(series, scenario)
     _mark_collisions(ax, onsets, labels)

@@ -64,6 +64,7 @@ from agent import unicycle
 from scenario import Scenario
 from wire import keys
 from wire.payloads import Cmd, DecodeError, ObstacleMsg, Obstacles, Pose, decode_cmd
+from wire.shapes import shape_to_msg
 from wire.shutdown import STEP_LIMIT_S, within
 from wire.stamps import CLOCK_TOLERANCE_S, EPS, StampCounter
 from wire.traffic import CountingPublisher, TrafficCounter
@@ -308,6 +309,7 @@ class World:
             keys.validate_id(o.name, "obstacle name")
         self._pose_pubs = [CountingPublisher(session.declare_publisher(keys.pose_key(p, r)),
                                              self.counter) for r in self.ids]
+        self._shape_msgs = tuple(shape_to_msg(sh) for sh in scenario.shapes)  # static walls, shelves
         self._obs_pub = CountingPublisher(session.declare_publisher(keys.obstacles_key(p)),
                                           self.counter)
         self.inbox = _CmdInbox(p, self.counter, self.ids, options.stale_after)
@@ -382,9 +384,11 @@ class World:
         progress: Callable[[int, int, float], None] | None = None,
         abort: Callable[[], None] = lambda: None,
         on_tick: Callable[[int, float], None] | None = None,
+        stop: Callable[[], bool] = lambda: False,
     ) -> WorldResult:
         """Run the scenario; ``abort()`` is called while waiting and may raise to stop;
-        ``on_tick(k, t)`` before the poses of tick ``k`` (simulated time ``t``) are published."""
+        ``on_tick(k, t)`` before the poses of tick ``k`` (simulated time ``t``) are published;
+        ``stop()`` True ends the run after the tick in progress (``formation run --hold``)."""
         sc = self.scenario
         opts = self.options
         abort = _at_most_every(ABORT_EVERY_S, abort)
@@ -419,7 +423,7 @@ class World:
                                [o.position(t_now) for o in sc.obstacles])
             if progress is not None:
                 progress(k + 1, sc.steps, t_now)
-            return opts.stop_at_goal and monitor.all_reached
+            return (opts.stop_at_goal and monitor.all_reached) or stop()
 
         def result(steps: int, sim_time: float) -> WorldResult:
             return WorldResult(
@@ -533,7 +537,7 @@ class World:
         for o in self.scenario.obstacles:
             x, y = o.position(t)
             obs.append(ObstacleMsg(o.name, x, y, o.velocity[0], o.velocity[1], o.safe_distance))
-        self._obs_pub.put_message(Obstacles(stamp, tuple(obs)))
+        self._obs_pub.put_message(Obstacles(stamp, tuple(obs), self._shape_msgs))
         return obs
 
     def _publish_pose(self, i: int, t: float, stamp: float, p: tuple[float, float, float]) -> None:

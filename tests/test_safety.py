@@ -187,7 +187,8 @@ def test_all_to_all_keeps_the_tie_break_and_resolves_the_head_on_meeting():
 
 
 def test_check_warns_where_the_band_lets_bodies_touch_and_still_accepts_the_file(capsys):
-    assert main(["check", str(ROOT / "scenarios/warehouse.yaml")]) == 0
+    # (the warehouse's rectangles are 0.3 m wide now; this file keeps 0.25 m with epsilon 0.04)
+    assert main(["check", str(ROOT / "tests/scenarios/head-on-rectangles.yaml")]) == 0
     err = capsys.readouterr().err
     assert "warning: formations[0].edges[1]: Df - epsilon = 0.210 m lets the bodies" in err
     assert "separation rows keep them apart" in err

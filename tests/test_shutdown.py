@@ -97,6 +97,7 @@ def test_the_world_closes_in_bounded_time_when_undeclaring_hangs():
     world._subs = [Hangs(release)]
     world._pose_pubs = [Hangs(release), Hangs(release)]
     world._obs_pub = Hangs(release)
+    world.frames = None  # no --camera process frame publisher
     try:
         started = time.monotonic()
         world.close(step_limit=LIMIT)

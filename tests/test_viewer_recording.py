@@ -150,3 +150,18 @@ def test_the_fleet_watcher_drops_and_counts_malformed_messages_and_builds_frames
     put("warehouse/robot/a1/diag", b"\x01\x01")
     assert w.frame()["robots"][0]["formation"] == "A"  # the last good diagnostics stay
     assert w.rejected == {"pose": 1, "diag": 1}
+
+
+def test_walls_and_shelves_are_in_every_fleet_frame_and_drawn_in_the_scene(tmp_path):
+    out = tmp_path / "sim"
+    assert main(["sim", str(ROOT / "tests" / "scenarios" / "nav-behind-shelf.yaml"), "--out", str(out),
+                 "--quiet", "--no-plots"]) == 0
+    messages = check_recording(out)
+    frame = json.loads(messages[FLEET_TOPIC][0][4])
+    shapes = {s["name"]: s for s in frame["shapes"]}
+    assert shapes["shelf"]["kind"] == "box" and len(shapes["shelf"]["corners"]) == 4
+    assert sorted(map(tuple, shapes["shelf"]["corners"])) == [(1.85, -1.5), (1.85, 1.5), (2.65, -1.5),
+                                                            (2.65, 1.5)]
+    assert shapes["wall-s"]["corners"] == [[-1.0, -2.5], [6.0, -2.5]]
+    scene = messages[SCENE_TOPIC][0][4]
+    assert b"shape/shelf" in scene and b"shape/wall-s" in scene

@@ -274,8 +274,8 @@ def test_trailing_bytes_are_rejected(msg: payloads.Message) -> None:
 @pytest.mark.parametrize("msg", EXAMPLES, ids=lambda m: type(m).__name__)
 def test_an_unknown_version_is_rejected(msg: payloads.Message) -> None:
     data = bytearray(encode(msg))
-    data[0] = 3
-    with pytest.raises(DecodeError, match="version 3"):
+    data[0] = 9  # (2 is an Obstacles with walls and shelves)
+    with pytest.raises(DecodeError, match="version 9"):
         DECODERS[type(msg)](bytes(data))
 
 

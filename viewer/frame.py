@@ -11,6 +11,7 @@ recording, sent to the page, and read back by ``formation replay``::
                  "gx", "gy"}, ...],                                   # goal (None if unknown)
      "ellipses": [{"formation", "cx", "cy", "alpha", "a", "b"}, ...],
      "obstacles": [{"name", "x", "y", "ds"}, ...],   # circles: centre and safe distance Ds
+     "shapes": [{"name", "kind", "corners", "ds"}, ...],  # walls and shelves: outline [[x, y], ...]
      "formations": [{"name", "status", "qp", "gx", "gy", "distance"}, ...]}
 
 Non-finite numbers become ``None`` (JSON has no NaN). :func:`frames_from_series` turns a run's
@@ -21,7 +22,7 @@ per tick; :func:`formation_status` gives each formation's state from its members
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from typing import Any
 
 Frame = dict[str, Any]
@@ -86,6 +87,13 @@ def formation_status(name: str, robots: Sequence[dict], tolerance: float,
             "distance": distance}
 
 
+def shape_entries(shapes: Iterable[Any]) -> list[dict]:
+    """Frame entries of walls and shelves (:class:`geometry.shapes.Shape`): their outline's
+    corners (2 for a wall, 4 for a shelf) and Ds."""
+    return [{"name": sh.name, "kind": sh.kind, "ds": num(sh.ds),
+             "corners": [[num(x), num(y)] for x, y in sh.corners()]} for sh in shapes]
+
+
 def _qp_rank(status: str) -> int:
     return QP_ORDER.index(status) if status in QP_ORDER else 0
 
@@ -100,6 +108,7 @@ def frames_from_series(series: Any, scenario: Any) -> Iterator[Frame]:
     tol = scenario.goal_tolerance
     ellipses = _by_time(series.ellipses)
     obstacles = _by_time(series.obstacles)
+    shapes = shape_entries(getattr(scenario, "shapes", ()))
     rows = series.robots
     i = 0
     while i < len(rows):
@@ -117,6 +126,7 @@ def frames_from_series(series: Any, scenario: Any) -> Iterator[Frame]:
                           "a": num(e[5]), "b": num(e[6])} for e in ellipses.get(t, ())],
             "obstacles": [{"name": o[1], "x": num(o[2]), "y": num(o[3]), "ds": num(o[4])}
                           for o in obstacles.get(t, ())],
+            "shapes": shapes,
             "formations": [formation_status(n, robots, tol, centroids[n]) for n in names],
         }
 

@@ -24,8 +24,9 @@ import zenoh
 from wire import keys
 from wire.diag import DIAG, all_diag_key, decode_diag
 from wire.payloads import DecodeError, decode_cmd, decode_ellipse, decode_obstacles, decode_pose, decode_state
+from wire.shapes import msg_to_shape
 
-from .frame import Frame, formation_status, num
+from .frame import Frame, formation_status, num, shape_entries
 
 # robot key kind -> (field of a robot's entry, decoder); poses are handled apart (they set the time)
 _ROBOT_KINDS = {keys.STATE: ("state", decode_state), keys.CMD: ("cmd", decode_cmd),
@@ -92,6 +93,7 @@ class FleetWatcher:
         robots: dict[str, dict[str, Any]] = {}
         ellipses = []
         obstacles: list[dict] = []
+        shapes: list[dict] = []
         t = None
         for key, data in latest.items():
             if not key.startswith(head):
@@ -102,6 +104,7 @@ class FleetWatcher:
                 if msg is not None:
                     obstacles = [{"name": o.id, "x": o.x, "y": o.y, "ds": o.ds}
                                  for o in msg.obstacles]
+                    shapes = shape_entries(msg_to_shape(m) for m in msg.shapes)
                 continue
             if len(parts) != 3:
                 continue
@@ -150,4 +153,5 @@ class FleetWatcher:
         ellipses.sort(key=lambda e: e["formation"])
         return {"t": t, "radius": self.radius, "robots": out_robots, "ellipses": ellipses,
                 "obstacles": obstacles,
+                "shapes": shapes,
                 "formations": [formation_status(n, out_robots, self.tolerance) for n in names]}

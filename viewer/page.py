@@ -114,6 +114,14 @@ function drawFloor(frame) {
     c.strokeStyle = "#e5602a"; c.setLineDash([5, 4]); c.beginPath(); c.arc(a, b, o.ds * view.s, 0, 2 * Math.PI); c.stroke();
     c.setLineDash([]);
   }
+  for (const s of frame.shapes || []) {  // walls (2 corners) and shelves (4), Ds dashed around
+    const pts = s.corners.filter(p => finite(p[0])).map(p => px(p[0], p[1]));
+    if (pts.length < 2) continue;
+    c.beginPath(); c.moveTo(pts[0][0], pts[0][1]);
+    for (const p of pts.slice(1)) c.lineTo(p[0], p[1]);
+    if (s.kind === "box") { c.closePath(); c.fillStyle = "#999"; c.fill(); }
+    else { c.strokeStyle = "#555"; c.lineWidth = 3; c.stroke(); c.lineWidth = 1; }
+  }
   for (const e of frame.ellipses) {
     if (!finite(e.cx) || !finite(e.a)) continue;
     const [a, b] = px(e.cx, e.cy);

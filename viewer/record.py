@@ -90,6 +90,9 @@ FLEET_SCHEMA: dict[str, Any] = {
         "obstacles": {"type": "array", "items": {"type": "object", "properties": {
             "name": {"type": "string"},
             **{k: {"type": ["number", "null"]} for k in ("x", "y", "ds")}}}},
+        "shapes": {"type": "array", "items": {"type": "object", "properties": {
+            "name": {"type": "string"}, "kind": {"type": "string"}, "ds": {"type": ["number", "null"]},
+            "corners": {"type": "array", "items": {"type": "array"}}}}},
         "formations": {"type": "array", "items": {"type": "object", "properties": {
             "name": {"type": "string"}, "status": {"type": "string"}, "qp": {"type": "string"},
             **{k: {"type": ["number", "null"]} for k in ("gx", "gy", "distance")}}}},
@@ -204,6 +207,15 @@ def scene_update(frame: Frame) -> SceneUpdate:
                              color=_color((0.9, 0.3, 0.1)))
         entities.append(SceneEntity(timestamp=stamp, frame_id=FRAME_ID, id=f"obstacle/{o['name']}",
                                     cylinders=[cyl], lines=[ring]))
+    for s in frame.get("shapes", ()):  # walls and shelves: their outline, 0.3 m high
+        pts = [Point3(x=x, y=y, z=0.3) for x, y in s["corners"] if x is not None and y is not None]
+        if len(pts) < 2:
+            continue
+        kind = LinePrimitiveLineType.LineLoop if s["kind"] == "box" else LinePrimitiveLineType.LineStrip
+        line = LinePrimitive(type=kind, thickness=0.04, pose=_pose(0.0, 0.0), points=pts,
+                             color=_color((0.35, 0.35, 0.35)))
+        entities.append(SceneEntity(timestamp=stamp, frame_id=FRAME_ID, id=f"shape/{s['name']}",
+                                    lines=[line]))
     return SceneUpdate(entities=entities)
 
 

@@ -141,7 +141,10 @@ def fleet_acl(
                      [f"{fp}/{f}/leader"]),
                 rule(f"{rid}-lead-status", ["declare_queryable", "reply"], ["ingress"],
                      [f"{fp}/{f}/status"]),
-                rule(f"{rid}-lead-asked", ["query"], ["egress"], [f"{fp}/{f}/status"]),
+                # a client asks every leader at once (formation/*/status): the router matches a
+                # query's own key expression, so the wildcard is named too (queries only)
+                rule(f"{rid}-lead-asked", ["query"], ["egress"],
+                     [f"{fp}/{f}/status", f"{fp}/*/status"]),
             ]
         subject(rid, own)
     return {"enabled": True, "default_permission": "deny", "rules": rules,

@@ -12,6 +12,9 @@ key                                       class        from -> to
 ``{prefix}/formation/{fid}/ellipse``      ``ellipse``  leader -> other leaders
 ``{prefix}/formation/{fid}/others``       ``others``   leader -> own members
 ``{prefix}/obstacles``                    ``obstacles`` camera or world -> agents
+``{prefix}/formation/{fid}/goal``         ``goal``     fleet manager -> that formation's leader
+``{prefix}/formation/{fid}/status``       ``status``   leader -> anyone (also a queryable)
+``{prefix}/formation/{fid}/plan``         ``plan``     leader -> its members
 anything else                             ``other``
 ========================================  ===========  ====================================
 
@@ -40,13 +43,17 @@ CMD = "cmd"
 ELLIPSE = "ellipse"
 OTHERS = "others"
 OBSTACLES = "obstacles"
+GOAL = "goal"
+STATUS = "status"
+PLAN = "plan"
 OTHER = "other"
 
 #: Every class name :func:`key_class` can return, in a stable order.
-KEY_CLASSES: tuple[str, ...] = (POSE, STATE, CMD, ELLIPSE, OTHERS, OBSTACLES, OTHER)
+KEY_CLASSES: tuple[str, ...] = (POSE, STATE, CMD, ELLIPSE, OTHERS, OBSTACLES, GOAL, STATUS, PLAN,
+                                 OTHER)
 
 ROBOT_CLASSES: tuple[str, ...] = (POSE, STATE, CMD)
-FORMATION_CLASSES: tuple[str, ...] = (ELLIPSE, OTHERS)
+FORMATION_CLASSES: tuple[str, ...] = (ELLIPSE, OTHERS, GOAL, STATUS, PLAN)
 
 _FORBIDDEN = frozenset("/*$#?")
 
@@ -116,6 +123,21 @@ def ellipse_key(prefix: str, formation_id: str) -> str:
 def others_key(prefix: str, formation_id: str) -> str:
     """``{prefix}/formation/{formation_id}/others``: leader -> its own members."""
     return _formation_key(prefix, formation_id, OTHERS)
+
+
+def goal_key(prefix: str, formation_id: str) -> str:
+    """``{prefix}/formation/{fid}/goal``: fleet manager -> that formation's leader."""
+    return _formation_key(prefix, formation_id, GOAL)
+
+
+def status_key(prefix: str, formation_id: str) -> str:
+    """``{prefix}/formation/{fid}/status``: leader -> anyone (published and queryable)."""
+    return _formation_key(prefix, formation_id, STATUS)
+
+
+def plan_key(prefix: str, formation_id: str) -> str:
+    """``{prefix}/formation/{fid}/plan``: leader -> its members (goal, route, member goals)."""
+    return _formation_key(prefix, formation_id, PLAN)
 
 
 def obstacles_key(prefix: str) -> str:

@@ -16,13 +16,20 @@ payload        fields in order (``u8`` version, then ``f64`` unless marked ``str
 ``EllipseMsg`` version, formation:str, cx, cy, alpha, a, b, vx, vy, alpha_rate, stamp   73+n
 ``Others``     version, formation:str, stamp, ellipses:list[E], own:list[E] (0 or 1)  varies
 ``Obstacles``  version, stamp, obstacles:list[O]                                         varies
+``Obstacles``  version 2, stamp, obstacles:list[O], shapes:list[S]                       varies
 =============  =======================================================================  =====
 
 where ``E`` is an ellipse without the version, ``(formation:str, cx, cy, alpha, a, b, vx, vy,
 alpha_rate, stamp)``, ``O`` is ``(id:str, x, y, vx, vy, ds)``, and ``n`` is the length of the
-formation id's varint plus its UTF-8 bytes. ``Others.own`` (the leader's own ellipse, or none)
-is a list of 0 or 1 elements because the format has no optional type. The version byte is
-:data:`WIRE_VERSION` for every kind; a decoder accepts exactly that version. Units: metres,
+formation id's varint plus its UTF-8 bytes. ``S`` is a wall or shelf, ``(id:str, kind:u8, cx, cy,
+hx, hy, yaw, ds)``: kind 1 a segment (centre, half length ``hx``, ``hy = 0``, direction ``yaw``),
+kind 2 a box (centre, half sizes, yaw); see :mod:`geometry.shapes`. ``Others.own`` (the
+leader's own ellipse, or none) is a list of 0 or 1 elements because the format has no
+optional type. The version byte is
+:data:`WIRE_VERSION` for every kind; a decoder accepts exactly that version, except that an
+``Obstacles`` carrying walls or shelves is written as :data:`SHAPES_VERSION` (a decoder that
+predates shapes refuses it with "unsupported version 2"; circles alone keep version 1, byte for
+byte as before). Units: metres,
 radians, seconds, metres per second, radians per second; ``stamp`` is the sender's clock in
 seconds. ``Pose`` and ``State`` carry no id: the key names the robot.
 
@@ -46,7 +53,7 @@ import logging
 import math
 import numbers
 import struct
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, fields
 from typing import Any, TypeAlias
 
@@ -58,6 +65,9 @@ from wire import keys
 logger = logging.getLogger(__name__)
 
 WIRE_VERSION = 1
+SHAPES_VERSION = 2  # Obstacles with walls or shelves
+SHAPE_SEGMENT = 1  # ShapeMsg.kind
+SHAPE_BOX = 2
 #: ``state`` is at version 2 (it gained the heading); a version-1 decoder refuses it by its
 #: version byte ("unsupported version 2"), and this decoder refuses version-1 states.
 STATE_VERSION = 2
@@ -283,18 +293,52 @@ class ObstacleMsg:
             raise ValueError(f"ds must be >= 0, got {self.ds!r}")
 
 
+_SHAPE_FLOATS = ("cx", "cy", "hx", "hy", "yaw", "ds")
+
+
+@dataclass(frozen=True, slots=True)
+class ShapeMsg:
+    """One static wall (``kind`` :data:`SHAPE_SEGMENT`: centre, half length ``hx``, ``hy`` 0,
+    direction ``yaw``) or shelf (:data:`SHAPE_BOX`: centre, half sizes, yaw) with its ``ds``.
+    [m, m, m, m, rad, m]"""
+
+    id: str
+    kind: int
+    cx: float
+    cy: float
+    hx: float
+    hy: float
+    yaw: float
+    ds: float
+
+    def __post_init__(self) -> None:
+        _check_id(self.id, "id")
+        if type(self.kind) is not int or self.kind not in (SHAPE_SEGMENT, SHAPE_BOX):
+            raise ValueError(f"kind must be {SHAPE_SEGMENT} (segment) or {SHAPE_BOX} (box), "
+                             f"got {self.kind!r}")
+        _check_floats(self, _SHAPE_FLOATS)
+        if self.hx < 0.0 or self.hy < 0.0 or self.ds < 0.0:
+            raise ValueError(f"hx, hy and ds must be >= 0, got {self.hx!r}, {self.hy!r}, {self.ds!r}")
+        if self.kind == SHAPE_SEGMENT and self.hy != 0.0:
+            raise ValueError(f"a segment has hy = 0, got {self.hy!r}")
+
+
 @dataclass(frozen=True, slots=True)
 class Obstacles:
-    """Every obstacle the camera or world sees: ``{prefix}/obstacles``."""
+    """Every obstacle the camera or world sees: ``{prefix}/obstacles``: circles (moving or not)
+    and static walls and shelves."""
 
     stamp: float
     obstacles: tuple[ObstacleMsg, ...] = ()
+    shapes: tuple[ShapeMsg, ...] = ()
 
     def __post_init__(self) -> None:
         _check_floats(self, _STAMP)
         items = tuple(self.obstacles)
-        if len(items) > MAX_ITEMS:
-            raise ValueError(f"obstacles must hold at most {MAX_ITEMS} entries, got {len(items)}")
+        shapes = tuple(self.shapes)
+        if len(items) + len(shapes) > MAX_ITEMS:
+            raise ValueError(f"obstacles must hold at most {MAX_ITEMS} entries, got "
+                             f"{len(items) + len(shapes)}")
         seen: set[str] = set()
         for item in items:
             if not isinstance(item, ObstacleMsg):
@@ -303,7 +347,14 @@ class Obstacles:
             if item.id in seen:
                 raise ValueError(f"obstacles repeat id {item.id!r}")
             seen.add(item.id)
+        for sh in shapes:
+            if not isinstance(sh, ShapeMsg):
+                raise ValueError(f"shapes entries must be ShapeMsg, got {type(sh).__name__}")
+            if sh.id in seen:
+                raise ValueError(f"obstacles repeat id {sh.id!r}")
+            seen.add(sh.id)
         object.__setattr__(self, "obstacles", items)
+        object.__setattr__(self, "shapes", shapes)
 
 
 Message: TypeAlias = Pose | State | Cmd | EllipseMsg | Others | Obstacles
@@ -374,6 +425,7 @@ def _ellipses(items: list[Item]) -> tuple[EllipseMsg, ...]:
 # --- encoding ---------------------------------------------------------------------------------
 
 _VERSION = UInt8(WIRE_VERSION)
+_SHAPES_VERSION = UInt8(SHAPES_VERSION)
 _STATE_VERSION = UInt8(STATE_VERSION)
 
 
@@ -398,6 +450,13 @@ def _wire_tuple(msg: Message) -> tuple[Any, ...]:
             msg.stamp,
             [_ellipse_fields(e) for e in msg.ellipses],
             own,
+        )
+    if isinstance(msg, Obstacles) and msg.shapes:
+        return (
+            _SHAPES_VERSION,
+            msg.stamp,
+            [(o.id, o.x, o.y, o.vx, o.vy, o.ds) for o in msg.obstacles],
+            [(sh.id, UInt8(sh.kind), sh.cx, sh.cy, sh.hx, sh.hy, sh.yaw, sh.ds) for sh in msg.shapes],
         )
     if isinstance(msg, Obstacles):
         return (
@@ -427,7 +486,7 @@ def encode_zbytes(msg: Message) -> zenoh.ZBytes:
 # every length and count is checked against what is left of the payload before anything is read.
 
 _MAX_VARINT_BYTES = 10  # an unsigned LEB128 u64 takes at most 10 bytes
-_FLOATS = {n: struct.Struct(f"<{n}d") for n in (1, 4, 5, 6, 9)}
+_FLOATS = {n: struct.Struct(f"<{n}d") for n in range(1, 10)}
 
 
 def _as_bytes(payload: object) -> bytes:
@@ -528,6 +587,14 @@ class _Reader:
     def obstacle(self, index: int) -> Item:
         return self.item(_FLOATS[5], "obstacles", index, "id")
 
+    def shape(self, index: int) -> ShapeMsg:
+        what = f"shapes[{index}]"
+        ident = self.string(f"{what}.id")
+        self._need(1, f"{what}.kind")
+        kind = self.data[self.pos]
+        self.pos += 1
+        return ShapeMsg(ident, kind, *self.floats(6, what))
+
     def end(self) -> None:
         if self.pos != len(self.data):
             raise DecodeError(
@@ -537,15 +604,21 @@ class _Reader:
 
 
 def _decode(payload: object, parse: Callable[[_Reader], Any], kind: str,
-            version: int = WIRE_VERSION) -> Any:
+            version: int = WIRE_VERSION,
+            parsers: Mapping[int, Callable[[_Reader], Any]] | None = None) -> Any:
+    """Decode ``payload`` with ``parse`` (version ``version``), or with the parser ``parsers``
+    names for its version byte."""
     try:
         data = _as_bytes(payload)
         if not data:
             raise DecodeError("empty payload")
         if len(data) > MAX_PAYLOAD_BYTES:
             raise DecodeError(f"payload of {len(data)} bytes exceeds {MAX_PAYLOAD_BYTES}")
-        if data[0] != version:
-            raise DecodeError(f"unsupported version {data[0]} (expected {version})")
+        if parsers is not None and data[0] in parsers:
+            parse = parsers[data[0]]
+        elif data[0] != version:
+            known = " or ".join(str(v) for v in sorted(parsers or (version,)))
+            raise DecodeError(f"unsupported version {data[0]} (expected {known})")
         reader = _Reader(data, 1)
         try:
             msg = parse(reader)
@@ -599,8 +672,21 @@ def _parse_obstacles(r: _Reader) -> Obstacles:
     items = [r.obstacle(i) for i in range(n)]
     obstacles = _build_items(ObstacleMsg, _OBSTACLE_SETTERS, items, _ds_not_negative)
     if _isfinite(stamp) and len({o.id for o in obstacles}) == n:
-        return _build_trusted(Obstacles, _OBSTACLES_SETTERS, (stamp, obstacles))
+        return _build_trusted(Obstacles, _OBSTACLES_SETTERS, (stamp, obstacles, ()))
     return Obstacles(stamp, obstacles)
+
+
+def _parse_obstacles_with_shapes(r: _Reader) -> Obstacles:
+    """Version 2: the circles as in version 1, then the walls and shelves."""
+    (stamp,) = r.floats(1, "stamp")
+    n = r.count("obstacles", MAX_ITEMS)
+    items = [r.obstacle(i) for i in range(n)]
+    obstacles = _build_items(ObstacleMsg, _OBSTACLE_SETTERS, items, _ds_not_negative)
+    m = r.count("shapes", MAX_ITEMS - n)
+    return Obstacles(stamp, obstacles, tuple(r.shape(i) for i in range(m)))
+
+
+_OBSTACLES_PARSERS = {WIRE_VERSION: _parse_obstacles, SHAPES_VERSION: _parse_obstacles_with_shapes}
 
 
 def decode_pose(payload: bytes | zenoh.ZBytes) -> Pose:
@@ -630,7 +716,7 @@ def decode_others(payload: bytes | zenoh.ZBytes) -> Others:
 
 def decode_obstacles(payload: bytes | zenoh.ZBytes) -> Obstacles:
     """Decode an ``obstacles`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_obstacles, "obstacles")
+    return _decode(payload, _parse_obstacles, "obstacles", parsers=_OBSTACLES_PARSERS)
 
 
 #: The decoder of each key class (see :func:`wire.keys.key_class`).
@@ -642,3 +728,237 @@ DECODERS: dict[str, Callable[[bytes | zenoh.ZBytes], Any]] = {
     keys.OTHERS: decode_others,
     keys.OBSTACLES: decode_obstacles,
 }
+
+
+# --- navigation: goal, plan, status (DESIGN.md key space) ------------------------------------
+#
+# ``GoalMsg``    version, formation:str, x, y, heading:list[f64] (0 or 1), waypoints:list[(x, y)],
+#                stamp
+# ``PlanMsg``    version, formation:str, goal_stamp, cx, cy, heading:list[f64] (0 or 1),
+#                route:list[(x, y)], members:list[(id:str, gx, gy)], stamp
+# ``StatusMsg``  version, formation:str, state:str, leader:str, goal_stamp, gx, gy,
+#                heading:list[f64] (0 or 1), distance, waypoint, waypoints, wx, wy, stamp
+#
+# ``goal_stamp`` names a goal: the stamp the leader gave it when it accepted it (the fleet
+# manager's stamp in real time, simulated time on arrival in lock-step). A member adopts a plan
+# whose goal_stamp is newer than the one it follows. ``waypoint`` and ``waypoints`` (the index
+# of the current waypoint and the route's length; the goal is the last) are whole numbers
+# carried as f64.
+
+MAX_WAYPOINTS = 64  # most waypoints in a goal or route
+STATUS_STATES = ("moving", "reached", "stalled", "stopped")
+
+
+def _points(value: object, name: str, limit: int) -> tuple[tuple[float, float], ...]:
+    pts = tuple(tuple(p) for p in value)  # type: ignore[attr-defined]
+    if len(pts) > limit:
+        raise ValueError(f"{name} must hold at most {limit} points, got {len(pts)}")
+    out = []
+    for k, p in enumerate(pts):
+        if len(p) != 2:
+            raise ValueError(f"{name}[{k}] must be (x, y), got {p!r}")
+        x, y = p
+        for v in (x, y):
+            if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
+                raise ValueError(f"{name}[{k}] must hold finite numbers, got {p!r}")
+        out.append((float(x), float(y)))
+    return tuple(out)
+
+
+def _optional_angle(obj: object, name: str) -> None:
+    value = getattr(obj, name)
+    if value is not None:
+        _finite(obj, name)
+
+
+@dataclass(frozen=True, slots=True)
+class GoalMsg:
+    """A new goal for a formation: ``{prefix}/formation/{fid}/goal`` (fleet manager -> leader).
+
+    Centroid ``x, y`` [m]; ``heading`` [rad] turns the formation's goal shape (the shape as
+    written in the scenario's goals is heading 0), ``None`` keeps the current one; the centroid
+    passes ``waypoints`` in order first (none: the leader plans a route); ``stamp`` [s]."""
+
+    formation: str
+    x: float
+    y: float
+    heading: float | None = None
+    waypoints: tuple[tuple[float, float], ...] = ()
+    stamp: float = 0.0
+
+    def __post_init__(self) -> None:
+        _check_id(self.formation, "formation")
+        _check_floats(self, ("x", "y", "stamp"))
+        _optional_angle(self, "heading")
+        object.__setattr__(self, "waypoints", _points(self.waypoints, "waypoints", MAX_WAYPOINTS))
+
+
+@dataclass(frozen=True, slots=True)
+class PlanMsg:
+    """A leader's plan for its members: ``{prefix}/formation/{fid}/plan``: the goal it follows
+    (``goal_stamp``, centroid, heading), the centroid's route (the goal last) and each member's
+    goal ``(id, x, y)``."""
+
+    formation: str
+    goal_stamp: float
+    cx: float
+    cy: float
+    heading: float | None
+    route: tuple[tuple[float, float], ...]
+    members: tuple[tuple[str, float, float], ...]
+    stamp: float
+
+    def __post_init__(self) -> None:
+        _check_id(self.formation, "formation")
+        _check_floats(self, ("goal_stamp", "cx", "cy", "stamp"))
+        _optional_angle(self, "heading")
+        route = _points(self.route, "route", MAX_WAYPOINTS)
+        if not route:
+            raise ValueError("route must hold at least the goal")
+        object.__setattr__(self, "route", route)
+        members = tuple(tuple(m) for m in self.members)
+        if len(members) > MAX_ITEMS:
+            raise ValueError(f"members must hold at most {MAX_ITEMS} entries, got {len(members)}")
+        seen: set[str] = set()
+        out = []
+        for k, m in enumerate(members):
+            if len(m) != 3:
+                raise ValueError(f"members[{k}] must be (id, x, y), got {m!r}")
+            rid = m[0]
+            _check_id(rid, f"members[{k}].id")
+            assert isinstance(rid, str)  # _check_id accepts only a str
+            if rid in seen:
+                raise ValueError(f"members repeat id {rid!r}")
+            seen.add(rid)
+            out.append((rid, *_points([m[1:]], f"members[{k}]", 1)[0]))
+        object.__setattr__(self, "members", tuple(out))
+
+    def goal_of(self, robot_id: str) -> tuple[float, float] | None:
+        for rid, x, y in self.members:
+            if rid == robot_id:
+                return (x, y)
+        return None
+
+
+@dataclass(frozen=True, slots=True)
+class StatusMsg:
+    """A leader's report: ``{prefix}/formation/{fid}/status`` (published about once a second
+    and answered as a queryable). ``state`` is one of :data:`STATUS_STATES`; the goal it
+    follows (``goal_stamp``, centroid, heading), the centroid's ``distance`` to go along the
+    route [m], the current waypoint (index, route length, position) and the leader's id."""
+
+    formation: str
+    state: str
+    leader: str
+    goal_stamp: float
+    gx: float
+    gy: float
+    heading: float | None
+    distance: float
+    waypoint: int
+    waypoints: int
+    wx: float
+    wy: float
+    stamp: float
+
+    def __post_init__(self) -> None:
+        _check_id(self.formation, "formation")
+        _check_id(self.leader, "leader")
+        if self.state not in STATUS_STATES:
+            raise ValueError(f"state must be one of {STATUS_STATES}, got {self.state!r}")
+        _check_floats(self, ("goal_stamp", "gx", "gy", "distance", "wx", "wy", "stamp"))
+        _optional_angle(self, "heading")
+        for name in ("waypoint", "waypoints"):
+            v = getattr(self, name)
+            if isinstance(v, float) and v.is_integer():
+                v = int(v)
+                object.__setattr__(self, name, v)
+            if type(v) is not int or not 0 <= v <= MAX_WAYPOINTS:
+                raise ValueError(f"{name} must be a whole number in [0, {MAX_WAYPOINTS}], got {v!r}")
+        if self.distance < 0.0:
+            raise ValueError(f"distance must be >= 0, got {self.distance!r}")
+
+
+def _heading_list(h: float | None) -> list[float]:
+    return [] if h is None else [h]
+
+
+def encode_nav(msg: GoalMsg | PlanMsg | StatusMsg) -> bytes:
+    """Serialize a goal, plan or status (layouts above)."""
+    if isinstance(msg, GoalMsg):
+        t: tuple[Any, ...] = (_VERSION, msg.formation, msg.x, msg.y, _heading_list(msg.heading),
+                              list(msg.waypoints), msg.stamp)
+    elif isinstance(msg, PlanMsg):
+        t = (_VERSION, msg.formation, msg.goal_stamp, msg.cx, msg.cy, _heading_list(msg.heading),
+             list(msg.route), list(msg.members), msg.stamp)
+    elif isinstance(msg, StatusMsg):
+        t = (_VERSION, msg.formation, msg.state, msg.leader, msg.goal_stamp, msg.gx, msg.gy,
+             _heading_list(msg.heading), msg.distance, float(msg.waypoint), float(msg.waypoints),
+             msg.wx, msg.wy, msg.stamp)
+    else:
+        raise ValueError(f"msg must be a GoalMsg, PlanMsg or StatusMsg, got {type(msg).__name__}")
+    return z_serialize(t).to_bytes()
+
+
+def _read_heading(r: _Reader) -> float | None:
+    n = r.count("heading", 1)
+    return r.floats(1, "heading")[0] if n else None
+
+
+def _read_points(r: _Reader, name: str) -> list[tuple[float, float]]:
+    n = r.count(name, MAX_WAYPOINTS)
+    return [r.floats(2, f"{name}[{k}]") for k in range(n)]  # type: ignore[misc]
+
+
+def _parse_goal(r: _Reader) -> GoalMsg:
+    formation = r.string("formation")
+    x, y = r.floats(2, "x, y")
+    heading = _read_heading(r)
+    waypoints = _read_points(r, "waypoints")
+    (stamp,) = r.floats(1, "stamp")
+    return GoalMsg(formation, x, y, heading, tuple(waypoints), stamp)
+
+
+def _parse_plan(r: _Reader) -> PlanMsg:
+    formation = r.string("formation")
+    goal_stamp, cx, cy = r.floats(3, "goal_stamp, cx, cy")
+    heading = _read_heading(r)
+    route = _read_points(r, "route")
+    n = r.count("members", MAX_ITEMS)
+    members: list[tuple[str, float, float]] = []
+    for k in range(n):
+        rid = r.string(f"members[{k}].id")
+        x, y = r.floats(2, f"members[{k}]")
+        members.append((rid, x, y))
+    (stamp,) = r.floats(1, "stamp")
+    return PlanMsg(formation, goal_stamp, cx, cy, heading, tuple(route), tuple(members), stamp)
+
+
+def _parse_status(r: _Reader) -> StatusMsg:
+    formation = r.string("formation")
+    state = r.string("state")
+    leader = r.string("leader")
+    goal_stamp, gx, gy = r.floats(3, "goal_stamp, gx, gy")
+    heading = _read_heading(r)
+    distance, waypoint, waypoints, wx, wy, stamp = r.floats(6, "distance .. stamp")
+    # whole numbers carried as f64: StatusMsg checks them and makes them ints
+    return StatusMsg(formation, state, leader, goal_stamp, gx, gy, heading, distance,
+                     waypoint, waypoints, wx, wy, stamp)  # type: ignore[arg-type]
+
+
+def decode_goal(payload: bytes | zenoh.ZBytes) -> GoalMsg:
+    """Decode a ``goal`` payload; raises only :class:`DecodeError`."""
+    return _decode(payload, _parse_goal, "goal")
+
+
+def decode_plan(payload: bytes | zenoh.ZBytes) -> PlanMsg:
+    """Decode a ``plan`` payload; raises only :class:`DecodeError`."""
+    return _decode(payload, _parse_plan, "plan")
+
+
+def decode_status(payload: bytes | zenoh.ZBytes) -> StatusMsg:
+    """Decode a ``status`` payload; raises only :class:`DecodeError`."""
+    return _decode(payload, _parse_status, "status")
+
+
+DECODERS.update({keys.GOAL: decode_goal, keys.PLAN: decode_plan, keys.STATUS: decode_status})

@@ -26,5 +26,5 @@ def cmd_check(ns: argparse.Namespace) -> int:
                   f"other member: if its leader {f.leader!r} dies, nobody takes over and the "
                   f"other formations stop avoiding it after the ellipse hold", file=sys.stderr)
     print(f"{ns.scenario}: ok ({s.name}: {len(s.formations)} formations, {n} robots, "
-          f"{len(s.obstacles)} obstacles, {s.robot.model})")
+          f"{len(s.obstacles)} obstacles, {len(s.shapes)} walls and shelves, {s.robot.model})")
     return EXIT_OK

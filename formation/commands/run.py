@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import math
 import sys
 
 from formation.exits import EXIT_ERROR, EXIT_OK, UsageError
 from formation.outdir import begin_output
 from formation.progress import Progress, print_summary
-from scenario import load_scenario
+from scenario import Scenario, load_scenario
 from simulator.launch import FaultPlan, RunAborted, launch, parse_camera_dropout, parse_kill
 from simulator.output import write_run
 
@@ -50,7 +52,7 @@ def run_command(ns: argparse.Namespace) -> int:
     # unless asked otherwise or under access control (the default: each robot logs in as itself)
     shared = (per_process > 1 and not getattr(ns, "session_per_agent", False)
               and getattr(ns, "insecure", False))
-    scenario = load_scenario(ns.scenario)  # ScenarioError -> exit 2
+    scenario, hold = _duration_and_hold(ns, load_scenario(ns.scenario))  # ScenarioError -> exit 2
     solver = getattr(ns, "solver", "exact")
     try:
         from agent.qp import make_solver
@@ -76,7 +78,7 @@ def run_command(ns: argparse.Namespace) -> int:
                                  scenario_path=ns.scenario,
                                  clock_offset=getattr(ns, "clock_offset_ms", 0.0) / 1000.0,
                                  agents_per_process=per_process, shared_session=shared,
-                                 solver=solver)
+                                 solver=solver, hold=hold, announce=_announce if hold else None)
     except RunAborted as stop:  # the run started: its summary says why and what it measured
         write_run(stop.summary, stop.series, scenario, out, plots=not ns.no_plots)
         print(f"formation run: aborted: {stop}; wrote {out / 'summary.json'} with what was "
@@ -88,3 +90,18 @@ def run_command(ns: argparse.Namespace) -> int:
     write_run(summary, series, scenario, out, plots=not ns.no_plots)
     print_summary(summary, out, plots=not ns.no_plots)
     return EXIT_OK
+
+
+def _duration_and_hold(ns: argparse.Namespace, scenario: Scenario) -> tuple[Scenario, bool]:
+    """``--duration S`` (simulated seconds, instead of the scenario's) and ``--hold``."""
+    duration = getattr(ns, "duration", None)
+    if duration is not None:
+        if not (math.isfinite(duration) and duration >= scenario.dt):
+            raise UsageError(f"--duration: need at least one period ({scenario.dt} s), got {duration}")
+        scenario = dataclasses.replace(scenario, duration=duration)
+    return scenario, bool(getattr(ns, "hold", False))
+
+
+def _announce(endpoint: str) -> None:
+    """``--hold``: where the fleet manager sends goals (also in ``DIR/endpoint``)."""
+    print(f"fleet up, goals to: formation goal FID X Y --connect {endpoint}", flush=True)

@@ -1,0 +1,235 @@
+"""The agent's part in navigation: walls and shelves from ``obstacles``, the route walk, and, on
+the leader, goals, plans and status (:mod:`leader.navigation` holds the logic; this holds the
+Zenoh side).
+
+* Every member walks its formation's route (:class:`leader.navigation.Follower`, started on the
+  route in its configuration) and adopts the plans its leader publishes on
+  ``{prefix}/formation/{fid}/plan`` (only that key, so only its own leader's).
+* The leader takes goals from ``{prefix}/formation/{fid}/goal`` (:class:`Navigator`; stamped
+  with the goal's own stamp in real time, with the tick's simulated time in lock-step), adopts
+  the new plan itself, publishes it at once and then every :data:`REPUBLISH_S` (a member that
+  restarts gets it), and publishes its ``status`` every :data:`STATUS_PERIOD_S` (and answers it
+  as a queryable, from any thread, with the latest one).
+
+Goals and plans are not waited for: a message that arrives is used at the next tick. Malformed
+messages are dropped and counted (``dropped``); refused goals are counted (``rejected``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from typing import Any
+
+import zenoh
+
+from agent.config import AgentConfig
+from geometry.shapes import Shape
+from leader.navigation import SAME_GOAL, Follower, Navigator
+from wire import keys
+from wire.payloads import (
+    DecodeError,
+    GoalMsg,
+    PlanMsg,
+    ShapeMsg,
+    StatusMsg,
+    decode_goal,
+    decode_plan,
+    encode_nav,
+)
+from wire.shapes import msg_to_shape
+from wire.traffic import CountingPublisher, TrafficCounter
+
+logger = logging.getLogger(__name__)
+
+STATUS_PERIOD_S = 1.0  # [s] status publication period (stamp time: simulated in lock-step)
+REPUBLISH_S = 1.0  # [s] the leader puts its plan again this often
+STALLED_AFTER_S = 2.0  # [s] still this long away from the goal (the jam rule's clock): stalled
+GOAL_FUTURE_S = 1.0  # [s] real time: a goal stamped further ahead of the leader's clock is refused
+GOAL_MAX_AGE_S = 5.0  # [s] real time: an older goal is refused (the goal command re-sends each second)
+
+
+def stamp_problem(goal_stamp: float, now: float) -> str | None:
+    """Real time: why a goal's stamp is refused against the leader's clock ``now``, or None
+    (too far in the future, then too old; "older than the goal followed" is the Navigator's)."""
+    if goal_stamp > now + GOAL_FUTURE_S:
+        return f"goal stamped {goal_stamp - now:.3f} s in the future"
+    if goal_stamp < now - GOAL_MAX_AGE_S:
+        return f"goal stamped {now - goal_stamp:.3f} s ago (more than {GOAL_MAX_AGE_S} s)"
+    return None
+
+
+class NavPart:
+    """One agent's navigation state and its Zenoh endpoints (see the module docstring)."""
+
+    def __init__(self, cfg: AgentConfig, leader: bool) -> None:
+        self.cfg = cfg
+        p = cfg.prefix
+        self.follower = Follower(cfg.robot_id, cfg.goal, cfg.formation_goal, cfg.route)
+        self.navigator: Navigator | None = None
+        if leader:
+            gx, gy = cfg.formation_goal
+            ref = {m: (x - gx, y - gy) for m, x, y in cfg.member_goals} or {cfg.robot_id: (0.0, 0.0)}
+            self.navigator = Navigator(cfg.formation, cfg.robot_id, ref, cfg.formation_goal,
+                                       cfg.route, cfg.planner, cfg.goal_tolerance + cfg.control.offset)
+        self.plan_key = keys.plan_key(p, cfg.formation)
+        self.goal_key = keys.goal_key(p, cfg.formation)
+        self.status_key = keys.status_key(p, cfg.formation)
+        self.shapes: tuple[Shape, ...] = ()
+        self._shape_src: tuple[ShapeMsg, ...] = ()
+        self._lock = threading.Lock()
+        self._goal: GoalMsg | None = None  # newest unhandled goal (leader)
+        self._plan: PlanMsg | None = None  # newest unhandled plan (member)
+        self._status_bytes: bytes | None = None
+        self._last_status = -math.inf
+        self._last_plan = -math.inf
+        self._counter: TrafficCounter | None = None
+        self._pubs: dict[str, CountingPublisher] = {}
+        self._decls: list[Any] = []
+        self.dropped = 0  # malformed goals or plans
+        self.goals = 0  # goals taken
+        self.plans = 0  # plans adopted (members)
+        self.stopped = False  # the leader's last tick commanded zero for missing inputs
+        self._centroid = (math.nan, math.nan)  # the formation's last known ellipse centre
+
+    @property
+    def rejected(self) -> int:
+        return self.navigator.rejected if self.navigator is not None else 0
+
+    # --- wiring ------------------------------------------------------------------------------
+
+    def open(self, session: zenoh.Session, counter: TrafficCounter) -> None:
+        self._counter = counter
+        if self.navigator is None:
+            self._decls.append(session.declare_subscriber(self.plan_key, self._on_plan))
+            return
+        for k in (self.plan_key, self.status_key):
+            self._pubs[k] = CountingPublisher(session.declare_publisher(k), counter)
+        self._decls.append(session.declare_subscriber(self.goal_key, self._on_goal))
+        self._decls.append(session.declare_queryable(self.status_key, self._on_query))
+
+    def close(self, stamp: float) -> None:
+        """Leader: a last ``stopped`` status; then undeclare everything."""
+        try:
+            if self.navigator is not None and self.status_key in self._pubs:
+                self._publish_status(self._status(stamp, self._centroid, stopped=True))
+        except Exception:  # noqa: BLE001 - shutting down: log, keep closing
+            logger.debug("last status failed", exc_info=True)
+        for d in [*self._decls, *self._pubs.values()]:
+            try:
+                d.undeclare()
+            except Exception:  # noqa: BLE001
+                logger.debug("undeclare failed", exc_info=True)
+        self._decls.clear()
+        self._pubs.clear()
+
+    def _count(self, sample: zenoh.Sample) -> bytes:
+        data = sample.payload.to_bytes()
+        if self._counter is not None:
+            self._counter.count_recv(str(sample.key_expr), len(data))
+        return data
+
+    def _on_goal(self, sample: zenoh.Sample) -> None:  # Zenoh thread
+        try:
+            goal = decode_goal(self._count(sample))
+        except DecodeError as exc:
+            with self._lock:
+                self.dropped += 1
+            logger.warning("%s: dropped a goal: %s", self.cfg.robot_id, exc)
+            return
+        with self._lock:
+            self._goal = goal
+
+    def _on_plan(self, sample: zenoh.Sample) -> None:  # Zenoh thread
+        try:
+            plan = decode_plan(self._count(sample))
+        except DecodeError as exc:
+            with self._lock:
+                self.dropped += 1
+            logger.warning("%s: dropped a plan: %s", self.cfg.robot_id, exc)
+            return
+        with self._lock:
+            if plan.formation == self.cfg.formation:
+                self._plan = plan
+
+    def _on_query(self, query: zenoh.Query) -> None:  # Zenoh thread
+        data = self._status_bytes
+        if data is None:
+            return
+        try:
+            query.reply(self.status_key, data)
+        except Exception:  # noqa: BLE001 - the querier went away
+            logger.debug("status reply failed", exc_info=True)
+
+    # --- each tick ---------------------------------------------------------------------------
+
+    def update_shapes(self, shapes: tuple[ShapeMsg, ...]) -> tuple[Shape, ...]:
+        """The walls and shelves of this tick's ``obstacles`` (converted when they change)."""
+        if shapes is not self._shape_src and shapes != self._shape_src:
+            self.shapes = tuple(msg_to_shape(m) for m in shapes)
+        self._shape_src = shapes
+        return self.shapes
+
+    def step(self, stamp: float, lockstep: bool, cx: float, cy: float):
+        """This tick's (target, current waypoint) for the ellipse centre (cx, cy); on the
+        leader, goals first (a goal taken now is planned from (cx, cy))."""
+        with self._lock:
+            goal, self._goal = self._goal, None
+            plan, self._plan = self._plan, None
+        nav = self.navigator
+        if nav is not None and goal is not None:
+            why = None if lockstep else stamp_problem(goal.stamp, stamp)
+            if why is not None:
+                nav.rejected += 1
+            else:
+                why = nav.accept(goal, stamp if lockstep else goal.stamp, (cx, cy), self.shapes)
+            if why is None:
+                self.goals += 1
+                new = nav.plan(stamp)
+                self.follower.adopt(new)
+                self._put_plan(new, stamp)
+                logger.info("%s: formation %s takes goal (%.3f, %.3f), route of %d",
+                            self.cfg.robot_id, self.cfg.formation, goal.x, goal.y, len(new.route))
+            elif why != SAME_GOAL:
+                logger.warning("%s: refused a goal: %s", self.cfg.robot_id, why)
+        if plan is not None and self.follower.adopt(plan):
+            self.plans += 1
+        self._centroid = (cx, cy)
+        target, waypoint = self.follower.step(cx, cy)
+        if nav is not None and math.isfinite(nav.goal_stamp) and stamp - self._last_plan >= REPUBLISH_S:
+            self._put_plan(nav.plan(stamp), stamp)
+        return target, waypoint
+
+    def report(self, stamp: float, stalled: bool, stopped: bool) -> None:
+        """Leader, after each tick (``stopped``: it commanded zero for missing inputs): publish
+        the status if one is due."""
+        self.stopped = stopped
+        if self.navigator is None or stamp - self._last_status < STATUS_PERIOD_S:
+            return
+        self._publish_status(self._status(stamp, self._centroid, stalled=stalled))
+
+    def _status(self, stamp: float, centroid: tuple[float, float], stalled: bool = False,
+                stopped: bool = False) -> StatusMsg:
+        assert self.navigator is not None
+        if not (math.isfinite(centroid[0]) and math.isfinite(centroid[1])):
+            centroid = self.follower.route[self.follower.index]
+        return self.navigator.status(self.follower, centroid, stalled, stopped or self.stopped, stamp)
+
+    def _publish_status(self, status: StatusMsg) -> None:
+        data = encode_nav(status)
+        self._status_bytes = data
+        self._last_status = status.stamp
+        pub = self._pubs.get(self.status_key)
+        if pub is not None:
+            pub.put(data)
+
+    def _put_plan(self, plan: PlanMsg, stamp: float) -> None:
+        self._last_plan = stamp
+        pub = self._pubs.get(self.plan_key)
+        if pub is not None:
+            pub.put(encode_nav(plan))
+
+    def stats(self) -> dict[str, Any]:
+        return {"goals": self.goals, "rejected": self.rejected, "plans": self.plans,
+                "dropped": self.dropped}

@@ -1,0 +1,164 @@
+"""Goals, routes and status of one formation: the leader's :class:`Navigator` and every member's
+:class:`Follower` (DESIGN.md keys ``goal``, ``plan``, ``status``).
+
+* The fleet manager sends the leader a :class:`wire.payloads.GoalMsg` (goal centroid, optional
+  heading, optional waypoints). The leader's :meth:`Navigator.accept` checks it (finite, not
+  inside a wall's or shelf's safe distance, newer than the goal it follows), turns the
+  formation's goal shape by the heading (the shape as written in the scenario's goals is
+  heading 0; no heading keeps the current one), gives each member its goal (goal centroid plus
+  its turned offset), and routes the centroid: the given waypoints, else
+  :func:`geometry.route.plan_route` around the walls and shelves from where the formation is
+  now (unless planning is off). The result is a :class:`wire.payloads.PlanMsg`.
+* Every member (the leader too) runs a :class:`Follower`: it adopts a plan from its own leader
+  whose goal is newer than the one it follows, and each tick walks the route with the
+  formation's ellipse centre (:func:`geometry.route.advance`); its target for the nominal command
+  (eq. 4.2) is the current waypoint plus its offset, its own goal on the last leg.
+* :meth:`Navigator.status` reports the state (``moving``, ``reached``: the centroid within the
+  goal tolerance of the goal centroid on the last leg, ``stalled``: the jam rule sees the
+  formation still, ``stopped``: the leader commanded zero for missing inputs, or shuts down),
+  the distance to go along the route and the current waypoint.
+
+Pure: no clock, no network; the agent node and the in-process simulator call it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+from geometry.route import Point, advance, formation_radius, member_target, plan_route, route_length
+from geometry.shapes import Shape, shape_distance
+from wire.payloads import GoalMsg, PlanMsg, StatusMsg
+
+SAME_GOAL = "the goal followed already"  # accept(): nothing changes, not counted as refused
+
+
+class Follower:
+    """One member's walk along its formation's route (see the module docstring)."""
+
+    __slots__ = ("robot_id", "goal", "formation_goal", "route", "index", "goal_stamp", "_offset")
+
+    def __init__(self, robot_id: str, goal: Point, formation_goal: Point,
+                 route: Sequence[Point] = ()) -> None:
+        self.robot_id = robot_id
+        self.goal_stamp = -math.inf  # the scenario's goal: any plan from the leader is newer
+        self._set(goal, formation_goal, route)
+
+    def _set(self, goal: Point, formation_goal: Point, route: Sequence[Point]) -> None:
+        self.goal = (goal[0], goal[1])
+        self.formation_goal = (formation_goal[0], formation_goal[1])
+        self.route = tuple(route) if route else (self.formation_goal,)
+        self.index = 0
+        self._offset = (goal[0] - formation_goal[0], goal[1] - formation_goal[1])
+
+    def adopt(self, plan: PlanMsg) -> bool:
+        """Follow ``plan`` if it is newer than the goal followed now and names this member."""
+        if not plan.goal_stamp > self.goal_stamp:
+            return False
+        goal = plan.goal_of(self.robot_id)
+        if goal is None:
+            return False
+        self.goal_stamp = plan.goal_stamp
+        self._set(goal, (plan.cx, plan.cy), plan.route)
+        return True
+
+    def step(self, cx: float, cy: float) -> tuple[Point, Point]:
+        """(this member's target, the formation's current waypoint) for the ellipse centre
+        (cx, cy) of this tick."""
+        self.index = advance(self.route, self.index, cx, cy)
+        return member_target(self.route, self.index, self.goal, self._offset), self.route[self.index]
+
+
+def turn(offsets: Mapping[str, Point], heading: float) -> dict[str, Point]:
+    """The offsets turned by ``heading`` [rad] about the centroid."""
+    c, s = math.cos(heading), math.sin(heading)
+    return {m: (c * x - s * y, s * x + c * y) for m, (x, y) in offsets.items()}
+
+
+class Navigator:
+    """The leader's part (see the module docstring). ``reference`` holds each member's goal
+    offset from the goal centroid as written in the scenario (heading 0)."""
+
+    def __init__(self, formation: str, leader_id: str, reference: Mapping[str, Point],
+                 goal: Point, route: Sequence[Point] = (), planner: bool = True,
+                 tolerance: float = 0.05, heading: float | None = None) -> None:
+        self.formation = formation
+        self.leader_id = leader_id
+        self.reference = dict(reference)
+        self.radius = formation_radius(list(self.reference.values()))
+        self.planner = planner
+        self.tolerance = tolerance
+        self.goal_stamp = -math.inf
+        self.goal = (goal[0], goal[1])
+        self.heading = heading
+        self.offsets = turn(self.reference, heading) if heading is not None else dict(self.reference)
+        self.route = tuple(route) if route else (self.goal,)
+        self.rejected = 0  # goals refused (inside an obstacle, stale, another formation's)
+
+    def same(self, msg: GoalMsg) -> bool:
+        """Whether ``msg`` asks for the goal followed now (a fleet manager may send it again)."""
+        return (math.isfinite(self.goal_stamp) and msg.formation == self.formation
+                and (msg.x, msg.y) == self.goal
+                and (msg.heading is None or msg.heading == self.heading)
+                and (not msg.waypoints or tuple(msg.waypoints) + (self.goal,) == self.route))
+
+    def problem(self, msg: GoalMsg, shapes: Sequence[Shape]) -> str | None:
+        """Why the leader refuses ``msg``, or None."""
+        if msg.formation != self.formation:
+            return f"goal for formation {msg.formation!r}, not {self.formation!r}"
+        if not msg.stamp > self.goal_stamp:
+            return f"goal stamped {msg.stamp} is not newer than the one followed ({self.goal_stamp})"
+        offsets = turn(self.reference, msg.heading) if msg.heading is not None else self.offsets
+        for sh in shapes:
+            for m, (ox, oy) in offsets.items():
+                if shape_distance(msg.x + ox, msg.y + oy, sh)[0] < sh.ds:
+                    return f"the goal of {m!r} lies within the safe distance of {sh.kind} {sh.name!r}"
+            for k, (wx, wy) in enumerate(msg.waypoints):
+                if shape_distance(wx, wy, sh)[0] < sh.ds:
+                    return f"waypoint {k} lies within the safe distance of {sh.kind} {sh.name!r}"
+        return None
+
+    def accept(self, msg: GoalMsg, stamp: float, centroid: Point, shapes: Sequence[Shape]) -> str | None:
+        """Take ``msg`` as the formation's goal, stamped ``stamp`` (its own stamp in real time,
+        the tick's simulated time in lock-step); the route starts at ``centroid``. Returns why it
+        was refused, or None when it was taken (then :meth:`plan` is the new plan)."""
+        if self.same(msg):
+            return SAME_GOAL
+        why = self.problem(msg, shapes)
+        if why is None and not stamp > self.goal_stamp:
+            why = f"goal stamped {stamp} is not newer than the one followed"
+        if why is not None:
+            self.rejected += 1
+            return why
+        self.goal_stamp = stamp
+        self.goal = (msg.x, msg.y)
+        if msg.heading is not None:
+            self.heading = msg.heading
+            self.offsets = turn(self.reference, msg.heading)
+        if msg.waypoints:
+            self.route = tuple(msg.waypoints) + (self.goal,)
+        elif self.planner and shapes:
+            self.route = plan_route(centroid, self.goal, shapes, self.radius)
+        else:
+            self.route = (self.goal,)
+        return None
+
+    def plan(self, stamp: float) -> PlanMsg:
+        gx, gy = self.goal
+        members = tuple((m, gx + ox, gy + oy) for m, (ox, oy) in self.offsets.items())
+        return PlanMsg(self.formation, self.goal_stamp if math.isfinite(self.goal_stamp) else 0.0,
+                       gx, gy, self.heading, self.route, members, stamp)
+
+    def status(self, follower: Follower, centroid: Point, stalled: bool, stopped: bool,
+               stamp: float) -> StatusMsg:
+        """The status from the leader's own follower (the route as the formation walks it)."""
+        route, index = follower.route, follower.index
+        gx, gy = follower.formation_goal
+        at_goal = index >= len(route) - 1 and math.dist(centroid, (gx, gy)) <= self.tolerance
+        state = ("stopped" if stopped else "reached" if at_goal else "stalled" if stalled
+                 else "moving")
+        wx, wy = route[index]
+        return StatusMsg(self.formation, state, self.leader_id,
+                         follower.goal_stamp if math.isfinite(follower.goal_stamp) else 0.0,
+                         gx, gy, self.heading, route_length(centroid, route[index:]), index,
+                         len(route), wx, wy, stamp)

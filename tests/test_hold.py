@@ -1,0 +1,97 @@
+"""Goals sent over real Zenoh to a running ``formation run --hold`` fleet (router, one agent per
+robot, the simulated world: separate processes on loopback)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from formation.commands import goal as navcmd
+from wire.zconf import ZenohSettings
+
+ROOT = Path(__file__).resolve().parent.parent
+SCENARIO = ROOT / "tests" / "scenarios" / "nav-hold.yaml"
+GOALS = {"A": (2.25, 0.25, None), "B": (2.25, -0.6, math.pi / 2)}
+
+
+def start_fleet(out: Path, *extra: str) -> subprocess.Popen:
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    out.mkdir(parents=True)
+    with open(out.parent / "fleet.log", "wb") as log:  # the child keeps its own descriptor
+        return subprocess.Popen(
+            [sys.executable, "-m", "formation", "run", str(SCENARIO), "--out", str(out), "--hold",
+             "--quiet", "--no-plots", *extra],
+            env=env, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT)
+
+
+def wait_endpoint(proc: subprocess.Popen, out: Path, timeout: float = 90.0) -> str:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if (out / "endpoint").is_file():
+            return (out / "endpoint").read_text().strip()
+        assert proc.poll() is None, (out.parent / "fleet.log").read_text(errors="replace")
+        time.sleep(0.2)
+    raise TimeoutError("the fleet did not come up")
+
+
+def wait_reached(endpoint: str, timeout: float, auth_file: Path) -> dict:
+    from wire.zconf import read_auth_file
+
+    conf = ZenohSettings(mode="client", connect=(endpoint,),
+                         auth=read_auth_file(auth_file).auth).to_config()
+    with zenoh.open(conf) as session:
+        deadline = time.monotonic() + timeout
+        last = {}
+        while time.monotonic() < deadline:
+            last = {s.formation: s for s in navcmd.query_status(session, "warehouse", timeout=1.0)}
+            if all(f in last and last[f].state == "reached" and (last[f].gx, last[f].gy) == g[:2]
+                   for f, g in GOALS.items()):
+                return last
+            time.sleep(0.5)
+    raise AssertionError(f"not every formation reached its goal: {last}")
+
+
+@pytest.mark.parametrize("mode", [["--realtime"], []], ids=["realtime", "lockstep"])
+def test_goals_sent_to_a_running_fleet_are_reached_around_the_shelf(tmp_path, mode):
+    out = tmp_path / "run"
+    proc = start_fleet(out, *mode, "--duration", "600")
+    try:
+        endpoint = wait_endpoint(proc, out)
+        # access control is on by default: goals come from the fleet manager's credentials
+        manager = out / "secure" / "manager.json5"
+        if mode:  # once: anyone else's goal (here the read-only viewer's) is refused
+            viewer = ["goal", "A", "0.5", "0.5", "--connect", endpoint, "--timeout", "4",
+                      "--auth", str(out / "secure" / "viewer.json5")]
+            assert navcmd.main(viewer) != 0
+        for fid, (x, y, heading) in GOALS.items():
+            argv = ["goal", fid, str(x), str(y), "--connect", endpoint, "--timeout", "30",
+                    "--auth", str(manager)]
+            if heading is not None:
+                argv += ["--heading", repr(heading)]
+            assert navcmd.main(argv) == 0
+        status = wait_reached(endpoint, timeout=90.0, auth_file=manager)
+        assert status["B"].heading == pytest.approx(math.pi / 2)
+        assert status["A"].waypoints > 1  # the leader planned around the shelf
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(60) == 0, (tmp_path / "fleet.log").read_text(errors="replace")
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["hold"] is True and summary["collisions"] == 0
+    assert min(summary["min_clearance_shape_m"].values()) >= -0.005
+    assert summary["formation_error_max_m"] <= 1.5 * 0.05
+    assert summary["formations_status"]["A"]["state"] == "reached"
+    assert summary["formations_status"]["B"]["goal"] == [2.25, -0.6]
+    assert summary["comm"]["classes"]["goal"]["recv"]["messages"] >= 2
+    assert summary["comm"]["classes"]["plan"]["recv"]["messages"] >= 2

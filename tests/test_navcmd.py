@@ -1,0 +1,103 @@
+"""``formation goal`` / ``formation status`` against a leader stand-in on real Zenoh (loopback
+router, explicit endpoints, multicast scouting off). The fleet itself: tests/test_hold.py."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+
+import pytest
+import zenoh
+
+from formation.commands import goal as navcmd
+from geometry.shapes import box
+from leader.navigation import Follower, Navigator
+from wire import keys
+from wire.payloads import DecodeError, decode_goal, encode_nav
+from wire.testing import RouterProcess
+from wire.zconf import ZenohSettings
+
+SHELF = box("shelf", (2.0, 0.0), (0.6, 2.0), 0.0, 0.15)
+
+
+@pytest.fixture(scope="module")
+def router() -> Iterator[RouterProcess]:
+    with RouterProcess() as proc:
+        yield proc
+
+
+class LeaderStandIn:
+    """A leader's goal and status handling on its own session (what the agent does, minus
+    the control): accepts goals with a Navigator, answers status queries."""
+
+    def __init__(self, endpoint: str, fid: str) -> None:
+        conf = ZenohSettings(mode="client", connect=(endpoint,)).to_config()
+        self.session = zenoh.open(conf)
+        self.nav = Navigator(fid, f"{fid}1", {f"{fid}1": (0.25, 0.0), f"{fid}2": (-0.25, 0.0)}, (0.0, 0.0))
+        self.follower = Follower(f"{fid}1", (0.25, 0.0), (0.0, 0.0))
+        self.refused: list[str] = []
+        self.lock = threading.Lock()
+        self.subs = [
+            self.session.declare_subscriber(keys.goal_key("warehouse", fid), self.on_goal),
+            self.session.declare_queryable(keys.status_key("warehouse", fid), self.on_query),
+        ]
+
+    def on_goal(self, sample: zenoh.Sample) -> None:
+        try:
+            goal = decode_goal(sample.payload.to_bytes())
+        except DecodeError:
+            return
+        with self.lock:
+            why = self.nav.accept(goal, goal.stamp, (0.0, 0.0), [SHELF])
+            if why is None:
+                self.follower.adopt(self.nav.plan(goal.stamp))
+            elif why != "the goal followed already":
+                self.refused.append(why)
+
+    def on_query(self, query: zenoh.Query) -> None:
+        with self.lock:
+            s = self.nav.status(self.follower, (0.0, 0.0), False, False, 1.0)
+        query.reply(query.key_expr, encode_nav(s))
+
+    def close(self) -> None:
+        self.session.close()
+
+
+def test_goal_exits_0_once_the_leader_shows_it_and_status_lists_every_formation(router, capsys):
+    leaders = [LeaderStandIn(router.endpoint, "A"), LeaderStandIn(router.endpoint, "B")]
+    try:
+        rc = navcmd.main(["goal", "A", "4.0", "0.5", "--heading", "1.5", "--via", "1.0,2.0",
+                          "--connect", router.endpoint, "--timeout", "10"])
+        out = capsys.readouterr().out
+        assert rc == 0, out
+        assert "A: moving goal (4.000, 0.500) heading 1.500" in out and "waypoint 1/2" in out
+        assert leaders[0].nav.route == ((1.0, 2.0), (4.0, 0.5))
+        assert leaders[1].nav.goal == (0.0, 0.0)  # only A's leader got it
+        assert navcmd.main(["status", "--connect", router.endpoint]) == 0
+        lines = capsys.readouterr().out.splitlines()
+        assert [ln.split(":")[0] for ln in lines] == ["A", "B"]
+    finally:
+        for leader in leaders:
+            leader.close()
+
+
+def test_a_goal_the_leader_refuses_exits_1_saying_what_the_leader_shows(router, capsys):
+    leader = LeaderStandIn(router.endpoint, "C")
+    try:
+        rc = navcmd.main(["goal", "C", "2.0", "0.0", "--connect", router.endpoint, "--timeout", "2"])
+        err = capsys.readouterr().err
+        assert rc == 1
+        assert "did not take the goal" in err and "C: reached goal (0.000, 0.000)" in err
+        assert "within the safe distance of box 'shelf'" in leader.refused[0]
+    finally:
+        leader.close()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["goal", "A", "1", "2", "--via", "1;2"], "--via '1;2': expected X,Y"),
+    (["goal", "A/B", "1", "2"], "formation"),
+    (["goal", "A", "1", "2", "--timeout", "0"], "--timeout must be a positive number"),
+])
+def test_bad_arguments_exit_2_naming_them(argv, message, capsys):
+    assert navcmd.main(argv) == 2
+    assert message in capsys.readouterr().err
