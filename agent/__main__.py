@@ -85,20 +85,26 @@ class SignalWatch:
                     action()
 
 
-async def serve(node: AgentNode, watch: SignalWatch | None = None) -> None:
-    """Run ``node`` until SIGINT/SIGTERM (through ``watch``) or until it fails."""
+def stop_event(watch: SignalWatch | None) -> asyncio.Event:
+    """An event of the running loop that ``watch``'s first signal sets (from the signal thread,
+    queued on the loop even when its self-pipe is full)."""
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
 
     def set_stop() -> None:
         try:
-            loop.call_soon_threadsafe(stop.set)  # queued even when the self-pipe is full
+            loop.call_soon_threadsafe(stop.set)
         except RuntimeError:  # loop closed: nothing left to stop
             pass
 
     if watch is not None:
         watch.on_signal(set_stop)
-    await node.run(stop)
+    return stop
+
+
+async def serve(node: AgentNode, watch: SignalWatch | None = None) -> None:
+    """Run ``node`` until SIGINT/SIGTERM (through ``watch``) or until it fails."""
+    await node.run(stop_event(watch))
 
 
 def write_stats(node: AgentNode, path: Path) -> None:

@@ -48,7 +48,7 @@ from pathlib import Path  # noqa: E402
 
 import zenoh  # noqa: E402
 
-from agent.__main__ import SignalWatch, build_parser, node_options, write_stats  # noqa: E402
+from agent.__main__ import SignalWatch, build_parser, node_options, stop_event, write_stats  # noqa: E402
 from agent.config import load_config  # noqa: E402
 from agent.node import AgentNode, NodeOptions, zenoh_config  # noqa: E402
 from wire import keys  # noqa: E402
@@ -168,18 +168,9 @@ async def serve_all(nodes: Sequence[AgentNode], watch: SignalWatch | None = None
     """Run every node until SIGINT/SIGTERM (through ``watch``, the agent's signal thread, as
     :mod:`agent.__main__` does; else asyncio's handlers) or until one fails; every node closes
     either way."""
-    stop = asyncio.Event()
+    stop = stop_event(watch)
     loop = asyncio.get_running_loop()
-
-    def set_stop() -> None:
-        try:
-            loop.call_soon_threadsafe(stop.set)  # queued even when the self-pipe is full
-        except RuntimeError:  # loop closed: nothing left to stop
-            pass
-
-    if watch is not None:
-        watch.on_signal(set_stop)
-    else:
+    if watch is None:
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(sig, stop.set)
 

@@ -39,6 +39,7 @@ from wire.payloads import (
     encode_nav,
 )
 from wire.shapes import msg_to_shape
+from wire.stamps import FUTURE, check_stamp
 from wire.traffic import CountingPublisher, TrafficCounter
 
 logger = logging.getLogger(__name__)
@@ -51,11 +52,13 @@ GOAL_MAX_AGE_S = 5.0  # [s] real time: an older goal is refused (the goal comman
 
 
 def stamp_problem(goal_stamp: float, now: float) -> str | None:
-    """Real time: why a goal's stamp is refused against the leader's clock ``now``, or None
-    (too far in the future, then too old; "older than the goal followed" is the Navigator's)."""
-    if goal_stamp > now + GOAL_FUTURE_S:
+    """Real time: why a goal's stamp is refused against the leader's clock ``now``, or None:
+    the one stamp check of every input (:func:`wire.stamps.check_stamp`: too far in the future,
+    then too old), with the goal's window; "older than the goal followed" is the Navigator's."""
+    why = check_stamp(now, goal_stamp, None, GOAL_FUTURE_S, GOAL_MAX_AGE_S)
+    if why == FUTURE:
         return f"goal stamped {goal_stamp - now:.3f} s in the future"
-    if goal_stamp < now - GOAL_MAX_AGE_S:
+    if why is not None:
         return f"goal stamped {now - goal_stamp:.3f} s ago (more than {GOAL_MAX_AGE_S} s)"
     return None
 

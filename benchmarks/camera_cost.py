@@ -1,5 +1,5 @@
 """CPU cost of one camera frame without Zenoh: JPEG decode to grey and ``Locator.locate`` on
-the 16-robot 1280x960 frames of ``formation bench``'s camera section (camera_service/bench.py).
+the 16-robot 1280x960 frames of ``formation bench``'s camera section (experiments/camera.py).
 
     python3 benchmarks/camera_cost.py [FRAMES]
 
@@ -19,8 +19,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from camera_service.bench import _frames  # noqa: E402
 from camera_service.locate import Locator  # noqa: E402
+from experiments.camera import _frames  # noqa: E402
 
 
 def main(frames: int = 60) -> None:

@@ -30,7 +30,7 @@ Eight measurements, written to ``bench.json`` and as a table (``bench.txt`` and 
   with it, and with ``run.mcap`` written too; ``agents_viewer``, the first fleet of **agents**
   again with ``formation view`` attached to its router (the latency a live viewer costs).
 * **camera**: capture -> publish latency (p50, p99) of the real camera process at 1280x960,
-  15 fps, 16 robots (:mod:`camera_service.bench`).
+  15 fps, 16 robots (:mod:`experiments.camera`).
 * **scenario_loading**: validating and loading 100- and 1,000-robot fleet files
   (:mod:`scenario.bench`).
 
@@ -253,7 +253,7 @@ def run_bench(quick: bool = False, scenario: Path = DEFAULT_SCENARIO,
         # the first fleet again with the live viewer attached to its router
         n, dt = next(iter(fleets.items()))
         watched = {str(n): bench_agents(n, dt, duration, base / f"viewer-{n}", viewer=True)}
-    from camera_service.bench import bench_camera
+    from experiments.camera import bench_camera
 
     camera = bench_camera(frames=30 if quick else 450)
     return {
@@ -417,7 +417,7 @@ def format_table(result: dict) -> str:
                      f"{r['with_mcap']:.0f} ({rec['record_ms_per_tick']:.2f} ms and "
                      f"{rec['mcap_bytes_per_tick'] / 1e3:.1f} kB per tick of recording)")
     if result.get("camera"):
-        from camera_service.bench import format_camera
+        from experiments.camera import format_camera
 
         lines += ["", *format_camera(result["camera"])]
     if "scenario_loading" in result:

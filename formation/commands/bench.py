@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 from experiments.bench import format_fleets, format_table, parse_fleets, run_bench, run_fleets
 from formation.exits import UsageError
@@ -36,18 +37,17 @@ def bench_command(ns: argparse.Namespace) -> int:
     if fleets is not None:
         result = run_fleets(fleets, per_process, per_process > 1 and not own, repeat,
                             pose_slots=slots, **({} if duration is None else {"duration": duration}))
-        (out / "bench.json").write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
-        table = format_fleets(result)
-        (out / "bench.txt").write_text(table + "\n", encoding="utf-8")
-        print(table)
-        print(f"wrote {out / 'bench.json'}")
-        sys.stdout.flush()
-        return 0
-    result = run_bench(quick=ns.quick)
+        _write(out, result, format_fleets(result))
+    else:
+        result = run_bench(quick=ns.quick)
+        _write(out, result, format_table(result))
+    return 0
+
+
+def _write(out: Path, result: dict, table: str) -> None:
+    """``bench.json`` and ``bench.txt`` (the table, also printed)."""
     (out / "bench.json").write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
-    table = format_table(result)
     (out / "bench.txt").write_text(table + "\n", encoding="utf-8")
     print(table)
     print(f"wrote {out / 'bench.json'}")
     sys.stdout.flush()
-    return 0

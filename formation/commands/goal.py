@@ -44,7 +44,8 @@ def add_parsers(sub) -> None:
     p.add_argument("--heading", type=float, default=None, metavar="RAD",
                    help="turn the formation's goal shape to this heading [rad]")
     p.add_argument("--via", nargs="+", default=[], metavar="X,Y",
-                   help="waypoints the centroid passes first, in order")
+                   help="waypoints the centroid passes first, in order (default: none; the "
+                        "leader plans its own route)")
     p.add_argument("--timeout", type=float, default=30.0, metavar="S",
                    help="give up after this many seconds without the leader's status (default 30)")
     _common(p)
@@ -57,7 +58,8 @@ def add_parsers(sub) -> None:
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--connect", action="append", default=[], metavar="EP",
                    help=f"Zenoh endpoint of the fleet's router (default {DEFAULT_CONNECT})")
-    p.add_argument("--prefix", default=keys.DEFAULT_PREFIX, help="key-space prefix")
+    p.add_argument("--prefix", default=keys.DEFAULT_PREFIX,
+                   help=f"key-space prefix (default {keys.DEFAULT_PREFIX})")
     p.add_argument("--auth", default=None, metavar="FILE",
                    help="Zenoh configuration fragment with the fleet manager's credentials")
 

@@ -34,6 +34,7 @@ import yaml
 from camera_service.calibration import save_calibration, synthetic_camera
 from camera_service.node import percentile
 from camera_service.render import render_aruco_frame
+from experiments.machine import proc_cpu_s
 from wire.frames import Frame, encode_frame, frame_key
 from wire.payloads import decode_pose
 from wire.ports import free_tcp_port, tcp_endpoint
@@ -117,7 +118,7 @@ def bench_camera(robots: int = 16, fps: float = 15.0, frames: int = 450,
                                               else "timeout"))
                     time.sleep(0.02)
                 time.sleep(0.3)
-                cpu0 = _cpu_s(proc.pid)
+                cpu0 = proc_cpu_s(proc.pid)
                 start = time.monotonic() + 0.1
                 sent = []
                 for k in range(frames):
@@ -128,7 +129,7 @@ def bench_camera(robots: int = 16, fps: float = 15.0, frames: int = 450,
                     pub.put(encode_frame(Frame(stamp, "jpeg", jpgs[k % len(jpgs)])))
                     sent.append(stamp)
                 time.sleep(DRAIN_S)  # the last frames' poses
-                cpu1 = _cpu_s(proc.pid)
+                cpu1 = proc_cpu_s(proc.pid)
                 proc.send_signal(signal.SIGTERM)  # it prints its counters and exits
                 stdout, stderr = proc.communicate(timeout=60.0)
             finally:
@@ -158,14 +159,6 @@ def bench_camera(robots: int = 16, fps: float = 15.0, frames: int = 450,
     }
 
 
-def _cpu_s(pid: int) -> float | None:
-    """utime + stime of a process (all its threads) [s], from /proc/PID/stat."""
-    try:
-        text = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return None
-    fields = text[text.rindex(")") + 2:].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def format_camera(c: dict) -> list[str]:
