@@ -17,6 +17,7 @@ import zenoh
 
 from formation.cli import main
 from wire import acl, keys, zconf
+from wire.frames import stats_key
 from wire.testing import free_tcp_port, tcp_endpoint, wait_for_tcp_port
 from wire.zconf import UsrPwdAuth, ZenohSettings
 
@@ -393,3 +394,24 @@ def test_a_client_command_takes_auth_file_and_says_when_it_is_refused(router, tm
     assert proc.stderr.strip().splitlines() == [
         f"world: the router at {router.endpoint} refused the credentials of user 'manager' "
         "(wrong user or password, or not this router's credentials)"]
+
+
+def _ask(router: SecureRouter, user: str, key: str) -> list[bytes]:
+    with router.session(router.creds[user]) as s:
+        return [r.ok.payload.to_bytes() for r in s.get(key, timeout=1.0) if r.ok is not None]
+
+
+def test_the_manager_and_viewer_read_the_cameras_counters_and_no_robot_answers_for_it(router):
+    key = stats_key(P)
+    camera = router.session(router.creds[acl.CAMERA_USER])
+    forger = router.session(router.creds["r1"])
+    try:
+        camera.declare_queryable(key, lambda q: q.reply(key, b'{"frames": 3}'))
+        forger.declare_queryable(key, lambda q: q.reply(key, b'{"frames": 999}'))
+        time.sleep(SETTLE_S)
+        assert _ask(router, acl.MANAGER_USER, key) == [b'{"frames": 3}']
+        assert _ask(router, acl.VIEWER_USER, key) == [b'{"frames": 3}']
+        assert _ask(router, "r2", key) == []  # a robot has no business asking
+    finally:
+        forger.close()
+        camera.close()

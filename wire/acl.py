@@ -12,9 +12,11 @@ and filters messages with the ACL of :func:`fleet_acl`, whose subjects are match
   leader dies), also on ``{prefix}/formation/f/ellipse``, ``others``, ``status`` and ``plan``,
   hold the liveliness token ``{prefix}/formation/f/leader`` and answer ``status`` queries;
 * the camera service or simulated world (user :data:`CAMERA_USER`) may publish only the poses
-  ``{prefix}/robot/*/pose``, ``{prefix}/obstacles`` and the frames ``{prefix}/camera/frame``;
+  ``{prefix}/robot/*/pose``, ``{prefix}/obstacles`` and the frames ``{prefix}/camera/frame``,
+  and answer queries on its counters ``{prefix}/camera/stats``;
 * the fleet manager (:data:`MANAGER_USER`) may publish goals ``{prefix}/formation/*/goal`` and
-  query ``status``; a viewer (:data:`VIEWER_USER`) may only read and query ``status``;
+  query ``status`` and the camera's counters; a viewer (:data:`VIEWER_USER`) may only read and
+  query those two;
 * every fleet user may declare subscribers and liveliness subscribers under ``{prefix}/**`` and be
   sent (``put``, ``delete``, liveliness tokens, replies; egress) what is published there;
 * ``default_permission`` is ``deny``: anything else (another robot's keys, a member's ellipse,
@@ -48,6 +50,7 @@ from typing import Any
 
 from wire import keys
 from wire.diag import diag_key
+from wire.frames import stats_key
 from wire.zconf import UsrPwdAuth, client_auth_config
 
 logger = logging.getLogger(__name__)
@@ -112,16 +115,20 @@ def fleet_acl(
         subjects.append({"id": user, "usernames": [user]})
         policies.append({"id": f"{user}-policy", "rules": [*common, *own], "subjects": [user]})
 
+    stats = stats_key(prefix)
     subject(camera_user, [rule(CAMERA_RULE, ["put"], ["ingress"],
                                [f"{prefix}/robot/*/pose", keys.obstacles_key(prefix),
-                                f"{prefix}/camera/frame"])])
+                                f"{prefix}/camera/frame"]),
+                          # the camera service answers its counters (a queryable)
+                          rule("camera-stats", ["declare_queryable", "reply"], ["ingress"], [stats]),
+                          rule("camera-stats-asked", ["query"], ["egress"], [stats])])
     if manager_user is not None:
         subject(manager_user, [
             rule("manager-goal", ["put"], ["ingress"], [f"{fp}/*/goal"]),
-            rule("manager-query", ["query"], ["ingress"], [f"{fp}/*/status"]),
+            rule("manager-query", ["query"], ["ingress"], [f"{fp}/*/status", stats]),
         ])
-    if viewer_user is not None:  # reads everything, may ask the leaders' status, writes nothing
-        subject(viewer_user, [rule("viewer-query", ["query"], ["ingress"], [f"{fp}/*/status"])])
+    if viewer_user is not None:  # reads everything, may ask status and counters, writes nothing
+        subject(viewer_user, [rule("viewer-query", ["query"], ["ingress"], [f"{fp}/*/status", stats])])
     lead = {leader: fid for fid, leader in leaders.items()}
     lead.update({rid: fid for fid, rid in successors.items()})
     for rid in robots:
