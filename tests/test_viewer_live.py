@@ -101,6 +101,12 @@ def test_a_live_run_serves_the_page_and_foxglove_while_a_recorder_attaches(tmp_p
         st = wait_state(page, lambda s: s["frame"] is not None and len(s["frame"]["robots"]) == 5
                         and all(r["status"] for r in s["frame"]["robots"]), proc=run)
         assert st["mode"] == "live" and st["ws_port"]
+        # each formation's row as its leader reports it on its status key (about once a second)
+        told = wait_state(page, lambda s: all(fm["leader"] for fm in s["frame"]["formations"]),
+                          proc=run)
+        assert {fm["name"]: fm["leader"] for fm in told["frame"]["formations"]} == {"A": "a1", "B": "b1"}
+        assert all(fm["status"] in ("moving", "reached", "stalled", "stopped")
+                   for fm in told["frame"]["formations"])
         recorder = formation("record", "--connect", tcp_endpoint(router), "--out",
                              str(tmp_path / "rec"), "--duration", "4",
                              "--auth", str(tmp_path / "run" / "secure" / "viewer.json5"))
@@ -141,6 +147,7 @@ def test_a_live_run_serves_the_page_and_foxglove_while_a_recorder_attaches(tmp_p
                 browser.evaluate("window.viewer.t") > t2
             formations = browser.evaluate("document.getElementById('formations').textContent")
             assert "moving" in formations or "reached" in formations
+            assert "a1" in formations and "b1" in formations  # the leaders, from their status
         finally:
             browser.close()
 

@@ -152,6 +152,44 @@ def test_the_fleet_watcher_drops_and_counts_malformed_messages_and_builds_frames
     assert w.rejected == {"pose": 1, "diag": 1}
 
 
+def test_the_fleet_watcher_shows_each_leaders_status_and_planned_route():
+    from types import SimpleNamespace
+
+    from viewer.live import FleetWatcher
+    from wire.diag import Diag, encode_diag
+    from wire.payloads import PlanMsg, Pose, StatusMsg, encode, encode_nav
+
+    class Session:
+        def declare_subscriber(self, key, handler):
+            return SimpleNamespace(undeclare=lambda: None)
+
+    w = FleetWatcher(Session())
+
+    def put(key: str, data: bytes) -> None:
+        w._on_sample(SimpleNamespace(key_expr=key, payload=SimpleNamespace(to_bytes=lambda: data)))
+
+    for rid, form in (("a1", "A"), ("b1", "B")):
+        put(f"warehouse/robot/{rid}/pose", encode(Pose(0.0, 0.0, 0.0, 5.0)))
+        put(f"warehouse/robot/{rid}/diag", encode_diag(Diag(form, "ok", 5.0, 0.0, 0.01, 0.2, 0.3,
+                                                            9.0, 9.0, 100, 0, 0, 0, 0)))
+    put("warehouse/formation/A/status", encode_nav(StatusMsg(
+        "A", "stalled", "a1", 1.0, 4.0, 2.0, None, 7.5, 1, 3, 2.0, 0.0, 5.0)))
+    put("warehouse/formation/A/plan", encode_nav(PlanMsg(
+        "A", 1.0, 0.0, 0.0, None, ((2.0, 0.0), (2.0, 2.0), (4.0, 2.0)), (("a1", 4.0, 2.0),), 5.0)))
+    # a status about another formation under A's key is not A's report
+    put("warehouse/formation/B/status", encode_nav(StatusMsg(
+        "A", "reached", "b1", 1.0, 0.0, 0.0, None, 0.0, 0, 0, 0.0, 0.0, 5.0)))
+    put("warehouse/formation/B/plan", b"\x01garbage")
+    f = w.frame()
+    rows = {fm["name"]: fm for fm in f["formations"]}
+    assert (rows["A"]["status"], rows["A"]["distance"], rows["A"]["waypoint"], rows["A"]["leader"]) \
+        == ("stalled", 7.5, "1/3", "a1")
+    assert (rows["A"]["gx"], rows["A"]["gy"]) == (4.0, 2.0)
+    assert rows["B"]["leader"] is None and rows["B"]["status"] == "stopped"  # from its members
+    assert f["routes"] == [{"formation": "A", "points": [[2.0, 0.0], [2.0, 2.0], [4.0, 2.0]]}]
+    assert w.rejected == {"plan": 1}
+
+
 def test_walls_and_shelves_are_in_every_fleet_frame_and_drawn_in_the_scene(tmp_path):
     out = tmp_path / "sim"
     assert main(["sim", str(ROOT / "tests" / "scenarios" / "nav-behind-shelf.yaml"), "--out", str(out),

@@ -1,12 +1,16 @@
 """Watch a running fleet over Zenoh, read-only, and turn what it says into frames.
 
 :class:`FleetWatcher` subscribes with wildcards to the keys a viewer may read (every robot's
-``pose``, ``state``, ``cmd`` and ``diag``, every formation's ``ellipse``, the ``obstacles``);
+``pose``, ``state``, ``cmd`` and ``diag``, every formation's ``ellipse``, ``status`` and
+``plan``, the ``obstacles``);
 its callbacks only keep the newest payload of each key (raw bytes, no decoding on Zenoh's
 threads). :meth:`FleetWatcher.frame` decodes the newest of each with the defensive decoders of
 :mod:`wire.payloads` and :mod:`wire.diag` (a malformed payload is dropped and counted in
 ``rejected``) and builds a :mod:`viewer.frame` frame. The frame's time is the newest pose stamp
-(simulated seconds in lock-step, wall time on real fleets).
+(simulated seconds in lock-step, wall time on real fleets). A formation's row says what its
+leader reports on ``status`` (state, distance along the route, waypoint, leader) when the leader
+has said it, else what its members' diagnostics show; each leader's ``plan`` gives the route
+drawn on the floor (``routes``).
 
 It never publishes anything, so it works with any fleet, simulated or real, that the session's
 credentials may read.
@@ -23,7 +27,18 @@ import zenoh
 
 from wire import keys
 from wire.diag import DIAG, all_diag_key, decode_diag
-from wire.payloads import DecodeError, decode_cmd, decode_ellipse, decode_obstacles, decode_pose, decode_state
+from wire.payloads import (
+    DecodeError,
+    PlanMsg,
+    StatusMsg,
+    decode_cmd,
+    decode_ellipse,
+    decode_obstacles,
+    decode_plan,
+    decode_pose,
+    decode_state,
+    decode_status,
+)
 from wire.shapes import msg_to_shape
 
 from .frame import Frame, formation_status, num, shape_entries
@@ -31,6 +46,10 @@ from .frame import Frame, formation_status, num, shape_entries
 # robot key kind -> (field of a robot's entry, decoder); poses are handled apart (they set the time)
 _ROBOT_KINDS = {keys.STATE: ("state", decode_state), keys.CMD: ("cmd", decode_cmd),
                 DIAG: ("diag", decode_diag)}
+
+# formation key kind -> decoder
+_FORMATION_KINDS: dict[str, Callable[[bytes], Any]] = {
+    keys.ELLIPSE: decode_ellipse, keys.STATUS: decode_status, keys.PLAN: decode_plan}
 
 logger = logging.getLogger(__name__)
 
@@ -54,7 +73,8 @@ class FleetWatcher:
         p = self.prefix
         exprs = [keys.all_robots_key(p, keys.POSE), keys.all_robots_key(p, keys.STATE),
                  keys.all_robots_key(p, keys.CMD), all_diag_key(p),
-                 keys.all_formations_key(p, keys.ELLIPSE), keys.obstacles_key(p)]
+                 keys.all_formations_key(p, keys.ELLIPSE), keys.all_formations_key(p, keys.STATUS),
+                 keys.all_formations_key(p, keys.PLAN), keys.obstacles_key(p)]
         self._subs = [session.declare_subscriber(
             e, zenoh.handlers.Callback(self._on_sample, indirect=False)) for e in exprs]
 
@@ -91,9 +111,9 @@ class FleetWatcher:
             latest = dict(self._latest)
         head = self.prefix + "/"
         robots: dict[str, dict[str, Any]] = {}
-        ellipses = []
         obstacles: list[dict] = []
         shapes: list[dict] = []
+        told: dict[str, dict[str, Any]] = {k: {} for k in _FORMATION_KINDS}  # kind -> fid -> msg
         t = None
         for key, data in latest.items():
             if not key.startswith(head):
@@ -109,11 +129,10 @@ class FleetWatcher:
             if len(parts) != 3:
                 continue
             group, ident, kind = parts
-            if group == "formation" and kind == keys.ELLIPSE:
-                e = self._decode(key, data, decode_ellipse, keys.ELLIPSE)
-                if e is not None:
-                    ellipses.append({"formation": e.formation, "cx": e.cx, "cy": e.cy,
-                                     "alpha": e.alpha, "a": e.a, "b": e.b})
+            if group == "formation" and kind in _FORMATION_KINDS:
+                msg = self._decode(key, data, _FORMATION_KINDS[kind], kind)
+                if msg is not None:
+                    told[kind][ident] = msg
                 continue
             if group != "robot":
                 continue
@@ -150,8 +169,27 @@ class FleetWatcher:
                 "gy": diag.goal_y if diag is not None else None,
             })
         names = sorted({r["formation"] for r in out_robots})
-        ellipses.sort(key=lambda e: e["formation"])
+        ellipses = sorted(({"formation": e.formation, "cx": e.cx, "cy": e.cy, "alpha": e.alpha,
+                            "a": e.a, "b": e.b} for e in told[keys.ELLIPSE].values()),
+                          key=lambda e: e["formation"])
+        # a status or plan about another formation than its key names is not that formation's
+        reports: dict[str, StatusMsg] = {f: m for f, m in told[keys.STATUS].items() if m.formation == f}
+        plans: dict[str, PlanMsg] = {f: m for f, m in told[keys.PLAN].items() if m.formation == f}
         return {"t": t, "radius": self.radius, "robots": out_robots, "ellipses": ellipses,
                 "obstacles": obstacles,
                 "shapes": shapes,
-                "formations": [formation_status(n, out_robots, self.tolerance) for n in names]}
+                "routes": [{"formation": f, "points": [[num(x), num(y)] for x, y in plans[f].route]}
+                           for f in sorted(plans)],
+                "formations": [leader_report(formation_status(n, out_robots, self.tolerance),
+                                             reports.get(n)) for n in names]}
+
+
+def leader_report(row: dict, report: StatusMsg | None) -> dict:
+    """A formation's row with what its leader reports (``status``): the leader's state, goal and
+    distance to go along the route replace those derived from the members; ``leader`` and
+    ``waypoint`` ("k/n") are added. Without a report the row stays as derived."""
+    if report is None:
+        return {**row, "leader": None, "waypoint": None}
+    return {**row, "status": report.state, "gx": num(report.gx), "gy": num(report.gy),
+            "distance": num(report.distance), "leader": report.leader,
+            "waypoint": f"{report.waypoint}/{report.waypoints}" if report.waypoints else None}

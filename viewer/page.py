@@ -5,11 +5,13 @@ Nothing to install and nothing fetched from elsewhere (no CDN): the page polls `
 server that served it about ten times a second and draws
 
 * the floor seen from above, fitted to the fleet and following it: obstacles (grey, with a ring
-  at their safe distance), formation ellipses, goals (squares), robots (discs in their
-  formation's colour, a heading tick, the control point when it is off the centre);
+  at their safe distance), walls and shelves, each leader's planned route (dotted, waypoints as
+  small squares), formation ellipses, goals (squares), robots (discs in their formation's
+  colour, a heading tick, the control point when it is off the centre);
 * each robot's smallest barrier value of each kind over the last minute (three charts, zero
   marked);
-* each formation's status, the newest log lines, the shown time (simulated seconds; for wall
+* each formation's status (as its leader reports it: state, distance to go, waypoint, leader),
+  the newest log lines, the shown time (simulated seconds; for wall
   time the UTC clock and the seconds since the first frame), the Foxglove WebSocket's port;
 * for a replay: play/pause, speed and a time slider.
 
@@ -122,6 +124,15 @@ function drawFloor(frame) {
     if (s.kind === "box") { c.closePath(); c.fillStyle = "#999"; c.fill(); }
     else { c.strokeStyle = "#555"; c.lineWidth = 3; c.stroke(); c.lineWidth = 1; }
   }
+  for (const rt of frame.routes || []) {  // each leader's planned route, dashed, its goal last
+    const pts = rt.points.filter(p => finite(p[0])).map(p => px(p[0], p[1]));
+    if (pts.length < 1) continue;
+    c.strokeStyle = colorOf(rt.formation); c.setLineDash([2, 6]); c.lineWidth = 2;
+    c.beginPath(); c.moveTo(pts[0][0], pts[0][1]);
+    for (const p of pts.slice(1)) c.lineTo(p[0], p[1]);
+    c.stroke(); c.setLineDash([]); c.lineWidth = 1;
+    for (const p of pts) { c.fillStyle = colorOf(rt.formation); c.fillRect(p[0] - 2, p[1] - 2, 4, 4); }
+  }
   for (const e of frame.ellipses) {
     if (!finite(e.cx) || !finite(e.a)) continue;
     const [a, b] = px(e.cx, e.cy);
@@ -214,9 +225,10 @@ function side(st) {
   document.title = "formation " + st.mode + " t=" + f.t.toFixed(2);
   const ws = st.ws_port ? ("Foxglove WebSocket: ws://" + location.hostname + ":" + st.ws_port) : "";
   document.getElementById("meta").textContent = st.mode + "  " + ws;
-  let rows = "<tr><th>formation</th><th>status</th><th>QP</th><th>to go [m]</th></tr>";
+  let rows = "<tr><th>formation</th><th>status</th><th>QP</th><th>to go [m]</th><th>waypoint</th><th>leader</th></tr>";
   for (const fm of f.formations) rows += "<tr><td><span class='sw' style='background:" + colorOf(fm.name) +
-    "'></span>" + esc(fm.name) + "</td><td>" + esc(fm.status) + "</td><td>" + esc(fm.qp) + "</td><td>" + fmt(fm.distance, 2) + "</td></tr>";
+    "'></span>" + esc(fm.name) + "</td><td>" + esc(fm.status) + "</td><td>" + esc(fm.qp) + "</td><td>" + fmt(fm.distance, 2) +
+    "</td><td>" + esc(fm.waypoint || "") + "</td><td>" + esc(fm.leader || "") + "</td></tr>";
   document.getElementById("formations").innerHTML = rows;
   rows = "<tr><th>robot</th><th>QP</th><th>slack</th><th>h_form</th><th>h_obs</th><th>h_ell</th></tr>";
   for (const r of f.robots) rows += "<tr><td>" + esc(r.id) + "</td><td>" + esc(r.status) + "</td><td>" + fmt(r.slack, 3) +

@@ -95,7 +95,10 @@ FLEET_SCHEMA: dict[str, Any] = {
             "corners": {"type": "array", "items": {"type": "array"}}}}},
         "formations": {"type": "array", "items": {"type": "object", "properties": {
             "name": {"type": "string"}, "status": {"type": "string"}, "qp": {"type": "string"},
+            "leader": {"type": ["string", "null"]}, "waypoint": {"type": ["string", "null"]},
             **{k: {"type": ["number", "null"]} for k in ("gx", "gy", "distance")}}}},
+        "routes": {"type": "array", "items": {"type": "object", "properties": {
+            "formation": {"type": "string"}, "points": {"type": "array", "items": {"type": "array"}}}}},
     },
 }
 
