@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from agent.faults import FAULT_CLASSES, DelayLine, LinkFaults, lag
-from agent.node import inflate
+from agent.leader_step import inflate
 from formation.cli import main
 from simulator.launch import CameraDropout, FaultPlan, Kill, parse_camera_dropout, parse_kill
 from wire.payloads import EllipseMsg
