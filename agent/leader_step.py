@@ -1,7 +1,9 @@
-"""The leader's part of a tick: estimate and publish the formation's ellipse from its members'
-``state``, collect the other leaders' ellipses (a stale one held inflated for up to
-``ellipse_hold`` seconds), publish ``others``. A successor leading for a dead leader (``acting``,
-:mod:`leader.succession`) estimates the standing formation's ellipse.
+"""The leader's part of an agent: its step in each tick (:func:`lead`: estimate and publish the
+formation's ellipse from its members' ``state``, collect the other leaders' ellipses, a stale one
+held inflated for up to ``ellipse_hold`` seconds, publish ``others``), and fault containment
+(:mod:`leader.succession`): a successor takes the role when the leader's liveliness token goes
+(:func:`take_over`; it then estimates the standing formation's ellipse) and gives it back when
+the token returns (:func:`step_down`).
 
 It lives in agent/, not leader/: it reads the node's mailboxes and, in lock-step, waits for the
 tick's inputs (:func:`agent.schedule.wait_current`); the pure estimation is
@@ -10,16 +12,20 @@ tick's inputs (:func:`agent.schedule.wait_current`); the pure estimation is
 
 from __future__ import annotations
 
+import logging
 import time
 from typing import TYPE_CHECKING
 
 from agent.schedule import wait_current
-from leader.role import ellipse_to_msg
+from leader.role import LeaderRole, ellipse_to_msg
 from wire import keys
 from wire.payloads import EllipseMsg, State
+from wire.traffic import CountingPublisher
 
 if TYPE_CHECKING:
     from agent.node import AgentNode
+
+logger = logging.getLogger(__name__)
 
 
 def inflate(m: EllipseMsg, grow: float) -> EllipseMsg:
@@ -89,3 +95,57 @@ def members_now(node: AgentNode, px: float, py: float,
             node.takeovers += 1
         members = {m: (x, y, 0.0, 0.0) for m, (x, y, _, _) in members.items()}
     return members
+
+
+# --- fault containment (leader.succession) ------------------------------------------------
+
+
+def on_leader_token(node: AgentNode, alive: bool) -> None:
+    """Loop thread: the leader's liveliness token came (``alive``) or went."""
+    with node._tick_lock:
+        if node._closing or node._session is None:
+            return
+        if not alive and not node.acting:
+            take_over(node)
+        elif alive and node.acting:
+            step_down(node)
+
+
+def take_over(node: AgentNode) -> None:
+    """Under the tick lock: lead this formation for its dead leader (leader.succession).
+    The formation stands still (its members' neighbour, the dead robot, is stale, so they
+    command zero); this agent publishes its ellipse, at rest, and relays the others."""
+    settings = node.cfg.standby
+    assert settings is not None and node._session is not None
+    role = LeaderRole(node.cfg.formation, settings, node.cfg.prefix)
+    member_keys = {m: keys.state_key(node.cfg.prefix, m) for m in role.members
+                   if m != node.cfg.robot_id}
+    missing = [m for m, k in member_keys.items() if k not in node.neighbour_keys]
+    if missing:
+        logger.error("%s: cannot lead %s: not adjacent to %s", node.cfg.robot_id,
+                     node.cfg.formation, ", ".join(missing))
+        return
+    for k in [role.others_key] + ([] if node.all_to_all else [role.ellipse_key]):
+        if k not in node._pubs:
+            node._pubs[k] = CountingPublisher(node._session.declare_publisher(k), node.counter)
+    if not node.all_to_all:
+        for k in role.other_keys:
+            if k not in node.subscribed_keys:
+                node._declare_subscriber(k, keys.ELLIPSE)
+    node.role = role
+    node._member_keys = member_keys
+    node.acting = True
+    node._acting_since_tick = False  # counted as a takeover once it leads a tick (not when
+    # the leader merely closed first at the end of a run)
+    logger.warning("%s: leader %s of %s is gone: leading the standing formation",
+                   node.cfg.robot_id, node.cfg.leader_id, node.cfg.formation)
+
+
+def step_down(node: AgentNode) -> None:
+    """Under the tick lock: the leader is back; be a member again."""
+    node.role = None
+    node._member_keys = {}
+    node._own_others = None
+    node.acting = False
+    logger.warning("%s: leader %s of %s is back: member again", node.cfg.robot_id,
+                   node.cfg.leader_id, node.cfg.formation)

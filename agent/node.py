@@ -41,7 +41,8 @@ ticks one at a time whichever thread runs them, and once :meth:`AgentNode.close`
 runs. A tick longer than one period counts as an overrun. The tick itself is the same coroutine
 as in lock-step; in real time it never suspends (its waits are lock-step only), so
 :func:`agent.schedule.run_now` drives it to the end on the calling thread. The schedulers are
-:mod:`agent.schedule`'s, the leader's part of a tick :mod:`agent.leader_step`'s.
+:mod:`agent.schedule`'s; the leader's part (its step in a tick, a successor taking over) is
+:mod:`agent.leader_step`'s.
 ``NodeOptions(tick_on_pose=False)`` ticks on the own clock instead (against deadlines at
 1/period, ``next_t += period``, overruns counted). Inputs are the latest received, staleness is
 the local age since reception. *Lock-step* (``lockstep=True``, for the simulated world): a tick
@@ -97,7 +98,7 @@ from agent.control import Stall, StepResult, control_step
 from agent.faults import EPS, DelayLine, LinkFaults, lag
 from agent.hard_rows import HardRowCounter
 from agent.inputs import step_inputs
-from agent.leader_step import lead
+from agent.leader_step import lead, on_leader_token
 from agent.navigation import STALLED_AFTER_S, NavPart
 from agent.plausibility import (
     JUMP_MARGIN_M,
@@ -503,7 +504,7 @@ class AgentNode:
         def on_token(sample: zenoh.Sample) -> None:
             alive = sample.kind == zenoh.SampleKind.PUT
             try:
-                loop.call_soon_threadsafe(self._on_leader_token, alive)
+                loop.call_soon_threadsafe(on_leader_token, self, alive)
             except RuntimeError:  # loop closed: shutting down
                 pass
 
@@ -610,56 +611,6 @@ class AgentNode:
         self._pubs.clear()
         session, self._session = self._session, None
         within(step_limit, f"{rid}: closing the Zenoh session", lambda: self._close_session(session))
-
-    # --- fault containment ---------------------------------------------------------------------
-
-    def _on_leader_token(self, alive: bool) -> None:
-        """Loop thread: the leader's liveliness token came (``alive``) or went."""
-        with self._tick_lock:
-            if self._closing or self._session is None:
-                return
-            if not alive and not self.acting:
-                self._take_over()
-            elif alive and self.acting:
-                self._step_down()
-
-    def _take_over(self) -> None:
-        """Under the tick lock: lead this formation for its dead leader (leader.succession).
-        The formation stands still (its members' neighbour, the dead robot, is stale, so they
-        command zero); this agent publishes its ellipse, at rest, and relays the others."""
-        settings = self.cfg.standby
-        assert settings is not None and self._session is not None
-        role = LeaderRole(self.cfg.formation, settings, self.cfg.prefix)
-        member_keys = {m: keys.state_key(self.cfg.prefix, m) for m in role.members
-                       if m != self.cfg.robot_id}
-        missing = [m for m, k in member_keys.items() if k not in self.neighbour_keys]
-        if missing:
-            logger.error("%s: cannot lead %s: not adjacent to %s", self.cfg.robot_id,
-                         self.cfg.formation, ", ".join(missing))
-            return
-        for k in [role.others_key] + ([] if self.all_to_all else [role.ellipse_key]):
-            if k not in self._pubs:
-                self._pubs[k] = CountingPublisher(self._session.declare_publisher(k), self.counter)
-        if not self.all_to_all:
-            for k in role.other_keys:
-                if k not in self.subscribed_keys:
-                    self._declare_subscriber(k, keys.ELLIPSE)
-        self.role = role
-        self._member_keys = member_keys
-        self.acting = True
-        self._acting_since_tick = False  # counted as a takeover once it leads a tick (not when
-        # the leader merely closed first at the end of a run)
-        logger.warning("%s: leader %s of %s is gone: leading the standing formation",
-                       self.cfg.robot_id, self.cfg.leader_id, self.cfg.formation)
-
-    def _step_down(self) -> None:
-        """Under the tick lock: the leader is back; be a member again."""
-        self.role = None
-        self._member_keys = {}
-        self._own_others = None
-        self.acting = False
-        logger.warning("%s: leader %s of %s is back: member again", self.cfg.robot_id,
-                       self.cfg.leader_id, self.cfg.formation)
 
     def emergency_zero(self) -> bool:
         """From any thread and without the tick lock (a shutdown that overran its time limit):
