@@ -21,6 +21,7 @@ from typing import Any
 
 import zenoh
 
+from geometry.limits import BURGER_RADIUS
 from wire import keys
 from wire.diag import DIAG, all_diag_key, decode_diag
 from wire.payloads import DecodeError, decode_cmd, decode_ellipse, decode_obstacles, decode_pose, decode_state
@@ -34,7 +35,7 @@ _ROBOT_KINDS = {keys.STATE: ("state", decode_state), keys.CMD: ("cmd", decode_cm
 
 logger = logging.getLogger(__name__)
 
-DEFAULT_RADIUS = 0.105  # [m] TurtleBot3 burger, when the fleet does not say
+DEFAULT_RADIUS = BURGER_RADIUS  # [m] TurtleBot3 burger, when the fleet does not say
 DEFAULT_TOLERANCE = 0.05  # [m]
 
 
