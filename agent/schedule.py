@@ -117,7 +117,7 @@ def tick_locked(node: AgentNode, now: float) -> None:
 
 async def pose_loop(node: AgentNode) -> None:
     """The loop's part of real time on pose arrival: the deadline tick when no tick has run
-    for ``DEADLINE_PERIODS`` periods (module docstring)."""
+    for ``DEADLINE_PERIODS`` periods (module docstring of :mod:`agent.node`)."""
     assert node._stop is not None
     period = max(node.cfg.period, node._pose_period)  # a slower camera: its own rate
     span = DEADLINE_PERIODS * period

@@ -165,3 +165,17 @@ def test_when_a_leader_dies_its_members_stop_and_its_successor_keeps_its_ellipse
     assert stats["inflated"] == f["inflated_ellipse_ticks"] <= 20
     assert f["stale_ticks_by_robot"]["a1"] == 0  # A went on around B
     assert s["all_reached"] is True
+
+
+def test_in_real_time_the_successor_subscribes_to_the_other_leaders_ellipse_when_it_takes_over(
+        tmp_path, two):
+    # real time polls its ring channels: the successor's late subscription (agent.node
+    # _declare_subscriber, after open) must be drained like the others, or A's ellipse never
+    # reaches b2 and B's others never go out
+    s = run(tmp_path, two, "--realtime", "--kill", "b1@2:2")
+    assert s["collisions"] == 0
+    assert s["faults"]["leader_takeovers"] == {"b2": 1}
+    b2 = json.loads((tmp_path / "out" / "agents" / "b2.json").read_text())
+    assert b2["acting_leader_ticks"] >= 20
+    assert "warehouse/formation/A/ellipse" in b2["subscriptions"]
+    assert b2["received"]["ellipse"] >= 20  # a member subscribes to no ellipse: all since then
