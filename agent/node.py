@@ -57,8 +57,9 @@ ticks do not wait for it again until a message arrives on its key, so a dead nei
 camera costs one timeout, not one per tick (counted ``lockstep_timeouts``).
 
 Faults (docs/faults.md): :class:`agent.faults.LinkFaults` in :class:`NodeOptions` drops (seeded,
-per message) and delays the inter-robot classes at this node's subscribers; a lost message counts
-in ``fault_dropped`` and, in lock-step, ends the wait for it. A leader whose copy of another
+per message) and delays the inter-robot classes at this node's subscribers
+(:mod:`agent.fault_inject`); a lost message counts in ``fault_dropped`` and, in lock-step, ends
+the wait for it. A leader whose copy of another
 formation's ellipse is stale keeps using it inflated by ``max_speed * age`` (both semi-axes), the
 region that formation can have reached, for up to ``ellipse_hold`` seconds, then stops.
 
@@ -95,6 +96,7 @@ from agent.barriers import Obstacle
 from agent.base import Base, make_base
 from agent.config import AgentConfig
 from agent.control import Stall, StepResult, control_step
+from agent.fault_inject import faulty_sample, offer
 from agent.faults import EPS, DelayLine, LinkFaults, lag
 from agent.hard_rows import HardRowCounter
 from agent.inputs import step_inputs
@@ -434,7 +436,7 @@ class AgentNode:
             self._base = make_base(self.cfg, s)
         faults = self.options.faults
         if faults.delay > 0 and self.options.lockstep:
-            self._delay_line = DelayLine(faults.delay, self._offer)
+            self._delay_line = DelayLine(faults.delay, partial(offer, self))
         for k, cls in list(self.subscribed_keys.items()):
             self._declare_subscriber(k, cls)
         self._declare_succession(s, loop)
@@ -479,8 +481,8 @@ class AgentNode:
 
         def on_sample(sample: zenoh.Sample) -> None:
             if faulty and sample.kind != zenoh.SampleKind.DELETE:
-                self._faulty_sample(loop, cls, decode, str(sample.key_expr),
-                                    sample.payload.to_bytes())
+                faulty_sample(self, loop, cls, decode, str(sample.key_expr),
+                              sample.payload.to_bytes())
             else:
                 box.callback(sample)
             if not notify:
@@ -536,41 +538,6 @@ class AgentNode:
     def _close_session(self, session: zenoh.Session) -> None:
         """Close what :meth:`_open_session` opened."""
         session.close()
-
-    def _faulty_sample(self, loop: asyncio.AbstractEventLoop, cls: str,
-                       decode: Callable[[bytes], Any], key: str, payload: bytes) -> None:
-        """Zenoh thread: apply :class:`LinkFaults` to one sample of a faulted class."""
-        box = self._boxes[cls]
-        try:
-            stamp = decode(payload).stamp
-        except Exception:  # noqa: BLE001 - malformed: the mailbox decodes it again and counts it
-            box.offer(key, payload)
-            return
-        faults = self.options.faults
-        try:
-            if faults.dropped(self.cfg.robot_id, key, stamp):
-                loop.call_soon_threadsafe(self._mark_lost, cls, key, stamp)
-            elif faults.delay > 0 and self._delay_line is not None:
-                loop.call_soon_threadsafe(self._delay_line.push, key, payload, stamp)
-            elif faults.delay > 0:  # real time: hold it on the wall clock
-                loop.call_soon_threadsafe(loop.call_later, faults.delay, self._offer, key, payload)
-            else:
-                box.offer(key, payload)
-        except RuntimeError:  # loop closed: shutting down
-            pass
-
-    def _offer(self, key: str, payload: bytes) -> None:
-        """Loop thread: hand a (delayed) payload to its mailbox."""
-        cls = self.subscribed_keys.get(key, keys.STATE)  # all-to-all: a wildcard's concrete key
-        with self._tick_lock:  # real time: a tick may be reading the mailboxes on Zenoh's thread
-            self.fault_delayed += 1
-            self._boxes[cls].offer(key, payload)
-        self._on_arrival(key)
-
-    def _mark_lost(self, cls: str, key: str, stamp: float) -> None:
-        with self._tick_lock:
-            self.fault_dropped[cls] += 1
-            self._lost[key] = max(stamp, self._lost.get(key, -math.inf))
 
     def _on_arrival(self, key: str) -> None:
         """Loop thread: something arrived on ``key`` (its publisher is alive): wake the tick."""

@@ -121,6 +121,15 @@ def test_thesis_5_2_2_with_a_fifth_of_the_messages_lost_has_no_collision(tmp_pat
     assert s["formation_error_max_m"] < 3 * 0.035
 
 
+def test_with_added_delay_every_inter_robot_message_is_held_back_and_the_run_still_completes(
+        tmp_path, two):
+    s = run(tmp_path, two, "--delay-ms", "100")  # lock-step: two whole periods
+    classes = s["comm"]["classes"]
+    assert s["faults"]["delayed_messages"] == sum(
+        classes[c]["recv"]["messages"] for c in ("state", "ellipse", "others")) > 0
+    assert s["collisions"] == 0 and s["all_reached"] is True
+
+
 def test_a_killed_and_restarted_agent_rejoins_and_its_robot_stands_still_meanwhile(tmp_path, two):
     s = run(tmp_path, two, "--kill", "a2@2:2")
     f = s["faults"]
