@@ -54,7 +54,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 from geometry.ellipse import Ellipse
-from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE
+from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE, BURGER_RADIUS
 from geometry.shapes import Shape
 
 from . import barriers, unicycle
@@ -96,7 +96,7 @@ class ControlParams:
     safety: bool = True  # False: the nominal command, no barriers (to show what happens)
     d_af: float = 0.5  # [m] pairwise distance for the all-to-all baseline (eq. 3.5)
     period: float = 0.05  # [s] control period (sizes the unicycle's discretisation margin)
-    radius: float = 0.105  # [m] body radius: separation rows keep bodies 2 r + SEP_MARGIN apart
+    radius: float = BURGER_RADIUS  # [m] body radius: separation rows keep bodies 2 r + SEP_MARGIN apart
 
     @classmethod
     def from_scenario(cls, scenario, safety: bool = True) -> ControlParams:

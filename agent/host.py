@@ -51,7 +51,7 @@ import zenoh  # noqa: E402
 from agent.__main__ import SignalWatch, build_parser, node_options, stop_event, write_stats  # noqa: E402
 from agent.config import load_config  # noqa: E402
 from agent.node import AgentNode, NodeOptions, zenoh_config  # noqa: E402
-from wire import keys  # noqa: E402
+from agent.schedule import pose_tick  # noqa: E402
 from wire.acl import read_credentials  # noqa: E402
 from wire.lifeline import watch_parent  # noqa: E402
 from wire.zconf import use_zenoh_threads  # noqa: E402
@@ -107,7 +107,7 @@ class TickWorker:
                 self._queued.discard(id(node))
             with node._tick_lock:
                 if not node._closing:
-                    node._pose_tick(time.monotonic())
+                    pose_tick(node, time.monotonic())
 
     def stop(self) -> None:
         with self._cond:
@@ -125,19 +125,9 @@ class HostedNode(AgentNode):
         super().__init__(cfg, options)
         self.shared = shared
         self.host_agents = host_agents
-        self.worker = worker
+        self.tick_worker = worker  # agent.schedule.on_pose_sample queues this node on it
         self.superseded = 0
         self._host_cpu0 = time.process_time()
-
-    def _on_pose_sample(self, sample) -> None:
-        if self.worker is None:
-            super()._on_pose_sample(sample)
-            return
-        with self._tick_lock:
-            if self._closing:
-                return
-            self._boxes[keys.POSE].callback(sample)
-        self.worker.mark(self)
 
     def _open_session(self) -> zenoh.Session:
         return super()._open_session() if self.shared is None else self.shared.session

@@ -40,7 +40,9 @@ looked every 2.5 periods). A lock keeps
 ticks one at a time whichever thread runs them, and once :meth:`AgentNode.close` starts no tick
 runs. A tick longer than one period counts as an overrun. The tick itself is the same coroutine
 as in lock-step; in real time it never suspends (its waits are lock-step only), so
-:func:`_run_now` drives it to the end on the calling thread.
+:func:`agent.schedule.run_now` drives it to the end on the calling thread. The schedulers are
+:mod:`agent.schedule`'s; the leader's part (its step in a tick, a successor taking over) is
+:mod:`agent.leader_step`'s.
 ``NodeOptions(tick_on_pose=False)`` ticks on the own clock instead (against deadlines at
 1/period, ``next_t += period``, overruns counted). Inputs are the latest received, staleness is
 the local age since reception. *Lock-step* (``lockstep=True``, for the simulated world): a tick
@@ -55,8 +57,9 @@ ticks do not wait for it again until a message arrives on its key, so a dead nei
 camera costs one timeout, not one per tick (counted ``lockstep_timeouts``).
 
 Faults (docs/faults.md): :class:`agent.faults.LinkFaults` in :class:`NodeOptions` drops (seeded,
-per message) and delays the inter-robot classes at this node's subscribers; a lost message counts
-in ``fault_dropped`` and, in lock-step, ends the wait for it. A leader whose copy of another
+per message) and delays the inter-robot classes at this node's subscribers
+(:mod:`agent.fault_inject`); a lost message counts in ``fault_dropped`` and, in lock-step, ends
+the wait for it. A leader whose copy of another
 formation's ellipse is stale keeps using it inflated by ``max_speed * age`` (both semi-axes), the
 region that formation can have reached, for up to ``ellipse_hold`` seconds, then stops.
 
@@ -82,8 +85,9 @@ import statistics
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from typing import Any, TypeGuard
 
 import zenoh
@@ -92,9 +96,11 @@ from agent.barriers import Obstacle
 from agent.base import Base, make_base
 from agent.config import AgentConfig
 from agent.control import Stall, StepResult, control_step
+from agent.fault_inject import faulty_sample, offer
 from agent.faults import EPS, DelayLine, LinkFaults, lag
 from agent.hard_rows import HardRowCounter
 from agent.inputs import step_inputs
+from agent.leader_step import lead, on_leader_token
 from agent.navigation import STALLED_AFTER_S, NavPart
 from agent.plausibility import (
     JUMP_MARGIN_M,
@@ -106,14 +112,21 @@ from agent.plausibility import (
     velocity_ok,
 )
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
+from agent.schedule import (
+    TickQueue,
+    lockstep_loop,
+    on_pose_sample,
+    pose_loop,
+    realtime_loop,
+    wait_current,
+)
 from agent.unicycle import control_point
-from leader.role import LeaderRole, ellipse_to_msg, msg_to_ellipse
+from leader.role import LeaderRole, msg_to_ellipse
 from leader.succession import leader_token_key
 from wire import keys
 from wire.diag import DiagPublisher
 from wire.payloads import (
     Cmd,
-    EllipseMsg,
     Obstacles,
     Others,
     Pose,
@@ -131,14 +144,16 @@ from wire.zconf import UsrPwdAuth, ZenohSettings, explain_open_failure, read_aut
 
 logger = logging.getLogger(__name__)
 
-DEADLINE_PERIODS = 1.5  # real time: tick without a new pose after this many periods
-MIN_SPACING_PERIODS = 0.75  # real time: a pose stamped sooner after the last ticked one waits
 RING_CAPACITY = 256  # real time: samples kept per key between two ticks (a flood beyond it
 # loses its oldest samples uncounted; about one per tick arrives in normal operation)
 STATS_WINDOW = 10_000  # per-tick timings kept for the medians in stats() (the newest ticks)
 STATUS_STALE = "stale"  # trace status of a tick that commanded zero for stale inputs
 IMPLAUSIBLE = "implausible"  # stale_why: a tick that commanded zero after an implausible input
 POSE_AT_SEND = "pose_at_send"  # stale_why: the pose went stale while the command was computed
+DECODERS: dict[str, Callable[[bytes], Any]] = {  # mailbox class -> payload reader
+    keys.POSE: decode_pose, keys.STATE: decode_state, keys.OTHERS: decode_others,
+    keys.ELLIPSE: decode_ellipse, keys.OBSTACLES: decode_obstacles,
+}
 TRACE_COLUMNS = ("t", "px", "py", "ux", "uy", "v", "omega", "status", "slack",
                  "h_formation", "h_obstacle", "h_formations", "solve_us")
 
@@ -189,25 +204,6 @@ def _stamped(decode: Callable[[bytes], Any]) -> Callable[[bytes], tuple[Any, flo
         return decode(payload), time.monotonic()
 
     return run
-
-
-def _run_now(coro: Any) -> Any:
-    """Run a coroutine that does not suspend to its end on the calling thread (a real-time
-    tick, see the module docstring) and return its result."""
-    try:
-        coro.send(None)
-    except StopIteration as done:
-        return done.value
-    coro.close()
-    raise RuntimeError("a real-time tick tried to suspend")
-
-
-def inflate(m: EllipseMsg, grow: float) -> EllipseMsg:
-    """``m`` with both semi-axes grown by ``grow`` [m]: a stale ellipse covering everywhere its
-    formation can have gone since (``grow = max_speed * age``); centre, velocities and stamp
-    are kept."""
-    return EllipseMsg(m.formation, m.cx, m.cy, m.alpha, m.a + grow, m.b + grow, m.vx, m.vy,
-                      m.alpha_rate, m.stamp)
 
 
 def _finite_or_none(v: float) -> float | None:
@@ -306,6 +302,8 @@ class AgentNode:
         self._session: zenoh.Session | None = None
         self._subs: list[Any] = []
         self._rings: list[tuple[Any, Callable[[zenoh.Sample], None]]] = []  # polled subscribers
+        # real time on pose arrival: inline mailboxes, ring channels drained by the tick
+        self._polled = not options.lockstep and options.tick_on_pose
         self._pubs: dict[str, CountingPublisher] = {}
         self._diag: DiagPublisher | None = None
         self._base: Base | None = None  # a real robot base adapter (agent.base), when cfg.base is not "world"
@@ -322,6 +320,9 @@ class AgentNode:
         self._last_pose_stamp: float | None = None  # the pose stamp the last pose tick used
         self._last_tick = -math.inf  # [s, monotonic] when the last tick of any kind started
         self._loop: asyncio.AbstractEventLoop | None = None
+        # real time on pose arrival under an agent host (agent.host): its one tick thread, on
+        # which a pose callback queues this node instead of ticking on Zenoh's thread
+        self.tick_worker: TickQueue | None = None
         # fault containment (leader.succession): the leader holds a liveliness token; its
         # successor watches it and takes the role of a standing formation when it goes
         self.acting = False  # this successor leads now, for a dead leader
@@ -329,7 +330,6 @@ class AgentNode:
         self.acting_ticks = 0
         self._acting_since_tick = False
         self._token: Any = None
-        self._subscribe: Callable[[str, str], None] | None = None  # set by open()
 
     # --- what is accepted ---------------------------------------------------------------------
 
@@ -420,17 +420,7 @@ class AgentNode:
         """Open the session, declare publishers and the exact subscriptions."""
         self._arrived = asyncio.Event()
         self._stop = self._stop or asyncio.Event()
-        decoders = {
-            keys.POSE: decode_pose, keys.STATE: decode_state, keys.OTHERS: decode_others,
-            keys.ELLIPSE: decode_ellipse, keys.OBSTACLES: decode_obstacles,
-        }
         self._loop = loop
-        # real time on pose arrival: every mailbox is inline, fed by the tick that drains the
-        # ring channels and by the pose callback, both under the tick lock
-        polled = not self.options.lockstep and self.options.tick_on_pose
-        for cls in set(self.subscribed_keys.values()):
-            self._boxes[cls] = Mailbox(None if polled else loop, _stamped(decoders[cls]),
-                                       counter=self.counter, accept=self._acceptor(cls))
         self._session = s = self._open_session()
         pub_keys = [self.state_key, self.cmd_key]
         if self.role is not None:
@@ -446,59 +436,63 @@ class AgentNode:
             self._base = make_base(self.cfg, s)
         faults = self.options.faults
         if faults.delay > 0 and self.options.lockstep:
-            self._delay_line = DelayLine(faults.delay, self._offer)
-
-        def handler(cls: str, box: Mailbox, notify: bool = True) -> Callable[[zenoh.Sample], None]:
-            decode = decoders[cls]
-            faulty = faults.applies_to(cls)
-
-            def on_sample(sample: zenoh.Sample) -> None:
-                if faulty and sample.kind != zenoh.SampleKind.DELETE:
-                    self._faulty_sample(loop, cls, decode, str(sample.key_expr),
-                                        sample.payload.to_bytes())
-                else:
-                    box.callback(sample)
-                if not notify:
-                    return
-                try:
-                    loop.call_soon_threadsafe(self._on_arrival, str(sample.key_expr))
-                except RuntimeError:  # loop closed: shutting down
-                    pass
-
-            return on_sample
-
-        wildcard_cap = RING_CAPACITY * max(1, len(self.foreign_keys) + len(self.neighbour_keys))
-        sub: Any
-        for k, cls in self.subscribed_keys.items():
-            if polled and cls != keys.POSE:
-                cap = wildcard_cap if (self.all_to_all and cls == keys.STATE) else RING_CAPACITY
-                sub = s.declare_subscriber(k, zenoh.handlers.RingChannel(cap))
-                self._rings.append((sub, handler(cls, self._boxes[cls], notify=False)))
-            elif polled:  # the pose: tick right on the Zenoh thread that received it
-                sub = s.declare_subscriber(
-                    k, zenoh.handlers.Callback(self._on_pose_sample, indirect=False))
-            else:
-                sub = s.declare_subscriber(k, handler(cls, self._boxes[cls]))
-            self._subs.append(sub)
-        self._subscribe = lambda k, cls: self._subscribe_more(s, k, cls, handler, decoders, polled)
+            self._delay_line = DelayLine(faults.delay, partial(offer, self))
+        for k, cls in list(self.subscribed_keys.items()):
+            self._declare_subscriber(k, cls)
         self._declare_succession(s, loop)
         logger.info("%s: subscribed to %s", self.cfg.robot_id, ", ".join(self.subscribed_keys))
 
-    def _subscribe_more(self, s: zenoh.Session, k: str, cls: str, handler: Callable[..., Any],
-                        decoders: Mapping[str, Callable[..., Any]], polled: bool) -> None:
-        """Declare one more subscriber after open (a successor taking the leader role), as
-        :meth:`open` declares them."""
-        if cls not in self._boxes:
-            self._boxes[cls] = Mailbox(None if polled else self._loop, _stamped(decoders[cls]),
-                                       counter=self.counter, accept=self._acceptor(cls))
+    def _declare_subscriber(self, k: str, cls: str) -> None:
+        """Subscribe to ``k`` into the mailbox of class ``cls`` (made on first use), from
+        :meth:`open` and for a successor taking the leader role. Real time on pose arrival
+        (``_polled``): every mailbox is inline, fed under the tick lock by the tick that drains
+        the ring channels and by the pose callback, which ticks right on the Zenoh thread that
+        received the pose (:func:`agent.schedule.on_pose_sample`). Otherwise a callback stores
+        on the loop and wakes the tick."""
+        s, loop, polled = self._session, self._loop, self._polled
+        assert s is not None and loop is not None  # set by open()
+        box = self._boxes.get(cls)
+        if box is None:
+            box = self._boxes[cls] = Mailbox(None if polled else loop, _stamped(DECODERS[cls]),
+                                             counter=self.counter, accept=self._acceptor(cls))
         sub: Any
-        if polled:
-            sub = s.declare_subscriber(k, zenoh.handlers.RingChannel(RING_CAPACITY))
-            self._rings.append((sub, handler(cls, self._boxes[cls], notify=False)))
+        if polled and cls != keys.POSE:
+            cap = RING_CAPACITY
+            if self.all_to_all and cls == keys.STATE:  # one wildcard for every robot's state
+                cap *= max(1, len(self.foreign_keys) + len(self.neighbour_keys))
+            sub = s.declare_subscriber(k, zenoh.handlers.RingChannel(cap))
+            self._rings.append((sub, self._handler(cls, box, notify=False)))
+        elif polled:  # the pose: tick right on the Zenoh thread that received it
+            sub = s.declare_subscriber(
+                k, zenoh.handlers.Callback(partial(on_pose_sample, self), indirect=False))
         else:
-            sub = s.declare_subscriber(k, handler(cls, self._boxes[cls]))
+            sub = s.declare_subscriber(k, self._handler(cls, box))
         self._subs.append(sub)
         self.subscribed_keys[k] = cls
+
+    def _handler(self, cls: str, box: Mailbox, notify: bool = True
+                 ) -> Callable[[zenoh.Sample], None]:
+        """A subscriber's callback: the sample to ``box`` (through :class:`LinkFaults` for a
+        faulted class) and, with ``notify``, a wake-up of the loop's tick."""
+        loop = self._loop
+        assert loop is not None  # set by open()
+        decode = DECODERS[cls]
+        faulty = self.options.faults.applies_to(cls)
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            if faulty and sample.kind != zenoh.SampleKind.DELETE:
+                faulty_sample(self, loop, cls, decode, str(sample.key_expr),
+                              sample.payload.to_bytes())
+            else:
+                box.callback(sample)
+            if not notify:
+                return
+            try:
+                loop.call_soon_threadsafe(self._on_arrival, str(sample.key_expr))
+            except RuntimeError:  # loop closed: shutting down
+                pass
+
+        return on_sample
 
     def _declare_succession(self, s: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
         """The leader holds its formation's liveliness token; the successor watches it."""
@@ -512,7 +506,7 @@ class AgentNode:
         def on_token(sample: zenoh.Sample) -> None:
             alive = sample.kind == zenoh.SampleKind.PUT
             try:
-                loop.call_soon_threadsafe(self._on_leader_token, alive)
+                loop.call_soon_threadsafe(on_leader_token, self, alive)
             except RuntimeError:  # loop closed: shutting down
                 pass
 
@@ -544,41 +538,6 @@ class AgentNode:
     def _close_session(self, session: zenoh.Session) -> None:
         """Close what :meth:`_open_session` opened."""
         session.close()
-
-    def _faulty_sample(self, loop: asyncio.AbstractEventLoop, cls: str,
-                       decode: Callable[[bytes], Any], key: str, payload: bytes) -> None:
-        """Zenoh thread: apply :class:`LinkFaults` to one sample of a faulted class."""
-        box = self._boxes[cls]
-        try:
-            stamp = decode(payload).stamp
-        except Exception:  # noqa: BLE001 - malformed: the mailbox decodes it again and counts it
-            box.offer(key, payload)
-            return
-        faults = self.options.faults
-        try:
-            if faults.dropped(self.cfg.robot_id, key, stamp):
-                loop.call_soon_threadsafe(self._mark_lost, cls, key, stamp)
-            elif faults.delay > 0 and self._delay_line is not None:
-                loop.call_soon_threadsafe(self._delay_line.push, key, payload, stamp)
-            elif faults.delay > 0:  # real time: hold it on the wall clock
-                loop.call_soon_threadsafe(loop.call_later, faults.delay, self._offer, key, payload)
-            else:
-                box.offer(key, payload)
-        except RuntimeError:  # loop closed: shutting down
-            pass
-
-    def _offer(self, key: str, payload: bytes) -> None:
-        """Loop thread: hand a (delayed) payload to its mailbox."""
-        cls = self.subscribed_keys.get(key, keys.STATE)  # all-to-all: a wildcard's concrete key
-        with self._tick_lock:  # real time: a tick may be reading the mailboxes on Zenoh's thread
-            self.fault_delayed += 1
-            self._boxes[cls].offer(key, payload)
-        self._on_arrival(key)
-
-    def _mark_lost(self, cls: str, key: str, stamp: float) -> None:
-        with self._tick_lock:
-            self.fault_dropped[cls] += 1
-            self._lost[key] = max(stamp, self._lost.get(key, -math.inf))
 
     def _on_arrival(self, key: str) -> None:
         """Loop thread: something arrived on ``key`` (its publisher is alive): wake the tick."""
@@ -620,56 +579,6 @@ class AgentNode:
         session, self._session = self._session, None
         within(step_limit, f"{rid}: closing the Zenoh session", lambda: self._close_session(session))
 
-    # --- fault containment ---------------------------------------------------------------------
-
-    def _on_leader_token(self, alive: bool) -> None:
-        """Loop thread: the leader's liveliness token came (``alive``) or went."""
-        with self._tick_lock:
-            if self._closing or self._session is None:
-                return
-            if not alive and not self.acting:
-                self._take_over()
-            elif alive and self.acting:
-                self._step_down()
-
-    def _take_over(self) -> None:
-        """Under the tick lock: lead this formation for its dead leader (leader.succession).
-        The formation stands still (its members' neighbour, the dead robot, is stale, so they
-        command zero); this agent publishes its ellipse, at rest, and relays the others."""
-        settings = self.cfg.standby
-        assert settings is not None and self._session is not None and self._subscribe is not None
-        role = LeaderRole(self.cfg.formation, settings, self.cfg.prefix)
-        member_keys = {m: keys.state_key(self.cfg.prefix, m) for m in role.members
-                       if m != self.cfg.robot_id}
-        missing = [m for m, k in member_keys.items() if k not in self.neighbour_keys]
-        if missing:
-            logger.error("%s: cannot lead %s: not adjacent to %s", self.cfg.robot_id,
-                         self.cfg.formation, ", ".join(missing))
-            return
-        for k in [role.others_key] + ([] if self.all_to_all else [role.ellipse_key]):
-            if k not in self._pubs:
-                self._pubs[k] = CountingPublisher(self._session.declare_publisher(k), self.counter)
-        if not self.all_to_all:
-            for k in role.other_keys:
-                if k not in self.subscribed_keys:
-                    self._subscribe(k, keys.ELLIPSE)
-        self.role = role
-        self._member_keys = member_keys
-        self.acting = True
-        self._acting_since_tick = False  # counted as a takeover once it leads a tick (not when
-        # the leader merely closed first at the end of a run)
-        logger.warning("%s: leader %s of %s is gone: leading the standing formation",
-                       self.cfg.robot_id, self.cfg.leader_id, self.cfg.formation)
-
-    def _step_down(self) -> None:
-        """Under the tick lock: the leader is back; be a member again."""
-        self.role = None
-        self._member_keys = {}
-        self._own_others = None
-        self.acting = False
-        logger.warning("%s: leader %s of %s is back: member again", self.cfg.robot_id,
-                       self.cfg.leader_id, self.cfg.formation)
-
     def emergency_zero(self) -> bool:
         """From any thread and without the tick lock (a shutdown that overran its time limit):
         publish the zero command unless :meth:`close` already did. True once it is sent."""
@@ -698,150 +607,13 @@ class AgentNode:
             # inside the try: a session opened by an open() that fails half-way is closed too
             await loop.run_in_executor(None, self.open, loop)
             if self.options.lockstep:
-                await self._lockstep_loop()
+                await lockstep_loop(self)
             elif self.options.tick_on_pose:
-                await self._pose_loop()
+                await pose_loop(self)
             else:
-                await self._realtime_loop()
+                await realtime_loop(self)
         finally:
             self.close()
-
-    async def _realtime_loop(self) -> None:
-        assert self._stop is not None  # set by run()
-        period = self.cfg.period
-        next_t = time.monotonic()
-        while not self._stop.is_set():
-            started = time.monotonic()
-            await self.tick(None)
-            self.tick_us.append((time.monotonic() - started) * 1e6)
-            next_t += period
-            now = time.monotonic()
-            if now > next_t:
-                self.overruns += 1
-                next_t = now  # do not try to catch up with a burst of ticks
-            try:
-                await asyncio.wait_for(self._stop.wait(), max(0.0, next_t - time.monotonic()))
-            except (TimeoutError, asyncio.TimeoutError):  # distinct classes on 3.10
-                pass
-
-    # --- real time, ticking on pose arrival ---------------------------------------------------
-
-    def _on_pose_sample(self, sample: zenoh.Sample) -> None:
-        """Zenoh thread: store the pose and tick on it (module docstring)."""
-        with self._tick_lock:
-            if self._closing:
-                return
-            self._boxes[keys.POSE].callback(sample)
-            self._pose_tick(time.monotonic())
-
-    def _pose_tick(self, now: float) -> bool:
-        """Under the tick lock: tick on the newest pose if it is due (True), else nothing: due
-        when stamped ``MIN_SPACING_PERIODS`` or more after the last ticked pose, or earlier
-        than it (the camera's clock went back)."""
-        entry = self._boxes[keys.POSE].latest(self.pose_key)
-        if entry is None:
-            return False
-        stamp, last = entry[0].stamp, self._last_pose_stamp
-        if last is not None and last <= stamp < last + MIN_SPACING_PERIODS * self.cfg.period:
-            return False
-        self._last_pose_stamp = stamp
-        self._tick_locked(now)
-        return True
-
-    def _tick_locked(self, now: float) -> None:
-        """Under the tick lock: drain the ring channels, tick, time it."""
-        self._last_tick = now
-        self._drain()
-        _run_now(self.tick(None))
-        done = time.monotonic()
-        self.tick_us.append((done - now) * 1e6)
-        if done - now > self.cfg.period:
-            self.overruns += 1
-
-    async def _pose_loop(self) -> None:
-        """The loop's part of real time on pose arrival: the deadline tick when no tick has run
-        for ``DEADLINE_PERIODS`` periods (module docstring)."""
-        assert self._stop is not None
-        period = max(self.cfg.period, self._pose_period)  # a slower camera: its own rate
-        span = DEADLINE_PERIODS * period
-        watch = max(span, self.cfg.stale_after - span)
-        with self._tick_lock:
-            self._last_tick = time.monotonic()  # the first deadline counts from the start
-        while not self._stop.is_set():
-            with self._tick_lock:
-                if self._closing:
-                    return
-                now = time.monotonic()
-                wait = watch
-                if now - self._last_tick >= span:
-                    self.deadline_ticks += 1
-                    self._tick_locked(now)
-                    wait = span
-            await asyncio.sleep(wait)
-
-    def _drain(self) -> None:
-        """Real time: hand every sample waiting in the ring channels to its mailbox (an inline
-        one: stored at once)."""
-        for sub, take in self._rings:
-            while (sample := sub.try_recv()) is not None:
-                take(sample)
-
-    async def _lockstep_loop(self) -> None:
-        assert self._stop is not None and self._arrived is not None
-        last = -math.inf
-        frame = [(self._boxes[keys.POSE], self.pose_key),
-                 (self._boxes[keys.OBSTACLES], self.obstacles_key)]
-        while not self._stop.is_set():
-            self._arrived.clear()
-            newest = max((e[0].stamp for e in (b.latest(k) for b, k in frame) if e is not None),
-                         default=-math.inf)
-            if newest > last:  # a new frame: its pose or its obstacles arrived
-                last = newest
-                self._frame = max(self._frame, last)  # the lock-step clock (wire.stamps)
-                started = self._last_tick = time.monotonic()
-                await self.tick(last)
-                self.tick_us.append((time.monotonic() - started) * 1e6)
-                continue
-            stop_wait = asyncio.ensure_future(self._stop.wait())
-            arrived_wait = asyncio.ensure_future(self._arrived.wait())
-            try:
-                await asyncio.wait({stop_wait, arrived_wait}, return_when=asyncio.FIRST_COMPLETED)
-            finally:
-                stop_wait.cancel()
-                arrived_wait.cancel()
-
-    async def _wait_current(self, inputs: list[tuple[str, str]], t: float) -> bool:
-        """Lock-step: wait until every (class, key) in ``inputs`` that is not late holds the
-        message of the tick stamped ``t`` (True), or the timeout or stop (False). On a timeout
-        the inputs still missing become late: later ticks do not wait for them until a message
-        arrives on their key."""
-        assert self._arrived is not None and self._stop is not None
-
-        def missing() -> list[str]:
-            return [k for cls, k in inputs if k not in self._late and not self._current(cls, k, t)]
-
-        if not missing():
-            return True
-        if not self.options.lockstep:
-            return False
-        deadline = time.monotonic() + self.options.lockstep_timeout
-        while not self._stop.is_set():
-            self._arrived.clear()
-            if not missing():
-                return True
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                self.lockstep_timeouts += 1
-                late = missing()
-                self._late.update(late)
-                logger.info("%s: tick %.3f: gave up waiting for %s", self.cfg.robot_id, t,
-                            ", ".join(late))
-                return False
-            try:
-                await asyncio.wait_for(self._arrived.wait(), remaining)
-            except (TimeoutError, asyncio.TimeoutError):  # distinct classes on 3.10
-                pass
-        return not missing()
 
     # --- one tick ----------------------------------------------------------------------------
 
@@ -858,16 +630,6 @@ class AgentNode:
             return False
         now = time.time() if t is None else t
         return now - entry[0].stamp <= self.cfg.stale_after + 1e-9
-
-    def _current(self, cls: str, key: str, t: float) -> bool:
-        """Lock-step: the message on ``key`` belongs to the tick stamped ``t`` (or later), or,
-        under added delay, to the newest tick that can have arrived; or it was lost."""
-        need = t - self._lag if self.options.faults.applies_to(cls) else t
-        entry = self._latest(cls, key)
-        if entry is not None and entry[0].stamp >= need - EPS:
-            return True
-        lost = self._lost.get(key)
-        return lost is not None and lost >= need - EPS
 
     async def tick(self, t: float | None) -> StepResult | None:
         """One control tick; ``t`` is the pose stamp in lock-step, ``None`` in real time.
@@ -893,7 +655,7 @@ class AgentNode:
             if self._delay_line is not None:
                 self._delay_line.advance(t)
                 await asyncio.sleep(0)  # let the mailboxes store what was just released
-            await self._wait_current([(keys.POSE, self.pose_key)], t)
+            await wait_current(self, [(keys.POSE, self.pose_key)], t)
         pose_entry = self._latest(keys.POSE, self.pose_key)
         if pose_entry is None:  # not localised yet (start-up): zero, counted apart from stale
             self.waiting += 1
@@ -923,9 +685,9 @@ class AgentNode:
         state_keys = self._state_keys
         others_ready = True
         if self.role is not None:
-            others_ready = await self._lead(px, py, stamp, ts)
+            others_ready = await lead(self, px, py, stamp, ts)
         if t is not None:
-            await self._wait_current(self._tick_inputs(state_keys), stamp)
+            await wait_current(self, self._tick_inputs(state_keys), stamp)
 
         fresh = self._fresh_inputs(state_keys, ts, others_ready)
         if isinstance(fresh, str):
@@ -1025,65 +787,6 @@ class AgentNode:
         if self.role is None:
             inputs.append((keys.OTHERS, self.others_key))
         return inputs
-
-    async def _lead(self, px: float, py: float, stamp: float, ts: float | None) -> bool:
-        """Leader role for this tick: estimate and publish the ellipse, collect the other
-        leaders' ellipses, publish ``others``. False when an ellipse is missing or stale."""
-        role = self.role
-        assert role is not None  # only called on the leader
-        member_keys = self._member_keys
-        if ts is not None:
-            await self._wait_current([(keys.STATE, k) for k in member_keys.values()], stamp)
-        own = role.estimate(self._members_now(px, py, ts))
-        if own is None:
-            self._own_others = None
-            return False
-        if self.options.trace:
-            self.ellipse_trace.append((stamp, *own))
-        received: dict[str, EllipseMsg] = {}
-        complete = True
-        # both topologies (all-to-all: for the tie-break and the jam rule, not for rows)
-        self._pubs[role.ellipse_key].put_message(ellipse_to_msg(role.formation, own, stamp))
-        if ts is not None:
-            await self._wait_current([(keys.ELLIPSE, k) for k in role.other_keys], stamp)
-        inflated = False
-        for k in role.other_keys:
-            entry = self._latest(keys.ELLIPSE, k)
-            if entry is None:
-                continue
-            if self._fresh(entry, ts):
-                received[k] = entry[0]
-                continue
-            age = (ts - entry[0].stamp) if ts is not None else time.monotonic() - entry[1]
-            if age <= self.options.ellipse_hold:
-                received[k] = inflate(entry[0], self.cfg.control.max_speed * age)
-                inflated = True
-        self.inflated += inflated
-        complete = len(received) == len(role.other_keys)
-        self._own_others = role.others(own, received, stamp)
-        if complete:
-            self._pubs[role.others_key].put_message(self._own_others)
-        return complete
-
-    def _members_now(self, px: float, py: float,
-                     ts: float | None) -> dict[str, tuple[float, float, float, float]]:
-        """Leader: every member's control point and velocity it has fresh (its own from
-        itself). A successor leading for a dead leader (``acting``) also takes the dead robot's
-        last state, and every velocity as zero: the formation stands still."""
-        members: dict[str, tuple[float, float, float, float]] = {
-            self.cfg.robot_id: (px, py, *self.last_u)}
-        for m, k in self._member_keys.items():
-            entry = self._latest(keys.STATE, k)
-            if entry is not None and (self._fresh(entry, ts) or self.acting):
-                s: State = entry[0]
-                members[m] = (s.x, s.y, s.ux, s.uy)
-        if self.acting:  # a standing formation: its ellipse at rest
-            self.acting_ticks += 1
-            if not self._acting_since_tick:
-                self._acting_since_tick = True
-                self.takeovers += 1
-            members = {m: (x, y, 0.0, 0.0) for m, (x, y, _, _) in members.items()}
-        return members
 
     def _zero(self, t: float | None, why: str) -> None:
         self.stale_why[why] = self.stale_why.get(why, 0) + 1

@@ -30,10 +30,11 @@ from camera_service.markers import (
     aruco_dictionary,
     check_marker_ids,
 )
+from geometry.limits import BURGER_RADIUS
 
 MARKER_SIDE = 0.08  # [m] side of the marker's black square on the floor
 QUIET_ZONE = 1  # [modules] white border around the marker's black square
-ROBOT_RADIUS = 0.105  # [m] TurtleBot3 burger body radius
+ROBOT_RADIUS = BURGER_RADIUS  # [m] TurtleBot3 burger body radius
 BLOB_RADIUS = 0.05  # [m] radius of a robot's coloured disc in blob mode
 SUPERSAMPLE = 4  # marker sub-pixel samples per image pixel, per axis
 CIRCLE_VERTICES = 72  # polygon vertices of a projected disc

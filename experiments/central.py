@@ -11,7 +11,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from agent.barriers import Neighbour, Obstacle
-from agent.control import ControlParams, FormationView, build_rows, control_step
+from agent.control import ControlParams, FormationView, Stall, build_rows, control_step
+from agent.inputs import step_inputs
 from experiments.fleet_scenario import fleet_scenario
 from experiments.machine import timed
 from geometry.ellipse import Ellipse
@@ -50,13 +51,15 @@ def fleet_snapshot(scenario, speed: float = 0.2) -> tuple[ControlParams, list[Ro
     inputs = []
     for i, r in enumerate(robots):
         fname = fleet.formation_of[i]
-        nb = [Neighbour(*ctrl[j], *vel[j], df) for j, df in fleet.neighbours[i]]
-        f = scenario.formation_of(r.id)
-        gc = f.goal_centroid
-        names = tuple(name for name in ellipses if name != fname)
-        view = FormationView(ellipses[fname], gc[0], gc[1], fname, names)
-        inputs.append(RobotInputs((r.start[0], r.start[1], 0.0), r.goal, nb, obs,
-                                  [ellipses[name] for name in names], view))
+        gc = scenario.formation_of(r.id).goal_centroid
+        # the agent's and the simulator's assembly (agent.inputs), with a fresh jam memory
+        step = step_inputs(((*ctrl[j], *vel[j], df) for j, df in fleet.neighbours[i]),
+                           ellipses[fname], fname, (gc[0], gc[1]),
+                           [(name, e) for name, e in ellipses.items() if name != fname],
+                           Stall(), scenario.dt)
+        assert step.view is not None  # every formation has its ellipse here
+        inputs.append(RobotInputs((r.start[0], r.start[1], 0.0), r.goal, step.neighbours, obs,
+                                  step.others, step.view))
     index = {rid: k for k, rid in enumerate(scenario.robot_ids)}
     edges = [(index[e.i], index[e.j], e.df) for f in scenario.formations for e in f.edges]
     return fleet.params, inputs, edges

@@ -179,7 +179,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = add("record", "record a running fleet into DIR/run.mcap")
     _add_view_args(p, client=True, serve=False)
-    p.add_argument("--out", required=True, metavar="DIR", help="folder of the recording (run.mcap)")
+    _add_out(p)
 
     p = add("replay", "serve a recording (run.mcap) to the page")
     p.add_argument("recording", help="a run.mcap")

@@ -28,8 +28,8 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
-#: Subcommands whose ``--out`` is a folder of output files.
-FOLDER_COMMANDS = ("sim", "run", "commcost", "montecarlo", "bench")
+#: Subcommands whose ``--out`` is a folder of output files (``record``: its ``run.mcap``).
+FOLDER_COMMANDS = ("sim", "run", "commcost", "montecarlo", "bench", "record")
 
 
 def out_problem(out: str | os.PathLike[str]) -> str | None:

@@ -20,6 +20,8 @@ from typing import Any
 
 import yaml
 
+from geometry.limits import BURGER_MAX_SPEED, BURGER_RADIUS
+
 SIZES = (100, 1000)
 QUICK_SIZES = (100,)
 
@@ -40,7 +42,7 @@ def fleet_mapping(n: int) -> dict[str, Any]:
             "edges": [[ids[0], ids[1]], [ids[0], ids[3]], [ids[1], ids[2]], [ids[1], ids[3]],
                       [ids[2], ids[3]]]})
     return {"name": f"fleet-{n}", "dt": 0.05, "duration": 60.0,
-            "robot": {"max_speed": 0.22, "radius": 0.105},
+            "robot": {"max_speed": BURGER_MAX_SPEED, "radius": BURGER_RADIUS},
             "controller": {"kp": 2.0, "gamma": 1.0, "epsilon": 0.04},
             "formations": formations,
             "obstacles": [{"name": "o1", "center": [-3.0, -3.0], "safe_distance": 0.35}]}

@@ -283,8 +283,10 @@ class _PoseSample:
         self.payload = zenoh.ZBytes(payload)
 
 
-def test_real_time_ticks_go_by_the_pose_stamps_not_by_arrival_times(configs) -> None:
-    from agent.node import MIN_SPACING_PERIODS, _stamped
+def test_real_time_ticks_go_by_the_pose_stamps_not_by_arrival_times(configs, monkeypatch) -> None:
+    from agent import schedule
+    from agent.node import _stamped
+    from agent.schedule import MIN_SPACING_PERIODS, on_pose_sample
     from wire.payloads import decode_pose
     from wire.traffic import Mailbox
 
@@ -293,12 +295,12 @@ def test_real_time_ticks_go_by_the_pose_stamps_not_by_arrival_times(configs) -> 
     # as open() sets it up: inline, with the stamp and plausibility checks
     node._boxes[keys.POSE] = Mailbox(None, _stamped(decode_pose), accept=node._acceptor(keys.POSE))
     ticked: list[float] = []
-    node._tick_locked = lambda now: ticked.append(node._last_pose_stamp)  # type: ignore[method-assign]
+    monkeypatch.setattr(schedule, "tick_locked", lambda n, now: ticked.append(n._last_pose_stamp))
     period = cfg.period
     key = keys.pose_key(P, "r1")
 
     def pose(stamp: float) -> None:
-        node._on_pose_sample(_PoseSample(key, encode(Pose(0.0, 0.0, 0.0, stamp))))
+        on_pose_sample(node, _PoseSample(key, encode(Pose(0.0, 0.0, 0.0, stamp))))
 
     t0 = time.time() - 0.1
     pose(t0)  # the first pose ticks
@@ -320,7 +322,7 @@ def test_real_time_ticks_go_by_the_pose_stamps_not_by_arrival_times(configs) -> 
 def test_in_real_time_a_silent_camera_ends_in_deadline_ticks_that_command_zero(configs, peer):
     # while poses come no deadline tick runs; when they stop, the agent ticks on its deadline
     # and, once the pose is stale, commands zero: no later than if it looked every period
-    from agent.node import DEADLINE_PERIODS
+    from agent.schedule import DEADLINE_PERIODS
 
     cfg = configs["r1"]
     span = DEADLINE_PERIODS * cfg.period

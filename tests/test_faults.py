@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from agent.faults import FAULT_CLASSES, DelayLine, LinkFaults, lag
-from agent.node import inflate
+from agent.leader_step import inflate
 from formation.cli import main
 from simulator.launch import CameraDropout, FaultPlan, Kill, parse_camera_dropout, parse_kill
 from wire.payloads import EllipseMsg
@@ -121,6 +121,15 @@ def test_thesis_5_2_2_with_a_fifth_of_the_messages_lost_has_no_collision(tmp_pat
     assert s["formation_error_max_m"] < 3 * 0.035
 
 
+def test_with_added_delay_every_inter_robot_message_is_held_back_and_the_run_still_completes(
+        tmp_path, two):
+    s = run(tmp_path, two, "--delay-ms", "100")  # lock-step: two whole periods
+    classes = s["comm"]["classes"]
+    assert s["faults"]["delayed_messages"] == sum(
+        classes[c]["recv"]["messages"] for c in ("state", "ellipse", "others")) > 0
+    assert s["collisions"] == 0 and s["all_reached"] is True
+
+
 def test_a_killed_and_restarted_agent_rejoins_and_its_robot_stands_still_meanwhile(tmp_path, two):
     s = run(tmp_path, two, "--kill", "a2@2:2")
     f = s["faults"]
@@ -165,3 +174,17 @@ def test_when_a_leader_dies_its_members_stop_and_its_successor_keeps_its_ellipse
     assert stats["inflated"] == f["inflated_ellipse_ticks"] <= 20
     assert f["stale_ticks_by_robot"]["a1"] == 0  # A went on around B
     assert s["all_reached"] is True
+
+
+def test_in_real_time_the_successor_subscribes_to_the_other_leaders_ellipse_when_it_takes_over(
+        tmp_path, two):
+    # real time polls its ring channels: the successor's late subscription (agent.node
+    # _declare_subscriber, after open) must be drained like the others, or A's ellipse never
+    # reaches b2 and B's others never go out
+    s = run(tmp_path, two, "--realtime", "--kill", "b1@2:2")
+    assert s["collisions"] == 0
+    assert s["faults"]["leader_takeovers"] == {"b2": 1}
+    b2 = json.loads((tmp_path / "out" / "agents" / "b2.json").read_text())
+    assert b2["acting_leader_ticks"] >= 20
+    assert "warehouse/formation/A/ellipse" in b2["subscriptions"]
+    assert b2["received"]["ellipse"] >= 20  # a member subscribes to no ellipse: all since then

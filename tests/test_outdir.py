@@ -20,6 +20,7 @@ from formation.outdir import LOCK, MARKER, OutputFolder
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIO = str(ROOT / "tests" / "scenarios" / "two-small.yaml")
 OTHER = str(ROOT / "tests" / "scenarios" / "rotating-triangle.yaml")
+NOWHERE = "tcp/127.0.0.1:9"  # no router: a command that got this far would try to connect
 
 
 def _sim(out: Path, *extra: str, scenario: str = SCENARIO) -> int:
@@ -149,7 +150,7 @@ def test_a_lock_that_cannot_be_read_is_stale(tmp_path):
 
 @pytest.mark.parametrize("argv", [
     ["sim", SCENARIO], ["run", SCENARIO], ["commcost", "--formations", "2"],
-    ["montecarlo", "--n", "1"], ["bench", "--quick"],
+    ["montecarlo", "--n", "1"], ["bench", "--quick"], ["record", "--connect", NOWHERE],
 ])
 def test_an_out_naming_a_file_is_exit_2_in_one_line_before_anything_runs(tmp_path, capsys, argv):
     taken = tmp_path / "taken"
@@ -174,8 +175,35 @@ def test_an_unwritable_out_is_exit_2_for_every_command(tmp_path, capsys):
         except OSError:
             out = locked / "sub"
         for argv in (["sim", SCENARIO], ["run", SCENARIO], ["commcost"], ["montecarlo"],
-                     ["bench", "--quick"]):
+                     ["bench", "--quick"], ["record", "--connect", NOWHERE]):
             assert main([*argv, "--out", str(out)]) == 2
             assert "--out" in _one_line(capsys)
     finally:
         locked.chmod(0o700)
+
+
+def test_a_recording_owns_its_out_like_a_run(tmp_path, capsys):
+    from wire.testing import RouterProcess
+
+    out = tmp_path / "o"
+    assert _sim(out) == 0  # a run's output, then a recording into the same folder replaces it
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("precious")
+    with RouterProcess() as router:
+        def record(folder: Path, *extra: str) -> int:
+            return main(["record", "--connect", router.endpoint, "--out", str(folder),
+                         "--duration", "0.3", *extra])
+
+        assert record(out) == 0
+        assert {p.name for p in out.iterdir()} == {"run.mcap", MARKER}  # no stale file, no lock
+        assert json.loads((out / MARKER).read_text())["entries"] == ["run.mcap"]
+        capsys.readouterr()
+        # a folder holding anything else is refused before connecting, unless --force
+        assert record(mine) == 2
+        line = _one_line(capsys)
+        assert "notes.txt" in line and "--force" in line
+        assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
+        assert record(mine, "--force") == 0
+        assert {p.name for p in mine.iterdir()} == {"notes.txt", "run.mcap", MARKER}
+        assert (mine / "notes.txt").read_text() == "precious"

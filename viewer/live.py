@@ -25,6 +25,7 @@ from typing import Any
 
 import zenoh
 
+from geometry.limits import BURGER_RADIUS
 from wire import keys
 from wire.diag import DIAG, all_diag_key, decode_diag
 from wire.payloads import (
@@ -53,7 +54,7 @@ _FORMATION_KINDS: dict[str, Callable[[bytes], Any]] = {
 
 logger = logging.getLogger(__name__)
 
-DEFAULT_RADIUS = 0.105  # [m] TurtleBot3 burger, when the fleet does not say
+DEFAULT_RADIUS = BURGER_RADIUS  # [m] TurtleBot3 burger, when the fleet does not say
 DEFAULT_TOLERANCE = 0.05  # [m]
 
 

@@ -58,6 +58,8 @@ from foxglove.messages import (
     Vector3,
 )
 
+from geometry.limits import BURGER_RADIUS
+
 from .frame import Frame
 
 logger = logging.getLogger(__name__)
@@ -160,7 +162,7 @@ def formation_colors(frame: Frame) -> dict[str, tuple[float, float, float]]:
 def scene_update(frame: Frame) -> SceneUpdate:
     """The ``/scene`` message of a frame (see the module docstring)."""
     stamp = _stamp(frame["t"])
-    radius = frame.get("radius") or 0.105
+    radius = frame.get("radius") or BURGER_RADIUS
     colors = formation_colors(frame)
     entities = []
     for r in frame["robots"]:

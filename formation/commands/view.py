@@ -128,17 +128,19 @@ def view_command(ns: argparse.Namespace) -> int:
 
 
 def record_command(ns: argparse.Namespace) -> int:
+    from formation.outdir import begin_output
     from viewer.live import FleetWatcher
     from viewer.record import Channels
     from viewer.server import Hub, LivePump
 
     _check_prefix(ns.prefix)
-    out = Path(ns.out)
     channels = Channels()
-    channels.open_mcap(out / "run.mcap")
-    hub = Hub(channels, mode="record")
-    try:
-        with _session(ns) as session:
+    with _session(ns) as session:
+        # the credentials worked and the router answered: replace the previous recording
+        out = begin_output(ns)  # (formation.outdir: the recording owns its --out)
+        channels.open_mcap(out / "run.mcap")
+        hub = Hub(channels, mode="record")
+        try:
             watcher = FleetWatcher(session, ns.prefix)
             pump = LivePump(watcher, hub, period=0.05)
             print(f"recording {ns.connect} into {out / 'run.mcap'} (Ctrl-C to stop)", flush=True)
@@ -148,8 +150,8 @@ def record_command(ns: argparse.Namespace) -> int:
             if watcher.rejected:
                 hub.log(hub.frame["t"] if hub.frame else 0.0, "warning", "viewer",
                         f"rejected messages: {watcher.rejected}")
-    finally:
-        channels.close()
+        finally:
+            channels.close()
     print(f"wrote {out / 'run.mcap'} ({hub.seq} frames)")
     return 0
 
