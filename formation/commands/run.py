@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 import math
 import sys
+from pathlib import Path
 
 from formation.exits import EXIT_ERROR, EXIT_OK, UsageError
 from formation.outdir import begin_output
@@ -64,6 +65,7 @@ def run_command(ns: argparse.Namespace) -> int:
         faults.check_robots(scenario.robot_ids)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+    remote = _placement(ns, scenario, per_process, faults)  # over SSH, before anything starts
     from formation.commands.view import live_observer
 
     live, observer = live_observer(ns, scenario)  # --live PORT: the page, fed from the world's session
@@ -78,7 +80,8 @@ def run_command(ns: argparse.Namespace) -> int:
                                  scenario_path=ns.scenario,
                                  clock_offset=getattr(ns, "clock_offset_ms", 0.0) / 1000.0,
                                  agents_per_process=per_process, shared_session=shared,
-                                 solver=solver, hold=hold, announce=_announce if hold else None)
+                                 solver=solver, hold=hold, announce=_announce if hold else None,
+                                 remote=remote)
     except RunAborted as stop:  # the run started: its summary says why and what it measured
         write_run(stop.summary, stop.series, scenario, out, plots=not ns.no_plots)
         print(f"formation run: aborted: {stop}; wrote {out / 'summary.json'} with what was "
@@ -90,6 +93,31 @@ def run_command(ns: argparse.Namespace) -> int:
     write_run(summary, series, scenario, out, plots=not ns.no_plots)
     print_summary(summary, out, plots=not ns.no_plots)
     return EXIT_OK
+
+
+def _placement(ns: argparse.Namespace, scenario: Scenario, per_process: int,
+               faults: FaultPlan):
+    """``--hosts INVENTORY``: the agents placed on its hosts (:mod:`deploy.remote`), every host
+    reached and checked over SSH; None without it. Any problem: exit 2, one line."""
+    hosts = getattr(ns, "hosts", None)
+    if hosts is None:
+        return None
+    if ns.port:
+        raise UsageError("--port: not with --hosts (the router listens on the inventory's "
+                         "zenoh.router)")
+    from deploy.inventory import InventoryError
+    from deploy.remote import RemoteError, plan_placement
+
+    try:
+        remote = plan_placement(Path(hosts), scenario.robot_ids, per_process)
+        for k in faults.kills:
+            if k.robot in remote.robots:
+                raise UsageError(f"--kill: {k.robot} runs on another host (--hosts); kills need "
+                                 f"an agent on this machine")
+        remote.check()
+    except (InventoryError, RemoteError, OSError) as exc:
+        raise UsageError(str(exc)) from None
+    return remote
 
 
 def _duration_and_hold(ns: argparse.Namespace, scenario: Scenario) -> tuple[Scenario, bool]:
