@@ -23,11 +23,11 @@ from pathlib import Path
 import pytest
 import yaml
 import zenoh
+from test_deploy import SCENARIO, free_port, kill_agents, robot_env, source_snapshot, sshd
 
 from deploy import deployer
 from deploy.remote import package_digest, parse_stats
 from formation.cli import main as formation_main
-from test_deploy import SCENARIO, free_port, kill_agents, robot_env, source_snapshot, sshd
 from wire import keys, zconf
 from wire.payloads import decode_cmd
 
@@ -227,8 +227,48 @@ def test_a_remote_agent_that_dies_aborts_the_run_naming_its_host(hosts: dict,
     assert run_folders(hosts["dirs"]) == []
 
 
+def test_a_launcher_killed_outright_still_stops_its_remote_agents(hosts: dict,
+                                                                  tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    proc = start_run(out, str(hosts["scenario"]), "--hosts",
+                     str(hosts["inventory"](("r1", "r3"), "killed")), "--insecure")
+    try:
+        wait_up(proc, out)
+        pids = pids_there(hosts["dirs"])
+        assert sorted(pids) == ["agent-r1", "agent-r3"]
+        os.kill(proc.pid, signal.SIGKILL)  # no clean-up here: ssh's stdin closes with it
+        proc.communicate(timeout=30)
+        deadline = time.monotonic() + 15
+        while any(alive(pid) for pid in pids.values()):
+            assert time.monotonic() < deadline, "a remote agent outlived its launcher"
+            time.sleep(0.1)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
+    for d in hosts["dirs"].values():  # each stopped through its SIGTERM: counters written there
+        for folder in (d / "runs").glob("*"):
+            assert [p.name for p in folder.glob("*.json")], folder
+            subprocess.run(["rm", "-rf", str(folder)], check=True)
+
+
+def test_the_fleet_stops_a_command_child_by_closing_its_stdin_and_notices_its_exit(
+        tmp_path: Path) -> None:
+    from simulator.fleet import ChildFailed, Fleet
+
+    with Fleet(tmp_path) as fleet:
+        waiting = fleet.start_command("waits", ["sh", "-c", "read _; echo got-eof; exit 0"])
+        fleet.stop([waiting], timeout=5.0)
+        assert waiting.proc.returncode == 0  # it ended by itself on end-of-file, not killed
+        assert (tmp_path / "waits.log").read_text().strip() == "got-eof"
+        dies = fleet.start_command("dies", ["sh", "-c", "exit 7"], where="pi@10.0.0.9:22")
+        dies.proc.wait(5)
+        with pytest.raises(ChildFailed, match=r"^dies on pi@10\.0\.0\.9:22 exited with status 7"):
+            fleet.check()
+
+
 @pytest.mark.parametrize("case", ["unreachable", "no-key", "not-deployed", "not-in-scenario",
-                                  "peer-mode", "port"])
+                                  "peer-mode", "port", "kill"])
 def test_a_bad_inventory_or_host_exits_2_in_one_line_before_anything_starts(
         hosts: dict, tmp_path: Path, capsys: pytest.CaptureFixture, case: str) -> None:
     inventory = hosts["inventory"]
@@ -258,10 +298,14 @@ def test_a_bad_inventory_or_host_exits_2_in_one_line_before_anything_starts(
         inv = inventory(("r1",), case, zenoh={"router": hosts["router"], "mode": "peer",
                                               "access_control": False})
         expect = "zenoh.mode: formation run --hosts needs client"
-    else:
+    elif case == "port":
         inv = inventory(("r1",), case)
         extra = ["--port", str(free_port())]
         expect = "--port: not with --hosts"
+    else:
+        inv = inventory(("r1",), case)
+        extra = ["--kill", "r1@2"]
+        expect = "--kill: r1 runs on another host"
     out = tmp_path / "run"
     code = formation_main(["run", str(hosts["scenario"]), "--out", str(out), "--quiet",
                            "--hosts", str(inv), *extra])
