@@ -192,7 +192,7 @@ class RemotePlacement:
         for p in self.processes:
             files[p.name], argvs[p.name] = self._prepare(p, configs, folder, extra_argv,
                                                          shared_session)
-        shipped = self._run_all([self._ship(p, files[p.name], folder) for p in self.processes])
+        shipped = self._run_all([self._ship(p, files[p.name]) for p in self.processes])
         for p, res in zip(self.processes, shipped, strict=True):
             if not res.ok:
                 raise RemoteError(f"robot {p.robots[0]} ({p.lead.address}): cannot copy the "
@@ -223,15 +223,11 @@ class RemotePlacement:
                 common = rest
             elif rest != common:
                 raise ValueError(f"per_process: robot {rid} has options of its own: {rest}")
-            spec = [f"{run}/{rid}.yaml", f"{run}/{rid}.json"]
-            if auth is not None:
-                local = folder / "remote" / self.run_id / p.name / f"{rid}.credentials"
-                local.parent.mkdir(parents=True, exist_ok=True)
-                local.write_bytes(Path(auth).read_bytes())
-                local.chmod(0o600)
-                files.append(local)
-                spec.append(f"{run}/{rid}.credentials")
-            specs.append(",".join(spec))
+            parts = [f"{run}/{rid}.yaml", f"{run}/{rid}.json"]
+            if auth is not None:  # OUT/secure/ROBOT.credentials (0600, kept so by scp -p)
+                files.append(Path(auth))
+                parts.append(f"{run}/{Path(auth).name}")
+            specs.append(",".join(parts))
         if not _hosted(p):
             cfg, stats, *auth_spec = specs[0].split(",")
             argv = ["-m", "agent", "--config", cfg, "--stats", stats]
@@ -242,7 +238,7 @@ class RemotePlacement:
                 argv += ["--agent", spec]
         return files, argv + (common or [])
 
-    async def _ship(self, p: AgentProcess, files: list[Path], folder: Path) -> Result:
+    async def _ship(self, p: AgentProcess, files: list[Path]) -> Result:
         """``install_dir/runs/RUN/`` there (0700) with ``files`` (modes kept)."""
         d = remote_dir_expr(p.lead.install_dir)
         made = await ssh_run(p.target, f"cd {d} && mkdir -p {RUNS} && mkdir -m 700 -p "
