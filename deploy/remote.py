@@ -210,9 +210,8 @@ class RemotePlacement:
                  extra_argv: Callable[[str], Sequence[str]],
                  shared_session: bool) -> tuple[list[Path], list[str]]:
         """The local files process ``p`` needs there, and its ``python`` arguments there."""
-        run = self.run_dir
         files: list[Path] = []
-        specs: list[str] = []
+        auths: dict[str, str | None] = {}
         common: list[str] | None = None
         for rid in p.robots:
             path = folder / "configs" / f"{rid}.yaml"
@@ -223,20 +222,33 @@ class RemotePlacement:
                 common = rest
             elif rest != common:
                 raise ValueError(f"per_process: robot {rid} has options of its own: {rest}")
-            parts = [f"{run}/{rid}.yaml", f"{run}/{rid}.json"]
+            auths[rid] = None if auth is None else Path(auth).name
             if auth is not None:  # OUT/secure/ROBOT.credentials (0600, kept so by scp -p)
                 files.append(Path(auth))
-                parts.append(f"{run}/{Path(auth).name}")
-            specs.append(",".join(parts))
-        if not _hosted(p):
-            cfg, stats, *auth_spec = specs[0].split(",")
-            argv = ["-m", "agent", "--config", cfg, "--stats", stats]
-            argv += ["--zenoh-auth", auth_spec[0]] if auth_spec else []
-        else:
-            argv = ["-m", "agent.host"] + (["--shared-session"] if shared_session else [])
-            for spec in specs:
-                argv += ["--agent", spec]
-        return files, argv + (common or [])
+        return files, agent_argv(p, self.run_dir, common or [], auths, shared_session)
+
+    def describe(self, common: Sequence[str], secure: bool, shared_session: bool = False,
+                 here: Sequence[str] = ()) -> list[str]:
+        """The placement as text lines (``formation run --hosts ... --dry-run``): the router,
+        each agent process with its robots, files and the SSH commands that would start it,
+        the robots that stay here. Nothing is touched."""
+        lines = [f"router and world here, the router listening on {self.endpoint} "
+                 f"(the hosts connect there)"]
+        for p in self.processes:
+            auths = {rid: f"{rid}.credentials" if secure else None for rid in p.robots}
+            argv = agent_argv(p, self.run_dir, common, auths, shared_session)
+            files = [f"{rid}.yaml" for rid in p.robots] + [a for a in auths.values() if a]
+            script = remote_script(p.lead, self.run_dir, argv, p.name)
+            lines += [
+                "",
+                f"{p.name}: robots {', '.join(p.robots)} on {p.lead.address} in "
+                f"{p.lead.install_dir}",
+                f"  files   {' '.join(files)} -> {p.lead.install_dir}/{self.run_dir}/",
+                f"  start   {shlex.join(ssh_argv(p.target, script))}",
+            ]
+        if here:
+            lines += ["", f"here: robots {', '.join(here)}"]
+        return lines
 
     async def _ship(self, p: AgentProcess, files: list[Path]) -> Result:
         """``install_dir/runs/RUN/`` there (0700) with ``files`` (modes kept)."""
@@ -296,6 +308,28 @@ class RemotePlacement:
 def _hosted(p: AgentProcess) -> bool:
     """Whether ``p`` is an agent host (named so by :func:`group_processes`)."""
     return p.name.startswith("remote-host-")
+
+
+def agent_argv(p: AgentProcess, run_dir: str, common: Sequence[str],
+               auths: Mapping[str, str | None], shared_session: bool = False) -> list[str]:
+    """``python`` arguments of process ``p`` in ``install_dir``: ``-m agent`` for one robot,
+    ``-m agent.host`` for several; ``auths`` names each robot's credentials file in ``run_dir``
+    (None: none), ``common`` the options every robot shares (``--lockstep``, faults, ...)."""
+    specs = []
+    for rid in p.robots:
+        parts = [f"{run_dir}/{rid}.yaml", f"{run_dir}/{rid}.json"]
+        if auths.get(rid):
+            parts.append(f"{run_dir}/{auths[rid]}")
+        specs.append(parts)
+    if not _hosted(p):
+        cfg, stats, *auth = specs[0]
+        argv = ["-m", "agent", "--config", cfg, "--stats", stats]
+        argv += ["--zenoh-auth", auth[0]] if auth else []
+    else:
+        argv = ["-m", "agent.host"] + (["--shared-session"] if shared_session else [])
+        for parts in specs:
+            argv += ["--agent", ",".join(parts)]
+    return argv + list(common)
 
 
 def _split_auth(argv: list[str]) -> tuple[list[str], str | None]:

@@ -336,3 +336,27 @@ def test_the_counters_reply_is_split_per_robot_and_broken_files_are_left_out() -
     reply = ("==formation-stats== r1.json\n{\"robot\": \"r1\"}\n\n"
              "==formation-stats== r2.json\n{\"robot\": \n\n")
     assert parse_stats(reply) == {"r1": "{\"robot\": \"r1\"}"}
+
+
+def test_a_dry_run_prints_where_each_agent_would_run_and_reaches_nothing(
+        tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    scen = tmp_path / "scenario.yaml"
+    scen.write_text(SCENARIO)
+    (tmp_path / "key").write_text("not a real key\n")
+    inv = tmp_path / "inventory.yaml"
+    inv.write_text(yaml.safe_dump({
+        "zenoh": {"router": "tcp/192.0.2.10:7447"},  # TEST-NET: nothing is reached
+        "defaults": {"user": "ubuntu", "key": "key"},
+        "robots": [{"id": "r1", "host": "192.0.2.21"}, {"id": "r3", "host": "192.0.2.21",
+                                                        "install_dir": "/opt/f"}],
+    }))
+    out = tmp_path / "run"
+    code = formation_main(["run", str(scen), "--out", str(out), "--hosts", str(inv),
+                           "--agents-per-process", "2", "--dry-run"])
+    text = capsys.readouterr().out
+    assert code == 0, text
+    assert "router listening on tcp/192.0.2.10:7447" in text
+    assert "remote-host-0: robots r1, r3 on ubuntu@192.0.2.21:22 in ~/formation-cbf" in text
+    assert "-m agent.host --agent runs/" in text and "r3.credentials --lockstep" in text
+    assert "here: robots r2" in text and "dry run: 3 robots, 2 on other hosts" in text
+    assert not out.exists() and not (tmp_path / "known_hosts").exists()

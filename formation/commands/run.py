@@ -37,13 +37,7 @@ def run_command(ns: argparse.Namespace) -> int:
                          "publishes the poses)")
     if not 0 <= ns.port < 65536:
         raise UsageError(f"--port: {ns.port} is not a TCP port")
-    slots = getattr(ns, "pose_slots", 1)
-    if slots < 1:
-        raise UsageError(f"--pose-slots: need an integer >= 1, got {slots}")
-    if slots > 1 and not (ns.realtime and ns.camera == "truth"):
-        raise UsageError("--pose-slots: more than one slot needs --realtime and --camera truth")
-    if getattr(ns, "clock_offset_ms", 0.0) and not ns.realtime:
-        raise UsageError("--clock-offset-ms: needs --realtime (lock-step runs on simulated time)")
+    slots = _pose_slots(ns)
     per_process = getattr(ns, "agents_per_process", 1)
     if per_process < 1:
         raise UsageError(f"--agents-per-process: need an integer >= 1, got {per_process}")
@@ -66,6 +60,8 @@ def run_command(ns: argparse.Namespace) -> int:
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     remote = _placement(ns, scenario, per_process, faults)  # over SSH, before anything starts
+    if getattr(ns, "dry_run", False):
+        return _dry_run(ns, scenario, remote, shared)
     from formation.commands.view import live_observer
 
     live, observer = live_observer(ns, scenario)  # --live PORT: the page, fed from the world's session
@@ -95,6 +91,18 @@ def run_command(ns: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _pose_slots(ns: argparse.Namespace) -> int:
+    """``--pose-slots`` once checked (and ``--clock-offset-ms``: both need real time)."""
+    slots = getattr(ns, "pose_slots", 1)
+    if slots < 1:
+        raise UsageError(f"--pose-slots: need an integer >= 1, got {slots}")
+    if slots > 1 and not (ns.realtime and ns.camera == "truth"):
+        raise UsageError("--pose-slots: more than one slot needs --realtime and --camera truth")
+    if getattr(ns, "clock_offset_ms", 0.0) and not ns.realtime:
+        raise UsageError("--clock-offset-ms: needs --realtime (lock-step runs on simulated time)")
+    return slots
+
+
 def _placement(ns: argparse.Namespace, scenario: Scenario, per_process: int,
                faults: FaultPlan):
     """``--hosts INVENTORY``: the agents placed on its hosts (:mod:`deploy.remote`), every host
@@ -114,10 +122,27 @@ def _placement(ns: argparse.Namespace, scenario: Scenario, per_process: int,
             if k.robot in remote.robots:
                 raise UsageError(f"--kill: {k.robot} runs on another host (--hosts); kills need "
                                  f"an agent on this machine")
-        remote.check()
+        if not getattr(ns, "dry_run", False):
+            remote.check()
     except (InventoryError, RemoteError, OSError) as exc:
         raise UsageError(str(exc)) from None
     return remote
+
+
+def _dry_run(ns: argparse.Namespace, scenario: Scenario, remote, shared: bool) -> int:
+    """``--dry-run``: where each robot's agent would run (with ``--hosts``, the SSH commands
+    that would start it there); nothing is started, written or reached."""
+    common = [] if ns.realtime else ["--lockstep"]
+    secure = not getattr(ns, "insecure", False)
+    if remote is None:
+        print(f"router, world and every agent here: robots {', '.join(scenario.robot_ids)}")
+    else:
+        here = [r for r in scenario.robot_ids if r not in remote.robots]
+        for line in remote.describe(common, secure, shared, here):
+            print(line)
+    print(f"dry run: {len(scenario.robot_ids)} robots, "
+          f"{0 if remote is None else len(remote.robots)} on other hosts; nothing started")
+    return EXIT_OK
 
 
 def _duration_and_hold(ns: argparse.Namespace, scenario: Scenario) -> tuple[Scenario, bool]:
