@@ -26,12 +26,12 @@ copies the counters back into the run's ``agents/`` folder and removes ``runs/RU
 from __future__ import annotations
 
 import asyncio
-import hashlib
-import importlib.util
+import io
 import json
 import logging
 import secrets
 import shlex
+import tarfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,40 +40,23 @@ from typing import Any
 from agent.config import AgentConfig, save_config
 
 from .deployer import remote_dir_expr
+from .digest import AGENT_PACKAGES, package_digest
 from .inventory import Inventory, InventoryError, RobotHost, check_keys, load_inventory
-from .ssh import SCP, Result, SshTarget, ssh_argv, ssh_run
+from .ssh import Result, SshTarget, ssh_argv, ssh_run
 from .ssh import run as run_argv
 
 logger = logging.getLogger(__name__)
 
-AGENT_PACKAGES = ("geometry", "wire", "scenario", "leader", "agent")  # what an agent runs
 RUNS = "runs"  # in install_dir: one folder per run
 PROBE_TIMEOUT_S = 30.0  # [s] on top of the SSH connect timeout
 COPY_TIMEOUT_S = 120.0  # [s]
 STATS_MARK = "==formation-stats== "  # separates the counters files in collect's reply
-_DIGEST_CODE = "from deploy.remote import package_digest; print('digest=' + package_digest())"
+_DIGEST_CODE = "from deploy.digest import package_digest; print('digest=' + package_digest())"
 _NOT_DEPLOYED = 3  # the probe's exit status for an install_dir without the virtualenv
 
 
 class RemoteError(RuntimeError):
     """A host of the placement cannot run its agents; the message is one line naming the robot."""
-
-
-def package_digest(names: Sequence[str] = AGENT_PACKAGES) -> str:
-    """Digest of the source of the packages ``names`` as this interpreter imports them (names,
-    sizes and bytes of their ``.py`` files): equal here and on a host when both run the same
-    agent."""
-    h = hashlib.sha256()
-    for name in names:
-        spec = importlib.util.find_spec(name)
-        if spec is None or spec.origin is None:
-            h.update(f"{name}\0missing\0".encode())
-            continue
-        for path in sorted(Path(spec.origin).parent.glob("*.py")):
-            data = path.read_bytes()
-            h.update(f"{name}/{path.name}\0{len(data)}\0".encode())
-            h.update(data)
-    return h.hexdigest()[:16]
 
 
 @dataclass(frozen=True)
@@ -223,7 +206,7 @@ class RemotePlacement:
             elif rest != common:
                 raise ValueError(f"per_process: robot {rid} has options of its own: {rest}")
             auths[rid] = None if auth is None else Path(auth).name
-            if auth is not None:  # OUT/secure/ROBOT.credentials (0600, kept so by scp -p)
+            if auth is not None:  # OUT/secure/ROBOT.credentials (0600, kept so by tar)
                 files.append(Path(auth))
         return files, agent_argv(p, self.run_dir, common or [], auths, shared_session)
 
@@ -251,17 +234,13 @@ class RemotePlacement:
         return lines
 
     async def _ship(self, p: AgentProcess, files: list[Path]) -> Result:
-        """``install_dir/runs/RUN/`` there (0700) with ``files`` (modes kept)."""
+        """``install_dir/runs/RUN/`` there (0700) with ``files``, their modes kept: one SSH
+        call, the files as a tar stream on its stdin."""
         d = remote_dir_expr(p.lead.install_dir)
-        made = await ssh_run(p.target, f"cd {d} && mkdir -p {RUNS} && mkdir -m 700 -p "
-                                       f"{self.run_dir} && cd {self.run_dir} && pwd",
-                             PROBE_TIMEOUT_S + p.target.connect_timeout)
-        if not made.ok:
-            return made
-        where = made.stdout.strip().splitlines()[-1]
-        remote = f"{p.target.destination}:{where}/"
-        return await run_argv([SCP, "-q", "-p", *p.target.options(), "-P", str(p.target.port),
-                               *map(str, files), remote], COPY_TIMEOUT_S)
+        command = (f"cd {d} && mkdir -p {RUNS} && mkdir -m 700 -p {self.run_dir} && "
+                   f"tar -x --no-same-owner -f - -C {self.run_dir}")
+        return await run_argv(ssh_argv(p.target, command), COPY_TIMEOUT_S + p.target.connect_timeout,
+                              tar_of(files))
 
     def collect(self, folder: Path) -> list[str]:
         """Counters of every started process's robots into ``FOLDER/agents/ROBOT.json``, and
@@ -303,6 +282,19 @@ class RemotePlacement:
             return list(await asyncio.gather(*coros))
 
         return asyncio.run(all_of())
+
+
+def tar_of(files: Sequence[Path]) -> bytes:
+    """``files`` as an uncompressed tar archive, each under its own name, its mode kept."""
+    buf = io.BytesIO()
+    with tarfile.open(fileobj=buf, mode="w", format=tarfile.PAX_FORMAT) as tar:
+        for path in files:
+            info = tar.gettarinfo(str(path), arcname=path.name)
+            info.uid = info.gid = 0
+            info.uname = info.gname = ""
+            with path.open("rb") as f:
+                tar.addfile(info, f)
+    return buf.getvalue()
 
 
 def _hosted(p: AgentProcess) -> bool:

@@ -176,6 +176,11 @@ def test_sigterm_stops_the_remote_agents_with_a_zero_command_and_brings_their_co
         wait_up(proc, out)
         pids = pids_there(hosts["dirs"])
         assert sorted(pids) == ["remote-host-0", "remote-host-1"]  # r1+r2 on one sshd, r3
+        (there,) = (hosts["dirs"]["r1"] / "runs").glob("*")  # r1's install dir holds r1 and r2
+        assert there.stat().st_mode & 0o777 == 0o700
+        assert sorted(f.name for f in there.glob("*.credentials")) == ["r1.credentials",
+                                                                       "r2.credentials"]
+        assert all(f.stat().st_mode & 0o777 == 0o600 for f in there.glob("*.credentials"))
         watcher = CmdWatcher(out / "secure" / "viewer.json5")
         deadline = time.monotonic() + 30
         while not watcher.moving():
