@@ -351,6 +351,8 @@ def probe_problem(p: AgentProcess, res: Result, here: str) -> str | None:
     who = f"robot {r.id} ({r.address})"
     if res.returncode == 255:
         return f"{who}: unreachable: {res.reason()}"
+    if res.returncode in (124, 127):  # ssh timed out, or no ssh on this machine
+        return f"{who}: {res.reason()}"
     if res.returncode == _NOT_DEPLOYED:
         return (f"{who}: no agent deployed in {r.install_dir} (formation deploy INVENTORY "
                 f"SCENARIO installs it)")

@@ -9,7 +9,9 @@ scouting off:
   ``--realtime``), each writing its counters to ``DIR/agents/ROBOT.json`` when it stops. With
   ``--agents-per-process K`` the agents run K to an agent host (``python -m agent.host``, child
   ``host-I``; :mod:`agent.host`), one Zenoh session per host unless ``--session-per-agent`` or
-  ``--secure``; each robot keeps its own configuration, keys and counters file.
+  ``--secure``; each robot keeps its own configuration, keys and counters file. With ``--hosts
+  INVENTORY`` the robots it names run their agents on its hosts over SSH (:mod:`deploy.remote`,
+  children of the same :class:`Fleet`), the router listening on the inventory's ``zenoh.router``.
 
 The simulated world (:class:`simulator.world.World`) runs in the launcher's own process on a
 client session, so progress is shown as it goes. When every goal is reached (or the duration is
