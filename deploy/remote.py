@@ -122,8 +122,8 @@ def plan_placement(path: Path, scenario_robots: Sequence[str], per_process: int 
                              f"tcp/ endpoint without TLS, got {z.router!r}"
                              + (" with zenoh.tls" if z.tls is not None else ""))
     check_keys(inventory)
-    return RemotePlacement(inventory, [rid for rid in wanted if rid in
-                                       {r.id for r in inventory.robots}], per_process, run_id)
+    there = {r.id for r in inventory.robots}
+    return RemotePlacement(inventory, [rid for rid in wanted if rid in there], per_process, run_id)
 
 
 class RemotePlacement:
@@ -137,8 +137,7 @@ class RemotePlacement:
         self.robots = frozenset(robots)
         self.processes = group_processes(inventory, robots, per_process)
         self.run_id = run_id or secrets.token_hex(6)
-        self.started: list[AgentProcess] = []
-        self._by_id = {r.id: r for r in inventory.robots}
+        self.shipped: list[AgentProcess] = []  # processes whose runs/RUN exists there
 
     @property
     def run_dir(self) -> str:
@@ -176,6 +175,7 @@ class RemotePlacement:
             files[p.name], argvs[p.name] = self._prepare(p, configs, folder, extra_argv,
                                                          shared_session)
         shipped = self._run_all([self._ship(p, files[p.name]) for p in self.processes])
+        self.shipped = [p for p, res in zip(self.processes, shipped, strict=True) if res.ok]
         for p, res in zip(self.processes, shipped, strict=True):
             if not res.ok:
                 raise RemoteError(f"robot {p.robots[0]} ({p.lead.address}): cannot copy the "
@@ -184,7 +184,6 @@ class RemotePlacement:
         for p in self.processes:
             script = remote_script(p.lead, self.run_dir, argvs[p.name], p.name)
             child = fleet.start_command(p.name, ssh_argv(p.target, script), where=p.lead.address)
-            self.started.append(p)
             for rid in p.robots:
                 agents[rid] = child
         return agents
@@ -244,8 +243,9 @@ class RemotePlacement:
 
     def collect(self, folder: Path) -> list[str]:
         """Counters of every started process's robots into ``FOLDER/agents/ROBOT.json``, and
-        ``runs/RUN`` removed there; returns the robots whose counters did not come (logged)."""
-        started, self.started = self.started, []
+        ``runs/RUN`` removed there; returns the robots whose counters did not come (logged).
+        Called once the processes have stopped; a second call does nothing."""
+        started, self.shipped = self.shipped, []
         if not started:
             return []
         replies = self._run_all([ssh_run(p.target, collect_command(p, self.run_dir),
