@@ -365,3 +365,39 @@ def test_a_dry_run_prints_where_each_agent_would_run_and_reaches_nothing(
     assert "-m agent.host --agent runs/" in text and "r3.credentials --lockstep" in text
     assert "here: robots r2" in text and "dry run: 3 robots, 2 on other hosts" in text
     assert not out.exists() and not (tmp_path / "known_hosts").exists()
+
+
+@pytest.mark.parametrize("shell", ["dash", "bash"])
+def test_the_remote_script_stops_its_agent_on_end_of_file_and_ends_with_its_status(
+        tmp_path: Path, shell: str) -> None:
+    import shutil
+
+    from deploy.inventory import RobotHost
+    from deploy.remote import remote_script
+
+    if shutil.which(shell) is None:
+        pytest.skip(f"no {shell} here")
+    (tmp_path / "venv" / "bin").mkdir(parents=True)
+    (tmp_path / "runs" / "RUN").mkdir(parents=True)
+    fake = tmp_path / "venv" / "bin" / "python"  # an "agent" that says how it was stopped
+    fake.write_text("#!/bin/sh\ntrap 'echo zero-and-counters; exit 0' TERM\n"
+                    "echo started \"$@\"\ntest \"$1\" = dies && exit 9\n"
+                    "while :; do sleep 0.05; done\n")
+    fake.chmod(0o755)
+    robot = RobotHost(id="r1", host="h", user="u", key=tmp_path / "k", install_dir=str(tmp_path))
+    for argv, code, said in ((["-m", "agent"], 0, "zero-and-counters"), (["dies"], 9, "")):
+        script = remote_script(robot, "runs/RUN", argv, "agent-r1")
+        proc = subprocess.Popen([shell, "-c", script], stdin=subprocess.PIPE,
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        deadline = time.monotonic() + 5
+        while not (tmp_path / "runs" / "RUN" / "agent-r1.pid").exists():
+            assert time.monotonic() < deadline
+            time.sleep(0.02)
+        if code == 0:
+            time.sleep(0.2)
+            assert proc.poll() is None  # runs until told
+        else:
+            proc.wait(5)  # ends by itself, its stdin still open
+        out = proc.communicate(timeout=5)[0].decode()  # closes its stdin: end-of-file there
+        assert proc.returncode == code and said in out, out
+        (tmp_path / "runs" / "RUN" / "agent-r1.pid").unlink()
