@@ -1,4 +1,8 @@
-"""``formation run SCENARIO --out DIR``: the multi-process run over Zenoh (see :mod:`simulator.launch`)."""
+"""``formation run SCENARIO --out DIR``: the multi-process run over Zenoh (see :mod:`simulator.launch`).
+
+``--hosts INVENTORY`` places the agents of the robots a deploy inventory names on its hosts
+(:mod:`deploy.remote`), each host checked over SSH before anything starts; ``--dry-run`` prints
+the placement and starts nothing."""
 
 from __future__ import annotations
 
