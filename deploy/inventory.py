@@ -43,6 +43,7 @@ from __future__ import annotations
 import logging
 import math
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -231,6 +232,15 @@ def check_against_scenario(inventory: Inventory, robot_ids: tuple[str, ...] | li
         if rid not in have:
             raise InventoryError(f"{inventory.path}: scenario robot {rid!r} is missing from "
                                  f"the inventory")
+
+
+def check_keys(inventory: Inventory, robots: Sequence[str] | None = None) -> None:
+    """Every robot's (of ``robots``, default all) SSH key is a file on this machine; else
+    :class:`InventoryError` naming the first that is not."""
+    for r in inventory.robots:
+        if (robots is None or r.id in robots) and not r.key.is_file():
+            what = "is not a file" if r.key.exists() else "does not exist"
+            raise InventoryError(f"{inventory.path}: robot {r.id!r}: SSH key {r.key} {what}")
 
 
 def _robot(d: dict[str, Any], label: str, folder: Path,

@@ -80,20 +80,21 @@ def scp_argv(target: SshTarget, files: Sequence[Path], remote_dir: str) -> list[
     return [SCP, "-q", "-p", *target.options(), "-P", str(target.port), *map(str, files), remote]
 
 
-async def run(argv: Sequence[str], timeout: float) -> Result:
-    """Run ``argv``; a timeout kills it and returns exit status 124 with a reason."""
+async def run(argv: Sequence[str], timeout: float, data: bytes | None = None) -> Result:
+    """Run ``argv`` (``data`` on its stdin, else none); a timeout kills it and returns exit
+    status 124 with a reason."""
     logger.debug("run %s", shlex.join(argv))
     try:
         proc = await asyncio.create_subprocess_exec(
             *argv,
-            stdin=asyncio.subprocess.DEVNULL,
+            stdin=asyncio.subprocess.DEVNULL if data is None else asyncio.subprocess.PIPE,
             stdout=asyncio.subprocess.PIPE,
             stderr=asyncio.subprocess.PIPE,
         )
     except OSError as exc:
         return Result(127, "", f"cannot run {argv[0]}: {exc.strerror or exc}")
     try:
-        out, err = await asyncio.wait_for(proc.communicate(), timeout)
+        out, err = await asyncio.wait_for(proc.communicate(data), timeout)
     except TimeoutError:
         proc.kill()
         await proc.wait()

@@ -138,6 +138,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default: one per host, with --insecure; each robot logs in as itself otherwise)")
     p.add_argument("--no-safety", action="store_true", help="barriers off (nominal control only)")
     p.add_argument("--port", type=int, default=0, help="router TCP port on 127.0.0.1 (0: free)")
+    p.add_argument("--hosts", default=None, metavar="INVENTORY",
+                   help="run the agents of the robots this deploy inventory names on its hosts "
+                        "(over SSH, where formation deploy installed them; the others here); the "
+                        "router listens on its zenoh.router (default: every agent here)")
+    p.add_argument("--dry-run", action="store_true",
+                   help="check the scenario and the --hosts inventory, print where each agent "
+                        "would run and the SSH commands; start, write and reach nothing")
     p.add_argument("--hold", action="store_true",
                    help="keep the fleet up after every goal (until --duration or Ctrl-C); send goals "
                         "with 'formation goal'")

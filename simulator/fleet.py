@@ -1,4 +1,4 @@
-"""One owner for a fleet's processes: a Zenoh router and one agent per robot on this machine.
+"""One owner for a fleet's processes: a Zenoh router and one agent per robot, here or on other hosts.
 
 :class:`Fleet` starts every child in its own process group (``start_new_session``) with its
 output in ``LOG_DIR/NAME.log``, watches them (:meth:`Fleet.check` raises :class:`ChildFailed`
@@ -6,6 +6,10 @@ when one has exited), and stops them: SIGTERM to the group, then SIGKILL after a
 wait bounded. As a context manager it stops every child on every way out, and in the main thread
 it installs a SIGTERM handler that only sets a flag; :meth:`Fleet.check`, which the world calls
 while it waits, turns the flag into ``KeyboardInterrupt`` in ordinary code.
+
+Agents on other hosts (``formation run --hosts``, :class:`RemoteAgents`) are children too: each is
+an ``ssh`` that runs the agent there (:meth:`Fleet.start_command`). Its exit is noticed like any
+child's, and it is stopped by closing its stdin, on which the far side sends the agent SIGTERM.
 
 Used by ``formation run`` and ``formation commcost`` (:func:`simulator.launch.launch`) and by the
 agent fleets of ``formation bench`` (:mod:`experiments.agents`).
@@ -25,7 +29,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType, TracebackType
-from typing import IO, Any
+from typing import IO, Any, Protocol
 
 from agent.config import AgentConfig, save_config
 from wire import lifeline
@@ -40,6 +44,29 @@ KILL_WAIT_S = 5.0  # [s] the longest wait for a SIGKILLed child to be reaped
 START_TIMEOUT_S = 60.0  # [s] router listening, agents subscribed
 
 
+class RemoteAgents(Protocol):
+    """Agents placed on other hosts (implemented by :class:`deploy.remote.RemotePlacement`)."""
+
+    endpoint: str  # the router's endpoint, reachable from those hosts (it listens there)
+    robots: frozenset[str]  # the robots whose agents run elsewhere
+
+    def start(self, fleet: Fleet, configs: Mapping[str, AgentConfig], folder: Path,
+              extra_argv: Callable[[str], Sequence[str]], per_process: int,
+              shared_session: bool = False) -> dict[str, Child]:
+        """Ship each robot its configuration and credentials and start its agent there as a
+        child of ``fleet``; every robot maps to its process's child."""
+        ...
+
+    def collect(self, folder: Path) -> list[str]:
+        """Copy each robot's counters back to ``FOLDER/agents/ROBOT.json`` once its agent has
+        stopped, and remove the run's files there; the robots whose counters did not come."""
+        ...
+
+    def summary(self) -> dict:
+        """``remote`` of summary.json: where each robot ran."""
+        ...
+
+
 class ChildFailed(RuntimeError):
     """A child process exited while the run needed it."""
 
@@ -49,6 +76,8 @@ class Child:
     name: str
     proc: subprocess.Popen
     log: IO[bytes]
+    stop_by_stdin: bool = False  # stopped by closing its stdin (an ssh to another host)
+    where: str = ""  # another host's address ("" here)
 
 
 def signal_group(pid: int, sig: int) -> None:
@@ -114,6 +143,22 @@ class Fleet:
         self.children.append(child)
         return child
 
+    def start_command(self, name: str, argv: Sequence[str], where: str = "") -> Child:
+        """``ARGV`` (any program: ``ssh`` to another host, say) as child ``name`` in its own
+        process group, its stdin a pipe that only this process holds. It is stopped by closing
+        that pipe (:meth:`stop`): the program on the other end, seeing end-of-file, stops what it
+        runs in order and exits. If this process dies the pipe closes too (no orphans there)."""
+        log = (self.log_dir / f"{name}.log").open("wb")
+        try:
+            proc = subprocess.Popen(list(argv), env=self.env, stdin=subprocess.PIPE, stdout=log,
+                                    stderr=subprocess.STDOUT, start_new_session=True)
+        except BaseException:
+            log.close()
+            raise
+        child = Child(name, proc, log, stop_by_stdin=True, where=where)
+        self.children.append(child)
+        return child
+
     def check(self) -> None:
         """``KeyboardInterrupt`` if a stop signal came; :class:`ChildFailed` if a child exited."""
         if self.signalled is not None:
@@ -127,7 +172,8 @@ class Fleet:
                     tail = path.read_text(encoding="utf-8", errors="replace").strip().splitlines()[-3:]
                 except OSError:
                     tail = []
-                raise ChildFailed(f"{c.name} exited with status {code} (see {path})"
+                on = f" on {c.where}" if c.where else ""
+                raise ChildFailed(f"{c.name}{on} exited with status {code} (see {path})"
                                   + (": " + " | ".join(tail) if tail else ""))
 
     def stop(self, children: Sequence[Child] | None = None, timeout: float = STOP_TIMEOUT_S) -> None:
@@ -135,7 +181,9 @@ class Fleet:
         left, and reap it (at most :data:`KILL_WAIT_S` each)."""
         targets = list(self.children if children is None else children)
         for c in targets:
-            if c.proc.poll() is None:
+            if c.stop_by_stdin:
+                _close_stdin(c)  # also of one that is gone: the pipe is ours to close
+            elif c.proc.poll() is None:
                 signal_group(c.proc.pid, signal.SIGTERM)
         deadline = time.monotonic() + timeout
         for c in targets:
@@ -213,7 +261,7 @@ class Fleet:
             argv = ["-m", "agent.host"] + (["--shared-session"] if shared_session else [])
             common: list[str] | None = None
             for rid in group:
-                rest, auth = _split_auth(list(extra_argv(rid)))
+                rest, auth = split_auth(list(extra_argv(rid)))
                 if common is None:
                     common = rest
                 elif rest != common:
@@ -244,7 +292,16 @@ class Fleet:
         self.stop([router])
 
 
-def _split_auth(argv: list[str]) -> tuple[list[str], str | None]:
+def _close_stdin(child: Child) -> None:
+    """End-of-file on ``child``'s stdin (its stop request)."""
+    if child.proc.stdin is not None:
+        try:
+            child.proc.stdin.close()
+        except OSError:  # it is gone already (broken pipe)
+            pass
+
+
+def split_auth(argv: list[str]) -> tuple[list[str], str | None]:
     """``argv`` without its ``--zenoh-auth FILE``, and FILE (None if absent)."""
     if "--zenoh-auth" not in argv:
         return argv, None

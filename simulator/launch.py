@@ -9,7 +9,9 @@ scouting off:
   ``--realtime``), each writing its counters to ``DIR/agents/ROBOT.json`` when it stops. With
   ``--agents-per-process K`` the agents run K to an agent host (``python -m agent.host``, child
   ``host-I``; :mod:`agent.host`), one Zenoh session per host unless ``--session-per-agent`` or
-  ``--secure``; each robot keeps its own configuration, keys and counters file.
+  ``--secure``; each robot keeps its own configuration, keys and counters file. With ``--hosts
+  INVENTORY`` the robots it names run their agents on its hosts over SSH (:mod:`deploy.remote`,
+  children of the same :class:`Fleet`), the router listening on the inventory's ``zenoh.router``.
 
 The simulated world (:class:`simulator.world.World`) runs in the launcher's own process on a
 client session, so progress is shown as it goes. When every goal is reached (or the duration is
@@ -62,6 +64,7 @@ from .fleet import (
     Child,
     ChildFailed,
     Fleet,
+    RemoteAgents,
     signal_group,
     unique_children,
 )
@@ -187,6 +190,7 @@ def launch(
     solver: str = "exact",
     hold: bool = False,
     announce=None,
+    remote: RemoteAgents | None = None,
 ) -> tuple[dict, Series]:
     """Run ``scenario`` as separate processes; returns the summary and the time series.
 
@@ -205,12 +209,22 @@ def launch(
     ``hold`` keeps the fleet up after every goal is reached, until the scenario's duration or
     SIGINT/SIGTERM (which then end the run normally, with its summary); ``announce(endpoint)`` is
     called once every agent is up (the endpoint is also written to ``out/endpoint``). The
-    summary's ``formations_status`` holds each leader's last status."""
+    summary's ``formations_status`` holds each leader's last status.
+
+    ``remote`` places the agents of ``remote.robots`` on other hosts (``formation run --hosts``,
+    :mod:`deploy.remote`): the router then listens on ``remote.endpoint``, those agents are
+    children of the same :class:`Fleet` (started, watched and stopped with the others), their
+    counters are copied back before the summary is made, and the summary gains ``remote``."""
     faults = faults or FaultPlan()
     if camera == "process" and scenario_path is None:
         raise ValueError("scenario_path: --camera process needs the scenario file")
     faults.check_robots(scenario.robot_ids)
     _check_hosting(agents_per_process, shared_session, faults, secure)
+    if remote is not None:
+        for k in faults.kills:
+            if k.robot in remote.robots:
+                raise ValueError(f"kill: {k.robot} runs on another host (--hosts); kills need "
+                                 f"an agent on this machine")
     out = Path(out)
     for sub in ("configs", "agents", "logs"):
         (out / sub).mkdir(parents=True, exist_ok=True)
@@ -225,7 +239,7 @@ def launch(
                                   progress_factory, faults, secure, pose_slots, observer, hold,
                                   announce, stop_requested, scenario_path,
                                   clock_offset=clock_offset, agents_per_process=agents_per_process,
-                                  shared_session=shared_session, solver=solver)
+                                  shared_session=shared_session, solver=solver, remote=remote)
     finally:
         if previous_int is not None:
             signal.signal(signal.SIGINT, previous_int)
@@ -237,11 +251,37 @@ def _launch(scenario: Scenario, out: Path, realtime: bool, camera: str, topology
             pose_slots: int, observer, hold: bool, announce,
             stop_requested: threading.Event,
             scenario_path: str | Path | None, *, clock_offset: float, agents_per_process: int,
-            shared_session: bool, solver: str) -> tuple[dict, Series]:
+            shared_session: bool, solver: str,
+            remote: RemoteAgents | None = None) -> tuple[dict, Series]:
     """:func:`launch` once its arguments are checked and its folders made."""
+    if remote is not None:  # the router listens where the other hosts reach it
+        endpoint = remote.endpoint
+        port = int(endpoint.rsplit(":", 1)[1])
+    else:
+        port = port or free_tcp_port()
+        endpoint = tcp_endpoint(port)
+    try:
+        return _launch_fleet(scenario, out, realtime, camera, topology, safety, port, endpoint,
+                             progress_factory, faults, secure, pose_slots, observer, hold,
+                             announce, stop_requested, scenario_path, clock_offset=clock_offset,
+                             agents_per_process=agents_per_process, shared_session=shared_session,
+                             solver=solver, remote=remote)
+    finally:
+        if remote is not None:
+            try:  # an early way out: the agents there have stopped; remove the run's files
+                remote.collect(out)
+            except Exception:  # noqa: BLE001 - best effort on a way out that already failed
+                logger.warning("could not tidy the run's files on the other hosts", exc_info=True)
+
+
+def _launch_fleet(scenario: Scenario, out: Path, realtime: bool, camera: str, topology: str,
+                  safety: bool, port: int, endpoint: str, progress_factory, faults: FaultPlan,
+                  secure: bool, pose_slots: int, observer, hold: bool, announce,
+                  stop_requested: threading.Event, scenario_path: str | Path | None, *,
+                  clock_offset: float, agents_per_process: int, shared_session: bool,
+                  solver: str, remote: RemoteAgents | None) -> tuple[dict, Series]:
+    """The run's fleet, from its router to the summary (see :func:`launch`)."""
     stopped: BaseException | None = None  # why a started run ended early
-    port = port or free_tcp_port()
-    endpoint = tcp_endpoint(port)
     fault_run = faults.active
     with Fleet(out / "logs") as fleet:
 
@@ -271,8 +311,8 @@ def _launch(scenario: Scenario, out: Path, realtime: bool, camera: str, topology
                 argv += ["--zenoh-auth", str(creds.files[rid])]
             return argv
 
-        agents = fleet.start_agents(configs, out, agent_args, per_process=agents_per_process,
-                                    shared_session=shared_session)
+        agents = _start_agents(fleet, configs, out, agent_args, agents_per_process,
+                               shared_session, remote)
         fleet.write_pids(out / "processes.json")
         conf = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
                                  connect_timeout_s=10.0,
@@ -310,6 +350,8 @@ def _launch(scenario: Scenario, out: Path, realtime: bool, camera: str, topology
         # the agents write their counters on SIGTERM (also after the router died); router last
         fleet.shut_down(unique_children(agents.values()), router,  # a host once
                         [] if camera_child is None else [camera_child])
+    if remote is not None:
+        remote.collect(out)  # the counters of the agents on other hosts, now they have stopped
     stats = [_stats_of(out / "agents" / f"{rid}.json", cfg, lost_ok=stopped is not None)
              if rid in agents else _dead_stats(cfg) for rid, cfg in configs.items()]
     summary, series = build_summary(scenario, result, stats, topology, realtime, camera, safety,
@@ -317,12 +359,27 @@ def _launch(scenario: Scenario, out: Path, realtime: bool, camera: str, topology
     if fault_run:
         summary["faults"] = fault_summary(faults, result, stats, driver.log)
     summary["secure"] = False if creds is None else creds.summary()
+    if remote is not None:
+        summary["remote"] = remote.summary()
     summary.update(_run_options(out, camera, pose_slots, agents_per_process, shared_session))
     _navigation_fields(summary, hold, board)
     if stopped is not None:
         _mark_aborted(summary, stats, stopped)
         raise RunAborted(summary["aborted"], summary, series, stopped)
     return summary, series
+
+
+def _start_agents(fleet: Fleet, configs: dict, out: Path, agent_args: Callable[[str], list[str]],
+                  per_process: int, shared_session: bool,
+                  remote: RemoteAgents | None) -> dict[str, Child]:
+    """Every robot's agent: here, or on its host when ``remote`` places it there."""
+    elsewhere = set() if remote is None else remote.robots
+    agents = fleet.start_agents({r: c for r, c in configs.items() if r not in elsewhere}, out,
+                                agent_args, per_process=per_process, shared_session=shared_session)
+    if remote is not None:
+        agents.update(remote.start(fleet, {r: c for r, c in configs.items() if r in elsewhere},
+                                   out, agent_args, per_process, shared_session))
+    return agents
 
 
 def _run_options(out: Path, camera: str, pose_slots: int, agents_per_process: int,

@@ -17,19 +17,11 @@ import argparse
 import logging
 
 from deploy import deployer
-from deploy.inventory import Inventory, InventoryError, check_against_scenario, load_inventory
+from deploy.inventory import InventoryError, check_against_scenario, check_keys, load_inventory
 from formation.exits import EXIT_ERROR, EXIT_OK, UsageError
 from scenario import load_scenario
 
 logger = logging.getLogger(__name__)
-
-
-def _check_keys(inventory: Inventory) -> None:
-    """Every robot's SSH key is a file on this machine; else exit 2 naming the first missing."""
-    for r in inventory.robots:
-        if not r.key.is_file():
-            what = "is not a file" if r.key.exists() else "does not exist"
-            raise UsageError(f"{inventory.path}: robot {r.id!r}: SSH key {r.key} {what}")
 
 
 def deploy_command(ns: argparse.Namespace) -> int:
@@ -39,9 +31,9 @@ def deploy_command(ns: argparse.Namespace) -> int:
         check_against_scenario(inventory, scenario.robot_ids)
         plan = deployer.make_plan(inventory, scenario,
                                   write_secrets=not getattr(ns, "dry_run", False))
+        check_keys(inventory)  # before a dry run says all is well, and before any SSH
     except InventoryError as exc:
         raise UsageError(str(exc)) from None
-    _check_keys(inventory)  # before a dry run says all is well, and before any SSH
 
 
     if getattr(ns, "dry_run", False):

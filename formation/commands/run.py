@@ -1,4 +1,8 @@
-"""``formation run SCENARIO --out DIR``: the multi-process run over Zenoh (see :mod:`simulator.launch`)."""
+"""``formation run SCENARIO --out DIR``: the multi-process run over Zenoh (see :mod:`simulator.launch`).
+
+``--hosts INVENTORY`` places the agents of the robots a deploy inventory names on its hosts
+(:mod:`deploy.remote`), each host checked over SSH before anything starts; ``--dry-run`` prints
+the placement and starts nothing."""
 
 from __future__ import annotations
 
@@ -6,6 +10,7 @@ import argparse
 import dataclasses
 import math
 import sys
+from pathlib import Path
 
 from formation.exits import EXIT_ERROR, EXIT_OK, UsageError
 from formation.outdir import begin_output
@@ -36,13 +41,7 @@ def run_command(ns: argparse.Namespace) -> int:
                          "publishes the poses)")
     if not 0 <= ns.port < 65536:
         raise UsageError(f"--port: {ns.port} is not a TCP port")
-    slots = getattr(ns, "pose_slots", 1)
-    if slots < 1:
-        raise UsageError(f"--pose-slots: need an integer >= 1, got {slots}")
-    if slots > 1 and not (ns.realtime and ns.camera == "truth"):
-        raise UsageError("--pose-slots: more than one slot needs --realtime and --camera truth")
-    if getattr(ns, "clock_offset_ms", 0.0) and not ns.realtime:
-        raise UsageError("--clock-offset-ms: needs --realtime (lock-step runs on simulated time)")
+    slots = _pose_slots(ns)
     per_process = getattr(ns, "agents_per_process", 1)
     if per_process < 1:
         raise UsageError(f"--agents-per-process: need an integer >= 1, got {per_process}")
@@ -64,6 +63,9 @@ def run_command(ns: argparse.Namespace) -> int:
         faults.check_robots(scenario.robot_ids)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+    remote = _placement(ns, scenario, per_process, faults)  # over SSH, before anything starts
+    if getattr(ns, "dry_run", False):
+        return _dry_run(ns, scenario, remote, shared)
     from formation.commands.view import live_observer
 
     live, observer = live_observer(ns, scenario)  # --live PORT: the page, fed from the world's session
@@ -78,7 +80,8 @@ def run_command(ns: argparse.Namespace) -> int:
                                  scenario_path=ns.scenario,
                                  clock_offset=getattr(ns, "clock_offset_ms", 0.0) / 1000.0,
                                  agents_per_process=per_process, shared_session=shared,
-                                 solver=solver, hold=hold, announce=_announce if hold else None)
+                                 solver=solver, hold=hold, announce=_announce if hold else None,
+                                 remote=remote)
     except RunAborted as stop:  # the run started: its summary says why and what it measured
         write_run(stop.summary, stop.series, scenario, out, plots=not ns.no_plots)
         print(f"formation run: aborted: {stop}; wrote {out / 'summary.json'} with what was "
@@ -89,6 +92,60 @@ def run_command(ns: argparse.Namespace) -> int:
             live.close()
     write_run(summary, series, scenario, out, plots=not ns.no_plots)
     print_summary(summary, out, plots=not ns.no_plots)
+    return EXIT_OK
+
+
+def _pose_slots(ns: argparse.Namespace) -> int:
+    """``--pose-slots`` once checked (and ``--clock-offset-ms``: both need real time)."""
+    slots = getattr(ns, "pose_slots", 1)
+    if slots < 1:
+        raise UsageError(f"--pose-slots: need an integer >= 1, got {slots}")
+    if slots > 1 and not (ns.realtime and ns.camera == "truth"):
+        raise UsageError("--pose-slots: more than one slot needs --realtime and --camera truth")
+    if getattr(ns, "clock_offset_ms", 0.0) and not ns.realtime:
+        raise UsageError("--clock-offset-ms: needs --realtime (lock-step runs on simulated time)")
+    return slots
+
+
+def _placement(ns: argparse.Namespace, scenario: Scenario, per_process: int,
+               faults: FaultPlan):
+    """``--hosts INVENTORY``: the agents placed on its hosts (:mod:`deploy.remote`), every host
+    reached and checked over SSH; None without it. Any problem: exit 2, one line."""
+    hosts = getattr(ns, "hosts", None)
+    if hosts is None:
+        return None
+    if ns.port:
+        raise UsageError("--port: not with --hosts (the router listens on the inventory's "
+                         "zenoh.router)")
+    from deploy.inventory import InventoryError
+    from deploy.remote import RemoteError, plan_placement
+
+    try:
+        remote = plan_placement(Path(hosts), scenario.robot_ids, per_process)
+        for k in faults.kills:
+            if k.robot in remote.robots:
+                raise UsageError(f"--kill: {k.robot} runs on another host (--hosts); kills need "
+                                 f"an agent on this machine")
+        if not getattr(ns, "dry_run", False):
+            remote.check()
+    except (InventoryError, RemoteError, OSError) as exc:
+        raise UsageError(str(exc)) from None
+    return remote
+
+
+def _dry_run(ns: argparse.Namespace, scenario: Scenario, remote, shared: bool) -> int:
+    """``--dry-run``: where each robot's agent would run (with ``--hosts``, the SSH commands
+    that would start it there); nothing is started, written or reached."""
+    common = [] if ns.realtime else ["--lockstep"]
+    secure = not getattr(ns, "insecure", False)
+    if remote is None:
+        print(f"router, world and every agent here: robots {', '.join(scenario.robot_ids)}")
+    else:
+        here = [r for r in scenario.robot_ids if r not in remote.robots]
+        for line in remote.describe(common, secure, shared, here):
+            print(line)
+    print(f"dry run: {len(scenario.robot_ids)} robots, "
+          f"{0 if remote is None else len(remote.robots)} on other hosts; nothing started")
     return EXIT_OK
 
 
