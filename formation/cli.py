@@ -173,6 +173,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "(at most one per formation; default 1: one camera frame)")
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="with --fleets: seconds of real time per run (default 15)")
+    p.add_argument("--pose-zones", default="0", metavar="Z,...",
+                   help="with --fleets: pose paths to run side by side in every round: 0 = every "
+                        "pose and command through the one router, Z = through Z zone routers "
+                        "(default 0)")
 
     p = add("view", "the live page of a running fleet (read-only)")
     _add_view_args(p, client=True)
