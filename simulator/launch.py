@@ -32,6 +32,7 @@ timeout and is then not waited for until it speaks again. ``summary.json`` gains
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -41,6 +42,7 @@ import statistics
 import threading
 import time
 from collections.abc import Callable, Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -69,6 +71,7 @@ from .inprocess import Series
 from .output import OutputError
 from .summary import qp_fields, run_summary
 from .world import World, WorldOptions, WorldResult
+from .zones import PoseZones
 
 logger = logging.getLogger(__name__)
 
@@ -187,6 +190,7 @@ def launch(
     solver: str = "exact",
     hold: bool = False,
     announce=None,
+    pose_zones: int = 0,
 ) -> tuple[dict, Series]:
     """Run ``scenario`` as separate processes; returns the summary and the time series.
 
@@ -205,12 +209,16 @@ def launch(
     ``hold`` keeps the fleet up after every goal is reached, until the scenario's duration or
     SIGINT/SIGTERM (which then end the run normally, with its summary); ``announce(endpoint)`` is
     called once every agent is up (the endpoint is also written to ``out/endpoint``). The
-    summary's ``formations_status`` holds each leader's last status."""
+    summary's ``formations_status`` holds each leader's last status. ``pose_zones`` Z > 0 carries
+    the poses and commands through Z zone routers of the world's process
+    (:mod:`simulator.zones`; not with ``secure``)."""
     faults = faults or FaultPlan()
     if camera == "process" and scenario_path is None:
         raise ValueError("scenario_path: --camera process needs the scenario file")
     faults.check_robots(scenario.robot_ids)
     _check_hosting(agents_per_process, shared_session, faults, secure)
+    if pose_zones and secure:
+        raise ValueError("pose zones: the zone routers have no access control yet; not with secure")
     out = Path(out)
     for sub in ("configs", "agents", "logs"):
         (out / sub).mkdir(parents=True, exist_ok=True)
@@ -225,7 +233,8 @@ def launch(
                                   progress_factory, faults, secure, pose_slots, observer, hold,
                                   announce, stop_requested, scenario_path,
                                   clock_offset=clock_offset, agents_per_process=agents_per_process,
-                                  shared_session=shared_session, solver=solver)
+                                  shared_session=shared_session, solver=solver,
+                                  pose_zones=pose_zones)
     finally:
         if previous_int is not None:
             signal.signal(signal.SIGINT, previous_int)
@@ -237,13 +246,13 @@ def _launch(scenario: Scenario, out: Path, realtime: bool, camera: str, topology
             pose_slots: int, observer, hold: bool, announce,
             stop_requested: threading.Event,
             scenario_path: str | Path | None, *, clock_offset: float, agents_per_process: int,
-            shared_session: bool, solver: str) -> tuple[dict, Series]:
+            shared_session: bool, solver: str, pose_zones: int = 0) -> tuple[dict, Series]:
     """:func:`launch` once its arguments are checked and its folders made."""
     stopped: BaseException | None = None  # why a started run ended early
     port = port or free_tcp_port()
     endpoint = tcp_endpoint(port)
     fault_run = faults.active
-    with Fleet(out / "logs") as fleet:
+    with Fleet(out / "logs") as fleet, ExitStack() as own:
 
         def abort() -> None:
             if hold and fleet.signalled is not None:
@@ -260,6 +269,11 @@ def _launch(scenario: Scenario, out: Path, realtime: bool, camera: str, topology
         zs = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False)
         configs = build_agent_configs(scenario, zenoh=zs, topology=topology, safety=safety,
                                       solver=solver)
+        zones = None
+        if pose_zones:  # each agent connects to its zone's router (closed after the agents)
+            zones = own.enter_context(PoseZones(scenario, pose_zones, endpoint, agents_per_process))
+            configs = {rid: dataclasses.replace(c, zenoh=dataclasses.replace(
+                c.zenoh, connect=(zones.endpoint_of(rid),))) for rid, c in configs.items()}
 
         def agent_args(rid: str) -> list[str]:
             argv = [] if realtime else ["--lockstep"]
@@ -285,7 +299,8 @@ def _launch(scenario: Scenario, out: Path, realtime: bool, camera: str, topology
                                   for c in faults.camera_dropouts),
             pose_slots=pose_slots, clock_offset=clock_offset, stop_at_goal=not hold)
         with zenoh.open(conf) as session:
-            world = World(scenario, session, options)
+            world = World(scenario, session, options, () if zones is None else zones.sessions,
+                          None if zones is None else zones.zone_of)
             statuses = StatusBoard(session, keys.DEFAULT_PREFIX)
             detach = observer(session) if observer is not None else None
             driver = _FaultDriver(faults, fleet, world, agents, scenario.dt, realtime)
@@ -318,6 +333,8 @@ def _launch(scenario: Scenario, out: Path, realtime: bool, camera: str, topology
         summary["faults"] = fault_summary(faults, result, stats, driver.log)
     summary["secure"] = False if creds is None else creds.summary()
     summary.update(_run_options(out, camera, pose_slots, agents_per_process, shared_session))
+    if pose_zones:
+        summary["pose_zones"] = pose_zones
     _navigation_fields(summary, hold, board)
     if stopped is not None:
         _mark_aborted(summary, stats, stopped)

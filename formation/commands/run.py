@@ -15,6 +15,17 @@ from simulator.launch import FaultPlan, RunAborted, launch, parse_camera_dropout
 from simulator.output import write_run
 
 
+def _pose_zones(ns: argparse.Namespace) -> int:
+    """``--pose-zones Z`` checked (UsageError: exit 2 before anything starts)."""
+    zones = getattr(ns, "pose_zones", 0)
+    if zones < 0:
+        raise UsageError(f"--pose-zones: need an integer >= 0, got {zones}")
+    if zones and not getattr(ns, "insecure", False):
+        raise UsageError("--pose-zones: needs --insecure (the zone routers have no access "
+                         "control yet)")
+    return zones
+
+
 def run_command(ns: argparse.Namespace) -> int:
     """``formation run``; see the module docstring. Returns the exit status."""
     try:
@@ -43,6 +54,7 @@ def run_command(ns: argparse.Namespace) -> int:
         raise UsageError("--pose-slots: more than one slot needs --realtime and --camera truth")
     if getattr(ns, "clock_offset_ms", 0.0) and not ns.realtime:
         raise UsageError("--clock-offset-ms: needs --realtime (lock-step runs on simulated time)")
+    zones = _pose_zones(ns)
     per_process = getattr(ns, "agents_per_process", 1)
     if per_process < 1:
         raise UsageError(f"--agents-per-process: need an integer >= 1, got {per_process}")
@@ -78,7 +90,8 @@ def run_command(ns: argparse.Namespace) -> int:
                                  scenario_path=ns.scenario,
                                  clock_offset=getattr(ns, "clock_offset_ms", 0.0) / 1000.0,
                                  agents_per_process=per_process, shared_session=shared,
-                                 solver=solver, hold=hold, announce=_announce if hold else None)
+                                 solver=solver, hold=hold, announce=_announce if hold else None,
+                                 pose_zones=zones)
     except RunAborted as stop:  # the run started: its summary says why and what it measured
         write_run(stop.summary, stop.series, scenario, out, plots=not ns.no_plots)
         print(f"formation run: aborted: {stop}; wrote {out / 'summary.json'} with what was "
