@@ -148,3 +148,28 @@ def test_a_realtime_run_of_agent_hosts_through_pose_zones_reaches_every_goal(tmp
 def test_bad_pose_zone_options_exit_2_before_anything_starts(tmp_path, extra) -> None:
     assert run_cli(["run", str(TWO), "--out", str(tmp_path / "o"), "--quiet", *extra]) == 2
     assert not (tmp_path / "o" / "processes.json").exists()
+
+
+def test_bench_runs_the_pose_paths_side_by_side_in_every_round_with_the_latency_split(tmp_path) -> None:
+    out = tmp_path / "bench"
+    assert run_cli(["bench", "--out", str(out), "--fleets", "4@20", "--pose-zones", "0,1",
+                    "--duration", "1.5"]) == 0
+    result = json.loads((out / "bench.json").read_text())
+    assert result["pose_zones"] == [0, 1]
+    assert [(f["round"], f["pose_zones"]) for f in result["fleets"]] == [(1, 0), (1, 1)]
+    for f in result["fleets"]:
+        assert f["commands"] > 0
+        parts = f["latency_parts_ms_median"]
+        assert parts["pose_in"] > 0 and f["world_publish_ms_median"] > 0
+        assert parts["cmd_back"] == pytest.approx(parts["transport_rest"] - parts["pose_in"])
+    compared = result["pose_zones_compared"]
+    assert [(c["fleet"], c["pose_zones"]) for c in compared] == [("4@20", 0), ("4@20", 1)]
+    assert compared[0]["latency_ms_p50_ratio"] == 1.0
+    assert compared[1]["latency_ms_p50"] == result["fleets"][1]["latency_ms_p50"]
+    assert "pose paths side by side" in (out / "bench.txt").read_text()
+
+
+def test_bench_refuses_a_bad_pose_zone_list(tmp_path) -> None:
+    assert run_cli(["bench", "--out", str(tmp_path / "b"), "--fleets", "4@20",
+                    "--pose-zones", "0,x"]) == 2
+    assert run_cli(["bench", "--out", str(tmp_path / "b"), "--pose-zones", "1"]) == 2  # no --fleets
