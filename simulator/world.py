@@ -34,6 +34,10 @@ Two clocks:
   ``dt`` and publishes their poses. On one machine this keeps N agents from all waking in the
   same instant; on robots, where each agent has its own CPU, it makes no difference.
 
+Pose zones (:mod:`simulator.zones`, ``formation run --pose-zones Z``): given zone sessions,
+each robot's pose is published, and its command taken, on its zone's session (a router its
+agent connects to) instead of the world's; the obstacles stay on the world's session.
+
 Faults (docs/faults.md): ``camera_dropouts`` stop publishing a robot's pose over a span of
 simulated time, as a camera that loses that robot's marker would; ``run(on_tick=...)`` lets the
 launcher kill and restart agents at given simulated times.
