@@ -13,7 +13,8 @@ states, a viewer's subscriptions) goes through the run's router.
 
 The zone routers are sessions of the world's process: their routing runs on Zenoh's threads,
 not the world's Python thread. Insecure runs only for now: a zone router would need the run's
-access control list and credentials (:mod:`wire.acl`) to stand in for the run's router.
+access control list and credentials (:mod:`wire.acl`) to stand in for the run's router, and a way
+to trust the run's router that is a credential (docs/performance.md, round 5).
 """
 
 from __future__ import annotations
