@@ -138,8 +138,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default: one per host, with --insecure; each robot logs in as itself otherwise)")
     p.add_argument("--pose-zones", type=int, default=0, metavar="Z",
                    help="carry the poses and commands through Z zone routers of the world's "
-                        "process, each agent connected to its zone's (needs --insecure; "
-                        "default 0: everything through the run's router)")
+                        "process, each agent connected to its zone's (default 0: everything "
+                        "through the run's router)")
     p.add_argument("--no-safety", action="store_true", help="barriers off (nominal control only)")
     p.add_argument("--port", type=int, default=0, help="router TCP port on 127.0.0.1 (0: free)")
     p.add_argument("--hold", action="store_true",

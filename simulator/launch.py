@@ -39,6 +39,7 @@ import math
 import shutil
 import signal
 import statistics
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -71,7 +72,7 @@ from .inprocess import Series
 from .output import OutputError
 from .summary import qp_fields, run_summary
 from .world import World, WorldOptions, WorldResult
-from .zones import PoseZones
+from .zones import PoseZones, ZoneSecurity
 
 logger = logging.getLogger(__name__)
 
@@ -211,14 +212,12 @@ def launch(
     called once every agent is up (the endpoint is also written to ``out/endpoint``). The
     summary's ``formations_status`` holds each leader's last status. ``pose_zones`` Z > 0 carries
     the poses and commands through Z zone routers of the world's process
-    (:mod:`simulator.zones`; not with ``secure``)."""
+    (:mod:`simulator.zones`; with ``secure`` they hold the run's access control list)."""
     faults = faults or FaultPlan()
     if camera == "process" and scenario_path is None:
         raise ValueError("scenario_path: --camera process needs the scenario file")
     faults.check_robots(scenario.robot_ids)
     _check_hosting(agents_per_process, shared_session, faults, secure)
-    if pose_zones and secure:
-        raise ValueError("pose zones: the zone routers have no access control yet; not with secure")
     out = Path(out)
     for sub in ("configs", "agents", "logs"):
         (out / sub).mkdir(parents=True, exist_ok=True)
@@ -260,20 +259,20 @@ def _launch(scenario: Scenario, out: Path, realtime: bool, camera: str, topology
                 return
             fleet.check()
 
-        creds = _secure_setup(scenario, out / "secure", endpoint) if secure else None
+        creds = (_secure_setup(scenario, out / "secure", endpoint,
+                               _zone_link(own) if pose_zones else None) if secure else None)
         router = fleet.start_router(endpoint, port, None if creds is None else creds.router_config,
-                                    auth=None if creds is None else creds.world)
+                                    auth=None if creds is None else creds.world,
+                                    also_listen=() if creds is None or creds.zone is None
+                                    else (creds.zone.link,))
         camera_child = None
         if camera == "process" and scenario_path is not None:  # checked above
             camera_child = _start_camera(fleet, scenario, scenario_path, out, endpoint, creds)
         zs = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False)
         configs = build_agent_configs(scenario, zenoh=zs, topology=topology, safety=safety,
                                       solver=solver)
-        zones = None
-        if pose_zones:  # each agent connects to its zone's router (closed after the agents)
-            zones = own.enter_context(PoseZones(scenario, pose_zones, endpoint, agents_per_process))
-            configs = {rid: dataclasses.replace(c, zenoh=dataclasses.replace(
-                c.zenoh, connect=(zones.endpoint_of(rid),))) for rid, c in configs.items()}
+        zones, configs = _open_zones(own, scenario, pose_zones, endpoint, agents_per_process,
+                                     creds, configs)
 
         def agent_args(rid: str) -> list[str]:
             argv = [] if realtime else ["--lockstep"]
@@ -340,6 +339,26 @@ def _launch(scenario: Scenario, out: Path, realtime: bool, camera: str, topology
         _mark_aborted(summary, stats, stopped)
         raise RunAborted(summary["aborted"], summary, series, stopped)
     return summary, series
+
+
+def _zone_link(own: ExitStack) -> str:
+    """A Unix-socket endpoint in a fresh private folder (mode 0700, removed when ``own``
+    closes) for the zone routers' link to the run's router (:data:`wire.acl.ZONE_LINK`)."""
+    sockets = Path(tempfile.mkdtemp(prefix="formation-zones-"))
+    own.callback(shutil.rmtree, sockets, ignore_errors=True)
+    return f"{acl.ZONE_LINK}/{sockets / 'router.sock'}"
+
+
+def _open_zones(own: ExitStack, scenario: Scenario, zones: int, endpoint: str, per_process: int,
+                creds: _Secure | None, configs: dict) -> tuple[PoseZones | None, dict]:
+    """``zones`` > 0: the zone routers (closed when ``own`` closes, after the agents stopped)
+    and the agent configurations connecting each agent to its zone's; else (None, configs)."""
+    if not zones:
+        return None, configs
+    pz = own.enter_context(PoseZones(scenario, zones, endpoint, per_process,
+                                     security=None if creds is None else creds.zone))
+    return pz, {rid: dataclasses.replace(c, zenoh=dataclasses.replace(
+        c.zenoh, connect=(pz.endpoint_of(rid),))) for rid, c in configs.items()}
 
 
 def _run_options(out: Path, camera: str, pose_slots: int, agents_per_process: int,
@@ -480,6 +499,7 @@ class _Secure:
     files: dict[str, Path]  # robot -> its credentials file
     world: UsrPwdAuth
     folder: Path
+    zone: ZoneSecurity | None = None  # with pose zones: what the zone routers need
 
     def summary(self) -> dict:
         """``secure`` of summary.json."""
@@ -491,13 +511,16 @@ MANAGER_FILE = "manager.json5"  # in OUT/secure: the fleet manager's credentials
 VIEWER_FILE = "viewer.json5"  # in OUT/secure: a read-only viewer's credentials
 
 
-def _secure_setup(scenario: Scenario, folder: Path, endpoint: str) -> _Secure:
+def _secure_setup(scenario: Scenario, folder: Path, endpoint: str,
+                  zone_link: str | None = None) -> _Secure:
     """Fresh credentials for the world (as the camera user), every robot, the fleet manager and
     a viewer; the router's dictionary and its configuration with the fleet's access control
     list (:mod:`wire.acl`), all in ``folder`` (mode 0700, files 0600). ``manager.json5`` and
     ``viewer.json5`` are Zenoh configuration fragments (the router's endpoint, the user and
     password) that client commands take with ``--auth FILE`` (``viewer.credentials``, the
-    viewer's ``user:password`` line, is kept for older scripts)."""
+    viewer's ``user:password`` line, is kept for older scripts). ``zone_link``: pose zones; the
+    router also listens there (a Unix socket in a private folder) for the zone routers, which log
+    in as :data:`wire.acl.ZONE_USER`."""
     folder.mkdir(parents=True, exist_ok=True)
     folder.chmod(0o700)
     for old in folder.iterdir():  # a previous run's credentials are void
@@ -507,7 +530,8 @@ def _secure_setup(scenario: Scenario, folder: Path, endpoint: str) -> _Secure:
     leaders = {f.name: f.leader for f in scenario.formations}
     successors = {f.name: s for f in scenario.formations
                   if (s := formation_successor(f)) is not None}
-    creds = acl.new_credentials([acl.CAMERA_USER, acl.MANAGER_USER, acl.VIEWER_USER, *robots])
+    services = [acl.CAMERA_USER, acl.MANAGER_USER, acl.VIEWER_USER]
+    creds = acl.new_credentials([*services, *([acl.ZONE_USER] if zone_link else []), *robots])
     dictionary = folder / "users.txt"
     acl.write_dictionary(dictionary, creds)
     acl.write_credentials(folder / "viewer.credentials", creds[acl.VIEWER_USER])
@@ -518,10 +542,13 @@ def _secure_setup(scenario: Scenario, folder: Path, endpoint: str) -> _Secure:
     for name, user in ((MANAGER_FILE, acl.MANAGER_USER), (VIEWER_FILE, acl.VIEWER_USER)):
         acl.write_client_file(folder / name, creds[user], [endpoint])
     router_conf = folder / "router.json5"
+    rules = acl.fleet_acl(robots, leaders, keys.DEFAULT_PREFIX, successors=successors,
+                          zone_user=acl.ZONE_USER if zone_link else None)
     acl.write_router_config(router_conf, acl.router_config(
-        [endpoint], acl.fleet_acl(robots, leaders, keys.DEFAULT_PREFIX, successors=successors),
-        dictionary.resolve()))
-    return _Secure(router_conf, files, creds[acl.CAMERA_USER], folder)
+        [endpoint, *([zone_link] if zone_link else [])], rules, dictionary.resolve()))
+    zone = None if zone_link is None else ZoneSecurity(rules, dictionary.resolve(), zone_link,
+                                                       creds[acl.ZONE_USER])
+    return _Secure(router_conf, files, creds[acl.CAMERA_USER], folder, zone)
 
 
 class _FaultDriver:

@@ -12,21 +12,30 @@ formation's states are relayed by its zone; only what crosses zones (obstacles, 
 states, a viewer's subscriptions) goes through the run's router.
 
 The zone routers are sessions of the world's process: their routing runs on Zenoh's threads,
-not the world's Python thread. Insecure runs only for now: a zone router would need the run's
-access control list and credentials (:mod:`wire.acl`) to stand in for the run's router, and a way
-to trust the run's router that is a credential (docs/performance.md, round 5).
+not the world's Python thread.
+
+Secure runs (:class:`ZoneSecurity`): each zone router holds the run's access control list and
+user dictionary, so the robots log in to it as themselves under the same policies as at the
+run's router; it links to the run's router over a Unix socket in a private folder, logging in
+as :data:`wire.acl.ZONE_USER` (allowed to relay), and trusts that link by its protocol
+(:func:`wire.acl.zone_router_config`).
 """
 
 from __future__ import annotations
 
+import json
 import logging
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import zenoh
 
 from scenario import Scenario
+from wire.acl import zone_router_config
 from wire.ports import free_tcp_port, tcp_endpoint
-from wire.zconf import ZenohSettings
+from wire.zconf import UsrPwdAuth, ZenohSettings
 
 logger = logging.getLogger(__name__)
 
@@ -51,24 +60,43 @@ def zone_count(zone_of: Mapping[str, int]) -> int:
     return max(zone_of.values(), default=-1) + 1
 
 
+@dataclass(frozen=True)
+class ZoneSecurity:
+    """What a secure run's zone routers need: the run's ACL and user dictionary, the Unix-socket
+    endpoint of the run's router (:data:`wire.acl.ZONE_LINK`) and the zone user's login."""
+
+    acl: Mapping[str, Any]
+    dictionary: Path
+    link: str
+    auth: UsrPwdAuth
+
+
 class PoseZones:
     """``Z`` zone routers (Zenoh sessions in router mode) linked to the run's router at
     ``router_endpoint``; ``endpoint_of(robot)`` is where that robot's agent connects.
     Close with :meth:`close` (or use as a context manager)."""
 
     def __init__(self, scenario: Scenario, zones: int, router_endpoint: str,
-                 per_process: int = 1, connect_timeout_s: float = 10.0) -> None:
+                 per_process: int = 1, connect_timeout_s: float = 10.0,
+                 security: ZoneSecurity | None = None) -> None:
         self.zone_of = zone_assignment(scenario, zones, per_process)
         self.endpoints: list[str] = []
         self.sessions: list[zenoh.Session] = []
         try:
             for _ in range(zone_count(self.zone_of)):
                 endpoint = tcp_endpoint(free_tcp_port())
-                settings = ZenohSettings(mode="router", listen=(endpoint,),
+                if security is None:
+                    conf = ZenohSettings(mode="router", listen=(endpoint,),
                                          connect=(router_endpoint,), multicast_scouting=False,
                                          connect_timeout_s=connect_timeout_s,
-                                         scouting_delay_s=0.0)
-                self.sessions.append(zenoh.open(settings.to_config()))
+                                         scouting_delay_s=0.0).to_config()
+                else:
+                    d = zone_router_config([endpoint], security.acl, security.dictionary,
+                                           security.link, security.auth)
+                    d["connect"]["timeout_ms"] = round(connect_timeout_s * 1000)
+                    d["scouting"]["delay"] = 0
+                    conf = zenoh.Config.from_json5(json.dumps(d))
+                self.sessions.append(zenoh.open(conf))
                 self.endpoints.append(endpoint)
         except BaseException:
             self.close()
