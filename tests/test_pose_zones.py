@@ -7,7 +7,10 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
+import tempfile
 import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -18,8 +21,8 @@ from hypothesis import strategies as st
 from experiments.fleet_scenario import fleet_scenario
 from formation.cli import main
 from simulator.world import World, WorldOptions
-from simulator.zones import PoseZones, zone_assignment
-from wire import keys, zconf
+from simulator.zones import PoseZones, ZoneSecurity, zone_assignment
+from wire import acl, keys, zconf
 from wire.payloads import Cmd, decode_pose, encode
 from wire.testing import free_tcp_port
 
@@ -119,14 +122,14 @@ def run_cli(args: list[str]) -> int:
     return main(args)
 
 
-def test_a_lockstep_run_through_pose_zones_reaches_every_goal_byte_for_byte_as_the_simulation(
+def test_a_secure_lockstep_run_through_pose_zones_reaches_every_goal_byte_for_byte_as_the_simulation(
         tmp_path) -> None:
     assert run_cli(["sim", str(TWO), "--out", str(tmp_path / "sim"), "--quiet", "--no-plots"]) == 0
     assert run_cli(["run", str(TWO), "--out", str(tmp_path / "run"), "--quiet", "--no-plots",
-                    "--insecure", "--pose-zones", "2"]) == 0
+                    "--pose-zones", "2"]) == 0  # secure by default: the zones hold the ACL
     run = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert run["all_reached"] is True and run["collisions"] == 0
-    assert run["pose_zones"] == 2
+    assert run["pose_zones"] == 2 and run["secure"]
     assert run["world"]["missing_cmds"] == 0 and run["agents"]["stale"] == 0
     configs = sorted((tmp_path / "run" / "configs").glob("*.yaml"))
     endpoints = {c.name: [ln for ln in c.read_text().splitlines() if "tcp/" in ln] for c in configs}
@@ -143,8 +146,7 @@ def test_a_realtime_run_of_agent_hosts_through_pose_zones_reaches_every_goal(tmp
     assert run["pose_zones"] == 2 and run["agents_per_process"] == 4
 
 
-@pytest.mark.parametrize("extra", [["--pose-zones", "2"],  # secure by default: refused
-                                   ["--pose-zones", "-1", "--insecure"]])
+@pytest.mark.parametrize("extra", [["--pose-zones", "-1"], ["--pose-zones", "-3", "--insecure"]])
 def test_bad_pose_zone_options_exit_2_before_anything_starts(tmp_path, extra) -> None:
     assert run_cli(["run", str(TWO), "--out", str(tmp_path / "o"), "--quiet", *extra]) == 2
     assert not (tmp_path / "o" / "processes.json").exists()
@@ -173,3 +175,58 @@ def test_bench_refuses_a_bad_pose_zone_list(tmp_path) -> None:
     assert run_cli(["bench", "--out", str(tmp_path / "b"), "--fleets", "4@20",
                     "--pose-zones", "0,x"]) == 2
     assert run_cli(["bench", "--out", str(tmp_path / "b"), "--pose-zones", "1"]) == 2  # no --fleets
+
+
+def test_a_zone_router_holds_the_runs_access_control_a_robot_cannot_forge_another_robots_command(
+        ) -> None:
+    scenario = fleet_scenario(8, 0.05, 1.0)  # two formations: one per zone
+    ids = scenario.robot_ids
+    robots = {rid: scenario.formation_of(rid).name for rid in ids}
+    leaders = {f.name: f.leader for f in scenario.formations}
+    creds = acl.new_credentials([acl.CAMERA_USER, acl.VIEWER_USER, acl.ZONE_USER, *ids])
+    rules = acl.fleet_acl(robots, leaders, P, manager_user=None, zone_user=acl.ZONE_USER)
+    folder = Path(tempfile.mkdtemp(prefix="zone-acl-"))  # short: a Unix socket path
+    dictionary = folder / "users.txt"
+    acl.write_dictionary(dictionary, creds)
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    link = f"{acl.ZONE_LINK}/{folder / 'router.sock'}"
+    router = zenoh.open(zenoh.Config.from_json5(json.dumps(
+        acl.router_config([endpoint, link], rules, dictionary))))
+    sessions: list[zenoh.Session] = []
+    heard: dict[str, list[str]] = {"viewer": [], "zone0": [], "zone1": []}
+
+    def login(at: str, user: str, password: str | None = None) -> zenoh.Session:
+        auth = creds[user] if password is None else acl.UsrPwdAuth(user, password)
+        s = zenoh.open(zconf.make_config("client", connect=[at], auth=auth))
+        sessions.append(s)
+        return s
+
+    try:
+        with PoseZones(scenario, 2, endpoint,
+                       security=ZoneSecurity(rules, dictionary, link, creds[acl.ZONE_USER])) as zones:
+            mine, other = ids[0], ids[1]  # same formation, zone 0
+            far = next(r for r in ids if zones.zone_of[r] == 1)
+            assert zones.zone_of[mine] == zones.zone_of[other] == 0
+            viewer = login(endpoint, acl.VIEWER_USER)
+            viewer.declare_subscriber(keys.all_robots_key(P, keys.CMD),
+                                      lambda smp: heard["viewer"].append(str(smp.key_expr)))
+            for z in (0, 1):
+                zones.sessions[z].declare_subscriber(
+                    keys.all_robots_key(P, keys.CMD),
+                    lambda smp, z=z: heard[f"zone{z}"].append(str(smp.key_expr)))
+            robot = login(zones.endpoint_of(mine), mine)
+            with pytest.raises(zenoh.ZError):  # a wrong password: the zone router refuses it
+                login(zones.endpoint_of(mine), other, "not-the-password")
+            time.sleep(1.0)  # the subscriptions reach every router
+            for rid in (mine, other, far):  # its own command, then two forged ones
+                robot.put(keys.cmd_key(P, rid), encode(Cmd(0.1, 0.0, 0.1, 0.0, 1.0)))
+            time.sleep(1.0)
+    finally:
+        for s in sessions:
+            s.close()
+        router.close()
+        shutil.rmtree(folder, ignore_errors=True)
+    own = [keys.cmd_key(P, mine)]
+    assert heard["zone0"] == own  # the zone router dropped both forged commands
+    assert heard["zone1"] == own  # and relayed the robot's own one across zones
+    assert heard["viewer"] == own  # and to the run's router
