@@ -290,6 +290,8 @@ class AgentNode:
         self.solve_us: deque[float] = deque(maxlen=STATS_WINDOW)
         self.pose_age_us: deque[float] = deque(maxlen=STATS_WINDOW)  # [us] real time: pose
         # reception -> tick start
+        self.pose_in_us: deque[float] = deque(maxlen=STATS_WINDOW)  # [us] real time: pose stamp
+        # -> reception (wall clock; the bench's split of the latency)
         self.tick_us: deque[float] = deque(maxlen=STATS_WINDOW)  # [us] from tick start (or pose
         # arrival) to cmd put
         self.min_h = {"formation": math.inf, "obstacle": math.inf, "formations": math.inf}
@@ -672,6 +674,9 @@ class AgentNode:
         self._last_pose_used = pose.stamp
         if t is None:
             self.pose_age_us.append((time.monotonic() - pose_entry[1]) * 1e6)
+            # pose stamp -> received, on this machine's wall clock (bench: one clock for all)
+            self.pose_in_us.append((time.time() - (time.monotonic() - pose_entry[1])
+                                    - pose.stamp) * 1e6)
         stamp = pose.stamp
         self.last_stamp = stamp
         ts = stamp if t is not None else None  # lock-step freshness reference
@@ -849,7 +854,8 @@ class AgentNode:
             "solve_us_median": statistics.median(self.solve_us) if self.solve_us else None,
             "tick_us_median": statistics.median(self.tick_us) if self.tick_us else None,
             "pose_age_us_median": statistics.median(self.pose_age_us) if self.pose_age_us else None,
-            "stats_window": STATS_WINDOW,  # the three medians above are over the newest ticks
+            "pose_in_us_median": statistics.median(self.pose_in_us) if self.pose_in_us else None,
+            "stats_window": STATS_WINDOW,  # the four medians above are over the newest ticks
             "min_h": {k: _finite_or_none(v) for k, v in self.min_h.items()},
             "dropped": {cls: box.dropped_malformed for cls, box in self._boxes.items()},
             "rejected": {cls: box.rejected for cls, box in self._boxes.items()},

@@ -7,6 +7,8 @@ import json
 import logging
 import statistics
 import time
+from contextlib import ExitStack
+from dataclasses import replace
 from pathlib import Path
 
 from experiments.fleet_scenario import fleet_scenario
@@ -17,7 +19,7 @@ logger = logging.getLogger(__name__)
 
 def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: bool = True,
                  pose_slots: int = 1, viewer: bool = False, per_process: int = 1,
-                 shared_session: bool = False) -> dict:
+                 shared_session: bool = False, pose_zones: int = 0) -> dict:
     """Run ``n`` agent processes in real time against the simulated world for ``duration``
     seconds (see the module docstring); every process started here is stopped on every way out.
     ``tick_on_pose=False`` runs the agents with ``--clock-ticks`` (their own clock);
@@ -25,7 +27,9 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
     ``formation view --connect`` to the router (the live page and Foxglove WebSocket);
     ``per_process`` K > 1 runs the agents K to an agent host (:mod:`agent.host`, one Zenoh session
     per host with ``shared_session``): each agent's CPU and memory are then its host's divided by
-    the agents it runs."""
+    the agents it runs. ``pose_zones`` Z > 0: the world's poses and the agents' commands go
+    through Z zone routers of the world's process (:mod:`simulator.zones`), each agent connected
+    to its zone's; 0: everything through the one router (the default)."""
     import zenoh
 
     from wire.zconf import use_zenoh_threads
@@ -35,6 +39,7 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
     from agent.config import build_agent_configs
     from simulator.fleet import START_TIMEOUT_S, Fleet, unique_children
     from simulator.world import World, WorldOptions
+    from simulator.zones import PoseZones
     from wire.ports import free_tcp_port, tcp_endpoint
     from wire.zconf import ZenohSettings
 
@@ -44,10 +49,15 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
     port = free_tcp_port()
     endpoint = tcp_endpoint(port)
     load_before = load_avg()
-    with Fleet(work / "logs") as fleet:
+    with Fleet(work / "logs") as fleet, ExitStack() as stack:
         router = fleet.start_router(endpoint, port)
         zs = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False)
-        agents = fleet.start_agents(build_agent_configs(scenario, zenoh=zs), work,
+        configs = build_agent_configs(scenario, zenoh=zs)
+        if pose_zones:
+            stack.enter_context(zones := PoseZones(scenario, pose_zones, endpoint, per_process))
+            configs = {rid: replace(c, zenoh=replace(c.zenoh, connect=(zones.endpoint_of(rid),)))
+                       for rid, c in configs.items()}
+        agents = fleet.start_agents(configs, work,
                                     lambda _rid: ["--no-trace", *([] if tick_on_pose else ["--clock-ticks"])],
                                     per_process=per_process, shared_session=shared_session)
         if viewer:
@@ -60,7 +70,8 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
         pids = {h.name: h.proc.pid for h in hosts}
         share = {h.name: 1.0 / sum(1 for c in agents.values() if c is h) for h in hosts}
         with zenoh.open(conf) as session:
-            world = World(scenario, session, options)
+            world = World(scenario, session, options, zones.sessions if pose_zones else (),
+                          zones.zone_of if pose_zones else None)
             try:
                 world.wait_for_agents(abort=fleet.check)
                 cpu0 = {name: proc_cpu_s(pid) for name, pid in pids.items()}
@@ -91,6 +102,7 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
     entry["pose_slots"] = pose_slots
     entry["agents_per_process"] = per_process
     entry["shared_session"] = shared_session
+    entry["pose_zones"] = pose_zones
     return entry
 
 
@@ -114,11 +126,15 @@ def _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, share, own_cpu, router,
 
     p50 = statistics.median(lat) if lat else None
     pose_age, tick_us = med("pose_age_us_median"), med("tick_us_median")
+    pose_in_us = med("pose_in_us_median")
     pose_wait = None if pose_age is None else pose_age / 1e3
     tick = None if tick_us is None else tick_us / 1e3
-    transport = None
+    pose_in = None if pose_in_us is None else pose_in_us / 1e3
+    transport = cmd_back = None
     if p50 is not None and pose_wait is not None and tick is not None:
         transport = p50 - pose_wait - tick
+        if pose_in is not None:
+            cmd_back = transport - pose_in
     r0, r1, rrss = router
     ours = sum(cpu1[r] - cpu0[r] for r in cpu0 if cpu0[r] is not None and cpu1.get(r) is not None)
     ours += own_cpu + (0.0 if r0 is None or r1 is None else r1 - r0)
@@ -138,7 +154,13 @@ def _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, share, own_cpu, router,
         "latency_ms_p99": percentile(lat, 0.99) if lat else None,
         "latency_ms_max": max(lat) if lat else None,
         "latency_parts_ms_median": {"pose_wait_for_tick": pose_wait, "tick": tick,
-                                    "transport_rest": transport},
+                                    "transport_rest": transport,
+                                    # transport_rest split: pose stamp -> agent received, and the
+                                    # rest (command put -> world received)
+                                    "pose_in": pose_in, "cmd_back": cmd_back},
+        # the world's one thread: tick start -> its last pose put (median over ticks)
+        "world_publish_ms_median": (statistics.median(result.publish_ms)
+                                    if result.publish_ms else None),
         "solve_us_median": med("solve_us_median"),
         "cpu_percent_per_agent_median": statistics.median(cpu_pct) if cpu_pct else None,
         "cpu_percent_per_agent_max": max(cpu_pct) if cpu_pct else None,

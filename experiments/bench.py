@@ -296,21 +296,27 @@ def parse_fleets(text: str) -> list[tuple[int, float]]:
 def run_fleets(fleets: Sequence[tuple[int, float]], per_process: int = 1,
                shared_session: bool = False, repeat: int = 1,
                duration: float = FLEET_DURATION, work: Path | None = None,
-               pose_slots: int = 1) -> dict:
+               pose_slots: int = 1, pose_zones: Sequence[int] = (0,)) -> dict:
     """Only the **agents** part, for the fleets asked (``formation bench --fleets``): each fleet
     ``repeat`` times in a row, every run with its own load average and latency parts;
-    ``pose_slots`` is the world's (capped at one slot per formation)."""
+    ``pose_slots`` is the world's (capped at one slot per formation). Each of ``pose_zones``
+    (0: every pose and command through the one router; Z: Z zone routers,
+    :mod:`simulator.zones`) runs in every round, one after the other, so the machine's load
+    hits the pose paths alike."""
     runs = []
     with tempfile.TemporaryDirectory(prefix="bench-fleets-") as tmp:
         base = Path(work) if work is not None else Path(tmp)
         for n, dt in fleets:
             for r in range(repeat):
-                entry = bench_agents(n, dt, duration, base / f"fleet-{n}-{round(1 / dt)}-{r}",
-                                     per_process=per_process, shared_session=shared_session,
-                                     pose_slots=max(1, min(pose_slots, n // 4)))
-                entry["fleet"] = f"{n}@{1 / dt:g}"
-                entry["round"] = r + 1
-                runs.append(entry)
+                for z in pose_zones:
+                    entry = bench_agents(n, dt, duration,
+                                         base / f"fleet-{n}-{round(1 / dt)}-z{z}-{r}",
+                                         per_process=per_process, shared_session=shared_session,
+                                         pose_slots=max(1, min(pose_slots, n // 4)),
+                                         pose_zones=z)
+                    entry["fleet"] = f"{n}@{1 / dt:g}"
+                    entry["round"] = r + 1
+                    runs.append(entry)
     return {
         "machine": {"python": platform.python_version(), "processor": platform.processor() or
                     platform.machine(), "cpus": os.cpu_count(), "quick": False,
@@ -318,8 +324,31 @@ def run_fleets(fleets: Sequence[tuple[int, float]], per_process: int = 1,
         "agents_per_process": per_process,
         "shared_session": shared_session,
         "pose_slots": pose_slots,
+        "pose_zones": list(pose_zones),
         "fleets": runs,
+        "pose_zones_compared": compare_zones(runs) if len(set(pose_zones)) > 1 else [],
     }
+
+
+def compare_zones(runs: Sequence[dict]) -> list[dict]:
+    """Per fleet and pose path: the medians over its rounds of missed ticks, p50 and p99, and
+    their ratio to the first pose path's (``pose_zones`` of the first run of that fleet)."""
+    out = []
+    for fleet in dict.fromkeys(a["fleet"] for a in runs):
+        mine = [a for a in runs if a["fleet"] == fleet]
+        ref = None
+        for z in dict.fromkeys(a.get("pose_zones", 0) for a in mine):
+            sel = [a for a in mine if a.get("pose_zones", 0) == z]
+            row = {"fleet": fleet, "pose_zones": z, "rounds": len(sel)}
+            for key in ("missed_ticks", "latency_ms_p50", "latency_ms_p99"):
+                vals = [a[key] for a in sel if a.get(key) is not None]
+                row[key] = statistics.median(vals) if vals else None
+            ref = ref or row
+            for key in ("missed_ticks", "latency_ms_p50", "latency_ms_p99"):
+                row[f"{key}_ratio"] = (None if row[key] is None or not ref[key]
+                                       else row[key] / ref[key])
+            out.append(row)
+    return out
 
 
 def format_fleets(result: dict) -> str:
@@ -328,13 +357,29 @@ def format_fleets(result: dict) -> str:
     lines = [f"agent fleets in real time (pose published -> command received), "
              f"{k} agent(s) per process" + (", one Zenoh session per host"
                                             if result["shared_session"] else ""),
-             FLEET_HEADER + f"{'load':>11}"]
+             FLEET_HEADER + f"{'load':>11}{'zones':>6}{'pose in':>8}{'cmd back':>9}"
+             f"{'publish':>9}"]
     for a in result["fleets"]:
         load = a["load_avg_1min"]
+        parts = a["latency_parts_ms_median"]
         lines.append(_fleet_row(str(a["robots"]), a)
-                     + f"{_f(load['before']):>5}->{_f(load['after']):<5}")
-    lines.append("  wait: pose received -> tick starts; tick: tick start -> command put; net: the rest; "
-                 "medians. load: 1-minute load average before -> after the run")
+                     + f"{_f(load['before']):>5}->{_f(load['after']):<5}"
+                     + f"{a.get('pose_zones', 0):>6}{_f(parts.get('pose_in'), '.2f'):>8}"
+                     + f"{_f(parts.get('cmd_back'), '.2f'):>9}"
+                     + f"{_f(a.get('world_publish_ms_median'), '.2f'):>9}")
+    lines.append("  wait: pose received -> tick starts; tick: tick start -> command put; net: the rest "
+                 "(pose in: pose stamp -> agent received, cmd back: the rest of net); publish: the "
+                 "world's stamp -> its last pose put; medians. load: 1-minute load average before "
+                 "-> after the run. zones: 0 = one router, Z = Z zone routers")
+    compared = result.get("pose_zones_compared") or []
+    if compared:
+        lines.append("pose paths side by side (medians over rounds; ratio to the first path):")
+        for c in compared:
+            lines.append(f"  {c['fleet']:>7} zones {c['pose_zones']:>2}: missed "
+                         f"{_f(c['missed_ticks'], '.0f')} ({_f(c['missed_ticks_ratio'], '.2f')}x), "
+                         f"p50 {_f(c['latency_ms_p50'], '.2f')} ms "
+                         f"({_f(c['latency_ms_p50_ratio'], '.2f')}x), p99 "
+                         f"{_f(c['latency_ms_p99'], '.2f')} ms ({_f(c['latency_ms_p99_ratio'], '.2f')}x)")
     lines.append(f"machine: {result['machine']['cpus']} CPUs")
     return "\n".join(lines)
 

@@ -136,6 +136,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--session-per-agent", action="store_true",
                    help="with --agents-per-process K > 1: each agent opens its own Zenoh session "
                         "(default: one per host, with --insecure; each robot logs in as itself otherwise)")
+    p.add_argument("--pose-zones", type=int, default=0, metavar="Z",
+                   help="carry the poses and commands through Z zone routers of the world's "
+                        "process, each agent connected to its zone's (default 0: everything "
+                        "through the run's router)")
     p.add_argument("--no-safety", action="store_true", help="barriers off (nominal control only)")
     p.add_argument("--port", type=int, default=0, help="router TCP port on 127.0.0.1 (0: free)")
     p.add_argument("--hosts", default=None, metavar="INVENTORY",
@@ -180,6 +184,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "(at most one per formation; default 1: one camera frame)")
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="with --fleets: seconds of real time per run (default 15)")
+    p.add_argument("--pose-zones", default="0", metavar="Z,...",
+                   help="with --fleets: pose paths to run side by side in every round: 0 = every "
+                        "pose and command through the one router, Z = through Z zone routers "
+                        "(default 0)")
 
     p = add("view", "the live page of a running fleet (read-only)")
     _add_view_args(p, client=True)

@@ -207,7 +207,8 @@ class Fleet:
     # ------------------------------------------------------------------ the fleet's parts
 
     def start_router(self, endpoint: str, port: int, config: Path | None = None,
-                     timeout: float = START_TIMEOUT_S, auth: UsrPwdAuth | None = None) -> Child:
+                     timeout: float = START_TIMEOUT_S, auth: UsrPwdAuth | None = None,
+                     also_listen: Sequence[str] = ()) -> Child:
         """``python -m wire.router`` listening on ``endpoint`` with a fresh per-run id; returns
         once that very router answers there (:func:`wire.router.wait_for_router`, logging in as
         ``auth``; ``TimeoutError`` after ``timeout``, :meth:`check` meanwhile). A port that
@@ -215,6 +216,8 @@ class Fleet:
         router_id = new_router_id()
         argv = ["-m", "wire.router", "--listen", endpoint, "--log-level", "WARNING",
                 "--id", router_id]
+        for extra in also_listen:  # e.g. the pose zones' private socket (simulator.zones)
+            argv += ["--listen", extra]
         if config is not None:
             argv += ["--config", str(config)]
         router = self.start("router", argv)

@@ -34,15 +34,18 @@ timeout and is then not waited for until it speaks again. ``summary.json`` gains
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
 import shutil
 import signal
 import statistics
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -72,6 +75,7 @@ from .inprocess import Series
 from .output import OutputError
 from .summary import qp_fields, run_summary
 from .world import World, WorldOptions, WorldResult
+from .zones import PoseZones, ZoneSecurity
 
 logger = logging.getLogger(__name__)
 
@@ -191,6 +195,7 @@ def launch(
     hold: bool = False,
     announce=None,
     remote: RemoteAgents | None = None,
+    pose_zones: int = 0,
 ) -> tuple[dict, Series]:
     """Run ``scenario`` as separate processes; returns the summary and the time series.
 
@@ -209,7 +214,9 @@ def launch(
     ``hold`` keeps the fleet up after every goal is reached, until the scenario's duration or
     SIGINT/SIGTERM (which then end the run normally, with its summary); ``announce(endpoint)`` is
     called once every agent is up (the endpoint is also written to ``out/endpoint``). The
-    summary's ``formations_status`` holds each leader's last status.
+    summary's ``formations_status`` holds each leader's last status. ``pose_zones`` Z > 0 carries
+    the poses and commands through Z zone routers of the world's process
+    (:mod:`simulator.zones`; with ``secure`` they hold the run's access control list).
 
     ``remote`` places the agents of ``remote.robots`` on other hosts (``formation run --hosts``,
     :mod:`deploy.remote`): the router then listens on ``remote.endpoint``, those agents are
@@ -239,7 +246,8 @@ def launch(
                                   progress_factory, faults, secure, pose_slots, observer, hold,
                                   announce, stop_requested, scenario_path,
                                   clock_offset=clock_offset, agents_per_process=agents_per_process,
-                                  shared_session=shared_session, solver=solver, remote=remote)
+                                  shared_session=shared_session, solver=solver, remote=remote,
+                                  pose_zones=pose_zones)
     finally:
         if previous_int is not None:
             signal.signal(signal.SIGINT, previous_int)
@@ -252,7 +260,7 @@ def _launch(scenario: Scenario, out: Path, realtime: bool, camera: str, topology
             stop_requested: threading.Event,
             scenario_path: str | Path | None, *, clock_offset: float, agents_per_process: int,
             shared_session: bool, solver: str,
-            remote: RemoteAgents | None = None) -> tuple[dict, Series]:
+            remote: RemoteAgents | None = None, pose_zones: int = 0) -> tuple[dict, Series]:
     """:func:`launch` once its arguments are checked and its folders made."""
     if remote is not None:  # the router listens where the other hosts reach it
         endpoint = remote.endpoint
@@ -265,7 +273,7 @@ def _launch(scenario: Scenario, out: Path, realtime: bool, camera: str, topology
                              progress_factory, faults, secure, pose_slots, observer, hold,
                              announce, stop_requested, scenario_path, clock_offset=clock_offset,
                              agents_per_process=agents_per_process, shared_session=shared_session,
-                             solver=solver, remote=remote)
+                             solver=solver, remote=remote, pose_zones=pose_zones)
     finally:
         if remote is not None:
             try:  # an early way out: the agents there have stopped; remove the run's files
@@ -279,11 +287,12 @@ def _launch_fleet(scenario: Scenario, out: Path, realtime: bool, camera: str, to
                   secure: bool, pose_slots: int, observer, hold: bool, announce,
                   stop_requested: threading.Event, scenario_path: str | Path | None, *,
                   clock_offset: float, agents_per_process: int, shared_session: bool,
-                  solver: str, remote: RemoteAgents | None) -> tuple[dict, Series]:
+                  solver: str, remote: RemoteAgents | None,
+                  pose_zones: int = 0) -> tuple[dict, Series]:
     """The run's fleet, from its router to the summary (see :func:`launch`)."""
     stopped: BaseException | None = None  # why a started run ended early
     fault_run = faults.active
-    with Fleet(out / "logs") as fleet:
+    with Fleet(out / "logs") as fleet, ExitStack() as own:
 
         def abort() -> None:
             if hold and fleet.signalled is not None:
@@ -291,15 +300,20 @@ def _launch_fleet(scenario: Scenario, out: Path, realtime: bool, camera: str, to
                 return
             fleet.check()
 
-        creds = _secure_setup(scenario, out / "secure", endpoint) if secure else None
+        creds = (_secure_setup(scenario, out / "secure", endpoint,
+                               _zone_link(own) if pose_zones else None) if secure else None)
         router = fleet.start_router(endpoint, port, None if creds is None else creds.router_config,
-                                    auth=None if creds is None else creds.world)
+                                    auth=None if creds is None else creds.world,
+                                    also_listen=() if creds is None or creds.zone is None
+                                    else (creds.zone.link,))
         camera_child = None
         if camera == "process" and scenario_path is not None:  # checked above
             camera_child = _start_camera(fleet, scenario, scenario_path, out, endpoint, creds)
         zs = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False)
         configs = build_agent_configs(scenario, zenoh=zs, topology=topology, safety=safety,
                                       solver=solver)
+        zones, configs = _open_zones(own, scenario, pose_zones, endpoint, agents_per_process,
+                                     creds, configs)
 
         def agent_args(rid: str) -> list[str]:
             argv = [] if realtime else ["--lockstep"]
@@ -325,7 +339,8 @@ def _launch_fleet(scenario: Scenario, out: Path, realtime: bool, camera: str, to
                                   for c in faults.camera_dropouts),
             pose_slots=pose_slots, clock_offset=clock_offset, stop_at_goal=not hold)
         with zenoh.open(conf) as session:
-            world = World(scenario, session, options)
+            world = World(scenario, session, options, () if zones is None else zones.sessions,
+                          None if zones is None else zones.zone_of)
             statuses = StatusBoard(session, keys.DEFAULT_PREFIX)
             detach = observer(session) if observer is not None else None
             driver = _FaultDriver(faults, fleet, world, agents, scenario.dt, realtime)
@@ -359,9 +374,8 @@ def _launch_fleet(scenario: Scenario, out: Path, realtime: bool, camera: str, to
     if fault_run:
         summary["faults"] = fault_summary(faults, result, stats, driver.log)
     summary["secure"] = False if creds is None else creds.summary()
-    if remote is not None:
-        summary["remote"] = remote.summary()
-    summary.update(_run_options(out, camera, pose_slots, agents_per_process, shared_session))
+    summary.update(_run_options(out, camera, pose_slots, agents_per_process, shared_session,
+                                pose_zones, remote))
     _navigation_fields(summary, hold, board)
     if stopped is not None:
         _mark_aborted(summary, stats, stopped)
@@ -382,10 +396,35 @@ def _start_agents(fleet: Fleet, configs: dict, out: Path, agent_args: Callable[[
     return agents
 
 
+def _zone_link(own: ExitStack) -> str:
+    """A Unix-socket endpoint in a fresh private folder (mode 0700, removed when ``own``
+    closes) for the zone routers' link to the run's router (:data:`wire.acl.ZONE_LINK`)."""
+    sockets = Path(tempfile.mkdtemp(prefix="formation-zones-"))
+    own.callback(shutil.rmtree, sockets, ignore_errors=True)
+    return f"{acl.ZONE_LINK}/{sockets / 'router.sock'}"
+
+
+def _open_zones(own: ExitStack, scenario: Scenario, zones: int, endpoint: str, per_process: int,
+                creds: _Secure | None, configs: dict) -> tuple[PoseZones | None, dict]:
+    """``zones`` > 0: the zone routers (closed when ``own`` closes, after the agents stopped)
+    and the agent configurations connecting each agent to its zone's; else (None, configs)."""
+    if not zones:
+        return None, configs
+    pz = own.enter_context(PoseZones(scenario, zones, endpoint, per_process,
+                                     security=None if creds is None else creds.zone))
+    return pz, {rid: dataclasses.replace(c, zenoh=dataclasses.replace(
+        c.zenoh, connect=(pz.endpoint_of(rid),))) for rid, c in configs.items()}
+
+
 def _run_options(out: Path, camera: str, pose_slots: int, agents_per_process: int,
-                 shared_session: bool) -> dict:
+                 shared_session: bool, pose_zones: int = 0,
+                 remote: RemoteAgents | None = None) -> dict:
     """The summary fields of the options a run used beyond the defaults."""
     extra: dict = {}
+    if remote is not None:
+        extra["remote"] = remote.summary()  # which host ran which robots
+    if pose_zones:
+        extra["pose_zones"] = pose_zones
     if camera == "process":
         extra["camera_process"] = _camera_stats(out / "logs" / "camera.log")
     if pose_slots > 1:
@@ -520,6 +559,7 @@ class _Secure:
     files: dict[str, Path]  # robot -> its credentials file
     world: UsrPwdAuth
     folder: Path
+    zone: ZoneSecurity | None = None  # with pose zones: what the zone routers need
 
     def summary(self) -> dict:
         """``secure`` of summary.json."""
@@ -531,13 +571,16 @@ MANAGER_FILE = "manager.json5"  # in OUT/secure: the fleet manager's credentials
 VIEWER_FILE = "viewer.json5"  # in OUT/secure: a read-only viewer's credentials
 
 
-def _secure_setup(scenario: Scenario, folder: Path, endpoint: str) -> _Secure:
+def _secure_setup(scenario: Scenario, folder: Path, endpoint: str,
+                  zone_link: str | None = None) -> _Secure:
     """Fresh credentials for the world (as the camera user), every robot, the fleet manager and
     a viewer; the router's dictionary and its configuration with the fleet's access control
     list (:mod:`wire.acl`), all in ``folder`` (mode 0700, files 0600). ``manager.json5`` and
     ``viewer.json5`` are Zenoh configuration fragments (the router's endpoint, the user and
     password) that client commands take with ``--auth FILE`` (``viewer.credentials``, the
-    viewer's ``user:password`` line, is kept for older scripts)."""
+    viewer's ``user:password`` line, is kept for older scripts). ``zone_link``: pose zones; the
+    router also listens there (a Unix socket in a private folder) for the zone routers, which log
+    in as :data:`wire.acl.ZONE_USER`."""
     folder.mkdir(parents=True, exist_ok=True)
     folder.chmod(0o700)
     for old in folder.iterdir():  # a previous run's credentials are void
@@ -547,7 +590,8 @@ def _secure_setup(scenario: Scenario, folder: Path, endpoint: str) -> _Secure:
     leaders = {f.name: f.leader for f in scenario.formations}
     successors = {f.name: s for f in scenario.formations
                   if (s := formation_successor(f)) is not None}
-    creds = acl.new_credentials([acl.CAMERA_USER, acl.MANAGER_USER, acl.VIEWER_USER, *robots])
+    services = [acl.CAMERA_USER, acl.MANAGER_USER, acl.VIEWER_USER]
+    creds = acl.new_credentials([*services, *([acl.ZONE_USER] if zone_link else []), *robots])
     dictionary = folder / "users.txt"
     acl.write_dictionary(dictionary, creds)
     acl.write_credentials(folder / "viewer.credentials", creds[acl.VIEWER_USER])
@@ -558,10 +602,13 @@ def _secure_setup(scenario: Scenario, folder: Path, endpoint: str) -> _Secure:
     for name, user in ((MANAGER_FILE, acl.MANAGER_USER), (VIEWER_FILE, acl.VIEWER_USER)):
         acl.write_client_file(folder / name, creds[user], [endpoint])
     router_conf = folder / "router.json5"
+    rules = acl.fleet_acl(robots, leaders, keys.DEFAULT_PREFIX, successors=successors,
+                          zone_user=acl.ZONE_USER if zone_link else None)
     acl.write_router_config(router_conf, acl.router_config(
-        [endpoint], acl.fleet_acl(robots, leaders, keys.DEFAULT_PREFIX, successors=successors),
-        dictionary.resolve()))
-    return _Secure(router_conf, files, creds[acl.CAMERA_USER], folder)
+        [endpoint, *([zone_link] if zone_link else [])], rules, dictionary.resolve()))
+    zone = None if zone_link is None else ZoneSecurity(rules, dictionary.resolve(), zone_link,
+                                                       creds[acl.ZONE_USER])
+    return _Secure(router_conf, files, creds[acl.CAMERA_USER], folder, zone)
 
 
 class _FaultDriver:

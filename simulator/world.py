@@ -34,6 +34,10 @@ Two clocks:
   ``dt`` and publishes their poses. On one machine this keeps N agents from all waking in the
   same instant; on robots, where each agent has its own CPU, it makes no difference.
 
+Pose zones (:mod:`simulator.zones`, ``formation run --pose-zones Z``): given zone sessions,
+each robot's pose is published, and its command taken, on its zone's session (a router its
+agent connects to) instead of the world's; the obstacles stay on the world's session.
+
 Faults (docs/faults.md): ``camera_dropouts`` stop publishing a robot's pose over a span of
 simulated time, as a camera that loses that robot's marker would; ``run(on_tick=...)`` lets the
 launcher kill and restart agents at given simulated times.
@@ -52,7 +56,7 @@ import math
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -144,6 +148,8 @@ class WorldResult:
     cmd_timeouts: int = 0  # lock-step: waits for a command that timed out
     camera_dropped: int = 0  # poses not published (camera dropout)
     latency_ms: list[float] = field(default_factory=list)  # real time: pose put -> cmd received
+    publish_ms: list[float] = field(default_factory=list)  # real time, one frame a period: the
+    # tick's stamp -> its last pose put (how long the world takes to publish a frame)
     stamps: list[float] = field(default_factory=list)  # pose stamp published at tick k
     # pose slots > 1: the stamp each robot's pose of tick k went out with (its slot's); else empty
     robot_stamps: list[list[float]] = field(default_factory=list)
@@ -297,7 +303,12 @@ class _CmdInbox:
 class World:
     """The simulated world over one Zenoh session (see the module docstring)."""
 
-    def __init__(self, scenario: Scenario, session: zenoh.Session, options: WorldOptions) -> None:
+    def __init__(self, scenario: Scenario, session: zenoh.Session, options: WorldOptions,
+                 zones: Sequence[zenoh.Session] = (),
+                 zone_of: Mapping[str, int] | None = None) -> None:
+        """``zones`` (pose zones, :mod:`simulator.zones`): sessions (routers the agents of each
+        zone connect to) that carry robot ``r``'s pose and command instead of ``session``:
+        ``zones[zone_of[r]]``; obstacles stay on ``session``."""
         self.scenario = scenario
         self.session = session
         self.options = options
@@ -307,8 +318,13 @@ class World:
         p = options.prefix
         for o in scenario.obstacles:
             keys.validate_id(o.name, "obstacle name")
-        self._pose_pubs = [CountingPublisher(session.declare_publisher(keys.pose_key(p, r)),
-                                             self.counter) for r in self.ids]
+        if zones and (zone_of is None or any(not 0 <= zone_of.get(r, -1) < len(zones)
+                                             for r in self.ids)):
+            raise ValueError("zones: every robot needs a zone (zone_of) among the sessions given")
+        self.zones = tuple(zones)
+        self.zone_of = dict(zone_of) if zones and zone_of is not None else {}
+        self._pose_pubs = [CountingPublisher(self._session_of(r).declare_publisher(
+            keys.pose_key(p, r)), self.counter) for r in self.ids]
         self._shape_msgs = tuple(shape_to_msg(sh) for sh in scenario.shapes)  # static walls, shelves
         self._obs_pub = CountingPublisher(session.declare_publisher(keys.obstacles_key(p)),
                                           self.counter)
@@ -318,10 +334,16 @@ class World:
         self.result: WorldResult | None = None  # the last run's, also when it was aborted
         # one wildcard subscriber for every robot's command, called right on the Zenoh thread
         # that received it (``indirect=False``: no hand-over to a Python thread per command; the
-        # callback only decodes and stores under the inbox lock)
-        self._subs = [session.declare_subscriber(
-            keys.all_robots_key(p, keys.CMD),
-            zenoh.handlers.Callback(self.inbox.callback, indirect=False))]
+        # callback only decodes and stores under the inbox lock). With zones, one subscriber per
+        # robot on its zone's session: its command arrives there, never through another zone.
+        if self.zones:
+            self._subs = [self._session_of(r).declare_subscriber(
+                keys.cmd_key(p, r), zenoh.handlers.Callback(self.inbox.callback, indirect=False))
+                for r in self.ids]
+        else:
+            self._subs = [session.declare_subscriber(
+                keys.all_robots_key(p, keys.CMD),
+                zenoh.handlers.Callback(self.inbox.callback, indirect=False))]
         self._camera = None
         for rid, _t0, _t1 in options.camera_dropouts:
             if rid not in self.ids:
@@ -334,6 +356,10 @@ class World:
             from camera_service.simcam import FramePublisher
 
             self.frames = FramePublisher(scenario, session, p)
+
+    def _session_of(self, rid: str) -> zenoh.Session:
+        """The session that carries ``rid``'s pose and command (its zone's, else the world's)."""
+        return self.zones[self.zone_of[rid]] if self.zones else self.session
 
     def close(self, step_limit: float = STEP_LIMIT_S) -> None:
         """Undeclare the world's subscribers and publishers, each step waiting at most
@@ -405,6 +431,7 @@ class World:
         counts = _Counts()
         stamps: list[float] = []
         robot_stamps: list[list[float]] = []
+        publish_ms: list[float] = []
         wall0 = time.monotonic()
         monitor.update(0.0, np.array([s[:2] for s in state]),
                        [o.position(0.0) for o in sc.obstacles])
@@ -433,7 +460,7 @@ class World:
                 camera_dropped=self.camera_dropped, malformed_cmds=inbox.malformed,
                 stamp_rejected=inbox.stamps.snapshot(), clock_offset=opts.clock_offset,
                 latency_ms=list(inbox.latency_ms), wall_s=time.monotonic() - wall0, stamps=stamps,
-                robot_stamps=robot_stamps,
+                robot_stamps=robot_stamps, publish_ms=publish_ms,
             )
 
         try:
@@ -459,6 +486,7 @@ class World:
                     inbox.begin_tick(t)  # before the poses: no command for t exists yet
                 self._publish(t, stamp, state)
                 if opts.realtime:
+                    publish_ms.append((time.time() + opts.clock_offset - stamp) * 1e3)
                     next_wall += dt
                     _sleep_until(next_wall, abort)
                     # judged by the command's stamp, not by its arrival

@@ -169,7 +169,8 @@ def test_bench_fleets_runs_each_chosen_fleet_repeatedly_with_its_latency_parts_a
     for f in result["fleets"]:
         assert f["robots"] == 4 and f["agents_per_process"] == 2
         assert f["commands"] > 0 and f["latency_ms_p99"] >= f["latency_ms_p50"] > 0
-        assert set(f["latency_parts_ms_median"]) == {"pose_wait_for_tick", "tick", "transport_rest"}
+        assert set(f["latency_parts_ms_median"]) == {"pose_wait_for_tick", "tick", "transport_rest",
+                                                     "pose_in", "cmd_back"}
         assert all(math.isfinite(v) for v in f["latency_parts_ms_median"].values())
         assert f["load_avg_1min"]["before"] is not None
     rows = [line.split() for line in (out / "bench.txt").read_text().splitlines()]

@@ -58,6 +58,9 @@ logger = logging.getLogger(__name__)
 CAMERA_USER = "camera"  # the camera service, or the simulated world that stands in for it
 MANAGER_USER = "manager"  # the fleet manager: sends goals, reads everything
 VIEWER_USER = "viewer"  # read-only: the live page, recorders, status
+ZONE_USER = "zone"  # a pose zone router of the world's process (simulator.zones): relays
+ZONE_RULE = "zone-relay"
+ZONE_LINK = "unixsock-stream"  # the zone routers' link to the run's router (a private socket)
 FLEET_READ_RULE = "fleet-read"
 CAMERA_RULE = "camera-publish"
 
@@ -79,6 +82,7 @@ def fleet_acl(
     cmd_vel: Mapping[str, str] | None = None,
     manager_user: str | None = MANAGER_USER,
     viewer_user: str | None = VIEWER_USER,
+    zone_user: str | None = None,
 ) -> dict[str, Any]:
     """The ``access_control`` section for a fleet (see the module docstring).
 
@@ -88,11 +92,13 @@ def fleet_acl(
     ``cmd_vel`` maps robot id -> its base's command key (:func:`default_cmd_vel_key` when
     absent): the robot's user may put there, and the base's bridge, logged in as the same
     user, may subscribe to it. ``manager_user`` (goals) and ``viewer_user`` (read only) are
-    left out when None. ValueError names an invalid id or a leader not in ``robots``.
+    left out when None. ``zone_user`` (pose zone routers, :func:`zone_router_config`) may relay
+    every message under the prefix: a router of the run standing in for this one, whose own ACL
+    checks the robots it serves. ValueError names an invalid id or a leader not in ``robots``.
     """
     successors = dict(successors or {})
     _check_fleet(robots, leaders, successors, prefix,
-                 [u for u in (camera_user, manager_user, viewer_user) if u is not None])
+                 [u for u in (camera_user, manager_user, viewer_user, zone_user) if u is not None])
     cmd_vel = dict(cmd_vel or {})
     fp = f"{prefix}/formation"
     rules: list[dict[str, Any]] = []
@@ -127,6 +133,8 @@ def fleet_acl(
             rule("manager-goal", ["put"], ["ingress"], [f"{fp}/*/goal"]),
             rule("manager-query", ["query"], ["ingress"], [f"{fp}/*/status", stats]),
         ])
+    if zone_user is not None:
+        subject(zone_user, [zone_relay_rule(prefix, rules)])
     if viewer_user is not None:  # reads everything, may ask status and counters, writes nothing
         subject(viewer_user, [rule("viewer-query", ["query"], ["ingress"], [f"{fp}/*/status", stats])])
     lead = {leader: fid for fid, leader in leaders.items()}
@@ -156,6 +164,42 @@ def fleet_acl(
         subject(rid, own)
     return {"enabled": True, "default_permission": "deny", "rules": rules,
             "subjects": subjects, "policies": policies}
+
+
+def zone_relay_rule(prefix: str, rules: list[dict[str, Any]]) -> str:
+    """Append the rule that lets a router of the run relay every message under ``prefix`` (both
+    flows) to ``rules``; its id."""
+    rules.append({"id": ZONE_RULE, "permission": "allow", "flows": ["ingress", "egress"],
+                  "messages": ["put", "delete", "declare_subscriber", "declare_queryable",
+                               "query", "reply", "liveliness_token",
+                               "declare_liveliness_subscriber", "liveliness_query"],
+                  "key_exprs": [f"{prefix}/**"]})
+    return ZONE_RULE
+
+
+def zone_router_config(listen: Sequence[str], acl: Mapping[str, Any],
+                       dictionary_file: str | os.PathLike[str], link: str,
+                       auth: UsrPwdAuth) -> dict[str, Any]:
+    """A pose zone router's configuration (:mod:`simulator.zones`): :func:`router_config` with the
+    run's ``acl`` for the robots that connect to it, linked to the run's router at ``link`` (a
+    :data:`ZONE_LINK` endpoint in the run's private folder) as user ``auth``. The run's router
+    presents no user name on that link (user/password names only the side that connects), so
+    the zone trusts the link by its protocol, which only the zone uses: the robots come in
+    over TCP under their own policies."""
+    if not link.startswith(ZONE_LINK + "/"):
+        raise ValueError(f"link: {link!r} is not a {ZONE_LINK} endpoint")
+    acl = json.loads(json.dumps(acl))  # a copy
+    prefix_rules = [r for r in acl["rules"] if r["id"] == FLEET_READ_RULE]
+    prefix = prefix_rules[0]["key_exprs"][0][:-len("/**")] if prefix_rules else keys.DEFAULT_PREFIX
+    if not any(r["id"] == ZONE_RULE for r in acl["rules"]):
+        zone_relay_rule(prefix, acl["rules"])
+    acl["subjects"].append({"id": "run-router-link", "link_protocols": [ZONE_LINK]})
+    acl["policies"].append({"id": "run-router-link-policy", "rules": [ZONE_RULE],
+                            "subjects": ["run-router-link"]})
+    conf = router_config(listen, acl, dictionary_file)
+    conf["connect"] = {"endpoints": [link]}
+    conf["transport"]["auth"]["usrpwd"].update({"user": auth.user, "password": auth.password})
+    return conf
 
 
 def _check_fleet(robots: Mapping[str, str], leaders: Mapping[str, str],

@@ -29,14 +29,22 @@ def bench_command(ns: argparse.Namespace) -> int:
     if duration is not None and not duration > 0:
         raise UsageError(f"--duration: need seconds > 0, got {duration}")
     own = getattr(ns, "session_per_agent", False)
+    zones_arg = getattr(ns, "pose_zones", "0")
+    try:
+        zones = [int(z) for z in zones_arg.split(",")]
+    except ValueError:
+        zones = [-1]
+    if not zones or any(z < 0 for z in zones):
+        raise UsageError(f"--pose-zones: {zones_arg!r} is not a list of integers >= 0 (e.g. 0,4)")
     if fleets is None and (per_process != 1 or repeat != 1 or duration is not None or slots != 1
-                           or own):
-        raise UsageError("--agents-per-process, --session-per-agent, --repeat, --duration and "
-                         "--pose-slots go with --fleets")
+                           or own or zones != [0]):
+        raise UsageError("--agents-per-process, --session-per-agent, --repeat, --duration, "
+                         "--pose-slots and --pose-zones go with --fleets")
     out = begin_output(ns)
     if fleets is not None:
         result = run_fleets(fleets, per_process, per_process > 1 and not own, repeat,
-                            pose_slots=slots, **({} if duration is None else {"duration": duration}))
+                            pose_slots=slots, pose_zones=zones,
+                            **({} if duration is None else {"duration": duration}))
         _write(out, result, format_fleets(result))
     else:
         result = run_bench(quick=ns.quick)

@@ -20,6 +20,14 @@ from simulator.launch import FaultPlan, RunAborted, launch, parse_camera_dropout
 from simulator.output import write_run
 
 
+def _pose_zones(ns: argparse.Namespace) -> int:
+    """``--pose-zones Z`` checked (UsageError: exit 2 before anything starts)."""
+    zones = getattr(ns, "pose_zones", 0)
+    if zones < 0:
+        raise UsageError(f"--pose-zones: need an integer >= 0, got {zones}")
+    return zones
+
+
 def run_command(ns: argparse.Namespace) -> int:
     """``formation run``; see the module docstring. Returns the exit status."""
     try:
@@ -42,6 +50,9 @@ def run_command(ns: argparse.Namespace) -> int:
     if not 0 <= ns.port < 65536:
         raise UsageError(f"--port: {ns.port} is not a TCP port")
     slots = _pose_slots(ns)
+    zones = _pose_zones(ns)
+    if zones and getattr(ns, "hosts", None):
+        raise UsageError("--pose-zones: the zone routers listen on loopback only; not with --hosts")
     per_process = getattr(ns, "agents_per_process", 1)
     if per_process < 1:
         raise UsageError(f"--agents-per-process: need an integer >= 1, got {per_process}")
@@ -81,7 +92,7 @@ def run_command(ns: argparse.Namespace) -> int:
                                  clock_offset=getattr(ns, "clock_offset_ms", 0.0) / 1000.0,
                                  agents_per_process=per_process, shared_session=shared,
                                  solver=solver, hold=hold, announce=_announce if hold else None,
-                                 remote=remote)
+                                 remote=remote, pose_zones=zones)
     except RunAborted as stop:  # the run started: its summary says why and what it measured
         write_run(stop.summary, stop.series, scenario, out, plots=not ns.no_plots)
         print(f"formation run: aborted: {stop}; wrote {out / 'summary.json'} with what was "
