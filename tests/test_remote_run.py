@@ -273,7 +273,7 @@ def test_the_fleet_stops_a_command_child_by_closing_its_stdin_and_notices_its_ex
 
 
 @pytest.mark.parametrize("case", ["unreachable", "no-key", "not-deployed", "not-in-scenario",
-                                  "peer-mode", "port", "kill"])
+                                  "peer-mode", "port", "zones", "kill"])
 def test_a_bad_inventory_or_host_exits_2_in_one_line_before_anything_starts(
         hosts: dict, tmp_path: Path, capsys: pytest.CaptureFixture, case: str) -> None:
     inventory = hosts["inventory"]
@@ -307,6 +307,10 @@ def test_a_bad_inventory_or_host_exits_2_in_one_line_before_anything_starts(
         inv = inventory(("r1",), case)
         extra = ["--port", str(free_port())]
         expect = "--port: not with --hosts"
+    elif case == "zones":
+        inv = inventory(("r1",), case)
+        extra = ["--pose-zones", "2"]
+        expect = "--pose-zones: the zone routers listen on loopback only; not with --hosts"
     else:
         inv = inventory(("r1",), case)
         extra = ["--kill", "r1@2"]
