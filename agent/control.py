@@ -41,6 +41,16 @@ from the hazard's path line, plus the intended motion without its part towards t
 formation gives way rather than crossing ahead of a hazard about as fast as itself. Where that
 cannot be done in time, the hard rows meet and the QP returns the least-risk command (counted).
 
+Band (:func:`band_nominal`, single integrators): formation keeping first, the goal second. The
+band breaks where a member is pushed by hard rows (another formation's ellipse moving into it,
+the separation from a squeezed member) while the others still drive at their goals: the rear of
+a blocked rectangle slides along its band rows, the formation shears, and the members' rows
+become infeasible together (measured: every tick on which an edge passed 1.5 epsilon had one of
+its robots ``relaxed`` or ``fallback``). A member whose own edges have drifted beyond BAND_EASE
+epsilon therefore blends its nominal from the goal's towards moving with its neighbours (their
+last velocities) and back to each Df, wholly from BAND_HOLD epsilon; it takes up its goal again
+as the edges recover. Only the nominal changes; the rows, and so safety, are the same.
+
 Separation (:func:`agent.barriers.separation_row`): every pair of robots that can touch gets a
 hard row with a reciprocal split of the pair's slack; see that function for why two robots
 acting at once cannot both cross.
@@ -79,6 +89,9 @@ ESCAPE_PAD = 0.02  # [m] the ellipse's pad beyond the members (leader.ellipse de
 ESCAPE_OVERSHOOT = 0.05  # [m] the sideways step aims this far beyond the room needed
 ESCAPE_GAIN = 2.0  # [1/s] sideways speed per metre still to clear
 SEP_MARGIN = 0.0  # [m] separation rows keep bodies this much beyond touching
+BAND_EASE = 0.2  # own edges' error (in epsilon) up to which the nominal is the goal's alone
+BAND_HOLD = 0.8  # own edges' error (in epsilon) from which the nominal keeps the band only
+BAND_REPAIR_GAIN = 3.0  # [1/s] band-keeping speed per metre of edge error
 
 
 @dataclass(frozen=True)
@@ -97,6 +110,7 @@ class ControlParams:
     d_af: float = 0.5  # [m] pairwise distance for the all-to-all baseline (eq. 3.5)
     period: float = 0.05  # [s] control period (sizes the unicycle's discretisation margin)
     radius: float = 0.105  # [m] body radius: separation rows keep bodies 2 r + SEP_MARGIN apart
+    band_first: bool = True  # single integrators: formation keeping before the goal (band_nominal)
 
     @classmethod
     def from_scenario(cls, scenario, safety: bool = True) -> ControlParams:
@@ -451,6 +465,43 @@ def escape_command(
     return (lx + wx, ly + wy)
 
 
+def band_nominal(
+    p: ControlParams, px: float, py: float, goal_u: tuple[float, float],
+    neighbours: Sequence[Neighbour],
+) -> tuple[float, float]:
+    """Formation keeping first, the goal second: the nominal command of a member whose own
+    edges have drifted in their band (module docstring, "Band").
+
+    With e the largest error of the robot's own edges, | |p - p_j| - Df_j | / epsilon, the
+    nominal is  s u_goal + (1 - s) (v_nb + k sum_j (|p - p_j| - Df_j) (p_j - p)/|p_j - p|),
+    s = clamp((BAND_HOLD - e) / (BAND_HOLD - BAND_EASE), 0, 1), v_nb the mean of the
+    neighbours' last velocities (their ``state``), k = BAND_REPAIR_GAIN; clamped to the speed
+    limit. The second part moves with the neighbours and back towards each Df (it is the
+    negative gradient of 1/2 sum_j (|p - p_j| - Df_j)^2, so with the neighbours still it only
+    lowers the edge error). With every own edge within BAND_EASE epsilon the goal's nominal
+    (eq. 4.2) is returned unchanged. Only the nominal changes: every barrier row is the same."""
+    eps = p.epsilon
+    worst = rx = ry = 0.0
+    for n in neighbours:
+        dx, dy = n.x - px, n.y - py
+        d = math.hypot(dx, dy)
+        if d < 1e-9:
+            continue
+        err = d - n.df
+        worst = max(worst, abs(err) / eps)
+        rx += err * dx / d
+        ry += err * dy / d
+    s = min(1.0, max(0.0, (BAND_HOLD - worst) / (BAND_HOLD - BAND_EASE)))
+    if s >= 1.0:
+        return goal_u
+    k = len(neighbours)
+    fx = sum(n.vx for n in neighbours) / k
+    fy = sum(n.vy for n in neighbours) / k
+    ux = s * goal_u[0] + (1.0 - s) * (fx + BAND_REPAIR_GAIN * rx)
+    uy = s * goal_u[1] + (1.0 - s) * (fy + BAND_REPAIR_GAIN * ry)
+    return nominal(1.0, 0.0, 0.0, ux, uy, p.max_speed)
+
+
 def control_step(
     params: ControlParams,
     pose: tuple[float, float, float],
@@ -502,6 +553,8 @@ def control_step(
             bx, by = tiebreak_push(view, hazards, obstacles, p.max_speed)
             if bx or by:
                 ux, uy = nominal(1.0, 0.0, 0.0, ux + bx, uy + by, p.max_speed)
+    if p.band_first and p.safety and not p.unicycle and not escaping and neighbours:
+        ux, uy = band_nominal(p, px, py, (ux, uy), neighbours)  # formation keeping first
     nux, nuy = ux, uy
 
     rows = build_rows(p, px, py, theta, (ux, uy), neighbours, obstacles, others, view, pairwise,
