@@ -41,15 +41,21 @@ from the hazard's path line, plus the intended motion without its part towards t
 formation gives way rather than crossing ahead of a hazard about as fast as itself. Where that
 cannot be done in time, the hard rows meet and the QP returns the least-risk command (counted).
 
-Band (:func:`band_nominal`, single integrators): formation keeping first, the goal second. The
-band breaks where a member is pushed by hard rows (another formation's ellipse moving into it,
-the separation from a squeezed member) while the others still drive at their goals: the rear of
-a blocked rectangle slides along its band rows, the formation shears, and the members' rows
-become infeasible together (measured: every tick on which an edge passed 1.5 epsilon had one of
-its robots ``relaxed`` or ``fallback``). A member whose own edges have drifted beyond BAND_EASE
-epsilon therefore blends its nominal from the goal's towards moving with its neighbours (their
-last velocities) and back to each Df, wholly from BAND_HOLD epsilon; it takes up its goal again
-as the edges recover. Only the nominal changes; the rows, and so safety, are the same.
+Band (:func:`yield_push`, :func:`band_nominal`; single integrators): formation keeping first,
+the goal second. The band broke where one member was pushed by a hard row (another formation's
+ellipse coming at it) while the others still drove at their goals: the pushed member alone gives
+way, the rest slide along their band rows, the formation shears and its members' rows become
+infeasible together (measured: on every tick an edge passed 1.5 epsilon one of its robots was
+``relaxed`` or ``fallback``). Two rules, both on the nominal command only (the rows, and so
+safety, are the same):
+
+* give way as one body: a formation whose ellipse another formation's ellipse comes at, closer
+  than YIELD_RANGE between them, adds that formation's approach speed (along the line of their
+  centres, faded in with the gap) to every member's nominal: the same vector for all, from
+  data all members share, so the whole formation moves off before one member is pushed;
+* a member whose own edges have drifted beyond BAND_EASE epsilon blends its nominal from the
+  goal's towards moving with its neighbours (their last velocities) and back to each Df,
+  wholly from BAND_HOLD epsilon, and takes up its goal again as the edges recover.
 
 Separation (:func:`agent.barriers.separation_row`): every pair of robots that can touch gets a
 hard row with a reciprocal split of the pair's slack; see that function for why two robots
@@ -89,6 +95,7 @@ ESCAPE_PAD = 0.02  # [m] the ellipse's pad beyond the members (leader.ellipse de
 ESCAPE_OVERSHOOT = 0.05  # [m] the sideways step aims this far beyond the room needed
 ESCAPE_GAIN = 2.0  # [1/s] sideways speed per metre still to clear
 SEP_MARGIN = 0.0  # [m] separation rows keep bodies this much beyond touching
+YIELD_RANGE = 0.3  # [m] gap between two formations' ellipses over which giving way fades in
 BAND_EASE = 0.2  # own edges' error (in epsilon) up to which the nominal is the goal's alone
 BAND_HOLD = 0.8  # own edges' error (in epsilon) from which the nominal keeps the band only
 BAND_REPAIR_GAIN = 3.0  # [1/s] band-keeping speed per metre of edge error
@@ -110,7 +117,7 @@ class ControlParams:
     d_af: float = 0.5  # [m] pairwise distance for the all-to-all baseline (eq. 3.5)
     period: float = 0.05  # [s] control period (sizes the unicycle's discretisation margin)
     radius: float = 0.105  # [m] body radius: separation rows keep bodies 2 r + SEP_MARGIN apart
-    band_first: bool = True  # single integrators: formation keeping before the goal (band_nominal)
+    band_first: bool = True  # single integrators: formation keeping first (yield_push, band_nominal)
 
     @classmethod
     def from_scenario(cls, scenario, safety: bool = True) -> ControlParams:
@@ -465,6 +472,32 @@ def escape_command(
     return (lx + wx, ly + wy)
 
 
+def yield_push(view: FormationView, hazards: Sequence[Ellipse]) -> tuple[float, float]:
+    """Give way as one body (module docstring, "Band"): the same vector for every member.
+
+    For each other formation whose ellipse moves towards this one's centroid (speed v_n > 0
+    along n, the unit vector from its centre to ours) the push is w v_n n, with
+    w = clamp(1 - gap / YIELD_RANGE, 0, 1) and gap = |c - c_e| less both ellipses' half-widths
+    along n: close by, the formation moves away as fast as the other comes, before the other's
+    ellipse row pushes one member alone."""
+    own = view.own
+    px = py = 0.0
+    for e in hazards:
+        dx, dy = own.cx - e.cx, own.cy - e.cy
+        d = math.hypot(dx, dy)
+        if d < 1e-9:
+            continue
+        nx, ny = dx / d, dy / d
+        v_n = e.vx * nx + e.vy * ny
+        if v_n <= 0.0:
+            continue
+        gap = d - _half_width(own, nx, ny) - _half_width(e, nx, ny)
+        w = min(1.0, max(0.0, 1.0 - gap / YIELD_RANGE))
+        px += w * v_n * nx
+        py += w * v_n * ny
+    return px, py
+
+
 def band_nominal(
     p: ControlParams, px: float, py: float, goal_u: tuple[float, float],
     neighbours: Sequence[Neighbour],
@@ -553,6 +586,10 @@ def control_step(
             bx, by = tiebreak_push(view, hazards, obstacles, p.max_speed)
             if bx or by:
                 ux, uy = nominal(1.0, 0.0, 0.0, ux + bx, uy + by, p.max_speed)
+    if p.band_first and p.safety and not p.unicycle and not escaping and view is not None:
+        yx, yy = yield_push(view, hazards)  # give way as one body to a formation coming at us
+        if yx or yy:
+            ux, uy = nominal(1.0, 0.0, 0.0, ux + yx, uy + yy, p.max_speed)
     if p.band_first and p.safety and not p.unicycle and not escaping and neighbours:
         ux, uy = band_nominal(p, px, py, (ux, uy), neighbours)  # formation keeping first
     nux, nuy = ux, uy

@@ -1,5 +1,5 @@
 """Issue 13, the band for single integrators: formation keeping first, the goal second
-(agent.control.band_nominal). Safety rows are untouched; only the nominal command changes."""
+(agent.control.yield_push, band_nominal). Safety rows are untouched; only the nominal changes."""
 
 from __future__ import annotations
 
@@ -12,7 +12,18 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from agent.barriers import Neighbour
-from agent.control import BAND_EASE, BAND_HOLD, ControlParams, band_nominal, control_step
+from agent.control import (
+    BAND_EASE,
+    BAND_HOLD,
+    YIELD_RANGE,
+    ControlParams,
+    FormationView,
+    _half_width,
+    band_nominal,
+    control_step,
+    yield_push,
+)
+from geometry.ellipse import Ellipse
 from scenario import load_scenario
 from simulator import inprocess
 from simulator.inprocess import SimOptions, simulate
@@ -102,3 +113,53 @@ def test_a_four_way_aisle_crossing_keeps_the_band_only_with_formation_keeping_fi
     before = simulate(scenario, SimOptions(record=False)).summary
     assert before["collisions"] == 0
     assert before["formation_error_max_m"] > 1.5 * eps
+
+
+# ------------------------------------------------------------- giving way as one body
+
+pos = st.floats(-3.0, 3.0)
+axis = st.floats(0.2, 0.8)
+
+
+def _ellipse(cx, cy, alpha, a, b, v=(0.0, 0.0)) -> Ellipse:
+    return Ellipse(cx, cy, alpha, max(a, b), min(a, b), v[0], v[1])
+
+
+@settings(max_examples=200, deadline=None)
+@given(pos, pos, angle, axis, axis, pos, pos, angle, axis, axis, vel)
+def test_only_a_formation_coming_closer_than_the_yield_range_pushes(
+    x, y, al, a, b, hx, hy, hal, ha, hb, v,
+):
+    own = _ellipse(x, y, al, a, b)
+    other = _ellipse(hx, hy, hal, ha, hb, v)
+    push = yield_push(FormationView(own, 0.0, 0.0), [other])
+    d = math.hypot(x - hx, y - hy)
+    if d < 1e-6:
+        return
+    n = ((x - hx) / d, (y - hy) / d)
+    v_n = v[0] * n[0] + v[1] * n[1]
+    gap = d - _half_width(own, *n) - _half_width(other, *n)
+    if v_n <= 0.0 or gap >= YIELD_RANGE:
+        assert push == (0.0, 0.0)
+    else:
+        # away from it, along the line of centres, never faster than it comes
+        along = push[0] * n[0] + push[1] * n[1]
+        assert along > 0.0 and abs(push[0] * n[1] - push[1] * n[0]) < 1e-12
+        assert along <= v_n + 1e-12
+        if gap <= 0.0:
+            assert along == pytest.approx(v_n)
+
+
+def test_every_member_of_a_formation_another_comes_at_gets_the_same_yield():
+    own = Ellipse(0.0, 0.0, 0.0, 0.4, 0.2)
+    coming = Ellipse(0.9, 0.0, 0.0, 0.4, 0.2, -0.2, 0.0)  # 0.1 m away, 0.2 m/s towards us
+    view = FormationView(own, 0.0, 0.0)
+    noms = []
+    for member in ((-0.3, 0.1), (0.3, -0.1), (0.0, 0.15)):
+        r = control_step(P, (*member, 0.0), member, others=[coming], view=view)  # at its goal
+        noms.append((r.nominal_ux, r.nominal_uy))
+    assert noms[0] == pytest.approx(noms[1]) and noms[0] == pytest.approx(noms[2])
+    assert noms[0][0] < -0.1 and noms[0][1] == pytest.approx(0.0)
+    off = replace(P, band_first=False)
+    r = control_step(off, (0.3, -0.1, 0.0), (0.3, -0.1), others=[coming], view=view)
+    assert (r.nominal_ux, r.nominal_uy) == (0.0, 0.0)
