@@ -45,8 +45,8 @@ Band (:func:`yield_push`, :func:`band_nominal`; single integrators): formation k
 the goal second. The band broke where one member was pushed by a hard row (another formation's
 ellipse coming at it) while the others still drove at their goals: the pushed member alone gives
 way, the rest slide along their band rows, the formation shears and its members' rows become
-infeasible together (measured: on every tick an edge passed 1.5 epsilon one of its robots was
-``relaxed`` or ``fallback``). Two rules, both on the nominal command only (the rows, and so
+infeasible together (measured: each edge that passed 1.5 epsilon did so while its robots were
+``relaxed`` or in ``fallback``). Two rules, both on the nominal command only (the rows, and so
 safety, are the same):
 
 * give way as one body: a formation whose ellipse another formation's ellipse comes at, closer
