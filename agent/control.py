@@ -41,6 +41,22 @@ from the hazard's path line, plus the intended motion without its part towards t
 formation gives way rather than crossing ahead of a hazard about as fast as itself. Where that
 cannot be done in time, the hard rows meet and the QP returns the least-risk command (counted).
 
+Band (:func:`yield_push`, :func:`band_nominal`; single integrators): formation keeping first,
+the goal second. The band broke where one member was pushed by a hard row (another formation's
+ellipse coming at it) while the others still drove at their goals: the pushed member alone gives
+way, the rest slide along their band rows, the formation shears and its members' rows become
+infeasible together (measured: each edge that passed 1.5 epsilon did so while its robots were
+``relaxed`` or in ``fallback``). Two rules, both on the nominal command only (the rows, and so
+safety, are the same):
+
+* give way as one body: a formation whose ellipse another formation's ellipse comes at, closer
+  than YIELD_RANGE between them, adds that formation's approach speed (along the line of their
+  centres, faded in with the gap) to every member's nominal: the same vector for all, from
+  data all members share, so the whole formation moves off before one member is pushed;
+* a member whose own edges have drifted beyond BAND_EASE epsilon blends its nominal from the
+  goal's towards moving with its neighbours (their last velocities) and back to each Df,
+  wholly from BAND_HOLD epsilon, and takes up its goal again as the edges recover.
+
 Separation (:func:`agent.barriers.separation_row`): every pair of robots that can touch gets a
 hard row with a reciprocal split of the pair's slack; see that function for why two robots
 acting at once cannot both cross.
@@ -79,6 +95,10 @@ ESCAPE_PAD = 0.02  # [m] the ellipse's pad beyond the members (leader.ellipse de
 ESCAPE_OVERSHOOT = 0.05  # [m] the sideways step aims this far beyond the room needed
 ESCAPE_GAIN = 2.0  # [1/s] sideways speed per metre still to clear
 SEP_MARGIN = 0.0  # [m] separation rows keep bodies this much beyond touching
+YIELD_RANGE = 0.3  # [m] gap between two formations' ellipses over which giving way fades in
+BAND_EASE = 0.2  # own edges' error (in epsilon) up to which the nominal is the goal's alone
+BAND_HOLD = 0.8  # own edges' error (in epsilon) from which the nominal keeps the band only
+BAND_REPAIR_GAIN = 3.0  # [1/s] band-keeping speed per metre of edge error
 
 
 @dataclass(frozen=True)
@@ -97,6 +117,7 @@ class ControlParams:
     d_af: float = 0.5  # [m] pairwise distance for the all-to-all baseline (eq. 3.5)
     period: float = 0.05  # [s] control period (sizes the unicycle's discretisation margin)
     radius: float = BURGER_RADIUS  # [m] body radius: separation rows keep bodies 2 r + SEP_MARGIN apart
+    band_first: bool = True  # single integrators: formation keeping first (yield_push, band_nominal)
 
     @classmethod
     def from_scenario(cls, scenario, safety: bool = True) -> ControlParams:
@@ -117,6 +138,13 @@ class ControlParams:
             period=scenario.dt,
             radius=r.radius,
         )
+
+    @property
+    def keeps_band_first(self) -> bool:
+        """Whether :func:`yield_push` and :func:`band_nominal` shape the nominal. Single
+        integrators only: on unicycles (measured, not adopted) they took 11 random-warehouse
+        layouts from 1.6-3.6 epsilon to <= 1.6 but the 90 degree turn from 1.29 to 1.66."""
+        return self.band_first and self.safety and not self.unicycle
 
     @property
     def offset(self) -> float:
@@ -451,6 +479,69 @@ def escape_command(
     return (lx + wx, ly + wy)
 
 
+def yield_push(view: FormationView, hazards: Sequence[Ellipse]) -> tuple[float, float]:
+    """Give way as one body (module docstring, "Band"): the same vector for every member.
+
+    For each other formation whose ellipse moves towards this one's centroid (speed v_n > 0
+    along n, the unit vector from its centre to ours) the push is w v_n n, with
+    w = clamp(1 - gap / YIELD_RANGE, 0, 1) and gap = |c - c_e| less both ellipses' half-widths
+    along n: close by, the formation moves away as fast as the other comes, before the other's
+    ellipse row pushes one member alone."""
+    own = view.own
+    px = py = 0.0
+    for e in hazards:
+        dx, dy = own.cx - e.cx, own.cy - e.cy
+        d = math.hypot(dx, dy)
+        if d < 1e-9:
+            continue
+        nx, ny = dx / d, dy / d
+        v_n = e.vx * nx + e.vy * ny
+        if v_n <= 0.0:
+            continue
+        gap = d - _half_width(own, nx, ny) - _half_width(e, nx, ny)
+        w = min(1.0, max(0.0, 1.0 - gap / YIELD_RANGE))
+        px += w * v_n * nx
+        py += w * v_n * ny
+    return px, py
+
+
+def band_nominal(
+    p: ControlParams, px: float, py: float, goal_u: tuple[float, float],
+    neighbours: Sequence[Neighbour],
+) -> tuple[float, float]:
+    """Formation keeping first, the goal second: the nominal command of a member whose own
+    edges have drifted in their band (module docstring, "Band").
+
+    With e the largest error of the robot's own edges, | |p - p_j| - Df_j | / epsilon, the
+    nominal is  s u_goal + (1 - s) (v_nb + k sum_j (|p - p_j| - Df_j) (p_j - p)/|p_j - p|),
+    s = clamp((BAND_HOLD - e) / (BAND_HOLD - BAND_EASE), 0, 1), v_nb the mean of the
+    neighbours' last velocities (their ``state``), k = BAND_REPAIR_GAIN; clamped to the speed
+    limit. The second part moves with the neighbours and back towards each Df (it is the
+    negative gradient of 1/2 sum_j (|p - p_j| - Df_j)^2, so with the neighbours still it only
+    lowers the edge error). With every own edge within BAND_EASE epsilon the goal's nominal
+    (eq. 4.2) is returned unchanged. Only the nominal changes: every barrier row is the same."""
+    eps = p.epsilon
+    worst = rx = ry = 0.0
+    for n in neighbours:
+        dx, dy = n.x - px, n.y - py
+        d = math.hypot(dx, dy)
+        if d < 1e-9:
+            continue
+        err = d - n.df
+        worst = max(worst, abs(err) / eps)
+        rx += err * dx / d
+        ry += err * dy / d
+    s = min(1.0, max(0.0, (BAND_HOLD - worst) / (BAND_HOLD - BAND_EASE)))
+    if s >= 1.0:
+        return goal_u
+    k = len(neighbours)
+    fx = sum(n.vx for n in neighbours) / k
+    fy = sum(n.vy for n in neighbours) / k
+    ux = s * goal_u[0] + (1.0 - s) * (fx + BAND_REPAIR_GAIN * rx)
+    uy = s * goal_u[1] + (1.0 - s) * (fy + BAND_REPAIR_GAIN * ry)
+    return nominal(1.0, 0.0, 0.0, ux, uy, p.max_speed)
+
+
 def control_step(
     params: ControlParams,
     pose: tuple[float, float, float],
@@ -502,6 +593,12 @@ def control_step(
             bx, by = tiebreak_push(view, hazards, obstacles, p.max_speed)
             if bx or by:
                 ux, uy = nominal(1.0, 0.0, 0.0, ux + bx, uy + by, p.max_speed)
+    if p.keeps_band_first and not escaping and view is not None:
+        yx, yy = yield_push(view, hazards)  # give way as one body to a formation coming at us
+        if yx or yy:
+            ux, uy = nominal(1.0, 0.0, 0.0, ux + yx, uy + yy, p.max_speed)
+    if p.keeps_band_first and not escaping and neighbours:
+        ux, uy = band_nominal(p, px, py, (ux, uy), neighbours)  # formation keeping first
     nux, nuy = ux, uy
 
     rows = build_rows(p, px, py, theta, (ux, uy), neighbours, obstacles, others, view, pairwise,

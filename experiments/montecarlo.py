@@ -120,8 +120,25 @@ def run_one(seed: int) -> dict:
         "min_clearance_obstacle_m": obstacle_clear,
         "infeasible_ticks": s["qp"]["infeasible"],
         "fallback_ticks": s["qp"]["fallback"],
+        "relaxed_ticks": s["qp"]["relaxed"],
         "escape_ticks": s["qp"]["escape"],
         "scenario": d,
+    }
+
+
+def _model_totals(runs: list[dict]) -> dict:
+    """Totals of one robot model's runs (the band and the least-risk ticks per model)."""
+    return {
+        "runs": len(runs),
+        "reached": sum(r["all_reached"] for r in runs),
+        "collisions": sum(r["collisions"] for r in runs),
+        "deadlocks": sum(1 for r in runs if not r["all_reached"] and not r["collisions"]),
+        "worst_formation_error_over_epsilon": max(
+            (r["formation_error_max_m"] / r["epsilon"] for r in runs), default=None),
+        "runs_over_1_5_epsilon": sum(
+            1 for r in runs if r["formation_error_max_m"] > 1.5 * r["epsilon"]),
+        "fallback_ticks": sum(r["fallback_ticks"] for r in runs),
+        "relaxed_ticks": sum(r.get("relaxed_ticks", 0) for r in runs),
     }
 
 
@@ -153,12 +170,12 @@ def run_montecarlo(n: int, seed: int, workers: int = 2, progress=None) -> tuple[
         "min_obstacle_clearance_m": min(
             (r["min_clearance_obstacle_m"] for r in results
              if r["min_clearance_obstacle_m"] is not None), default=None),
-        "by_model": {
-            m: {"runs": sum(r["model"] == m for r in results),
-                "reached": sum(r["all_reached"] for r in results if r["model"] == m),
-                "collisions": sum(r["collisions"] for r in results if r["model"] == m)}
-            for m in ("single_integrator", "unicycle")
-        },
+        "relaxed_ticks": sum(r.get("relaxed_ticks", 0) for r in results),
+        "by_model": {m: _model_totals([r for r in results if r["model"] == m])
+                     for m in ("single_integrator", "unicycle")},
+        "over_band": [{"seed": r["seed"], "model": r["model"], "formation_error_over_epsilon":
+                       r["formation_error_max_m"] / r["epsilon"]}
+                      for r in results if r["formation_error_max_m"] > 1.5 * r["epsilon"]],
         "failures": [{k: r[k] for k in ("seed", "layout_seed", "model", "all_reached",
                                          "collisions", "formation_error_max_m")}
                      for r in failed],

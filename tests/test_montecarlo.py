@@ -31,6 +31,13 @@ def test_a_small_run_writes_montecarlo_json(tmp_path, capsys):
     assert summary["fallback_ticks"] == sum(r["fallback_ticks"] for r in
                                             map(json.loads, (out / "runs.jsonl").read_text().splitlines()))
     assert 0.0 <= summary["reached_rate"] <= 1.0
+    assert len(summary["over_band"]) == summary["runs_over_1_5_epsilon"]
+    by_model = summary["by_model"].values()
+    assert sum(m["runs"] for m in by_model) == 2
+    assert sum(m["fallback_ticks"] for m in by_model) == summary["fallback_ticks"]
+    assert sum(m["runs_over_1_5_epsilon"] for m in by_model) == summary["runs_over_1_5_epsilon"]
+    assert max(m["worst_formation_error_over_epsilon"] or 0.0 for m in by_model) == \
+        summary["worst_formation_error_over_epsilon"]
     runs = [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines()]
     assert [r["seed"] for r in runs] == [300000, 300001]
     for f in summary["failures"]:

@@ -208,7 +208,9 @@ def test_replay_serves_a_recording_with_play_pause_and_speed(tmp_path):
         wait_for_tcp_port(port, timeout_s=30)
         st = wait_state(port, lambda s: s["frame"] is not None and s["frame"]["t"] > 0.5, proc=proc)
         assert st["mode"] == "replay" and st["playback"]["speed"] == 4.0
-        assert st["playback"]["end"] == pytest.approx(9.45)
+        summary = json.loads((tmp_path / "sim" / "summary.json").read_text())
+        last_tick = summary["sim_time_s"] - 0.05  # the recording's last frame (dt 0.05)
+        assert st["playback"]["end"] == pytest.approx(last_tick)
         req = urllib.request.Request(f"http://127.0.0.1:{port}/control", method="POST",
                                      data=json.dumps({"playing": False}).encode())
         with urllib.request.urlopen(req, timeout=5) as r:
