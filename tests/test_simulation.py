@@ -27,7 +27,6 @@ NEW = {"meet-5-rectangles", "meet-6-rectangles", "warehouse-12-formations", "for
 FORMATION_GAPS = {
     "meet-5-rectangles": "1.88 eps: the jam's separation rows hold the bodies, the band gives",
     "meet-6-rectangles": "2.98 eps: as meet-5, with 2769 least-risk ticks",
-    "unicycle-turn-180": "2.35 eps on bodies: members turning opposite ways swing their bodies",
 }
 
 
