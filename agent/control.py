@@ -79,6 +79,7 @@ ESCAPE_PAD = 0.02  # [m] the ellipse's pad beyond the members (leader.ellipse de
 ESCAPE_OVERSHOOT = 0.05  # [m] the sideways step aims this far beyond the room needed
 ESCAPE_GAIN = 2.0  # [1/s] sideways speed per metre still to clear
 SEP_MARGIN = 0.0  # [m] separation rows keep bodies this much beyond touching
+NARROW_CAP = 0.5  # unicycles: the band on the look-ahead points narrows by at most this x eps
 RIGID_LEAD = 1.0  # [s] unicycle formations: the rigid carrot leads the centroid by vmax x this
 RIGID_TURN_LEAD = 0.25  # [rad] ... and the orientation by this (it turns at about kp x this)
 RIGID_FADE = (0.02, 0.1)  # [rad] remaining turns over which the carrot takes over from the goal
@@ -379,7 +380,10 @@ def build_rows(
     else:
         reach = p.max_speed
     for n in neighbours:
-        hg, hl, rg, rl = barriers.formation_rows(px, py, n, eps, p.gamma_formation)
+        narrow = 0.0
+        if p.unicycle and n.theta is not None:  # the band is meant for the bodies
+            narrow = heading_narrowing(theta, n.theta, p.lookahead, eps)
+        hg, hl, rg, rl = barriers.formation_rows(px, py, n, eps, p.gamma_formation, narrow)
         hf = min(hf, hg, hl)
         if rg[2] < reach:
             soft.append(rg)
@@ -410,6 +414,23 @@ def build_rows(
     contact += sep
     limits = _limit_rows(p, theta, view, nominal_u)
     return Rows(limits, hard, soft, hf, ho, he, hs, contact)
+
+
+def heading_narrowing(theta_i: float, theta_j: float, lookahead: float, eps: float) -> float:
+    """[m] how much a unicycle edge's band on the look-ahead points narrows on each side, so
+    that it holds the bodies: min(l |e_i - e_j|, NARROW_CAP eps).
+
+    The bodies sit at b = s - l e(theta) behind the look-ahead points s, so
+    |s_i - s_j| - l |e_i - e_j| <= |b_i - b_j| <= |s_i - s_j| + l |e_i - e_j|: a look-ahead edge
+    inside Df +- (eps - l |e_i - e_j|) keeps the body edge inside Df +- eps. Narrowed by the
+    whole heading term the band would be empty once l |e_i - e_j| > eps (members facing 47
+    degrees apart, for a TurtleBot's 5 cm look-ahead and eps = 4 cm; a rotation in place has
+    them face every way), and an empty band relaxes every tick. Capped at NARROW_CAP eps, the
+    band keeps at least (1 - NARROW_CAP) eps either side; headings beyond the cap are kept
+    together by the nominal (:func:`rigid_target`, :func:`agent.unicycle.steer`). The headings
+    are the members' own and their neighbours' ``state`` (wire version 2)."""
+    q = math.hypot(math.cos(theta_i) - math.cos(theta_j), math.sin(theta_i) - math.sin(theta_j))
+    return min(lookahead * q, NARROW_CAP * eps)
 
 
 def _separation_rows(p: ControlParams, px: float, py: float, theta: float,

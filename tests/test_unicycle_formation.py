@@ -14,12 +14,14 @@ from hypothesis import strategies as st
 
 from agent import unicycle
 from agent.control import (
+    NARROW_CAP,
     RIGID_FADE,
     RIGID_LEFT_BIAS,
     RIGID_TURN_LEAD,
     ControlParams,
     FormationView,
     control_step,
+    heading_narrowing,
     rigid_target,
 )
 from geometry.ellipse import Ellipse
@@ -144,3 +146,23 @@ def test_a_unicycle_member_aims_at_the_rigid_carrot_and_a_single_integrator_at_i
     assert si.nominal_ux < -0.2  # straight across, through the partner's place
     v, omega = unicycle.to_unicycle(uni.nominal_ux, uni.nominal_uy, math.pi / 2, 0.05)
     assert v > 0.05 and abs(omega) < 0.5  # round the centroid: forwards, to the left
+
+
+@settings(max_examples=300, deadline=None)
+@given(coord, coord, angle, st.floats(0.0, 2.0 * math.pi), angle, st.floats(-1.0, 1.0),
+       st.floats(0.2, 1.0), st.floats(0.02, 0.08))
+def test_a_look_ahead_edge_inside_the_narrowed_band_keeps_the_body_edge_inside_the_band(
+        x, y, ti, dir_, tj, frac, df, eps):
+    look = 0.05
+    narrow = heading_narrowing(ti, tj, look, eps)
+    assert 0.0 <= narrow <= NARROW_CAP * eps < eps  # the band on the look-ahead points never empties
+    heading_term = look * math.hypot(math.cos(ti) - math.cos(tj), math.sin(ti) - math.sin(tj))
+    dist = df + frac * (eps - narrow)  # a look-ahead edge anywhere inside the narrowed band
+    si, sj = (x, y), (x + dist * math.cos(dir_), y + dist * math.sin(dir_))
+    bi = (si[0] - look * math.cos(ti), si[1] - look * math.sin(ti))
+    bj = (sj[0] - look * math.cos(tj), sj[1] - look * math.sin(tj))
+    body = math.dist(bi, bj)
+    # the bodies keep the band by the narrowing, plus whatever heading term the cap leaves
+    assert abs(body - df) <= eps + max(0.0, heading_term - narrow) + 1e-12
+    if heading_term <= NARROW_CAP * eps:
+        assert abs(body - df) <= eps + 1e-12
