@@ -28,6 +28,7 @@ class Neighbour(NamedTuple):
     vx: float
     vy: float
     df: float  # [m] desired distance Df_ij
+    theta: float | None = None  # [rad] its heading (unicycles), from its ``state``
 
 
 class Partner(NamedTuple):
@@ -57,11 +58,13 @@ def formation_h(px: float, py: float, qx: float, qy: float, df: float, eps: floa
     return d2 - (df - eps) ** 2, (df + eps) ** 2 - d2
 
 
-def formation_rows(px: float, py: float, n: Neighbour, eps: float, gamma: float):
+def formation_rows(px: float, py: float, n: Neighbour, eps: float, gamma: float,
+                   narrow: float = 0.0):
     """Rows for one edge: lower bound (appendix A.2, eq. 8) and upper bound (eq. 12), each with
-    the neighbour-velocity term dh/dp_j . p_j'. Returns (h_g, h_l, row_g, row_l)."""
+    the neighbour-velocity term dh/dp_j . p_j'. ``narrow`` [m] shrinks the band on both sides
+    (unicycles: :func:`heading_narrowing`). Returns (h_g, h_l, row_g, row_l)."""
     dx, dy = px - n.x, py - n.y
-    hg, hl = formation_h(px, py, n.x, n.y, n.df, eps)
+    hg, hl = formation_h(px, py, n.x, n.y, n.df, eps - narrow)
     dv = 2.0 * (dx * n.vx + dy * n.vy)  # 2 (p_i - p_j) . p_j'
     row_g = normalized_row(-2.0 * dx, -2.0 * dy, gamma * hg - dv)  # A.2 (8)
     row_l = normalized_row(2.0 * dx, 2.0 * dy, gamma * hl + dv)  # A.2 (12)

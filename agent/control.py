@@ -99,6 +99,11 @@ YIELD_RANGE = 0.3  # [m] gap between two formations' ellipses over which giving 
 BAND_EASE = 0.2  # own edges' error (in epsilon) up to which the nominal is the goal's alone
 BAND_HOLD = 0.8  # own edges' error (in epsilon) from which the nominal keeps the band only
 BAND_REPAIR_GAIN = 3.0  # [1/s] band-keeping speed per metre of edge error
+NARROW_CAP = 0.5  # unicycles: the band on the look-ahead points narrows by at most this x eps
+RIGID_LEAD = 1.0  # [s] unicycle formations: the rigid carrot leads the centroid by vmax x this
+RIGID_TURN_LEAD = 0.25  # [rad] ... and the orientation by this (it turns at about kp x this)
+RIGID_FADE = (0.02, 0.1)  # [rad] remaining turns over which the carrot takes over from the goal
+RIGID_LEFT_BIAS = math.radians(20.0)  # a turn within this of 180 degrees goes left (all alike)
 
 
 @dataclass(frozen=True)
@@ -250,6 +255,50 @@ def nominal(kp: float, x: float, y: float, gx: float, gy: float, vmax: float):
     return ux, uy
 
 
+def rigid_target(goal: tuple[float, float], view: FormationView, x: float, y: float,
+                 vmax: float) -> tuple[float, float]:
+    """Unicycle formations: this member's target on its formation's rigid path to the goal
+    shape, for eq. 4.2 in place of its own goal (body position (x, y)).
+
+    A member going straight for its own goal asks the shape to bend wherever the goal shape is
+    turned from the current one (members of a rectangle turning 180 degrees cross each other's
+    paths, and a formation that arrives turned round has its members' goal commands opposing
+    each other: a deadlock). The edge rows then hold the shape against the nominal at the
+    band's edge, and members turn their headings every which way, which swings a unicycle's
+    body round its look-ahead point (body edge error <= look-ahead edge error + l |e_i - e_j|).
+    Here every member aims at one rigid motion: a carrot pose RIGID_LEAD ahead, the centroid c
+    (the ellipse's, eq. 4.7) moved towards the goal centroid G by at most vmax RIGID_LEAD and
+    the orientation turned towards the goal shape's by at most RIGID_TURN_LEAD; the target is
+    the member's goal offset o = goal - G placed on the carrot pose. The remaining turn is the
+    angle from o to the member's offset b - c, the same for every member while the shape holds,
+    wrapped so that a turn within RIGID_LEFT_BIAS of 180 degrees goes left for all members
+    alike. At the goal pose the target is the goal itself. Between RIGID_FADE[0] and
+    RIGID_FADE[1] of remaining turn the target fades from the member's goal to the carrot, so a
+    formation with no turn to make (a straight crossing) follows eq. 4.2 on its goals as before."""
+    own = view.own
+    ox, oy = goal[0] - view.goal_x, goal[1] - view.goal_y
+    rx, ry = x - own.cx, y - own.cy
+    if math.hypot(ox, oy) < 1e-6 or math.hypot(rx, ry) < 1e-6:
+        return goal
+    turn = math.atan2(ry, rx) - math.atan2(oy, ox)  # from the goal orientation to the current
+    turn = (turn + math.pi + RIGID_LEFT_BIAS) % (2.0 * math.pi) - math.pi - RIGID_LEFT_BIAS
+    fade = (abs(turn) - RIGID_FADE[0]) / (RIGID_FADE[1] - RIGID_FADE[0])
+    if fade <= 0.0:
+        return goal
+    left = turn - max(-RIGID_TURN_LEAD, min(RIGID_TURN_LEAD, turn))  # carrot, from the goal's
+    dx, dy = view.goal_x - own.cx, view.goal_y - own.cy
+    dist = math.hypot(dx, dy)
+    lead = vmax * RIGID_LEAD
+    if dist > lead:
+        cx, cy = own.cx + dx * lead / dist, own.cy + dy * lead / dist
+    else:
+        cx, cy = view.goal_x, view.goal_y
+    c, s = math.cos(left), math.sin(left)
+    tx, ty = cx + c * ox - s * oy, cy + s * ox + c * oy
+    w = min(1.0, fade)
+    return (goal[0] + w * (tx - goal[0]), goal[1] + w * (ty - goal[1]))
+
+
 def tiebreak_push(
     view: FormationView, others: Sequence[Ellipse], obstacles: Sequence[Obstacle], vmax: float
 ) -> tuple[float, float]:
@@ -359,7 +408,10 @@ def build_rows(
     else:
         reach = p.max_speed
     for n in neighbours:
-        hg, hl, rg, rl = barriers.formation_rows(px, py, n, eps, p.gamma_formation)
+        narrow = 0.0
+        if p.unicycle and n.theta is not None:  # the band is meant for the bodies
+            narrow = heading_narrowing(theta, n.theta, p.lookahead, eps)
+        hg, hl, rg, rl = barriers.formation_rows(px, py, n, eps, p.gamma_formation, narrow)
         hf = min(hf, hg, hl)
         if rg[2] < reach:
             soft.append(rg)
@@ -390,6 +442,23 @@ def build_rows(
     contact += sep
     limits = _limit_rows(p, theta, view, nominal_u)
     return Rows(limits, hard, soft, hf, ho, he, hs, contact)
+
+
+def heading_narrowing(theta_i: float, theta_j: float, lookahead: float, eps: float) -> float:
+    """[m] how much a unicycle edge's band on the look-ahead points narrows on each side, so
+    that it holds the bodies: min(l |e_i - e_j|, NARROW_CAP eps).
+
+    The bodies sit at b = s - l e(theta) behind the look-ahead points s, so
+    |s_i - s_j| - l |e_i - e_j| <= |b_i - b_j| <= |s_i - s_j| + l |e_i - e_j|: a look-ahead edge
+    inside Df +- (eps - l |e_i - e_j|) keeps the body edge inside Df +- eps. Narrowed by the
+    whole heading term the band would be empty once l |e_i - e_j| > eps (members facing 47
+    degrees apart, for a TurtleBot's 5 cm look-ahead and eps = 4 cm; a rotation in place has
+    them face every way), and an empty band relaxes every tick. Capped at NARROW_CAP eps, the
+    band keeps at least (1 - NARROW_CAP) eps either side; headings beyond the cap are kept
+    together by the nominal (:func:`rigid_target`, :func:`agent.unicycle.steer`). The headings
+    are the members' own and their neighbours' ``state`` (wire version 2)."""
+    q = math.hypot(math.cos(theta_i) - math.cos(theta_j), math.sin(theta_i) - math.sin(theta_j))
+    return min(lookahead * q, NARROW_CAP * eps)
 
 
 def _separation_rows(p: ControlParams, px: float, py: float, theta: float,
@@ -577,7 +646,10 @@ def control_step(
     p = params
     off = p.offset
     px, py = (unicycle.control_point(x, y, theta, off) if p.unicycle else (x, y))
-    ux, uy = nominal(p.kp, x, y, goal[0], goal[1], p.max_speed)
+    target = goal
+    if p.unicycle and p.safety and view is not None:  # one rigid motion for all members
+        target = rigid_target(goal, view, x, y, p.max_speed)
+    ux, uy = nominal(p.kp, x, y, target[0], target[1], p.max_speed)
     if hazards is None:
         hazards = others
     escaping = False
@@ -599,6 +671,9 @@ def control_step(
             ux, uy = nominal(1.0, 0.0, 0.0, ux + yx, uy + yy, p.max_speed)
     if p.keeps_band_first and not escaping and neighbours:
         ux, uy = band_nominal(p, px, py, (ux, uy), neighbours)  # formation keeping first
+    if p.unicycle and p.safety:  # turn about the body, then drive (unicycle.steer)
+        near = math.hypot(goal[0] - x, goal[1] - y) < unicycle.STEER_REVERSE_RANGE
+        ux, uy = unicycle.steer(ux, uy, theta, p.lookahead, p.max_turn_rate, reverse=near)
     nux, nuy = ux, uy
 
     rows = build_rows(p, px, py, theta, (ux, uy), neighbours, obstacles, others, view, pairwise,

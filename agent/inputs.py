@@ -33,7 +33,7 @@ class StepInputs(NamedTuple):
 
 
 def step_inputs(
-    neighbours: Iterable[tuple[float, float, float, float, float]],
+    neighbours: Iterable[tuple[float, ...]],
     own: Ellipse | None,
     formation: str,
     formation_goal: tuple[float, float],
@@ -52,9 +52,10 @@ def step_inputs(
     then replace the ellipses as pairwise rows; ``members`` are the other members of its formation
     (graph neighbours or not). Each member, and in all-to-all each foreign robot, is a partner of a
     hard separation row; the other formations' ellipses stay hazards for the formation-level rules
-    (tie-break, jam) in both topologies.
+    (tie-break, jam) in both topologies. A neighbour may carry its heading as a sixth number
+    (from its ``state``): a unicycle formation's band on the look-ahead points narrows by it.
     """
-    nb = [Neighbour(x, y, vx, vy, df) for x, y, vx, vy, df in neighbours]
+    nb = [Neighbour(*n) for n in neighbours]
     view = None
     if own is not None:
         view = FormationView(own, *formation_goal)

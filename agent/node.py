@@ -710,7 +710,7 @@ class AgentNode:
         if own is not None:  # walk the route (the leader takes new goals first)
             target, waypoint = self.nav.step(stamp, t is not None, own.cx, own.cy)
         inputs = step_inputs(
-            ((states[k].x, states[k].y, states[k].ux, states[k].uy, df)
+            ((states[k].x, states[k].y, states[k].ux, states[k].uy, df, states[k].theta)
              for k, df in self.neighbour_keys.items()),
             own, cfg.formation, waypoint,
             [(m.formation, msg_to_ellipse(m)) for m in others_msg.ellipses],

@@ -34,6 +34,43 @@ def limit_rows(theta: float, lookahead: float, max_speed: float, max_turn_rate: 
     return [(c, s, max_speed), (-c, -s, max_speed), (-s, c, w), (s, -c, w)]
 
 
+STEER_GAIN = 2.0  # [1/s] turn rate per radian of heading error in the steered nominal
+STEER_LEFT_BIAS = math.radians(20.0)  # headings this close to opposite the motion turn left
+STEER_REVERSE_RANGE = 0.1  # [m] this close to its goal a robot may back up instead of turning
+
+
+def steer(wx: float, wy: float, theta: float, lookahead: float, max_turn_rate: float,
+          reverse: bool = False) -> tuple[float, float]:
+    """The look-ahead point's nominal velocity for an intended body velocity w: turn first,
+    then drive (the unicycle's own nominal; eq. 4.2 stays the intended motion).
+
+    Fed w directly, the look-ahead point drags the body round it whenever w points away from
+    the heading: the robot turns at |w| sin(err) / l (4.4 rad/s for a TurtleBot) while its body
+    swings on a circle of radius l, and two members turning opposite ways move their bodies up
+    to 2 l apart. Here the robot turns in place about its body at STEER_GAIN x the heading
+    error (the body stays where it is) and drives at the part of |w| along its heading, none
+    beyond 90 degrees: v = |w| max(cos err, 0), omega = STEER_GAIN err (clamped), and u is the
+    look-ahead velocity of that (v, omega) (eq. 6.2 inverted). Members of a formation turn the
+    same way: an error within STEER_LEFT_BIAS of opposite turns left. With ``reverse`` (close
+    to the goal) the robot backs up rather than turning round when w points behind it."""
+    speed = math.hypot(wx, wy)
+    if speed < 1e-9:
+        return (0.0, 0.0)
+    err = math.atan2(wy, wx) - theta
+    if reverse:
+        err = (err + 0.5 * math.pi) % math.pi - 0.5 * math.pi  # nearest of forwards and back
+        v = speed * math.cos(err) if _ahead(wx, wy, theta) else -speed * math.cos(err)
+    else:
+        err = (err + math.pi - STEER_LEFT_BIAS) % (2.0 * math.pi) - math.pi + STEER_LEFT_BIAS
+        v = speed * max(math.cos(err), 0.0)
+    omega = max(-max_turn_rate, min(max_turn_rate, STEER_GAIN * err))
+    return from_unicycle(v, omega, theta, lookahead)
+
+
+def _ahead(wx: float, wy: float, theta: float) -> bool:
+    return wx * math.cos(theta) + wy * math.sin(theta) >= 0.0
+
+
 def integrate(x: float, y: float, theta: float, v: float, omega: float, dt: float):
     """Exact unicycle motion (eq. 6.1) over dt with constant (v, omega): an arc or a line."""
     if abs(omega) < 1e-9:

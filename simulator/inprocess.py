@@ -168,7 +168,8 @@ def simulate(
             own = ellipses[fname]
             target, waypoint = followers[i].step(own.cx, own.cy)
             inputs = step_inputs(
-                ((ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], df) for j, df in fleet.neighbours[i]),
+                ((ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], df, state[j][2])
+                 for j, df in fleet.neighbours[i]),
                 own, fname, waypoint,
                 [(name, e) for name, e in ellipses.items() if name != fname],
                 stalls[i], dt,

@@ -25,7 +25,6 @@ NEW = {"meet-5-rectangles", "meet-6-rectangles", "warehouse-12-formations", "for
        "roundabout"}
 # Where the formation error on the bodies still exceeds 1.5 epsilon (safety holds there):
 FORMATION_GAPS = {
-    "unicycle-turn-180": "2.35 eps on bodies: members turning opposite ways swing their bodies",
 }
 
 
