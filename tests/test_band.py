@@ -1,4 +1,4 @@
-"""Issue 13, the band for single integrators: formation keeping first, the goal second
+"""Issue 13, the band: formation keeping first, the goal second
 (agent.control.yield_push, band_nominal). Safety rows are untouched; only the nominal changes."""
 
 from __future__ import annotations
@@ -88,9 +88,11 @@ def test_control_step_keeps_the_goal_nominal_for_an_undisturbed_formation_and_be
     off = replace(P, band_first=False)
     r = control_step(off, (0.0, 0.0, 0.0), goal, neighbours=squeezed)
     assert (r.nominal_ux, r.nominal_uy) == pytest.approx((P.max_speed, 0.0))
-    uni = replace(P, unicycle=True)  # unicycle bodies keep their own nominal (not this rule)
+    uni = replace(P, unicycle=True)  # unicycles too: their control point repairs the band first
     r = control_step(uni, (0.0, -0.05, 0.0), goal, neighbours=squeezed)
-    assert r.nominal_ux > 0.0
+    goal_first = control_step(replace(uni, band_first=False), (0.0, -0.05, 0.0), goal,
+                              neighbours=squeezed)
+    assert r.nominal_uy < 0.0 <= goal_first.nominal_uy and r.nominal_ux < goal_first.nominal_ux
 
 
 def test_a_four_way_aisle_crossing_keeps_the_band_only_with_formation_keeping_first(monkeypatch):
