@@ -114,13 +114,11 @@ def test_frames_from_an_empty_series_are_none():
     assert list(frames_from_series(Series(), s)) == []
 
 
-def test_the_fleet_watcher_drops_and_counts_malformed_messages_and_builds_frames_from_the_rest():
-    import math
+def _watcher():
+    """A FleetWatcher on a session stub, and ``put(key, payload)`` feeding it as Zenoh would."""
     from types import SimpleNamespace
 
     from viewer.live import FleetWatcher
-    from wire.diag import Diag, encode_diag
-    from wire.payloads import Cmd, Pose, State, encode
 
     class Session:
         def declare_subscriber(self, key, handler):
@@ -131,6 +129,16 @@ def test_the_fleet_watcher_drops_and_counts_malformed_messages_and_builds_frames
     def put(key: str, data: bytes) -> None:
         w._on_sample(SimpleNamespace(key_expr=key, payload=SimpleNamespace(to_bytes=lambda: data)))
 
+    return w, put
+
+
+def test_the_fleet_watcher_drops_and_counts_malformed_messages_and_builds_frames_from_the_rest():
+    import math
+
+    from wire.diag import Diag, encode_diag
+    from wire.payloads import Cmd, Pose, State, encode
+
+    w, put = _watcher()
     assert w.frame() is None
     put("warehouse/robot/a1/pose", encode(Pose(1.0, 2.0, 0.5, 10.0)))
     put("warehouse/robot/a1/state", encode(State(1.0, 2.0, 0.1, 0.0, 10.0)))
@@ -153,21 +161,10 @@ def test_the_fleet_watcher_drops_and_counts_malformed_messages_and_builds_frames
 
 
 def test_the_fleet_watcher_shows_each_leaders_status_and_planned_route():
-    from types import SimpleNamespace
-
-    from viewer.live import FleetWatcher
     from wire.diag import Diag, encode_diag
     from wire.payloads import PlanMsg, Pose, StatusMsg, encode, encode_nav
 
-    class Session:
-        def declare_subscriber(self, key, handler):
-            return SimpleNamespace(undeclare=lambda: None)
-
-    w = FleetWatcher(Session())
-
-    def put(key: str, data: bytes) -> None:
-        w._on_sample(SimpleNamespace(key_expr=key, payload=SimpleNamespace(to_bytes=lambda: data)))
-
+    w, put = _watcher()
     for rid, form in (("a1", "A"), ("b1", "B")):
         put(f"warehouse/robot/{rid}/pose", encode(Pose(0.0, 0.0, 0.0, 5.0)))
         put(f"warehouse/robot/{rid}/diag", encode_diag(Diag(form, "ok", 5.0, 0.0, 0.01, 0.2, 0.3,
