@@ -11,7 +11,8 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from typing import NamedTuple
 
-from geometry.ellipse import Ellipse
+from geometry.ellipse import Ellipse, within_reach
+from leader.role import VIEW_RANGE
 
 from .barriers import Neighbour, Partner
 from .control import FormationView, Stall, update_stall
@@ -47,17 +48,21 @@ def step_inputs(
 
     ``neighbours`` are (x, y, vx, vy, Df) of its graph neighbours; ``own`` is its formation's
     ellipse (None: no view, the stall memory is kept as it is); ``others`` are the other
-    formations' (name, ellipse) in the order the view names them; ``period`` [s] advances the
-    jam rule; ``foreign`` (all-to-all baseline only) are the robots of other formations, which
-    then replace the ellipses as pairwise rows; ``members`` are the other members of its formation
-    (graph neighbours or not). Each member, and in all-to-all each foreign robot, is a partner of a
-    hard separation row; the other formations' ellipses stay hazards for the formation-level rules
-    (tie-break, jam) in both topologies. A neighbour may carry its heading as a sixth number
-    (from its ``state``): a unicycle formation's band on the look-ahead points narrows by it.
+    formations' (name, ellipse) in the order the view names them (those beyond
+    :data:`leader.role.VIEW_RANGE` of ``own`` are left out, as the leader leaves them out);
+    ``period`` [s] advances the jam rule; ``foreign`` (all-to-all baseline only) are the robots
+    of other formations, which then replace the ellipses as pairwise rows; ``members`` are the
+    other members of its formation (graph neighbours or not). Each member, and in all-to-all
+    each foreign robot, is a partner of a hard separation row; the other formations' ellipses
+    stay hazards for the formation-level rules (tie-break, jam) in both topologies. A neighbour
+    may carry its heading as a sixth number (from its ``state``): a unicycle formation's band on
+    the look-ahead points narrows by it.
     """
     nb = [Neighbour(*n) for n in neighbours]
     view = None
-    if own is not None:
+    if own is not None:  # the formations in view (the leader's ``others`` holds no more)
+        others = [(name, e) for name, e in others
+                  if within_reach(own, e.cx, e.cy, e.a, VIEW_RANGE)]
         view = FormationView(own, *formation_goal)
         stall = update_stall(stall, view, period)
         view = view._replace(

@@ -57,7 +57,9 @@ from typing import Any
 
 import yaml
 
+from geometry.ellipse import Ellipse, within_reach
 from geometry.limits import BURGER_MAX_SPEED, BURGER_RADIUS
+from leader.role import VIEW_RANGE
 from scenario import Scenario
 from scenario.load import scenario_from_dict
 from wire import keys
@@ -158,9 +160,16 @@ def fleet_of(scenario: Scenario) -> tuple[list[int], list[int]]:
     return ([len(f.robots) for f in scenario.formations], [len(f.edges) for f in scenario.formations])
 
 
-def analytic_bytes(scenario: Scenario, topology: str) -> dict[str, int]:
+def analytic_bytes(scenario: Scenario, topology: str,
+                   ellipses: Sequence[tuple] | None = None) -> dict[str, int | float]:
     """Payload bytes per control tick on each inter-robot class, from the encoded size of each
-    message with the scenario's formation ids (every float field has a fixed size)."""
+    message with the scenario's formation ids (every float field has a fixed size).
+
+    A leader's ``others`` holds only the formations within :data:`leader.role.VIEW_RANGE` of its
+    ellipse: given the run's ellipses (``series.ellipses`` rows: t, formation, then the
+    :class:`geometry.ellipse.Ellipse` fields, as each leader estimated them), the ``others``
+    bytes are averaged over its ticks with exactly the formations each leader had in view;
+    without them, every other formation counts (the most a tick can carry)."""
     sizes, edges = fleet_of(scenario)
     counts = analytic_deliveries(sizes, edges, topology)
     state = len(encode(State(0.0, 0.0, 0.0, 0.0, 0.0)))
@@ -168,15 +177,28 @@ def analytic_bytes(scenario: Scenario, topology: str) -> dict[str, int]:
     def ellipse(fid: str) -> EllipseMsg:
         return EllipseMsg(fid, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0)
 
-    names = [f.name for f in scenario.formations]
-    ellipse_bytes = others_bytes = 0
-    for f in scenario.formations:
-        others = tuple(ellipse(g) for g in names if g != f.name)
-        msg = Others(f.name, 0.0, others, ellipse(f.name))
-        others_bytes += (len(f.robots) - 1) * len(encode(msg))
-        ellipse_bytes += (len(names) - 1) * len(encode(ellipse(f.name)))
+    members = {f.name: len(f.robots) for f in scenario.formations}
+    names = list(members)
+
+    def others_bytes(f: str, in_view: Sequence[str]) -> int:
+        msg = Others(f, 0.0, tuple(ellipse(g) for g in in_view), ellipse(f))
+        return (members[f] - 1) * len(encode(msg))
+
+    ellipse_bytes = sum((len(names) - 1) * len(encode(ellipse(f))) for f in names)
+    if ellipses is None:
+        others: int | float = sum(others_bytes(f, [g for g in names if g != f]) for f in names)
+    else:
+        by_tick: dict[float, dict[str, Ellipse]] = {}
+        for row in ellipses:
+            by_tick.setdefault(row[0], {})[row[1]] = Ellipse(*row[2:])
+        total = 0
+        for now in by_tick.values():
+            for f, own in now.items():
+                total += others_bytes(f, [g for g, e in now.items() if g != f
+                                          and within_reach(own, e.cx, e.cy, e.a, VIEW_RANGE)])
+        others = total / len(by_tick) if by_tick else 0
     return {keys.STATE: counts[keys.STATE] * state, keys.ELLIPSE: ellipse_bytes,
-            keys.OTHERS: others_bytes}
+            keys.OTHERS: others}
 
 
 # --------------------------------------------------------------------------- scenarios
@@ -277,8 +299,11 @@ def parse_formations(text: str) -> list[int]:
     return sorted(set(values))
 
 
-def measure_row(scenario: Scenario, summary: dict, topology: str, wall_s: float) -> dict[str, Any]:
-    """One CSV row: measured counts from a multi-process run's ``summary`` next to the analytic."""
+def measure_row(scenario: Scenario, summary: dict, topology: str, wall_s: float,
+                ellipses: Sequence[tuple] | None = None) -> dict[str, Any]:
+    """One CSV row: measured counts from a multi-process run's ``summary`` next to the analytic
+    (``ellipses``: the run's, for the formations each leader had in view; see
+    :func:`analytic_bytes`)."""
     sizes, edges = fleet_of(scenario)
     n = sum(sizes)
     steps, sim_time = summary["steps"], summary["sim_time_s"]
@@ -290,7 +315,7 @@ def measure_row(scenario: Scenario, summary: dict, topology: str, wall_s: float)
     nbytes = sum(recv[c]["bytes"] for c in INTER_ROBOT) - echo_bytes
     per = n * sim_time
     counts = analytic_deliveries(sizes, edges, topology)
-    nb = analytic_bytes(scenario, topology)
+    nb = analytic_bytes(scenario, topology, ellipses)
     dt = scenario.dt
     state_msgs = recv[keys.STATE]["messages"] - echo
     state_bytes = recv[keys.STATE]["bytes"] - echo_bytes
@@ -377,7 +402,7 @@ def run_commcost(
                                      progress_factory=progress_factory)
             wall = time.monotonic() - t0
             write_run(summary, series, scenario, run_dir, plots=False)
-            row = measure_row(scenario, summary, topology, wall)
+            row = measure_row(scenario, summary, topology, wall, series.ellipses)
             logger.info("commcost %s F=%d: %s", topology, f, row)
             rows.append(row)
             if on_done is not None:
@@ -469,7 +494,8 @@ def write_markdown(rows: Sequence[dict[str, Any]], path: Path) -> None:
 
 def analytic_curve(formations: Sequence[int], topology: str) -> tuple[list[int], list[float], list[float]]:
     """(robots, deliveries per robot per s, payload bytes per robot per s) of the analytic model
-    for the crossing layouts of every fleet size in ``formations``."""
+    for the crossing layouts of every fleet size in ``formations``, with every formation in
+    view (the most a tick can carry; a run's own figure counts only those in view)."""
     robots, messages, nbytes = [], [], []
     for f in formations:
         sc = scenario_from_dict(crossing_scenario(f))

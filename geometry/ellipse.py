@@ -123,6 +123,13 @@ def estimate(
     return Ellipse(cx, cy, wrap_angle(shape.alpha0 + theta), axes[0], axes[1], vx, vy, rate)
 
 
+def within_reach(own: Ellipse, cx: float, cy: float, a: float, reach: float) -> bool:
+    """Whether a formation whose ellipse is centred at (``cx``, ``cy``) with semi-major axis
+    ``a`` comes within ``reach`` [m] of ``own``: the centres' distance less both semi-major axes
+    (a lower bound on the gap between the two ellipses) is at most ``reach``."""
+    return math.hypot(cx - own.cx, cy - own.cy) - own.a - a <= reach
+
+
 def ellipse_terms(px: float, py: float, cx: float, cy: float, alpha: float, a: float, b: float):
     """h of eq. 4.6 with its partial derivatives: (h, dh/dpx, dh/dpy, dh/dalpha).
 

@@ -12,13 +12,22 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from geometry.ellipse import Ellipse, ReferenceShape, estimate
+from geometry.ellipse import Ellipse, ReferenceShape, estimate, within_reach
 from wire import keys
 from wire.payloads import EllipseMsg, Others
 
 from .settings import LeaderSettings
 
 Kinematic = tuple[float, float, float, float]  # control point x, y [m] and velocity ux, uy [m/s]
+
+# [m] A formation hands its members only the other formations within this gap of its own
+# ellipse (:func:`geometry.ellipse.within_reach`). Nothing farther can act on a member: every
+# formation-level rule of agent.control looks at most TIEBREAK_RANGE (2 m) beyond contact, and
+# an ellipse row that far out cannot bind (its class-K term grows with h squared; A.3). The
+# margin covers two formations closing at top speed for several seconds, and the view is
+# rebuilt every tick. Without it, each member of a fleet of F formations decoded F - 1 ellipses
+# a tick (issue 18: the tick's cost grew with the fleet, not with the neighbourhood).
+VIEW_RANGE = 4.0
 
 
 def ellipse_to_msg(formation: str, e: Ellipse, stamp: float) -> EllipseMsg:
@@ -64,11 +73,13 @@ class LeaderRole:
         return estimate(self.shape, self.axes, pts, vel)
 
     def others(self, own: Ellipse, received: Mapping[str, EllipseMsg], stamp: float) -> Others:
-        """The ``others`` message: every other formation's latest ellipse (``received`` is keyed
-        by ellipse key, as the node's mailbox holds them) and the leader's own."""
+        """The ``others`` message: every other formation's latest ellipse within
+        :data:`VIEW_RANGE` of ``own`` (``received`` is keyed by ellipse key, as the node's
+        mailbox holds them) and the leader's own."""
         ellipses = []
         for key, fid in self.other_keys.items():
             m = received.get(key)
-            if m is not None and m.formation == fid:
+            if m is not None and m.formation == fid and within_reach(own, m.cx, m.cy, m.a,
+                                                                      VIEW_RANGE):
                 ellipses.append(m)
         return Others(self.formation, stamp, tuple(ellipses), ellipse_to_msg(self.formation, own, stamp))

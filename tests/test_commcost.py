@@ -23,6 +23,7 @@ from experiments.commcost import (
     write_outputs,
 )
 from formation.cli import main
+from leader.role import VIEW_RANGE
 from scenario.load import scenario_from_dict
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -69,6 +70,18 @@ def test_payload_bytes_of_a_pair_and_a_rectangle_match_the_wire_layout():
                                              "others": 4 * (14 + 2 * 75)}
     assert analytic_bytes(sc, "all-to-all") == {"state": 30 * 49, "ellipse": 2 * 76,
                                                 "others": 4 * (14 + 2 * 75)}
+
+
+def test_others_bytes_count_only_the_formations_each_leader_has_in_view():
+    # Two ticks of two formations: beside each other (each has the other in view), then far
+    # apart (each hands its members only its own ellipse): the mean of the two ticks.
+    sc = scenario_from_dict(crossing_scenario(2))
+    a, b = (f.name for f in sc.formations)
+    near = [(0.0, a, 0.0, 0.0, 0.0, 0.5, 0.3), (0.0, b, 2.0, 0.0, 0.0, 0.5, 0.3)]
+    far = [(0.05, a, 0.0, 0.0, 0.0, 0.5, 0.3), (0.05, b, 2.0 + VIEW_RANGE, 0.0, 0.0, 0.5, 0.3)]
+    seen = analytic_bytes(sc, "reduced", near + far)["others"]
+    assert seen == (4 * (14 + 2 * 75) + 4 * (14 + 75)) / 2
+    assert analytic_bytes(sc, "reduced", near)["others"] == analytic_bytes(sc, "reduced")["others"]
 
 
 @given(st.lists(st.integers(2, 6), min_size=2, max_size=10))

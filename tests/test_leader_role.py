@@ -11,7 +11,7 @@ from numpy.testing import assert_allclose
 from agent.config import build_agent_configs
 from agent.unicycle import control_point
 from leader.ellipse import Ellipse, estimate, reference_shape
-from leader.role import LeaderRole, ellipse_to_msg, msg_to_ellipse
+from leader.role import VIEW_RANGE, LeaderRole, ellipse_to_msg, msg_to_ellipse
 from scenario import formation_axes, load_scenario
 from wire import keys
 
@@ -92,3 +92,14 @@ def test_settings_with_mismatched_offsets_are_rejected_naming_them(scenario):
     bad = dataclasses.replace(cfg.leader, offsets=cfg.leader.offsets[:2])
     with pytest.raises(ValueError, match="offsets"):
         LeaderRole("F1", bad)
+
+
+def test_others_leaves_out_a_formation_beyond_the_view_range_and_keeps_one_just_inside(scenario, role):
+    own = role.estimate(moved_states(scenario))
+    gap = VIEW_RANGE + own.a + 0.6  # centre distance at which F2's ellipse (a = 0.6) is just out
+    key = keys.ellipse_key(keys.DEFAULT_PREFIX, "F2")
+    far = Ellipse(own.cx + gap + 0.01, own.cy, 0.0, 0.6, 0.3)
+    near = far._replace(cx=own.cx + gap - 0.01)
+    assert role.others(own, {key: ellipse_to_msg("F2", far, 1.0)}, 1.0).ellipses == ()
+    assert [m.formation for m in role.others(own, {key: ellipse_to_msg("F2", near, 1.0)},
+                                             1.0).ellipses] == ["F2"]
