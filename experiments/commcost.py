@@ -479,7 +479,7 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
             f"| {r['state_per_tick']:g} ({r['analytic_state_per_tick']}) "
             f"| {r['ellipse_per_tick']:g} ({r['analytic_ellipse_per_tick']}) "
             f"| {r['others_per_tick']:g} ({r['analytic_others_per_tick']}) "
-            f"| {r['echo_per_tick']:g} | {measured_b:g} | {analytic_b} | {r['steps']} |")
+            f"| {r['echo_per_tick']:g} | {measured_b:g} | {analytic_b:g} | {r['steps']} |")
     return "\n".join(lines) + "\n"
 
 
