@@ -286,6 +286,7 @@ class AgentNode:
         self.status_counts = {STATUS_RELAXED: 0, STATUS_FALLBACK: 0, STATUS_FAILED: 0}
         self._solve = make_solver(cfg.solver)  # the config's QP solver (exact by default)
         self.solves = 0
+        self.escape_ticks = 0  # ticks whose nominal was the formation-level escape
         # the newest STATS_WINDOW samples only, so a long-running agent's memory stays bounded
         self.solve_us: deque[float] = deque(maxlen=STATS_WINDOW)
         self.pose_age_us: deque[float] = deque(maxlen=STATS_WINDOW)  # [us] real time: pose
@@ -775,6 +776,7 @@ class AgentNode:
         trace row."""
         self.hard.add(res)
         self.solves += 1
+        self.escape_ticks += res.escape
         self.solve_us.append(res.solve_us)
         if res.status in self.status_counts:
             self.status_counts[res.status] += 1
@@ -848,6 +850,7 @@ class AgentNode:
             "fault_dropped": dict(self.fault_dropped),
             "fault_delayed": self.fault_delayed,
             "solves": self.solves,
+            "escape_ticks": self.escape_ticks,
             "relaxed": self.status_counts[STATUS_RELAXED],
             "fallback": self.status_counts[STATUS_FALLBACK],
             "failed": self.status_counts[STATUS_FAILED],

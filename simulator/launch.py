@@ -747,7 +747,8 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
     summary = run_summary(
         scenario, "multiprocess", result.steps, sim_time, result.monitor, min_h,
         qp_fields(sum(s["solves"] for s in stats), solve_us, relaxed, fallback, failed,
-                  hard_unmet, sum_counts(s.get("hard_row_unmet", {}) for s in stats)),
+                  hard_unmet, sum_counts(s.get("hard_row_unmet", {}) for s in stats),
+                  escape=sum(s.get("escape_ticks", 0) for s in stats)),
         comm_summary(snap, topology, n, sim_time), safety, solver,
         realtime=realtime,
         camera=camera,

@@ -49,6 +49,11 @@ obstacles:
 
 
 def _envelope(bearing_deg: float, moving: bool, seen: float = 4.0, duration: float = 45.0):
+    return parse_scenario(_envelope_text(bearing_deg, moving, seen, duration))
+
+
+def _envelope_text(bearing_deg: float, moving: bool, seen: float = 4.0,
+                   duration: float = 45.0) -> str:
     """A 0.5 x 0.3 m rectangle at the origin (parked, or driving east at top speed); a forklift
     at 1.5 x top speed, safe distance 0.5 m, first seen ``seen`` m from the formation's
     outline, coming from ``bearing_deg`` straight at the formation."""
@@ -66,7 +71,7 @@ def _envelope(bearing_deg: float, moving: bool, seen: float = 4.0, duration: flo
     text = _OPEN_FLOOR.format(duration=duration, x1=0.25, x0=-0.25, g1=0.25 + goal_dx,
                               g0=-0.25 + goal_dx, hx=round(hx, 4), hy=round(hy, 4),
                               hvx=round(speed * vx / n, 4), hvy=round(speed * vy / n, 4))
-    return parse_scenario(text)
+    return text
 
 
 @pytest.mark.parametrize("moving", [False, True], ids=["parked", "moving"])
@@ -171,3 +176,17 @@ def test_a_formation_passing_a_parked_one_runs_in_separate_processes_exactly_as_
     assert run["mode"] == "multiprocess" and run["all_reached"] and run["collisions"] == 0
     assert run["formation_error_max_m"] <= 1.5 * 0.05
     assert (tmp_path / "run" / "robots.csv").read_text() == (tmp_path / "sim" / "robots.csv").read_text()
+
+
+def test_agents_count_their_escape_ticks_as_the_in_process_simulation_does(tmp_path):
+    """A forklift from behind a parked rectangle, in separate processes (lock-step): the agents
+    count the ticks on which the escape set their nominal, and summary.json sums them to the
+    in-process count."""
+    path = tmp_path / "escape.yaml"
+    path.write_text(_envelope_text(180.0, False, duration=12.0), encoding="utf-8")
+    assert main(["sim", str(path), "--out", str(tmp_path / "sim"), "--quiet", "--no-plots"]) == 0
+    assert main(["run", str(path), "--out", str(tmp_path / "run"), "--quiet", "--no-plots"]) == 0
+    sim = json.loads((tmp_path / "sim" / "summary.json").read_text())
+    run = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert sim["qp"]["escape"] > 0
+    assert run["qp"]["escape"] == sim["qp"]["escape"]
