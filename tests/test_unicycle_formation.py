@@ -1,18 +1,22 @@
 """Unicycle formations hold their band on the bodies: every member aims at one rigid motion of
 the formation (agent.control.rigid_target), and a unicycle turns about its body before it drives
-(agent.unicycle.steer), so members' headings do not swing their bodies apart. (The scenarios,
-unicycle-turn-180 and unicycle-turn-in-place among them, are in test_simulation.)"""
+(agent.unicycle.steer), so members' headings do not swing their bodies apart. The band is measured on
+the bodies: every unicycle edge's rows and band repair use agent.control.body_df. (The scenarios,
+unicycle-turn-180, unicycle-turn-in-place, unicycle-four-way-crossing and unicycle-arrival-shelves
+among them, are in test_simulation.)"""
 
 from __future__ import annotations
 
 import itertools
 import math
+from pathlib import Path
 
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from agent import unicycle
+from agent import control, unicycle
+from agent.barriers import Neighbour
 from agent.control import (
     NARROW_CAP,
     RIGID_FADE,
@@ -20,11 +24,14 @@ from agent.control import (
     RIGID_TURN_LEAD,
     ControlParams,
     FormationView,
+    body_df,
     control_step,
     heading_narrowing,
     rigid_target,
 )
 from geometry.ellipse import Ellipse
+from scenario import load_scenario
+from simulator.inprocess import SimOptions, simulate
 
 VMAX = 0.22
 
@@ -166,3 +173,41 @@ def test_a_look_ahead_edge_inside_the_narrowed_band_keeps_the_body_edge_inside_t
     assert abs(body - df) <= eps + max(0.0, heading_term - narrow) + 1e-12
     if heading_term <= NARROW_CAP * eps:
         assert abs(body - df) <= eps + 1e-12
+
+
+@settings(max_examples=300, deadline=None)
+@given(coord, coord, coord, coord, angle, angle, st.floats(0.0, 0.2), st.floats(0.2, 1.0))
+def test_against_body_df_a_look_ahead_edge_has_exactly_the_error_of_its_bodies(
+        xi, yi, xj, yj, ti, tj, look, df):
+    assume(math.hypot(xi - xj, yi - yj) > 1e-3)
+    si = (xi + look * math.cos(ti), yi + look * math.sin(ti))  # section 6.2: s = b + l e(theta)
+    sj = (xj + look * math.cos(tj), yj + look * math.sin(tj))
+    shifted = body_df(si[0], si[1], ti, Neighbour(sj[0], sj[1], 0.0, 0.0, df, tj), look)
+    body_error = math.dist((xi, yi), (xj, yj)) - df
+    assert math.dist(si, sj) - shifted == pytest.approx(body_error, abs=1e-9)
+
+
+@settings(max_examples=100, deadline=None)
+@given(coord, coord, coord, coord, angle, st.floats(0.0, 0.2), st.floats(0.2, 1.0))
+def test_an_edge_of_members_facing_one_way_or_without_a_heading_keeps_its_df(
+        xi, yi, xj, yj, theta, look, df):
+    assert body_df(xi, yi, theta, Neighbour(xj, yj, 0.0, 0.0, df, theta), look) == pytest.approx(df)
+    assert body_df(xi, yi, theta, Neighbour(xj, yj, 0.0, 0.0, df), look) == df
+
+
+FOUR_WAY = Path(__file__).resolve().parent / "scenarios" / "unicycle-four-way-crossing.yaml"
+
+
+def _band(path: Path) -> float:
+    scenario = load_scenario(path)
+    summary = simulate(scenario, SimOptions(record=False)).summary
+    assert summary["all_reached"] and summary["collisions"] == 0
+    return summary["formation_error_max_m"] / scenario.controller.epsilon
+
+
+def test_a_pair_member_pushed_round_in_a_crossing_keeps_its_body_edge_only_with_the_band_on_the_bodies(
+        monkeypatch):
+    assert _band(FOUR_WAY) <= 1.5
+    # the band on the look-ahead points (before body_df): the body edge goes past 1.5 epsilon
+    monkeypatch.setattr(control, "body_df", lambda px, py, theta, n, look: n.df)
+    assert _band(FOUR_WAY) > 1.5
