@@ -447,18 +447,40 @@ def build_rows(
     return Rows(limits, hard, soft, hf, ho, he, hs, contact)
 
 
-def heading_narrowing(theta_i: float, theta_j: float, lookahead: float, eps: float) -> float:
-    """[m] how much a unicycle edge's band on the look-ahead points narrows on each side, so
-    that it holds the bodies: min(l |e_i - e_j|, NARROW_CAP eps).
+def body_df(px: float, py: float, theta: float, n: Neighbour, lookahead: float) -> float:
+    """[m] Unicycles: the distance the look-ahead points of the edge (i, j) must have for the
+    BODIES to stand Df_ij apart, with the headings as they are (thesis eq. 4.3 and 4.4 on the
+    bodies, through the look-ahead points s = b + l e(theta) of section 6.2).
 
-    The bodies sit at b = s - l e(theta) behind the look-ahead points s, so
-    |s_i - s_j| - l |e_i - e_j| <= |b_i - b_j| <= |s_i - s_j| + l |e_i - e_j|: a look-ahead edge
-    inside Df +- (eps - l |e_i - e_j|) keeps the body edge inside Df +- eps. Narrowed by the
-    whole heading term the band would be empty once l |e_i - e_j| > eps (members facing 47
-    degrees apart, for a TurtleBot's 5 cm look-ahead and eps = 4 cm; a rotation in place has
-    them face every way), and an empty band relaxes every tick. Capped at NARROW_CAP eps, the
-    band keeps at least (1 - NARROW_CAP) eps either side; headings beyond the cap are kept
-    together by the nominal (:func:`rigid_target`, :func:`agent.unicycle.steer`). The headings
+    With d = s_i - s_j and q = l (e_i - e_j), the bodies are |d - q| apart, so the look-ahead
+    edge's error against Df_ij + |d| - |d - q| is exactly the body edge's error against Df_ij.
+    The formation rows and :func:`band_nominal` measure every unicycle edge against this
+    distance, so they hold the bodies where the headings differ. Against Df_ij itself they held
+    the look-ahead points: a member turning in place (bodies still) moved its look-ahead point
+    by up to 2 l, and the rows and the band's repair then moved its neighbours' bodies after it
+    (measured in `formation montecarlo`: look-ahead edges inside the band while the bodies were
+    1.6-1.7 epsilon out, at arrival and where one member was pushed round by another
+    formation's ellipse row). Without the neighbour's heading the edge keeps Df_ij."""
+    if n.theta is None:
+        return n.df
+    dx, dy = px - n.x, py - n.y
+    qx = lookahead * (math.cos(theta) - math.cos(n.theta))
+    qy = lookahead * (math.sin(theta) - math.sin(n.theta))
+    return n.df + math.hypot(dx, dy) - math.hypot(dx - qx, dy - qy)
+
+
+def heading_narrowing(theta_i: float, theta_j: float, lookahead: float, eps: float) -> float:
+    """[m] how much a unicycle edge's band on the look-ahead points narrows on each side:
+    min(l |e_i - e_j|, NARROW_CAP eps).
+
+    The edge is measured against :func:`body_df`, which is exact for the headings of this tick.
+    The headings change: members that face apart turn towards one motion (:func:`rigid_target`,
+    :func:`agent.unicycle.steer`), and each turn moves a look-ahead point but not its body, which
+    moves the body-equivalent distance by up to l |e_i - e_j| (|s_i - s_j| and |b_i - b_j| differ
+    by at most that much). The narrowing keeps that much room for the turns still to come.
+    Uncapped, the band would be empty once l |e_i - e_j| > eps (members facing 47 degrees apart,
+    for a TurtleBot's 5 cm look-ahead and eps = 4 cm), and an empty band relaxes every tick;
+    capped at NARROW_CAP eps it keeps at least (1 - NARROW_CAP) eps either side. The headings
     are the members' own and their neighbours' ``state`` (wire version 2)."""
     q = math.hypot(math.cos(theta_i) - math.cos(theta_j), math.sin(theta_i) - math.sin(theta_j))
     return min(lookahead * q, NARROW_CAP * eps)
@@ -649,6 +671,8 @@ def control_step(
     p = params
     off = p.offset
     px, py = (unicycle.control_point(x, y, theta, off) if p.unicycle else (x, y))
+    if p.unicycle:  # the band is meant for the bodies: measure each edge there (body_df)
+        neighbours = [n._replace(df=body_df(px, py, theta, n, off)) for n in neighbours]
     target = goal
     if p.unicycle and p.safety and view is not None:  # one rigid motion for all members
         target = rigid_target(goal, view, x, y, p.max_speed)

@@ -8,12 +8,14 @@ the formation's jam-rule memory (:class:`agent.control.Stall`) carried from tick
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 from typing import NamedTuple
 
 from geometry.ellipse import Ellipse, within_reach
 from leader.role import VIEW_RANGE
 
+from . import unicycle
 from .barriers import Neighbour, Partner
 from .control import FormationView, Stall, update_stall
 
@@ -81,3 +83,27 @@ def step_inputs(
         ellipses = hazards
         pair = []
     return StepInputs(nb, ellipses, view, pair, stall, partners, hazards)
+
+
+def predict_state(x: float, y: float, ux: float, uy: float, theta: float, age: float,
+                  lookahead: float) -> tuple[float, float, float]:
+    """A neighbour's ``state`` (control point (x, y), certified velocity u, heading) carried
+    ``age`` seconds forward under the command it certified, as the robot executes it: (x, y,
+    theta) then. A single integrator (lookahead 0) moves by u age; a unicycle drives the
+    (v, omega) of eq. 6.2 for u on the exact arc of eq. 6.1, its look-ahead point following.
+
+    Real time only: a state is the neighbour's tick for ITS pose stamp, which is older than the
+    pose this robot ticks on (up to a period, plus transport). Mixing the two times puts the
+    pair's barrier values apart by up to |u| age on each side, so the two halves of a
+    separation row (:func:`agent.barriers.separation_row`) no longer add up to the pair
+    condition and the pair dips below the boundary it sits on. Carried to this robot's pose
+    stamp, both robots evaluate the pair at one time, as in lock-step (where every age is 0 and
+    this returns the state unchanged)."""
+    if age <= 0.0:
+        return x, y, theta
+    if lookahead <= 0.0:
+        return x + ux * age, y + uy * age, theta
+    v, omega = unicycle.to_unicycle(ux, uy, theta, lookahead)
+    bx, by = x - lookahead * math.cos(theta), y - lookahead * math.sin(theta)
+    bx, by, th = unicycle.integrate(bx, by, theta, v, omega, age)
+    return bx + lookahead * math.cos(th), by + lookahead * math.sin(th), th

@@ -99,7 +99,7 @@ from agent.control import Stall, StepResult, control_step
 from agent.fault_inject import faulty_sample, offer
 from agent.faults import EPS, DelayLine, LinkFaults, lag
 from agent.hard_rows import HardRowCounter
-from agent.inputs import step_inputs
+from agent.inputs import predict_state, step_inputs
 from agent.leader_step import lead, on_leader_token
 from agent.navigation import STALLED_AFTER_S, NavPart
 from agent.plausibility import (
@@ -710,6 +710,7 @@ class AgentNode:
         target, waypoint = self.nav.follower.goal, cfg.formation_goal
         if own is not None:  # walk the route (the leader takes new goals first)
             target, waypoint = self.nav.step(stamp, t is not None, own.cx, own.cy)
+        states = self._at_stamp(states, stamp, t)
         inputs = step_inputs(
             ((states[k].x, states[k].y, states[k].ux, states[k].uy, df, states[k].theta)
              for k, df in self.neighbour_keys.items()),
@@ -736,6 +737,24 @@ class AgentNode:
         self.last_u = (res.ux, res.uy)
         self._record(res, stamp)
         return res
+
+    def _at_stamp(self, states: dict[str, State], stamp: float, t: float | None
+                  ) -> dict[str, State]:
+        """Real time (``t`` None): every neighbour's state carried from its stamp to ``stamp``
+        (this tick's pose) under its certified command (:func:`agent.inputs.predict_state`),
+        never further than the stale limit, never backwards. Lock-step: unchanged (every state
+        is this frame's)."""
+        if t is not None:
+            return states
+        out = {}
+        for k, m in states.items():
+            age = min(max(0.0, stamp - m.stamp), self.cfg.stale_after)
+            if age > 0.0:
+                x, y, th = predict_state(m.x, m.y, m.ux, m.uy, m.theta, age,
+                                         self.cfg.control.offset)
+                m = State(x, y, m.ux, m.uy, stamp, th)
+            out[k] = m
+        return out
 
     def _fresh_inputs(self, state_keys: tuple[str, ...], ts: float | None, others_ready: bool
                       ) -> tuple[dict[str, State], Obstacles, Others] | str:
