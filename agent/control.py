@@ -356,6 +356,16 @@ def tiebreak_push(
     return (px * TIEBREAK_GAIN * vmax, py * TIEBREAK_GAIN * vmax)
 
 
+def _gap(e: Ellipse, f: Ellipse) -> float:
+    """[m] a lower bound on the distance between two ellipses: the distance of their centres
+    less both half-widths along the line joining them (negative: they may overlap)."""
+    dx, dy = f.cx - e.cx, f.cy - e.cy
+    d = math.hypot(dx, dy)
+    if d < 1e-9:
+        return -(e.b + f.b)
+    return d - _half_width(e, dx / d, dy / d) - _half_width(f, dx / d, dy / d)
+
+
 def _half_width(e: Ellipse, nx: float, ny: float) -> float:
     """Support of the ellipse along the unit direction (nx, ny): its half-width across it."""
     c, s = math.cos(e.alpha), math.sin(e.alpha)
@@ -602,8 +612,10 @@ def shape_push(
     * the formation does not press into another formation's ellipse faster than that one
       moves away: with n the unit vector from c to the other's centre c_e and
       gap = |c_e - c| - both half-widths along n (:func:`_half_width`; a lower bound on the
-      ellipses' distance), gap' = (v_e - w) . n >= -gamma_formations gap, so
-      n . w <= v_e . n + gamma_formations gap.
+      ellipses' distance, :func:`_gap`), gap' = (v_e - w) . n >= -gamma_formations gap, so
+      n . w <= v_e . n + gamma_formations gap; left out where the other's ellipse reaches
+      into ours placed at our goal (a neighbour parked next to our goal shape: the members'
+      rows and :func:`yield_push` settle that, as before).
 
     The correction is w* - w, w* the closest motion to w meeting every row within SHAPE_RANGE
     (:func:`agent.qp.solve_exact`); where the rows cannot all be met the obstacle rows alone
@@ -629,8 +641,8 @@ def shape_push(
             continue
         nx, ny = dx / d, dy / d
         gap = d - _half_width(own, nx, ny) - _half_width(e, nx, ny)
-        if gap > SHAPE_RANGE:
-            continue
+        if gap > SHAPE_RANGE or _gap(own._replace(cx=view.goal_x, cy=view.goal_y), e) < 0.0:
+            continue  # far, or next to our goal shape: the members' rows and yield_push
         rows.append((nx, ny, e.vx * nx + e.vy * ny + p.gamma_formations * gap))
     if not rows:
         return (0.0, 0.0)
