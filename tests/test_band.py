@@ -108,8 +108,8 @@ def test_a_four_way_aisle_crossing_keeps_the_band_only_with_formation_keeping_fi
 
     build = inprocess.ControlParams.from_scenario
 
-    def goal_first(sc, safety=True):
-        return replace(build(sc, safety), band_first=False)
+    def goal_first(sc, safety=True):  # shape_push alone holds this band too (tests/test_shape.py)
+        return replace(build(sc, safety), band_first=False, shape_clear=False)
 
     monkeypatch.setattr(inprocess.ControlParams, "from_scenario", goal_first)
     before = simulate(scenario, SimOptions(record=False)).summary
@@ -162,6 +162,6 @@ def test_every_member_of_a_formation_another_comes_at_gets_the_same_yield():
         noms.append((r.nominal_ux, r.nominal_uy))
     assert noms[0] == pytest.approx(noms[1]) and noms[0] == pytest.approx(noms[2])
     assert noms[0][0] < -0.1 and noms[0][1] == pytest.approx(0.0)
-    off = replace(P, band_first=False)
+    off = replace(P, band_first=False, shape_clear=False)  # shape_push would back it off too
     r = control_step(off, (0.3, -0.1, 0.0), (0.3, -0.1), others=[coming], view=view)
     assert (r.nominal_ux, r.nominal_uy) == (0.0, 0.0)
