@@ -166,6 +166,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = add("montecarlo", "random warehouse scenarios, in-process")
     p.add_argument("--n", type=int, default=40, help="number of random scenarios")
     p.add_argument("--seed", type=int, default=11, help="seed of the first scenario's layout")
+    p.add_argument("--jobs", type=int, default=2, metavar="J",
+                   help="runs at a time, each in its own process (results do not depend on it)")
     _add_out(p)
 
     p = add("bench", "benchmarks: solver, control step, fleet CPU")

@@ -43,3 +43,14 @@ def test_a_small_run_writes_montecarlo_json(tmp_path, capsys):
     for f in summary["failures"]:
         assert (out / f"failure-{f['seed']}.yaml").exists()
     assert "montecarlo: 2 runs" in capsys.readouterr().out
+
+
+def test_the_number_of_jobs_changes_nothing_in_the_results_and_a_bad_one_exits_2(tmp_path, capsys):
+    runs = {}
+    for jobs in ("1", "3"):
+        out = tmp_path / f"mc{jobs}"
+        assert main(["montecarlo", "--n", "3", "--seed", "5", "--jobs", jobs, "--out", str(out)]) == 0
+        runs[jobs] = (out / "runs.jsonl").read_text()
+    assert runs["1"] == runs["3"]
+    assert main(["montecarlo", "--n", "3", "--jobs", "0", "--out", str(tmp_path / "bad")]) == 2
+    assert "--jobs" in capsys.readouterr().err

@@ -16,9 +16,11 @@ from formation.progress import Progress
 def montecarlo_command(ns: argparse.Namespace) -> int:
     if ns.n <= 0:
         raise UsageError(f"--n: must be a positive number of runs, got {ns.n}")
+    if ns.jobs <= 0:
+        raise UsageError(f"--jobs: must be a positive number of processes, got {ns.jobs}")
     out = begin_output(ns)
     with Progress(f"montecarlo n={ns.n}", unit="runs") as progress:
-        summary, results = run_montecarlo(ns.n, ns.seed, progress=progress.update)
+        summary, results = run_montecarlo(ns.n, ns.seed, ns.jobs, progress=progress.update)
     for r in results:
         if not r["all_reached"] or r["collisions"]:
             (out / f"failure-{r['seed']}.yaml").write_text(yaml.safe_dump(r["scenario"], sort_keys=False))
