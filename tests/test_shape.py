@@ -193,16 +193,18 @@ def _good(summary: dict, eps: float) -> None:
     assert summary["formation_error_max_m"] <= 1.5 * eps
 
 
-def test_a_unicycle_rectangle_pushed_onto_a_round_shelf_deadlocks_without_shape_push_and_arrives_with_it(
+def test_a_unicycle_rectangle_pushed_onto_a_round_shelf_keeps_it_out_of_its_shape_only_with_shape_push(
     monkeypatch,
 ):
+    """Without shape_push the rectangle closes round shelf-s5 (the shelf's centre inside its
+    ellipse) and its band breaks (before the unicycle edges were measured on the bodies it also
+    stood there for good: deadlock, 4.15 epsilon); with it no shelf ever enters the shape."""
     scenario, with_rule = _run("shelf-pushed-unicycle", record=True)
     _good(with_rule.summary, scenario.controller.epsilon)
     assert _deepest_static_obstacle(with_rule) >= 0.0  # no shelf ever inside a formation's ellipse
     _without_shape_push(monkeypatch)
     _, bare = _run("shelf-pushed-unicycle", record=True)
-    assert not bare.summary["all_reached"]  # closed round shelf-s5 and stayed
-    assert _deepest_static_obstacle(bare) < -0.5
+    assert _deepest_static_obstacle(bare) < 0.0  # closed round shelf-s5
     assert bare.summary["formation_error_max_m"] > 1.5 * scenario.controller.epsilon
 
 
