@@ -8,7 +8,6 @@ the formation's jam-rule memory (:class:`agent.control.Stall`) carried from tick
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Sequence
 from typing import NamedTuple
 
@@ -104,6 +103,6 @@ def predict_state(x: float, y: float, ux: float, uy: float, theta: float, age: f
     if lookahead <= 0.0:
         return x + ux * age, y + uy * age, theta
     v, omega = unicycle.to_unicycle(ux, uy, theta, lookahead)
-    bx, by = x - lookahead * math.cos(theta), y - lookahead * math.sin(theta)
+    bx, by = unicycle.control_point(x, y, theta, -lookahead)  # the body, l behind the point
     bx, by, th = unicycle.integrate(bx, by, theta, v, omega, age)
-    return bx + lookahead * math.cos(th), by + lookahead * math.sin(th), th
+    return (*unicycle.control_point(bx, by, th, lookahead), th)

@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from rules_off import params_with
 
 from agent.barriers import Neighbour
 from agent.control import (
@@ -25,7 +26,6 @@ from agent.control import (
 )
 from geometry.ellipse import Ellipse
 from scenario import load_scenario
-from simulator import inprocess
 from simulator.inprocess import SimOptions, simulate
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -106,12 +106,8 @@ def test_a_four_way_aisle_crossing_keeps_the_band_only_with_formation_keeping_fi
     assert first["all_reached"] and first["collisions"] == 0 and first["qp"]["fallback"] == 0
     assert first["formation_error_max_m"] <= 1.5 * eps
 
-    build = inprocess.ControlParams.from_scenario
-
-    def goal_first(sc, safety=True):  # shape_push alone holds this band too (tests/test_shape.py)
-        return replace(build(sc, safety), band_first=False, shape_clear=False)
-
-    monkeypatch.setattr(inprocess.ControlParams, "from_scenario", goal_first)
+    # goal first; shape_push alone holds this band too (tests/test_shape.py)
+    params_with(monkeypatch, band_first=False, shape_clear=False)
     before = simulate(scenario, SimOptions(record=False)).summary
     assert before["collisions"] == 0
     assert before["formation_error_max_m"] > 1.5 * eps

@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
+from rules_off import params_with
 
 from agent.barriers import Obstacle
 from agent.control import (
@@ -24,7 +25,6 @@ from agent.control import (
 )
 from geometry.ellipse import Ellipse, ellipse_terms, ellipse_value
 from scenario import load_scenario
-from simulator import inprocess
 from simulator.inprocess import SimOptions, simulate
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -168,12 +168,7 @@ def test_every_member_gets_the_same_correction(members, ox, oy, al, v):
 
 
 def _without_shape_push(monkeypatch):
-    build = inprocess.ControlParams.from_scenario
-
-    def bare(sc, safety=True):
-        return replace(build(sc, safety), shape_clear=False)
-
-    monkeypatch.setattr(inprocess.ControlParams, "from_scenario", bare)
+    params_with(monkeypatch, shape_clear=False)
 
 
 def _run(name: str, record: bool = False):

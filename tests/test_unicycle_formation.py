@@ -10,12 +10,12 @@ from __future__ import annotations
 import itertools
 import json
 import math
-from dataclasses import replace
 from pathlib import Path
 
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
+from rules_off import params_with
 
 from agent import control, unicycle
 from agent.barriers import Neighbour
@@ -34,7 +34,6 @@ from agent.control import (
 from agent.inputs import predict_state
 from geometry.ellipse import Ellipse
 from scenario import load_scenario
-from simulator import inprocess
 from simulator.inprocess import SimOptions, simulate
 
 VMAX = 0.22
@@ -214,9 +213,7 @@ def test_a_pair_member_pushed_round_in_a_crossing_keeps_its_body_edge_only_with_
     assert _band(FOUR_WAY) <= 1.5
     # shape_push (agent.control) also keeps this pair clear of the formation that pushes it, so
     # body_df's own part shows with it off: 0.69 epsilon on the bodies ...
-    build = inprocess.ControlParams.from_scenario
-    monkeypatch.setattr(inprocess.ControlParams, "from_scenario",
-                        lambda sc, safety=True: replace(build(sc, safety), shape_clear=False))
+    params_with(monkeypatch, shape_clear=False)
     assert _band(FOUR_WAY) <= 1.5
     # ... and with the band on the look-ahead points (before body_df) past 1.5 epsilon
     monkeypatch.setattr(control, "body_df", lambda px, py, theta, n, look: n.df)
