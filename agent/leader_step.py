@@ -17,9 +17,11 @@ import time
 from typing import TYPE_CHECKING
 
 from agent.schedule import wait_current
-from leader.role import LeaderRole, ellipse_to_msg
+from leader.listen import beacon_due, grown_gap, hears
+from leader.role import VIEW_RANGE, LeaderRole, ellipse_to_msg
 from wire import keys
 from wire.payloads import EllipseMsg, State
+from wire.shutdown import STEP_LIMIT_S, undeclare_all, within
 from wire.traffic import CountingPublisher
 
 if TYPE_CHECKING:
@@ -37,8 +39,18 @@ def inflate(m: EllipseMsg, grow: float) -> EllipseMsg:
 
 
 async def lead(node: AgentNode, px: float, py: float, stamp: float, ts: float | None) -> bool:
-    """Leader role for this tick: estimate and publish the ellipse, collect the other
-    leaders' ellipses, publish ``others``. False when an ellipse is missing or stale."""
+    """Leader role for this tick: estimate and publish the ellipse (and, in real time, the
+    beacon when due), collect the other leaders' ellipses, publish ``others``. False when an
+    ellipse that may be in view is missing or stale beyond ``ellipse_hold``.
+
+    What the leader knows of each other formation is its newest ``ellipse`` or ``beacon``
+    (:mod:`leader.listen`). A fresh one is used as it is; a stale one grown by
+    ``max_speed * age`` (:func:`inflate`, counted ``inflated``) for up to ``ellipse_hold``
+    seconds, but only if, so grown, it can be within :data:`leader.role.VIEW_RANGE`: one that
+    cannot reaches no member's ``others`` whatever its age. One never heard of makes the tick
+    incomplete. In real time the tick also asks for the formations to hear every tick
+    (:func:`leader.listen.hears`, as :func:`leader.listen.listen_set` decides; applied by
+    :func:`relisten` on the loop)."""
     role = node.role
     assert role is not None  # only called on the leader
     member_keys = node._member_keys
@@ -50,30 +62,91 @@ async def lead(node: AgentNode, px: float, py: float, stamp: float, ts: float | 
         return False
     if node.options.trace:
         node.ellipse_trace.append((stamp, *own))
-    received: dict[str, EllipseMsg] = {}
-    complete = True
     # both topologies (all-to-all: for the tie-break and the jam rule, not for rows)
-    node._pubs[role.ellipse_key].put_message(ellipse_to_msg(role.formation, own, stamp))
+    msg = ellipse_to_msg(role.formation, own, stamp)
+    node._pubs[role.ellipse_key].put_message(msg)
+    if ts is None and beacon_due(stamp, node.beacon_stamp):
+        node._pubs[role.beacon_key].put_message(msg)
+        node.beacon_stamp = stamp
     if ts is not None:
         await wait_current(node, [(keys.ELLIPSE, k) for k in role.other_keys], stamp)
-    inflated = False
-    for k in role.other_keys:
-        entry = node._latest(keys.ELLIPSE, k)
-        if entry is None:
+    now = time.time() if ts is None else ts
+    speed = node.cfg.control.max_speed
+    received: dict[str, EllipseMsg] = {}
+    want: set[str] = set()  # real time: the formations to hear every tick (leader.listen)
+    listening = node.listening
+    complete, inflated = True, False
+    for k, fid in role.other_keys.items():
+        entry = newest(fid, node._latest(keys.ELLIPSE, k),
+                       node._latest(keys.BEACON, role.beacon_keys[fid]))
+        if entry is None:  # never heard of: it may be anywhere
+            complete = False
+            want.add(fid)
             continue
+        m = entry[0]
+        age = max(0.0, now - m.stamp)
+        gap = grown_gap(own, m, speed * age)
+        if hears(gap, fid in listening):
+            want.add(fid)
         if node._fresh(entry, ts):
-            received[k] = entry[0]
-            continue
-        age = (ts - entry[0].stamp) if ts is not None else time.monotonic() - entry[1]
-        if age <= node.options.ellipse_hold:
-            received[k] = inflate(entry[0], node.cfg.control.max_speed * age)
+            received[k] = m
+        elif gap > VIEW_RANGE:
+            pass  # out of view whatever it did since
+        elif age <= node.options.ellipse_hold:
+            received[k] = inflate(m, speed * age)
             inflated = True
+        else:
+            complete = False
     node.inflated += inflated
-    complete = len(received) == len(role.other_keys)
+    if ts is None and want != listening and want != node._listen_want:
+        node._listen_want = frozenset(want)
+        if node._loop is not None:
+            node._loop.call_soon_threadsafe(relisten, node)
     node._own_others = role.others(own, received, stamp)
     if complete:
         node._pubs[role.others_key].put_message(node._own_others)
     return complete
+
+
+def newest(fid: str, *entries: tuple[EllipseMsg, float] | None
+           ) -> tuple[EllipseMsg, float] | None:
+    """The entry with the newest stamp of those that are of formation ``fid`` (a message that
+    names another formation than its key is not trusted), or None."""
+    best = None
+    for e in entries:
+        if e is not None and e[0].formation == fid and (best is None or e[0].stamp > best[0].stamp):
+            best = e
+    return best
+
+
+def relisten(node: AgentNode) -> None:
+    """Loop thread: subscribe to the ``ellipse`` of the formations the last tick asked to hear
+    (:mod:`leader.listen`) and unsubscribe from the others'. Subscribers are
+    declared and undeclared outside the tick lock, so a Zenoh thread waiting for it to tick is
+    never waiting on a declaration."""
+    with node._tick_lock:
+        role, want = node.role, node._listen_want
+        if node._closing or node._session is None or role is None or want is None:
+            return
+        add = [k for k, fid in role.other_keys.items()
+               if fid in want and k not in node.subscribed_keys]
+        drop = [node._forget_subscriber(k) for k, fid in role.other_keys.items()
+                if fid not in want and k in node.subscribed_keys]
+        box = node._mailbox(keys.ELLIPSE)
+    made = [(k, *node._make_subscriber(k, keys.ELLIPSE, box)) for k in add]
+    with node._tick_lock:
+        undo = node._closing or node.role is not role
+        if not undo:
+            for k, sub, take in made:
+                node._install_subscriber(k, keys.ELLIPSE, sub, take)
+            node.listening = want
+            node.listen_changes += len(add) + len(drop)
+            if node._listen_want == want:
+                node._listen_want = None
+    gone = drop + ([sub for _, sub, _ in made] if undo else [])
+    if gone:
+        within(STEP_LIMIT_S, f"{node.cfg.robot_id}: undeclaring {len(gone)} ellipse subscribers",
+               lambda: undeclare_all(gone))
 
 
 def members_now(node: AgentNode, px: float, py: float,
@@ -125,13 +198,19 @@ def take_over(node: AgentNode) -> None:
         logger.error("%s: cannot lead %s: not adjacent to %s", node.cfg.robot_id,
                      node.cfg.formation, ", ".join(missing))
         return
-    for k in [role.others_key] + ([] if node.all_to_all else [role.ellipse_key]):
+    realtime = not node.options.lockstep
+    for k in [role.others_key, role.ellipse_key] + ([role.beacon_key] if realtime else []):
         if k not in node._pubs:
             node._pubs[k] = CountingPublisher(node._session.declare_publisher(k), node.counter)
-    if not node.all_to_all:
-        for k in role.other_keys:
-            if k not in node.subscribed_keys:
-                node._declare_subscriber(k, keys.ELLIPSE)
+    for k in role.other_keys:  # every ellipse at first (leader.listen)
+        if k not in node.subscribed_keys:
+            node._declare_subscriber(k, keys.ELLIPSE)
+    beacons = keys.all_formations_key(node.cfg.prefix, keys.BEACON)
+    if realtime and beacons not in node.subscribed_keys:
+        node._declare_subscriber(beacons, keys.BEACON)
+    node.listening = frozenset(role.other_keys.values())
+    node._listen_want = None
+    node.beacon_stamp = None
     node.role = role
     node._member_keys = member_keys
     node.acting = True

@@ -125,6 +125,7 @@ from leader.role import LeaderRole, msg_to_ellipse
 from leader.succession import leader_token_key
 from wire import keys
 from wire.diag import DiagPublisher
+from wire.heap import freeze_startup
 from wire.payloads import (
     Cmd,
     Obstacles,
@@ -137,7 +138,7 @@ from wire.payloads import (
     decode_pose,
     decode_state,
 )
-from wire.shutdown import STEP_LIMIT_S, within
+from wire.shutdown import STEP_LIMIT_S, undeclare_all, within
 from wire.stamps import FUTURE, LOCKSTEP_AHEAD_PERIODS, StampCounter, check_stamp, validate_window
 from wire.traffic import CountingPublisher, Mailbox, TrafficCounter
 from wire.zconf import UsrPwdAuth, ZenohSettings, explain_open_failure, read_auth_file
@@ -152,7 +153,7 @@ IMPLAUSIBLE = "implausible"  # stale_why: a tick that commanded zero after an im
 POSE_AT_SEND = "pose_at_send"  # stale_why: the pose went stale while the command was computed
 DECODERS: dict[str, Callable[[bytes], Any]] = {  # mailbox class -> payload reader
     keys.POSE: decode_pose, keys.STATE: decode_state, keys.OTHERS: decode_others,
-    keys.ELLIPSE: decode_ellipse, keys.OBSTACLES: decode_obstacles,
+    keys.ELLIPSE: decode_ellipse, keys.OBSTACLES: decode_obstacles, keys.BEACON: decode_ellipse,
 }
 TRACE_COLUMNS = ("t", "px", "py", "ux", "uy", "v", "omega", "status", "slack",
                  "h_formation", "h_obstacle", "h_formations", "solve_us")
@@ -208,15 +209,6 @@ def _stamped(decode: Callable[[bytes], Any]) -> Callable[[bytes], tuple[Any, flo
 
 def _finite_or_none(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
-
-
-def _undeclare_all(handles: list[Any]) -> None:
-    """Undeclare each subscriber and publisher; one that fails does not stop the others."""
-    for h in handles:
-        try:
-            h.undeclare()
-        except Exception:  # noqa: BLE001 - shutting down: log, keep closing
-            logger.debug("undeclare failed", exc_info=True)
 
 
 class AgentNode:
@@ -304,6 +296,7 @@ class AgentNode:
         self._wall0 = time.monotonic()
         self._session: zenoh.Session | None = None
         self._subs: list[Any] = []
+        self._sub_by_key: dict[str, Any] = {}  # subscribed key -> its subscriber
         self._rings: list[tuple[Any, Callable[[zenoh.Sample], None]]] = []  # polled subscribers
         # real time on pose arrival: inline mailboxes, ring channels drained by the tick
         self._polled = not options.lockstep and options.tick_on_pose
@@ -333,6 +326,13 @@ class AgentNode:
         self.acting_ticks = 0
         self._acting_since_tick = False
         self._token: Any = None
+        # leader.listen (real time): the other formations whose ellipse is subscribed to (all at
+        # the start), the set the last tick asked for, the stamp of the last beacon put
+        self.listening: frozenset[str] = frozenset(
+            self.role.other_keys.values()) if self.role is not None else frozenset()
+        self._listen_want: frozenset[str] | None = None
+        self.beacon_stamp: float | None = None
+        self.listen_changes = 0  # subscription changes made for leader.listen
 
     # --- what is accepted ---------------------------------------------------------------------
 
@@ -391,7 +391,7 @@ class AgentNode:
                 return False
             return prev is None or jump_ok(prev.x, prev.y, prev.stamp, msg.x, msg.y, msg.stamp,
                                            speed, JUMP_MARGIN_M)
-        if cls == keys.ELLIPSE:
+        if cls in (keys.ELLIPSE, keys.BEACON):
             return velocity_ok(msg.vx, msg.vy, speed)
         if cls == keys.OTHERS:
             return ellipses_ok(msg.ellipses, speed) and (
@@ -428,6 +428,8 @@ class AgentNode:
         pub_keys = [self.state_key, self.cmd_key]
         if self.role is not None:
             pub_keys += [self.role.others_key, self.role.ellipse_key]
+            if not self.options.lockstep:  # real time: leader.listen's beacon
+                pub_keys.append(self.role.beacon_key)
         for k in pub_keys:
             self._pubs[k] = CountingPublisher(s.declare_publisher(k), self.counter)
         self._diag = DiagPublisher(s, self.cfg.prefix, self.cfg.robot_id, self.cfg.formation,
@@ -442,6 +444,9 @@ class AgentNode:
             self._delay_line = DelayLine(faults.delay, partial(offer, self))
         for k, cls in list(self.subscribed_keys.items()):
             self._declare_subscriber(k, cls)
+        if self.role is not None and not self.options.lockstep:  # every formation's beacon
+            self._declare_subscriber(keys.all_formations_key(self.cfg.prefix, keys.BEACON),
+                                     keys.BEACON)
         self._declare_succession(s, loop)
         logger.info("%s: subscribed to %s", self.cfg.robot_id, ", ".join(self.subscribed_keys))
 
@@ -452,26 +457,55 @@ class AgentNode:
         the ring channels and by the pose callback, which ticks right on the Zenoh thread that
         received the pose (:func:`agent.schedule.on_pose_sample`). Otherwise a callback stores
         on the loop and wakes the tick."""
-        s, loop, polled = self._session, self._loop, self._polled
-        assert s is not None and loop is not None  # set by open()
+        self._install_subscriber(k, cls, *self._make_subscriber(k, cls, self._mailbox(cls)))
+
+    def _mailbox(self, cls: str) -> Mailbox:
+        """The mailbox of class ``cls``, made on first use (inline when polled)."""
         box = self._boxes.get(cls)
         if box is None:
-            box = self._boxes[cls] = Mailbox(None if polled else loop, _stamped(DECODERS[cls]),
-                                             counter=self.counter, accept=self._acceptor(cls))
-        sub: Any
+            box = self._boxes[cls] = Mailbox(None if self._polled else self._loop,
+                                             _stamped(DECODERS[cls]), counter=self.counter,
+                                             accept=self._acceptor(cls))
+        return box
+
+    def _make_subscriber(self, k: str, cls: str, box: Mailbox
+                         ) -> tuple[Any, Callable[[zenoh.Sample], None] | None]:
+        """Declare the subscriber of ``k`` into ``box``: (subscriber, the take of its ring
+        channel, None when it has a callback). Touches no state a tick reads, so it may run
+        outside the tick lock (:func:`agent.leader_step.relisten`)."""
+        s, polled = self._session, self._polled
+        assert s is not None and self._loop is not None  # set by open()
         if polled and cls != keys.POSE:
             cap = RING_CAPACITY
             if self.all_to_all and cls == keys.STATE:  # one wildcard for every robot's state
                 cap *= max(1, len(self.foreign_keys) + len(self.neighbour_keys))
-            sub = s.declare_subscriber(k, zenoh.handlers.RingChannel(cap))
-            self._rings.append((sub, self._handler(cls, box, notify=False)))
-        elif polled:  # the pose: tick right on the Zenoh thread that received it
-            sub = s.declare_subscriber(
-                k, zenoh.handlers.Callback(partial(on_pose_sample, self), indirect=False))
-        else:
-            sub = s.declare_subscriber(k, self._handler(cls, box))
+            if cls == keys.BEACON and self.role is not None:  # every formation's, one wildcard
+                cap = max(cap, 2 * (len(self.role.other_keys) + 1))
+            return (s.declare_subscriber(k, zenoh.handlers.RingChannel(cap)),
+                    self._handler(cls, box, notify=False))
+        if polled:  # the pose: tick right on the Zenoh thread that received it
+            return s.declare_subscriber(
+                k, zenoh.handlers.Callback(partial(on_pose_sample, self), indirect=False)), None
+        return s.declare_subscriber(k, self._handler(cls, box)), None
+
+    def _install_subscriber(self, k: str, cls: str, sub: Any,
+                            take: Callable[[zenoh.Sample], None] | None) -> None:
+        """Record a subscriber :meth:`_make_subscriber` declared (under the tick lock once
+        ticks run: a ring channel joins the ones the tick drains)."""
+        if take is not None:
+            self._rings.append((sub, take))
         self._subs.append(sub)
+        self._sub_by_key[k] = sub
         self.subscribed_keys[k] = cls
+
+    def _forget_subscriber(self, k: str) -> Any:
+        """Under the tick lock: stop draining and recording the subscriber of ``k``; it is
+        returned for the caller to undeclare (outside the lock). Its mailbox keeps what came."""
+        sub = self._sub_by_key.pop(k)
+        self._rings = [r for r in self._rings if r[0] is not sub]
+        self._subs.remove(sub)
+        del self.subscribed_keys[k]
+        return sub
 
     def _handler(self, cls: str, box: Mailbox, notify: bool = True
                  ) -> Callable[[zenoh.Sample], None]:
@@ -570,13 +604,14 @@ class AgentNode:
         token, self._token = self._token, None
         handles = [*([] if token is None else [token]), *self._subs, *self._pubs.values()]
         within(step_limit, f"{rid}: undeclaring {len(handles)} tokens, subscribers and publishers",
-               lambda: _undeclare_all(handles))
+               lambda: undeclare_all(handles))
         self.nav.close(self.last_stamp)
         if self._base is not None:
             base = self._base  # zero velocity on the real base, then undeclare
             within(step_limit, f"{rid}: stopping the base", base.stop)
             self._base = None
         self._subs.clear()
+        self._sub_by_key.clear()
         self._rings.clear()
         self._pubs.clear()
         session, self._session = self._session, None
@@ -609,6 +644,8 @@ class AgentNode:
         try:
             # inside the try: a session opened by an open() that fails half-way is closed too
             await loop.run_in_executor(None, self.open, loop)
+            if not self.options.lockstep:
+                freeze_startup()  # no full collection of start-up's objects mid-run (wire.heap)
             if self.options.lockstep:
                 await lockstep_loop(self)
             elif self.options.tick_on_pose:
@@ -863,6 +900,8 @@ class AgentNode:
             "hard_row_unmet_ticks": self.hard.ticks,
             "hard_row_unmet": dict(self.hard.by_reason),
             "inflated": self.inflated,
+            "listening": sorted(self.listening),  # leader.listen: formations heard every tick
+            "listen_changes": self.listen_changes,
             "takeovers": self.takeovers,
             "acting_leader_ticks": self.acting_ticks,
             "nav": self.nav.stats(),

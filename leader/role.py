@@ -53,11 +53,14 @@ class LeaderRole:
         self.shape = ReferenceShape(tuple(settings.offsets), settings.alpha0)
         self.axes = (float(settings.axes[0]), float(settings.axes[1]))
         self.ellipse_key = keys.ellipse_key(prefix, formation)
+        self.beacon_key = keys.beacon_key(prefix, formation)
         self.others_key = keys.others_key(prefix, formation)
         # the other leaders' exact ellipse keys, formation id by key
         self.other_keys = {
             keys.ellipse_key(prefix, f): f for f in settings.other_formations
         }
+        # and their beacon keys (leader.listen), by formation id
+        self.beacon_keys = {f: keys.beacon_key(prefix, f) for f in settings.other_formations}
 
     @property
     def members(self) -> tuple[str, ...]:

@@ -81,7 +81,7 @@ logger = logging.getLogger(__name__)
 
 # control traffic between robots: the classes the topology decides, and the leader's plans to
 # its members (sent only when a goal arrives at run time, and then once a second)
-INTER_ROBOT = (keys.STATE, keys.ELLIPSE, keys.OTHERS, keys.PLAN)
+INTER_ROBOT = (keys.STATE, keys.ELLIPSE, keys.OTHERS, keys.PLAN, keys.BEACON)
 FAULT_AGENT_TIMEOUT_S = 0.3  # [s] lock-step wait per input of an agent in a fault run
 FAULT_WORLD_TIMEOUT_S = 1.5  # [s] lock-step wait for a tick's commands in a fault run
 

@@ -67,6 +67,7 @@ import zenoh
 from agent import unicycle
 from scenario import Scenario
 from wire import keys
+from wire.heap import freeze_startup
 from wire.payloads import Cmd, DecodeError, ObstacleMsg, Obstacles, Pose, decode_cmd
 from wire.shapes import shape_to_msg
 from wire.shutdown import STEP_LIMIT_S, within
@@ -428,6 +429,7 @@ class World:
         series = Series()
         inbox = self.inbox
         inbox.measure_latency = opts.realtime
+        freeze_startup()  # no full collection of start-up's objects mid-run (wire.heap)
         counts = _Counts()
         stamps: list[float] = []
         robot_stamps: list[list[float]] = []

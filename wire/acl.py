@@ -9,8 +9,9 @@ and filters messages with the ACL of :func:`fleet_acl`, whose subjects are match
   unless told otherwise: ``zenoh-bridge-ros2dds`` with namespace ``r``); the bridge, logged in
   as ``r``, may subscribe to that key and be sent what is put there. If ``r`` leads formation
   ``f``, or is its successor (:mod:`scenario.succession`, the member that takes over when the
-  leader dies), also on ``{prefix}/formation/f/ellipse``, ``others``, ``status`` and ``plan``,
-  hold the liveliness token ``{prefix}/formation/f/leader`` and answer ``status`` queries;
+  leader dies), also on ``{prefix}/formation/f/ellipse``, ``beacon``, ``others``, ``status``
+  and ``plan``, hold the liveliness token ``{prefix}/formation/f/leader`` and answer
+  ``status`` queries;
 * the camera service or simulated world (user :data:`CAMERA_USER`) may publish only the poses
   ``{prefix}/robot/*/pose``, ``{prefix}/obstacles`` and the frames ``{prefix}/camera/frame``,
   and answer queries on its counters ``{prefix}/camera/stats``;
@@ -150,8 +151,8 @@ def fleet_acl(
             f = lead[rid]
             own += [
                 rule(f"{rid}-lead", ["put"], ["ingress"],
-                     [keys.ellipse_key(prefix, f), keys.others_key(prefix, f),
-                      f"{fp}/{f}/status", f"{fp}/{f}/plan"]),
+                     [keys.ellipse_key(prefix, f), keys.beacon_key(prefix, f),
+                      keys.others_key(prefix, f), f"{fp}/{f}/status", f"{fp}/{f}/plan"]),
                 rule(f"{rid}-lead-token", ["liveliness_token"], ["ingress"],
                      [f"{fp}/{f}/leader"]),
                 rule(f"{rid}-lead-status", ["declare_queryable", "reply"], ["ingress"],

@@ -10,6 +10,7 @@ key                                       class        from -> to
 ``{prefix}/robot/{id}/state``             ``state``    agent -> its graph neighbours
 ``{prefix}/robot/{id}/cmd``               ``cmd``      agent -> robot base or world
 ``{prefix}/formation/{fid}/ellipse``      ``ellipse``  leader -> other leaders
+``{prefix}/formation/{fid}/beacon``       ``beacon``   leader -> every leader, once a second
 ``{prefix}/formation/{fid}/others``       ``others``   leader -> own members
 ``{prefix}/obstacles``                    ``obstacles`` camera or world -> agents
 ``{prefix}/formation/{fid}/goal``         ``goal``     fleet manager -> that formation's leader
@@ -18,8 +19,11 @@ key                                       class        from -> to
 anything else                             ``other``
 ========================================  ===========  ====================================
 
-Agents subscribe to exact keys. :func:`all_robots_key` builds the one wildcard the all-to-all
-baseline uses (``{prefix}/robot/*/state``), and exists so that baseline can be measured.
+Agents subscribe to exact keys, with two wildcards: :func:`all_robots_key` builds the one the
+all-to-all baseline uses (``{prefix}/robot/*/state``), which exists so that baseline can be
+measured, and a leader in real time hears every formation's ``beacon`` (its ellipse once a
+second) through ``{prefix}/formation/*/beacon`` (:func:`all_formations_key`), to know which
+formations are near enough to subscribe to their ``ellipse`` (:mod:`leader.listen`).
 
 Ids (robot, formation, obstacle) and prefix chunks must be non-empty, at most
 :data:`MAX_ID_LEN` characters, and free of ``/ * $ # ?`` and whitespace; otherwise the builders
@@ -41,6 +45,7 @@ POSE = "pose"
 STATE = "state"
 CMD = "cmd"
 ELLIPSE = "ellipse"
+BEACON = "beacon"
 OTHERS = "others"
 OBSTACLES = "obstacles"
 GOAL = "goal"
@@ -50,10 +55,10 @@ OTHER = "other"
 
 #: Every class name :func:`key_class` can return, in a stable order.
 KEY_CLASSES: tuple[str, ...] = (POSE, STATE, CMD, ELLIPSE, OTHERS, OBSTACLES, GOAL, STATUS, PLAN,
-                                 OTHER)
+                                 BEACON, OTHER)
 
 ROBOT_CLASSES: tuple[str, ...] = (POSE, STATE, CMD)
-FORMATION_CLASSES: tuple[str, ...] = (ELLIPSE, OTHERS, GOAL, STATUS, PLAN)
+FORMATION_CLASSES: tuple[str, ...] = (ELLIPSE, OTHERS, GOAL, STATUS, PLAN, BEACON)
 
 _FORBIDDEN = frozenset("/*$#?")
 
@@ -120,6 +125,12 @@ def ellipse_key(prefix: str, formation_id: str) -> str:
     return _formation_key(prefix, formation_id, ELLIPSE)
 
 
+def beacon_key(prefix: str, formation_id: str) -> str:
+    """``{prefix}/formation/{formation_id}/beacon``: leader -> every leader, once a second (the
+    same ``EllipseMsg`` as ``ellipse``; :mod:`leader.listen`)."""
+    return _formation_key(prefix, formation_id, BEACON)
+
+
 def others_key(prefix: str, formation_id: str) -> str:
     """``{prefix}/formation/{formation_id}/others``: leader -> its own members."""
     return _formation_key(prefix, formation_id, OTHERS)
@@ -153,7 +164,8 @@ def all_robots_key(prefix: str, kind: str) -> str:
 
 
 def all_formations_key(prefix: str, kind: str) -> str:
-    """``{prefix}/formation/*/{kind}``: every formation's ellipse (or others) key."""
+    """``{prefix}/formation/*/{kind}``: every formation's key of one kind (a leader subscribes
+    to every ``beacon`` with it, in real time)."""
     if kind not in FORMATION_CLASSES:
         raise ValueError(f"kind {kind!r} must be one of {FORMATION_CLASSES}")
     return f"{validate_prefix(prefix)}/formation/*/{kind}"

@@ -725,6 +725,7 @@ DECODERS: dict[str, Callable[[bytes | zenoh.ZBytes], Any]] = {
     keys.STATE: decode_state,
     keys.CMD: decode_cmd,
     keys.ELLIPSE: decode_ellipse,
+    keys.BEACON: decode_ellipse,
     keys.OTHERS: decode_others,
     keys.OBSTACLES: decode_obstacles,
 }

@@ -8,12 +8,23 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
+from typing import Any
 
 logger = logging.getLogger(__name__)
 
 #: [s] the default limit of one shutdown step (a healthy undeclare or close takes milliseconds)
 STEP_LIMIT_S = 2.0
+
+
+def undeclare_all(handles: Iterable[Any]) -> None:
+    """Undeclare each Zenoh subscriber, publisher or token; one that fails is logged and does
+    not stop the others."""
+    for h in handles:
+        try:
+            h.undeclare()
+        except Exception:  # noqa: BLE001 - closing or letting go: log, keep going
+            logger.debug("undeclare failed", exc_info=True)
 
 
 def within(limit: float, what: str, step: Callable[[], object]) -> bool:

@@ -1,0 +1,80 @@
+"""Which other formations a leader hears at full rate (issue 18: a fleet's leaders each took
+every other leader's ellipse every tick, so that intake grew with the square of the fleet).
+
+A leader needs another formation's ellipse each tick only while that formation may come within
+:data:`leader.role.VIEW_RANGE` of its own ellipse (nothing farther reaches its members'
+``others``). So, in real time, each leader also puts its ellipse once every
+:data:`BEACON_PERIOD` on ``{prefix}/formation/{fid}/beacon``, hears every formation's beacon
+through one subscription, and subscribes to another formation's ``ellipse`` (every tick) only
+while that formation is within :data:`LISTEN_MARGIN` beyond the view range (:func:`listen_set`;
+it lets go :data:`LISTEN_HYSTERESIS` farther out, so a formation on the edge does not make it
+subscribe and unsubscribe each tick). Lock-step runs (the simulated world) keep every ellipse.
+
+What a leader knows of another formation is its newest message, ``ellipse`` or ``beacon``; the
+formation may have moved since at up to ``max_speed``, so every decision takes its ellipse grown
+by ``max_speed * age`` (:func:`grown_gap`, the same growth a stale ellipse gets in
+:func:`agent.leader_step.inflate`). It is safe whatever the timing:
+
+* a formation not listened to is more than ``VIEW_RANGE + LISTEN_MARGIN`` away, grown for its
+  age, at every tick; the gap closes at most ``2 * max_speed`` (both move), so it needs
+  ``LISTEN_MARGIN / (2 * max_speed)`` seconds (4.5 s at a TurtleBot3's 0.22 m/s, 1 s at 1 m/s)
+  to come into view, and its beacon growing with its age brings it into the listening range
+  first even if its beacons stop;
+* until the first ``ellipse`` after the subscription arrives, the leader uses the newest beacon
+  grown for its age (an inflated ellipse, counted), and stops its formation once that is older
+  than ``ellipse_hold``, exactly as for any stale ellipse.
+
+A formation never heard of is listened to (unknown: it may be anywhere); so is every formation
+at the start.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+
+from geometry.ellipse import Ellipse
+from wire.payloads import EllipseMsg
+
+from .role import VIEW_RANGE
+
+BEACON_PERIOD = 1.0  # [s] a leader's beacon: its ellipse this often, for the leaders farther out
+LISTEN_MARGIN = 2.0  # [m] beyond VIEW_RANGE: a formation this near is heard every tick
+LISTEN_HYSTERESIS = 1.0  # [m] farther still before a formation listened to is let go
+
+
+def grown_gap(own: Ellipse, m: EllipseMsg, grow: float) -> float:
+    """Lower bound on the gap [m] between ``own`` and the ellipse of ``m`` grown by ``grow``
+    (both semi-axes): the centres' distance less both semi-major axes (as
+    :func:`geometry.ellipse.within_reach` measures it)."""
+    return math.hypot(m.cx - own.cx, m.cy - own.cy) - own.a - (m.a + grow)
+
+
+def hears(gap: float | None, listening: bool) -> bool:
+    """Whether to hear a formation every tick, given the gap to its ellipse grown for its age
+    (:func:`grown_gap`; None: never heard of) and whether it is heard every tick already."""
+    if gap is None:
+        return True
+    return gap <= VIEW_RANGE + LISTEN_MARGIN + (LISTEN_HYSTERESIS if listening else 0.0)
+
+
+def listen_set(own: Ellipse, known: Mapping[str, tuple[EllipseMsg, float]],
+               formations: Iterable[str], listening: frozenset[str],
+               max_speed: float) -> frozenset[str]:
+    """The formations to hear every tick, of ``formations`` (:func:`hears` each): those never
+    heard of (not in ``known``: formation id -> (newest message, its age [s])), and those whose
+    ellipse, grown by ``max_speed * age``, comes within ``VIEW_RANGE + LISTEN_MARGIN`` of
+    ``own`` (plus ``LISTEN_HYSTERESIS`` for those in ``listening`` already)."""
+    out = set()
+    for fid in formations:
+        entry = known.get(fid)
+        gap = None if entry is None else grown_gap(own, entry[0], max_speed * max(0.0, entry[1]))
+        if hears(gap, fid in listening):
+            out.add(fid)
+    return frozenset(out)
+
+
+def beacon_due(stamp: float, last: float | None) -> bool:
+    """Whether a leader whose last beacon was stamped ``last`` (None: none yet) puts one with
+    the tick stamped ``stamp``: every :data:`BEACON_PERIOD`, or when the clock went back."""
+    return last is None or stamp - last >= BEACON_PERIOD or stamp < last
