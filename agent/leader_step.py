@@ -79,9 +79,8 @@ async def lead(node: AgentNode, px: float, py: float, stamp: float, ts: float | 
     for k, fid in role.other_keys.items():
         entry = newest(fid, node._latest(keys.ELLIPSE, k),
                        node._latest(keys.BEACON, role.beacon_keys[fid]))
-        if entry is None:  # never heard of: it may be anywhere
+        if entry is None:  # never heard of: it may be anywhere (its beacon will say where)
             complete = False
-            want.add(fid)
             continue
         m = entry[0]
         age = max(0.0, now - m.stamp)
@@ -202,13 +201,16 @@ def take_over(node: AgentNode) -> None:
     for k in [role.others_key, role.ellipse_key] + ([role.beacon_key] if realtime else []):
         if k not in node._pubs:
             node._pubs[k] = CountingPublisher(node._session.declare_publisher(k), node.counter)
-    for k in role.other_keys:  # every ellipse at first (leader.listen)
-        if k not in node.subscribed_keys:
-            node._declare_subscriber(k, keys.ELLIPSE)
-    beacons = keys.all_formations_key(node.cfg.prefix, keys.BEACON)
-    if realtime and beacons not in node.subscribed_keys:
-        node._declare_subscriber(beacons, keys.BEACON)
-    node.listening = frozenset(role.other_keys.values())
+    if realtime:  # every beacon; the ellipses of the formations near (leader.listen)
+        beacons = keys.all_formations_key(node.cfg.prefix, keys.BEACON)
+        if beacons not in node.subscribed_keys:
+            node._declare_subscriber(beacons, keys.BEACON)
+    else:  # lock-step: every ellipse
+        for k in role.other_keys:
+            if k not in node.subscribed_keys:
+                node._declare_subscriber(k, keys.ELLIPSE)
+    node.listening = frozenset(fid for k, fid in role.other_keys.items()
+                               if k in node.subscribed_keys)
     node._listen_want = None
     node.beacon_stamp = None
     node.role = role

@@ -326,10 +326,12 @@ class AgentNode:
         self.acting_ticks = 0
         self._acting_since_tick = False
         self._token: Any = None
-        # leader.listen (real time): the other formations whose ellipse is subscribed to (all at
-        # the start), the set the last tick asked for, the stamp of the last beacon put
+        # leader.listen: the other formations whose ellipse is subscribed to (all in lock-step;
+        # in real time none at the start, then those near), the set the last tick asked for,
+        # the stamp of the last beacon put
         self.listening: frozenset[str] = frozenset(
-            self.role.other_keys.values()) if self.role is not None else frozenset()
+            self.role.other_keys.values()) if self.role is not None and options.lockstep \
+            else frozenset()
         self._listen_want: frozenset[str] | None = None
         self.beacon_stamp: float | None = None
         self.listen_changes = 0  # subscription changes made for leader.listen
@@ -412,9 +414,11 @@ class AgentNode:
                 subs[k] = keys.STATE
         if self.role is None:
             subs[self.others_key] = keys.OTHERS
-        else:  # both topologies: the tie-break and the jam rule read the other ellipses
+        elif self.options.lockstep:  # both topologies: the tie-break and the jam rule read them
             for k in self.role.other_keys:
                 subs[k] = keys.ELLIPSE
+        else:  # real time: every beacon; an ellipse once its formation is near (leader.listen)
+            subs[keys.all_formations_key(self.cfg.prefix, keys.BEACON)] = keys.BEACON
         subs[self.obstacles_key] = keys.OBSTACLES
         subs[self.pose_key] = keys.POSE  # last: once the pose is matched, all else is declared
         return subs
@@ -444,9 +448,6 @@ class AgentNode:
             self._delay_line = DelayLine(faults.delay, partial(offer, self))
         for k, cls in list(self.subscribed_keys.items()):
             self._declare_subscriber(k, cls)
-        if self.role is not None and not self.options.lockstep:  # every formation's beacon
-            self._declare_subscriber(keys.all_formations_key(self.cfg.prefix, keys.BEACON),
-                                     keys.BEACON)
         self._declare_succession(s, loop)
         logger.info("%s: subscribed to %s", self.cfg.robot_id, ", ".join(self.subscribed_keys))
 

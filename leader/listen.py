@@ -24,8 +24,12 @@ by ``max_speed * age`` (:func:`grown_gap`, the same growth a stale ellipse gets 
   grown for its age (an inflated ellipse, counted), and stops its formation once that is older
   than ``ellipse_hold``, exactly as for any stale ellipse.
 
-A formation never heard of is listened to (unknown: it may be anywhere); so is every formation
-at the start.
+A leader subscribes to no ``ellipse`` at the start: the first beacons (each leader puts one on
+its first tick) tell it which formations are near. Until it has heard of every formation, its
+tick is incomplete (no ``others``, its members command zero), as it was when it waited for
+every ellipse: a formation never heard of may be anywhere. Subscribing to every ellipse first
+and letting go of most of them a tick later would declare and undeclare F x (F - 1)
+subscriptions at once across a fleet of F formations.
 """
 
 from __future__ import annotations
@@ -50,26 +54,25 @@ def grown_gap(own: Ellipse, m: EllipseMsg, grow: float) -> float:
     return math.hypot(m.cx - own.cx, m.cy - own.cy) - own.a - (m.a + grow)
 
 
-def hears(gap: float | None, listening: bool) -> bool:
+def hears(gap: float, listening: bool) -> bool:
     """Whether to hear a formation every tick, given the gap to its ellipse grown for its age
-    (:func:`grown_gap`; None: never heard of) and whether it is heard every tick already."""
-    if gap is None:
-        return True
+    (:func:`grown_gap`) and whether it is heard every tick already."""
     return gap <= VIEW_RANGE + LISTEN_MARGIN + (LISTEN_HYSTERESIS if listening else 0.0)
 
 
 def listen_set(own: Ellipse, known: Mapping[str, tuple[EllipseMsg, float]],
                formations: Iterable[str], listening: frozenset[str],
                max_speed: float) -> frozenset[str]:
-    """The formations to hear every tick, of ``formations`` (:func:`hears` each): those never
-    heard of (not in ``known``: formation id -> (newest message, its age [s])), and those whose
-    ellipse, grown by ``max_speed * age``, comes within ``VIEW_RANGE + LISTEN_MARGIN`` of
-    ``own`` (plus ``LISTEN_HYSTERESIS`` for those in ``listening`` already)."""
+    """The formations to hear every tick, of ``formations`` (:func:`hears` each): those whose
+    newest message (``known``: formation id -> (newest message, its age [s])), its ellipse
+    grown by ``max_speed * age``, comes within ``VIEW_RANGE + LISTEN_MARGIN`` of ``own`` (plus
+    ``LISTEN_HYSTERESIS`` for those in ``listening`` already). One never heard of is not: its
+    beacon will say where it is, and until then the leader's tick is incomplete."""
     out = set()
     for fid in formations:
         entry = known.get(fid)
-        gap = None if entry is None else grown_gap(own, entry[0], max_speed * max(0.0, entry[1]))
-        if hears(gap, fid in listening):
+        if entry is not None and hears(grown_gap(own, entry[0], max_speed * max(0.0, entry[1])),
+                                       fid in listening):
             out.add(fid)
     return frozenset(out)
 

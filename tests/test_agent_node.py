@@ -142,11 +142,14 @@ def test_the_agent_subscribes_to_exactly_its_own_pose_its_members_its_leaders_ot
         keys.others_key(P, "F1"), keys.obstacles_key(P),
     }
     assert not any("*" in k for k in node.subscribed_keys)
+    own = {keys.pose_key(P, "r2"), keys.obstacles_key(P),
+           *(keys.state_key(P, r) for r in ("r1", "r3", "r4"))}
+    # lock-step: the other leader's ellipse; real time: every beacon, the ellipses of the
+    # formations near enough once their beacons say so (leader.listen)
+    leader = AgentNode(configs["r2"], NodeOptions(lockstep=True))
+    assert set(leader.subscribed_keys) == own | {keys.ellipse_key(P, "F2")}
     leader = AgentNode(configs["r2"])
-    assert set(leader.subscribed_keys) == {
-        keys.pose_key(P, "r2"), keys.obstacles_key(P), keys.ellipse_key(P, "F2"),
-        *(keys.state_key(P, r) for r in ("r1", "r3", "r4")),
-    }
+    assert set(leader.subscribed_keys) == own | {"warehouse/formation/*/beacon"}
 
 
 def test_another_formations_robot_state_never_reaches_the_agent_but_a_neighbours_does(configs, peer):

@@ -122,8 +122,10 @@ def test_hostile_payloads_on_every_subscribed_key_are_dropped_and_counted_never_
                     keys.pose_key(P, "r1"): keys.POSE, keys.pose_key(P, "r2"): keys.POSE,
                     keys.state_key(P, "r1"): keys.STATE, keys.state_key(P, "r2"): keys.STATE,
                     keys.state_key(P, "r3"): keys.STATE, keys.state_key(P, "r4"): keys.STATE,
-                    keys.ellipse_key(P, "F2"): keys.ELLIPSE,
-                    keys.beacon_key(P, "F2"): keys.BEACON,  # the leader r2, through a wildcard
+                    # r2 leads F1: in real time it hears F2's ellipse only once a valid beacon
+                    # says F2 is near (leader.listen); the beacon, the same EllipseMsg, comes
+                    # through a wildcard
+                    keys.beacon_key(P, "F2"): keys.BEACON,
                     keys.others_key(P, "F1"): keys.OTHERS,
                     keys.obstacles_key(P): keys.OBSTACLES,
                     keys.cmd_key(P, "s1"): keys.CMD, keys.cmd_key(P, "s3"): keys.CMD,
