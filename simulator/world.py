@@ -506,8 +506,17 @@ class World:
             # aborted (a child died, Ctrl-C): what was measured over the ticks completed
             self.result = result(k, k * dt)
             raise
+        self._last_commands_in(opts.realtime, dt)
         self.result = result(k + 1, t)
         return self.result
+
+    @staticmethod
+    def _last_commands_in(realtime: bool, dt: float) -> None:
+        """Real time: give the commands computed from the last frame's poses their period to
+        arrive before the run's latencies are taken (with pose slots, the last slot's poses went
+        out a fraction of a period before the end, and their commands counted as missed)."""
+        if realtime:
+            time.sleep(dt)
 
     def _lockstep_commands(self, k: int, t: float, abort: Callable[[], None],
                            counts: _Counts) -> dict[str, Cmd]:

@@ -107,3 +107,40 @@ def test_the_worlds_abort_check_is_rate_limited_but_still_made_while_it_waits() 
     assert len(calls) >= 3  # about 7 on an idle machine
     gaps = [b - a for a, b in itertools.pairwise(calls)]
     assert min(gaps) >= world.ABORT_EVERY_S
+
+
+def test_in_real_time_every_pose_of_the_last_frame_gets_its_period_for_the_command() -> None:
+    # The agents answer each pose 0.3 periods after it (stamped with it). With 4 slots the last
+    # slot's poses go out at 0.75 of the last period, so their commands arrive after the loop
+    # ends: before the world waited a period for them, they were lost and counted missed.
+    scenario = load_scenario(SCENARIO)
+    steps, slots = 8, 4
+    scenario = dataclasses.replace(scenario, duration=steps * scenario.dt)
+    dt, ids = scenario.dt, scenario.robot_ids
+    conf = zconf.make_config("peer", listen=["tcp/127.0.0.1:0"])
+    timers: list[threading.Timer] = []
+    with zenoh.open(conf) as session:
+        cmd_pubs = {rid: session.declare_publisher(keys.cmd_key(P, rid)) for rid in ids}
+
+        def on_pose(sample: zenoh.Sample) -> None:
+            rid = str(sample.key_expr).split("/")[-2]
+            stamp = decode_pose(sample.payload.to_bytes()).stamp
+            timer = threading.Timer(0.3 * dt, lambda: cmd_pubs[rid].put(
+                encode(Cmd(0.0, 0.0, 0.0, 0.0, stamp))))
+            timers.append(timer)
+            timer.start()
+
+        sub = session.declare_subscriber(keys.all_robots_key(P, keys.POSE), on_pose)
+        world = World(scenario, session, WorldOptions(realtime=True, pose_slots=slots,
+                                                      stop_at_goal=False))
+        try:
+            world.wait_for_agents(grace=False)
+            result = world.run()
+        finally:
+            world.close()
+            sub.undeclare()
+            for timer in timers:
+                timer.join()
+    assert result.steps == steps
+    assert len(result.latency_ms) == steps * len(ids)  # one command per pose, the last included
+    assert max(result.latency_ms) < dt * 1e3
