@@ -17,7 +17,7 @@ import time
 from typing import TYPE_CHECKING
 
 from agent.schedule import wait_current
-from leader.listen import beacon_due, grown_gap, hears
+from leader.listen import QUIET_MAX_S, beacon_due, grown_gap, hears, quiet_until
 from leader.role import VIEW_RANGE, LeaderRole, ellipse_to_msg
 from wire import keys
 from wire.payloads import EllipseMsg, State
@@ -26,6 +26,7 @@ from wire.traffic import CountingPublisher
 
 if TYPE_CHECKING:
     from agent.node import AgentNode
+    from geometry.ellipse import Ellipse
 
 logger = logging.getLogger(__name__)
 
@@ -71,12 +72,32 @@ async def lead(node: AgentNode, px: float, py: float, stamp: float, ts: float | 
     if ts is not None:
         await wait_current(node, [(keys.ELLIPSE, k) for k in role.other_keys], stamp)
     now = time.time() if ts is None else ts
+    received, want, complete, inflated = collect(node, role, own, now, ts)
+    node.inflated += inflated
+    if ts is None and want != node.listening and want != node._listen_want:
+        node._listen_want = frozenset(want)
+        if node._loop is not None:
+            node._loop.call_soon_threadsafe(relisten, node)
+    node._own_others = role.others(own, received, stamp)
+    if complete:
+        node._pubs[role.others_key].put_message(node._own_others)
+    return complete
+
+
+def collect(node: AgentNode, role: LeaderRole, own: Ellipse, now: float, ts: float | None
+            ) -> tuple[dict[str, EllipseMsg], set[str], bool, bool]:
+    """The leader's view of the other formations at ``now`` (see :func:`lead`): the ellipses
+    for ``others`` by ellipse key, the formations to hear every tick, whether every formation
+    that may be in view is known and fresh enough, whether a stale one was used inflated."""
     speed = node.cfg.control.max_speed
     received: dict[str, EllipseMsg] = {}
     want: set[str] = set()  # real time: the formations to hear every tick (leader.listen)
-    listening = node.listening
+    listening, quiet = node.listening, node._quiet
     complete, inflated = True, False
     for k, fid in role.other_keys.items():
+        q = quiet.get(fid)
+        if q is not None and q - QUIET_MAX_S <= now < q:
+            continue  # far, whatever it did since (leader.listen.quiet_until)
         entry = newest(fid, node._latest(keys.ELLIPSE, k),
                        node._latest(keys.BEACON, role.beacon_keys[fid]))
         if entry is None:  # never heard of: it may be anywhere (its beacon will say where)
@@ -87,6 +108,9 @@ async def lead(node: AgentNode, px: float, py: float, stamp: float, ts: float | 
         gap = grown_gap(own, m, speed * age)
         if hears(gap, fid in listening):
             want.add(fid)
+            quiet.pop(fid, None)
+        else:
+            quiet[fid] = quiet_until(now, gap, speed)
         if node._fresh(entry, ts):
             received[k] = m
         elif gap > VIEW_RANGE:
@@ -96,15 +120,7 @@ async def lead(node: AgentNode, px: float, py: float, stamp: float, ts: float | 
             inflated = True
         else:
             complete = False
-    node.inflated += inflated
-    if ts is None and want != listening and want != node._listen_want:
-        node._listen_want = frozenset(want)
-        if node._loop is not None:
-            node._loop.call_soon_threadsafe(relisten, node)
-    node._own_others = role.others(own, received, stamp)
-    if complete:
-        node._pubs[role.others_key].put_message(node._own_others)
-    return complete
+    return received, want, complete, inflated
 
 
 def newest(fid: str, *entries: tuple[EllipseMsg, float] | None

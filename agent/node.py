@@ -198,6 +198,36 @@ def zenoh_config(cfg: AgentConfig, connect_timeout: float | None = None,
     ).to_config()
 
 
+class DecodeMemo:
+    """A payload decoder that remembers the values of the last payloads it decoded, shared by
+    every agent of one process: in an agent host each agent decodes the same ``obstacles``
+    message every tick, the members of a formation the same ``others`` and the neighbours of a
+    robot its same ``state`` (issue 18: a host of 32 decoded each obstacles list 32 times).
+    Decoded messages are frozen, so sharing one changes nothing an agent sees; a payload that
+    does not decode raises every time (each agent counts its own drop). Thread-safe under
+    the GIL (a lost insert costs one more decode); emptied when it holds ``size`` payloads."""
+
+    def __init__(self, decode: Callable[[bytes], Any], size: int = 256) -> None:
+        self._decode = decode
+        self._size = size
+        self._values: dict[bytes, Any] = {}
+
+    def __call__(self, payload: bytes) -> Any:
+        if type(payload) is not bytes:  # only bytes are hashable keys; decode anything else
+            return self._decode(payload)
+        value = self._values.get(payload)
+        if value is None:
+            value = self._decode(payload)
+            if len(self._values) >= self._size:
+                self._values.clear()
+            self._values[payload] = value
+        return value
+
+
+#: mailbox class -> the process's memo of its decoder (:class:`DecodeMemo`)
+MEMOS: dict[str, DecodeMemo] = {cls: DecodeMemo(decode) for cls, decode in DECODERS.items()}
+
+
 def _stamped(decode: Callable[[bytes], Any]) -> Callable[[bytes], tuple[Any, float]]:
     """A decoder that also keeps the local reception time (taken on Zenoh's thread)."""
 
@@ -335,6 +365,7 @@ class AgentNode:
         self._listen_want: frozenset[str] | None = None
         self.beacon_stamp: float | None = None
         self.listen_changes = 0  # subscription changes made for leader.listen
+        self._quiet: dict[str, float] = {}  # formation -> leader.listen.quiet_until
 
     # --- what is accepted ---------------------------------------------------------------------
 
@@ -465,7 +496,7 @@ class AgentNode:
         box = self._boxes.get(cls)
         if box is None:
             box = self._boxes[cls] = Mailbox(None if self._polled else self._loop,
-                                             _stamped(DECODERS[cls]), counter=self.counter,
+                                             _stamped(MEMOS[cls]), counter=self.counter,
                                              accept=self._acceptor(cls))
         return box
 

@@ -45,6 +45,7 @@ from .role import VIEW_RANGE
 BEACON_PERIOD = 1.0  # [s] a leader's beacon: its ellipse this often, for the leaders farther out
 LISTEN_MARGIN = 2.0  # [m] beyond VIEW_RANGE: a formation this near is heard every tick
 LISTEN_HYSTERESIS = 1.0  # [m] farther still before a formation listened to is let go
+QUIET_MAX_S = 0.5  # [s] the longest a leader goes without looking at a formation far away
 
 
 def grown_gap(own: Ellipse, m: EllipseMsg, grow: float) -> float:
@@ -58,6 +59,16 @@ def hears(gap: float, listening: bool) -> bool:
     """Whether to hear a formation every tick, given the gap to its ellipse grown for its age
     (:func:`grown_gap`) and whether it is heard every tick already."""
     return gap <= VIEW_RANGE + LISTEN_MARGIN + (LISTEN_HYSTERESIS if listening else 0.0)
+
+
+def quiet_until(now: float, gap: float, max_speed: float) -> float:
+    """Until when a leader need not look at a formation it does not hear every tick, at grown
+    gap ``gap`` (beyond ``VIEW_RANGE + LISTEN_MARGIN``) at time ``now``: the gap closes at most
+    ``2 * max_speed`` (the other's growth and this formation's own motion; a newer message puts
+    the other within its growth of the older one), so it stays beyond that limit until then.
+    At most :data:`QUIET_MAX_S` ahead, so a leader looks at every formation twice a second
+    even if its own ellipse jumps (a member's state replaced after a restart)."""
+    return now + min(QUIET_MAX_S, (gap - (VIEW_RANGE + LISTEN_MARGIN)) / (2.0 * max_speed))
 
 
 def listen_set(own: Ellipse, known: Mapping[str, tuple[EllipseMsg, float]],

@@ -380,3 +380,27 @@ def test_lock_step_refuses_frames_beyond_its_window_unless_the_world_went_on_wit
     # it, so the next frame is taken even though it is beyond the window
     node.ticks, node._last_tick = 1, time.monotonic() - 1.0
     assert offer(12.0) and node.lockstep_catch_ups == 1
+
+
+def test_the_decode_memo_shares_equal_payloads_values_and_never_remembers_a_bad_one():
+    from agent.node import DecodeMemo
+    from wire.payloads import DecodeError, decode_state
+
+    calls = []
+
+    def decode(payload):
+        calls.append(payload)
+        return decode_state(payload)
+
+    memo = DecodeMemo(decode, size=2)
+    a, b, c = (encode(State(float(i), 0.0, 0.0, 0.0, 1.0)) for i in range(3))
+    assert memo(a) is memo(bytes(a)) and len(calls) == 1  # equal bytes: one decode, one value
+    assert memo(a) == decode_state(a)
+    for _ in range(2):
+        with pytest.raises(DecodeError):
+            memo(b"\x01bad")  # decoded (and refused) every time
+    memo(b)
+    memo(c)  # full at 2: emptied, then c kept
+    memo(a)
+    assert calls.count(a) == 2
+    assert memo(bytearray(a)) == decode_state(a)  # not bytes: decoded, not remembered

@@ -18,9 +18,12 @@ from leader.listen import (
     BEACON_PERIOD,
     LISTEN_HYSTERESIS,
     LISTEN_MARGIN,
+    QUIET_MAX_S,
     beacon_due,
     grown_gap,
+    hears,
     listen_set,
+    quiet_until,
 )
 from leader.role import VIEW_RANGE
 from wire.payloads import EllipseMsg
@@ -58,6 +61,26 @@ def test_a_formation_not_listened_to_cannot_reach_the_view_before_it_is_heard_ag
     moved = Ellipse(ox + near * math.cos(th), oy + near * math.sin(th), 0.0, oa, oa / 2)
     assert not within_reach(moved, cx - far * math.cos(th), cy - far * math.sin(th), a,
                             VIEW_RANGE)
+
+
+@settings(max_examples=300, deadline=None)
+@given(ox=coord, oy=coord, oa=axis, excess=st.floats(1e-6, 3.0), th=angle, a=axis,
+       age=st.floats(0.0, 5.0), speed=st.floats(0.05, 2.0), frac=st.floats(0.0, 1.0))
+def test_a_far_formation_left_unlooked_at_until_quiet_until_stays_beyond_the_listening_range(
+        ox, oy, oa, excess, th, a, age, speed, frac):
+    own = Ellipse(ox, oy, 0.0, oa, oa / 2)
+    d = oa + a + speed * age + VIEW_RANGE + LISTEN_MARGIN + excess  # grown gap: limit + excess
+    m = msg("X", ox + d * math.cos(th), oy + d * math.sin(th), a)
+    gap = grown_gap(own, m, speed * age)
+    assert not hears(gap, False)
+    until = quiet_until(10.0, gap, speed)
+    assert 10.0 < until <= 10.0 + QUIET_MAX_S
+    # the worst case up to that time: this formation drove straight at the other, and the
+    # other's message is older by as much (it grows): still not heard, so nothing was missed
+    tau = frac * (until - 10.0)
+    moved = Ellipse(ox + speed * tau * math.cos(th), oy + speed * tau * math.sin(th), 0.0, oa,
+                    oa / 2)
+    assert not hears(grown_gap(moved, m, speed * (age + tau)) + 1e-9, False)  # at until: on it
 
 
 def test_near_formations_are_heard_and_let_go_only_past_the_hysteresis_unknown_ones_are_not():
