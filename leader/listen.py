@@ -16,7 +16,9 @@ by ``max_speed * age`` (:func:`grown_gap`, the same growth a stale ellipse gets 
 :func:`agent.leader_step.inflate`). It is safe whatever the timing:
 
 * a formation not listened to is more than ``VIEW_RANGE + LISTEN_MARGIN`` away, grown for its
-  age, at every tick; the gap closes at most ``2 * max_speed`` (both move), so it needs
+  age, each time the leader looks at it: every tick, or at the latest by :func:`quiet_until`,
+  before which it cannot have come nearer. The gap closes at most ``2 * max_speed`` (both
+  move), so it needs
   ``LISTEN_MARGIN / (2 * max_speed)`` seconds (4.5 s at a TurtleBot3's 0.22 m/s, 1 s at 1 m/s)
   to come into view, and its beacon growing with its age brings it into the listening range
   first even if its beacons stop;
