@@ -50,8 +50,7 @@ async def lead(node: AgentNode, px: float, py: float, stamp: float, ts: float | 
     seconds, but only if, so grown, it can be within :data:`leader.role.VIEW_RANGE`: one that
     cannot reaches no member's ``others`` whatever its age. One never heard of makes the tick
     incomplete. In real time the tick also asks for the formations to hear every tick
-    (:func:`leader.listen.hears`, as :func:`leader.listen.listen_set` decides; applied by
-    :func:`relisten` on the loop)."""
+    (:func:`leader.listen.hears`; applied by :func:`relisten` on the loop)."""
     role = node.role
     assert role is not None  # only called on the leader
     member_keys = node._member_keys

@@ -676,8 +676,7 @@ class AgentNode:
         try:
             # inside the try: a session opened by an open() that fails half-way is closed too
             await loop.run_in_executor(None, self.open, loop)
-            if not self.options.lockstep:
-                freeze_startup()  # no full collection of start-up's objects mid-run (wire.heap)
+            freeze_startup()  # no full collection of start-up's objects mid-run (wire.heap)
             if self.options.lockstep:
                 await lockstep_loop(self)
             elif self.options.tick_on_pose:

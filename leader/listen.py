@@ -6,7 +6,7 @@ A leader needs another formation's ellipse each tick only while that formation m
 ``others``). So, in real time, each leader also puts its ellipse once every
 :data:`BEACON_PERIOD` on ``{prefix}/formation/{fid}/beacon``, hears every formation's beacon
 through one subscription, and subscribes to another formation's ``ellipse`` (every tick) only
-while that formation is within :data:`LISTEN_MARGIN` beyond the view range (:func:`listen_set`;
+while that formation is within :data:`LISTEN_MARGIN` beyond the view range (:func:`hears`;
 it lets go :data:`LISTEN_HYSTERESIS` farther out, so a formation on the edge does not make it
 subscribe and unsubscribe each tick). Lock-step runs (the simulated world) keep every ellipse.
 
@@ -37,7 +37,6 @@ subscriptions at once across a fleet of F formations.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
 
 from geometry.ellipse import Ellipse
 from wire.payloads import EllipseMsg
@@ -71,23 +70,6 @@ def quiet_until(now: float, gap: float, max_speed: float) -> float:
     At most :data:`QUIET_MAX_S` ahead, so a leader looks at every formation twice a second
     even if its own ellipse jumps (a member's state replaced after a restart)."""
     return now + min(QUIET_MAX_S, (gap - (VIEW_RANGE + LISTEN_MARGIN)) / (2.0 * max_speed))
-
-
-def listen_set(own: Ellipse, known: Mapping[str, tuple[EllipseMsg, float]],
-               formations: Iterable[str], listening: frozenset[str],
-               max_speed: float) -> frozenset[str]:
-    """The formations to hear every tick, of ``formations`` (:func:`hears` each): those whose
-    newest message (``known``: formation id -> (newest message, its age [s])), its ellipse
-    grown by ``max_speed * age``, comes within ``VIEW_RANGE + LISTEN_MARGIN`` of ``own`` (plus
-    ``LISTEN_HYSTERESIS`` for those in ``listening`` already). One never heard of is not: its
-    beacon will say where it is, and until then the leader's tick is incomplete."""
-    out = set()
-    for fid in formations:
-        entry = known.get(fid)
-        if entry is not None and hears(grown_gap(own, entry[0], max_speed * max(0.0, entry[1])),
-                                       fid in listening):
-            out.add(fid)
-    return frozenset(out)
 
 
 def beacon_due(stamp: float, last: float | None) -> bool:

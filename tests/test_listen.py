@@ -8,6 +8,7 @@ import json
 import math
 from pathlib import Path
 
+import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
@@ -22,7 +23,6 @@ from leader.listen import (
     beacon_due,
     grown_gap,
     hears,
-    listen_set,
     quiet_until,
 )
 from leader.role import VIEW_RANGE
@@ -51,8 +51,7 @@ def test_a_formation_not_listened_to_cannot_reach_the_view_before_it_is_heard_ag
     own = Ellipse(ox, oy, 0.0, oa, oa / 2)
     cx, cy = ox + d * math.cos(th), oy + d * math.sin(th)
     m = msg("X", cx, cy, a)
-    assume("X" not in listen_set(own, {"X": (m, age)}, ["X"],
-                                 frozenset({"X"}) if listening else frozenset(), speed))
+    assume(not hears(grown_gap(own, m, speed * age), listening))
     # the worst case: since its message the other formation drove straight at this one for
     # age + tau seconds, and this one straight at it for tau, at top speed (up to 2 m/s); for
     # tau up to SUBSCRIBE_S (a subscription in effect) the other is still out of view
@@ -83,19 +82,16 @@ def test_a_far_formation_left_unlooked_at_until_quiet_until_stays_beyond_the_lis
     assert not hears(grown_gap(moved, m, speed * (age + tau)) + 1e-9, False)  # at until: on it
 
 
-def test_near_formations_are_heard_and_let_go_only_past_the_hysteresis_unknown_ones_are_not():
+def test_a_formation_on_the_edge_is_let_go_only_past_the_hysteresis_and_age_brings_it_back():
     own = Ellipse(0.0, 0.0, 0.0, 0.5, 0.25)
     edge = VIEW_RANGE + LISTEN_MARGIN + 0.5 * LISTEN_HYSTERESIS  # between the two limits
-    known = {"near": (msg("near", 1.0 + edge, 0.0, 0.5), 0.0),
-             "far": (msg("far", 1.0 + VIEW_RANGE + LISTEN_MARGIN + LISTEN_HYSTERESIS + 0.1,
-                         0.0, 0.5), 0.0)}
-    formations = ["near", "far", "never"]
-    assert listen_set(own, known, formations, frozenset(), 0.5) == set()
-    assert listen_set(own, known, formations, frozenset(formations), 0.5) == {"near"}
+    near = grown_gap(own, msg("near", 1.0 + edge, 0.0, 0.5), 0.0)
+    assert near == pytest.approx(edge)
+    assert not hears(near, False) and hears(near, True)
+    far = msg("far", 1.0 + VIEW_RANGE + LISTEN_MARGIN + LISTEN_HYSTERESIS + 0.1, 0.0, 0.5)
+    assert not hears(grown_gap(own, far, 0.0), True)
     # an old message grows with its age: 1 s at 2 m/s brings "far" (gap 7.1 m) back in
-    aged = {**known, "far": (known["far"][0], 1.0)}
-    assert listen_set(own, aged, formations, frozenset(), 2.0) == {"far"}
-    assert grown_gap(own, known["far"][0], 0.0) > VIEW_RANGE + LISTEN_MARGIN + LISTEN_HYSTERESIS
+    assert hears(grown_gap(own, far, 2.0 * 1.0), False)
 
 
 def test_a_beacon_goes_out_once_a_period_and_again_when_the_clock_went_back():

@@ -24,6 +24,18 @@ P = keys.DEFAULT_PREFIX
 UX = 0.1  # [m/s] every robot's command
 
 
+def run_world(session: zenoh.Session, scenario, slots: int):
+    """The world in real time with ``slots`` pose slots, run to its end once the agents (this
+    session's subscribers) are there; its result."""
+    world = World(scenario, session, WorldOptions(realtime=True, pose_slots=slots,
+                                                  stop_at_goal=False))
+    try:
+        world.wait_for_agents(grace=False)
+        return world.run()
+    finally:
+        world.close()
+
+
 @pytest.mark.parametrize("bad", [
     {"pose_slots": 0}, {"pose_slots": True}, {"pose_slots": 2.0},
     {"pose_slots": 2},  # lock-step publishes whole frames
@@ -64,15 +76,11 @@ def test_slots_spread_each_periods_poses_and_step_each_robot_once_per_period() -
 
         feeder = threading.Thread(target=agents)
         feeder.start()
-        world = World(scenario, session, WorldOptions(realtime=True, pose_slots=slots,
-                                                      stop_at_goal=False))
         try:
-            world.wait_for_agents(grace=False)
-            result = world.run()
+            result = run_world(session, scenario, slots)
         finally:
             stop.set()
             feeder.join()
-            world.close()
             sub.undeclare()
     assert result.steps == steps
     assert all(len(p) == steps for p in poses.values()), {r: len(p) for r, p in poses.items()}
@@ -131,13 +139,9 @@ def test_in_real_time_every_pose_of_the_last_frame_gets_its_period_for_the_comma
             timer.start()
 
         sub = session.declare_subscriber(keys.all_robots_key(P, keys.POSE), on_pose)
-        world = World(scenario, session, WorldOptions(realtime=True, pose_slots=slots,
-                                                      stop_at_goal=False))
         try:
-            world.wait_for_agents(grace=False)
-            result = world.run()
+            result = run_world(session, scenario, slots)
         finally:
-            world.close()
             sub.undeclare()
             for timer in timers:
                 timer.join()
