@@ -259,6 +259,11 @@ for _loader in _LOADERS:
     _loader.add_constructor(_INT_TAG, _Limits.construct_yaml_int)
     _loader.add_implicit_resolver(_FLOAT_TAG, _FLOAT_12, list("-+0123456789."))
 
+# libyaml's scanner in PyYAML 6.0.4's wheels (FastScenarioLoader's parser) stops a flow
+# collection nested 1,000 deep with this problem while it reads ahead, before the composer's
+# MAX_DEPTH sees it
+_LIBYAML_DEPTH = "exceeded maximum nesting depth"
+
 #: The loader :func:`load_yaml` uses: libyaml's parser when PyYAML has it.
 LOADER: type[yaml.SafeLoader] = _LOADERS[-1]
 LOADERS: tuple[type, ...] = tuple(_LOADERS)
@@ -278,6 +283,8 @@ def load_yaml(text: str, source: str = "<scenario>") -> Any:
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
         problem = exc.problem or exc.context or "invalid YAML"
         kind = "YAML syntax error" if not isinstance(exc, LimitError) else "refused"
+        if _LIBYAML_DEPTH in problem:  # libyaml's own limit (1,000 levels) met before ours
+            kind, problem = "refused", f"nested more than {MAX_DEPTH} levels deep"
         raise ScenarioError(f"{source}: {kind}{where}: {problem}") from None
     except yaml.reader.ReaderError as exc:  # a character YAML does not allow
         ch = exc.character
