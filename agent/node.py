@@ -27,9 +27,11 @@ the command leaves one solve after the pose with no thread hand-over: on a loade
 each hand-over (Zenoh thread -> Python callback thread -> event loop) cost about 0.15 ms of CPU
 and as much latency. Every other input waits in a Zenoh ring channel and is drained at the start
 of the tick, so its local reception time is when the tick drained it. A pose stamped less than
-``MIN_SPACING_PERIODS`` after the pose of the previous tick is stored but not ticked on (the next
-one is), so a camera faster than 1/period does not raise the tick rate; the spacing goes by the
-camera's stamps, not arrival times, so transport jitter never holds a tick back. When no tick
+``MIN_SPACING_PERIODS`` after the camera's schedule is stored but not ticked on (the next one is;
+counted ``early_poses``), so a camera faster than 1/period does not raise the tick rate; the
+spacing goes by the camera's stamps, not arrival times, so transport jitter never holds a tick
+back, and the schedule moves on by a period, so one pose stamped late does not make the next
+one too soon (:func:`agent.schedule.pose_due`). When no tick
 has run for ``DEADLINE_PERIODS`` periods, the event loop ticks on its deadline anyway (on the
 pose it has: a silent camera still ends in stale zero commands; counted ``deadline_ticks``). The
 loop looks every ``stale_after`` less a deadline span while ticks come (at least a span), every
@@ -278,6 +280,7 @@ class AgentNode:
         self.ticks = 0
         self.overruns = 0
         self.deadline_ticks = 0  # real time: ticks with no new pose for DEADLINE_PERIODS periods
+        self.early_poses = 0  # real time: poses not ticked on, too soon (agent.schedule.pose_due)
         self.stale = 0
         self.waiting = 0  # ticks before the first pose arrived (zero command, not stale)
         self.lockstep_timeouts = 0
@@ -344,6 +347,7 @@ class AgentNode:
         self._closing = False  # set (under the lock) when close() starts: no more ticks
         self.zero_sent = False  # the zero command of the way out has been published
         self._last_pose_stamp: float | None = None  # the pose stamp the last pose tick used
+        self._pose_anchor: float | None = None  # the camera's schedule (agent.schedule.pose_due)
         self._last_tick = -math.inf  # [s, monotonic] when the last tick of any kind started
         self._loop: asyncio.AbstractEventLoop | None = None
         # real time on pose arrival under an agent host (agent.host): its one tick thread, on
@@ -918,6 +922,7 @@ class AgentNode:
             "ticks": self.ticks,
             "overruns": self.overruns,
             "deadline_ticks": self.deadline_ticks,
+            "early_poses": self.early_poses,
             "stale": self.stale,
             "waiting": self.waiting,
             "lockstep_timeouts": self.lockstep_timeouts,

@@ -30,7 +30,8 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 DEADLINE_PERIODS = 1.5  # real time: tick without a new pose after this many periods
-MIN_SPACING_PERIODS = 0.75  # real time: a pose stamped sooner after the last ticked one waits
+MIN_SPACING_PERIODS = 0.75  # real time: a pose stamped sooner after the camera's schedule waits
+LATE_POSE_PERIODS = 0.5  # real time: a pose stamped up to this much late does not move the schedule
 
 
 class TickQueue(Protocol):
@@ -89,16 +90,41 @@ def on_pose_sample(node: AgentNode, sample: zenoh.Sample) -> None:
     worker.mark(node)
 
 
+def pose_due(anchor: float | None, stamp: float, period: float) -> float | None:
+    """The spacing rule of real time on pose arrival: None when the pose stamped ``stamp`` is
+    not due, else the new *anchor*, the camera's schedule as far as the agent knows it (the
+    previous anchor: None before the first pose).
+
+    A pose is due when stamped ``MIN_SPACING_PERIODS`` or more after the anchor, or earlier than
+    it (the camera's clock went back). The anchor is not the last ticked pose's stamp: it moves
+    on by one period, never past the stamp, and never more than ``LATE_POSE_PERIODS`` behind
+    it; the first pose (or one earlier than the anchor) starts it at its stamp. So once one pose
+    came on time, a camera at the control rate whose poses are each stamped up to 0.75 of a
+    period late (a camera or a world process that lost the CPU for a moment) has every pose
+    ticked on, where a rule by the last ticked stamp skipped the punctual pose after one more
+    than a quarter of a period late. The anchor still
+    advances at least ``MIN_SPACING_PERIODS`` per tick and stays within ``LATE_POSE_PERIODS`` of
+    the ticked stamp, so a camera faster than 1/period does not raise the tick rate beyond
+    1/(``MIN_SPACING_PERIODS`` period), as before, and the same pose twice ticks once."""
+    if anchor is None or stamp < anchor:
+        return stamp
+    if stamp < anchor + MIN_SPACING_PERIODS * period:
+        return None
+    return max(stamp - LATE_POSE_PERIODS * period, min(stamp, anchor + period))
+
+
 def pose_tick(node: AgentNode, now: float) -> bool:
-    """Under the tick lock: tick on the newest pose if it is due (True), else nothing: due
-    when stamped ``MIN_SPACING_PERIODS`` or more after the last ticked pose, or earlier
-    than it (the camera's clock went back)."""
+    """Under the tick lock: tick on the newest pose if it is due by :func:`pose_due` (True),
+    else nothing (counted ``early_poses``)."""
     entry = node._boxes[keys.POSE].latest(node.pose_key)
     if entry is None:
         return False
-    stamp, last = entry[0].stamp, node._last_pose_stamp
-    if last is not None and last <= stamp < last + MIN_SPACING_PERIODS * node.cfg.period:
+    stamp = entry[0].stamp
+    anchor = pose_due(node._pose_anchor, stamp, node.cfg.period)
+    if anchor is None:
+        node.early_poses += 1
         return False
+    node._pose_anchor = anchor
     node._last_pose_stamp = stamp
     tick_locked(node, now)
     return True
