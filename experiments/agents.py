@@ -148,6 +148,10 @@ def _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, share, own_cpu, router,
         "commands": len(lat),
         "missed_ticks": poses - in_time,
         "agent_overruns": sum(s.get("overruns", 0) for s in stats),
+        # poses never ticked on: stamped too soon after the camera's schedule
+        # (agent.schedule.pose_due), or replaced by a newer one while an agent host was busy
+        "early_poses": sum(s.get("early_poses", 0) for s in stats),
+        "superseded_poses": sum(s.get("superseded_poses", 0) for s in stats),
         "stale_ticks": sum(s.get("stale", 0) for s in stats),
         "stale_ticks_by_input": sum_counts(s.get("stale_why", {}) for s in stats),
         "latency_ms_p50": p50,

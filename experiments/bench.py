@@ -37,7 +37,9 @@ Eight measurements, written to ``bench.json`` and as a table (``bench.txt`` and 
 Definitions: the latency of a command is ``receive time - stamp`` of the pose it was computed
 from, both on this machine's wall clock (the world stamps poses with ``time.time()``). A *missed
 tick* is a pose for which no command computed from it arrived within one control period (the
-robot drove a period on an older command); agents also count their own deadline overruns. CPU
+robot drove a period on an older command); agents also count their own deadline overruns, and
+the poses they never ticked on (``early_poses``: stamped too soon after the camera's schedule;
+``superseded_poses``: replaced by a newer pose while their agent host was busy). CPU
 is ``utime + stime`` from ``/proc/PID/stat`` over the steady run (all threads, Zenoh's included),
 as a percentage of one core; memory is ``VmRSS`` of ``/proc/PID/status`` at the end of the run.
 

@@ -15,7 +15,8 @@ from formation.bench import bench_command, central_problem, fleet_scenario, flee
 
 AGENT_KEYS = ("rate_hz", "world_rate_hz", "missed_ticks", "agent_overruns", "latency_ms_p50",
               "latency_ms_p99", "cpu_percent_per_agent_median", "rss_mb_per_agent_median",
-              "latency_parts_ms_median", "load_avg_1min", "fleet_cpu_percent")
+              "latency_parts_ms_median", "load_avg_1min", "fleet_cpu_percent", "early_poses",
+              "superseded_poses")
 
 
 def _finite_numbers(obj, path: str = "") -> list[str]:
