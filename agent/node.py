@@ -346,7 +346,6 @@ class AgentNode:
         self._tick_lock = threading.Lock()
         self._closing = False  # set (under the lock) when close() starts: no more ticks
         self.zero_sent = False  # the zero command of the way out has been published
-        self._last_pose_stamp: float | None = None  # the pose stamp the last pose tick used
         self._pose_anchor: float | None = None  # the camera's schedule (agent.schedule.pose_due)
         self._last_tick = -math.inf  # [s, monotonic] when the last tick of any kind started
         self._loop: asyncio.AbstractEventLoop | None = None

@@ -102,9 +102,9 @@ def pose_due(anchor: float | None, stamp: float, period: float) -> float | None:
     came on time, a camera at the control rate whose poses are each stamped up to 0.75 of a
     period late (a camera or a world process that lost the CPU for a moment) has every pose
     ticked on, where a rule by the last ticked stamp skipped the punctual pose after one more
-    than a quarter of a period late. The anchor still
-    advances at least ``MIN_SPACING_PERIODS`` per tick and stays within ``LATE_POSE_PERIODS`` of
-    the ticked stamp, so a camera faster than 1/period does not raise the tick rate beyond
+    than a quarter of a period late. The anchor still advances at least
+    ``MIN_SPACING_PERIODS`` per tick and stays within ``LATE_POSE_PERIODS`` of the ticked
+    stamp, so a camera faster than 1/period does not raise the tick rate beyond
     1/(``MIN_SPACING_PERIODS`` period), as before, and the same pose twice ticks once."""
     if anchor is None or stamp < anchor:
         return stamp
@@ -125,7 +125,6 @@ def pose_tick(node: AgentNode, now: float) -> bool:
         node.early_poses += 1
         return False
     node._pose_anchor = anchor
-    node._last_pose_stamp = stamp
     tick_locked(node, now)
     return True
 

@@ -299,9 +299,10 @@ def test_real_time_ticks_go_by_the_pose_stamps_not_by_arrival_times(configs, mon
     # as open() sets it up: inline, with the stamp and plausibility checks
     node._boxes[keys.POSE] = Mailbox(None, _stamped(decode_pose), accept=node._acceptor(keys.POSE))
     ticked: list[float] = []
-    monkeypatch.setattr(schedule, "tick_locked", lambda n, now: ticked.append(n._last_pose_stamp))
     period = cfg.period
     key = keys.pose_key(P, "r1")
+    monkeypatch.setattr(schedule, "tick_locked",
+                        lambda n, now: ticked.append(n._boxes[keys.POSE].latest(key)[0].stamp))
 
     def pose(stamp: float) -> None:
         on_pose_sample(node, _PoseSample(key, encode(Pose(0.0, 0.0, 0.0, stamp))))
