@@ -42,8 +42,8 @@ from pathlib import Path  # noqa: E402
 from agent.config import load_config  # noqa: E402
 from agent.faults import LinkFaults  # noqa: E402
 from agent.node import AgentNode, NodeOptions  # noqa: E402
+from runtime.lifeline import watch_parent  # noqa: E402
 from wire.acl import read_credentials  # noqa: E402
-from wire.lifeline import watch_parent  # noqa: E402
 from wire.zconf import UsrPwdAuth, use_zenoh_threads  # noqa: E402
 
 logger = logging.getLogger("agent")

@@ -52,8 +52,8 @@ from agent.__main__ import SignalWatch, build_parser, node_options, stop_event, 
 from agent.config import load_config  # noqa: E402
 from agent.node import AgentNode, NodeOptions, zenoh_config  # noqa: E402
 from agent.schedule import pose_tick  # noqa: E402
+from runtime.lifeline import watch_parent  # noqa: E402
 from wire.acl import read_credentials  # noqa: E402
-from wire.lifeline import watch_parent  # noqa: E402
 from wire.zconf import use_zenoh_threads  # noqa: E402
 
 logger = logging.getLogger("agent.host")

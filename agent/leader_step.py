@@ -19,9 +19,9 @@ from typing import TYPE_CHECKING
 from agent.schedule import wait_current
 from leader.listen import QUIET_MAX_S, beacon_due, grown_gap, hears, quiet_until
 from leader.role import VIEW_RANGE, LeaderRole, ellipse_to_msg
+from runtime.shutdown import STEP_LIMIT_S, undeclare_all, within
 from wire import keys
 from wire.payloads import EllipseMsg, State
-from wire.shutdown import STEP_LIMIT_S, undeclare_all, within
 from wire.traffic import CountingPublisher
 
 if TYPE_CHECKING:

@@ -125,9 +125,10 @@ from agent.schedule import (
 from agent.unicycle import control_point
 from leader.role import LeaderRole, msg_to_ellipse
 from leader.succession import leader_token_key
+from runtime.heap import freeze_startup
+from runtime.shutdown import STEP_LIMIT_S, undeclare_all, within
 from wire import keys
 from wire.diag import DiagPublisher
-from wire.heap import freeze_startup
 from wire.payloads import (
     Cmd,
     Obstacles,
@@ -140,7 +141,6 @@ from wire.payloads import (
     decode_pose,
     decode_state,
 )
-from wire.shutdown import STEP_LIMIT_S, undeclare_all, within
 from wire.stamps import FUTURE, LOCKSTEP_AHEAD_PERIODS, StampCounter, check_stamp, validate_window
 from wire.traffic import CountingPublisher, Mailbox, TrafficCounter
 from wire.zconf import UsrPwdAuth, ZenohSettings, explain_open_failure, read_auth_file
@@ -619,7 +619,7 @@ class AgentNode:
 
     def close(self, step_limit: float = STEP_LIMIT_S) -> None:
         """Zero command, undeclare, close the session (idempotent). Every step waits at most
-        ``step_limit`` seconds (:func:`wire.shutdown.within`): a step that hangs (a router that
+        ``step_limit`` seconds (:func:`runtime.shutdown.within`): a step that hangs (a router that
         is gone) is logged and left behind, and closing goes on, zero command first."""
         rid = self.cfg.robot_id
         got = self._tick_lock.acquire(timeout=step_limit)  # a tick in progress ends first
@@ -679,7 +679,7 @@ class AgentNode:
         try:
             # inside the try: a session opened by an open() that fails half-way is closed too
             await loop.run_in_executor(None, self.open, loop)
-            freeze_startup()  # no full collection of start-up's objects mid-run (wire.heap)
+            freeze_startup()  # no full collection of start-up's objects mid-run (runtime.heap)
             if self.options.lockstep:
                 await lockstep_loop(self)
             elif self.options.tick_on_pose:

@@ -1,6 +1,6 @@
 """Loopback round-trip time of a ``State`` payload through a Zenoh router.
 
-A Python router runs in a child process (``python -m wire.router``); this process opens two
+A Python router runs in a child process (``python -m runtime.router``); this process opens two
 client sessions: *ping* puts a State on ``warehouse/robot/ping/state``, *pong* echoes every
 sample it receives onto ``warehouse/robot/pong/state``, and ping times the reply. Warm-up, then
 N samples, one summary line (the shape of zenoh's ``z_ping``)::
@@ -25,14 +25,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import zenoh  # noqa: E402
 
-from wire import keys, zconf  # noqa: E402
-from wire.payloads import State, decode_state, encode  # noqa: E402
-from wire.testing import (  # noqa: E402
+from runtime.testing import (  # noqa: E402
     RouterProcess,
     free_tcp_port,
     tcp_endpoint,
     wait_for_matching,
 )
+from wire import keys, zconf  # noqa: E402
+from wire.payloads import State, decode_state, encode  # noqa: E402
 
 REPLY_TIMEOUT_S = 5.0
 

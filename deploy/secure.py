@@ -18,7 +18,7 @@ robots)::
 
     users.txt        the router's user:password dictionary
     router.json5     the router's configuration: listen on zenoh.router, the dictionary, the ACL
-                     (python -m wire.router --config router.json5 on the router's machine; if the
+                     (python -m runtime.router --config router.json5 on the router's machine; if the
                      folder moves there, the dictionary path in it must follow)
     camera.json5     the camera service's, manager.json5 the fleet manager's, viewer.json5 a
                      viewer's credentials: Zenoh configuration fragments for --auth FILE

@@ -37,10 +37,10 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
     use_zenoh_threads("relay")  # as `formation bench` does, for a direct call too
 
     from agent.config import build_agent_configs
+    from runtime.ports import free_tcp_port, tcp_endpoint
     from simulator.fleet import START_TIMEOUT_S, Fleet, unique_children
     from simulator.world import World, WorldOptions
     from simulator.zones import PoseZones
-    from wire.ports import free_tcp_port, tcp_endpoint
     from wire.zconf import ZenohSettings
 
     scenario = fleet_scenario(n, dt, duration)

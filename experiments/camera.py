@@ -35,9 +35,9 @@ from camera_service.calibration import save_calibration, synthetic_camera
 from camera_service.node import percentile
 from camera_service.render import render_aruco_frame
 from experiments.machine import proc_cpu_s
+from runtime.ports import free_tcp_port, tcp_endpoint
 from wire.frames import Frame, encode_frame, frame_key
 from wire.payloads import decode_pose
-from wire.ports import free_tcp_port, tcp_endpoint
 
 ROOT = Path(__file__).resolve().parents[1]
 SIZE = (1280, 960)  # [px]

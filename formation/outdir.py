@@ -28,6 +28,8 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+from formation.exits import UsageError
+
 #: Subcommands whose ``--out`` is a folder of output files (``record``: its ``run.mcap``).
 FOLDER_COMMANDS = ("sim", "run", "commcost", "montecarlo", "bench", "record")
 
@@ -67,13 +69,11 @@ def _unwritable(folder: Path) -> str | None:
 
 
 def check_out(command: str, out: str | os.PathLike[str] | None) -> None:
-    """Raise :class:`formation.cli.UsageError` naming ``--out`` when it cannot be used."""
+    """Raise :class:`formation.exits.UsageError` naming ``--out`` when it cannot be used."""
     if out is None or command not in FOLDER_COMMANDS:
         return
     problem = out_problem(out)
     if problem is not None:
-        from formation.cli import UsageError
-
         raise UsageError(f"--out {str(out)[:200]!r} {problem}")
 
 
@@ -131,7 +131,6 @@ class OutputFolder:
         self.release()
 
     def claim(self) -> None:
-        from formation.exits import UsageError
         if not self.path.exists():
             self.path.mkdir(parents=True)
             self.created = True
@@ -149,7 +148,6 @@ class OutputFolder:
             raise
 
     def _lock(self) -> None:
-        from formation.exits import UsageError
         lock = self.path / LOCK
         mine = f"{os.getpid()} {socket.gethostname()}\n"
         for _ in range(3):

@@ -32,8 +32,8 @@ from types import FrameType, TracebackType
 from typing import IO, Any, Protocol
 
 from agent.config import AgentConfig, save_config
-from wire import lifeline
-from wire.router import IN_USE, RouterClash, new_router_id, wait_for_router
+from runtime import lifeline
+from runtime.router import IN_USE, RouterClash, new_router_id, wait_for_router
 from wire.zconf import UsrPwdAuth
 
 logger = logging.getLogger(__name__)
@@ -209,12 +209,12 @@ class Fleet:
     def start_router(self, endpoint: str, port: int, config: Path | None = None,
                      timeout: float = START_TIMEOUT_S, auth: UsrPwdAuth | None = None,
                      also_listen: Sequence[str] = ()) -> Child:
-        """``python -m wire.router`` listening on ``endpoint`` with a fresh per-run id; returns
-        once that very router answers there (:func:`wire.router.wait_for_router`, logging in as
+        """``python -m runtime.router`` listening on ``endpoint`` with a fresh per-run id; returns
+        once that very router answers there (:func:`runtime.router.wait_for_router`, logging in as
         ``auth``; ``TimeoutError`` after ``timeout``, :meth:`check` meanwhile). A port that
         another process (another run's router, say) holds is :class:`RouterClash`, naming it."""
         router_id = new_router_id()
-        argv = ["-m", "wire.router", "--listen", endpoint, "--log-level", "WARNING",
+        argv = ["-m", "runtime.router", "--listen", endpoint, "--log-level", "WARNING",
                 "--id", router_id]
         for extra in also_listen:  # e.g. the pose zones' private socket (simulator.zones)
             argv += ["--listen", extra]

@@ -4,7 +4,7 @@ The launcher validates the scenario, picks a loopback port, and starts, each in 
 group (``start_new_session``) with explicit ``tcp/127.0.0.1:PORT`` endpoints and multicast
 scouting off:
 
-* a Zenoh router (``python -m wire.router``);
+* a Zenoh router (``python -m runtime.router``);
 * one agent per robot (``python -m agent --config DIR/configs/ROBOT.yaml``, ``--lockstep`` unless
   ``--realtime``), each writing its counters to ``DIR/agents/ROBOT.json`` when it stops. With
   ``--agents-per-process K`` the agents run K to an agent host (``python -m agent.host``, child
@@ -53,11 +53,11 @@ import zenoh
 
 from agent.config import build_agent_configs
 from agent.faults import LinkFaults
+from runtime.ports import free_tcp_port, tcp_endpoint
 from scenario import Scenario
 from scenario.succession import formation_successor
 from wire import acl, keys, traffic
 from wire.payloads import DecodeError, decode_status
-from wire.ports import free_tcp_port, tcp_endpoint
 from wire.stamps import merge_counts
 from wire.zconf import UsrPwdAuth, ZenohSettings
 

@@ -65,12 +65,12 @@ import numpy as np
 import zenoh
 
 from agent import unicycle
+from runtime.heap import freeze_startup
+from runtime.shutdown import STEP_LIMIT_S, within
 from scenario import Scenario
 from wire import keys
-from wire.heap import freeze_startup
 from wire.payloads import Cmd, DecodeError, ObstacleMsg, Obstacles, Pose, decode_cmd
 from wire.shapes import shape_to_msg
-from wire.shutdown import STEP_LIMIT_S, within
 from wire.stamps import CLOCK_TOLERANCE_S, EPS, StampCounter
 from wire.traffic import CountingPublisher, TrafficCounter
 
@@ -364,7 +364,7 @@ class World:
 
     def close(self, step_limit: float = STEP_LIMIT_S) -> None:
         """Undeclare the world's subscribers and publishers, each step waiting at most
-        ``step_limit`` seconds (:func:`wire.shutdown.within`: a hung step is logged, not waited
+        ``step_limit`` seconds (:func:`runtime.shutdown.within`: a hung step is logged, not waited
         for); the session is its owner's to close."""
         subs, pubs = list(self._subs), [*self._pose_pubs, self._obs_pub]
         within(step_limit, f"world: undeclaring {len(subs)} subscribers", lambda: _undeclare(subs))
@@ -429,7 +429,7 @@ class World:
         series = Series()
         inbox = self.inbox
         inbox.measure_latency = opts.realtime
-        freeze_startup()  # no full collection of start-up's objects mid-run (wire.heap)
+        freeze_startup()  # no full collection of start-up's objects mid-run (runtime.heap)
         counts = _Counts()
         stamps: list[float] = []
         robot_stamps: list[list[float]] = []
@@ -683,8 +683,8 @@ def _is_zero(c: Cmd | None) -> bool:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from runtime.lifeline import watch_parent
     from scenario import ScenarioError, load_scenario
-    from wire.lifeline import watch_parent
     from wire.zconf import add_zenoh_args, open_session, settings_from_args, use_zenoh_threads
 
     parser = argparse.ArgumentParser(prog="python -m simulator.world",

@@ -32,9 +32,9 @@ from typing import Any
 
 import zenoh
 
+from runtime.ports import free_tcp_port, tcp_endpoint
 from scenario import Scenario
 from wire.acl import zone_router_config
-from wire.ports import free_tcp_port, tcp_endpoint
 from wire.zconf import UsrPwdAuth, ZenohSettings
 
 logger = logging.getLogger(__name__)

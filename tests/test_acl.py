@@ -1,4 +1,4 @@
-"""Access control (wire.acl) enforced by a Python router (``python -m wire.router --config``)
+"""Access control (wire.acl) enforced by a Python router (``python -m runtime.router --config``)
 with user/password authentication: only robot r1's agent can command r1."""
 
 from __future__ import annotations
@@ -15,10 +15,11 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from deploy import router_files
 from formation.cli import main
+from runtime.testing import free_tcp_port, tcp_endpoint, wait_for_tcp_port
 from wire import acl, keys, zconf
 from wire.frames import stats_key
-from wire.testing import free_tcp_port, tcp_endpoint, wait_for_tcp_port
 from wire.zconf import UsrPwdAuth, ZenohSettings
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -66,7 +67,7 @@ class SecureRouter:
             (folder / "users.txt").resolve()))
         env = dict(os.environ, PYTHONPATH=str(ROOT))
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "wire.router", "--listen", self.endpoint, "--config",
+            [sys.executable, "-m", "runtime.router", "--listen", self.endpoint, "--config",
              str(self.config), "--log-level", "WARNING"], env=env, stdin=subprocess.DEVNULL)
         try:
             wait_for_tcp_port(self.port, timeout_s=15.0)
@@ -237,8 +238,9 @@ def test_formation_run_secure_logs_every_process_in_and_equals_the_open_run(tmp_
     assert (tmp_path / "sim" / "robots.csv").read_text() == (tmp_path / "ref" / "robots.csv").read_text()
 
 
-def test_python_m_wire_acl_writes_a_fleets_router_files_zenoh_accepts(tmp_path, capsys):
-    assert acl.main([str(ROOT / "scenarios" / "thesis-5.2.2.yaml"), "--out", str(tmp_path / "f")]) == 0
+def test_python_m_deploy_router_files_writes_a_fleets_router_files_zenoh_accepts(tmp_path, capsys):
+    scenario = str(ROOT / "scenarios" / "thesis-5.2.2.yaml")
+    assert router_files.main([scenario, "--out", str(tmp_path / "f")]) == 0
     folder = tmp_path / "f"
     conf = zenoh.Config.from_file(str(folder / "router.json5"))
     assert json.loads(conf.get_json("access_control/default_permission")) == "deny"
@@ -246,7 +248,7 @@ def test_python_m_wire_acl_writes_a_fleets_router_files_zenoh_accepts(tmp_path, 
     assert sorted(u.split(":")[0] for u in users) == sorted(
         ["camera", "manager", "viewer", "r1", "r2", "r3", "r4", "s1", "s2", "s3", "s4"])
     assert acl.read_credentials(folder / "r1.credentials").user == "r1"
-    assert acl.main([str(tmp_path / "missing.yaml"), "--out", str(tmp_path / "g")]) == 2
+    assert router_files.main([str(tmp_path / "missing.yaml"), "--out", str(tmp_path / "g")]) == 2
 
 
 def test_a_robot_drives_its_own_base_and_no_other(router):
@@ -332,15 +334,15 @@ def test_refused_credentials_are_reported_as_such(router, tmp_path):
         pass
 
 
-def test_python_m_wire_acl_lets_each_robot_drive_its_base(tmp_path):
-    """The router files ``python -m wire.acl`` writes: r1's agent puts on r1/cmd_vel and the
+def test_python_m_deploy_router_files_lets_each_robot_drive_its_base(tmp_path):
+    """The router files ``python -m deploy.router_files`` writes: r1's agent puts on r1/cmd_vel and the
     bridge (logged in as r1) gets every put (it got 0 of 10 before)."""
     port = free_tcp_port()
     folder = tmp_path / "f"
-    assert acl.main([str(ROOT / "scenarios" / "thesis-5.2.2.yaml"), "--out", str(folder),
+    assert router_files.main([str(ROOT / "scenarios" / "thesis-5.2.2.yaml"), "--out", str(folder),
                      "--listen", tcp_endpoint(port)]) == 0
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.Popen([sys.executable, "-m", "wire.router", "--listen", tcp_endpoint(port),
+    proc = subprocess.Popen([sys.executable, "-m", "runtime.router", "--listen", tcp_endpoint(port),
                              "--config", str(folder / "router.json5"), "--log-level", "WARNING"],
                             env=env, stdin=subprocess.DEVNULL)
     try:

@@ -16,10 +16,10 @@ import zenoh
 from agent.base import decode_twist, decode_twist_stamped
 from agent.config import ZenohSettings, build_agent_configs
 from agent.node import AgentNode, NodeOptions
+from runtime.testing import RouterProcess
 from scenario import load_scenario
 from wire import zconf
 from wire.payloads import Cmd
-from wire.testing import RouterProcess
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -20,10 +20,10 @@ from agent.config import ZenohSettings, build_agent_configs, save_config
 from formation.cli import main
 from leader.ellipse import Ellipse
 from leader.role import ellipse_to_msg
+from runtime.testing import RouterProcess, wait_for_matching
 from scenario import load_scenario
 from wire import keys, zconf
 from wire.payloads import Cmd, ObstacleMsg, Obstacles, Others, Pose, State, decode_cmd, encode
-from wire.testing import RouterProcess, wait_for_matching
 
 ROOT = Path(__file__).resolve().parent.parent
 TWO_SMALL = ROOT / "tests" / "scenarios" / "two-small.yaml"

@@ -28,10 +28,10 @@ from agent.config import ZenohSettings, build_agent_configs, save_config
 from agent.node import AgentNode, NodeOptions
 from leader.ellipse import Ellipse
 from leader.role import ellipse_to_msg
+from runtime.testing import RouterProcess, wait_for_matching
 from scenario import load_scenario
 from wire import keys, zconf
 from wire.payloads import Cmd, ObstacleMsg, Obstacles, Others, Pose, State, decode_cmd, encode
-from wire.testing import RouterProcess, wait_for_matching
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIO = ROOT / "scenarios" / "thesis-5.2.2.yaml"

@@ -27,10 +27,10 @@ from camera_service.cli import main as camera_main
 from camera_service.config import ConfigError, config_from_dict
 from camera_service.tracking import ObstacleTracker, start_track, update_track
 from formation.cli import main
+from runtime.testing import free_tcp_port, tcp_endpoint
 from wire import keys
 from wire.frames import Frame, decode_frame, encode_frame, frame_key, stats_key
 from wire.payloads import DecodeError, decode_obstacles, decode_pose
-from wire.testing import free_tcp_port, tcp_endpoint
 from wire.zconf import make_config
 
 REPO = Path(__file__).resolve().parent.parent

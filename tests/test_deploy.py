@@ -138,9 +138,9 @@ def router() -> Iterator[str]:
 
 
 def start_router(endpoint: str, config: Path) -> subprocess.Popen:
-    """``python -m wire.router`` with ``config`` (deploy's router.json5: users and ACL)."""
+    """``python -m runtime.router`` with ``config`` (deploy's router.json5: users and ACL)."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen([sys.executable, "-m", "wire.router", "--listen", endpoint,
+    proc = subprocess.Popen([sys.executable, "-m", "runtime.router", "--listen", endpoint,
                              "--config", str(config), "--log-level", "WARNING"], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:

@@ -24,6 +24,7 @@ import pytest
 import zenoh
 
 from agent.config import ZenohSettings, build_agent_configs, save_config
+from runtime.testing import RouterProcess, wait_for_matching
 from scenario import load_scenario
 from simulator.world import World, WorldOptions
 from wire import keys, zconf
@@ -45,7 +46,6 @@ from wire.payloads import (
     decode_state,
     encode,
 )
-from wire.testing import RouterProcess, wait_for_matching
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIO = ROOT / "scenarios" / "thesis-5.2.2.yaml"

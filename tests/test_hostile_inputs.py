@@ -25,10 +25,10 @@ import pytest
 import zenoh
 
 from formation.cli import main
+from runtime.testing import free_tcp_port, tcp_endpoint
 from scenario import load_scenario
 from wire import keys, zconf
 from wire.payloads import Cmd, Obstacles, Pose, State, decode_pose, encode
-from wire.testing import free_tcp_port, tcp_endpoint
 
 ROOT = Path(__file__).resolve().parent.parent
 TWO = ROOT / "tests" / "scenarios" / "two-small.yaml"

@@ -12,9 +12,9 @@ import zenoh
 from formation.commands import goal as navcmd
 from geometry.shapes import box
 from leader.navigation import Follower, Navigator
+from runtime.testing import RouterProcess
 from wire import keys
 from wire.payloads import DecodeError, decode_goal, encode_nav
-from wire.testing import RouterProcess
 from wire.zconf import ZenohSettings
 
 SHELF = box("shelf", (2.0, 0.0), (0.6, 2.0), 0.0, 0.15)

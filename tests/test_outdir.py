@@ -183,7 +183,7 @@ def test_an_unwritable_out_is_exit_2_for_every_command(tmp_path, capsys):
 
 
 def test_a_recording_owns_its_out_like_a_run(tmp_path, capsys):
-    from wire.testing import RouterProcess
+    from runtime.testing import RouterProcess
 
     out = tmp_path / "o"
     assert _sim(out) == 0  # a run's output, then a recording into the same folder replaces it

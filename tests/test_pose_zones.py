@@ -20,11 +20,11 @@ from hypothesis import strategies as st
 
 from experiments.fleet_scenario import fleet_scenario
 from formation.cli import main
+from runtime.testing import free_tcp_port
 from simulator.world import World, WorldOptions
 from simulator.zones import PoseZones, ZoneSecurity, zone_assignment
 from wire import acl, keys, zconf
 from wire.payloads import Cmd, decode_pose, encode
-from wire.testing import free_tcp_port
 
 ROOT = Path(__file__).resolve().parent.parent
 TWO = ROOT / "tests" / "scenarios" / "two-small.yaml"

@@ -17,8 +17,9 @@ import pytest
 import yaml
 import zenoh
 
-from wire import lifeline, zconf
-from wire.testing import RouterProcess
+from runtime import lifeline
+from runtime.testing import RouterProcess
+from wire import zconf
 from wire.zconf import ZenohSettings, make_config
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -119,11 +120,11 @@ def test_a_child_whose_launcher_is_gone_is_told_through_the_lifeline_pipe():
     env, fds = lifeline.child_env(os.environ)
     assert env[lifeline.PARENT_ENV] == str(os.getpid())
     # a child that watches its parent (this process's child: a shell in between, killed below)
-    code = ("import time, sys, threading; from wire import lifeline; ev = threading.Event(); "
+    code = ("import time, sys, threading; from runtime import lifeline; ev = threading.Event(); "
             "lifeline.watch_parent(ev.set) or sys.exit(3); "
             "print('watching', flush=True); ev.wait(20) and print('told', flush=True)")
     # the parent is an intermediate python that starts the watcher with the lifeline, then dies
-    parent = ("import os, subprocess, sys; from wire import lifeline; "
+    parent = ("import os, subprocess, sys; from runtime import lifeline; "
               "env, fds = lifeline.child_env(os.environ); "
               f"p = subprocess.Popen([sys.executable, '-c', {code!r}], env=env, pass_fds=fds); "
               "print(p.pid, flush=True); sys.stdin.read(); os._exit(0)")

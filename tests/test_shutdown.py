@@ -11,9 +11,9 @@ from pathlib import Path
 
 from agent.config import build_agent_configs
 from agent.node import AgentNode
+from runtime.shutdown import within
 from scenario import load_scenario
 from simulator.world import World
-from wire.shutdown import within
 
 ROOT = Path(__file__).resolve().parent.parent
 LIMIT = 0.2

@@ -15,20 +15,18 @@ ROOT = Path(__file__).resolve().parents[1]
 ALLOWED = {
     "geometry": set(),
     "wire": {"geometry"},
+    "runtime": {"geometry", "wire"},
     "leader": {"geometry", "wire"},
     "scenario": {"geometry", "wire"},  # the one name rule is the key space's (wire.keys)
-    "agent": {"geometry", "leader", "scenario", "wire"},
+    "agent": {"geometry", "leader", "scenario", "wire", "runtime"},
     "camera_service": {"geometry", "scenario", "wire"},
-    "simulator": {"geometry", "agent", "leader", "scenario", "wire", "camera_service", "viewer"},
+    "simulator": {"geometry", "agent", "leader", "scenario", "wire", "runtime", "camera_service", "viewer"},
     "viewer": {"geometry", "wire"},
-    "experiments": {"geometry", "agent", "leader", "scenario", "wire", "camera_service", "simulator",
-                    "viewer"},
-    "deploy": {"geometry", "agent", "leader", "scenario", "wire"},
+    "experiments": {"geometry", "agent", "leader", "scenario", "wire", "runtime", "camera_service",
+                    "simulator", "viewer"},
+    "deploy": {"geometry", "agent", "leader", "scenario", "wire", "runtime"},
 }
 PROJECT = set(ALLOWED) | {"formation"}
-# The one file allowed an upward import, lazily inside its command line: ``python -m wire.acl``
-# writes the credentials of a scenario's fleet. To move above the scenario layer.
-EXCEPTIONS = {"wire/acl.py": {"scenario"}}
 
 
 def _modules(path: Path) -> set[str]:
@@ -55,7 +53,7 @@ def test_a_package_imports_only_the_layers_below_it(package: str) -> None:
     bad = {}
     for path in sorted((ROOT / package).rglob("*.py")):
         rel = str(path.relative_to(ROOT))
-        up = _imports(path) - ALLOWED[package] - {package} - EXCEPTIONS.get(rel, set())
+        up = _imports(path) - ALLOWED[package] - {package}
         if up:
             bad[rel] = sorted(up)
     assert not bad, f"imports running up the layers: {bad}"
@@ -63,7 +61,7 @@ def test_a_package_imports_only_the_layers_below_it(package: str) -> None:
 
 def test_product_code_does_not_import_the_test_helpers() -> None:
     users = [str(p.relative_to(ROOT)) for pkg in PROJECT for p in sorted((ROOT / pkg).rglob("*.py"))
-             if "wire.testing" in _modules(p)]
+             if "runtime.testing" in _modules(p)]
     assert users == []
 
 

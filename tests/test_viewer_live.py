@@ -18,8 +18,8 @@ import pytest
 from browser import Browser, chromium_path, hex_rgb
 from test_viewer_recording import check_recording, read_mcap
 
+from runtime.testing import free_tcp_port, tcp_endpoint, wait_for_tcp_port
 from viewer.record import FLEET_TOPIC, SCENE_TOPIC
-from wire.testing import free_tcp_port, tcp_endpoint, wait_for_tcp_port
 
 ROOT = Path(__file__).resolve().parent.parent
 # two-small with every goal 1 m further: about 14 s of real time

@@ -62,8 +62,8 @@ def test_with_access_control_a_robot_publishes_its_own_diag_and_the_viewer_only_
 
     import zenoh
 
+    from runtime.testing import free_tcp_port, tcp_endpoint, wait_for_tcp_port
     from wire import acl
-    from wire.testing import free_tcp_port, tcp_endpoint, wait_for_tcp_port
     from wire.zconf import ZenohSettings
 
     root = Path(__file__).resolve().parent.parent
@@ -73,7 +73,7 @@ def test_with_access_control_a_robot_publishes_its_own_diag_and_the_viewer_only_
     acl.write_dictionary(tmp_path / "users.txt", creds)
     acl.write_router_config(tmp_path / "router.json5", acl.router_config(
         [ep], acl.fleet_acl({"r1": "F", "r2": "F"}, {"F": "r1"}), (tmp_path / "users.txt").resolve()))
-    router = subprocess.Popen([sys.executable, "-m", "wire.router", "--listen", ep, "--config",
+    router = subprocess.Popen([sys.executable, "-m", "runtime.router", "--listen", ep, "--config",
                                str(tmp_path / "router.json5"), "--log-level", "ERROR"],
                               env=dict(os.environ, PYTHONPATH=str(root)), stdin=subprocess.DEVNULL)
 

@@ -1,5 +1,5 @@
 """Real Zenoh sessions on loopback: a Python router in a child process (``python -m
-wire.router``), client sessions with explicit ``tcp/127.0.0.1:PORT`` endpoints and multicast
+runtime.router``), client sessions with explicit ``tcp/127.0.0.1:PORT`` endpoints and multicast
 scouting off, samples handed through a Mailbox into an asyncio loop, traffic counted on both
 sides. Every wait has a timeout and every session is closed."""
 
@@ -19,10 +19,8 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from wire import keys, traffic, zconf
-from wire.payloads import State, decode_state, encode
-from wire.router import run_router
-from wire.testing import (
+from runtime.router import run_router
+from runtime.testing import (
     RouterProcess,
     free_tcp_port,
     has_matching_subscribers,
@@ -30,6 +28,8 @@ from wire.testing import (
     wait_for_matching,
     wait_for_tcp_port,
 )
+from wire import keys, traffic, zconf
+from wire.payloads import State, decode_state, encode
 
 TIMEOUT_S = 10.0
 P = keys.DEFAULT_PREFIX
@@ -172,7 +172,7 @@ def test_the_router_process_exits_zero_on_sigint() -> None:
 
 def test_the_router_process_rejects_a_bad_endpoint_with_status_2() -> None:
     result = subprocess.run(
-        [sys.executable, "-m", "wire.router", "--listen", "127.0.0.1:1"],
+        [sys.executable, "-m", "runtime.router", "--listen", "127.0.0.1:1"],
         capture_output=True,
         timeout=TIMEOUT_S,
         text=True,

@@ -34,7 +34,7 @@ Schema (zenoh 1.x, ``DEFAULT_CONFIG.json5`` of eclipse-zenoh/zenoh)::
     }
 
 The ACL is enforced by whichever Zenoh node holds it; in this project that is the router (a
-Python session in router mode, ``python -m wire.router --config FILE``), and the clients must
+Python session in router mode, ``python -m runtime.router --config FILE``), and the clients must
 reach each other only through it (client mode, multicast scouting off). What a test verified
 with zenoh-python 1.10 is in docs/faults.md ("Access control").
 """
@@ -303,66 +303,3 @@ def write_router_config(path: str | os.PathLike[str], conf: Mapping[str, Any]) -
         raise ValueError(f"router config rejected by zenoh: {exc}") from None
     Path(path).write_text(text, encoding="utf-8")
 
-
-def write_fleet_files(scenario_path: str | os.PathLike[str], folder: str | os.PathLike[str],
-                      listen: Sequence[str], prefix: str = keys.DEFAULT_PREFIX,
-                      cmd_vel_key: str = "{robot}/cmd_vel") -> list[Path]:
-    """The router's ``router.json5`` and ``users.txt`` and one ``ROBOT.credentials`` per robot
-    (plus ``camera``, ``manager`` and ``viewer``) for a scenario's fleet, with fresh passwords,
-    in ``folder``. ``cmd_vel_key`` is each robot's base command key (``{robot}`` replaced)."""
-    from scenario import load_scenario
-    from scenario.succession import formation_successor
-
-    sc = load_scenario(Path(scenario_path))
-    out = Path(folder)
-    out.mkdir(parents=True, exist_ok=True)
-    out.chmod(0o700)
-    robots = {rid: sc.formation_of(rid).name for rid in sc.robot_ids}
-    successors = {f.name: s for f in sc.formations if (s := formation_successor(f)) is not None}
-    creds = new_credentials([CAMERA_USER, MANAGER_USER, VIEWER_USER, *robots])
-    write_dictionary(out / "users.txt", creds)
-    written = [out / "users.txt"]
-    for user, auth in creds.items():
-        write_credentials(out / f"{user}.credentials", auth)
-        written.append(out / f"{user}.credentials")
-    cmd_vel = {rid: cmd_vel_key.format(robot=rid) for rid in robots}
-    conf = router_config(listen, fleet_acl(robots, {f.name: f.leader for f in sc.formations},
-                                           prefix, successors=successors, cmd_vel=cmd_vel),
-                         (out / "users.txt").resolve())
-    write_router_config(out / "router.json5", conf)
-    return [out / "router.json5", *written]
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m wire.acl SCENARIO --out DIR [--listen ENDPOINT]``: a fleet's router files."""
-    import argparse
-    import sys
-
-    parser = argparse.ArgumentParser(prog="python -m wire.acl", description=main.__doc__)
-    parser.add_argument("scenario")
-    parser.add_argument("--out", required=True, help="folder for the files (mode 0700)")
-    parser.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
-                        help="router endpoint (repeatable; default tcp/0.0.0.0:7447)")
-    parser.add_argument("--key-prefix", default=keys.DEFAULT_PREFIX)
-    parser.add_argument("--cmd-vel-key", default="{robot}/cmd_vel", metavar="TEMPLATE",
-                        help="each robot's base command key, {robot} replaced by its id "
-                             "(default {robot}/cmd_vel: zenoh-bridge-ros2dds with "
-                             "namespace {robot}, as formation deploy sets it up)")
-    ns = parser.parse_args(argv)
-    if "{robot}" not in ns.cmd_vel_key:
-        print("wire.acl: --cmd-vel-key must contain {robot} (one base key per robot)",
-              file=sys.stderr)
-        return 2
-    try:
-        files = write_fleet_files(ns.scenario, ns.out, ns.listen or ["tcp/0.0.0.0:7447"],
-                                  ns.key_prefix, ns.cmd_vel_key)
-    except ValueError as exc:  # ScenarioError is a ValueError too
-        print(f"wire.acl: {exc}", file=sys.stderr)
-        return 2
-    print("wrote " + ", ".join(str(f) for f in files))
-    print(f"run the router with: python -m wire.router --listen ... --config {files[0]}")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -22,7 +22,7 @@ key                                value
                                    endpoints (a client fails at once by default)
 ``scouting/delay``                 how long a peer or router ``zenoh.open`` waits for scouting
                                    (zenoh's default makes it take about 0.5 s; a router
-                                   started by :mod:`wire.router` sets 0)
+                                   started by :mod:`runtime.router` sets 0)
 ``transport/auth/usrpwd/user``,    user/password authentication (:class:`UsrPwdAuth`; see its
 ``.../password``,                  TODO)
 ``.../dictionary_file``

@@ -58,7 +58,7 @@ def deploy_command(ns: argparse.Namespace) -> int:
     if inventory.zenoh.access_control and action is None:
         print(f"access control: one Zenoh user per robot; the router's files and the camera, "
               f"manager and viewer credentials are in {inventory.zenoh.secrets}/ "
-              f"(python -m wire.router --listen {inventory.zenoh.router} --config "
+              f"(python -m runtime.router --listen {inventory.zenoh.router} --config "
               f"{inventory.zenoh.secrets / 'router.json5'})")
     for report in outcome.reports:
         print(deployer.format_report(report))

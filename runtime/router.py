@@ -3,7 +3,7 @@
 A zenoh-python session opened with ``mode: router`` relays samples between the clients (and
 peers) connected to it. Run it as a process::
 
-    python -m wire.router --listen tcp/127.0.0.1:7447
+    python -m runtime.router --listen tcp/127.0.0.1:7447
 
 until SIGINT or SIGTERM (exit status 0), or in-process with :func:`run_router` and a
 ``threading.Event`` that stops it. Multicast scouting is off unless ``--multicast-scouting``.
@@ -34,7 +34,7 @@ from collections.abc import Callable, Sequence
 
 import zenoh
 
-from wire.lifeline import watch_parent
+from runtime.lifeline import watch_parent
 from wire.zconf import UsrPwdAuth, ZenohSettings, use_zenoh_threads
 
 logger = logging.getLogger(__name__)
@@ -116,9 +116,9 @@ def run_router(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``python -m wire.router``."""
+    """Entry point of ``python -m runtime.router``."""
     parser = argparse.ArgumentParser(
-        prog="python -m wire.router", description="Run a Zenoh router (a Python router session)."
+        prog="python -m runtime.router", description="Run a Zenoh router (a Python router session)."
     )
     parser.add_argument(
         "--listen", metavar="ENDPOINT", action="append", default=None,
@@ -158,16 +158,16 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
-    watch_parent()  # started by a launcher: stop when it dies (wire.lifeline)
+    watch_parent()  # started by a launcher: stop when it dies (runtime.lifeline)
     use_zenoh_threads("relay")
     try:
         run_router(listen, stop, connect=ns.connect, multicast_scouting=ns.multicast_scouting,
                    config_file=ns.config, router_id=ns.router_id)
     except ValueError as exc:
-        print(f"wire.router: {exc}", file=sys.stderr)
+        print(f"runtime.router: {exc}", file=sys.stderr)
         return 2
     except Exception as exc:  # zenoh.ZError: cannot listen, etc.
-        print(f"wire.router: {exc}", file=sys.stderr)
+        print(f"runtime.router: {exc}", file=sys.stderr)
         return 1
     return 0
 

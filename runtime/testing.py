@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 from types import TracebackType
 
-from wire.ports import LOOPBACK, free_tcp_port, tcp_endpoint, wait_for_tcp_port
+from runtime.ports import LOOPBACK, free_tcp_port, tcp_endpoint, wait_for_tcp_port
 
 __all__ = ["LOOPBACK", "RouterProcess", "free_tcp_port", "has_matching_subscribers", "tcp_endpoint",
            "wait_for_matching", "wait_for_tcp_port"]
@@ -45,7 +45,7 @@ def wait_for_matching(publisher: object, timeout_s: float = 10.0) -> None:
 
 
 class RouterProcess:
-    """``python -m wire.router --listen tcp/127.0.0.1:PORT`` as a child process.
+    """``python -m runtime.router --listen tcp/127.0.0.1:PORT`` as a child process.
 
     ``with RouterProcess() as router: ... router.endpoint ...``; on exit the child gets SIGTERM,
     then SIGKILL if it has not exited within ``stop_timeout_s``. ``returncode`` holds its exit
@@ -74,7 +74,7 @@ class RouterProcess:
             p for p in (str(_REPO_ROOT), env.get("PYTHONPATH", "")) if p
         )
         self._proc = subprocess.Popen(
-            [sys.executable, "-m", "wire.router", "--listen", self.endpoint,
+            [sys.executable, "-m", "runtime.router", "--listen", self.endpoint,
              "--log-level", self._log_level],
             env=env,
             stdin=subprocess.DEVNULL,
