@@ -27,6 +27,7 @@ from pathlib import Path
 import pytest
 import yaml
 import zenoh
+from system import require
 
 from deploy import deployer
 from deploy.inventory import InventoryError, check_against_scenario, load_inventory
@@ -90,12 +91,9 @@ def stop_process(proc: subprocess.Popen) -> None:
 @pytest.fixture(scope="module")
 def sshd(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict]:
     """Two sshd on 127.0.0.1 accepting a generated key for the current user."""
-    if not SSHD.exists() and os.geteuid() == 0 and shutil.which("apt-get"):
-        env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
-        subprocess.run("apt-get update -qq && apt-get install -y -qq openssh-server",
-                       shell=True, check=False, env=env, capture_output=True, timeout=300)
-    if not SSHD.exists() or not shutil.which("ssh") or not shutil.which("scp"):
-        pytest.fail("OpenSSH (sshd, ssh, scp) is needed: apt-get install openssh-server")
+    require(SSHD.exists(), "OpenSSH's server (sshd)", "openssh-server")
+    require(bool(shutil.which("ssh") and shutil.which("scp")), "OpenSSH's client (ssh, scp)",
+            "openssh-client")
     d = tmp_path_factory.mktemp("sshd")
     keygen = ["ssh-keygen", "-q", "-t", "ed25519", "-N", ""]
     subprocess.run([*keygen, "-f", str(d / "host_key")], check=True)

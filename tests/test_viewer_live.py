@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from browser import Browser, chromium_path, hex_rgb
+from system import require
 from test_viewer_recording import check_recording, read_mcap
 
 from runtime.testing import free_tcp_port, tcp_endpoint, wait_for_tcp_port
@@ -88,8 +89,8 @@ def foxglove_messages(port: int, topics: set[str], count: int, timeout: float = 
     return out
 
 
-@pytest.mark.skipif(chromium_path() is None, reason="chromium is not installed (.ci/run installs it)")
 def test_a_live_run_serves_the_page_and_foxglove_while_a_recorder_attaches(tmp_path):
+    require(chromium_path() is not None, "chromium", "chromium")
     scenario = tmp_path / "two.yaml"
     scenario.write_text(SCENARIO, encoding="utf-8")
     page, router = free_tcp_port(), free_tcp_port()
