@@ -80,12 +80,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import NamedTuple
 
 from geometry.ellipse import Ellipse, ellipse_terms
 from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE, BURGER_RADIUS
 from geometry.shapes import Shape
+from scenario import limits
 
 from . import barriers, unicycle
 from .barriers import Neighbour, Obstacle, Partner
@@ -121,8 +122,28 @@ RIGID_FADE = (0.02, 0.1)  # [rad] remaining turns over which the carrot takes ov
 RIGID_LEFT_BIAS = math.radians(20.0)  # a turn within this of 180 degrees goes left (all alike)
 
 
+#: The range of each number of :class:`ControlParams`: the scenario's (:mod:`scenario.limits`);
+#: ``period`` may be a camera's pose period, in the same range as a control period.
+PARAM_RANGES: dict[str, limits.Range] = {
+    "kp": limits.GAIN,
+    "gamma_formation": limits.GAMMA,
+    "gamma_obstacle": limits.GAMMA,
+    "gamma_formations": limits.GAMMA,
+    "epsilon": limits.EPSILON,
+    "max_speed": limits.MAX_SPEED,
+    "lookahead": limits.LOOKAHEAD,
+    "max_turn_rate": limits.MAX_TURN_RATE,
+    "d_af": limits.DISTANCE,
+    "period": limits.DT,
+    "radius": limits.RADIUS,
+}
+
+
 @dataclass(frozen=True)
 class ControlParams:
+    """The controller's parameters; every number is checked against :data:`PARAM_RANGES` and
+    every switch must be a bool (ValueError naming the field) when one is built."""
+
     kp: float = 2.0  # eq. 4.2
     gamma_formation: float = 1.0
     gamma_obstacle: float = 1.0
@@ -139,6 +160,15 @@ class ControlParams:
     radius: float = BURGER_RADIUS  # [m] body radius: separation rows keep bodies 2 r + SEP_MARGIN apart
     band_first: bool = True  # formation keeping first (yield_push, band_nominal)
     shape_clear: bool = True  # static obstacles kept out of the formation's shape (shape_push)
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            allowed = PARAM_RANGES.get(f.name)
+            if allowed is not None:
+                limits.check(value, f.name, allowed)
+            elif not isinstance(value, bool):
+                raise ValueError(f"{f.name}: must be true or false, got {value!r}")
 
     @classmethod
     def from_scenario(cls, scenario, safety: bool = True) -> ControlParams:
