@@ -256,6 +256,8 @@ def build_agent_configs(
 
 
 def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
+    """Every field of ``cfg`` (``dataclasses.asdict``: the file's keys are the dataclass's
+    fields, in their order), with only the Zenoh settings an agent's file holds."""
     extra = [f.name for f in dataclasses.fields(cfg.zenoh)
              if f.name not in AGENT_ZENOH_FIELDS and getattr(cfg.zenoh, f.name) is not None]
     if extra:
