@@ -9,20 +9,23 @@ shape, ellipse axes, the other formations). It holds nothing about robots it nev
 from __future__ import annotations
 
 import dataclasses
-import math
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator
+from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from types import NoneType, UnionType
+from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
 
 import yaml
 
 from geometry.ellipse import reference_shape
 from geometry.limits import BURGER_RADIUS
 from geometry.unicycle import control_point
-from leader.settings import LeaderSettings  # noqa: F401  (re-exported)
-from scenario import Scenario, formation_axes
+from leader.settings import LeaderSettings
+from scenario import Scenario, formation_axes, limits
+from scenario.reader import excerpt
 from scenario.routes import initial_route
 from scenario.succession import formation_successor
+from wire.keys import name_problem, validate_prefix
 from wire.stamps import CLOCK_TOLERANCE_S
 from wire.zconf import ZenohSettings
 
@@ -81,9 +84,107 @@ class AgentConfig:
     planner: bool = True  # the leader plans routes around walls and shelves for new goals
     goal_tolerance: float = 0.05  # [m]
 
+    def __post_init__(self) -> None:
+        _check_names(self)
+        _check_numbers(self)
+        _check_leader("leader", self.leader)
+        _check_leader("standby", self.standby)
+        for name, value, allowed in (("topology", self.topology, TOPOLOGIES),
+                                     ("base", self.base, BASES)):
+            if value not in allowed:
+                raise ValueError(f"{name}: {value!r} is not one of {allowed}")
+
     @property
     def is_leader(self) -> bool:
         return self.leader is not None
+
+
+#: The range of every number in an :class:`AgentConfig` (every number inside a field: each
+#: coordinate of a goal, each Df of the neighbours); a tuple gives one range per position.
+#: The scenario's ranges (:mod:`scenario.limits`): a robot's file holds what its scenario did.
+CONFIG_RANGES: dict[str, limits.Range | tuple[limits.Range, ...]] = {
+    "goal": limits.COORDINATE,
+    "formation_goal": limits.COORDINATE,
+    "neighbours": limits.DISTANCE,
+    "period": limits.DT,
+    "radius": limits.RADIUS,
+    "start": (limits.COORDINATE, limits.COORDINATE, limits.HEADING),
+    "stale_after": limits.STALE_AFTER,
+    "clock_tolerance": limits.CLOCK_TOLERANCE,
+    "pose_period": limits.POSE_PERIOD,
+    "route": limits.COORDINATE,
+    "member_goals": limits.COORDINATE,
+    "goal_tolerance": limits.GOAL_TOLERANCE,
+}
+LEADER_RANGES: dict[str, limits.Range | tuple[limits.Range, ...]] = {
+    "offsets": limits.COORDINATE,
+    "alpha0": limits.HEADING,
+    "axes": limits.DISTANCE,
+}
+#: Most entries of a list field (the scenario's counts).
+CONFIG_COUNTS = {
+    "neighbours": limits.MAX_FORMATION_ROBOTS - 1,
+    "partners": limits.MAX_FORMATION_ROBOTS - 1,
+    "member_goals": limits.MAX_FORMATION_ROBOTS,
+    "route": limits.MAX_WAYPOINTS + 1,
+    "members": limits.MAX_FORMATION_ROBOTS,
+    "other_formations": limits.MAX_FORMATIONS - 1,
+}
+
+
+def _check_names(cfg: AgentConfig) -> None:
+    """Every robot and formation name follows the one name rule (:func:`wire.keys.name_problem`)."""
+    validate_prefix(cfg.prefix)
+    names = [("robot_id", cfg.robot_id), ("formation", cfg.formation),
+             ("leader_id", cfg.leader_id)]
+    names += [(f"neighbours[{k}]", n) for k, (n, _) in enumerate(cfg.neighbours)]
+    names += [(f"member_goals[{k}]", m) for k, (m, _, _) in enumerate(cfg.member_goals)]
+    names += [(f"{name}[{k}]", n) for name in ("partners", "foreign_robots")
+              for k, n in enumerate(getattr(cfg, name))]
+    for where, name in names:
+        problem = name_problem(name)
+        if problem is not None:
+            raise ValueError(f"{where}: {excerpt(name)} is not a valid name: it {problem}")
+
+
+def _check_numbers(record: Any, ranges: dict[str, Any] | None = None) -> None:
+    """Every number of ``record`` in its range and every list within its count."""
+    for name, allowed in (CONFIG_RANGES if ranges is None else ranges).items():
+        value = getattr(record, name)
+        if isinstance(allowed, tuple):
+            # ``start`` may be None; a tuple field's length is its type's
+            for k, (v, r) in enumerate(zip(value or (), allowed, strict=False)):
+                limits.check(v, f"{name}[{k}]", r)
+        else:
+            for where, v in _numbers(value, name):
+                limits.check(v, where, allowed)
+    for name, most in CONFIG_COUNTS.items():
+        value = getattr(record, name, ())
+        if len(value) > most:
+            raise ValueError(f"{name}: {len(value)} entries, more than the {most} allowed")
+
+
+def _numbers(value: Any, where: str) -> Iterator[tuple[str, Any]]:
+    """Every number inside ``value`` (strings, names, are left out) with its path."""
+    if isinstance(value, tuple):
+        for k, v in enumerate(value):
+            yield from _numbers(v, f"{where}[{k}]")
+    elif value is not None and not isinstance(value, str):
+        yield where, value
+
+
+def _check_leader(where: str, settings: LeaderSettings | None) -> None:
+    if settings is None:
+        return
+    try:
+        _check_numbers(settings, LEADER_RANGES)
+        for name in ("members", "other_formations"):
+            for k, n in enumerate(getattr(settings, name)):
+                problem = name_problem(n)
+                if problem is not None:
+                    raise ValueError(f"{name}[{k}]: {excerpt(n)} is not a valid name: it {problem}")
+    except ValueError as exc:
+        raise ValueError(f"{where}.{exc}") from None
 
 
 def build_agent_configs(
@@ -100,12 +201,8 @@ def build_agent_configs(
     """One :class:`AgentConfig` per robot of ``scenario``. ``pose_period`` [s] is how often the
     camera really delivers a pose (None: every ``dt``); the stale limit is
     :data:`STALE_PERIODS` of the longer of the two, so the margins hold at the camera's rate."""
-    if pose_period is not None and not (math.isfinite(pose_period) and pose_period > 0):
-        raise ValueError(f"pose_period: must be a positive number, got {pose_period!r}")
-    if topology not in TOPOLOGIES:
-        raise ValueError(f"topology: {topology!r} is not one of {TOPOLOGIES}")
-    if base not in BASES:
-        raise ValueError(f"base: {base!r} is not one of {BASES}")
+    if pose_period is not None:
+        limits.check(pose_period, "pose_period", limits.POSE_PERIOD)
     zenoh = zenoh or agent_zenoh()
     params = ControlParams.from_scenario(scenario, safety=safety)
     if pose_period is not None and pose_period > scenario.dt:
@@ -159,6 +256,8 @@ def build_agent_configs(
 
 
 def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
+    """Every field of ``cfg`` (``dataclasses.asdict``: the file's keys are the dataclass's
+    fields, in their order), with only the Zenoh settings an agent's file holds."""
     extra = [f.name for f in dataclasses.fields(cfg.zenoh)
              if f.name not in AGENT_ZENOH_FIELDS and getattr(cfg.zenoh, f.name) is not None]
     if extra:
@@ -171,82 +270,99 @@ def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
     return d
 
 
-def config_from_dict(d: dict[str, Any]) -> AgentConfig:
-    """Inverse of :func:`config_to_dict`; ValueError naming the field on bad input."""
+def config_from_dict(d: Any) -> AgentConfig:
+    """Inverse of :func:`config_to_dict`, read from :class:`AgentConfig`'s fields and their types:
+    a missing field takes the dataclass's default, unknown fields are refused, and every value
+    is checked (its type here, its range where the dataclass is built); ValueError naming the
+    field."""
     if not isinstance(d, dict):
         raise ValueError("agent config: must be a mapping")
     d = dict(d)
     version = d.pop("version", None)
     if version != CONFIG_VERSION:
         raise ValueError(f"version: expected {CONFIG_VERSION}, got {version!r}")
+    return _record(AgentConfig, d, "")
+
+
+#: Records whose files hold only some of their fields, and how to build them from those.
+_PARTIAL: dict[type, tuple[tuple[str, ...], Callable[..., Any]]] = {
+    ZenohSettings: (AGENT_ZENOH_FIELDS, agent_zenoh),
+}
+
+
+def _record(cls: type, raw: Any, where: str) -> Any:
+    """The dataclass ``cls`` read from the mapping ``raw`` (``where``: its path in the file)."""
+    if not isinstance(raw, dict):
+        raise ValueError(f"{where}: must be a mapping, got {excerpt(raw)}")
+    names, make = _PARTIAL.get(cls, (tuple(f.name for f in fields(cls)), cls))
+    unknown = sorted((k for k in raw if k not in names), key=str)
+    if unknown:
+        raise ValueError(f"agent config: unknown field {_path(where, unknown[0])!r}")
+    hints = get_type_hints(cls)
+    values = {}
+    for f in fields(cls):
+        if f.name in raw:
+            values[f.name] = _value(hints[f.name], raw[f.name], _path(where, f.name))
+        elif f.name in names and f.default is MISSING and f.default_factory is MISSING:
+            raise ValueError(f"agent config: missing field {_path(where, f.name)!r}")
     try:
-        control = ControlParams(**d.pop("control"))
-        zd = dict(d.pop("zenoh", {}))
-        unknown = sorted(set(zd) - set(AGENT_ZENOH_FIELDS))
-        if unknown:
-            raise TypeError(f"zenoh: unexpected field {unknown[0]!r}")
-        zenoh = agent_zenoh(**{k: tuple(v) if isinstance(v, list) else v for k, v in zd.items()})
-        leader = _leader_settings(d.pop("leader", None))
-        standby = _leader_settings(d.pop("standby", None))
-        cfg = AgentConfig(
-            robot_id=str(d.pop("robot_id")),
-            formation=str(d.pop("formation")),
-            leader_id=str(d.pop("leader_id")),
-            goal=tuple(map(float, d.pop("goal"))),  # type: ignore[arg-type]
-            formation_goal=tuple(map(float, d.pop("formation_goal"))),  # type: ignore[arg-type]
-            neighbours=tuple((str(n), float(df)) for n, df in d.pop("neighbours")),
-            control=control,
-            period=float(d.pop("period")),
-            radius=float(d.pop("radius", BURGER_RADIUS)),
-            start=None if d.get("start") is None else tuple(map(float, d.pop("start"))),  # type: ignore[arg-type]
-            prefix=str(d.pop("prefix", "warehouse")),
-            topology=str(d.pop("topology", "reduced")),
-            foreign_robots=tuple(d.pop("foreign_robots", ())),
-            partners=tuple(str(m) for m in d.pop("partners", ())),
-            leader=leader,
-            standby=standby,
-            stale_after=float(d.pop("stale_after", 0.25)),
-            clock_tolerance=float(d.pop("clock_tolerance", CLOCK_TOLERANCE_S)),
-            pose_period=None if d.get("pose_period") is None else float(d.pop("pose_period")),
-            base=str(d.pop("base", "world")),
-            zenoh=zenoh,
-            cmd_vel_key=str(d.pop("cmd_vel_key", "cmd_vel")),
-            frame_id=str(d.pop("frame_id", "base_link")),
-            solver=str(d.pop("solver", "exact")),
-            route=tuple((float(x), float(y)) for x, y in d.pop("route", ())),
-            member_goals=tuple((str(m), float(x), float(y)) for m, x, y in d.pop("member_goals", ())),
-            planner=bool(d.pop("planner", True)),
-            goal_tolerance=float(d.pop("goal_tolerance", 0.05)),
-        )
-        d.pop("start", None)
-        d.pop("pose_period", None)
-    except KeyError as exc:
-        raise ValueError(f"agent config: missing field {exc.args[0]!r}") from None
-    except TypeError as exc:
-        raise ValueError(f"agent config: {exc}") from None
-    if d:
-        raise ValueError(f"agent config: unknown field {sorted(d)[0]!r}")
-    for name, v in (("period", cfg.period), ("stale_after", cfg.stale_after),
-                    ("clock_tolerance", cfg.clock_tolerance), ("pose_period", cfg.pose_period)):
-        if v is not None and not (math.isfinite(v) and v > 0):
-            raise ValueError(f"{name}: must be a positive number, got {v!r}")
-    if cfg.topology not in TOPOLOGIES:
-        raise ValueError(f"topology: {cfg.topology!r} is not one of {TOPOLOGIES}")
-    if cfg.base not in BASES:
-        raise ValueError(f"base: {cfg.base!r} is not one of {BASES}")
-    return cfg
+        return make(**values)
+    except ValueError as exc:
+        raise ValueError(f"{where}.{exc}" if where else str(exc)) from None
 
 
-def _leader_settings(d: dict[str, Any] | None) -> LeaderSettings | None:
-    if d is None:
-        return None
-    return LeaderSettings(
-        members=tuple(d["members"]),
-        offsets=tuple(tuple(map(float, o)) for o in d["offsets"]),  # type: ignore[misc]
-        alpha0=float(d["alpha0"]),
-        axes=tuple(map(float, d["axes"])),  # type: ignore[arg-type]
-        other_formations=tuple(d["other_formations"]),
-    )
+def _value(tp: Any, raw: Any, where: str) -> Any:
+    """``raw`` read as the type ``tp`` (a field's annotation)."""
+    scalar = _SCALARS.get(tp)
+    if scalar is not None:
+        return scalar(raw, where)
+    origin, args = get_origin(tp), get_args(tp)
+    if origin is Literal:
+        if raw not in args:
+            raise ValueError(f"{where}: {excerpt(raw)} is not one of {args}")
+        return raw
+    if origin in (Union, UnionType):
+        return None if raw is None and NoneType in args else _value(
+            next(a for a in args if a is not NoneType), raw, where)
+    if origin is tuple:
+        return _tuple(args, raw, where)
+    return _record(tp, raw, where)
+
+
+def _tuple(args: tuple[Any, ...], raw: Any, where: str) -> tuple[Any, ...]:
+    """A ``tuple[X, ...]`` or ``tuple[X, Y]`` from a list."""
+    if not isinstance(raw, list | tuple):
+        raise ValueError(f"{where}: must be a list, got {excerpt(raw)}")
+    if len(args) == 2 and args[1] is Ellipsis:
+        return tuple(_value(args[0], v, f"{where}[{k}]") for k, v in enumerate(raw))
+    if len(raw) != len(args):
+        raise ValueError(f"{where}: must be a list of {len(args)}, got {excerpt(raw)}")
+    return tuple(_value(a, v, f"{where}[{k}]") for k, (a, v) in enumerate(zip(args, raw, strict=True)))
+
+
+def _float(raw: Any, where: str) -> float:
+    if isinstance(raw, bool) or not isinstance(raw, int | float):
+        raise ValueError(f"{where}: must be a number, got {excerpt(raw)}")
+    return float(raw)
+
+
+def _str(raw: Any, where: str) -> str:
+    if not isinstance(raw, str):
+        raise ValueError(f"{where}: must be a string, got {excerpt(raw)}")
+    return raw
+
+
+def _bool(raw: Any, where: str) -> bool:
+    if not isinstance(raw, bool):
+        raise ValueError(f"{where}: must be true or false, got {excerpt(raw)}")
+    return raw
+
+
+_SCALARS: dict[Any, Callable[[Any, str], Any]] = {float: _float, str: _str, bool: _bool}
+
+
+def _path(where: str, name: str) -> str:
+    return f"{where}.{name}" if where else name
 
 
 def save_config(cfg: AgentConfig, path: str | Path) -> None:

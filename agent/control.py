@@ -80,12 +80,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import NamedTuple
 
 from geometry.ellipse import Ellipse, ellipse_terms
 from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE, BURGER_RADIUS
 from geometry.shapes import Shape
+from scenario import limits as ranges
 
 from . import barriers, unicycle
 from .barriers import Neighbour, Obstacle, Partner
@@ -121,8 +122,28 @@ RIGID_FADE = (0.02, 0.1)  # [rad] remaining turns over which the carrot takes ov
 RIGID_LEFT_BIAS = math.radians(20.0)  # a turn within this of 180 degrees goes left (all alike)
 
 
+#: The range of each number of :class:`ControlParams`: the scenario's (:mod:`scenario.limits`);
+#: ``period`` may be a camera's pose period, in the same range as a control period.
+PARAM_RANGES: dict[str, ranges.Range] = {
+    "kp": ranges.GAIN,
+    "gamma_formation": ranges.GAMMA,
+    "gamma_obstacle": ranges.GAMMA,
+    "gamma_formations": ranges.GAMMA,
+    "epsilon": ranges.EPSILON,
+    "max_speed": ranges.MAX_SPEED,
+    "lookahead": ranges.LOOKAHEAD,
+    "max_turn_rate": ranges.MAX_TURN_RATE,
+    "d_af": ranges.DISTANCE,
+    "period": ranges.DT,
+    "radius": ranges.RADIUS,
+}
+
+
 @dataclass(frozen=True)
 class ControlParams:
+    """The controller's parameters; every number is checked against :data:`PARAM_RANGES` and
+    every switch must be a bool (ValueError naming the field) when one is built."""
+
     kp: float = 2.0  # eq. 4.2
     gamma_formation: float = 1.0
     gamma_obstacle: float = 1.0
@@ -139,6 +160,15 @@ class ControlParams:
     radius: float = BURGER_RADIUS  # [m] body radius: separation rows keep bodies 2 r + SEP_MARGIN apart
     band_first: bool = True  # formation keeping first (yield_push, band_nominal)
     shape_clear: bool = True  # static obstacles kept out of the formation's shape (shape_push)
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            allowed = PARAM_RANGES.get(f.name)
+            if allowed is not None:
+                ranges.check(value, f.name, allowed)
+            elif not isinstance(value, bool):
+                raise ValueError(f"{f.name}: must be true or false, got {value!r}")
 
     @classmethod
     def from_scenario(cls, scenario, safety: bool = True) -> ControlParams:
@@ -335,7 +365,9 @@ def tiebreak_push(
         return (0.0, 0.0)
     gx, gy = gx / dist, gy / dist
     px = py = 0.0
-    hazards = [(e.cx, e.cy, e.vx, e.vy, e.a, e) for e in others]
+    # (x, y, vx, vy, reach, its ellipse: None for an obstacle)
+    hazards: list[tuple[float, float, float, float, float, Ellipse | None]] = [
+        (e.cx, e.cy, e.vx, e.vy, e.a, e) for e in others]
     hazards += [(o.x, o.y, o.vx, o.vy, o.ds, None) for o in obstacles]
     for hx, hy, hvx, hvy, hr, ell in hazards:
         dx, dy = hx - own.cx, hy - own.cy
@@ -433,15 +465,25 @@ def build_rows(
     A barrier row with b >= the largest speed the limit rows allow can never be active: it is
     left out of the QP (exactly: it cannot change the solution, nor any relaxation, since the
     limits are never relaxed). Its barrier value still counts for the reported minimum."""
-    soft: list[Row] = []
-    hard: list[Row] = []
-    contact: list[Row] = []
-    hf = ho = he = math.inf
-    eps = p.epsilon
     if p.unicycle:
         reach = math.hypot(p.max_speed, p.lookahead * p.max_turn_rate)
     else:
         reach = p.max_speed
+    hf, soft = _band_rows(p, px, py, theta, neighbours, reach)
+    ho, contact = _contact_rows(p, px, py, obstacles, shapes, reach)
+    he, hard = _hazard_rows(p, px, py, others, pairwise, reach)
+    hs, sep = _separation_rows(p, px, py, theta, partners, last_u, reach)
+    contact += sep
+    limit_rows = _limit_rows(p, theta, view, nominal_u)
+    return Rows(limit_rows, hard, soft, hf, ho, he, hs, contact)
+
+
+def _band_rows(p: ControlParams, px: float, py: float, theta: float,
+               neighbours: Sequence[Neighbour], reach: float) -> tuple[float, list[Row]]:
+    """The formation edges' rows (eq. 4.12b) that can be active, and the smallest h."""
+    soft: list[Row] = []
+    hf = math.inf
+    eps = p.epsilon
     for n in neighbours:
         narrow = 0.0
         if p.unicycle and n.theta is not None:  # the band is meant for the bodies
@@ -452,8 +494,16 @@ def build_rows(
             soft.append(rg)
         if rl[2] < reach:
             soft.append(rl)
-    off = p.offset
-    grow = off + p.sampling_margin
+    return hf, soft
+
+
+def _contact_rows(p: ControlParams, px: float, py: float, obstacles: Sequence[Obstacle],
+                  shapes: Sequence[Shape], reach: float) -> tuple[float, list[Row]]:
+    """The obstacles' rows (eq. 4.12c) and the walls' and shelves' that can be active, and the
+    smallest h."""
+    contact: list[Row] = []
+    ho = math.inf
+    grow = p.offset + p.sampling_margin
     for o in obstacles:
         if grow:
             o = Obstacle(o.x, o.y, o.vx, o.vy, o.ds + grow)  # the body stays Ds away
@@ -463,6 +513,15 @@ def build_rows(
             contact.append(row)
     if shapes:  # walls and shelves: the body stays Ds from the shape itself (hard, like circles)
         ho = min(ho, _shape_rows(px, py, shapes, p.gamma_obstacle, grow, reach, contact))
+    return ho, contact
+
+
+def _hazard_rows(p: ControlParams, px: float, py: float, others: Sequence[Ellipse],
+                 pairwise: Sequence[Neighbour], reach: float) -> tuple[float, list[Row]]:
+    """Other formations' rows (their ellipses, eq. 4.12d, or the all-to-all pairs, eq. 3.5)
+    that can be active, and the smallest h."""
+    hard: list[Row] = []
+    he = math.inf
     for e in others:
         h, row = barriers.ellipse_row(px, py, e, p.gamma_formations)
         he = min(he, h)
@@ -473,10 +532,7 @@ def build_rows(
         he = min(he, h)
         if row[2] < reach:
             hard.append(row)
-    hs, sep = _separation_rows(p, px, py, theta, partners, last_u, reach)
-    contact += sep
-    limits = _limit_rows(p, theta, view, nominal_u)
-    return Rows(limits, hard, soft, hf, ho, he, hs, contact)
+    return he, hard
 
 
 def body_df(px: float, py: float, theta: float, n: Neighbour, lookahead: float) -> float:
@@ -667,6 +723,22 @@ def shape_push(
     are used, and where those cannot be met either the correction is (0, 0) (the members'
     own rows still hold). An obstacle whose centre lies inside the ellipse placed at the
     formation's goal (its current waypoint) is left out: the goal shape is meant to hold it."""
+    rows = _shape_obstacle_rows(p, view, obstacles)
+    fixed = len(rows)
+    rows += _shape_hazard_rows(p, view, hazards)
+    if not rows:
+        return (0.0, 0.0)
+    u = solve_exact(w[0], w[1], rows)
+    if u is None and fixed < len(rows):
+        u = solve_exact(w[0], w[1], rows[:fixed])
+    if u is None:
+        return (0.0, 0.0)
+    return (u[0] - w[0], u[1] - w[1])
+
+
+def _shape_obstacle_rows(p: ControlParams, view: FormationView,
+                         obstacles: Sequence[Obstacle]) -> list[Row]:
+    """:func:`shape_push`'s rows keeping static obstacles out of the formation's ellipse."""
     own = view.own
     rows: list[Row] = []
     for o in obstacles:
@@ -678,7 +750,15 @@ def shape_push(
             continue  # the goal shape holds it
         h, gx, gy, _ = ellipse_terms(o.x, o.y, own.cx, own.cy, own.alpha, own.a, own.b)
         rows.append(normalized_row(gx, gy, p.gamma_obstacle * h))
-    fixed = len(rows)
+    return rows
+
+
+def _shape_hazard_rows(p: ControlParams, view: FormationView,
+                       hazards: Sequence[Ellipse]) -> list[Row]:
+    """:func:`shape_push`'s rows: no pressing into another formation's ellipse faster than it
+    moves away."""
+    own = view.own
+    rows: list[Row] = []
     for e in hazards:
         dx, dy = e.cx - own.cx, e.cy - own.cy
         d = math.hypot(dx, dy)
@@ -692,14 +772,7 @@ def shape_push(
                 _gap(own._replace(cx=view.goal_x, cy=view.goal_y), e) < 0.0:
             continue  # parked next to our goal shape: the members' rows and yield_push
         rows.append((nx, ny, e.vx * nx + e.vy * ny + p.gamma_formations * gap))
-    if not rows:
-        return (0.0, 0.0)
-    u = solve_exact(w[0], w[1], rows)
-    if u is None and fixed < len(rows):
-        u = solve_exact(w[0], w[1], rows[:fixed])
-    if u is None:
-        return (0.0, 0.0)
-    return (u[0] - w[0], u[1] - w[1])
+    return rows
 
 
 def band_nominal(

@@ -65,21 +65,10 @@ def solve_exact(ux: float, uy: float, rows: Sequence[Row], tol: float = FEAS_TOL
         r = (ax * ux + ay * uy - b) / n2
         px, py = ux - r * ax, uy - r * ay
         dx, dy = -ay, ax
-        lo, hi = -math.inf, math.inf
-        for j in range(k):
-            cx, cy, c = rows[j]
-            den = cx * dx + cy * dy
-            num = c - (cx * px + cy * py)
-            if -1e-15 < den < 1e-15:
-                if num < -10.0 * tol:
-                    return None
-                continue
-            t = num / den
-            if den > 0.0:
-                if t < hi:
-                    hi = t
-            elif t > lo:
-                lo = t
+        span = _line_interval(rows, k, px, py, dx, dy, tol)
+        if span is None:
+            return None
+        lo, hi = span
         if lo > hi:
             if lo - hi > tol * 10.0:
                 return None
@@ -90,9 +79,33 @@ def solve_exact(ux: float, uy: float, rows: Sequence[Row], tol: float = FEAS_TOL
     return (x, y)
 
 
+def _line_interval(rows: Sequence[Row], k: int, px: float, py: float, dx: float, dy: float,
+                   tol: float) -> tuple[float, float] | None:
+    """The interval (lo, hi) of t for which p + t d meets the rows before ``k`` (lo > hi when
+    they leave none); None when one of them, parallel to the line, excludes it wholly."""
+    lo, hi = -math.inf, math.inf
+    for j in range(k):
+        cx, cy, c = rows[j]
+        den = cx * dx + cy * dy
+        num = c - (cx * px + cy * py)
+        if -1e-15 < den < 1e-15:
+            if num < -10.0 * tol:
+                return None
+            continue
+        t = num / den
+        if den > 0.0:
+            if t < hi:
+                hi = t
+        elif t > lo:
+            lo = t
+    return lo, hi
+
+
 def qpsolvers_solver(name: str, **options) -> Callable[[float, float, Sequence[Row]], tuple]:
     """A solve function with the same contract as :func:`solve_exact`, backed by
     ``qpsolvers.solve_qp(..., solver=name)``; tight default tolerances for osqp/clarabel."""
+    # Imported here, not at the top: qpsolvers and scipy load only when a backend is
+    # asked for, so an agent on the exact solver (every robot by default) never loads them.
     import numpy as np
     import qpsolvers
 

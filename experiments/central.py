@@ -10,12 +10,17 @@ import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numpy as np
+import qpsolvers
+from scipy import sparse
+
 from agent.barriers import Neighbour, Obstacle
 from agent.control import ControlParams, FormationView, Stall, build_rows, control_step
 from agent.inputs import step_inputs
 from experiments.fleet_scenario import fleet_scenario
 from experiments.machine import timed
 from geometry.ellipse import Ellipse
+from simulator.inprocess import FleetModel
 
 logger = logging.getLogger(__name__)
 
@@ -39,8 +44,6 @@ def fleet_snapshot(scenario, speed: float = 0.2) -> tuple[ControlParams, list[Ro
     """Every robot's inputs with the fleet at its start, each robot moving at ``speed`` along
     +x (what the in-process simulator hands the control step); also every robot's formation
     name and the formation edges as (i, j, Df) robot indices."""
-    from simulator.inprocess import FleetModel
-
     fleet = FleetModel.build(scenario)
     robots = scenario.robots
     ctrl = [(r.start[0], r.start[1]) for r in robots]
@@ -76,9 +79,6 @@ def central_problem(params: ControlParams, inputs: Sequence[RobotInputs], format
     edge with both robots' velocities as unknowns (eq. 4.3/4.4), and eq. 3.5 for every pair of
     robots of different formations (Robotarium's pairwise barrier certificate), at distance
     ``params.d_af``. Every row is scaled to a unit gradient per robot block."""
-    import numpy as np
-    from scipy import sparse
-
     n = len(inputs)
     rows_i: list[np.ndarray] = []
     cols_i: list[np.ndarray] = []
@@ -138,9 +138,6 @@ def central_problem(params: ControlParams, inputs: Sequence[RobotInputs], format
 
 def _solve_central(name: str, pm, q, g, h):
     """One centralized solve by qpsolvers backend ``name`` (sparse or dense as it takes)."""
-    import numpy as np
-    import qpsolvers
-
     opts: dict = {}
     if name == "osqp":
         opts = {"eps_abs": 1e-6, "eps_rel": 1e-6, "polish": True, "verbose": False}
@@ -159,9 +156,6 @@ def _solve_central(name: str, pm, q, g, h):
 def bench_central(sizes: Sequence[int], backends: Sequence[str], repeat: int,
                   budget_s: float = CENTRAL_BUDGET_S) -> dict:
     """Centralized QP (build + solve per backend) against N per-robot control steps, per N."""
-    import numpy as np
-    import qpsolvers
-
     out: dict[str, dict] = {}
     for n in sizes:
         scenario = fleet_scenario(n, 0.05, 10.0)

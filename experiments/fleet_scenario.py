@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 
 from geometry.limits import BURGER_MAX_SPEED, BURGER_RADIUS
+from scenario.load import scenario_from_dict
 
 logger = logging.getLogger(__name__)
 
@@ -19,8 +20,6 @@ def fleet_scenario(n: int, dt: float, duration: float):
     ``LANE_SPACING`` apart (up to 4 formations per lane), all travelling +x towards goals
     ``TRAVEL`` ahead, with 2 static obstacles beside the fleet: every robot has 3 neighbours,
     2 obstacles and n/4 - 1 other formations in view, and nobody is in anybody's way."""
-    from scenario.load import scenario_from_dict
-
     if n < 4 or n % 4:
         raise ValueError(f"n: need a positive multiple of 4 robots, got {n}")
     k = n // 4

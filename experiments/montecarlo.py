@@ -17,6 +17,7 @@ from concurrent.futures import ProcessPoolExecutor
 from geometry.limits import BURGER_MAX_SPEED, BURGER_RADIUS
 from scenario import ScenarioError
 from scenario.load import scenario_from_dict
+from simulator.inprocess import SimOptions, simulate
 
 # Formation shapes sized for loads robots of 0.21 m diameter carry together (a pair under a
 # 0.6 m beam, a triangle under a round table, four under a 0.8 x 0.6 m pallet): offsets from the
@@ -101,8 +102,6 @@ def valid_scenario(seed: int):
 
 
 def run_one(seed: int) -> dict:
-    from simulator.inprocess import SimOptions, simulate
-
     d, scenario, sub = valid_scenario(seed)
     s = simulate(scenario, SimOptions(record=False)).summary
     obstacle_clear = s["min_clearance_m"]["obstacle"]

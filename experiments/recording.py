@@ -17,12 +17,12 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+from scenario import load_scenario
+from simulator.inprocess import SimOptions, simulate
+from viewer.record import write_recording
+
 
 def bench_recording(scenario_path: Path, duration: float | None, rounds: int = 2) -> dict:
-    from scenario import load_scenario
-    from simulator.inprocess import SimOptions, simulate
-    from viewer.record import write_recording
-
     scenario = load_scenario(scenario_path)
     if duration is not None:
         scenario = replace(scenario, duration=min(duration, scenario.duration))

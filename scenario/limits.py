@@ -14,6 +14,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from .reader import excerpt
+
 
 @dataclass(frozen=True)
 class Range:
@@ -45,6 +47,21 @@ def positive(hi: float, unit: str) -> Range:
     return Range(0.0, hi, unit, lo_open=True)
 
 
+def check(raw: object, where: str, allowed: Range) -> float:
+    """``raw`` as a float when it is a finite number (not a bool) in ``allowed``; else a
+    one-line ValueError naming ``where`` (a non-positive value where only positive ones make
+    sense is reported as such, with the range)."""
+    if isinstance(raw, bool) or not isinstance(raw, int | float):
+        raise ValueError(f"{where}: must be a number, got {excerpt(raw)}")
+    v = float(raw)
+    if not math.isfinite(v):
+        raise ValueError(f"{where}: must be finite, got {excerpt(raw)}")
+    if not allowed.contains(v):
+        what = "must be positive" if v <= 0.0 <= allowed.lo else "out of range"
+        raise ValueError(f"{where}: {what}, got {excerpt(raw)} (allowed: {allowed.text()})")
+    return v
+
+
 DT = Range(0.001, 1.0, "s")  # control period: 1 kHz .. 1 Hz
 MAX_TICKS = 1_000_000  # duration / dt: a run of at most a million control periods
 GOAL_TOLERANCE = positive(10.0, "m")
@@ -59,6 +76,11 @@ DISTANCE = positive(1000.0, "m")  # Df, d_af, ellipse semi-axes, safe distances
 COORDINATE = Range(-10_000.0, 10_000.0, "m")  # starts, goals, obstacle centres: a 20 km square
 HEADING = Range(-4.0 * math.pi, 4.0 * math.pi, "rad")
 OBSTACLE_SPEED = Range(-20.0, 20.0, "m/s")  # per axis: a vehicle at 72 km/h
+
+# A robot's own configuration (agent.config) adds these; the ones above apply to it too.
+POSE_PERIOD = DT  # how often poses really come (a camera's frame period)
+STALE_AFTER = positive(10.0, "s")  # inputs older than this are stale (5 pose periods by default)
+CLOCK_TOLERANCE = positive(10.0, "s")  # a stamp this far ahead of the robot's clock is accepted
 
 MAX_FORMATIONS = 256  # a leader's payload holds at most 256 other ellipses (wire.payloads)
 MAX_OBSTACLES = 256  # an obstacles payload holds at most 256 (wire.payloads.MAX_ITEMS)

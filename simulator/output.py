@@ -60,6 +60,7 @@ def write_run(summary: dict, series: Series, scenario: Scenario, out: Path, plot
         _record(summary, series, scenario, staging)
         tmp("run.mcap")
         if plots and series.robots:
+            # here, not at the top: matplotlib loads only for a run that draws its figures
             from .plots import plot_safety, plot_trajectories
 
             plot_trajectories(series, scenario, tmp("trajectories.png"))

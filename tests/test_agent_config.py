@@ -2,10 +2,16 @@
 
 from __future__ import annotations
 
+import dataclasses
+import math
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from agent.config import (
     ZenohSettings,
@@ -15,7 +21,9 @@ from agent.config import (
     load_config,
     save_config,
 )
-from scenario import load_scenario
+from agent.control import PARAM_RANGES, ControlParams
+from agent.node import AgentNode
+from scenario import limits, load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -53,7 +61,7 @@ def test_all_to_all_configs_list_every_foreign_robot():
 @pytest.mark.parametrize("change,message", [
     ({"version": 99}, "version: expected 1"),
     ({"extra": 1}, "unknown field 'extra'"),
-    ({"period": -0.1}, "period: must be a positive number"),
+    ({"period": -0.1}, "period: must be positive, got -0.1"),
     ({"topology": "mesh"}, "topology: 'mesh'"),
     ({"base": "tank"}, "base: 'tank'"),
 ])
@@ -82,8 +90,6 @@ def test_the_stale_limit_follows_a_camera_slower_than_the_control_period(tmp_pat
     assert cam15.clock_tolerance == 0.05
     save_config(cam15, tmp_path / "r1.yaml")
     assert load_config(tmp_path / "r1.yaml") == cam15
-    from agent.node import AgentNode
-
     assert AgentNode(cam15)._pose_period == pytest.approx(1 / 15)
     with pytest.raises(ValueError, match="pose_period"):
         build_agent_configs(scenario, pose_period=0.0)
@@ -103,3 +109,109 @@ def test_a_unicycles_sampling_margin_is_sized_for_the_camera_period_not_the_cont
     assert slow[rid].control.period == 2 * dt
     assert slow[rid].control.sampling_margin == pytest.approx(2 * base[rid].control.sampling_margin)
     assert base[rid].control.sampling_margin > 0
+
+
+SWITCHES = [f.name for f in dataclasses.fields(ControlParams) if f.name not in PARAM_RANGES]
+
+
+def _inside(r: limits.Range) -> st.SearchStrategy[float]:
+    return st.floats(r.lo, r.hi, exclude_min=r.lo_open, allow_nan=False)
+
+
+def _outside(r: limits.Range) -> st.SearchStrategy[object]:
+    return st.one_of(
+        st.floats(max_value=r.lo, exclude_max=not r.lo_open, allow_nan=False),
+        st.floats(min_value=r.hi, exclude_min=True),
+        st.sampled_from([math.nan, math.inf, -math.inf, "fast", True, None, [1.0]]),
+    )
+
+
+VALID_PARAMS = st.fixed_dictionaries({
+    **{name: _inside(r) for name, r in PARAM_RANGES.items()},
+    **{name: st.booleans() for name in SWITCHES},
+}).map(lambda kw: ControlParams(**kw))
+
+
+@settings(max_examples=60, deadline=None)
+@given(params=VALID_PARAMS)
+def test_any_valid_control_params_round_trip_through_the_config_file(configs, tmp_path_factory,
+                                                                     params):
+    cfg = dataclasses.replace(configs["r2"], control=params)
+    path = tmp_path_factory.mktemp("cfg") / "r2.yaml"
+    save_config(cfg, path)
+    assert load_config(path) == cfg
+
+
+@settings(max_examples=150, deadline=None)
+@given(data=st.data(), name=st.sampled_from(sorted(PARAM_RANGES) + SWITCHES))
+def test_an_out_of_range_control_field_is_refused_naming_it(configs, data, name):
+    bad = (data.draw(_outside(PARAM_RANGES[name])) if name in PARAM_RANGES
+           else data.draw(st.sampled_from([1, 0, "yes", None, 0.5])))
+    d = config_to_dict(configs["r1"])
+    d["control"][name] = bad
+    with pytest.raises(ValueError, match=rf"^control\.{name}: "):
+        config_from_dict(d)
+    with pytest.raises(ValueError, match=rf"^{name}: "):
+        ControlParams(**{name: bad})  # checked where it is built, not only in files
+
+
+@pytest.mark.parametrize("field,value", [("epsilon", -1), ("gamma_formation", math.nan),
+                                         ("kp", "fast")])
+def test_the_issues_bad_values_are_refused_naming_the_field_and_the_file(configs, tmp_path,
+                                                                         field, value):
+    d = config_to_dict(configs["r1"])
+    d["control"][field] = value
+    path = tmp_path / "r1.yaml"
+    path.write_text(yaml.safe_dump(d))
+    with pytest.raises(ValueError, match=rf"^{path}: control\.{field}: "):
+        load_config(path)
+
+
+def test_a_control_file_may_leave_out_fields_and_gets_the_dataclass_defaults(configs):
+    d = config_to_dict(configs["r1"])
+    d["control"] = {"kp": 3.0}
+    assert config_from_dict(d).control == ControlParams(kp=3.0)
+
+
+@pytest.mark.parametrize("where,change,message", [
+    ("control", {"kappa": 1.0}, "unknown field 'control.kappa'"),
+    ("zenoh", {"config_file": "z.json5"}, "unknown field 'zenoh.config_file'"),
+    ("leader", {"ref": 1}, "unknown field 'leader.ref'"),
+    ("zenoh", {"mode": "hub"}, r"zenoh\.mode: 'hub' is not one of"),
+    ("leader", {"axes": [0.6, -0.3]}, r"leader\.axes\[1\]: must be positive"),
+    ("leader", {"members": ["r1", "a/b"]}, r"leader\.members\[1\]: 'a/b' is not a valid name"),
+    (None, {"goal": [1e9, 0.0]}, r"^goal\[0\]: out of range"),
+    (None, {"goal": [1.0]}, r"^goal: must be a list of 2"),
+    (None, {"neighbours": [["r2", 0.5], ["r4", 0]]}, r"^neighbours\[1\]\[1\]: must be positive"),
+    (None, {"start": [0.0, 0.0, 99.0]}, r"^start\[2\]: out of range"),
+    (None, {"robot_id": 7}, "^robot_id: must be a string"),
+    (None, {"partners": ["r 3"]}, r"^partners\[0\]: 'r 3' is not a valid name"),
+    (None, {"planner": "yes"}, "^planner: must be true or false"),
+    (None, {"pose_period": 5.0}, "^pose_period: out of range"),
+    (None, {"stale_after": math.inf}, "^stale_after: must be finite"),
+    (None, {"goal_tolerance": 0}, "^goal_tolerance: must be positive"),
+    (None, {"prefix": "a//b"}, "prefix 'a//b'"),
+])
+def test_every_part_of_a_robot_file_is_checked(configs, where, change, message):
+    d = config_to_dict(configs["r2"])
+    (d if where is None else d[where]).update(change)
+    with pytest.raises(ValueError, match=message):
+        config_from_dict(d)
+
+
+def test_a_pose_period_outside_the_control_periods_range_is_refused_when_built():
+    scenario = load_scenario(ROOT / "scenarios/thesis-5.2.2.yaml")
+    with pytest.raises(ValueError, match="^pose_period: out of range"):
+        build_agent_configs(scenario, pose_period=2.0)
+
+
+def test_the_agent_exits_2_with_one_line_naming_the_file_and_the_field(configs, tmp_path):
+    d = config_to_dict(configs["r1"])
+    d["control"]["epsilon"] = -1
+    path = tmp_path / "r1.yaml"
+    path.write_text(yaml.safe_dump(d))
+    proc = subprocess.run([sys.executable, "-m", "agent", "--config", str(path)],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"agent: {path}: control.epsilon: must be positive")

@@ -49,6 +49,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import zenoh
+
 from wire import keys
 from wire.diag import diag_key
 from wire.frames import stats_key
@@ -294,8 +296,6 @@ def read_credentials(path: str | os.PathLike[str]) -> UsrPwdAuth:
 
 def write_router_config(path: str | os.PathLike[str], conf: Mapping[str, Any]) -> None:
     """Write ``conf`` as JSON (valid JSON5) after zenoh itself accepted it."""
-    import zenoh
-
     text = json.dumps(conf, indent=2) + "\n"
     try:
         zenoh.Config.from_json5(text)

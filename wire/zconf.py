@@ -59,6 +59,7 @@ import json
 import logging
 import math
 import os
+import socket
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal, get_args
@@ -397,8 +398,6 @@ def explain_open_failure(exc: BaseException, connect: Sequence[str],
 
 
 def _tcp_reachable(endpoint: str, timeout_s: float = 1.0) -> bool:
-    import socket
-
     proto, _, address = endpoint.partition("/")
     if proto not in ("tcp", "tls") or ":" not in address:
         return False

@@ -6,20 +6,16 @@ import argparse
 import sys
 
 from formation.exits import EXIT_OK
+from scenario import load_scenario
+from scenario.load import scenario_warnings
+from scenario.succession import formation_successor
 
 
 def cmd_check(ns: argparse.Namespace) -> int:
-    from scenario import load_scenario
-    from scenario.load import scenario_warnings
-
     s = load_scenario(ns.scenario)
     n = len(s.robot_ids)
     for w in scenario_warnings(s):
         print(f"{ns.scenario}: warning: {w}", file=sys.stderr)
-    from scenario.succession import formation_successor
-
-    s = load_scenario(ns.scenario)
-    n = len(s.robot_ids)
     for f in s.formations:
         if formation_successor(f) is None:
             print(f"{ns.scenario}: warning: formation {f.name!r} has no member adjacent to every "

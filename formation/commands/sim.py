@@ -4,17 +4,16 @@ from __future__ import annotations
 
 import argparse
 
+from agent.qp import make_solver
 from formation.exits import EXIT_OK, UsageError
 from formation.outdir import begin_output
 from formation.progress import Progress, print_summary
+from scenario import load_scenario
+from simulator.inprocess import SimOptions, simulate
+from simulator.output import write_run
 
 
 def cmd_sim(ns: argparse.Namespace) -> int:
-    from agent.qp import make_solver
-    from scenario import load_scenario
-    from simulator.inprocess import SimOptions, simulate
-    from simulator.output import write_run
-
     scenario = load_scenario(ns.scenario)
     try:
         make_solver(ns.solver)

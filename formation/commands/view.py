@@ -16,6 +16,14 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from formation.exits import UsageError
+from formation.outdir import begin_output
+from wire import keys
+
+# viewer.* and wire.zconf (zenoh) are imported inside the commands that use them: formation/cli.py
+# imports this module to build its parser, and loading them would slow every `formation --help`
+# (about 0.4 s for viewer.server alone).
+
 logger = logging.getLogger(__name__)
 
 
@@ -39,8 +47,6 @@ def add_serve_args(p: argparse.ArgumentParser, port: bool = True) -> None:
 
 
 def _ports(port: int, ws_port: int | None) -> tuple[int, int]:
-    from formation.exits import UsageError
-
     for name, value in (("--port", port), ("--ws-port", ws_port)):
         if value is not None and not 0 <= value < 65536:
             raise UsageError(f"{name}: {value} is not a TCP port")
@@ -68,8 +74,6 @@ def _announce(view: Any) -> None:
 
 
 def _session(ns: argparse.Namespace):
-
-    from formation.exits import UsageError
     from wire.zconf import ZenohSettings, open_session, read_auth_file
 
     try:  # --auth: OUT/secure/viewer.json5 of formation run, or a user:password file
@@ -83,9 +87,6 @@ def _session(ns: argparse.Namespace):
 
 
 def _check_prefix(prefix: str) -> None:
-    from formation.exits import UsageError
-    from wire import keys
-
     try:
         keys.validate_prefix(prefix)
     except ValueError as exc:
@@ -128,7 +129,6 @@ def view_command(ns: argparse.Namespace) -> int:
 
 
 def record_command(ns: argparse.Namespace) -> int:
-    from formation.outdir import begin_output
     from viewer.live import FleetWatcher
     from viewer.record import Channels
     from viewer.server import Hub, LivePump
@@ -157,7 +157,6 @@ def record_command(ns: argparse.Namespace) -> int:
 
 
 def replay_command(ns: argparse.Namespace) -> int:
-    from formation.exits import UsageError
     from viewer.server import ReplayPlayer, read_recording
 
     path = Path(ns.recording)
