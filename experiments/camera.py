@@ -34,11 +34,10 @@ import yaml
 import zenoh
 
 from camera_service.calibration import Calibration, save_calibration, synthetic_camera
-from camera_service.node import percentile
+from camera_service.node import has_matching_subscribers, percentile
 from camera_service.render import render_aruco_frame
 from experiments.machine import proc_cpu_s
 from runtime.ports import free_tcp_port, tcp_endpoint
-from runtime.testing import has_matching_subscribers
 from wire.frames import Frame, encode_frame, frame_key
 from wire.payloads import decode_pose
 from wire.zconf import make_config
