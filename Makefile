@@ -19,8 +19,8 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
-# Tests that start processes, Zenoh routers, sshd or a browser are marked `integration`
-# (pyproject's markers); `make test` runs them too.
+# Tests that start processes, Zenoh routers, sshd or a browser, or run whole scenarios, are marked
+# `integration` (pyproject's markers); `make test` runs them too.
 check: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/python -m mypy
