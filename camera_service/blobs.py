@@ -115,6 +115,41 @@ def detect_blobs(
     image = check_frame(frame)
     if image.size == 0:
         return BlobDetection({})
+    _check_blob_frame(image, calibration, min_area)
+    checked = check_hues(hues, hue_tolerance)
+    bgr = image if image.shape[2] == 3 else cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
+    hsv = cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV)
+    mask = np.asarray(cv2.inRange(hsv, (0, min_saturation, min_value), (179, 255, 255)), dtype=np.uint8)
+    # Outer contours find the blobs far faster than labelling the whole frame; each blob's
+    # pixels are then its filled contour intersected with the mask (so holes stay out).
+    contours, _hierarchy = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    best: dict[str, tuple[int, np.ndarray, np.ndarray]] = {}  # robot -> (area, us, vs)
+    unmatched = extra = 0
+    for contour in contours:
+        pixels = _blob_pixels(contour, mask, min_area)
+        if pixels is None:
+            continue
+        us, vs = pixels
+        robot = _matching_robot(_mean_hue(hsv[vs, us, 0]), checked, hue_tolerance)
+        if robot is None:
+            unmatched += 1
+            continue
+        if robot in best:
+            extra += 1
+            if best[robot][0] >= len(us):
+                continue
+        best[robot] = (len(us), us, vs)
+    poses: dict[str, Pose] = {}
+    for robot, (_area, us, vs) in best.items():
+        x, y = floor_centroid(calibration, us, vs)
+        poses[robot] = (x, y, math.nan)
+    if unmatched or extra:
+        logger.debug("blobs: %d of no robot's hue, %d extra", unmatched, extra)
+    return BlobDetection(poses, unmatched, extra)
+
+
+def _check_blob_frame(image: np.ndarray, calibration: Calibration, min_area: int) -> None:
+    """A BGR or BGRA image of the calibration's size, and a whole ``min_area`` >= 1 pixel."""
     if image.ndim != 3 or image.shape[2] not in (3, 4):
         raise ValueError(f"frame: blob mode needs a BGR or BGRA image, got shape {image.shape}")
     height, width = image.shape[:2]
@@ -125,43 +160,30 @@ def detect_blobs(
         )
     if not (isinstance(min_area, int) and min_area >= 1):
         raise ValueError(f"min_area: must be an int >= 1 pixel, got {min_area!r}")
-    checked = check_hues(hues, hue_tolerance)
-    bgr = image if image.shape[2] == 3 else cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
-    hsv = cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV)
-    mask = cv2.inRange(hsv, (0, min_saturation, min_value), (179, 255, 255))
-    # Outer contours find the blobs far faster than labelling the whole frame; each blob's
-    # pixels are then its filled contour intersected with the mask (so holes stay out).
-    contours, _hierarchy = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-    best: dict[str, tuple[int, np.ndarray, np.ndarray]] = {}  # robot -> (area, us, vs)
-    unmatched = extra = 0
-    for contour in contours:
-        x0, y0, w, h = cv2.boundingRect(contour)
-        if w * h < min_area:
-            continue
-        inside = np.zeros((h, w), dtype=np.uint8)
-        cv2.drawContours(inside, [contour], -1, 255, thickness=cv2.FILLED, offset=(-x0, -y0))
-        inside &= mask[y0 : y0 + h, x0 : x0 + w]
-        vs, us = np.nonzero(inside)
-        area = len(us)
-        if area < min_area:
-            continue
-        hue = _mean_hue(hsv[y0 : y0 + h, x0 : x0 + w, 0][vs, us])
-        robot = min(checked, key=lambda r: _hue_distance(hue, checked[r]), default=None)
-        if robot is None or _hue_distance(hue, checked[robot]) > hue_tolerance:
-            unmatched += 1
-            continue
-        if robot in best:
-            extra += 1
-            if best[robot][0] >= area:
-                continue
-        best[robot] = (area, us + x0, vs + y0)
-    poses: dict[str, Pose] = {}
-    for robot, (_area, us, vs) in best.items():
-        x, y = floor_centroid(calibration, us, vs)
-        poses[robot] = (x, y, math.nan)
-    if unmatched or extra:
-        logger.debug("blobs: %d of no robot's hue, %d extra", unmatched, extra)
-    return BlobDetection(poses, unmatched, extra)
+
+
+def _blob_pixels(contour: np.ndarray, mask: np.ndarray,
+                 min_area: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Image columns and rows of the mask's pixels inside ``contour`` (its filled outline);
+    None for a blob of fewer than ``min_area`` pixels."""
+    x0, y0, w, h = cv2.boundingRect(contour)
+    if w * h < min_area:
+        return None
+    inside = np.zeros((h, w), dtype=np.uint8)
+    cv2.drawContours(inside, [contour], -1, 255, thickness=cv2.FILLED, offset=(-x0, -y0))
+    inside &= mask[y0 : y0 + h, x0 : x0 + w]
+    vs, us = np.nonzero(inside)
+    if len(us) < min_area:
+        return None
+    return us + x0, vs + y0
+
+
+def _matching_robot(hue: float, hues: Mapping[str, int], tolerance: int) -> str | None:
+    """The robot whose hue is nearest ``hue``, if within ``tolerance``; else None."""
+    robot = min(hues, key=lambda r: _hue_distance(hue, hues[r]), default=None)
+    if robot is None or _hue_distance(hue, hues[robot]) > tolerance:
+        return None
+    return robot
 
 
 def motion_heading(

@@ -92,33 +92,41 @@ def load_intrinsics(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read intrinsics: {exc.strerror or exc}") from None
-    if text.startswith("%YAML"):
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-        k = fs.getNode("camera_matrix").mat()
-        d = fs.getNode("distortion_coefficients").mat()
-        if d is None:
-            d = fs.getNode("dist_coeffs").mat()
-        fs.release()
-    else:
-        try:
-            data = yaml.safe_load(text)
-        except yaml.YAMLError:
-            raise ConfigError(f"{path}: intrinsics are not valid YAML") from None
-        if not isinstance(data, dict):
-            raise ConfigError(f"{path}: intrinsics: expected a mapping")
-        unknown = sorted(set(map(str, data)) - {"camera_matrix", "dist_coeffs", "image_size"})
-        if unknown:
-            raise ConfigError(f"{path}: {unknown[0]}: unknown key in intrinsics")
-        k, d = data.get("camera_matrix"), data.get("dist_coeffs")
+    k, d = _filestorage_intrinsics(path) if text.startswith("%YAML") else _yaml_intrinsics(path, text)
     if k is None or d is None:
         raise ConfigError(f"{path}: intrinsics need camera_matrix and dist_coeffs")
     try:
-        k = np.array(k, dtype=np.float64).reshape(3, 3)
-        d = np.array(d, dtype=np.float64).ravel()
-        Calibration(np.eye(3), (16, 16), camera_matrix=k, dist_coeffs=d)  # the same checks
+        matrix = np.array(k, dtype=np.float64).reshape(3, 3)
+        coeffs = np.array(d, dtype=np.float64).ravel()
+        Calibration(np.eye(3), (16, 16), camera_matrix=matrix, dist_coeffs=coeffs)  # the same checks
     except ValueError as exc:
         raise ConfigError(f"{path}: {exc}") from None
+    return matrix, coeffs
+
+
+def _filestorage_intrinsics(path: Path) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """``camera_matrix`` and the distortion coefficients of OpenCV's FileStorage YAML (None: absent)."""
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    k = fs.getNode("camera_matrix").mat()
+    d = fs.getNode("distortion_coefficients").mat()
+    if d is None:
+        d = fs.getNode("dist_coeffs").mat()
+    fs.release()
     return k, d
+
+
+def _yaml_intrinsics(path: Path, text: str) -> tuple[object, object]:
+    """``camera_matrix`` and ``dist_coeffs`` of plain YAML (None: absent); unknown keys refused."""
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError:
+        raise ConfigError(f"{path}: intrinsics are not valid YAML") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: intrinsics: expected a mapping")
+    unknown = sorted(set(map(str, data)) - {"camera_matrix", "dist_coeffs", "image_size"})
+    if unknown:
+        raise ConfigError(f"{path}: {unknown[0]}: unknown key in intrinsics")
+    return data.get("camera_matrix"), data.get("dist_coeffs")
 
 
 def _marker_centre(quad: np.ndarray) -> np.ndarray:
@@ -226,16 +234,7 @@ def calibrate_image(image: np.ndarray, floor: FloorMarkers,
     """See the module docstring; :class:`CalibrationError` for a refusal."""
     frame = check_frame(image)
     height, width = frame.shape[:2]
-    grey = to_grey(frame)
-    if intrinsics is not None:
-        k, d = intrinsics
-        grey = cv2.undistort(grey, k, d, None, k)
-    corners, ids, _ = make_detector(floor.dictionary).detectMarkers(grey)
-    found = [] if ids is None else [int(i) for i in np.asarray(ids).ravel()]
-    quads: dict[int, np.ndarray] = {}
-    for mid, quad in zip(found, corners or (), strict=True):
-        if mid in floor.markers and found.count(mid) == 1:
-            quads[mid] = np.asarray(quad, dtype=np.float64).reshape(4, 2)
+    quads = _floor_quads(frame, floor, intrinsics)
     missing = tuple(sorted(set(floor.markers) - set(quads)))
     if len(quads) < MIN_MARKERS:
         raise CalibrationError(
@@ -247,33 +246,14 @@ def calibrate_image(image: np.ndarray, floor: FloorMarkers,
         raise CalibrationError(f"calibrate: the floor markers found lie nearly on one line "
                                f"(spread ratio {spread:.3f} < {MIN_SPREAD}); lay them out in a "
                                "rectangle around the area")
-    rejected: dict[int, float] = {}
-    h, errors = _fit(quads, floor)
-    while max(errors.values()) > max_error and len(quads) > MIN_MARKERS:
-        worst = max(errors, key=errors.__getitem__)
-        trial = {i: q for i, q in quads.items() if i != worst}
-        if _spread_ratio(np.array([floor.markers[i] for i in trial])) < MIN_SPREAD:
-            break
-        rejected[worst] = errors[worst]
-        quads = trial
-        h, errors = _fit(quads, floor)
+    quads, h, errors, rejected = _fit_without_outliers(quads, floor, max_error)
     worst = max(errors, key=errors.__getitem__)
     if errors[worst] > max_error:
         raise CalibrationError(f"calibrate: marker {worst} is {errors[worst] * 1e3:.1f} mm off "
                                f"its surveyed position (limit {max_error * 1e3:.0f} mm); check "
                                "FLOOR.yaml and that the markers have not moved")
     size = (width, height)
-    pixel_from_floor = np.linalg.inv(h)
-    focal, how = None, ""
-    if intrinsics is not None:
-        k_used, how = intrinsics[0], "intrinsics"
-        focal = float(k_used[0, 0])
-    else:
-        focal = focal_from_homography(pixel_from_floor, size)
-        k_used, how = None, "homography"
-        if focal is not None:
-            k_used = np.array([[focal, 0.0, (width - 1) / 2.0], [0.0, focal, (height - 1) / 2.0],
-                               [0.0, 0.0, 1.0]])
+    focal, how, k_used = _camera_matrix(np.linalg.inv(h), size, intrinsics)
     if k_used is not None:
         position = camera_centre(quads, floor, h, k_used)
     elif camera_height is not None:
@@ -289,3 +269,54 @@ def calibrate_image(image: np.ndarray, floor: FloorMarkers,
         dist_coeffs=None if intrinsics is None else intrinsics[1],
         floor_markers=tuple(sorted(floor.markers)))
     return CalibrationReport(calibration, errors, rejected, missing, focal, how)
+
+
+def _floor_quads(frame: np.ndarray, floor: FloorMarkers,
+                 intrinsics: tuple[np.ndarray, np.ndarray] | None) -> dict[int, np.ndarray]:
+    """Pixel corners (4 x 2) of each floor marker seen once in ``frame`` (undistorted first
+    with ``intrinsics``)."""
+    grey = to_grey(frame)
+    if intrinsics is not None:
+        k, d = intrinsics
+        grey = cv2.undistort(grey, k, d, None, k)
+    corners, ids, _ = make_detector(floor.dictionary).detectMarkers(grey)
+    found = [] if ids is None else [int(i) for i in np.asarray(ids).ravel()]
+    quads: dict[int, np.ndarray] = {}
+    for mid, quad in zip(found, corners or (), strict=True):
+        if mid in floor.markers and found.count(mid) == 1:
+            quads[mid] = np.asarray(quad, dtype=np.float64).reshape(4, 2)
+    return quads
+
+
+def _fit_without_outliers(
+    quads: dict[int, np.ndarray], floor: FloorMarkers, max_error: float,
+) -> tuple[dict[int, np.ndarray], np.ndarray, dict[int, float], dict[int, float]]:
+    """Fit, then set the worst marker aside and fit again while one is over ``max_error`` and
+    enough well-spread markers remain: the markers kept, the homography, their errors [m] and
+    the rejected markers' errors [m]."""
+    rejected: dict[int, float] = {}
+    h, errors = _fit(quads, floor)
+    while max(errors.values()) > max_error and len(quads) > MIN_MARKERS:
+        worst = max(errors, key=errors.__getitem__)
+        trial = {i: q for i, q in quads.items() if i != worst}
+        if _spread_ratio(np.array([floor.markers[i] for i in trial])) < MIN_SPREAD:
+            break
+        rejected[worst] = errors[worst]
+        quads = trial
+        h, errors = _fit(quads, floor)
+    return quads, h, errors, rejected
+
+
+def _camera_matrix(pixel_from_floor: np.ndarray, size: tuple[int, int],
+                   intrinsics: tuple[np.ndarray, np.ndarray] | None,
+                   ) -> tuple[float | None, str, np.ndarray | None]:
+    """The focal length [px], where it came from and the camera matrix to place the camera
+    with: the intrinsics', else one estimated from the homography (None: looking straight down)."""
+    if intrinsics is not None:
+        return float(intrinsics[0][0, 0]), "intrinsics", intrinsics[0]
+    width, height = size
+    focal = focal_from_homography(pixel_from_floor, size)
+    if focal is None:
+        return None, "homography", None
+    return focal, "homography", np.array([[focal, 0.0, (width - 1) / 2.0],
+                                          [0.0, focal, (height - 1) / 2.0], [0.0, 0.0, 1.0]])

@@ -30,6 +30,7 @@ import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 import cv2
 import numpy as np
@@ -65,46 +66,69 @@ class Calibration:
     pixel_from_floor: np.ndarray = field(init=False, repr=False)  # 3x3, metres -> pixels
 
     def __post_init__(self) -> None:
-        h = np.array(self.floor_from_pixel, dtype=np.float64)
-        if h.shape != (3, 3) or not np.all(np.isfinite(h)):
-            raise ValueError(f"floor_from_pixel: expected a finite 3x3 matrix, got {h.shape}")
-        if abs(np.linalg.det(h)) < 1e-300 or abs(h[2, 2]) < 1e-15:
-            raise ValueError("floor_from_pixel: singular homography")
-        h = h / h[2, 2]
-        h.setflags(write=False)
-        size = tuple(int(s) for s in self.image_size)
-        if len(size) != 2 or min(size) <= 0:
-            raise ValueError(f"image_size: expected (width, height) > 0, got {self.image_size}")
-        inverse = np.linalg.inv(h)
-        inverse = inverse / inverse[2, 2]
-        inverse.setflags(write=False)
+        h, inverse = _checked_homography(self.floor_from_pixel)
+        size = _checked_image_size(self.image_size)
         object.__setattr__(self, "floor_from_pixel", h)
         object.__setattr__(self, "image_size", size)
         object.__setattr__(self, "pixel_from_floor", inverse)
         if self.camera_position is not None:
-            c = tuple(float(v) for v in self.camera_position)
-            if len(c) != 3 or not all(math.isfinite(v) for v in c) or c[2] <= 0.0:
-                raise ValueError(f"camera_position: expected finite [x, y, z > 0], "
-                                 f"got {self.camera_position!r}")
-            object.__setattr__(self, "camera_position", c)
-        ids = tuple(self.floor_markers)
-        if not all(isinstance(i, int | np.integer) and not isinstance(i, bool) and i >= 0
-                   for i in ids):
-            raise ValueError(f"floor_markers: expected marker ids, got {self.floor_markers!r}")
-        object.__setattr__(self, "floor_markers", tuple(int(i) for i in ids))
+            object.__setattr__(self, "camera_position", _checked_camera_position(self.camera_position))
+        object.__setattr__(self, "floor_markers", _checked_marker_ids(self.floor_markers))
         if (self.camera_matrix is None) != (self.dist_coeffs is None):
             raise ValueError("camera_matrix: camera_matrix and dist_coeffs go together")
-        if self.camera_matrix is not None:
-            k = np.array(self.camera_matrix, dtype=np.float64)
-            d = np.array(self.dist_coeffs, dtype=np.float64).ravel()
-            if k.shape != (3, 3) or not np.all(np.isfinite(k)) or k[0, 0] <= 0 or k[1, 1] <= 0:
-                raise ValueError("camera_matrix: expected a finite 3x3 matrix with fx, fy > 0")
-            if d.size not in (4, 5, 8, 12, 14) or not np.all(np.isfinite(d)):
-                raise ValueError("dist_coeffs: expected 4, 5, 8, 12 or 14 finite numbers")
-            k.setflags(write=False)
-            d.setflags(write=False)
+        if self.camera_matrix is not None and self.dist_coeffs is not None:
+            k, d = _checked_intrinsics(self.camera_matrix, self.dist_coeffs)
             object.__setattr__(self, "camera_matrix", k)
             object.__setattr__(self, "dist_coeffs", d)
+
+
+def _checked_homography(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``floor_from_pixel`` normalised (bottom-right 1) and its inverse, both read-only."""
+    h = np.array(matrix, dtype=np.float64)
+    if h.shape != (3, 3) or not np.all(np.isfinite(h)):
+        raise ValueError(f"floor_from_pixel: expected a finite 3x3 matrix, got {h.shape}")
+    if abs(np.linalg.det(h)) < 1e-300 or abs(h[2, 2]) < 1e-15:
+        raise ValueError("floor_from_pixel: singular homography")
+    h = h / h[2, 2]
+    h.setflags(write=False)
+    inverse = np.linalg.inv(h)
+    inverse = inverse / inverse[2, 2]
+    inverse.setflags(write=False)
+    return h, inverse
+
+
+def _checked_image_size(image_size: tuple[int, int]) -> tuple[int, int]:
+    size = tuple(int(s) for s in image_size)
+    if len(size) != 2 or min(size) <= 0:
+        raise ValueError(f"image_size: expected (width, height) > 0, got {image_size}")
+    return size[0], size[1]
+
+
+def _checked_camera_position(position: tuple[float, float, float]) -> tuple[float, float, float]:
+    c = tuple(float(v) for v in position)
+    if len(c) != 3 or not all(math.isfinite(v) for v in c) or c[2] <= 0.0:
+        raise ValueError(f"camera_position: expected finite [x, y, z > 0], got {position!r}")
+    return c[0], c[1], c[2]
+
+
+def _checked_marker_ids(floor_markers: tuple[int, ...]) -> tuple[int, ...]:
+    ids = tuple(floor_markers)
+    if not all(isinstance(i, int | np.integer) and not isinstance(i, bool) and i >= 0 for i in ids):
+        raise ValueError(f"floor_markers: expected marker ids, got {floor_markers!r}")
+    return tuple(int(i) for i in ids)
+
+
+def _checked_intrinsics(camera_matrix: np.ndarray, dist_coeffs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The camera matrix (3x3, fx, fy > 0) and distortion coefficients, read-only float64."""
+    k = np.array(camera_matrix, dtype=np.float64)
+    d = np.array(dist_coeffs, dtype=np.float64).ravel()
+    if k.shape != (3, 3) or not np.all(np.isfinite(k)) or k[0, 0] <= 0 or k[1, 1] <= 0:
+        raise ValueError("camera_matrix: expected a finite 3x3 matrix with fx, fy > 0")
+    if d.size not in (4, 5, 8, 12, 14) or not np.all(np.isfinite(d)):
+        raise ValueError("dist_coeffs: expected 4, 5, 8, 12 or 14 finite numbers")
+    k.setflags(write=False)
+    d.setflags(write=False)
+    return k, d
 
 
 def correct_parallax(points: np.ndarray, camera_position: tuple[float, float, float],
@@ -317,7 +341,7 @@ def calibration_to_dict(calibration: Calibration) -> dict[str, object]:
         out["camera_position"] = [float(v) for v in calibration.camera_position]
     if calibration.floor_markers:
         out["floor_markers"] = list(calibration.floor_markers)
-    if calibration.camera_matrix is not None:
+    if calibration.camera_matrix is not None and calibration.dist_coeffs is not None:  # both or neither
         out["camera_matrix"] = [[float(v) for v in row] for row in calibration.camera_matrix]
         out["dist_coeffs"] = [float(v) for v in calibration.dist_coeffs]
     return out
@@ -327,6 +351,24 @@ def calibration_from_dict(data: object) -> Calibration:
     """Inverse of ``calibration_to_dict``; unknown or missing keys are a ValueError naming them."""
     if not isinstance(data, dict):
         raise ValueError(f"calibration: expected a mapping, got {type(data).__name__}")
+    _check_calibration_keys(data)
+    size = data["image_size"]
+    if not (isinstance(size, list | tuple) and len(size) == 2):
+        raise ValueError(f"image_size: expected [width, height], got {size!r}")
+    try:
+        matrix = np.array(data["floor_from_pixel"], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError("floor_from_pixel: expected a 3x3 list of numbers") from None
+    position = _optional_numbers(data, "camera_position")
+    return Calibration(matrix, (size[0], size[1]),
+                       camera_position=None if position is None else _position_tuple(position),
+                       camera_matrix=_optional_numbers(data, "camera_matrix"),
+                       dist_coeffs=_optional_numbers(data, "dist_coeffs"),
+                       floor_markers=_floor_markers(data))
+
+
+def _check_calibration_keys(data: dict[object, object]) -> None:
+    """No unknown key, the required ones present, the version and units this reader knows."""
     unknown = sorted(set(map(str, data)) - _YAML_KEYS)
     if unknown:
         raise ValueError(f"{unknown[0]}: unknown key in calibration")
@@ -337,27 +379,30 @@ def calibration_from_dict(data: object) -> Calibration:
         raise ValueError(f"version: unsupported calibration version {data['version']!r}")
     if data.get("units", "m") != "m":
         raise ValueError(f"units: only metres ('m') are supported, got {data['units']!r}")
-    size = data["image_size"]
-    if not (isinstance(size, list | tuple) and len(size) == 2):
-        raise ValueError(f"image_size: expected [width, height], got {size!r}")
+
+
+def _optional_numbers(data: dict[object, object], key: str) -> np.ndarray | None:
+    """``data[key]`` as a float64 array; None when absent or null."""
+    if data.get(key) is None:
+        return None
     try:
-        matrix = np.array(data["floor_from_pixel"], dtype=np.float64)
+        return np.array(data[key], dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError("floor_from_pixel: expected a 3x3 list of numbers") from None
-    extra: dict[str, object] = {}
-    for key in ("camera_position", "camera_matrix", "dist_coeffs"):
-        if data.get(key) is not None:
-            try:
-                extra[key] = np.array(data[key], dtype=np.float64)
-            except (TypeError, ValueError):
-                raise ValueError(f"{key}: expected numbers") from None
-    if data.get("floor_markers") is not None:
-        if not isinstance(data["floor_markers"], list):
-            raise ValueError(f"floor_markers: expected a list of ids, got {data['floor_markers']!r}")
-        extra["floor_markers"] = tuple(data["floor_markers"])
-    if "camera_position" in extra:
-        extra["camera_position"] = tuple(extra["camera_position"].ravel())
-    return Calibration(matrix, (size[0], size[1]), **extra)
+        raise ValueError(f"{key}: expected numbers") from None
+
+
+def _position_tuple(position: np.ndarray) -> tuple[float, float, float]:
+    """The camera position's numbers as a tuple (Calibration checks there are three)."""
+    return cast(tuple[float, float, float], tuple(position.ravel()))
+
+
+def _floor_markers(data: dict[object, object]) -> tuple[int, ...]:
+    markers = data.get("floor_markers")
+    if markers is None:
+        return ()
+    if not isinstance(markers, list):
+        raise ValueError(f"floor_markers: expected a list of ids, got {markers!r}")
+    return tuple(markers)
 
 
 def save_calibration(calibration: Calibration, path: str | Path) -> None:

@@ -22,6 +22,24 @@ from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
+import numpy as np
+import yaml
+import zenoh
+
+from camera_service.calibrate import (
+    MAX_ERROR_M,
+    CalibrationError,
+    CalibrationReport,
+    calibrate_image,
+    load_intrinsics,
+)
+from camera_service.calibration import calibration_to_dict
+from camera_service.config import ConfigError, FloorMarkers, ServiceConfig, load_config, load_floor
+from camera_service.node import CameraNode
+from camera_service.sources import Source, SourceError, make_source, source_kind
+from wire.zconf import read_auth_file, use_zenoh_threads
+
 EXIT_OK, EXIT_ERROR, EXIT_INVALID = 0, 1, 2
 REPLAY_WAIT_S = 3.0  # [s] a file or glob source waits this long for a subscriber before playing
 
@@ -63,17 +81,16 @@ def _fail(command: str, message: str, code: int = EXIT_INVALID) -> int:
     return code
 
 
-def camera_command(ns: argparse.Namespace, prog: str = "formation camera") -> int:
-    """``formation camera``; see the module docstring."""
-    import zenoh
+class _CommandFailed(Exception):
+    """A command's failure: ``message`` and the exit ``code`` to return."""
 
-    from camera_service.config import ConfigError, load_config
-    from camera_service.node import CameraNode
-    from camera_service.sources import SourceError, make_source, source_kind
-    from wire.zconf import read_auth_file, use_zenoh_threads
+    def __init__(self, message: str, code: int = EXIT_INVALID) -> None:
+        super().__init__(message)
+        self.code = code
 
-    if ns.frames is not None and ns.frames < 1:
-        return _fail(prog, f"--frames: need N >= 1, got {ns.frames}")
+
+def _load_camera_config(ns: argparse.Namespace) -> tuple[ServiceConfig, zenoh.Config]:
+    """The config (with ``--source`` and ``--auth`` applied) and its Zenoh config."""
     try:
         cfg = load_config(ns.config)
         if ns.source is not None:
@@ -81,10 +98,16 @@ def camera_command(ns: argparse.Namespace, prog: str = "formation camera") -> in
         settings = cfg.zenoh
         if ns.auth is not None:
             settings = replace(settings, auth=read_auth_file(ns.auth).auth)
-        conf = settings.to_config()
+        return cfg, settings.to_config()
     except (ConfigError, ValueError) as exc:
-        return _fail(prog, f"{ns.config}: {exc}" if isinstance(exc, ConfigError)
-                     and not str(exc).startswith(str(ns.config)) else str(exc))
+        raise _CommandFailed(f"{ns.config}: {exc}" if isinstance(exc, ConfigError)
+                             and not str(exc).startswith(str(ns.config)) else str(exc)) from None
+
+
+def camera_command(ns: argparse.Namespace, prog: str = "formation camera") -> int:
+    """``formation camera``; see the module docstring."""
+    if ns.frames is not None and ns.frames < 1:
+        return _fail(prog, f"--frames: need N >= 1, got {ns.frames}")
     stop_flag = {"stop": False}
 
     def on_signal(signum: int, _frame: object) -> None:
@@ -93,82 +116,111 @@ def camera_command(ns: argparse.Namespace, prog: str = "formation camera") -> in
     def stop() -> bool:
         return stop_flag["stop"]
 
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    use_zenoh_threads("relay")
-    source = None
     try:
-        if source_kind(cfg.source) != "zenoh":  # a bad file or camera fails before any network
-            try:
-                source = make_source(cfg.source, cfg.fps, stop)
-            except SourceError as exc:
-                return _fail(prog, str(exc))
+        cfg, conf = _load_camera_config(ns)
+        previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         try:
-            session = zenoh.open(conf)
-        except Exception as exc:  # noqa: BLE001 - zenoh.ZError: router unreachable, ...
-            if source is not None:
-                source.close()
-            return _fail(prog, f"cannot open the Zenoh session: {exc}", EXIT_ERROR)
-        try:
-            if source is None:
-                try:
-                    source = make_source(cfg.source, cfg.fps, stop, session)
-                except SourceError as exc:
-                    return _fail(prog, str(exc))
-            node = CameraNode(cfg, session, source)
-            if source_kind(cfg.source) in ("glob", "file"):
-                node.wait_for_subscribers(REPLAY_WAIT_S, stop)  # a replay waits for a listener
-            try:
-                stats = node.run(stop, ns.frames)
-            finally:
-                node.close()
+            use_zenoh_threads("relay")
+            stats = _run_camera(cfg, conf, stop, ns.frames)
         finally:
-            session.close()
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
+            for s, handler in previous.items():
+                signal.signal(s, handler)
+    except _CommandFailed as exc:
+        return _fail(prog, str(exc), exc.code)
     print(json.dumps({"camera": stats}))
     return EXIT_OK
 
 
-def calibrate_command(ns: argparse.Namespace, prog: str = "formation calibrate") -> int:
-    """``formation calibrate``; see the module docstring."""
-    import cv2
-    import yaml
+def _open_source(cfg: ServiceConfig, stop: Callable[[], bool],
+                 session: zenoh.Session | None = None) -> Source:
+    try:
+        return make_source(cfg.source, cfg.fps, stop, session)
+    except SourceError as exc:
+        raise _CommandFailed(str(exc)) from None
 
-    from camera_service.calibrate import (
-        MAX_ERROR_M,
-        CalibrationError,
-        calibrate_image,
-        load_intrinsics,
-    )
-    from camera_service.calibration import calibration_to_dict
-    from camera_service.config import ConfigError, load_floor
 
+def _run_camera(cfg: ServiceConfig, conf: zenoh.Config, stop: Callable[[], bool],
+                frames: int | None) -> dict:
+    """Open the source and the session, run the camera node, close both; its counters."""
+    source = None
+    if source_kind(cfg.source) != "zenoh":  # a bad file or camera fails before any network
+        source = _open_source(cfg, stop)
+    try:
+        session = zenoh.open(conf)
+    except Exception as exc:  # noqa: BLE001 - zenoh.ZError: router unreachable, ...
+        if source is not None:
+            source.close()
+        raise _CommandFailed(f"cannot open the Zenoh session: {exc}", EXIT_ERROR) from None
+    try:
+        if source is None:
+            source = _open_source(cfg, stop, session)
+        node = CameraNode(cfg, session, source)
+        if source_kind(cfg.source) in ("glob", "file"):
+            node.wait_for_subscribers(REPLAY_WAIT_S, stop)  # a replay waits for a listener
+        try:
+            return node.run(stop, frames)
+        finally:
+            node.close()
+    finally:
+        session.close()
+
+
+def _calibrate_inputs(
+    ns: argparse.Namespace,
+) -> tuple[float, FloorMarkers, tuple[np.ndarray, np.ndarray] | None]:
+    """``--max-error``, the floor markers and the intrinsics (None without ``--intrinsics``)."""
     max_error = MAX_ERROR_M if ns.max_error is None else ns.max_error
     if not (max_error > 0):
-        return _fail(prog, f"--max-error: must be > 0 m, got {ns.max_error}")
+        raise _CommandFailed(f"--max-error: must be > 0 m, got {ns.max_error}")
     if ns.camera_height is not None and not (0 < ns.camera_height < 100):
-        return _fail(prog, f"--camera-height: must be > 0 m, got {ns.camera_height}")
+        raise _CommandFailed(f"--camera-height: must be > 0 m, got {ns.camera_height}")
     try:
         floor = load_floor(ns.floor_markers)
     except ConfigError as exc:
-        return _fail(prog, f"{ns.floor_markers}: {exc}" if not str(exc).startswith(
-            str(ns.floor_markers)) else str(exc))
-    intrinsics = None
-    if ns.intrinsics is not None:
-        try:
-            intrinsics = load_intrinsics(ns.intrinsics)
-        except ConfigError as exc:
-            return _fail(prog, str(exc))
-    if not Path(ns.image).is_file():
-        return _fail(prog, f"{ns.image}: no such image")
-    image = cv2.imread(ns.image, cv2.IMREAD_COLOR)
+        raise _CommandFailed(f"{ns.floor_markers}: {exc}" if not str(exc).startswith(
+            str(ns.floor_markers)) else str(exc)) from None
+    if ns.intrinsics is None:
+        return max_error, floor, None
+    try:
+        return max_error, floor, load_intrinsics(ns.intrinsics)
+    except ConfigError as exc:
+        raise _CommandFailed(str(exc)) from None
+
+
+def _read_image(path: str) -> np.ndarray:
+    if not Path(path).is_file():
+        raise _CommandFailed(f"{path}: no such image")
+    image = cv2.imread(path, cv2.IMREAD_COLOR)
     if image is None:
-        return _fail(prog, f"{ns.image}: not a readable image")
+        raise _CommandFailed(f"{path}: not a readable image")
+    return image
+
+
+def calibrate_command(ns: argparse.Namespace, prog: str = "formation calibrate") -> int:
+    """``formation calibrate``; see the module docstring."""
+    try:
+        max_error, floor, intrinsics = _calibrate_inputs(ns)
+        image = _read_image(ns.image)
+    except _CommandFailed as exc:
+        return _fail(prog, str(exc), exc.code)
     try:
         report = calibrate_image(image, floor, intrinsics, ns.camera_height, max_error)
     except CalibrationError as exc:
         return _fail(prog, str(exc).removeprefix("calibrate: "))
+    _print_marker_errors(report)
+    cal = report.calibration
+    data = calibration_to_dict(cal)
+    data["residual_m"] = round(report.max_error_m, 6)
+    Path(ns.out).write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
+    where = ("unknown" if cal.camera_position is None
+             else "({:.3f}, {:.3f}, {:.3f}) m".format(*cal.camera_position))
+    print(f"wrote {ns.out}: {len(report.errors_m)} markers, largest error "
+          f"{report.max_error_m * 1e3:.1f} mm; camera at {where} "
+          f"(focal length from {report.focal_source})")
+    return EXIT_OK
+
+
+def _print_marker_errors(report: CalibrationReport) -> None:
     for mid in sorted(report.errors_m):
         print(f"marker {mid}: {report.errors_m[mid] * 1e3:.1f} mm")
     for mid, err in sorted(report.rejected.items()):
@@ -176,15 +228,6 @@ def calibrate_command(ns: argparse.Namespace, prog: str = "formation calibrate")
     for mid in report.missing:
         if mid not in report.rejected:
             print(f"marker {mid}: not found in the image")
-    cal = report.calibration
-    data = calibration_to_dict(cal)
-    data["residual_m"] = round(report.max_error_m, 6)
-    Path(ns.out).write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
-    cx, cy, cz = cal.camera_position
-    print(f"wrote {ns.out}: {len(report.errors_m)} markers, largest error "
-          f"{report.max_error_m * 1e3:.1f} mm; camera at ({cx:.3f}, {cy:.3f}, {cz:.3f}) m "
-          f"(focal length from {report.focal_source})")
-    return EXIT_OK
 
 
 def main(argv: Sequence[str] | None = None) -> int:

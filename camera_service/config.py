@@ -39,6 +39,7 @@ import yaml
 from camera_service.calibration import Calibration, load_calibration
 from camera_service.markers import aruco_dictionary, dictionary_size
 from geometry.shapes import Shape
+from scenario import ScenarioError, load_scenario
 from wire import keys
 from wire.zconf import MODES, UsrPwdAuth, ZenohSettings
 
@@ -180,42 +181,47 @@ def _zenoh(raw: Any, base: Path) -> ZenohSettings:
     mode = m.get("mode", "client")
     if mode not in MODES:
         raise ConfigError(f"zenoh.mode: must be one of {MODES}, got {mode!r}")
-    lists = {}
-    for name in ("connect", "listen"):
-        value = m.get(name, [])
-        if isinstance(value, str):
-            value = [value]
-        if not isinstance(value, list) or not all(isinstance(e, str) and "/" in e for e in value):
-            raise ConfigError(f"zenoh.{name}: expected a list of endpoints such as "
-                              f"'tcp/192.168.1.10:7447', got {value!r}")
-        lists[name] = tuple(value)
-    if mode == "client" and not lists["connect"]:
+    connect, listen = _endpoints(m, "connect"), _endpoints(m, "listen")
+    if mode == "client" and not connect:
         raise ConfigError("zenoh.connect: a client needs at least one endpoint (the router)")
-    user, password = m.get("user"), m.get("password")
-    auth = None
-    if (user is None) != (password is None):
-        raise ConfigError(f"zenoh.{'password' if password is None else 'user'}: "
-                          "user and password go together")
-    if user is not None:
-        if not isinstance(user, str) or not user or not isinstance(password, str) or not password:
-            raise ConfigError("zenoh.user: user and password must be non-empty strings")
-        auth = UsrPwdAuth(user, password)
+    auth = _auth(m.get("user"), m.get("password"))
     config_file = None
     if "config_file" in m:
         config_file = str(_path(m["config_file"], "zenoh.config_file", base))
     try:
-        return ZenohSettings(mode=mode, connect=lists["connect"], listen=lists["listen"],
+        return ZenohSettings(mode=mode, connect=connect, listen=listen,
                              connect_timeout_s=10.0 if mode == "client" else None,
                              config_file=config_file, auth=auth)
     except ValueError as exc:
         raise ConfigError(f"zenoh: {exc}") from None
 
 
+def _endpoints(m: dict[str, Any], name: str) -> tuple[str, ...]:
+    """``zenoh.connect`` or ``zenoh.listen``: one endpoint or a list of them."""
+    value = m.get(name, [])
+    if isinstance(value, str):
+        value = [value]
+    if not isinstance(value, list) or not all(isinstance(e, str) and "/" in e for e in value):
+        raise ConfigError(f"zenoh.{name}: expected a list of endpoints such as "
+                          f"'tcp/192.168.1.10:7447', got {value!r}")
+    return tuple(value)
+
+
+def _auth(user: Any, password: Any) -> UsrPwdAuth | None:
+    """``zenoh.user`` and ``zenoh.password``: both or neither, non-empty strings."""
+    if (user is None) != (password is None):
+        raise ConfigError(f"zenoh.{'password' if password is None else 'user'}: "
+                          "user and password go together")
+    if user is None:
+        return None
+    if not isinstance(user, str) or not user or not isinstance(password, str) or not password:
+        raise ConfigError("zenoh.user: user and password must be non-empty strings")
+    return UsrPwdAuth(user, password)
+
+
 def _static_obstacles(path: Path) -> tuple[tuple[StaticObstacle, ...], tuple[Shape, ...]]:
     """The scenario's obstacles that do not move: its circles without a velocity, and its walls
     and shelves (published as they are, :mod:`geometry.shapes`)."""
-    from scenario import ScenarioError, load_scenario
-
     try:
         scenario = load_scenario(path)
     except ScenarioError as exc:
@@ -231,7 +237,11 @@ def _static_obstacles(path: Path) -> tuple[tuple[StaticObstacle, ...], tuple[Sha
 
 
 def config_from_dict(data: Any, base: Path, path: str = "<config>") -> ServiceConfig:
-    """A :class:`ServiceConfig` from parsed YAML; relative paths resolve against ``base``."""
+    """A :class:`ServiceConfig` from parsed YAML; relative paths resolve against ``base``.
+
+    The sections are checked in this order (the first problem is the one reported): required
+    keys, source, fps, obstacle_hold_s, markers, robots, obstacles, static_obstacles and the
+    obstacles' names, prefix, zenoh, calibration."""
     m = _mapping(data, "", CONFIG_KEYS)
     for key in ("source", "calibration", "markers"):
         if key not in m:
@@ -239,18 +249,45 @@ def config_from_dict(data: Any, base: Path, path: str = "<config>") -> ServiceCo
     source = _source(m["source"])
     fps = _number(m.get("fps", DEFAULT_FPS), "fps", 0.0, 1000.0, low_open=True)
     hold = _number(m.get("obstacle_hold_s", DEFAULT_HOLD_S), "obstacle_hold_s", 0.0, 60.0)
-    mk = _mapping(m["markers"], "markers", MARKER_KEYS)
+    dictionary, size_m, height = _markers(m["markers"])
+    n_ids = dictionary_size(dictionary)
+    robots = _robots(m.get("robots", {}) or {}, n_ids)
+    obstacles = _moving_obstacles(m.get("obstacles", {}) or {}, n_ids, robots)
+    if not robots and not obstacles:
+        raise ConfigError("robots: no robot and no obstacle marker to look for")
+    statics: tuple[StaticObstacle, ...] = ()
+    shapes: tuple[Shape, ...] = ()
+    if m.get("static_obstacles") is not None:
+        statics, shapes = _static_obstacles(_path(m["static_obstacles"], "static_obstacles", base))
+    _check_unique_names([o.name for o in obstacles.values()] + [o.name for o in statics]
+                        + [s.name for s in shapes])
+    prefix = _prefix(m.get("prefix", keys.DEFAULT_PREFIX))
+    zenoh = _zenoh(m.get("zenoh", {"mode": "peer"}), base)
+    top = max([height, *(o.height_m or 0.0 for o in obstacles.values())])
+    calibration = _calibration(_path(m["calibration"], "calibration", base), top)
+    return ServiceConfig(
+        source=source, calibration=calibration, robots=robots, obstacles=obstacles,
+        static_obstacles=statics, static_shapes=shapes, fps=fps, dictionary=dictionary, marker_size=size_m,
+        marker_height=height, prefix=prefix, zenoh=zenoh, obstacle_hold_s=hold, path=path)
+
+
+def _markers(raw: Any) -> tuple[str, float, float]:
+    """``markers``: the dictionary, the printed side [m] and the height above the floor [m]."""
+    mk = _mapping(raw, "markers", MARKER_KEYS)
     dictionary = _dictionary(mk.get("dictionary", "DICT_4X4_50"), "markers.dictionary")
     if "size_m" not in mk:
         raise ConfigError("markers.size_m: missing")
     size_m = _number(mk["size_m"], "markers.size_m", 0.0, 2.0, low_open=True)
     height = _number(mk.get("height_m", 0.0), "markers.height_m", 0.0, MAX_MARKER_HEIGHT)
-    n_ids = dictionary_size(dictionary)
+    return dictionary, size_m, height
+
+
+def _robots(raw: Any, n_ids: int) -> dict[int, str]:
+    """``robots``: marker id -> robot id, one marker per robot."""
+    if not isinstance(raw, dict):
+        raise ConfigError(f"robots: expected a mapping marker id -> robot id, got {raw!r}")
     robots: dict[int, str] = {}
-    raw_robots = m.get("robots", {}) or {}
-    if not isinstance(raw_robots, dict):
-        raise ConfigError(f"robots: expected a mapping marker id -> robot id, got {raw_robots!r}")
-    for mid, rid in raw_robots.items():
+    for mid, rid in raw.items():
         where = f"robots.{mid}"
         _marker_id(mid, where, n_ids)
         problem = keys.id_problem(rid)
@@ -259,61 +296,67 @@ def config_from_dict(data: Any, base: Path, path: str = "<config>") -> ServiceCo
         if rid in robots.values():
             raise ConfigError(f"{where}: robot {rid!r} has two markers")
         robots[mid] = rid
+    return robots
+
+
+def _moving_obstacles(raw: Any, n_ids: int, robots: Mapping[int, str]) -> dict[int, MovingObstacle]:
+    """``obstacles``: marker id -> moving obstacle, on markers no robot carries."""
+    if not isinstance(raw, dict):
+        raise ConfigError(f"obstacles: expected a mapping marker id -> obstacle, got {raw!r}")
     obstacles: dict[int, MovingObstacle] = {}
-    raw_obs = m.get("obstacles", {}) or {}
-    if not isinstance(raw_obs, dict):
-        raise ConfigError(f"obstacles: expected a mapping marker id -> obstacle, got {raw_obs!r}")
-    for mid, spec in raw_obs.items():
+    for mid, spec in raw.items():
         where = f"obstacles.{mid}"
         _marker_id(mid, where, n_ids)
         if mid in robots:
             raise ConfigError(f"{where}: marker id {mid} is also robot {robots[mid]!r}'s")
-        s = _mapping(spec, where, OBSTACLE_KEYS)
-        for key in ("name", "safe_distance"):
-            if key not in s:
-                raise ConfigError(f"{where}.{key}: missing")
-        problem = keys.id_problem(s["name"])
-        if problem is not None:
-            raise ConfigError(f"{where}.name: {s['name']!r} {problem}")
-        ds = _number(s["safe_distance"], f"{where}.safe_distance", 0.0, 100.0, low_open=True)
-        osize = ohigh = None
-        if "size_m" in s:
-            osize = _number(s["size_m"], f"{where}.size_m", 0.0, 2.0, low_open=True)
-        if "height_m" in s:
-            ohigh = _number(s["height_m"], f"{where}.height_m", 0.0, MAX_MARKER_HEIGHT)
-        obstacles[mid] = MovingObstacle(s["name"], ds, osize, ohigh)
-    if not robots and not obstacles:
-        raise ConfigError("robots: no robot and no obstacle marker to look for")
-    statics: tuple[StaticObstacle, ...] = ()
-    shapes: tuple[Shape, ...] = ()
-    if m.get("static_obstacles") is not None:
-        statics, shapes = _static_obstacles(_path(m["static_obstacles"], "static_obstacles", base))
-    names = [o.name for o in obstacles.values()] + [o.name for o in statics] + [s.name for s in shapes]
+        obstacles[mid] = _moving_obstacle(spec, where)
+    return obstacles
+
+
+def _moving_obstacle(spec: Any, where: str) -> MovingObstacle:
+    s = _mapping(spec, where, OBSTACLE_KEYS)
+    for key in ("name", "safe_distance"):
+        if key not in s:
+            raise ConfigError(f"{where}.{key}: missing")
+    problem = keys.id_problem(s["name"])
+    if problem is not None:
+        raise ConfigError(f"{where}.name: {s['name']!r} {problem}")
+    ds = _number(s["safe_distance"], f"{where}.safe_distance", 0.0, 100.0, low_open=True)
+    osize = ohigh = None
+    if "size_m" in s:
+        osize = _number(s["size_m"], f"{where}.size_m", 0.0, 2.0, low_open=True)
+    if "height_m" in s:
+        ohigh = _number(s["height_m"], f"{where}.height_m", 0.0, MAX_MARKER_HEIGHT)
+    return MovingObstacle(s["name"], ds, osize, ohigh)
+
+
+def _check_unique_names(names: list[str]) -> None:
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         raise ConfigError(f"obstacles: name {dup[0]!r} is used twice")
-    prefix = m.get("prefix", keys.DEFAULT_PREFIX)
+
+
+def _prefix(prefix: Any) -> str:
     try:
         keys.validate_prefix(prefix)
     except ValueError as exc:
         raise ConfigError(f"prefix: {exc}") from None
-    zenoh = _zenoh(m.get("zenoh", {"mode": "peer"}), base)
-    cal_path = _path(m["calibration"], "calibration", base)
+    return prefix
+
+
+def _calibration(cal_path: Path, top: float) -> Calibration:
+    """The calibration file, with a camera above ``top``, the highest marker [m] (if above 0)."""
     try:
         calibration = load_calibration(cal_path)
     except ValueError as exc:
         raise ConfigError(f"calibration: {cal_path}: {exc}") from None
-    top = max([height, *(o.height_m or 0.0 for o in obstacles.values())])
     if top > 0.0 and calibration.camera_position is None:
         raise ConfigError(f"calibration: {cal_path} has no camera_position, which "
                           "markers.height_m needs (run formation calibrate again)")
     if calibration.camera_position is not None and top >= calibration.camera_position[2]:
         raise ConfigError(f"markers.height_m: {top} m is not below the camera "
                           f"({calibration.camera_position[2]:.3f} m)")
-    return ServiceConfig(
-        source=source, calibration=calibration, robots=robots, obstacles=obstacles,
-        static_obstacles=statics, static_shapes=shapes, fps=fps, dictionary=dictionary, marker_size=size_m,
-        marker_height=height, prefix=prefix, zenoh=zenoh, obstacle_hold_s=hold, path=path)
+    return calibration
 
 
 def load_config(path: str | Path) -> ServiceConfig:

@@ -113,8 +113,7 @@ class Locator:
             q = apply_homography(self.calibration.floor_from_pixel,
                                  np.asarray(quad, dtype=np.float64).reshape(4, 2))
             size, lift = self.overrides.get(mid, (self.marker_size, self.height))
-            if lift > 0.0:
-                q = correct_parallax(q, self.calibration.camera_position, lift)
+            q = self._lifted(q, lift)
             pose, side = pose_from_floor_corners(q)
             if abs(side - size) > SIZE_TOLERANCE * size:
                 implausible.append(mid)
@@ -125,3 +124,12 @@ class Locator:
                                   and (self.wanted is None or m in self.wanted)))
         return Located(poses, tuple(sorted(unknown)), duplicates, tuple(sorted(implausible)),
                        len(seen), sides)
+
+    def _lifted(self, q: np.ndarray, lift: float) -> np.ndarray:
+        """Floor corners ``q`` of a marker ``lift`` metres above the floor, parallax-corrected."""
+        if lift <= 0.0:
+            return q
+        camera = self.calibration.camera_position
+        if camera is None:  # __init__ refuses a height without a camera position
+            raise ValueError("height: parallax correction needs the calibration's camera_position")
+        return correct_parallax(q, camera, lift)

@@ -32,9 +32,10 @@ from collections import deque
 from collections.abc import Callable
 
 import numpy as np
+import zenoh
 
 from camera_service.config import ServiceConfig
-from camera_service.locate import Locator
+from camera_service.locate import Located, Locator
 from camera_service.sources import EndOfSource, Source
 from camera_service.tracking import ObstacleTracker
 from wire import keys
@@ -57,10 +58,20 @@ def percentile(values: list[float] | deque, q: float) -> float | None:
     return xs[min(len(xs) - 1, max(0, math.ceil(q / 100.0 * len(xs)) - 1))]
 
 
+def has_matching_subscribers(publisher: zenoh.Publisher) -> bool:
+    """Whether ``publisher`` has a matching subscriber.
+
+    zenoh-python 1.10's ``Publisher.matching_status`` is a ``MatchingStatus`` object (always
+    truthy) although its stub says ``bool``; the answer is its ``matching`` attribute.
+    """
+    status: object = publisher.matching_status
+    return bool(getattr(status, "matching", status))
+
+
 class CameraNode:
     """See the module docstring."""
 
-    def __init__(self, cfg: ServiceConfig, session: object, source: Source) -> None:
+    def __init__(self, cfg: ServiceConfig, session: zenoh.Session, source: Source) -> None:
         self.cfg = cfg
         self.session = session
         self.source = source
@@ -115,7 +126,7 @@ class CameraNode:
         out["stamps_on_other_clock"] = self.other_clock
         return out
 
-    def _on_query(self, query: object) -> None:
+    def _on_query(self, query: zenoh.Query) -> None:
         try:
             query.reply(str(query.key_expr), json.dumps(self.stats()))
         except Exception as exc:  # noqa: BLE001 - a failed reply must not kill Zenoh's thread
@@ -128,7 +139,7 @@ class CameraNode:
         of files should not run before anyone listens); True if someone does."""
         deadline = time.monotonic() + timeout
         while not stop() and time.monotonic() < deadline:
-            if self._obs_pub.matching_status.matching:
+            if has_matching_subscribers(self._obs_pub):
                 return True
             time.sleep(0.02)
         return False
@@ -163,17 +174,7 @@ class CameraNode:
                         why=f"dropped a frame: {exc}")
             return
         cfg = self.cfg
-        if found.markers_seen == 0:
-            self._count("empty_frames", why="a frame with no marker")
-        if found.unknown:
-            self._count("unknown_markers", len(found.unknown),
-                        why=f"marker ids nobody owns: {list(found.unknown)}")
-        if found.duplicates:
-            self._count("duplicate_markers", len(found.duplicates),
-                        why=f"marker ids seen twice in one frame: {list(found.duplicates)}")
-        if found.implausible:
-            self._count("implausible_markers", len(found.implausible),
-                        why=f"markers of the wrong size: {list(found.implausible)}")
+        self._count_problems(found)
         seen_obstacles = {cfg.obstacles[mid].name: (p[0], p[1])
                           for mid, p in found.poses.items() if mid in cfg.obstacles}
         tracked = self.tracker.step(seen_obstacles, stamp)
@@ -201,11 +202,28 @@ class CameraNode:
             else:
                 self.other_clock += 1
 
+    def _count_problems(self, found: Located) -> None:
+        """Count (and log now and then) an empty frame and unknown, duplicate or implausible markers."""
+        if found.markers_seen == 0:
+            self._count("empty_frames", why="a frame with no marker")
+        if found.unknown:
+            self._count("unknown_markers", len(found.unknown),
+                        why=f"marker ids nobody owns: {list(found.unknown)}")
+        if found.duplicates:
+            self._count("duplicate_markers", len(found.duplicates),
+                        why=f"marker ids seen twice in one frame: {list(found.duplicates)}")
+        if found.implausible:
+            self._count("implausible_markers", len(found.implausible),
+                        why=f"markers of the wrong size: {list(found.implausible)}")
+
     def close(self) -> None:
         """Undeclare everything (the session is closed by its owner)."""
-        for entity in [self._queryable, self._obs_pub, *self._pose_pubs.values()]:
+        undeclares: list[Callable[[], None]] = [
+            self._queryable.undeclare, self._obs_pub.undeclare,
+            *(pub.undeclare for pub in self._pose_pubs.values())]
+        for undeclare in undeclares:
             try:
-                entity.undeclare()
+                undeclare()
             except Exception:  # noqa: BLE001 - closing anyway
                 pass
         self.source.close()

@@ -63,8 +63,8 @@ def _check_poses(poses: Mapping[str, PoseLike]) -> dict[str, tuple[float, float,
     return out
 
 
-def _check_obstacles(obstacles: Iterable[tuple[float, float, float]]) -> list[tuple[float, ...]]:
-    out = []
+def _check_obstacles(obstacles: Iterable[tuple[float, float, float]]) -> list[tuple[float, float, float]]:
+    out: list[tuple[float, float, float]] = []
     for obstacle in obstacles:
         try:
             x, y, r = (float(v) for v in obstacle)
@@ -110,7 +110,7 @@ def _draw_disc(
 def _draw_scene(
     calibration: Calibration,
     poses: dict[str, tuple[float, float, float]],
-    obstacles: list[tuple[float, ...]],
+    obstacles: list[tuple[float, float, float]],
     robot_radius: float,
 ) -> np.ndarray:
     frame = _blank(calibration)
@@ -211,7 +211,8 @@ def _finish(
         cv2.setRNGSeed(int(generator.integers(2**31 - 1)))
         # One channel: cv2.randn's scalar std would otherwise reach the first channel only.
         noise = np.empty((frame.shape[0], frame.size // frame.shape[0]), dtype=np.int16)
-        cv2.randn(noise, 0.0, noise_std)
+        # OpenCV takes scalars for mean and stddev (a cv::Scalar); its stub admits arrays only.
+        cv2.randn(noise, 0.0, noise_std)  # type: ignore[call-overload]
         frame = cv2.add(frame, noise.reshape(frame.shape), dtype=cv2.CV_8U)  # saturates
     return frame
 

@@ -153,7 +153,7 @@ class CameraService:
         ):
             raise ValueError(f"stamp: must be a finite number of seconds, got {stamp!r}")
         c = self.config
-        if c.mode == "aruco":
+        if self._detector is not None:  # mode "aruco"
             found = detect_markers(frame, self._detector, c.calibration, c.marker_ids)
             poses = found.poses
             self._counts["unknown_markers"] += len(found.unknown_ids)
@@ -212,18 +212,8 @@ def open_source(spec: FrameSource | cv2.VideoCapture) -> Iterator[np.ndarray]:
         return _from_capture(spec)
     if isinstance(spec, bool):
         raise ValueError(f"spec: expected a camera index, path, URL or frames, got {spec!r}")
-    if isinstance(spec, int) or (isinstance(spec, str) and spec.strip().isdigit()):
-        index = int(spec)
-        if index < 0:
-            raise ValueError(f"spec: camera index must be >= 0, got {index}")
-        return _from_capture(_open_capture(index, f"camera {index}"))
-    if isinstance(spec, str | Path):
-        text = str(spec)
-        if not text:
-            raise ValueError("spec: empty source")
-        if "://" not in text and not Path(text).is_file():
-            raise ValueError(f"spec: cannot open {text!r}: no such file")
-        return _from_capture(_open_capture(text, repr(text)))
+    if isinstance(spec, int | str | Path):
+        return _from_capture(_open_named(spec))
     if callable(spec):
         return _from_callable(spec)
     if isinstance(spec, Iterable):
@@ -239,6 +229,21 @@ def _from_callable(fn: Callable[[], np.ndarray | None]) -> Iterator[np.ndarray]:
         if frame is None:
             return
         yield frame
+
+
+def _open_named(spec: int | str | Path) -> cv2.VideoCapture:
+    """The capture of a camera index (``0`` or ``"0"``), a stream URL or a video file path."""
+    if isinstance(spec, int) or (isinstance(spec, str) and spec.strip().isdigit()):
+        index = int(spec)
+        if index < 0:
+            raise ValueError(f"spec: camera index must be >= 0, got {index}")
+        return _open_capture(index, f"camera {index}")
+    text = str(spec)
+    if not text:
+        raise ValueError("spec: empty source")
+    if "://" not in text and not Path(text).is_file():
+        raise ValueError(f"spec: cannot open {text!r}: no such file")
+    return _open_capture(text, repr(text))
 
 
 def _open_capture(target: int | str, name: str) -> cv2.VideoCapture:

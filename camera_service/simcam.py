@@ -15,15 +15,18 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import cv2
 import yaml
+import zenoh
 
 from camera_service.calibration import Calibration, save_calibration, synthetic_camera
 from camera_service.markers import DEFAULT_DICTIONARY, dictionary_size
+from camera_service.node import has_matching_subscribers
 from camera_service.render import render_aruco_frame
+from scenario.model import Scenario
 from wire.frames import Frame, encode_frame, frame_key
 
 logger = logging.getLogger(__name__)
@@ -36,7 +39,7 @@ PNG_LEVEL = 1  # fast PNG compression: lossless, about 10 ms for a 1280x960 fram
 class FramePublisher:
     """Renders and publishes the overhead frames of a simulated scenario."""
 
-    def __init__(self, scenario: object, session: object | None, prefix: str) -> None:
+    def __init__(self, scenario: Scenario, session: zenoh.Session | None, prefix: str) -> None:
         """``session`` None: only the geometry (for :func:`write_camera_files`)."""
         xs = [r.start[0] for r in scenario.robots] + [r.goal[0] for r in scenario.robots]
         ys = [r.start[1] for r in scenario.robots] + [r.goal[1] for r in scenario.robots]
@@ -68,7 +71,7 @@ class FramePublisher:
                 obstacles: Sequence[tuple[str, float, float, float]], stamp: float) -> None:
         """Render the robots at ``state`` (scenario order) and ``obstacles`` (name, x, y, ds),
         publish the frame stamped ``stamp``."""
-        poses = {rid: tuple(s) for rid, s in zip(self.robot_ids, state, strict=True)}
+        poses = {rid: (s[0], s[1], s[2]) for rid, s in zip(self.robot_ids, state, strict=True)}
         ids = dict(self.marker_ids)
         for name, x, y, _ds in obstacles:
             if name in self.obstacle_markers:
@@ -77,17 +80,19 @@ class FramePublisher:
         frame = render_aruco_frame(poses, self.calibration, ids,
                                    [(x, y, ds) for _n, x, y, ds in obstacles],
                                    marker_side=self.marker_side, robot_radius=self.radius)
+        if self.publisher is None:
+            raise RuntimeError("camera: this FramePublisher has no session")
         ok, png = cv2.imencode(".png", frame, [cv2.IMWRITE_PNG_COMPRESSION, PNG_LEVEL])
         if not ok:
             raise RuntimeError("camera: cannot encode a frame as PNG")
         self.publisher.put(encode_frame(Frame(stamp, "png", png.tobytes())))
 
-    def wait_subscribed(self, timeout: float, abort=lambda: None) -> None:
+    def wait_subscribed(self, timeout: float, abort: Callable[[], None] = lambda: None) -> None:
         """Wait until the camera process subscribes to the frames."""
         if self.publisher is None:
             raise RuntimeError("camera: this FramePublisher has no session")
         deadline = time.monotonic() + timeout
-        while not self.publisher.matching_status.matching:
+        while not has_matching_subscribers(self.publisher):
             abort()
             if time.monotonic() > deadline:
                 raise TimeoutError(f"the camera process did not subscribe to {self.key} "
@@ -100,7 +105,7 @@ class FramePublisher:
             self.publisher = None
 
 
-def write_camera_files(pub: FramePublisher, scenario: object, scenario_path: str | Path,
+def write_camera_files(pub: FramePublisher, scenario: Scenario, scenario_path: str | Path,
                        folder: Path, endpoint: str, prefix: str) -> Path:
     """The camera process's ``camera.yaml`` and ``calib.yaml`` in ``folder``; returns the
     config's path."""

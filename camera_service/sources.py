@@ -31,6 +31,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import zenoh
 
 from wire.frames import decode_frame
 from wire.payloads import DecodeError
@@ -78,19 +79,27 @@ def _sleep_until(t: float, stop: Callable[[], bool]) -> bool:
     return False
 
 
+def open_capture(target: int | str) -> cv2.VideoCapture:
+    """``cv2.VideoCapture`` of a camera index or a stream URL (typed: one call per overload)."""
+    if isinstance(target, int):
+        return cv2.VideoCapture(target)
+    return cv2.VideoCapture(target)
+
+
 class CaptureSource(Source):
     """A camera index or a stream URL: live, reconnecting (see the module docstring)."""
 
     def __init__(self, target: int | str, stop: Callable[[], bool],
-                 opener: Callable[[int | str], cv2.VideoCapture] = cv2.VideoCapture) -> None:
+                 opener: Callable[[int | str], cv2.VideoCapture] = open_capture) -> None:
         super().__init__()
         self.target = target
         self.stop = stop
         self.opener = opener
-        self.cap = opener(target)
-        if not self.cap.isOpened():
-            self.cap.release()
+        cap = opener(target)
+        if not cap.isOpened():
+            cap.release()
             raise SourceError(f"source: cannot open {target!r}")
+        self.cap: cv2.VideoCapture | None = cap
         self.backoff = BACKOFF_START_S
 
     def read(self) -> Item | None:
@@ -185,14 +194,14 @@ class GlobSource(Source):
 class ZenohSource(Source):
     """Encoded frames on a Zenoh key (see :mod:`wire.frames`)."""
 
-    def __init__(self, session: object, key: str) -> None:
+    def __init__(self, session: zenoh.Session, key: str) -> None:
         super().__init__()
         self.key = key
         self._cond = threading.Condition()
         self._queue: deque[bytes] = deque()
         self._sub = session.declare_subscriber(key, self._callback)
 
-    def _callback(self, sample: object) -> None:
+    def _callback(self, sample: zenoh.Sample) -> None:
         data = sample.payload.to_bytes()
         with self._cond:
             if len(self._queue) >= QUEUE:
@@ -243,7 +252,7 @@ def source_kind(spec: str) -> str:
 
 
 def make_source(spec: str, fps: float, stop: Callable[[], bool],
-                session: object | None = None) -> Source:
+                session: zenoh.Session | None = None) -> Source:
     """The source ``spec`` names (see the module docstring); :class:`SourceError` naming it."""
     kind = source_kind(spec)
     if kind == "zenoh":

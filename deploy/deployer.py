@@ -29,6 +29,7 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import hashlib
+import importlib.metadata
 import importlib.util
 import logging
 import os
@@ -272,9 +273,7 @@ def build_wheel(out_dir: Path, root: Path | None = None) -> Path:
 def _can_build_without_isolation() -> bool:
     """Whether this interpreter's setuptools can write wheels (>= 70.1, or with ``wheel``)."""
     try:
-        from importlib.metadata import version
-
-        major, minor = (int(x) for x in version("setuptools").split(".")[:2])
+        major, minor = (int(x) for x in importlib.metadata.version("setuptools").split(".")[:2])
     except Exception:  # noqa: BLE001 - not installed or an odd version string
         return False
     return (major, minor) >= (70, 1) or importlib.util.find_spec("wheel") is not None
@@ -359,6 +358,27 @@ def _parse_probe(text: str) -> tuple[str, dict[str, str]]:
     return lines[0], info
 
 
+def _stage_files(rp: RobotPlan, local: Path) -> list[Path]:
+    """Write the robot's files (with their modes) under ``local``; their paths."""
+    local.mkdir(parents=True, exist_ok=True)
+    to_copy = []
+    for name, content in rp.files.items():
+        p = local / name
+        p.write_bytes(content)
+        p.chmod(rp.modes[name])
+        to_copy.append(p)
+    return to_copy
+
+
+def _what_changed(info: dict[str, str], wheel_hash: str, files_digest: str) -> str:
+    """What an install put on the robot, from the probe's answer ``info``."""
+    if info.get("venv") != "yes":
+        return "new virtualenv, wheel and files"
+    if info.get("wheel") != wheel_hash:
+        return f"wheel {info.get('wheel', 'none')} -> {wheel_hash} and files"
+    return f"files only ({info.get('files', 'none')} -> {files_digest})"
+
+
 async def deploy_robot(rp: RobotPlan, wheel: Path, wheel_hash: str, staging: Path) -> RobotReport:
     t0 = time.monotonic()
     r = rp.robot
@@ -375,14 +395,7 @@ async def deploy_robot(rp: RobotPlan, wheel: Path, wheel_hash: str, staging: Pat
     if not need_install and not need_files:
         return RobotReport(r.id, r.address, True, "unchanged", f"in {abs_dir}",
                            time.monotonic() - t0)
-    local = staging / r.id
-    local.mkdir(parents=True, exist_ok=True)
-    to_copy = []
-    for name, content in rp.files.items():
-        p = local / name
-        p.write_bytes(content)
-        p.chmod(rp.modes[name])
-        to_copy.append(p)
+    to_copy = _stage_files(rp, staging / r.id)
     if need_install:
         to_copy.append(wheel)
     copied = await scp_files(rp.target, to_copy, abs_dir, COPY_TIMEOUT_S)
@@ -393,13 +406,7 @@ async def deploy_robot(rp: RobotPlan, wheel: Path, wheel_hash: str, staging: Pat
     if not done.ok:
         return _failed(rp, "install", done, t0)
     status = "installed" if info.get("venv") != "yes" else "updated"
-    if info.get("venv") != "yes":
-        what = "new virtualenv, wheel and files"
-    elif info.get("wheel") != wheel_hash:
-        what = f"wheel {info.get('wheel', 'none')} -> {wheel_hash} and files"
-    else:
-        what = f"files only ({info.get('files', 'none')} -> {rp.files_digest})"
-    detail = f"{what} in {abs_dir}"
+    detail = f"{_what_changed(info, wheel_hash, rp.files_digest)} in {abs_dir}"
     if running:
         detail += f"; agent running (pid {running}): --stop and --start to use the new version"
     return RobotReport(r.id, r.address, True, status, detail, time.monotonic() - t0)

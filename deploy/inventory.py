@@ -261,20 +261,11 @@ def _robot(d: dict[str, Any], label: str, folder: Path,
     port = d.get("port", DEFAULT_PORT)
     if isinstance(port, bool) or not isinstance(port, int) or not 0 < port < 65536:
         raise InventoryError(f"{label}.port: must be an integer in 1..65535, got {port!r}")
-    install_dir = _str(d.get("install_dir", DEFAULT_INSTALL_DIR), f"{label}.install_dir")
-    if not (install_dir.startswith("/") or install_dir == "~" or install_dir.startswith("~/")):
-        raise InventoryError(f"{label}.install_dir: must be absolute or start with ~/, "
-                             f"got {install_dir!r}")
-    if any(c in install_dir for c in "\n\0'\"$`\\"):
-        raise InventoryError(f"{label}.install_dir: must not contain quotes, $, ` or \\")
+    install_dir = _install_dir(d.get("install_dir", DEFAULT_INSTALL_DIR), f"{label}.install_dir")
     python = _str(d.get("python", DEFAULT_PYTHON), f"{label}.python")
     if not re.match(r"^[A-Za-z0-9_./+-]+$", python):
         raise InventoryError(f"{label}.python: {python!r} is not a command name or path")
-    cmd_vel_key = d.get("cmd_vel_key", "")
-    if cmd_vel_key != "":
-        cmd_vel_key = _str(cmd_vel_key, f"{label}.cmd_vel_key")
-    if cmd_vel_key and any(not c or keys.id_problem(c) for c in cmd_vel_key.split("/")):
-        raise InventoryError(f"{label}.cmd_vel_key: {cmd_vel_key!r} is not a plain Zenoh key")
+    cmd_vel_key = _cmd_vel_key(d.get("cmd_vel_key", ""), f"{label}.cmd_vel_key")
     frame_id = _str(d.get("frame_id", "base_link"), f"{label}.frame_id")
     env = dict(fleet_env)
     env.update(dict(_env(d.get("env", {}), f"{label}.env")))
@@ -283,6 +274,25 @@ def _robot(d: dict[str, Any], label: str, folder: Path,
         port=port, install_dir=install_dir, python=python, cmd_vel_key=cmd_vel_key,
         frame_id=frame_id, env=tuple(sorted(env.items())),
     )
+
+
+def _install_dir(value: Any, name: str) -> str:
+    install_dir = _str(value, name)
+    if not (install_dir.startswith("/") or install_dir == "~" or install_dir.startswith("~/")):
+        raise InventoryError(f"{name}: must be absolute or start with ~/, got {install_dir!r}")
+    if any(c in install_dir for c in "\n\0'\"$`\\"):
+        raise InventoryError(f"{name}: must not contain quotes, $, ` or \\")
+    return install_dir
+
+
+def _cmd_vel_key(value: Any, name: str) -> str:
+    """A plain Zenoh key, or "" (the default)."""
+    if value == "":
+        return ""
+    key = _str(value, name)
+    if any(not c or keys.id_problem(c) for c in key.split("/")):
+        raise InventoryError(f"{name}: {key!r} is not a plain Zenoh key")
+    return key
 
 
 def _zenoh(value: Any, folder: Path) -> FleetZenoh:
@@ -309,36 +319,44 @@ def _zenoh(value: Any, folder: Path) -> FleetZenoh:
     if user is not None:
         user = _str(user, "zenoh.user")
         password_file = _local_path(password_file, "zenoh.password_file", folder)
-    tls = None
-    if z.get("tls") is not None:
-        t = _mapping(z["tls"], "zenoh.tls")
-        _no_unknown(t, _TLS_KEYS, "zenoh.tls.")
-        if "root_ca" not in t:
-            raise InventoryError("zenoh.tls: missing key 'root_ca'")
-        if ("certificate" in t) != ("private_key" in t):
-            raise InventoryError("zenoh.tls: certificate and private_key go together")
-        tls = TlsSettings(
-            root_ca=_local_path(t["root_ca"], "zenoh.tls.root_ca", folder),
-            certificate=(_local_path(t["certificate"], "zenoh.tls.certificate", folder)
-                         if "certificate" in t else None),
-            private_key=(_local_path(t["private_key"], "zenoh.tls.private_key", folder)
-                         if "private_key" in t else None),
-        )
-        if router is not None and not router.startswith("tls/"):
-            raise InventoryError(f"zenoh.router: {router!r} must be a tls/ endpoint with zenoh.tls")
-    access_control = z.get("access_control", mode == "client" and user is None)
-    if not isinstance(access_control, bool):
-        raise InventoryError(f"zenoh.access_control: must be true or false, got {access_control!r}")
-    if access_control and user is not None:
-        raise InventoryError("zenoh.access_control: one user per robot; drop zenoh.user and "
-                             "zenoh.password_file (or set access_control: false)")
-    if access_control and mode != "client":
-        raise InventoryError("zenoh.access_control: needs mode client (peers bypass the "
-                             "router that enforces it)")
+    tls = None if z.get("tls") is None else _tls(z["tls"], folder, router)
+    access_control = _access_control(z.get("access_control", mode == "client" and user is None),
+                                     mode, user)
     secrets = _local_path(z.get("secrets", DEFAULT_SECRETS), "zenoh.secrets", folder)
     return FleetZenoh(router=router, mode=mode, peer_port=peer_port, user=user,
                       password_file=password_file, tls=tls, access_control=access_control,
                       secrets=secrets)
+
+
+def _access_control(value: Any, mode: str, user: str | None) -> bool:
+    if not isinstance(value, bool):
+        raise InventoryError(f"zenoh.access_control: must be true or false, got {value!r}")
+    if value and user is not None:
+        raise InventoryError("zenoh.access_control: one user per robot; drop zenoh.user and "
+                             "zenoh.password_file (or set access_control: false)")
+    if value and mode != "client":
+        raise InventoryError("zenoh.access_control: needs mode client (peers bypass the "
+                             "router that enforces it)")
+    return value
+
+
+def _tls(value: Any, folder: Path, router: str | None) -> TlsSettings:
+    t = _mapping(value, "zenoh.tls")
+    _no_unknown(t, _TLS_KEYS, "zenoh.tls.")
+    if "root_ca" not in t:
+        raise InventoryError("zenoh.tls: missing key 'root_ca'")
+    if ("certificate" in t) != ("private_key" in t):
+        raise InventoryError("zenoh.tls: certificate and private_key go together")
+    tls = TlsSettings(
+        root_ca=_local_path(t["root_ca"], "zenoh.tls.root_ca", folder),
+        certificate=(_local_path(t["certificate"], "zenoh.tls.certificate", folder)
+                     if "certificate" in t else None),
+        private_key=(_local_path(t["private_key"], "zenoh.tls.private_key", folder)
+                     if "private_key" in t else None),
+    )
+    if router is not None and not router.startswith("tls/"):
+        raise InventoryError(f"zenoh.router: {router!r} must be a tls/ endpoint with zenoh.tls")
+    return tls
 
 
 def _mapping(value: Any, name: str) -> dict[str, Any]:

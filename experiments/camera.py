@@ -23,6 +23,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -30,14 +31,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 import yaml
+import zenoh
 
-from camera_service.calibration import save_calibration, synthetic_camera
-from camera_service.node import percentile
+from camera_service.calibration import Calibration, save_calibration, synthetic_camera
+from camera_service.node import has_matching_subscribers, percentile
 from camera_service.render import render_aruco_frame
 from experiments.machine import proc_cpu_s
 from runtime.ports import free_tcp_port, tcp_endpoint
 from wire.frames import Frame, encode_frame, frame_key
 from wire.payloads import decode_pose
+from wire.zconf import make_config
 
 ROOT = Path(__file__).resolve().parents[1]
 SIZE = (1280, 960)  # [px]
@@ -49,16 +52,16 @@ PREFIX = "bench"
 DRAIN_S = 2.0  # [s] after the last frame, before the camera process is stopped
 
 
-def _frames(robots: int, fps: float) -> list[bytes]:
+def _frames(robots: int, fps: float) -> tuple[list[bytes], Calibration, dict[str, int]]:
     cal = synthetic_camera(SIZE, ARENA, tilt=0.1)
     ids = {f"r{i}": i for i in range(robots)}
     rng = np.random.default_rng(5)
     cols = math.ceil(math.sqrt(robots * 4 / 3))
     rows = math.ceil(robots / cols)
-    out = []
+    out: list[bytes] = []
     for k in range(DISTINCT):
         t = k / fps
-        poses = {}
+        poses: dict[str, tuple[float, float, float]] = {}
         for i in range(robots):
             cx = 0.5 + 3.0 * ((i % cols) + 0.5) / cols
             cy = 0.4 + 2.2 * ((i // cols) + 0.5) / rows
@@ -71,15 +74,16 @@ def _frames(robots: int, fps: float) -> list[bytes]:
     return out, cal, ids
 
 
+def _child_error(proc: subprocess.Popen[str]) -> str:
+    """What a child that did not subscribe said: its stderr once it has exited, else 'timeout'."""
+    if proc.poll() is None or proc.stderr is None:
+        return "timeout"
+    return proc.stderr.read()
+
+
 def bench_camera(robots: int = 16, fps: float = 15.0, frames: int = 450,
                  work: Path | None = None) -> dict:
     """Run the camera process on ``frames`` frames (see the module docstring)."""
-    import tempfile
-
-    import zenoh
-
-    from wire.zconf import make_config
-
     jpgs, cal, ids = _frames(robots, fps)
     with tempfile.TemporaryDirectory(prefix="bench-camera-") as tmp:
         d = Path(work) if work is not None else Path(tmp)
@@ -94,7 +98,7 @@ def bench_camera(robots: int = 16, fps: float = 15.0, frames: int = 450,
         arrived: dict[float, list[float]] = {}
         lock = threading.Lock()
 
-        def on_pose(sample: object) -> None:
+        def on_pose(sample: zenoh.Sample) -> None:
             now = time.time()
             stamp = decode_pose(sample.payload.to_bytes()).stamp
             with lock:
@@ -111,11 +115,10 @@ def bench_camera(robots: int = 16, fps: float = 15.0, frames: int = 450,
                                     text=True)
             try:
                 deadline = time.monotonic() + 60.0
-                while not pub.matching_status.matching:
+                while not has_matching_subscribers(pub):
                     if proc.poll() is not None or time.monotonic() > deadline:
                         raise RuntimeError("camera process did not subscribe: "
-                                           + (proc.stderr.read() if proc.poll() is not None
-                                              else "timeout"))
+                                           + _child_error(proc))
                     time.sleep(0.02)
                 time.sleep(0.3)
                 cpu0 = proc_cpu_s(proc.pid)

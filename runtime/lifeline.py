@@ -97,38 +97,49 @@ def watch_parent(on_death: Callable[[], None] = _terminate_self) -> bool:
         logger.warning("%s=%r is not a pid; not watching the parent", PARENT_ENV, parent)
         return False
     signalled = on_death is _terminate_self and set_pdeathsig()
-    fd = None
-    if fd_text is not None:
-        try:
-            fd = int(fd_text)
-            os.fstat(fd)
-        except (ValueError, OSError):
-            logger.warning("%s=%r is not an open descriptor; polling the parent pid", FD_ENV,
-                           fd_text)
-            fd = None
+    fd = _open_fd(fd_text)
     if os.getppid() != parent_pid:  # it died before we could ask to be told
         logger.warning("launcher (pid %d) already gone", parent_pid)
         on_death()
         return True
     if signalled and fd is None:
         return True
-
-    def wait_pipe() -> None:
-        assert fd is not None
-        try:
-            while os.read(fd, 1):  # nobody writes: returns b"" once every write end is closed
-                pass
-        except OSError:
-            pass
-        logger.warning("launcher (pid %d) gone: stopping", parent_pid)
-        on_death()
-
-    def poll_pid() -> None:
-        while os.getppid() == parent_pid:
-            time.sleep(POLL_S)
-        logger.warning("launcher (pid %d) gone: stopping", parent_pid)
-        on_death()
-
-    threading.Thread(target=wait_pipe if fd is not None else poll_pid, name="lifeline",
-                     daemon=True).start()
+    if fd is not None:
+        threading.Thread(target=_wait_pipe, args=(fd, parent_pid, on_death), name="lifeline",
+                         daemon=True).start()
+    else:
+        threading.Thread(target=_poll_pid, args=(parent_pid, on_death), name="lifeline",
+                         daemon=True).start()
     return True
+
+
+def _open_fd(fd_text: str | None) -> int | None:
+    """The pipe's read end named by :data:`FD_ENV`; None when absent or not an open descriptor."""
+    if fd_text is None:
+        return None
+    try:
+        fd = int(fd_text)
+        os.fstat(fd)
+    except (ValueError, OSError):
+        logger.warning("%s=%r is not an open descriptor; polling the parent pid", FD_ENV, fd_text)
+        return None
+    return fd
+
+
+def _wait_pipe(fd: int, parent_pid: int, on_death: Callable[[], None]) -> None:
+    """Block until every write end of the pipe is closed (the launcher is gone), then stop."""
+    try:
+        while os.read(fd, 1):  # nobody writes: returns b"" once every write end is closed
+            pass
+    except OSError:
+        pass
+    logger.warning("launcher (pid %d) gone: stopping", parent_pid)
+    on_death()
+
+
+def _poll_pid(parent_pid: int, on_death: Callable[[], None]) -> None:
+    """Poll the parent pid every :data:`POLL_S` until this process is re-parented, then stop."""
+    while os.getppid() == parent_pid:
+        time.sleep(POLL_S)
+    logger.warning("launcher (pid %d) gone: stopping", parent_pid)
+    on_death()

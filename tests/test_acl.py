@@ -22,6 +22,8 @@ from wire import acl, keys, zconf
 from wire.frames import stats_key
 from wire.zconf import UsrPwdAuth, ZenohSettings
 
+pytestmark = pytest.mark.integration  # starts processes, Zenoh routers, sshd or a browser
+
 ROOT = Path(__file__).resolve().parent.parent
 P = keys.DEFAULT_PREFIX
 ROBOTS = {"r1": "F1", "r2": "F1", "r3": "F1", "s1": "F2"}

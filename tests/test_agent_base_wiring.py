@@ -24,6 +24,7 @@ from wire.payloads import Cmd
 ROOT = Path(__file__).resolve().parent.parent
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("base,decode", [("turtlebot3-humble", decode_twist),
                                          ("turtlebot3-jazzy", decode_twist_stamped)])
 def test_commands_reach_the_cmd_vel_key_as_cdr_and_shutdown_sends_zero(base, decode, tmp_path):

@@ -25,6 +25,8 @@ from scenario import load_scenario
 from wire import keys, zconf
 from wire.payloads import Cmd, ObstacleMsg, Obstacles, Others, Pose, State, decode_cmd, encode
 
+pytestmark = pytest.mark.integration  # starts processes, Zenoh routers, sshd or a browser
+
 ROOT = Path(__file__).resolve().parent.parent
 TWO_SMALL = ROOT / "tests" / "scenarios" / "two-small.yaml"
 THESIS = ROOT / "scenarios" / "thesis-5.2.2.yaml"

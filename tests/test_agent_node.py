@@ -33,6 +33,8 @@ from scenario import load_scenario
 from wire import keys, zconf
 from wire.payloads import Cmd, ObstacleMsg, Obstacles, Others, Pose, State, decode_cmd, encode
 
+pytestmark = pytest.mark.integration  # most tests run an agent over real Zenoh sessions
+
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIO = ROOT / "scenarios" / "thesis-5.2.2.yaml"
 P = keys.DEFAULT_PREFIX

@@ -95,6 +95,7 @@ def test_control_step_keeps_the_goal_nominal_for_an_undisturbed_formation_and_be
     assert r.nominal_uy < 0.0 <= goal_first.nominal_uy and r.nominal_ux < goal_first.nominal_ux
 
 
+@pytest.mark.integration
 def test_a_four_way_aisle_crossing_keeps_the_band_only_with_formation_keeping_first(monkeypatch):
     # A montecarlo layout (seed 1100163): four formations cross in the aisles while a forklift
     # passes. Goal-first, the rectangle squeezed among the others shears its diagonal to 2.15

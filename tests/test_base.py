@@ -181,6 +181,7 @@ def test_turtlebot_base_needs_a_session() -> None:
         b.make_base(SimpleNamespace(base=b.JAZZY))
 
 
+@pytest.mark.integration
 def test_turtlebot_base_over_real_zenoh_delivers_the_cdr_bytes() -> None:
     import threading
 

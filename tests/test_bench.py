@@ -40,6 +40,7 @@ def quick_result(tmp_path_factory) -> tuple[dict, Path]:
     return json.loads((out / "bench.json").read_text(encoding="utf-8")), out
 
 
+@pytest.mark.integration
 def test_quick_bench_writes_json_and_table(quick_result):
     result, out = quick_result
     assert (out / "bench.txt").read_text(encoding="utf-8").strip()

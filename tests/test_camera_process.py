@@ -124,6 +124,7 @@ def _env() -> dict:
     return env
 
 
+@pytest.mark.integration
 def test_calibrate_and_camera_give_poses_and_obstacles_within_the_bounds_over_zenoh(lab, capsys):
     d, rig = lab
     assert main(["calibrate", str(d / "calib.png"), "--floor-markers", str(d / "floor.yaml"),
@@ -302,6 +303,7 @@ class _ListSource:
         pass
 
 
+@pytest.mark.integration
 def test_bad_frames_duplicates_unknown_ids_and_empty_frames_are_counted_not_fatal(tmp_path):
     from camera_service.calibration import floor_to_pixel, save_calibration, synthetic_camera
     from camera_service.config import load_config
@@ -436,6 +438,7 @@ def test_an_image_glob_is_stamped_k_over_fps_and_skips_unreadable_files(tmp_path
     assert src.counts["undecodable"] == 1
 
 
+@pytest.mark.integration
 def test_zenoh_frames_that_do_not_decode_are_counted_and_skipped():
     from camera_service.sources import ZenohSource
 
@@ -459,6 +462,7 @@ def test_zenoh_frames_that_do_not_decode_are_counted_and_skipped():
     assert src.counts["undecodable"] == 2
 
 
+@pytest.mark.integration
 def test_the_camera_process_stops_cleanly_on_sigterm_and_prints_its_counters(tmp_path):
     from camera_service.calibration import save_calibration, synthetic_camera
 

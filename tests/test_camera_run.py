@@ -7,7 +7,11 @@ import json
 import textwrap
 from pathlib import Path
 
+import pytest
+
 from formation.cli import main
+
+pytestmark = pytest.mark.integration  # starts processes, Zenoh routers, sshd or a browser
 
 PAIR = textwrap.dedent("""
     name: camera-pair

@@ -534,6 +534,7 @@ def test_the_config_is_frozen_and_keeps_its_own_copy_of_the_ids():
     assert check_marker_ids({"x": np.int64(3)}) == {"x": 3}
 
 
+@pytest.mark.integration
 def test_the_package_imports_without_zenoh():
     code = "import sys; sys.modules['zenoh'] = None; import camera_service, camera_service.service"
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60)

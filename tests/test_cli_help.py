@@ -83,6 +83,7 @@ def test_run_with_an_unknown_solver_is_exit_2_before_anything_starts(tmp_path, c
     assert not out.exists()
 
 
+@pytest.mark.integration
 def test_run_with_a_qpsolvers_backend_runs_the_agents_on_it(tmp_path):
     out = tmp_path / "o"
     assert main(["run", str(SCENARIO), "--out", str(out), "--solver", "osqp", "--quiet",

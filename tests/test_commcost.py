@@ -140,6 +140,7 @@ def test_commcost_with_one_formation_exits_2_naming_the_option(tmp_path, capsys)
     assert "--formations" in capsys.readouterr().err
 
 
+@pytest.mark.integration
 def test_real_run_of_both_topologies_counts_exactly_the_analytic_deliveries(tmp_path):
     # A shortened crossing (the formations meet around t = 16 s) keeps the test quick; the
     # counts per tick do not depend on the duration.

@@ -38,6 +38,8 @@ from formation.commands.deploy import deploy_command
 from scenario import load_scenario
 from wire import zconf
 
+pytestmark = pytest.mark.integration  # starts processes, Zenoh routers, sshd or a browser
+
 ROOT = Path(__file__).resolve().parent.parent
 SSHD = Path("/usr/sbin/sshd")
 SCENARIO = """\

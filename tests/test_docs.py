@@ -117,6 +117,7 @@ def test_the_docs_hold_commands_and_mark_hardware():
     assert any("hardware" in c.marks for c in COMMANDS)
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("cmd", [c for c in COMMANDS if _cheap(c)], ids=str)
 def test_a_cheap_command_in_the_docs_runs_as_written(cmd: Command, tmp_path: Path):
     work, env = _sandbox(tmp_path)

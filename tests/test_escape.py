@@ -164,6 +164,7 @@ formations:
 """
 
 
+@pytest.mark.integration
 def test_a_formation_passing_a_parked_one_runs_in_separate_processes_exactly_as_in_process(tmp_path):
     path = tmp_path / "give-way.yaml"
     path.write_text(_LOCKSTEP, encoding="utf-8")
@@ -178,6 +179,7 @@ def test_a_formation_passing_a_parked_one_runs_in_separate_processes_exactly_as_
     assert (tmp_path / "run" / "robots.csv").read_text() == (tmp_path / "sim" / "robots.csv").read_text()
 
 
+@pytest.mark.integration
 def test_agents_count_their_escape_ticks_as_the_in_process_simulation_does(tmp_path):
     """A forklift from behind a parked rectangle, in separate processes (lock-step): the agents
     count the ticks on which the escape set their nominal, and summary.json sums them to the

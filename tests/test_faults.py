@@ -107,6 +107,7 @@ def test_fault_options_parse_and_bad_ones_name_the_option():
 
 # --- whole runs --------------------------------------------------------------------------------
 
+@pytest.mark.integration
 def test_thesis_5_2_2_with_a_fifth_of_the_messages_lost_has_no_collision(tmp_path):
     s = run(tmp_path, ROOT / "scenarios" / "thesis-5.2.2.yaml", "--drop", "0.2")
     f = s["faults"]
@@ -121,6 +122,7 @@ def test_thesis_5_2_2_with_a_fifth_of_the_messages_lost_has_no_collision(tmp_pat
     assert s["formation_error_max_m"] < 3 * 0.035
 
 
+@pytest.mark.integration
 def test_with_added_delay_every_inter_robot_message_is_held_back_and_the_run_still_completes(
         tmp_path, two):
     s = run(tmp_path, two, "--delay-ms", "100")  # lock-step: two whole periods
@@ -130,6 +132,7 @@ def test_with_added_delay_every_inter_robot_message_is_held_back_and_the_run_sti
     assert s["collisions"] == 0 and s["all_reached"] is True
 
 
+@pytest.mark.integration
 def test_a_killed_and_restarted_agent_rejoins_and_its_robot_stands_still_meanwhile(tmp_path, two):
     s = run(tmp_path, two, "--kill", "a2@2:2")
     f = s["faults"]
@@ -146,6 +149,7 @@ def test_a_killed_and_restarted_agent_rejoins_and_its_robot_stands_still_meanwhi
     assert s["all_reached"] is True
 
 
+@pytest.mark.integration
 def test_a_camera_dropout_stops_that_robot_and_counts_it(tmp_path, two):
     s = run(tmp_path, two, "--camera-dropout", "a3@3:1")
     f = s["faults"]
@@ -160,6 +164,7 @@ def test_a_camera_dropout_stops_that_robot_and_counts_it(tmp_path, two):
     assert s["all_reached"] is True
 
 
+@pytest.mark.integration
 def test_when_a_leader_dies_its_members_stop_and_its_successor_keeps_its_ellipse_coming(
         tmp_path, two):
     s = run(tmp_path, two, "--kill", "b1@2:2")
@@ -176,6 +181,7 @@ def test_when_a_leader_dies_its_members_stop_and_its_successor_keeps_its_ellipse
     assert s["all_reached"] is True
 
 
+@pytest.mark.integration
 def test_in_real_time_the_successor_subscribes_to_the_other_leaders_ellipse_when_it_takes_over(
         tmp_path, two):
     # real time polls its ring channels: the successor's late subscription (agent.node

@@ -47,6 +47,8 @@ from wire.payloads import (
     encode,
 )
 
+pytestmark = pytest.mark.integration  # starts processes, Zenoh routers, sshd or a browser
+
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIO = ROOT / "scenarios" / "thesis-5.2.2.yaml"
 P = keys.DEFAULT_PREFIX

@@ -18,6 +18,8 @@ import zenoh
 from formation.commands import goal as navcmd
 from wire.zconf import ZenohSettings
 
+pytestmark = pytest.mark.integration  # starts processes, Zenoh routers, sshd or a browser
+
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIO = ROOT / "tests" / "scenarios" / "nav-hold.yaml"
 GOALS = {"A": (2.25, 0.25, None), "B": (2.25, -0.6, math.pi / 2)}

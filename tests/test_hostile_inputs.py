@@ -30,6 +30,8 @@ from scenario import load_scenario
 from wire import keys, zconf
 from wire.payloads import Cmd, Obstacles, Pose, State, decode_pose, encode
 
+pytestmark = pytest.mark.integration  # starts processes, Zenoh routers, sshd or a browser
+
 ROOT = Path(__file__).resolve().parent.parent
 TWO = ROOT / "tests" / "scenarios" / "two-small.yaml"
 P = keys.DEFAULT_PREFIX

@@ -15,6 +15,8 @@ import pytest
 
 from formation.cli import main
 
+pytestmark = pytest.mark.integration  # starts processes, Zenoh routers, sshd or a browser
+
 ROOT = Path(__file__).resolve().parent.parent
 
 TWO_FORMATIONS = (ROOT / "tests" / "scenarios" / "two-small.yaml").read_text(encoding="utf-8")

@@ -110,6 +110,7 @@ def test_the_newest_of_ellipse_and_beacon_counts_and_a_message_naming_another_fo
     assert newest("B", None, None) is None
 
 
+@pytest.mark.integration
 def test_in_real_time_leaders_hear_far_formations_only_by_beacon_and_a_dead_far_one_stops_nobody(
         tmp_path):
     # A and B pass each other 1.2 m apart after starting 14 m apart; C parks 40 m away and

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from experiments.montecarlo import random_scenario, valid_scenario
 from formation.cli import main
 
@@ -21,6 +23,7 @@ def test_layouts_are_valid_reproducible_and_cover_both_robot_models():
     assert models == {"single_integrator", "unicycle"}
 
 
+@pytest.mark.integration
 def test_a_small_run_writes_montecarlo_json(tmp_path, capsys):
     out = tmp_path / "mc"
     assert main(["montecarlo", "--n", "2", "--seed", "3", "--out", str(out)]) == 0
@@ -45,6 +48,7 @@ def test_a_small_run_writes_montecarlo_json(tmp_path, capsys):
     assert "montecarlo: 2 runs" in capsys.readouterr().out
 
 
+@pytest.mark.integration
 def test_the_number_of_jobs_changes_nothing_in_the_results_and_a_bad_one_exits_2(tmp_path, capsys):
     runs = {}
     for jobs in ("1", "3"):

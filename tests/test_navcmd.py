@@ -17,6 +17,8 @@ from wire import keys
 from wire.payloads import DecodeError, decode_goal, encode_nav
 from wire.zconf import ZenohSettings
 
+pytestmark = pytest.mark.integration  # starts processes, Zenoh routers, sshd or a browser
+
 SHELF = box("shelf", (2.0, 0.0), (0.6, 2.0), 0.0, 0.15)
 
 

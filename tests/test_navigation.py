@@ -124,6 +124,7 @@ def test_advance_walks_the_route_and_member_targets_end_at_the_goals():
     assert member_target(route, 2, (2.3, 1.0), (0.3, 0.0)) == (2.3, 1.0)  # the goal itself
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("path", NAV, ids=[p.stem for p in NAV])
 def test_navigation_scenarios_reach_every_goal_safely_in_process(path):
     s = load_scenario(path)
@@ -174,6 +175,7 @@ def test_shape_distance_agrees_with_the_planner_and_monitor_sign_convention():
     assert path_clearance((0.0, 0.0), (3.0, 0.0), shelf) == 0.0
 
 
+@pytest.mark.integration
 def test_multi_process_lock_step_walks_the_same_routes_as_the_in_process_simulation(tmp_path):
     from formation.cli import main
 

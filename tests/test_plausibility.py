@@ -122,6 +122,7 @@ def test_the_figures_mark_the_ticks_with_a_hard_row_not_met():
                                                  (0.1, ("fallback",), "r2")]
 
 
+@pytest.mark.integration
 def test_summary_json_counts_hard_row_ticks_apart_from_minimal_formation_relaxations(tmp_path,
                                                                                      capsys):
     out = tmp_path / "sim"

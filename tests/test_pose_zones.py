@@ -26,6 +26,8 @@ from simulator.zones import PoseZones, ZoneSecurity, zone_assignment
 from wire import acl, keys, zconf
 from wire.payloads import Cmd, decode_pose, encode
 
+pytestmark = pytest.mark.integration  # starts processes, Zenoh routers, sshd or a browser
+
 ROOT = Path(__file__).resolve().parent.parent
 TWO = ROOT / "tests" / "scenarios" / "two-small.yaml"
 P = keys.DEFAULT_PREFIX

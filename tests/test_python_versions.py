@@ -17,6 +17,7 @@ ROBOT_PACKAGES = ("agent", "leader", "scenario", "wire")  # what `python -m agen
 OURS = ("agent", "leader", "scenario", "wire", "deploy", "camera_service", "simulator", "formation")
 
 
+@pytest.mark.integration
 def test_the_agent_imports_nothing_of_ours_beyond_the_robot_packages():
     code = ("import sys, agent.__main__, agent.node; print(' '.join(sorted({m.split('.')[0] "
             f"for m in sys.modules if m.split('.')[0] in {OURS!r}}})))")
@@ -25,6 +26,7 @@ def test_the_agent_imports_nothing_of_ours_beyond_the_robot_packages():
     assert set(out) <= set(ROBOT_PACKAGES), out
 
 
+@pytest.mark.integration
 def test_a_minimum_version_checker_finds_nothing_newer_than_python_3_10_in_the_robot_code():
     pytest.importorskip("vermin")
     run = "import sys, vermin; sys.argv[0] = 'vermin'; sys.exit(vermin.main())"
@@ -49,6 +51,7 @@ def _interpreter(version: str) -> str | None:
     return None
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("version", ["3.10", "3.12"])
 def test_the_robot_code_compiles_with_each_robot_python_this_machine_has(version, tmp_path):
     python = _interpreter(version)

@@ -31,6 +31,8 @@ from formation.cli import main as formation_main
 from wire import keys, zconf
 from wire.payloads import decode_cmd
 
+pytestmark = pytest.mark.integration  # starts processes, Zenoh routers, sshd or a browser
+
 __all__ = ["source_snapshot", "sshd"]  # module fixtures shared with test_deploy
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -22,6 +22,8 @@ from runtime.testing import RouterProcess
 from wire import zconf
 from wire.zconf import ZenohSettings, make_config
 
+pytestmark = pytest.mark.integration  # starts processes, Zenoh routers, sshd or a browser
+
 ROOT = Path(__file__).resolve().parent.parent
 TWO = (ROOT / "tests" / "scenarios" / "two-small.yaml").read_text(encoding="utf-8")
 LONG = TWO.replace("duration: 40.0", "duration: 400.0").replace(

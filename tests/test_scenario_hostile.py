@@ -156,6 +156,7 @@ def test_a_device_or_a_directory_is_refused_without_reading_it(capsys, target, k
     assert f"not a regular file ({kind})" in _one_line(capsys)
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("command", ["check", "sim"])
 def test_a_fifo_is_refused_at_once_without_waiting_for_a_writer(tmp_path, command):
     fifo = tmp_path / "scenario.yaml"

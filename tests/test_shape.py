@@ -188,6 +188,7 @@ def _good(summary: dict, eps: float) -> None:
     assert summary["formation_error_max_m"] <= 1.5 * eps
 
 
+@pytest.mark.integration
 def test_a_unicycle_rectangle_pushed_onto_a_round_shelf_keeps_it_out_of_its_shape_only_with_shape_push(
     monkeypatch,
 ):
@@ -203,6 +204,7 @@ def test_a_unicycle_rectangle_pushed_onto_a_round_shelf_keeps_it_out_of_its_shap
     assert bare.summary["formation_error_max_m"] > 1.5 * scenario.controller.epsilon
 
 
+@pytest.mark.integration
 def test_a_rectangle_pushed_onto_a_round_shelf_keeps_its_band_only_with_shape_push(monkeypatch):
     scenario, with_rule = _run("shelf-pushed")
     _good(with_rule.summary, scenario.controller.epsilon)
@@ -211,6 +213,7 @@ def test_a_rectangle_pushed_onto_a_round_shelf_keeps_its_band_only_with_shape_pu
     assert bare.summary["formation_error_max_m"] > 1.5 * scenario.controller.epsilon
 
 
+@pytest.mark.integration
 def test_a_rectangle_squeezed_from_two_sides_keeps_its_band_only_with_shape_push(monkeypatch):
     scenario, with_rule = _run("squeeze-crossing")
     _good(with_rule.summary, scenario.controller.epsilon)

@@ -48,6 +48,7 @@ SUMMARY_FIELDS = {
 }
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("path", _params(SCENARIOS))
 def test_scenario_reaches_every_goal_safely(path):
     scenario = load_scenario(path)
@@ -87,6 +88,7 @@ def test_without_barriers_the_four_robot_formations_collide():
     assert s["min_h"]["formations"] < 0
 
 
+@pytest.mark.integration
 def test_head_on_meeting_is_resolved_by_the_tie_break_and_stalls_without_it():
     scenario = load_scenario(ROOT / "scenarios/thesis-5.2.1.yaml")
     assert simulate(scenario, SimOptions(record=False)).summary["all_reached"]
@@ -97,6 +99,7 @@ def test_head_on_meeting_is_resolved_by_the_tie_break_and_stalls_without_it():
     assert not s["all_reached"] and s["collisions"] == 0
 
 
+@pytest.mark.integration
 def test_osqp_backend_drives_the_same_run_as_the_exact_solver():
     scenario = load_scenario(ROOT / "scenarios/thesis-5.2.1.yaml")
     exact = simulate(scenario, SimOptions(record=False)).summary
@@ -105,6 +108,7 @@ def test_osqp_backend_drives_the_same_run_as_the_exact_solver():
     assert abs(osqp["time_to_goal_s"] - exact["time_to_goal_s"]) <= 2 * scenario.dt
 
 
+@pytest.mark.integration
 def test_sim_command_writes_the_summary_contract_series_and_figures(tmp_path, capsys):
     out = tmp_path / "run"
     assert main(["sim", str(ROOT / "scenarios/thesis-5.1.2.yaml"), "--out", str(out), "--quiet"]) == 0

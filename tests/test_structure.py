@@ -100,6 +100,7 @@ def test_step_inputs_carry_the_view_the_stall_and_switch_ellipses_for_pairs_in_a
     assert blind.view is None and blind.stall == Stall(1.0, 0.0)
 
 
+@pytest.mark.integration
 def test_an_agent_whose_open_fails_half_way_still_closes_its_session(monkeypatch) -> None:
     import asyncio
 
@@ -128,6 +129,7 @@ def test_an_agent_whose_open_fails_half_way_still_closes_its_session(monkeypatch
     assert len(opened) == 1 and node._session is None
 
 
+@pytest.mark.integration
 def test_the_code_passes_the_linter_with_its_complexity_limit() -> None:
     import subprocess
     import sys
@@ -137,6 +139,7 @@ def test_the_code_passes_the_linter_with_its_complexity_limit() -> None:
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-1000:]
 
 
+@pytest.mark.integration
 def test_the_package_code_type_checks() -> None:
     import subprocess
     import sys

@@ -208,6 +208,7 @@ def _band(path: Path) -> float:
     return summary["formation_error_max_m"] / scenario.controller.epsilon
 
 
+@pytest.mark.integration
 def test_a_pair_member_pushed_round_in_a_crossing_keeps_its_body_edge_only_with_the_band_on_the_bodies(
         monkeypatch):
     assert _band(FOUR_WAY) <= 1.5
@@ -248,6 +249,7 @@ def test_a_state_of_this_tick_is_left_as_it_is():
 TURN_180 = Path(__file__).resolve().parent / "scenarios" / "unicycle-turn-180.yaml"
 
 
+@pytest.mark.integration
 @pytest.mark.slow
 def test_a_rectangle_turning_half_a_turn_in_real_time_keeps_its_separation_rows_met(tmp_path):
     """Real time, one process per robot over Zenoh: each agent carries its neighbours' states to

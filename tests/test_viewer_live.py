@@ -22,6 +22,8 @@ from test_viewer_recording import check_recording, read_mcap
 from runtime.testing import free_tcp_port, tcp_endpoint, wait_for_tcp_port
 from viewer.record import FLEET_TOPIC, SCENE_TOPIC
 
+pytestmark = pytest.mark.integration  # starts processes, Zenoh routers, sshd or a browser
+
 ROOT = Path(__file__).resolve().parent.parent
 # two-small with every goal 1 m further: about 14 s of real time
 SCENARIO = (ROOT / "tests" / "scenarios" / "two-small.yaml").read_text(encoding="utf-8").replace(

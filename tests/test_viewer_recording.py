@@ -63,6 +63,7 @@ def check_recording(out: Path) -> dict[str, list]:
     return messages
 
 
+@pytest.mark.integration
 def test_a_simulation_records_every_tick_its_scene_fleet_and_the_relaxed_rows_as_logs(tmp_path):
     out = tmp_path / "sim"
     # thesis 5.1.1 relaxes its formation rows for a few ticks near the obstacles
@@ -187,6 +188,7 @@ def test_the_fleet_watcher_shows_each_leaders_status_and_planned_route():
     assert w.rejected == {"plan": 1}
 
 
+@pytest.mark.integration
 def test_walls_and_shelves_are_in_every_fleet_frame_and_drawn_in_the_scene(tmp_path):
     out = tmp_path / "sim"
     assert main(["sim", str(ROOT / "tests" / "scenarios" / "nav-behind-shelf.yaml"), "--out", str(out),

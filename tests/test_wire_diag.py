@@ -52,6 +52,7 @@ def test_the_diag_key_is_counted_as_other_not_as_control_traffic():
     assert keys.key_class("warehouse", key) == keys.OTHER
 
 
+@pytest.mark.integration
 def test_with_access_control_a_robot_publishes_its_own_diag_and_the_viewer_only_reads(tmp_path):
     import os
     import subprocess

@@ -46,6 +46,7 @@ def test_pose_slots_are_checked(bad: dict) -> None:
         WorldOptions(**bad)
 
 
+@pytest.mark.integration
 def test_slots_spread_each_periods_poses_and_step_each_robot_once_per_period() -> None:
     scenario = load_scenario(SCENARIO)
     steps = 12
@@ -101,22 +102,43 @@ def test_slots_spread_each_periods_poses_and_step_each_robot_once_per_period() -
     assert {row[8] for row in rows[-n:]} == {UX}  # the applied command's ux (ROBOT_COLUMNS)
 
 
-def test_the_worlds_abort_check_is_rate_limited_but_still_made_while_it_waits() -> None:
+class FakeClock:
+    """``time.monotonic`` and ``time.sleep`` of a clock that only moves when slept on."""
+
+    def __init__(self) -> None:
+        self.now = 1000.0
+
+    def monotonic(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.now += seconds
+
+
+def test_the_worlds_abort_check_is_rate_limited_but_still_made_while_it_waits(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     """The launcher's check polls every child process: the world calls it at most every
     ABORT_EVERY_S, however many slots a period has, and at least that often while sleeping."""
     from simulator import world
 
+    clock = FakeClock()  # sleep() advances it: no wall-clock time in the counts
+    monkeypatch.setattr(world, "time", clock)
     calls: list[float] = []
-    check = world._at_most_every(world.ABORT_EVERY_S, lambda: calls.append(time.monotonic()))
+    check = world._at_most_every(world.ABORT_EVERY_S, lambda: calls.append(clock.now))
     for _ in range(100):
         check()
     assert len(calls) == 1
-    world._sleep_until(time.monotonic() + 6 * world.ABORT_EVERY_S, check)
-    assert len(calls) >= 3  # about 7 on an idle machine
+    wake = clock.now + 6 * world.ABORT_EVERY_S
+    world._sleep_until(wake, check)
+    assert clock.now >= wake
+    assert len(calls) >= 3
     gaps = [b - a for a, b in itertools.pairwise(calls)]
     assert min(gaps) >= world.ABORT_EVERY_S
+    assert max(gaps) <= 2 * world.ABORT_EVERY_S + 1e-9  # still made while it waits
 
 
+@pytest.mark.integration
 def test_in_real_time_every_pose_of_the_last_frame_gets_its_period_for_the_command() -> None:
     # The agents answer each pose 0.3 periods after it (stamped with it). With 4 slots the last
     # slot's poses go out at 0.75 of the last period, so their commands arrive after the loop

@@ -21,6 +21,8 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable
+from dataclasses import dataclass
+from dataclasses import field as dataclass_field
 from typing import Any
 
 import zenoh
@@ -31,6 +33,7 @@ from wire.diag import DIAG, all_diag_key, decode_diag
 from wire.payloads import (
     DecodeError,
     PlanMsg,
+    Pose,
     StatusMsg,
     decode_cmd,
     decode_ellipse,
@@ -110,65 +113,16 @@ class FleetWatcher:
         """The fleet as it was last heard of; ``None`` before any pose arrived."""
         with self._lock:
             latest = dict(self._latest)
+        heard = _Heard()
         head = self.prefix + "/"
-        robots: dict[str, dict[str, Any]] = {}
-        obstacles: list[dict] = []
-        shapes: list[dict] = []
-        told: dict[str, dict[str, Any]] = {k: {} for k in _FORMATION_KINDS}  # kind -> fid -> msg
-        t = None
         for key, data in latest.items():
-            if not key.startswith(head):
-                continue
-            parts = key[len(head):].split("/")
-            if parts == [keys.OBSTACLES]:
-                msg = self._decode(key, data, decode_obstacles, keys.OBSTACLES)
-                if msg is not None:
-                    obstacles = [{"name": o.id, "x": o.x, "y": o.y, "ds": o.ds}
-                                 for o in msg.obstacles]
-                    shapes = shape_entries(msg_to_shape(m) for m in msg.shapes)
-                continue
-            if len(parts) != 3:
-                continue
-            group, ident, kind = parts
-            if group == "formation" and kind in _FORMATION_KINDS:
-                msg = self._decode(key, data, _FORMATION_KINDS[kind], kind)
-                if msg is not None:
-                    told[kind][ident] = msg
-                continue
-            if group != "robot":
-                continue
-            r = robots.setdefault(ident, {})
-            if kind == keys.POSE:
-                msg = self._decode(key, data, decode_pose, keys.POSE)
-                if msg is not None:
-                    r["pose"] = msg
-                    t = msg.stamp if t is None else max(t, msg.stamp)
-            elif kind in _ROBOT_KINDS:
-                field, decode = _ROBOT_KINDS[kind]
-                r[field] = self._decode(key, data, decode, kind)
-        if t is None:
+            if key.startswith(head):
+                self._take(heard, key, key[len(head):].split("/"), data)
+        if heard.t is None:
             return None
-        out_robots = []
-        for rid in sorted(robots):
-            r = robots[rid]
-            pose, state, cmd, diag = (r.get(k) for k in ("pose", "state", "cmd", "diag"))
-            if pose is None:
-                continue
-            out_robots.append({
-                "id": rid,
-                "formation": diag.formation if diag is not None else "?",
-                "x": pose.x, "y": pose.y, "theta": pose.theta,
-                "px": state.x if state else None, "py": state.y if state else None,
-                "ux": cmd.ux if cmd else None, "uy": cmd.uy if cmd else None,
-                "v": cmd.v if cmd else None, "omega": cmd.omega if cmd else None,
-                "status": diag.status if diag is not None else "",
-                "slack": num(diag.slack) if diag is not None else None,
-                "h_formation": num(diag.h_formation) if diag is not None else None,
-                "h_obstacle": num(diag.h_obstacle) if diag is not None else None,
-                "h_formations": num(diag.h_formations) if diag is not None else None,
-                "gx": diag.goal_x if diag is not None else None,
-                "gy": diag.goal_y if diag is not None else None,
-            })
+        out_robots = [_robot_entry(rid, pose, heard.robots[rid]) for rid in sorted(heard.robots)
+                      if (pose := heard.robots[rid].get("pose")) is not None]
+        told = heard.told
         names = sorted({r["formation"] for r in out_robots})
         ellipses = sorted(({"formation": e.formation, "cx": e.cx, "cy": e.cy, "alpha": e.alpha,
                             "a": e.a, "b": e.b} for e in told[keys.ELLIPSE].values()),
@@ -176,13 +130,81 @@ class FleetWatcher:
         # a status or plan about another formation than its key names is not that formation's
         reports: dict[str, StatusMsg] = {f: m for f, m in told[keys.STATUS].items() if m.formation == f}
         plans: dict[str, PlanMsg] = {f: m for f, m in told[keys.PLAN].items() if m.formation == f}
-        return {"t": t, "radius": self.radius, "robots": out_robots, "ellipses": ellipses,
-                "obstacles": obstacles,
-                "shapes": shapes,
+        return {"t": heard.t, "radius": self.radius, "robots": out_robots, "ellipses": ellipses,
+                "obstacles": heard.obstacles,
+                "shapes": heard.shapes,
                 "routes": [{"formation": f, "points": [[num(x), num(y)] for x, y in plans[f].route]}
                            for f in sorted(plans)],
                 "formations": [leader_report(formation_status(n, out_robots, self.tolerance),
                                              reports.get(n)) for n in names]}
+
+    def _take(self, heard: _Heard, key: str, parts: list[str], data: bytes) -> None:
+        """Decode the newest payload ``data`` of ``key`` (``parts``: its path below the prefix)
+        into ``heard``; keys a viewer does not draw are left alone."""
+        if parts == [keys.OBSTACLES]:
+            msg = self._decode(key, data, decode_obstacles, keys.OBSTACLES)
+            if msg is not None:
+                heard.obstacles = [{"name": o.id, "x": o.x, "y": o.y, "ds": o.ds}
+                                   for o in msg.obstacles]
+                heard.shapes = shape_entries(msg_to_shape(m) for m in msg.shapes)
+            return
+        if len(parts) != 3:
+            return
+        group, ident, kind = parts
+        if group == "formation" and kind in _FORMATION_KINDS:
+            msg = self._decode(key, data, _FORMATION_KINDS[kind], kind)
+            if msg is not None:
+                heard.told[kind][ident] = msg
+        elif group == "robot":
+            self._take_robot(heard, key, ident, kind, data)
+
+    def _take_robot(self, heard: _Heard, key: str, rid: str, kind: str, data: bytes) -> None:
+        r = heard.robots.setdefault(rid, {})
+        if kind == keys.POSE:
+            msg = self._decode(key, data, decode_pose, keys.POSE)
+            if msg is not None:
+                r["pose"] = msg
+                heard.t = msg.stamp if heard.t is None else max(heard.t, msg.stamp)
+        elif kind in _ROBOT_KINDS:
+            field, decode = _ROBOT_KINDS[kind]
+            r[field] = self._decode(key, data, decode, kind)
+
+
+@dataclass
+class _Heard:
+    """What one :meth:`FleetWatcher.frame` has decoded so far."""
+
+    robots: dict[str, dict[str, Any]] = dataclass_field(default_factory=dict)  # id -> kind -> msg
+    obstacles: list[dict] = dataclass_field(default_factory=list)
+    shapes: list[dict] = dataclass_field(default_factory=list)
+    # formation kind -> formation id -> msg
+    told: dict[str, dict[str, Any]] = dataclass_field(
+        default_factory=lambda: {k: {} for k in _FORMATION_KINDS})
+    t: float | None = None  # the newest pose stamp
+
+
+def _robot_entry(rid: str, pose: Pose, r: dict[str, Any]) -> dict[str, Any]:
+    """A robot's row of the frame from its newest pose, state, command and diagnostics."""
+    state, cmd, diag = (r.get(k) for k in ("state", "cmd", "diag"))
+    return {
+        "id": rid,
+        "formation": diag.formation if diag is not None else "?",
+        "x": pose.x, "y": pose.y, "theta": pose.theta,
+        "px": state.x if state else None, "py": state.y if state else None,
+        "ux": cmd.ux if cmd else None, "uy": cmd.uy if cmd else None,
+        "v": cmd.v if cmd else None, "omega": cmd.omega if cmd else None,
+        **_diag_entry(diag),
+    }
+
+
+def _diag_entry(diag: Any) -> dict[str, Any]:
+    """A robot's diagnostics fields of its row (None without diagnostics; status "")."""
+    if diag is None:
+        return {"status": "", "slack": None, "h_formation": None, "h_obstacle": None,
+                "h_formations": None, "gx": None, "gy": None}
+    return {"status": diag.status, "slack": num(diag.slack), "h_formation": num(diag.h_formation),
+            "h_obstacle": num(diag.h_obstacle), "h_formations": num(diag.h_formations),
+            "gx": diag.goal_x, "gy": diag.goal_y}
 
 
 def leader_report(row: dict, report: StatusMsg | None) -> dict:

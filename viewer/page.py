@@ -23,6 +23,7 @@ robot's projected position in CSS pixels of the viewport) and keeps the shown ti
 from __future__ import annotations
 
 import html
+import json
 
 PALETTE = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf")
 
@@ -284,8 +285,6 @@ poll();
 
 def render_page(title: str = "") -> str:
     """The page, with ``title`` (escaped) as its first title."""
-    import json
-
     page = _PAGE.replace("__PALETTE__", json.dumps(list(PALETTE)))
     if title:
         page = page.replace("<title>formation view</title>",

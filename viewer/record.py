@@ -57,10 +57,11 @@ from foxglove.messages import (
     Timestamp,
     Vector3,
 )
+from foxglove.websocket import Capability
 
 from geometry.limits import BURGER_RADIUS
 
-from .frame import Frame
+from .frame import Frame, frames_from_series
 
 logger = logging.getLogger(__name__)
 
@@ -164,64 +165,80 @@ def scene_update(frame: Frame) -> SceneUpdate:
     stamp = _stamp(frame["t"])
     radius = frame.get("radius") or BURGER_RADIUS
     colors = formation_colors(frame)
-    entities = []
+    entities: list[SceneEntity] = []
     for r in frame["robots"]:
-        if r["x"] is None or r["y"] is None:
-            continue
-        rgb = colors[r["formation"]]
-        th = r["theta"] or 0.0
-        body = CylinderPrimitive(pose=_pose(r["x"], r["y"], BODY_HEIGHT / 2),
-                                 size=_size(2 * radius, 2 * radius, BODY_HEIGHT),
-                                 bottom_scale=1.0, top_scale=1.0, color=_color(rgb, 0.9))
-        arrow = ArrowPrimitive(pose=_pose(r["x"], r["y"], BODY_HEIGHT + 0.01, th),
-                               shaft_length=radius * 1.4, shaft_diameter=0.02,
-                               head_length=0.06, head_diameter=0.06, color=_color((0.1, 0.1, 0.1)))
-        spheres = []
-        if r["px"] is not None and r["py"] is not None:
-            spheres.append(SpherePrimitive(pose=_pose(r["px"], r["py"], BODY_HEIGHT + 0.02),
-                                           size=_size(0.04, 0.04, 0.04),
-                                           color=_color((1.0, 1.0, 1.0))))
-        label = TextPrimitive(pose=_pose(r["x"], r["y"], BODY_HEIGHT + 0.15), billboard=True,
-                              font_size=14, scale_invariant=True, color=_color((0, 0, 0)),
-                              text=f"{r['id']} {r['status']}".strip())
-        entities.append(SceneEntity(timestamp=stamp, frame_id=FRAME_ID, id=f"robot/{r['id']}",
-                                    cylinders=[body], arrows=[arrow], spheres=spheres,
-                                    texts=[label]))
-        if r["gx"] is not None and r["gy"] is not None:
-            entities.append(_goal(r["id"], r["gx"], r["gy"], rgb))
+        if r["x"] is not None and r["y"] is not None:
+            entities += _robot_entities(r, colors[r["formation"]], radius, stamp)
     for e in frame["ellipses"]:
-        if None in (e["cx"], e["cy"], e["alpha"], e["a"], e["b"]):
-            continue
-        rgb = colors.get(e["formation"], PALETTE[0])
-        line = LinePrimitive(type=LinePrimitiveLineType.LineLoop, thickness=0.02,
-                             pose=_pose(e["cx"], e["cy"], 0.01, e["alpha"]),
-                             points=_ring(e["a"], e["b"]),
-                             color=_color(rgb))
-        entities.append(SceneEntity(timestamp=stamp, frame_id=FRAME_ID,
-                                    id=f"ellipse/{e['formation']}", lines=[line]))
+        if None not in (e["cx"], e["cy"], e["alpha"], e["a"], e["b"]):
+            entities.append(_ellipse_entity(e, colors.get(e["formation"], PALETTE[0]), stamp))
     for o in frame["obstacles"]:
-        if None in (o["x"], o["y"], o["ds"]):
-            continue
-        ds = o["ds"]
-        core = max(ds - radius, 0.05)  # the obstacle's own body: its safe distance less a robot
-        cyl = CylinderPrimitive(pose=_pose(o["x"], o["y"], 0.15),
-                                size=_size(2 * core, 2 * core, 0.3), bottom_scale=1.0,
-                                top_scale=1.0, color=_color((0.35, 0.35, 0.35), 0.9))
-        ring = LinePrimitive(type=LinePrimitiveLineType.LineLoop, thickness=0.01,
-                             pose=_pose(o["x"], o["y"], 0.005), points=_ring(ds, ds),
-                             color=_color((0.9, 0.3, 0.1)))
-        entities.append(SceneEntity(timestamp=stamp, frame_id=FRAME_ID, id=f"obstacle/{o['name']}",
-                                    cylinders=[cyl], lines=[ring]))
+        if None not in (o["x"], o["y"], o["ds"]):
+            entities.append(_obstacle_entity(o, radius, stamp))
     for s in frame.get("shapes", ()):  # walls and shelves: their outline, 0.3 m high
-        pts = [Point3(x=x, y=y, z=0.3) for x, y in s["corners"] if x is not None and y is not None]
-        if len(pts) < 2:
-            continue
-        kind = LinePrimitiveLineType.LineLoop if s["kind"] == "box" else LinePrimitiveLineType.LineStrip
-        line = LinePrimitive(type=kind, thickness=0.04, pose=_pose(0.0, 0.0), points=pts,
-                             color=_color((0.35, 0.35, 0.35)))
-        entities.append(SceneEntity(timestamp=stamp, frame_id=FRAME_ID, id=f"shape/{s['name']}",
-                                    lines=[line]))
+        shape = _shape_entity(s, stamp)
+        if shape is not None:
+            entities.append(shape)
     return SceneUpdate(entities=entities)
+
+
+def _robot_entities(r: dict[str, Any], rgb: tuple[float, float, float], radius: float,
+                    stamp: Timestamp) -> list[SceneEntity]:
+    """A robot's body, heading arrow, label and state point; its goal when it has one."""
+    th = r["theta"] or 0.0
+    body = CylinderPrimitive(pose=_pose(r["x"], r["y"], BODY_HEIGHT / 2),
+                             size=_size(2 * radius, 2 * radius, BODY_HEIGHT),
+                             bottom_scale=1.0, top_scale=1.0, color=_color(rgb, 0.9))
+    arrow = ArrowPrimitive(pose=_pose(r["x"], r["y"], BODY_HEIGHT + 0.01, th),
+                           shaft_length=radius * 1.4, shaft_diameter=0.02,
+                           head_length=0.06, head_diameter=0.06, color=_color((0.1, 0.1, 0.1)))
+    spheres = []
+    if r["px"] is not None and r["py"] is not None:
+        spheres.append(SpherePrimitive(pose=_pose(r["px"], r["py"], BODY_HEIGHT + 0.02),
+                                       size=_size(0.04, 0.04, 0.04),
+                                       color=_color((1.0, 1.0, 1.0))))
+    label = TextPrimitive(pose=_pose(r["x"], r["y"], BODY_HEIGHT + 0.15), billboard=True,
+                          font_size=14, scale_invariant=True, color=_color((0, 0, 0)),
+                          text=f"{r['id']} {r['status']}".strip())
+    out = [SceneEntity(timestamp=stamp, frame_id=FRAME_ID, id=f"robot/{r['id']}",
+                       cylinders=[body], arrows=[arrow], spheres=spheres, texts=[label])]
+    if r["gx"] is not None and r["gy"] is not None:
+        out.append(_goal(r["id"], r["gx"], r["gy"], rgb))
+    return out
+
+
+def _ellipse_entity(e: dict[str, Any], rgb: tuple[float, float, float],
+                    stamp: Timestamp) -> SceneEntity:
+    line = LinePrimitive(type=LinePrimitiveLineType.LineLoop, thickness=0.02,
+                         pose=_pose(e["cx"], e["cy"], 0.01, e["alpha"]),
+                         points=_ring(e["a"], e["b"]),
+                         color=_color(rgb))
+    return SceneEntity(timestamp=stamp, frame_id=FRAME_ID, id=f"ellipse/{e['formation']}",
+                       lines=[line])
+
+
+def _obstacle_entity(o: dict[str, Any], radius: float, stamp: Timestamp) -> SceneEntity:
+    ds = o["ds"]
+    core = max(ds - radius, 0.05)  # the obstacle's own body: its safe distance less a robot
+    cyl = CylinderPrimitive(pose=_pose(o["x"], o["y"], 0.15),
+                            size=_size(2 * core, 2 * core, 0.3), bottom_scale=1.0,
+                            top_scale=1.0, color=_color((0.35, 0.35, 0.35), 0.9))
+    ring = LinePrimitive(type=LinePrimitiveLineType.LineLoop, thickness=0.01,
+                         pose=_pose(o["x"], o["y"], 0.005), points=_ring(ds, ds),
+                         color=_color((0.9, 0.3, 0.1)))
+    return SceneEntity(timestamp=stamp, frame_id=FRAME_ID, id=f"obstacle/{o['name']}",
+                       cylinders=[cyl], lines=[ring])
+
+
+def _shape_entity(s: dict[str, Any], stamp: Timestamp) -> SceneEntity | None:
+    """A wall's or shelf's outline, 0.3 m high; None with fewer than two known corners."""
+    pts = [Point3(x=x, y=y, z=0.3) for x, y in s["corners"] if x is not None and y is not None]
+    if len(pts) < 2:
+        return None
+    kind = LinePrimitiveLineType.LineLoop if s["kind"] == "box" else LinePrimitiveLineType.LineStrip
+    line = LinePrimitive(type=kind, thickness=0.04, pose=_pose(0.0, 0.0), points=pts,
+                         color=_color((0.35, 0.35, 0.35)))
+    return SceneEntity(timestamp=stamp, frame_id=FRAME_ID, id=f"shape/{s['name']}", lines=[line])
 
 
 class Channels:
@@ -243,8 +260,6 @@ class Channels:
 
     def serve(self, host: str = "127.0.0.1", port: int = 0, name: str = "formation-cbf") -> int:
         """Start the Foxglove WebSocket server on this context; returns its port."""
-        from foxglove.websocket import Capability
-
         self._server = foxglove.start_server(name=name, host=host, port=port, context=self.context,
                                              capabilities=[Capability.Time])
         return int(self._server.port)
@@ -330,8 +345,6 @@ def summary_logs(summary: dict, t_end: float) -> list[tuple[float, str, str, str
 def write_recording(summary: dict, series: Any, scenario: Any, out: Path) -> Path:
     """``out/run.mcap`` of a finished run: one ``/scene`` and ``/fleet`` message per tick, and
     the logs of :func:`status_logs` and :func:`summary_logs`, in time order."""
-    from .frame import frames_from_series
-
     path = Path(out) / "run.mcap"
     ch = Channels()
     ch.open_mcap(path)

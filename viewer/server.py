@@ -15,6 +15,7 @@ Nothing here runs on the control loop's thread: the pump and the player have the
 
 from __future__ import annotations
 
+import bisect
 import json
 import logging
 import threading
@@ -26,7 +27,8 @@ from pathlib import Path
 from typing import Any
 
 from .frame import Frame
-from .record import ONSET_LEVEL, ONSET_TEXT, Channels
+from .page import render_page
+from .record import FLEET_TOPIC, LOG_TOPIC, ONSET_LEVEL, ONSET_TEXT, Channels
 
 logger = logging.getLogger(__name__)
 
@@ -123,8 +125,6 @@ class PageServer:
     """The page and its ``/state`` on ``http://HOST:PORT/`` (a daemon thread)."""
 
     def __init__(self, hub: Hub, host: str = "127.0.0.1", port: int = 0, title: str = "") -> None:
-        from .page import render_page
-
         handler = type("Handler", (_Handler,), {"hub": hub, "page": render_page(title).encode()})
         self.httpd = ThreadingHTTPServer((host, port), handler)
         self.httpd.daemon_threads = True
@@ -216,9 +216,8 @@ class View:
 
 def read_recording(path: Path) -> tuple[list[Frame], list[dict]]:
     """The ``/fleet`` frames and ``/log`` lines of a ``run.mcap`` (ValueError if it has none)."""
+    # mcap is a test extra, not a dependency: only a replay of a recording needs its reader.
     from mcap.reader import make_reader
-
-    from .record import FLEET_TOPIC, LOG_TOPIC
 
     frames: list[Frame] = []
     logs: list[dict] = []
@@ -322,8 +321,6 @@ class ReplayPlayer:
             return dict(self.hub.playback)
 
     def _run(self) -> None:
-        import bisect
-
         last = time.monotonic()
         while not self._stop.wait(0.05):
             now = time.monotonic()
