@@ -110,7 +110,7 @@ async def serve(node: AgentNode, watch: SignalWatch | None = None) -> None:
 def write_stats(node: AgentNode, path: Path) -> None:
     tmp = path.with_suffix(path.suffix + f".{os.getpid()}.tmp")
     try:
-        tmp.write_text(json.dumps(node.stats(), allow_nan=False), encoding="utf-8")
+        tmp.write_text(json.dumps(node.stats().to_json_dict(), allow_nan=False), encoding="utf-8")
     except OSError:
         tmp.unlink(missing_ok=True)
         raise

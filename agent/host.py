@@ -51,7 +51,8 @@ import zenoh  # noqa: E402
 from agent.__main__ import SignalWatch, build_parser, node_options, stop_event, write_stats  # noqa: E402
 from agent.config import load_config  # noqa: E402
 from agent.node import AgentNode, NodeOptions, zenoh_config  # noqa: E402
-from agent.schedule import pose_tick  # noqa: E402
+from agent.schedule import PoseScheduler  # noqa: E402
+from agent.stats import AgentStats  # noqa: E402
 from runtime.lifeline import watch_parent  # noqa: E402
 from wire.acl import read_credentials  # noqa: E402
 from wire.zconf import use_zenoh_threads  # noqa: E402
@@ -105,9 +106,7 @@ class TickWorker:
                     return
                 node = self._due.popleft()
                 self._queued.discard(id(node))
-            with node._tick_lock:
-                if not node._closing:
-                    pose_tick(node, time.monotonic())
+            node.tick_queued()
 
     def stop(self) -> None:
         with self._cond:
@@ -125,24 +124,35 @@ class HostedNode(AgentNode):
         super().__init__(cfg, options)
         self.shared = shared
         self.host_agents = host_agents
-        self.tick_worker = worker  # agent.schedule.on_pose_sample queues this node on it
+        if worker is not None and isinstance(self.scheduler, PoseScheduler):
+            # the pose callback queues this node on the host's tick thread
+            self.scheduler.queue = lambda: worker.mark(self)
         self.superseded = 0
         self._host_cpu0 = time.process_time()
 
-    def _open_session(self) -> zenoh.Session:
-        return super()._open_session() if self.shared is None else self.shared.session
+    def tick_queued(self) -> None:
+        """The host's tick thread: tick on the newest pose, under the tick lock, unless closing
+        (:meth:`agent.schedule.PoseScheduler.pose_tick`)."""
+        scheduler = self.scheduler
+        assert isinstance(scheduler, PoseScheduler)  # a worker only in real time on pose arrival
+        with self.gate.lock:
+            if not self.gate.closing:
+                scheduler.pose_tick(time.monotonic())
 
-    def _close_session(self, session: zenoh.Session) -> None:
+    def open_session(self) -> zenoh.Session:
+        return super().open_session() if self.shared is None else self.shared.session
+
+    def close_session(self, session: zenoh.Session) -> None:
         if self.shared is None:
-            super()._close_session(session)
+            super().close_session(session)
         else:
             self.shared.give_back()
 
-    def stats(self) -> dict:
+    def stats(self) -> AgentStats:
         s = super().stats()
-        s["cpu_s"] = (time.process_time() - self._host_cpu0) / self.host_agents
-        s["host_agents"] = self.host_agents
-        s["superseded_poses"] = self.superseded
+        s.cpu_s = (time.process_time() - self._host_cpu0) / self.host_agents
+        s.host_agents = self.host_agents
+        s.superseded_poses = self.superseded
         return s
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from agent.config import build_agent_configs
 from agent.node import AgentNode
+from agent.transport import Transport
 from runtime.shutdown import within
 from scenario import load_scenario
 from simulator.world import World
@@ -61,9 +62,9 @@ def test_the_agent_closes_in_bounded_time_when_every_zenoh_step_hangs_zero_comma
     node = AgentNode(cfg)
     release = threading.Event()
     cmd_pub, session = Hangs(release), Hangs(release)
-    node._pubs = {node.cmd_key: cmd_pub}
-    node._subs = [Hangs(release)]
-    node._session = session
+    transport = node.transport = Transport(session, node.counter)
+    transport.adopt(node.cmd_key, cmd_pub)
+    transport.keep(None, Hangs(release))
     try:
         started = time.monotonic()
         with caplog.at_level(logging.WARNING):
@@ -71,7 +72,7 @@ def test_the_agent_closes_in_bounded_time_when_every_zenoh_step_hangs_zero_comma
         took = time.monotonic() - started
         assert took < 3 * LIMIT + 1.0  # undeclare and session close: two limits, not forever
         assert [(m.v, m.omega) for m in cmd_pub.put] == [(0.0, 0.0)]
-        assert node._session is None and node._pubs == {} and node._subs == []
+        assert node.transport is None and transport.handles() == []
         assert "closing the Zenoh session did not finish" in caplog.text
         node.close(step_limit=LIMIT)  # idempotent
     finally:
@@ -81,14 +82,14 @@ def test_the_agent_closes_in_bounded_time_when_every_zenoh_step_hangs_zero_comma
 def test_the_agent_closes_even_while_a_tick_holds_its_lock():
     cfg = build_agent_configs(load_scenario(ROOT / "tests" / "scenarios" / "two-small.yaml"))["a1"]
     node = AgentNode(cfg)
-    node._tick_lock.acquire()  # a tick that never ends
+    node.gate.lock.acquire()  # a tick that never ends
     try:
         started = time.monotonic()
         node.close(step_limit=LIMIT)
         assert time.monotonic() - started < LIMIT + 0.5
-        assert node._closing
+        assert node.gate.closing
     finally:
-        node._tick_lock.release()
+        node.gate.lock.release()
 
 
 def test_the_world_closes_in_bounded_time_when_undeclaring_hangs():
