@@ -110,7 +110,7 @@ async def serve(node: AgentNode, watch: SignalWatch | None = None) -> None:
 def write_stats(node: AgentNode, path: Path) -> None:
     tmp = path.with_suffix(path.suffix + f".{os.getpid()}.tmp")
     try:
-        tmp.write_text(json.dumps(node.stats(), allow_nan=False), encoding="utf-8")
+        tmp.write_text(json.dumps(node.stats().to_json_dict(), allow_nan=False), encoding="utf-8")
     except OSError:
         tmp.unlink(missing_ok=True)
         raise
@@ -135,10 +135,15 @@ def _emergency_exit(node: AgentNode, stats: Path | None, done: threading.Event,
     os._exit(0)
 
 
-def build_parser(prog: str = "python -m agent", description: str = "") -> argparse.ArgumentParser:
-    """The options of one agent (shared with the agent host, :mod:`agent.host`)."""
+def build_parser(prog: str = "python -m agent", description: str = "",
+                 per_agent: bool = False) -> argparse.ArgumentParser:
+    """The options of one agent (shared with the agent host, :mod:`agent.host`, which gives
+    ``per_agent``: each agent's configuration comes with ``--agent``, ``--config`` is hidden
+    and optional there, only to say so)."""
     parser = argparse.ArgumentParser(prog=prog, description=description or __doc__.split("\n")[0])
-    parser.add_argument("--config", required=True, help="the robot's agent configuration (YAML)")
+    parser.add_argument("--config", required=not per_agent,
+                        help=argparse.SUPPRESS if per_agent
+                        else "the robot's agent configuration (YAML)")
     parser.add_argument("--lockstep", action="store_true",
                         help="tick on pose arrival (simulated world) instead of the own clock")
     parser.add_argument("--lockstep-timeout", type=float, default=2.0, metavar="SECONDS",

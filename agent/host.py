@@ -49,9 +49,10 @@ from pathlib import Path  # noqa: E402
 import zenoh  # noqa: E402
 
 from agent.__main__ import SignalWatch, build_parser, node_options, stop_event, write_stats  # noqa: E402
-from agent.config import load_config  # noqa: E402
+from agent.config import AgentConfig, load_config  # noqa: E402
 from agent.node import AgentNode, NodeOptions, zenoh_config  # noqa: E402
-from agent.schedule import pose_tick  # noqa: E402
+from agent.schedule import PoseScheduler  # noqa: E402
+from agent.stats import AgentStats  # noqa: E402
 from runtime.lifeline import watch_parent  # noqa: E402
 from wire.acl import read_credentials  # noqa: E402
 from wire.zconf import use_zenoh_threads  # noqa: E402
@@ -105,9 +106,7 @@ class TickWorker:
                     return
                 node = self._due.popleft()
                 self._queued.discard(id(node))
-            with node._tick_lock:
-                if not node._closing:
-                    pose_tick(node, time.monotonic())
+            node.tick_queued()
 
     def stop(self) -> None:
         with self._cond:
@@ -120,29 +119,40 @@ class HostedNode(AgentNode):
     """An :class:`AgentNode` that may use its host's shared session (never closing it itself)
     and, in real time, its host's :class:`TickWorker`."""
 
-    def __init__(self, cfg, options: NodeOptions, shared: SharedSession | None = None,
+    def __init__(self, cfg: AgentConfig, options: NodeOptions, shared: SharedSession | None = None,
                  host_agents: int = 1, worker: TickWorker | None = None) -> None:
         super().__init__(cfg, options)
         self.shared = shared
         self.host_agents = host_agents
-        self.tick_worker = worker  # agent.schedule.on_pose_sample queues this node on it
+        if worker is not None and isinstance(self.scheduler, PoseScheduler):
+            # the pose callback queues this node on the host's tick thread
+            self.scheduler.queue = lambda: worker.mark(self)
         self.superseded = 0
         self._host_cpu0 = time.process_time()
 
-    def _open_session(self) -> zenoh.Session:
-        return super()._open_session() if self.shared is None else self.shared.session
+    def tick_queued(self) -> None:
+        """The host's tick thread: tick on the newest pose, under the tick lock, unless closing
+        (:meth:`agent.schedule.PoseScheduler.pose_tick`)."""
+        scheduler = self.scheduler
+        assert isinstance(scheduler, PoseScheduler)  # a worker only in real time on pose arrival
+        with self.gate.lock:
+            if not self.gate.closing:
+                scheduler.pose_tick(time.monotonic())
 
-    def _close_session(self, session: zenoh.Session) -> None:
+    def open_session(self) -> zenoh.Session:
+        return super().open_session() if self.shared is None else self.shared.session
+
+    def close_session(self, session: zenoh.Session) -> None:
         if self.shared is None:
-            super()._close_session(session)
+            super().close_session(session)
         else:
             self.shared.give_back()
 
-    def stats(self) -> dict:
+    def stats(self) -> AgentStats:
         s = super().stats()
-        s["cpu_s"] = (time.process_time() - self._host_cpu0) / self.host_agents
-        s["host_agents"] = self.host_agents
-        s["superseded_poses"] = self.superseded
+        s.cpu_s = (time.process_time() - self._host_cpu0) / self.host_agents
+        s.host_agents = self.host_agents
+        s.superseded_poses = self.superseded
         return s
 
 
@@ -181,47 +191,34 @@ async def serve_all(nodes: Sequence[AgentNode], watch: SignalWatch | None = None
             raise RuntimeError(f"agent {node.cfg.robot_id}: {type(res).__name__}: {res}") from res
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser(prog="python -m agent.host", description=__doc__.split("\n")[0])
-    for action in parser._actions:  # --config is per agent here (in --agent)
-        if action.dest == "config":
-            action.required = False
-            action.help = argparse.SUPPRESS
-    parser.add_argument("--agent", action="append", default=[], metavar="CONFIG,STATS[,AUTH]",
-                        help="one robot's agent configuration, counters file and credentials")
-    parser.add_argument("--shared-session", action="store_true",
-                        help="one Zenoh session for every agent of the host (not with AUTH)")
-    parser.add_argument("--direct-ticks", action="store_true",
-                        help="real time: tick on Zenoh's thread as a process of its own does, "
-                             "not on the host's tick thread (for comparison)")
-    ns = parser.parse_args(argv)
-    watch = SignalWatch()  # first: before any thread starts (threads inherit the blocked mask)
-    logging.basicConfig(level=ns.log_level.upper(),
-                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    try:
-        if ns.config is not None or ns.stats is not None or ns.zenoh_auth is not None:
-            raise ValueError("--config, --stats and --zenoh-auth go in --agent CONFIG,STATS[,AUTH]")
-        specs = [parse_agent(a) for a in ns.agent]
-        if not specs:
-            raise ValueError("--agent: give at least one")
-        if ns.shared_session and any(auth is not None for _, _, auth in specs):
-            raise ValueError("--shared-session: each robot with credentials needs its own session")
-        if ns.shared_session and ns.zenoh_config is not None:
-            raise ValueError("--shared-session: not with --zenoh-config")
-        planned = []
-        for config, stats, auth in specs:
-            cfg = load_config(config)
-            options = node_options(ns, None if auth is None else read_credentials(auth))
-            planned.append((cfg, options, stats))
-        ids = [cfg.robot_id for cfg, _, _ in planned]
-        dup = next((r for r in ids if ids.count(r) > 1), None)
-        if dup is not None:
-            raise ValueError(f"--agent: robot {dup!r} given twice")
-    except ValueError as exc:
-        print(f"agent host: {exc}", file=sys.stderr)
-        return 2
-    watch_parent()  # started by formation run: stop (zero commands) if the launcher dies
-    use_zenoh_threads("agent")
+def plan(ns: argparse.Namespace) -> list[tuple[AgentConfig, NodeOptions, Path]]:
+    """Every ``--agent``'s configuration, options and counters file; ``ValueError`` naming the
+    culprit."""
+    if ns.config is not None or ns.stats is not None or ns.zenoh_auth is not None:
+        raise ValueError("--config, --stats and --zenoh-auth go in --agent CONFIG,STATS[,AUTH]")
+    specs = [parse_agent(a) for a in ns.agent]
+    if not specs:
+        raise ValueError("--agent: give at least one")
+    if ns.shared_session and any(auth is not None for _, _, auth in specs):
+        raise ValueError("--shared-session: each robot with credentials needs its own session")
+    if ns.shared_session and ns.zenoh_config is not None:
+        raise ValueError("--shared-session: not with --zenoh-config")
+    planned = []
+    for config, stats, auth in specs:
+        cfg = load_config(config)
+        options = node_options(ns, None if auth is None else read_credentials(auth))
+        planned.append((cfg, options, stats))
+    ids = [cfg.robot_id for cfg, _, _ in planned]
+    dup = next((r for r in ids if ids.count(r) > 1), None)
+    if dup is not None:
+        raise ValueError(f"--agent: robot {dup!r} given twice")
+    return planned
+
+
+def serve_planned(planned: list[tuple[AgentConfig, NodeOptions, Path]], ns: argparse.Namespace,
+                  watch: SignalWatch) -> int:
+    """Run the planned agents until a signal or a failure, write every one's counters; the exit
+    status (1 if one failed)."""
     k = len(planned)
     shared = None
     status = 0
@@ -234,7 +231,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         nodes = [HostedNode(cfg, options, shared, k, worker) for cfg, options, _ in planned]
         asyncio.run(serve_all(nodes, watch))
     except Exception as exc:  # noqa: BLE001 - a process front end: report and exit 1
-        logger.exception("agent host (%s) failed", ", ".join(ids))
+        logger.exception("agent host (%s) failed", ", ".join(cfg.robot_id for cfg, _, _ in planned))
         print(f"agent host: {type(exc).__name__}: {exc}", file=sys.stderr)
         status = 1
     finally:
@@ -243,6 +240,30 @@ def main(argv: Sequence[str] | None = None) -> int:
     for node, (_, _, stats) in zip(nodes, planned, strict=False):
         write_stats(node, stats)
     return status
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser(prog="python -m agent.host", description=__doc__.split("\n")[0],
+                          per_agent=True)
+    parser.add_argument("--agent", action="append", default=[], metavar="CONFIG,STATS[,AUTH]",
+                        help="one robot's agent configuration, counters file and credentials")
+    parser.add_argument("--shared-session", action="store_true",
+                        help="one Zenoh session for every agent of the host (not with AUTH)")
+    parser.add_argument("--direct-ticks", action="store_true",
+                        help="real time: tick on Zenoh's thread as a process of its own does, "
+                             "not on the host's tick thread (for comparison)")
+    ns = parser.parse_args(argv)
+    watch = SignalWatch()  # first: before any thread starts (threads inherit the blocked mask)
+    logging.basicConfig(level=ns.log_level.upper(),
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    try:
+        planned = plan(ns)
+    except ValueError as exc:
+        print(f"agent host: {exc}", file=sys.stderr)
+        return 2
+    watch_parent()  # started by formation run: stop (zero commands) if the launcher dies
+    use_zenoh_threads("agent")
+    return serve_planned(planned, ns, watch)
 
 
 if __name__ == "__main__":

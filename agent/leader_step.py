@@ -1,34 +1,40 @@
-"""The leader's part of an agent: its step in each tick (:func:`lead`: estimate and publish the
-formation's ellipse from its members' ``state``, collect the other leaders' ellipses, a stale one
-held inflated for up to ``ellipse_hold`` seconds, publish ``others``), and fault containment
-(:mod:`leader.succession`): a successor takes the role when the leader's liveliness token goes
-(:func:`take_over`; it then estimates the standing formation's ellipse) and gives it back when
-the token returns (:func:`step_down`).
+"""The leader's part of an agent (:class:`LeaderPart`): its step in each tick (:meth:`lead`:
+estimate and publish the formation's ellipse from its members' ``state``, collect the other
+leaders' ellipses, a stale one held inflated for up to ``ellipse_hold`` seconds, publish
+``others``), which formations it listens to (:mod:`leader.listen`, real time), and fault
+containment (:mod:`leader.succession`): a successor takes the role when the leader's liveliness
+token goes (:meth:`take_over`; it then estimates the standing formation's ellipse) and gives it
+back when the token returns (:meth:`step_down`).
 
-It lives in agent/, not leader/: it reads the node's mailboxes and, in lock-step, waits for the
-tick's inputs (:func:`agent.schedule.wait_current`); the pure estimation is
+It lives in agent/, not leader/: it reads the agent's inbox and, in lock-step, waits for the
+tick's inputs through the clock (:mod:`agent.clock`); the pure estimation is
 :class:`leader.role.LeaderRole`'s, and leader/ imports nothing of agent/.
 """
 
 from __future__ import annotations
 
+import asyncio
 import logging
-import time
-from typing import TYPE_CHECKING
+from collections.abc import Mapping
+from typing import Any
 
-from agent.schedule import wait_current
+import zenoh
+
+from agent.clock import Clock
+from agent.config import AgentConfig
+from agent.inbox import Entry, Inbox
+from agent.transport import Transport
+from geometry.ellipse import Ellipse
 from leader.listen import QUIET_MAX_S, beacon_due, grown_gap, hears, quiet_until
 from leader.role import VIEW_RANGE, LeaderRole, ellipse_to_msg
+from leader.succession import leader_token_key
 from runtime.shutdown import STEP_LIMIT_S, undeclare_all, within
 from wire import keys
-from wire.payloads import EllipseMsg, State
-from wire.traffic import CountingPublisher
-
-if TYPE_CHECKING:
-    from agent.node import AgentNode
-    from geometry.ellipse import Ellipse
+from wire.payloads import EllipseMsg, Others, State
 
 logger = logging.getLogger(__name__)
+
+Member = tuple[float, float, float, float]  # control point x, y, velocity x, y
 
 
 def inflate(m: EllipseMsg, grow: float) -> EllipseMsg:
@@ -37,89 +43,6 @@ def inflate(m: EllipseMsg, grow: float) -> EllipseMsg:
     are kept."""
     return EllipseMsg(m.formation, m.cx, m.cy, m.alpha, m.a + grow, m.b + grow, m.vx, m.vy,
                       m.alpha_rate, m.stamp)
-
-
-async def lead(node: AgentNode, px: float, py: float, stamp: float, ts: float | None) -> bool:
-    """Leader role for this tick: estimate and publish the ellipse (and, in real time, the
-    beacon when due), collect the other leaders' ellipses, publish ``others``. False when an
-    ellipse that may be in view is missing or stale beyond ``ellipse_hold``.
-
-    What the leader knows of each other formation is its newest ``ellipse`` or ``beacon``
-    (:mod:`leader.listen`). A fresh one is used as it is; a stale one grown by
-    ``max_speed * age`` (:func:`inflate`, counted ``inflated``) for up to ``ellipse_hold``
-    seconds, but only if, so grown, it can be within :data:`leader.role.VIEW_RANGE`: one that
-    cannot reaches no member's ``others`` whatever its age. One never heard of makes the tick
-    incomplete. In real time the tick also asks for the formations to hear every tick
-    (:func:`leader.listen.hears`; applied by :func:`relisten` on the loop)."""
-    role = node.role
-    assert role is not None  # only called on the leader
-    member_keys = node._member_keys
-    if ts is not None:
-        await wait_current(node, [(keys.STATE, k) for k in member_keys.values()], stamp)
-    own = role.estimate(members_now(node, px, py, ts))
-    if own is None:
-        node._own_others = None
-        return False
-    if node.options.trace:
-        node.ellipse_trace.append((stamp, *own))
-    # both topologies (all-to-all: for the tie-break and the jam rule, not for rows)
-    msg = ellipse_to_msg(role.formation, own, stamp)
-    node._pubs[role.ellipse_key].put_message(msg)
-    if ts is None and beacon_due(stamp, node.beacon_stamp):
-        node._pubs[role.beacon_key].put_message(msg)
-        node.beacon_stamp = stamp
-    if ts is not None:
-        await wait_current(node, [(keys.ELLIPSE, k) for k in role.other_keys], stamp)
-    now = time.time() if ts is None else ts
-    received, want, complete, inflated = collect(node, role, own, now, ts)
-    node.inflated += inflated
-    if ts is None and want != node.listening and want != node._listen_want:
-        node._listen_want = frozenset(want)
-        if node._loop is not None:
-            node._loop.call_soon_threadsafe(relisten, node)
-    node._own_others = role.others(own, received, stamp)
-    if complete:
-        node._pubs[role.others_key].put_message(node._own_others)
-    return complete
-
-
-def collect(node: AgentNode, role: LeaderRole, own: Ellipse, now: float, ts: float | None
-            ) -> tuple[dict[str, EllipseMsg], set[str], bool, bool]:
-    """The leader's view of the other formations at ``now`` (see :func:`lead`): the ellipses
-    for ``others`` by ellipse key, the formations to hear every tick, whether every formation
-    that may be in view is known and fresh enough, whether a stale one was used inflated."""
-    speed = node.cfg.control.max_speed
-    received: dict[str, EllipseMsg] = {}
-    want: set[str] = set()  # real time: the formations to hear every tick (leader.listen)
-    listening, quiet = node.listening, node._quiet
-    complete, inflated = True, False
-    for k, fid in role.other_keys.items():
-        q = quiet.get(fid)
-        if q is not None and q - QUIET_MAX_S <= now < q:
-            continue  # far, whatever it did since (leader.listen.quiet_until)
-        entry = newest(fid, node._latest(keys.ELLIPSE, k),
-                       node._latest(keys.BEACON, role.beacon_keys[fid]))
-        if entry is None:  # never heard of: it may be anywhere (its beacon will say where)
-            complete = False
-            continue
-        m = entry[0]
-        age = max(0.0, now - m.stamp)
-        gap = grown_gap(own, m, speed * age)
-        if hears(gap, fid in listening):
-            want.add(fid)
-            quiet.pop(fid, None)
-        else:
-            quiet[fid] = quiet_until(now, gap, speed)
-        if node._fresh(entry, ts):
-            received[k] = m
-        elif gap > VIEW_RANGE:
-            pass  # out of view whatever it did since
-        elif age <= node.options.ellipse_hold:
-            received[k] = inflate(m, speed * age)
-            inflated = True
-        else:
-            complete = False
-    return received, want, complete, inflated
 
 
 def newest(fid: str, *entries: tuple[EllipseMsg, float] | None
@@ -133,115 +56,306 @@ def newest(fid: str, *entries: tuple[EllipseMsg, float] | None
     return best
 
 
-def relisten(node: AgentNode) -> None:
-    """Loop thread: subscribe to the ``ellipse`` of the formations the last tick asked to hear
-    (:mod:`leader.listen`) and unsubscribe from the others'. Subscribers are
-    declared and undeclared outside the tick lock, so a Zenoh thread waiting for it to tick is
-    never waiting on a declaration."""
-    with node._tick_lock:
-        role, want = node.role, node._listen_want
-        if node._closing or node._session is None or role is None or want is None:
+class LeaderPart:
+    """The leader's state and step (module docstring); leads nothing unless :attr:`role` is set
+    (the configured leader from the start, a successor after :meth:`take_over`)."""
+
+    def __init__(self, cfg: AgentConfig, lockstep: bool, ellipse_hold: float, trace: bool,
+                 inbox: Inbox, clock: Clock, neighbour_keys: Mapping[str, Any]) -> None:
+        self.cfg = cfg
+        self.realtime = not lockstep
+        self.ellipse_hold = ellipse_hold
+        self.trace = trace
+        self._inbox = inbox
+        self._clock = clock
+        self._neighbour_keys = neighbour_keys
+        self.role = LeaderRole(cfg.formation, cfg.leader, cfg.prefix) if cfg.leader is not None \
+            else None
+        self._member_keys: dict[str, str] = {}  # member -> its state key
+        if self.role is not None:
+            member_keys = self._adjacent(self.role)
+            if member_keys is None:
+                raise ValueError(f"leader: {cfg.robot_id} is not adjacent to member "
+                                 f"{self._not_adjacent(self.role)[0]}")
+            self._member_keys = member_keys
+        self.own_others: Others | None = None
+        self.ellipse_trace: list[tuple] = []  # (stamp, *Ellipse) per tick
+        self.inflated = 0  # ticks that used another formation's stale ellipse, inflated
+        # leader.listen: the other formations whose ellipse is subscribed to (all in lock-step;
+        # in real time none at the start, then those near), the set the last tick asked for,
+        # the stamp of the last beacon put
+        self.listening: frozenset[str] = frozenset(self.role.other_keys.values()) \
+            if self.role is not None and lockstep else frozenset()
+        self._listen_want: frozenset[str] | None = None
+        self.beacon_stamp: float | None = None
+        self.listen_changes = 0  # subscription changes made for leader.listen
+        self._quiet: dict[str, float] = {}  # formation -> leader.listen.quiet_until
+        # fault containment (leader.succession)
+        self.acting = False  # this successor leads now, for a dead leader
+        self.takeovers = 0  # times this successor led at least one tick for a dead leader
+        self.acting_ticks = 0
+        self._acting_since_tick = False
+        self._token: Any = None
+        self._transport: Transport | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._gate: Any = None
+
+    @property
+    def leading(self) -> bool:
+        return self.role is not None
+
+    def _not_adjacent(self, role: LeaderRole) -> list[str]:
+        p, rid = self.cfg.prefix, self.cfg.robot_id
+        return [m for m in role.members
+                if m != rid and keys.state_key(p, m) not in self._neighbour_keys]
+
+    def _adjacent(self, role: LeaderRole) -> dict[str, str] | None:
+        """Every member's state key (None if one is not this robot's neighbour)."""
+        if self._not_adjacent(role):
+            return None
+        return {m: keys.state_key(self.cfg.prefix, m) for m in role.members
+                if m != self.cfg.robot_id}
+
+    # --- wiring ---------------------------------------------------------------------------------
+
+    def publish_keys(self) -> list[str]:
+        """The keys the leader publishes on (none for a member)."""
+        if self.role is None:
+            return []
+        out = [self.role.others_key, self.role.ellipse_key]
+        return out + [self.role.beacon_key] if self.realtime else out  # leader.listen's beacon
+
+    def open(self, transport: Transport, loop: asyncio.AbstractEventLoop, gate: Any) -> None:
+        """The leader holds its formation's liveliness token; the successor watches it.
+        ``gate``: the tick lock and closing flag (:class:`agent.schedule.TickGate`)."""
+        self._transport, self._loop, self._gate = transport, loop, gate
+        s = transport.session
+        token_key = leader_token_key(self.cfg.prefix, self.cfg.formation)
+        if self.role is not None:
+            self._token = s.liveliness().declare_token(token_key)
             return
-        add = [k for k, fid in role.other_keys.items()
-               if fid in want and k not in node.subscribed_keys]
-        drop = [node._forget_subscriber(k) for k, fid in role.other_keys.items()
-                if fid not in want and k in node.subscribed_keys]
-        box = node._mailbox(keys.ELLIPSE)
-    made = [(k, *node._make_subscriber(k, keys.ELLIPSE, box)) for k in add]
-    with node._tick_lock:
-        undo = node._closing or node.role is not role
-        if not undo:
-            for k, sub, take in made:
-                node._install_subscriber(k, keys.ELLIPSE, sub, take)
-            node.listening = want
-            node.listen_changes += len(add) + len(drop)
-            if node._listen_want == want:
-                node._listen_want = None
-    gone = drop + ([sub for _, sub, _ in made] if undo else [])
-    if gone:
-        within(STEP_LIMIT_S, f"{node.cfg.robot_id}: undeclaring {len(gone)} ellipse subscribers",
-               lambda: undeclare_all(gone))
-
-
-def members_now(node: AgentNode, px: float, py: float,
-                ts: float | None) -> dict[str, tuple[float, float, float, float]]:
-    """Leader: every member's control point and velocity it has fresh (its own from
-    itself). A successor leading for a dead leader (``acting``) also takes the dead robot's
-    last state, and every velocity as zero: the formation stands still."""
-    members: dict[str, tuple[float, float, float, float]] = {
-        node.cfg.robot_id: (px, py, *node.last_u)}
-    for m, k in node._member_keys.items():
-        entry = node._latest(keys.STATE, k)
-        if entry is not None and (node._fresh(entry, ts) or node.acting):
-            s: State = entry[0]
-            members[m] = (s.x, s.y, s.ux, s.uy)
-    if node.acting:  # a standing formation: its ellipse at rest
-        node.acting_ticks += 1
-        if not node._acting_since_tick:
-            node._acting_since_tick = True
-            node.takeovers += 1
-        members = {m: (x, y, 0.0, 0.0) for m, (x, y, _, _) in members.items()}
-    return members
-
-
-# --- fault containment (leader.succession) ------------------------------------------------
-
-
-def on_leader_token(node: AgentNode, alive: bool) -> None:
-    """Loop thread: the leader's liveliness token came (``alive``) or went."""
-    with node._tick_lock:
-        if node._closing or node._session is None:
+        if self.cfg.standby is None:
             return
-        if not alive and not node.acting:
-            take_over(node)
-        elif alive and node.acting:
-            step_down(node)
 
+        def on_token(sample: zenoh.Sample) -> None:
+            alive = sample.kind == zenoh.SampleKind.PUT
+            try:
+                loop.call_soon_threadsafe(self.on_leader_token, alive)
+            except RuntimeError:  # loop closed: shutting down
+                pass
 
-def take_over(node: AgentNode) -> None:
-    """Under the tick lock: lead this formation for its dead leader (leader.succession).
-    The formation stands still (its members' neighbour, the dead robot, is stale, so they
-    command zero); this agent publishes its ellipse, at rest, and relays the others."""
-    settings = node.cfg.standby
-    assert settings is not None and node._session is not None
-    role = LeaderRole(node.cfg.formation, settings, node.cfg.prefix)
-    member_keys = {m: keys.state_key(node.cfg.prefix, m) for m in role.members
-                   if m != node.cfg.robot_id}
-    missing = [m for m, k in member_keys.items() if k not in node.neighbour_keys]
-    if missing:
-        logger.error("%s: cannot lead %s: not adjacent to %s", node.cfg.robot_id,
-                     node.cfg.formation, ", ".join(missing))
-        return
-    realtime = not node.options.lockstep
-    for k in [role.others_key, role.ellipse_key] + ([role.beacon_key] if realtime else []):
-        if k not in node._pubs:
-            node._pubs[k] = CountingPublisher(node._session.declare_publisher(k), node.counter)
-    if realtime:  # every beacon; the ellipses of the formations near (leader.listen)
-        beacons = keys.all_formations_key(node.cfg.prefix, keys.BEACON)
-        if beacons not in node.subscribed_keys:
-            node._declare_subscriber(beacons, keys.BEACON)
-    else:  # lock-step: every ellipse
+        transport.keep(None, s.liveliness().declare_subscriber(token_key, on_token, history=True))
+
+    def take_token(self) -> Any:
+        """The liveliness token, to undeclare first on the way out (None if none)."""
+        token, self._token = self._token, None
+        return token
+
+    # --- the step -------------------------------------------------------------------------------
+
+    async def lead(self, px: float, py: float, stamp: float, ts: float | None,
+                   last_u: tuple[float, float]) -> bool:
+        """Leader role for this tick: estimate and publish the ellipse (and, in real time, the
+        beacon when due), collect the other leaders' ellipses, publish ``others``. False when an
+        ellipse that may be in view is missing or stale beyond ``ellipse_hold``.
+
+        What the leader knows of each other formation is its newest ``ellipse`` or ``beacon``
+        (:mod:`leader.listen`). A fresh one is used as it is; a stale one grown by
+        ``max_speed * age`` (:func:`inflate`, counted ``inflated``) for up to ``ellipse_hold``
+        seconds, but only if, so grown, it can be within :data:`leader.role.VIEW_RANGE`: one
+        that cannot reaches no member's ``others`` whatever its age. One never heard of makes
+        the tick incomplete. In real time the tick also asks for the formations to hear every
+        tick (:func:`leader.listen.hears`; applied by :meth:`relisten` on the loop).
+        ``ts``: the lock-step reference stamp (None in real time; only the clock reads it)."""
+        role, clock, t = self.role, self._clock, self._transport
+        assert role is not None and t is not None  # only called on the leader, once open
+        await clock.wait(self._inbox, [(keys.STATE, k) for k in self._member_keys.values()], stamp)
+        own = role.estimate(self.members_now(px, py, ts, last_u))
+        if own is None:
+            self.own_others = None
+            return False
+        if self.trace:
+            self.ellipse_trace.append((stamp, *own))
+        # both topologies (all-to-all: for the tie-break and the jam rule, not for rows)
+        msg = ellipse_to_msg(role.formation, own, stamp)
+        t.publish(role.ellipse_key, msg)
+        if self.realtime and beacon_due(stamp, self.beacon_stamp):
+            t.publish(role.beacon_key, msg)
+            self.beacon_stamp = stamp
+        await clock.wait(self._inbox, [(keys.ELLIPSE, k) for k in role.other_keys], stamp)
+        received, want, complete, inflated = self.collect(role, own, clock.at(ts), ts)
+        self.inflated += inflated
+        if self.realtime:
+            self._ask(frozenset(want))
+        self.own_others = role.others(own, received, stamp)
+        if complete:
+            t.publish(role.others_key, self.own_others)
+        return complete
+
+    def _ask(self, want: frozenset[str]) -> None:
+        """Real time: have the loop listen to ``want`` (:meth:`relisten`) if that is news."""
+        if want != self.listening and want != self._listen_want:
+            self._listen_want = want
+            if self._loop is not None:
+                self._loop.call_soon_threadsafe(self.relisten)
+
+    def collect(self, role: LeaderRole, own: Ellipse, now: float, ts: float | None
+                ) -> tuple[dict[str, EllipseMsg], set[str], bool, bool]:
+        """The leader's view of the other formations at ``now`` (see :meth:`lead`): the ellipses
+        for ``others`` by ellipse key, the formations to hear every tick, whether every
+        formation that may be in view is known and fresh enough, whether a stale one was used
+        inflated."""
+        received: dict[str, EllipseMsg] = {}
+        want: set[str] = set()  # real time: the formations to hear every tick (leader.listen)
+        complete, inflated = True, False
+        for k, fid in role.other_keys.items():
+            q = self._quiet.get(fid)
+            if q is not None and q - QUIET_MAX_S <= now < q:
+                continue  # far, whatever it did since (leader.listen.quiet_until)
+            entry = newest(fid, self._inbox.latest(keys.ELLIPSE, k),
+                           self._inbox.latest(keys.BEACON, role.beacon_keys[fid]))
+            if entry is None:  # never heard of: it may be anywhere (its beacon will say where)
+                complete = False
+                continue
+            use, known = self._judge(fid, entry, own, now, ts, want)
+            complete = complete and known
+            if use is not None:
+                received[k] = use
+                inflated = inflated or use is not entry[0]
+        return received, want, complete, inflated
+
+    def _judge(self, fid: str, entry: Entry, own: Ellipse, now: float, ts: float | None,
+               want: set[str]) -> tuple[EllipseMsg | None, bool]:
+        """One other formation's ellipse for ``others`` and whether it is known well enough:
+        as it is (fresh), grown (stale, held), none (out of view whatever it did since) or none
+        and not known (stale beyond the hold: incomplete); records whether to hear it every
+        tick."""
+        speed = self.cfg.control.max_speed
+        m = entry[0]
+        age = max(0.0, now - m.stamp)
+        gap = grown_gap(own, m, speed * age)
+        if hears(gap, fid in self.listening):
+            want.add(fid)
+            self._quiet.pop(fid, None)
+        else:
+            self._quiet[fid] = quiet_until(now, gap, speed)
+        if self._clock.fresh(entry, ts):
+            return m, True
+        if gap > VIEW_RANGE:
+            return None, True
+        if age <= self.ellipse_hold:
+            return inflate(m, speed * age), True
+        return None, False
+
+    def members_now(self, px: float, py: float, ts: float | None,
+                    last_u: tuple[float, float]) -> dict[str, Member]:
+        """Every member's control point and velocity it has fresh (its own from itself). A
+        successor leading for a dead leader (``acting``) also takes the dead robot's last
+        state, and every velocity as zero: the formation stands still."""
+        members: dict[str, Member] = {self.cfg.robot_id: (px, py, *last_u)}
+        for m, k in self._member_keys.items():
+            entry = self._inbox.latest(keys.STATE, k)
+            if entry is not None and (self._clock.fresh(entry, ts) or self.acting):
+                s: State = entry[0]
+                members[m] = (s.x, s.y, s.ux, s.uy)
+        if self.acting:  # a standing formation: its ellipse at rest
+            self.acting_ticks += 1
+            if not self._acting_since_tick:
+                self._acting_since_tick = True
+                self.takeovers += 1
+            members = {m: (x, y, 0.0, 0.0) for m, (x, y, _, _) in members.items()}
+        return members
+
+    # --- listening (leader.listen, real time) ---------------------------------------------------
+
+    def relisten(self) -> None:
+        """Loop thread: subscribe to the ``ellipse`` of the formations the last tick asked to
+        hear (:mod:`leader.listen`) and unsubscribe from the others'. Subscribers are declared
+        and undeclared outside the tick lock, so a Zenoh thread waiting for it to tick is never
+        waiting on a declaration."""
+        gate, inbox = self._gate, self._inbox
+        with gate.lock:
+            role, want = self.role, self._listen_want
+            if gate.closing or self._transport is None or role is None or want is None:
+                return
+            subscribed = inbox.subscribed_keys
+            add = [k for k, fid in role.other_keys.items() if fid in want and k not in subscribed]
+            drop = [inbox.forget(k) for k, fid in role.other_keys.items()
+                    if fid not in want and k in subscribed]
+        made = [(k, *inbox.make(k, keys.ELLIPSE)) for k in add]
+        with gate.lock:
+            undo = gate.closing or self.role is not role
+            if not undo:
+                for k, sub, take in made:
+                    inbox.install(k, keys.ELLIPSE, sub, take)
+                self.listening = want
+                self.listen_changes += len(add) + len(drop)
+                if self._listen_want == want:
+                    self._listen_want = None
+        gone = drop + ([sub for _, sub, _ in made] if undo else [])
+        if gone:
+            within(STEP_LIMIT_S, f"{self.cfg.robot_id}: undeclaring {len(gone)} ellipse "
+                   "subscribers", lambda: undeclare_all(gone))
+
+    # --- fault containment (leader.succession) --------------------------------------------------
+
+    def on_leader_token(self, alive: bool) -> None:
+        """Loop thread: the leader's liveliness token came (``alive``) or went."""
+        with self._gate.lock:
+            if self._gate.closing or self._transport is None:
+                return
+            if not alive and not self.acting:
+                self.take_over()
+            elif alive and self.acting:
+                self.step_down()
+
+    def take_over(self) -> None:
+        """Under the tick lock: lead this formation for its dead leader (leader.succession).
+        The formation stands still (its members' neighbour, the dead robot, is stale, so they
+        command zero); this agent publishes its ellipse, at rest, and relays the others."""
+        cfg, t, inbox = self.cfg, self._transport, self._inbox
+        settings = cfg.standby
+        assert settings is not None and t is not None
+        role = LeaderRole(cfg.formation, settings, cfg.prefix)
+        member_keys = self._adjacent(role)
+        if member_keys is None:
+            logger.error("%s: cannot lead %s: not adjacent to %s", cfg.robot_id,
+                         cfg.formation, ", ".join(self._not_adjacent(role)))
+            return
+        for k in [role.others_key, role.ellipse_key] + ([role.beacon_key] if self.realtime
+                                                        else []):
+            t.publisher(k)
+        self._subscribe_others(role)
+        self.listening = frozenset(fid for k, fid in role.other_keys.items()
+                                   if k in inbox.subscribed_keys)
+        self._listen_want = None
+        self.beacon_stamp = None
+        self.role = role
+        self._member_keys = member_keys
+        self.acting = True
+        self._acting_since_tick = False  # counted as a takeover once it leads a tick (not when
+        # the leader merely closed first at the end of a run)
+        logger.warning("%s: leader %s of %s is gone: leading the standing formation",
+                       cfg.robot_id, cfg.leader_id, cfg.formation)
+
+    def _subscribe_others(self, role: LeaderRole) -> None:
+        """Real time: every beacon (the ellipses of the formations near follow, leader.listen);
+        lock-step: every ellipse."""
+        inbox = self._inbox
+        if self.realtime:
+            beacons = keys.all_formations_key(self.cfg.prefix, keys.BEACON)
+            if beacons not in inbox.subscribed_keys:
+                inbox.declare(beacons, keys.BEACON)
+            return
         for k in role.other_keys:
-            if k not in node.subscribed_keys:
-                node._declare_subscriber(k, keys.ELLIPSE)
-    node.listening = frozenset(fid for k, fid in role.other_keys.items()
-                               if k in node.subscribed_keys)
-    node._listen_want = None
-    node.beacon_stamp = None
-    node.role = role
-    node._member_keys = member_keys
-    node.acting = True
-    node._acting_since_tick = False  # counted as a takeover once it leads a tick (not when
-    # the leader merely closed first at the end of a run)
-    logger.warning("%s: leader %s of %s is gone: leading the standing formation",
-                   node.cfg.robot_id, node.cfg.leader_id, node.cfg.formation)
+            if k not in inbox.subscribed_keys:
+                inbox.declare(k, keys.ELLIPSE)
 
-
-def step_down(node: AgentNode) -> None:
-    """Under the tick lock: the leader is back; be a member again."""
-    node.role = None
-    node._member_keys = {}
-    node._own_others = None
-    node.acting = False
-    logger.warning("%s: leader %s of %s is back: member again", node.cfg.robot_id,
-                   node.cfg.leader_id, node.cfg.formation)
+    def step_down(self) -> None:
+        """Under the tick lock: the leader is back; be a member again."""
+        self.role = None
+        self._member_keys = {}
+        self.own_others = None
+        self.acting = False
+        logger.warning("%s: leader %s of %s is back: member again", self.cfg.robot_id,
+                       self.cfg.leader_id, self.cfg.formation)

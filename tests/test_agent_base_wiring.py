@@ -52,7 +52,7 @@ def test_commands_reach_the_cmd_vel_key_as_cdr_and_shutdown_sends_zero(base, dec
         try:
             node.open(loop)
             time.sleep(0.5)  # let the subscription reach the router
-            node._put_cmd(Cmd(0.1, -0.5, 0.1, 0.0, 12.25))
+            node.send_command(Cmd(0.1, -0.5, 0.1, 0.0, 12.25))
             deadline = time.monotonic() + 5.0
             while time.monotonic() < deadline and not got:
                 time.sleep(0.02)

@@ -90,7 +90,7 @@ def test_the_stale_limit_follows_a_camera_slower_than_the_control_period(tmp_pat
     assert cam15.clock_tolerance == 0.05
     save_config(cam15, tmp_path / "r1.yaml")
     assert load_config(tmp_path / "r1.yaml") == cam15
-    assert AgentNode(cam15)._pose_period == pytest.approx(1 / 15)
+    assert AgentNode(cam15).scheduler.pose_period == pytest.approx(1 / 15)
     with pytest.raises(ValueError, match="pose_period"):
         build_agent_configs(scenario, pose_period=0.0)
     d = config_to_dict(cam15)

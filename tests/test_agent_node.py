@@ -162,9 +162,8 @@ def test_another_formations_robot_state_never_reaches_the_agent_but_a_neighbours
         await eventually(lambda: node.counter.snapshot()["recv"]["state"]["messages"] >= 5)
         await asyncio.sleep(0.2)  # time for any stray s1 sample to arrive
 
-        box = node._boxes[keys.STATE]
-        assert set(box.values()) == {keys.state_key(P, "r2")}
-        assert box.received == 5
+        assert set(node.inbox.values(keys.STATE)) == {keys.state_key(P, "r2")}
+        assert node.inbox.counts()["received"][keys.STATE] == 5
         assert node.counter.snapshot()["recv"]["state"]["messages"] == 5
 
     run_node(configs["r1"], NodeOptions(lockstep=True), peer, body)
@@ -208,9 +207,9 @@ def test_malformed_and_non_finite_payloads_are_dropped_counted_and_do_not_stop_t
         peer.put(keys.state_key(P, "r4"), nan_state)
         peer.put(keys.pose_key(P, "r1"), b"")
         peer.put(keys.others_key(P, "F1"), b"\x01\xff\xff\xff\xff\xff\xff\xff\xff\xff\x7f")
-        await eventually(lambda: node.stats()["dropped"].get("others", 0) == 1)
-        await eventually(lambda: node.stats()["dropped"]["state"] == 2)
-        assert node.stats()["dropped"]["pose"] == 1
+        await eventually(lambda: node.stats().dropped.get("others", 0) == 1)
+        await eventually(lambda: node.stats().dropped["state"] == 2)
+        assert node.stats().dropped["pose"] == 1
         peer.feed(0.0)  # the agent still works
         await eventually(lambda: any(c.stamp == 0.0 for c in peer.commands()))
         assert node.stale == 0
@@ -289,30 +288,28 @@ class _PoseSample:
         self.payload = zenoh.ZBytes(payload)
 
 
-def test_real_time_ticks_go_by_the_pose_stamps_not_by_arrival_times(configs, monkeypatch) -> None:
-    from agent import schedule
-    from agent.node import _stamped
-    from agent.schedule import MIN_SPACING_PERIODS, on_pose_sample
-    from wire.payloads import decode_pose
-    from wire.traffic import Mailbox
+def test_real_time_ticks_go_by_the_pose_stamps_not_by_arrival_times(configs) -> None:
+    from agent.schedule import MIN_SPACING_PERIODS, PoseScheduler
 
     cfg = configs["r1"]
     node = AgentNode(cfg, NodeOptions(trace=False))
-    # as open() sets it up: inline, with the stamp and plausibility checks
-    node._boxes[keys.POSE] = Mailbox(None, _stamped(decode_pose), accept=node._acceptor(keys.POSE))
     ticked: list[float] = []
     period = cfg.period
     key = keys.pose_key(P, "r1")
-    monkeypatch.setattr(schedule, "tick_locked",
-                        lambda n, now: ticked.append(n._boxes[keys.POSE].latest(key)[0].stamp))
+
+    async def tick(_t: float | None) -> None:  # records the pose each tick runs on
+        ticked.append(node.inbox.latest(keys.POSE, key)[0].stamp)
+
+    # the node's inbox (inline before open, with the stamp and plausibility checks) and gate
+    scheduler = PoseScheduler(tick, node.gate, node.inbox, key, period, period, cfg.stale_after)
 
     def pose(stamp: float) -> None:
-        on_pose_sample(node, _PoseSample(key, encode(Pose(0.0, 0.0, 0.0, stamp))))
+        scheduler.on_sample(_PoseSample(key, encode(Pose(0.0, 0.0, 0.0, stamp))))
 
     t0 = time.time() - 0.1
     pose(t0)  # the first pose ticks
     pose(t0 + 0.5 * period)  # a faster camera: stored, not ticked
-    assert node._boxes[keys.POSE].latest(key)[0].stamp == t0 + 0.5 * period
+    assert node.inbox.latest(keys.POSE, key)[0].stamp == t0 + 0.5 * period
     pose(t0 + MIN_SPACING_PERIODS * period)  # due again
     pose(t0 + MIN_SPACING_PERIODS * period)  # the same pose twice: once
     pose(t0 - 0.05)  # older than the pose in use: refused, never ticked on
@@ -320,7 +317,7 @@ def test_real_time_ticks_go_by_the_pose_stamps_not_by_arrival_times(configs, mon
     pose(time.time() + 5.0)  # 5 s in the future: refused, and it blocks nothing after it
     pose(t0 + 2 * period)
     assert ticked == [t0, t0 + MIN_SPACING_PERIODS * period, t0 + 2 * period]
-    assert node.stamps.snapshot() == {"pose": {"future": 1, "stale": 1, "older": 1}}
+    assert node.inbox.stamps.snapshot() == {"pose": {"future": 1, "stale": 1, "older": 1}}
     node.close()  # no session yet: only marks it closing
     pose(time.time())  # after close() no tick runs
     assert len(ticked) == 3
@@ -342,11 +339,11 @@ def test_in_real_time_a_silent_camera_ends_in_deadline_ticks_that_command_zero(c
             peer.feed(time.time())
             await asyncio.sleep(0.005)
         await eventually(lambda: any(math.hypot(c.ux, c.uy) > 0.05 for c in peer.commands()))
-        seen["ticks"], seen["flowing"] = node.ticks, node.deadline_ticks
+        seen["ticks"], seen["flowing"] = node.ticks, node.scheduler.counts.deadline_ticks
         silent = time.monotonic()
         await eventually(lambda: node.stale_why.get("pose", 0) > 0)
         seen["zero_after"] = time.monotonic() - silent
-        seen["deadline"] = node.deadline_ticks
+        seen["deadline"] = node.scheduler.counts.deadline_ticks
         await asyncio.sleep(0.2)  # the zero command crosses the router
 
     run_node(cfg, NodeOptions(trace=False), peer, body)
@@ -360,33 +357,28 @@ def test_in_real_time_a_silent_camera_ends_in_deadline_ticks_that_command_zero(c
 
 
 def test_lock_step_refuses_frames_beyond_its_window_unless_the_world_went_on_without_it(configs):
-    from agent.node import _stamped
-    from wire.payloads import decode_pose
-    from wire.traffic import Mailbox
-
     cfg = configs["r1"]
     node = AgentNode(cfg, NodeOptions(lockstep=True, lockstep_timeout=0.3, sim_start=4.0))
-    box = Mailbox(None, _stamped(decode_pose), accept=node._acceptor(keys.POSE))
     key = keys.pose_key(P, "r1")
 
-    def offer(stamp: float) -> bool:
-        before = box.rejected
-        box.offer(key, encode(Pose(-3.25, 0.125, 0.0, stamp)))
-        return box.rejected == before
+    def offer(stamp: float) -> bool:  # into the inbox as a subscriber would (inline before open)
+        before = node.inbox.counts()["rejected"].get(keys.POSE, 0)
+        node.inbox.offer(keys.POSE, key, encode(Pose(-3.25, 0.125, 0.0, stamp)))
+        return node.inbox.counts()["rejected"][keys.POSE] == before
 
     assert not offer(0.0)  # before the time this (restarted) agent joined at: stale
     assert offer(4.0) and offer(4.0 + cfg.period)  # its frame, and the next one
     assert not offer(30.0)  # far ahead of the frame it is on: refused, blocks nothing
     assert offer(4.0 + 2 * cfg.period)
-    assert node.stamps.snapshot()["pose"] == {"future": 1, "stale": 1, "older": 0}
+    assert node.inbox.stamps.snapshot()["pose"] == {"future": 1, "stale": 1, "older": 0}
     # it ticked, then nothing for longer than lockstep_timeout: the world stopped waiting for
     # it, so the next frame is taken even though it is beyond the window
-    node.ticks, node._last_tick = 1, time.monotonic() - 1.0
-    assert offer(12.0) and node.lockstep_catch_ups == 1
+    node.clock.begin_frame(4.0 + 2 * cfg.period, time.monotonic() - 1.0)
+    assert offer(12.0) and node.inbox.catch_ups == 1
 
 
 def test_the_decode_memo_shares_equal_payloads_values_and_never_remembers_a_bad_one():
-    from agent.node import DecodeMemo
+    from agent.inbox import DecodeMemo
     from wire.payloads import DecodeError, decode_state
 
     calls = []

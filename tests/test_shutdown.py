@@ -11,6 +11,7 @@ from pathlib import Path
 
 from agent.config import build_agent_configs
 from agent.node import AgentNode
+from agent.transport import Transport
 from runtime.shutdown import within
 from scenario import load_scenario
 from simulator.world import World
@@ -81,14 +82,14 @@ def test_the_agent_closes_in_bounded_time_when_every_zenoh_step_hangs_zero_comma
     node = AgentNode(cfg)
     release = threading.Event()
     cmd_pub, session = Hangs(release), Hangs(release)
-    node._pubs = {node.cmd_key: cmd_pub}
-    node._subs = [Hangs(release)]
-    node._session = session
+    transport = node.transport = Transport(session, node.counter)
+    transport.adopt(node.cmd_key, cmd_pub)
+    transport.keep(None, Hangs(release))
     try:
         with caplog.at_level(logging.WARNING):
             finishes(lambda: node.close(step_limit=LIMIT))  # returns though no step ever ends
         assert [(m.v, m.omega) for m in cmd_pub.put] == [(0.0, 0.0)]
-        assert node._session is None and node._pubs == {} and node._subs == []
+        assert node.transport is None and transport.handles() == []
         assert "closing the Zenoh session did not finish" in caplog.text
         node.close(step_limit=LIMIT)  # idempotent
     finally:
@@ -98,12 +99,12 @@ def test_the_agent_closes_in_bounded_time_when_every_zenoh_step_hangs_zero_comma
 def test_the_agent_closes_even_while_a_tick_holds_its_lock():
     cfg = build_agent_configs(load_scenario(ROOT / "tests" / "scenarios" / "two-small.yaml"))["a1"]
     node = AgentNode(cfg)
-    node._tick_lock.acquire()  # a tick that never ends
+    node.gate.lock.acquire()  # a tick that never ends
     try:
         finishes(lambda: node.close(step_limit=LIMIT))  # returns though the lock is never freed
-        assert node._closing
+        assert node.gate.closing
     finally:
-        node._tick_lock.release()
+        node.gate.lock.release()
 
 
 def test_the_world_closes_in_bounded_time_when_undeclaring_hangs():

@@ -105,6 +105,7 @@ def test_an_agent_whose_open_fails_half_way_still_closes_its_session(monkeypatch
     import asyncio
 
     from agent import node as node_mod
+    from agent import transport as transport_mod
     from agent.config import ZenohSettings, build_agent_configs
     from scenario import load_scenario
 
@@ -123,10 +124,10 @@ def test_an_agent_whose_open_fails_half_way_still_closes_its_session(monkeypatch
         raise RuntimeError("declare failed")
 
     monkeypatch.setattr(node_mod.zenoh, "open", spy)
-    monkeypatch.setattr(node_mod, "CountingPublisher", declare_fails)
+    monkeypatch.setattr(transport_mod, "CountingPublisher", declare_fails)
     with pytest.raises(RuntimeError, match="declare failed"):
         asyncio.run(node.run(asyncio.Event()))
-    assert len(opened) == 1 and node._session is None
+    assert len(opened) == 1 and node.transport is None
 
 
 @pytest.mark.integration
@@ -147,3 +148,85 @@ def test_the_package_code_type_checks() -> None:
     done = subprocess.run([sys.executable, "-m", "mypy"], cwd=ROOT,
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-1000:]
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _import_targets(path: Path, known: set[str]) -> set[str]:
+    """The project modules ``path`` imports, anywhere in it (lazy and type-checking imports
+    included): ``from pkg import name`` is the submodule when ``name`` is one, relative imports
+    resolved against the file's package."""
+    name = _module_name(path)
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            found.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                up = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                base = ".".join([*up, *([base] if base else [])])
+            found.update(f"{base}.{a.name}" if f"{base}.{a.name}" in known else base
+                         for a in node.names)
+    return (found & known) - {name}
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    out: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def _project_files() -> list[Path]:
+    return [p for pkg in sorted(PROJECT) for p in sorted((ROOT / pkg).rglob("*.py"))]
+
+
+def test_no_two_project_modules_import_each_other_in_a_circle() -> None:
+    files = _project_files()
+    known = {_module_name(p) for p in files}
+    graph = {_module_name(p): _import_targets(p, known) for p in files}
+    assert _cycles(graph) == []
+
+
+def test_the_circle_check_finds_a_circle_through_lazy_relative_and_from_imports() -> None:
+    # the check itself: a -> b (from pkg import b), b -> c (relative), c -> a (lazy, in a function)
+    graph = {"pkg.a": {"pkg.b"}, "pkg.b": {"pkg.c"}, "pkg.c": {"pkg.a"}, "pkg.d": {"pkg.a"}}
+    assert _cycles(graph) == [["pkg.a", "pkg.b", "pkg.c"]]
+    path = ROOT / "agent" / "inputs.py"  # `from . import unicycle`, `from .control import ...`
+    known = {_module_name(p) for p in _project_files()}
+    assert {"agent.unicycle", "agent.control", "agent.barriers"} <= _import_targets(path, known)

@@ -134,7 +134,7 @@ class DiagPublisher:
             status, slack = res.status, res.slack
             hf, ho, he = res.h_formation, res.h_obstacle, res.h_formations
         counts = node.status_counts
-        dropped = sum(b.dropped_malformed for b in node._boxes.values()) if node._boxes else 0
+        dropped = node.dropped_malformed
         d = Diag(self.formation, status or "ok", node.last_stamp, slack, hf, ho, he,
                  self.goal[0], self.goal[1], node.ticks, node.stale,
                  counts.get("relaxed", 0), counts.get("fallback", 0), dropped)

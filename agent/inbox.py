@@ -1,0 +1,342 @@
+"""The agent's inbox: the latest accepted message per key, and where it comes from.
+
+It keeps one :class:`wire.traffic.Mailbox` per key class, each behind the one stamp check
+(:func:`wire.stamps.check_stamp`, counted per class and reason; a lock-step agent the world
+went on without catches up, counted ``lockstep_catch_ups``) and plausibility
+(:mod:`agent.plausibility`; an implausible input is refused, counted, and makes the next tick
+command zero), fed by the subscribers it declares on the :class:`agent.transport.Transport`
+(through :class:`agent.fault_inject.FaultInjector` for the faulted classes).
+
+Real time on pose arrival (*polled*): every mailbox is inline, fed under the tick lock by the
+tick that drains the ring channels (:meth:`Inbox.drain`) and by the pose callback, which ticks
+right on the Zenoh thread that received the pose (:mod:`agent.schedule`). Otherwise a callback
+stores on the loop and wakes the tick (:attr:`Inbox.arrived`).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import zenoh
+
+from agent.fault_inject import FaultInjector
+from agent.faults import EPS, LinkFaults
+from agent.plausibility import JUMP_MARGIN_M, ellipses_ok, jump_ok, velocity_ok
+from agent.transport import Transport
+from wire import keys
+from wire.payloads import (
+    decode_ellipse,
+    decode_obstacles,
+    decode_others,
+    decode_pose,
+    decode_state,
+)
+from wire.stamps import FUTURE, StampCounter, check_stamp
+from wire.traffic import Mailbox, TrafficCounter
+
+logger = logging.getLogger(__name__)
+
+RING_CAPACITY = 256  # real time: samples kept per key between two ticks (a flood beyond it
+# loses its oldest samples uncounted; about one per tick arrives in normal operation)
+DECODERS: dict[str, Callable[[bytes], Any]] = {  # mailbox class -> payload reader
+    keys.POSE: decode_pose, keys.STATE: decode_state, keys.OTHERS: decode_others,
+    keys.ELLIPSE: decode_ellipse, keys.OBSTACLES: decode_obstacles, keys.BEACON: decode_ellipse,
+}
+Entry = tuple[Any, float]  # (message, local reception time)
+Take = Callable[[zenoh.Sample], None]
+
+
+class DecodeMemo:
+    """A payload decoder that remembers the values of the last payloads it decoded, shared by
+    every agent of one process: in an agent host each agent decodes the same ``obstacles``
+    message every tick, the members of a formation the same ``others`` and the neighbours of a
+    robot its same ``state`` (issue 18: a host of 32 decoded each obstacles list 32 times).
+    Decoded messages are frozen, so sharing one changes nothing an agent sees; a payload that
+    does not decode raises every time (each agent counts its own drop). Thread-safe under
+    the GIL (a lost insert costs one more decode); emptied when it holds ``size`` payloads."""
+
+    def __init__(self, decode: Callable[[bytes], Any], size: int = 256) -> None:
+        self._decode = decode
+        self._size = size
+        self._values: dict[bytes, Any] = {}
+
+    def __call__(self, payload: bytes) -> Any:
+        if type(payload) is not bytes:  # only bytes are hashable keys; decode anything else
+            return self._decode(payload)
+        value = self._values.get(payload)
+        if value is None:
+            value = self._decode(payload)
+            if len(self._values) >= self._size:
+                self._values.clear()
+            self._values[payload] = value
+        return value
+
+
+#: mailbox class -> the process's memo of its decoder (:class:`DecodeMemo`)
+MEMOS: dict[str, DecodeMemo] = {cls: DecodeMemo(decode) for cls, decode in DECODERS.items()}
+
+
+def stamped(decode: Callable[[bytes], Any]) -> Callable[[bytes], Entry]:
+    """A decoder that also keeps the local reception time (taken on Zenoh's thread)."""
+
+    def run(payload: bytes) -> Entry:
+        return decode(payload), time.monotonic()
+
+    return run
+
+
+def plausible(cls: str, msg: Any, prev: Any | None, speed: float) -> bool:
+    """Whether ``msg`` is physically possible after ``prev`` (agent.plausibility)."""
+    if cls == keys.POSE:
+        return prev is None or jump_ok(prev.x, prev.y, prev.stamp, msg.x, msg.y, msg.stamp,
+                                       speed, JUMP_MARGIN_M)
+    if cls == keys.STATE:
+        if not velocity_ok(msg.ux, msg.uy, speed):
+            return False
+        return prev is None or jump_ok(prev.x, prev.y, prev.stamp, msg.x, msg.y, msg.stamp,
+                                       speed, JUMP_MARGIN_M)
+    if cls in (keys.ELLIPSE, keys.BEACON):
+        return velocity_ok(msg.vx, msg.vy, speed)
+    if cls == keys.OTHERS:
+        return ellipses_ok(msg.ellipses, speed) and (
+            msg.own is None or velocity_ok(msg.own.vx, msg.own.vy, speed))
+    return True
+
+
+class Receiver:
+    """The receiver's side of the stamp check: its clock (the frame in lock-step, the wall
+    clock in real time) and whether the world went on without it (:mod:`agent.clock`)."""
+
+    def __init__(self, now: Callable[[], float], starved: Callable[[], bool], tolerance: float,
+                 stale_after: float, speed: float) -> None:
+        self.now = now
+        self.starved = starved
+        self.tolerance = tolerance
+        self.stale_after = stale_after
+        self.speed = speed  # [m/s] plausibility bound
+
+
+class Inbox:
+    """The latest accepted message per key (module docstring). ``lock`` is the tick lock: the
+    inbox takes it where it stores from the loop while a tick may read on another thread."""
+
+    def __init__(self, robot_id: str, receiver: Receiver, counter: TrafficCounter,
+                 link_faults: LinkFaults, timing: tuple[float, bool], lock: threading.Lock,
+                 polled: bool) -> None:
+        self.robot_id = robot_id
+        self.receiver = receiver
+        self.counter = counter
+        period, lockstep = timing
+        self.faults = FaultInjector(link_faults, robot_id, period, lockstep, lock,
+                                    self.store_delayed)
+        self.polled = polled
+        self.stamps = StampCounter()  # the one stamp check: rejections per class and reason
+        self.catch_ups = 0  # lock-step: future frames taken after the world went on
+        self.implausible: dict[str, int] = {}  # inputs refused as physically impossible, by class
+        self._implausible_pending: set[str] = set()  # classes refused since the last tick
+        self._boxes: dict[str, Mailbox] = {}
+        self.subscribed_keys: dict[str, str] = {}  # key -> the mailbox class that holds it
+        self._rings: list[tuple[Any, Take]] = []  # polled subscribers, drained by the tick
+        self._late: set[str] = set()  # lock-step: keys whose last wait timed out
+        self.arrived = asyncio.Event()
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._transport: Transport | None = None
+        self._on_pose: Take | None = None
+        self._ring_caps: dict[str, int] = {}
+
+    # --- what is accepted -----------------------------------------------------------------------
+
+    def _acceptor(self, cls: str) -> Callable[[str, Entry, Entry | None], bool]:
+        """The mailbox's ``accept`` for class ``cls``: the stamp check (future, stale, older than
+        the one kept; counted per reason), then plausibility against the one kept (counted;
+        the next tick commands zero). Runs where the mailbox stores: the loop's thread, or
+        under the tick lock."""
+        rx = self.receiver
+
+        def accept(_key: str, value: Entry, prev: Entry | None) -> bool:
+            msg = value[0]
+            last = None if prev is None else prev[0].stamp
+            now = rx.now()
+            reason = check_stamp(now, msg.stamp, last, rx.tolerance, rx.stale_after)
+            if reason == FUTURE and rx.starved():
+                reason = None  # lock-step: the world went on without this agent; catch up
+                self.catch_ups += 1
+            if reason is not None:
+                self.stamps.count(cls, reason)
+                return False
+            # plausible after the kept message while that one is fresh; a stale one says nothing
+            # any more (a robot carried elsewhere, or a forged first pose: it blocks for at most
+            # stale_after)
+            ref = None if prev is None or now - prev[0].stamp > rx.stale_after else prev[0]
+            if not plausible(cls, msg, ref, rx.speed):
+                self.implausible[cls] = self.implausible.get(cls, 0) + 1
+                self._implausible_pending.add(cls)
+                logger.info("%s: implausible %s refused", self.robot_id, cls)
+                return False
+            return True
+
+        return accept
+
+    def take_implausible(self) -> bool:
+        """Whether an input broke physics since the last call (then forgotten)."""
+        if not self._implausible_pending:
+            return False
+        self._implausible_pending.clear()
+        return True
+
+    def mailbox(self, cls: str) -> Mailbox:
+        """The mailbox of class ``cls``, made on first use (inline when polled)."""
+        box = self._boxes.get(cls)
+        if box is None:
+            box = self._boxes[cls] = Mailbox(None if self.polled else self._loop,
+                                             stamped(MEMOS[cls]), counter=self.counter,
+                                             accept=self._acceptor(cls))
+        return box
+
+    def offer(self, cls: str, key: str, payload: bytes) -> None:
+        """Hand ``payload`` to the mailbox of ``cls`` on the calling thread (as a subscriber
+        would; tests and the pose callback)."""
+        self.mailbox(cls).offer(key, payload)
+
+    # --- reading --------------------------------------------------------------------------------
+
+    def latest(self, cls: str, key: str) -> Entry | None:
+        box = self._boxes.get(cls)
+        return None if box is None else box.latest(key)
+
+    def values(self, cls: str) -> dict[str, Any]:
+        """Every key of class ``cls`` held -> its entry."""
+        box = self._boxes.get(cls)
+        return {} if box is None else dict(box.values())
+
+    def counts(self) -> dict[str, dict[str, int]]:
+        """Per class: malformed payloads dropped, messages refused, samples received."""
+        boxes = self._boxes.items()
+        return {"dropped": {cls: box.dropped_malformed for cls, box in boxes},
+                "rejected": {cls: box.rejected for cls, box in boxes},
+                "received": {cls: box.received for cls, box in boxes}}
+
+    @property
+    def dropped_malformed(self) -> int:
+        return sum(box.dropped_malformed for box in self._boxes.values())
+
+    # --- lock-step waits ------------------------------------------------------------------------
+
+    def missing(self, inputs: list[tuple[str, str]], t: float) -> list[str]:
+        """Lock-step: the keys of ``inputs`` not late and not yet holding the tick ``t``'s."""
+        return [k for cls, k in inputs if k not in self._late and not self.current(cls, k, t)]
+
+    def current(self, cls: str, key: str, t: float) -> bool:
+        """Lock-step: the message on ``key`` belongs to the tick stamped ``t`` (or later), or,
+        under added delay, to the newest tick that can have arrived; or it was lost."""
+        need = self.faults.need(cls, t)
+        entry = self.latest(cls, key)
+        if entry is not None and entry[0].stamp >= need - EPS:
+            return True
+        return self.faults.lost_since(key, need)
+
+    def mark_late(self, late: list[str]) -> None:
+        self._late.update(late)
+
+    def advance(self, t: float) -> bool:
+        """Lock-step: release the delayed inputs due at ``t``; True if there is a delay line."""
+        if self.faults.delay_line is None:
+            return False
+        self.faults.advance(t)
+        return True
+
+    def on_arrival(self, key: str) -> None:
+        """Loop thread: something arrived on ``key`` (its publisher is alive): wake the tick."""
+        self._late.discard(key)
+        self.arrived.set()
+
+    # --- subscribers ----------------------------------------------------------------------------
+
+    def open(self, transport: Transport, loop: asyncio.AbstractEventLoop, on_pose: Take,
+             ring_caps: dict[str, int]) -> None:
+        """Subscribe through ``transport``; ``on_pose`` receives the pose samples when polled;
+        ``ring_caps``: ring channel sizes by class beyond :data:`RING_CAPACITY`."""
+        self._transport, self._loop, self._on_pose = transport, loop, on_pose
+        self._ring_caps = ring_caps
+
+    def declare(self, key: str, cls: str) -> None:
+        """Subscribe to ``key`` into the mailbox of class ``cls``."""
+        self.install(key, cls, *self.make(key, cls))
+
+    def make(self, key: str, cls: str) -> tuple[Any, Take | None]:
+        """Declare the subscriber of ``key``: (subscriber, the take of its ring channel, None
+        when it has a callback). Touches no state a tick reads, so it may run outside the tick
+        lock (:meth:`agent.leader_step.LeaderPart.relisten`)."""
+        t = self._transport
+        assert t is not None and self._on_pose is not None  # set by open()
+        box = self.mailbox(cls)
+        if self.polled and cls != keys.POSE:
+            cap = max(RING_CAPACITY, self._ring_caps.get(cls, 0))
+            return (t.declare(key, zenoh.handlers.RingChannel(cap)),
+                    self._handler(cls, box, notify=False))
+        if self.polled:  # the pose: tick right on the Zenoh thread that received it
+            return t.declare(key, zenoh.handlers.Callback(self._on_pose, indirect=False)), None
+        return t.declare(key, self._handler(cls, box)), None
+
+    def install(self, key: str, cls: str, sub: Any, take: Take | None) -> None:
+        """Record a subscriber :meth:`make` declared (under the tick lock once ticks run: a ring
+        channel joins the ones the tick drains)."""
+        assert self._transport is not None
+        if take is not None:
+            self._rings.append((sub, take))
+        self._transport.keep(key, sub)
+        self.subscribed_keys[key] = cls
+
+    def forget(self, key: str) -> Any:
+        """Under the tick lock: stop draining and recording the subscriber of ``key``; it is
+        returned for the caller to undeclare (outside the lock). Its mailbox keeps what came."""
+        assert self._transport is not None
+        sub = self._transport.forget(key)
+        self._rings = [r for r in self._rings if r[0] is not sub]
+        del self.subscribed_keys[key]
+        return sub
+
+    def drain(self) -> None:
+        """Real time: hand every sample waiting in the ring channels to its mailbox (an inline
+        one: stored at once)."""
+        for sub, take in self._rings:
+            while (sample := sub.try_recv()) is not None:
+                take(sample)
+
+    def close(self) -> None:
+        self._rings.clear()
+
+    def store_delayed(self, key: str, payload: bytes) -> None:
+        """A delayed payload (:class:`FaultInjector`) into its mailbox; wakes the tick."""
+        cls = self.subscribed_keys.get(key, keys.STATE)  # all-to-all: a wildcard's concrete key
+        self.mailbox(cls).offer(key, payload)
+        self.on_arrival(key)
+
+    def _handler(self, cls: str, box: Mailbox, notify: bool = True) -> Take:
+        """A subscriber's callback: the sample to ``box`` (through the link faults for a
+        faulted class) and, with ``notify``, a wake-up of the loop's tick."""
+        loop = self._loop
+        assert loop is not None  # set by open()
+        decode = DECODERS[cls]
+        faults = self.faults
+        faulty = faults.applies_to(cls)
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            if faulty and sample.kind != zenoh.SampleKind.DELETE:
+                faults.sample(loop, cls, decode, str(sample.key_expr), sample.payload.to_bytes(),
+                              box.offer)
+            else:
+                box.callback(sample)
+            if not notify:
+                return
+            try:
+                loop.call_soon_threadsafe(self.on_arrival, str(sample.key_expr))
+            except RuntimeError:  # loop closed: shutting down
+                pass
+
+        return on_sample

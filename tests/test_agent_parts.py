@@ -1,0 +1,124 @@
+"""The parts an agent node is made of, each on its own: the lock-step clock's waits, the
+real-time clock's carried states, the link faults and the transport's record."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+
+import pytest
+
+from agent.clock import LockstepClock, RealtimeClock
+from agent.fault_inject import FaultInjector
+from agent.faults import LinkFaults
+from agent.transport import Transport
+from wire import keys
+from wire.payloads import State, encode
+from wire.traffic import TrafficCounter
+
+
+class FakeInbox:
+    """What a lock-step wait reads: one key that arrives when ``arrive`` is called."""
+
+    def __init__(self) -> None:
+        self.arrived = asyncio.Event()
+        self.have: set[str] = set()
+        self.late: list[str] = []
+        self.advanced: list[float] = []
+
+    def missing(self, inputs: list[tuple[str, str]], t: float) -> list[str]:
+        return [k for _, k in inputs if k not in self.have and k not in self.late]
+
+    def mark_late(self, late: list[str]) -> None:
+        self.late += late
+
+    def advance(self, t: float) -> bool:
+        self.advanced.append(t)
+        return False
+
+
+def test_a_lock_step_wait_returns_once_its_input_arrives_and_gives_up_on_a_dead_one() -> None:
+    async def body() -> None:
+        clock = LockstepClock(0.5, 0.2, 0.0, "r1", 1e-9)
+        clock.stop = asyncio.Event()
+        inbox = FakeInbox()
+
+        async def arrive() -> None:
+            await asyncio.sleep(0)
+            inbox.have.add("a")
+            inbox.arrived.set()
+
+        task = asyncio.ensure_future(arrive())
+        assert await clock.wait(inbox, [(keys.STATE, "a")], 1.0)
+        await task
+        assert clock.timeouts == 0 and inbox.late == []
+        # "b" never comes: one timeout, then it is late and the next wait does not wait for it
+        assert not await clock.wait(inbox, [(keys.STATE, "a"), (keys.STATE, "b")], 1.1)
+        assert clock.timeouts == 1 and inbox.late == ["b"]
+        assert await clock.wait(inbox, [(keys.STATE, "b")], 1.2)
+        await clock.start(inbox, [(keys.POSE, "a")], 1.3)
+        assert inbox.advanced == [1.3] and clock.timeouts == 1
+
+    asyncio.run(body())
+
+
+def test_the_lock_step_clock_goes_by_frames_and_the_real_time_one_carries_states() -> None:
+    ls = LockstepClock(0.5, 2.0, 4.0, "r1", 1e-9)
+    assert ls.now() == 4.0 and not ls.starved()  # never ticked: not starved
+    ls.begin_frame(4.1, 0.0)  # ticked long ago (monotonic 0): the world went on without it
+    assert ls.now() == 4.1 and ls.starved()
+    entry = (State(0.0, 0.0, 0.0, 0.0, 4.0), 0.0)
+    assert ls.fresh(entry, 4.5) and not ls.fresh(entry, 4.6)
+    assert not ls.pose_current(entry, 4.1)  # fresh, but not this frame's pose
+    assert ls.cmd_stamp(4.1, 3.0) == 4.1
+    rt = RealtimeClock(0.5, 0.0)
+    moving = {"k": State(0.0, 0.0, 1.0, 0.0, 10.0, 0.0)}
+    carried = rt.align(moving, 10.2)["k"]
+    assert carried.stamp == 10.2 and carried.x == pytest.approx(0.2)
+    assert rt.align(moving, 20.0)["k"].x == pytest.approx(0.5)  # never beyond the stale limit
+    assert rt.cmd_stamp(None, 3.0) == 3.0
+    sent: list[str] = []
+    ls.state_before(lambda: sent.append("ls"))
+    rt.state_before(lambda: sent.append("rt-before"))
+    rt.state_after(lambda: sent.append("rt"))
+    assert sent == ["ls", "rt"]
+
+
+def test_the_fault_injector_counts_losses_and_lock_step_stops_waiting_for_a_lost_message() -> None:
+    stored: list[tuple[str, bytes]] = []
+    inj = FaultInjector(LinkFaults(drop=0.999999), "r1", 0.05, True, threading.Lock(),
+                        lambda k, p: stored.append((k, p)))
+
+    async def body() -> None:
+        loop = asyncio.get_running_loop()
+        payload = encode(State(0.0, 0.0, 0.0, 0.0, 2.0))
+        inj.sample(loop, keys.STATE, lambda b: State(0.0, 0.0, 0.0, 0.0, 2.0), "k", payload,
+                   lambda k, p: stored.append((k, p)))
+        await asyncio.sleep(0)
+
+    asyncio.run(body())
+    assert stored == [] and inj.dropped[keys.STATE] == 1
+    assert inj.lost_since("k", inj.need(keys.STATE, 2.0)) and not inj.lost_since("k", 2.05)
+    assert inj.need(keys.POSE, 2.0) == 2.0  # poses are never faulted
+
+
+class Pub:
+    def __init__(self) -> None:
+        self.put: list = []
+
+    def put_message(self, msg) -> None:
+        self.put.append(msg)
+
+
+def test_the_transport_publishes_only_where_declared_and_forgets_a_subscriber() -> None:
+    t = Transport(None, TrafficCounter("p"))
+    assert not t.publish("a", 1)
+    pub = Pub()
+    t.adopt("a", pub)
+    assert t.publish("a", 1) and pub.put == [1]
+    t.keep("s", "sub-s")
+    t.keep(None, "token")
+    assert t.forget("s") == "sub-s"
+    assert t.handles() == ["token", pub]
+    t.clear()
+    assert t.handles() == []
