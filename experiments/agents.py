@@ -109,7 +109,7 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
 def _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, share, own_cpu, router, loads, busy) -> dict:
     """One fleet's figures; ``cpu0``/``cpu1``/``rss`` are per agent process (or host), ``share``
     the part of each that one agent counts as its own (1/K for a host of K)."""
-    from simulator.launch import sum_counts
+    from simulator.summary import sum_counts
 
     wall = result.wall_s
     lat = result.latency_ms
