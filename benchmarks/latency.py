@@ -26,12 +26,13 @@ from pathlib import Path
 
 from scenario import load_scenario
 from simulator.launch import launch
+from simulator.run_config import RunConfig
 
 
 def measure(scenario_path: str, out: Path) -> dict:
     scenario = load_scenario(scenario_path)
-    rt, _ = launch(scenario, out / "realtime", realtime=True)
-    ls, _ = launch(scenario, out / "lockstep", realtime=False)
+    rt, _ = launch(RunConfig(scenario, out / "realtime", realtime=True))
+    ls, _ = launch(RunConfig(scenario, out / "lockstep", realtime=False))
     agents = rt["agents"]
     wall = agents["wall_s"]
     cpu_pct = {r: 100.0 * c / wall for r, c in agents["cpu_s"].items()}

@@ -7,12 +7,23 @@ import json
 import logging
 import statistics
 import time
+from collections.abc import Iterable
 from contextlib import ExitStack
 from dataclasses import replace
 from pathlib import Path
 
+import zenoh
+
+from agent.config import build_agent_configs
+from agent.stats import AgentStats
 from experiments.fleet_scenario import fleet_scenario
 from experiments.machine import load_avg, machine_busy_s, percentile, proc_cpu_s, proc_rss_mb
+from runtime.ports import free_tcp_port, tcp_endpoint
+from simulator.fleet import START_TIMEOUT_S, Fleet, unique_children
+from simulator.summary import sum_counts
+from simulator.world import World, WorldOptions
+from simulator.zones import PoseZones
+from wire.zconf import ZenohSettings, use_zenoh_threads
 
 logger = logging.getLogger(__name__)
 
@@ -30,19 +41,7 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
     the agents it runs. ``pose_zones`` Z > 0: the world's poses and the agents' commands go
     through Z zone routers of the world's process (:mod:`simulator.zones`), each agent connected
     to its zone's; 0: everything through the one router (the default)."""
-    import zenoh
-
-    from wire.zconf import use_zenoh_threads
-
     use_zenoh_threads("relay")  # as `formation bench` does, for a direct call too
-
-    from agent.config import build_agent_configs
-    from runtime.ports import free_tcp_port, tcp_endpoint
-    from simulator.fleet import START_TIMEOUT_S, Fleet, unique_children
-    from simulator.world import World, WorldOptions
-    from simulator.zones import PoseZones
-    from wire.zconf import ZenohSettings
-
     scenario = fleet_scenario(n, dt, duration)
     for sub in ("configs", "agents", "logs"):
         (work / sub).mkdir(parents=True, exist_ok=True)
@@ -92,8 +91,9 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
     stats = []
     for rid in agents:
         try:
-            stats.append(json.loads((work / "agents" / f"{rid}.json").read_text(encoding="utf-8")))
-        except (OSError, ValueError):
+            stats.append(AgentStats.from_json_dict(
+                json.loads((work / "agents" / f"{rid}.json").read_text(encoding="utf-8"))))
+        except (OSError, ValueError, TypeError):
             logger.warning("agent %s wrote no counters", rid)
     busy = None if busy0 is None or busy1 is None else busy1 - busy0
     entry = _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, share, own_cpu,
@@ -109,8 +109,6 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
 def _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, share, own_cpu, router, loads, busy) -> dict:
     """One fleet's figures; ``cpu0``/``cpu1``/``rss`` are per agent process (or host), ``share``
     the part of each that one agent counts as its own (1/K for a host of K)."""
-    from simulator.launch import sum_counts
-
     wall = result.wall_s
     lat = result.latency_ms
     period_ms = dt * 1e3
@@ -120,13 +118,10 @@ def _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, share, own_cpu, router,
                if cpu0[r] is not None and cpu1.get(r) is not None and wall > 0]
     rss_mb = [share[r] * v for r, v in rss.items() if v is not None]
 
-    def med(key: str) -> float | None:
-        vals = [s[key] for s in stats if s.get(key) is not None]
-        return statistics.median(vals) if vals else None
-
     p50 = statistics.median(lat) if lat else None
-    pose_age, tick_us = med("pose_age_us_median"), med("tick_us_median")
-    pose_in_us = med("pose_in_us_median")
+    pose_age = _median(s.pose_age_us_median for s in stats)
+    tick_us = _median(s.tick_us_median for s in stats)
+    pose_in_us = _median(s.pose_in_us_median for s in stats)
     pose_wait = None if pose_age is None else pose_age / 1e3
     tick = None if tick_us is None else tick_us / 1e3
     pose_in = None if pose_in_us is None else pose_in_us / 1e3
@@ -147,13 +142,13 @@ def _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, share, own_cpu, router,
         "poses": poses,
         "commands": len(lat),
         "missed_ticks": poses - in_time,
-        "agent_overruns": sum(s.get("overruns", 0) for s in stats),
+        "agent_overruns": sum(s.overruns for s in stats),
         # poses never ticked on: stamped too soon after the camera's schedule
         # (agent.schedule.pose_due), or replaced by a newer one while an agent host was busy
-        "early_poses": sum(s.get("early_poses", 0) for s in stats),
-        "superseded_poses": sum(s.get("superseded_poses", 0) for s in stats),
-        "stale_ticks": sum(s.get("stale", 0) for s in stats),
-        "stale_ticks_by_input": sum_counts(s.get("stale_why", {}) for s in stats),
+        "early_poses": sum(s.early_poses for s in stats),
+        "superseded_poses": sum(s.superseded_poses or 0 for s in stats),
+        "stale_ticks": sum(s.stale for s in stats),
+        "stale_ticks_by_input": sum_counts(s.stale_why for s in stats),
         "latency_ms_p50": p50,
         "latency_ms_p99": percentile(lat, 0.99) if lat else None,
         "latency_ms_max": max(lat) if lat else None,
@@ -165,7 +160,7 @@ def _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, share, own_cpu, router,
         # the world's one thread: tick start -> its last pose put (median over ticks)
         "world_publish_ms_median": (statistics.median(result.publish_ms)
                                     if result.publish_ms else None),
-        "solve_us_median": med("solve_us_median"),
+        "solve_us_median": _median(s.solve_us_median for s in stats),
         "cpu_percent_per_agent_median": statistics.median(cpu_pct) if cpu_pct else None,
         "cpu_percent_per_agent_max": max(cpu_pct) if cpu_pct else None,
         "rss_mb_per_agent_median": statistics.median(rss_mb) if rss_mb else None,
@@ -179,3 +174,9 @@ def _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, share, own_cpu, router,
         "others_cpu_percent": None if busy is None or wall <= 0 else
         max(0.0, 100.0 * (busy - ours) / wall),
     }
+
+
+def _median(values: Iterable[float | None]) -> float | None:
+    """The median of the agents' figures that are known (None if none is)."""
+    known = [v for v in values if v is not None]
+    return statistics.median(known) if known else None

@@ -62,6 +62,9 @@ from geometry.limits import BURGER_MAX_SPEED, BURGER_RADIUS
 from leader.role import VIEW_RANGE
 from scenario import Scenario
 from scenario.load import scenario_from_dict
+from simulator.launch import launch
+from simulator.output import write_run
+from simulator.run_config import RunConfig
 from wire import keys
 from wire.payloads import EllipseMsg, Others, State, encode
 
@@ -379,9 +382,6 @@ def run_commcost(
     scenario)`` is called before a run and ``on_done(row)`` after it; ``progress_factory`` is
     handed to :func:`simulator.launch.launch`.
     """
-    from simulator.launch import launch
-    from simulator.output import write_run
-
     out = Path(out)
     (out / "scenarios").mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
@@ -398,7 +398,7 @@ def run_commcost(
                 on_run(index, total, topology, scenario)
             run_dir = out / "runs" / f"{topology}-{f}"
             t0 = time.monotonic()
-            summary, series = launch(scenario, run_dir, topology=topology,
+            summary, series = launch(RunConfig(scenario, run_dir, topology=topology),
                                      progress_factory=progress_factory)
             wall = time.monotonic() - t0
             write_run(summary, series, scenario, run_dir, plots=False)

@@ -9,9 +9,18 @@ to exit codes.
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import sys
 from collections.abc import Sequence
+from importlib.metadata import PackageNotFoundError, version
+
+from camera_service.cli import add_parsers as add_camera_parsers  # camera, calibrate
+from formation.commands.goal import add_parsers as add_goal_parsers
+from formation.commands.view import add_client_args, add_serve_args
+from formation.outdir import FOLDER_COMMANDS, OutputFolder, check_out
+from scenario import ScenarioError
+from wire.zconf import use_zenoh_threads
 
 from .exits import EXIT_ERROR, EXIT_INVALID, EXIT_OK, UsageError
 from .progress import Progress, print_summary
@@ -33,8 +42,6 @@ class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
 
 
 def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
     try:
         return version("formation-cbf")
     except PackageNotFoundError:  # run from a source tree that was never installed
@@ -69,8 +76,6 @@ def _add_topology(p: argparse.ArgumentParser) -> None:
 
 def _add_view_args(p: argparse.ArgumentParser, client: bool = False, serve: bool = True,
                    port: bool = True) -> None:
-    from formation.commands.view import add_client_args, add_serve_args
-
     if client:
         add_client_args(p)
     if serve:
@@ -216,19 +221,17 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--stop", action="store_true", help="stop each robot's agent")
     g.add_argument("--status", action="store_true", help="report each robot's agent")
 
-    from camera_service.cli import add_parsers as add_camera_parsers  # camera, calibrate
     COMMANDS.update(add_camera_parsers(sub))
-
-    from formation.commands.goal import add_parsers as add_goal_parsers
 
     add_goal_parsers(sub)
     return parser
 
 
 def _lazy(module: str, func: str):
-    def run(ns: argparse.Namespace) -> int:
-        import importlib
+    """A command loaded by name when it runs: one command's dependencies (matplotlib, the
+    simulator, deploy's SSH) stay off the others and off ``--help``."""
 
+    def run(ns: argparse.Namespace) -> int:
         return importlib.import_module(module).__getattribute__(func)(ns)
 
     return run
@@ -257,10 +260,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=logging.DEBUG if ns.verbose else logging.WARNING,
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
     )
-    from formation.outdir import FOLDER_COMMANDS, OutputFolder, check_out
-    from scenario import ScenarioError
-    from wire.zconf import use_zenoh_threads
-
     use_zenoh_threads("relay")  # this process (world, bench); agents and routers set their own
     try:
         check_out(ns.command, getattr(ns, "out", None))  # a bad --out: exit 2 before any work

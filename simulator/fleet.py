@@ -66,6 +66,15 @@ class RemoteAgents(Protocol):
         """``remote`` of summary.json: where each robot ran."""
         ...
 
+    def check(self) -> None:
+        """Every host reached over SSH and ready to run the agents (before anything starts)."""
+        ...
+
+    def describe(self, common: Sequence[str], secure: bool, shared_session: bool = False,
+                 here: Sequence[str] = ()) -> list[str]:
+        """The placement as text lines (``--dry-run``); nothing is touched."""
+        ...
+
 
 class ChildFailed(RuntimeError):
     """A child process exited while the run needed it."""

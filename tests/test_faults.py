@@ -15,7 +15,7 @@ import pytest
 from agent.faults import FAULT_CLASSES, DelayLine, LinkFaults, lag
 from agent.leader_step import inflate
 from formation.cli import main
-from simulator.launch import CameraDropout, FaultPlan, Kill, parse_camera_dropout, parse_kill
+from simulator.faults import CameraDropout, FaultPlan, Kill, parse_camera_dropout, parse_kill
 from wire.payloads import EllipseMsg
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -16,7 +16,7 @@ import pytest
 import zenoh
 
 from formation.commands import goal as navcmd
-from wire.zconf import ZenohSettings
+from wire.zconf import ZenohSettings, read_auth_file
 
 pytestmark = pytest.mark.integration  # starts processes, Zenoh routers, sshd or a browser
 
@@ -46,8 +46,6 @@ def wait_endpoint(proc: subprocess.Popen, out: Path, timeout: float = 90.0) -> s
 
 
 def wait_reached(endpoint: str, timeout: float, auth_file: Path) -> dict:
-    from wire.zconf import read_auth_file
-
     conf = ZenohSettings(mode="client", connect=(endpoint,),
                          auth=read_auth_file(auth_file).auth).to_config()
     with zenoh.open(conf) as session:

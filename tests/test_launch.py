@@ -3,6 +3,7 @@ simulated world) on loopback, compared with ``formation sim`` on the same scenar
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import signal
@@ -144,8 +145,6 @@ def test_run_in_real_time_with_poses_in_slots_reaches_every_goal_and_merges_the_
     agents' trace rows (status, slack, h_*) and the leaders' ellipses are keyed by it, so the
     merge must use it (it used the tick's first stamp: blank columns, no ellipses, and the safety
     figure failed on the empty series)."""
-    import csv
-
     scenario = tmp_path / "two.yaml"
     scenario.write_text(TWO_FORMATIONS, encoding="utf-8")
     out = tmp_path / "rt"

@@ -12,6 +12,7 @@ import getpass
 import json
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -26,8 +27,10 @@ import zenoh
 from test_deploy import SCENARIO, free_port, kill_agents, robot_env, source_snapshot, sshd
 
 from deploy import deployer
-from deploy.remote import package_digest, parse_stats
+from deploy.inventory import RobotHost
+from deploy.remote import package_digest, parse_stats, remote_script
 from formation.cli import main as formation_main
+from simulator.fleet import ChildFailed, Fleet
 from wire import keys, zconf
 from wire.payloads import decode_cmd
 
@@ -261,8 +264,6 @@ def test_a_launcher_killed_outright_still_stops_its_remote_agents(hosts: dict,
 
 def test_the_fleet_stops_a_command_child_by_closing_its_stdin_and_notices_its_exit(
         tmp_path: Path) -> None:
-    from simulator.fleet import ChildFailed, Fleet
-
     with Fleet(tmp_path) as fleet:
         waiting = fleet.start_command("waits", ["sh", "-c", "read _; echo got-eof; exit 0"])
         fleet.stop([waiting], timeout=5.0)
@@ -376,11 +377,6 @@ def test_a_dry_run_prints_where_each_agent_would_run_and_reaches_nothing(
 @pytest.mark.parametrize("shell", ["dash", "bash"])
 def test_the_remote_script_stops_its_agent_on_end_of_file_and_ends_with_its_status(
         tmp_path: Path, shell: str) -> None:
-    import shutil
-
-    from deploy.inventory import RobotHost
-    from deploy.remote import remote_script
-
     if shutil.which(shell) is None:
         pytest.skip(f"no {shell} here")
     (tmp_path / "venv" / "bin").mkdir(parents=True)

@@ -1,0 +1,125 @@
+"""One run's configuration (``formation run``), frozen and checked once where it is built.
+
+The command builds a :class:`RunConfig` from its options (so do the experiments and tests that
+start runs from Python) and hands it to :func:`simulator.launch.launch`, which only orchestrates
+the run. Every check of the options' combinations lives in :meth:`RunConfig.__post_init__`: a bad
+one is a ``ValueError`` with one line naming the option, which the command reports as invalid
+input (exit 2) before anything starts.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from agent.qp import make_solver
+from scenario import Scenario
+
+from .faults import FaultPlan
+from .fleet import RemoteAgents
+
+CAMERAS = ("truth", "synthetic", "process")
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything a multi-process run is started with (see :mod:`simulator.launch`).
+
+    ``faults`` injects the faults of :class:`simulator.faults.FaultPlan`; ``secure`` runs the
+    router with user/password authentication and the access control list of :mod:`wire.acl`,
+    every process logging in as itself. ``pose_slots`` and ``clock_offset`` [s] are the world's
+    (:class:`simulator.world.WorldOptions`: real time only). ``solver`` is the agents' QP solver
+    (:func:`agent.qp.make_solver`). ``camera="process"`` also starts the real camera process
+    (``python -m camera_service``) on the frames the world renders; it reads the static obstacles
+    from ``scenario_path``. ``agents_per_process`` K > 1 runs the agents K to an agent host
+    (:mod:`agent.host`; ``shared_session``: one Zenoh session per host). ``hold`` keeps the fleet
+    up after every goal is reached, until the scenario's duration or SIGINT/SIGTERM.
+    ``pose_zones`` Z > 0 carries the poses and commands through Z zone routers of the world's
+    process (:mod:`simulator.zones`). ``remote`` places the agents of ``remote.robots`` on other
+    hosts (``--hosts``, :mod:`deploy.remote`); the router then listens on ``remote.endpoint``.
+    """
+
+    scenario: Scenario
+    out: Path
+    realtime: bool = False
+    camera: str = "truth"
+    topology: str = "reduced"
+    safety: bool = True
+    port: int = 0  # the router's loopback port; 0: a free one
+    faults: FaultPlan = field(default_factory=FaultPlan)
+    secure: bool = True
+    pose_slots: int = 1
+    scenario_path: Path | None = None
+    clock_offset: float = 0.0  # [s]
+    agents_per_process: int = 1
+    shared_session: bool = False
+    solver: str = "exact"
+    hold: bool = False
+    remote: RemoteAgents | None = None
+    pose_zones: int = 0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "out", Path(self.out))
+        if self.scenario_path is not None:
+            object.__setattr__(self, "scenario_path", Path(self.scenario_path))
+        self._check_camera()
+        self._check_clock()
+        self._check_hosting()
+        make_solver(self.solver)  # an unknown or missing backend: before any process starts
+        self.faults.check_robots(self.scenario.robot_ids)
+        self._check_remote()
+
+    @property
+    def fault_run(self) -> bool:
+        return self.faults.active
+
+    def _check_camera(self) -> None:
+        if self.camera not in CAMERAS:
+            raise ValueError(f"--camera: {self.camera!r} is not one of {', '.join(CAMERAS)}")
+        if self.camera in ("synthetic", "process"):
+            try:  # lazily: keeps OpenCV off the runs that do not render frames
+                import camera_service.service  # noqa: F401
+            except ImportError:
+                raise ValueError("--camera synthetic: camera_service.service is not available "
+                                 "yet") from None
+        if self.camera == "process" and self.faults.camera_dropouts:
+            raise ValueError("--camera-dropout: not with --camera process (the camera process "
+                             "publishes the poses)")
+        if self.camera == "process" and self.scenario_path is None:
+            raise ValueError("scenario_path: --camera process needs the scenario file")
+
+    def _check_clock(self) -> None:
+        if not 0 <= self.port < 65536:
+            raise ValueError(f"--port: {self.port} is not a TCP port")
+        if self.pose_slots < 1:
+            raise ValueError(f"--pose-slots: need an integer >= 1, got {self.pose_slots}")
+        if self.pose_slots > 1 and not (self.realtime and self.camera == "truth"):
+            raise ValueError("--pose-slots: more than one slot needs --realtime and --camera truth")
+        if self.clock_offset and not self.realtime:
+            raise ValueError("--clock-offset-ms: needs --realtime (lock-step runs on simulated "
+                             "time)")
+
+    def _check_hosting(self) -> None:
+        if self.pose_zones < 0:
+            raise ValueError(f"--pose-zones: need an integer >= 0, got {self.pose_zones}")
+        if self.pose_zones and self.remote is not None:
+            raise ValueError("--pose-zones: the zone routers listen on loopback only; not with "
+                             "--hosts")
+        if self.agents_per_process < 1:
+            raise ValueError(f"--agents-per-process: need an integer >= 1, got "
+                             f"{self.agents_per_process}")
+        if self.agents_per_process > 1 and self.faults.kills:
+            raise ValueError("--kill: needs one agent per process (--agents-per-process 1)")
+        if self.shared_session and self.secure:
+            raise ValueError("shared session: each robot logs in as itself with secure; not both")
+
+    def _check_remote(self) -> None:
+        if self.remote is None:
+            return
+        if self.port:
+            raise ValueError("--port: not with --hosts (the router listens on the inventory's "
+                             "zenoh.router)")
+        for k in self.faults.kills:
+            if k.robot in self.remote.robots:
+                raise ValueError(f"--kill: {k.robot} runs on another host (--hosts); kills "
+                                 f"need an agent on this machine")
