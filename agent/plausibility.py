@@ -15,6 +15,15 @@ Such a message is dropped and counted; the agent's next tick commands zero (the 
 command) and counts it (``agent.node``). The first message on a key has nothing to be compared
 with and is accepted (its stamp still passes :mod:`wire.stamps`).
 
+A **marker that jumps** (the camera found the robot's marker elsewhere, or read another marker
+with its id) is re-acquired by :class:`Reacquire`: once at least :data:`REACQUIRE_POSES` poses in a row,
+spanning at least :data:`REACQUIRE_SPAN_S`, each refused as a jump from the pose kept, agree
+with each other (each plausible after the one before it), and only while the robot has been
+commanded zero since the jump (it cannot have driven off meanwhile). A genuine pose that still
+agrees with the kept one breaks the run, so two sources of one marker (a forger at three times
+the camera's rate, a second marker with the id) never agree for long enough: the robot stays
+commanded zero, which is safe, and is counted.
+
 A **moving obstacle missing from a new obstacle list** (the camera lost it, or a list was
 forged) is not forgotten at once: :class:`ObstacleMemory` keeps its last sighting for
 ``hold_s`` seconds, during which the agent avoids the disc it can have reached, its safe distance
@@ -38,6 +47,8 @@ from .control import ControlParams
 
 SPEED_FACTOR = 1.2  # a genuine message moves at most this times the robots' speed limit
 JUMP_MARGIN_M = 0.05  # [m] a pose may move this much more (camera noise, rounding)
+REACQUIRE_POSES = 3  # consecutive agreeing poses after a jump that re-acquire the marker
+REACQUIRE_SPAN_S = 0.3  # [s] ... over at least this long (several frames of any camera's rate)
 OBSTACLE_HOLD_S = 2.0  # [s] how long a missing obstacle is kept (its Ds grown meanwhile)
 
 
@@ -57,6 +68,32 @@ def jump_ok(prev_x: float, prev_y: float, prev_stamp: float, x: float, y: float,
     at ``speed`` [m/s], with ``margin`` [m] to spare."""
     elapsed = max(0.0, stamp - prev_stamp)
     return math.hypot(x - prev_x, y - prev_y) <= speed * elapsed + margin
+
+
+@dataclass
+class Reacquire:
+    """The run of jumped poses that agree with each other since the kept pose (module docstring).
+    :meth:`offer` each refused pose; :meth:`reset` on each pose accepted as plausible."""
+
+    speed: float  # [m/s] :func:`speed_bound`
+    need: int = REACQUIRE_POSES
+    span: float = REACQUIRE_SPAN_S
+    run: list[tuple[float, float, float]] = field(default_factory=list)  # (x, y, stamp)
+
+    def offer(self, x: float, y: float, stamp: float, still_since_jump: bool) -> bool:
+        """A pose refused as a jump: True when it completes the run and the robot has been
+        commanded zero since the jump, i.e. take it as the new kept pose (the run restarts)."""
+        if self.run and not jump_ok(*self.run[-1], x, y, stamp, self.speed):
+            self.run.clear()
+        self.run.append((x, y, stamp))
+        lasted = self.run[-1][2] - self.run[0][2] >= self.span
+        if len(self.run) >= self.need and lasted and still_since_jump:
+            self.run.clear()
+            return True
+        return False
+
+    def reset(self) -> None:
+        self.run.clear()
 
 
 def velocity_ok(vx: float, vy: float, speed: float) -> bool:

@@ -146,3 +146,35 @@ def test_a_run_that_enters_an_obstacle_counts_and_says_its_hard_row_ticks(tmp_pa
     assert s["collisions"] > 0 and s["min_h"]["obstacle"] < 0
     assert s["hard_row_unmet_ticks"] == s["qp"]["hard_row_unmet"]["obstacle"] > 0
     assert f"hard rows unmet: {s['hard_row_unmet_ticks']:,}" in capsys.readouterr().out
+
+
+def _feed(tracker, poses, still=True):
+    """Offer (x, y, stamp) poses refused as jumps; the indices that re-acquired the marker."""
+    return [k for k, (x, y, t) in enumerate(poses) if tracker.offer(x, y, t, still)]
+
+
+def test_a_marker_that_jumped_for_good_is_reacquired_after_three_agreeing_poses_while_still():
+    from agent.plausibility import REACQUIRE_POSES, Reacquire
+
+    camera = [(5.0 + 0.001 * k, 0.0, 0.1 * k) for k in range(10)]  # 10 fps
+    assert _feed(Reacquire(0.3), camera) == [REACQUIRE_POSES, 2 * REACQUIRE_POSES + 1]  # 0.3 s
+    assert _feed(Reacquire(0.3), camera, still=False) == []  # it may have driven off: no
+
+
+@given(st.integers(0, 10_000))
+def test_a_forger_at_three_times_the_camera_rate_never_reacquires_between_genuine_poses(seed):
+    # genuine poses at 20 Hz near (0, 0) are plausible after the kept pose (reset); forged
+    # ones 5 m off arrive three per camera frame: never three agreeing in a row
+    import random
+
+    from agent.plausibility import Reacquire
+
+    rng = random.Random(seed)
+    tracker = Reacquire(0.3)
+    for k in range(60):
+        tracker.reset()  # the genuine pose of frame k was accepted
+        for j in range(3):
+            t = 0.05 * k + 0.0125 * (j + 1)
+            assert not tracker.offer(5.0 + rng.uniform(-0.01, 0.01), 0.0, t, True)
+    tracker.reset()
+    assert _feed(tracker, [(5.0, 0.0, 10.0), (0.0, 0.0, 10.01), (5.0, 0.0, 10.02)]) == []

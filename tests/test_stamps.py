@@ -9,6 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from wire.stamps import (
+    CLOCK_TOLERANCE_S,
     FUTURE,
     OLDER,
     REASONS,
@@ -16,6 +17,7 @@ from wire.stamps import (
     StampCounter,
     check_stamp,
     merge_counts,
+    used_stamp,
     validate_window,
 )
 
@@ -90,3 +92,43 @@ def test_rejections_are_counted_per_class_and_reason_and_merge_across_processes(
 def test_a_bad_window_names_its_parameter(tol, stale, name):
     with pytest.raises(ValueError, match=name):
         validate_window(tol, stale)
+
+
+def _stream(period: float, latency: float, forged_at: set[int], ahead: float, n: int,
+            clamp: bool) -> list[bool]:
+    """A receiver fed one genuine message per period (stamped ``latency`` before it arrives) and,
+    right after genuine message k for k in ``forged_at``, a forged one stamped ``ahead`` past
+    the receiver's clock. Returns whether each genuine message was accepted."""
+    last: float | None = None
+    accepted = []
+    for k in range(n):
+        now = k * period
+        ok = check_stamp(now, now - latency, last, CLOCK_TOLERANCE_S, 1.0) is None
+        if ok:
+            last = now - latency
+        accepted.append(ok)
+        if k in forged_at:
+            now_f = now + 1e-3
+            stamp = now_f + ahead
+            if check_stamp(now_f, stamp, last, CLOCK_TOLERANCE_S, 1.0) is None:
+                last = used_stamp(now_f, stamp) if clamp else stamp
+    return accepted
+
+
+@given(period=st.floats(0.02, 0.2), latency_frac=st.floats(0.0, 0.95),
+       ahead=st.floats(0.0, CLOCK_TOLERANCE_S * 0.99),
+       forged=st.sets(st.integers(0, 39), max_size=40))
+def test_a_message_stamped_ahead_refuses_at_most_the_next_genuine_one(period, latency_frac, ahead,
+                                                                      forged):
+    # issue 28: a message stamped 90 ms ahead (inside the tolerance) took over its stream
+    accepted = _stream(period, latency_frac * period, forged, ahead, 40, clamp=True)
+    refused = [k for k, ok in enumerate(accepted) if not ok]
+    assert all(k - 1 in forged for k in refused)  # only right after a forged message
+    assert accepted[0]
+
+
+def test_recorded_as_it_came_a_forged_stream_hides_every_genuine_message():
+    # the attack of issue 28 on the old rule, for contrast: forged after every genuine message
+    every = set(range(40))
+    assert sum(_stream(0.05, 0.02, every, 0.09, 40, clamp=False)) == 1  # only the first
+    assert all(_stream(0.05, 0.02, every, 0.09, 40, clamp=True))

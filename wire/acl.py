@@ -54,14 +54,12 @@ import zenoh
 from wire import keys
 from wire.diag import diag_key
 from wire.frames import stats_key
+from wire.keys import CAMERA_USER, MANAGER_USER, VIEWER_USER, ZONE_USER  # noqa: F401 (the ACL's users)
 from wire.zconf import UsrPwdAuth, client_auth_config
 
 logger = logging.getLogger(__name__)
 
-CAMERA_USER = "camera"  # the camera service, or the simulated world that stands in for it
-MANAGER_USER = "manager"  # the fleet manager: sends goals, reads everything
-VIEWER_USER = "viewer"  # read-only: the live page, recorders, status
-ZONE_USER = "zone"  # a pose zone router of the world's process (simulator.zones): relays
+# the services' user names are the key space's (wire.keys), where the name rule reserves them
 ZONE_RULE = "zone-relay"
 ZONE_LINK = "unixsock-stream"  # the zone routers' link to the run's router (a private socket)
 FLEET_READ_RULE = "fleet-read"

@@ -204,9 +204,15 @@ def key_class(prefix: str, key: object) -> str:
     return parse_key(prefix, key)[0]
 
 
+CAMERA_USER = "camera"  # the camera service, or the simulated world that stands in for it
+MANAGER_USER = "manager"  # the fleet manager: sends goals, reads everything
+VIEWER_USER = "viewer"  # read-only: the live page, recorders, status
+ZONE_USER = "zone"  # a pose zone router of the world's process (simulator.zones): relays
+
 #: User names of the fleet's services in the router's access control (``wire.acl``): no robot,
-#: formation or obstacle may be called so.
-RESERVED_NAMES: frozenset[str] = frozenset({"camera"})
+#: formation or obstacle may be called so (a robot's user and credentials file would be the
+#: service's: a robot ``manager`` passed ``check`` and failed ``run`` with a ValueError).
+RESERVED_NAMES: frozenset[str] = frozenset({CAMERA_USER, MANAGER_USER, VIEWER_USER, ZONE_USER})
 
 
 def user_problem(value: object) -> str | None:

@@ -15,6 +15,18 @@ future is refused before it can become "the last used", so one forged or mis-clo
 never blocks the genuine ones after it (the receiver only records a stamp as used once it
 accepted it).
 
+A stamp inside the tolerance but ahead of ``now`` is accepted (clocks may disagree that much),
+but what the receiver records as the last used stamp is :func:`used_stamp`: the stamp, never
+later than the receiver's own clock when it accepted it. Recorded as it came, one message stamped
+90 ms ahead (a faulty camera, a clock step, a forger with the camera's credentials) made every
+genuine message for the next 90 ms "older", and a stream of them took the input over for good:
+a pose walked 2 cm a message moved two robots into each other, empty obstacle lists erased the
+obstacles. Clamped, a message ahead of the clock can refuse the genuine messages stamped before
+the moment it arrived, and no later ones: one forged message costs at most the genuine messages
+already in flight (the latency's worth), and a forged stream interleaved with the genuine one no
+longer hides it: both are taken, their poses disagree, and the plausibility check
+(:mod:`agent.plausibility`) refuses the jumps and the robot commands zero (docs/faults.md).
+
 Which clock is ``now``:
 
 * **lock-step** (the simulated world): simulated time, i.e. the stamp of the frame the receiver
@@ -57,6 +69,12 @@ def check_stamp(now: float, stamp: float, last: float | None, tolerance: float,
     if last is not None and stamp < last - EPS:
         return OLDER
     return None
+
+
+def used_stamp(now: float, stamp: float) -> float:
+    """The stamp a receiver records as the last used for an input when it accepts a message
+    stamped ``stamp`` at ``now``: never later than its own clock (module docstring)."""
+    return min(stamp, now)
 
 
 def validate_window(tolerance: float, stale_after: float) -> None:
