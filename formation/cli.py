@@ -67,6 +67,14 @@ def _add_topology(p: argparse.ArgumentParser) -> None:
                    help="who hears whom: neighbours and leaders only, or every robot")
 
 
+def _add_world(p: argparse.ArgumentParser) -> None:
+    from scenario.world import PROFILES
+
+    p.add_argument("--world", default=None, choices=list(PROFILES), metavar="PROFILE",
+                   help=f"the simulated robots and camera: {' or '.join(PROFILES)} (default: the "
+                        "scenario's world:, else ideal; docs/scenarios.md)")
+
+
 def _add_view_args(p: argparse.ArgumentParser, client: bool = False, serve: bool = True,
                    port: bool = True) -> None:
     from formation.commands.view import add_client_args, add_serve_args
@@ -103,6 +111,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-safety", action="store_true", help="barriers off (nominal control only)")
     _add_solver(p)
     _add_topology(p)
+    _add_world(p)
 
     p = add("run", "multi-process simulation over Zenoh (router, one agent per robot, world)")
     _add_sim_args(p)
@@ -168,6 +177,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=11, help="seed of the first scenario's layout")
     p.add_argument("--jobs", type=int, default=2, metavar="J",
                    help="runs at a time, each in its own process (results do not depend on it)")
+    _add_world(p)
     _add_out(p)
 
     p = add("bench", "benchmarks: solver, control step, fleet CPU")

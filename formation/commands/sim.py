@@ -7,6 +7,7 @@ import argparse
 from formation.exits import EXIT_OK, UsageError
 from formation.outdir import begin_output
 from formation.progress import Progress, print_summary
+from scenario.world import with_world
 
 
 def cmd_sim(ns: argparse.Namespace) -> int:
@@ -15,7 +16,7 @@ def cmd_sim(ns: argparse.Namespace) -> int:
     from simulator.inprocess import SimOptions, simulate
     from simulator.output import write_run
 
-    scenario = load_scenario(ns.scenario)
+    scenario = with_world(load_scenario(ns.scenario), ns.world)
     try:
         make_solver(ns.solver)
     except ValueError as exc:
