@@ -112,6 +112,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_solver(p)
     _add_topology(p)
     _add_world(p)
+    p.add_argument("--engine", default="kinematic", choices=["kinematic", "mujoco"],
+                   help="what moves the robots: their exact kinematics, or MuJoCo's physics "
+                        "(the extra formation-cbf[physics])")
 
     p = add("run", "multi-process simulation over Zenoh (router, one agent per robot, world)")
     _add_sim_args(p)

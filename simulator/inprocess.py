@@ -3,7 +3,9 @@
 The data each robot sees is what the distributed system hands it: its neighbours' control
 points and last commands (their ``state``), the obstacles, and the ellipses its leader estimates
 from the members' states (:func:`geometry.ellipse.estimate`). Kinematics are integrated exactly
-(single integrator, or the unicycle of eq. 6.1 when ``robot.model: unicycle``).
+(single integrator, or the unicycle of eq. 6.1 when ``robot.model: unicycle``); in a lab world
+(``world:``, :mod:`simulator.lab`) the robots are differential drives seen through a camera,
+and with ``engine="mujoco"`` physics bodies (:mod:`simulator.physics`).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from scenario.routes import initial_route
 
 from .lab import LabWorld
 from .metrics import SafetyMonitor
+from .physics import world_for
 from .summary import qp_fields, run_summary
 
 TOPOLOGIES = ("reduced", "all-to-all")
@@ -46,6 +49,7 @@ class SimOptions:
     stop_at_goal: bool = True
     record: bool = True
     solve_fn: Callable | None = None  # a solve function to use instead of ``solver`` by name
+    engine: str = "kinematic"  # or "mujoco": the robots are physics bodies (simulator.physics)
 
 
 @dataclass
@@ -138,7 +142,7 @@ def simulate(
     state = [list(r.start) for r in robots]  # body x, y, theta
     vel = [(0.0, 0.0)] * n  # last certified control-point velocity (what `state` carries)
     monitor = SafetyMonitor(scenario)
-    lab = LabWorld.build(scenario)  # None: the ideal world
+    lab = world_for(scenario, options.engine)  # None: the ideal kinematic world
     series = Series()
     solve_us: list[float] = []
     counts = {STATUS_RELAXED: 0, STATUS_FALLBACK: 0, STATUS_FAILED: 0}
@@ -226,7 +230,7 @@ def simulate(
         qp_fields(len(solve_us), solve_us, counts[STATUS_RELAXED], counts[STATUS_FALLBACK],
                   counts[STATUS_FAILED], hard.ticks, hard.by_reason, escape=escape_ticks),
         logical_comm(scenario, options.topology, ticks, t, edges_total),
-        options.safety, options.solver)
+        options.safety, options.solver, **({} if lab is None else lab.summary_fields()))
     if any(len(r) > 1 for r in routes.values()):
         summary["routes"] = {name: [list(p) for p in r] for name, r in routes.items()}
     return SimResult(summary, series, scenario)

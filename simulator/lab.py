@@ -34,6 +34,7 @@ import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -229,6 +230,10 @@ class LabWorld:
         if not self.spec.senses:
             return [(s[0], s[1], s[2]) for s in state]
         return self.camera.poses(k * self.dt)
+
+    def summary_fields(self) -> dict[str, Any]:
+        """What this world adds to summary.json (the kinematic lab: nothing)."""
+        return {}
 
     def obstacles(self, k: int) -> list[tuple[float, float]]:
         """Every obstacle's published position at tick ``k``."""
