@@ -128,6 +128,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--camera", default="truth", choices=["truth", "synthetic", "process"],
                    help="poses from the truth, from frames detected in the world (synthetic), or "
                         "from the real camera process on rendered frames (process)")
+    _add_world(p)
     _add_topology(p)
     _add_solver(p)
     p.add_argument("--drop", type=float, default=0.0, help="message loss probability")

@@ -253,3 +253,11 @@ def test_the_docs_list_every_world_setting_and_its_range():
     from scenario.world import describe
 
     assert describe() in (ROOT / "docs" / "scenarios.md").read_text(encoding="utf-8")
+
+
+def test_run_takes_world_too_and_refuses_pose_slots_in_a_lab_world(tmp_path, capsys):
+    out = tmp_path / "o"
+    assert main(["run", str(TWO_SMALL), "--out", str(out), "--realtime", "--pose-slots", "2",
+                 "--world", TURTLEBOT3_LAB]) == 2
+    assert "--pose-slots" in capsys.readouterr().err
+    assert not (out / "processes.json").exists()

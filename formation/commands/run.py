@@ -16,6 +16,7 @@ from formation.exits import EXIT_ERROR, EXIT_OK, UsageError
 from formation.outdir import begin_output
 from formation.progress import Progress, print_summary
 from scenario import Scenario, load_scenario
+from scenario.world import with_world
 from simulator.launch import FaultPlan, RunAborted, launch, parse_camera_dropout, parse_kill
 from simulator.output import write_run
 
@@ -62,7 +63,7 @@ def run_command(ns: argparse.Namespace) -> int:
     # unless asked otherwise or under access control (the default: each robot logs in as itself)
     shared = (per_process > 1 and not getattr(ns, "session_per_agent", False)
               and getattr(ns, "insecure", False))
-    scenario, hold = _duration_and_hold(ns, load_scenario(ns.scenario))  # ScenarioError -> exit 2
+    scenario, hold = _duration_and_hold(ns, _world(ns, load_scenario(ns.scenario), slots))
     solver = getattr(ns, "solver", "exact")
     try:
         from agent.qp import make_solver
@@ -116,6 +117,16 @@ def _pose_slots(ns: argparse.Namespace) -> int:
     if getattr(ns, "clock_offset_ms", 0.0) and not ns.realtime:
         raise UsageError("--clock-offset-ms: needs --realtime (lock-step runs on simulated time)")
     return slots
+
+
+def _world(ns: argparse.Namespace, scenario: Scenario, slots: int) -> Scenario:
+    """``scenario`` in the world ``--world`` chose (else its own ``world:``); a lab world's camera
+    publishes whole frames, so not with pose slots (exit 2)."""
+    scenario = with_world(scenario, getattr(ns, "world", None))
+    if slots > 1 and not scenario.world.ideal:
+        raise UsageError(f"--pose-slots: not in the {scenario.world.profile} world (its camera "
+                         "publishes whole frames)")
+    return scenario
 
 
 def _placement(ns: argparse.Namespace, scenario: Scenario, per_process: int,
