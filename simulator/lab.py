@@ -153,7 +153,8 @@ class Camera:
         return f - MAX_LOST_FRAMES
 
     def record(self, k: int, state: Sequence[Sequence[float]]) -> None:
-        """The true poses at tick ``k`` (each tick once, in order; a tick again replaces it)."""
+        """The true poses at tick ``k`` (each tick once, in order; a tick recorded already is
+        kept as it was)."""
         if self.history and k <= self.first_tick + len(self.history) - 1:
             return
         if not self.history:

@@ -77,6 +77,7 @@ from wire.traffic import CountingPublisher, TrafficCounter
 from .inprocess import Series
 from .lab import LabWorld
 from .metrics import SafetyMonitor
+from .physics import world_for
 
 logger = logging.getLogger(__name__)
 
@@ -106,6 +107,7 @@ class WorldOptions:
     pose_slots: int = 1  # real time: publication slots per period (1: one camera frame)
     clock_offset: float = 0.0  # [s] real time: the camera's clock runs this far ahead of the
     # agents' (negative: behind); poses are stamped, and commands judged, on the camera's clock
+    engine: str = "kinematic"  # or "mujoco": the robots are physics bodies (simulator.physics)
 
     def __post_init__(self) -> None:
         if isinstance(self.pose_slots, bool) or not isinstance(self.pose_slots, int) \
@@ -626,15 +628,16 @@ class World:
 
 
 def lab_world(scenario: Scenario, options: WorldOptions) -> LabWorld | None:
-    """The lab world of ``scenario`` (None: ideal). Its camera replaces ``--camera truth``; the
-    synthetic and process cameras render the true poses, so only the lab's wheels apply there.
-    Lab worlds publish whole frames (pose slots are for robots that localise themselves)."""
-    if scenario.world.ideal:
-        return None
-    if options.pose_slots > 1:
+    """The lab world of ``scenario`` (None: ideal and kinematic), or its physics world with
+    ``options.engine`` "mujoco" (:func:`simulator.physics.world_for`). Its camera replaces
+    ``--camera truth``; the synthetic and process cameras render the true poses, so only the
+    lab's wheels apply there. Lab worlds publish whole frames (pose slots are for robots that
+    localise themselves)."""
+    world = world_for(scenario, options.engine)
+    if world is not None and options.pose_slots > 1:
         raise ValueError(f"pose_slots: not in the {scenario.world.profile} world (its camera "
                          "publishes whole frames)")
-    return LabWorld(scenario)
+    return world
 
 
 class _SyntheticCamera:

@@ -118,3 +118,11 @@ def test_a_small_scenario_in_mujoco_reaches_every_goal_without_contact(tmp_path)
 def test_an_unknown_engine_is_refused():
     with pytest.raises(ValueError, match="engine"):
         world_for(parse_scenario(TWO_SMALL.read_text()), "bullet")
+
+
+def test_the_multiprocess_world_builds_its_physics_from_its_options():
+    from simulator.world import WorldOptions, lab_world
+
+    sc = parse_scenario(TWO_SMALL.read_text())
+    assert isinstance(lab_world(sc, WorldOptions(engine="mujoco")), MujocoWorld)
+    assert lab_world(sc, WorldOptions()) is None
