@@ -13,10 +13,12 @@ from __future__ import annotations
 import math
 import random
 from concurrent.futures import ProcessPoolExecutor
+from functools import partial
 
 from geometry.limits import BURGER_MAX_SPEED, BURGER_RADIUS
 from scenario import ScenarioError
 from scenario.load import scenario_from_dict
+from scenario.world import IDEAL
 from simulator.inprocess import SimOptions, simulate
 
 # Formation shapes sized for loads robots of 0.21 m diameter carry together (a pair under a
@@ -90,10 +92,14 @@ def random_scenario(seed: int) -> dict:
     }
 
 
-def valid_scenario(seed: int):
-    """The first valid layout from sub-seeds of ``seed``: (mapping, scenario, sub-seed)."""
+def valid_scenario(seed: int, world: str | None = None):
+    """The first valid layout from sub-seeds of ``seed``: (mapping, scenario, sub-seed). With
+    ``world`` (a profile other than the default), the mapping says so, with the run's seed as
+    the world's: its noise is the run's own, and its scenario file replays it exactly."""
     for sub in range(50):
         d = random_scenario(seed * 1000 + sub)
+        if world is not None and world != IDEAL:
+            d["world"] = {"profile": world, "seed": seed}
         try:
             return d, scenario_from_dict(d), seed * 1000 + sub
         except ScenarioError:
@@ -101,8 +107,8 @@ def valid_scenario(seed: int):
     raise RuntimeError(f"seed {seed}: no valid layout in 50 draws")
 
 
-def run_one(seed: int) -> dict:
-    d, scenario, sub = valid_scenario(seed)
+def run_one(seed: int, world: str | None = None) -> dict:
+    d, scenario, sub = valid_scenario(seed, world)
     s = simulate(scenario, SimOptions(record=False)).summary
     obstacle_clear = s["min_clearance_m"]["obstacle"]
     return {
@@ -141,11 +147,13 @@ def _model_totals(runs: list[dict]) -> dict:
     }
 
 
-def run_montecarlo(n: int, seed: int, workers: int = 2, progress=None) -> tuple[dict, list[dict]]:
+def run_montecarlo(n: int, seed: int, workers: int = 2, progress=None,
+                   world: str | None = None) -> tuple[dict, list[dict]]:
+    """``n`` runs from ``seed``; ``world``: the world profile of every run (default ideal)."""
     seeds = [seed * 100000 + k for k in range(n)]
     results = []
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        for k, r in enumerate(pool.map(run_one, seeds)):
+        for k, r in enumerate(pool.map(partial(run_one, world=world), seeds)):
             results.append(r)
             if progress:
                 progress(k + 1, n, 0.0)
@@ -154,6 +162,7 @@ def run_montecarlo(n: int, seed: int, workers: int = 2, progress=None) -> tuple[
     summary = {
         "runs": n,
         "seed": seed,
+        "world": world or IDEAL,
         "collisions": sum(r["collisions"] for r in results),
         "runs_with_collision": sum(1 for r in results if r["collisions"]),
         "reached_rate": sum(r["all_reached"] for r in results) / n if n else None,

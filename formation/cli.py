@@ -74,6 +74,14 @@ def _add_topology(p: argparse.ArgumentParser) -> None:
                    help="who hears whom: neighbours and leaders only, or every robot")
 
 
+def _add_world(p: argparse.ArgumentParser) -> None:
+    from scenario.world import PROFILES
+
+    p.add_argument("--world", default=None, choices=list(PROFILES), metavar="PROFILE",
+                   help=f"the simulated robots and camera: {' or '.join(PROFILES)} (default: the "
+                        "scenario's world:, else ideal; docs/scenarios.md)")
+
+
 def _add_view_args(p: argparse.ArgumentParser, client: bool = False, serve: bool = True,
                    port: bool = True) -> None:
     if client:
@@ -108,6 +116,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-safety", action="store_true", help="barriers off (nominal control only)")
     _add_solver(p)
     _add_topology(p)
+    _add_world(p)
+    p.add_argument("--engine", default="kinematic", choices=["kinematic", "mujoco"],
+                   help="what moves the robots: their exact kinematics, or MuJoCo's physics "
+                        "(the extra formation-cbf[physics])")
 
     p = add("run", "multi-process simulation over Zenoh (router, one agent per robot, world)")
     _add_sim_args(p)
@@ -121,6 +133,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--camera", default="truth", choices=["truth", "synthetic", "process"],
                    help="poses from the truth, from frames detected in the world (synthetic), or "
                         "from the real camera process on rendered frames (process)")
+    _add_world(p)
     _add_topology(p)
     _add_solver(p)
     p.add_argument("--drop", type=float, default=0.0, help="message loss probability")
@@ -173,6 +186,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=11, help="seed of the first scenario's layout")
     p.add_argument("--jobs", type=int, default=2, metavar="J",
                    help="runs at a time, each in its own process (results do not depend on it)")
+    _add_world(p)
     _add_out(p)
 
     p = add("bench", "benchmarks: solver, control step, fleet CPU")

@@ -51,12 +51,13 @@ from .model import (
 )
 from .reader import ScenarioError, excerpt, load_yaml, read_text
 from .spatial import Grid
+from .world import parse_world
 
 ELLIPSE_MARGIN = 0.02  # [m] extra clearance of a derived ellipse beyond bodies and tolerance
 TIEBREAKS = ("keep_right", "none")
 
 _TOP_KEYS = {"name", "dt", "duration", "goal_tolerance", "robot", "controller", "formations",
-             "obstacles"}
+             "obstacles", "world"}
 _ROBOT_KEYS = {"model", "max_speed", "max_turn_rate", "lookahead", "radius"}
 _CONTROLLER_KEYS = {"kp", "gamma", "epsilon", "tiebreak", "d_af", "planner"}
 _GAMMA_KEYS = {"formation", "obstacle", "formations"}
@@ -133,7 +134,7 @@ def scenario_from_dict(data: Any) -> Scenario:
     shapes = tuple(o for o in parsed if isinstance(o, Shape))
 
     scenario = Scenario(name, dt, duration, tol, robot, controller, tuple(formations),
-                        obstacles, shapes)
+                        obstacles, shapes, parse_world(top.get("world")))
     axes = [formation_axes(scenario, f) for f in scenario.formations]
     _check_bands(scenario)
     _check_start(scenario, axes)

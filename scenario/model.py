@@ -14,6 +14,8 @@ from dataclasses import dataclass
 from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE, BURGER_RADIUS
 from geometry.shapes import Shape
 
+from .world import WorldSpec
+
 SINGLE_INTEGRATOR = "single_integrator"
 UNICYCLE = "unicycle"
 
@@ -129,6 +131,7 @@ class Scenario:
     formations: tuple[FormationSpec, ...]
     obstacles: tuple[ObstacleSpec, ...]
     shapes: tuple[Shape, ...] = ()  # static walls (segments) and shelves (boxes)
+    world: WorldSpec = WorldSpec()  # the simulated robots and camera (scenario.world)
 
     # Derived once per instance (the fields are frozen; dataclasses.replace makes a new one):
     # lookups by robot id are dict lookups, not scans of every robot.

@@ -3,21 +3,23 @@
 The data each robot sees is what the distributed system hands it: its neighbours' control
 points and last commands (their ``state``), the obstacles, and the ellipses its leader estimates
 from the members' states (:func:`geometry.ellipse.estimate`). Kinematics are integrated exactly
-(single integrator, or the unicycle of eq. 6.1 when ``robot.model: unicycle``).
+(single integrator, or the unicycle of eq. 6.1 when ``robot.model: unicycle``); in a lab world
+(``world:``, :mod:`simulator.lab`) the robots are differential drives seen through a camera,
+and with ``engine="mujoco"`` physics bodies (:mod:`simulator.physics`).
 """
 
 from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from agent import unicycle
 from agent.barriers import Obstacle
-from agent.control import ControlParams, Stall, control_step
+from agent.control import ControlParams, Stall, StepResult, control_step
 from agent.hard_rows import HardRowCounter
 from agent.inputs import step_inputs
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
@@ -26,7 +28,9 @@ from leader.navigation import Follower
 from scenario import Scenario, formation_axes
 from scenario.routes import initial_route
 
+from .lab import LabWorld
 from .metrics import SafetyMonitor
+from .physics import world_for
 from .summary import qp_fields, run_summary
 
 TOPOLOGIES = ("reduced", "all-to-all")
@@ -45,6 +49,7 @@ class SimOptions:
     stop_at_goal: bool = True
     record: bool = True
     solve_fn: Callable | None = None  # a solve function to use instead of ``solver`` by name
+    engine: str = "kinematic"  # or "mujoco": the robots are physics bodies (simulator.physics)
 
 
 @dataclass
@@ -137,6 +142,7 @@ def simulate(
     state = [list(r.start) for r in robots]  # body x, y, theta
     vel = [(0.0, 0.0)] * n  # last certified control-point velocity (what `state` carries)
     monitor = SafetyMonitor(scenario)
+    lab = world_for(scenario, options.engine)  # None: the ideal kinematic world
     series = Series()
     solve_us: list[float] = []
     counts = {STATUS_RELAXED: 0, STATUS_FALLBACK: 0, STATUS_FAILED: 0}
@@ -157,8 +163,9 @@ def simulate(
     t = 0.0
     for k in range(steps):
         t = k * dt
-        obs = obstacles_at(t)
-        ctrl = [unicycle.control_point(s[0], s[1], s[2], off) for s in state]
+        # what the agents see: the truth, or in a lab world the camera's view (simulator.lab)
+        seen, obs = sensed(lab, k, state, obstacles_at(t))
+        ctrl = [unicycle.control_point(s[0], s[1], s[2], off) for s in seen]
         ellipses = fleet.ellipses(ctrl, vel)
         results = []
         for i in range(n):
@@ -168,17 +175,17 @@ def simulate(
             own = ellipses[fname]
             target, waypoint = followers[i].step(own.cx, own.cy)
             inputs = step_inputs(
-                ((ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], df, state[j][2])
+                ((ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], df, seen[j][2])
                  for j, df in fleet.neighbours[i]),
                 own, fname, waypoint,
                 [(name, e) for name, e in ellipses.items() if name != fname],
                 stalls[i], dt,
-                [(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], state[j][2])
+                [(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], seen[j][2])
                  for j in range(n) if fleet.formation_of[j] != fname] if all_to_all else None,
-                [(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], state[j][2]) for j in fleet.partners[i]],
+                [(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], seen[j][2]) for j in fleet.partners[i]],
             )
             stalls[i] = inputs.stall
-            pose = (state[i][0], state[i][1], state[i][2])
+            pose = (seen[i][0], seen[i][1], seen[i][2])
             res = control_step(params, pose, target, inputs.neighbours, obs,
                                inputs.others, inputs.view, solve, inputs.pairwise,
                                inputs.partners, vel[i], inputs.hazards, shapes=shapes,
@@ -194,8 +201,10 @@ def simulate(
             min_h["formations"] = min(min_h["formations"], res.h_formations)
             if options.record:
                 x, y, th = state[i]
+                # the true pose's control point, as the multi-process world records it
+                px, py = (res.px, res.py) if lab is None else unicycle.control_point(x, y, th, off)
                 series.robots.append((
-                    t, ids[i], fname, x, y, th, res.px, res.py, res.ux, res.uy, res.v, res.omega,
+                    t, ids[i], fname, x, y, th, px, py, res.ux, res.uy, res.v, res.omega,
                     res.status, res.slack, res.h_formation, res.h_obstacle, res.h_formations,
                 ))
         if options.record:
@@ -203,14 +212,9 @@ def simulate(
                 series.ellipses.append((t, name, *e))
             for o, spec in zip(obs, scenario.obstacles, strict=True):
                 series.obstacles.append((t, spec.name, o.x, o.y, spec.safe_distance))
-        # integrate every robot with its own command (all computed from the same snapshot)
-        for i, res in enumerate(results):
-            x, y, th = state[i]
-            if params.unicycle:
-                state[i] = list(unicycle.integrate(x, y, th, res.v, res.omega, dt))
-            else:
-                state[i] = [x + res.ux * dt, y + res.uy * dt, th]
-            vel[i] = (res.ux, res.uy)
+        # move every robot with its own command (all computed from the same snapshot)
+        state = advance(lab, state, results, params.unicycle, dt)
+        vel = [(res.ux, res.uy) for res in results]
         t = (k + 1) * dt
         monitor.update(t, np.array([s[:2] for s in state]), [o[:2] for o in obstacles_at(t)])
         if progress is not None:
@@ -226,10 +230,35 @@ def simulate(
         qp_fields(len(solve_us), solve_us, counts[STATUS_RELAXED], counts[STATUS_FALLBACK],
                   counts[STATUS_FAILED], hard.ticks, hard.by_reason, escape=escape_ticks),
         logical_comm(scenario, options.topology, ticks, t, edges_total),
-        options.safety, options.solver)
+        options.safety, options.solver, **({} if lab is None else lab.summary_fields()))
     if any(len(r) > 1 for r in routes.values()):
         summary["routes"] = {name: [list(p) for p in r] for name, r in routes.items()}
     return SimResult(summary, series, scenario)
+
+
+def sensed(lab: LabWorld | None, k: int, state: list[list[float]], obs: list[Obstacle],
+           ) -> tuple[Sequence[Sequence[float]], list[Obstacle]]:
+    """The poses and obstacles the agents are handed at tick ``k``: the truth in the ideal
+    world, the lab camera's view otherwise (:mod:`simulator.lab`)."""
+    if lab is None:
+        return state, obs
+    xy = lab.obstacles(k)
+    return lab.sense(k, state), [o._replace(x=p[0], y=p[1]) for o, p in zip(obs, xy, strict=True)]
+
+
+def advance(lab: LabWorld | None, state: list[list[float]], results: Sequence[StepResult],
+            is_unicycle: bool, dt: float) -> list[list[float]]:
+    """Every robot's body pose one period on under its command: exact kinematics (single
+    integrator, or the unicycle of eq. 6.1) in the ideal world, the lab's wheels otherwise."""
+    if lab is not None:
+        return [list(p) for p in lab.move(state, [(r.ux, r.uy, r.v, r.omega) for r in results])]
+    out = []
+    for (x, y, th), res in zip(state, results, strict=True):
+        if is_unicycle:
+            out.append(list(unicycle.integrate(x, y, th, res.v, res.omega, dt)))
+        else:
+            out.append([x + res.ux * dt, y + res.uy * dt, th])
+    return out
 
 
 def logical_comm(scenario: Scenario, topology: str, ticks: int, sim_time: float, edges: int):

@@ -93,6 +93,9 @@ class RunConfig:
             raise ValueError(f"--port: {self.port} is not a TCP port")
         if self.pose_slots < 1:
             raise ValueError(f"--pose-slots: need an integer >= 1, got {self.pose_slots}")
+        if self.pose_slots > 1 and not self.scenario.world.ideal:
+            raise ValueError(f"--pose-slots: not in the {self.scenario.world.profile} world (its "
+                             "camera publishes whole frames)")
         if self.pose_slots > 1 and not (self.realtime and self.camera == "truth"):
             raise ValueError("--pose-slots: more than one slot needs --realtime and --camera truth")
         if self.clock_offset and not self.realtime:

@@ -7,8 +7,8 @@ the world's time series (:func:`merge_traces`); :func:`mark_aborted` notes why a
 started stopped early.
 
 The key order is the file's: scenario, mode, steps, sim_time_s, the safety monitor's fields,
-min_h, hard_row_unmet_ticks (also in qp), qp, comm, safety, solver, then what only one kind of
-run has, then collision_log.
+min_h, hard_row_unmet_ticks (also in qp), qp, comm, safety, solver, world_profile, then what
+only one kind of run has, then collision_log.
 """
 
 from __future__ import annotations
@@ -71,6 +71,7 @@ def run_summary(scenario: Scenario, mode: str, steps: int, sim_time: float, moni
         "comm": comm,
         "safety": safety,
         "solver": solver,
+        "world_profile": scenario.world.summary(),  # the world the run had (scenario.world)
         **extra,
         "collision_log": monitor.collision_log[:COLLISION_LOG_MAX],
     }

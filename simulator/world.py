@@ -75,7 +75,9 @@ from wire.stamps import CLOCK_TOLERANCE_S, EPS, StampCounter
 from wire.traffic import CountingPublisher, TrafficCounter
 
 from .inprocess import Series
+from .lab import LabWorld
 from .metrics import SafetyMonitor
+from .physics import world_for
 
 logger = logging.getLogger(__name__)
 
@@ -105,6 +107,7 @@ class WorldOptions:
     pose_slots: int = 1  # real time: publication slots per period (1: one camera frame)
     clock_offset: float = 0.0  # [s] real time: the camera's clock runs this far ahead of the
     # agents' (negative: behind); poses are stamped, and commands judged, on the camera's clock
+    engine: str = "kinematic"  # or "mujoco": the robots are physics bodies (simulator.physics)
 
     def __post_init__(self) -> None:
         if isinstance(self.pose_slots, bool) or not isinstance(self.pose_slots, int) \
@@ -313,6 +316,7 @@ class World:
         self.scenario = scenario
         self.session = session
         self.options = options
+        self.lab = lab_world(scenario, options)  # None: the ideal world
         self.counter = TrafficCounter(options.prefix)
         self.ids = scenario.robot_ids
         self.formation_of = {rid: scenario.formation_of(rid).name for rid in self.ids}
@@ -420,11 +424,9 @@ class World:
         opts = self.options
         abort = _at_most_every(ABORT_EVERY_S, abort)
         dt = sc.dt
-        is_uni = sc.robot.is_unicycle
         off = sc.robot.control_offset
         state: list[tuple[float, float, float]] = [
             (r.start[0], r.start[1], r.start[2]) for r in sc.robots]
-        n = len(state)
         monitor = SafetyMonitor(sc)
         series = Series()
         inbox = self.inbox
@@ -498,7 +500,7 @@ class World:
                 cmds = [got.get(r) for r in self.ids]
                 counts.applied(cmds)  # no command (either clock): zero velocity, counted
                 before = state
-                state = [step_pose(*state[i], cmds[i], dt, is_uni) for i in range(n)]
+                state = self._step(state, cmds)
                 t = (k + 1) * dt
                 if settle(k, k * dt, before, cmds, t, state):
                     break
@@ -571,10 +573,21 @@ class World:
         _sleep_until(start + dt, abort)
         return new, cmds
 
+    def _step(self, state: Sequence[tuple[float, float, float]],
+              cmds: Sequence[Cmd | None]) -> list[tuple[float, float, float]]:
+        """Every robot's pose one period on: exact kinematics (:func:`step_pose`), or the lab's
+        wheels (:mod:`simulator.lab`)."""
+        dt, is_uni = self.scenario.dt, self.scenario.robot.is_unicycle
+        if self.lab is None:
+            return [step_pose(*s, c, dt, is_uni) for s, c in zip(state, cmds, strict=True)]
+        return self.lab.move(state, [None if c is None else (c.ux, c.uy, c.v, c.omega)
+                                     for c in cmds])
+
     def _publish_obstacles(self, t: float, stamp: float) -> list[ObstacleMsg]:
         obs = []
-        for o in self.scenario.obstacles:
-            x, y = o.position(t)
+        seen = [o.position(t) for o in self.scenario.obstacles] if self.lab is None \
+            else self.lab.obstacles(round(t / self.scenario.dt))
+        for o, (x, y) in zip(self.scenario.obstacles, seen, strict=True):
             obs.append(ObstacleMsg(o.name, x, y, o.velocity[0], o.velocity[1], o.safe_distance))
         self._obs_pub.put_message(Obstacles(stamp, tuple(obs), self._shape_msgs))
         return obs
@@ -596,7 +609,8 @@ class World:
         if self._camera is not None:
             seen = self._camera.poses(state, [(m.x, m.y, m.ds) for m in obs], stamp)
         else:
-            seen = {rid: s for rid, s in zip(self.ids, state, strict=True)}
+            poses = state if self.lab is None else self.lab.sense(round(t / self.scenario.dt), state)
+            seen = {rid: s for rid, s in zip(self.ids, poses, strict=True)}
         for i, rid in enumerate(self.ids):
             p = seen.get(rid)
             if p is not None:  # an undetected marker publishes nothing: the agent sees it stale
@@ -611,6 +625,19 @@ class World:
         for o in self.scenario.obstacles:
             x, y = o.position(t)
             series.obstacles.append((t, o.name, x, y, o.safe_distance))
+
+
+def lab_world(scenario: Scenario, options: WorldOptions) -> LabWorld | None:
+    """The lab world of ``scenario`` (None: ideal and kinematic), or its physics world with
+    ``options.engine`` "mujoco" (:func:`simulator.physics.world_for`). Its camera replaces
+    ``--camera truth``; the synthetic and process cameras render the true poses, so only the
+    lab's wheels apply there. Lab worlds publish whole frames (pose slots are for robots that
+    localise themselves)."""
+    world = world_for(scenario, options.engine)
+    if world is not None and options.pose_slots > 1:
+        raise ValueError(f"pose_slots: not in the {scenario.world.profile} world (its camera "
+                         "publishes whole frames)")
+    return world
 
 
 class _SyntheticCamera:

@@ -20,7 +20,8 @@ def montecarlo_command(ns: argparse.Namespace) -> int:
         raise UsageError(f"--jobs: must be a positive number of processes, got {ns.jobs}")
     out = begin_output(ns)
     with Progress(f"montecarlo n={ns.n}", unit="runs") as progress:
-        summary, results = run_montecarlo(ns.n, ns.seed, ns.jobs, progress=progress.update)
+        summary, results = run_montecarlo(ns.n, ns.seed, ns.jobs, progress=progress.update,
+                                          world=ns.world)
     for r in results:
         if not r["all_reached"] or r["collisions"]:
             (out / f"failure-{r['seed']}.yaml").write_text(yaml.safe_dump(r["scenario"], sort_keys=False))
@@ -28,7 +29,8 @@ def montecarlo_command(ns: argparse.Namespace) -> int:
     with (out / "runs.jsonl").open("w", encoding="utf-8") as fh:
         for r in results:
             fh.write(json.dumps({k: v for k, v in r.items() if k != "scenario"}) + "\n")
-    print(f"montecarlo: {summary['runs']} runs, reached {100 * summary['reached_rate']:.1f}%, "
+    print(f"montecarlo: {summary['runs']} runs ({summary['world']} world), "
+          f"reached {100 * summary['reached_rate']:.1f}%, "
           f"collisions {summary['collisions']} (in {summary['runs_with_collision']} runs), "
           f"deadlocks {summary['deadlocks']}, worst formation error "
           f"{summary['worst_formation_error_m']:.3f} m")

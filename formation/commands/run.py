@@ -21,6 +21,7 @@ from formation.exits import EXIT_ERROR, EXIT_OK, UsageError
 from formation.outdir import begin_output
 from formation.progress import Progress, print_summary
 from scenario import Scenario, load_scenario
+from scenario.world import with_world
 from simulator.faults import FaultPlan, parse_camera_dropout, parse_kill
 from simulator.fleet import RemoteAgents
 from simulator.launch import RunAborted, launch
@@ -40,7 +41,8 @@ def run_config(ns: argparse.Namespace) -> RunConfig:
         )
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    scenario = _with_duration(ns, load_scenario(ns.scenario))  # ScenarioError -> exit 2
+    # ScenarioError -> exit 2; --world replaces the file's world (scenario.world)
+    scenario = _with_duration(ns, with_world(load_scenario(ns.scenario), getattr(ns, "world", None)))
     per_process = getattr(ns, "agents_per_process", 1)
     insecure = getattr(ns, "insecure", False)
     try:

@@ -9,18 +9,24 @@ from formation.exits import EXIT_OK, UsageError
 from formation.outdir import begin_output
 from formation.progress import Progress, print_summary
 from scenario import load_scenario
+from scenario.world import with_world
 from simulator.inprocess import SimOptions, simulate
 from simulator.output import write_run
+from simulator.physics import available as physics_available
 
 
 def cmd_sim(ns: argparse.Namespace) -> int:
-    scenario = load_scenario(ns.scenario)
+    scenario = with_world(load_scenario(ns.scenario), ns.world)
     try:
         make_solver(ns.solver)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+    if ns.engine == "mujoco" and not physics_available():
+        raise UsageError("--engine mujoco: MuJoCo is not installed "
+                         "(pip install 'formation-cbf[physics]')")
     out = begin_output(ns)
-    opts = SimOptions(safety=not ns.no_safety, solver=ns.solver, topology=ns.topology)
+    opts = SimOptions(safety=not ns.no_safety, solver=ns.solver, topology=ns.topology,
+                      engine=ns.engine)
     with Progress(f"sim {scenario.name}", quiet=ns.quiet) as progress:
         result = simulate(scenario, opts, progress=progress.update)
     write_run(result.summary, result.series, scenario, out, plots=not ns.no_plots)

@@ -1,0 +1,167 @@
+"""The scenario's ``world:`` section: what the simulated robots and camera are like.
+
+``world: {profile: ideal}`` (the default, also when the section is missing) is the world every
+result before it came from: a robot's velocity is its command at once and every pose is exact.
+``world: {profile: turtlebot3-lab}`` is a lab of TurtleBot3 burgers under an overhead camera:
+each robot a differential drive whose wheels have a speed limit, an acceleration limit and a
+first-order lag, and a camera that sees every pose (and every moving obstacle) late, with noise,
+at its own frame rate, dropping frames now and then. Any number of a profile may be overridden
+in the same mapping (``world: {profile: turtlebot3-lab, drop_rate: 0.1}``); each is range-checked
+here, and the whole section parses to one frozen :class:`WorldSpec`. docs/scenarios.md cites
+where the profile's numbers come from; :mod:`simulator.lab` is the model that uses them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from .limits import Range
+from .reader import ScenarioError, excerpt
+
+if TYPE_CHECKING:  # the model imports this module for WorldSpec
+    from .model import Scenario
+
+IDEAL = "ideal"
+TURTLEBOT3_LAB = "turtlebot3-lab"
+INF = math.inf
+
+
+@dataclass(frozen=True)
+class WorldSpec:
+    """One world profile with its numbers (``inf``/0: that imperfection is absent)."""
+
+    profile: str = IDEAL
+    # actuators: a differential drive (every robot is one in a lab world)
+    wheel_radius: float = 0.033  # [m]
+    track: float = 0.160  # [m] distance between the wheels
+    max_wheel_speed: float = INF  # [m/s] each wheel's rim speed limit
+    max_wheel_accel: float = INF  # [m/s^2] each wheel's rim acceleration limit
+    motor_lag: float = 0.0  # [s] first-order time constant from command to wheel speed
+    # sensing: an overhead camera
+    camera_fps: float = INF  # [1/s] frames per second (inf: a pose every tick)
+    camera_latency: float = 0.0  # [s] capture to publication
+    pose_noise: float = 0.0  # [m] standard deviation of each position coordinate
+    heading_noise: float = 0.0  # [rad] standard deviation of the heading
+    drop_rate: float = 0.0  # probability that a frame is lost
+    seed: int = 0  # of the noise and the drops
+
+    @property
+    def ideal(self) -> bool:
+        """True for the ideal world (the kinematic path of every simulator, unchanged)."""
+        return self.profile == IDEAL
+
+    @property
+    def senses(self) -> bool:
+        """True when the camera is anything but exact and instant."""
+        return (math.isfinite(self.camera_fps) or self.camera_latency > 0 or self.pose_noise > 0
+                or self.heading_noise > 0 or self.drop_rate > 0)
+
+    def summary(self) -> dict[str, Any]:
+        """The profile and its numbers, for summary.json (``inf`` written as None)."""
+        return {f.name: (None if isinstance(v := getattr(self, f.name), float)
+                         and math.isinf(v) else v)
+                for f in dataclasses.fields(self)}
+
+
+PROFILES: dict[str, WorldSpec] = {
+    IDEAL: WorldSpec(),
+    # TurtleBot3 burger with XL430-W250 wheels under a 30 fps overhead camera (docs/scenarios.md)
+    TURTLEBOT3_LAB: WorldSpec(
+        profile=TURTLEBOT3_LAB,
+        wheel_radius=0.033,
+        track=0.160,
+        max_wheel_speed=round(61.0 * 2.0 * math.pi / 60.0 * 0.033, 4),  # 61 rev/min at 12 V
+        max_wheel_accel=2.5,
+        motor_lag=0.1,
+        camera_fps=30.0,
+        camera_latency=0.05,
+        pose_noise=0.002,
+        heading_noise=0.01,
+        drop_rate=0.02,
+    ),
+}
+
+#: name -> the range an override must fall in (the ideal world's ``inf`` is no number to set)
+RANGES: dict[str, Range] = {
+    "wheel_radius": Range(0.0, 1.0, "m", lo_open=True),
+    "track": Range(0.0, 5.0, "m", lo_open=True),
+    "max_wheel_speed": Range(0.0, 100.0, "m/s", lo_open=True),
+    "max_wheel_accel": Range(0.0, 1000.0, "m/s^2", lo_open=True),
+    "motor_lag": Range(0.0, 10.0, "s"),
+    "camera_fps": Range(0.0, 10000.0, "1/s", lo_open=True),
+    "camera_latency": Range(0.0, 10.0, "s"),
+    "pose_noise": Range(0.0, 1.0, "m"),
+    "heading_noise": Range(0.0, math.pi, "rad"),
+    "drop_rate": Range(0.0, 0.9, ""),
+}
+_KEYS = {"profile", "seed", *RANGES}
+MAX_SEED = 2**63 - 1
+
+
+def parse_world(raw: Any, where: str = "world") -> WorldSpec:
+    """The ``world:`` section (a mapping, or None for the default) as a :class:`WorldSpec`."""
+    if raw is None:
+        return PROFILES[IDEAL]
+    if not isinstance(raw, Mapping):
+        raise ScenarioError(f"{where}: must be a mapping (profile: {' | '.join(PROFILES)}, ...)")
+    unknown = sorted(str(k) for k in raw if k not in _KEYS)
+    if unknown:
+        raise ScenarioError(f"{where}: unknown key {excerpt(unknown[0])} "
+                            f"(known: {', '.join(sorted(_KEYS))})")
+    spec = profile(raw.get("profile", IDEAL), f"{where}.profile")
+    changes: dict[str, Any] = {name: _number(raw[name], f"{where}.{name}", rng)
+                               for name, rng in RANGES.items() if name in raw}
+    if "seed" in raw:
+        changes["seed"] = _seed(raw["seed"], f"{where}.seed")
+    if spec.ideal and any(k != "seed" for k in changes):
+        raise ScenarioError(f"{where}: the ideal world has no {sorted(changes)[0]} "
+                            f"(choose profile: {TURTLEBOT3_LAB} to set it)")
+    return dataclasses.replace(spec, **changes)
+
+
+def profile(name: Any, where: str = "--world") -> WorldSpec:
+    """The named profile's numbers; a clear error naming ``where`` for an unknown name."""
+    if not isinstance(name, str) or name not in PROFILES:
+        raise ScenarioError(f"{where}: unknown world profile {excerpt(name)} "
+                            f"(known: {', '.join(PROFILES)})")
+    return PROFILES[name]
+
+
+def with_profile(spec: WorldSpec, name: str) -> WorldSpec:
+    """``--world NAME`` over a scenario's section: the named profile, keeping the section's
+    own numbers where it chose the same profile (and its seed in any case)."""
+    chosen = profile(name)
+    if chosen.profile == spec.profile:
+        return spec
+    return dataclasses.replace(chosen, seed=spec.seed)
+
+
+def with_world(scenario: Scenario, name: str | None) -> Scenario:
+    """``scenario`` in the world ``--world NAME`` chose (None: as its file says)."""
+    if name is None:
+        return scenario
+    return dataclasses.replace(scenario, world=with_profile(scenario.world, name))
+
+
+def _number(raw: Any, where: str, allowed: Range) -> float:
+    if isinstance(raw, bool) or not isinstance(raw, int | float) or math.isnan(raw):
+        raise ScenarioError(f"{where}: must be a number, got {excerpt(raw)}")
+    v = float(raw)
+    if not allowed.contains(v):
+        raise ScenarioError(f"{where}: out of range, got {excerpt(raw)} (allowed: {allowed.text()})")
+    return v
+
+
+def _seed(raw: Any, where: str) -> int:
+    if isinstance(raw, bool) or not isinstance(raw, int) or not 0 <= raw <= MAX_SEED:
+        raise ScenarioError(f"{where}: must be an integer from 0 to 2^63-1, got {excerpt(raw)}")
+    return raw
+
+
+def describe() -> str:
+    """The ranges as Markdown rows (docs/scenarios.md)."""
+    return "\n".join(f"| world.{k} | {r.text()} |" for k, r in RANGES.items())
