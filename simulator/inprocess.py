@@ -28,17 +28,15 @@ from leader.navigation import Follower
 from scenario import Scenario, formation_axes
 from scenario.routes import initial_route
 
+from .columns import ROBOT_COLUMNS
 from .lab import LabWorld
 from .metrics import SafetyMonitor
+from .motion import motion_fields
 from .physics import world_for
 from .summary import qp_fields, run_summary
 
 TOPOLOGIES = ("reduced", "all-to-all")
 
-ROBOT_COLUMNS = (
-    "t", "robot", "formation", "x", "y", "theta", "px", "py", "ux", "uy", "v", "omega",
-    "status", "slack", "h_formation", "h_obstacle", "h_formations",
-)
 
 
 @dataclass(frozen=True)
@@ -230,7 +228,9 @@ def simulate(
         qp_fields(len(solve_us), solve_us, counts[STATUS_RELAXED], counts[STATUS_FALLBACK],
                   counts[STATUS_FAILED], hard.ticks, hard.by_reason, escape=escape_ticks),
         logical_comm(scenario, options.topology, ticks, t, edges_total),
-        options.safety, options.solver, **({} if lab is None else lab.summary_fields()))
+        options.safety, options.solver,
+        motion=motion_fields(series.robots, ROBOT_COLUMNS, scenario) if options.record else None,
+        **({} if lab is None else lab.summary_fields()))
     if any(len(r) > 1 for r in routes.values()):
         summary["routes"] = {name: [list(p) for p in r] for name, r in routes.items()}
     return SimResult(summary, series, scenario)

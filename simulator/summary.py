@@ -7,8 +7,8 @@ the world's time series (:func:`merge_traces`); :func:`mark_aborted` notes why a
 started stopped early.
 
 The key order is the file's: scenario, mode, steps, sim_time_s, the safety monitor's fields,
-min_h, hard_row_unmet_ticks (also in qp), qp, comm, safety, solver, world_profile, then what
-only one kind of run has, then collision_log.
+min_h, hard_row_unmet_ticks (also in qp), qp, motion (:mod:`simulator.motion`, when given),
+comm, safety, solver, world_profile, then what only one kind of run has, then collision_log.
 """
 
 from __future__ import annotations
@@ -24,7 +24,9 @@ from scenario import Scenario
 from wire import keys, traffic
 from wire.stamps import merge_counts
 
+from .columns import ROBOT_COLUMNS
 from .metrics import SafetyMonitor
+from .motion import motion_fields
 
 if TYPE_CHECKING:  # types only: simulator.inprocess (and the world through it) imports this module
     from .inprocess import Series
@@ -56,7 +58,8 @@ def qp_fields(solves: int, solve_us: Sequence[float], relaxed: int, fallback: in
 
 def run_summary(scenario: Scenario, mode: str, steps: int, sim_time: float, monitor: SafetyMonitor,
                 min_h: dict[str, float | None], qp: dict[str, Any], comm: dict[str, Any],
-                safety: bool, solver: str, **extra: Any) -> dict[str, Any]:
+                safety: bool, solver: str, motion: dict[str, Any] | None = None,
+                **extra: Any) -> dict[str, Any]:
     """The summary of a run of ``scenario`` (see the module docstring); ``extra`` goes after
     ``solver`` in the order given."""
     return {
@@ -68,6 +71,7 @@ def run_summary(scenario: Scenario, mode: str, steps: int, sim_time: float, moni
         "min_h": min_h,
         "hard_row_unmet_ticks": qp.get("hard_row_unmet_ticks", 0),
         "qp": qp,
+        **({"motion": motion} if motion is not None else {}),
         "comm": comm,
         "safety": safety,
         "solver": solver,
@@ -110,6 +114,7 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: Sequence[Agent
                   sum_counts(s.hard_row_unmet for s in stats),
                   escape=sum(s.escape_ticks for s in stats)),
         comm_summary(snap, topology, len(scenario.robot_ids), sim_time), safety, solver,
+        motion=motion_fields(series.robots, ROBOT_COLUMNS, scenario),
         realtime=realtime,
         camera=camera,
         agents=_agents_fields(stats),

@@ -1,4 +1,9 @@
-"""``formation check SCENARIO``: validate a scenario file, nothing else."""
+"""``formation check SCENARIO``: validate a scenario file, nothing else.
+
+Exit 2 with one line for an invalid file (a declared load overlapping something at the start
+among the reasons); warnings, one line each on stderr, for what a valid file allows that the
+user should know (a default load, the members' hull, overlapping something at the start).
+"""
 
 from __future__ import annotations
 
