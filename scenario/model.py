@@ -7,6 +7,7 @@ adjacent to every member and a start that satisfies every constraint.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass
@@ -14,7 +15,7 @@ from dataclasses import dataclass
 from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE, BURGER_RADIUS
 from geometry.shapes import Shape
 
-from .world import WorldSpec
+from .world import WorldSpec, with_profile
 
 SINGLE_INTEGRATOR = "single_integrator"
 UNICYCLE = "unicycle"
@@ -160,3 +161,10 @@ class Scenario:
     @property
     def steps(self) -> int:
         return int(math.ceil(self.duration / self.dt - 1e-9))
+
+
+def with_world(scenario: Scenario, name: str | None) -> Scenario:
+    """``scenario`` in the world ``--world NAME`` chose (None: as its file says)."""
+    if name is None:
+        return scenario
+    return dataclasses.replace(scenario, world=with_profile(scenario.world, name))

@@ -17,13 +17,10 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from .limits import Range
 from .reader import ScenarioError, excerpt
-
-if TYPE_CHECKING:  # the model imports this module for WorldSpec
-    from .model import Scenario
 
 IDEAL = "ideal"
 TURTLEBOT3_LAB = "turtlebot3-lab"
@@ -138,13 +135,6 @@ def with_profile(spec: WorldSpec, name: str) -> WorldSpec:
     if chosen.profile == spec.profile:
         return spec
     return dataclasses.replace(chosen, seed=spec.seed)
-
-
-def with_world(scenario: Scenario, name: str | None) -> Scenario:
-    """``scenario`` in the world ``--world NAME`` chose (None: as its file says)."""
-    if name is None:
-        return scenario
-    return dataclasses.replace(scenario, world=with_profile(scenario.world, name))
 
 
 def _number(raw: Any, where: str, allowed: Range) -> float:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -28,11 +28,11 @@ from leader.navigation import Follower
 from scenario import Scenario, formation_axes
 from scenario.routes import initial_route
 
-from .columns import ROBOT_COLUMNS
 from .lab import LabWorld
 from .metrics import SafetyMonitor
 from .motion import motion_fields
 from .physics import world_for
+from .series import ROBOT_COLUMNS, Series
 from .summary import qp_fields, run_summary
 
 TOPOLOGIES = ("reduced", "all-to-all")
@@ -48,15 +48,6 @@ class SimOptions:
     record: bool = True
     solve_fn: Callable | None = None  # a solve function to use instead of ``solver`` by name
     engine: str = "kinematic"  # or "mujoco": the robots are physics bodies (simulator.physics)
-
-
-@dataclass
-class Series:
-    """Time series of a run, in long form (one row per robot per tick)."""
-
-    robots: list[tuple] = field(default_factory=list)  # ROBOT_COLUMNS
-    ellipses: list[tuple] = field(default_factory=list)  # t, formation, Ellipse fields
-    obstacles: list[tuple] = field(default_factory=list)  # t, name, x, y, safe_distance
 
 
 @dataclass

@@ -50,8 +50,8 @@ from .access import RunCredentials, secure_setup, zone_link
 from .counters import agent_stats
 from .faults import FAULT_WORLD_TIMEOUT_S, FaultDriver, fault_summary
 from .fleet import START_TIMEOUT_S, Child, ChildFailed, Fleet, unique_children
-from .inprocess import Series
 from .run_config import RunConfig
+from .series import Series
 from .status_board import StatusBoard
 from .summary import build_summary, mark_aborted
 from .world import World, WorldOptions, WorldResult

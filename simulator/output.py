@@ -24,7 +24,7 @@ from pathlib import Path
 from scenario import Scenario
 from viewer.record import write_recording
 
-from .inprocess import ROBOT_COLUMNS, Series
+from .series import ROBOT_COLUMNS, Series
 
 ELLIPSE_COLUMNS = ("t", "formation", "cx", "cy", "alpha", "a", "b", "vx", "vy", "alpha_rate")
 OBSTACLE_COLUMNS = ("t", "obstacle", "x", "y", "safe_distance")

@@ -37,9 +37,9 @@ from scenario import Scenario  # noqa: E402
 from scenario.cargo import load_polygon, placed_load  # noqa: E402
 from scenario.routes import initial_route  # noqa: E402
 
-from .inprocess import ROBOT_COLUMNS, Series  # noqa: E402
 from .metrics import SafetyMonitor  # noqa: E402
 from .motion import REVERSAL_SPEED, is_reversal, robot_ticks, turn_angle  # noqa: E402
+from .series import ROBOT_COLUMNS, Series  # noqa: E402
 
 _COL = {name: k for k, name in enumerate(ROBOT_COLUMNS)}
 SNAPSHOTS = 5  # instants at which robots, ellipses and moving obstacles are drawn together

@@ -17,20 +17,16 @@ import dataclasses
 import math
 import statistics
 from collections.abc import Iterable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from agent.stats import AgentStats
 from scenario import Scenario
 from wire import keys, traffic
 from wire.stamps import merge_counts
 
-from .columns import ROBOT_COLUMNS
 from .metrics import SafetyMonitor
 from .motion import motion_fields
-
-if TYPE_CHECKING:  # types only: simulator.inprocess (and the world through it) imports this module
-    from .inprocess import Series
-    from .world import WorldResult
+from .series import ROBOT_COLUMNS, Series, WorldResult
 
 COLLISION_LOG_MAX = 100  # collision_log entries kept in summary.json
 

@@ -57,7 +57,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -74,10 +74,10 @@ from wire.shapes import shape_to_msg
 from wire.stamps import CLOCK_TOLERANCE_S, EPS, StampCounter
 from wire.traffic import CountingPublisher, TrafficCounter
 
-from .inprocess import Series
 from .lab import LabWorld
 from .metrics import SafetyMonitor
 from .physics import world_for
+from .series import Series, WorldResult
 
 logger = logging.getLogger(__name__)
 
@@ -134,30 +134,6 @@ class WorldOptions:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name}: must be a positive number, got {v!r}")
-
-
-@dataclass
-class WorldResult:
-    steps: int
-    sim_time: float
-    monitor: SafetyMonitor
-    series: Series
-    traffic: dict
-    missing_cmds: int = 0  # robot-ticks without a command (lock-step: not in time; real time:
-    # none fresher than stale_after): the robot got zero velocity
-    zero_cmds: int = 0  # robot-ticks whose applied command was zero (the agent stopped it)
-    malformed_cmds: int = 0
-    stamp_rejected: dict = field(default_factory=dict)  # commands refused by the stamp check
-    clock_offset: float = 0.0  # [s] real time: the camera's clock ahead of the agents'
-    cmd_timeouts: int = 0  # lock-step: waits for a command that timed out
-    camera_dropped: int = 0  # poses not published (camera dropout)
-    latency_ms: list[float] = field(default_factory=list)  # real time: pose put -> cmd received
-    publish_ms: list[float] = field(default_factory=list)  # real time, one frame a period: the
-    # tick's stamp -> its last pose put (how long the world takes to publish a frame)
-    stamps: list[float] = field(default_factory=list)  # pose stamp published at tick k
-    # pose slots > 1: the stamp each robot's pose of tick k went out with (its slot's); else empty
-    robot_stamps: list[list[float]] = field(default_factory=list)
-    wall_s: float = 0.0
 
 
 def _undeclare(handles: Sequence[Any]) -> None:

@@ -19,8 +19,8 @@ from experiments.montecarlo import run_one
 from formation.cli import main
 from scenario import ScenarioError, load_scenario, parse_scenario
 from scenario.load import scenario_from_dict
-from scenario.model import ObstacleSpec
-from scenario.world import IDEAL, PROFILES, TURTLEBOT3_LAB, WorldSpec, parse_world, with_world
+from scenario.model import ObstacleSpec, with_world
+from scenario.world import IDEAL, PROFILES, TURTLEBOT3_LAB, WorldSpec, parse_world
 from simulator.inprocess import SimOptions, simulate
 from simulator.lab import Camera, LabWorld, command_rates, drive, wheel_step
 

@@ -21,7 +21,7 @@ from formation.exits import EXIT_ERROR, EXIT_OK, UsageError
 from formation.outdir import begin_output
 from formation.progress import Progress, print_summary
 from scenario import Scenario, load_scenario
-from scenario.world import with_world
+from scenario.model import with_world
 from simulator.faults import FaultPlan, parse_camera_dropout, parse_kill
 from simulator.fleet import RemoteAgents
 from simulator.launch import RunAborted, launch

@@ -9,7 +9,7 @@ from formation.exits import EXIT_OK, UsageError
 from formation.outdir import begin_output
 from formation.progress import Progress, print_summary
 from scenario import load_scenario
-from scenario.world import with_world
+from scenario.model import with_world
 from simulator.inprocess import SimOptions, simulate
 from simulator.output import write_run
 from simulator.physics import available as physics_available
