@@ -23,6 +23,7 @@ from leader.settings import LeaderSettings  # noqa: F401  (re-exported)
 from scenario import Scenario, formation_axes
 from scenario.routes import initial_route
 from scenario.succession import formation_successor
+from wire.rmw_zenoh import RmwSettings, settings_from_dict
 from wire.stamps import CLOCK_TOLERANCE_S
 from wire.zconf import ZenohSettings
 
@@ -73,6 +74,8 @@ class AgentConfig:
     zenoh: ZenohSettings = field(default_factory=agent_zenoh)
     cmd_vel_key: str = "cmd_vel"  # real bases: the zenoh-bridge-ros2dds key for /cmd_vel
     frame_id: str = "base_link"  # real bases (Jazzy TwistStamped): header frame
+    # real bases: None = zenoh-bridge-ros2dds on cmd_vel_key; set = rmw_zenoh, no bridge
+    rmw: RmwSettings | None = None
     solver: str = "exact"  # QP solver (agent.qp.make_solver): exact or a qpsolvers backend
     # the formation centroid's route (waypoints, the goal centroid last); () = the goal alone
     route: tuple[tuple[float, float], ...] = ()
@@ -165,6 +168,8 @@ def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
         raise ValueError(f"zenoh.{extra[0]}: not part of an agent configuration file")
     d = _plain(dataclasses.asdict(cfg))
     d["zenoh"] = {k: d["zenoh"][k] for k in AGENT_ZENOH_FIELDS}
+    if d.get("rmw") is None:
+        d.pop("rmw", None)  # the bridge: files stay as they were before the field existed
     if d["solver"] == "exact":
         del d["solver"]  # the default: files stay as they were before the field existed
     d["version"] = CONFIG_VERSION
@@ -212,6 +217,7 @@ def config_from_dict(d: dict[str, Any]) -> AgentConfig:
             zenoh=zenoh,
             cmd_vel_key=str(d.pop("cmd_vel_key", "cmd_vel")),
             frame_id=str(d.pop("frame_id", "base_link")),
+            rmw=None if d.get("rmw") is None else settings_from_dict(d.pop("rmw")),
             solver=str(d.pop("solver", "exact")),
             route=tuple((float(x), float(y)) for x, y in d.pop("route", ())),
             member_goals=tuple((str(m), float(x), float(y)) for m, x, y in d.pop("member_goals", ())),
@@ -220,6 +226,7 @@ def config_from_dict(d: dict[str, Any]) -> AgentConfig:
         )
         d.pop("start", None)
         d.pop("pose_period", None)
+        d.pop("rmw", None)
     except KeyError as exc:
         raise ValueError(f"agent config: missing field {exc.args[0]!r}") from None
     except TypeError as exc:
