@@ -310,6 +310,7 @@ class RmwZenohBase:
         self._close = close
         self._last_stamp = 0.0
         self.sequence_number = 0  # of the last sample sent
+        self.publisher: Any = None  # the zenoh publisher, when open_rmw_base declared it
 
     def _publish(self, v: float, omega: float, stamp: float, limits: tuple[float, float]) -> None:
         payload = encode_cmd(self.type_name, v, omega, stamp, self._frame_id, *limits)
@@ -353,8 +354,10 @@ def open_rmw_base(config: Any, session: Any, max_speed: float, max_turn: float) 
 
     logger.info("base %s over rmw_zenoh %s: %s on key %r", config.base, rel.name,
                 type_name, spec.key)
-    return RmwZenohBase(type_name, spec, put, getattr(config, "frame_id", DEFAULT_FRAME_ID),
+    base = RmwZenohBase(type_name, spec, put, getattr(config, "frame_id", DEFAULT_FRAME_ID),
                         max_speed, max_turn, close=close)
+    base.publisher = publisher
+    return base
 
 
 def make_base(
