@@ -49,7 +49,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from wire import keys
+from wire import keys, rmw_zenoh
 from wire.diag import diag_key
 from wire.frames import stats_key
 from wire.zconf import UsrPwdAuth, client_auth_config
@@ -303,3 +303,44 @@ def write_router_config(path: str | os.PathLike[str], conf: Mapping[str, Any]) -
         raise ValueError(f"router config rejected by zenoh: {exc}") from None
     Path(path).write_text(text, encoding="utf-8")
 
+
+
+def add_rmw_zenoh(acl: dict[str, Any], robots: Mapping[str, Any],
+                  viewer_user: str | None = VIEWER_USER) -> dict[str, Any]:
+    """``acl`` (of :func:`fleet_acl`, given each robot's rmw_zenoh data key as its ``cmd_vel``)
+    with the ROS graph rights of robots whose base is on rmw_zenoh (``robots``: robot id ->
+    :class:`wire.rmw_zenoh.RmwSettings`), changed in place and returned.
+
+    Robot ``r``'s user (its agent, and the robot's ``rmw_zenohd`` linked to this router as the
+    same user) may hold liveliness tokens in its own namespace and domain (the agent's node and
+    publisher; the robot's ROS nodes), and declare liveliness subscribers and queries on and be
+    sent every token of its domain (rmw_zenoh's graph). The viewer may subscribe to the
+    domain's data keys and tokens and hold tokens of its own (an rmw_zenoh subscriber, e.g.
+    ``ros2 topic echo``, watching a run)."""
+    if not robots:
+        return acl
+    rules: list[dict[str, Any]] = acl["rules"]
+    policies = {p["subjects"][0]: p for p in acl["policies"]}
+    domains = sorted({int(s.domain) for s in robots.values()})
+
+    def rule(rid: str, messages: list[str], flows: list[str], key_exprs: list[str]) -> str:
+        rules.append({"id": rid, "messages": messages, "flows": flows, "permission": "allow",
+                      "key_exprs": key_exprs})
+        return rid
+
+    graph = [f"{rmw_zenoh.ADMIN_SPACE}/{d}/**" for d in domains]
+    read = rule("rmw-graph-read", ["declare_liveliness_subscriber", "liveliness_query"],
+                ["ingress", "egress"], graph)
+    deliver = rule("rmw-graph-deliver", ["liveliness_token"], ["egress"], graph)
+    for rid, settings in robots.items():
+        own = rule(f"{rid}-rmw-tokens", ["liveliness_token"], ["ingress"],
+                   [rmw_zenoh.graph_key(settings)])
+        policies[rid]["rules"] += [read, deliver, own]
+    if viewer_user is not None and viewer_user in policies:
+        data = [f"{d}/**" for d in domains]
+        policies[viewer_user]["rules"] += [
+            read, deliver,
+            rule("viewer-rmw-read", ["declare_subscriber"], ["ingress", "egress"], data),
+            rule("viewer-rmw-deliver", ["put"], ["egress"], data),
+            rule("viewer-rmw-tokens", ["liveliness_token"], ["ingress"], graph)]
+    return acl

@@ -514,3 +514,20 @@ def settings_from_dict(d: object) -> RmwSettings:
     return check_settings(RmwSettings(
         release=str(d.get("release", "")), cmd_type=str(d.get("cmd_type", "")),
         namespace=str(d.get("namespace", "")), domain=d.get("domain", 0)))
+
+
+def distro_of(base: str) -> str:
+    """``turtlebot3-jazzy`` -> ``jazzy`` (the ROS distribution a TurtleBot3 base runs)."""
+    return base.rsplit("-", 1)[-1]
+
+
+def data_key(s: RmwSettings, distro: str, topic: str = "cmd_vel") -> str:
+    """The data key of ``topic`` in the robot's namespace, as its base reads it."""
+    rel, type_name = resolve(s, distro)
+    return topic_key(s.domain, fully_qualified(s.namespace, topic), type_name, rel)
+
+
+def graph_key(s: RmwSettings) -> str:
+    """Every liveliness token in the robot's namespace and domain (its nodes, publishers,
+    subscriptions): ``@ros2_lv/<domain>/<zid>/<nid>/<id>/<kind>/<enclave>/<namespace>/**``."""
+    return f"{ADMIN_SPACE}/{check_domain(s.domain)}/*/*/*/*/*/{mangle(namespace_of(s.namespace))}/**"
