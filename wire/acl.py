@@ -306,7 +306,8 @@ def write_router_config(path: str | os.PathLike[str], conf: Mapping[str, Any]) -
 
 
 def add_rmw_zenoh(acl: dict[str, Any], robots: Mapping[str, Any],
-                  viewer_user: str | None = VIEWER_USER) -> dict[str, Any]:
+                  viewer_user: str | None = VIEWER_USER,
+                  world_user: str | None = None) -> dict[str, Any]:
     """``acl`` (of :func:`fleet_acl`, given each robot's rmw_zenoh data key as its ``cmd_vel``)
     with the ROS graph rights of robots whose base is on rmw_zenoh (``robots``: robot id ->
     :class:`wire.rmw_zenoh.RmwSettings`), changed in place and returned.
@@ -316,7 +317,8 @@ def add_rmw_zenoh(acl: dict[str, Any], robots: Mapping[str, Any],
     publisher; the robot's ROS nodes), and declare liveliness subscribers and queries on and be
     sent every token of its domain (rmw_zenoh's graph). The viewer may subscribe to the
     domain's data keys and tokens and hold tokens of its own (an rmw_zenoh subscriber, e.g.
-    ``ros2 topic echo``, watching a run)."""
+    ``ros2 topic echo``, watching a run). ``world_user`` (``formation run --base rmw_zenoh``:
+    the simulated world playing the bases) may subscribe to the domain's data keys."""
     if not robots:
         return acl
     rules: list[dict[str, Any]] = acl["rules"]
@@ -336,8 +338,12 @@ def add_rmw_zenoh(acl: dict[str, Any], robots: Mapping[str, Any],
         own = rule(f"{rid}-rmw-tokens", ["liveliness_token"], ["ingress"],
                    [rmw_zenoh.graph_key(settings)])
         policies[rid]["rules"] += [read, deliver, own]
+    data = [f"{d}/**" for d in domains]
+    if world_user is not None and world_user in policies:
+        policies[world_user]["rules"] += [
+            rule("world-rmw-read", ["declare_subscriber"], ["ingress", "egress"], data),
+            rule("world-rmw-deliver", ["put"], ["egress"], data)]
     if viewer_user is not None and viewer_user in policies:
-        data = [f"{d}/**" for d in domains]
         policies[viewer_user]["rules"] += [
             read, deliver,
             rule("viewer-rmw-read", ["declare_subscriber"], ["ingress", "egress"], data),
