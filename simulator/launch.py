@@ -58,9 +58,11 @@ from scenario import Scenario
 from scenario.succession import formation_successor
 from wire import acl, keys, traffic
 from wire.payloads import DecodeError, decode_status
+from wire.rmw_zenoh import RmwSettings
 from wire.stamps import merge_counts
 from wire.zconf import UsrPwdAuth, ZenohSettings
 
+from .bases import robot_settings, run_bases, with_rmw_bases
 from .fleet import (
     START_TIMEOUT_S,
     STOP_TIMEOUT_S,
@@ -196,6 +198,7 @@ def launch(
     announce=None,
     remote: RemoteAgents | None = None,
     pose_zones: int = 0,
+    rmw_base: RmwSettings | None = None,
 ) -> tuple[dict, Series]:
     """Run ``scenario`` as separate processes; returns the summary and the time series.
 
@@ -247,7 +250,7 @@ def launch(
                                   announce, stop_requested, scenario_path,
                                   clock_offset=clock_offset, agents_per_process=agents_per_process,
                                   shared_session=shared_session, solver=solver, remote=remote,
-                                  pose_zones=pose_zones)
+                                  pose_zones=pose_zones, rmw_base=rmw_base)
     finally:
         if previous_int is not None:
             signal.signal(signal.SIGINT, previous_int)
@@ -260,7 +263,8 @@ def _launch(scenario: Scenario, out: Path, realtime: bool, camera: str, topology
             stop_requested: threading.Event,
             scenario_path: str | Path | None, *, clock_offset: float, agents_per_process: int,
             shared_session: bool, solver: str,
-            remote: RemoteAgents | None = None, pose_zones: int = 0) -> tuple[dict, Series]:
+            remote: RemoteAgents | None = None, pose_zones: int = 0,
+            rmw_base: RmwSettings | None = None) -> tuple[dict, Series]:
     """:func:`launch` once its arguments are checked and its folders made."""
     if remote is not None:  # the router listens where the other hosts reach it
         endpoint = remote.endpoint
@@ -273,7 +277,8 @@ def _launch(scenario: Scenario, out: Path, realtime: bool, camera: str, topology
                              progress_factory, faults, secure, pose_slots, observer, hold,
                              announce, stop_requested, scenario_path, clock_offset=clock_offset,
                              agents_per_process=agents_per_process, shared_session=shared_session,
-                             solver=solver, remote=remote, pose_zones=pose_zones)
+                             solver=solver, remote=remote, pose_zones=pose_zones,
+                             rmw_base=rmw_base)
     finally:
         if remote is not None:
             try:  # an early way out: the agents there have stopped; remove the run's files
@@ -288,7 +293,8 @@ def _launch_fleet(scenario: Scenario, out: Path, realtime: bool, camera: str, to
                   stop_requested: threading.Event, scenario_path: str | Path | None, *,
                   clock_offset: float, agents_per_process: int, shared_session: bool,
                   solver: str, remote: RemoteAgents | None,
-                  pose_zones: int = 0) -> tuple[dict, Series]:
+                  pose_zones: int = 0, rmw_base: RmwSettings | None = None
+                  ) -> tuple[dict, Series]:
     """The run's fleet, from its router to the summary (see :func:`launch`)."""
     stopped: BaseException | None = None  # why a started run ended early
     fault_run = faults.active
@@ -300,8 +306,10 @@ def _launch_fleet(scenario: Scenario, out: Path, realtime: bool, camera: str, to
                 return
             fleet.check()
 
+        rmw_bases = None if rmw_base is None else run_bases(scenario.robot_ids, rmw_base)
         creds = (_secure_setup(scenario, out / "secure", endpoint,
-                               _zone_link(own) if pose_zones else None) if secure else None)
+                               _zone_link(own) if pose_zones else None, rmw_base)
+                 if secure else None)
         router = fleet.start_router(endpoint, port, None if creds is None else creds.router_config,
                                     auth=None if creds is None else creds.world,
                                     also_listen=() if creds is None or creds.zone is None
@@ -312,6 +320,8 @@ def _launch_fleet(scenario: Scenario, out: Path, realtime: bool, camera: str, to
         zs = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False)
         configs = build_agent_configs(scenario, zenoh=zs, topology=topology, safety=safety,
                                       solver=solver)
+        if rmw_base is not None:  # each agent drives its base over rmw_zenoh; the world reads it
+            configs = with_rmw_bases(configs, rmw_base)
         zones, configs = _open_zones(own, scenario, pose_zones, endpoint, agents_per_process,
                                      creds, configs)
 
@@ -337,7 +347,8 @@ def _launch_fleet(scenario: Scenario, out: Path, realtime: bool, camera: str, to
             cmd_timeout=FAULT_WORLD_TIMEOUT_S if fault_run else WorldOptions.cmd_timeout,
             camera_dropouts=tuple((c.robot, c.at, c.at + c.duration)
                                   for c in faults.camera_dropouts),
-            pose_slots=pose_slots, clock_offset=clock_offset, stop_at_goal=not hold)
+            pose_slots=pose_slots, clock_offset=clock_offset, stop_at_goal=not hold,
+            rmw_bases=rmw_bases)
         with zenoh.open(conf) as session:
             world = World(scenario, session, options, () if zones is None else zones.sessions,
                           None if zones is None else zones.zone_of)
@@ -572,7 +583,7 @@ VIEWER_FILE = "viewer.json5"  # in OUT/secure: a read-only viewer's credentials
 
 
 def _secure_setup(scenario: Scenario, folder: Path, endpoint: str,
-                  zone_link: str | None = None) -> _Secure:
+                  zone_link: str | None = None, rmw_base: RmwSettings | None = None) -> _Secure:
     """Fresh credentials for the world (as the camera user), every robot, the fleet manager and
     a viewer; the router's dictionary and its configuration with the fleet's access control
     list (:mod:`wire.acl`), all in ``folder`` (mode 0700, files 0600). ``manager.json5`` and
@@ -602,8 +613,13 @@ def _secure_setup(scenario: Scenario, folder: Path, endpoint: str,
     for name, user in ((MANAGER_FILE, acl.MANAGER_USER), (VIEWER_FILE, acl.VIEWER_USER)):
         acl.write_client_file(folder / name, creds[user], [endpoint])
     router_conf = folder / "router.json5"
+    bases = {} if rmw_base is None else run_bases(scenario.robot_ids, rmw_base)
     rules = acl.fleet_acl(robots, leaders, keys.DEFAULT_PREFIX, successors=successors,
-                          zone_user=acl.ZONE_USER if zone_link else None)
+                          zone_user=acl.ZONE_USER if zone_link else None,
+                          cmd_vel={rid: b.key for rid, b in bases.items()})
+    if rmw_base is not None:  # --base rmw_zenoh: the agents' ROS graph, the world reads the bases
+        acl.add_rmw_zenoh(rules, {rid: robot_settings(rid, rmw_base) for rid in robots},
+                          world_user=acl.CAMERA_USER)
     acl.write_router_config(router_conf, acl.router_config(
         [endpoint, *([zone_link] if zone_link else [])], rules, dictionary.resolve()))
     zone = None if zone_link is None else ZoneSecurity(rules, dictionary.resolve(), zone_link,

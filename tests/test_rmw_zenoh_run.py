@@ -3,11 +3,14 @@ command from its rmw_zenoh data key (simulator.bases), reading samples as rmw_ze
 
 from __future__ import annotations
 
+import csv
+import json
 from pathlib import Path
 
 import pytest
 
 from agent.base import encode_cmd
+from formation.cli import main
 from simulator.bases import command_of, plan_bases, run_bases
 from wire import rmw_zenoh as rmw
 
@@ -42,3 +45,36 @@ def test_commands_are_read_as_rmw_zenoh_reads_them():
                          (b"\x00\x01\x00\x00", _att(rmw.KEYED))):
         with pytest.raises(ValueError):
             command_of(twist, payload, att)
+
+
+@pytest.mark.parametrize("scenario,argv,message", [
+    ("thesis-6.3", ["--cmd-type", "Twist"], "--cmd-type Twist: carries no stamp"),
+    ("thesis-6.3", ["--ros-domain", "500"], "--base rmw_zenoh: ROS domain id"),
+    ("thesis-5.1.1", [], "--base rmw_zenoh: a ROS base takes (v, omega)"),  # single integrator
+])
+def test_bad_options_exit_2_with_one_line(tmp_path, capsys, scenario, argv, message):
+    code = main(["run", str(ROOT / f"scenarios/{scenario}.yaml"), "--out", str(tmp_path / "o"),
+                 "--base", "rmw_zenoh", *argv])
+    err = capsys.readouterr().err
+    assert code == 2 and message in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()  # refused before anything started
+
+
+def test_a_lockstep_run_through_rmw_zenoh_drives_like_the_cmd_key(tmp_path):
+    """Lock-step with TwistStamped: every tick's command comes through the rmw_zenoh keys (the
+    world receives no ``cmd`` message), and the robots move exactly as they do on the ``cmd``
+    key (robots.csv equal but for ux, uy, which a ROS base is not sent)."""
+    out, plain = tmp_path / "rmw", tmp_path / "plain"
+    # 2 simulated seconds: short of the goals, so both runs exit 1 ("incomplete") alike
+    code = main(["run", str(ROOT / "scenarios/thesis-6.3.yaml"), "--out", str(out),
+                 "--base", "rmw_zenoh", "--duration", "2", "--no-plots", "--quiet"])
+    assert code == main(["run", str(ROOT / "scenarios/thesis-6.3.yaml"), "--out", str(plain),
+                         "--duration", "2", "--no-plots", "--quiet"])
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["comm"]["classes"]["cmd"]["recv"]["messages"] == 0
+    assert summary["world"]["missing_cmds"] == 0 and summary["world"]["malformed_cmds"] == 0
+    rows = list(csv.DictReader((out / "robots.csv").read_text().splitlines()))
+    ref = list(csv.DictReader((plain / "robots.csv").read_text().splitlines()))
+    assert len(rows) == len(ref) > 0
+    cols = [c for c in ref[0] if c not in ("ux", "uy")]
+    assert [[r[c] for c in cols] for r in rows] == [[r[c] for c in cols] for r in ref]

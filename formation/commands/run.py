@@ -18,6 +18,7 @@ from formation.progress import Progress, print_summary
 from scenario import Scenario, load_scenario
 from simulator.launch import FaultPlan, RunAborted, launch, parse_camera_dropout, parse_kill
 from simulator.output import write_run
+from wire.rmw_zenoh import RmwSettings, check_settings
 
 
 def _pose_zones(ns: argparse.Namespace) -> int:
@@ -26,6 +27,25 @@ def _pose_zones(ns: argparse.Namespace) -> int:
     if zones < 0:
         raise UsageError(f"--pose-zones: need an integer >= 0, got {zones}")
     return zones
+
+
+def _rmw_base(ns: argparse.Namespace, scenario: Scenario) -> RmwSettings | None:
+    """``--base rmw_zenoh`` and its options checked (UsageError: exit 2)."""
+    if getattr(ns, "base", "world") != "rmw_zenoh":
+        return None
+    settings = RmwSettings(release=getattr(ns, "rmw_zenoh_release", ""),
+                           cmd_type=getattr(ns, "cmd_type", "TwistStamped"),
+                           domain=getattr(ns, "ros_domain", 0))
+    try:
+        check_settings(settings)
+    except ValueError as exc:
+        raise UsageError(f"--base rmw_zenoh: {exc}") from None
+    if not scenario.robot.is_unicycle:
+        raise UsageError("--base rmw_zenoh: a ROS base takes (v, omega): needs a unicycle scenario")
+    if settings.cmd_type == "Twist" and not ns.realtime:
+        raise UsageError("--cmd-type Twist: carries no stamp to match lock-step ticks; "
+                         "needs --realtime")
+    return settings
 
 
 def run_command(ns: argparse.Namespace) -> int:
@@ -74,6 +94,7 @@ def run_command(ns: argparse.Namespace) -> int:
         faults.check_robots(scenario.robot_ids)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+    rmw_base = _rmw_base(ns, scenario)
     remote = _placement(ns, scenario, per_process, faults)  # over SSH, before anything starts
     if getattr(ns, "dry_run", False):
         return _dry_run(ns, scenario, remote, shared)
@@ -92,7 +113,7 @@ def run_command(ns: argparse.Namespace) -> int:
                                  clock_offset=getattr(ns, "clock_offset_ms", 0.0) / 1000.0,
                                  agents_per_process=per_process, shared_session=shared,
                                  solver=solver, hold=hold, announce=_announce if hold else None,
-                                 remote=remote, pose_zones=zones)
+                                 remote=remote, pose_zones=zones, rmw_base=rmw_base)
     except RunAborted as stop:  # the run started: its summary says why and what it measured
         write_run(stop.summary, stop.series, scenario, out, plots=not ns.no_plots)
         print(f"formation run: aborted: {stop}; wrote {out / 'summary.json'} with what was "
