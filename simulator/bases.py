@@ -71,12 +71,15 @@ def command_of(base: RmwBase, payload: bytes, attachment: bytes | None) -> Cmd:
 
 class RmwBaseReader:
     """The world's subscriptions to every robot's rmw_zenoh data key: each good command goes
-    to ``offer(robot, cmd, key, nbytes)``; the rest are counted in :attr:`dropped`."""
+    to ``offer(robot, cmd, key, nbytes)``; the rest are counted in :attr:`dropped` and
+    reported to ``on_drop`` (the world's malformed commands)."""
 
     def __init__(self, bases: Mapping[str, RmwBase],
-                 offer: Callable[[str, Cmd, str, int], None]) -> None:
+                 offer: Callable[[str, Cmd, str, int], None],
+                 on_drop: Callable[[], None] | None = None) -> None:
         self._bases = {b.key: b for b in bases.values()}
         self._offer = offer
+        self._on_drop = on_drop
         self._lock = threading.Lock()
         self.dropped = 0
         self._subs: list[Any] = []
@@ -94,6 +97,8 @@ class RmwBaseReader:
             with self._lock:
                 self.dropped += 1
             logger.debug("%s: dropped: %s", key, exc)
+            if self._on_drop is not None:
+                self._on_drop()
             return
         self._offer(base.robot, cmd, key, len(payload))
 

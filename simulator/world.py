@@ -240,6 +240,10 @@ class _CmdInbox:
             return
         self.offer(rid, cmd, key, len(data))
 
+    def count_malformed(self) -> None:
+        with self._cond:
+            self.malformed += 1
+
     def offer(self, rid: str, cmd: Cmd, key: str, nbytes: int) -> None:
         """``rid``'s command ``cmd`` (``nbytes`` on ``key``), kept if its stamp passes."""
         self._counter.count_recv(key, nbytes)
@@ -346,8 +350,8 @@ class World:
         # callback only decodes and stores under the inbox lock). With zones, one subscriber per
         # robot on its zone's session: its command arrives there, never through another zone.
         if options.rmw_bases:
-            self._subs = RmwBaseReader(options.rmw_bases, self.inbox.offer).declare(
-                self._session_of)
+            self._subs = RmwBaseReader(options.rmw_bases, self.inbox.offer,
+                                       self.inbox.count_malformed).declare(self._session_of)
         elif self.zones:
             self._subs = [self._session_of(r).declare_subscriber(
                 keys.cmd_key(p, r), zenoh.handlers.Callback(self.inbox.callback, indirect=False))

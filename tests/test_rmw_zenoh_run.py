@@ -78,3 +78,31 @@ def test_a_lockstep_run_through_rmw_zenoh_drives_like_the_cmd_key(tmp_path):
     assert len(rows) == len(ref) > 0
     cols = [c for c in ref[0] if c not in ("ux", "uy")]
     assert [[r[c] for c in cols] for r in rows] == [[r[c] for c in cols] for r in ref]
+
+
+def test_the_reader_drops_what_rmw_zenoh_drops_and_says_so():
+    from simulator.bases import RmwBaseReader
+
+    class Sample:  # what the reader reads of a zenoh.Sample
+        def __init__(self, key, payload, attachment):
+            self.key_expr, self._payload, self._att = key, payload, attachment
+
+        @property
+        def payload(self):
+            return type("Z", (), {"to_bytes": lambda _s: self._payload})()
+
+        @property
+        def attachment(self):
+            return None if self._att is None else type("Z", (), {"to_bytes": lambda _s: self._att})()
+
+    base = plan_bases(["r1"], rmw.RmwSettings(), "jazzy")["r1"]
+    got, drops = [], []
+    reader = RmwBaseReader({"r1": base}, lambda *a: got.append(a), lambda: drops.append(1))
+    payload = encode_cmd(rmw.TWIST_STAMPED, 0.1, 0.0, 3.0)
+    reader.callback(Sample(base.key, payload, None))
+    reader.callback(Sample(base.key, payload, _att(rmw.KEYED)))
+    reader.callback(Sample("0/other/cmd_vel/x/y", payload, _att(rmw.POSITIONAL)))  # not a base
+    reader.callback(Sample(base.key, payload, _att(rmw.POSITIONAL)))
+    assert reader.dropped == 2 and len(drops) == 2
+    assert [(r, c.v, c.stamp, k, n) for r, c, k, n in got] == [("r1", 0.1, 3.0, base.key,
+                                                                  len(payload))]
