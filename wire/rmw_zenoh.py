@@ -460,10 +460,11 @@ def publisher_spec(
 
 
 def subscription_selector(domain: int, topic_name: str, type_name: str, rel: Release) -> str:
-    """Tokens of every subscription to ``topic_name`` of ``type_name`` (``--status``)."""
+    """Tokens of every subscription to ``topic_name`` of ``type_name`` (``--status``); the
+    QoS chunk and whatever follows it (rolling appends an optional buffer-backends chunk)."""
     return (f"{ADMIN_SPACE}/{check_domain(domain)}/*/*/*/{SUBSCRIPTION}/*/*/*/"
             f"{mangle(topic_name)}/{mangle(dds_type_name(type_name))}/"
-            f"{mangle(type_hash(type_name, rel))}/*")
+            f"{mangle(type_hash(type_name, rel))}/**")
 
 
 # --- a robot's settings (agent config, deploy inventory, formation run) ----------------------
