@@ -9,6 +9,9 @@
   (``{robot}/cmd_vel`` when the bridge's Zenoh session has ``namespace: {robot}``; see
   docs/deploy.md). The payload is the raw CDR of ``geometry_msgs/msg/Twist`` (Humble) or
   ``geometry_msgs/msg/TwistStamped`` (Jazzy): :class:`CdrBase`.
+- the same TurtleBot3 bases with ``config.rmw`` set: the robot runs ROS 2 on rmw_zenoh and no
+  bridge; the agent is an rmw_zenoh publisher itself (:class:`RmwZenohBase`: its data key,
+  attachment and liveliness tokens as :mod:`wire.rmw_zenoh` documents), see docs/deploy.md.
 
 CDR layout (OMG CDR version 1, little endian, as ROS 2 rmw implementations write it):
 
@@ -30,11 +33,13 @@ from __future__ import annotations
 import logging
 import math
 import struct
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
 from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE
+from wire import rmw_zenoh as rmw
 
 logger = logging.getLogger(__name__)
 
@@ -173,14 +178,41 @@ def encode_cmd_vel(
     max_turn_rate: float = BURGER_MAX_TURN_RATE,
 ) -> bytes:
     """The ``cmd_vel`` payload for ``base`` (Humble: Twist, Jazzy: TwistStamped), clamped."""
+    if base not in (HUMBLE, JAZZY):
+        raise ValueError(f"base: {base!r} is not one of {(HUMBLE, JAZZY)}")
+    type_name = rmw.TWIST if base == HUMBLE else rmw.TWIST_STAMPED
+    return encode_cmd(type_name, v, omega, stamp, frame_id, max_speed, max_turn_rate)
+
+
+def encode_cmd(
+    type_name: str,
+    v: float,
+    omega: float,
+    stamp: float,
+    frame_id: str = DEFAULT_FRAME_ID,
+    max_speed: float = BURGER_MAX_SPEED,
+    max_turn_rate: float = BURGER_MAX_TURN_RATE,
+) -> bytes:
+    """The CDR of ``geometry_msgs/msg/Twist`` or ``TwistStamped`` (``type_name``), clamped."""
     v, omega = clamp_command(v, omega, max_speed, max_turn_rate)
     twist = Twist(linear=(v, 0.0, 0.0), angular=(0.0, 0.0, omega))
-    if base == HUMBLE:
+    if type_name == rmw.TWIST:
         return encode_twist(twist)
-    if base == JAZZY:
+    if type_name == rmw.TWIST_STAMPED:
         sec, nanosec = stamp_to_time(stamp)
         return encode_twist_stamped(TwistStamped(sec, nanosec, frame_id, twist))
-    raise ValueError(f"base: {base!r} is not one of {(HUMBLE, JAZZY)}")
+    raise ValueError(f"type: {type_name!r} is not one of {(rmw.TWIST, rmw.TWIST_STAMPED)}")
+
+
+def decode_cmd(type_name: str, payload: bytes) -> tuple[float, float, float | None]:
+    """``(v, omega, stamp or None)`` of a Twist / TwistStamped payload; ``ValueError``."""
+    if type_name == rmw.TWIST:
+        t = decode_twist(payload)
+        return t.linear[0], t.angular[2], None
+    if type_name == rmw.TWIST_STAMPED:
+        m = decode_twist_stamped(payload)
+        return m.twist.linear[0], m.twist.angular[2], m.sec + m.nanosec * 1e-9
+    raise ValueError(f"type: {type_name!r} is not one of {(rmw.TWIST, rmw.TWIST_STAMPED)}")
 
 
 class WorldBase:
@@ -245,19 +277,103 @@ class CdrBase:
                 undeclare()
 
 
+class RmwZenohBase:
+    """A robot on ROS 2 with rmw_zenoh: the agent publishes ``cmd_vel`` as rmw_zenoh does.
+
+    Each command is the CDR of ``type_name`` put on ``spec.key`` with the attachment of
+    ``spec.layout`` (sequence number from 1, the wall clock's ns, ``spec.gid``): rmw_zenoh's
+    subscribers drop a sample without one. ``put(payload, attachment)`` sends; ``close``
+    (optional) undeclares the publisher and its liveliness tokens after the final stop.
+    """
+
+    def __init__(
+        self,
+        type_name: str,
+        spec: rmw.PublisherSpec,
+        put: Callable[[bytes, bytes], Any],
+        frame_id: str = DEFAULT_FRAME_ID,
+        max_speed: float = BURGER_MAX_SPEED,
+        max_turn_rate: float = BURGER_MAX_TURN_RATE,
+        clock_ns: Callable[[], int] = time.time_ns,
+        close: Callable[[], Any] | None = None,
+    ) -> None:
+        encode_cmd(type_name, 0.0, 0.0, 0.0)  # validates the type
+        if not callable(put):
+            raise ValueError("put must be callable")
+        clamp_command(0.0, 0.0, max_speed, max_turn_rate)  # validates the limits
+        self.type_name = type_name
+        self.spec = spec
+        self._put = put
+        self._frame_id = frame_id
+        self._limits = (max_speed, max_turn_rate)
+        self._clock_ns = clock_ns
+        self._close = close
+        self._last_stamp = 0.0
+        self.sequence_number = 0  # of the last sample sent
+        self.publisher: Any = None  # the zenoh publisher, when open_rmw_base declared it
+
+    def _publish(self, v: float, omega: float, stamp: float, limits: tuple[float, float]) -> None:
+        payload = encode_cmd(self.type_name, v, omega, stamp, self._frame_id, *limits)
+        self.sequence_number += 1
+        att = rmw.Attachment(self.sequence_number, int(self._clock_ns()), self.spec.gid)
+        self._put(payload, rmw.encode_attachment(att, self.spec.layout))
+
+    def send(self, v: float, omega: float, stamp: float) -> None:
+        self._last_stamp = stamp
+        self._publish(v, omega, stamp, self._limits)
+
+    def stop(self) -> None:
+        """Command zero velocity, then undeclare the publisher and tokens (if this base did)."""
+        try:
+            self._publish(0.0, 0.0, self._last_stamp, self._limits)
+        finally:
+            if self._close is not None:
+                close, self._close = self._close, None
+                close()
+
+
+def open_rmw_base(config: Any, session: Any, max_speed: float, max_turn: float) -> RmwZenohBase:
+    """An :class:`RmwZenohBase` on ``session`` for ``config`` (its ``base`` and ``rmw``):
+    declares the node's and the publisher's liveliness tokens, then the publisher."""
+    settings: rmw.RmwSettings = config.rmw
+    distro = "humble" if config.base == HUMBLE else "jazzy"
+    rel, type_name = rmw.resolve(settings, distro)
+    spec = rmw.publisher_spec(rel, str(session.zid()), domain=settings.domain,
+                              namespace=settings.namespace, topic="cmd_vel", type_name=type_name)
+    liveliness = session.liveliness()
+    node_token = liveliness.declare_token(spec.node_token)
+    pub_token = liveliness.declare_token(spec.publisher_token)
+    publisher = session.declare_publisher(spec.key)
+
+    def put(payload: bytes, attachment: bytes) -> None:
+        publisher.put(payload, attachment=attachment)
+
+    def close() -> None:
+        for entity in (publisher, pub_token, node_token):
+            entity.undeclare()
+
+    logger.info("base %s over rmw_zenoh %s: %s on key %r", config.base, rel.name,
+                type_name, spec.key)
+    base = RmwZenohBase(type_name, spec, put, getattr(config, "frame_id", DEFAULT_FRAME_ID),
+                        max_speed, max_turn, close=close)
+    base.publisher = publisher
+    return base
+
+
 def make_base(
     config: Any,
     session: Any = None,
     *,
     publish: Callable[[float, float, float], None] | None = None,
     cmd_vel_key: str | None = None,
-) -> WorldBase | CdrBase:
+) -> WorldBase | CdrBase | RmwZenohBase:
     """The base adapter of ``config.base`` (an :class:`agent.config.AgentConfig`).
 
     ``world`` needs ``publish`` (the agent's cmd publisher); the TurtleBot bases need ``session``
     (a ``zenoh.Session``) and put on ``cmd_vel_key`` (default: ``config.cmd_vel_key`` if the
     config has that field, else ``cmd_vel``), clamped to ``config.control``'s limits if it has
-    ``max_speed``/``max_turn_rate``, never beyond the burger's.
+    ``max_speed``/``max_turn_rate``, never beyond the burger's; with ``config.rmw`` set they
+    are rmw_zenoh publishers instead (:func:`open_rmw_base`).
     """
     base = getattr(config, "base", None)
     if base == WORLD:
@@ -271,6 +387,8 @@ def make_base(
         control = getattr(config, "control", None)
         max_speed = min(BURGER_MAX_SPEED, _limit(control, "max_speed", BURGER_MAX_SPEED))
         max_turn = min(BURGER_MAX_TURN_RATE, _limit(control, "max_turn_rate", BURGER_MAX_TURN_RATE))
+        if getattr(config, "rmw", None) is not None:
+            return open_rmw_base(config, session, max_speed, max_turn)
         publisher = session.declare_publisher(key)
         logger.info("base %s: cmd_vel on key %r", base, key)
         return CdrBase(base, publisher.put, max_speed=max_speed, max_turn_rate=max_turn,

@@ -26,6 +26,7 @@ from scenario.reader import excerpt
 from scenario.routes import initial_route
 from scenario.succession import formation_successor
 from wire.keys import name_problem, validate_prefix
+from wire.rmw_zenoh import RmwSettings
 from wire.stamps import CLOCK_TOLERANCE_S
 from wire.zconf import ZenohSettings
 
@@ -76,6 +77,8 @@ class AgentConfig:
     zenoh: ZenohSettings = field(default_factory=agent_zenoh)
     cmd_vel_key: str = "cmd_vel"  # real bases: the zenoh-bridge-ros2dds key for /cmd_vel
     frame_id: str = "base_link"  # real bases (Jazzy TwistStamped): header frame
+    # real bases: None = zenoh-bridge-ros2dds on cmd_vel_key; set = rmw_zenoh, no bridge
+    rmw: RmwSettings | None = None
     solver: str = "exact"  # QP solver (agent.qp.make_solver): exact or a qpsolvers backend
     # the formation centroid's route (waypoints, the goal centroid last); () = the goal alone
     route: tuple[tuple[float, float], ...] = ()
@@ -264,6 +267,8 @@ def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
         raise ValueError(f"zenoh.{extra[0]}: not part of an agent configuration file")
     d = _plain(dataclasses.asdict(cfg))
     d["zenoh"] = {k: d["zenoh"][k] for k in AGENT_ZENOH_FIELDS}
+    if d.get("rmw") is None:
+        d.pop("rmw", None)  # the bridge: files stay as they were before the field existed
     if d["solver"] == "exact":
         del d["solver"]  # the default: files stay as they were before the field existed
     d["version"] = CONFIG_VERSION

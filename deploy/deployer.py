@@ -53,7 +53,7 @@ from typing import Any
 from agent.config import AgentConfig, build_agent_configs, save_config
 from scenario import Scenario
 
-from . import scripts
+from . import rmw_zenoh, scripts
 from .inventory import Inventory, InventoryError, RobotHost
 from .secure import fleet_secrets, robot_auth
 from .ssh import Result, SshTarget, scp_argv, scp_files, ssh_argv, ssh_run
@@ -166,6 +166,8 @@ def agent_configs(inv: Inventory, scenario: Scenario) -> dict[str, AgentConfig]:
             changes["cmd_vel_key"] = r.cmd_vel
         if "frame_id" in names:
             changes["frame_id"] = r.frame_id
+        if r.rmw is not None:
+            changes["rmw"] = r.rmw  # an rmw_zenoh publisher itself, no bridge
         out[r.id] = dataclasses.replace(base[r.id], **changes)
     return out
 
@@ -192,8 +194,7 @@ def make_plan(inv: Inventory, scenario: Scenario, wheel: str | None = None, *,
             try:
                 auth = robot_auth(secrets, r.id)
                 files[ZENOH_FILE] = zenoh_json5(inv, r, auth).encode()
-                if inv.base != "world":
-                    files[BRIDGE_FILE] = bridge_json5(inv, r, auth).encode()
+                files.update(rmw_zenoh.base_files(inv, r, auth, BRIDGE_FILE, bridge_json5))
             except ValueError as exc:
                 raise InventoryError(f"robot {r.id}: {exc}") from None
             files[scripts.RUN_SCRIPT] = scripts.run_script(r.id, agent_args(inv), r.env).encode()
@@ -202,6 +203,7 @@ def make_plan(inv: Inventory, scenario: Scenario, wheel: str | None = None, *,
             modes[scripts.RUN_SCRIPT] = 0o755
             if has_secrets(inv):
                 modes[ZENOH_FILE] = modes[BRIDGE_FILE] = 0o600
+                modes.update({n: 0o600 for n in rmw_zenoh.SECRET_FILES if n in files})
             target = SshTarget(host=r.host, port=r.port, user=r.user, key=r.key,
                                known_hosts=inv.known_hosts, connect_timeout=inv.connect_timeout)
             robots.append(RobotPlan(r, target, files, modes, files_digest(files, modes)))

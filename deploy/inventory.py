@@ -29,6 +29,14 @@ Example (every key is listed; the commented ones are optional)::
       - {id: a1, host: 192.168.0.21}
       - {id: a2, host: 192.168.0.22, user: pi}
       # more per-robot keys: cmd_vel_key (default {id}/cmd_vel), frame_id, env
+      # - {id: a3, host: 192.168.0.23, transport: rmw_zenoh, ros_namespace: a3}
+      # transport: bridge | rmw_zenoh (default bridge: zenoh-bridge-ros2dds on cmd_vel_key;
+      #   rmw_zenoh: ROS 2 on rmw_zenoh_cpp, no bridge, with these keys, see docs/deploy.md:)
+      # cmd_type: Twist | TwistStamped   (default: the base's, Twist on Humble)
+      # ros_namespace: a3                (the robot's ROS namespace; default none)
+      # ros_domain: 0                    (ROS_DOMAIN_ID, 0..232)
+      # rmw_zenoh_release: jazzy         (humble | humble-0.1.1 | jazzy | jazzy-0.2.3 | kilted;
+      #                                   default: the base's distribution, current binaries)
 
 Relative local paths (``key``, ``password_file``, ``known_hosts``, TLS files) are taken from the
 inventory's folder; ``~`` is this machine's home for local paths and the robot user's home for
@@ -52,6 +60,8 @@ import yaml
 
 from agent.config import BASES, TOPOLOGIES
 from wire import keys
+from wire import rmw_zenoh as rmw
+from wire.rmw_zenoh import RmwSettings
 
 logger = logging.getLogger(__name__)
 
@@ -66,7 +76,9 @@ ZENOH_MODES = ("client", "peer")
 _TOP_KEYS = {"prefix", "base", "topology", "known_hosts", "connect_timeout", "env", "zenoh",
              "defaults", "robots"}
 _ROBOT_KEYS = {"id", "host", "port", "user", "key", "install_dir", "python", "cmd_vel_key",
-               "frame_id", "env"}
+               "frame_id", "env", "transport", "cmd_type", "ros_namespace", "ros_domain",
+               "rmw_zenoh_release"}
+TRANSPORTS = ("bridge", "rmw_zenoh")
 _ZENOH_KEYS = {"router", "mode", "peer_port", "user", "password_file", "tls", "access_control",
                "secrets"}
 DEFAULT_SECRETS = "secure"
@@ -117,6 +129,7 @@ class RobotHost:
     cmd_vel_key: str = ""  # "" -> "{id}/cmd_vel"
     frame_id: str = "base_link"
     env: tuple[tuple[str, str], ...] = ()
+    rmw: RmwSettings | None = None  # transport rmw_zenoh; None: the bridge
 
     @property
     def address(self) -> str:
@@ -216,6 +229,7 @@ def parse_inventory(data: Any, path: Path) -> Inventory:
                     f"{zenoh.peer_port}), but {hosts[r.host]!r} and {r.id!r} share {r.host}"
                 )
             hosts[r.host] = r.id
+    _check_transports(base, robots)
     return Inventory(path=path, robots=tuple(robots), zenoh=zenoh, prefix=prefix, base=base,
                      topology=topology, known_hosts=known_hosts, connect_timeout=connect_timeout)
 
@@ -272,7 +286,7 @@ def _robot(d: dict[str, Any], label: str, folder: Path,
     return RobotHost(
         id=rid, host=host, user=user, key=_local_path(d["key"], f"{label}.key", folder),
         port=port, install_dir=install_dir, python=python, cmd_vel_key=cmd_vel_key,
-        frame_id=frame_id, env=tuple(sorted(env.items())),
+        frame_id=frame_id, env=tuple(sorted(env.items())), rmw=_rmw_settings(d, label),
     )
 
 
@@ -293,6 +307,37 @@ def _cmd_vel_key(value: Any, name: str) -> str:
     if any(not c or keys.id_problem(c) for c in key.split("/")):
         raise InventoryError(f"{name}: {key!r} is not a plain Zenoh key")
     return key
+
+
+def _rmw_settings(d: dict[str, Any], label: str) -> RmwSettings | None:
+    """A robot's rmw_zenoh keys: None for the bridge (which takes none of them)."""
+    transport = _choice(d.get("transport", "bridge"), TRANSPORTS, f"{label}.transport")
+    given = [k for k in ("cmd_type", "ros_namespace", "ros_domain", "rmw_zenoh_release") if k in d]
+    if transport == "bridge":
+        if given:
+            raise InventoryError(f"{label}.{given[0]}: only for transport rmw_zenoh")
+        return None
+    cmd_type = _choice(d.get("cmd_type", ""), ("", *rmw.CMD_TYPES), f"{label}.cmd_type") \
+        if "cmd_type" in d else ""
+    release = _choice(d["rmw_zenoh_release"], tuple(rmw.RELEASES), f"{label}.rmw_zenoh_release") \
+        if "rmw_zenoh_release" in d else ""
+    namespace = _str(d["ros_namespace"], f"{label}.ros_namespace") if "ros_namespace" in d else ""
+    domain = d.get("ros_domain", 0)
+    for name, check in (("ros_namespace", lambda: rmw.namespace_of(namespace)),
+                        ("ros_domain", lambda: rmw.check_domain(domain))):
+        try:
+            check()
+        except ValueError as exc:
+            raise InventoryError(f"{label}.{name}: {exc}") from None
+    return RmwSettings(release=release, cmd_type=cmd_type, namespace=namespace, domain=domain)
+
+
+def _check_transports(base: str, robots: Sequence[RobotHost]) -> None:
+    """rmw_zenoh needs a ROS base (the release defaults to the base's distribution)."""
+    for r in robots:
+        if r.rmw is not None and base == "world":
+            raise InventoryError(f"robots ({r.id}).transport: rmw_zenoh needs base "
+                                 f"turtlebot3-humble or turtlebot3-jazzy, not world")
 
 
 def _zenoh(value: Any, folder: Path) -> FleetZenoh:

@@ -40,6 +40,7 @@ from scenario.succession import formation_successor
 from wire import acl
 from wire.zconf import UsrPwdAuth
 
+from . import rmw_zenoh
 from .inventory import Inventory, InventoryError
 
 logger = logging.getLogger(__name__)
@@ -91,12 +92,12 @@ def fleet_secrets(inv: Inventory, scenario: Scenario, write: bool = True) -> Fle
     leaders = {f.name: f.leader for f in scenario.formations}
     successors = {f.name: s for f in scenario.formations
                   if (s := formation_successor(f)) is not None}
-    cmd_vel = {r.id: r.cmd_vel for r in inv.robots}
+    cmd_vel = {r.id: rmw_zenoh.base_key(inv, r) for r in inv.robots}
     try:
-        conf = acl.router_config(
-            [z.router], acl.fleet_acl(robots, leaders, inv.prefix, successors=successors,
-                                      cmd_vel=cmd_vel),
-            (folder / DICTIONARY).resolve())
+        rights = acl.fleet_acl(robots, leaders, inv.prefix, successors=successors,
+                               cmd_vel=cmd_vel)
+        conf = acl.router_config([z.router], acl.add_rmw_zenoh(rights, rmw_zenoh.rmw_robots(inv)),
+                                 (folder / DICTIONARY).resolve())
     except ValueError as exc:
         raise InventoryError(f"zenoh.access_control: {exc}") from None
     secrets = FleetSecrets(folder, creds, conf)

@@ -158,6 +158,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="carry the poses and commands through Z zone routers of the world's "
                         "process, each agent connected to its zone's (default 0: everything "
                         "through the run's router)")
+    p.add_argument("--base", default="world", choices=["world", "rmw_zenoh"],
+                   help="rmw_zenoh: each agent drives its base as a ROS 2 robot on rmw_zenoh "
+                        "(namespace = robot id, topic cmd_vel) and the world plays the bases")
+    p.add_argument("--cmd-type", default="TwistStamped", choices=["Twist", "TwistStamped"],
+                   help="--base rmw_zenoh: the command message (Twist needs --realtime)")
+    p.add_argument("--ros-domain", type=int, default=0, metavar="N",
+                   help="--base rmw_zenoh: the ROS domain id (default 0)")
+    p.add_argument("--rmw-zenoh-release", default="jazzy",
+                   choices=["humble", "humble-0.1.1", "jazzy", "jazzy-0.2.3", "kilted"],
+                   help="--base rmw_zenoh: the rmw_zenoh release whose wire format to speak")
     p.add_argument("--no-safety", action="store_true", help="barriers off (nominal control only)")
     p.add_argument("--port", type=int, default=0, help="router TCP port on 127.0.0.1 (0: free)")
     p.add_argument("--hosts", default=None, metavar="INVENTORY",

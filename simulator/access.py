@@ -13,8 +13,10 @@ from pathlib import Path
 from scenario import Scenario
 from scenario.succession import formation_successor
 from wire import acl, keys
+from wire.rmw_zenoh import RmwSettings
 from wire.zconf import UsrPwdAuth
 
+from .bases import robot_settings, run_bases
 from .zones import ZoneSecurity
 
 MANAGER_FILE = "manager.json5"  # in OUT/secure: the fleet manager's credentials (goals)
@@ -55,7 +57,8 @@ def _fresh_folder(folder: Path) -> None:
 
 
 def secure_setup(scenario: Scenario, folder: Path, endpoint: str,
-                 zone_link: str | None = None) -> RunCredentials:
+                 zone_link: str | None = None, rmw_base: RmwSettings | None = None
+                 ) -> RunCredentials:
     """Fresh credentials for the world (as the camera user), every robot, the fleet manager and
     a viewer; the router's dictionary and its configuration with the fleet's access control
     list (:mod:`wire.acl`), all in ``folder`` (mode 0700, files 0600). ``manager.json5`` and
@@ -63,7 +66,8 @@ def secure_setup(scenario: Scenario, folder: Path, endpoint: str,
     password) that client commands take with ``--auth FILE`` (``viewer.credentials``, the
     viewer's ``user:password`` line, is kept for older scripts). ``zone_link``: pose zones; the
     router also listens there (a Unix socket in a private folder) for the zone routers, which log
-    in as :data:`wire.acl.ZONE_USER`."""
+    in as :data:`wire.acl.ZONE_USER`. ``rmw_base``: ``--base rmw_zenoh``, each robot's command
+    goes to its base's rmw_zenoh key, which the world reads (:mod:`simulator.bases`)."""
     _fresh_folder(folder)
     robots = {rid: scenario.formation_of(rid).name for rid in scenario.robot_ids}
     leaders = {f.name: f.leader for f in scenario.formations}
@@ -81,8 +85,13 @@ def secure_setup(scenario: Scenario, folder: Path, endpoint: str,
     for name, user in ((MANAGER_FILE, acl.MANAGER_USER), (VIEWER_FILE, acl.VIEWER_USER)):
         acl.write_client_file(folder / name, creds[user], [endpoint])
     router_conf = folder / "router.json5"
+    bases = {} if rmw_base is None else run_bases(scenario.robot_ids, rmw_base)
     rules = acl.fleet_acl(robots, leaders, keys.DEFAULT_PREFIX, successors=successors,
-                          zone_user=acl.ZONE_USER if zone_link else None)
+                          zone_user=acl.ZONE_USER if zone_link else None,
+                          cmd_vel={rid: b.key for rid, b in bases.items()})
+    if rmw_base is not None:  # --base rmw_zenoh: the agents' ROS graph, the world reads the bases
+        acl.add_rmw_zenoh(rules, {rid: robot_settings(rid, rmw_base) for rid in robots},
+                          world_user=acl.CAMERA_USER)
     acl.write_router_config(router_conf, acl.router_config(
         [endpoint, *([zone_link] if zone_link else [])], rules, dictionary.resolve()))
     zone = None if zone_link is None else ZoneSecurity(rules, dictionary.resolve(), zone_link,

@@ -47,6 +47,7 @@ from wire import acl, keys
 from wire.zconf import ZenohSettings
 
 from .access import RunCredentials, secure_setup, zone_link
+from .bases import run_bases, with_rmw_bases
 from .counters import agent_stats
 from .faults import FAULT_WORLD_TIMEOUT_S, FaultDriver, fault_summary
 from .fleet import START_TIMEOUT_S, Child, ChildFailed, Fleet, unique_children
@@ -153,7 +154,8 @@ def _launch_fleet(cfg: RunConfig, hooks: _Hooks, endpoint: str,
     """The run's fleet, from its router to the summary (see :func:`launch`)."""
     with Fleet(cfg.out / "logs") as fleet, ExitStack() as own:
         creds = (secure_setup(cfg.scenario, cfg.out / "secure", endpoint,
-                              zone_link(own) if cfg.pose_zones else None) if cfg.secure else None)
+                              zone_link(own) if cfg.pose_zones else None, cfg.rmw_base)
+                 if cfg.secure else None)
         router = _start_router(fleet, endpoint, port, creds)
         camera = [_start_camera(fleet, cfg, endpoint, creds)] if cfg.camera == "process" else []
         zones, configs = _agent_configs(own, cfg, endpoint, creds)
@@ -194,6 +196,8 @@ def _agent_configs(own: ExitStack, cfg: RunConfig, endpoint: str, creds: RunCred
     zs = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False)
     configs = build_agent_configs(cfg.scenario, zenoh=zs, topology=cfg.topology,
                                   safety=cfg.safety, solver=cfg.solver)
+    if cfg.rmw_base is not None:  # each agent drives its base over rmw_zenoh; the world reads it
+        configs = with_rmw_bases(configs, cfg.rmw_base)
     if not cfg.pose_zones:
         return None, configs
     pz = own.enter_context(PoseZones(cfg.scenario, cfg.pose_zones, endpoint,
@@ -236,7 +240,8 @@ def _world_options(cfg: RunConfig) -> WorldOptions:
         cmd_timeout=FAULT_WORLD_TIMEOUT_S if cfg.fault_run else WorldOptions.cmd_timeout,
         camera_dropouts=tuple((c.robot, c.at, c.at + c.duration)
                               for c in cfg.faults.camera_dropouts),
-        pose_slots=cfg.pose_slots, clock_offset=cfg.clock_offset, stop_at_goal=not cfg.hold)
+        pose_slots=cfg.pose_slots, clock_offset=cfg.clock_offset, stop_at_goal=not cfg.hold,
+        rmw_bases=None if cfg.rmw_base is None else run_bases(cfg.scenario.robot_ids, cfg.rmw_base))
 
 
 def _run_world(cfg: RunConfig, hooks: _Hooks, fleet: Fleet, endpoint: str,

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from agent.qp import make_solver
 from scenario import Scenario
+from wire.rmw_zenoh import RmwSettings
 
 from .faults import FaultPlan
 from .fleet import RemoteAgents
@@ -37,6 +38,8 @@ class RunConfig:
     ``pose_zones`` Z > 0 carries the poses and commands through Z zone routers of the world's
     process (:mod:`simulator.zones`). ``remote`` places the agents of ``remote.robots`` on other
     hosts (``--hosts``, :mod:`deploy.remote`); the router then listens on ``remote.endpoint``.
+    ``rmw_base`` (``--base rmw_zenoh``): every agent drives its robot's base over rmw_zenoh
+    (namespace = robot id), which the world plays (:mod:`simulator.bases`).
     """
 
     scenario: Scenario
@@ -57,6 +60,7 @@ class RunConfig:
     hold: bool = False
     remote: RemoteAgents | None = None
     pose_zones: int = 0
+    rmw_base: RmwSettings | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "out", Path(self.out))
@@ -68,6 +72,17 @@ class RunConfig:
         make_solver(self.solver)  # an unknown or missing backend: before any process starts
         self.faults.check_robots(self.scenario.robot_ids)
         self._check_remote()
+        self._check_rmw_base()
+
+    def _check_rmw_base(self) -> None:
+        if self.rmw_base is None:
+            return
+        if not self.scenario.robot.is_unicycle:
+            raise ValueError("--base rmw_zenoh: a ROS base takes (v, omega): needs a unicycle "
+                             "scenario")
+        if self.rmw_base.cmd_type == "Twist" and not self.realtime:
+            raise ValueError("--cmd-type Twist: carries no stamp to match lock-step ticks; "
+                             "needs --realtime")
 
     @property
     def fault_run(self) -> bool:

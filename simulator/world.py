@@ -74,6 +74,7 @@ from wire.shapes import shape_to_msg
 from wire.stamps import CLOCK_TOLERANCE_S, EPS, StampCounter
 from wire.traffic import CountingPublisher, TrafficCounter
 
+from .bases import RmwBase, RmwBaseReader
 from .lab import LabWorld
 from .metrics import SafetyMonitor
 from .physics import world_for
@@ -108,6 +109,8 @@ class WorldOptions:
     clock_offset: float = 0.0  # [s] real time: the camera's clock runs this far ahead of the
     # agents' (negative: behind); poses are stamped, and commands judged, on the camera's clock
     engine: str = "kinematic"  # or "mujoco": the robots are physics bodies (simulator.physics)
+    # robot -> its base on rmw_zenoh (simulator.bases): commands come from there, not ``cmd``
+    rmw_bases: Mapping[str, RmwBase] | None = None
 
     def __post_init__(self) -> None:
         if isinstance(self.pose_slots, bool) or not isinstance(self.pose_slots, int) \
@@ -207,13 +210,22 @@ class _CmdInbox:
         if rid is None:
             return
         data = sample.payload.to_bytes()
-        self._counter.count_recv(key, len(data))
         try:
             cmd = decode_cmd(data)
         except DecodeError:
+            self._counter.count_recv(key, len(data))
             with self._cond:
                 self.malformed += 1
             return
+        self.offer(rid, cmd, key, len(data))
+
+    def count_malformed(self) -> None:
+        with self._cond:
+            self.malformed += 1
+
+    def offer(self, rid: str, cmd: Cmd, key: str, nbytes: int) -> None:
+        """``rid``'s command ``cmd`` (``nbytes`` on ``key``), kept if its stamp passes."""
+        self._counter.count_recv(key, nbytes)
         now = time.monotonic()
         with self._cond:
             prev = self.latest.get(rid)
@@ -317,7 +329,10 @@ class World:
         # that received it (``indirect=False``: no hand-over to a Python thread per command; the
         # callback only decodes and stores under the inbox lock). With zones, one subscriber per
         # robot on its zone's session: its command arrives there, never through another zone.
-        if self.zones:
+        if options.rmw_bases:
+            self._subs = RmwBaseReader(options.rmw_bases, self.inbox.offer,
+                                       self.inbox.count_malformed).declare(self._session_of)
+        elif self.zones:
             self._subs = [self._session_of(r).declare_subscriber(
                 keys.cmd_key(p, r), zenoh.handlers.Callback(self.inbox.callback, indirect=False))
                 for r in self.ids]

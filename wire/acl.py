@@ -51,7 +51,7 @@ from typing import Any
 
 import zenoh
 
-from wire import keys
+from wire import keys, rmw_zenoh
 from wire.diag import diag_key
 from wire.frames import stats_key
 from wire.keys import CAMERA_USER, MANAGER_USER, VIEWER_USER, ZONE_USER  # noqa: F401 (the ACL's users)
@@ -301,3 +301,50 @@ def write_router_config(path: str | os.PathLike[str], conf: Mapping[str, Any]) -
         raise ValueError(f"router config rejected by zenoh: {exc}") from None
     Path(path).write_text(text, encoding="utf-8")
 
+
+
+def add_rmw_zenoh(acl: dict[str, Any], robots: Mapping[str, Any],
+                  viewer_user: str | None = VIEWER_USER,
+                  world_user: str | None = None) -> dict[str, Any]:
+    """``acl`` (of :func:`fleet_acl`, given each robot's rmw_zenoh data key as its ``cmd_vel``)
+    with the ROS graph rights of robots whose base is on rmw_zenoh (``robots``: robot id ->
+    :class:`wire.rmw_zenoh.RmwSettings`), changed in place and returned.
+
+    Robot ``r``'s user (its agent, and the robot's ``rmw_zenohd`` linked to this router as the
+    same user) may hold liveliness tokens in its own namespace and domain (the agent's node and
+    publisher; the robot's ROS nodes), and declare liveliness subscribers and queries on and be
+    sent every token of its domain (rmw_zenoh's graph). The viewer may subscribe to the
+    domain's data keys and tokens and hold tokens of its own (an rmw_zenoh subscriber, e.g.
+    ``ros2 topic echo``, watching a run). ``world_user`` (``formation run --base rmw_zenoh``:
+    the simulated world playing the bases) may subscribe to the domain's data keys."""
+    if not robots:
+        return acl
+    rules: list[dict[str, Any]] = acl["rules"]
+    policies = {p["subjects"][0]: p for p in acl["policies"]}
+    domains = sorted({int(s.domain) for s in robots.values()})
+
+    def rule(rid: str, messages: list[str], flows: list[str], key_exprs: list[str]) -> str:
+        rules.append({"id": rid, "messages": messages, "flows": flows, "permission": "allow",
+                      "key_exprs": key_exprs})
+        return rid
+
+    graph = [f"{rmw_zenoh.ADMIN_SPACE}/{d}/**" for d in domains]
+    read = rule("rmw-graph-read", ["declare_liveliness_subscriber", "liveliness_query"],
+                ["ingress", "egress"], graph)
+    deliver = rule("rmw-graph-deliver", ["liveliness_token"], ["egress"], graph)
+    for rid, settings in robots.items():
+        own = rule(f"{rid}-rmw-tokens", ["liveliness_token"], ["ingress"],
+                   [rmw_zenoh.graph_key(settings)])
+        policies[rid]["rules"] += [read, deliver, own]
+    data = [f"{d}/**" for d in domains]
+    if world_user is not None and world_user in policies:
+        policies[world_user]["rules"] += [
+            rule("world-rmw-read", ["declare_subscriber"], ["ingress", "egress"], data),
+            rule("world-rmw-deliver", ["put"], ["egress"], data)]
+    if viewer_user is not None and viewer_user in policies:
+        policies[viewer_user]["rules"] += [
+            read, deliver,
+            rule("viewer-rmw-read", ["declare_subscriber"], ["ingress", "egress"], data),
+            rule("viewer-rmw-deliver", ["put"], ["egress"], data),
+            rule("viewer-rmw-tokens", ["liveliness_token"], ["ingress"], graph)]
+    return acl

@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 import logging
 
-from deploy import deployer
+from deploy import deployer, rmw_status
 from deploy.inventory import InventoryError, check_against_scenario, check_keys, load_inventory
 from formation.exits import EXIT_ERROR, EXIT_OK, UsageError
 from scenario import load_scenario
@@ -62,5 +62,8 @@ def deploy_command(ns: argparse.Namespace) -> int:
               f"{inventory.zenoh.secrets / 'router.json5'})")
     for report in outcome.reports:
         print(deployer.format_report(report))
+    if action == "status":
+        for line in rmw_status.status_lines(inventory, rmw_status.viewer_file(inventory)):
+            print(line)
     print(deployer.summary_line(outcome, what))
     return EXIT_ERROR if outcome.failed else EXIT_OK

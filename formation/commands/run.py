@@ -27,6 +27,7 @@ from simulator.fleet import RemoteAgents
 from simulator.launch import RunAborted, launch
 from simulator.output import write_run
 from simulator.run_config import RunConfig
+from wire.rmw_zenoh import RmwSettings
 
 
 def run_config(ns: argparse.Namespace) -> RunConfig:
@@ -58,9 +59,23 @@ def run_config(ns: argparse.Namespace) -> RunConfig:
             shared_session=(per_process > 1 and not getattr(ns, "session_per_agent", False)
                             and insecure),
             solver=getattr(ns, "solver", "exact"), hold=bool(getattr(ns, "hold", False)),
-            remote=_placement(ns, scenario, per_process), pose_zones=getattr(ns, "pose_zones", 0))
+            remote=_placement(ns, scenario, per_process), pose_zones=getattr(ns, "pose_zones", 0),
+            rmw_base=_rmw_base(ns))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+
+
+def _rmw_base(ns: argparse.Namespace) -> RmwSettings | None:
+    """``--base rmw_zenoh`` and its options (checked where the settings and the run's
+    configuration are built: ValueError)."""
+    if getattr(ns, "base", "world") != "rmw_zenoh":
+        return None
+    try:
+        return RmwSettings(release=getattr(ns, "rmw_zenoh_release", ""),
+                           cmd_type=getattr(ns, "cmd_type", "TwistStamped"),
+                           domain=getattr(ns, "ros_domain", 0))
+    except ValueError as exc:
+        raise ValueError(f"--base rmw_zenoh: {exc}") from None
 
 
 def run_command(ns: argparse.Namespace) -> int:
