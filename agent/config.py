@@ -363,7 +363,13 @@ def _bool(raw: Any, where: str) -> bool:
     return raw
 
 
-_SCALARS: dict[Any, Callable[[Any, str], Any]] = {float: _float, str: _str, bool: _bool}
+def _int(raw: Any, where: str) -> int:
+    if isinstance(raw, bool) or not isinstance(raw, int):
+        raise ValueError(f"{where}: must be a whole number, got {excerpt(raw)}")
+    return raw
+
+
+_SCALARS: dict[Any, Callable[[Any, str], Any]] = {float: _float, str: _str, bool: _bool, int: _int}
 
 
 def _path(where: str, name: str) -> str:

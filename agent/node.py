@@ -354,6 +354,11 @@ class AgentNode:
         self.leader.open(t, loop, self.gate)
         logger.info("%s: subscribed to %s", self.cfg.robot_id, ", ".join(self.subscribed_keys))
 
+    @property
+    def base(self) -> Base | None:
+        """The real robot base this agent drives (agent.base), when ``cfg.base`` is not "world"."""
+        return self._base
+
     def open_session(self) -> zenoh.Session:
         """This node's Zenoh session (an agent host, :mod:`agent.host`, may hand it a shared
         one); ``ConnectionError`` saying why it did not open."""

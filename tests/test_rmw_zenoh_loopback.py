@@ -136,8 +136,8 @@ def test_an_agent_node_drives_its_rmw_zenoh_base():
         try:
             node.open(loop)
             _wait(lambda: len(watcher.alive()) == 2)
-            wait_for_matching(node._base.publisher)  # type: ignore[union-attr]
-            node._put_cmd(Cmd(0.1, -0.5, 0.1, 0.0, 12.25))
+            wait_for_matching(node.base.publisher)  # type: ignore[union-attr]
+            node.send_command(Cmd(0.1, -0.5, 0.1, 0.0, 12.25))
             _wait(lambda: len(watcher.got()) >= 1)
             node.close()
             _wait(lambda: not watcher.alive())
