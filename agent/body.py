@@ -221,21 +221,26 @@ class Snapshot(NamedTuple):
     ellipses: Sequence[Ellipse] = ()  # the other formations'
 
 
+def far(gap: float, speed: float, gamma: float, rho: float, p: BodyParams) -> bool:
+    """Whether a thing ``gap`` [m] beyond the body's bounding circle (radius rho), moving at
+    ``speed``, is too far for any of its rows to be active: a row is normalised with |a| <= sqrt 2
+    before normalisation of the turn part, and a circle's b >= gamma gap / 2 - speed."""
+    return gamma * (gap - p.grow - p.load_margin - rho) > 3.0 * (p.vmax + speed)
+
+
 def near(snap: Snapshot, pose: Pose, rho: float, p: BodyParams) -> Snapshot:
     """The part of ``snap`` whose rows can be active: a row is normalised, so one with b at or
     above vmax never is, and b >= gamma (gap) - (the thing's speed) for a gap beyond the body's
     bounding circle of radius rho. A cheap test per thing before the rows."""
-    def far(gap: float, speed: float, gamma: float) -> bool:  # |a| <= sqrt 2; a circle's b >= gamma gap / 2
-        return gamma * (gap - p.grow - p.load_margin - rho) > 3.0 * (p.vmax + speed)
-
     c = (pose.cx, pose.cy)
+    go, gf = p.gamma_obstacle, p.gamma_formations
     obstacles = [o for o in snap.obstacles
-                 if not far(math.dist(c, (o.x, o.y)) - o.ds, math.hypot(o.vx, o.vy), p.gamma_obstacle)]
+                 if not far(math.dist(c, (o.x, o.y)) - o.ds, math.hypot(o.vx, o.vy), go, rho, p)]
     shapes = [sh for sh in snap.shapes
-              if not far(shape_distance(c[0], c[1], sh)[0] - sh.ds, 0.0, p.gamma_obstacle)]
+              if not far(shape_distance(c[0], c[1], sh)[0] - sh.ds, 0.0, go, rho, p)]
     ellipses = [e for e in snap.ellipses
-                if not far(math.dist(c, (e.cx, e.cy)) - e.a, math.hypot(e.vx, e.vy) + e.a
-                           * abs(e.alpha_rate), p.gamma_formations)]
+                if not far(math.dist(c, (e.cx, e.cy)) - e.a,
+                           math.hypot(e.vx, e.vy) + e.a * abs(e.alpha_rate), gf, rho, p)]
     return Snapshot(obstacles, shapes, ellipses)
 
 
@@ -246,7 +251,7 @@ def footprint_rows(fp: Footprint, pose: Pose, snap: Snapshot, p: BodyParams) -> 
     margin = arc_margin(rho, min(p.omega_max, p.vmax / rho), p.dt)  # the limits bound omega so
     slots = [place(pose, s) for s in fp.slots]
     rows = _member_rows(pose, rho, slots, snap, p, margin)
-    rows += _load_rows(fp, pose, snap, p, margin)
+    rows += _load_rows(fp, pose, rho, snap, p, margin)
     reach = p.vmax * (1.0 + 1e-9)
     return [r for r in rows if r[3] < reach]
 
@@ -263,21 +268,25 @@ def _member_rows(pose: Pose, rho: float, slots: Sequence[Point], snap: Snapshot,
     return rows
 
 
-def _load_rows(fp: Footprint, pose: Pose, snap: Snapshot, p: BodyParams,
+def _load_rows(fp: Footprint, pose: Pose, rho: float, snap: Snapshot, p: BodyParams,
                margin: float) -> list[Row3]:
     rows: list[Row3] = []
     clear = p.load_margin + margin
     g = p.gamma_obstacle
     for v in (place(pose, q) for q in fp.load_points):
-        rows += [circle_rows(pose, fp.rho, v, o, max(0.0, o.ds - p.radius) + clear, g)
+        rows += [circle_rows(pose, rho, v, o, max(0.0, o.ds - p.radius) + clear, g)
                  for o in snap.obstacles]
-        rows += [shape_point_row(pose, fp.rho, v, sh, clear, g) for sh in snap.shapes]
-        rows += [ellipse_point_row(pose, fp.rho, v, e, p.gamma_formations) for e in snap.ellipses]
-    edges = [(place(pose, a), place(pose, b)) for a, b in fp.load_edges]
+        rows += [shape_point_row(pose, rho, v, sh, clear, g) for sh in snap.shapes]
+        rows += [ellipse_point_row(pose, rho, v, e, p.gamma_formations) for e in snap.ellipses]
+    c = (pose.cx, pose.cy)
     things = [((o.x, o.y), (o.vx, o.vy), max(0.0, o.ds - p.radius)) for o in snap.obstacles]
-    things += [(q, (0.0, 0.0), 0.0) for sh in snap.shapes for q in sh.corners()]
+    things += [(q, (0.0, 0.0), 0.0) for sh in snap.shapes for q in sh.corners()
+               if not far(math.dist(c, q), 0.0, g, rho, p)]
+    if not things:
+        return rows
+    edges = [(place(pose, a), place(pose, b)) for a, b in fp.load_edges]
     for e in edges:
-        rows += [edge_row(pose, fp.rho, e, q, qv, r + clear, g) for q, qv, r in things]
+        rows += [edge_row(pose, rho, e, q, qv, r + clear, g) for q, qv, r in things]
     return rows
 
 

@@ -21,11 +21,13 @@ from geometry.limits import BURGER_RADIUS
 from geometry.unicycle import control_point
 from leader.settings import LeaderSettings  # noqa: F401  (re-exported)
 from scenario import Scenario, formation_axes
+from scenario.model import FormationSpec
 from scenario.routes import initial_route
 from scenario.succession import formation_successor
 from wire.stamps import CLOCK_TOLERANCE_S
 from wire.zconf import ZenohSettings
 
+from .body import Footprint, footprint_of
 from .control import ControlParams
 
 CONFIG_VERSION = 1
@@ -80,6 +82,8 @@ class AgentConfig:
     member_goals: tuple[tuple[str, float, float], ...] = ()
     planner: bool = True  # the leader plans routes around walls and shelves for new goals
     goal_tolerance: float = 0.05  # [m]
+    # controller.method rigid: this member's slot in its formation's body (agent.body)
+    footprint: Footprint | None = None
 
     @property
     def is_leader(self) -> bool:
@@ -154,8 +158,28 @@ def build_agent_configs(
                               else ()),
                 planner=scenario.controller.planner != "none",
                 goal_tolerance=scenario.goal_tolerance,
+                footprint=_footprint(scenario, f, r.id),
             )
     return out
+
+
+def _footprint(scenario: Scenario, f: FormationSpec, robot_id: str) -> Footprint | None:
+    """A member's footprint under ``method: rigid`` (None otherwise: files stay as they were)."""
+    if scenario.controller.method != "rigid":
+        return None
+    off = scenario.robot.control_offset
+    return footprint_of([control_point(m.start[0], m.start[1], m.start[2], off) for m in f.robots],
+                        [m.start[:2] for m in f.robots], [m.goal for m in f.robots],
+                        f.robot_ids.index(robot_id))
+
+
+def _footprint_from(d: dict[str, Any] | None) -> Footprint | None:
+    if d is None:
+        return None
+    pts = lambda seq: tuple((float(x), float(y)) for x, y in seq)  # noqa: E731
+    return Footprint(pts(d["slots"]), float(d["alpha0"]), int(d["member"]),
+                     float(d.get("goal_turn", 0.0)), pts(d.get("load_points", ())),
+                     tuple((pts(e)[0], pts(e)[1]) for e in d.get("load_edges", ())))
 
 
 def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
@@ -167,6 +191,12 @@ def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
     d["zenoh"] = {k: d["zenoh"][k] for k in AGENT_ZENOH_FIELDS}
     if d["solver"] == "exact":
         del d["solver"]  # the default: files stay as they were before the field existed
+    if cfg.footprint is None:
+        del d["footprint"]  # likewise (method rules or thesis)
+    else:
+        d["footprint"] = _plain(cfg.footprint._asdict())
+    if d["control"]["method"] == "rules":
+        del d["control"]["method"]
     d["version"] = CONFIG_VERSION
     return d
 
@@ -217,6 +247,7 @@ def config_from_dict(d: dict[str, Any]) -> AgentConfig:
             member_goals=tuple((str(m), float(x), float(y)) for m, x, y in d.pop("member_goals", ())),
             planner=bool(d.pop("planner", True)),
             goal_tolerance=float(d.pop("goal_tolerance", 0.05)),
+            footprint=_footprint_from(d.pop("footprint", None)),
         )
         d.pop("start", None)
         d.pop("pose_period", None)
