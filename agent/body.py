@@ -183,9 +183,11 @@ def shape_point_row(pose: Pose, rho: float, p: Point, sh: Shape, ds: float, gamm
     return point_row(pose, rho, p, -gx, -gy, gamma * (d - ds))
 
 
-def ellipse_point_row(pose: Pose, rho: float, p: Point, e: Ellipse, gamma: float) -> Row3:
-    """Appendix A.3 (19) on a body point (as :func:`agent.barriers.ellipse_row`)."""
-    h, gx, gy, ga = ellipse_terms(p[0], p[1], e.cx, e.cy, e.alpha, e.a, e.b)
+def ellipse_point_row(pose: Pose, rho: float, p: Point, e: Ellipse, gamma: float,
+                      grow: float = 0.0) -> Row3:
+    """Appendix A.3 (19) on a body point (as :func:`agent.barriers.ellipse_row`), the ellipse's
+    semi-axes grown by ``grow`` (members sit up to about that far from their slots)."""
+    h, gx, gy, ga = ellipse_terms(p[0], p[1], e.cx, e.cy, e.alpha, e.a + grow, e.b + grow)
     b = ellipse_class_k(h, gamma) - (gx * e.vx + gy * e.vy) + ga * e.alpha_rate
     return point_row(pose, rho, p, -gx, -gy, b)
 
@@ -264,7 +266,8 @@ def _member_rows(pose: Pose, rho: float, slots: Sequence[Point], snap: Snapshot,
         rows += [circle_rows(pose, rho, q, o, o.ds + grow, p.gamma_obstacle) for o in snap.obstacles]
         rows += [shape_point_row(pose, rho, q, sh, sh.ds + grow, p.gamma_obstacle)
                  for sh in snap.shapes]
-        rows += [ellipse_point_row(pose, rho, q, e, p.gamma_formations) for e in snap.ellipses]
+        rows += [ellipse_point_row(pose, rho, q, e, p.gamma_formations, p.load_margin)
+                 for e in snap.ellipses]
     return rows
 
 
@@ -339,6 +342,7 @@ class TwistResult(NamedTuple):
     twist: Twist
     slack: float  # [m/s] how much the barrier rows were relaxed (0: all met)
     rows: int  # footprint rows in the QP
+    goal: Twist = (0.0, 0.0, 0.0)  # the part of the goal twist that seeks the goal
 
 
 def solve_twist(goal: Twist, rho: float, limits: Sequence[Row3], rows: Sequence[Row3]
@@ -354,7 +358,7 @@ def solve_twist(goal: Twist, rho: float, limits: Sequence[Row3], rows: Sequence[
         slack = _min_slack(base, rows)
         z = solve3(zhat, base + [(a1, a2, a3, b + slack) for a1, a2, a3, b in rows])
         z = z or (0.0, 0.0, 0.0)
-    return TwistResult((z[0], z[1], z[2] / rho), slack, len(rows))
+    return TwistResult((z[0], z[1], z[2] / rho), slack, len(rows), goal)
 
 
 def _min_slack(base: list[Row3], rows: Sequence[Row3]) -> float:
@@ -399,9 +403,12 @@ def formation_twist(fp: Footprint, own: Ellipse, goal: Point, snap: Snapshot, p:
     """The formation's pose and its certified twist this tick (eq. 4.12' of the module docstring)."""
     pose = pose_of(own, fp.alpha0)
     rho = fp.rho
-    res = solve_twist(goal_twist(pose, goal, fp.goal_turn, rho, p, push, intent), rho, limit_rows(rho, p),
-                      footprint_rows(fp, pose, snap, p))
-    return pose, res
+    want = goal_twist(pose, goal, fp.goal_turn, rho, p, push, intent)
+    res = solve_twist(want, rho, limit_rows(rho, p), footprint_rows(fp, pose, snap, p))
+    # what seeks the goal (for member_nominal's arrival): neither the push nor an escape
+    seek = (0.0, 0.0, want[2]) if intent is not None else (want[0] - push[0], want[1] - push[1],
+                                                           want[2])
+    return pose, res._replace(goal=seek)
 
 
 def band_gain(kp: float, dt: float) -> float:
@@ -411,21 +418,24 @@ def band_gain(kp: float, dt: float) -> float:
 
 
 def member_nominal(fp: Footprint, pose: Pose, twist: Twist, point: Point, body: Point,
-                   target: Point, p: BodyParams) -> Point:
+                   target: Point, p: BodyParams, goal: Twist = (0.0, 0.0, 0.0)) -> Point:
     """This member's nominal velocity: its slot's velocity under ``twist`` plus k (slot - point)
-    (:func:`band_gain`; ``point`` its control point), clamped to vmax; with its ``body`` within
-    ARRIVE_RANGE of its ``target`` (its goal on the last leg) the pull moves from the slot to the
-    target (eq. 4.2 on it, the twist kept), so a goal shape that is not exactly a rigid copy of
-    the start shape is still reached, and a formation parked at its goal still gives way."""
+    (:func:`band_gain`; ``point`` its control point), clamped to vmax. With its ``body`` within
+    ARRIVE_RANGE of its ``target`` (its goal on the last leg) it blends, by w from 0 to 1, into
+    eq. 4.2 on the target plus only what the rows changed of the ``goal`` twist (twist - w goal):
+    a goal shape that is not exactly a rigid copy of the start shape is still reached, a unicycle
+    formation parks on its bodies' goals (its pose is its look-ahead points'), and a formation
+    parked at its goal still gives way."""
     slot = place(pose, fp.slots[fp.member])
-    sv = point_velocity(pose, twist, slot)
-    k = band_gain(p.kp, p.dt)
-    ux, uy = sv[0] + k * (slot[0] - point[0]), sv[1] + k * (slot[1] - point[1])
     dist = math.hypot(target[0] - body[0], target[1] - body[1])
     w = min(1.0, max(0.0, 1.0 - dist / ARRIVE_RANGE))
-    if w > 0.0:  # the slot's own pull moves over to the target (the twist is kept)
-        ux += w * k * (target[0] - body[0] - slot[0] + point[0])
-        uy += w * k * (target[1] - body[1] - slot[1] + point[1])
+    sv = point_velocity(pose, (twist[0] - w * goal[0], twist[1] - w * goal[1],
+                               twist[2] - w * goal[2]), slot)
+    k = band_gain(p.kp, p.dt)
+    ux, uy = sv[0] + k * (slot[0] - point[0]), sv[1] + k * (slot[1] - point[1])
+    if w > 0.0:  # the slot's pull moves over to the target
+        ux += w * (p.kp * (target[0] - body[0]) - k * (slot[0] - point[0]))
+        uy += w * (p.kp * (target[1] - body[1]) - k * (slot[1] - point[1]))
     n = math.hypot(ux, uy)
     if n > p.vmax:
         ux, uy = ux * p.vmax / n, uy * p.vmax / n
@@ -438,7 +448,7 @@ def rigid_nominal(cp: ControlParams, fp: Footprint, view: FormationView, snap: S
     """``controller.method: rigid``: a member's nominal (the one call agent.control makes)."""
     p = body_params(cp)
     pose, res = formation_twist(fp, view.own, (view.goal_x, view.goal_y), snap, p, push, intent)
-    return member_nominal(fp, pose, res.twist, point, body, target, p)
+    return member_nominal(fp, pose, res.twist, point, body, target, p, res.goal)
 
 
 # ---------------------------------------------------------------------- from a scenario
