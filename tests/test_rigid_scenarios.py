@@ -21,6 +21,7 @@ from simulator.inprocess import SimOptions, simulate
 SCENARIOS = Path(__file__).parent / "scenarios"
 
 PASSING = [
+    "rigid-doorway-pair",
     "rigid-wall-forklift",
     "rigid-wall-forklift-unicycle",
     "rigid-parked-forklift",
@@ -65,3 +66,16 @@ def test_each_agent_config_carries_its_slot_under_rigid_and_rules_files_stay_as_
     rules = dataclasses.replace(rigid, controller=dataclasses.replace(rigid.controller, method="rules"))
     d = config_to_dict(build_agent_configs(rules)["e1"])
     assert "footprint" not in d and "method" not in d["control"]
+
+
+@pytest.mark.slow
+def test_the_tiebreak_stays_under_rigid_two_rectangles_head_on_deadlock_without_it():
+    """The formation QP keeps the bodies apart but has no sideways part when two formations meet
+    head-on (the optimum is symmetric): the keep-right push on the goal twist breaks it."""
+    s = load_scenario(SCENARIOS / "head-on-rectangles.yaml")
+    with_push = dataclasses.replace(s.controller, method="rigid")
+    without = dataclasses.replace(s.controller, method="rigid", tiebreak="none")
+    assert simulate(dataclasses.replace(s, controller=with_push), SimOptions(record=False)
+                    ).summary["all_reached"]
+    stuck = simulate(dataclasses.replace(s, controller=without), SimOptions(record=False)).summary
+    assert not stuck["all_reached"] and stuck["collisions"] == 0
