@@ -28,15 +28,30 @@ from typing import Any
 
 import numpy as np
 
-from geometry.ellipse import Ellipse, derive_axes, ellipse_value, estimate, reference_shape
+from geometry.ellipse import (
+    Ellipse,
+    ReferenceShape,
+    centroid,
+    derive_axes,
+    ellipse_value,
+    estimate,
+    reference_shape,
+)
 from geometry.shapes import Shape, shape_distance
 from geometry.shapes import box as box_shape
 from geometry.shapes import segment as segment_shape
 from geometry.unicycle import control_point
-from wire.keys import name_problem
 
 from . import limits
-from .limits import Range
+from .cargo import LOAD_KEY, load_clearances, load_polygon, parse_load
+from .fields import count as _count
+from .fields import identifier as _identifier
+from .fields import mapping as _mapping
+from .fields import positive as _positive
+from .fields import string as _string
+from .fields import title as _title
+from .fields import vector as _vector
+from .fields import within as _in
 from .model import (
     METHODS,
     SINGLE_INTEGRATOR,
@@ -54,6 +69,7 @@ from .reader import ScenarioError, excerpt, load_yaml, read_text
 from .spatial import Grid
 
 ELLIPSE_MARGIN = 0.02  # [m] extra clearance of a derived ellipse beyond bodies and tolerance
+LOAD_TOL = 1e-6  # [m] a load overlapping by less is touching (rounding), not overlapping
 TIEBREAKS = ("keep_right", "none")
 
 _TOP_KEYS = {"name", "dt", "duration", "goal_tolerance", "robot", "controller", "formations",
@@ -61,7 +77,7 @@ _TOP_KEYS = {"name", "dt", "duration", "goal_tolerance", "robot", "controller", 
 _ROBOT_KEYS = {"model", "max_speed", "max_turn_rate", "lookahead", "radius"}
 _CONTROLLER_KEYS = {"kp", "gamma", "epsilon", "tiebreak", "d_af", "planner", "method"}
 _GAMMA_KEYS = {"formation", "obstacle", "formations"}
-_FORMATION_KEYS = {"name", "leader", "robots", "edges", "ellipse", "waypoints"}
+_FORMATION_KEYS = {"name", "leader", "robots", "edges", "ellipse", "waypoints", LOAD_KEY}
 _MEMBER_KEYS = {"start", "goal"}
 _ELLIPSE_KEYS = {"a", "b"}
 _OBSTACLE_KEYS = {"name", "center", "safe_distance", "velocity", "segment", "box"}
@@ -139,6 +155,7 @@ def scenario_from_dict(data: Any) -> Scenario:
     _check_bands(scenario)
     _check_start(scenario, axes)
     _check_goals(scenario, axes)
+    _check_loads(scenario, axes)
     _check_shapes(scenario, [k for k, o in enumerate(parsed) if isinstance(o, Shape)])
     return scenario
 
@@ -205,7 +222,26 @@ def _formation(raw: Any, where: str, robot: RobotModel, seen: dict[str, str]) ->
     if "name" not in m:
         raise ScenarioError(f"{where}.name: missing")
     name = _identifier(m["name"], f"{where}.name")
-    raw_robots = m.get("robots")
+    specs = _members(m.get("robots"), where, name, seen)
+    ctrl = {r.id: _control_point(r.start, robot.control_offset) for r in specs}
+    edges = _edges(m.get("edges", []), where, name, ctrl, seen)
+    order = [r.id for r in specs]
+    if len(order) >= 2 and not is_generically_rigid(order, [(e.i, e.j) for e in edges]):
+        raise ScenarioError(
+            f"{where}.edges: the graph of formation {name!r} is not rigid "
+            f"({len(edges)} edges for {len(order)} robots; a rigid graph needs at least "
+            f"{2 * len(order) - 3} well-placed edges)"
+        )
+    leader = _leader(m, where, name, order, edges)
+    ellipse = None if m.get("ellipse") is None else _ellipse_axes(m["ellipse"], f"{where}.ellipse")
+    load = () if m.get(LOAD_KEY) is None else parse_load(m[LOAD_KEY], f"{where}.{LOAD_KEY}")
+    return FormationSpec(name, leader, specs, edges, ellipse, _waypoints(m, where), load)
+
+
+def _members(raw_robots: Any, where: str, name: str,
+             seen: dict[str, str]) -> tuple[RobotSpec, ...]:
+    """The formation's robots: unique names, a start (x, y[, theta]) and a goal each; the
+    default heading faces from the start centroid to the goal centroid."""
     if not isinstance(raw_robots, Mapping) or not raw_robots:
         raise ScenarioError(f"{where}.robots: must be a non-empty mapping of robot name to "
                             "{start, goal}")
@@ -217,75 +253,81 @@ def _formation(raw: Any, where: str, robot: RobotModel, seen: dict[str, str]) ->
         if rid in seen:
             raise ScenarioError(f"{rwhere}: robot {rid!r} is already in formation {seen[rid]!r}")
         seen[rid] = name
-        rm = _mapping(spec, rwhere, _MEMBER_KEYS)
-        for key in ("start", "goal"):
-            if key not in rm:
-                raise ScenarioError(f"{rwhere}.{key}: missing")
-        start = _vector(rm["start"], f"{rwhere}.start", (2, 3), limits.COORDINATE)
-        if len(start) == 3:
-            _in(start[2], f"{rwhere}.start[2] (heading)", limits.HEADING)
-        goal = _vector(rm["goal"], f"{rwhere}.goal", (2,), limits.COORDINATE)
-        robots.append((rid, start, goal))
-    ids = {r[0] for r in robots}
-
-    # Default heading: every member faces from the formation's start centroid to its goal centroid.
-    scx = sum(r[1][0] for r in robots) / len(robots)
-    scy = sum(r[1][1] for r in robots) / len(robots)
-    gcx = sum(r[2][0] for r in robots) / len(robots)
-    gcy = sum(r[2][1] for r in robots) / len(robots)
-    heading = math.atan2(gcy - scy, gcx - scx) if math.hypot(gcx - scx, gcy - scy) > 1e-9 else 0.0
-    specs = tuple(
+        robots.append((rid, *_member(spec, rwhere)))
+    heading = _default_heading([r[1] for r in robots], [r[2] for r in robots])
+    return tuple(
         RobotSpec(rid, name, (s[0], s[1], s[2] if len(s) == 3 else heading), (g[0], g[1]))
         for rid, s, g in robots
     )
-    offset = robot.control_offset
-    ctrl = {r.id: _control_point(r.start, offset) for r in specs}
 
-    raw_edges = m.get("edges", [])
+
+def _member(spec: Any, rwhere: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    rm = _mapping(spec, rwhere, _MEMBER_KEYS)
+    for key in ("start", "goal"):
+        if key not in rm:
+            raise ScenarioError(f"{rwhere}.{key}: missing")
+    start = _vector(rm["start"], f"{rwhere}.start", (2, 3), limits.COORDINATE)
+    if len(start) == 3:
+        _in(start[2], f"{rwhere}.start[2] (heading)", limits.HEADING)
+    return start, _vector(rm["goal"], f"{rwhere}.goal", (2,), limits.COORDINATE)
+
+
+def _default_heading(starts: list[tuple[float, ...]], goals: list[tuple[float, ...]]) -> float:
+    """Every member faces from the formation's start centroid to its goal centroid."""
+    n = len(starts)
+    scx, scy = sum(p[0] for p in starts) / n, sum(p[1] for p in starts) / n
+    gcx, gcy = sum(p[0] for p in goals) / n, sum(p[1] for p in goals) / n
+    return math.atan2(gcy - scy, gcx - scx) if math.hypot(gcx - scx, gcy - scy) > 1e-9 else 0.0
+
+
+def _edges(raw_edges: Any, where: str, name: str, ctrl: dict[str, tuple[float, float]],
+           seen: dict[str, str]) -> tuple[Edge, ...]:
     if not isinstance(raw_edges, list):
         raise ScenarioError(f"{where}.edges: must be a list of [i, j] or [i, j, Df]")
-    pair_count = len(ids) * (len(ids) - 1) // 2
+    n = len(ctrl)
+    pair_count = n * (n - 1) // 2
     if len(raw_edges) > pair_count:
         raise ScenarioError(f"{where}.edges: {len(raw_edges)} edges, more than the {pair_count} "
-                            f"pairs of its {len(ids)} robots")
+                            f"pairs of its {n} robots")
     edges: list[Edge] = []
     pairs: set[frozenset[str]] = set()
-    for k, e in enumerate(raw_edges):
-        ew = f"{where}.edges[{k}]"
-        if not isinstance(e, list) or len(e) not in (2, 3):
-            raise ScenarioError(f"{ew}: must be [i, j] or [i, j, Df], got {excerpt(e)}")
-        i, j = (_string(e[0], f"{ew}[0]"), _string(e[1], f"{ew}[1]"))
-        for endpoint in (i, j):
-            if endpoint not in ids:
-                other = f" (it is in formation {seen[endpoint]!r})" if endpoint in seen else ""
-                raise ScenarioError(f"{ew}: unknown robot {excerpt(endpoint)} in formation "
-                                    f"{name!r}{other}")
-        if i == j:
-            raise ScenarioError(f"{ew}: an edge joins two different robots, got {i!r} twice")
-        pair = frozenset((i, j))
+    for k, raw in enumerate(raw_edges):
+        edge = _edge(raw, f"{where}.edges[{k}]", name, ctrl, seen)
+        pair = frozenset((edge.i, edge.j))
         if pair in pairs:
-            raise ScenarioError(f"{ew}: duplicate edge between {i!r} and {j!r}")
+            raise ScenarioError(f"{where}.edges[{k}]: duplicate edge between {edge.i!r} and "
+                                f"{edge.j!r}")
         pairs.add(pair)
-        if len(e) == 3:
-            df = _in(e[2], f"{ew}[2] (Df)", limits.DISTANCE)
-        else:
-            df = math.dist(ctrl[i], ctrl[j])
-            if df <= 0.0:
-                raise ScenarioError(f"{ew}: Df omitted and {i!r}, {j!r} start at the same point")
-        edges.append(Edge(i, j, df))
+        edges.append(edge)
+    return tuple(edges)
 
-    order = [r[0] for r in robots]
-    if len(ids) >= 2 and not is_generically_rigid(order, [(e.i, e.j) for e in edges]):
-        raise ScenarioError(
-            f"{where}.edges: the graph of formation {name!r} is not rigid "
-            f"({len(edges)} edges for {len(ids)} robots; a rigid graph needs at least "
-            f"{2 * len(ids) - 3} well-placed edges)"
-        )
 
+def _edge(raw: Any, ew: str, name: str, ctrl: dict[str, tuple[float, float]],
+          seen: dict[str, str]) -> Edge:
+    if not isinstance(raw, list) or len(raw) not in (2, 3):
+        raise ScenarioError(f"{ew}: must be [i, j] or [i, j, Df], got {excerpt(raw)}")
+    i, j = (_string(raw[0], f"{ew}[0]"), _string(raw[1], f"{ew}[1]"))
+    for endpoint in (i, j):
+        if endpoint not in ctrl:
+            other = f" (it is in formation {seen[endpoint]!r})" if endpoint in seen else ""
+            raise ScenarioError(f"{ew}: unknown robot {excerpt(endpoint)} in formation "
+                                f"{name!r}{other}")
+    if i == j:
+        raise ScenarioError(f"{ew}: an edge joins two different robots, got {i!r} twice")
+    if len(raw) == 3:
+        return Edge(i, j, _in(raw[2], f"{ew}[2] (Df)", limits.DISTANCE))
+    df = math.dist(ctrl[i], ctrl[j])
+    if df <= 0.0:
+        raise ScenarioError(f"{ew}: Df omitted and {i!r}, {j!r} start at the same point")
+    return Edge(i, j, df)
+
+
+def _leader(m: Mapping[str, Any], where: str, name: str, order: list[str],
+            edges: tuple[Edge, ...]) -> str:
     if "leader" not in m:
         raise ScenarioError(f"{where}.leader: missing")
     leader = _string(m["leader"], f"{where}.leader")
-    if leader not in ids:
+    if leader not in order:
         raise ScenarioError(f"{where}.leader: {excerpt(leader)} is not a robot of formation "
                             f"{name!r}")
     adjacent = {e.j for e in edges if e.i == leader} | {e.i for e in edges if e.j == leader}
@@ -295,27 +337,30 @@ def _formation(raw: Any, where: str, robot: RobotModel, seen: dict[str, str]) ->
             f"{where}.leader: {leader!r} is not adjacent to {', '.join(repr(x) for x in missing)}"
             " (the leader must share an edge with every member)"
         )
+    return leader
 
-    ellipse = None
-    if m.get("ellipse") is not None:
-        em = _mapping(m["ellipse"], f"{where}.ellipse", _ELLIPSE_KEYS)
-        for key in ("a", "b"):
-            if key not in em:
-                raise ScenarioError(f"{where}.ellipse.{key}: missing")
-        a = _in(em["a"], f"{where}.ellipse.a", limits.DISTANCE)
-        b = _in(em["b"], f"{where}.ellipse.b", limits.DISTANCE)
-        if b > a:
-            raise ScenarioError(f"{where}.ellipse: a={a} is the major semi-axis and must be >= b={b}")
-        ellipse = (a, b)
+
+def _ellipse_axes(raw: Any, where: str) -> tuple[float, float]:
+    em = _mapping(raw, where, _ELLIPSE_KEYS)
+    for key in ("a", "b"):
+        if key not in em:
+            raise ScenarioError(f"{where}.{key}: missing")
+    a = _in(em["a"], f"{where}.a", limits.DISTANCE)
+    b = _in(em["b"], f"{where}.b", limits.DISTANCE)
+    if b > a:
+        raise ScenarioError(f"{where}: a={a} is the major semi-axis and must be >= b={b}")
+    return (a, b)
+
+
+def _waypoints(m: Mapping[str, Any], where: str) -> tuple[tuple[float, float], ...]:
     raw_wp = m.get("waypoints", []) or []
     if not isinstance(raw_wp, list):
         raise ScenarioError(f"{where}.waypoints: must be a list of [x, y]")
     _count(raw_wp, f"{where}.waypoints", limits.MAX_WAYPOINTS)
-    waypoints = tuple(
+    return tuple(
         (p[0], p[1]) for p in (_vector(w, f"{where}.waypoints[{k}]", (2,), limits.COORDINATE)
                                for k, w in enumerate(raw_wp))
     )
-    return FormationSpec(name, leader, specs, tuple(edges), ellipse, waypoints)
 
 
 def _obstacle(raw: Any, where: str) -> ObstacleSpec | Shape:
@@ -421,6 +466,11 @@ def formation_axes(scenario: Scenario, formation: FormationSpec) -> tuple[float,
     r = scenario.robot
     clearance = 2.0 * r.radius + 2.0 * r.control_offset + scenario.controller.epsilon
     shape = reference_shape([_control_point(m.start, r.control_offset) for m in formation.robots])
+    if formation.load:  # a declared load: the ellipse contains it too (the hull it does anyway)
+        cx, cy = centroid([_control_point(m.start, r.control_offset) for m in formation.robots])
+        shape = ReferenceShape(shape.offsets + tuple((x - cx, y - cy)
+                                                     for x, y in load_polygon(formation)),
+                               shape.alpha0)
     return derive_axes(shape, clearance + ELLIPSE_MARGIN)
 
 
@@ -517,6 +567,33 @@ def _check_goals(s: Scenario, axes: list[tuple[float, float]]) -> None:
         )
 
 
+def _check_loads(s: Scenario, axes: list[tuple[float, float]]) -> None:
+    """A declared load fits in its formation's ellipse and overlaps nothing at the start."""
+    for k, (f, ab) in enumerate(zip(s.formations, axes, strict=True)):
+        if not f.load:
+            continue
+        e = start_ellipse(s, f, ab)
+        outside = [v for v in load_polygon(f) if ellipse_value(e, *v) > 1e-9]
+        if outside:
+            x, y = outside[0]
+            raise ScenarioError(
+                f"formations[{k}].ellipse: a={ab[0]:.3f}, b={ab[1]:.3f} m does not contain the "
+                f"load (its corner ({x:.3f}, {y:.3f}) is outside); enlarge the ellipse or omit it")
+    for c in start_load_contacts(s):
+        if s.formations[c.formation].load:
+            raise ScenarioError(
+                f"formations[{c.formation}].load: overlaps {c.other!r} at the start by "
+                f"{-c.clearance:.3f} m")
+
+
+def start_load_contacts(s: Scenario) -> list:
+    """The loads' overlaps at the start (:func:`scenario.cargo.load_clearances` below 0)."""
+    loads = [load_polygon(f) for f in s.formations]
+    bodies = np.array([r.start[:2] for r in s.robots], dtype=float)
+    return [c for c in load_clearances(s, loads, bodies, [o.center for o in s.obstacles])
+            if c.clearance < -LOAD_TOL]
+
+
 def _first_overlap(points: list[tuple[float, ...]], min_distance: float) -> tuple[int, int] | None:
     """The first pair (a, b), a < b, of ``points`` closer than ``min_distance``: the smallest b,
     then the smallest a. A grid of ``min_distance`` cells: each point is compared only with
@@ -564,92 +641,6 @@ def _control_point(start: tuple[float, ...], offset: float) -> tuple[float, floa
     return control_point(start[0], start[1], start[2] if len(start) > 2 else 0.0, offset)
 
 
-def _mapping(raw: Any, where: str, allowed: set[str]) -> Mapping[str, Any]:
-    if raw is None:
-        raw = {}
-    if not isinstance(raw, Mapping):
-        raise ScenarioError(f"{where}: must be a mapping, got {type(raw).__name__}")
-    for key in raw:
-        if key not in allowed:
-            known = ", ".join(sorted(allowed))
-            raise ScenarioError(
-                f"{where}: unknown key {excerpt(key)} (known: {known})"
-                if where != "scenario"
-                else f"unknown key {excerpt(key)} (known: {known})"
-            )
-    return raw
-
-
-def _count(items: Any, where: str, most: int) -> None:
-    if len(items) > most:
-        raise ScenarioError(f"{where}: {len(items)} entries, more than the {most} allowed")
-
-
-def _number(raw: Any, where: str) -> float:
-    if isinstance(raw, bool) or not isinstance(raw, int | float):
-        raise ScenarioError(f"{where}: must be a number, got {excerpt(raw)}")
-    v = float(raw)
-    if not math.isfinite(v):
-        raise ScenarioError(f"{where}: must be finite, got {excerpt(raw)}")
-    return v
-
-
-def _positive(raw: Any, where: str) -> float:
-    v = _number(raw, where)
-    if v <= 0.0:
-        raise ScenarioError(f"{where}: must be positive, got {excerpt(raw)}")
-    return v
-
-
-def _in(raw: Any, where: str, allowed: Range) -> float:
-    """A finite number in ``allowed``; a non-positive one where only positive ones make sense
-    is reported as such (with the range)."""
-    v = _number(raw, where)
-    if not allowed.contains(v):
-        what = "must be positive" if v <= 0.0 <= allowed.lo else "out of range"
-        raise ScenarioError(f"{where}: {what}, got {excerpt(raw)} (allowed: {allowed.text()})")
-    return v
-
-
-def _vector(raw: Any, where: str, lengths: tuple[int, ...],
-            allowed: Range | None = None) -> tuple[float, ...]:
-    if not isinstance(raw, list | tuple) or len(raw) not in lengths:
-        want = " or ".join(str(n) for n in lengths)
-        raise ScenarioError(f"{where}: must be a list of {want} numbers, got {excerpt(raw)}")
-    values = tuple(_number(v, f"{where}[{k}]") for k, v in enumerate(raw))
-    if allowed is not None:
-        for k, v in enumerate(values[:2]):
-            _in(v, f"{where}[{k}]", allowed)
-    return values
-
-
-def _string(raw: Any, where: str) -> str:
-    if isinstance(raw, bool) or not isinstance(raw, str | int):
-        raise ScenarioError(f"{where}: must be a string, got {excerpt(raw)}")
-    if isinstance(raw, int) and abs(raw) >= 10**18:
-        raise ScenarioError(f"{where}: must be a string, got {excerpt(raw)}")
-    return str(raw)
-
-
-def _identifier(raw: Any, where: str) -> str:
-    """A robot, formation or obstacle name: :func:`wire.keys.name_problem`, the rule that
-    ``formation run`` and ``deploy`` apply too."""
-    s = _string(raw, where)
-    problem = name_problem(s)
-    if problem is not None:
-        raise ScenarioError(f"{where}: {excerpt(s)} is not a valid name: it {problem}")
-    return s
-
-
-def _title(raw: Any, where: str) -> str:
-    """The scenario's own name: printable, at most 128 characters (it labels runs and plots)."""
-    s = _string(raw, where)
-    if len(s) > 128 or not s.isprintable():
-        raise ScenarioError(f"{where}: {excerpt(s)} must be printable and at most 128 "
-                            "characters")
-    return s
-
-
 def scenario_warnings(s: Scenario) -> list[str]:
     """Things a valid file allows that the user should know: one line each, naming the culprit.
 
@@ -657,7 +648,9 @@ def scenario_warnings(s: Scenario) -> list[str]:
     epsilon 0.04 and r 0.105) lets the formation rows alone bring the bodies into contact;
     the controller's hard separation rows (:func:`agent.barriers.separation_row`) keep them apart."""
     eps, r = s.controller.epsilon, s.robot.radius
-    out = []
+    out = [f"formations[{c.formation}]: its load (the hull of its members) overlaps "
+           f"{c.other!r} at the start by {-c.clearance:.3f} m"
+           for c in start_load_contacts(s) if not s.formations[c.formation].load]
     for k, f in enumerate(s.formations):
         for n, e in enumerate(f.edges):
             if e.df - eps < 2.0 * r + 1e-6:

@@ -82,6 +82,10 @@ class FormationSpec:
     edges: tuple[Edge, ...]
     ellipse: tuple[float, float] | None  # semi-axes (a, b) [m] as written, or None
     waypoints: tuple[tuple[float, float], ...] = ()  # [m] the centroid passes these in order
+    # [m] the load it carries as declared: a convex polygon, counter-clockwise, in the start
+    # frame (origin at the centroid of the members' start body positions, the scenario's axes);
+    # empty: the convex hull of the members' body centres (scenario.cargo)
+    load: tuple[tuple[float, float], ...] = ()
 
     @property
     def robot_ids(self) -> tuple[str, ...]:

@@ -28,6 +28,7 @@ from scenario import Scenario, formation_axes
 from scenario.routes import initial_route
 
 from .metrics import SafetyMonitor
+from .motion import motion_fields
 from .summary import qp_fields, run_summary
 
 TOPOLOGIES = ("reduced", "all-to-all")
@@ -233,7 +234,8 @@ def simulate(
         qp_fields(len(solve_us), solve_us, counts[STATUS_RELAXED], counts[STATUS_FALLBACK],
                   counts[STATUS_FAILED], hard.ticks, hard.by_reason, escape=escape_ticks),
         logical_comm(scenario, options.topology, ticks, t, edges_total),
-        options.safety, options.solver)
+        options.safety, options.solver,
+        motion=motion_fields(series.robots, ROBOT_COLUMNS, scenario) if options.record else None)
     if any(len(r) > 1 for r in routes.values()):
         summary["routes"] = {name: [list(p) for p in r] for name, r in routes.items()}
     return SimResult(summary, series, scenario)

@@ -71,7 +71,8 @@ from .fleet import (
     signal_group,
     unique_children,
 )
-from .inprocess import Series
+from .inprocess import ROBOT_COLUMNS, Series
+from .motion import motion_fields
 from .output import OutputError
 from .summary import qp_fields, run_summary
 from .world import World, WorldOptions, WorldResult
@@ -750,6 +751,7 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: list[dict], to
                   hard_unmet, sum_counts(s.get("hard_row_unmet", {}) for s in stats),
                   escape=sum(s.get("escape_ticks", 0) for s in stats)),
         comm_summary(snap, topology, n, sim_time), safety, solver,
+        motion=motion_fields(series.robots, ROBOT_COLUMNS, scenario),
         realtime=realtime,
         camera=camera,
         agents={

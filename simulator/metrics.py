@@ -13,6 +13,7 @@ import numpy as np
 
 from geometry.shapes import shape_distance
 from scenario import Scenario
+from scenario.cargo import load_clearances, load_polygon, loads_now
 
 CONTACT_RELEASE = 1e-3  # [m] a contact ends once the clearance exceeds this (onset hysteresis)
 CONTACT_TOL = 1e-6  # [m] overlaps shallower than this are rounding, not contact (1 micrometre)
@@ -44,6 +45,9 @@ class SafetyMonitor:
         self._shapes = scenario.shapes
         self._shape_contact = np.zeros((self._n, len(self._shapes)), dtype=bool)
         self.min_clearance_shape = dict.fromkeys((sh.name for sh in self._shapes), math.inf)
+        self._outlines = [load_polygon(f) for f in scenario.formations]  # loads at the start
+        self._load_contact: set[tuple[int, str]] = set()
+        self.min_clearance_load = math.inf
         self.formation_error_max = 0.0
         self.time_to_goal: float | None = None
         self.reached = np.zeros(self._n, dtype=bool)
@@ -79,6 +83,8 @@ class SafetyMonitor:
             self._obstacle_contact = (d < -CONTACT_TOL) | (self._obstacle_contact & (d <= CONTACT_RELEASE))
         if self._shapes:
             self._update_shapes(t, pos)
+        if any(self._outlines):
+            self._update_loads(t, pos, obstacles)
         if len(self._df):
             e = pos[self._edges[:, 0]] - pos[self._edges[:, 1]]
             err = np.abs(np.sqrt(np.sum(e * e, axis=1)) - self._df)
@@ -105,6 +111,28 @@ class SafetyMonitor:
                                                "clearance_m": float(d)})
                 self._shape_contact[i, j] = inside or (self._shape_contact[i, j] and d <= CONTACT_RELEASE)
 
+    def _update_loads(self, t: float, pos: np.ndarray,
+                      obstacles: Sequence[tuple[float, float]]) -> None:
+        """Each formation's load (issue 25), placed by the rigid fit of its members' start body
+        positions onto ``pos``, against everything but its own members
+        (:func:`scenario.cargo.load_clearances`); an overlap counts like a robot's collision,
+        logged with ``kind: load``, ``a`` the formation and (x, y) where."""
+        loads = loads_now(self.scenario, self._outlines, pos)
+        contact: set[tuple[int, str]] = set()
+        for c in load_clearances(self.scenario, loads, pos, list(obstacles)):
+            self.min_clearance_load = min(self.min_clearance_load, c.clearance)
+            key = (c.formation, c.other)
+            if c.clearance < -CONTACT_TOL and key not in self._load_contact:
+                self.collisions += 1
+                self.collision_log.append({
+                    "t": round(t, 6), "a": self.scenario.formations[c.formation].name,
+                    "b": c.other, "clearance_m": c.clearance, "kind": "load",
+                    "x": round(c.x, 4), "y": round(c.y, 4)})
+            if c.clearance < -CONTACT_TOL or (key in self._load_contact
+                                               and c.clearance <= CONTACT_RELEASE):
+                contact.add(key)
+        self._load_contact = contact
+
     @property
     def all_reached(self) -> bool:
         return bool(np.all(self.reached))
@@ -117,6 +145,7 @@ class SafetyMonitor:
             "min_clearance_m": {
                 "obstacle": _finite_or_none(self.min_clearance_obstacle),
                 "robot": _finite_or_none(self.min_clearance_robot),
+                "load": _finite_or_none(self.min_clearance_load),
             },
             "formation_error_max_m": self.formation_error_max,
             **({"min_clearance_shape_m": {k: _finite_or_none(v)

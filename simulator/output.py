@@ -30,7 +30,7 @@ ELLIPSE_COLUMNS = ("t", "formation", "cx", "cy", "alpha", "a", "b", "vx", "vy", 
 OBSTACLE_COLUMNS = ("t", "obstacle", "x", "y", "safe_distance")
 
 
-PLOTS = ("trajectories.png", "safety.png")
+PLOTS = ("trajectories.png", "safety.png", "motion.png")
 STAGING = ".writing"  # in the output folder: this run's files until they are all written
 NO_ROOM = 64 * 1024  # [bytes] free below this after a failed write: the disk is full
 
@@ -60,10 +60,11 @@ def write_run(summary: dict, series: Series, scenario: Scenario, out: Path, plot
         _record(summary, series, scenario, staging)
         tmp("run.mcap")
         if plots and series.robots:
-            from .plots import plot_safety, plot_trajectories
+            from .plots import plot_motion, plot_safety, plot_trajectories
 
             plot_trajectories(series, scenario, tmp("trajectories.png"))
             plot_safety(series, scenario, tmp("safety.png"))
+            plot_motion(series, scenario, tmp("motion.png"))
         write_json(tmp("summary.json"), _json_safe(summary), rename=False)
         (out / "summary.json").unlink(missing_ok=True)
         names = {final.name for _, final in written}

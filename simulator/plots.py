@@ -5,6 +5,8 @@
 where the obstacle was at that time; collisions are marked where and when they began. The axes
 cover where the robots go (plus a margin), not every obstacle's whole track.
 ``safety.png`` shows the smallest barrier value of each kind per robot over time.
+``motion.png`` shows each robot's commanded speed and the turn of its command from the tick
+before, with the reversals (:mod:`simulator.motion`) marked.
 """
 
 from __future__ import annotations
@@ -32,10 +34,12 @@ from matplotlib.transforms import Bbox  # noqa: E402
 
 from agent.hard_rows import unmet_hard_rows  # noqa: E402
 from scenario import Scenario  # noqa: E402
+from scenario.cargo import load_polygon, placed_load  # noqa: E402
 from scenario.routes import initial_route  # noqa: E402
 
 from .inprocess import ROBOT_COLUMNS, Series  # noqa: E402
 from .metrics import SafetyMonitor  # noqa: E402
+from .motion import REVERSAL_SPEED, is_reversal, robot_ticks, turn_angle  # noqa: E402
 
 _COL = {name: k for k, name in enumerate(ROBOT_COLUMNS)}
 SNAPSHOTS = 5  # instants at which robots, ellipses and moving obstacles are drawn together
@@ -46,6 +50,7 @@ LEGEND_SAFE_DISK = "obstacle: disk of radius Ds (safe distance; robot centres st
 LEGEND_MOVING = "moving obstacle at the snapshot times (its Ds disk; darker = later)"
 LEGEND_BODY = "robot body at the snapshot times (radius r)"
 LEGEND_ELLIPSE = "formation ellipse at the snapshot times"
+LEGEND_LOAD = "load at the snapshot times (placed by the members' rigid fit)"
 LEGEND_COLLISION = "collision (where and when it began)"
 LEGEND_OBSTACLE_PATH = "moving obstacle's track"
 
@@ -144,16 +149,23 @@ def collision_onsets(series: Series, scenario: Scenario) -> list[dict]:
             centres = []
         seen_before = len(monitor.collision_log)
         monitor.update(t, pos, centres)
-        for entry in monitor.collision_log[seen_before:]:
-            a = pos[index[entry["a"]]]
-            if entry["b"] in index:
-                b = pos[index[entry["b"]]]
-                x, y = (a[0] + b[0]) / 2.0, (a[1] + b[1]) / 2.0
-            else:
-                x, y = a[0], a[1]
-            onsets.append({"t": entry["t"], "a": entry["a"], "b": entry["b"],
-                           "x": float(x), "y": float(y)})
+        onsets += [_onset(entry, pos, index) for entry in monitor.collision_log[seen_before:]]
     return onsets
+
+
+def _onset(entry: dict, pos: np.ndarray, index: dict[str, int]) -> dict:
+    """Where a collision-log entry is drawn: a load's point nearest the other (``kind: load``),
+    the midpoint of two robots, or the robot that entered an obstacle's safe distance."""
+    if entry.get("kind") == "load":
+        return {"t": entry["t"], "a": f"load {entry['a']}", "b": entry["b"],
+                "x": entry["x"], "y": entry["y"]}
+    a = pos[index[entry["a"]]]
+    if entry["b"] in index:
+        b = pos[index[entry["b"]]]
+        x, y = (a[0] + b[0]) / 2.0, (a[1] + b[1]) / 2.0
+    else:
+        x, y = a[0], a[1]
+    return {"t": entry["t"], "a": entry["a"], "b": entry["b"], "x": float(x), "y": float(y)}
 
 
 # --- axis limits ----------------------------------------------------------------------------------
@@ -283,10 +295,16 @@ def _draw_snapshots(ax, series: Series, scenario: Scenario, fcolor: dict,
             c = fcolor.get(fname, "k")
             for p in pts:
                 ax.add_patch(Circle(p, scenario.robot.radius, fc=c, ec=c, alpha=0.25, lw=0.6))
+            _draw_load(ax, scenario, fname, pts, c)
             cx = sum(p[0] for p in pts) / len(pts)
             cy = sum(p[1] for p in pts) / len(pts)
             labels.append((cx, cy, f"t={t:.0f}s", c))
+    _draw_ellipses(ax, series, fcolor, snaps)
+    return labels + _draw_moving(ax, series, scenario, snaps)
 
+
+def _draw_ellipses(ax, series: Series, fcolor: dict, snaps: list[float]) -> None:
+    """The formations' ellipses at the recorded instants nearest the snapshots."""
     ellipse_times = sorted({row[0] for row in series.ellipses})
     if ellipse_times:
         ellipse_at = {_nearest(ellipse_times, t) for t in snaps}
@@ -296,6 +314,11 @@ def _draw_snapshots(ax, series: Series, scenario: Scenario, fcolor: dict,
                 ax.add_patch(Ellipse((cx, cy), 2 * a, 2 * b, angle=math.degrees(alpha), fill=False,
                                      ls="--", lw=0.9, color=fcolor.get(name, "k")))
 
+
+def _draw_moving(ax, series: Series, scenario: Scenario,
+                 snaps: list[float]) -> list[tuple[float, float, str, object]]:
+    """Moving obstacles at the snapshots and their tracks; returns their labels."""
+    labels: list[tuple[float, float, str, object]] = []
     moving = {o.name for o in scenario.obstacles if o.velocity != (0.0, 0.0)}
     obstacle_times = sorted({row[0] for row in series.obstacles})
     if moving and obstacle_times:
@@ -313,6 +336,23 @@ def _draw_snapshots(ax, series: Series, scenario: Scenario, fcolor: dict,
         for pts in track.values():
             ax.plot([p[0] for p in pts], [p[1] for p in pts], ":", color="0.3", lw=0.8)
     return labels
+
+
+def _draw_load(ax, scenario: Scenario, fname: str, pts: list[tuple[float, float]], color) -> None:
+    """The formation's load placed at its members' body positions ``pts`` (member order)."""
+    f = next((f for f in scenario.formations if f.name == fname), None)
+    if f is None or len(pts) != len(f.robots):
+        return
+    outline = load_polygon(f)
+    if not outline:
+        return
+    placed = placed_load(f, outline, pts)
+    if len(placed) == 2:
+        ax.plot([p[0] for p in placed], [p[1] for p in placed], "-", color=color, lw=2.5,
+                alpha=0.35, solid_capstyle="butt")
+    else:
+        ax.add_patch(Polygon(placed, closed=True, fc=color, ec=color, alpha=0.12, lw=0.8,
+                             hatch="//" if f.load else None))
 
 
 COLLISIONS_LISTED = 8  # the rest are counted
@@ -342,6 +382,8 @@ def _legend_handles(scenario: Scenario, fcolor: dict, collided: bool) -> list:
                 Line2D([], [], ls="", marker="x", color="0.3", ms=7, mew=2, label="goal"),
                 Patch(fc="0.3", alpha=0.25, label=LEGEND_BODY),
                 Line2D([], [], ls="--", color="0.3", lw=0.9, label=LEGEND_ELLIPSE)]
+    if any(len(f.robots) >= 2 or f.load for f in scenario.formations):
+        handles.append(Patch(fc="0.3", alpha=0.12, label=LEGEND_LOAD))
     if any(o.velocity == (0.0, 0.0) for o in scenario.obstacles):
         handles.append(Patch(fc="0.45", alpha=0.35, label=LEGEND_SAFE_DISK))
     if any(o.velocity != (0.0, 0.0) for o in scenario.obstacles):
@@ -543,3 +585,57 @@ def hard_row_ticks(series: Series) -> list[tuple[float, dict[str, float], tuple[
                       if isinstance(v, float) and math.isfinite(v)}
             out.append((row[_COL["t"]], finite, kinds, row[_COL["robot"]]))
     return out
+
+
+# --- the motion figure ----------------------------------------------------------------------------
+
+REVERSAL_GID = "reversal"  # gid of the reversal markers (tests find them by it)
+
+
+def motion_figure(series: Series, scenario: Scenario) -> Figure:
+    """Each robot's commanded speed |u| and the turn of its command from the tick before (both
+    at least the reversal speed), reversals marked with a red x (:mod:`simulator.motion`)."""
+    ticks = robot_ticks(series.robots, ROBOT_COLUMNS, scenario)
+    formation_of = {r: f.name for f in scenario.formations for r in f.robot_ids}
+    many = len(ticks) > MAX_ROBOT_LEGEND
+    colors = dict(zip(ticks, _colors(len(ticks)), strict=True))
+    fcolor = dict(zip([f.name for f in scenario.formations], _colors(len(scenario.formations)),
+                      strict=True))
+    fig, (ax_v, ax_turn) = plt.subplots(2, 1, figsize=(9.0, 6.0), sharex=True, layout="constrained")
+    total = 0
+    for rid, seq in ticks.items():
+        c = fcolor[formation_of.get(rid, "")] if many else colors[rid]
+        ts = [k.t for k in seq]
+        ax_v.plot(ts, [math.hypot(k.ux, k.uy) for k in seq], lw=0.7, color=c,
+                  label=None if many else rid)
+        turn = [(b.t, math.degrees(turn_angle((a.ux, a.uy), (b.ux, b.uy))))
+                for a, b in zip(seq, seq[1:], strict=False)
+                if math.hypot(a.ux, a.uy) >= REVERSAL_SPEED and math.hypot(b.ux, b.uy) >= REVERSAL_SPEED]
+        ax_turn.plot([p[0] for p in turn], [p[1] for p in turn], ".", ms=1.5, color=c)
+        rev = [b.t for a, b in zip(seq, seq[1:], strict=False)
+               if is_reversal((a.ux, a.uy), (b.ux, b.uy))]
+        total += len(rev)
+        if rev:
+            ax_v.plot(rev, [0.0] * len(rev), "x", color="red", ms=5, gid=REVERSAL_GID)
+            ax_turn.plot(rev, [180.0] * len(rev), "x", color="red", ms=5, gid=REVERSAL_GID)
+    ax_turn.axhline(120.0, color="red", lw=0.6, ls="--")
+    ax_v.set_ylabel("|u| [m/s]")
+    ax_turn.set_ylabel("turn of u from the tick before [deg]")
+    ax_turn.set_ylim(0.0, 185.0)
+    ax_turn.set_xlabel("t [s]")
+    ax_v.set_title(f"{scenario.name}: commanded speed and turn per tick; {total} reversals "
+                   f"(> 120 deg at >= {REVERSAL_SPEED} m/s, red x)", fontsize=10)
+    for ax in (ax_v, ax_turn):
+        ax.grid(True, lw=0.3)
+    if many:
+        ax_v.legend(handles=[Line2D([], [], color=fcolor[f.name], label=f"formation {f.name}")
+                             for f in scenario.formations], fontsize=7, ncol=4)
+    elif ticks:
+        ax_v.legend(fontsize=7, ncol=4)
+    return fig
+
+
+def plot_motion(series: Series, scenario: Scenario, path: Path) -> None:
+    fig = motion_figure(series, scenario)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)

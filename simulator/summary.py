@@ -2,8 +2,8 @@
 (:mod:`simulator.inprocess`) and the multi-process run (:mod:`simulator.launch`).
 
 The key order is the file's: scenario, mode, steps, sim_time_s, the safety monitor's fields,
-min_h, hard_row_unmet_ticks (also in qp), qp, comm, safety, solver, then what only one kind of
-run has, then collision_log.
+min_h, hard_row_unmet_ticks (also in qp), qp, motion (:mod:`simulator.motion`, when given),
+comm, safety, solver, then what only one kind of run has, then collision_log.
 """
 
 from __future__ import annotations
@@ -42,7 +42,8 @@ def qp_fields(solves: int, solve_us: Sequence[float], relaxed: int, fallback: in
 
 def run_summary(scenario: Scenario, mode: str, steps: int, sim_time: float, monitor: SafetyMonitor,
                 min_h: dict[str, float | None], qp: dict[str, Any], comm: dict[str, Any],
-                safety: bool, solver: str, **extra: Any) -> dict[str, Any]:
+                safety: bool, solver: str, motion: dict[str, Any] | None = None,
+                **extra: Any) -> dict[str, Any]:
     """The summary of a run of ``scenario`` (see the module docstring); ``extra`` goes after
     ``solver`` in the order given."""
     return {
@@ -54,6 +55,7 @@ def run_summary(scenario: Scenario, mode: str, steps: int, sim_time: float, moni
         "min_h": min_h,
         "hard_row_unmet_ticks": qp.get("hard_row_unmet_ticks", 0),
         "qp": qp,
+        **({"motion": motion} if motion is not None else {}),
         "comm": comm,
         "safety": safety,
         "solver": solver,
