@@ -142,7 +142,8 @@ class LoadContact(NamedTuple):
 
 def load_clearances(s: Scenario, loads: Sequence[Sequence[Point]], bodies: np.ndarray,
                     obstacles: Sequence[Point], reach: float = LOAD_REACH) -> list[LoadContact]:
-    """Every load's clearance to everything within ``reach`` of it (see :class:`LoadContact`).
+    """Every load's clearance to everything within ``reach`` of it (see :class:`LoadContact`;
+    walls, shelves and other loads are first sorted out by bounding circles).
 
     ``loads``: each formation's load outline now (world, counter-clockwise; empty: none);
     ``bodies``: (n, 2) body centres in scenario robot order; ``obstacles``: the circles'
@@ -156,32 +157,32 @@ def load_clearances(s: Scenario, loads: Sequence[Sequence[Point]], bodies: np.nd
         bound = rounds[k]
         if bound is None:
             continue
-        out += _robot_contacts(s, k, poly, bodies, formation_of)
-        out += _circle_contacts(s, k, poly, obstacles, circles)
+        out += _robot_contacts(s, k, poly, bodies, formation_of, reach)
+        out += _circle_contacts(s, k, poly, obstacles, circles, reach)
         out += _shape_contacts(s, k, poly, bound, reach)
         out += _load_contacts(s, k, loads, rounds, reach)
     return out
 
 
 def _robot_contacts(s: Scenario, k: int, poly: Sequence[Point], bodies: np.ndarray,
-                    formation_of: list[int]) -> list[LoadContact]:
-    others = [i for i, f in enumerate(formation_of) if f != k]
-    if not others:
+                    formation_of: list[int], reach: float) -> list[LoadContact]:
+    others = np.array([i for i, f in enumerate(formation_of) if f != k], dtype=int)
+    if not len(others):
         return []
     pts = np.asarray(bodies, dtype=float)[others]
     d = points_distance(pts, poly) - s.robot.radius
-    return [LoadContact(k, s.robot_ids[i], float(d[m]), float(pts[m, 0]), float(pts[m, 1]))
-            for m, i in enumerate(others)]
+    return [LoadContact(k, s.robot_ids[others[m]], float(d[m]), float(pts[m, 0]),
+                        float(pts[m, 1])) for m in np.nonzero(d <= reach)[0]]
 
 
 def _circle_contacts(s: Scenario, k: int, poly: Sequence[Point], obstacles: Sequence[Point],
-                     radii: list[float]) -> list[LoadContact]:
+                     radii: list[float], reach: float) -> list[LoadContact]:
     if not radii:
         return []
     pts = np.asarray(obstacles, dtype=float).reshape(-1, 2)
     d = points_distance(pts, poly) - np.asarray(radii)
-    return [LoadContact(k, o.name, float(d[m]), float(pts[m, 0]), float(pts[m, 1]))
-            for m, o in enumerate(s.obstacles)]
+    return [LoadContact(k, s.obstacles[m].name, float(d[m]), float(pts[m, 0]),
+                        float(pts[m, 1])) for m in np.nonzero(d <= reach)[0]]
 
 
 def _shape_contacts(s: Scenario, k: int, poly: Sequence[Point], bound: tuple[Point, float],

@@ -1,4 +1,9 @@
-"""``formation check SCENARIO``: validate a scenario file, nothing else."""
+"""``formation check SCENARIO``: validate a scenario file, nothing else.
+
+Exit 2 with one line for an invalid file (a declared load overlapping something at the start
+among the reasons); warnings, one line each on stderr, for what a valid file allows that the
+user should know (a default load, the members' hull, overlapping something at the start).
+"""
 
 from __future__ import annotations
 
@@ -11,15 +16,12 @@ from formation.exits import EXIT_OK
 def cmd_check(ns: argparse.Namespace) -> int:
     from scenario import load_scenario
     from scenario.load import scenario_warnings
+    from scenario.succession import formation_successor
 
     s = load_scenario(ns.scenario)
     n = len(s.robot_ids)
     for w in scenario_warnings(s):
         print(f"{ns.scenario}: warning: {w}", file=sys.stderr)
-    from scenario.succession import formation_successor
-
-    s = load_scenario(ns.scenario)
-    n = len(s.robot_ids)
     for f in s.formations:
         if formation_successor(f) is None:
             print(f"{ns.scenario}: warning: formation {f.name!r} has no member adjacent to every "
