@@ -111,7 +111,7 @@ def test_sim_command_writes_the_summary_contract_series_and_figures(tmp_path, ca
     summary = json.loads((out / "summary.json").read_text())
     assert SUMMARY_FIELDS <= set(summary)
     assert summary["mode"] == "inprocess" and summary["scenario"] == "thesis-5.1.2"
-    assert set(summary["min_clearance_m"]) == {"obstacle", "robot"}
+    assert set(summary["min_clearance_m"]) == {"obstacle", "robot", "load"}
     assert set(summary["min_h"]) == {"formation", "obstacle", "formations"}
     assert {"solves", "infeasible", "solve_us_median"} <= set(summary["qp"])
     assert {"topology", "messages", "bytes", "messages_per_robot_per_s",
@@ -119,8 +119,9 @@ def test_sim_command_writes_the_summary_contract_series_and_figures(tmp_path, ca
     rows = (out / "robots.csv").read_text().splitlines()
     assert rows[0].startswith("t,robot,formation,x,y,theta")
     assert len(rows) == 1 + summary["steps"] * 4
-    for fig in ("trajectories.png", "safety.png"):
+    for fig in ("trajectories.png", "safety.png", "motion.png"):
         assert (out / fig).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert set(summary["motion"]["reversals"]) == {row.split(",")[1] for row in rows[1:]}
     assert "all robots reached their goals" in capsys.readouterr().out
 
 
