@@ -18,6 +18,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from .shapes import segment_distance
+
 Point = tuple[float, float]
 
 
@@ -122,8 +124,18 @@ def polygon_distance(p: Sequence[Point], q: Sequence[Point]) -> float:
     gaps = [_gap(p, q, ax) for ax in axes]
     if axes and max(gaps) <= 0.0:
         return max(gaps)  # overlap: the least depth over the axes (SAT)
-    return min(float(np.min(points_distance(np.asarray(q, dtype=float), p))),
-               float(np.min(points_distance(np.asarray(p, dtype=float), q))))
+    return min(_outline_distance(q, p), _outline_distance(p, q))
+
+
+def _outline_distance(points: Sequence[Point], poly: Sequence[Point]) -> float:
+    """The smallest distance from ``points`` to the outline of ``poly`` (pure Python: the
+    polygons here have a few corners, where numpy's per-call cost dominates)."""
+    n = len(poly)
+    if n == 1:
+        return min(math.dist(v, poly[0]) for v in points)
+    edges = [(poly[k], poly[(k + 1) % n]) for k in range(n if n > 2 else 1)]
+    return min(segment_distance(v[0], v[1], a[0], a[1], b[0], b[1])[0]
+               for v in points for a, b in edges)
 
 
 def bounding_circle(poly: Sequence[Point]) -> tuple[Point, float]:

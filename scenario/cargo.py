@@ -31,6 +31,7 @@ from geometry.polygon import (
     polygon_distance,
 )
 from geometry.rigid import rigid_fit
+from geometry.shapes import shape_distance
 
 from . import limits
 from .fields import mapping, vector, within
@@ -131,7 +132,8 @@ class LoadContact(NamedTuple):
     """The clearance of formation ``formation``'s load (index in the scenario) to ``other``:
     a robot of another formation (its body), an obstacle (its physical disk, radius
     safe_distance - robot radius), a wall or shelf (the shape itself) or another formation's
-    load (the formation's name); negative: overlap. (x, y): where, for a figure."""
+    load (the formation's name); negative: overlap. (x, y): where, for a figure (for a wall,
+    shelf or load only worked out when they overlap; else the load's centre)."""
 
     formation: int
     other: str
@@ -189,12 +191,12 @@ def _shape_contacts(s: Scenario, k: int, poly: Sequence[Point], bound: tuple[Poi
                     reach: float) -> list[LoadContact]:
     out = []
     for sh in s.shapes:
+        if shape_distance(bound[0][0], bound[0][1], sh)[0] - bound[1] > reach:
+            continue  # a lower bound of the distance from the load to the shape
         outline = sh.corners()
-        centre, radius = bounding_circle(outline)
-        if math.dist(centre, bound[0]) - radius - bound[1] > reach:
-            continue
-        x, y = _mark_point(poly, outline)
-        out.append(LoadContact(k, sh.name, polygon_distance(poly, outline), x, y))
+        d = polygon_distance(poly, outline)
+        x, y = _mark_point(poly, outline) if d < 0.0 else bound[0]
+        out.append(LoadContact(k, sh.name, d, x, y))
     return out
 
 
@@ -208,9 +210,9 @@ def _load_contacts(s: Scenario, k: int, loads: Sequence[Sequence[Point]],
         other = rounds[g]
         if other is None or math.dist(other[0], bound[0]) - other[1] - bound[1] > reach:
             continue
-        x, y = _mark_point(loads[k], loads[g])
-        out.append(LoadContact(k, s.formations[g].name, polygon_distance(loads[k], loads[g]),
-                               x, y))
+        d = polygon_distance(loads[k], loads[g])
+        x, y = _mark_point(loads[k], loads[g]) if d < 0.0 else bound[0]
+        out.append(LoadContact(k, s.formations[g].name, d, x, y))
     return out
 
 
