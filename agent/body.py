@@ -455,21 +455,24 @@ def rigid_nominal(cp: ControlParams, fp: Footprint, view: FormationView, snap: S
 
 
 def footprint_of(starts: Sequence[Point], bodies: Sequence[Point], goals: Sequence[Point],
-                 index: int, load: Sequence[Point] = ()) -> Footprint:
+                 index: int, load: Sequence[Point] = (), declared: bool = True) -> Footprint:
     """A member's :class:`Footprint` from its formation's start control points ``starts``, start
-    body positions ``bodies`` and goals (member order), and a declared ``load`` outline (world
-    coordinates at the start, counter-clockwise; empty: the members' hull, whose vertices are
-    the slots and whose edges are covered by the edges between every pair of members: the hull's
-    edges are among them and the others lie inside it, so their rows are implied)."""
+    body positions ``bodies`` and goals (member order), and its load's outline ``load`` (world
+    coordinates at the start, counter-clockwise: :func:`scenario.cargo.load_polygon`). A load
+    not ``declared`` is the members' hull: its vertices are the members (their own rows keep
+    them), so only its edges get rows. Without any outline every pair of members is an edge:
+    the hull's edges are among them and the others lie inside it, so their rows are implied."""
     ref = reference_shape(list(starts))
     cx = sum(x for x, _y in starts) / len(starts)
     cy = sum(y for _x, y in starts) / len(starts)
     bref = reference_shape(list(bodies))
     turn = estimate(bref, (1.0, 1.0), list(goals), [(0.0, 0.0)] * len(goals)).alpha - bref.alpha0
-    if load:
+    if len(load) >= 2:
         pts = tuple((x - cx, y - cy) for x, y in load)
-        edges = tuple((pts[k], pts[(k + 1) % len(pts)]) for k in range(len(pts)))
-        return Footprint(ref.offsets, ref.alpha0, index, wrap_angle(turn), pts, edges)
+        n = len(pts)
+        edges = tuple((pts[k], pts[(k + 1) % n]) for k in range(n if n > 2 else 1))
+        return Footprint(ref.offsets, ref.alpha0, index, wrap_angle(turn),
+                         pts if declared else (), edges)
     offs = ref.offsets
     edges = tuple((offs[i], offs[j]) for i in range(len(offs)) for j in range(i + 1, len(offs)))
     return Footprint(offs, ref.alpha0, index, wrap_angle(turn), (), edges)

@@ -21,6 +21,7 @@ from geometry.limits import BURGER_RADIUS
 from geometry.unicycle import control_point
 from leader.settings import LeaderSettings  # noqa: F401  (re-exported)
 from scenario import Scenario, formation_axes
+from scenario.cargo import load_polygon
 from scenario.model import FormationSpec
 from scenario.routes import initial_route
 from scenario.succession import formation_successor
@@ -170,7 +171,7 @@ def _footprint(scenario: Scenario, f: FormationSpec, robot_id: str) -> Footprint
     off = scenario.robot.control_offset
     return footprint_of([control_point(m.start[0], m.start[1], m.start[2], off) for m in f.robots],
                         [m.start[:2] for m in f.robots], [m.goal for m in f.robots],
-                        f.robot_ids.index(robot_id))
+                        f.robot_ids.index(robot_id), load_polygon(f), bool(f.load))
 
 
 def _footprint_from(d: dict[str, Any] | None) -> Footprint | None:

@@ -25,6 +25,7 @@ from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
 from geometry.ellipse import ReferenceShape, estimate, reference_shape
 from leader.navigation import Follower
 from scenario import Scenario, formation_axes
+from scenario.cargo import load_polygon
 from scenario.routes import initial_route
 
 from .metrics import SafetyMonitor
@@ -98,7 +99,8 @@ class FleetModel:
         partners = tuple(tuple(j for j in members[formation_of[i]] if j != i) for i in range(len(ids)))
         footprints = tuple(
             footprint_of([unicycle.control_point(*r.start, off) for r in f.robots],
-                         [r.start[:2] for r in f.robots], [r.goal for r in f.robots], k)
+                         [r.start[:2] for r in f.robots], [r.goal for r in f.robots], k,
+                         load_polygon(f), bool(f.load))
             for f in scenario.formations for k in range(len(f.robots)))
         return cls(
             scenario,
