@@ -22,6 +22,8 @@ from geometry.limits import BURGER_RADIUS
 from geometry.unicycle import control_point
 from leader.settings import LeaderSettings
 from scenario import Scenario, formation_axes, limits
+from scenario.cargo import load_polygon
+from scenario.model import FormationSpec
 from scenario.reader import excerpt
 from scenario.routes import initial_route
 from scenario.succession import formation_successor
@@ -30,6 +32,7 @@ from wire.rmw_zenoh import RmwSettings
 from wire.stamps import CLOCK_TOLERANCE_S
 from wire.zconf import ZenohSettings
 
+from .body import Footprint, footprint_of
 from .control import ControlParams
 
 CONFIG_VERSION = 1
@@ -86,6 +89,8 @@ class AgentConfig:
     member_goals: tuple[tuple[str, float, float], ...] = ()
     planner: bool = True  # the leader plans routes around walls and shelves for new goals
     goal_tolerance: float = 0.05  # [m]
+    # controller.method rigid: this member's slot in its formation's body (agent.body)
+    footprint: Footprint | None = None
 
     def __post_init__(self) -> None:
         _check_names(self)
@@ -254,8 +259,19 @@ def build_agent_configs(
                               else ()),
                 planner=scenario.controller.planner != "none",
                 goal_tolerance=scenario.goal_tolerance,
+                footprint=_footprint(scenario, f, r.id),
             )
     return out
+
+
+def _footprint(scenario: Scenario, f: FormationSpec, robot_id: str) -> Footprint | None:
+    """A member's footprint under ``method: rigid`` (None otherwise: files stay as they were)."""
+    if scenario.controller.method != "rigid":
+        return None
+    off = scenario.robot.control_offset
+    return footprint_of([control_point(m.start[0], m.start[1], m.start[2], off) for m in f.robots],
+                        [m.start[:2] for m in f.robots], [m.goal for m in f.robots],
+                        f.robot_ids.index(robot_id), load_polygon(f), bool(f.load))
 
 
 def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
@@ -269,6 +285,10 @@ def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
     d["zenoh"] = {k: d["zenoh"][k] for k in AGENT_ZENOH_FIELDS}
     if d.get("rmw") is None:
         d.pop("rmw", None)  # the bridge: files stay as they were before the field existed
+    if d.get("footprint") is None:
+        d.pop("footprint", None)  # method rules or thesis: likewise
+    if d["control"]["method"] == "rules":
+        del d["control"]["method"]  # the default: likewise
     if d["solver"] == "exact":
         del d["solver"]  # the default: files stay as they were before the field existed
     d["version"] = CONFIG_VERSION

@@ -87,8 +87,9 @@ from geometry.ellipse import Ellipse, ellipse_terms
 from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE, BURGER_RADIUS
 from geometry.shapes import Shape
 from scenario import limits as ranges
+from scenario.model import METHODS
 
-from . import barriers, unicycle
+from . import barriers, body, unicycle
 from .barriers import Neighbour, Obstacle, Partner
 from .qp import STATUS_NOMINAL, QPResult, Row, normalized_row, solve_cbf_qp, solve_exact
 
@@ -160,6 +161,7 @@ class ControlParams:
     radius: float = BURGER_RADIUS  # [m] body radius: separation rows keep bodies 2 r + SEP_MARGIN apart
     band_first: bool = True  # formation keeping first (yield_push, band_nominal)
     shape_clear: bool = True  # static obstacles kept out of the formation's shape (shape_push)
+    method: str = "rules"  # scenario.model.METHODS: rules (this module's), thesis, rigid (agent.body)
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -167,6 +169,9 @@ class ControlParams:
             allowed = PARAM_RANGES.get(f.name)
             if allowed is not None:
                 ranges.check(value, f.name, allowed)
+            elif f.name == "method":
+                if value not in METHODS:
+                    raise ValueError(f"method: must be one of {', '.join(METHODS)}, got {value!r}")
             elif not isinstance(value, bool):
                 raise ValueError(f"{f.name}: must be true or false, got {value!r}")
 
@@ -188,6 +193,7 @@ class ControlParams:
             d_af=c.d_af if c.d_af is not None else 2.0 * r.radius + 0.25,
             period=scenario.dt,
             radius=r.radius,
+            method=c.method,
         )
 
     @property
@@ -863,6 +869,7 @@ def control_step(
     hazards: Sequence[Ellipse] | None = None,
     shapes: Sequence[Shape] = (),
     clock: Callable[[], int] | None = None,
+    footprint: body.Footprint | None = None,
 ) -> StepResult:
     """One tick for one robot.
 
@@ -877,7 +884,9 @@ def control_step(
     default: ``others``), so all-to-all keeps those rules without ellipse rows.
     ``shapes`` are the static walls and shelves (Ds from the shape, offset added likewise).
     ``clock`` (e.g. ``time.perf_counter_ns``) times the QP for ``solve_us``; without one the step
-    reads no clock and ``solve_us`` is 0.
+    reads no clock and ``solve_us`` is 0. ``footprint``: this member's slot in its formation's
+    body, which ``method: rigid`` needs (:func:`rigid_nominal`); ``method: thesis`` is
+    eq. 4.2 and the rows alone.
     """
     x, y, theta = pose
     p = params
@@ -885,18 +894,25 @@ def control_step(
     px, py = (unicycle.control_point(x, y, theta, off) if p.unicycle else (x, y))
     if p.unicycle:  # the band is meant for the bodies: measure each edge there (body_df)
         neighbours = [n._replace(df=body_df(px, py, theta, n, off)) for n in neighbours]
+    rules = p.method == "rules"
     target = goal
-    if p.unicycle and p.safety and view is not None:  # one rigid motion for all members
+    if rules and p.unicycle and p.safety and view is not None:  # one rigid motion for all members
         target = rigid_target(goal, view, x, y, p.max_speed)
     ux, uy = nominal(p.kp, x, y, target[0], target[1], p.max_speed)
     if hazards is None:
         hazards = others
     escaping = False
-    if view is not None:
+    if view is not None and rules:
         ux, uy, escaping = formation_nominal(p, view, obstacles, hazards, (ux, uy))
-    if p.keeps_band_first and not escaping and neighbours:
+    if rules and p.keeps_band_first and not escaping and neighbours:
         ux, uy = band_nominal(p, px, py, (ux, uy), neighbours)  # formation keeping first
-    if p.unicycle and p.safety:  # turn about the body, then drive (unicycle.steer)
+    if p.method == "rigid" and p.safety and view is not None and footprint is not None:
+        esc = escape_command(p, view, obstacles) if p.tiebreak else None  # a faster hazard
+        push = tiebreak_push(view, hazards, obstacles, p.max_speed) if p.tiebreak else (0.0, 0.0)
+        ux, uy = rigid_nominal(p, footprint, view, body.Snapshot(obstacles, shapes, hazards),
+                                    (px, py), (x, y), goal, push, esc)
+        escaping = esc is not None
+    if p.unicycle and p.safety and p.method != "thesis":  # turn about the body, then drive
         near = math.hypot(goal[0] - x, goal[1] - y) < unicycle.STEER_REVERSE_RANGE
         ux, uy = unicycle.steer(ux, uy, theta, p.lookahead, p.max_turn_rate, reverse=near)
     nux, nuy = ux, uy
@@ -921,3 +937,31 @@ def control_step(
         res.ux, res.uy, v, w, px, py, res.status, res.slack, rows.h_formation, rows.h_obstacle,
         rows.h_formations, nux, nuy, solve_us, rows.h_separation, escaping,
     )
+
+
+def body_params(cp: ControlParams) -> body.BodyParams:
+    """The formation QP's numbers from a member's :class:`agent.control.ControlParams`: the turn
+    limit is a unicycle's turn rate (single integrators: none beyond the slots' speeds); the
+    load keeps epsilon (how far members sit from their slots) plus the look-ahead offset."""
+    return body.BodyParams(
+        vmax=cp.max_speed,
+        omega_max=cp.max_turn_rate if cp.unicycle else math.inf,
+        gamma_obstacle=cp.gamma_obstacle,
+        gamma_formations=cp.gamma_formations,
+        kp=cp.kp,
+        dt=cp.period,
+        grow=cp.offset + cp.sampling_margin,
+        radius=cp.radius,
+        load_margin=cp.epsilon + cp.offset,
+    )
+
+
+def rigid_nominal(cp: ControlParams, fp: body.Footprint, view: FormationView, snap: body.Snapshot,
+                  point: body.Point, at: body.Point, target: body.Point,
+                  push: body.Point = (0.0, 0.0), intent: body.Point | None = None) -> body.Point:
+    """``controller.method: rigid``: a member's nominal from the formation's twist
+    (:func:`agent.body.formation_twist`) and its slot (:func:`agent.body.member_nominal`);
+    ``point`` is its control point, ``at`` its body position."""
+    p = body_params(cp)
+    pose, res = body.formation_twist(fp, view.own, (view.goal_x, view.goal_y), snap, p, push, intent)
+    return body.member_nominal(fp, pose, res.twist, point, at, target, p, res.goal)

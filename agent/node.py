@@ -540,7 +540,7 @@ class AgentNode:
         res = control_step(cfg.control, (pose.x, pose.y, pose.theta), target, inputs.neighbours,
                            obs, inputs.others, inputs.view, self._solve, inputs.pairwise,
                            inputs.partners, self.last_u, inputs.hazards, shapes=shapes,
-                           clock=time.perf_counter_ns)
+                           clock=time.perf_counter_ns, footprint=cfg.footprint)
         if self.clock.gone_stale(stamp):
             return self._zero(t, POSE_AT_SEND)  # never send a command from a pose gone stale
         if self.leader.leading:

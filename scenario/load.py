@@ -53,6 +53,7 @@ from .fields import title as _title
 from .fields import vector as _vector
 from .fields import within as _in
 from .model import (
+    METHODS,
     SINGLE_INTEGRATOR,
     UNICYCLE,
     ControllerSpec,
@@ -75,7 +76,7 @@ TIEBREAKS = ("keep_right", "none")
 _TOP_KEYS = {"name", "dt", "duration", "goal_tolerance", "robot", "controller", "formations",
              "obstacles", "world"}
 _ROBOT_KEYS = {"model", "max_speed", "max_turn_rate", "lookahead", "radius"}
-_CONTROLLER_KEYS = {"kp", "gamma", "epsilon", "tiebreak", "d_af", "planner"}
+_CONTROLLER_KEYS = {"kp", "gamma", "epsilon", "tiebreak", "d_af", "planner", "method"}
 _GAMMA_KEYS = {"formation", "obstacle", "formations"}
 _FORMATION_KEYS = {"name", "leader", "robots", "edges", "ellipse", "waypoints", LOAD_KEY}
 _MEMBER_KEYS = {"start", "goal"}
@@ -206,7 +207,15 @@ def _controller(raw: Any) -> ControllerSpec:
         tiebreak=tiebreak,
         d_af=None if d_af is None else _in(d_af, "controller.d_af", limits.DISTANCE),
         planner=planner,
+        method=_choice(m.get("method", d.method), "controller.method", METHODS),
     )
+
+
+def _choice(raw: Any, where: str, allowed: tuple[str, ...]) -> str:
+    value = _string(raw, where)
+    if value not in allowed:
+        raise ScenarioError(f"{where}: {excerpt(value)} is not one of {allowed}")
+    return value
 
 
 def _formation(raw: Any, where: str, robot: RobotModel, seen: dict[str, str]) -> FormationSpec:

@@ -19,6 +19,7 @@ import numpy as np
 
 from agent import unicycle
 from agent.barriers import Obstacle
+from agent.body import Footprint, footprint_of
 from agent.control import ControlParams, Stall, StepResult, control_step
 from agent.hard_rows import HardRowCounter
 from agent.inputs import step_inputs
@@ -26,6 +27,7 @@ from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
 from geometry.ellipse import ReferenceShape, estimate, reference_shape
 from leader.navigation import Follower
 from scenario import Scenario, formation_axes
+from scenario.cargo import load_polygon
 from scenario.routes import initial_route
 
 from .lab import LabWorld
@@ -69,6 +71,7 @@ class FleetModel:
     neighbours: tuple[tuple[tuple[int, float], ...], ...]  # per robot: (index, Df)
     formation_of: tuple[str, ...]
     partners: tuple[tuple[int, ...], ...] = ()  # per robot: the other members (separation rows)
+    footprints: tuple[Footprint, ...] = ()  # per robot: its slot in its formation's body (rigid)
 
     @classmethod
     def build(cls, scenario: Scenario, safety: bool = True) -> FleetModel:
@@ -87,6 +90,11 @@ class FleetModel:
         )
         formation_of = tuple(scenario.formation_of(rid).name for rid in ids)
         partners = tuple(tuple(j for j in members[formation_of[i]] if j != i) for i in range(len(ids)))
+        footprints = tuple(
+            footprint_of([unicycle.control_point(*r.start, off) for r in f.robots],
+                         [r.start[:2] for r in f.robots], [r.goal for r in f.robots], k,
+                         load_polygon(f), bool(f.load))
+            for f in scenario.formations for k in range(len(f.robots)))
         return cls(
             scenario,
             ControlParams.from_scenario(scenario, safety=safety),
@@ -96,6 +104,7 @@ class FleetModel:
             nbrs,
             formation_of,
             partners,
+            footprints,
         )
 
     def ellipses(self, ctrl: list[tuple[float, float]], vel: list[tuple[float, float]]):
@@ -178,7 +187,7 @@ def simulate(
             res = control_step(params, pose, target, inputs.neighbours, obs,
                                inputs.others, inputs.view, solve, inputs.pairwise,
                                inputs.partners, vel[i], inputs.hazards, shapes=shapes,
-                               clock=time.perf_counter_ns)
+                               clock=time.perf_counter_ns, footprint=fleet.footprints[i])
             results.append(res)
             hard.add(res)
             solve_us.append(res.solve_us)

@@ -1,0 +1,451 @@
+"""The formation as one rigid body: a safety QP over its twist (issue 25, ``controller.method: rigid``).
+
+The formation's pose is (c, theta): c its centroid and theta the rotation of its start shape, both
+read from the ellipse its leader publishes (eq. 4.7 for c; ``alpha - alpha0`` for theta, the
+least-squares rotation of :func:`geometry.ellipse.estimate`). Its motion is the twist
+(vx, vy, omega) about c; a point P of the body then moves at
+
+    P' = v + omega J (P - c),   J = [[0, -1], [1, 0]],
+
+which is linear in the twist. Every barrier row of one robot's QP (eq. 4.12, rows a . u <= b on a
+point's velocity u) therefore becomes a row on the twist by the substitution u = P' (a "footprint
+row", :func:`point_row`), and the formation's QP is
+
+    min |v - v_goal|^2 + rho^2 (omega - omega_goal)^2   s.t.  footprint rows, limits     (4.12')
+
+with rho the largest slot radius (so both parts are speeds [m/s]). The footprint is every member's
+slot (its start control point placed at the pose) and the load:
+
+* circles (static and moving), appendix A.1 (4) on a slot:  -2 (P - o) . P' <= gamma h - 2 (P - o) . o',
+  h = |P - o|^2 - Ds^2 (eq. 4.5; Ds grown by the look-ahead offset and the sampling margin as the
+  member's own rows grow it, :attr:`agent.control.ControlParams.sampling_margin`);
+* walls and shelves (:mod:`geometry.shapes`, eq. 4.5 on the distance to the shape):
+  -grad d . P' <= gamma (d - Ds);
+* other formations' ellipses, appendix A.3 (19) on a slot:
+  -dh/dp . P' <= alpha(h) + dh/dc . c_e' + dh/dalpha . alpha_e' (alpha = the extended class-K of
+  :func:`agent.barriers.ellipse_class_k`);
+* the load's outline: each vertex as a point of the body against shapes and circles (physical
+  size: the shape itself, a circle's Ds less the robot radius), and each edge against every shape
+  corner and circle centre q: with P* the edge's point nearest q and n = (q - P*)/|q - P*|,
+  d' = n . (q' - P*'), so  n . P*' <= gamma (d - D) + n . q'. The distance between two convex
+  outlines is reached at a vertex of one of them, so vertices and corners cover every contact;
+* every member's speed limit on its slot velocity, |v| + rho |omega| <= vmax (a 12-gon in v for each
+  sign of omega, inscribed like :func:`agent.barriers.speed_rows`), and |omega| <= the turn limit.
+
+Sampled time (item 5): over one period dt at a constant twist a body point leaves the straight line
+P + dt P' by at most rho (omega dt)^2 / 2; every distance here is convex along a straight motion, so
+the row with gamma dt <= 1 keeps h >= 0 at the next sample once the safe distance is grown by that
+bound (:func:`arc_margin`) - the property the tests check for dt in [0.02, 0.1].
+
+The QP has three variables and is solved exactly (:func:`solve_twist`): the incremental algorithm of
+:func:`agent.qp.solve_exact` one dimension up - when a row is violated by the optimum so far, the new
+optimum lies on that row's plane, a 2-D problem over the earlier rows that :func:`solve_exact`
+solves. Where the barrier rows cannot all hold, they are relaxed by their smallest common slack
+inside the limits (as :func:`agent.qp.solve_cbf_qp` does for a robot).
+
+Who computes it: every member, from the snapshot its formation shares - the leader's ``others``
+message (its own ellipse: the pose and its rates; the other formations' ellipses), the obstacles and
+the walls and shelves. Lock-step, every member then computes the same twist; in real time they
+differ only as much as their obstacle messages do. Chosen over a leader publishing the twist on a new
+key because it needs no new key, payload or access right, no successor hand-over (a member that has
+the leader's ellipse has everything) and adds no round trip; the cost is the small QP on every
+member (reported by ``formation bench`` with the rest of the step).
+
+Each member's nominal (:func:`member_nominal`) is its slot's velocity under the twist plus a band
+correction towards its slot; the thesis's per-robot QP (every row as before, hard rows never relaxed
+to reach a goal) stays the last safety filter.
+
+Pure functions over floats; no numpy on this hot path.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import NamedTuple
+
+from geometry.ellipse import Ellipse, ellipse_terms, estimate, reference_shape, wrap_angle
+from geometry.shapes import Shape, segment_distance, shape_distance
+
+from .barriers import Obstacle, ellipse_class_k
+from .qp import FEAS_TOL, solve_exact
+
+Point = tuple[float, float]
+Row3 = tuple[float, float, float, float]  # (a1, a2, a3, b): a . z <= b, z = (vx, vy, rho omega)
+Twist = tuple[float, float, float]  # (vx [m/s], vy [m/s], omega [rad/s]) about the centroid
+
+LIMIT_SIDES = 12  # sides of the polygon inscribed in the speed disk (as agent.barriers.SPEED_SIDES)
+TURN_LEFT_BIAS = math.radians(20.0)  # a turn within this of 180 degrees goes left (all alike)
+ARRIVE_RANGE = 0.1  # [m] within this of its target a member blends to eq. 4.2 on it
+_BISECT_STEPS = 40
+
+
+@dataclass(frozen=True)
+class Footprint:
+    """What every member knows of its formation's body, in the start frame (origin: the start
+    centroid of the members' control points; the scenario's axes)."""
+
+    slots: tuple[Point, ...]  # each member's control point at the start (reference offsets)
+    alpha0: float  # [rad] the ellipse's orientation at the start (geometry.ellipse.reference_shape)
+    member: int  # this member's slot (index into slots)
+    goal_turn: float = 0.0  # [rad] rotation from the start shape to the goal shape
+    load_points: tuple[Point, ...] = ()  # a declared load's vertices (the default hull's are slots)
+    load_edges: tuple[tuple[Point, Point], ...] = ()  # the load's outline edges
+
+    @property
+    def rho(self) -> float:
+        """[m] the largest slot radius (at least 1 cm: it weighs omega in the QP)."""
+        return max([0.01] + [math.hypot(x, y) for x, y in self.slots])
+
+
+class BodyParams(NamedTuple):
+    """The numbers the formation QP needs (from :class:`agent.control.ControlParams`)."""
+
+    vmax: float  # [m/s] every member's speed limit
+    omega_max: float  # [rad/s] the formation's turn limit (a unicycle's turn rate, or inf)
+    gamma_obstacle: float
+    gamma_formations: float
+    kp: float  # eq. 4.2, on the centroid and on the orientation
+    dt: float  # [s] control period
+    grow: float = 0.0  # [m] a member's Ds grows by this (look-ahead offset, sampling margin)
+    radius: float = 0.0  # [m] body radius: a circle's physical radius is Ds less this
+    load_margin: float = 0.0  # [m] the load keeps this from things (members sit near, not on, slots)
+
+
+class Pose(NamedTuple):
+    cx: float
+    cy: float
+    theta: float  # [rad] rotation of the start shape
+
+
+def pose_of(own: Ellipse, alpha0: float) -> Pose:
+    """The formation's pose from its leader's ellipse (eq. 4.7 and the rotation estimate)."""
+    return Pose(own.cx, own.cy, wrap_angle(own.alpha - alpha0))
+
+
+def place(pose: Pose, p: Point) -> Point:
+    """A start-frame point placed at ``pose``: c + R(theta) p."""
+    c, s = math.cos(pose.theta), math.sin(pose.theta)
+    return (pose.cx + c * p[0] - s * p[1], pose.cy + s * p[0] + c * p[1])
+
+
+def point_velocity(pose: Pose, twist: Twist, p: Point) -> Point:
+    """P' = v + omega J (P - c) for the world point P = ``p`` of the body."""
+    return (twist[0] - twist[2] * (p[1] - pose.cy), twist[1] + twist[2] * (p[0] - pose.cx))
+
+
+def arc_margin(rho: float, omega_max: float, dt: float) -> float:
+    """[m] how far a point at radius rho leaves its straight step in one period at omega_max."""
+    return 0.5 * rho * (omega_max * dt) ** 2
+
+
+def point_row(pose: Pose, rho: float, p: Point, gx: float, gy: float, b: float) -> Row3:
+    """The row g . P' <= b on the point P = ``p``, in z = (vx, vy, rho omega), normalised."""
+    a3 = (gy * (p[0] - pose.cx) - gx * (p[1] - pose.cy)) / rho
+    n = math.sqrt(gx * gx + gy * gy + a3 * a3)
+    if n < 1e-12:
+        return (0.0, 0.0, 0.0, b)
+    return (gx / n, gy / n, a3 / n, b / n)
+
+
+# ---------------------------------------------------------------------------------- rows
+
+
+def circle_rows(pose: Pose, rho: float, p: Point, o: Obstacle, ds: float, gamma: float) -> Row3:
+    """Appendix A.1 (4) on a body point: keep P at least ``ds`` from the moving circle o."""
+    dx, dy = p[0] - o.x, p[1] - o.y
+    h = dx * dx + dy * dy - ds * ds
+    return point_row(pose, rho, p, -2.0 * dx, -2.0 * dy, gamma * h - 2.0 * (dx * o.vx + dy * o.vy))
+
+
+def shape_point_row(pose: Pose, rho: float, p: Point, sh: Shape, ds: float, gamma: float) -> Row3:
+    """eq. 4.5 on the distance to a wall or shelf: -grad d . P' <= gamma (d - ds)."""
+    d, gx, gy = shape_distance(p[0], p[1], sh)
+    return point_row(pose, rho, p, -gx, -gy, gamma * (d - ds))
+
+
+def ellipse_point_row(pose: Pose, rho: float, p: Point, e: Ellipse, gamma: float,
+                      grow: float = 0.0) -> Row3:
+    """Appendix A.3 (19) on a body point (as :func:`agent.barriers.ellipse_row`), the ellipse's
+    semi-axes grown by ``grow`` (members sit up to about that far from their slots)."""
+    h, gx, gy, ga = ellipse_terms(p[0], p[1], e.cx, e.cy, e.alpha, e.a + grow, e.b + grow)
+    b = ellipse_class_k(h, gamma) - (gx * e.vx + gy * e.vy) + ga * e.alpha_rate
+    return point_row(pose, rho, p, -gx, -gy, b)
+
+
+def edge_row(pose: Pose, rho: float, edge: tuple[Point, Point], q: Point, qv: Point, clear: float,
+             gamma: float) -> Row3:
+    """An outline edge against a point q moving at qv: n . P*' <= gamma (d - clear) + n . q'."""
+    (ax, ay), (bx, by) = edge
+    d, nx, ny = segment_distance(q[0], q[1], ax, ay, bx, by)  # n: from the edge's point to q
+    px, py = q[0] - d * nx, q[1] - d * ny
+    return point_row(pose, rho, (px, py), nx, ny, gamma * (d - clear) + nx * qv[0] + ny * qv[1])
+
+
+def limit_rows(rho: float, p: BodyParams) -> list[Row3]:
+    """|v| + rho |omega| <= vmax (every slot's speed) and |omega| <= omega_max, in z."""
+    face = p.vmax * math.cos(math.pi / LIMIT_SIDES)
+    k = 1.0 / math.sqrt(2.0)
+    rows: list[Row3] = []
+    for j in range(LIMIT_SIDES):
+        ang = math.pi / LIMIT_SIDES + 2.0 * math.pi * j / LIMIT_SIDES
+        c, s = math.cos(ang), math.sin(ang)
+        rows += [(k * c, k * s, k, k * face), (k * c, k * s, -k, k * face)]
+    if math.isfinite(p.omega_max):
+        rows += [(0.0, 0.0, 1.0, rho * p.omega_max), (0.0, 0.0, -1.0, rho * p.omega_max)]
+    return rows
+
+
+class Snapshot(NamedTuple):
+    """What the formation shares this tick (besides its own ellipse)."""
+
+    obstacles: Sequence[Obstacle] = ()
+    shapes: Sequence[Shape] = ()
+    ellipses: Sequence[Ellipse] = ()  # the other formations'
+
+
+def far(gap: float, speed: float, gamma: float, rho: float, p: BodyParams) -> bool:
+    """Whether a thing ``gap`` [m] beyond the body's bounding circle (radius rho), moving at
+    ``speed``, is too far for any of its rows to be active: a row is normalised with |a| <= sqrt 2
+    before normalisation of the turn part, and a circle's b >= gamma gap / 2 - speed."""
+    return gamma * (gap - p.grow - p.load_margin - rho) > 3.0 * (p.vmax + speed)
+
+
+def near(snap: Snapshot, pose: Pose, rho: float, p: BodyParams) -> Snapshot:
+    """The part of ``snap`` whose rows can be active: a row is normalised, so one with b at or
+    above vmax never is, and b >= gamma (gap) - (the thing's speed) for a gap beyond the body's
+    bounding circle of radius rho. A cheap test per thing before the rows."""
+    c = (pose.cx, pose.cy)
+    go, gf = p.gamma_obstacle, p.gamma_formations
+    obstacles = [o for o in snap.obstacles
+                 if not far(math.dist(c, (o.x, o.y)) - o.ds, math.hypot(o.vx, o.vy), go, rho, p)]
+    shapes = [sh for sh in snap.shapes
+              if not far(shape_distance(c[0], c[1], sh)[0] - sh.ds, 0.0, go, rho, p)]
+    ellipses = [e for e in snap.ellipses
+                if not far(math.dist(c, (e.cx, e.cy)) - e.a,
+                           math.hypot(e.vx, e.vy) + e.a * abs(e.alpha_rate), gf, rho, p)]
+    return Snapshot(obstacles, shapes, ellipses)
+
+
+def footprint_rows(fp: Footprint, pose: Pose, snap: Snapshot, p: BodyParams) -> list[Row3]:
+    """Every footprint barrier row that can be active (b below the largest |z| the limits allow)."""
+    rho = fp.rho
+    snap = near(snap, pose, rho, p)
+    margin = arc_margin(rho, min(p.omega_max, p.vmax / rho), p.dt)  # the limits bound omega so
+    slots = [place(pose, s) for s in fp.slots]
+    rows = _member_rows(pose, rho, slots, snap, p, margin)
+    rows += _load_rows(fp, pose, rho, snap, p, margin)
+    reach = p.vmax * (1.0 + 1e-9)
+    return [r for r in rows if r[3] < reach]
+
+
+def _member_rows(pose: Pose, rho: float, slots: Sequence[Point], snap: Snapshot, p: BodyParams,
+                 margin: float) -> list[Row3]:
+    rows: list[Row3] = []
+    grow = p.grow + margin
+    for q in slots:
+        rows += [circle_rows(pose, rho, q, o, o.ds + grow, p.gamma_obstacle) for o in snap.obstacles]
+        rows += [shape_point_row(pose, rho, q, sh, sh.ds + grow, p.gamma_obstacle)
+                 for sh in snap.shapes]
+        rows += [ellipse_point_row(pose, rho, q, e, p.gamma_formations, p.load_margin)
+                 for e in snap.ellipses]
+    return rows
+
+
+def _load_rows(fp: Footprint, pose: Pose, rho: float, snap: Snapshot, p: BodyParams,
+               margin: float) -> list[Row3]:
+    rows: list[Row3] = []
+    clear = p.load_margin + margin
+    g = p.gamma_obstacle
+    for v in (place(pose, q) for q in fp.load_points):
+        rows += [circle_rows(pose, rho, v, o, max(0.0, o.ds - p.radius) + clear, g)
+                 for o in snap.obstacles]
+        rows += [shape_point_row(pose, rho, v, sh, clear, g) for sh in snap.shapes]
+        rows += [ellipse_point_row(pose, rho, v, e, p.gamma_formations) for e in snap.ellipses]
+    c = (pose.cx, pose.cy)
+    things = [((o.x, o.y), (o.vx, o.vy), max(0.0, o.ds - p.radius)) for o in snap.obstacles]
+    things += [(q, (0.0, 0.0), 0.0) for sh in snap.shapes for q in sh.corners()
+               if not far(math.dist(c, q), 0.0, g, rho, p)]
+    if not things:
+        return rows
+    edges = [(place(pose, a), place(pose, b)) for a, b in fp.load_edges]
+    for e in edges:
+        rows += [edge_row(pose, rho, e, q, qv, r + clear, g) for q, qv, r in things]
+    return rows
+
+
+# --------------------------------------------------------------------------------- solver
+
+
+def _basis(a: tuple[float, float, float]) -> tuple[tuple[float, float, float], ...]:
+    """Two unit vectors spanning the plane normal to the unit vector a."""
+    ax, ay, az = a
+    t = (1.0, 0.0, 0.0) if abs(ax) < 0.9 else (0.0, 1.0, 0.0)
+    e1 = (ay * t[2] - az * t[1], az * t[0] - ax * t[2], ax * t[1] - ay * t[0])
+    n1 = math.sqrt(e1[0] ** 2 + e1[1] ** 2 + e1[2] ** 2)
+    e1 = (e1[0] / n1, e1[1] / n1, e1[2] / n1)
+    e2 = (ay * e1[2] - az * e1[1], az * e1[0] - ax * e1[2], ax * e1[1] - ay * e1[0])
+    return e1, e2
+
+
+def _dot(a: Sequence[float], b: Sequence[float]) -> float:
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def solve3(zhat: tuple[float, float, float], rows: Sequence[Row3],
+           tol: float = FEAS_TOL) -> tuple[float, float, float] | None:
+    """Exact minimiser of |z - zhat|^2 subject to ``rows`` (unit normals); None when infeasible.
+
+    Incremental (module docstring): when row k is violated, z = p + s e1 + t e2 on its plane, p
+    the projection of zhat, and |z - zhat|^2 = |p - zhat|^2 + s^2 + t^2, so (s, t) is the 2-D
+    problem min s^2 + t^2 over the earlier rows (c . e1) s + (c . e2) t <= d - c . p."""
+    z = zhat
+    for k, (a1, a2, a3, b) in enumerate(rows):
+        a = (a1, a2, a3)
+        if _dot(a, z) <= b + tol:
+            continue
+        if _dot(a, a) < 1e-24:
+            return None  # 0 <= b with b < -tol
+        r = _dot(a, zhat) - b
+        p = (zhat[0] - r * a1, zhat[1] - r * a2, zhat[2] - r * a3)
+        e1, e2 = _basis(a)
+        plane = [(_dot(c[:3], e1), _dot(c[:3], e2), c[3] - _dot(c[:3], p)) for c in rows[:k]]
+        st = solve_exact(0.0, 0.0, plane, tol)
+        if st is None:
+            return None
+        s, t = st
+        z = (p[0] + s * e1[0] + t * e2[0], p[1] + s * e1[1] + t * e2[1],
+             p[2] + s * e1[2] + t * e2[2])
+    return z
+
+
+class TwistResult(NamedTuple):
+    twist: Twist
+    slack: float  # [m/s] how much the barrier rows were relaxed (0: all met)
+    rows: int  # footprint rows in the QP
+    goal: Twist = (0.0, 0.0, 0.0)  # the part of the goal twist that seeks the goal
+
+
+def solve_twist(goal: Twist, rho: float, limits: Sequence[Row3], rows: Sequence[Row3]
+                ) -> TwistResult:
+    """The twist closest to ``goal`` (weights 1, 1, rho^2) meeting ``limits`` and ``rows``; where
+    the rows cannot all hold, they are relaxed by their smallest common slack (the limits never:
+    they hold the zero twist)."""
+    zhat = (goal[0], goal[1], rho * goal[2])
+    base = list(limits)
+    z = solve3(zhat, base + list(rows))
+    slack = 0.0
+    if z is None:
+        slack = _min_slack(base, rows)
+        z = solve3(zhat, base + [(a1, a2, a3, b + slack) for a1, a2, a3, b in rows])
+        z = z or (0.0, 0.0, 0.0)
+    return TwistResult((z[0], z[1], z[2] / rho), slack, len(rows), goal)
+
+
+def _min_slack(base: list[Row3], rows: Sequence[Row3]) -> float:
+    """The smallest s >= 0 with the limits and the rows shifted by s feasible (bisection)."""
+    lo, hi = 0.0, max(0.0, max(-b for *_a, b in rows)) + 1e-6
+    for _ in range(_BISECT_STEPS):
+        mid = 0.5 * (lo + hi)
+        if solve3((0.0, 0.0, 0.0), base + [(a1, a2, a3, b + mid) for a1, a2, a3, b in rows]) is None:
+            lo = mid
+        else:
+            hi = mid
+    return hi + 4.0 * FEAS_TOL
+
+
+# ---------------------------------------------------------------------------- the motion
+
+
+def goal_twist(pose: Pose, goal: Point, goal_turn: float, rho: float, p: BodyParams,
+               push: Point = (0.0, 0.0), intent: Point | None = None) -> Twist:
+    """eq. 4.2 on the centroid and on the orientation towards the goal shape's (a turn within
+    TURN_LEFT_BIAS of 180 degrees goes left for every member alike), both scaled by one factor
+    into the slots' speed limit (|v| + rho |omega| <= vmax cos(pi / LIMIT_SIDES)), so the move
+    and the turn end together; plus the formation-level ``push`` (the tie-break of
+    :func:`agent.control.tiebreak_push`). An ``intent`` (the escape of
+    :func:`agent.control.escape_command`) replaces the centroid's part; the turn gets what
+    speed it leaves."""
+    turn = goal_turn - pose.theta
+    turn = (turn + math.pi - TURN_LEFT_BIAS) % (2.0 * math.pi) - math.pi + TURN_LEFT_BIAS
+    vx, vy, w = p.kp * (goal[0] - pose.cx), p.kp * (goal[1] - pose.cy), p.kp * turn
+    face = p.vmax * math.cos(math.pi / LIMIT_SIDES)
+    if intent is not None:
+        vx, vy = intent
+        w = math.copysign(min(abs(w), max(0.0, face - math.hypot(vx, vy)) / rho), w)
+        return (vx, vy, w)
+    scale = min(1.0, face / (math.hypot(vx, vy) + rho * abs(w) + 1e-12))
+    return (scale * vx + push[0], scale * vy + push[1], scale * w)
+
+
+def formation_twist(fp: Footprint, own: Ellipse, goal: Point, snap: Snapshot, p: BodyParams,
+                    push: Point = (0.0, 0.0), intent: Point | None = None
+                    ) -> tuple[Pose, TwistResult]:
+    """The formation's pose and its certified twist this tick (eq. 4.12' of the module docstring)."""
+    pose = pose_of(own, fp.alpha0)
+    rho = fp.rho
+    want = goal_twist(pose, goal, fp.goal_turn, rho, p, push, intent)
+    res = solve_twist(want, rho, limit_rows(rho, p), footprint_rows(fp, pose, snap, p))
+    # what seeks the goal (for member_nominal's arrival): neither the push nor an escape
+    seek = (0.0, 0.0, want[2]) if intent is not None else (want[0] - push[0], want[1] - push[1],
+                                                           want[2])
+    return pose, res._replace(goal=seek)
+
+
+def band_gain(kp: float, dt: float) -> float:
+    """[1/s] the pull towards the slot: eq. 4.2's kp, at most 1 / (2 dt) so one period closes at
+    most half the gap (no overshoot at any control rate)."""
+    return min(kp, 0.5 / dt)
+
+
+def member_nominal(fp: Footprint, pose: Pose, twist: Twist, point: Point, body: Point,
+                   target: Point, p: BodyParams, goal: Twist = (0.0, 0.0, 0.0)) -> Point:
+    """This member's nominal velocity: its slot's velocity under ``twist`` plus k (slot - point)
+    (:func:`band_gain`; ``point`` its control point), clamped to vmax. With its ``body`` within
+    ARRIVE_RANGE of its ``target`` (its goal on the last leg) it blends, by w from 0 to 1, into
+    eq. 4.2 on the target plus only what the rows changed of the ``goal`` twist (twist - w goal):
+    a goal shape that is not exactly a rigid copy of the start shape is still reached, a unicycle
+    formation parks on its bodies' goals (its pose is its look-ahead points'), and a formation
+    parked at its goal still gives way."""
+    slot = place(pose, fp.slots[fp.member])
+    dist = math.hypot(target[0] - body[0], target[1] - body[1])
+    w = min(1.0, max(0.0, 1.0 - dist / ARRIVE_RANGE))
+    sv = point_velocity(pose, (twist[0] - w * goal[0], twist[1] - w * goal[1],
+                               twist[2] - w * goal[2]), slot)
+    k = band_gain(p.kp, p.dt)
+    ux, uy = sv[0] + k * (slot[0] - point[0]), sv[1] + k * (slot[1] - point[1])
+    if w > 0.0:  # the slot's pull moves over to the target
+        ux += w * (p.kp * (target[0] - body[0]) - k * (slot[0] - point[0]))
+        uy += w * (p.kp * (target[1] - body[1]) - k * (slot[1] - point[1]))
+    n = math.hypot(ux, uy)
+    if n > p.vmax:
+        ux, uy = ux * p.vmax / n, uy * p.vmax / n
+    return ux, uy
+
+
+# ---------------------------------------------------------------------- from a scenario
+
+
+def footprint_of(starts: Sequence[Point], bodies: Sequence[Point], goals: Sequence[Point],
+                 index: int, load: Sequence[Point] = (), declared: bool = True) -> Footprint:
+    """A member's :class:`Footprint` from its formation's start control points ``starts``, start
+    body positions ``bodies`` and goals (member order), and its load's outline ``load`` (world
+    coordinates at the start, counter-clockwise: :func:`scenario.cargo.load_polygon`). A load
+    not ``declared`` is the members' hull: its vertices are the members (their own rows keep
+    them), so only its edges get rows. Without any outline every pair of members is an edge:
+    the hull's edges are among them and the others lie inside it, so their rows are implied."""
+    ref = reference_shape(list(starts))
+    cx = sum(x for x, _y in starts) / len(starts)
+    cy = sum(y for _x, y in starts) / len(starts)
+    bref = reference_shape(list(bodies))
+    turn = estimate(bref, (1.0, 1.0), list(goals), [(0.0, 0.0)] * len(goals)).alpha - bref.alpha0
+    if len(load) >= 2:
+        pts = tuple((x - cx, y - cy) for x, y in load)
+        n = len(pts)
+        edges = tuple((pts[k], pts[(k + 1) % n]) for k in range(n if n > 2 else 1))
+        return Footprint(ref.offsets, ref.alpha0, index, wrap_angle(turn),
+                         pts if declared else (), edges)
+    offs = ref.offsets
+    edges = tuple((offs[i], offs[j]) for i in range(len(offs)) for j in range(i + 1, len(offs)))
+    return Footprint(offs, ref.alpha0, index, wrap_angle(turn), (), edges)

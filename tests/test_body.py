@@ -1,0 +1,184 @@
+"""The formation's rigid motion (agent.body, issue 25): the 3-variable QP against an oracle, the
+footprint rows as CBF conditions on the twist, one sampled step that never crosses a wall, and the
+member's nominal."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import random
+import warnings
+
+import numpy as np
+import qpsolvers
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+from scipy import sparse
+
+from agent import body
+from agent.barriers import Obstacle
+from geometry.ellipse import Ellipse
+from geometry.shapes import box, segment, shape_distance
+
+PARAMS = body.BodyParams(vmax=0.22, omega_max=math.inf, gamma_obstacle=1.0, gamma_formations=1.0,
+                         kp=2.0, dt=0.05)
+
+
+def _oracle(zhat, rows):
+    g = np.array([r[:3] for r in rows])
+    h = np.array([r[3] for r in rows])
+    with warnings.catch_warnings():  # an infeasible instance warns; None answers it
+        warnings.simplefilter("ignore", UserWarning)
+        x = qpsolvers.solve_qp(sparse.csc_matrix(2.0 * np.eye(3)), -2.0 * np.array(zhat),
+                               sparse.csc_matrix(g), h, solver="clarabel", tol_gap_abs=1e-10,
+                               tol_gap_rel=1e-10, tol_feas=1e-10, verbose=False)
+    if x is None or np.max(g @ x - h) > 1e-6:
+        return None
+    return tuple(float(v) for v in x)
+
+
+def _unit_row(rng: random.Random, centre):
+    a = np.array([rng.gauss(0, 1) for _ in range(3)])
+    a /= np.linalg.norm(a)
+    margin = rng.choice([rng.uniform(0.0, 0.3), rng.uniform(-0.05, 0.3)])
+    return (float(a[0]), float(a[1]), float(a[2]), float(a @ centre + margin))
+
+
+def test_solve3_agrees_with_a_qpsolvers_oracle_on_random_instances():
+    rng = random.Random(11)
+    compared = infeasible = 0
+    for _ in range(600):
+        centre = np.array([rng.uniform(-0.3, 0.3) for _ in range(3)])
+        rows = [_unit_row(rng, centre) for _ in range(rng.randint(1, 14))]
+        zhat = tuple(rng.uniform(-0.5, 0.5) for _ in range(3))
+        mine = body.solve3(zhat, rows)
+        ref = _oracle(zhat, rows)
+        if ref is None:
+            assert mine is None or max(np.dot(r[:3], mine) - r[3] for r in rows) <= 1e-9
+            infeasible += mine is None
+            continue
+        assert mine is not None, (zhat, rows)
+        assert math.dist(mine, ref) <= 1e-5
+        assert max(np.dot(r[:3], mine) - r[3] for r in rows) <= 1e-8
+        compared += 1
+    assert compared > 300 and infeasible >= 5
+
+
+def test_the_twist_meets_every_row_and_is_relaxed_only_when_it_must():
+    rng = random.Random(3)
+    limits = body.limit_rows(0.4, PARAMS)
+    for _ in range(200):
+        centre = np.array([rng.uniform(-0.05, 0.05) for _ in range(3)])
+        rows = [_unit_row(rng, centre) for _ in range(rng.randint(1, 10))]
+        goal = (rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), rng.uniform(-1.0, 1.0))
+        res = body.solve_twist(goal, 0.4, limits, rows)
+        z = (res.twist[0], res.twist[1], 0.4 * res.twist[2])
+        assert max(np.dot(r[:3], z) - r[3] for r in limits) <= 1e-8  # limits: never relaxed
+        assert max(np.dot(r[:3], z) - r[3] - res.slack for r in rows) <= 1e-8
+        if body.solve3((0.0, 0.0, 0.0), limits + rows) is not None:
+            assert res.slack == 0.0
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(-math.pi, math.pi),
+       st.floats(-0.2, 0.2), st.floats(-0.2, 0.2), st.floats(-2.0, 2.0),
+       st.floats(-1.0, 1.0), st.floats(-1.0, 1.0))
+def test_a_point_row_is_the_cbf_condition_on_the_points_velocity(cx, cy, th, vx, vy, w, px, py):
+    """g . P' of the row's left side equals the directional derivative along the twist."""
+    pose = body.Pose(cx, cy, th)
+    sh = segment("w", (-2.0, -1.5), (2.0, -1.5), 0.15)
+    p = (px, py)
+    row = body.shape_point_row(pose, 0.5, p, sh, 0.15, 1.0)
+    d0 = shape_distance(px, py, sh)[0]
+    eps = 1e-6
+    q = body.point_velocity(pose, (vx, vy, w), p)
+    d1 = shape_distance(px + eps * q[0], py + eps * q[1], sh)[0]
+    lhs = row[0] * vx + row[1] * vy + row[2] * 0.5 * w  # normalised: scale back by b
+    assume(abs(row[3]) > 1e-6)
+    scale = (1.0 * (d0 - 0.15)) / row[3]
+    assert math.isclose(lhs * scale, -(d1 - d0) / eps, rel_tol=1e-3, abs_tol=1e-4)
+
+
+def _moved(pose, twist, p, dt):
+    """p (world) after dt of the rigid motion: the centroid on a line, the body turned about it."""
+    c, s = math.cos(twist[2] * dt), math.sin(twist[2] * dt)
+    rx, ry = p[0] - pose.cx, p[1] - pose.cy
+    return (pose.cx + twist[0] * dt + c * rx - s * ry, pose.cy + twist[1] * dt + s * rx + c * ry)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.tuples(st.floats(-0.5, 0.5), st.floats(-0.5, 0.5)), min_size=2, max_size=5),
+       st.floats(-math.pi, math.pi), st.floats(0.02, 0.1), st.floats(0.1, 1.0),
+       st.tuples(st.floats(-0.3, 0.3), st.floats(-0.3, 0.3), st.floats(-3.0, 3.0)),
+       st.sampled_from(["wall", "box"]), st.floats(0.0, 0.4), st.booleans())
+def test_a_footprint_point_never_crosses_a_wall_in_one_step(slots, th, dt, gdt, goal, kind, gap,
+                                                            unicycle):
+    """The discrete-time condition: with gamma dt <= 1 and the arc margin, every slot that starts
+    at least Ds from a wall or shelf is still at least Ds from it after one period of the rigid
+    motion the QP returns, for dt in [0.02, 0.1] (both robot models' turn limits)."""
+    cx = sum(x for x, _ in slots) / len(slots)
+    cy = sum(y for _, y in slots) / len(slots)
+    offs = tuple((x - cx, y - cy) for x, y in slots)
+    fp = body.Footprint(offs, 0.0, 0)
+    assume(fp.rho > 0.05)
+    p = PARAMS._replace(dt=dt, gamma_obstacle=gdt / dt, omega_max=2.84 if unicycle else math.inf)
+    sh = (segment("w", (-3.0, -0.6), (3.0, -0.6), 0.15) if kind == "wall"
+          else box("b", (0.0, -1.2), (2.0, 1.0), 0.3, 0.15))
+    pose = body.Pose(0.0, 0.0, th)
+    pts = [body.place(pose, o) for o in offs]
+    lowest = min(shape_distance(x, y, sh)[0] for x, y in pts)
+    margin = body.arc_margin(fp.rho, min(p.omega_max, p.vmax / fp.rho), dt)
+    assume(lowest >= sh.ds + margin)  # the slots start inside the (grown) safe set
+    rows = body.footprint_rows(fp, pose, body.Snapshot((), (sh,), ()), p)
+    res = body.solve_twist(goal, fp.rho, body.limit_rows(fp.rho, p), rows)
+    assert res.slack == 0.0
+    for q in pts:
+        nx, ny = _moved(pose, res.twist, q, dt)
+        assert shape_distance(nx, ny, sh)[0] >= sh.ds - 1e-9
+    assert gap >= 0.0
+
+
+def test_a_formation_backs_off_a_circle_coming_at_it_and_keeps_a_parked_one_out():
+    fp = body.Footprint(((-0.25, 0.125), (0.25, 0.125), (0.25, -0.125), (-0.25, -0.125)), 0.0, 0)
+    own = Ellipse(0.0, 0.0, 0.0, 0.5, 0.3)
+    coming = Obstacle(1.0, 0.0, -0.3, 0.0, 0.5)
+    _pose, res = body.formation_twist(fp, own, (5.0, 0.0), body.Snapshot((coming,), (), ()), PARAMS)
+    assert res.twist[0] < 0.0  # it gives way along the approach, as one body
+    parked = Obstacle(0.9, 0.0, 0.0, 0.0, 0.5)
+    _pose, res = body.formation_twist(fp, own, (5.0, 0.0), body.Snapshot((parked,), (), ()), PARAMS)
+    assert res.twist[0] < 0.22 * 0.9  # slowed short of it
+
+
+def test_the_load_edge_keeps_a_shelf_corner_out_that_no_member_is_near():
+    """A pair carrying a long load passes a box corner between its members: the members keep
+    their distance, only the edge row stops the load cutting into the corner."""
+    fp = body.footprint_of([(-0.6, 0.0), (0.6, 0.0)], [(-0.6, 0.0), (0.6, 0.0)],
+                           [(-0.6, 0.0), (0.6, 0.0)], 0)
+    corner_box = box("b", (0.0, -0.6), (0.4, 1.0), 0.0, 0.15)  # top face at y = -0.1
+    pose = body.Pose(0.0, 0.0, 0.0)
+    rows = body.footprint_rows(fp, pose, body.Snapshot((), (corner_box,), ()), PARAMS)
+    res = body.solve_twist((0.0, -0.22, 0.0), fp.rho, body.limit_rows(fp.rho, PARAMS), rows)
+    assert res.twist[1] > -0.22 * 0.5
+    no_load = dataclasses.replace(fp, load_edges=())
+    rows = body.footprint_rows(no_load, pose, body.Snapshot((), (corner_box,), ()), PARAMS)
+    free = body.solve_twist((0.0, -0.22, 0.0), fp.rho, body.limit_rows(fp.rho, PARAMS), rows)
+    assert free.twist[1] < res.twist[1] - 0.05
+
+
+def test_a_member_at_its_slot_moves_with_the_twist_and_far_ones_are_pulled_back():
+    fp = body.Footprint(((-0.25, 0.0), (0.25, 0.0)), 0.0, 1)
+    pose = body.Pose(1.0, 1.0, 0.0)
+    twist = (0.1, 0.0, 0.2)
+    slot = body.place(pose, fp.slots[1])
+    u = body.member_nominal(fp, pose, twist, slot, slot, (9.0, 9.0), PARAMS)
+    assert math.isclose(u[0], 0.1) and math.isclose(u[1], 0.2 * 0.25)
+    off = (slot[0] - 0.02, slot[1])
+    v = body.member_nominal(fp, pose, twist, off, off, (9.0, 9.0), PARAMS)
+    assert v[0] > u[0]
+
+
+def test_the_goal_turn_of_a_rotated_goal_shape():
+    starts = [(0.0, 0.0), (1.0, 0.0), (1.0, 0.5)]
+    goals = [(5.0, 5.0), (5.0, 6.0), (4.5, 6.0)]  # turned by +90 degrees
+    fp = body.footprint_of(starts, starts, goals, 0)
+    assert math.isclose(fp.goal_turn, math.pi / 2, abs_tol=1e-9)
