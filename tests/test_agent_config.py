@@ -24,6 +24,7 @@ from agent.config import (
 from agent.control import PARAM_RANGES, ControlParams
 from agent.node import AgentNode
 from scenario import limits, load_scenario
+from scenario.model import METHODS
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -111,7 +112,8 @@ def test_a_unicycles_sampling_margin_is_sized_for_the_camera_period_not_the_cont
     assert base[rid].control.sampling_margin > 0
 
 
-SWITCHES = [f.name for f in dataclasses.fields(ControlParams) if f.name not in PARAM_RANGES]
+SWITCHES = [f.name for f in dataclasses.fields(ControlParams)
+            if f.name not in PARAM_RANGES and f.name != "method"]
 
 
 def _inside(r: limits.Range) -> st.SearchStrategy[float]:
@@ -129,6 +131,7 @@ def _outside(r: limits.Range) -> st.SearchStrategy[object]:
 VALID_PARAMS = st.fixed_dictionaries({
     **{name: _inside(r) for name, r in PARAM_RANGES.items()},
     **{name: st.booleans() for name in SWITCHES},
+    "method": st.sampled_from(METHODS),
 }).map(lambda kw: ControlParams(**kw))
 
 
@@ -140,6 +143,11 @@ def test_any_valid_control_params_round_trip_through_the_config_file(configs, tm
     path = tmp_path_factory.mktemp("cfg") / "r2.yaml"
     save_config(cfg, path)
     assert load_config(path) == cfg
+
+
+def test_an_unknown_method_is_refused_naming_it():
+    with pytest.raises(ValueError, match="method: must be one of rules, thesis, rigid"):
+        ControlParams(method="fastest")
 
 
 @settings(max_examples=150, deadline=None)
