@@ -22,6 +22,7 @@ from geometry.limits import BURGER_RADIUS
 from geometry.unicycle import control_point
 from leader.settings import LeaderSettings
 from scenario import Scenario, formation_axes, limits
+from scenario.extent import world_extent
 from scenario.reader import excerpt
 from scenario.routes import initial_route
 from scenario.succession import formation_successor
@@ -83,6 +84,9 @@ class AgentConfig:
     member_goals: tuple[tuple[str, float, float], ...] = ()
     planner: bool = True  # the leader plans routes around walls and shelves for new goals
     goal_tolerance: float = 0.05  # [m]
+    # the world's extent (xmin, ymin, xmax, ymax) [m] (scenario.extent): the leader refuses a
+    # goal outside it; None: the scenario's coordinate range
+    extent: tuple[float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
         _check_names(self)
@@ -115,6 +119,7 @@ CONFIG_RANGES: dict[str, limits.Range | tuple[limits.Range, ...]] = {
     "route": limits.COORDINATE,
     "member_goals": limits.COORDINATE,
     "goal_tolerance": limits.GOAL_TOLERANCE,
+    "extent": (limits.COORDINATE,) * 4,
 }
 LEADER_RANGES: dict[str, limits.Range | tuple[limits.Range, ...]] = {
     "offsets": limits.COORDINATE,
@@ -209,6 +214,8 @@ def build_agent_configs(
         # ticks come with the poses: the unicycle's sampling margin is sized for their period
         params = dataclasses.replace(params, period=pose_period)
     off = scenario.robot.control_offset
+    box = world_extent(scenario)
+    extent = (box.xmin, box.ymin, box.xmax, box.ymax)
     out: dict[str, AgentConfig] = {}
     for f in scenario.formations:
         route = initial_route(scenario, f)
@@ -251,6 +258,7 @@ def build_agent_configs(
                               else ()),
                 planner=scenario.controller.planner != "none",
                 goal_tolerance=scenario.goal_tolerance,
+                extent=extent,
             )
     return out
 

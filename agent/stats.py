@@ -51,6 +51,7 @@ class AgentStats:
     fault_dropped: dict[str, int] = field(default_factory=dict)
     fault_delayed: int = 0
     solves: int = 0
+    tick_errors: int = 0  # ticks that raised (caught, answered with the zero command)
     escape_ticks: int = 0
     relaxed: int = 0
     fallback: int = 0

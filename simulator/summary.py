@@ -132,6 +132,7 @@ def _agents_fields(stats: Sequence[AgentStats]) -> dict[str, Any]:
     """``agents`` of the summary: the agents' counters added up."""
     return {
         "ticks": sum(s.ticks for s in stats),
+        "tick_errors": sum(s.tick_errors for s in stats),
         "overruns": sum(s.overruns for s in stats),
         "stale": sum(s.stale for s in stats),
         "waiting_for_pose": sum(s.waiting for s in stats),
