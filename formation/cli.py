@@ -145,6 +145,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="carry the poses and commands through Z zone routers of the world's "
                         "process, each agent connected to its zone's (default 0: everything "
                         "through the run's router)")
+    p.add_argument("--no-capacity-check", action="store_true",
+                   help="start the run even where the fleet's estimated memory, processes or file "
+                        "descriptors exceed what this machine grants (default: refuse, exit 2)")
     p.add_argument("--no-safety", action="store_true", help="barriers off (nominal control only)")
     p.add_argument("--port", type=int, default=0, help="router TCP port on 127.0.0.1 (0: free)")
     p.add_argument("--hosts", default=None, metavar="INVENTORY",

@@ -21,6 +21,7 @@ from formation.exits import EXIT_ERROR, EXIT_OK, UsageError
 from formation.outdir import begin_output
 from formation.progress import Progress, print_summary
 from scenario import Scenario, load_scenario
+from simulator.capacity import machine_has, refusal
 from simulator.faults import FaultPlan, parse_camera_dropout, parse_kill
 from simulator.fleet import RemoteAgents
 from simulator.launch import RunAborted, launch
@@ -64,6 +65,8 @@ def run_config(ns: argparse.Namespace) -> RunConfig:
 def run_command(ns: argparse.Namespace) -> int:
     """``formation run``; see the module docstring. Returns the exit status."""
     config = run_config(ns)
+    if not getattr(ns, "no_capacity_check", False):
+        _check_capacity(config)  # before any process starts
     if config.remote is not None and not getattr(ns, "dry_run", False):
         _reach_hosts(config.remote)  # over SSH, before anything starts
     if getattr(ns, "dry_run", False):
@@ -86,6 +89,20 @@ def run_command(ns: argparse.Namespace) -> int:
     write_run(summary, series, config.scenario, config.out, plots=not ns.no_plots)
     print_summary(summary, config.out, plots=not ns.no_plots)
     return EXIT_OK
+
+
+def capacity_problem(scenario: Scenario, agents_per_process: int = 1,
+                     remote_robots: int = 0) -> str | None:
+    """Why this machine cannot hold the run's local agents (:mod:`simulator.capacity`), or None."""
+    return refusal(len(scenario.robot_ids), machine_has(), agents_per_process, remote_robots)
+
+
+def _check_capacity(config: RunConfig) -> None:
+    """A fleet that does not fit this machine: exit 2, one line, before anything starts."""
+    remote = 0 if config.remote is None else len(config.remote.robots)
+    why = capacity_problem(config.scenario, config.agents_per_process, remote)
+    if why is not None:
+        raise UsageError(f"{why} (--no-capacity-check starts it anyway)")
 
 
 def _placement(ns: argparse.Namespace, scenario: Scenario, per_process: int) -> RemoteAgents | None:
