@@ -35,6 +35,13 @@ FAULT_AGENT_TIMEOUT_S = 0.3  # [s] lock-step wait per input of an agent in a fau
 FAULT_WORLD_TIMEOUT_S = 1.5  # [s] lock-step wait for a tick's commands in a fault run
 
 
+def restart_log_name(robot: str, incarnation: int) -> str:
+    """The process (and log file) name of a robot's restarted agent: ``agent-ROBOT#N``; a robot
+    name holds no ``#`` (:func:`wire.keys.name_problem`), so robot ``a1-2``'s first agent and
+    robot ``a1``'s second never share a log file."""
+    return f"agent-{robot}#{incarnation}"
+
+
 @dataclass(frozen=True)
 class Kill:
     """SIGKILL ``robot``'s agent at simulated time ``at``; restart it ``restart_after`` later."""
@@ -184,7 +191,7 @@ class FaultDriver:
         self.incarnation[rid] += 1
         wall0 = time.monotonic()
         argv = self.argv[rid] + ([] if self.realtime else ["--sim-start", repr(t)])
-        self.agents[rid] = self.fleet.start(f"agent-{rid}-{self.incarnation[rid]}", argv)
+        self.agents[rid] = self.fleet.start(restart_log_name(rid, self.incarnation[rid]), argv)
         if not self.realtime:  # lock-step: the restart takes no simulated time
             self.world.wait_for_agents(abort=self.fleet.check, robots=[rid], grace=False)
             self.world.inbox.expect(rid)  # and waits for its commands from the first tick
