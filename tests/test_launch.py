@@ -168,3 +168,33 @@ def test_run_in_real_time_with_poses_in_slots_reaches_every_goal_and_merges_the_
     assert {e["formation"] for e in ellipses} == {"A", "B"}
     assert len(ellipses) >= 0.9 * 2 * len({r["t"] for r in rows})
     assert (out / "safety.png").stat().st_size > 0 and (out / "trajectories.png").stat().st_size > 0
+
+
+def test_a_second_sigint_only_hurries_the_shutdown_and_the_run_is_still_written(tmp_path):
+    scenario = tmp_path / "long.yaml"
+    scenario.write_text(LONG, encoding="utf-8")
+    out = tmp_path / "run"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, "-m", "formation", "run", str(scenario), "--out",
+                             str(out), "--quiet", "--no-plots", "--realtime"], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "endpoint").exists():  # every agent up, the world running
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        for _ in range(6):  # a hurried operator's further Ctrl-Cs over 0.3 s (the attack)
+            time.sleep(0.05)
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+        assert proc.returncode == 130, err
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["aborted"]
+    assert (out / "robots.csv").is_file() and (out / "run.mcap").is_file()

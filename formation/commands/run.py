@@ -11,8 +11,12 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import os
+import signal
 import sys
+import threading
 from pathlib import Path
+from typing import Any
 
 from deploy.inventory import InventoryError
 from deploy.remote import RemoteError, plan_placement
@@ -71,6 +75,43 @@ def run_command(ns: argparse.Namespace) -> int:
         _reach_hosts(config.remote)  # over SSH, before anything starts
     if getattr(ns, "dry_run", False):
         return _dry_run(config)
+    with LaterInterruptsWait() as interrupts:
+        return _run(ns, config, interrupts)
+
+
+class LaterInterruptsWait:
+    """SIGINT in ``formation run``: the first stops the run (``KeyboardInterrupt``, as ever);
+    every later one, or one that comes once the run is over, only says the shutdown is under
+    way, so summary.json, robots.csv and run.mcap are still written (marked ``aborted``). The
+    shutdown's every wait is bounded (:class:`simulator.fleet.Fleet`), so it ends anyway."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self._previous: Any = None
+
+    def __enter__(self) -> LaterInterruptsWait:
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGINT, self._on_sigint)
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
+
+    def run_over(self) -> None:
+        """From now on no SIGINT interrupts: the run's files are being written."""
+        self.count = max(self.count, 1)
+
+    def _on_sigint(self, _signum: int, _frame: object) -> None:
+        self.count += 1
+        if self.count == 1:
+            raise KeyboardInterrupt
+        # os.write: a print here could land inside another print to the same stream
+        os.write(2, b"formation run: already stopping; writing the run's files first\n")
+
+
+def _run(ns: argparse.Namespace, config: RunConfig, interrupts: LaterInterruptsWait) -> int:
+    """The run itself, once every check passed."""
     live, observer = live_observer(ns, config.scenario)  # --live PORT: fed from the world's session
     try:
         # the input is valid (a bad --live port included): replace the output
@@ -79,6 +120,7 @@ def run_command(ns: argparse.Namespace) -> int:
             f"run {config.scenario.name}", quiet=ns.quiet), observer=observer,
             announce=_announce if config.hold else None)
     except RunAborted as stop:  # the run started: its summary says why and what it measured
+        interrupts.run_over()
         write_run(stop.summary, stop.series, config.scenario, config.out, plots=not ns.no_plots)
         print(f"formation run: aborted: {stop}; wrote {config.out / 'summary.json'} with what "
               f"was measured until then ({stop.summary['steps']} ticks)", file=sys.stderr)
@@ -86,6 +128,7 @@ def run_command(ns: argparse.Namespace) -> int:
     finally:
         if live is not None:
             live.close()
+    interrupts.run_over()
     write_run(summary, series, config.scenario, config.out, plots=not ns.no_plots)
     print_summary(summary, config.out, plots=not ns.no_plots)
     return EXIT_OK
