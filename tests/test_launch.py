@@ -198,3 +198,32 @@ def test_a_second_sigint_only_hurries_the_shutdown_and_the_run_is_still_written(
     summary = json.loads((out / "summary.json").read_text())
     assert summary["aborted"]
     assert (out / "robots.csv").is_file() and (out / "run.mcap").is_file()
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 2 MB tmpfs (needs root and mount permission; skipped otherwise)."""
+    where = tmp_path / "small"
+    where.mkdir()
+    proc = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(where)],
+                          capture_output=True, text=True)
+    if proc.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {proc.stderr.strip()}")
+    try:
+        yield where
+    finally:
+        subprocess.run(["umount", str(where)], check=False)
+
+
+def test_a_run_onto_a_disk_too_small_is_refused_before_it_starts(tmp_path, small_disk):
+    scenario = tmp_path / "two.yaml"
+    scenario.write_text(TWO_FORMATIONS, encoding="utf-8")
+    out = small_disk / "run"
+    proc = subprocess.run([sys.executable, "-m", "formation", "run", str(scenario), "--out",
+                           str(out), "--quiet", "--no-plots"],
+                          env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "MB free" in lines[0] and "--out" in lines[0]
+    assert not (out / "processes.json").exists() and not list(small_disk.rglob("*.tmp"))

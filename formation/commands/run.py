@@ -12,6 +12,7 @@ import argparse
 import dataclasses
 import math
 import os
+import shutil
 import signal
 import sys
 import threading
@@ -71,6 +72,7 @@ def run_command(ns: argparse.Namespace) -> int:
     config = run_config(ns)
     if not getattr(ns, "no_capacity_check", False):
         _check_capacity(config)  # before any process starts
+    _check_space(config.out)
     if config.remote is not None and not getattr(ns, "dry_run", False):
         _reach_hosts(config.remote)  # over SSH, before anything starts
     if getattr(ns, "dry_run", False):
@@ -146,6 +148,25 @@ def _check_capacity(config: RunConfig) -> None:
     why = capacity_problem(config.scenario, config.agents_per_process, remote)
     if why is not None:
         raise UsageError(f"{why} (--no-capacity-check starts it anyway)")
+
+
+MIN_FREE_MB = 8.0  # [MB] free space --out needs before a run starts (summary, bulk files, logs)
+
+
+def free_mb(path: Path) -> float:
+    """Free space [MB] where ``path`` is (or would be: its nearest existing folder)."""
+    where = path.resolve()
+    while not where.exists() and where != where.parent:
+        where = where.parent
+    return shutil.disk_usage(where).free / 2**20
+
+
+def _check_space(out: Path) -> None:
+    """Too little room for the run's files: exit 2, one line, before anything starts."""
+    free = free_mb(out)
+    if free < MIN_FREE_MB:
+        raise UsageError(f"--out {out}: {free:.1f} MB free, a run needs at least "
+                         f"{MIN_FREE_MB:g} MB for its files")
 
 
 def _placement(ns: argparse.Namespace, scenario: Scenario, per_process: int) -> RemoteAgents | None:
