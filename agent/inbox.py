@@ -36,7 +36,7 @@ from wire.payloads import (
     decode_pose,
     decode_state,
 )
-from wire.stamps import FUTURE, StampCounter, check_stamp
+from wire.stamps import FUTURE, StampCounter, check_stamp, used_stamp
 from wire.traffic import Mailbox, TrafficCounter
 
 logger = logging.getLogger(__name__)
@@ -143,6 +143,9 @@ class Inbox:
         self.subscribed_keys: dict[str, str] = {}  # key -> the mailbox class that holds it
         self._rings: list[tuple[Any, Take]] = []  # polled subscribers, drained by the tick
         self._late: set[str] = set()  # lock-step: keys whose last wait timed out
+        # key -> the last used stamp of its kept message, never later than the clock was when
+        # it was accepted (wire.stamps.used_stamp): what "older" is judged against
+        self._used: dict[str, float] = {}
         self.arrived = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._transport: Transport | None = None
@@ -158,9 +161,9 @@ class Inbox:
         under the tick lock."""
         rx = self.receiver
 
-        def accept(_key: str, value: Entry, prev: Entry | None) -> bool:
+        def accept(key: str, value: Entry, prev: Entry | None) -> bool:
             msg = value[0]
-            last = None if prev is None else prev[0].stamp
+            last = None if prev is None else self._used.get(key, prev[0].stamp)
             now = rx.now()
             reason = check_stamp(now, msg.stamp, last, rx.tolerance, rx.stale_after)
             if reason == FUTURE and rx.starved():
@@ -178,6 +181,7 @@ class Inbox:
                 self._implausible_pending.add(cls)
                 logger.info("%s: implausible %s refused", self.robot_id, cls)
                 return False
+            self._used[key] = used_stamp(now, msg.stamp)
             return True
 
         return accept
