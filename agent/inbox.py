@@ -26,7 +26,7 @@ import zenoh
 
 from agent.fault_inject import FaultInjector
 from agent.faults import EPS, LinkFaults
-from agent.plausibility import JUMP_MARGIN_M, ellipses_ok, jump_ok, velocity_ok
+from agent.plausibility import JUMP_MARGIN_M, Reacquire, ellipses_ok, jump_ok, velocity_ok
 from agent.transport import Transport
 from wire import keys
 from wire.payloads import (
@@ -146,6 +146,11 @@ class Inbox:
         # key -> the last used stamp of its kept message, never later than the clock was when
         # it was accepted (wire.stamps.used_stamp): what "older" is judged against
         self._used: dict[str, float] = {}
+        # marker re-acquire (agent.plausibility.Reacquire): a run of jumped poses that agree,
+        # taken once the robot has been commanded zero on every tick since the first of them
+        self.reacquire = Reacquire(receiver.speed)
+        self.reacquired = 0  # poses taken as the new kept pose after a jump
+        self._still_since_jump = True
         self.arrived = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._transport: Transport | None = None
@@ -176,15 +181,37 @@ class Inbox:
             # any more (a robot carried elsewhere, or a forged first pose: it blocks for at most
             # stale_after)
             ref = None if prev is None or now - prev[0].stamp > rx.stale_after else prev[0]
-            if not plausible(cls, msg, ref, rx.speed):
-                self.implausible[cls] = self.implausible.get(cls, 0) + 1
-                self._implausible_pending.add(cls)
-                logger.info("%s: implausible %s refused", self.robot_id, cls)
+            if plausible(cls, msg, ref, rx.speed):
+                if cls == keys.POSE:
+                    self.reacquire.reset()
+            elif self._refused(cls, msg):
                 return False
             self._used[key] = used_stamp(now, msg.stamp)
             return True
 
         return accept
+
+    def _refused(self, cls: str, msg: Any) -> bool:
+        """An input that broke physics: refused and counted (the next tick commands zero),
+        unless it is a pose that completes a re-acquire run (then taken; ``reacquired``)."""
+        if cls == keys.POSE:
+            if not self.reacquire.run:  # the first pose of a new jump
+                self._still_since_jump = True
+            if self.reacquire.offer(msg.x, msg.y, msg.stamp, self._still_since_jump):
+                self.reacquired += 1
+                logger.warning("%s: marker re-acquired at (%.3f, %.3f) after a jump",
+                               self.robot_id, msg.x, msg.y)
+                return False
+        self.implausible[cls] = self.implausible.get(cls, 0) + 1
+        self._implausible_pending.add(cls)
+        logger.info("%s: implausible %s refused", self.robot_id, cls)
+        return True
+
+    def note_command(self, moving: bool) -> None:
+        """The node sent a command; ``moving``: not the zero command (ends "still since the
+        jump" for the re-acquire run under way)."""
+        if moving:
+            self._still_since_jump = False
 
     def take_implausible(self) -> bool:
         """Whether an input broke physics since the last call (then forgotten)."""

@@ -651,6 +651,7 @@ class AgentNode:
         return None
 
     def send_command(self, cmd: Cmd) -> None:
+        self.inbox.note_command(any((cmd.v, cmd.omega, cmd.ux, cmd.uy)))
         if self.transport is not None:
             self.transport.publish(self.cmd_key, cmd)
         if self._base is not None:
@@ -682,6 +683,7 @@ class AgentNode:
             acting_leader_ticks=ld.acting_ticks, nav=self.nav.stats(),
             fault_dropped=dict(inbox.faults.dropped), fault_delayed=inbox.faults.delayed,
             solves=c.solves, escape_ticks=c.escape_ticks, tick_errors=c.tick_errors,
+            reacquired=inbox.reacquired,
             relaxed=c.status_counts[STATUS_RELAXED], fallback=c.status_counts[STATUS_FALLBACK],
             failed=c.status_counts[STATUS_FAILED], solve_us_median=_median(c.solve_us),
             tick_us_median=_median(sc.tick_us), pose_age_us_median=_median(self.clock.pose_age_us),

@@ -142,6 +142,7 @@ def _agents_fields(stats: Sequence[AgentStats]) -> dict[str, Any]:
         "stamp_rejected": merge_counts([s.stamp_rejected for s in stats]),
         "lockstep_catch_ups": sum(s.lockstep_catch_ups for s in stats),
         "implausible": sum_counts(s.implausible for s in stats),
+        "reacquired": sum(s.reacquired for s in stats),
         "obstacles_missing": sum(s.obstacles_missing for s in stats),
         "obstacle_held_ticks": sum(s.obstacle_held_ticks for s in stats),
         "obstacles_dropped_after_hold": sum(s.obstacles_dropped_after_hold for s in stats),

@@ -143,3 +143,38 @@ def test_a_pose_stamped_ahead_of_the_clock_cannot_make_the_genuine_ones_after_it
     assert inbox.stamps.snapshot().get(keys.POSE, {}).get("older", 0) == 0
     stale_replay = (Pose(1.0, 0.0, 0.0, 99.99), 100.02)  # still refused: older than used
     assert not accept(key, stale_replay, genuine)
+
+
+def _pose_inbox(clock: list[float]) -> Inbox:
+    # stale after 1 s (a 5 fps camera): the kept pose stays fresh through the re-acquire run
+    rx = Receiver(lambda: clock[0], lambda: False, 0.1, 1.0, 0.5)
+    return Inbox("a1", rx, TrafficCounter("warehouse"), LinkFaults(), (0.05, False),
+                 threading.Lock(), polled=True)
+
+
+def _walk_jumped(inbox: Inbox, clock: list[float], kept, moving_after: int | None) -> list[bool]:
+    """Poses 5 m from the kept one, agreeing with each other, every 0.1 s: which were taken."""
+    accept, key, taken = inbox._acceptor(keys.POSE), keys.pose_key("warehouse", "a1"), []
+    for k in range(6):
+        clock[0] += 0.1
+        entry = (Pose(5.0, 0.0, 0.0, clock[0]), clock[0])
+        taken.append(accept(key, entry, kept))
+        if taken[-1]:
+            kept = entry
+        inbox.note_command(moving_after is not None and k == moving_after)
+    return taken
+
+
+def test_a_marker_that_jumped_is_reacquired_only_while_its_robot_was_commanded_zero() -> None:
+    clock = [100.0]
+    inbox = _pose_inbox(clock)
+    kept = (Pose(0.0, 0.0, 0.0, 100.0), 100.0)
+    assert inbox._acceptor(keys.POSE)(keys.pose_key("warehouse", "a1"), kept, None)
+    taken = _walk_jumped(inbox, clock, kept, moving_after=None)
+    assert taken.index(True) >= 2 and inbox.reacquired == 1  # a few agreeing poses, then taken
+    clock2 = [200.0]
+    moved = _pose_inbox(clock2)
+    kept2 = (Pose(0.0, 0.0, 0.0, 200.0), 200.0)
+    assert moved._acceptor(keys.POSE)(keys.pose_key("warehouse", "a1"), kept2, None)
+    assert not any(_walk_jumped(moved, clock2, kept2, moving_after=0))  # it moved: never taken
+    assert moved.reacquired == 0 and moved.implausible[keys.POSE] == 6
