@@ -145,6 +145,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="carry the poses and commands through Z zone routers of the world's "
                         "process, each agent connected to its zone's (default 0: everything "
                         "through the run's router)")
+    p.add_argument("--restart", choices=("on-failure", "no"), default="on-failure",
+                   help="restart an agent here that exits on its own, as systemd does on a robot "
+                        "(default on-failure; an agent stopped by --kill ROBOT@T stays dead)")
+    p.add_argument("--restart-limit", type=int, default=3, metavar="N",
+                   help="with --restart on-failure: restarts per robot before the run aborts "
+                        "(default 3)")
     p.add_argument("--no-capacity-check", action="store_true",
                    help="start the run even where the fleet's estimated memory, processes or file "
                         "descriptors exceed what this machine grants (default: refuse, exit 2)")

@@ -148,7 +148,7 @@ class FaultDriver:
     """Kills and restarts agents at their simulated times (``World.run(on_tick=...)``)."""
 
     def __init__(self, plan: FaultPlan, fleet: Fleet, world: World, agents: dict[str, Child],
-                 dt: float, realtime: bool) -> None:
+                 dt: float, realtime: bool, restart_limit: int = 0) -> None:
         self.fleet = fleet
         self.world = world
         self.agents = agents
@@ -164,8 +164,32 @@ class FaultDriver:
                                     "restart", k.robot))
         self.events.sort()
         self.incarnation = dict.fromkeys(agents, 1)
+        self.restart_limit = restart_limit  # crashes restarted per robot (--restart on-failure)
+        self.restarts: dict[str, int] = {}  # robot -> crashed agents restarted
+        self.t = 0.0  # [s] the simulated time of the latest tick
+
+    def recover(self) -> bool:
+        """An agent here exited on its own (a crash): restart it as systemd would on a robot,
+        at most ``restart_limit`` times per robot (counted, logged). False when none was
+        restarted (none crashed, or its limit is reached): the run then aborts."""
+        crashed = [rid for rid, c in self.agents.items()
+                   if not c.where and c.proc.poll() is not None]
+        if not crashed or any(self.restarts.get(r, 0) >= self.restart_limit for r in crashed):
+            return False
+        for rid in crashed:
+            child = self.agents.pop(rid)
+            code = child.proc.returncode
+            self.fleet.stop([child])  # reaps it, closes its log
+            self.restarts[rid] = self.restarts.get(rid, 0) + 1
+            logger.warning("agent %s exited with status %s at t=%.2f s: restarting it (%d of %d)",
+                           rid, code, self.t, self.restarts[rid], self.restart_limit)
+            self.log.append({"event": "crash", "robot": rid, "t_s": round(self.t, 6),
+                             "status": code})
+            self.restart(rid, self.t)
+        return True
 
     def on_tick(self, k: int, t: float) -> None:
+        self.t = t
         while self.events and self.events[0][0] <= k:
             _, _, action, rid = self.events.pop(0)
             if action == "kill":

@@ -227,3 +227,33 @@ def test_a_run_onto_a_disk_too_small_is_refused_before_it_starts(tmp_path, small
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "MB free" in lines[0] and "--out" in lines[0]
     assert not (out / "processes.json").exists() and not list(small_disk.rglob("*.tmp"))
+
+
+def test_a_member_killed_mid_run_is_restarted_and_the_run_reaches_every_goal(tmp_path):
+    scenario = tmp_path / "two.yaml"
+    scenario.write_text(TWO_FORMATIONS, encoding="utf-8")
+    out = tmp_path / "run"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, "-m", "formation", "run", str(scenario), "--out",
+                             str(out), "--quiet", "--no-plots"], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "endpoint").exists():  # every agent up, the world running
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        pids = json.loads((out / "processes.json").read_text())
+        member = next(n for n in sorted(pids) if n.startswith("agent-"))
+        os.kill(pids[member], signal.SIGKILL)  # a crash, not a stop: no counters, no zero cmd
+        _, err = proc.communicate(timeout=600)
+        assert proc.returncode == 0, err
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    summary = json.loads((out / "summary.json").read_text())
+    robot = member.removeprefix("agent-")
+    assert summary["restarts"] == {robot: 1}
+    assert summary["all_reached"] is True and summary["collisions"] == 0
+    assert (out / "logs" / f"{member}#2.log").is_file()

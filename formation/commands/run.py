@@ -62,7 +62,9 @@ def run_config(ns: argparse.Namespace) -> RunConfig:
             shared_session=(per_process > 1 and not getattr(ns, "session_per_agent", False)
                             and insecure),
             solver=getattr(ns, "solver", "exact"), hold=bool(getattr(ns, "hold", False)),
-            remote=_placement(ns, scenario, per_process), pose_zones=getattr(ns, "pose_zones", 0))
+            remote=_placement(ns, scenario, per_process), pose_zones=getattr(ns, "pose_zones", 0),
+            restart=getattr(ns, "restart", "on-failure"),
+            restart_limit=getattr(ns, "restart_limit", 3))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
 
