@@ -55,6 +55,7 @@ def test_run_reaches_every_goal_safely_and_as_fast_as_the_in_process_simulation(
     assert comm["messages_per_robot_per_s"] > 0 and comm["bytes_per_robot_per_s"] > 0
     assert comm["classes"]["state"]["recv"]["messages"] > 0
     assert run["agents"]["stale"] == 0 and run["world"]["missing_cmds"] == 0
+    assert run["agents"]["tick_errors"] == 0  # a tick that raised is a bug, never hidden
     assert (tmp_path / "run" / "robots.csv").read_text() == (tmp_path / "sim" / "robots.csv").read_text()
 
 
