@@ -36,7 +36,7 @@ from wire.payloads import (
     decode_pose,
     decode_state,
 )
-from wire.stamps import FUTURE, StampCounter, check_stamp, used_stamp
+from wire.stamps import FUTURE, OLDER, StampCounter, check_stamp, used_stamp
 from wire.traffic import Mailbox, TrafficCounter
 
 logger = logging.getLogger(__name__)
@@ -132,6 +132,7 @@ class Inbox:
         self.receiver = receiver
         self.counter = counter
         period, lockstep = timing
+        self.lockstep = lockstep
         self.faults = FaultInjector(link_faults, robot_id, period, lockstep, lock,
                                     self.store_delayed)
         self.polled = polled
@@ -176,6 +177,8 @@ class Inbox:
                 self.catch_ups += 1
             if reason is not None:
                 self.stamps.count(cls, reason)
+                if reason == OLDER and prev is not None and self._conflicts(cls, msg, prev[0]):
+                    self._flag(cls, "refused as older and disagreeing with the kept one")
                 return False
             # plausible after the kept message while that one is fresh; a stale one says nothing
             # any more (a robot carried elsewhere, or a forged first pose: it blocks for at most
@@ -202,10 +205,28 @@ class Inbox:
                 logger.warning("%s: marker re-acquired at (%.3f, %.3f) after a jump",
                                self.robot_id, msg.x, msg.y)
                 return False
+        self._flag(cls, "refused")
+        return True
+
+    def _flag(self, cls: str, what: str) -> None:
+        """Count an implausible input of class ``cls``; the next tick commands zero."""
         self.implausible[cls] = self.implausible.get(cls, 0) + 1
         self._implausible_pending.add(cls)
-        logger.info("%s: implausible %s refused", self.robot_id, cls)
-        return True
+        logger.info("%s: implausible %s %s", self.robot_id, cls, what)
+
+    def _conflicts(self, cls: str, msg: Any, kept: Any) -> bool:
+        """Real time: a pose or obstacle list refused as older that disagrees with the kept one.
+        One publisher's messages arrive in order, so this is a second source on the key (a
+        faulty camera, a clock step, a forger stamping ahead: docs/faults.md), and neither is
+        to be trusted: the robot stops while they disagree."""
+        if self.lockstep:
+            return False
+        if cls == keys.POSE:
+            return not jump_ok(msg.x, msg.y, msg.stamp, kept.x, kept.y, kept.stamp,
+                               self.receiver.speed)
+        if cls == keys.OBSTACLES:
+            return {o.id for o in msg.obstacles} != {o.id for o in kept.obstacles}
+        return False
 
     def note_command(self, moving: bool) -> None:
         """The node sent a command; ``moving``: not the zero command (ends "still since the
