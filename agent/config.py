@@ -23,6 +23,7 @@ from geometry.unicycle import control_point
 from leader.settings import LeaderSettings
 from scenario import Scenario, formation_axes, limits
 from scenario.cargo import load_polygon
+from scenario.extent import world_extent
 from scenario.model import FormationSpec
 from scenario.reader import excerpt
 from scenario.routes import initial_route
@@ -91,6 +92,9 @@ class AgentConfig:
     goal_tolerance: float = 0.05  # [m]
     # controller.method rigid: this member's slot in its formation's body (agent.body)
     footprint: Footprint | None = None
+    # the world's extent (xmin, ymin, xmax, ymax) [m] (scenario.extent): the leader refuses a
+    # goal outside it; None: the scenario's coordinate range
+    extent: tuple[float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
         _check_names(self)
@@ -123,6 +127,7 @@ CONFIG_RANGES: dict[str, limits.Range | tuple[limits.Range, ...]] = {
     "route": limits.COORDINATE,
     "member_goals": limits.COORDINATE,
     "goal_tolerance": limits.GOAL_TOLERANCE,
+    "extent": (limits.COORDINATE,) * 4,
 }
 LEADER_RANGES: dict[str, limits.Range | tuple[limits.Range, ...]] = {
     "offsets": limits.COORDINATE,
@@ -217,6 +222,8 @@ def build_agent_configs(
         # ticks come with the poses: the unicycle's sampling margin is sized for their period
         params = dataclasses.replace(params, period=pose_period)
     off = scenario.robot.control_offset
+    box = world_extent(scenario)
+    extent = (box.xmin, box.ymin, box.xmax, box.ymax)
     out: dict[str, AgentConfig] = {}
     for f in scenario.formations:
         route = initial_route(scenario, f)
@@ -260,6 +267,7 @@ def build_agent_configs(
                 planner=scenario.controller.planner != "none",
                 goal_tolerance=scenario.goal_tolerance,
                 footprint=_footprint(scenario, f, r.id),
+                extent=extent,
             )
     return out
 

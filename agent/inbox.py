@@ -26,7 +26,7 @@ import zenoh
 
 from agent.fault_inject import FaultInjector
 from agent.faults import EPS, LinkFaults
-from agent.plausibility import JUMP_MARGIN_M, ellipses_ok, jump_ok, velocity_ok
+from agent.plausibility import JUMP_MARGIN_M, Reacquire, ellipses_ok, jump_ok, velocity_ok
 from agent.transport import Transport
 from wire import keys
 from wire.payloads import (
@@ -36,7 +36,7 @@ from wire.payloads import (
     decode_pose,
     decode_state,
 )
-from wire.stamps import FUTURE, StampCounter, check_stamp
+from wire.stamps import FUTURE, OLDER, StampCounter, check_stamp, used_stamp
 from wire.traffic import Mailbox, TrafficCounter
 
 logger = logging.getLogger(__name__)
@@ -132,6 +132,7 @@ class Inbox:
         self.receiver = receiver
         self.counter = counter
         period, lockstep = timing
+        self.lockstep = lockstep
         self.faults = FaultInjector(link_faults, robot_id, period, lockstep, lock,
                                     self.store_delayed)
         self.polled = polled
@@ -143,6 +144,14 @@ class Inbox:
         self.subscribed_keys: dict[str, str] = {}  # key -> the mailbox class that holds it
         self._rings: list[tuple[Any, Take]] = []  # polled subscribers, drained by the tick
         self._late: set[str] = set()  # lock-step: keys whose last wait timed out
+        # key -> the last used stamp of its kept message, never later than the clock was when
+        # it was accepted (wire.stamps.used_stamp): what "older" is judged against
+        self._used: dict[str, float] = {}
+        # marker re-acquire (agent.plausibility.Reacquire): a run of jumped poses that agree,
+        # taken once the robot has been commanded zero on every tick since the first of them
+        self.reacquire = Reacquire(receiver.speed)
+        self.reacquired = 0  # poses taken as the new kept pose after a jump
+        self._still_since_jump = True
         self.arrived = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._transport: Transport | None = None
@@ -158,9 +167,9 @@ class Inbox:
         under the tick lock."""
         rx = self.receiver
 
-        def accept(_key: str, value: Entry, prev: Entry | None) -> bool:
+        def accept(key: str, value: Entry, prev: Entry | None) -> bool:
             msg = value[0]
-            last = None if prev is None else prev[0].stamp
+            last = None if prev is None else self._used.get(key, prev[0].stamp)
             now = rx.now()
             reason = check_stamp(now, msg.stamp, last, rx.tolerance, rx.stale_after)
             if reason == FUTURE and rx.starved():
@@ -168,19 +177,62 @@ class Inbox:
                 self.catch_ups += 1
             if reason is not None:
                 self.stamps.count(cls, reason)
+                if reason == OLDER and prev is not None and self._conflicts(cls, msg, prev[0]):
+                    self._flag(cls, "refused as older and disagreeing with the kept one")
                 return False
             # plausible after the kept message while that one is fresh; a stale one says nothing
             # any more (a robot carried elsewhere, or a forged first pose: it blocks for at most
             # stale_after)
             ref = None if prev is None or now - prev[0].stamp > rx.stale_after else prev[0]
-            if not plausible(cls, msg, ref, rx.speed):
-                self.implausible[cls] = self.implausible.get(cls, 0) + 1
-                self._implausible_pending.add(cls)
-                logger.info("%s: implausible %s refused", self.robot_id, cls)
+            if plausible(cls, msg, ref, rx.speed):
+                if cls == keys.POSE:
+                    self.reacquire.reset()
+            elif self._refused(cls, msg):
                 return False
+            self._used[key] = used_stamp(now, msg.stamp)
             return True
 
         return accept
+
+    def _refused(self, cls: str, msg: Any) -> bool:
+        """An input that broke physics: refused and counted (the next tick commands zero),
+        unless it is a pose that completes a re-acquire run (then taken; ``reacquired``)."""
+        if cls == keys.POSE:
+            if not self.reacquire.run:  # the first pose of a new jump
+                self._still_since_jump = True
+            if self.reacquire.offer(msg.x, msg.y, msg.stamp, self._still_since_jump):
+                self.reacquired += 1
+                logger.warning("%s: marker re-acquired at (%.3f, %.3f) after a jump",
+                               self.robot_id, msg.x, msg.y)
+                return False
+        self._flag(cls, "refused")
+        return True
+
+    def _flag(self, cls: str, what: str) -> None:
+        """Count an implausible input of class ``cls``; the next tick commands zero."""
+        self.implausible[cls] = self.implausible.get(cls, 0) + 1
+        self._implausible_pending.add(cls)
+        logger.info("%s: implausible %s %s", self.robot_id, cls, what)
+
+    def _conflicts(self, cls: str, msg: Any, kept: Any) -> bool:
+        """Real time: a pose or obstacle list refused as older that disagrees with the kept one.
+        One publisher's messages arrive in order, so this is a second source on the key (a
+        faulty camera, a clock step, a forger stamping ahead: docs/faults.md), and neither is
+        to be trusted: the robot stops while they disagree."""
+        if self.lockstep:
+            return False
+        if cls == keys.POSE:
+            return not jump_ok(msg.x, msg.y, msg.stamp, kept.x, kept.y, kept.stamp,
+                               self.receiver.speed)
+        if cls == keys.OBSTACLES:
+            return {o.id for o in msg.obstacles} != {o.id for o in kept.obstacles}
+        return False
+
+    def note_command(self, moving: bool) -> None:
+        """The node sent a command; ``moving``: not the zero command (ends "still since the
+        jump" for the re-acquire run under way)."""
+        if moving:
+            self._still_since_jump = False
 
     def take_implausible(self) -> bool:
         """Whether an input broke physics since the last call (then forgotten)."""

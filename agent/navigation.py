@@ -27,6 +27,8 @@ import zenoh
 from agent.config import AgentConfig
 from geometry.shapes import Shape
 from leader.navigation import SAME_GOAL, Follower, Navigator
+from scenario.extent import Extent, goal_problem
+from scenario.limits import COORDINATE
 from wire import keys
 from wire.payloads import (
     DecodeError,
@@ -49,6 +51,13 @@ REPUBLISH_S = 1.0  # [s] the leader puts its plan again this often
 STALLED_AFTER_S = 2.0  # [s] still this long away from the goal (the jam rule's clock): stalled
 GOAL_FUTURE_S = 1.0  # [s] real time: a goal stamped further ahead of the leader's clock is refused
 GOAL_MAX_AGE_S = 5.0  # [s] real time: an older goal is refused (the goal command re-sends each second)
+
+
+def config_extent(cfg: AgentConfig) -> Extent:
+    """The world's extent a goal must lie in: the configuration's, else the coordinate range."""
+    if cfg.extent is None:
+        return Extent(COORDINATE.lo, COORDINATE.lo, COORDINATE.hi, COORDINATE.hi)
+    return Extent(*cfg.extent)
 
 
 def stamp_problem(goal_stamp: float, now: float) -> str | None:
@@ -90,7 +99,9 @@ class NavPart:
         self._counter: TrafficCounter | None = None
         self._pubs: dict[str, CountingPublisher] = {}
         self._decls: list[Any] = []
+        self.extent = config_extent(cfg)
         self.dropped = 0  # malformed goals or plans
+        self.goals_refused = 0  # goals outside the world, not finite or with over-long routes
         self.goals = 0  # goals taken
         self.plans = 0  # plans adopted (members)
         self.stopped = False  # the leader's last tick commanded zero for missing inputs
@@ -182,20 +193,7 @@ class NavPart:
             plan, self._plan = self._plan, None
         nav = self.navigator
         if nav is not None and goal is not None:
-            why = None if lockstep else stamp_problem(goal.stamp, stamp)
-            if why is not None:
-                nav.rejected += 1
-            else:
-                why = nav.accept(goal, stamp if lockstep else goal.stamp, (cx, cy), self.shapes)
-            if why is None:
-                self.goals += 1
-                new = nav.plan(stamp)
-                self.follower.adopt(new)
-                self._put_plan(new, stamp)
-                logger.info("%s: formation %s takes goal (%.3f, %.3f), route of %d",
-                            self.cfg.robot_id, self.cfg.formation, goal.x, goal.y, len(new.route))
-            elif why != SAME_GOAL:
-                logger.warning("%s: refused a goal: %s", self.cfg.robot_id, why)
+            self._take_goal(nav, goal, stamp, lockstep, (cx, cy))
         if plan is not None and self.follower.adopt(plan):
             self.plans += 1
         self._centroid = (cx, cy)
@@ -203,6 +201,29 @@ class NavPart:
         if nav is not None and math.isfinite(nav.goal_stamp) and stamp - self._last_plan >= REPUBLISH_S:
             self._put_plan(nav.plan(stamp), stamp)
         return target, waypoint
+
+    def _take_goal(self, nav: Navigator, goal: GoalMsg, stamp: float, lockstep: bool,
+                   centroid: tuple[float, float]) -> None:
+        """Leader: check ``goal`` at the door (the world's extent, finite numbers, the route's
+        length: ``goals_refused``), then its stamp and the Navigator's rules (``rejected``)."""
+        why = goal_problem(goal.x, goal.y, goal.heading, goal.waypoints, self.extent)
+        if why is not None:
+            self.goals_refused += 1
+        else:
+            why = None if lockstep else stamp_problem(goal.stamp, stamp)
+            if why is not None:
+                nav.rejected += 1
+            else:
+                why = nav.accept(goal, stamp if lockstep else goal.stamp, centroid, self.shapes)
+        if why is None:
+            self.goals += 1
+            new = nav.plan(stamp)
+            self.follower.adopt(new)
+            self._put_plan(new, stamp)
+            logger.info("%s: formation %s takes goal (%.3f, %.3f), route of %d",
+                        self.cfg.robot_id, self.cfg.formation, goal.x, goal.y, len(new.route))
+        elif why != SAME_GOAL:
+            logger.warning("%s: refused a goal: %s", self.cfg.robot_id, why)
 
     def report(self, stamp: float, stalled: bool, stopped: bool) -> None:
         """Leader, after each tick (``stopped``: it commanded zero for missing inputs): publish
@@ -235,4 +256,4 @@ class NavPart:
 
     def stats(self) -> dict[str, Any]:
         return {"goals": self.goals, "rejected": self.rejected, "plans": self.plans,
-                "dropped": self.dropped}
+                "dropped": self.dropped, "goals_refused": self.goals_refused}

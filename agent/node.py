@@ -90,6 +90,7 @@ import logging
 import math
 import statistics
 import time
+import traceback
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
@@ -197,6 +198,8 @@ class TickCounts:
         "formation": math.inf, "obstacle": math.inf, "formations": math.inf})
     solve_us: deque[float] = field(default_factory=lambda: deque(maxlen=STATS_WINDOW))  # [us]
     trace: list[tuple] = field(default_factory=list)
+    tick_errors: int = 0  # ticks that raised: answered with the zero command
+    error_kinds: set[str] = field(default_factory=set)  # exception type + where, logged once
 
 
 class AgentNode:
@@ -462,8 +465,31 @@ class AgentNode:
             if self._diag is not None:  # viewers' diagnostics: a few a second, not counted
                 self._diag.tick(self, res)
             return res
+        except Exception as exc:  # noqa: BLE001 - no message may make an agent raise
+            self._tick_failed(t, exc)
+            return None
         finally:
             self.clock.state_after(self._send_state)
+
+    def _tick_failed(self, t: float | None, exc: Exception) -> None:
+        """A tick that raised: counted (``tick_errors``), answered with the zero command and
+        logged once per kind (exception type and where it was raised), not once per tick."""
+        c = self.counts
+        c.tick_errors += 1
+        frame = traceback.extract_tb(exc.__traceback__)[-1:] or None
+        where = f"{frame[0].filename}:{frame[0].lineno}" if frame else "?"
+        kind = f"{type(exc).__name__} at {where}"
+        if kind not in c.error_kinds:
+            c.error_kinds.add(kind)
+            logger.error("%s: a tick raised %s: %s (answered with the zero command; logged "
+                         "once per kind)", self.cfg.robot_id, kind, exc)
+        self._tick_point = None
+        self.last_u = (0.0, 0.0)
+        try:
+            self.send_command(Cmd(0.0, 0.0, 0.0, 0.0, self.clock.cmd_stamp(t, self.last_stamp)))
+        except Exception:  # noqa: BLE001 - the zero command itself failed: logged, go on
+            logger.debug("%s: zero command after a tick error failed", self.cfg.robot_id,
+                         exc_info=True)
 
     def _send_state(self) -> None:
         if self._tick_point is not None and self.transport is not None:
@@ -630,6 +656,7 @@ class AgentNode:
         return None
 
     def send_command(self, cmd: Cmd) -> None:
+        self.inbox.note_command(any((cmd.v, cmd.omega, cmd.ux, cmd.uy)))
         if self.transport is not None:
             self.transport.publish(self.cmd_key, cmd)
         if self._base is not None:
@@ -660,7 +687,8 @@ class AgentNode:
             listen_changes=ld.listen_changes, takeovers=ld.takeovers,
             acting_leader_ticks=ld.acting_ticks, nav=self.nav.stats(),
             fault_dropped=dict(inbox.faults.dropped), fault_delayed=inbox.faults.delayed,
-            solves=c.solves, escape_ticks=c.escape_ticks,
+            solves=c.solves, escape_ticks=c.escape_ticks, tick_errors=c.tick_errors,
+            reacquired=inbox.reacquired,
             relaxed=c.status_counts[STATUS_RELAXED], fallback=c.status_counts[STATUS_FALLBACK],
             failed=c.status_counts[STATUS_FAILED], solve_us_median=_median(c.solve_us),
             tick_us_median=_median(sc.tick_us), pose_age_us_median=_median(self.clock.pose_age_us),

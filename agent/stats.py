@@ -37,6 +37,7 @@ class AgentStats:
     stamp_rejected: dict[str, dict[str, int]] = field(default_factory=dict)
     lockstep_catch_ups: int = 0
     implausible: dict[str, int] = field(default_factory=dict)
+    reacquired: int = 0  # poses taken as the new kept pose after a jump (marker re-acquire)
     obstacles_missing: int = 0
     obstacles_dropped_after_hold: int = 0
     obstacle_held_ticks: int = 0
@@ -51,6 +52,7 @@ class AgentStats:
     fault_dropped: dict[str, int] = field(default_factory=dict)
     fault_delayed: int = 0
     solves: int = 0
+    tick_errors: int = 0  # ticks that raised (caught, answered with the zero command)
     escape_ticks: int = 0
     relaxed: int = 0
     fallback: int = 0

@@ -168,6 +168,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rmw-zenoh-release", default="jazzy",
                    choices=["humble", "humble-0.1.1", "jazzy", "jazzy-0.2.3", "kilted"],
                    help="--base rmw_zenoh: the rmw_zenoh release whose wire format to speak")
+    p.add_argument("--restart", choices=("on-failure", "no"), default="on-failure",
+                   help="restart an agent here that exits on its own, as systemd does on a robot "
+                        "(default on-failure; an agent stopped by --kill ROBOT@T stays dead)")
+    p.add_argument("--restart-limit", type=int, default=3, metavar="N",
+                   help="with --restart on-failure: restarts per robot before the run aborts "
+                        "(default 3)")
+    p.add_argument("--no-capacity-check", action="store_true",
+                   help="start the run even where the fleet's estimated memory, processes or file "
+                        "descriptors exceed what this machine grants (default: refuse, exit 2)")
     p.add_argument("--no-safety", action="store_true", help="barriers off (nominal control only)")
     p.add_argument("--port", type=int, default=0, help="router TCP port on 127.0.0.1 (0: free)")
     p.add_argument("--hosts", default=None, metavar="INVENTORY",

@@ -91,6 +91,7 @@ def print_summary(summary: dict, out: Path, plots: bool = True) -> None:
         f"{f' at t={ttg:.2f} s' if ttg is not None else ''}; collisions {summary['collisions']}; "
         f"max formation error {summary['formation_error_max_m']:.4f} m; "
         f"{qp_words(qp, summary.get('hard_row_unmet_ticks', qp.get('hard_row_unmet_ticks')))}"
+        + (f"; tick_errors {n}" if (n := summary.get("agents", {}).get("tick_errors")) else "")
         + ("" if ok else "  [UNSAFE OR INCOMPLETE]")
     )
     print(f"wrote {out / 'summary.json'}" + (f" and figures in {out}/" if plots else f" in {out}/"))

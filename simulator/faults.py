@@ -35,6 +35,13 @@ FAULT_AGENT_TIMEOUT_S = 0.3  # [s] lock-step wait per input of an agent in a fau
 FAULT_WORLD_TIMEOUT_S = 1.5  # [s] lock-step wait for a tick's commands in a fault run
 
 
+def restart_log_name(robot: str, incarnation: int) -> str:
+    """The process (and log file) name of a robot's restarted agent: ``agent-ROBOT#N``; a robot
+    name holds no ``#`` (:func:`wire.keys.name_problem`), so robot ``a1-2``'s first agent and
+    robot ``a1``'s second never share a log file."""
+    return f"agent-{robot}#{incarnation}"
+
+
 @dataclass(frozen=True)
 class Kill:
     """SIGKILL ``robot``'s agent at simulated time ``at``; restart it ``restart_after`` later."""
@@ -141,7 +148,7 @@ class FaultDriver:
     """Kills and restarts agents at their simulated times (``World.run(on_tick=...)``)."""
 
     def __init__(self, plan: FaultPlan, fleet: Fleet, world: World, agents: dict[str, Child],
-                 dt: float, realtime: bool) -> None:
+                 dt: float, realtime: bool, restart_limit: int = 0) -> None:
         self.fleet = fleet
         self.world = world
         self.agents = agents
@@ -157,8 +164,32 @@ class FaultDriver:
                                     "restart", k.robot))
         self.events.sort()
         self.incarnation = dict.fromkeys(agents, 1)
+        self.restart_limit = restart_limit  # crashes restarted per robot (--restart on-failure)
+        self.restarts: dict[str, int] = {}  # robot -> crashed agents restarted
+        self.t = 0.0  # [s] the simulated time of the latest tick
+
+    def recover(self) -> bool:
+        """An agent here exited on its own (a crash): restart it as systemd would on a robot,
+        at most ``restart_limit`` times per robot (counted, logged). False when none was
+        restarted (none crashed, or its limit is reached): the run then aborts."""
+        crashed = [rid for rid, c in self.agents.items()
+                   if not c.where and c.proc.poll() is not None]
+        if not crashed or any(self.restarts.get(r, 0) >= self.restart_limit for r in crashed):
+            return False
+        for rid in crashed:
+            child = self.agents.pop(rid)
+            code = child.proc.returncode
+            self.fleet.stop([child])  # reaps it, closes its log
+            self.restarts[rid] = self.restarts.get(rid, 0) + 1
+            logger.warning("agent %s exited with status %s at t=%.2f s: restarting it (%d of %d)",
+                           rid, code, self.t, self.restarts[rid], self.restart_limit)
+            self.log.append({"event": "crash", "robot": rid, "t_s": round(self.t, 6),
+                             "status": code})
+            self.restart(rid, self.t)
+        return True
 
     def on_tick(self, k: int, t: float) -> None:
+        self.t = t
         while self.events and self.events[0][0] <= k:
             _, _, action, rid = self.events.pop(0)
             if action == "kill":
@@ -184,7 +215,7 @@ class FaultDriver:
         self.incarnation[rid] += 1
         wall0 = time.monotonic()
         argv = self.argv[rid] + ([] if self.realtime else ["--sim-start", repr(t)])
-        self.agents[rid] = self.fleet.start(f"agent-{rid}-{self.incarnation[rid]}", argv)
+        self.agents[rid] = self.fleet.start(restart_log_name(rid, self.incarnation[rid]), argv)
         if not self.realtime:  # lock-step: the restart takes no simulated time
             self.world.wait_for_agents(abort=self.fleet.check, robots=[rid], grace=False)
             self.world.inbox.expect(rid)  # and waits for its commands from the first tick

@@ -82,6 +82,7 @@ class _Outcome:
     stopped: BaseException | None
     board: dict[str, dict]
     events: list[dict]
+    restarts: dict[str, int]  # robot -> its crashed agents restarted (--restart on-failure)
 
 
 class RunAborted(RuntimeError):
@@ -172,6 +173,8 @@ def _launch_fleet(cfg: RunConfig, hooks: _Hooks, endpoint: str,
                                     cfg.realtime, cfg.camera, cfg.safety, cfg.solver)
     if cfg.fault_run:
         summary["faults"] = fault_summary(cfg.faults, outcome.result, stats, outcome.events)
+    if outcome.restarts:
+        summary["restarts"] = outcome.restarts
     summary["secure"] = False if creds is None else creds.summary()
     summary.update(_run_options(cfg, outcome.board))
     if outcome.stopped is not None:
@@ -244,6 +247,12 @@ def _world_options(cfg: RunConfig) -> WorldOptions:
         rmw_bases=None if cfg.rmw_base is None else run_bases(cfg.scenario.robot_ids, cfg.rmw_base))
 
 
+def _restart_limit(cfg: RunConfig) -> int:
+    """Crashed agents restarted per robot: local agents one to a process (an agent host's
+    argv is not one robot's), with ``--restart on-failure``."""
+    return cfg.restart_limit if cfg.restart == "on-failure" and cfg.agents_per_process == 1 else 0
+
+
 def _run_world(cfg: RunConfig, hooks: _Hooks, fleet: Fleet, endpoint: str,
                creds: RunCredentials | None, zones: PoseZones | None,
                agents: dict[str, Child]) -> _Outcome:
@@ -257,7 +266,8 @@ def _run_world(cfg: RunConfig, hooks: _Hooks, fleet: Fleet, endpoint: str,
                       None if zones is None else zones.zone_of)
         statuses = StatusBoard(session, keys.DEFAULT_PREFIX)
         detach = hooks.observer(session) if hooks.observer is not None else None
-        driver = FaultDriver(cfg.faults, fleet, world, agents, cfg.scenario.dt, cfg.realtime)
+        driver = FaultDriver(cfg.faults, fleet, world, agents, cfg.scenario.dt, cfg.realtime,
+                             _restart_limit(cfg))
         try:
             result, stopped = _drive(cfg, hooks, fleet, world, endpoint, driver)
         finally:
@@ -266,7 +276,7 @@ def _run_world(cfg: RunConfig, hooks: _Hooks, fleet: Fleet, endpoint: str,
             world.close()
             board = statuses.latest()  # each leader's last status
             statuses.close()
-    return _Outcome(result, stopped, board, driver.log)
+    return _Outcome(result, stopped, board, driver.log, dict(driver.restarts))
 
 
 def _drive(cfg: RunConfig, hooks: _Hooks, fleet: Fleet, world: World, endpoint: str,
@@ -282,9 +292,13 @@ def _drive(cfg: RunConfig, hooks: _Hooks, fleet: Fleet, world: World, endpoint: 
         if cfg.hold and fleet.signalled is not None:
             hooks.stop_requested.set()  # SIGTERM ends a held run like Ctrl-C: normally
             return
-        fleet.check()
+        try:
+            fleet.check()
+        except ChildFailed:
+            if not driver.recover():  # a crashed agent restarted: the run goes on
+                raise
 
-    on_tick = driver.on_tick if cfg.fault_run else None
+    on_tick = driver.on_tick if cfg.fault_run or driver.restart_limit else None
     try:
         return _world_loop(world, hooks, abort, on_tick), None
     except (ChildFailed, KeyboardInterrupt, TimeoutError) as exc:

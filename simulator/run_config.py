@@ -20,6 +20,7 @@ from .faults import FaultPlan
 from .fleet import RemoteAgents
 
 CAMERAS = ("truth", "synthetic", "process")
+RESTART_POLICIES = ("on-failure", "no")
 
 
 @dataclass(frozen=True)
@@ -61,6 +62,8 @@ class RunConfig:
     remote: RemoteAgents | None = None
     pose_zones: int = 0
     rmw_base: RmwSettings | None = None
+    restart: str = "on-failure"  # a crashed local agent is restarted (as systemd on a robot)
+    restart_limit: int = 3  # ... at most this many times per robot; then the run aborts
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "out", Path(self.out))
@@ -123,6 +126,11 @@ class RunConfig:
         if self.pose_zones and self.remote is not None:
             raise ValueError("--pose-zones: the zone routers listen on loopback only; not with "
                              "--hosts")
+        if self.restart not in RESTART_POLICIES:
+            raise ValueError(f"--restart: {self.restart!r} is not one of "
+                             f"{', '.join(RESTART_POLICIES)}")
+        if self.restart_limit < 0:
+            raise ValueError(f"--restart-limit: need an integer >= 0, got {self.restart_limit}")
         if self.agents_per_process < 1:
             raise ValueError(f"--agents-per-process: need an integer >= 1, got "
                              f"{self.agents_per_process}")

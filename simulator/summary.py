@@ -134,6 +134,7 @@ def _agents_fields(stats: Sequence[AgentStats]) -> dict[str, Any]:
     """``agents`` of the summary: the agents' counters added up."""
     return {
         "ticks": sum(s.ticks for s in stats),
+        "tick_errors": sum(s.tick_errors for s in stats),
         "overruns": sum(s.overruns for s in stats),
         "stale": sum(s.stale for s in stats),
         "waiting_for_pose": sum(s.waiting for s in stats),
@@ -143,6 +144,7 @@ def _agents_fields(stats: Sequence[AgentStats]) -> dict[str, Any]:
         "stamp_rejected": merge_counts([s.stamp_rejected for s in stats]),
         "lockstep_catch_ups": sum(s.lockstep_catch_ups for s in stats),
         "implausible": sum_counts(s.implausible for s in stats),
+        "reacquired": sum(s.reacquired for s in stats),
         "obstacles_missing": sum(s.obstacles_missing for s in stats),
         "obstacle_held_ticks": sum(s.obstacle_held_ticks for s in stats),
         "obstacles_dropped_after_hold": sum(s.obstacles_dropped_after_hold for s in stats),

@@ -71,7 +71,7 @@ from scenario import Scenario
 from wire import keys
 from wire.payloads import Cmd, DecodeError, ObstacleMsg, Obstacles, Pose, decode_cmd
 from wire.shapes import shape_to_msg
-from wire.stamps import CLOCK_TOLERANCE_S, EPS, StampCounter
+from wire.stamps import CLOCK_TOLERANCE_S, EPS, StampCounter, used_stamp
 from wire.traffic import CountingPublisher, TrafficCounter
 
 from .bases import RmwBase, RmwBaseReader
@@ -198,6 +198,9 @@ class _CmdInbox:
         self._robot_of = {keys.cmd_key(prefix, r): r for r in robots}  # cmd key -> robot
         self._cond = threading.Condition()
         self.latest: dict[str, tuple[Cmd, float]] = {}  # robot -> (cmd, local receive time)
+        # robot -> its kept command's last used stamp, never later than the clock was when it
+        # came (wire.stamps.used_stamp): one command stamped ahead cannot hide the later ones
+        self._used: dict[str, float] = {}
         self.late: set[str] = set()  # lock-step: robots whose last command timed out
         self.malformed = 0
         self.latency_ms: list[float] = []
@@ -234,9 +237,10 @@ class _CmdInbox:
             else:
                 clock, tolerance = self.now_t, 0.0  # only this tick's (or older) commands
             if not self.stamps.check(keys.CMD, clock, cmd.stamp,
-                                     None if prev is None else prev[0].stamp, tolerance,
-                                     self.stale_after):
+                                     None if prev is None else self._used.get(rid, prev[0].stamp),
+                                     tolerance, self.stale_after):
                 return
+            self._used[rid] = used_stamp(clock, cmd.stamp)
             if self.measure_latency and (prev is None or prev[0].stamp != cmd.stamp):
                 self.latency_ms.append((time.time() + self.clock_offset - cmd.stamp) * 1e3)
             self.latest[rid] = (cmd, now)

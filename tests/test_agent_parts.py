@@ -11,9 +11,10 @@ import pytest
 from agent.clock import LockstepClock, RealtimeClock
 from agent.fault_inject import FaultInjector
 from agent.faults import LinkFaults
+from agent.inbox import Inbox, Receiver
 from agent.transport import Transport
 from wire import keys
-from wire.payloads import State, encode
+from wire.payloads import Pose, State, encode
 from wire.traffic import TrafficCounter
 
 
@@ -122,3 +123,58 @@ def test_the_transport_publishes_only_where_declared_and_forgets_a_subscriber() 
     assert t.handles() == ["token", pub]
     t.clear()
     assert t.handles() == []
+
+
+def test_a_pose_stamped_ahead_of_the_clock_cannot_make_the_genuine_ones_after_it_older() -> None:
+    # the +90 ms attack: one pose stamped inside the tolerance but ahead of the clock used to
+    # become "the last used" and refuse every genuine pose for the next 90 ms (a stream of them:
+    # for good); the inbox now records the stamp no later than its clock (wire.stamps.used_stamp)
+    clock = [100.0]
+    rx = Receiver(lambda: clock[0], lambda: False, 0.1, 0.25, 0.5)
+    inbox = Inbox("a1", rx, TrafficCounter("warehouse"), LinkFaults(), (0.05, False),
+                  threading.Lock(), polled=True)
+    accept = inbox._acceptor(keys.POSE)
+    key = keys.pose_key("warehouse", "a1")
+    forged = (Pose(1.0, 0.0, 0.0, 100.09), 100.0)
+    assert accept(key, forged, None)
+    clock[0] = 100.02
+    genuine = (Pose(1.0, 0.0, 0.0, 100.01), 100.02)  # captured after the forged one arrived
+    assert accept(key, genuine, forged)
+    assert inbox.stamps.snapshot().get(keys.POSE, {}).get("older", 0) == 0
+    stale_replay = (Pose(1.0, 0.0, 0.0, 99.99), 100.02)  # still refused: older than used
+    assert not accept(key, stale_replay, genuine)
+
+
+def _pose_inbox(clock: list[float]) -> Inbox:
+    # stale after 1 s (a 5 fps camera): the kept pose stays fresh through the re-acquire run
+    rx = Receiver(lambda: clock[0], lambda: False, 0.1, 1.0, 0.5)
+    return Inbox("a1", rx, TrafficCounter("warehouse"), LinkFaults(), (0.05, False),
+                 threading.Lock(), polled=True)
+
+
+def _walk_jumped(inbox: Inbox, clock: list[float], kept, moving_after: int | None) -> list[bool]:
+    """Poses 5 m from the kept one, agreeing with each other, every 0.1 s: which were taken."""
+    accept, key, taken = inbox._acceptor(keys.POSE), keys.pose_key("warehouse", "a1"), []
+    for k in range(6):
+        clock[0] += 0.1
+        entry = (Pose(5.0, 0.0, 0.0, clock[0]), clock[0])
+        taken.append(accept(key, entry, kept))
+        if taken[-1]:
+            kept = entry
+        inbox.note_command(moving_after is not None and k == moving_after)
+    return taken
+
+
+def test_a_marker_that_jumped_is_reacquired_only_while_its_robot_was_commanded_zero() -> None:
+    clock = [100.0]
+    inbox = _pose_inbox(clock)
+    kept = (Pose(0.0, 0.0, 0.0, 100.0), 100.0)
+    assert inbox._acceptor(keys.POSE)(keys.pose_key("warehouse", "a1"), kept, None)
+    taken = _walk_jumped(inbox, clock, kept, moving_after=None)
+    assert taken.index(True) >= 2 and inbox.reacquired == 1  # a few agreeing poses, then taken
+    clock2 = [200.0]
+    moved = _pose_inbox(clock2)
+    kept2 = (Pose(0.0, 0.0, 0.0, 200.0), 200.0)
+    assert moved._acceptor(keys.POSE)(keys.pose_key("warehouse", "a1"), kept2, None)
+    assert not any(_walk_jumped(moved, clock2, kept2, moving_after=0))  # it moved: never taken
+    assert moved.reacquired == 0 and moved.implausible[keys.POSE] == 6

@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
 from simulator.capacity import Machine, fleet_needs, machine_has, refusal
 
 GB = 1024.0  # MB
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def _fake(tmp_path: Path, avail_kb: int, files: dict[str, str]) -> tuple[Path, Path]:
@@ -69,3 +74,39 @@ def test_cgroup_v1_and_no_limit(tmp_path):
 def test_the_file_descriptor_limit_is_named():
     line = refusal(400, Machine(1e9, None, 256), agents_per_process=1)
     assert line is not None and "ulimit -n" in line
+
+
+def _huge_scenario(nf: int = 256, nr: int = 52) -> str:
+    """A valid scenario of nf * nr robots (13,312: the largest under the 1 MiB file limit the
+    issue met): each formation a star on its leader plus a path, rigid and leader-adjacent."""
+    out = ["name: huge", "dt: 0.05",
+           "robot: {model: single_integrator, max_speed: 0.22, radius: 0.105}", "formations:"]
+    for f in range(nf):
+        fx, fy, ids = (f % 16) * 20, (f // 16) * 20, [f"r{f * nr + r}" for r in range(nr)]
+        out += [f"- name: F{f}", f"  leader: {ids[0]}", "  robots:"]
+        for r, rid in enumerate(ids):
+            x, y = fx + r % 8, fy + r // 8 + (r * r % 7) / 10
+            out.append(f"    {rid}: {{start: [{x},{y:g}], goal: [{x + 5},{y:g}]}}")
+        edges = [(ids[0], i) for i in ids[1:]] + [(ids[r], ids[r - 1]) for r in range(2, nr)]
+        out.append("  edges: [" + ",".join(f"[{a},{b}]" for a, b in edges) + "]")
+    return "\n".join(out) + "\n"
+
+
+@pytest.mark.integration
+def test_the_13312_robot_file_is_refused_by_run_before_any_agent_starts_and_check_warns(tmp_path):
+    scenario = tmp_path / "huge.yaml"
+    scenario.write_text(_huge_scenario())
+    if refusal(13_312, machine_has()) is None:
+        pytest.skip("this machine holds 13,312 agents")
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    out = tmp_path / "out"
+    run = subprocess.run([sys.executable, "-m", "formation", "run", str(scenario), "--out",
+                          str(out), "--quiet", "--no-plots"], env=env, capture_output=True,
+                         text=True, timeout=600)
+    assert run.returncode == 2, run.stderr
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and "13312 agents" in lines[0] and "--no-capacity-check" in lines[0]
+    assert not out.exists()  # nothing started, nothing written
+    check = subprocess.run([sys.executable, "-m", "formation", "check", str(scenario)], env=env,
+                           capture_output=True, text=True, timeout=600)
+    assert check.returncode == 0 and "warning: this fleet does not fit" in check.stderr

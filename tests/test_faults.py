@@ -15,7 +15,15 @@ import pytest
 from agent.faults import FAULT_CLASSES, DelayLine, LinkFaults, lag
 from agent.leader_step import inflate
 from formation.cli import main
-from simulator.faults import CameraDropout, FaultPlan, Kill, parse_camera_dropout, parse_kill
+from simulator.faults import (
+    CameraDropout,
+    FaultPlan,
+    Kill,
+    parse_camera_dropout,
+    parse_kill,
+    restart_log_name,
+)
+from wire.keys import name_problem
 from wire.payloads import EllipseMsg
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -194,3 +202,10 @@ def test_in_real_time_the_successor_subscribes_to_the_other_leaders_ellipse_when
     assert b2["acting_leader_ticks"] >= 20
     assert "warehouse/formation/A/ellipse" in b2["subscriptions"]
     assert b2["received"]["ellipse"] >= 20  # a member subscribes to no ellipse: all since then
+
+
+def test_a_restarted_agents_log_never_shares_a_name_with_another_robots_agent():
+    # robot a1's second agent and robot a1-2's first once wrote the same logs/agent-a1-2.log
+    assert restart_log_name("a1", 2) != "agent-a1-2"
+    suffix = restart_log_name("a1", 2).removeprefix("agent-")
+    assert name_problem(suffix) is not None  # no robot can be named like a restart

@@ -55,6 +55,7 @@ def test_run_reaches_every_goal_safely_and_as_fast_as_the_in_process_simulation(
     assert comm["messages_per_robot_per_s"] > 0 and comm["bytes_per_robot_per_s"] > 0
     assert comm["classes"]["state"]["recv"]["messages"] > 0
     assert run["agents"]["stale"] == 0 and run["world"]["missing_cmds"] == 0
+    assert run["agents"]["tick_errors"] == 0  # a tick that raised is a bug, never hidden
     assert (tmp_path / "run" / "robots.csv").read_text() == (tmp_path / "sim" / "robots.csv").read_text()
 
 
@@ -168,3 +169,92 @@ def test_run_in_real_time_with_poses_in_slots_reaches_every_goal_and_merges_the_
     assert {e["formation"] for e in ellipses} == {"A", "B"}
     assert len(ellipses) >= 0.9 * 2 * len({r["t"] for r in rows})
     assert (out / "safety.png").stat().st_size > 0 and (out / "trajectories.png").stat().st_size > 0
+
+
+def test_a_second_sigint_only_hurries_the_shutdown_and_the_run_is_still_written(tmp_path):
+    scenario = tmp_path / "long.yaml"
+    scenario.write_text(LONG, encoding="utf-8")
+    out = tmp_path / "run"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, "-m", "formation", "run", str(scenario), "--out",
+                             str(out), "--quiet", "--no-plots", "--realtime"], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "endpoint").exists():  # every agent up, the world running
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        for _ in range(6):  # a hurried operator's further Ctrl-Cs over 0.3 s (the attack)
+            time.sleep(0.05)
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+        assert proc.returncode == 130, err
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["aborted"]
+    assert (out / "robots.csv").is_file() and (out / "run.mcap").is_file()
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 2 MB tmpfs (needs root and mount permission; skipped otherwise)."""
+    where = tmp_path / "small"
+    where.mkdir()
+    proc = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(where)],
+                          capture_output=True, text=True)
+    if proc.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {proc.stderr.strip()}")
+    try:
+        yield where
+    finally:
+        subprocess.run(["umount", str(where)], check=False)
+
+
+def test_a_run_onto_a_disk_too_small_is_refused_before_it_starts(tmp_path, small_disk):
+    scenario = tmp_path / "two.yaml"
+    scenario.write_text(TWO_FORMATIONS, encoding="utf-8")
+    out = small_disk / "run"
+    proc = subprocess.run([sys.executable, "-m", "formation", "run", str(scenario), "--out",
+                           str(out), "--quiet", "--no-plots"],
+                          env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "MB free" in lines[0] and "--out" in lines[0]
+    assert not (out / "processes.json").exists() and not list(small_disk.rglob("*.tmp"))
+
+
+def test_a_member_killed_mid_run_is_restarted_and_the_run_reaches_every_goal(tmp_path):
+    scenario = tmp_path / "two.yaml"
+    scenario.write_text(TWO_FORMATIONS, encoding="utf-8")
+    out = tmp_path / "run"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, "-m", "formation", "run", str(scenario), "--out",
+                             str(out), "--quiet", "--no-plots"], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "endpoint").exists():  # every agent up, the world running
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        pids = json.loads((out / "processes.json").read_text())
+        member = next(n for n in sorted(pids) if n.startswith("agent-"))
+        os.kill(pids[member], signal.SIGKILL)  # a crash, not a stop: no counters, no zero cmd
+        _, err = proc.communicate(timeout=600)
+        assert proc.returncode == 0, err
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    summary = json.loads((out / "summary.json").read_text())
+    robot = member.removeprefix("agent-")
+    assert summary["restarts"] == {robot: 1}
+    assert summary["all_reached"] is True and summary["collisions"] == 0
+    assert (out / "logs" / f"{member}#2.log").is_file()

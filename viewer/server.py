@@ -93,7 +93,19 @@ class _Handler(BaseHTTPRequestHandler):
         self.end_headers()
         self.wfile.write(body)
 
+    def _foreign(self) -> bool:
+        """A request another site's page made (its ``Origin`` is not this server's): refused
+        with 403, so a page elsewhere in the operator's browser can neither read the fleet's
+        state nor steer a replay. Requests without an ``Origin`` (same-origin GETs, curl) pass."""
+        origin = self.headers.get("Origin")
+        if origin is None or origin == f"http://{self.headers.get('Host', '')}":
+            return False
+        self._send(403, b"cross-origin request refused\n", "text/plain")
+        return True
+
     def do_GET(self) -> None:  # noqa: N802 - http.server's name
+        if self._foreign():
+            return
         path = self.path.split("?", 1)[0]
         if path in ("/", "/index.html"):
             self._send(200, self.page, "text/html; charset=utf-8")
@@ -104,6 +116,8 @@ class _Handler(BaseHTTPRequestHandler):
             self._send(404, b"not found\n", "text/plain")
 
     def do_POST(self) -> None:  # noqa: N802
+        if self._foreign():
+            return
         if self.path != "/control" or self.hub.control is None:
             self._send(404, b"not found\n", "text/plain")
             return

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from formation.commands.run import capacity_problem
 from formation.exits import EXIT_OK
 from scenario import load_scenario
 from scenario.load import scenario_warnings
@@ -26,6 +27,9 @@ def cmd_check(ns: argparse.Namespace) -> int:
             print(f"{ns.scenario}: warning: formation {f.name!r} has no member adjacent to every "
                   f"other member: if its leader {f.leader!r} dies, nobody takes over and the "
                   f"other formations stop avoiding it after the ellipse hold", file=sys.stderr)
+    fit = capacity_problem(s)
+    if fit is not None:  # a local run with one agent per process ('formation run' refuses it)
+        print(f"{ns.scenario}: warning: {fit}", file=sys.stderr)
     print(f"{ns.scenario}: ok ({s.name}: {len(s.formations)} formations, {n} robots, "
           f"{len(s.obstacles)} obstacles, {len(s.shapes)} walls and shelves, {s.robot.model})")
     return EXIT_OK

@@ -11,8 +11,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import os
+import shutil
+import signal
 import sys
+import threading
 from pathlib import Path
+from typing import Any
 
 from deploy.inventory import InventoryError
 from deploy.remote import RemoteError, plan_placement
@@ -22,6 +27,7 @@ from formation.outdir import begin_output
 from formation.progress import Progress, print_summary
 from scenario import Scenario, load_scenario
 from scenario.model import with_world
+from simulator.capacity import machine_has, refusal
 from simulator.faults import FaultPlan, parse_camera_dropout, parse_kill
 from simulator.fleet import RemoteAgents
 from simulator.launch import RunAborted, launch
@@ -60,7 +66,8 @@ def run_config(ns: argparse.Namespace) -> RunConfig:
                             and insecure),
             solver=getattr(ns, "solver", "exact"), hold=bool(getattr(ns, "hold", False)),
             remote=_placement(ns, scenario, per_process), pose_zones=getattr(ns, "pose_zones", 0),
-            rmw_base=_rmw_base(ns))
+            rmw_base=_rmw_base(ns), restart=getattr(ns, "restart", "on-failure"),
+            restart_limit=getattr(ns, "restart_limit", 3))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
 
@@ -81,10 +88,50 @@ def _rmw_base(ns: argparse.Namespace) -> RmwSettings | None:
 def run_command(ns: argparse.Namespace) -> int:
     """``formation run``; see the module docstring. Returns the exit status."""
     config = run_config(ns)
+    if not getattr(ns, "no_capacity_check", False):
+        _check_capacity(config)  # before any process starts
+    _check_space(config.out)
     if config.remote is not None and not getattr(ns, "dry_run", False):
         _reach_hosts(config.remote)  # over SSH, before anything starts
     if getattr(ns, "dry_run", False):
         return _dry_run(config)
+    with LaterInterruptsWait() as interrupts:
+        return _run(ns, config, interrupts)
+
+
+class LaterInterruptsWait:
+    """SIGINT in ``formation run``: the first stops the run (``KeyboardInterrupt``, as ever);
+    every later one, or one that comes once the run is over, only says the shutdown is under
+    way, so summary.json, robots.csv and run.mcap are still written (marked ``aborted``). The
+    shutdown's every wait is bounded (:class:`simulator.fleet.Fleet`), so it ends anyway."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self._previous: Any = None
+
+    def __enter__(self) -> LaterInterruptsWait:
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGINT, self._on_sigint)
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
+
+    def run_over(self) -> None:
+        """From now on no SIGINT interrupts: the run's files are being written."""
+        self.count = max(self.count, 1)
+
+    def _on_sigint(self, _signum: int, _frame: object) -> None:
+        self.count += 1
+        if self.count == 1:
+            raise KeyboardInterrupt
+        # os.write: a print here could land inside another print to the same stream
+        os.write(2, b"formation run: already stopping; writing the run's files first\n")
+
+
+def _run(ns: argparse.Namespace, config: RunConfig, interrupts: LaterInterruptsWait) -> int:
+    """The run itself, once every check passed."""
     live, observer = live_observer(ns, config.scenario)  # --live PORT: fed from the world's session
     try:
         # the input is valid (a bad --live port included): replace the output
@@ -93,6 +140,7 @@ def run_command(ns: argparse.Namespace) -> int:
             f"run {config.scenario.name}", quiet=ns.quiet), observer=observer,
             announce=_announce if config.hold else None)
     except RunAborted as stop:  # the run started: its summary says why and what it measured
+        interrupts.run_over()
         write_run(stop.summary, stop.series, config.scenario, config.out, plots=not ns.no_plots)
         print(f"formation run: aborted: {stop}; wrote {config.out / 'summary.json'} with what "
               f"was measured until then ({stop.summary['steps']} ticks)", file=sys.stderr)
@@ -100,9 +148,43 @@ def run_command(ns: argparse.Namespace) -> int:
     finally:
         if live is not None:
             live.close()
+    interrupts.run_over()
     write_run(summary, series, config.scenario, config.out, plots=not ns.no_plots)
     print_summary(summary, config.out, plots=not ns.no_plots)
     return EXIT_OK
+
+
+def capacity_problem(scenario: Scenario, agents_per_process: int = 1,
+                     remote_robots: int = 0) -> str | None:
+    """Why this machine cannot hold the run's local agents (:mod:`simulator.capacity`), or None."""
+    return refusal(len(scenario.robot_ids), machine_has(), agents_per_process, remote_robots)
+
+
+def _check_capacity(config: RunConfig) -> None:
+    """A fleet that does not fit this machine: exit 2, one line, before anything starts."""
+    remote = 0 if config.remote is None else len(config.remote.robots)
+    why = capacity_problem(config.scenario, config.agents_per_process, remote)
+    if why is not None:
+        raise UsageError(f"{why} (--no-capacity-check starts it anyway)")
+
+
+MIN_FREE_MB = 8.0  # [MB] free space --out needs before a run starts (summary, bulk files, logs)
+
+
+def free_mb(path: Path) -> float:
+    """Free space [MB] where ``path`` is (or would be: its nearest existing folder)."""
+    where = path.resolve()
+    while not where.exists() and where != where.parent:
+        where = where.parent
+    return shutil.disk_usage(where).free / 2**20
+
+
+def _check_space(out: Path) -> None:
+    """Too little room for the run's files: exit 2, one line, before anything starts."""
+    free = free_mb(out)
+    if free < MIN_FREE_MB:
+        raise UsageError(f"--out {out}: {free:.1f} MB free, a run needs at least "
+                         f"{MIN_FREE_MB:g} MB for its files")
 
 
 def _placement(ns: argparse.Namespace, scenario: Scenario, per_process: int) -> RemoteAgents | None:

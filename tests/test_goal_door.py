@@ -1,0 +1,78 @@
+"""Goals a careless fleet manager sends, put straight on the goal key with the manager's
+credentials (past ``formation goal``'s own check), to a running ``formation run --hold`` fleet
+on real Zenoh: the leader refuses them at the door, no agent raises, and the formation still
+reaches a normal goal sent afterwards."""
+
+from __future__ import annotations
+
+import json
+import signal
+import time
+
+import pytest
+import zenoh
+
+from formation.commands import goal as navcmd
+from tests.test_hold import start_fleet, wait_endpoint
+from wire import keys
+from wire.payloads import GoalMsg, encode_nav
+from wire.zconf import ZenohSettings, read_auth_file
+
+pytestmark = pytest.mark.integration  # starts processes, Zenoh routers, sshd or a browser
+
+GOAL_A = (2.25, 0.25)
+
+
+def _put_raw_goals(endpoint: str, manager) -> None:
+    conf = ZenohSettings(mode="client", connect=(endpoint,),
+                         auth=read_auth_file(manager).auth).to_config()
+    route = tuple((0.3 + 0.005 * k, 0.3) for k in range(64))  # a GoalMsg holds 64: a plan not
+    with zenoh.open(conf) as session:
+        pub = session.declare_publisher(keys.goal_key("warehouse", "A"))
+        time.sleep(1.0)  # the route to the leader's subscriber is in place
+        for msg in (GoalMsg("A", 1e308, 1e308, None, (), time.time()),
+                    GoalMsg("A", 0.3, 0.3, None, route, time.time() + 0.001)):
+            pub.put(encode_nav(msg))
+            time.sleep(1.5)  # the goal command's own pace
+        pub.undeclare()
+
+
+def _wait_reached(endpoint: str, manager, timeout: float) -> None:
+    conf = ZenohSettings(mode="client", connect=(endpoint,),
+                         auth=read_auth_file(manager).auth).to_config()
+    with zenoh.open(conf) as session:
+        deadline = time.monotonic() + timeout
+        last = None
+        while time.monotonic() < deadline:
+            found = {s.formation: s for s in navcmd.query_status(session, "warehouse", timeout=1.0)}
+            last = found.get("A")
+            if last is not None and last.state == "reached" and (last.gx, last.gy) == GOAL_A:
+                return
+            time.sleep(0.5)
+    raise AssertionError(f"formation A did not reach {GOAL_A}: {last}")
+
+
+def test_absurd_goals_and_over_long_routes_are_refused_and_no_agent_raises(tmp_path):
+    out = tmp_path / "run"
+    proc = start_fleet(out, "--realtime", "--duration", "600")
+    try:
+        endpoint = wait_endpoint(proc, out)
+        manager = out / "secure" / "manager.json5"
+        _put_raw_goals(endpoint, manager)
+        argv = ["goal", "A", *map(str, GOAL_A), "--connect", endpoint, "--timeout", "30",
+                "--auth", str(manager)]
+        assert navcmd.main(argv) == 0
+        _wait_reached(endpoint, manager, timeout=300.0)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(60) == 0, (tmp_path / "fleet.log").read_text(errors="replace")
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["agents"]["tick_errors"] == 0
+    assert summary["collisions"] == 0
+    agents = [json.loads(p.read_text()) for p in sorted((out / "agents").glob("*.json"))]
+    assert agents and not any(a.get("killed") or a.get("counters_lost") for a in agents)
+    refused = sum(a["nav"].get("goals_refused", 0) for a in agents)
+    assert refused == 2, [a["nav"] for a in agents]
