@@ -50,6 +50,7 @@ from .model import (
     Scenario,
 )
 from .reader import ScenarioError, excerpt, load_yaml, read_text
+from .shipped import resolve
 from .spatial import Grid
 
 ELLIPSE_MARGIN = 0.02  # [m] extra clearance of a derived ellipse beyond bodies and tolerance
@@ -69,8 +70,9 @@ PLANNERS = ("visibility", "none")
 
 
 def load_scenario(path: str | Path) -> Scenario:
-    """Read, parse and validate the scenario at ``path``."""
-    p = Path(path)
+    """Read, parse and validate the scenario at ``path`` (or the shipped scenario a path that
+    does not exist names: :func:`scenario.shipped.resolve`)."""
+    p = resolve(path)
     text = read_text(p)
     try:
         return parse_scenario(text, source=str(p))
