@@ -11,6 +11,11 @@ from scenario.load import scenario_warnings
 from scenario.succession import formation_successor
 
 
+def plural(n: int, noun: str) -> str:
+    """``1 formation``, ``2 formations``."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
 def cmd_check(ns: argparse.Namespace) -> int:
     s = load_scenario(ns.scenario)
     n = len(s.robot_ids)
@@ -21,6 +26,8 @@ def cmd_check(ns: argparse.Namespace) -> int:
             print(f"{ns.scenario}: warning: formation {f.name!r} has no member adjacent to every "
                   f"other member: if its leader {f.leader!r} dies, nobody takes over and the "
                   f"other formations stop avoiding it after the ellipse hold", file=sys.stderr)
-    print(f"{ns.scenario}: ok ({s.name}: {len(s.formations)} formations, {n} robots, "
-          f"{len(s.obstacles)} obstacles, {len(s.shapes)} walls and shelves, {s.robot.model})")
+    print(f"{ns.scenario}: ok ({s.name}: {plural(len(s.formations), 'formation')}, "
+          f"{plural(n, 'robot')}, {plural(len(s.obstacles), 'obstacle')}, "
+          f"{len(s.shapes)} {'wall or shelf' if len(s.shapes) == 1 else 'walls and shelves'}, "
+          f"{s.robot.model})")
     return EXIT_OK
