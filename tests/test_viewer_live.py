@@ -141,7 +141,13 @@ def test_a_live_run_serves_the_page_and_foxglove_while_a_recorder_attaches(tmp_p
             assert problem is None, problem
             t1 = shown["t"]
             assert f"t={t1:.2f}" in browser.evaluate("document.title")
-            assert "UTC" in browser.evaluate("document.getElementById('time').textContent")
+            clock = browser.evaluate("document.getElementById('time').textContent")
+            assert "UTC" in clock, clock
+            # beside the clock: the run's time from the server's first frame, not the page's age
+            st = get_state(page)
+            assert st["frame"]["t0"] <= st["frame"]["t"] and "run time" in clock, clock
+            run_time = float(clock.split("run time ")[1].split(" s")[0])
+            assert run_time > 1.0, clock  # the page opened seconds after the run started
             browser.evaluate("window.viewerFreeze = false")
             time.sleep(1.5)
             t2 = browser.wait_for(f"window.viewer.t > {t1} && window.viewer.t")
@@ -305,15 +311,15 @@ def test_a_refused_old_protocol_client_goes_to_the_views_log_not_the_output(tmp_
 
     assert main(["sim", str(ROOT / "tests" / "scenarios" / "two-small.yaml"), "--out",
                  str(tmp_path / "sim"), "--quiet", "--no-plots"]) == 0
-    port, ws_port = free_tcp_port(), free_tcp_port()
+    port = free_tcp_port()
     proc = formation("replay", str(tmp_path / "sim" / "run.mcap"), "--port", str(port),
-                     "--ws-port", str(ws_port), "--duration", "60")
+                     "--ws-port", "0", "--duration", "60")
     try:
         wait_for_tcp_port(port, timeout_s=30)
-        wait_for_tcp_port(ws_port, timeout_s=30)
+        ws_port = wait_state(port, lambda s: s["ws_port"], proc=proc)["ws_port"]
         with pytest.raises(Exception, match="400"):  # the old subprotocol: refused
             connect(f"ws://127.0.0.1:{ws_port}", subprotocols=["foxglove.websocket.v1"],
-                    open_timeout=10).close()
+                    open_timeout=30).close()
         st = wait_state(port, lambda s: any(e["name"] == "foxglove" for e in s["logs"]), proc=proc)
         assert any("handshake" in e["message"] for e in st["logs"] if e["name"] == "foxglove")
     finally:

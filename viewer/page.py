@@ -248,10 +248,12 @@ function esc(s) { return String(s).replace(/[&<>]/g, ch => ({"&": "&amp;", "<": 
 
 function side(st) {
   const f = st.frame;
-  // simulated seconds, or wall time (a real fleet, a real-time run): then the clock and the time since the first frame
+  // simulated seconds, or wall time (a real fleet, a real-time run): then the clock and the run's
+  // time, from the server's first frame (f.t0: the run's start for run --live; kept over a reload)
   if (t0 === null || f.t < t0) t0 = f.t;
+  const start = finite(f.t0) ? f.t0 : t0;
   document.getElementById("time").textContent = f.t > 1e8
-    ? new Date(f.t * 1000).toISOString().substring(11, 22) + " UTC  (+" + (f.t - t0).toFixed(2) + " s)"
+    ? new Date(f.t * 1000).toISOString().substring(11, 22) + " UTC  (run time " + (f.t - start).toFixed(2) + " s)"
     : "t = " + f.t.toFixed(2) + " s";
   document.title = "formation " + st.mode + " t=" + f.t.toFixed(2);
   const ws = st.ws_port ? ("Foxglove WebSocket: ws://" + location.hostname + ":" + st.ws_port) : "";
