@@ -337,7 +337,7 @@ def install_command(rp: RobotPlan, abs_dir: str, wheel: str, wheel_hash: str,
             f"--disable-pip-version-check wheels/{q(wheel)}",
             f"{{ {env + ' ' if env else ''}venv/bin/python -c 'import agent.node, agent.base' "
             "|| { echo 'the agent cannot import its dependencies with this python (see above): "
-            "install numpy, pyyaml, eclipse-zenoh, qpsolvers on the robot' >&2; exit 3; }; }",
+            "install numpy and pyyaml (apt), eclipse-zenoh (into the venv) on the robot' >&2; exit 3; }; }",
         ]
     steps.append(f"printf 'wheel=%s\\nfiles=%s\\n' {wheel_hash} {rp.files_digest} > {STAMP_FILE}")
     return " && ".join(steps)

@@ -58,7 +58,7 @@ def _add_out(p: argparse.ArgumentParser) -> None:
 
 
 def _add_sim_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scenario", help="scenario YAML file")
+    p.add_argument("scenario", help="scenario YAML file, or a shipped scenario by name (formation scenarios)")
     _add_out(p)
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
     p.add_argument("--quiet", action="store_true", help="no progress display")
@@ -109,7 +109,10 @@ def build_parser() -> argparse.ArgumentParser:
                               formatter_class=_HelpFormatter)
 
     p = add("check", "validate a scenario file, nothing else")
-    p.add_argument("scenario", help="scenario YAML file")
+    p.add_argument("scenario", help="scenario YAML file, or a shipped scenario by name (formation scenarios)")
+
+    add("scenarios", "list the shipped scenarios: a command takes one by name "
+        "(formation sim thesis-5.2.2), from a checkout or a pip install")
 
     p = add("sim", "in-process simulation of a scenario")
     _add_sim_args(p)
@@ -272,6 +275,7 @@ def _lazy(module: str, func: str):
 
 COMMANDS = {
     "check": _lazy("formation.commands.check", "cmd_check"),
+    "scenarios": _lazy("formation.commands.scenarios", "scenarios_command"),
     "sim": _lazy("formation.commands.sim", "cmd_sim"),
     "run": _lazy("formation.commands.run", "run_command"),
     "commcost": _lazy("formation.commands.commcost", "commcost_command"),

@@ -14,10 +14,12 @@ class Progress:
     line says where and why it ended (``ended early at t=9.60 s of 40.00 s: every goal
     reached``). ``unit="runs"``: the bar counts finished runs (``12/40 runs``)."""
 
-    def __init__(self, label: str, quiet: bool = False, unit: str = "time") -> None:
+    def __init__(self, label: str, quiet: bool = False, unit: str = "time",
+                 early: str = "every goal reached") -> None:
         if unit not in ("time", "runs"):
             raise ValueError(f"unit: {unit!r} is not 'time' or 'runs'")
         self.label = label
+        self.early = early  # why a run stops before its duration (a held run: stopped from outside)
         self.quiet = quiet
         self.unit = unit
         self.tty = sys.stderr.isatty()
@@ -57,9 +59,9 @@ class Progress:
         if self.quiet:
             return
         if exc_type is None and 0 < self._done < self._total and self.unit == "time":
-            # the run stopped before its duration: every goal was reached (the only early stop)
-            self._draw(self._done / self._total,
-                       f"ended early at {self._where()}: every goal reached")
+            # the run stopped before its duration: every goal was reached (the only early stop
+            # of a run that is not held)
+            self._draw(self._done / self._total, f"ended early at {self._where()}: {self.early}")
         if self.tty:
             sys.stderr.write("\n")
             sys.stderr.flush()
@@ -81,17 +83,50 @@ def qp_words(qp: dict, hard_ticks: int | None = None) -> str:
     return words
 
 
-def print_summary(summary: dict, out: Path, plots: bool = True) -> None:
-    ok = summary["all_reached"] and summary["collisions"] == 0
+def reach_words(summary: dict) -> str:
+    """Whether every robot reached its goal, and when; a held run (``--hold``, stopped by
+    Ctrl-C, SIGTERM or ``--duration``) says where it was when it stopped."""
     ttg = summary["time_to_goal_s"]
+    if summary.get("hold"):
+        where = ("every robot at its last goal" if summary["all_reached"]
+                 else "not every robot at its last goal")
+        return f"held until t={summary['sim_time_s']:.2f} s, then stopped: {where}"
+    if summary["all_reached"]:
+        return "all robots reached their goals" + (f" at t={ttg:.2f} s" if ttg is not None else "")
+    return "NOT all goals reached"
+
+
+def realtime_words(summary: dict, epsilon: float | None = None) -> str:
+    """A real-time run's trouble, in words (empty when there was none): agent ticks on stale
+    inputs (``agents.stale``), robot-ticks without a fresh command (``world.missing_cmds``) and
+    the formation error above ``epsilon`` (the band of eq. 3.3)."""
+    if not summary.get("realtime"):
+        return ""
+    parts = []
+    stale = summary.get("agents", {}).get("stale", 0)
+    missing = summary.get("world", {}).get("missing_cmds", 0)
+    if stale:
+        parts.append(f"{stale:,} stale ticks (zero command)")
+    if missing:
+        parts.append(f"{missing:,} missing commands")
+    error = summary.get("formation_error_max_m")
+    if epsilon and error is not None and error > epsilon:
+        parts.append(f"formation error up to {error / epsilon:.2f} epsilon")
+    return "; real time: " + ", ".join(parts) if parts else ""
+
+
+def print_summary(summary: dict, out: Path, plots: bool = True, epsilon: float | None = None) -> None:
+    """The closing line of a run; ``epsilon`` [m], the scenario's formation tolerance, names a
+    formation error beyond it in a real-time run."""
+    ok = summary["all_reached"] and summary["collisions"] == 0
     qp = summary["qp"]
+    trouble = realtime_words(summary, epsilon)
     print(
-        f"{summary['scenario']} ({summary['mode']}): "
-        f"{'all robots reached their goals' if summary['all_reached'] else 'NOT all goals reached'}"
-        f"{f' at t={ttg:.2f} s' if ttg is not None else ''}; collisions {summary['collisions']}; "
+        f"{summary['scenario']} ({summary['mode']}): {reach_words(summary)}; "
+        f"collisions {summary['collisions']}; "
         f"max formation error {summary['formation_error_max_m']:.4f} m; "
         f"{qp_words(qp, summary.get('hard_row_unmet_ticks', qp.get('hard_row_unmet_ticks')))}"
         + (f"; tick_errors {n}" if (n := summary.get("agents", {}).get("tick_errors")) else "")
-        + ("" if ok else "  [UNSAFE OR INCOMPLETE]")
+        + trouble + ("" if ok else "  [UNSAFE OR INCOMPLETE]")
     )
     print(f"wrote {out / 'summary.json'}" + (f" and figures in {out}/" if plots else f" in {out}/"))

@@ -66,6 +66,7 @@ from .model import (
     Scenario,
 )
 from .reader import ScenarioError, excerpt, load_yaml, read_text
+from .shipped import resolve
 from .spatial import Grid
 from .world import parse_world
 
@@ -87,8 +88,9 @@ PLANNERS = ("visibility", "none")
 
 
 def load_scenario(path: str | Path) -> Scenario:
-    """Read, parse and validate the scenario at ``path``."""
-    p = Path(path)
+    """Read, parse and validate the scenario at ``path`` (or the shipped scenario a path that
+    does not exist names: :func:`scenario.shipped.resolve`)."""
+    p = resolve(path)
     text = read_text(p)
     try:
         return parse_scenario(text, source=str(p))
@@ -424,7 +426,7 @@ def _check_shapes(s: Scenario, where: list[int]) -> None:
                 if d < sh.ds + slack:
                     raise ScenarioError(
                         f"obstacles[{k}]: robot {r.id!r} {what} {d:.3f} m from {sh.kind} "
-                        f"{sh.name!r}, inside its safe distance {sh.ds + slack:.3f} m"
+                        f"{sh.name!r}, {_inside_safe(sh.ds, slack)}"
                     )
         for fk, f in enumerate(s.formations):
             for wk, w in enumerate(f.waypoints):
@@ -495,6 +497,16 @@ def _check_bands(s: Scenario) -> None:
                 )
 
 
+def _inside_safe(safe: float, lookahead: float) -> str:
+    """The distance a start broke: the obstacle's safe distance, and apart the look-ahead of a
+    unicycle's control point (the distance is the control point's, which must start clear by
+    the look-ahead too), never one sum passed off as the safe distance."""
+    if lookahead <= 0.0:
+        return f"inside its safe distance {safe:.3f} m"
+    return (f"inside its safe distance {safe:.3f} m plus the look-ahead {lookahead:.3f} m "
+            f"(distances from the robot's control point)")
+
+
 def _check_start(s: Scenario, axes: list[tuple[float, float]]) -> None:
     eps, offset = s.controller.epsilon, s.robot.control_offset
     ctrl = {r.id: _control_point(r.start, offset) for r in s.robots}
@@ -512,7 +524,7 @@ def _check_start(s: Scenario, axes: list[tuple[float, float]]) -> None:
             if d < o.safe_distance + offset:
                 raise ScenarioError(
                     f"obstacles[{k}]: robot {rid!r} starts {d:.3f} m from obstacle {o.name!r}, "
-                    f"inside its safe distance {o.safe_distance + offset:.3f} m"
+                    f"{_inside_safe(o.safe_distance, offset)}"
                 )
     robots = s.robots
     overlap = _first_overlap([r.start[:2] for r in robots], 2.0 * s.robot.radius)

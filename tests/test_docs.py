@@ -210,3 +210,26 @@ def test_the_calibration_example_in_camera_md_loads():
     example = re.search(r"^```yaml\n(.*?)^```", text, re.M | re.S).group(1)
     calibration = calibration_from_dict(yaml.safe_load(example))
     assert calibration.image_size == (1280, 960)
+
+
+@pytest.mark.integration
+def test_the_first_calibration_in_camera_md_runs_end_to_end(tmp_path: Path):
+    """camera.md's first calibration: render the floor markers, calibrate on the frame; the
+    calibration maps every floor marker's true pixel centre back within 3 mm of its survey."""
+    from camera_service.calibration import floor_to_pixel, load_calibration, pixel_to_floor
+    from camera_service.config import load_floor
+
+    work, env = _sandbox(tmp_path)
+    (work / "runs").mkdir()
+    steps = [c for c in COMMANDS if c.doc == "docs/camera.md" and
+             ("camera_service.floorframe" in c.argv or c.argv[1:2] == ("calibrate",))]
+    assert len(steps) == 2
+    for cmd in steps:
+        argv = [str(BIN / Path(cmd.argv[0]).name), *cmd.argv[1:]]
+        done = subprocess.run(argv, cwd=work, env=env, capture_output=True, text=True, timeout=120)
+        assert done.returncode == 0, f"{cmd}\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}"
+    runs = work / "runs"
+    truth, found = load_calibration(runs / "truth.yaml"), load_calibration(runs / "calib.yaml")
+    for x, y in load_floor(ROOT / "docs" / "examples" / "floor.yaml").markers.values():
+        back = pixel_to_floor(found, floor_to_pixel(truth, [[x, y]]))[0]
+        assert abs(back[0] - x) < 3e-3 and abs(back[1] - y) < 3e-3

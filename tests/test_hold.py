@@ -61,7 +61,7 @@ def wait_reached(endpoint: str, timeout: float, auth_file: Path) -> dict:
 
 
 @pytest.mark.parametrize("mode", [["--realtime"], []], ids=["realtime", "lockstep"])
-def test_goals_sent_to_a_running_fleet_are_reached_around_the_shelf(tmp_path, mode):
+def test_goals_sent_to_a_running_fleet_are_reached_around_the_shelf(tmp_path, mode, capsys):
     out = tmp_path / "run"
     proc = start_fleet(out, *mode, "--duration", "600")
     try:
@@ -72,9 +72,18 @@ def test_goals_sent_to_a_running_fleet_are_reached_around_the_shelf(tmp_path, mo
             viewer = ["goal", "A", "0.5", "0.5", "--connect", endpoint, "--timeout", "4",
                       "--auth", str(out / "secure" / "viewer.json5")]
             assert navcmd.main(viewer) != 0
+            capsys.readouterr()
+            # no credentials at all: one line naming --auth, not zenoh's own error
+            assert navcmd.main(["goal", "A", "0.5", "0.5", "--connect", endpoint]) == 1
+            err = capsys.readouterr().err
+            assert "--auth" in err and len(err.strip().splitlines()) == 1 and ".rs:" not in err, err
+            # --run finds the endpoint and the credentials; an unknown formation: exit 2 at once
+            assert navcmd.main(["goal", "NOPE", "1", "1", "--run", str(out)]) == 2
+            assert "known: A, B" in capsys.readouterr().err
         for fid, (x, y, heading) in GOALS.items():
-            argv = ["goal", fid, str(x), str(y), "--connect", endpoint, "--timeout", "30",
-                    "--auth", str(manager)]
+            where = (["--run", str(out)] if fid == "A" and mode else
+                     ["--connect", endpoint, "--auth", str(manager)])
+            argv = ["goal", fid, str(x), str(y), "--timeout", "30", *where]
             if heading is not None:
                 argv += ["--heading", repr(heading)]
             assert navcmd.main(argv) == 0
@@ -83,6 +92,11 @@ def test_goals_sent_to_a_running_fleet_are_reached_around_the_shelf(tmp_path, mo
         assert status["A"].waypoints > 1  # the leader planned around the shelf
         proc.send_signal(signal.SIGINT)
         assert proc.wait(60) == 0, (tmp_path / "fleet.log").read_text(errors="replace")
+        log = (tmp_path / "fleet.log").read_text(errors="replace")
+        # the printed hint carries the credentials it needs
+        assert f"--connect {endpoint} --auth {manager}" in log, log
+        # one ending: the held run stopped, never "NOT all goals reached at t=<first arrival>"
+        assert "held until t=" in log and "goals reached at t=" not in log, log
     finally:
         if proc.poll() is None:
             proc.kill()

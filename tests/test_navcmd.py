@@ -95,7 +95,26 @@ def test_a_goal_the_leader_refuses_exits_1_saying_what_the_leader_shows(router, 
         leader.close()
 
 
+def test_an_unknown_formation_is_refused_at_once_and_run_finds_the_endpoint(router, tmp_path, capsys):
+    leader = LeaderStandIn(router.endpoint, "D")
+    (tmp_path / "endpoint").write_text(router.endpoint + "\n")  # as `formation run --hold` writes
+    try:
+        # no --connect: the run folder's endpoint (no secure/ folder there: no credentials)
+        rc = navcmd.main(["goal", "NOPE", "1.0", "0.5", "--run", str(tmp_path), "--timeout", "600"])
+        err = capsys.readouterr().err
+        assert rc == 2 and "no formation 'NOPE' in the fleet (known: " in err and "D" in err
+        assert navcmd.main(["status", "--run", str(tmp_path)]) == 0
+        assert "D: " in capsys.readouterr().out
+    finally:
+        leader.close()
+
+
 @pytest.mark.parametrize("argv, message", [
+    (["goal", "A", "1e308", "2"], "outside the world"),
+    (["goal", "A", "1", "2", "--heading", "1e300"], "heading"),
+    (["goal", "A", "1", "2", "--via", *["1,1"] * 64], "at most 63"),
+    (["goal", "A", "1", "2", "--run", "/nonexistent-run"], "no endpoint file"),
+    (["status", "--run", "/nonexistent-run"], "no endpoint file"),
     (["goal", "A", "1", "2", "--via", "1;2"], "--via '1;2': expected X,Y"),
     (["goal", "A/B", "1", "2"], "formation"),
     (["goal", "A", "1", "2", "--timeout", "0"], "--timeout must be a positive number"),
@@ -103,3 +122,12 @@ def test_a_goal_the_leader_refuses_exits_1_saying_what_the_leader_shows(router, 
 def test_bad_arguments_exit_2_naming_them(argv, message, capsys):
     assert navcmd.main(argv) == 2
     assert message in capsys.readouterr().err
+
+
+def test_zenoh_errors_lose_the_place_in_zenohs_rust_sources():
+    from wire.zconf import zenoh_words
+
+    exc = RuntimeError("Unable to connect to any of [Single(tcp/127.0.0.1:5)]!  at "
+                       "/root/.cargo/git/checkouts/zenoh-1/cc8/zenoh/src/net/runtime/orchestrator.rs:447.")
+    assert zenoh_words(exc) == "Unable to connect to any of [Single(tcp/127.0.0.1:5)]!"
+    assert zenoh_words(RuntimeError("Timeout!")) == "Timeout!"

@@ -58,3 +58,49 @@ def test_formation_relaxations_are_reported_as_by_design_and_hard_rows_separatel
     assert "infeasible" not in out and "UNSAFE" not in out and "figures" not in out
     assert "solver failures: 2" in qp_words({"solves": 5, "relaxed": 0, "fallback": 1,
                                             "failed": 2})
+
+
+def _summary(**over) -> dict:
+    base = {"scenario": "s", "mode": "multiprocess", "all_reached": True, "collisions": 0,
+            "time_to_goal_s": 20.0, "sim_time_s": 20.5, "formation_error_max_m": 0.0745,
+            "qp": {"solves": 100, "relaxed": 0, "fallback": 0, "failed": 0},
+            "hard_row_unmet_ticks": 0, "realtime": True,
+            "agents": {"stale": 921}, "world": {"missing_cmds": 2061}}
+    base.update(over)
+    return base
+
+
+def test_a_real_time_run_names_stale_ticks_missing_commands_and_the_band(capsys, tmp_path):
+    print_summary(_summary(), tmp_path, plots=False, epsilon=0.05)
+    line = capsys.readouterr().out.splitlines()[0]
+    assert "all robots reached their goals at t=20.00 s" in line
+    assert ("real time: 921 stale ticks (zero command), 2,061 missing commands, formation error "
+            "up to 1.49 epsilon") in line
+
+
+def test_a_clean_real_time_run_and_a_lock_step_run_add_nothing(capsys, tmp_path):
+    print_summary(_summary(agents={"stale": 0}, world={"missing_cmds": 0},
+                           formation_error_max_m=0.04), tmp_path, plots=False, epsilon=0.05)
+    print_summary(_summary(realtime=False), tmp_path, plots=False, epsilon=0.05)
+    out = capsys.readouterr().out
+    assert "real time" not in out and "epsilon" not in out
+
+
+def test_an_interrupted_held_run_ends_one_way(capsys, tmp_path):
+    with Progress("run s", early="stopped (Ctrl-C or SIGTERM)") as p:
+        for k in range(1, 3347):
+            p.update(k, 12000, k * 0.05)
+    progress = _lines(capsys.readouterr().err)[-1]
+    assert "ended early at t= 167.30 s" in progress and "stopped (Ctrl-C or SIGTERM)" in progress
+    assert "every goal reached" not in progress
+    print_summary(_summary(hold=True, all_reached=False, time_to_goal_s=18.05, sim_time_s=167.3,
+                           realtime=False), tmp_path, plots=False)
+    line = capsys.readouterr().out.splitlines()[0]
+    assert "held until t=167.30 s, then stopped: not every robot at its last goal" in line
+    assert "18.05" not in line and "every goal reached" not in line
+
+
+def test_not_all_reached_names_no_time(capsys, tmp_path):
+    print_summary(_summary(all_reached=False, realtime=False), tmp_path, plots=False)
+    line = capsys.readouterr().out.splitlines()[0]
+    assert "NOT all goals reached;" in line and "at t=" not in line and "[UNSAFE OR INCOMPLETE]" in line

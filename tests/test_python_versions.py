@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import tomllib
 
 REPO = Path(__file__).resolve().parent.parent
 ROBOT_PACKAGES = ("agent", "leader", "scenario", "wire")  # what `python -m agent` imports
@@ -24,6 +25,40 @@ def test_the_agent_imports_nothing_of_ours_beyond_the_robot_packages():
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True,
                          check=True).stdout.split()
     assert set(out) <= set(ROBOT_PACKAGES), out
+
+
+WORKSTATION_ONLY = ("qpsolvers", "osqp", "cv2", "matplotlib", "foxglove", "scipy", "mcap")
+
+
+@pytest.mark.integration
+def test_the_agent_starts_with_the_workstations_packages_blocked():
+    """The robot installs only eclipse-zenoh, numpy and PyYAML (docs/deploy.md): importing the
+    agent must not load qpsolvers, osqp, OpenCV, matplotlib or foxglove (an import hook refuses
+    them), and what it loads from outside the standard library is exactly those three."""
+    code = f"""
+import importlib.abc, sys
+class Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name.split('.')[0] in {WORKSTATION_ONLY!r}:
+            raise ImportError('blocked on a robot: ' + name)
+sys.meta_path.insert(0, Block())
+import agent.__main__, agent.node, agent.base
+ours = {OURS!r} + ('geometry', 'runtime')
+print(' '.join(sorted({{m.split('.')[0] for m in sys.modules if not m.startswith('_')}}
+                      - set(sys.stdlib_module_names) - set(ours))))
+"""
+    res = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    assert set(res.stdout.split()) - {"cython_runtime"} == {"numpy", "yaml", "zenoh"}, res.stdout
+
+
+def test_pyproject_readme_and_deploy_doc_name_one_python_range_and_the_robots_versions():
+    meta = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
+    assert meta["requires-python"] == ">=3.10"
+    assert "numpy>=1.21" in meta["dependencies"] and "pyyaml>=5.4" in meta["dependencies"]
+    assert "Python >= 3.10" in (REPO / "README.md").read_text()
+    deploy = (REPO / "docs" / "deploy.md").read_text()
+    assert "--system-site-packages" in deploy and "pip install --user" not in deploy
 
 
 @pytest.mark.integration

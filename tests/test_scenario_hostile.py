@@ -19,6 +19,7 @@ from hypothesis import strategies as st
 import scenario.load as load_module
 from deploy.inventory import InventoryError, parse_inventory
 from formation.cli import main
+from formation.commands.check import plural
 from scenario import ScenarioError, limits, load_scenario, parse_scenario, reader
 from scenario.bench import fleet_mapping as fleet
 from scenario.reader import MAX_FILE_BYTES, excerpt
@@ -378,3 +379,19 @@ def test_a_valid_out_is_accepted_and_not_created_by_the_check(tmp_path):
     assert not (tmp_path / "new").exists()
     assert out_problem(tmp_path) is None
     assert list(tmp_path.iterdir()) == []  # the write probe left nothing
+
+
+def test_a_start_too_near_an_obstacle_names_the_safe_distance_and_the_look_ahead_apart(tmp_path):
+    text = (ROOT / "scenarios" / "thesis-6.5.yaml").read_text()
+    text += "obstacles:\n  - {name: crate, center: [0.3, 0.25], safe_distance: 0.3}\n"
+    with pytest.raises(ScenarioError) as err:
+        parse_scenario(text)
+    msg = str(err.value)
+    # a1's control point is 0.05 m ahead of (0, 0.25): 0.25 m from the crate
+    assert ("robot 'a1' starts 0.250 m from obstacle 'crate', inside its safe distance 0.300 m "
+            "plus the look-ahead 0.050 m") in msg, msg
+
+
+def test_check_counts_in_the_right_number(tmp_path, capsys):
+    assert [plural(1, "formation"), plural(2, "obstacle"), plural(0, "robot")] == [
+        "1 formation", "2 obstacles", "0 robots"]

@@ -25,6 +25,7 @@ ALLOWED = {
     "experiments": {"geometry", "agent", "leader", "scenario", "wire", "runtime", "camera_service",
                     "simulator", "viewer"},
     "deploy": {"geometry", "agent", "leader", "scenario", "wire", "runtime"},
+    "scenarios": set(),  # data: the shipped scenario files
 }
 PROJECT = set(ALLOWED) | {"formation"}
 

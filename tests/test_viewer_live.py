@@ -141,7 +141,13 @@ def test_a_live_run_serves_the_page_and_foxglove_while_a_recorder_attaches(tmp_p
             assert problem is None, problem
             t1 = shown["t"]
             assert f"t={t1:.2f}" in browser.evaluate("document.title")
-            assert "UTC" in browser.evaluate("document.getElementById('time').textContent")
+            clock = browser.evaluate("document.getElementById('time').textContent")
+            assert "UTC" in clock, clock
+            # beside the clock: the run's time from the server's first frame, not the page's age
+            st = get_state(page)
+            assert st["frame"]["t0"] <= st["frame"]["t"] and "run time" in clock, clock
+            run_time = float(clock.split("run time ")[1].split(" s")[0])
+            assert run_time > 1.0, clock  # the page opened seconds after the run started
             browser.evaluate("window.viewerFreeze = false")
             time.sleep(1.5)
             t2 = browser.wait_for(f"window.viewer.t > {t1} && window.viewer.t")
@@ -256,3 +262,70 @@ def test_bad_viewer_input_exits_2_before_anything_starts(tmp_path):
     assert main(["run", str(ROOT / "tests" / "scenarios" / "two-small.yaml"), "--out",
                  str(tmp_path / "run"), "--live", "70000"]) == 2
     assert not (tmp_path / "run").exists()
+
+
+def test_the_floor_has_metric_axes_and_a_scale_bar(tmp_path):
+    """The page's floor is measured: labels every 1, 2 or 5 x 10^k metres and a scale bar of a
+    round length drawn at the page's scale (dark where the page says it is). The screenshot is
+    docs/viewer-axes.png (written when FORMATION_WRITE_DOCS=1)."""
+    require(chromium_path() is not None, "chromium", "chromium")
+    from formation.cli import main
+
+    scenario = ROOT / "tests" / "scenarios" / "nav-behind-shelf.yaml"
+    assert main(["sim", str(scenario), "--out", str(tmp_path / "sim"), "--quiet", "--no-plots"]) == 0
+    port = free_tcp_port()
+    proc = formation("replay", str(tmp_path / "sim" / "run.mcap"), "--port", str(port),
+                     "--ws-port", "0", "--duration", "60")
+    try:
+        wait_for_tcp_port(port, timeout_s=30)
+        wait_state(port, lambda s: s["frame"] is not None and s["frame"]["t"] > 3.0, proc=proc)
+        browser = Browser(f"http://127.0.0.1:{port}/")
+        try:
+            axes = browser.wait_for("window.viewer && window.viewer.seq > 2 && window.floorAxes")
+            mantissa = axes["bar_m"] / 10 ** np.floor(np.log10(axes["bar_m"]))
+            assert round(mantissa, 6) in (1.0, 2.0, 5.0), axes
+            assert axes["bar_px"] == pytest.approx(axes["bar_m"] * axes["scale"])
+            browser.evaluate("window.viewerFreeze = true")
+            browser.painted()
+            png, rgb = browser.screenshot()
+            (tmp_path / "page.png").write_bytes(png)
+            axes = browser.evaluate("window.floorAxes")
+            mid = ((axes["bar_left"] + axes["bar_right"]) / 2, axes["bar_y"])
+            dark = [rgb[round(mid[1]) + dy, round(mid[0]) + dx].max() for dx in (-2, 0, 2)
+                    for dy in (-1, 0, 1)]
+            assert min(dark) < 90, (mid, dark)
+            if os.environ.get("FORMATION_WRITE_DOCS") == "1":
+                (ROOT / "docs" / "viewer-axes.png").write_bytes(png)
+        finally:
+            browser.close()
+    finally:
+        os.killpg(proc.pid, signal.SIGINT)
+        proc.wait(timeout=30)
+        proc.stdout.close()
+
+
+def test_a_refused_old_protocol_client_goes_to_the_views_log_not_the_output(tmp_path):
+    from websockets.sync.client import connect
+
+    from formation.cli import main
+
+    assert main(["sim", str(ROOT / "tests" / "scenarios" / "two-small.yaml"), "--out",
+                 str(tmp_path / "sim"), "--quiet", "--no-plots"]) == 0
+    port = free_tcp_port()
+    proc = formation("replay", str(tmp_path / "sim" / "run.mcap"), "--port", str(port),
+                     "--ws-port", "0", "--duration", "60")
+    try:
+        wait_for_tcp_port(port, timeout_s=30)
+        ws_port = wait_state(port, lambda s: s["ws_port"], proc=proc)["ws_port"]
+        with pytest.raises(Exception, match="400"):  # the old subprotocol: refused
+            connect(f"ws://127.0.0.1:{ws_port}", subprotocols=["foxglove.websocket.v1"],
+                    open_timeout=30).close()
+        st = wait_state(port, lambda s: any(e["name"] == "foxglove" for e in s["logs"]), proc=proc)
+        assert any("handshake" in e["message"] for e in st["logs"] if e["name"] == "foxglove")
+    finally:
+        os.killpg(proc.pid, signal.SIGINT)
+        proc.wait(timeout=30)
+        out = proc.stdout.read()
+        proc.stdout.close()
+    assert out.splitlines()[0].startswith("page: ") and "foxglove" not in out.lower().replace(
+        "foxglove websocket", ""), out

@@ -74,6 +74,7 @@ class FleetWatcher:
         self.received = 0
         self.rejected: dict[str, int] = {}
         self._decoded: dict[str, tuple[bytes, Any]] = {}  # key -> (payload, decoded) cache
+        self.t0: float | None = None  # the earliest time heard: the run's start for run --live
         p = self.prefix
         exprs = [keys.all_robots_key(p, keys.POSE), keys.all_robots_key(p, keys.STATE),
                  keys.all_robots_key(p, keys.CMD), all_diag_key(p),
@@ -120,6 +121,8 @@ class FleetWatcher:
                 self._take(heard, key, key[len(head):].split("/"), data)
         if heard.t is None:
             return None
+        if self.t0 is None or heard.t < self.t0:
+            self.t0 = heard.t
         out_robots = [_robot_entry(rid, pose, heard.robots[rid]) for rid in sorted(heard.robots)
                       if (pose := heard.robots[rid].get("pose")) is not None]
         told = heard.told
@@ -130,7 +133,8 @@ class FleetWatcher:
         # a status or plan about another formation than its key names is not that formation's
         reports: dict[str, StatusMsg] = {f: m for f, m in told[keys.STATUS].items() if m.formation == f}
         plans: dict[str, PlanMsg] = {f: m for f, m in told[keys.PLAN].items() if m.formation == f}
-        return {"t": heard.t, "radius": self.radius, "robots": out_robots, "ellipses": ellipses,
+        return {"t": heard.t, "t0": self.t0, "radius": self.radius, "robots": out_robots,
+                "ellipses": ellipses,
                 "obstacles": heard.obstacles,
                 "shapes": heard.shapes,
                 "routes": [{"formation": f, "points": [[num(x), num(y)] for x, y in plans[f].route]}

@@ -99,6 +99,35 @@ function fit(frame) {
 function px(x, y) { return [floor.width / 2 + (x - view.cx) * view.s,
                             floor.height / 2 - (y - view.cy) * view.s]; }
 
+function niceStep(m) {  // the smallest of 1, 2, 5 x 10^k metres at least m
+  const p = Math.pow(10, Math.floor(Math.log10(m)));
+  for (const k of [1, 2, 5, 10]) if (k * p >= m) return k * p;
+  return 10 * p;
+}
+function drawAxes(c, gx0, gx1, gy0, gy1) {
+  // metric axes: x labels along the bottom edge, y labels along the left, every `step` metres
+  const step = niceStep(40 / view.s), H = floor.height;
+  c.fillStyle = "#666"; c.font = "10px sans-serif";
+  for (let g = Math.ceil(gx0 / step) * step; g <= gx1; g += step) {
+    const [a] = px(g, 0); c.fillText(+g.toFixed(3) + "", a + 2, H - 4);
+  }
+  for (let g = Math.ceil(gy0 / step) * step; g <= gy1; g += step) {
+    const [, b] = px(0, g); c.fillText(+g.toFixed(3) + "", 2, b - 2);
+  }
+  c.fillText("x [m]", floor.width / 2, H - 16); c.fillText("y [m]", 2, 12);
+  // scale bar, bottom right: a round length of about 100 px
+  const len = niceStep(100 / view.s), w = len * view.s, x1 = floor.width - 12, y = H - 22;
+  c.strokeStyle = "#222"; c.lineWidth = 3;
+  c.beginPath(); c.moveTo(x1 - w, y); c.lineTo(x1, y); c.stroke();
+  c.lineWidth = 1; c.beginPath(); c.moveTo(x1 - w, y - 5); c.lineTo(x1 - w, y + 5); c.moveTo(x1, y - 5); c.lineTo(x1, y + 5); c.stroke();
+  c.fillStyle = "#222"; c.font = "11px sans-serif";
+  const label = len + " m"; c.fillText(label, x1 - w / 2 - c.measureText(label).width / 2, y - 6);
+  c.strokeStyle = "#eee";
+  const rect = floor.getBoundingClientRect(), sx = rect.width / floor.width, sy = rect.height / floor.height;
+  window.floorAxes = { step: step, bar_m: len, bar_px: w, scale: view.s,  // for tests: where the bar is on screen
+                       bar_left: rect.left + (x1 - w) * sx, bar_right: rect.left + x1 * sx, bar_y: rect.top + y * sy };
+}
+
 function drawFloor(frame) {
   view = fit(frame);
   const c = fctx;
@@ -168,6 +197,7 @@ function drawFloor(frame) {
     shown.push({ id: r.id, x: r.x, y: r.y, color: col,
                  cx: rect.left + a * sx, cy: rect.top + b * sy, r: rr * sx });
   }
+  drawAxes(c, gx0, gx1, gy0, gy1);  // last: on top of shelves and robots
   return shown;
 }
 
@@ -218,10 +248,12 @@ function esc(s) { return String(s).replace(/[&<>]/g, ch => ({"&": "&amp;", "<": 
 
 function side(st) {
   const f = st.frame;
-  // simulated seconds, or wall time (a real fleet, a real-time run): then the clock and the time since the first frame
+  // simulated seconds, or wall time (a real fleet, a real-time run): then the clock and the run's
+  // time, from the server's first frame (f.t0: the run's start for run --live; kept over a reload)
   if (t0 === null || f.t < t0) t0 = f.t;
+  const start = finite(f.t0) ? f.t0 : t0;
   document.getElementById("time").textContent = f.t > 1e8
-    ? new Date(f.t * 1000).toISOString().substring(11, 22) + " UTC  (+" + (f.t - t0).toFixed(2) + " s)"
+    ? new Date(f.t * 1000).toISOString().substring(11, 22) + " UTC  (run time " + (f.t - start).toFixed(2) + " s)"
     : "t = " + f.t.toFixed(2) + " s";
   document.title = "formation " + st.mode + " t=" + f.t.toFixed(2);
   const ws = st.ws_port ? ("Foxglove WebSocket: ws://" + location.hostname + ":" + st.ws_port) : "";

@@ -386,15 +386,24 @@ def explain_open_failure(exc: BaseException, connect: Sequence[str],
     """Why opening a client session failed, in words: zenoh reports refused credentials and an
     absent router alike (``Timeout!``), so look whether something listens on the endpoints."""
     reachable = [e for e in connect if _tcp_reachable(e)]
+    said = zenoh_words(exc)
     if connect and not reachable:
-        return f"no router answers on {', '.join(connect)} ({exc})"
+        return f"no router answers on {', '.join(connect)} ({said})"
     if auth is not None and reachable:
         return (f"the router at {reachable[0]} refused the credentials of user {auth.user!r} "
                 f"(wrong user or password, or not this router's credentials)")
     if reachable:
         return (f"{reachable[0]} accepts connections but no Zenoh session opened: a router that "
-                f"wants credentials (--auth FILE)? ({exc})")
-    return str(exc)
+                f"wants credentials (--auth FILE)? ({said})")
+    return said
+
+
+def zenoh_words(exc: BaseException) -> str:
+    """Zenoh's error message on one line, without the place in zenoh's Rust sources it names
+    (``Unable to connect to any of [...]!  at /root/.cargo/.../orchestrator.rs:447.``)."""
+    text = " ".join(str(exc).split())
+    cut = text.find(" at /")
+    return (text[:cut] if cut > 0 else text).rstrip(" .") or type(exc).__name__
 
 
 def _tcp_reachable(endpoint: str, timeout_s: float = 1.0) -> bool:

@@ -17,6 +17,11 @@ from scenario.load import scenario_warnings
 from scenario.succession import formation_successor
 
 
+def plural(n: int, noun: str) -> str:
+    """``1 formation``, ``2 formations``."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
 def cmd_check(ns: argparse.Namespace) -> int:
     s = load_scenario(ns.scenario)
     n = len(s.robot_ids)
@@ -30,6 +35,8 @@ def cmd_check(ns: argparse.Namespace) -> int:
     fit = capacity_problem(s)
     if fit is not None:  # a local run with one agent per process ('formation run' refuses it)
         print(f"{ns.scenario}: warning: {fit}", file=sys.stderr)
-    print(f"{ns.scenario}: ok ({s.name}: {len(s.formations)} formations, {n} robots, "
-          f"{len(s.obstacles)} obstacles, {len(s.shapes)} walls and shelves, {s.robot.model})")
+    print(f"{ns.scenario}: ok ({s.name}: {plural(len(s.formations), 'formation')}, "
+          f"{plural(n, 'robot')}, {plural(len(s.obstacles), 'obstacle')}, "
+          f"{len(s.shapes)} {'wall or shelf' if len(s.shapes) == 1 else 'walls and shelves'}, "
+          f"{s.robot.model})")
     return EXIT_OK

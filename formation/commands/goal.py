@@ -11,8 +11,14 @@ saying what the leader reports instead (a goal inside an obstacle is refused by 
 ``formation status`` asks every leader for its status and prints one line per formation.
 
 Both connect as Zenoh clients to ``--connect`` (the endpoint ``formation run`` prints and writes
-to ``DIR/endpoint``) with multicast scouting off; ``--auth FILE`` starts from a Zenoh
-configuration fragment holding the fleet manager's credentials.
+to ``DIR/endpoint``) with multicast scouting off; ``--auth FILE`` names the fleet manager's
+credentials (``DIR/secure/manager.json5``). ``--run DIR`` finds both in a run's folder. A router
+that wants credentials, or refuses them, is said so in one line (:func:`wire.zconf.open_session`).
+
+``goal`` refuses at once (exit 2, one line) a goal that is not finite, lies outside the
+coordinate range of every scenario (:data:`scenario.limits.COORDINATE`), or a route longer than a
+plan holds (:func:`scenario.extent.goal_problem`; the leader checks the goal against its own
+scenario's extent again), and a formation that no leader answers for while others do.
 """
 
 from __future__ import annotations
@@ -23,16 +29,23 @@ import queue
 import sys
 import time
 from collections.abc import Sequence
+from pathlib import Path
 
 import zenoh
 
+from scenario.extent import Extent, goal_problem
+from scenario.limits import COORDINATE
 from wire import keys
 from wire.payloads import DecodeError, GoalMsg, StatusMsg, decode_status, encode_nav
-from wire.zconf import ZenohSettings
+from wire.zconf import ZenohSettings, read_auth_file
+from wire.zconf import open_session as open_zenoh
 
 EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
 RESEND_S = 1.0  # [s] the goal is put again this often until the status shows it
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
+MANAGER_AUTH = Path("secure") / "manager.json5"  # in a run's folder: the fleet manager's credentials
+# every scenario's coordinates lie in this square (scenario.limits); a leader narrows it to its own
+ANY_WORLD = Extent(COORDINATE.lo, COORDINATE.lo, COORDINATE.hi, COORDINATE.hi)
 
 
 def add_parsers(sub) -> None:
@@ -57,11 +70,16 @@ def add_parsers(sub) -> None:
 
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--connect", action="append", default=[], metavar="EP",
-                   help=f"Zenoh endpoint of the fleet's router (default {DEFAULT_CONNECT})")
+                   help=f"Zenoh endpoint of the fleet's router (default: the --run folder's, "
+                        f"else {DEFAULT_CONNECT})")
+    p.add_argument("--run", default=None, metavar="DIR",
+                   help="the folder of a running `formation run --hold`: its endpoint "
+                        "(DIR/endpoint) and credentials (DIR/secure/manager.json5)")
     p.add_argument("--prefix", default=keys.DEFAULT_PREFIX,
                    help=f"key-space prefix (default {keys.DEFAULT_PREFIX})")
     p.add_argument("--auth", default=None, metavar="FILE",
-                   help="Zenoh configuration fragment with the fleet manager's credentials")
+                   help="the fleet manager's credentials: DIR/secure/manager.json5 of formation run "
+                        "(default: the --run folder's)")
 
 
 def parse_point(text: str) -> tuple[float, float]:
@@ -78,10 +96,46 @@ def parse_point(text: str) -> tuple[float, float]:
     return (x, y)
 
 
+def run_endpoint(ns: argparse.Namespace) -> tuple[tuple[str, ...], str | None]:
+    """The endpoints and credentials file to use: ``--connect``/``--auth`` when given, else those
+    of the ``--run`` folder, else :data:`DEFAULT_CONNECT` and none; ValueError naming the folder."""
+    connect, auth = tuple(ns.connect), ns.auth
+    run = getattr(ns, "run", None)
+    if run is not None:
+        folder = Path(run)
+        try:
+            found = (folder / "endpoint").read_text(encoding="utf-8").split()
+        except OSError:
+            raise ValueError(f"--run {run}: no endpoint file in it (is it a `formation run "
+                             f"--hold` folder, and is the fleet up?)") from None
+        connect = connect or tuple(found)
+        if auth is None and (folder / MANAGER_AUTH).is_file():
+            auth = str(folder / MANAGER_AUTH)
+    return connect or (DEFAULT_CONNECT,), auth
+
+
 def open_session(ns: argparse.Namespace) -> zenoh.Session:
-    settings = ZenohSettings(mode="client", connect=tuple(ns.connect or [DEFAULT_CONNECT]),
-                             multicast_scouting=False, config_file=ns.auth)
-    return zenoh.open(settings.to_config())
+    """A client session to the fleet's router; ValueError for bad arguments, ConnectionError
+    saying why none opened (no router there, credentials wanted or refused)."""
+    connect, auth_file = run_endpoint(ns)
+    auth = read_auth_file(auth_file).auth if auth_file else None
+    settings = ZenohSettings(mode="client", connect=connect, multicast_scouting=False, auth=auth)
+    return open_zenoh(settings, "")
+
+
+def check_goal(goal: GoalMsg) -> None:
+    """ValueError (one line) for a goal no scenario could hold (:func:`scenario.extent.goal_problem`)."""
+    problem = goal_problem(goal.x, goal.y, goal.heading, goal.waypoints, ANY_WORLD)
+    if problem is not None:
+        raise ValueError(problem)
+
+
+def unknown_formation(session: zenoh.Session, prefix: str, fid: str, timeout: float) -> str | None:
+    """Why ``fid`` is not a formation of the fleet (other leaders answer, not its), or None."""
+    known = [s.formation for s in query_status(session, prefix, timeout=timeout)]
+    if not known or fid in known:
+        return None  # none answered yet (a fleet starting): wait for it as before
+    return f"no formation {fid!r} in the fleet (known: {', '.join(known)})"
 
 
 def shows(status: StatusMsg, goal: GoalMsg) -> bool:
@@ -122,17 +176,21 @@ def goal_command(ns: argparse.Namespace) -> int:
     try:
         via = tuple(parse_point(v) for v in ns.via)
         goal = GoalMsg(keys.validate_id(ns.fid, "formation"), ns.x, ns.y, ns.heading, via, time.time())
+        check_goal(goal)
         if not (math.isfinite(ns.timeout) and ns.timeout > 0):
             raise ValueError("--timeout must be a positive number")
+        session = open_session(ns)
     except ValueError as exc:
         print(f"formation goal: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    try:
-        session = open_session(ns)
-    except Exception as exc:  # zenoh.ZError: no router there, bad auth file
+    except ConnectionError as exc:
         print(f"formation goal: cannot open a Zenoh session: {exc}", file=sys.stderr)
         return EXIT_FAIL
     try:
+        unknown = unknown_formation(session, ns.prefix, goal.formation, min(ns.timeout, 2.0))
+        if unknown is not None:
+            print(f"formation goal: {unknown}", file=sys.stderr)
+            return EXIT_USAGE
         return _send_and_wait(session, ns, goal)
     finally:
         session.close()
@@ -180,7 +238,10 @@ def _send_and_wait(session: zenoh.Session, ns: argparse.Namespace, goal: GoalMsg
 def status_command(ns: argparse.Namespace) -> int:
     try:
         session = open_session(ns)
-    except Exception as exc:
+    except ValueError as exc:
+        print(f"formation status: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except ConnectionError as exc:
         print(f"formation status: cannot open a Zenoh session: {exc}", file=sys.stderr)
         return EXIT_FAIL
     try:

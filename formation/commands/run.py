@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import math
 import os
 import shutil
@@ -137,8 +138,10 @@ def _run(ns: argparse.Namespace, config: RunConfig, interrupts: LaterInterruptsW
         # the input is valid (a bad --live port included): replace the output
         config = dataclasses.replace(config, out=begin_output(ns))
         summary, series = launch(config, progress_factory=lambda: Progress(
-            f"run {config.scenario.name}", quiet=ns.quiet), observer=observer,
-            announce=_announce if config.hold else None)
+            f"run {config.scenario.name}", quiet=ns.quiet,
+            early="stopped (Ctrl-C or SIGTERM)" if config.hold else "every goal reached"),
+            observer=observer,
+            announce=functools.partial(_announce, config) if config.hold else None)
     except RunAborted as stop:  # the run started: its summary says why and what it measured
         interrupts.run_over()
         write_run(stop.summary, stop.series, config.scenario, config.out, plots=not ns.no_plots)
@@ -150,7 +153,8 @@ def _run(ns: argparse.Namespace, config: RunConfig, interrupts: LaterInterruptsW
             live.close()
     interrupts.run_over()
     write_run(summary, series, config.scenario, config.out, plots=not ns.no_plots)
-    print_summary(summary, config.out, plots=not ns.no_plots)
+    print_summary(summary, config.out, plots=not ns.no_plots,
+                  epsilon=config.scenario.controller.epsilon)
     return EXIT_OK
 
 
@@ -234,6 +238,9 @@ def _with_duration(ns: argparse.Namespace, scenario: Scenario) -> Scenario:
     return dataclasses.replace(scenario, duration=duration)
 
 
-def _announce(endpoint: str) -> None:
-    """``--hold``: where the fleet manager sends goals (also in ``DIR/endpoint``)."""
-    print(f"fleet up, goals to: formation goal FID X Y --connect {endpoint}", flush=True)
+def _announce(config: RunConfig, endpoint: str) -> None:
+    """``--hold``: where the fleet manager sends goals (also in ``DIR/endpoint``), with the
+    credentials it logs in with; ``--run DIR`` finds both."""
+    auth = f" --auth {config.out / 'secure' / 'manager.json5'}" if config.secure else ""
+    print(f"fleet up, goals to: formation goal FID X Y --connect {endpoint}{auth} "
+          f"(or: --run {config.out})", flush=True)

@@ -61,11 +61,41 @@ def _open_view(ns: argparse.Namespace, port: int, mode: str, title: str, mcap: P
     asked = getattr(ns, "ws_port", None)
     port, ws_port = _ports(port, asked)
     try:
-        return View(host=ns.bind, port=port, ws_port=ws_port, mode=mode, title=title, mcap=mcap,
+        view = View(host=ns.bind, port=port, ws_port=ws_port, mode=mode, title=title, mcap=mcap,
                     ws_fallback=asked is None)
     except (OSError, RuntimeError) as exc:
         raise RuntimeError(f"cannot serve on {ns.bind} port {port} (WebSocket {ws_port}): "
                            f"{exc}") from None
+    _quiet_foxglove(view)
+    return view
+
+
+class _FoxgloveToLog(logging.Handler):
+    """The Foxglove server's own messages (a client refused for an old subprotocol, say) go to
+    the view's log (the page's log panel and the recording), not onto the run's progress output."""
+
+    def __init__(self, hub: Any) -> None:
+        super().__init__(logging.INFO)
+        self.hub = hub
+
+    def emit(self, record: logging.LogRecord) -> None:
+        frame = self.hub.frame  # a refused client is no error of the run: a warning
+        self.hub.log(frame["t"] if frame else 0.0, "warning", "foxglove", record.getMessage())
+
+
+def _quiet_foxglove(view: Any) -> None:
+    fox = logging.getLogger("foxglove")
+    fox.propagate = False  # nothing on stderr, where the progress bar is
+    for old in [h for h in fox.handlers if isinstance(h, _FoxgloveToLog)]:
+        fox.removeHandler(old)
+    fox.addHandler(_FoxgloveToLog(view.hub))
+    view.on_close(lambda: _unquiet_foxglove(fox))
+
+
+def _unquiet_foxglove(fox: logging.Logger) -> None:
+    for old in [h for h in fox.handlers if isinstance(h, _FoxgloveToLog)]:
+        fox.removeHandler(old)
+    fox.propagate = True
 
 
 def _announce(view: Any) -> None:

@@ -1,0 +1,26 @@
+"""The scenarios the project ships (``scenarios/*.yaml``, package data of the wheel): found by
+bare name, so ``formation sim thesis-5.2.2`` works from a checkout and from a ``pip install``.
+
+The folder sits beside this package in both (the repository root, or ``site-packages``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+SHIPPED_DIR = Path(__file__).resolve().parent.parent / "scenarios"
+
+
+def shipped_names() -> list[str]:
+    """The names of the shipped scenarios (file names without ``.yaml``), sorted."""
+    return sorted(p.stem for p in SHIPPED_DIR.glob("*.yaml"))
+
+
+def resolve(path: str | Path) -> Path:
+    """``path`` itself when it exists or names a folder; else the shipped scenario it names
+    (``thesis-5.2.2``, ``thesis-5.2.2.yaml`` or ``scenarios/thesis-5.2.2.yaml``), if any."""
+    p = Path(path)
+    if p.exists():
+        return p
+    candidate = SHIPPED_DIR / (p.name if p.suffix == ".yaml" else f"{p.name}.yaml")
+    bare = len(p.parts) == 1 or (len(p.parts) == 2 and p.parts[0] == "scenarios")
+    return candidate if bare and candidate.is_file() else p
