@@ -116,7 +116,7 @@ class FleetModel:
         return out
 
 
-def simulate(
+def simulate(  # noqa: C901 (13: the in-process loop; to split with the world's tick next)
     scenario: Scenario,
     options: SimOptions = SimOptions(),
     progress: Callable[[int, int, float], None] | None = None,
