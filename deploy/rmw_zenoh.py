@@ -33,7 +33,7 @@ from wire import rmw_zenoh as rmw
 from wire.zconf import UsrPwdAuth
 
 from .inventory import Inventory, InventoryError, RobotHost
-from .zenoh_config import _add_security, to_json5
+from .zenoh_config import add_security, fleet_endpoints, to_json5
 
 logger = logging.getLogger(__name__)
 
@@ -62,12 +62,7 @@ def rmw_robots(inv: Inventory) -> dict[str, rmw.RmwSettings]:
 def router_config_dict(inv: Inventory, robot: RobotHost,
                        auth: UsrPwdAuth | None = None) -> dict[str, Any]:
     """``rmw_zenohd``'s configuration on ``robot`` (see the module docstring)."""
-    z = inv.zenoh
-    if z.mode == "client":
-        connect = [z.router]
-    else:
-        proto = "tls" if z.tls is not None else "tcp"
-        connect = [f"{proto}/127.0.0.1:{z.peer_port}"]
+    connect = fleet_endpoints(inv)
     conf: dict[str, Any] = {
         "mode": "router",
         "listen": {"endpoints": [ROS_ENDPOINT]},
@@ -76,7 +71,7 @@ def router_config_dict(inv: Inventory, robot: RobotHost,
         # as rmw_zenoh's default configurations: every sample is stamped
         "timestamping": {"enabled": {"router": True, "peer": True, "client": True}},
     }
-    _add_security(conf, inv, auth)
+    add_security(conf, inv, auth)
     usrpwd = _usrpwd(conf)
     if usrpwd is not None:  # a node with credentials asks them of whoever joins it too
         usrpwd["dictionary_file"] = users_path(robot)

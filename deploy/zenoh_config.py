@@ -73,19 +73,24 @@ def zenoh_config_dict(inv: Inventory, robot: RobotHost,
     }
     if listen:
         conf["listen"] = {"endpoints": list(listen)}
-    _add_security(conf, inv, auth)
+    add_security(conf, inv, auth)
     return conf
+
+
+def fleet_endpoints(inv: Inventory) -> list[str | None]:
+    """Where a robot's own Zenoh node connects to reach the fleet: the router (client mode), or
+    the robot's agent's peer listener on loopback."""
+    z = inv.zenoh
+    if z.mode == "client":
+        return [z.router]
+    proto = "tls" if z.tls is not None else "tcp"
+    return [f"{proto}/127.0.0.1:{z.peer_port}"]
 
 
 def bridge_config_dict(inv: Inventory, robot: RobotHost,
                        auth: UsrPwdAuth | None = None) -> dict[str, Any]:
     """``zenoh-bridge-ros2dds``'s configuration on ``robot`` (see the module docstring)."""
-    z = inv.zenoh
-    if z.mode == "client":
-        connect = [z.router]
-    else:
-        proto = "tls" if z.tls is not None else "tcp"
-        connect = [f"{proto}/127.0.0.1:{z.peer_port}"]
+    connect = fleet_endpoints(inv)
     conf: dict[str, Any] = {
         "mode": "client",
         "connect": {"endpoints": connect},
@@ -98,7 +103,7 @@ def bridge_config_dict(inv: Inventory, robot: RobotHost,
             raise InventoryError(f"robots ({robot.id}).cmd_vel_key: {key!r} must be cmd_vel or "
                                  f"end with /cmd_vel (the bridge's namespace in front)")
         conf["namespace"] = key[: -len("/cmd_vel")]
-    _add_security(conf, inv, auth)
+    add_security(conf, inv, auth)
     return conf
 
 
@@ -128,7 +133,7 @@ def bridge_json5(inv: Inventory, robot: RobotHost, auth: UsrPwdAuth | None = Non
                     f"zenoh-bridge-ros2dds on robot {robot.id}: zenoh-bridge-ros2dds -c THIS_FILE")
 
 
-def _add_security(conf: dict[str, Any], inv: Inventory, auth: UsrPwdAuth | None = None) -> None:
+def add_security(conf: dict[str, Any], inv: Inventory, auth: UsrPwdAuth | None = None) -> None:
     """``auth``: the robot's own user (access control); else the inventory's fleet user."""
     z = inv.zenoh
     transport: dict[str, Any] = {}
