@@ -31,6 +31,7 @@ from scenario.extent import Extent, goal_problem
 from scenario.limits import COORDINATE
 from wire import keys
 from wire.payloads import (
+    MAX_REASON,
     DecodeError,
     GoalMsg,
     PlanMsg,
@@ -209,10 +210,11 @@ class NavPart:
         why = goal_problem(goal.x, goal.y, goal.heading, goal.waypoints, self.extent)
         if why is not None:
             self.goals_refused += 1
+            nav.refusal = why[:MAX_REASON]
         else:
             why = None if lockstep else stamp_problem(goal.stamp, stamp)
             if why is not None:
-                nav.rejected += 1
+                nav.refuse(why)
             else:
                 why = nav.accept(goal, stamp if lockstep else goal.stamp, centroid, self.shapes)
         if why is None:
@@ -238,7 +240,8 @@ class NavPart:
         assert self.navigator is not None
         if not (math.isfinite(centroid[0]) and math.isfinite(centroid[1])):
             centroid = self.follower.route[self.follower.index]
-        return self.navigator.status(self.follower, centroid, stalled, stopped or self.stopped, stamp)
+        return self.navigator.status(self.follower, centroid, stalled, stopped or self.stopped, stamp,
+                                     refused=self.goals_refused)
 
     def _publish_status(self, status: StatusMsg) -> None:
         data = encode_nav(status)

@@ -15,8 +15,9 @@
   (eq. 4.2) is the current waypoint plus its offset, its own goal on the last leg.
 * :meth:`Navigator.status` reports the state (``moving``, ``reached``: the centroid within the
   goal tolerance of the goal centroid on the last leg, ``stalled``: the jam rule sees the
-  formation still, ``stopped``: the leader commanded zero for missing inputs, or shuts down),
-  the distance to go along the route and the current waypoint.
+  formation still, ``stopped``: the leader commanded zero for missing inputs, or shuts down,
+  ``unreachable``: no route reaches the goal, with the reason), the distance to go along the
+  route, the current waypoint, and how many goals were refused and why the last one was.
 
 Pure: no clock, no network; the agent node and the in-process simulator call it.
 """
@@ -28,7 +29,7 @@ from collections.abc import Mapping, Sequence
 
 from geometry.route import Point, advance, formation_radius, member_target, plan_route, route_length
 from geometry.shapes import Shape, shape_distance
-from wire.payloads import GoalMsg, PlanMsg, StatusMsg
+from wire.payloads import MAX_REASON, MAX_REFUSED, GoalMsg, PlanMsg, StatusMsg
 
 SAME_GOAL = "the goal followed already"  # accept(): nothing changes, not counted as refused
 
@@ -94,6 +95,8 @@ class Navigator:
         self.offsets = turn(self.reference, heading) if heading is not None else dict(self.reference)
         self.route = tuple(route) if route else (self.goal,)
         self.rejected = 0  # goals refused (inside an obstacle, stale, another formation's)
+        self.refusal = ""  # why the last goal was refused (on ``status``, version 2)
+        self.unreachable = ""  # why no route reaches the goal ("" while one does): the state
 
     def same(self, msg: GoalMsg) -> bool:
         """Whether ``msg`` asks for the goal followed now (a fleet manager may send it again)."""
@@ -128,7 +131,7 @@ class Navigator:
         if why is None and not stamp > self.goal_stamp:
             why = f"goal stamped {stamp} is not newer than the one followed"
         if why is not None:
-            self.rejected += 1
+            self.refuse(why)
             return why
         self.goal_stamp = stamp
         self.goal = (msg.x, msg.y)
@@ -143,6 +146,11 @@ class Navigator:
             self.route = (self.goal,)
         return None
 
+    def refuse(self, why: str) -> None:
+        """Count a refused goal and keep why (the door's refusals come here too)."""
+        self.rejected += 1
+        self.refusal = why[:MAX_REASON]
+
     def plan(self, stamp: float) -> PlanMsg:
         gx, gy = self.goal
         members = tuple((m, gx + ox, gy + oy) for m, (ox, oy) in self.offsets.items())
@@ -150,15 +158,18 @@ class Navigator:
                        gx, gy, self.heading, self.route, members, stamp)
 
     def status(self, follower: Follower, centroid: Point, stalled: bool, stopped: bool,
-               stamp: float) -> StatusMsg:
-        """The status from the leader's own follower (the route as the formation walks it)."""
+               stamp: float, refused: int = 0) -> StatusMsg:
+        """The status from the leader's own follower (the route as the formation walks it);
+        ``refused`` counts goals refused before they reached the Navigator (at the door)."""
         route, index = follower.route, follower.index
         gx, gy = follower.formation_goal
         at_goal = index >= len(route) - 1 and math.dist(centroid, (gx, gy)) <= self.tolerance
-        state = ("stopped" if stopped else "reached" if at_goal else "stalled" if stalled
-                 else "moving")
+        state = ("stopped" if stopped else "reached" if at_goal
+                 else "unreachable" if self.unreachable else "stalled" if stalled else "moving")
         wx, wy = route[index]
         return StatusMsg(self.formation, state, self.leader_id,
                          follower.goal_stamp if math.isfinite(follower.goal_stamp) else 0.0,
                          gx, gy, self.heading, route_length(centroid, route[index:]), index,
-                         len(route), wx, wy, stamp)
+                         len(route), wx, wy, stamp,
+                         reason=self.unreachable[:MAX_REASON] if state == "unreachable" else "",
+                         refused=min(self.rejected + refused, MAX_REFUSED), refusal=self.refusal)

@@ -83,14 +83,30 @@ def test_goal_exits_0_once_the_leader_shows_it_and_status_lists_every_formation(
             leader.close()
 
 
-def test_a_goal_the_leader_refuses_exits_1_saying_what_the_leader_shows(router, capsys):
+def test_a_goal_the_leader_refuses_exits_1_saying_why_from_its_status(router, capsys):
     leader = LeaderStandIn(router.endpoint, "C")
     try:
-        rc = navcmd.main(["goal", "C", "2.0", "0.0", "--connect", router.endpoint, "--timeout", "2"])
+        # a long timeout: the refusal on the leader's status (version 2) ends the wait, not it
+        rc = navcmd.main(["goal", "C", "2.0", "0.0", "--connect", router.endpoint, "--timeout", "60"])
         err = capsys.readouterr().err
         assert rc == 1
-        assert "did not take the goal" in err and "C: reached goal (0.000, 0.000)" in err
+        assert "its leader refused it: the goal of 'C1' lies within the safe distance of box 'shelf'" in err
+        assert "C: reached goal (0.000, 0.000)" in err and "1 goal(s) refused" in err
         assert "within the safe distance of box 'shelf'" in leader.refused[0]
+    finally:
+        leader.close()
+
+
+def test_a_goal_taken_but_unreachable_exits_1_with_the_leaders_reason(router, capsys):
+    leader = LeaderStandIn(router.endpoint, "E")
+    leader.nav.unreachable = "no route: the goal lies inside a closed room"  # as the planner says
+    try:
+        rc = navcmd.main(["goal", "E", "-2.0", "0.0", "--connect", router.endpoint, "--timeout", "60"])
+        err = capsys.readouterr().err
+        assert rc == 1
+        assert leader.nav.goal == (-2.0, 0.0)  # taken: the status shows this goal...
+        assert "no route reaches it" in err  # ...and why the formation will not get there
+        assert "E: unreachable (no route: the goal lies inside a closed room) goal (-2.000, 0.000)" in err
     finally:
         leader.close()
 

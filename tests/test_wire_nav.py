@@ -11,6 +11,7 @@ from zenoh.ext import UInt8, z_deserialize
 from wire import keys
 from wire.payloads import (
     DECODERS,
+    STATUS_STATES,
     DecodeError,
     GoalMsg,
     PlanMsg,
@@ -30,16 +31,21 @@ plans = st.builds(PlanMsg, ids, finite, finite, finite, headings,
                   st.lists(st.tuples(finite, finite), min_size=1, max_size=6).map(tuple),
                   st.lists(st.tuples(ids, finite, finite), max_size=5, unique_by=lambda m: m[0]).map(tuple),
                   finite)
-statuses = st.builds(StatusMsg, ids, st.sampled_from(["moving", "reached", "stalled", "stopped"]), ids,
+reasons = st.text(max_size=40)
+statuses = st.builds(StatusMsg, ids, st.sampled_from(STATUS_STATES), ids,
                      finite, finite, finite, headings, st.floats(0, 1e6), st.integers(0, 64),
-                     st.integers(0, 64), finite, finite, finite)
+                     st.integers(0, 64), finite, finite, finite, reasons,
+                     st.integers(0, 2**31 - 1), reasons)
 DECODE = {GoalMsg: decode_goal, PlanMsg: decode_plan, StatusMsg: decode_status}
 
 GOAL = GoalMsg("A", 1.0, 2.0, 0.5, ((1.0, 0.0),), 3.0)
 PLAN = PlanMsg("A", 3.0, 1.0, 2.0, None, ((1.0, 0.0), (1.0, 2.0)),
                (("a1", 1.0, 2.25), ("a2", 1.0, 1.75)), 3.5)
 STATUS = StatusMsg("A", "moving", "a1", 3.0, 1.0, 2.0, 0.5, 2.25, 1, 2, 1.0, 2.0, 4.0)
-EXAMPLES = [GOAL, PLAN, STATUS]
+STATUS2 = StatusMsg("A", "unreachable", "a1", 3.0, 1.0, 2.0, 0.5, 2.25, 1, 2, 1.0, 2.0, 4.0,
+                    reason="no route: the goal lies in a closed room", refused=2,
+                    refusal="waypoint 0 lies within the safe distance of box 'shelf'")
+EXAMPLES = [GOAL, PLAN, STATUS, STATUS2]
 
 
 @settings(max_examples=150, deadline=None)
@@ -55,6 +61,27 @@ def test_the_goal_layout_is_readable_by_zenohs_own_deserializer():
     got = z_deserialize(tuple[UInt8, str, float, float, float, list[float], list[tuple[float, float]],
                               list[tuple[str, float, float]], float], zenoh.ZBytes(encode_nav(PLAN)))
     assert got[-2] == [("a1", 1.0, 2.25), ("a2", 1.0, 1.75)]
+
+
+def test_a_status_with_nothing_new_stays_version_1_byte_for_byte_and_v2_carries_the_rest():
+    v1 = encode_nav(STATUS)
+    assert v1[0] == 1  # an older fleet manager still reads it
+    got = z_deserialize(tuple[UInt8, str, str, str, float, float, float, list[float], float, float,
+                              float, float, float, float], zenoh.ZBytes(v1))
+    assert got == (1, "A", "moving", "a1", 3.0, 1.0, 2.0, [0.5], 2.25, 1.0, 2.0, 1.0, 2.0, 4.0)
+    v2 = encode_nav(STATUS2)
+    assert v2[0] == 2
+    got2 = decode_status(v2)
+    assert (got2.state, got2.refused) == ("unreachable", 2) and got2.reason.startswith("no route")
+    with pytest.raises(DecodeError, match="unsupported version 3"):
+        decode_status(b"\x03" + v2[1:])
+
+
+def test_a_status_refuses_a_reason_too_long_or_a_negative_count():
+    with pytest.raises(ValueError, match="reason"):
+        StatusMsg("A", "moving", "a1", 0.0, 0.0, 0.0, None, 0.0, 0, 1, 0.0, 0.0, 0.0, reason="x" * 201)
+    with pytest.raises(ValueError, match="refused"):
+        StatusMsg("A", "moving", "a1", 0.0, 0.0, 0.0, None, 0.0, 0, 1, 0.0, 0.0, 0.0, refused=-1)
 
 
 @pytest.mark.parametrize("msg", EXAMPLES, ids=lambda m: type(m).__name__)

@@ -71,6 +71,13 @@ SHAPE_BOX = 2
 #: ``state`` is at version 2 (it gained the heading); a version-1 decoder refuses it by its
 #: version byte ("unsupported version 2"), and this decoder refuses version-1 states.
 STATE_VERSION = 2
+#: ``status`` version 2 adds why the formation is in its state (``reason``: the planner's word
+#: for ``unreachable``), how many goals its leader refused (``refused``, a whole number carried
+#: as f64) and why it refused the last one (``refusal``). A status with nothing of these is
+#: written as version 1, byte for byte as before, so an older fleet manager still reads it; one
+#: with any of them (or the state ``unreachable``) is version 2, which an older decoder refuses
+#: by its version byte.
+STATUS_VERSION = 2
 MAX_ITEMS = 256  # most ellipses (or obstacles) one payload may carry
 # A payload longer than this is rejected before parsing [bytes]. The largest valid message (an
 # Others with 256 + 1 ellipses whose ids are 64 four-byte UTF-8 characters) is about 85 kB.
@@ -427,6 +434,7 @@ def _ellipses(items: list[Item]) -> tuple[EllipseMsg, ...]:
 _VERSION = UInt8(WIRE_VERSION)
 _SHAPES_VERSION = UInt8(SHAPES_VERSION)
 _STATE_VERSION = UInt8(STATE_VERSION)
+_STATUS_VERSION = UInt8(STATUS_VERSION)
 
 
 def _ellipse_fields(e: EllipseMsg) -> tuple[Any, ...]:
@@ -739,6 +747,7 @@ DECODERS: dict[str, Callable[[bytes | zenoh.ZBytes], Any]] = {
 #                route:list[(x, y)], members:list[(id:str, gx, gy)], stamp
 # ``StatusMsg``  version, formation:str, state:str, leader:str, goal_stamp, gx, gy,
 #                heading:list[f64] (0 or 1), distance, waypoint, waypoints, wx, wy, stamp
+#                version 2 (:data:`STATUS_VERSION`) adds: reason:str, refused, refusal:str
 #
 # ``goal_stamp`` names a goal: the stamp the leader gave it when it accepted it (the fleet
 # manager's stamp in real time, simulated time on arrival in lock-step). A member adopts a plan
@@ -747,7 +756,9 @@ DECODERS: dict[str, Callable[[bytes | zenoh.ZBytes], Any]] = {
 # carried as f64.
 
 MAX_WAYPOINTS = 64  # most waypoints in a goal or route
-STATUS_STATES = ("moving", "reached", "stalled", "stopped")
+STATUS_STATES = ("moving", "reached", "stalled", "stopped", "unreachable")
+MAX_REASON = 200  # longest reason or refusal [characters]; a longer one is cut by the writer
+MAX_REFUSED = 2**31 - 1  # the refused-goal count saturates here (the writer clamps it)
 
 
 def _points(value: object, name: str, limit: int) -> tuple[tuple[float, float], ...]:
@@ -846,7 +857,10 @@ class StatusMsg:
     """A leader's report: ``{prefix}/formation/{fid}/status`` (published about once a second
     and answered as a queryable). ``state`` is one of :data:`STATUS_STATES`; the goal it
     follows (``goal_stamp``, centroid, heading), the centroid's ``distance`` to go along the
-    route [m], the current waypoint (index, route length, position) and the leader's id."""
+    route [m], the current waypoint (index, route length, position) and the leader's id.
+    Version 2 (:data:`STATUS_VERSION`): ``reason`` why the state (``unreachable``: why no route
+    reaches the goal), ``refused`` goals the leader refused since it started and ``refusal``, why
+    it refused the last one."""
 
     formation: str
     state: str
@@ -861,21 +875,29 @@ class StatusMsg:
     wx: float
     wy: float
     stamp: float
+    reason: str = ""
+    refused: int = 0
+    refusal: str = ""
 
     def __post_init__(self) -> None:
         _check_id(self.formation, "formation")
         _check_id(self.leader, "leader")
+        for name in ("reason", "refusal"):
+            text = getattr(self, name)
+            if not isinstance(text, str) or len(text) > MAX_REASON:
+                raise ValueError(f"{name} must be text of at most {MAX_REASON} characters")
         if self.state not in STATUS_STATES:
             raise ValueError(f"state must be one of {STATUS_STATES}, got {self.state!r}")
         _check_floats(self, ("goal_stamp", "gx", "gy", "distance", "wx", "wy", "stamp"))
         _optional_angle(self, "heading")
-        for name in ("waypoint", "waypoints"):
+        for name in ("waypoint", "waypoints", "refused"):
             v = getattr(self, name)
             if isinstance(v, float) and v.is_integer():
                 v = int(v)
                 object.__setattr__(self, name, v)
-            if type(v) is not int or not 0 <= v <= MAX_WAYPOINTS:
-                raise ValueError(f"{name} must be a whole number in [0, {MAX_WAYPOINTS}], got {v!r}")
+            limit = MAX_REFUSED if name == "refused" else MAX_WAYPOINTS
+            if type(v) is not int or not 0 <= v <= limit:
+                raise ValueError(f"{name} must be a whole number in [0, {limit}], got {v!r}")
         if self.distance < 0.0:
             raise ValueError(f"distance must be >= 0, got {self.distance!r}")
 
@@ -896,6 +918,8 @@ def encode_nav(msg: GoalMsg | PlanMsg | StatusMsg) -> bytes:
         t = (_VERSION, msg.formation, msg.state, msg.leader, msg.goal_stamp, msg.gx, msg.gy,
              _heading_list(msg.heading), msg.distance, float(msg.waypoint), float(msg.waypoints),
              msg.wx, msg.wy, msg.stamp)
+        if msg.state == "unreachable" or msg.reason or msg.refused or msg.refusal:
+            t = (_STATUS_VERSION, *t[1:], msg.reason, float(msg.refused), msg.refusal)
     else:
         raise ValueError(f"msg must be a GoalMsg, PlanMsg or StatusMsg, got {type(msg).__name__}")
     return z_serialize(t).to_bytes()
@@ -935,16 +959,25 @@ def _parse_plan(r: _Reader) -> PlanMsg:
     return PlanMsg(formation, goal_stamp, cx, cy, heading, tuple(route), tuple(members), stamp)
 
 
-def _parse_status(r: _Reader) -> StatusMsg:
+def _parse_status(r: _Reader, version: int = WIRE_VERSION) -> StatusMsg:
     formation = r.string("formation")
     state = r.string("state")
     leader = r.string("leader")
     goal_stamp, gx, gy = r.floats(3, "goal_stamp, gx, gy")
     heading = _read_heading(r)
     distance, waypoint, waypoints, wx, wy, stamp = r.floats(6, "distance .. stamp")
+    reason, refused, refusal = "", 0.0, ""
+    if version >= STATUS_VERSION:
+        reason = r.string("reason")
+        (refused,) = r.floats(1, "refused")
+        refusal = r.string("refusal")
     # whole numbers carried as f64: StatusMsg checks them and makes them ints
     return StatusMsg(formation, state, leader, goal_stamp, gx, gy, heading, distance,
-                     waypoint, waypoints, wx, wy, stamp)  # type: ignore[arg-type]
+                     waypoint, waypoints, wx, wy, stamp, reason, refused, refusal)  # type: ignore[arg-type]
+
+
+def _parse_status_v2(r: _Reader) -> StatusMsg:
+    return _parse_status(r, STATUS_VERSION)
 
 
 def decode_goal(payload: bytes | zenoh.ZBytes) -> GoalMsg:
@@ -959,7 +992,8 @@ def decode_plan(payload: bytes | zenoh.ZBytes) -> PlanMsg:
 
 def decode_status(payload: bytes | zenoh.ZBytes) -> StatusMsg:
     """Decode a ``status`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_status, "status")
+    return _decode(payload, _parse_status, "status",
+                   parsers={WIRE_VERSION: _parse_status, STATUS_VERSION: _parse_status_v2})
 
 
 DECODERS.update({keys.GOAL: decode_goal, keys.PLAN: decode_plan, keys.STATUS: decode_status})

@@ -6,7 +6,9 @@ formation's leader reports that goal in its ``status`` (published about once a s
 answered as a queryable): exit 0 and one status line. The goal is put again every
 :data:`RESEND_S` until then (a leader ignores a goal equal to the one it follows), so it reaches
 a leader whose subscription was not matched yet. No such status within ``--timeout``: exit 1,
-saying what the leader reports instead (a goal inside an obstacle is refused by the leader).
+saying what the leader reports instead. A goal the leader refuses (inside an obstacle, outside
+its world) or one it takes but finds no route to (state ``unreachable``) exits 1 as soon as the
+leader's status says so (``status`` version 2 carries the refusals and the reason).
 
 ``formation status`` asks every leader for its status and prints one line per formation.
 
@@ -148,9 +150,22 @@ def shows(status: StatusMsg, goal: GoalMsg) -> bool:
 
 def status_line(s: StatusMsg) -> str:
     heading = "" if s.heading is None else f" heading {s.heading:.3f}"
-    return (f"{s.formation}: {s.state} goal ({s.gx:.3f}, {s.gy:.3f}){heading} "
+    why = f" ({s.reason})" if s.reason else ""
+    refused = f", {s.refused} goal(s) refused, the last: {s.refusal}" if s.refused else ""
+    return (f"{s.formation}: {s.state}{why} goal ({s.gx:.3f}, {s.gy:.3f}){heading} "
             f"to go {s.distance:.2f} m, waypoint {s.waypoint + 1}/{s.waypoints} "
-            f"({s.wx:.2f}, {s.wy:.2f}), leader {s.leader}, stamp {s.stamp:.2f}")
+            f"({s.wx:.2f}, {s.wy:.2f}), leader {s.leader}, stamp {s.stamp:.2f}{refused}")
+
+
+def verdict(s: StatusMsg, goal: GoalMsg, refused_before: int | None) -> int | None:
+    """What a status says about ``goal``: EXIT_OK once the leader follows it, EXIT_FAIL when
+    it follows it but no route reaches it (``unreachable``) or when the leader counts a refusal
+    more than before the goal was sent; None while neither."""
+    if shows(s, goal):
+        return EXIT_FAIL if s.state == "unreachable" else EXIT_OK
+    if refused_before is not None and s.refused > refused_before:
+        return EXIT_FAIL
+    return None
 
 
 def query_status(session: zenoh.Session, prefix: str, fid: str = "*",
@@ -211,6 +226,9 @@ def _send_and_wait(session: zenoh.Session, ns: argparse.Namespace, goal: GoalMsg
     payload = encode_nav(goal)
     deadline = time.monotonic() + ns.timeout
     last: StatusMsg | None = None
+    # the leader's refusals before this goal went out: one more afterwards is this goal's
+    before = query_status(session, ns.prefix, goal.formation, timeout=min(ns.timeout, 1.0))
+    refused_before = before[0].refused if before else None
     try:
         while time.monotonic() < deadline:
             pub.put(payload)
@@ -223,9 +241,18 @@ def _send_and_wait(session: zenoh.Session, ns: argparse.Namespace, goal: GoalMsg
                 except queue.Empty:
                     continue
                 last = s
-                if shows(s, goal):
+                if refused_before is None:
+                    refused_before = s.refused
+                code = verdict(s, goal, refused_before)
+                if code == EXIT_OK:
                     print(status_line(s))
                     return EXIT_OK
+                if code == EXIT_FAIL:
+                    said = ("no route reaches it" if shows(s, goal)
+                            else f"its leader refused it: {s.refusal}")
+                    print(f"formation goal: formation {goal.formation!r}: {said} "
+                          f"({status_line(s)})", file=sys.stderr)
+                    return EXIT_FAIL
     finally:
         sub.undeclare()
         pub.undeclare()
