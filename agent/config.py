@@ -294,9 +294,7 @@ def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
     if d.get("rmw") is None:
         d.pop("rmw", None)  # the bridge: files stay as they were before the field existed
     if d.get("footprint") is None:
-        d.pop("footprint", None)  # method rules or thesis: likewise
-    if d["control"]["method"] == "rules":
-        del d["control"]["method"]  # the default: likewise
+        d.pop("footprint", None)  # method thesis: files stay as they were
     if d["solver"] == "exact":
         del d["solver"]  # the default: files stay as they were before the field existed
     d["version"] = CONFIG_VERSION

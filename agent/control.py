@@ -4,72 +4,31 @@
 tests all call. It takes plain numbers (the robot's pose, its goal, what its neighbours, the
 obstacles and its leader told it) and returns the command with the barrier values it saw.
 
-Deadlock tie-break (``keep_right``): two formations meeting head-on, or a formation facing an
-obstacle dead ahead, can stall under a pure CBF-QP, because the optimum is symmetric and has no
-sideways part. Every member therefore adds the same formation-level vector to its nominal
-command, computed only from data all members share (their formation's ellipse and goal
-centroid, the other formations' ellipses, the obstacles):
+The nominal (``controller.method``): ``rigid``, the default, takes each member's nominal from
+its formation's rigid motion (:mod:`agent.body`: one small QP over the formation's twist with the
+footprint's barrier rows, then the member's slot velocity plus a pull to its slot); ``thesis`` is
+eq. 4.2 on the member's own goal alone. Either way the per-robot CBF-QP below, every row as the
+thesis has it, is the last safety filter; hard rows are never relaxed to reach a goal.
 
-* intended motion relative to each hazard (another formation's ellipse, or an obstacle):
-  w = max_speed * g - v_hazard, with g = unit(goal centroid - own centroid), left normal n of w;
-* the hazard is "in the way" when it is ahead along w, not beyond the goal along g, and inside
-  the corridor |d.n| < own half-width + its half-width + TIEBREAK_MARGIN (half-widths across w:
-  the ellipses' supports, an obstacle's Ds), with d = hazard centre - own centroid;
-* each such hazard pushes along n, away from the side it lies on; within TIEBREAK_DEAD of the
-  centre line it pushes to the right. Using the relative motion makes the rule symmetric:
-  two formations meeting head-on see each other on the same side and pass; two crossing at
-  right angles on a collision course both turn right of their relative motion, so one passes
-  behind the other, as ships do;
-* the push fades linearly with the hazard's distance ahead beyond contact (TIEBREAK_RANGE) and
-  is scaled to TIEBREAK_GAIN * max_speed.
+Two formation-level rules stay, both only shaping the goal motion the formation's QP starts from,
+both computed by every member from the same shared data (the formation's ellipse and goal, the
+other formations' ellipses, the obstacles); each does what a barrier cannot, as it is about which
+safe motion to choose, not which motions are safe:
 
-Because every member adds the same vector, the formation moves sideways as a whole and its
-shape is untouched; the barriers still decide what is safe.
-
-Jams (three or more formations locked at an intersection) are broken by priority: a formation
-whose centroid has been nearly still for STALL_TIME while away from its goal (:func:`update_stall`,
-computed by every member from the same ellipse) backs away for RETREAT_TIME from each nearby
-formation whose name sorts before its own (:func:`retreat_command`); the formation with priority
-keeps going.
-
-Escape (:func:`escape_command`): a barrier that only lets robots back away cannot outrun a hazard
-faster than they are. For each moving obstacle every member computes, from shared data only, the
-closest approach of its formation's intended motion (eq. 4.2 on the centroid; zero when parked)
-relative to the hazard; if it comes within the hazard's Ds + the members' half-width across its
-path + ESCAPE_MARGIN, the formation's nominal becomes one vector for all members: sideways, away
-from the hazard's path line, plus the intended motion without its part towards that line, so a
-formation gives way rather than crossing ahead of a hazard about as fast as itself. Where that
-cannot be done in time, the hard rows meet and the QP returns the least-risk command (counted).
-
-Band (:func:`yield_push`, :func:`band_nominal`; both models, on the control points): formation keeping first,
-the goal second. The band broke where one member was pushed by a hard row (another formation's
-ellipse coming at it) while the others still drove at their goals: the pushed member alone gives
-way, the rest slide along their band rows, the formation shears and its members' rows become
-infeasible together (measured: each edge that passed 1.5 epsilon did so while its robots were
-``relaxed`` or in ``fallback``). Two rules, both on the nominal command only (the rows, and so
-safety, are the same):
-
-* give way as one body: a formation whose ellipse another formation's ellipse comes at, closer
-  than YIELD_RANGE between them, adds that formation's approach speed (along the line of their
-  centres, faded in with the gap) to every member's nominal: the same vector for all, from
-  data all members share, so the whole formation moves off before one member is pushed;
-* a member whose own edges have drifted beyond BAND_EASE epsilon blends its nominal from the
-  goal's towards moving with its neighbours (their last velocities) and back to each Df,
-  wholly from BAND_HOLD epsilon, and takes up its goal again as the edges recover.
-
-Shape (:func:`shape_push`; both models): the rows above hold each member, but nothing held the
-formation's shape. A formation given way into a shelf row could close round a round shelf, two
-members on each side, where no motion keeps both the band and the shelf's safe distance (a
-deadlock); a formation another one came at from two sides was squeezed, as the two give-way
-pushes cancelled and each pushing ellipse's rows shoved one member alone. The motion the members
-share (eq. 4.2 on the centroid with the formation-level terms above, from shared data only) is
-projected, like a CBF-QP of eq. 4.12 on the formation's centre, onto the rows: a static
-obstacle's centre stays outside the formation's ellipse (eq. 4.6, which contains every member
-with room for a body), and the formation closes on another formation's ellipse no faster than
-that one moves away plus gamma times their gap (so one that cannot give way is no longer
-pressed). The difference is added to every member's
-nominal: the same vector for all, so the formation slides round a shelf, or stops pressing into
-a formation that cannot give way, as one body. Only the nominal changes.
+* keep right (:func:`tiebreak_push`, ``controller.tiebreak: keep_right``): two formations meeting
+  head-on, or a formation facing a hazard dead ahead, stall under a CBF-QP, whose optimum is
+  symmetric and has no sideways part. Relative to each hazard in the way (ahead along the relative
+  motion w = max_speed g - v_hazard, inside the corridor of both half-widths + TIEBREAK_MARGIN) the
+  formation is pushed along w's normal, away from the hazard's side (its right within
+  TIEBREAK_DEAD of the centre line), faded over TIEBREAK_RANGE, scaled to TIEBREAK_GAIN max_speed.
+  Seen from each other two formations head-on push to the same side and pass; two on a collision
+  course at right angles both turn right of their relative motion, so one passes behind.
+* escape (:func:`escape_command`): a barrier that only lets robots back away cannot outrun a
+  moving hazard about as fast as they are. For each moving obstacle whose closest approach under
+  the formation's intended motion comes within its Ds + the formation's half-width across its
+  path + ESCAPE_MARGIN, the intended motion becomes a step sideways, away from the hazard's path
+  line, plus what is left of the motion without its part towards that line. Where that cannot be
+  done in time, the hard rows meet and the QP returns the least-risk command (counted).
 
 Separation (:func:`agent.barriers.separation_row`): every pair of robots that can touch gets a
 hard row with a reciprocal split of the pair's slack; see that function for why two robots
@@ -83,7 +42,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields
 from typing import NamedTuple
 
-from geometry.ellipse import Ellipse, ellipse_terms
+from geometry.ellipse import Ellipse
 from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE, BURGER_RADIUS
 from geometry.shapes import Shape
 from scenario import limits as ranges
@@ -91,18 +50,14 @@ from scenario.model import METHODS
 
 from . import barriers, body, unicycle
 from .barriers import Neighbour, Obstacle, Partner
-from .qp import STATUS_NOMINAL, QPResult, Row, normalized_row, solve_cbf_qp, solve_exact
+from .qp import STATUS_NOMINAL, QPResult, Row, solve_cbf_qp, solve_exact
 
 TIEBREAK_MARGIN = 0.15  # [m] corridor half-width beyond both radii
 TIEBREAK_DEAD = 0.05  # [m] lateral offsets this small count as dead ahead: keep right
 TIEBREAK_RANGE = 2.0  # [m] distance ahead of contact over which the push fades in
 TIEBREAK_GAIN = 0.35  # push as a fraction of max speed
 STALL_SPEED = 0.02  # [m/s] a formation centroid slower than this is "still"
-STALL_TIME = 4.0  # [s] still this long, away from the goal: a jam
 STALL_GOAL_DISTANCE = 0.3  # [m] closer than this to its goal centroid a formation is not jammed
-RETREAT_TIME = 5.0  # [s] how long a jammed formation backs away
-RETREAT_RANGE = 1.0  # [m] beyond touching ellipses, formations that count for the retreat
-RETREAT_GAIN = 0.5  # retreat speed as a fraction of max speed
 ESCAPE_MIN_SPEED = 0.02  # [m/s] obstacles slower than this are static for the escape rule
 ESCAPE_RANGE = 6.0  # [m] moving hazards farther than this from the centroid are ignored
 ESCAPE_HORIZON = 20.0  # [s] closest approaches further ahead than this do not count yet
@@ -111,16 +66,7 @@ ESCAPE_PAD = 0.02  # [m] the ellipse's pad beyond the members (leader.ellipse de
 ESCAPE_OVERSHOOT = 0.05  # [m] the sideways step aims this far beyond the room needed
 ESCAPE_GAIN = 2.0  # [1/s] sideways speed per metre still to clear
 SEP_MARGIN = 0.0  # [m] separation rows keep bodies this much beyond touching
-YIELD_RANGE = 0.3  # [m] gap between two formations' ellipses over which giving way fades in
-SHAPE_RANGE = 1.0  # [m] static obstacles farther than this beyond the ellipse's major axis are left out
-BAND_EASE = 0.2  # own edges' error (in epsilon) up to which the nominal is the goal's alone
-BAND_HOLD = 0.8  # own edges' error (in epsilon) from which the nominal keeps the band only
-BAND_REPAIR_GAIN = 3.0  # [1/s] band-keeping speed per metre of edge error
 NARROW_CAP = 0.5  # unicycles: the band on the look-ahead points narrows by at most this x eps
-RIGID_LEAD = 1.0  # [s] unicycle formations: the rigid carrot leads the centroid by vmax x this
-RIGID_TURN_LEAD = 0.25  # [rad] ... and the orientation by this (it turns at about kp x this)
-RIGID_FADE = (0.02, 0.1)  # [rad] remaining turns over which the carrot takes over from the goal
-RIGID_LEFT_BIAS = math.radians(20.0)  # a turn within this of 180 degrees goes left (all alike)
 
 
 #: The range of each number of :class:`ControlParams`: the scenario's (:mod:`scenario.limits`);
@@ -159,9 +105,7 @@ class ControlParams:
     d_af: float = 0.5  # [m] pairwise distance for the all-to-all baseline (eq. 3.5)
     period: float = 0.05  # [s] control period (sizes the unicycle's discretisation margin)
     radius: float = BURGER_RADIUS  # [m] body radius: separation rows keep bodies 2 r + SEP_MARGIN apart
-    band_first: bool = True  # formation keeping first (yield_push, band_nominal)
-    shape_clear: bool = True  # static obstacles kept out of the formation's shape (shape_push)
-    method: str = "rules"  # scenario.model.METHODS: rules (this module's), thesis, rigid (agent.body)
+    method: str = "rigid"  # scenario.model.METHODS: rigid (agent.body) or thesis (eq. 4.2 alone)
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -197,22 +141,6 @@ class ControlParams:
         )
 
     @property
-    def keeps_band_first(self) -> bool:
-        """Whether :func:`yield_push` and :func:`band_nominal` shape the nominal (with barriers
-        on; both models). On unicycles they act on the look-ahead points, before
-        :func:`agent.unicycle.steer`; with the unicycles' rigid motion (:func:`rigid_target`) they
-        took the unicycle runs of `formation montecarlo --n 60` over 1.5 epsilon from 6 to 1
-        (seed 7, worst 2.14 -> 1.67) and 7 to 2 (seed 11, worst 2.67 -> 1.73), their least-risk
-        ticks from 12 and 90 to 0, and left every unicycle scenario's band as good or better."""
-        return self.band_first and self.safety
-
-    @property
-    def keeps_shape_clear(self) -> bool:
-        """Whether :func:`shape_push` keeps static obstacles out of the formation's ellipse
-        (with barriers on; both models)."""
-        return self.shape_clear and self.safety
-
-    @property
     def offset(self) -> float:
         """Control point offset from the body centre [m]."""
         return self.lookahead if self.unicycle else 0.0
@@ -245,47 +173,22 @@ class FormationView(NamedTuple):
     goal_y: float
     name: str = ""  # this formation's name (priority: names sort first-come-first)
     other_names: tuple[str, ...] = ()  # names of ``others``, in the same order
-    retreating: bool = False  # see update_stall
 
 
 class Stall(NamedTuple):
-    """Per-formation memory of the jam rule (every member keeps an identical copy)."""
+    """How long the formation has been nearly still away from its goal (every member keeps an
+    identical copy; the leader reports ``stalled`` from it: agent.navigation)."""
 
-    still: float = 0.0  # [s] the formation has been nearly still, away from its goal
-    retreat: float = 0.0  # [s] retreat time left
+    still: float = 0.0  # [s]
 
 
 def update_stall(prev: Stall, view: FormationView, dt: float) -> Stall:
-    """Jam rule, state part: a formation still for STALL_TIME while away from its goal retreats
-    for RETREAT_TIME. Uses only what every member shares (its formation's ellipse and goal)."""
+    """The stall clock: it runs while the formation's centroid is slower than STALL_SPEED away
+    from its goal, from what every member shares (its formation's ellipse and goal)."""
     own = view.own
     far = math.hypot(view.goal_x - own.cx, view.goal_y - own.cy) > STALL_GOAL_DISTANCE
     slow = math.hypot(own.vx, own.vy) < STALL_SPEED
-    still = prev.still + dt if (far and slow and prev.retreat <= 0.0) else 0.0
-    retreat = max(0.0, prev.retreat - dt)
-    if still >= STALL_TIME:
-        return Stall(0.0, RETREAT_TIME)
-    return Stall(still, retreat)
-
-
-def retreat_command(view: FormationView, others: Sequence[Ellipse], vmax: float):
-    """Jam rule, command part: while retreating, back away from every nearby formation that has
-    priority (a name sorting before ours); None when there is none, i.e. we have priority."""
-    own = view.own
-    rx = ry = 0.0
-    for e, name in zip(others, view.other_names, strict=False):
-        if not name or name >= view.name:
-            continue
-        dx, dy = own.cx - e.cx, own.cy - e.cy
-        d = math.hypot(dx, dy)
-        if d < 1e-9 or d > own.a + e.a + RETREAT_RANGE:
-            continue
-        rx += dx / d
-        ry += dy / d
-    n = math.hypot(rx, ry)
-    if n < 1e-9:
-        return None
-    return (RETREAT_GAIN * vmax * rx / n, RETREAT_GAIN * vmax * ry / n)
+    return Stall(prev.still + dt if far and slow else 0.0)
 
 
 class StepResult(NamedTuple):
@@ -314,50 +217,6 @@ def nominal(kp: float, x: float, y: float, gx: float, gy: float, vmax: float):
     if n > vmax:
         ux, uy = ux * vmax / n, uy * vmax / n
     return ux, uy
-
-
-def rigid_target(goal: tuple[float, float], view: FormationView, x: float, y: float,
-                 vmax: float) -> tuple[float, float]:
-    """Unicycle formations: this member's target on its formation's rigid path to the goal
-    shape, for eq. 4.2 in place of its own goal (body position (x, y)).
-
-    A member going straight for its own goal asks the shape to bend wherever the goal shape is
-    turned from the current one (members of a rectangle turning 180 degrees cross each other's
-    paths, and a formation that arrives turned round has its members' goal commands opposing
-    each other: a deadlock). The edge rows then hold the shape against the nominal at the
-    band's edge, and members turn their headings every which way, which swings a unicycle's
-    body round its look-ahead point (body edge error <= look-ahead edge error + l |e_i - e_j|).
-    Here every member aims at one rigid motion: a carrot pose RIGID_LEAD ahead, the centroid c
-    (the ellipse's, eq. 4.7) moved towards the goal centroid G by at most vmax RIGID_LEAD and
-    the orientation turned towards the goal shape's by at most RIGID_TURN_LEAD; the target is
-    the member's goal offset o = goal - G placed on the carrot pose. The remaining turn is the
-    angle from o to the member's offset b - c, the same for every member while the shape holds,
-    wrapped so that a turn within RIGID_LEFT_BIAS of 180 degrees goes left for all members
-    alike. At the goal pose the target is the goal itself. Between RIGID_FADE[0] and
-    RIGID_FADE[1] of remaining turn the target fades from the member's goal to the carrot, so a
-    formation with no turn to make (a straight crossing) follows eq. 4.2 on its goals as before."""
-    own = view.own
-    ox, oy = goal[0] - view.goal_x, goal[1] - view.goal_y
-    rx, ry = x - own.cx, y - own.cy
-    if math.hypot(ox, oy) < 1e-6 or math.hypot(rx, ry) < 1e-6:
-        return goal
-    turn = math.atan2(ry, rx) - math.atan2(oy, ox)  # from the goal orientation to the current
-    turn = (turn + math.pi + RIGID_LEFT_BIAS) % (2.0 * math.pi) - math.pi - RIGID_LEFT_BIAS
-    fade = (abs(turn) - RIGID_FADE[0]) / (RIGID_FADE[1] - RIGID_FADE[0])
-    if fade <= 0.0:
-        return goal
-    left = turn - max(-RIGID_TURN_LEAD, min(RIGID_TURN_LEAD, turn))  # carrot, from the goal's
-    dx, dy = view.goal_x - own.cx, view.goal_y - own.cy
-    dist = math.hypot(dx, dy)
-    lead = vmax * RIGID_LEAD
-    if dist > lead:
-        cx, cy = own.cx + dx * lead / dist, own.cy + dy * lead / dist
-    else:
-        cx, cy = view.goal_x, view.goal_y
-    c, s = math.cos(left), math.sin(left)
-    tx, ty = cx + c * ox - s * oy, cy + s * ox + c * oy
-    w = min(1.0, fade)
-    return (goal[0] + w * (tx - goal[0]), goal[1] + w * (ty - goal[1]))
 
 
 def tiebreak_push(
@@ -406,16 +265,6 @@ def tiebreak_push(
     if n > 1.0:
         px, py = px / n, py / n
     return (px * TIEBREAK_GAIN * vmax, py * TIEBREAK_GAIN * vmax)
-
-
-def _gap(e: Ellipse, f: Ellipse) -> float:
-    """[m] a lower bound on the distance between two ellipses: the distance of their centres
-    less both half-widths along the line joining them (negative: they may overlap)."""
-    dx, dy = f.cx - e.cx, f.cy - e.cy
-    d = math.hypot(dx, dy)
-    if d < 1e-9:
-        return -(e.b + f.b)
-    return d - _half_width(e, dx / d, dy / d) - _half_width(f, dx / d, dy / d)
 
 
 def _half_width(e: Ellipse, nx: float, ny: float) -> float:
@@ -667,193 +516,6 @@ def escape_command(
     return (lx + wx, ly + wy)
 
 
-def yield_push(view: FormationView, hazards: Sequence[Ellipse]) -> tuple[float, float]:
-    """Give way as one body (module docstring, "Band"): the same vector for every member.
-
-    For each other formation whose ellipse moves towards this one's centroid (speed v_n > 0
-    along n, the unit vector from its centre to ours) the push is w v_n n, with
-    w = clamp(1 - gap / YIELD_RANGE, 0, 1) and gap = |c - c_e| less both ellipses' half-widths
-    along n: close by, the formation moves away as fast as the other comes, before the other's
-    ellipse row pushes one member alone."""
-    own = view.own
-    px = py = 0.0
-    for e in hazards:
-        dx, dy = own.cx - e.cx, own.cy - e.cy
-        d = math.hypot(dx, dy)
-        if d < 1e-9:
-            continue
-        nx, ny = dx / d, dy / d
-        v_n = e.vx * nx + e.vy * ny
-        if v_n <= 0.0:
-            continue
-        gap = d - _half_width(own, nx, ny) - _half_width(e, nx, ny)
-        w = min(1.0, max(0.0, 1.0 - gap / YIELD_RANGE))
-        px += w * v_n * nx
-        py += w * v_n * ny
-    return px, py
-
-
-def shape_push(
-    p: ControlParams, view: FormationView, obstacles: Sequence[Obstacle],
-    hazards: Sequence[Ellipse], w: tuple[float, float],
-) -> tuple[float, float]:
-    """The formation-level barrier on the shared motion (module docstring, "Shape"): the
-    correction to add to every member's nominal, the same vector for all.
-
-    ``w`` is the formation-level motion the members follow (computed from shared data); the
-    formation is taken to translate rigidly at w (its centre c moves at w). Two kinds of row,
-    each the CBF condition dh/dt >= -gamma h of eq. 4.12 on that motion:
-
-    * static obstacles (speed below ESCAPE_MIN_SPEED) stay out of the formation's ellipse:
-      h_k = h of eq. 4.6 at obstacle k's centre o_k (negative inside), dh/dc = -dh/dp
-      (appendix A.3 (16, 17)), so  dh/dp(o_k) . w <= gamma_obstacle h_k;
-    * the formation does not press into another formation's ellipse faster than that one
-      moves away: with n the unit vector from c to the other's centre c_e and
-      gap = |c_e - c| - both half-widths along n (:func:`_gap`, a lower bound on the
-      ellipses' distance), gap' = (v_e - w) . n >= -gamma_formations gap with v_e the other's
-      velocity now (its ellipse's: shared data), as the inter-formation rows of eq. 4.12 take
-      the other's velocity (appendix A), so  n . w <= v_e . n + gamma_formations gap. A
-      formation that cannot give way (squeezed, or pinned against a shelf) is then no longer
-      pressed by the one coming at it. Left out where the other is still (slower than
-      STALL_SPEED) and its ellipse reaches into ours placed at our goal (a neighbour parked
-      next to our goal shape: the members' rows and :func:`yield_push` settle that, as
-      before). Measured and not kept (`formation montecarlo --n 60`, seeds 7 and 11): each
-      formation taking half of the pair's condition from both velocities, as
-      :func:`agent.barriers.separation_row` does for two robots (1 deadlock, worst 2.37
-      epsilon), and a steeper gain max_speed / YIELD_RANGE in place of gamma_formations
-      (2 deadlocks: a triangle that gave way was followed south of a shelf row it could not
-      cross); this rule: 0 deadlocks, worst 0.89 epsilon.
-
-    The correction is w* - w, w* the closest motion to w meeting every row within SHAPE_RANGE
-    (:func:`agent.qp.solve_exact`); where the rows cannot all be met, the obstacle rows alone
-    are used, and where those cannot be met either the correction is (0, 0) (the members'
-    own rows still hold). An obstacle whose centre lies inside the ellipse placed at the
-    formation's goal (its current waypoint) is left out: the goal shape is meant to hold it."""
-    rows = _shape_obstacle_rows(p, view, obstacles)
-    fixed = len(rows)
-    rows += _shape_hazard_rows(p, view, hazards)
-    if not rows:
-        return (0.0, 0.0)
-    u = solve_exact(w[0], w[1], rows)
-    if u is None and fixed < len(rows):
-        u = solve_exact(w[0], w[1], rows[:fixed])
-    if u is None:
-        return (0.0, 0.0)
-    return (u[0] - w[0], u[1] - w[1])
-
-
-def _shape_obstacle_rows(p: ControlParams, view: FormationView,
-                         obstacles: Sequence[Obstacle]) -> list[Row]:
-    """:func:`shape_push`'s rows keeping static obstacles out of the formation's ellipse."""
-    own = view.own
-    rows: list[Row] = []
-    for o in obstacles:
-        if math.hypot(o.vx, o.vy) >= ESCAPE_MIN_SPEED:
-            continue  # moving: the escape rule's
-        if math.hypot(o.x - own.cx, o.y - own.cy) > own.a + SHAPE_RANGE:
-            continue
-        if ellipse_terms(o.x, o.y, view.goal_x, view.goal_y, own.alpha, own.a, own.b)[0] < 0.0:
-            continue  # the goal shape holds it
-        h, gx, gy, _ = ellipse_terms(o.x, o.y, own.cx, own.cy, own.alpha, own.a, own.b)
-        rows.append(normalized_row(gx, gy, p.gamma_obstacle * h))
-    return rows
-
-
-def _shape_hazard_rows(p: ControlParams, view: FormationView,
-                       hazards: Sequence[Ellipse]) -> list[Row]:
-    """:func:`shape_push`'s rows: no pressing into another formation's ellipse faster than it
-    moves away."""
-    own = view.own
-    rows: list[Row] = []
-    for e in hazards:
-        dx, dy = e.cx - own.cx, e.cy - own.cy
-        d = math.hypot(dx, dy)
-        if d < 1e-9:
-            continue
-        nx, ny = dx / d, dy / d
-        gap = d - _half_width(own, nx, ny) - _half_width(e, nx, ny)
-        if gap > SHAPE_RANGE:
-            continue
-        if math.hypot(e.vx, e.vy) < STALL_SPEED and \
-                _gap(own._replace(cx=view.goal_x, cy=view.goal_y), e) < 0.0:
-            continue  # parked next to our goal shape: the members' rows and yield_push
-        rows.append((nx, ny, e.vx * nx + e.vy * ny + p.gamma_formations * gap))
-    return rows
-
-
-def band_nominal(
-    p: ControlParams, px: float, py: float, goal_u: tuple[float, float],
-    neighbours: Sequence[Neighbour],
-) -> tuple[float, float]:
-    """Formation keeping first, the goal second: the nominal command of a member whose own
-    edges have drifted in their band (module docstring, "Band").
-
-    With e the largest error of the robot's own edges, | |p - p_j| - Df_j | / epsilon, the
-    nominal is  s u_goal + (1 - s) (v_nb + k sum_j (|p - p_j| - Df_j) (p_j - p)/|p_j - p|),
-    s = clamp((BAND_HOLD - e) / (BAND_HOLD - BAND_EASE), 0, 1), v_nb the mean of the
-    neighbours' last velocities (their ``state``), k = BAND_REPAIR_GAIN; clamped to the speed
-    limit. The second part moves with the neighbours and back towards each Df (it is the
-    negative gradient of 1/2 sum_j (|p - p_j| - Df_j)^2, so with the neighbours still it only
-    lowers the edge error). With every own edge within BAND_EASE epsilon the goal's nominal
-    (eq. 4.2) is returned unchanged. Only the nominal changes: every barrier row is the same."""
-    eps = p.epsilon
-    worst = rx = ry = 0.0
-    for n in neighbours:
-        dx, dy = n.x - px, n.y - py
-        d = math.hypot(dx, dy)
-        if d < 1e-9:
-            continue
-        err = d - n.df
-        worst = max(worst, abs(err) / eps)
-        rx += err * dx / d
-        ry += err * dy / d
-    s = min(1.0, max(0.0, (BAND_HOLD - worst) / (BAND_HOLD - BAND_EASE)))
-    if s >= 1.0:
-        return goal_u
-    k = len(neighbours)
-    fx = sum(n.vx for n in neighbours) / k
-    fy = sum(n.vy for n in neighbours) / k
-    ux = s * goal_u[0] + (1.0 - s) * (fx + BAND_REPAIR_GAIN * rx)
-    uy = s * goal_u[1] + (1.0 - s) * (fy + BAND_REPAIR_GAIN * ry)
-    return nominal(1.0, 0.0, 0.0, ux, uy, p.max_speed)
-
-
-def formation_nominal(p: ControlParams, view: FormationView, obstacles: Sequence[Obstacle],
-                      hazards: Sequence[Ellipse], u: tuple[float, float]
-                      ) -> tuple[float, float, bool]:
-    """A member's nominal ``u`` with the formation-level terms, each the same for every member
-    (module docstring): the escape from a moving hazard or the jam rule's retreat (either
-    replaces it), else the tie-break push; giving way as one body (``yield_push``); keeping
-    static obstacles and other formations out of the shape (``shape_push``, on the shared motion
-    ``fw``: eq. 4.2 on the centroid with the same terms). Returns (ux, uy, escaping)."""
-    ux, uy = u
-    escaping = False
-    fw = nominal(p.kp, view.own.cx, view.own.cy, view.goal_x, view.goal_y, p.max_speed)
-    if p.tiebreak and p.safety:
-        esc = escape_command(p, view, obstacles)
-        back = retreat_command(view, hazards, p.max_speed) if view.retreating else None
-        if esc is not None:
-            ux, uy = fw = esc  # the whole formation steps out of a moving hazard's way
-            escaping = True
-        elif back is not None:
-            ux, uy = fw = back  # the whole formation backs off the same way
-        else:
-            bx, by = tiebreak_push(view, hazards, obstacles, p.max_speed)
-            if bx or by:
-                ux, uy = nominal(1.0, 0.0, 0.0, ux + bx, uy + by, p.max_speed)
-                fw = nominal(1.0, 0.0, 0.0, fw[0] + bx, fw[1] + by, p.max_speed)
-    if p.keeps_band_first and not escaping:
-        yx, yy = yield_push(view, hazards)  # give way as one body to a formation coming at us
-        if yx or yy:
-            ux, uy = nominal(1.0, 0.0, 0.0, ux + yx, uy + yy, p.max_speed)
-            fw = nominal(1.0, 0.0, 0.0, fw[0] + yx, fw[1] + yy, p.max_speed)
-    if p.keeps_shape_clear:
-        sx, sy = shape_push(p, view, obstacles, hazards, fw)  # static obstacles stay out of the shape
-        if sx or sy:
-            ux, uy = nominal(1.0, 0.0, 0.0, ux + sx, uy + sy, p.max_speed)
-    return ux, uy, escaping
-
-
 def control_step(
     params: ControlParams,
     pose: tuple[float, float, float],
@@ -880,8 +542,8 @@ def control_step(
     ellipses); ``partners`` are the robots this one could touch that get a hard separation row
     (every other member of its formation, and in all-to-all every foreign robot), with
     ``last_u`` this robot's own last certified velocity, as its ``state`` told them; ``hazards``
-    are the other formations' ellipses for the formation-level rules only (tie-break, jam;
-    default: ``others``), so all-to-all keeps those rules without ellipse rows.
+    are the other formations' ellipses for the formation's motion only (its QP and the
+    tie-break; default: ``others``), so all-to-all keeps them without ellipse rows.
     ``shapes`` are the static walls and shelves (Ds from the shape, offset added likewise).
     ``clock`` (e.g. ``time.perf_counter_ns``) times the QP for ``solve_us``; without one the step
     reads no clock and ``solve_us`` is 0. ``footprint``: this member's slot in its formation's
@@ -894,18 +556,10 @@ def control_step(
     px, py = (unicycle.control_point(x, y, theta, off) if p.unicycle else (x, y))
     if p.unicycle:  # the band is meant for the bodies: measure each edge there (body_df)
         neighbours = [n._replace(df=body_df(px, py, theta, n, off)) for n in neighbours]
-    rules = p.method == "rules"
-    target = goal
-    if rules and p.unicycle and p.safety and view is not None:  # one rigid motion for all members
-        target = rigid_target(goal, view, x, y, p.max_speed)
-    ux, uy = nominal(p.kp, x, y, target[0], target[1], p.max_speed)
+    ux, uy = nominal(p.kp, x, y, goal[0], goal[1], p.max_speed)
     if hazards is None:
         hazards = others
     escaping = False
-    if view is not None and rules:
-        ux, uy, escaping = formation_nominal(p, view, obstacles, hazards, (ux, uy))
-    if rules and p.keeps_band_first and not escaping and neighbours:
-        ux, uy = band_nominal(p, px, py, (ux, uy), neighbours)  # formation keeping first
     if p.method == "rigid" and p.safety and view is not None and footprint is not None:
         esc = escape_command(p, view, obstacles) if p.tiebreak else None  # a faster hazard
         push = tiebreak_push(view, hazards, obstacles, p.max_speed) if p.tiebreak else (0.0, 0.0)

@@ -55,7 +55,7 @@ def step_inputs(
     of other formations, which then replace the ellipses as pairwise rows; ``members`` are the
     other members of its formation (graph neighbours or not). Each member, and in all-to-all
     each foreign robot, is a partner of a hard separation row; the other formations' ellipses
-    stay hazards for the formation-level rules (tie-break, jam) in both topologies. A neighbour
+    stay hazards for the formation's motion (its QP, tie-break) in both topologies. A neighbour
     may carry its heading as a sixth number (from its ``state``): a unicycle formation's band on
     the look-ahead points narrows by it.
     """
@@ -66,11 +66,7 @@ def step_inputs(
                   if within_reach(own, e.cx, e.cy, e.a, VIEW_RANGE)]
         view = FormationView(own, *formation_goal)
         stall = update_stall(stall, view, period)
-        view = view._replace(
-            name=formation,
-            other_names=tuple(name for name, _e in others),
-            retreating=stall.retreat > 0.0,
-        )
+        view = view._replace(name=formation, other_names=tuple(name for name, _e in others))
     hazards = [e for _name, e in others]
     partners = [Partner(*m) for m in members]
     if foreign is not None:

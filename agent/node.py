@@ -571,7 +571,7 @@ class AgentNode:
             return self._zero(t, POSE_AT_SEND)  # never send a command from a pose gone stale
         if self.leader.leading:
             stall = self._stall
-            self.nav.report(stamp, stall.still >= STALLED_AFTER_S or stall.retreat > 0.0, False)
+            self.nav.report(stamp, stall.still >= STALLED_AFTER_S, False)
         self.send_command(Cmd(res.v, res.omega, res.ux, res.uy, stamp))
         self.last_u = (res.ux, res.uy)
         self._record(res, stamp)

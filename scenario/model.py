@@ -19,9 +19,9 @@ from .world import WorldSpec, with_profile
 
 SINGLE_INTEGRATOR = "single_integrator"
 UNICYCLE = "unicycle"
-# controller.method: "rules" (the formation-level nominal rules of agent.control), "thesis" (eq. 4.2
-# and the thesis's rows only), "rigid" (the formation's rigid motion: agent.body)
-METHODS = ("rules", "thesis", "rigid")
+# controller.method: "rigid" (the formation's rigid motion: agent.body; the default), "thesis"
+# (eq. 4.2 and the thesis's rows only, for comparison)
+METHODS = ("rigid", "thesis")
 
 
 @dataclass(frozen=True)
@@ -59,7 +59,7 @@ class ControllerSpec:
     tiebreak: str = "keep_right"  # formation-level deadlock rule, or "none"
     d_af: float | None = None  # [m] pairwise distance of eq. 3.5 (all-to-all topology only)
     planner: str = "visibility"  # route around walls and boxes, or "none"
-    method: str = "rules"  # how nominal commands are made: one of METHODS (agent.control)
+    method: str = "rigid"  # how nominal commands are made: one of METHODS (agent.control)
 
 
 @dataclass(frozen=True)

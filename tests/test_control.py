@@ -107,35 +107,18 @@ def test_every_member_gets_the_same_push_and_far_hazards_none():
     assert tiebreak_push(a, [], [behind], 0.22) == (0.0, 0.0)
 
 
-def test_a_still_formation_away_from_its_goal_starts_retreating_after_the_stall_time():
-    from agent.control import RETREAT_TIME, STALL_TIME, Stall, update_stall
+def test_the_stall_clock_runs_only_while_the_formation_is_still_away_from_its_goal():
+    from agent.control import Stall, update_stall
 
     jammed = view(0.0, 0.0, 5.0, 0.0)  # centroid velocity 0, goal 5 m away
     s = Stall()
-    ticks = 0
-    while s.retreat == 0.0 and ticks < 1000:
+    for _ in range(80):
         s = update_stall(s, jammed, 0.05)
-        ticks += 1
-    assert abs(ticks * 0.05 - STALL_TIME) <= 0.05 + 1e-9
-    assert s.retreat == pytest.approx(RETREAT_TIME)
+    assert s.still == pytest.approx(4.0)
     moving = view(0.0, 0.0, 5.0, 0.0, vx=0.2)
-    assert update_stall(Stall(3.0, 0.0), moving, 0.05).still == 0.0
+    assert update_stall(Stall(3.0), moving, 0.05).still == 0.0
     at_goal = view(4.9, 0.0, 5.0, 0.0)
-    assert update_stall(Stall(3.99, 0.0), at_goal, 0.05) == Stall(0.0, 0.0)
-
-
-def test_only_the_formation_without_priority_backs_away():
-    from agent.control import retreat_command
-
-    a = view(0.0, 0.0, 5.0, 0.0)._replace(name="A", other_names=("B",), retreating=True)
-    b = view(1.5, 0.0, -5.0, 0.0)._replace(name="B", other_names=("A",), retreating=True)
-    assert retreat_command(a, [b.own], 0.22) is None  # A has priority: keeps going
-    back = retreat_command(b, [a.own], 0.22)
-    assert back[0] > 0 and back[1] == pytest.approx(0.0)  # B backs away from A (+x)
-    far = view(9.0, 0.0, -5.0, 0.0)._replace(name="B", other_names=("A",), retreating=True)
-    assert retreat_command(far, [a.own], 0.22) is None
-    step = control_step(ControlParams(), (1.5, 0.0, 0.0), (-5.0, 0.0), others=[a.own], view=b)
-    assert step.nominal_ux > 0  # the retreat replaces the drive towards the goal
+    assert update_stall(Stall(3.99), at_goal, 0.05) == Stall(0.0)
 
 
 def test_unicycles_keep_a_sampling_margin_around_obstacles_and_integrators_none():

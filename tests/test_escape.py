@@ -4,7 +4,8 @@ The envelope (a forklift up to 1.5 x the robots' top speed, first seen at least 
 step aside) ends with no contact, for a parked and a moving formation, from five bearings; where
 escape is physically impossible the robots take the least-risk command, and it is counted. A
 formation as fast as the robots (all formations share one robot model) is met by the tie-break
-and by giving way as one body (agent.control.yield_push): the scenarios
+and by the formation's rigid motion (agent.body), whose rows keep its footprint off the other
+formations' ellipses: the scenarios
 tests/scenarios/formation-*.yaml run in tests/test_simulation.py; here one of them runs in
 separate processes, lock-step, exactly as in-process.
 """

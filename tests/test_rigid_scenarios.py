@@ -4,8 +4,8 @@ in process: 0 collisions, formation error <= 1.5 epsilon, every goal reached, 0 
 Each scenario is a kind the issue names: a rectangle next to a wall pushed by a forklift, a
 parked forklift in an aisle, a pentagon passing a shelf corner, a 180-degree unicycle turn at
 10 and 50 Hz, two unicycle formations through one 1.3 m doorway starting turned away, and the
-warehouse demo; both robot models. The same files under ``method: rules`` and ``thesis`` are
-measured side by side in docs (not asserted here: they are the comparison)."""
+warehouse demo; both robot models. ``rigid`` is the default; the same files under ``method: thesis``
+are measured side by side in docs (not asserted here: they are the comparison)."""
 
 from __future__ import annotations
 
@@ -55,7 +55,7 @@ def test_every_rigid_scenario_says_rigid():
         assert load_scenario(path).controller.method == "rigid", path.name
 
 
-def test_each_agent_config_carries_its_slot_under_rigid_and_rules_files_stay_as_they_were(tmp_path):
+def test_each_agent_config_carries_its_slot_under_rigid_and_thesis_files_carry_none(tmp_path):
     rigid = load_scenario(SCENARIOS / "rigid-doorway-pair.yaml")
     cfgs = build_agent_configs(rigid)
     assert [cfgs[r].footprint.member for r in ("e1", "e2", "e3", "e4")] == [0, 1, 2, 3]
@@ -63,9 +63,9 @@ def test_each_agent_config_carries_its_slot_under_rigid_and_rules_files_stay_as_
     for rid, cfg in cfgs.items():
         save_config(cfg, tmp_path / rid)
         assert load_config(tmp_path / rid) == cfg
-    rules = dataclasses.replace(rigid, controller=dataclasses.replace(rigid.controller, method="rules"))
-    d = config_to_dict(build_agent_configs(rules)["e1"])
-    assert "footprint" not in d and "method" not in d["control"]
+    thesis = dataclasses.replace(rigid, controller=dataclasses.replace(rigid.controller, method="thesis"))
+    d = config_to_dict(build_agent_configs(thesis)["e1"])
+    assert "footprint" not in d and d["control"]["method"] == "thesis"
 
 
 @pytest.mark.slow

