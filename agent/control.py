@@ -57,7 +57,11 @@ TIEBREAK_DEAD = 0.05  # [m] lateral offsets this small count as dead ahead: keep
 TIEBREAK_RANGE = 2.0  # [m] distance ahead of contact over which the push fades in
 TIEBREAK_GAIN = 0.35  # push as a fraction of max speed
 STALL_SPEED = 0.02  # [m/s] a formation centroid slower than this is "still"
-STALL_GOAL_DISTANCE = 0.3  # [m] closer than this to its goal centroid a formation is not jammed
+STALL_TIME = 4.0  # [s] still this long, away from the goal: a jam
+YIELD_TIME = 5.0  # [s] how long a jammed formation without priority backs away
+YIELD_RANGE = 1.0  # [m] beyond touching ellipses, formations that count for yielding
+YIELD_GAIN = 0.5  # backing speed as a fraction of max speed
+STALL_GOAL_DISTANCE = 0.1  # [m] closer than this to its target (goal or waypoint) a formation is not jammed
 ESCAPE_MIN_SPEED = 0.02  # [m/s] obstacles slower than this are static for the escape rule
 ESCAPE_RANGE = 6.0  # [m] moving hazards farther than this from the centroid are ignored
 ESCAPE_HORIZON = 20.0  # [s] closest approaches further ahead than this do not count yet
@@ -173,22 +177,51 @@ class FormationView(NamedTuple):
     goal_y: float
     name: str = ""  # this formation's name (priority: names sort first-come-first)
     other_names: tuple[str, ...] = ()  # names of ``others``, in the same order
+    yielding: bool = False  # the stall clock says jammed: see update_stall, yield_command
 
 
 class Stall(NamedTuple):
-    """How long the formation has been nearly still away from its goal (every member keeps an
-    identical copy; the leader reports ``stalled`` from it: agent.navigation)."""
+    """How long the formation has been nearly still away from its goal, and how long it still
+    yields (every member keeps an identical copy; the leader reports ``stalled`` from it)."""
 
     still: float = 0.0  # [s]
+    yielding: float = 0.0  # [s] left
 
 
 def update_stall(prev: Stall, view: FormationView, dt: float) -> Stall:
     """The stall clock: it runs while the formation's centroid is slower than STALL_SPEED away
-    from its goal, from what every member shares (its formation's ellipse and goal)."""
+    from its goal, from what every member shares (its formation's ellipse and goal); still for
+    STALL_TIME, the formation yields for YIELD_TIME (:func:`yield_command`)."""
     own = view.own
     far = math.hypot(view.goal_x - own.cx, view.goal_y - own.cy) > STALL_GOAL_DISTANCE
     slow = math.hypot(own.vx, own.vy) < STALL_SPEED
-    return Stall(prev.still + dt if far and slow else 0.0)
+    still = prev.still + dt if far and slow and prev.yielding <= 0.0 else 0.0
+    if still >= STALL_TIME:
+        return Stall(0.0, YIELD_TIME)
+    return Stall(still, max(0.0, prev.yielding - dt))
+
+
+def yield_command(view: FormationView, others: Sequence[Ellipse], vmax: float
+                  ) -> tuple[float, float] | None:
+    """A jam (two formations in a doorway, three or more at a crossing: no barrier picks who
+    goes first) is broken by priority: a yielding formation backs away from every nearby
+    formation whose name sorts before its own, at YIELD_GAIN vmax; None when there is none (it
+    has priority and keeps going)."""
+    own = view.own
+    rx = ry = 0.0
+    for e, name in zip(others, view.other_names, strict=False):
+        if not name or name >= view.name:
+            continue
+        dx, dy = own.cx - e.cx, own.cy - e.cy
+        d = math.hypot(dx, dy)
+        if d < 1e-9 or d > own.a + e.a + YIELD_RANGE:
+            continue
+        rx += dx / d
+        ry += dy / d
+    n = math.hypot(rx, ry)
+    if n < 1e-9:
+        return None
+    return (YIELD_GAIN * vmax * rx / n, YIELD_GAIN * vmax * ry / n)
 
 
 class StepResult(NamedTuple):
@@ -562,13 +595,16 @@ def control_step(
     escaping = False
     if p.method == "rigid" and p.safety and view is not None and footprint is not None:
         esc = escape_command(p, view, obstacles) if p.tiebreak else None  # a faster hazard
+        if esc is None and p.tiebreak and view.yielding:  # a jam: the later name backs off
+            esc = yield_command(view, hazards, p.max_speed)
         push = tiebreak_push(view, hazards, obstacles, p.max_speed) if p.tiebreak else (0.0, 0.0)
         ux, uy = rigid_nominal(p, footprint, view, body.Snapshot(obstacles, shapes, hazards),
                                     (px, py), (x, y), goal, push, esc)
         escaping = esc is not None
     if p.unicycle and p.safety and p.method != "thesis":  # turn about the body, then drive
         near = math.hypot(goal[0] - x, goal[1] - y) < unicycle.STEER_REVERSE_RANGE
-        ux, uy = unicycle.steer(ux, uy, theta, p.lookahead, p.max_turn_rate, reverse=near)
+        lead = 1.0 / body.band_gain(p.kp, p.period)  # where the slot's pull aims the point
+        ux, uy = unicycle.steer(ux, uy, theta, p.lookahead, p.max_turn_rate, reverse=near, lead=lead)
     nux, nuy = ux, uy
 
     rows = build_rows(p, px, py, theta, (ux, uy), neighbours, obstacles, others, view, pairwise,

@@ -40,29 +40,39 @@ STEER_REVERSE_RANGE = 0.1  # [m] this close to its goal a robot may back up inst
 
 
 def steer(wx: float, wy: float, theta: float, lookahead: float, max_turn_rate: float,
-          reverse: bool = False) -> tuple[float, float]:
-    """The look-ahead point's nominal velocity for an intended body velocity w: turn first,
+          reverse: bool = False, lead: float = 0.0) -> tuple[float, float]:
+    """The look-ahead point's nominal velocity for an intended point velocity w: turn first,
     then drive (the unicycle's own nominal; eq. 4.2 stays the intended motion).
 
     Fed w directly, the look-ahead point drags the body round it whenever w points away from
     the heading: the robot turns at |w| sin(err) / l (4.4 rad/s for a TurtleBot) while its body
     swings on a circle of radius l, and two members turning opposite ways move their bodies up
     to 2 l apart. Here the robot turns in place about its body at STEER_GAIN x the heading
-    error (the body stays where it is) and drives at the part of |w| along its heading, none
-    beyond 90 degrees: v = |w| max(cos err, 0), omega = STEER_GAIN err (clamped), and u is the
-    look-ahead velocity of that (v, omega) (eq. 6.2 inverted). Members of a formation turn the
-    same way: an error within STEER_LEFT_BIAS of opposite turns left. With ``reverse`` (close
-    to the goal) the robot backs up rather than turning round when w points behind it."""
-    speed = math.hypot(wx, wy)
-    if speed < 1e-9:
+    error (the body stays where it is) and drives at the part of w along its heading, none
+    backwards: v = max(w . e(theta), 0), omega = STEER_GAIN err (clamped), and u is the
+    look-ahead velocity of that (v, omega) (eq. 6.2 inverted).
+
+    The heading aimed at is that of the point where w asks the look-ahead point to be ``lead``
+    seconds from now, seen from the BODY: s + w lead - b = l e(theta) + w lead. Far from it
+    (|w| lead >> l) that is w's own direction; for a point pulled a few millimetres towards a
+    slot (w = k (slot - s), lead = 1 / k) it is the heading that puts the point on the slot. It
+    does not move as the robot turns, since the body does not: aimed at w's direction instead,
+    a robot whose slot lay behind its look-ahead point saw w swing round as fast as it turned and
+    turned back and forth in place (a reversal every tick, measured in
+    tests/scenarios/shelf-pushed-unicycle.yaml). Members of a formation turn the same way: an
+    error within STEER_LEFT_BIAS of opposite turns left. With ``reverse`` (close to the goal)
+    the robot backs up rather than turning round when the aim lies behind it."""
+    if math.hypot(wx, wy) < 1e-9:
         return (0.0, 0.0)
-    err = math.atan2(wy, wx) - theta
+    c, s = math.cos(theta), math.sin(theta)
+    err = math.atan2(lookahead * s + wy * lead, lookahead * c + wx * lead) - theta
+    along = wx * c + wy * s
     if reverse:
         err = (err + 0.5 * math.pi) % math.pi - 0.5 * math.pi  # nearest of forwards and back
-        v = speed * math.cos(err) if _ahead(wx, wy, theta) else -speed * math.cos(err)
+        v = along
     else:
         err = (err + math.pi - STEER_LEFT_BIAS) % (2.0 * math.pi) - math.pi + STEER_LEFT_BIAS
-        v = speed * max(math.cos(err), 0.0)
+        v = max(along, 0.0)
     omega = max(-max_turn_rate, min(max_turn_rate, STEER_GAIN * err))
     return from_unicycle(v, omega, theta, lookahead)
 

@@ -79,3 +79,16 @@ def test_the_tiebreak_stays_under_rigid_two_rectangles_head_on_deadlock_without_
                     ).summary["all_reached"]
     stuck = simulate(dataclasses.replace(s, controller=without), SimOptions(record=False)).summary
     assert not stuck["all_reached"] and stuck["collisions"] == 0
+
+
+@pytest.mark.slow
+def test_the_yield_rule_stays_two_rectangles_in_one_doorway_deadlock_without_it(monkeypatch):
+    """No barrier picks which of two formations meeting in a doorway goes first: with the stall
+    clock's yield (agent.control.yield_command) the later name backs off and both get through."""
+    from agent import control
+
+    summary, _eps = _run("rigid-doorway-pair")
+    assert summary["all_reached"] and summary["collisions"] == 0
+    monkeypatch.setattr(control, "yield_command", lambda view, others, vmax: None)
+    stuck, _eps = _run("rigid-doorway-pair")
+    assert not stuck["all_reached"] and stuck["collisions"] == 0

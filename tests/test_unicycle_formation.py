@@ -50,6 +50,29 @@ def test_steering_turns_in_place_before_driving_and_keeps_the_limits(wx, wy, the
         assert v * along >= -1e-12  # backs up when the target is behind it
 
 
+@settings(max_examples=300, deadline=None)
+@given(st.floats(-0.03, 0.03), st.floats(-0.03, 0.03), angle)
+def test_a_robot_pulled_towards_a_slot_near_its_body_turns_one_way_until_its_point_is_on_it(
+        ex, ey, theta):
+    """The slot pull w = k (slot - s) aimed from the body (lead 1 / k) names one heading; turning
+    towards it never makes the aim swing the other way (aimed at w's own direction, a slot
+    behind the look-ahead point turned the robot back and forth in place)."""
+    look, wmax, k, dt = 0.05, 2.84, 2.0, 0.05
+    bx, by = 0.0, 0.0
+    slot = (bx + look * math.cos(theta) + ex, by + look * math.sin(theta) + ey)
+    assume(math.hypot(ex, ey) > 1e-3)
+    signs = set()
+    th = theta
+    for _ in range(100):
+        sx, sy = bx + look * math.cos(th), by + look * math.sin(th)
+        ux, uy = unicycle.steer(k * (slot[0] - sx), k * (slot[1] - sy), th, look, wmax, lead=1.0 / k)
+        v, omega = unicycle.to_unicycle(ux, uy, th, look)
+        if abs(omega) > 1e-6:
+            signs.add(omega > 0.0)
+        bx, by, th = unicycle.integrate(bx, by, th, v, omega, dt)
+    assert len(signs) <= 1  # no back and forth
+
+
 def test_a_robot_facing_its_motion_drives_at_the_intended_velocity():
     ux, uy = unicycle.steer(0.2, 0.0, 0.0, 0.05, 2.84)
     assert (ux, uy) == pytest.approx((0.2, 0.0))
