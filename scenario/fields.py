@@ -7,12 +7,12 @@ Each raises :class:`scenario.reader.ScenarioError` naming the culprit by its pat
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from typing import Any
 
 from wire.keys import name_problem
 
+from . import limits
 from .limits import Range
 from .reader import ScenarioError, excerpt
 
@@ -39,12 +39,8 @@ def count(items: Any, where: str, most: int) -> None:
 
 
 def number(raw: Any, where: str) -> float:
-    if isinstance(raw, bool) or not isinstance(raw, int | float):
-        raise ScenarioError(f"{where}: must be a number, got {excerpt(raw)}")
-    v = float(raw)
-    if not math.isfinite(v):
-        raise ScenarioError(f"{where}: must be finite, got {excerpt(raw)}")
-    return v
+    """A finite number (:func:`scenario.limits.number`)."""
+    return limits.number(raw, where, ScenarioError)
 
 
 def positive(raw: Any, where: str) -> float:
@@ -55,13 +51,9 @@ def positive(raw: Any, where: str) -> float:
 
 
 def within(raw: Any, where: str, allowed: Range) -> float:
-    """A finite number in ``allowed``; a non-positive one where only positive ones make sense
-    is reported as such (with the range)."""
-    v = number(raw, where)
-    if not allowed.contains(v):
-        what = "must be positive" if v <= 0.0 <= allowed.lo else "out of range"
-        raise ScenarioError(f"{where}: {what}, got {excerpt(raw)} (allowed: {allowed.text()})")
-    return v
+    """A finite number in ``allowed`` (:func:`scenario.limits.check`: a non-positive one where
+    only positive ones make sense is reported as such, with the range)."""
+    return limits.check(raw, where, allowed, ScenarioError)
 
 
 def vector(raw: Any, where: str, lengths: tuple[int, ...],

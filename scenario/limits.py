@@ -47,18 +47,26 @@ def positive(hi: float, unit: str) -> Range:
     return Range(0.0, hi, unit, lo_open=True)
 
 
-def check(raw: object, where: str, allowed: Range) -> float:
-    """``raw`` as a float when it is a finite number (not a bool) in ``allowed``; else a
-    one-line ValueError naming ``where`` (a non-positive value where only positive ones make
-    sense is reported as such, with the range)."""
+def number(raw: object, where: str, error: type[ValueError] = ValueError) -> float:
+    """``raw`` as a float when it is a finite number (not a bool); else a one-line ``error``
+    naming ``where``. The one copy of this check: scenarios (:mod:`scenario.fields`, raising
+    ScenarioError), their ``world:`` section and a robot's own configuration use it."""
     if isinstance(raw, bool) or not isinstance(raw, int | float):
-        raise ValueError(f"{where}: must be a number, got {excerpt(raw)}")
+        raise error(f"{where}: must be a number, got {excerpt(raw)}")
     v = float(raw)
     if not math.isfinite(v):
-        raise ValueError(f"{where}: must be finite, got {excerpt(raw)}")
+        raise error(f"{where}: must be finite, got {excerpt(raw)}")
+    return v
+
+
+def check(raw: object, where: str, allowed: Range, error: type[ValueError] = ValueError) -> float:
+    """:func:`number` in ``allowed``; else a one-line ``error`` naming ``where`` (a
+    non-positive value where only positive ones make sense is reported as such, with the
+    range)."""
+    v = number(raw, where, error)
     if not allowed.contains(v):
         what = "must be positive" if v <= 0.0 <= allowed.lo else "out of range"
-        raise ValueError(f"{where}: {what}, got {excerpt(raw)} (allowed: {allowed.text()})")
+        raise error(f"{where}: {what}, got {excerpt(raw)} (allowed: {allowed.text()})")
     return v
 
 

@@ -19,6 +19,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from .fields import within
 from .limits import Range
 from .reader import ScenarioError, excerpt
 
@@ -110,7 +111,7 @@ def parse_world(raw: Any, where: str = "world") -> WorldSpec:
         raise ScenarioError(f"{where}: unknown key {excerpt(unknown[0])} "
                             f"(known: {', '.join(sorted(_KEYS))})")
     spec = profile(raw.get("profile", IDEAL), f"{where}.profile")
-    changes: dict[str, Any] = {name: _number(raw[name], f"{where}.{name}", rng)
+    changes: dict[str, Any] = {name: within(raw[name], f"{where}.{name}", rng)
                                for name, rng in RANGES.items() if name in raw}
     if "seed" in raw:
         changes["seed"] = _seed(raw["seed"], f"{where}.seed")
@@ -135,15 +136,6 @@ def with_profile(spec: WorldSpec, name: str) -> WorldSpec:
     if chosen.profile == spec.profile:
         return spec
     return dataclasses.replace(chosen, seed=spec.seed)
-
-
-def _number(raw: Any, where: str, allowed: Range) -> float:
-    if isinstance(raw, bool) or not isinstance(raw, int | float) or math.isnan(raw):
-        raise ScenarioError(f"{where}: must be a number, got {excerpt(raw)}")
-    v = float(raw)
-    if not allowed.contains(v):
-        raise ScenarioError(f"{where}: out of range, got {excerpt(raw)} (allowed: {allowed.text()})")
-    return v
 
 
 def _seed(raw: Any, where: str) -> int:

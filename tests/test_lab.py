@@ -50,8 +50,13 @@ def test_the_world_section_defaults_to_ideal_and_overrides_a_profiles_numbers():
 @pytest.mark.parametrize("raw, culprit", [
     ({"profile": "mars"}, "world.profile: unknown world profile"),
     ({"profile": TURTLEBOT3_LAB, "drop_rate": 1.5}, "world.drop_rate: out of range"),
-    ({"profile": TURTLEBOT3_LAB, "motor_lag": float("nan")}, "world.motor_lag: must be a number"),
-    ({"profile": TURTLEBOT3_LAB, "track": -0.1}, "world.track: out of range"),
+    # the scenario's own number check (scenario.limits), so the same words as the rest of the file
+    ({"profile": TURTLEBOT3_LAB, "motor_lag": float("nan")}, "world.motor_lag: must be finite"),
+    ({"profile": TURTLEBOT3_LAB, "max_wheel_speed": float("inf")},
+     "world.max_wheel_speed: must be finite"),
+    ({"profile": TURTLEBOT3_LAB, "track": -0.1},
+     r"world.track: must be positive, got -0.1 \(allowed: greater than 0 and at most 5 m\)"),
+    ({"profile": TURTLEBOT3_LAB, "motor_lag": 11}, r"world.motor_lag: out of range, got 11"),
     ({"profile": TURTLEBOT3_LAB, "pose_noise": "big"}, "world.pose_noise: must be a number"),
     ({"profile": TURTLEBOT3_LAB, "seed": -1}, "world.seed: must be an integer"),
     ({"profile": TURTLEBOT3_LAB, "gravity": 9.8}, "world: unknown key"),

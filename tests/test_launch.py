@@ -10,6 +10,8 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -27,17 +29,63 @@ LONG = TWO_FORMATIONS.replace("duration: 40.0", "duration: 400.0").replace(
     "goal: [2.0, 0.5]", "goal: [40.0, 0.5]").replace("goal: [1.6, 0.25]", "goal: [39.6, 0.25]")
 
 
-def run_cli(args: list[str]) -> int:
-    return main(args)
+@pytest.fixture
+def two(tmp_path) -> Path:
+    """tests/scenarios/two-small.yaml, as the test's own file."""
+    path = tmp_path / "two.yaml"
+    path.write_text(TWO_FORMATIONS, encoding="utf-8")
+    return path
 
 
-def test_run_reaches_every_goal_safely_and_as_fast_as_the_in_process_simulation(tmp_path, capsys):
-    scenario = tmp_path / "two.yaml"
-    scenario.write_text(TWO_FORMATIONS, encoding="utf-8")
-    assert run_cli(["sim", str(scenario), "--out", str(tmp_path / "sim"), "--quiet",
-                    "--no-plots"]) == 0
-    assert run_cli(["run", str(scenario), "--out", str(tmp_path / "run"), "--quiet",
-                    "--no-plots"]) == 0
+@pytest.fixture
+def long(tmp_path) -> Path:
+    """two-small with goals 38 m further: a run that needs minutes (to interrupt it)."""
+    path = tmp_path / "long.yaml"
+    path.write_text(LONG, encoding="utf-8")
+    return path
+
+
+def run_cli(command: str, scenario: Path, out: Path, *options: str, plots: bool = False) -> int:
+    """``formation COMMAND SCENARIO --out OUT --quiet [--no-plots] OPTIONS`` in this process."""
+    return main([command, str(scenario), "--out", str(out), "--quiet",
+                 *(() if plots else ("--no-plots",)), *options])
+
+
+def run_args(scenario: Path, out: Path, *options: str) -> list[str]:
+    """``formation run SCENARIO --out OUT --quiet --no-plots OPTIONS`` as a child's command line."""
+    return [sys.executable, "-m", "formation", "run", str(scenario), "--out", str(out), "--quiet",
+            "--no-plots", *options]
+
+
+CHILD_ENV = dict(os.environ, PYTHONPATH=str(ROOT))  # the child imports this tree
+
+
+@contextmanager
+def running(scenario: Path, out: Path, *options: str) -> Iterator[subprocess.Popen]:
+    """``formation run`` as a child process (pipes for its output); killed if the test leaves
+    it running."""
+    proc = subprocess.Popen(run_args(scenario, out, *options), env=CHILD_ENV,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def wait_for_file(proc: subprocess.Popen, path: Path, timeout_s: float) -> None:
+    """Until the run writes ``path``; fails with the run's output if it ends first."""
+    deadline = time.monotonic() + timeout_s
+    while not path.exists():
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, f"no {path.name} after {timeout_s} s"
+        time.sleep(0.05)
+
+
+def test_run_reaches_every_goal_safely_and_as_fast_as_the_in_process_simulation(tmp_path, two):
+    assert run_cli("sim", two, tmp_path / "sim") == 0
+    assert run_cli("run", two, tmp_path / "run") == 0
     sim = json.loads((tmp_path / "sim" / "summary.json").read_text())
     run = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert run["mode"] == "multiprocess"
@@ -59,18 +107,16 @@ def test_run_reaches_every_goal_safely_and_as_fast_as_the_in_process_simulation(
     assert (tmp_path / "run" / "robots.csv").read_text() == (tmp_path / "sim" / "robots.csv").read_text()
 
 
-def test_an_invalid_scenario_or_an_invalid_fault_option_exits_2_before_starting_anything(tmp_path):
+def test_an_invalid_scenario_or_an_invalid_fault_option_exits_2_before_starting_anything(tmp_path,
+                                                                                         two):
     bad = tmp_path / "bad.yaml"
     bad.write_text(TWO_FORMATIONS.replace("goal_tolerance", "goal_tolerence"), encoding="utf-8")
-    assert run_cli(["run", str(bad), "--out", str(tmp_path / "o"), "--quiet"]) == 2
-    good = tmp_path / "good.yaml"
-    good.write_text(TWO_FORMATIONS, encoding="utf-8")
-    assert run_cli(["run", str(good), "--out", str(tmp_path / "o"), "--drop", "1.5"]) == 2
-    assert run_cli(["run", str(good), "--out", str(tmp_path / "o"), "--kill", "z9@1:2"]) == 2
-    assert run_cli(["run", str(good), "--out", str(tmp_path / "o"), "--camera-dropout", "a1@1"]) == 2
-    assert run_cli(["run", str(good), "--out", str(tmp_path / "o"), "--pose-slots", "0"]) == 2
-    assert run_cli(["run", str(good), "--out", str(tmp_path / "o"), "--pose-slots", "2"]) == 2  # lock-step
-    assert not (tmp_path / "o" / "processes.json").exists()
+    out = tmp_path / "o"
+    assert run_cli("run", bad, out, plots=True) == 2
+    for option in (["--drop", "1.5"], ["--kill", "z9@1:2"], ["--camera-dropout", "a1@1"],
+                   ["--pose-slots", "0"], ["--pose-slots", "2"]):  # (slots: not in lock-step)
+        assert main(["run", str(two), "--out", str(out), *option]) == 2, option
+    assert not (out / "processes.json").exists()
 
 
 def _alive(pid: int) -> bool:
@@ -95,20 +141,10 @@ def _sessions() -> set[int]:
     return out
 
 
-def test_a_run_interrupted_with_sigint_leaves_no_child_process_alive(tmp_path):
-    scenario = tmp_path / "long.yaml"
-    scenario.write_text(LONG, encoding="utf-8")
+def test_a_run_interrupted_with_sigint_leaves_no_child_process_alive(tmp_path, long):
     out = tmp_path / "run"
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.Popen([sys.executable, "-m", "formation", "run", str(scenario), "--out",
-                             str(out), "--quiet", "--no-plots"], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    try:
-        deadline = time.monotonic() + 60
-        while not (out / "processes.json").exists():
-            assert proc.poll() is None, proc.communicate()
-            assert time.monotonic() < deadline
-            time.sleep(0.05)
+    with running(long, out) as proc:
+        wait_for_file(proc, out / "processes.json", 60)
         time.sleep(0.5)
         pids = json.loads((out / "processes.json").read_text())
         assert len(pids) == 1 + 5  # router and one agent per robot
@@ -117,21 +153,14 @@ def test_a_run_interrupted_with_sigint_leaves_no_child_process_alive(tmp_path):
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=30)
         assert proc.returncode == 130, err
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     assert not [name for name, pid in pids.items() if _alive(pid)]
     # each child led its own session: nothing of theirs (grandchildren) is left either
     assert not set(pids.values()) & _sessions()
 
 
 @pytest.mark.slow
-def test_run_in_real_time_reaches_every_goal(tmp_path):
-    scenario = tmp_path / "two.yaml"
-    scenario.write_text(TWO_FORMATIONS, encoding="utf-8")
-    assert run_cli(["run", str(scenario), "--out", str(tmp_path / "rt"), "--quiet", "--no-plots",
-                    "--realtime"]) == 0
+def test_run_in_real_time_reaches_every_goal(tmp_path, two):
+    assert run_cli("run", two, tmp_path / "rt", "--realtime") == 0
     run = json.loads((tmp_path / "rt" / "summary.json").read_text())
     assert run["all_reached"] is True and run["collisions"] == 0
     assert run["realtime"] is True
@@ -141,16 +170,13 @@ def test_run_in_real_time_reaches_every_goal(tmp_path):
 
 @pytest.mark.slow
 def test_run_in_real_time_with_poses_in_slots_reaches_every_goal_and_merges_the_agents_traces(
-        tmp_path):
+        tmp_path, two):
     """Issue 12: with pose slots every robot's pose goes out with its slot's own stamp; the
     agents' trace rows (status, slack, h_*) and the leaders' ellipses are keyed by it, so the
     merge must use it (it used the tick's first stamp: blank columns, no ellipses, and the safety
     figure failed on the empty series)."""
-    scenario = tmp_path / "two.yaml"
-    scenario.write_text(TWO_FORMATIONS, encoding="utf-8")
     out = tmp_path / "rt"
-    assert run_cli(["run", str(scenario), "--out", str(out), "--quiet",
-                    "--realtime", "--pose-slots", "4"]) == 0
+    assert run_cli("run", two, out, "--realtime", "--pose-slots", "4", plots=True) == 0
     run = json.loads((out / "summary.json").read_text())
     assert run["all_reached"] is True and run["collisions"] == 0
     assert run["world"]["latency_ms"]["samples"] > 0
@@ -171,20 +197,10 @@ def test_run_in_real_time_with_poses_in_slots_reaches_every_goal_and_merges_the_
     assert (out / "safety.png").stat().st_size > 0 and (out / "trajectories.png").stat().st_size > 0
 
 
-def test_a_second_sigint_only_hurries_the_shutdown_and_the_run_is_still_written(tmp_path):
-    scenario = tmp_path / "long.yaml"
-    scenario.write_text(LONG, encoding="utf-8")
+def test_a_second_sigint_only_hurries_the_shutdown_and_the_run_is_still_written(tmp_path, long):
     out = tmp_path / "run"
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.Popen([sys.executable, "-m", "formation", "run", str(scenario), "--out",
-                             str(out), "--quiet", "--no-plots", "--realtime"], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    try:
-        deadline = time.monotonic() + 120
-        while not (out / "endpoint").exists():  # every agent up, the world running
-            assert proc.poll() is None, proc.communicate()
-            assert time.monotonic() < deadline
-            time.sleep(0.05)
+    with running(long, out, "--realtime") as proc:
+        wait_for_file(proc, out / "endpoint", 120)  # every agent up, the world running
         proc.send_signal(signal.SIGINT)
         for _ in range(6):  # a hurried operator's further Ctrl-Cs over 0.3 s (the attack)
             time.sleep(0.05)
@@ -192,10 +208,6 @@ def test_a_second_sigint_only_hurries_the_shutdown_and_the_run_is_still_written(
                 proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=120)
         assert proc.returncode == 130, err
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     summary = json.loads((out / "summary.json").read_text())
     assert summary["aborted"]
     assert (out / "robots.csv").is_file() and (out / "run.mcap").is_file()
@@ -216,43 +228,25 @@ def small_disk(tmp_path):
         subprocess.run(["umount", str(where)], check=False)
 
 
-def test_a_run_onto_a_disk_too_small_is_refused_before_it_starts(tmp_path, small_disk):
-    scenario = tmp_path / "two.yaml"
-    scenario.write_text(TWO_FORMATIONS, encoding="utf-8")
+def test_a_run_onto_a_disk_too_small_is_refused_before_it_starts(two, small_disk):
     out = small_disk / "run"
-    proc = subprocess.run([sys.executable, "-m", "formation", "run", str(scenario), "--out",
-                           str(out), "--quiet", "--no-plots"],
-                          env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True,
-                          text=True, timeout=300)
+    proc = subprocess.run(run_args(two, out), env=CHILD_ENV, capture_output=True, text=True,
+                          timeout=300)
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "MB free" in lines[0] and "--out" in lines[0]
     assert not (out / "processes.json").exists() and not list(small_disk.rglob("*.tmp"))
 
 
-def test_a_member_killed_mid_run_is_restarted_and_the_run_reaches_every_goal(tmp_path):
-    scenario = tmp_path / "two.yaml"
-    scenario.write_text(TWO_FORMATIONS, encoding="utf-8")
+def test_a_member_killed_mid_run_is_restarted_and_the_run_reaches_every_goal(tmp_path, two):
     out = tmp_path / "run"
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.Popen([sys.executable, "-m", "formation", "run", str(scenario), "--out",
-                             str(out), "--quiet", "--no-plots"], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    try:
-        deadline = time.monotonic() + 120
-        while not (out / "endpoint").exists():  # every agent up, the world running
-            assert proc.poll() is None, proc.communicate()
-            assert time.monotonic() < deadline
-            time.sleep(0.05)
+    with running(two, out) as proc:
+        wait_for_file(proc, out / "endpoint", 120)  # every agent up, the world running
         pids = json.loads((out / "processes.json").read_text())
         member = next(n for n in sorted(pids) if n.startswith("agent-"))
         os.kill(pids[member], signal.SIGKILL)  # a crash, not a stop: no counters, no zero cmd
         _, err = proc.communicate(timeout=600)
         assert proc.returncode == 0, err
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     summary = json.loads((out / "summary.json").read_text())
     robot = member.removeprefix("agent-")
     assert summary["restarts"] == {robot: 1}

@@ -157,6 +157,14 @@ def test_a_live_run_serves_the_page_and_foxglove_while_a_recorder_attaches(tmp_p
             formations = browser.evaluate("document.getElementById('formations').textContent")
             assert "moving" in formations or "reached" in formations
             assert "a1" in formations and "b1" in formations  # the leaders, from their status
+            # reloaded, the page's barrier charts reach back to the run's start (the server's
+            # history), long before the page was first opened
+            browser.evaluate("window.oldPage = true")  # gone once the page has reloaded
+            browser.call("Page.reload")
+            shown = browser.wait_for("window.oldPage === undefined && window.viewer.seq > 0 "
+                                     "&& window.viewer")
+            assert shown["history"]["start"] == pytest.approx(st["frame"]["t0"]), shown["history"]
+            assert shown["history"]["start"] < t1 - 1.0
         finally:
             browser.close()
 
@@ -302,6 +310,75 @@ def test_the_floor_has_metric_axes_and_a_scale_bar(tmp_path):
         os.killpg(proc.pid, signal.SIGINT)
         proc.wait(timeout=30)
         proc.stdout.close()
+
+
+def test_a_reloaded_page_plots_the_barriers_since_the_run_started(tmp_path):
+    """The barrier charts of a page loaded (and reloaded) mid-run reach back to the run's first
+    frame: the page fetches the server's history (GET /history) before it polls, and draws it
+    (lines in the formations' colours left of where the page was loaded)."""
+    require(chromium_path() is not None, "chromium", "chromium")
+    from formation.cli import main
+
+    assert main(["sim", str(ROOT / "tests" / "scenarios" / "two-small.yaml"), "--out",
+                 str(tmp_path / "sim"), "--quiet", "--no-plots"]) == 0
+    port = free_tcp_port()
+    proc = formation("replay", str(tmp_path / "sim" / "run.mcap"), "--port", str(port),
+                     "--ws-port", "0", "--duration", "60")
+    try:
+        wait_for_tcp_port(port, timeout_s=30)
+        first = wait_state(port, lambda s: s["frame"] is not None, proc=proc)["playback"]["start"]
+        wait_state(port, lambda s: s["frame"]["t"] > first + 2.0, proc=proc)
+        browser = Browser(f"http://127.0.0.1:{port}/")
+        try:
+            for load in range(2):  # the first load mid-run, then a reload later on
+                shown = browser.wait_for("window.oldPage === undefined && window.viewer.seq > 0 "
+                                         "&& window.viewer.history.points > 0 && window.viewer")
+                loaded_at = shown["t"]
+                assert loaded_at > first + 2.0
+                assert shown["history"]["start"] == pytest.approx(first), shown["history"]
+                # about 10 samples a second since the start, for 5 robots, not only those polled
+                assert shown["history"]["points"] >= 5 * 5 * (loaded_at - first), shown["history"]
+                # drawn: each formation's lines across the time before the page (re)loaded
+                drawn, columns = chart_columns_before(browser, loaded_at - 1.0,
+                                                      tmp_path / f"load{load}.png")
+                assert columns >= 10 and drawn >= 0.9 * columns, (load, drawn, columns)
+                wait_state(port, lambda s, t=loaded_at: s["frame"]["t"] > t + 1.0, proc=proc)
+                browser.evaluate("window.oldPage = true")  # gone once the page has reloaded
+                browser.call("Page.reload")
+        finally:
+            browser.close()
+    finally:
+        os.killpg(proc.pid, signal.SIGINT)
+        proc.wait(timeout=30)
+        proc.stdout.close()
+
+
+def chart_columns_before(browser: Browser, t: float, png_path: Path) -> tuple[int, int]:
+    """The barrier charts left of time ``t``: how many pixel columns from the run's first frame
+    to ``t`` hold a line of each formation (blue A, red B: the fewer of the two), and how many
+    columns that span is."""
+    browser.evaluate("window.viewerFreeze = true")
+    try:
+        browser.painted()
+        shown, axes = browser.evaluate("window.viewer"), browser.evaluate("window.chartAxes")
+        png, rgb = browser.screenshot()
+        png_path.write_bytes(png)
+    finally:
+        browser.evaluate("window.viewerFreeze = false")
+    assert axes["t0"] < shown["history"]["start"] < t < axes["t1"], (axes, t)
+    assert sorted(r["color"] for r in shown["robots"]) == ["#1f77b4"] * 3 + ["#d62728"] * 2
+
+    def x(time: float) -> int:
+        return round(axes["left"] + (time - axes["t0"]) / (axes["t1"] - axes["t0"]) * axes["width"])
+
+    left, x0, x1 = round(axes["left"]) + 2, x(shown["history"]["start"]) + 1, x(t)
+    y0, y1 = round(axes["top"]) + 2, round(axes["top"] + axes["height"]) - 2
+    region = rgb[y0:y1, left:x1].astype(int)
+    blue = region[:, :, 2] - region[:, :, 0] > 40
+    red = region[:, :, 0] - region[:, :, 2] > 40
+    red[red[:, :x0 - left].any(axis=1)] = False  # the dashed zero lines run the charts' width
+    drawn = [int(m[:, x0 - left:].any(axis=0).sum()) for m in (blue, red)]
+    return min(drawn), x1 - x0
 
 
 def test_a_refused_old_protocol_client_goes_to_the_views_log_not_the_output(tmp_path):

@@ -22,7 +22,7 @@ def _get(url: str, origin: str | None) -> int:
     req = urllib.request.Request(url, headers={} if origin is None else {"Origin": origin})
     try:
         with urllib.request.urlopen(req, timeout=10) as resp:
-            json.loads(resp.read()) if url.endswith("/state") else resp.read()
+            json.loads(resp.read()) if url.endswith(("/state", "/history")) else resp.read()
             return resp.status
     except urllib.error.HTTPError as exc:
         exc.close()
@@ -34,6 +34,8 @@ def test_state_is_served_to_the_page_itself_and_refused_to_another_origin(page):
     assert _get(state, None) == 200
     assert _get(state, f"http://127.0.0.1:{page.port}") == 200  # the page's own origin
     assert _get(state, "http://evil.example") == 403
+    assert _get(page.url + "history", None) == 200
+    assert _get(page.url + "history", "http://evil.example") == 403  # the barrier history too
     assert _get(page.url, f"http://127.0.0.1:{page.port + 1}") == 403
     req = urllib.request.Request(page.url + "control", data=b"{}", method="POST",
                                  headers={"Origin": "http://evil.example"})

@@ -8,15 +8,19 @@ server that served it about ten times a second and draws
   at their safe distance), walls and shelves, each leader's planned route (dotted, waypoints as
   small squares), formation ellipses, goals (squares), robots (discs in their formation's
   colour, a heading tick, the control point when it is off the centre);
-* each robot's smallest barrier value of each kind over the last minute (three charts, zero
-  marked);
+* each robot's smallest barrier value of each kind since the run started (at most the last
+  ten minutes, at least a minute wide; three charts, zero marked): the page fetches the
+  server's history (``GET /history``) once when it loads, so a reloaded page plots the run from
+  its start, then adds what it polls;
 * each formation's status (as its leader reports it: state, distance to go, waypoint, leader),
   the newest log lines, the shown time (simulated seconds; for wall
   time the UTC clock and the seconds since the first frame), the Foxglove WebSocket's port;
 * for a replay: play/pause, speed and a time slider.
 
-For tests and scripts the page exposes ``window.viewer`` (shown time, sequence number and each
-robot's projected position in CSS pixels of the viewport) and keeps the shown time in
+For tests and scripts the page exposes ``window.viewer`` (shown time, sequence number, each
+robot's projected position in CSS pixels of the viewport, and ``history``: the oldest time and
+the number of points the barrier charts hold), ``window.chartAxes`` (the charts' time span and
+where they are in the viewport) and keeps the shown time in
 ``document.title`` and in ``#time``; ``window.viewerFreeze = true`` stops redrawing.
 """
 
@@ -67,10 +71,11 @@ _PAGE = r"""<!doctype html>
 "use strict";
 const PALETTE = __PALETTE__;
 const KINDS = ["formation", "obstacle", "formations"];
-const WINDOW_S = 60;
+const WINDOW_S = 60;  // [s] the charts are at least this wide, and at most historySpan
 const floor = document.getElementById("floor"), fctx = floor.getContext("2d");
 const chart = document.getElementById("chart"), cctx = chart.getContext("2d");
 let view = null, history = {}, lastT = null, lastSeq = -1, colors = {}, state = null, t0 = null;
+let historySpan = 600;  // [s] the server's (GET /history span_s)
 window.viewer = { t: null, seq: -1, robots: [] };
 window.viewerFreeze = false;
 
@@ -201,10 +206,18 @@ function drawFloor(frame) {
   return shown;
 }
 
+function chartSpan(t1) {
+  // from the oldest point held (the run's start, or historySpan ago) to now, at least WINDOW_S
+  let start = t1;
+  for (const id in history) { const p = history[id].pts; if (p.length && p[0][0] < start) start = p[0][0]; }
+  return Math.max(t1 - Math.max(start, t1 - historySpan), WINDOW_S);
+}
 function drawChart(frame) {
   const c = cctx, W = chart.width, H = chart.height / KINDS.length;
   c.clearRect(0, 0, W, chart.height);
-  const t1 = frame.t, t0 = t1 - WINDOW_S;
+  const t1 = frame.t, span = chartSpan(t1), t0 = t1 - span;
+  const rect = chart.getBoundingClientRect();
+  window.chartAxes = { t0: t0, t1: t1, left: rect.left, top: rect.top, width: rect.width, height: rect.height };
   KINDS.forEach((kind, k) => {
     const top = k * H;
     let lo = 0, hi = 0.1;
@@ -215,14 +228,14 @@ function drawChart(frame) {
     c.strokeStyle = "#ddd"; c.strokeRect(0.5, top + 0.5, W - 1, H - 1);
     c.strokeStyle = "#c00"; c.setLineDash([4, 3]); c.beginPath(); c.moveTo(0, y(0)); c.lineTo(W, y(0)); c.stroke(); c.setLineDash([]);
     c.fillStyle = "#333"; c.font = "11px sans-serif";
-    c.fillText("min h_" + kind + "  [" + lo.toFixed(2) + ", " + hi.toFixed(2) + "]", 6, top + 12);
+    c.fillText("min h_" + kind + "  [" + lo.toFixed(2) + ", " + hi.toFixed(2) + "]  over the last " + span.toFixed(0) + " s", 6, top + 12);
     for (const id in history) {
       const h = history[id]; c.strokeStyle = colorOf(h.formation); c.beginPath();
       let pen = false;
       for (const p of h.pts) {
         const v = p[k + 1];
         if (!finite(v) || p[0] < t0) { pen = false; continue; }
-        const X = (p[0] - t0) / WINDOW_S * W, Y = y(v);
+        const X = (p[0] - t0) / span * W, Y = y(v);
         if (pen) c.lineTo(X, Y); else c.moveTo(X, Y);
         pen = true;
       }
@@ -237,8 +250,28 @@ function record(frame) {
   for (const r of frame.robots) {
     const h = history[r.id] || (history[r.id] = { formation: r.formation, pts: [] });
     h.formation = r.formation;
+    if (h.pts.length && h.pts[h.pts.length - 1][0] >= frame.t) continue;  // had it from /history
     h.pts.push([frame.t, r.h_formation, r.h_obstacle, r.h_formations]);
-    while (h.pts.length && h.pts[0][0] < frame.t - WINDOW_S) h.pts.shift();
+    while (h.pts.length && h.pts[0][0] < frame.t - historySpan) h.pts.shift();
+  }
+}
+function historyStats() {
+  let start = null, points = 0;
+  for (const id in history) {
+    const p = history[id].pts; points += p.length;
+    if (p.length && (start === null || p[0][0] < start)) start = p[0][0];
+  }
+  return { start: start, points: points };
+}
+async function loadHistory() {
+  // what the server kept since the run started (or its last historySpan s): a reload keeps the plots
+  try {
+    const h = await (await fetch("/history", { cache: "no-store" })).json();
+    if (finite(h.span_s)) historySpan = h.span_s;
+    history = h.robots || {};
+    for (const id in history) { const p = history[id].pts; if (p.length) lastT = Math.max(lastT === null ? -Infinity : lastT, p[p.length - 1][0]); }
+  } catch (err) {
+    document.getElementById("meta").textContent = "no history: " + err;
   }
 }
 
@@ -301,7 +334,7 @@ async function poll() {
         const robots = drawFloor(st.frame);
         drawChart(st.frame);
         side(st);
-        window.viewer = { t: st.frame.t, seq: st.seq, mode: st.mode, robots: robots };
+        window.viewer = { t: st.frame.t, seq: st.seq, mode: st.mode, robots: robots, history: historyStats() };
       }
     }
   } catch (err) {
@@ -309,7 +342,7 @@ async function poll() {
   }
   setTimeout(poll, 100);
 }
-poll();
+loadHistory().then(poll);
 </script>
 </body></html>
 """

@@ -1,12 +1,14 @@
 """The live page's server: one hub of frames, an HTTP server for the page, a Foxglove WebSocket.
 
-* :class:`Hub` holds the newest frame (and a sequence number), the newest log lines, and hands
-  every frame it gets to a :class:`viewer.record.Channels` (the Foxglove WebSocket, and
-  ``run.mcap`` for ``formation record``).
+* :class:`Hub` holds the newest frame (and a sequence number), the newest log lines and the
+  barrier history (:class:`BarrierHistory`: the last :data:`HISTORY_S` seconds of every robot's
+  barrier values), and hands every frame it gets to a :class:`viewer.record.Channels` (the
+  Foxglove WebSocket, and ``run.mcap`` for ``formation record``).
 * :class:`PageServer` serves, from a thread of its own, ``GET /`` (the page of
   :mod:`viewer.page`: inline JavaScript and a canvas, nothing to install, nothing fetched from
-  elsewhere), ``GET /state`` (the newest frame as JSON, with the logs and the WebSocket's port)
-  and ``POST /control`` (replay: play, pause, speed, seek).
+  elsewhere), ``GET /state`` (the newest frame as JSON, with the logs and the WebSocket's port),
+  ``GET /history`` (the barrier history, which a page fetches once when it loads, so a reloaded
+  page plots the run from its start) and ``POST /control`` (replay: play, pause, speed, seek).
 * :class:`LivePump` polls a :class:`viewer.live.FleetWatcher` a few times a second and
   publishes what it sees; :class:`ReplayPlayer` plays the frames of a recording.
 
@@ -26,7 +28,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
 
-from .frame import Frame
+from .frame import Frame, num
 from .page import render_page
 from .record import FLEET_TOPIC, LOG_TOPIC, ONSET_LEVEL, ONSET_TEXT, Channels
 
@@ -34,6 +36,58 @@ logger = logging.getLogger(__name__)
 
 LOG_LINES = 50  # the page shows the newest log lines
 LIVE_PERIOD_S = 0.1  # [s] how often a live pump looks at the fleet
+# the barrier history a page gets when it (re)loads: back to the run's start, at most the last
+# 10 minutes (a long --hold run), at most one sample per 0.1 s of the frames' time (the page
+# polls ten times a second); so at most 6000 samples, about 40 bytes of JSON per robot each
+HISTORY_S = 600.0  # [s]
+HISTORY_STEP_S = 0.1  # [s]
+HISTORY_SAMPLES = round(HISTORY_S / HISTORY_STEP_S)
+
+
+class BarrierHistory:
+    """A ring of the recent frames' barrier values: per sample the frame's time and each robot's
+    id, formation and smallest ``h_formation``, ``h_obstacle``, ``h_formations`` (``None`` where
+    unknown). Bounded by :data:`HISTORY_SAMPLES` samples and :data:`HISTORY_S` seconds of frame
+    time; a frame older than the newest sample (a replay sought back) starts it afresh, as the
+    page does. Not thread-safe: the hub holds its lock around it."""
+
+    def __init__(self, span_s: float = HISTORY_S, step_s: float = HISTORY_STEP_S,
+                 cap: int = HISTORY_SAMPLES) -> None:
+        self.span_s = span_s
+        self.step_s = step_s
+        self._ring: deque[tuple[float, tuple[tuple, ...]]] = deque(maxlen=cap)
+
+    def __len__(self) -> int:
+        return len(self._ring)
+
+    def add(self, frame: Frame) -> None:
+        t = float(frame["t"])
+        ring = self._ring
+        if ring and t < ring[-1][0]:
+            ring.clear()
+        elif ring and t < ring[-1][0] + self.step_s:
+            return
+        ring.append((t, tuple((r["id"], r.get("formation"), num(r.get("h_formation")),
+                               num(r.get("h_obstacle")), num(r.get("h_formations")))
+                              for r in frame["robots"])))
+        while ring[0][0] < t - self.span_s:
+            ring.popleft()
+
+    def samples(self) -> list[tuple[float, tuple[tuple, ...]]]:
+        """The samples, oldest first (a copy)."""
+        return list(self._ring)
+
+    @staticmethod
+    def by_robot(samples: Sequence[tuple[float, tuple[tuple, ...]]]) -> dict[str, dict]:
+        """Per robot id its (newest) formation and points ``[t, h_formation, h_obstacle,
+        h_formations]``, oldest first: the page's own history."""
+        out: dict[str, dict] = {}
+        for t, rows in samples:
+            for rid, formation, *h in rows:
+                entry = out.setdefault(rid, {"formation": formation, "pts": []})
+                entry["formation"] = formation
+                entry["pts"].append([t, *h])
+        return out
 
 
 class Hub:
@@ -47,6 +101,7 @@ class Hub:
         self.frame: Frame | None = None
         self.seq = 0
         self.logs: deque[dict] = deque(maxlen=LOG_LINES)
+        self.history = BarrierHistory()
         self._status: dict[str, str] = {}
         self.playback: dict[str, Any] = {}
         self.control: Callable[[dict], dict] | None = None
@@ -63,6 +118,7 @@ class Hub:
         with self._lock:
             self.frame = frame
             self.seq += 1
+            self.history.add(frame)
         if self.channels is not None:
             self.channels.frame(frame)
 
@@ -76,6 +132,13 @@ class Hub:
         with self._lock:
             return {"seq": self.seq, "mode": self.mode, "ws_port": self.ws_port,
                     "frame": self.frame, "logs": list(self.logs), "playback": dict(self.playback)}
+
+    def history_state(self) -> dict:
+        """``GET /history``: the barrier history up to frame ``seq`` and its span [s]."""
+        with self._lock:
+            seq, samples = self.seq, self.history.samples()
+        return {"seq": seq, "span_s": self.history.span_s,
+                "robots": BarrierHistory.by_robot(samples)}
 
 
 class _Handler(BaseHTTPRequestHandler):
@@ -109,9 +172,9 @@ class _Handler(BaseHTTPRequestHandler):
         path = self.path.split("?", 1)[0]
         if path in ("/", "/index.html"):
             self._send(200, self.page, "text/html; charset=utf-8")
-        elif path == "/state":
-            body = json.dumps(self.hub.state(), allow_nan=False).encode("utf-8")
-            self._send(200, body, "application/json")
+        elif path in ("/state", "/history"):
+            st = self.hub.state() if path == "/state" else self.hub.history_state()
+            self._send(200, json.dumps(st, allow_nan=False).encode("utf-8"), "application/json")
         else:
             self._send(404, b"not found\n", "text/plain")
 
@@ -336,30 +399,36 @@ class ReplayPlayer:
 
     def _run(self) -> None:
         last = time.monotonic()
+        self._advance(0.0)  # the recording's first frame, before its clock moves on
         while not self._stop.wait(0.05):
             now = time.monotonic()
-            with self._lock:
-                if self.playing:
-                    self._pos += (now - last) * self.speed
-                    if self._pos >= self.times[-1]:
-                        if self.loop:
-                            self._pos, self._index, self._log_index = self.times[0], -1, 0
-                        else:
-                            self._pos = self.times[-1]
-                            self.playing = False
-                k = max(bisect.bisect_right(self.times, self._pos + 1e-9) - 1, 0)
-                new = k != self._index
-                self._index = k
-                logs = []
-                while self._log_index < len(self.logs) and self.logs[self._log_index]["t"] <= self._pos:
-                    logs.append(self.logs[self._log_index])
-                    self._log_index += 1
-                self._update_playback()
+            self._advance(now - last)
             last = now
-            for e in logs:
-                self.hub.log(e["t"], e["level"], e["name"], e["message"], record=False)
-            if new:
-                self.hub.publish(self.frames[k])
+
+    def _advance(self, elapsed: float) -> None:
+        """Move the shown time on by ``elapsed`` wall seconds (at the speed) and publish the
+        frame and the log lines it reached."""
+        with self._lock:
+            if self.playing:
+                self._pos += elapsed * self.speed
+                if self._pos >= self.times[-1]:
+                    if self.loop:
+                        self._pos, self._index, self._log_index = self.times[0], -1, 0
+                    else:
+                        self._pos = self.times[-1]
+                        self.playing = False
+            k = max(bisect.bisect_right(self.times, self._pos + 1e-9) - 1, 0)
+            new = k != self._index
+            self._index = k
+            logs = []
+            while self._log_index < len(self.logs) and self.logs[self._log_index]["t"] <= self._pos:
+                logs.append(self.logs[self._log_index])
+                self._log_index += 1
+            self._update_playback()
+        for e in logs:
+            self.hub.log(e["t"], e["level"], e["name"], e["message"], record=False)
+        if new:
+            self.hub.publish(self.frames[k])
 
     def close(self) -> None:
         self._stop.set()
