@@ -56,9 +56,10 @@ def write_run(summary: dict, series: Series, scenario: Scenario, out: Path,
 
     A bulk file that cannot be written (a full disk part way) is deleted and the others are
     still tried; ``summary.json`` is then rewritten with ``lost_files`` (``{file, error}`` each,
-    also set in ``summary``) and the list is returned ([] when everything was written). Only a
-    ``summary.json`` that cannot be written at all raises :class:`OutputError` (``disk full``
-    for ENOSPC), leaving nothing of this run behind."""
+    after those ``summary`` named already: agents' counters, say; also set in ``summary``) and
+    the whole list is returned ([] when nothing was lost). Only a ``summary.json`` that cannot
+    be written at all raises :class:`OutputError` (``disk full`` for ENOSPC), leaving nothing of
+    this run behind."""
     out = Path(out)
     for name in ("summary.json", *BULK, *PLOTS):  # the summary first: never beside old files
         (out / name).unlink(missing_ok=True)
@@ -67,7 +68,8 @@ def write_run(summary: dict, series: Series, scenario: Scenario, out: Path,
     except OSError as exc:
         raise output_error(exc, out) from None
     staging = out / STAGING  # every bulk file is written here first, then renamed into out
-    lost: list[dict[str, str]] = []
+    lost: list[dict[str, str]] = list(summary.get("lost_files") or [])
+    named = len(lost)  # already in the summary as written
     try:
         staging.mkdir(exist_ok=True)
         for name, write in _bulk_writers(summary, series, scenario, plots):
@@ -78,7 +80,7 @@ def write_run(summary: dict, series: Series, scenario: Scenario, out: Path,
         lost.append({"file": STAGING, "error": lost_words(exc)})
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-    if lost:
+    if len(lost) > named:
         summary["lost_files"] = lost
         try:  # the space the deleted files held is free again; if not, the first one stands
             write_json(out / "summary.json", _json_safe(summary))

@@ -10,6 +10,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -144,3 +145,90 @@ def test_a_summary_that_does_not_fit_leaves_no_temporary_file(tiny_disk):
         output.write_json(tiny_disk / "summary.json", {"pad": "x" * 100_000})
     assert caught.value.errno == errno.ENOSPC
     assert sorted(p.name for p in tiny_disk.iterdir()) == ["filler"]
+
+
+@pytest.fixture
+def small_disk(tmp_path) -> Iterator[Path]:
+    """A 9 MB tmpfs: room for `formation run`'s check before the run (8 MB), none to spare."""
+    where = tmp_path / "small"
+    where.mkdir()
+    proc = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=9m", "tmpfs", str(where)],
+                          capture_output=True, text=True)
+    if proc.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {proc.stderr.strip()}")
+    try:
+        yield where
+    finally:
+        subprocess.run(["umount", str(where)], check=False)
+
+
+def _fill(disk: Path, leave_kb: int) -> None:
+    """Fill ``disk`` until ``leave_kb`` kB are free."""
+    free_kb = os.statvfs(disk).f_bavail * os.statvfs(disk).f_frsize // 1024
+    with (disk / "filler").open("wb") as fh:
+        fh.write(b"\0" * max(0, free_kb - leave_kb) * 1024)
+
+
+def _wait_sim_time(endpoint: str, manager: Path, t: float) -> None:
+    """Until a leader's status is stamped ``t`` [s] of simulated time or later (lock-step)."""
+    import zenoh
+
+    from formation.commands.goal import query_status
+    from wire.zconf import ZenohSettings, read_auth_file
+
+    conf = ZenohSettings(mode="client", connect=(endpoint,),
+                         auth=read_auth_file(manager).auth).to_config()
+    with zenoh.open(conf) as session:
+        deadline = time.monotonic() + 300.0
+        while time.monotonic() < deadline:
+            if any(s.stamp >= t for s in query_status(session, "warehouse", timeout=1.0)):
+                return
+            time.sleep(0.5)
+    raise AssertionError(f"the run did not reach {t} s")
+
+
+def test_a_disk_that_fills_during_a_run_keeps_its_summary(small_disk, tmp_path):
+    """`formation run --hold`: 30 s into the run, the disk is filled to 64 kB; Ctrl-C. The
+    agents cannot write their counters nor the launcher robots.csv, but the summary fits: it is
+    written with what the world measured and names every file it lost (before: "disk full ...
+    run output not saved", nothing kept)."""
+    import signal
+
+    from tests.test_hold import SCENARIO, wait_endpoint
+
+    out = small_disk / "run"
+    log = tmp_path / "fleet.log"  # off the full disk: the launcher's own output must get out
+    with log.open("wb") as fh:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "formation", "run", str(SCENARIO), "--out", str(out), "--hold",
+             "--quiet", "--no-plots", "--duration", "600"],
+            env=dict(os.environ, PYTHONPATH=str(ROOT)), stdin=subprocess.DEVNULL, stdout=fh,
+            stderr=subprocess.STDOUT)
+    try:
+        _wait_sim_time(wait_endpoint(proc, out), out / "secure" / "manager.json5", 30.0)
+        _fill(small_disk, 64)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(120) == 1, log.read_text(errors="replace")
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+    text = log.read_text(errors="replace")
+    summary = json.loads((out / "summary.json").read_text())
+    lost = {e["file"]: e["error"] for e in summary["lost_files"]}
+    assert lost.get("robots.csv") == "disk full", lost
+    assert {f for f in lost if f.startswith("agents/")}, lost  # a trace is tens of kB
+    assert summary["steps"] > 0 and summary["collisions"] == 0
+    assert "could not write " in text and "(listed in its lost_files)" in text, text
+    assert not any((out / f).exists() for f in lost), lost  # none left cut
+    _no_temporaries(out)
+
+
+def test_a_full_disk_deep_inside_a_command_is_named_with_the_file_it_hit():
+    from formation.cli import failure_words
+
+    assert failure_words(OSError(errno.ENOSPC, "No space left on device"), "runs/x") == \
+        "disk full: cannot write runs/x"
+    assert failure_words(_full(Path("runs/x/endpoint")), "runs/x") == \
+        "disk full: cannot write runs/x/endpoint"
+    assert failure_words(ValueError("bad"), "runs/x") == "ValueError: bad"
