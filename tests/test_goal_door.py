@@ -10,11 +10,13 @@ from __future__ import annotations
 import json
 import signal
 import time
+import urllib.request
 
 import pytest
 import zenoh
 
 from formation.commands import goal as navcmd
+from runtime.testing import free_tcp_port
 from tests.test_hold import start_fleet, wait_endpoint
 from wire import keys
 from wire.payloads import GoalMsg, encode_nav
@@ -72,14 +74,31 @@ def _refused_by_the_leader(endpoint: str, manager, capsys) -> None:
     assert "goal(s) refused, the last: " in line and "box 'shelf'" in line, line
 
 
+def _live_row(port: int, fid: str, ready, timeout: float = 60.0) -> dict:
+    """Formation ``fid``'s row of the live page's ``/state`` once ``ready(row)``."""
+    deadline = time.monotonic() + timeout
+    row: dict = {}
+    while time.monotonic() < deadline:
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/state", timeout=5) as resp:
+            frame = json.load(resp).get("frame") or {}
+        row = next((r for r in frame.get("formations", []) if r["name"] == fid), {})
+        if row and ready(row):
+            return row
+        time.sleep(0.3)
+    raise AssertionError(f"the live page never showed it: {row}")
+
+
 def test_absurd_goals_and_over_long_routes_are_refused_and_no_agent_raises(tmp_path, capsys):
     out = tmp_path / "run"
-    proc = start_fleet(out, "--realtime", "--duration", "600")
+    port = free_tcp_port()
+    proc = start_fleet(out, "--realtime", "--duration", "600", "--live", str(port))
     try:
         endpoint = wait_endpoint(proc, out)
         manager = out / "secure" / "manager.json5"
         _put_raw_goals(endpoint, manager)
         _refused_by_the_leader(endpoint, manager, capsys)
+        row = _live_row(port, "A", lambda r: "box 'shelf'" in (r.get("refusal") or ""))
+        assert row["refused"] >= 4 and row["leader"] == "a1", row  # the live page's table
         argv = ["goal", "A", *map(str, GOAL_A), "--connect", endpoint, "--timeout", "30",
                 "--auth", str(manager)]
         assert navcmd.main(argv) == 0
