@@ -61,9 +61,10 @@ def write_run(summary: dict, series: Series, scenario: Scenario, out: Path,
     be written at all raises :class:`OutputError` (``disk full`` for ENOSPC), leaving nothing of
     this run behind."""
     out = Path(out)
-    for name in ("summary.json", *BULK, *PLOTS):  # the summary first: never beside old files
-        (out / name).unlink(missing_ok=True)
     try:
+        for name in ("summary.json", *BULK, *PLOTS):  # the summary first: never beside old files
+            (out / name).unlink(missing_ok=True)
+        out.mkdir(parents=True, exist_ok=True)
         write_json(out / "summary.json", _json_safe(summary))
     except OSError as exc:
         raise output_error(exc, out) from None
@@ -71,13 +72,10 @@ def write_run(summary: dict, series: Series, scenario: Scenario, out: Path,
     lost: list[dict[str, str]] = list(summary.get("lost_files") or [])
     named = len(lost)  # already in the summary as written
     try:
-        staging.mkdir(exist_ok=True)
         for name, write in _bulk_writers(summary, series, scenario, plots):
             problem = _write_one(staging / name, out / name, write)
             if problem is not None:
                 lost.append({"file": name, "error": problem})
-    except OSError as exc:  # not even the staging folder: every bulk file is lost
-        lost.append({"file": STAGING, "error": lost_words(exc)})
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     if len(lost) > named:
@@ -113,6 +111,7 @@ def _write_one(tmp: Path, final: Path, write: Callable[[Path], None]) -> str | N
     """``write(tmp)``, then ``tmp`` renamed to ``final``; on failure the partial file is deleted
     and why is returned (:func:`lost_words`)."""
     try:
+        tmp.parent.mkdir(exist_ok=True)
         write(tmp)
         tmp.replace(final)
     except OSError as exc:
