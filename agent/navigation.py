@@ -112,6 +112,11 @@ class NavPart:
     def rejected(self) -> int:
         return self.navigator.rejected if self.navigator is not None else 0
 
+    @property
+    def refusal(self) -> str:
+        """Why the last refused goal was refused ("" if none was; leaders only)."""
+        return self.navigator.refusal if self.navigator is not None else ""
+
     # --- wiring ------------------------------------------------------------------------------
 
     def open(self, session: zenoh.Session, counter: TrafficCounter) -> None:

@@ -685,7 +685,7 @@ class AgentNode:
             hard_row_unmet=dict(self.hard.by_reason), inflated=ld.inflated,
             listening=sorted(ld.listening),  # leader.listen: formations heard every tick
             listen_changes=ld.listen_changes, takeovers=ld.takeovers,
-            acting_leader_ticks=ld.acting_ticks, nav=self.nav.stats(),
+            acting_leader_ticks=ld.acting_ticks, nav=self.nav.stats(), goal_refusal=self.nav.refusal,
             fault_dropped=dict(inbox.faults.dropped), fault_delayed=inbox.faults.delayed,
             solves=c.solves, escape_ticks=c.escape_ticks, tick_errors=c.tick_errors,
             reacquired=inbox.reacquired,

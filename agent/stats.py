@@ -49,6 +49,7 @@ class AgentStats:
     takeovers: int = 0
     acting_leader_ticks: int = 0
     nav: dict[str, int] = field(default_factory=dict)
+    goal_refusal: str = ""  # leader: why it refused the last goal it refused ("": none)
     fault_dropped: dict[str, int] = field(default_factory=dict)
     fault_delayed: int = 0
     solves: int = 0

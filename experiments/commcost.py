@@ -63,7 +63,7 @@ from leader.role import VIEW_RANGE
 from scenario import Scenario
 from scenario.load import scenario_from_dict
 from simulator.launch import launch
-from simulator.output import write_run
+from simulator.output import OutputError, write_run
 from simulator.run_config import RunConfig
 from wire import keys
 from wire.payloads import EllipseMsg, Others, State, encode
@@ -401,7 +401,8 @@ def run_commcost(
             summary, series = launch(RunConfig(scenario, run_dir, topology=topology),
                                      progress_factory=progress_factory)
             wall = time.monotonic() - t0
-            write_run(summary, series, scenario, run_dir, plots=False)
+            if write_run(summary, series, scenario, run_dir, plots=False):
+                raise OutputError(f"cannot write {run_dir}: {summary['lost_files']}")
             row = measure_row(scenario, summary, topology, wall, series.ellipses)
             logger.info("commcost %s F=%d: %s", topology, f, row)
             rows.append(row)

@@ -9,6 +9,7 @@ to exit codes.
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import logging
 import sys
@@ -315,8 +316,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as exc:  # noqa: BLE001 - the front end turns any failure into a message
         if ns.verbose:
             raise
-        print(f"formation {ns.command}: {type(exc).__name__}: {exc}", file=sys.stderr)
+        print(f"formation {ns.command}: {failure_words(exc, getattr(ns, 'out', None))}",
+              file=sys.stderr)
         return EXIT_ERROR
+
+
+def failure_words(exc: Exception, out: str | None) -> str:
+    """A failure in one line: a full disk named as such, with the file (or ``--out``) it hit
+    (an OSError from deep inside says neither), anything else by its type and message."""
+    if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        where = exc.filename or out
+        return f"disk full: cannot write {where}" if where else "disk full"
+    return f"{type(exc).__name__}: {exc}"
 
 
 if __name__ == "__main__":

@@ -232,8 +232,12 @@ class OutputFolder:
         if entries is not None:
             body["entries"] = entries
         tmp = self.path / (MARKER + ".tmp")
-        tmp.write_text(json.dumps(body, indent=1) + "\n", encoding="utf-8")
-        os.replace(tmp, self.path / MARKER)
+        try:
+            tmp.write_text(json.dumps(body, indent=1) + "\n", encoding="utf-8")
+            os.replace(tmp, self.path / MARKER)
+        except OSError:
+            tmp.unlink(missing_ok=True)  # a full disk leaves no temporary file behind
+            raise
 
     def release(self) -> None:
         """List what this run wrote (when it began), drop the lock; a folder this run made and

@@ -129,4 +129,13 @@ def print_summary(summary: dict, out: Path, plots: bool = True, epsilon: float |
         + (f"; tick_errors {n}" if (n := summary.get("agents", {}).get("tick_errors")) else "")
         + trouble + ("" if ok else "  [UNSAFE OR INCOMPLETE]")
     )
+    lost = summary.get("lost_files")
+    if lost:  # a disk that filled part way: the summary is there, these are not
+        print(f"wrote {out / 'summary.json'}; {lost_words(lost)} (listed in its lost_files)")
+        return
     print(f"wrote {out / 'summary.json'}" + (f" and figures in {out}/" if plots else f" in {out}/"))
+
+
+def lost_words(lost: list[dict]) -> str:
+    """The files a run could not write, and why (``summary.json``'s ``lost_files``)."""
+    return "could not write " + ", ".join(f"{e['file']} ({e['error']})" for e in lost)

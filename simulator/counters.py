@@ -49,12 +49,21 @@ def dead_stats(cfg: AgentConfig, *, killed: bool = True) -> AgentStats:
                       cpu_s=None, wall_s=0.0)
 
 
-def agent_stats(path: Path, cfg: AgentConfig, *, running: bool, lost_ok: bool) -> AgentStats:
+def agent_stats(path: Path, cfg: AgentConfig, *, running: bool, lost_ok: bool,
+                lost: list[dict[str, str]] | None = None) -> AgentStats:
     """An agent's counters: none for an agent no longer ``running`` (killed); in an aborted run
     (``lost_ok``) an agent that wrote none (it died with the run) counts as lost instead of
-    failing the summary."""
+    failing the summary. With ``lost``, counters a full disk kept the agent from writing count
+    as lost too and are added to it (``{file, error}``, for ``summary.json``'s ``lost_files``):
+    the run's summary is still written."""
     if not running:
         return dead_stats(cfg)
     if lost_ok and not path.is_file():
         return dead_stats(cfg, killed=False)
-    return read_agent_stats(path)
+    try:
+        return read_agent_stats(path)
+    except OutputError:
+        if lost is None:
+            raise
+        lost.append({"file": f"{path.parent.name}/{path.name}", "error": "disk full"})
+        return dead_stats(cfg, killed=False)

@@ -167,10 +167,14 @@ def _launch_fleet(cfg: RunConfig, hooks: _Hooks, endpoint: str,
         fleet.shut_down(unique_children(agents.values()), router, camera)  # a host once
     if cfg.remote is not None:
         cfg.remote.collect(cfg.out)  # the counters of the agents on other hosts, now stopped
+    lost: list[dict[str, str]] = []  # counters a full disk kept from being written
     stats = [agent_stats(cfg.out / "agents" / f"{rid}.json", c, running=rid in agents,
-                         lost_ok=outcome.stopped is not None) for rid, c in configs.items()]
+                         lost_ok=outcome.stopped is not None, lost=lost)
+             for rid, c in configs.items()]
     summary, series = build_summary(cfg.scenario, outcome.result, stats, cfg.topology,
                                     cfg.realtime, cfg.camera, cfg.safety, cfg.solver)
+    if lost:
+        summary["lost_files"] = lost  # write_run adds what else does not fit
     if cfg.fault_run:
         summary["faults"] = fault_summary(cfg.faults, outcome.result, stats, outcome.events)
     if outcome.restarts:

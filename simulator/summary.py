@@ -117,6 +117,7 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: Sequence[Agent
         world=_world_fields(result),
         time_to_goal_by_formation_s=formation_goal_times(scenario, series,
                                                          result.monitor.time_to_goal),
+        goals_by_formation=goal_counts(scenario, stats),
     )
     return summary, series
 
@@ -166,6 +167,23 @@ def _world_fields(result: WorldResult) -> dict[str, Any]:
         "wall_s": result.wall_s,
         "latency_ms": _latency(result.latency_ms),
     }
+
+
+def goal_counts(scenario: Scenario, stats: Sequence[AgentStats]) -> dict[str, dict[str, Any]]:
+    """``goals_by_formation``: per formation the goals its leader took at run time (``taken``),
+    refused (``refused``: at the door, as stale or inside an obstacle; the count on its
+    ``status``) and why it refused the last one (``last_refusal``, null if none), from its
+    agents' counters added up (a leader's reason first, then any other agent's)."""
+    out: dict[str, dict[str, Any]] = {}
+    for f in scenario.formations:
+        mine = sorted((s for s in stats if s.formation == f.name), key=lambda s: not s.leader)
+        why = next((s.goal_refusal for s in mine if s.goal_refusal), None)
+        out[f.name] = {
+            "taken": sum(s.nav.get("goals", 0) for s in mine),
+            "refused": sum(s.nav.get("rejected", 0) + s.nav.get("goals_refused", 0) for s in mine),
+            "last_refusal": why,
+        }
+    return out
 
 
 def formation_goal_times(scenario: Scenario, series: Series,

@@ -10,7 +10,6 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -238,36 +237,7 @@ def test_when_a_leader_dies_for_good_its_successor_leads_and_the_other_formation
     assert s["faults"]["inflated_ellipse_ticks"] <= 20  # F1's ellipse came back within a second
 
 
-# --- lost runs: a full disk is named, a stalled router is counted --------------------------------
-
-@pytest.fixture
-def tiny_disk(tmp_path) -> Iterator[Path]:
-    """A 200 kB tmpfs (needs root and mount permission; skipped otherwise)."""
-    where = tmp_path / "tiny"
-    where.mkdir()
-    proc = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=200k", "tmpfs", str(where)],
-                          capture_output=True, text=True)
-    if proc.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {proc.stderr.strip()}")
-    try:
-        yield where
-    finally:
-        subprocess.run(["umount", str(where)], check=False)
-
-
-def test_a_full_disk_is_reported_in_one_line_and_leaves_no_partial_file(tiny_disk):
-    out = tiny_disk / "sim"
-    proc = subprocess.run(
-        [sys.executable, "-m", "formation", "sim", str(ROOT / "tests" / "scenarios" / "two-small.yaml"),
-         "--out", str(out), "--quiet"],
-        env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 1, proc.stderr
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and "disk full" in lines[0] and str(out) in lines[0], proc.stderr
-    # no summary beside a cut robots.csv, no temporary file (the folder's own bookkeeping,
-    # formation.outdir's marker of what a run writes, may stay)
-    assert [p for p in out.iterdir() if not p.name.startswith(".formation")] == []
-
+# --- lost runs: a stalled router is counted (a full disk: tests/test_output_lost.py) ------
 
 def test_a_router_stalled_for_two_seconds_shows_up_as_missing_commands(tmp_path):
     """Real time: SIGSTOP of the router for 2 s; every robot got no command for about 40 ticks,

@@ -188,6 +188,24 @@ def test_the_fleet_watcher_shows_each_leaders_status_and_planned_route():
     assert w.rejected == {"plan": 1}
 
 
+def test_the_fleet_watcher_shows_the_goals_a_leader_refused_and_why():
+    from wire.diag import Diag, encode_diag
+    from wire.payloads import Pose, StatusMsg, encode, encode_nav
+
+    w, put = _watcher()
+    put("warehouse/robot/a1/pose", encode(Pose(0.0, 0.0, 0.0, 5.0)))
+    put("warehouse/robot/a1/diag", encode_diag(Diag("A", "ok", 5.0, 0.0, 0.01, 0.2, 0.3,
+                                                    9.0, 9.0, 100, 0, 0, 0, 0)))
+    assert w.frame()["formations"][0]["refused"] is None  # no report yet
+    why = "goal (5000, 5000) is outside the world (x -100..104 m, y -100..102 m)"
+    put("warehouse/formation/A/status", encode_nav(StatusMsg(
+        "A", "unreachable", "a1", 1.0, 4.0, 2.0, None, 7.5, 0, 1, 4.0, 2.0, 5.0,
+        reason="no route: the goal lies inside a closed room", refused=2, refusal=why)))
+    (row,) = w.frame()["formations"]
+    assert (row["status"], row["reason"], row["refused"], row["refusal"]) == (
+        "unreachable", "no route: the goal lies inside a closed room", 2, why)
+
+
 @pytest.mark.integration
 def test_walls_and_shelves_are_in_every_fleet_frame_and_drawn_in_the_scene(tmp_path):
     out = tmp_path / "sim"

@@ -213,10 +213,15 @@ def _diag_entry(diag: Any) -> dict[str, Any]:
 
 def leader_report(row: dict, report: StatusMsg | None) -> dict:
     """A formation's row with what its leader reports (``status``): the leader's state, goal and
-    distance to go along the route replace those derived from the members; ``leader`` and
-    ``waypoint`` ("k/n") are added. Without a report the row stays as derived."""
+    distance to go along the route replace those derived from the members; ``leader``,
+    ``waypoint`` ("k/n"), why the state (``reason``: why ``unreachable``), the goals the leader
+    refused (``refused``) and why it refused the last one (``refusal``) are added. Without a
+    report the row stays as derived."""
     if report is None:
-        return {**row, "leader": None, "waypoint": None}
+        return {**row, "leader": None, "waypoint": None, "reason": None, "refused": None,
+                "refusal": None}
     return {**row, "status": report.state, "gx": num(report.gx), "gy": num(report.gy),
             "distance": num(report.distance), "leader": report.leader,
-            "waypoint": f"{report.waypoint}/{report.waypoints}" if report.waypoints else None}
+            "waypoint": f"{report.waypoint}/{report.waypoints}" if report.waypoints else None,
+            "reason": report.reason or None, "refused": report.refused,
+            "refusal": report.refusal or None}

@@ -12,7 +12,8 @@ server that served it about ten times a second and draws
   ten minutes, at least a minute wide; three charts, zero marked): the page fetches the
   server's history (``GET /history``) once when it loads, so a reloaded page plots the run from
   its start, then adds what it polls;
-* each formation's status (as its leader reports it: state, distance to go, waypoint, leader),
+* each formation's status (as its leader reports it: state and why, distance to go, waypoint,
+  leader, the goals it refused and why it refused the last one),
   the newest log lines, the shown time (simulated seconds; for wall
   time the UTC clock and the seconds since the first frame), the Foxglove WebSocket's port;
 * for a replay: play/pause, speed and a time slider.
@@ -291,10 +292,12 @@ function side(st) {
   document.title = "formation " + st.mode + " t=" + f.t.toFixed(2);
   const ws = st.ws_port ? ("Foxglove WebSocket: ws://" + location.hostname + ":" + st.ws_port) : "";
   document.getElementById("meta").textContent = st.mode + "  " + ws;
-  let rows = "<tr><th>formation</th><th>status</th><th>QP</th><th>to go [m]</th><th>waypoint</th><th>leader</th></tr>";
+  let rows = "<tr><th>formation</th><th>status</th><th>QP</th><th>to go [m]</th><th>waypoint</th><th>leader</th><th>goals refused</th></tr>";
   for (const fm of f.formations) rows += "<tr><td><span class='sw' style='background:" + colorOf(fm.name) +
-    "'></span>" + esc(fm.name) + "</td><td>" + esc(fm.status) + "</td><td>" + esc(fm.qp) + "</td><td>" + fmt(fm.distance, 2) +
-    "</td><td>" + esc(fm.waypoint || "") + "</td><td>" + esc(fm.leader || "") + "</td></tr>";
+    "'></span>" + esc(fm.name) + "</td><td>" + esc(fm.status) + (fm.reason ? " (" + esc(fm.reason) + ")" : "") +
+    "</td><td>" + esc(fm.qp) + "</td><td>" + fmt(fm.distance, 2) +
+    "</td><td>" + esc(fm.waypoint || "") + "</td><td>" + esc(fm.leader || "") + "</td><td class='refused'>" +
+    (fm.refused ? fm.refused + (fm.refusal ? ", the last: " + esc(fm.refusal) : "") : "") + "</td></tr>";
   document.getElementById("formations").innerHTML = rows;
   rows = "<tr><th>robot</th><th>QP</th><th>slack</th><th>h_form</th><th>h_obs</th><th>h_ell</th></tr>";
   for (const r of f.robots) rows += "<tr><td>" + esc(r.id) + "</td><td>" + esc(r.status) + "</td><td>" + fmt(r.slack, 3) +

@@ -99,6 +99,8 @@ FLEET_SCHEMA: dict[str, Any] = {
         "formations": {"type": "array", "items": {"type": "object", "properties": {
             "name": {"type": "string"}, "status": {"type": "string"}, "qp": {"type": "string"},
             "leader": {"type": ["string", "null"]}, "waypoint": {"type": ["string", "null"]},
+            "reason": {"type": ["string", "null"]}, "refusal": {"type": ["string", "null"]},
+            "refused": {"type": ["integer", "null"]},
             **{k: {"type": ["number", "null"]} for k in ("gx", "gy", "distance")}}}},
         "routes": {"type": "array", "items": {"type": "object", "properties": {
             "formation": {"type": "string"}, "points": {"type": "array", "items": {"type": "array"}}}}},

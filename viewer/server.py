@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from .frame import Frame, num
+from .origin_gate import OriginGate
 from .page import render_page
 from .record import FLEET_TOPIC, LOG_TOPIC, ONSET_LEVEL, ONSET_TEXT, Channels
 
@@ -258,20 +259,19 @@ class View:
         """``ws_fallback``: if ``ws_port`` is taken, serve the WebSocket on a free port instead
         (the page names it)."""
         self.channels = Channels()
+        self.gate: OriginGate | None = None
         try:
-            try:
-                ws = self.channels.serve(host, ws_port)
-            except RuntimeError:
-                if not ws_fallback or ws_port == 0:
-                    raise
-                logger.info("port %d taken: the Foxglove WebSocket goes on a free port", ws_port)
-                ws = self.channels.serve(host, 0)
+            # the Foxglove server on loopback only; its public port is the Origin check's
+            self.gate = _gate(host, ws_port, self.channels.serve("127.0.0.1", 0), ws_fallback)
             if mcap is not None:
                 self.channels.open_mcap(mcap)
             self.hub = Hub(self.channels, mode=mode)
-            self.hub.ws_port = ws
+            self.hub.ws_port = self.gate.port
             self.page = PageServer(self.hub, host, port, title)
+            self.gate.page_port = self.page.port  # the page's own origin may connect
         except BaseException:
+            if self.gate is not None:
+                self.gate.close()
             self.channels.close()
             raise
         self._closers: list[Callable[[], None]] = []
@@ -286,7 +286,21 @@ class View:
             except Exception:  # noqa: BLE001
                 logger.debug("viewer close step failed", exc_info=True)
         self.page.close()
+        if self.gate is not None:
+            self.gate.close()
         self.channels.close()
+
+
+def _gate(host: str, port: int, backend: int, fallback: bool) -> OriginGate:
+    """The Origin check on ``(host, port)`` in front of the Foxglove server at ``backend``;
+    with ``fallback`` a taken port gives a free one instead."""
+    try:
+        return OriginGate(host, port, backend)
+    except OSError:
+        if not fallback or port == 0:
+            raise
+        logger.info("port %d taken: the Foxglove WebSocket goes on a free port", port)
+        return OriginGate(host, 0, backend)
 
 
 # --- replay ---------------------------------------------------------------------------------------

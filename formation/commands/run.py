@@ -25,7 +25,7 @@ from deploy.remote import RemoteError, plan_placement
 from formation.commands.view import live_observer
 from formation.exits import EXIT_ERROR, EXIT_OK, UsageError
 from formation.outdir import begin_output
-from formation.progress import Progress, print_summary
+from formation.progress import Progress, lost_words, print_summary
 from scenario import Scenario, load_scenario
 from scenario.model import with_world
 from simulator.capacity import machine_has, refusal
@@ -144,18 +144,20 @@ def _run(ns: argparse.Namespace, config: RunConfig, interrupts: LaterInterruptsW
             announce=functools.partial(_announce, config) if config.hold else None)
     except RunAborted as stop:  # the run started: its summary says why and what it measured
         interrupts.run_over()
-        write_run(stop.summary, stop.series, config.scenario, config.out, plots=not ns.no_plots)
+        lost = write_run(stop.summary, stop.series, config.scenario, config.out,
+                         plots=not ns.no_plots)
         print(f"formation run: aborted: {stop}; wrote {config.out / 'summary.json'} with what "
-              f"was measured until then ({stop.summary['steps']} ticks)", file=sys.stderr)
+              f"was measured until then ({stop.summary['steps']} ticks)"
+              + (f"; {lost_words(lost)}" if lost else ""), file=sys.stderr)
         return 130 if stop.interrupted else EXIT_ERROR
     finally:
         if live is not None:
             live.close()
     interrupts.run_over()
-    write_run(summary, series, config.scenario, config.out, plots=not ns.no_plots)
+    lost = write_run(summary, series, config.scenario, config.out, plots=not ns.no_plots)
     print_summary(summary, config.out, plots=not ns.no_plots,
                   epsilon=config.scenario.controller.epsilon)
-    return EXIT_OK
+    return EXIT_ERROR if lost else EXIT_OK  # files lost to a full disk: the summary says which
 
 
 def capacity_problem(scenario: Scenario, agents_per_process: int = 1,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from agent.qp import make_solver
-from formation.exits import EXIT_OK, UsageError
+from formation.exits import EXIT_ERROR, EXIT_OK, UsageError
 from formation.outdir import begin_output
 from formation.progress import Progress, print_summary
 from scenario import load_scenario
@@ -29,6 +29,6 @@ def cmd_sim(ns: argparse.Namespace) -> int:
                       engine=ns.engine)
     with Progress(f"sim {scenario.name}", quiet=ns.quiet) as progress:
         result = simulate(scenario, opts, progress=progress.update)
-    write_run(result.summary, result.series, scenario, out, plots=not ns.no_plots)
+    lost = write_run(result.summary, result.series, scenario, out, plots=not ns.no_plots)
     print_summary(result.summary, out, plots=not ns.no_plots)
-    return EXIT_OK
+    return EXIT_ERROR if lost else EXIT_OK  # files lost to a full disk: the summary says which
