@@ -30,7 +30,7 @@ def _row(t, rid, ux, uy, h_obstacle=NAN, h_formations=NAN):
     return tuple(values[c] for c in ROBOT_COLUMNS)
 
 
-speed = st.floats(0.05, 1.0)
+speed = st.floats(0.0501, 1.0)  # above REVERSAL_SPEED: at exactly 0.05 the rounding of hypot decides
 
 
 @given(speed, speed, st.floats(-math.pi, math.pi), st.floats(0.0, math.pi))
