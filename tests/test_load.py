@@ -207,8 +207,9 @@ def test_a_declared_load_over_a_circle_is_refused_by_its_physical_radius():
 PAIR = {
     "name": "pair-over-wall", "dt": 0.05, "duration": 30.0,
     "robot": {"max_speed": 0.22, "radius": 0.105},
-    # no route planner: the formation goes straight, as a hand-given route would
-    "controller": {"kp": 2.0, "gamma": 1.0, "epsilon": 0.05, "planner": "none"},
+    # no route planner: the formation goes straight, as a hand-given route would; the plain
+    # thesis method, which knows nothing of the load (the default keeps it off the rail: below)
+    "controller": {"kp": 2.0, "gamma": 1.0, "epsilon": 0.05, "planner": "none", "method": "thesis"},
     "formations": [{
         "name": "P", "leader": "p1",
         "robots": {"p1": {"start": [0.0, -0.6], "goal": [4.0, -0.6]},
@@ -218,6 +219,13 @@ PAIR = {
     # a thin wall along the pair's path, between its two robots: no robot comes near it
     "obstacles": [{"name": "rail", "segment": [[1.5, 0.0], [2.5, 0.0]], "safe_distance": 0.2}],
 }
+
+
+def test_under_the_default_rigid_motion_the_pair_keeps_its_load_off_the_rail():
+    d = copy.deepcopy(PAIR)
+    del d["controller"]["method"]
+    summary = simulate(scenario_from_dict(d)).summary
+    assert summary["collisions"] == 0 and summary["min_clearance_m"]["load"] >= 0.0
 
 
 def test_a_wall_between_a_pair_is_a_load_collision_the_robots_alone_miss():
