@@ -53,9 +53,10 @@ from .fields import title as _title
 from .fields import vector as _vector
 from .fields import within as _in
 from .model import (
+    DOUBLE_INTEGRATOR,
     METHODS,
+    MODELS,
     SINGLE_INTEGRATOR,
-    UNICYCLE,
     ControllerSpec,
     Edge,
     FormationSpec,
@@ -76,7 +77,7 @@ TIEBREAKS = ("keep_right", "none")
 
 _TOP_KEYS = {"name", "dt", "duration", "goal_tolerance", "robot", "controller", "formations",
              "obstacles", "world"}
-_ROBOT_KEYS = {"model", "max_speed", "max_turn_rate", "lookahead", "radius"}
+_ROBOT_KEYS = {"model", "max_speed", "max_turn_rate", "lookahead", "radius", "max_accel"}
 _CONTROLLER_KEYS = {"kp", "gamma", "epsilon", "tiebreak", "d_af", "planner", "method"}
 _GAMMA_KEYS = {"formation", "obstacle", "formations"}
 _FORMATION_KEYS = {"name", "leader", "robots", "edges", "ellipse", "waypoints", LOAD_KEY}
@@ -169,10 +170,13 @@ def scenario_from_dict(data: Any) -> Scenario:
 def _robot_model(raw: Any) -> RobotModel:
     m = _mapping(raw, "robot", _ROBOT_KEYS)
     model = _string(m.get("model", SINGLE_INTEGRATOR), "robot.model")
-    if model not in (SINGLE_INTEGRATOR, UNICYCLE):
+    if model not in MODELS:
         raise ScenarioError(
-            f"robot.model: {excerpt(model)} is not one of {SINGLE_INTEGRATOR!r}, {UNICYCLE!r}"
+            f"robot.model: {excerpt(model)} is not one of {', '.join(repr(x) for x in MODELS)}"
         )
+    accel = m.get("max_accel")
+    if accel is None and model == DOUBLE_INTEGRATOR:
+        raise ScenarioError("robot.max_accel: required for model 'double_integrator' [m/s^2]")
     d = RobotModel()
     return RobotModel(
         model=model,
@@ -181,6 +185,7 @@ def _robot_model(raw: Any) -> RobotModel:
                           limits.MAX_TURN_RATE),
         lookahead=_in(m.get("lookahead", d.lookahead), "robot.lookahead", limits.LOOKAHEAD),
         radius=_in(m.get("radius", d.radius), "robot.radius", limits.RADIUS),
+        max_accel=None if accel is None else _in(accel, "robot.max_accel", limits.MAX_ACCEL),
     )
 
 

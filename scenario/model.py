@@ -19,6 +19,8 @@ from .world import WorldSpec, with_profile
 
 SINGLE_INTEGRATOR = "single_integrator"
 UNICYCLE = "unicycle"
+DOUBLE_INTEGRATOR = "double_integrator"  # state position and velocity, input acceleration
+MODELS = (SINGLE_INTEGRATOR, UNICYCLE, DOUBLE_INTEGRATOR)
 # controller.method: "rules" (the formation-level nominal rules of agent.control), "thesis" (eq. 4.2
 # and the thesis's rows only), "rigid" (the formation's rigid motion: agent.body)
 METHODS = ("rules", "thesis", "rigid")
@@ -31,10 +33,16 @@ class RobotModel:
     max_turn_rate: float = BURGER_MAX_TURN_RATE  # [rad/s], unicycle only
     lookahead: float = 0.05  # [m], l of chapter 6.2, unicycle only
     radius: float = BURGER_RADIUS  # [m] body radius, for collision checks
+    # [m/s^2] acceleration limit: needed by double_integrator (agent.double_integrator); None: none
+    max_accel: float | None = None
 
     @property
     def is_unicycle(self) -> bool:
         return self.model == UNICYCLE
+
+    @property
+    def is_double_integrator(self) -> bool:
+        return self.model == DOUBLE_INTEGRATOR
 
     @property
     def control_offset(self) -> float:

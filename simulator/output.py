@@ -3,7 +3,8 @@
 Shared by ``formation sim`` and ``formation run`` so both write the same files:
 
 * ``summary.json`` - the contract of DESIGN.md ("Run output");
-* ``robots.csv`` - one row per robot per tick (:data:`simulator.inprocess.ROBOT_COLUMNS`);
+* ``robots.csv`` - one row per robot per tick (:data:`simulator.inprocess.ROBOT_COLUMNS`; a run of
+  double integrators adds ``ax, ay``, :func:`simulator.series.robot_columns`);
 * ``ellipses.csv``, ``obstacles.csv`` - per tick;
 * ``trajectories.png`` - paths, obstacles and ellipse snapshots (like thesis Figs. 5.2, 5.11, 5.15);
 * ``safety.png`` - the smallest barrier value of each kind per robot over time (Figs. 5.3, 5.4, 5.12);
@@ -24,7 +25,7 @@ from pathlib import Path
 from scenario import Scenario
 from viewer.record import write_recording
 
-from .series import ROBOT_COLUMNS, Series
+from .series import Series, robot_columns
 
 ELLIPSE_COLUMNS = ("t", "formation", "cx", "cy", "alpha", "a", "b", "vx", "vy", "alpha_rate")
 OBSTACLE_COLUMNS = ("t", "obstacle", "x", "y", "safe_distance")
@@ -54,7 +55,7 @@ def write_run(summary: dict, series: Series, scenario: Scenario, out: Path, plot
 
     try:
         staging.mkdir(parents=True, exist_ok=True)
-        _write_csv(tmp("robots.csv"), ROBOT_COLUMNS, series.robots)
+        _write_csv(tmp("robots.csv"), robot_columns(scenario), series.robots)
         _write_csv(tmp("ellipses.csv"), ELLIPSE_COLUMNS, series.ellipses)
         _write_csv(tmp("obstacles.csv"), OBSTACLE_COLUMNS, series.obstacles)
         _record(summary, series, scenario, staging)
