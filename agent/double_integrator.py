@@ -219,6 +219,17 @@ def integrate(x: float, y: float, vx: float, vy: float, ax: float, ay: float, dt
     return x + vx * dt + 0.5 * ax * dt * dt, y + vy * dt + 0.5 * ay * dt * dt, nvx, nvy
 
 
+def brake(vx: float, vy: float, amax: float, dt: float) -> tuple[float, float]:
+    """The acceleration that stops a robot moving at (vx, vy) as fast as ``amax`` allows
+    (-v / dt, clamped): what a double integrator does without a certified acceleration (a
+    zero command, or none; the world applies it and the agent expects it)."""
+    ax, ay = -vx / dt, -vy / dt
+    n = math.hypot(ax, ay)
+    if n > amax:
+        ax, ay = ax * amax / n, ay * amax / n
+    return ax, ay
+
+
 class Inputs(NamedTuple):
     """What one tick's rows are built from (as :func:`agent.control.control_step` takes them)."""
 
