@@ -297,6 +297,9 @@ def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
         d.pop("footprint", None)  # method rules or thesis: likewise
     if d["control"]["method"] == "rules":
         del d["control"]["method"]  # the default: likewise
+    for name, default in (("double_integrator", False), ("max_accel", None)):
+        if d["control"][name] == default:
+            del d["control"][name]  # single integrators and unicycles: likewise
     if d["solver"] == "exact":
         del d["solver"]  # the default: files stay as they were before the field existed
     d["version"] = CONFIG_VERSION
