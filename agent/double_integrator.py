@@ -57,7 +57,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple, Protocol
 
 from geometry.ellipse import Ellipse
 from geometry.shapes import Shape, shape_distance
@@ -66,8 +66,33 @@ from . import barriers
 from .barriers import Neighbour, Obstacle, Partner
 from .qp import STATUS_NOMINAL, QPResult, Row, normalized_row, solve_cbf_qp, solve_exact
 
-if TYPE_CHECKING:  # agent.control imports this module
-    from .control import ControlParams
+
+class ControlParams(Protocol):
+    """The numbers of :class:`agent.control.ControlParams` this module reads (agent.control
+    imports this module, so it names them here rather than importing that class)."""
+
+    @property
+    def kp(self) -> float: ...
+    @property
+    def gamma_formation(self) -> float: ...
+    @property
+    def gamma_obstacle(self) -> float: ...
+    @property
+    def gamma_formations(self) -> float: ...
+    @property
+    def epsilon(self) -> float: ...
+    @property
+    def max_speed(self) -> float: ...
+    @property
+    def max_accel(self) -> float | None: ...
+    @property
+    def period(self) -> float: ...
+    @property
+    def d_af(self) -> float: ...
+    @property
+    def safety(self) -> bool: ...
+    @property
+    def separation(self) -> float: ...
 
 BRAKE_SHARE = 0.5  # a barrier on its boundary asks for at most this share of max_accel
 NOMINAL_DAMPING = 2.0  # a = NOMINAL_DAMPING kp (u - v): damping ratio 1/sqrt(2)

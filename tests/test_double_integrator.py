@@ -11,8 +11,10 @@ import math
 from pathlib import Path
 
 import pytest
+import zenoh
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
+from zenoh.ext import UInt8, z_deserialize
 
 from agent import double_integrator as di
 from agent.barriers import Obstacle, Partner, speed_rows
@@ -237,6 +239,8 @@ def test_cmd_version_1_is_unchanged_and_version_2_carries_the_acceleration():
     raw2 = encode(with_accel)
     assert raw2[0] == CMD_ACCEL_VERSION and len(raw2) == 57
     assert decode_cmd(raw2) == with_accel
+    assert z_deserialize(tuple[UInt8, float, float, float, float, float, float, float],
+                         zenoh.ZBytes(raw2)) == (2, 0.1, 0.0, 0.08, 0.06, 0.4, -0.3, 5.0)
     with pytest.raises(DecodeError):
         decode_cmd(raw2[:-8])
     with pytest.raises(DecodeError, match="unsupported version 3"):
