@@ -89,9 +89,9 @@ from geometry.shapes import Shape
 from scenario import limits as ranges
 from scenario.model import METHODS
 
-from . import barriers, body, double_integrator, unicycle
+from . import accel_limit, barriers, body, double_integrator, unicycle
 from .barriers import Neighbour, Obstacle, Partner
-from .qp import STATUS_NOMINAL, QPResult, Row, normalized_row, solve_cbf_qp, solve_exact
+from .qp import STATUS_NOMINAL, QPResult, Row, normalized_row, solve_exact
 
 TIEBREAK_MARGIN = 0.15  # [m] corridor half-width beyond both radii
 TIEBREAK_DEAD = 0.05  # [m] lateral offsets this small count as dead ahead: keep right
@@ -938,8 +938,9 @@ def control_step(
     limits, hard, soft = rows.limits, rows.hard, rows.soft
 
     t0 = clock() if clock is not None else 0
-    if p.safety:
-        res = solve_cbf_qp(ux, uy, limits, hard, soft, solve, rows.contact)
+    if p.safety:  # with a unicycle's acceleration rows where it has max_accel (agent.accel_limit)
+        res = accel_limit.solve(ux, uy, limits, hard, soft, rows.contact, accel_limit.accel_rows(
+            last_u, (ux, uy), p.max_accel, p.period), solve)
     else:
         u = solve_exact(ux, uy, limits) or (0.0, 0.0)
         res = QPResult(u[0], u[1], STATUS_NOMINAL, 0.0, True)

@@ -177,6 +177,8 @@ def _robot_model(raw: Any) -> RobotModel:
     accel = m.get("max_accel")
     if accel is None and model == DOUBLE_INTEGRATOR:
         raise ScenarioError("robot.max_accel: required for model 'double_integrator' [m/s^2]")
+    if accel is not None and model == SINGLE_INTEGRATOR:
+        raise ScenarioError("robot.max_accel: only for model 'double_integrator' or 'unicycle'")
     d = RobotModel()
     return RobotModel(
         model=model,

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agent import double_integrator, unicycle
+from agent import accel_limit, double_integrator, unicycle
 from agent.barriers import Obstacle
 from agent.body import Footprint, footprint_of
 from agent.control import ControlParams, Stall, StepResult, control_step
@@ -143,7 +143,7 @@ def simulate(  # noqa: C901 (13: the in-process loop; to split with the world's 
     lab = world_for(scenario, options.engine)  # None: the ideal kinematic world
     series = Series()
     solve_us: list[float] = []
-    counts = {STATUS_RELAXED: 0, STATUS_FALLBACK: 0, STATUS_FAILED: 0}
+    counts = {STATUS_RELAXED: 0, STATUS_FALLBACK: 0, STATUS_FAILED: 0, accel_limit.STATUS_ACCEL: 0}
     hard = HardRowCounter()  # ticks on which a hard row was not met (agent.hard_rows)
     min_h = {"formation": math.inf, "obstacle": math.inf, "formations": math.inf}
     all_to_all = options.topology == "all-to-all"
@@ -227,7 +227,9 @@ def simulate(  # noqa: C901 (13: the in-process loop; to split with the world's 
         scenario, "inprocess", ticks, t, monitor,
         {key: (v if math.isfinite(v) else None) for key, v in min_h.items()},
         qp_fields(len(solve_us), solve_us, counts[STATUS_RELAXED], counts[STATUS_FALLBACK],
-                  counts[STATUS_FAILED], hard.ticks, hard.by_reason, escape=escape_ticks),
+                  counts[STATUS_FAILED], hard.ticks, hard.by_reason, escape=escape_ticks,
+                  **accel_limit.summary_fields(params.max_accel, params.double_integrator,
+                                               counts[accel_limit.STATUS_ACCEL])),
         logical_comm(scenario, options.topology, ticks, t, edges_total),
         options.safety, options.solver,
         motion=motion_fields(series.robots, ROBOT_COLUMNS, scenario) if options.record else None,

@@ -17,7 +17,9 @@ from hypothesis import strategies as st
 from zenoh.ext import UInt8, z_deserialize
 
 from agent import double_integrator as di
+from agent.accel_limit import STATUS_ACCEL
 from agent.barriers import Obstacle, Partner, speed_rows
+from agent.barriers import obstacle_row as obstacle_row_si
 from agent.config import build_agent_configs, load_config, save_config
 from agent.control import ControlParams, control_step
 from agent.qp import STATUS_OK, solve_exact
@@ -291,3 +293,49 @@ def test_the_agent_config_carries_the_model_and_other_configs_stay_as_they_were(
     save_config(build_agent_configs(single)["a1"], tmp_path / "s1")
     text = (tmp_path / "s1").read_text()
     assert "max_accel" not in text and "double_integrator" not in text
+
+
+# --- a unicycle's acceleration limit (agent.accel_limit) ----------------------------------------
+
+UNI = ControlParams(unicycle=True, max_accel=0.5)
+
+
+@settings(max_examples=300, deadline=None)
+@given(coord, coord, angle, coord, coord, st.floats(0.05, 2.0))
+def test_a_unicycle_with_max_accel_changes_its_command_by_at_most_max_accel_dt(
+        hx, hy, theta, gx, gy, amax):
+    """The last command one the robot could take (certified towards another goal at the same
+    heading); whatever the new goal, the command moves by at most a_max dt."""
+    p = dataclasses.replace(UNI, max_accel=amax)
+    before = control_step(UNI, (0.0, 0.0, theta), (hx, hy))
+    last = (before.ux, before.uy)
+    res = control_step(p, (0.0, 0.0, theta), (gx, gy), last_u=last)
+    assert res.status == STATUS_OK
+    assert math.hypot(res.ux - last[0], res.uy - last[1]) <= amax * p.period + 1e-9
+
+
+def test_the_barrier_rows_win_over_a_unicycles_acceleration_rows():
+    """At full speed just short of an obstacle's safe distance, slowing by a_max dt is not
+    enough: the obstacle row holds and the tick is marked (and counted) ``accel``."""
+    p = dataclasses.replace(UNI, max_accel=0.1)
+    grow = p.offset + p.sampling_margin
+    o = Obstacle(0.05 + 0.3 + grow + 0.002, 0.0, 0.0, 0.0, 0.3)  # 2 mm from the grown Ds
+    res = control_step(p, (0.0, 0.0, 0.0), (3.0, 0.0), obstacles=[o], last_u=(0.22, 0.0))
+    assert res.status == STATUS_ACCEL
+    assert res.ux < 0.22 - 0.1 * p.period  # slowed by more than the acceleration rows allow
+    _, row = obstacle_row_si(res.px, res.py, o._replace(ds=o.ds + grow), p.gamma_obstacle)
+    assert row[0] * res.ux + row[1] * res.uy <= row[2] + 1e-9
+    without = control_step(dataclasses.replace(p, max_accel=None), (0.0, 0.0, 0.0), (3.0, 0.0),
+                           obstacles=[o], last_u=(0.22, 0.0))
+    assert (without.ux, without.uy) == pytest.approx((res.ux, res.uy))  # the same command
+
+
+def test_a_unicycle_run_with_max_accel_counts_its_yielded_ticks_and_others_do_not():
+    s = load_scenario(SCENARIOS / "unicycle-crossing.yaml")
+    limited = dataclasses.replace(s, robot=dataclasses.replace(s.robot, max_accel=0.5))
+    summary = simulate(limited, SimOptions(record=False)).summary
+    assert summary["qp"]["accel_yielded"] == 0
+    assert summary["all_reached"] and summary["collisions"] == 0
+    assert "accel_yielded" not in simulate(s, SimOptions(record=False)).summary["qp"]
+    with pytest.raises(ScenarioError, match=r"robot\.max_accel: only for"):
+        parse_scenario(_di_text("{model: single_integrator, max_accel: 1}"))
