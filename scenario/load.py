@@ -65,6 +65,7 @@ from .model import (
     RobotModel,
     RobotSpec,
     Scenario,
+    check_model_world,
 )
 from .reader import ScenarioError, excerpt, load_yaml, read_text
 from .shipped import resolve
@@ -153,8 +154,10 @@ def scenario_from_dict(data: Any) -> Scenario:
     obstacles = tuple(o for o in parsed if isinstance(o, ObstacleSpec))
     shapes = tuple(o for o in parsed if isinstance(o, Shape))
 
+    world = parse_world(top.get("world"))
+    check_model_world(robot, world)
     scenario = Scenario(name, dt, duration, tol, robot, controller, tuple(formations),
-                        obstacles, shapes, parse_world(top.get("world")))
+                        obstacles, shapes, world)
     axes = [formation_axes(scenario, f) for f in scenario.formations]
     _check_bands(scenario)
     _check_start(scenario, axes)

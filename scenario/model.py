@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE, BURGER_RADIUS
 from geometry.shapes import Shape
 
+from .reader import ScenarioError
 from .world import WorldSpec, with_profile
 
 SINGLE_INTEGRATOR = "single_integrator"
@@ -179,4 +180,13 @@ def with_world(scenario: Scenario, name: str | None) -> Scenario:
     """``scenario`` in the world ``--world NAME`` chose (None: as its file says)."""
     if name is None:
         return scenario
-    return dataclasses.replace(scenario, world=with_profile(scenario.world, name))
+    out = dataclasses.replace(scenario, world=with_profile(scenario.world, name))
+    check_model_world(out.robot, out.world)
+    return out
+
+
+def check_model_world(robot: RobotModel, world: WorldSpec) -> None:
+    """Double integrators move in the ideal world only (ScenarioError otherwise)."""
+    if robot.is_double_integrator and not world.ideal:
+        raise ScenarioError(f"robot.model: double_integrator runs in the ideal world only, not "
+                            f"in world profile {world.profile!r}")

@@ -273,12 +273,19 @@ def test_a_double_integrator_needs_max_accel_in_range():
         ControlParams(max_accel=-1.0)
 
 
-def test_double_integrators_are_refused_in_a_lab_world():
-    s = load_scenario(SCENARIOS / "di-thesis-move.yaml")
-    lab = parse_scenario(_di_text("{model: double_integrator, max_accel: 0.5}")
-                         + "world: {profile: turtlebot3-lab}\n")
-    assert lab.robot == s.robot
-    with pytest.raises(ValueError, match="ideal kinematic world only"):
+def test_double_integrators_are_refused_in_a_lab_world(tmp_path, capsys):
+    with pytest.raises(ScenarioError, match="double_integrator runs in the ideal world only"):
+        parse_scenario(_di_text("{model: double_integrator, max_accel: 0.5}")
+                       + "world: {profile: turtlebot3-lab}\n")
+    path = str(SCENARIOS / "di-thesis-move.yaml")
+    assert main(["sim", path, "--out", str(tmp_path / "a"), "--quiet", "--world",
+                 "turtlebot3-lab"]) == 2
+    assert main(["sim", path, "--out", str(tmp_path / "b"), "--quiet", "--engine", "mujoco"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 2 and "ideal world only" in err[0] and "kinematic world only" in err[1]
+    s = load_scenario(path)
+    lab = dataclasses.replace(s, world=dataclasses.replace(s.world, profile="turtlebot3-lab"))
+    with pytest.raises(ValueError, match="ideal kinematic world only"):  # the last guard
         simulate(lab, SimOptions(record=False))
 
 
