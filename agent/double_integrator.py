@@ -39,8 +39,9 @@ The rows drop the curvature term of h'' (>= 0 for a convex distance), so (R) giv
 g . a >= -2 k h' - k^2 h and, with h' >= -k h (psi1 >= 0) and k dt <= 1,
     h(t) >= h (1 - k t + k^2 t^2 / 2) >= 0    for every t in [0, dt]:
 no sampling margin is needed for circles, walls, shelves and body separation. The formation
-edges (soft) and other formations' ellipses (whose pad is their margin) use the thesis's
-quadratic h (eq. 4.3, 4.4, 4.6) with the exact h'' at the sample.
+edges (soft, relaxed when need be; both poles min(gamma_formation, 1 / dt)) and other
+formations' ellipses (whose pad is their margin) use the thesis's quadratic h (eq. 4.3, 4.4,
+4.6) with the exact h'' at the sample.
 
 Limits (never relaxed): |a| <= max_accel as a polygon inscribed in the disk, one vertex along the
 nominal acceleration, and the speed after the tick, v + a dt, inside the speed polygon of
