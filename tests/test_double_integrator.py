@@ -30,7 +30,7 @@ from simulator.inprocess import SimOptions, simulate
 from wire.payloads import CMD_ACCEL_VERSION, Cmd, DecodeError, decode_cmd, encode
 
 SCENARIOS = Path(__file__).parent / "scenarios"
-DI_SCENARIOS = ["di-thesis-move", "di-circle", "di-shelf", "di-crossing"]
+DI_SCENARIOS = ["di-thesis-move", "di-circle", "di-shelf", "di-crossing", "di-forklift"]
 TOL = 1e-9
 
 coord = st.floats(-3.0, 3.0)
