@@ -295,6 +295,9 @@ def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
         d.pop("rmw", None)  # the bridge: files stay as they were before the field existed
     if d.get("footprint") is None:
         d.pop("footprint", None)  # method thesis: files stay as they were
+    for name, default in (("double_integrator", False), ("max_accel", None)):
+        if d["control"][name] == default:
+            del d["control"][name]  # single integrators and unicycles: likewise
     if d["solver"] == "exact":
         del d["solver"]  # the default: files stay as they were before the field existed
     d["version"] = CONFIG_VERSION

@@ -48,9 +48,9 @@ from geometry.shapes import Shape
 from scenario import limits as ranges
 from scenario.model import METHODS
 
-from . import barriers, body, unicycle
+from . import accel_limit, barriers, body, double_integrator, unicycle
 from .barriers import Neighbour, Obstacle, Partner
-from .qp import STATUS_NOMINAL, QPResult, Row, solve_cbf_qp, solve_exact
+from .qp import STATUS_NOMINAL, QPResult, Row, solve_exact
 
 TIEBREAK_MARGIN = 0.15  # [m] corridor half-width beyond both radii
 TIEBREAK_DEAD = 0.05  # [m] lateral offsets this small count as dead ahead: keep right
@@ -87,6 +87,7 @@ PARAM_RANGES: dict[str, ranges.Range] = {
     "d_af": ranges.DISTANCE,
     "period": ranges.DT,
     "radius": ranges.RADIUS,
+    "max_accel": ranges.MAX_ACCEL,
 }
 
 
@@ -110,11 +111,15 @@ class ControlParams:
     period: float = 0.05  # [s] control period (sizes the unicycle's discretisation margin)
     radius: float = BURGER_RADIUS  # [m] body radius: separation rows keep bodies 2 r + SEP_MARGIN apart
     method: str = "rigid"  # scenario.model.METHODS: rigid (agent.body) or thesis (eq. 4.2 alone)
+    double_integrator: bool = False  # input acceleration (agent.double_integrator)
+    max_accel: float | None = None  # [m/s^2] None: no acceleration limit
 
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
             allowed = PARAM_RANGES.get(f.name)
+            if f.name == "max_accel" and value is None:
+                continue
             if allowed is not None:
                 ranges.check(value, f.name, allowed)
             elif f.name == "method":
@@ -142,6 +147,8 @@ class ControlParams:
             period=scenario.dt,
             radius=r.radius,
             method=c.method,
+            double_integrator=r.is_double_integrator,
+            max_accel=r.max_accel,
         )
 
     @property
@@ -241,6 +248,8 @@ class StepResult(NamedTuple):
     solve_us: float  # [us] wall time of the QP (with any relaxation)
     h_separation: float = math.inf  # smallest separation barrier value (bodies, all partners)
     escape: bool = False  # the formation-level escape from a moving hazard set the nominal
+    ax: float = 0.0  # [m/s^2] double integrators: the certified acceleration (ux, uy: the
+    ay: float = 0.0  # velocity it gives at the end of the tick, what ``state`` carries)
 
 
 def nominal(kp: float, x: float, y: float, gx: float, gy: float, vmax: float):
@@ -574,7 +583,8 @@ def control_step(
     are robots of other formations in the all-to-all baseline (eq. 3.5 rows instead of
     ellipses); ``partners`` are the robots this one could touch that get a hard separation row
     (every other member of its formation, and in all-to-all every foreign robot), with
-    ``last_u`` this robot's own last certified velocity, as its ``state`` told them; ``hazards``
+    ``last_u`` this robot's own last certified velocity, as its ``state`` told them (for a
+    double integrator its velocity now: :mod:`agent.double_integrator`); ``hazards``
     are the other formations' ellipses for the formation's motion only (its QP and the
     tie-break; default: ``others``), so all-to-all keeps them without ellipse rows.
     ``shapes`` are the static walls and shelves (Ds from the shape, offset added likewise).
@@ -606,23 +616,28 @@ def control_step(
         lead = 1.0 / body.band_gain(p.kp, p.period)  # where the slot's pull aims the point
         ux, uy = unicycle.steer(ux, uy, theta, p.lookahead, p.max_turn_rate, reverse=near, lead=lead)
     nux, nuy = ux, uy
+    if p.double_integrator:  # the same nominal, as an acceleration under relative-degree-2 rows
+        d = double_integrator.step(p, (x, y), last_u, (ux, uy), double_integrator.Inputs(
+            neighbours, obstacles, others, pairwise, partners, shapes), solve, clock)
+        return StepResult(d.vx, d.vy, math.hypot(d.vx, d.vy), 0.0, x, y, d.status, d.slack,
+                          d.h_formation, d.h_obstacle, d.h_formations, nux, nuy, d.solve_us,
+                          d.h_separation, escaping, d.ax, d.ay)
 
     rows = build_rows(p, px, py, theta, (ux, uy), neighbours, obstacles, others, view, pairwise,
                       partners, last_u, shapes)
     limits, hard, soft = rows.limits, rows.hard, rows.soft
 
     t0 = clock() if clock is not None else 0
-    if p.safety:
-        res = solve_cbf_qp(ux, uy, limits, hard, soft, solve, rows.contact)
+    if p.safety:  # with a unicycle's acceleration rows where it has max_accel (agent.accel_limit)
+        res = accel_limit.solve(ux, uy, limits, hard, soft, rows.contact, accel_limit.accel_rows(
+            last_u, (ux, uy), p.max_accel, p.period), solve)
     else:
         u = solve_exact(ux, uy, limits) or (0.0, 0.0)
         res = QPResult(u[0], u[1], STATUS_NOMINAL, 0.0, True)
     solve_us = (clock() - t0) * 1e-3 if clock is not None else 0.0
 
-    if p.unicycle:
-        v, w = unicycle.to_unicycle(res.ux, res.uy, theta, p.lookahead)
-    else:
-        v, w = math.hypot(res.ux, res.uy), 0.0
+    v, w = (unicycle.to_unicycle(res.ux, res.uy, theta, p.lookahead) if p.unicycle
+            else (math.hypot(res.ux, res.uy), 0.0))
     return StepResult(
         res.ux, res.uy, v, w, px, py, res.status, res.slack, rows.h_formation, rows.h_obstacle,
         rows.h_formations, nux, nuy, solve_us, rows.h_separation, escaping,

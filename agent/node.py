@@ -97,6 +97,7 @@ from typing import Any
 
 import zenoh
 
+from agent import double_integrator
 from agent.barriers import Obstacle
 from agent.base import Base, make_base
 from agent.clock import STATS_WINDOW, Clock, LockstepClock, RealtimeClock
@@ -484,12 +485,24 @@ class AgentNode:
             logger.error("%s: a tick raised %s: %s (answered with the zero command; logged "
                          "once per kind)", self.cfg.robot_id, kind, exc)
         self._tick_point = None
-        self.last_u = (0.0, 0.0)
+        self.last_u = self._halted()
         try:
             self.send_command(Cmd(0.0, 0.0, 0.0, 0.0, self.clock.cmd_stamp(t, self.last_stamp)))
         except Exception:  # noqa: BLE001 - the zero command itself failed: logged, go on
             logger.debug("%s: zero command after a tick error failed", self.cfg.robot_id,
                          exc_info=True)
+
+    def _halted(self) -> tuple[float, float]:
+        """This robot's velocity one period after a zero command: zero, or for a double
+        integrator what one period of braking leaves (the world brakes it so:
+        :func:`agent.double_integrator.brake`)."""
+        c = self.cfg.control
+        if not c.double_integrator:
+            return (0.0, 0.0)
+        vx, vy = self.last_u
+        ax, ay = double_integrator.brake(vx, vy, c.max_accel or math.inf, c.period)
+        _, _, vx, vy = double_integrator.integrate(0.0, 0.0, vx, vy, ax, ay, c.period, c.max_speed)
+        return (vx, vy)
 
     def _send_state(self) -> None:
         if self._tick_point is not None and self.transport is not None:
@@ -572,7 +585,8 @@ class AgentNode:
         if self.leader.leading:
             stall = self._stall
             self.nav.report(stamp, stall.still >= STALLED_AFTER_S, False)
-        self.send_command(Cmd(res.v, res.omega, res.ux, res.uy, stamp))
+        accel = (res.ax, res.ay) if cfg.control.double_integrator else (None, None)
+        self.send_command(Cmd(res.v, res.omega, res.ux, res.uy, stamp, *accel))
         self.last_u = (res.ux, res.uy)
         self._record(res, stamp)
         return res
@@ -643,7 +657,7 @@ class AgentNode:
         c = self.counts
         c.stale_why[why] = c.stale_why.get(why, 0) + 1
         c.stale += 1
-        self.last_u = (0.0, 0.0)
+        self.last_u = self._halted()
         stamp = self.clock.cmd_stamp(t, self.last_stamp)
         self.send_command(Cmd(0.0, 0.0, 0.0, 0.0, stamp))
         if self.leader.leading:

@@ -4,7 +4,8 @@ Eight measurements, written to ``bench.json`` and as a table (``bench.txt`` and 
 
 * **step**: one robot's full control step (:func:`agent.control.control_step`: nominal command,
   barrier rows, QP) for a robot of a 4-robot formation with 2 obstacles and 3 other formations
-  in view, with its two parts (:func:`agent.control.build_rows` and the exact solve) apart.
+  in view, with its two parts (:func:`agent.control.build_rows` and the exact solve) apart,
+  and the same step for a single and a double integrator side by side (``by_model``).
 * **solvers**: the exact solver against the qpsolvers backends on the real QP instances the
   in-process simulator posed on a scenario (default: the warehouse), interleaved in one process
   so machine noise hits them alike; medians, with the worst disagreement against the exact one.
@@ -204,7 +205,32 @@ def bench_step(n: int, backends: Sequence[str] = BACKENDS) -> dict:
         "rows": len(qp_rows),
         "status": res.status,
         "solve_us_median": solve,
+        "by_model": bench_step_models(n),
     }
+
+
+DI_ACCEL = 1.0  # [m/s^2] the double integrator's acceleration limit in the step benchmark
+DI_VELOCITY = (0.2, 0.0)  # [m/s] ... and its velocity (the formation's, as in step_instance)
+
+
+def bench_step_models(n: int, rounds: int = 10) -> dict:
+    """The same step (:func:`step_instance`) for a single integrator and a double integrator
+    (max_accel DI_ACCEL, moving at DI_VELOCITY), timed in alternating rounds so machine noise
+    hits both alike: medians [us] side by side."""
+    p, pose, goal, nb, obs, others, view = step_instance()
+    d = replace(p, double_integrator=True, max_accel=DI_ACCEL)
+    times: dict[str, list[float]] = {"single_integrator": [], "double_integrator": []}
+    k = max(1, n // rounds)
+    for _ in range(rounds):
+        times["single_integrator"] += timed(
+            lambda: control_step(p, pose, goal, nb, obs, others, view, last_u=DI_VELOCITY), k)
+        times["double_integrator"] += timed(
+            lambda: control_step(d, pose, goal, nb, obs, others, view, last_u=DI_VELOCITY), k)
+    out: dict = {m: statistics.median(t) for m, t in times.items()}
+    out["double_over_single"] = out["double_integrator"] / out["single_integrator"]
+    out["double_integrator_status"] = control_step(d, pose, goal, nb, obs, others, view,
+                                                   last_u=DI_VELOCITY).status
+    return out
 
 
 # ------------------------------------------------------------------- in-process throughput
@@ -415,6 +441,9 @@ def format_table(result: dict) -> str:
         f"build_rows {st['build_rows_us_median']:.1f} us",
         "  same QP solved alone: " + ", ".join(f"{k} {v:.1f} us"
                                                  for k, v in st["solve_us_median"].items()),
+        f"  by robot model, same step: single integrator "
+        f"{st['by_model']['single_integrator']:.1f} us, double integrator "
+        f"{st['by_model']['double_integrator']:.1f} us (x{st['by_model']['double_over_single']:.2f})",
         f"QP instances: {result['instances']['count']} from {result['instances']['scenario']} "
         f"(median {result['instances']['rows_median']} rows)",
         f"{'solver':<22}{'median us':>11}{'p90 us':>10}{'x exact':>9}{'max |du|':>12}",

@@ -75,6 +75,7 @@ MAX_TICKS = 1_000_000  # duration / dt: a run of at most a million control perio
 GOAL_TOLERANCE = positive(10.0, "m")
 MAX_SPEED = positive(5.0, "m/s")  # a fast warehouse robot moves 2 m/s
 MAX_TURN_RATE = positive(20.0, "rad/s")
+MAX_ACCEL = positive(50.0, "m/s^2")  # a warehouse robot brakes at a few m/s^2
 LOOKAHEAD = positive(1.0, "m")
 RADIUS = positive(5.0, "m")
 GAIN = positive(100.0, "1/s")  # kp
@@ -102,6 +103,7 @@ TABLE: tuple[tuple[str, str], ...] = (
     ("goal_tolerance", GOAL_TOLERANCE.text()),
     ("robot.max_speed", MAX_SPEED.text()),
     ("robot.max_turn_rate", MAX_TURN_RATE.text()),
+    ("robot.max_accel", MAX_ACCEL.text()),
     ("robot.lookahead", LOOKAHEAD.text()),
     ("robot.radius", RADIUS.text()),
     ("controller.kp", GAIN.text()),

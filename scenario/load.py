@@ -53,9 +53,10 @@ from .fields import title as _title
 from .fields import vector as _vector
 from .fields import within as _in
 from .model import (
+    DOUBLE_INTEGRATOR,
     METHODS,
+    MODELS,
     SINGLE_INTEGRATOR,
-    UNICYCLE,
     ControllerSpec,
     Edge,
     FormationSpec,
@@ -64,6 +65,7 @@ from .model import (
     RobotModel,
     RobotSpec,
     Scenario,
+    check_model_world,
 )
 from .reader import ScenarioError, excerpt, load_yaml, read_text
 from .shipped import resolve
@@ -76,7 +78,7 @@ TIEBREAKS = ("keep_right", "none")
 
 _TOP_KEYS = {"name", "dt", "duration", "goal_tolerance", "robot", "controller", "formations",
              "obstacles", "world"}
-_ROBOT_KEYS = {"model", "max_speed", "max_turn_rate", "lookahead", "radius"}
+_ROBOT_KEYS = {"model", "max_speed", "max_turn_rate", "lookahead", "radius", "max_accel"}
 _CONTROLLER_KEYS = {"kp", "gamma", "epsilon", "tiebreak", "d_af", "planner", "method"}
 _GAMMA_KEYS = {"formation", "obstacle", "formations"}
 _FORMATION_KEYS = {"name", "leader", "robots", "edges", "ellipse", "waypoints", LOAD_KEY}
@@ -152,8 +154,10 @@ def scenario_from_dict(data: Any) -> Scenario:
     obstacles = tuple(o for o in parsed if isinstance(o, ObstacleSpec))
     shapes = tuple(o for o in parsed if isinstance(o, Shape))
 
+    world = parse_world(top.get("world"))
+    check_model_world(robot, world)
     scenario = Scenario(name, dt, duration, tol, robot, controller, tuple(formations),
-                        obstacles, shapes, parse_world(top.get("world")))
+                        obstacles, shapes, world)
     axes = [formation_axes(scenario, f) for f in scenario.formations]
     _check_bands(scenario)
     _check_start(scenario, axes)
@@ -169,10 +173,15 @@ def scenario_from_dict(data: Any) -> Scenario:
 def _robot_model(raw: Any) -> RobotModel:
     m = _mapping(raw, "robot", _ROBOT_KEYS)
     model = _string(m.get("model", SINGLE_INTEGRATOR), "robot.model")
-    if model not in (SINGLE_INTEGRATOR, UNICYCLE):
+    if model not in MODELS:
         raise ScenarioError(
-            f"robot.model: {excerpt(model)} is not one of {SINGLE_INTEGRATOR!r}, {UNICYCLE!r}"
+            f"robot.model: {excerpt(model)} is not one of {', '.join(repr(x) for x in MODELS)}"
         )
+    accel = m.get("max_accel")
+    if accel is None and model == DOUBLE_INTEGRATOR:
+        raise ScenarioError("robot.max_accel: required for model 'double_integrator' [m/s^2]")
+    if accel is not None and model == SINGLE_INTEGRATOR:
+        raise ScenarioError("robot.max_accel: only for model 'double_integrator' or 'unicycle'")
     d = RobotModel()
     return RobotModel(
         model=model,
@@ -181,6 +190,7 @@ def _robot_model(raw: Any) -> RobotModel:
                           limits.MAX_TURN_RATE),
         lookahead=_in(m.get("lookahead", d.lookahead), "robot.lookahead", limits.LOOKAHEAD),
         radius=_in(m.get("radius", d.radius), "robot.radius", limits.RADIUS),
+        max_accel=None if accel is None else _in(accel, "robot.max_accel", limits.MAX_ACCEL),
     )
 
 

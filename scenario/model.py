@@ -15,10 +15,13 @@ from dataclasses import dataclass
 from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE, BURGER_RADIUS
 from geometry.shapes import Shape
 
+from .reader import ScenarioError
 from .world import WorldSpec, with_profile
 
 SINGLE_INTEGRATOR = "single_integrator"
 UNICYCLE = "unicycle"
+DOUBLE_INTEGRATOR = "double_integrator"  # state position and velocity, input acceleration
+MODELS = (SINGLE_INTEGRATOR, UNICYCLE, DOUBLE_INTEGRATOR)
 # controller.method: "rigid" (the formation's rigid motion: agent.body; the default), "thesis"
 # (eq. 4.2 and the thesis's rows only, for comparison)
 METHODS = ("rigid", "thesis")
@@ -31,10 +34,16 @@ class RobotModel:
     max_turn_rate: float = BURGER_MAX_TURN_RATE  # [rad/s], unicycle only
     lookahead: float = 0.05  # [m], l of chapter 6.2, unicycle only
     radius: float = BURGER_RADIUS  # [m] body radius, for collision checks
+    # [m/s^2] acceleration limit: needed by double_integrator (agent.double_integrator); None: none
+    max_accel: float | None = None
 
     @property
     def is_unicycle(self) -> bool:
         return self.model == UNICYCLE
+
+    @property
+    def is_double_integrator(self) -> bool:
+        return self.model == DOUBLE_INTEGRATOR
 
     @property
     def control_offset(self) -> float:
@@ -171,4 +180,13 @@ def with_world(scenario: Scenario, name: str | None) -> Scenario:
     """``scenario`` in the world ``--world NAME`` chose (None: as its file says)."""
     if name is None:
         return scenario
-    return dataclasses.replace(scenario, world=with_profile(scenario.world, name))
+    out = dataclasses.replace(scenario, world=with_profile(scenario.world, name))
+    check_model_world(out.robot, out.world)
+    return out
+
+
+def check_model_world(robot: RobotModel, world: WorldSpec) -> None:
+    """Double integrators move in the ideal world only (ScenarioError otherwise)."""
+    if robot.is_double_integrator and not world.ideal:
+        raise ScenarioError(f"robot.model: double_integrator runs in the ideal world only, not "
+                            f"in world profile {world.profile!r}")

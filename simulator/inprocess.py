@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agent import unicycle
+from agent import accel_limit, double_integrator, unicycle
 from agent.barriers import Obstacle
 from agent.body import Footprint, footprint_of
 from agent.control import ControlParams, Stall, StepResult, control_step
@@ -143,7 +143,7 @@ def simulate(  # noqa: C901 (13: the in-process loop; to split with the world's 
     lab = world_for(scenario, options.engine)  # None: the ideal kinematic world
     series = Series()
     solve_us: list[float] = []
-    counts = {STATUS_RELAXED: 0, STATUS_FALLBACK: 0, STATUS_FAILED: 0}
+    counts = {STATUS_RELAXED: 0, STATUS_FALLBACK: 0, STATUS_FAILED: 0, accel_limit.STATUS_ACCEL: 0}
     hard = HardRowCounter()  # ticks on which a hard row was not met (agent.hard_rows)
     min_h = {"formation": math.inf, "obstacle": math.inf, "formations": math.inf}
     all_to_all = options.topology == "all-to-all"
@@ -204,14 +204,15 @@ def simulate(  # noqa: C901 (13: the in-process loop; to split with the world's 
                 series.robots.append((
                     t, ids[i], fname, x, y, th, px, py, res.ux, res.uy, res.v, res.omega,
                     res.status, res.slack, res.h_formation, res.h_obstacle, res.h_formations,
-                ))
+                ) + ((res.ax, res.ay) if params.double_integrator else ()))
         if options.record:
             for name, e in ellipses.items():
                 series.ellipses.append((t, name, *e))
             for o, spec in zip(obs, scenario.obstacles, strict=True):
                 series.obstacles.append((t, spec.name, o.x, o.y, spec.safe_distance))
         # move every robot with its own command (all computed from the same snapshot)
-        state = advance(lab, state, results, params.unicycle, dt)
+        state = advance(lab, state, results, params.unicycle, dt,
+                        (vel, params.max_speed) if params.double_integrator else None)
         vel = [(res.ux, res.uy) for res in results]
         t = (k + 1) * dt
         monitor.update(t, np.array([s[:2] for s in state]), [o[:2] for o in obstacles_at(t)])
@@ -226,7 +227,9 @@ def simulate(  # noqa: C901 (13: the in-process loop; to split with the world's 
         scenario, "inprocess", ticks, t, monitor,
         {key: (v if math.isfinite(v) else None) for key, v in min_h.items()},
         qp_fields(len(solve_us), solve_us, counts[STATUS_RELAXED], counts[STATUS_FALLBACK],
-                  counts[STATUS_FAILED], hard.ticks, hard.by_reason, escape=escape_ticks),
+                  counts[STATUS_FAILED], hard.ticks, hard.by_reason, escape=escape_ticks,
+                  **accel_limit.summary_fields(params.max_accel, params.double_integrator,
+                                               counts[accel_limit.STATUS_ACCEL])),
         logical_comm(scenario, options.topology, ticks, t, edges_total),
         options.safety, options.solver,
         motion=motion_fields(series.robots, ROBOT_COLUMNS, scenario) if options.record else None,
@@ -247,9 +250,17 @@ def sensed(lab: LabWorld | None, k: int, state: list[list[float]], obs: list[Obs
 
 
 def advance(lab: LabWorld | None, state: list[list[float]], results: Sequence[StepResult],
-            is_unicycle: bool, dt: float) -> list[list[float]]:
+            is_unicycle: bool, dt: float,
+            accel: tuple[Sequence[tuple[float, float]], float] | None = None,
+            ) -> list[list[float]]:
     """Every robot's body pose one period on under its command: exact kinematics (single
-    integrator, or the unicycle of eq. 6.1) in the ideal world, the lab's wheels otherwise."""
+    integrator, or the unicycle of eq. 6.1) in the ideal world, the lab's wheels otherwise.
+    ``accel``: double integrators, (every robot's velocity now, max_speed), moved by
+    :func:`agent.double_integrator.integrate` under its certified acceleration."""
+    if accel is not None:
+        vel, vmax = accel
+        return [[*double_integrator.integrate(s[0], s[1], v[0], v[1], r.ax, r.ay, dt, vmax)[:2], s[2]]
+                for s, v, r in zip(state, vel, results, strict=True)]
     if lab is not None:
         return [list(p) for p in lab.move(state, [(r.ux, r.uy, r.v, r.omega) for r in results])]
     out = []

@@ -3,7 +3,8 @@
 Shared by ``formation sim`` and ``formation run`` so both write the same files:
 
 * ``summary.json`` - the contract of DESIGN.md ("Run output");
-* ``robots.csv`` - one row per robot per tick (:data:`simulator.inprocess.ROBOT_COLUMNS`);
+* ``robots.csv`` - one row per robot per tick (:data:`simulator.inprocess.ROBOT_COLUMNS`; a run of
+  double integrators adds ``ax, ay``, :func:`simulator.series.robot_columns`);
 * ``ellipses.csv``, ``obstacles.csv`` - per tick;
 * ``trajectories.png`` - paths, obstacles and ellipse snapshots (like thesis Figs. 5.2, 5.11, 5.15);
 * ``safety.png`` - the smallest barrier value of each kind per robot over time (Figs. 5.3, 5.4, 5.12);
@@ -30,7 +31,7 @@ from pathlib import Path
 from scenario import Scenario
 from viewer.record import write_recording
 
-from .series import ROBOT_COLUMNS, Series
+from .series import Series, robot_columns
 
 ELLIPSE_COLUMNS = ("t", "formation", "cx", "cy", "alpha", "a", "b", "vx", "vy", "alpha_rate")
 OBSTACLE_COLUMNS = ("t", "obstacle", "x", "y", "safe_distance")
@@ -91,7 +92,8 @@ def _bulk_writers(summary: dict, series: Series, scenario: Scenario,
                   plots: bool) -> list[tuple[str, Callable[[Path], None]]]:
     """(name, writer of that file at a given path) for each bulk file of the run, in order."""
     writers: list[tuple[str, Callable[[Path], None]]] = [
-        ("robots.csv", functools.partial(_write_csv, columns=ROBOT_COLUMNS, rows=series.robots)),
+        ("robots.csv", functools.partial(_write_csv, columns=robot_columns(scenario),
+                                         rows=series.robots)),
         ("ellipses.csv", functools.partial(_write_csv, columns=ELLIPSE_COLUMNS,
                                            rows=series.ellipses)),
         ("obstacles.csv", functools.partial(_write_csv, columns=OBSTACLE_COLUMNS,

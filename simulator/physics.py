@@ -255,7 +255,11 @@ class MujocoWorld(LabWorld):
 def world_for(scenario: Scenario, engine: str = "kinematic") -> LabWorld | None:
     """The world that moves ``scenario``'s robots: None for the ideal kinematic world (the
     exact kinematics), a :class:`LabWorld` for a lab profile, a :class:`MujocoWorld` for
-    ``engine="mujoco"`` (any profile: its camera, if it has one)."""
+    ``engine="mujoco"`` (any profile: its camera, if it has one). Double integrators move in
+    the ideal kinematic world only (ValueError otherwise)."""
+    if scenario.robot.is_double_integrator and (engine != "kinematic" or not scenario.world.ideal):
+        raise ValueError("robot.model: double_integrator runs in the ideal kinematic world only "
+                         f"(not with world profile {scenario.world.profile!r}, engine {engine!r})")
     if engine == "mujoco":
         return MujocoWorld(scenario)
     if engine != "kinematic":

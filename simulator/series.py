@@ -7,13 +7,25 @@ the simulator package, so the summary reads them without importing the simulator
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from .metrics import SafetyMonitor
+
+if TYPE_CHECKING:
+    from scenario import Scenario
 
 ROBOT_COLUMNS = (
     "t", "robot", "formation", "x", "y", "theta", "px", "py", "ux", "uy", "v", "omega",
     "status", "slack", "h_formation", "h_obstacle", "h_formations",
 )
+#: robots.csv gains these [m/s^2] (the certified acceleration) only in a run of double
+#: integrators, so every other run's file stays as it was, byte for byte
+ACCEL_COLUMNS = ("ax", "ay")
+
+
+def robot_columns(scenario: Scenario) -> tuple[str, ...]:
+    """robots.csv's columns for a run of ``scenario``."""
+    return ROBOT_COLUMNS + ACCEL_COLUMNS if scenario.robot.is_double_integrator else ROBOT_COLUMNS
 
 
 @dataclass

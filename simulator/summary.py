@@ -255,7 +255,8 @@ def merge_traces(result: WorldResult, stats: Sequence[AgentStats], dt: float) ->
             series.robots.append(row)
             continue
         status, slack, hf, ho, he = tr[7], tr[8], tr[9], tr[10], tr[11]
-        series.robots.append((*row[:12], status, _nan(slack), _nan(hf), _nan(ho), _nan(he)))
+        series.robots.append((*row[:12], status, _nan(slack), _nan(hf), _nan(ho), _nan(he),
+                              *row[len(ROBOT_COLUMNS):]))  # double integrators: ax, ay
     series.ellipses.extend(_ellipse_rows(result, stats, dt))
     return series
 

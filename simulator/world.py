@@ -5,7 +5,9 @@ Each tick the world publishes ``obstacles`` and every robot's ``pose`` (the true
 overhead frame; with ``--camera process`` it publishes only the rendered frame, and the real
 camera process, :mod:`camera_service.simcam`, publishes poses and obstacles), collects every
 robot's ``cmd``, integrates the kinematics exactly (single integrator, or the unicycle of eq. 6.1
-through :func:`agent.unicycle.integrate`) and feeds a
+through :func:`agent.unicycle.integrate`, or a double integrator's position and velocity under
+its certified acceleration, :func:`agent.double_integrator.integrate`: a command without one,
+or none, brakes it, :func:`agent.double_integrator.brake`) and feeds a
 :class:`simulator.metrics.SafetyMonitor` with the true positions.
 
 Two clocks:
@@ -64,7 +66,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from agent import unicycle
+from agent import double_integrator, unicycle
 from runtime.heap import freeze_startup
 from runtime.shutdown import STEP_LIMIT_S, within
 from scenario import Scenario
@@ -318,6 +320,9 @@ class World:
         self.counter = TrafficCounter(options.prefix)
         self.ids = scenario.robot_ids
         self.formation_of = {rid: scenario.formation_of(rid).name for rid in self.ids}
+        # double integrators: every robot's velocity and the acceleration it was last given
+        self._vel: list[tuple[float, float]] = [(0.0, 0.0)] * len(self.ids)
+        self._acc: list[tuple[float, float]] = list(self._vel)
         p = options.prefix
         for o in scenario.obstacles:
             keys.validate_id(o.name, "obstacle name")
@@ -428,6 +433,8 @@ class World:
         off = sc.robot.control_offset
         state: list[tuple[float, float, float]] = [
             (r.start[0], r.start[1], r.start[2]) for r in sc.robots]
+        self._vel = [(0.0, 0.0)] * len(state)  # double integrators: at rest at the start
+        self._acc = [(0.0, 0.0)] * len(state)
         monitor = SafetyMonitor(sc)
         series = Series()
         inbox = self.inbox
@@ -568,7 +575,7 @@ class World:
                 self._publish_obstacles(t, stamp)
             for i in mine:
                 if k > 0:
-                    new[i] = step_pose(*new[i], cmds[i], dt, is_uni)
+                    new[i] = self._pose_after(i, new[i], cmds[i], is_uni)
                 sent[i] = stamp
                 self._publish_pose(i, t, stamp, new[i])
         _sleep_until(start + dt, abort)
@@ -578,11 +585,29 @@ class World:
               cmds: Sequence[Cmd | None]) -> list[tuple[float, float, float]]:
         """Every robot's pose one period on: exact kinematics (:func:`step_pose`), or the lab's
         wheels (:mod:`simulator.lab`)."""
-        dt, is_uni = self.scenario.dt, self.scenario.robot.is_unicycle
+        is_uni = self.scenario.robot.is_unicycle
         if self.lab is None:
-            return [step_pose(*s, c, dt, is_uni) for s, c in zip(state, cmds, strict=True)]
+            return [self._pose_after(i, s, c, is_uni)
+                    for i, (s, c) in enumerate(zip(state, cmds, strict=True))]
         return self.lab.move(state, [None if c is None else (c.ux, c.uy, c.v, c.omega)
                                      for c in cmds])
+
+    def _pose_after(self, i: int, s: tuple[float, float, float], cmd: Cmd | None,
+                    is_uni: bool) -> tuple[float, float, float]:
+        """Robot ``i``'s body pose one period on from ``s`` under ``cmd`` (:func:`step_pose`);
+        a double integrator's velocity moves on with it."""
+        dt, robot = self.scenario.dt, self.scenario.robot
+        if not robot.is_double_integrator:
+            return step_pose(*s, cmd, dt, is_uni)
+        vx, vy = self._vel[i]
+        if cmd is not None and cmd.ax is not None and cmd.ay is not None:
+            a = (cmd.ax, cmd.ay)
+        else:  # a zero command (version 1) or none: brake
+            a = double_integrator.brake(vx, vy, robot.max_accel or math.inf, dt)
+        x, y, vx, vy = double_integrator.integrate(s[0], s[1], vx, vy, a[0], a[1], dt,
+                                                   robot.max_speed)
+        self._vel[i], self._acc[i] = (vx, vy), a
+        return x, y, s[2]
 
     def _publish_obstacles(self, t: float, stamp: float) -> list[ObstacleMsg]:
         obs = []
@@ -622,10 +647,18 @@ class World:
             px, py = unicycle.control_point(s[0], s[1], s[2], off)
             ux, uy, v, w = (0.0, 0.0, 0.0, 0.0) if c is None else (c.ux, c.uy, c.v, c.omega)
             series.robots.append((t, rid, self.formation_of[rid], s[0], s[1], s[2], px, py,
-                                  ux, uy, v, w, "", NAN, NAN, NAN, NAN))
+                                  ux, uy, v, w, "", NAN, NAN, NAN, NAN) + self._accel_cells(rid))
         for o in self.scenario.obstacles:
             x, y = o.position(t)
             series.obstacles.append((t, o.name, x, y, o.safe_distance))
+
+
+    def _accel_cells(self, rid: str) -> tuple[float, ...]:
+        """robots.csv's ``ax, ay`` (double integrators only): the acceleration the robot was
+        given over the period just recorded."""
+        if not self.scenario.robot.is_double_integrator:
+            return ()
+        return self._acc[self.ids.index(rid)]
 
 
 def lab_world(scenario: Scenario, options: WorldOptions) -> LabWorld | None:

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from agent.control import build_rows
+from experiments.bench import bench_step_models
 from formation.bench import bench_command, central_problem, fleet_scenario, fleet_snapshot
 
 AGENT_KEYS = ("rate_hz", "world_rate_hz", "missed_ticks", "agent_overruns", "latency_ms_p50",
@@ -55,6 +56,13 @@ def test_quick_bench_numbers_are_finite(quick_result):
     assert result["step_us_median"] > 0
     assert "exact" in result["step"]["solve_us_median"]
     assert "exact" in result["solvers"]
+    assert set(result["step"]["by_model"]) >= {"single_integrator", "double_integrator"}
+
+
+def test_the_step_is_timed_for_both_integrators_on_the_same_instance():
+    by_model = bench_step_models(20, rounds=2)
+    assert by_model["single_integrator"] > 0 and by_model["double_integrator"] > 0
+    assert by_model["double_integrator_status"] == "ok"  # the double integrator's QP was solved
 
 
 def test_quick_bench_has_central_and_per_robot_side_by_side(quick_result):

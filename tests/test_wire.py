@@ -206,6 +206,8 @@ def _fields(msg: object) -> tuple[object, ...]:
                             for o in msg.obstacles])
     if isinstance(msg, State):  # wire order: the heading before the stamp
         return (msg.x, msg.y, msg.ux, msg.uy, msg.theta, msg.stamp)
+    if isinstance(msg, Cmd):  # version 1: no acceleration (tests/test_double_integrator.py: 2)
+        return (msg.v, msg.omega, msg.ux, msg.uy, msg.stamp)
     return tuple(getattr(msg, f) for f in type(msg).__dataclass_fields__)  # type: ignore[attr-defined]
 
 

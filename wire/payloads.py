@@ -13,6 +13,7 @@ payload        fields in order (``u8`` version, then ``f64`` unless marked ``str
 ``Pose``       version, x, y, theta, stamp                                               33
 ``State``      version (2), x, y, ux, uy, theta, stamp                                   49
 ``Cmd``        version, v, omega, ux, uy, stamp                                          41
+``Cmd``        version 2, v, omega, ux, uy, ax, ay, stamp                                57
 ``EllipseMsg`` version, formation:str, cx, cy, alpha, a, b, vx, vy, alpha_rate, stamp   73+n
 ``Others``     version, formation:str, stamp, ellipses:list[E], own:list[E] (0 or 1)  varies
 ``Obstacles``  version, stamp, obstacles:list[O]                                         varies
@@ -29,7 +30,9 @@ optional type. The version byte is
 :data:`WIRE_VERSION` for every kind; a decoder accepts exactly that version, except that an
 ``Obstacles`` carrying walls or shelves is written as :data:`SHAPES_VERSION` (a decoder that
 predates shapes refuses it with "unsupported version 2"; circles alone keep version 1, byte for
-byte as before). Units: metres,
+byte as before); likewise a ``Cmd`` carrying a double integrator's certified acceleration
+``ax, ay`` is written as :data:`CMD_ACCEL_VERSION` and every other ``Cmd`` as version 1, and
+:func:`decode_cmd` accepts both. Units: metres,
 radians, seconds, metres per second, radians per second; ``stamp`` is the sender's clock in
 seconds. ``Pose`` and ``State`` carry no id: the key names the robot.
 
@@ -78,6 +81,7 @@ STATE_VERSION = 2
 #: with any of them (or the state ``unreachable``) is version 2, which an older decoder refuses
 #: by its version byte.
 STATUS_VERSION = 2
+CMD_ACCEL_VERSION = 2  # Cmd with a double integrator's acceleration (ax, ay)
 MAX_ITEMS = 256  # most ellipses (or obstacles) one payload may carry
 # A payload longer than this is rejected before parsing [bytes]. The largest valid message (an
 # Others with 256 + 1 ellipses whose ids are 64 four-byte UTF-8 characters) is about 85 kB.
@@ -185,9 +189,11 @@ class State:
 
 @dataclass(frozen=True, slots=True)
 class Cmd:
-    """Command to a robot base: ``.../cmd``. Unicycle ``v, omega`` and the certified ``ux, uy``.
+    """Command to a robot base: ``.../cmd``. Unicycle ``v, omega`` and the certified ``ux, uy``;
+    a double integrator's certified acceleration ``ax, ay`` (both or neither; then ``ux, uy``
+    is the velocity it gives at the end of the tick), wire version :data:`CMD_ACCEL_VERSION`.
 
-    [m/s, rad/s, m/s, m/s, s]
+    [m/s, rad/s, m/s, m/s, s, m/s^2, m/s^2]
     """
 
     v: float
@@ -195,10 +201,14 @@ class Cmd:
     ux: float
     uy: float
     stamp: float
+    ax: float | None = None
+    ay: float | None = None
 
     def __post_init__(self) -> None:
         if not _plain_finite((self.v, self.omega, self.ux, self.uy, self.stamp)):
             _check_floats(self, _CMD_FLOATS)
+        if self.ax is not None or self.ay is not None:
+            _check_floats(self, ("ax", "ay"))
 
 
 _ELLIPSE_FLOATS = ("cx", "cy", "alpha", "a", "b", "vx", "vy", "alpha_rate", "stamp")
@@ -435,6 +445,7 @@ _VERSION = UInt8(WIRE_VERSION)
 _SHAPES_VERSION = UInt8(SHAPES_VERSION)
 _STATE_VERSION = UInt8(STATE_VERSION)
 _STATUS_VERSION = UInt8(STATUS_VERSION)
+_CMD_ACCEL_VERSION = UInt8(CMD_ACCEL_VERSION)
 
 
 def _ellipse_fields(e: EllipseMsg) -> tuple[Any, ...]:
@@ -446,6 +457,8 @@ def _wire_tuple(msg: Message) -> tuple[Any, ...]:
         return (_VERSION, msg.x, msg.y, msg.theta, msg.stamp)
     if isinstance(msg, State):
         return (_STATE_VERSION, msg.x, msg.y, msg.ux, msg.uy, msg.theta, msg.stamp)
+    if isinstance(msg, Cmd) and msg.ax is not None:
+        return (_CMD_ACCEL_VERSION, msg.v, msg.omega, msg.ux, msg.uy, msg.ax, msg.ay, msg.stamp)
     if isinstance(msg, Cmd):
         return (_VERSION, msg.v, msg.omega, msg.ux, msg.uy, msg.stamp)
     if isinstance(msg, EllipseMsg):
@@ -653,6 +666,15 @@ def _parse_cmd(r: _Reader) -> Cmd:
     return Cmd(*r.floats(5, "cmd"))
 
 
+def _parse_cmd_accel(r: _Reader) -> Cmd:
+    """Version 2: a double integrator's command with its acceleration."""
+    v, omega, ux, uy, ax, ay, stamp = r.floats(7, "cmd")
+    return Cmd(v, omega, ux, uy, stamp, ax, ay)
+
+
+_CMD_PARSERS = {WIRE_VERSION: _parse_cmd, CMD_ACCEL_VERSION: _parse_cmd_accel}
+
+
 def _parse_ellipse(r: _Reader) -> EllipseMsg:
     return _ellipses([r.ellipse("ellipse")])[0]
 
@@ -709,7 +731,7 @@ def decode_state(payload: bytes | zenoh.ZBytes) -> State:
 
 def decode_cmd(payload: bytes | zenoh.ZBytes) -> Cmd:
     """Decode a ``cmd`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_cmd, "cmd")
+    return _decode(payload, _parse_cmd, "cmd", parsers=_CMD_PARSERS)
 
 
 def decode_ellipse(payload: bytes | zenoh.ZBytes) -> EllipseMsg:

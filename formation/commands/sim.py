@@ -21,6 +21,8 @@ def cmd_sim(ns: argparse.Namespace) -> int:
         make_solver(ns.solver)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+    if ns.engine == "mujoco" and scenario.robot.is_double_integrator:
+        raise UsageError("--engine mujoco: double integrators run in the kinematic world only")
     if ns.engine == "mujoco" and not physics_available():
         raise UsageError("--engine mujoco: MuJoCo is not installed "
                          "(pip install 'formation-cbf[physics]')")

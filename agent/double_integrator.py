@@ -1,0 +1,346 @@
+"""Double-integrator robots (thesis, future work): state position and velocity, input acceleration.
+
+A robot of ``robot.model: double_integrator`` moves as  p' = v, v' = a  with |v| <= max_speed and
+|a| <= max_accel. Every barrier h(p) of the thesis's per-robot QP (eq. 4.12: formation edges,
+circles static and moving, walls and shelves, other formations' ellipses, body separation, the
+all-to-all pairs of eq. 3.5) then has relative degree 2: a appears only in h''. Each becomes the
+high-order CBF (HOCBF) of W. Xiao and C. Belta, "Control Barrier Functions for Systems with High
+Relative Degree", IEEE CDC 2019 (arXiv:1903.04706), with linear class-K functions (the
+exponential CBF of Q. Nguyen and K. Sreenath, "Exponential Control Barrier Functions for
+enforcing high relative-degree safety-critical constraints", ACC 2016, with poles -k1, -k2):
+
+    psi0 = h,   psi1 = h' + k1 h,   row:  psi1' + k2 psi1 >= 0,
+
+that is  h'' + (k1 + k2) h' + k1 k2 h >= 0.  Writing h'' = g . a + q (g = dh/dp, q the drift:
+everything in h'' but the own acceleration), the QP row over a = (ax, ay) is
+
+    -g . a <= q + (k1 + k2) h' + k1 k2 h                                            (R)
+
+normalised to |g| = 1 (so a slack is in m/s^2). The set {h >= 0, psi1 >= 0} is kept: psi1 >= 0
+bounds the closing speed s = -h' by k1 h. The other party (neighbour, obstacle, formation) is
+taken to keep its velocity over the tick (its acceleration is not on the wire; obstacles and
+ellipses move at constant velocity in the scenario), as eq. 4.12's rows take its velocity.
+
+Braking distance. With h a distance (circles, walls and shelves, separation), on psi1 = 0 the
+row (R) asks for a deceleration of at most k1 s <= k1 s_max along g, s_max the largest closing
+speed (max_speed, plus the obstacle's speed, or twice max_speed for a pair sharing it). The gain
+is therefore :func:`gain`: k = min(gamma, BRAKE_SHARE max_accel / s_max, 1 / dt), so the
+deceleration a barrier can ask for on its boundary is at most BRAKE_SHARE of what the robot
+has, and from psi1 >= 0 (s <= k h) the stopping distance s^2 / (2 a_b) with a_b = k s_max is at
+most h / 2: a robot inside the set can always still brake before h = 0. Both poles are k
+(k1 = k2 = k: critically damped, no overshoot of the boundary).
+
+Sampling (zero-order hold, a constant over the period dt, exact integration; the one-step
+property :func:`step` is tested for). For a distance barrier h(p) = dist(p, C) - D to a convex C
+(a point, a segment, a box), dist is convex, so with the relative position
+d(t) = d + r t + a t^2 / 2 (the other party at constant velocity)
+    h(t) >= h + h' t + (g . a) t^2 / 2     (the supporting line of the convex function).
+The rows drop the curvature term of h'' (>= 0 for a convex distance), so (R) gives
+g . a >= -2 k h' - k^2 h and, with h' >= -k h (psi1 >= 0) and k dt <= 1,
+    h(t) >= h (1 - k t + k^2 t^2 / 2) >= 0    for every t in [0, dt]:
+no sampling margin is needed for circles, walls, shelves and body separation. The formation
+edges (soft, relaxed when need be; both poles min(gamma_formation, 1 / dt)) and other
+formations' ellipses (whose pad is their margin) use the thesis's quadratic h (eq. 4.3, 4.4,
+4.6) with the exact h'' at the sample.
+
+Limits (never relaxed): |a| <= max_accel as a polygon inscribed in the disk, one vertex along the
+nominal acceleration, and the speed after the tick, v + a dt, inside the speed polygon of
+:func:`agent.barriers.speed_rows` (a face the present velocity already lies beyond may not be
+pushed further: a = 0 always meets every limit row).
+
+Nominal: a PD-like acceleration towards the nominal velocity u of eq. 4.2 (with the formation
+rules of :mod:`agent.control`), a = 2 kp (u - v), clamped to max_accel: about p = goal this is
+p'' + 2 kp p' + 2 kp^2 (p - goal) = 0, damping ratio 1/sqrt(2) whatever kp, so the formation
+and goal behaviour stay the thesis's.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from typing import NamedTuple, Protocol
+
+from geometry.ellipse import Ellipse
+from geometry.shapes import Shape, shape_distance
+
+from . import barriers
+from .barriers import Neighbour, Obstacle, Partner
+from .qp import STATUS_NOMINAL, QPResult, Row, normalized_row, solve_cbf_qp, solve_exact
+
+
+class ControlParams(Protocol):
+    """The numbers of :class:`agent.control.ControlParams` this module reads (agent.control
+    imports this module, so it names them here rather than importing that class)."""
+
+    @property
+    def kp(self) -> float: ...
+    @property
+    def gamma_formation(self) -> float: ...
+    @property
+    def gamma_obstacle(self) -> float: ...
+    @property
+    def gamma_formations(self) -> float: ...
+    @property
+    def epsilon(self) -> float: ...
+    @property
+    def max_speed(self) -> float: ...
+    @property
+    def max_accel(self) -> float | None: ...
+    @property
+    def period(self) -> float: ...
+    @property
+    def d_af(self) -> float: ...
+    @property
+    def safety(self) -> bool: ...
+    @property
+    def separation(self) -> float: ...
+
+BRAKE_SHARE = 0.5  # a barrier on its boundary asks for at most this share of max_accel
+NOMINAL_DAMPING = 2.0  # a = NOMINAL_DAMPING kp (u - v): damping ratio 1/sqrt(2)
+
+
+class DIStep(NamedTuple):
+    """One double-integrator tick: the certified acceleration, the velocity it gives at the end
+    of the tick (the robot's velocity over the next, what ``state`` carries), and the QP's
+    outcome as :class:`agent.control.StepResult` reports it."""
+
+    ax: float  # [m/s^2] certified acceleration
+    ay: float
+    vx: float  # [m/s] velocity at the end of the tick
+    vy: float
+    status: str
+    slack: float  # [m/s^2]
+    h_formation: float
+    h_obstacle: float
+    h_formations: float
+    h_separation: float
+    solve_us: float
+
+
+def gain(gamma: float, max_accel: float, closing: float, dt: float) -> float:
+    """[1/s] both poles of a hazard's HOCBF (module docstring, "Braking distance")."""
+    return min(gamma, BRAKE_SHARE * max_accel / closing, 1.0 / dt)
+
+
+def hocbf_row(h: float, hd: float, q: float, g: tuple[float, float], k1: float, k2: float) -> Row:
+    """The row (R):  -g . a <= q + (k1 + k2) h' + k1 k2 h,  normalised; ``hd`` = h',
+    ``q`` the drift of h''."""
+    return normalized_row(-g[0], -g[1], q + (k1 + k2) * hd + k1 * k2 * h)
+
+
+def circle_terms(p: tuple[float, float], v: tuple[float, float], c: tuple[float, float],
+                 w: tuple[float, float], ds: float) -> tuple[float, float, tuple[float, float]]:
+    """(h, h', g) of the distance barrier h = |p - c| - ds (eq. 4.5's set, as a distance) for a
+    centre c moving at w: g = unit(p - c), h' = g . (v - w). The curvature of h'' is left out
+    (module docstring, "Sampling")."""
+    dx, dy = p[0] - c[0], p[1] - c[1]
+    d = math.hypot(dx, dy)
+    if d < 1e-12:
+        return -ds, 0.0, (0.0, 0.0)
+    gx, gy = dx / d, dy / d
+    return d - ds, gx * (v[0] - w[0]) + gy * (v[1] - w[1]), (gx, gy)
+
+
+def obstacle_row(p, v, o: Obstacle, gamma: float, amax: float, vmax: float,
+                 dt: float) -> tuple[float, Row]:
+    """A circle (static or moving at constant velocity) of eq. 4.5: (h, row)."""
+    h, hd, g = circle_terms(p, v, (o.x, o.y), (o.vx, o.vy), o.ds)
+    k = gain(gamma, amax, vmax + math.hypot(o.vx, o.vy), dt)
+    return h, hocbf_row(h, hd, 0.0, g, k, k)
+
+
+def shape_row(p, v, sh: Shape, gamma: float, amax: float, vmax: float,
+              dt: float) -> tuple[float, Row]:
+    """A wall or shelf: h = dist(p, shape) - Ds, h' = g . v with g = d dist / dp (a unit
+    vector); the shape is convex and still, so (R) holds with q = 0 (module docstring)."""
+    d, gx, gy = shape_distance(p[0], p[1], sh)
+    h = d - sh.ds
+    k = gain(gamma, amax, vmax, dt)
+    return h, hocbf_row(h, gx * v[0] + gy * v[1], 0.0, (gx, gy), k, k)
+
+
+def band_rows(p, v, n: Neighbour, eps: float, k: float) -> tuple[float, float, Row, Row]:
+    """One formation edge (eq. 4.3, 4.4, soft): with d = p - p_j, r = v - v_j,
+    h_g = |d|^2 - (Df - eps)^2:  h_g' = 2 d . r,  h_g'' = 2 d . a + 2 |r|^2;
+    h_l = (Df + eps)^2 - |d|^2:  h_l' = -2 d . r, h_l'' = -2 d . a - 2 |r|^2.
+    Returns (h_g, h_l, row_g, row_l)."""
+    dx, dy = p[0] - n.x, p[1] - n.y
+    rx, ry = v[0] - n.vx, v[1] - n.vy
+    hg, hl = barriers.formation_h(p[0], p[1], n.x, n.y, n.df, eps)
+    dr, r2 = 2.0 * (dx * rx + dy * ry), 2.0 * (rx * rx + ry * ry)
+    row_g = hocbf_row(hg, dr, r2, (2.0 * dx, 2.0 * dy), k, k)
+    row_l = hocbf_row(hl, -dr, -r2, (-2.0 * dx, -2.0 * dy), k, k)
+    return hg, hl, row_g, row_l
+
+
+def ellipse_row(p, v, e: Ellipse, gamma: float, amax: float, vmax: float,
+                dt: float) -> tuple[float, Row]:
+    """Another formation's ellipse (eq. 4.6), moving at (vx, vy) and turning at alpha_rate = w,
+    both taken constant. In its frame u = R(alpha)^T (p - c), h = u1^2/a^2 + u2^2/b^2 - 1; with
+    q = R^T (v - c'):  u1' = q1 + w u2,  u2' = q2 - w u1,  and
+    u'' = R^T a + w (q2, -q1) + w (u2', -u1'), so
+    h' = 2 u1 u1'/a^2 + 2 u2 u2'/b^2,
+    h'' = g . a + 2 (u1'^2 + u1 w (q2 + u2'))/a^2 + 2 (u2'^2 - u2 w (q1 + u1'))/b^2,
+    g = dh/dp (appendix A.3 (14, 15))."""
+    c, s = math.cos(e.alpha), math.sin(e.alpha)
+    dx, dy = p[0] - e.cx, p[1] - e.cy
+    rx, ry = v[0] - e.vx, v[1] - e.vy
+    u1, u2 = c * dx + s * dy, -s * dx + c * dy
+    q1, q2 = c * rx + s * ry, -s * rx + c * ry
+    w = e.alpha_rate
+    d1, d2 = q1 + w * u2, q2 - w * u1
+    ia2, ib2 = 1.0 / (e.a * e.a), 1.0 / (e.b * e.b)
+    h = u1 * u1 * ia2 + u2 * u2 * ib2 - 1.0
+    hd = 2.0 * (u1 * d1 * ia2 + u2 * d2 * ib2)
+    q = 2.0 * ((d1 * d1 + u1 * w * (q2 + d2)) * ia2 + (d2 * d2 - u2 * w * (q1 + d1)) * ib2)
+    g1, g2 = 2.0 * u1 * ia2, 2.0 * u2 * ib2
+    k = gain(gamma, amax, vmax + math.hypot(e.vx, e.vy), dt)
+    return h, hocbf_row(h, hd, q, (g1 * c - g2 * s, g1 * s + g2 * c), k, k)
+
+
+def separation_row(p, v, q: Partner, dsep: float, gamma: float, amax: float, vmax: float,
+                   dt: float) -> tuple[float, Row]:
+    """Two bodies kept dsep apart: h = |p - p_j| - dsep, the pair's condition
+    g . (a - a_j) >= -(2 k h' + k^2 h) (h' = g . (v - v_j)) split in halves: this robot takes
+    g . a >= -(2 k h' + k^2 h) / 2 and its partner, computing the same numbers from the same
+    ``state``s, the mirror row; the two rows add up to the pair's condition for any two
+    accelerations the two QPs return (the reciprocal split of
+    :func:`agent.barriers.separation_row`, here about a = 0). Each robot's share of the braking
+    is k s / 2 <= BRAKE_SHARE max_accel for closing speeds s <= 2 max_speed."""
+    h, hd, g = circle_terms(p, v, (q.x, q.y), (q.vx, q.vy), dsep)
+    k = gain(gamma, 2.0 * amax, 2.0 * vmax, dt)
+    return h, normalized_row(-g[0], -g[1], 0.5 * (2.0 * k * hd + k * k * h))
+
+
+def limit_rows(v: tuple[float, float], u_nom: tuple[float, float], a_nom: tuple[float, float],
+               vmax: float, amax: float, dt: float) -> list[Row]:
+    """|a| <= amax (a polygon, a vertex along ``a_nom``) and v + a dt inside the speed polygon
+    (a vertex along ``u_nom``), each face n . (v + a dt) <= max(face, n . v)."""
+    rows = barriers.speed_rows(amax, math.atan2(a_nom[1], a_nom[0]))
+    for nx, ny, face in barriers.speed_rows(vmax, math.atan2(u_nom[1], u_nom[0])):
+        nv = nx * v[0] + ny * v[1]
+        rows.append((nx, ny, max(face - nv, 0.0) / dt))
+    return rows
+
+
+def nominal_accel(u_nom: tuple[float, float], v: tuple[float, float], kp: float,
+                  amax: float) -> tuple[float, float]:
+    """a = NOMINAL_DAMPING kp (u - v), clamped to amax (module docstring, "Nominal")."""
+    ax, ay = NOMINAL_DAMPING * kp * (u_nom[0] - v[0]), NOMINAL_DAMPING * kp * (u_nom[1] - v[1])
+    n = math.hypot(ax, ay)
+    if n > amax:
+        ax, ay = ax * amax / n, ay * amax / n
+    return ax, ay
+
+
+def integrate(x: float, y: float, vx: float, vy: float, ax: float, ay: float, dt: float,
+              vmax: float) -> tuple[float, float, float, float]:
+    """The exact double integrator over ``dt`` under a constant acceleration:
+    p + v dt + a dt^2 / 2, v + a dt, the velocity then clipped to vmax (the certified command
+    keeps it inside; a fallback may not). The world and the in-process simulator both call it."""
+    nvx, nvy = vx + ax * dt, vy + ay * dt
+    s = math.hypot(nvx, nvy)
+    if s > vmax:
+        nvx, nvy = nvx * vmax / s, nvy * vmax / s
+    return x + vx * dt + 0.5 * ax * dt * dt, y + vy * dt + 0.5 * ay * dt * dt, nvx, nvy
+
+
+def brake(vx: float, vy: float, amax: float, dt: float) -> tuple[float, float]:
+    """The acceleration that stops a robot moving at (vx, vy) as fast as ``amax`` allows
+    (-v / dt, clamped): what a double integrator does without a certified acceleration (a
+    zero command, or none; the world applies it and the agent expects it)."""
+    ax, ay = -vx / dt, -vy / dt
+    n = math.hypot(ax, ay)
+    if n > amax:
+        ax, ay = ax * amax / n, ay * amax / n
+    return ax, ay
+
+
+class Inputs(NamedTuple):
+    """What one tick's rows are built from (as :func:`agent.control.control_step` takes them)."""
+
+    neighbours: Sequence[Neighbour] = ()
+    obstacles: Sequence[Obstacle] = ()
+    others: Sequence[Ellipse] = ()
+    pairwise: Sequence[Neighbour] = ()
+    partners: Sequence[Partner] = ()
+    shapes: Sequence[Shape] = ()
+
+
+class Rows(NamedTuple):
+    soft: list[Row]
+    hard: list[Row]  # ellipses and all-to-all pairs (margin rows)
+    contact: list[Row]  # circles, walls, shelves, separation
+    h: tuple[float, float, float, float]  # smallest h_formation, h_obstacle, h_formations, h_sep
+
+
+def _keep(rows: list[Row], row: Row, amax: float) -> None:
+    """Append ``row`` unless no |a| <= amax can violate it (normalised: b >= amax)."""
+    if row[2] < amax:
+        rows.append(row)
+
+
+def build_rows(cp: ControlParams, p: tuple[float, float], v: tuple[float, float],
+               inp: Inputs) -> Rows:
+    """Every barrier row of the module docstring for a robot at p moving at v."""
+    amax, vmax, dt = _accel(cp), cp.max_speed, cp.period
+    soft: list[Row] = []
+    hard: list[Row] = []
+    contact: list[Row] = []
+    hf = ho = he = hs = math.inf
+    kf = min(cp.gamma_formation, 1.0 / dt)
+    for n in inp.neighbours:
+        hg, hl, rg, rl = band_rows(p, v, n, cp.epsilon, kf)
+        hf = min(hf, hg, hl)
+        _keep(soft, rg, amax)
+        _keep(soft, rl, amax)
+    for o in inp.obstacles:
+        h, row = obstacle_row(p, v, o, cp.gamma_obstacle, amax, vmax, dt)
+        ho = min(ho, h)
+        _keep(contact, row, amax)
+    for sh in inp.shapes:
+        h, row = shape_row(p, v, sh, cp.gamma_obstacle, amax, vmax, dt)
+        ho = min(ho, h)
+        _keep(contact, row, amax)
+    for e in inp.others:
+        h, row = ellipse_row(p, v, e, cp.gamma_formations, amax, vmax, dt)
+        he = min(he, h)
+        _keep(hard, row, amax)
+    for nb in inp.pairwise:
+        h, row = obstacle_row(p, v, Obstacle(nb.x, nb.y, nb.vx, nb.vy, cp.d_af),
+                              cp.gamma_formations, amax, vmax, dt)
+        he = min(he, h)
+        _keep(hard, row, amax)
+    for q in inp.partners:
+        h, row = separation_row(p, v, q, cp.separation, cp.gamma_formation, amax, vmax, dt)
+        hs = min(hs, h)
+        _keep(contact, row, amax)
+    return Rows(soft, hard, contact, (hf, ho, he, hs))
+
+
+def _accel(cp: ControlParams) -> float:
+    if cp.max_accel is None:
+        raise ValueError("max_accel: a double integrator needs robot.max_accel")
+    return cp.max_accel
+
+
+def step(cp: ControlParams, p: tuple[float, float], v: tuple[float, float],
+         u_nom: tuple[float, float], inp: Inputs, solve=solve_exact,
+         clock: Callable[[], int] | None = None) -> DIStep:
+    """One tick: the acceleration closest to the nominal (:func:`nominal_accel` towards
+    ``u_nom``) meeting every row, solved by :func:`agent.qp.solve_cbf_qp` (formation rows
+    relaxed if need be, counted; hard rows never); with safety off the nominal within the
+    limits."""
+    amax, dt = _accel(cp), cp.period
+    a_nom = nominal_accel(u_nom, v, cp.kp, amax)
+    limits = limit_rows(v, u_nom, a_nom, cp.max_speed, amax, dt)
+    rows = build_rows(cp, p, v, inp)
+    t0 = clock() if clock is not None else 0
+    if cp.safety:
+        res = solve_cbf_qp(a_nom[0], a_nom[1], limits, rows.hard, rows.soft, solve, rows.contact)
+    else:
+        a = solve_exact(a_nom[0], a_nom[1], limits) or (0.0, 0.0)
+        res = QPResult(a[0], a[1], STATUS_NOMINAL, 0.0, True)
+    solve_us = (clock() - t0) * 1e-3 if clock is not None else 0.0
+    _, _, vx, vy = integrate(p[0], p[1], v[0], v[1], res.ux, res.uy, dt, cp.max_speed)
+    return DIStep(res.ux, res.uy, vx, vy, res.status, res.slack, *rows.h, solve_us)

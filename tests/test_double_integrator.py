@@ -1,0 +1,348 @@
+"""Double-integrator robots (issue 27, item 2; :mod:`agent.double_integrator`): each barrier's
+one-step property under the exact sampled double integrator, the limit rows, braking, the
+model's scenarios in process (0 collisions, <= 1.5 epsilon, every goal), a lock-step run equal
+to ``sim``, the ``cmd`` payload's version 2, and the scenario's and agent config's checks."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import pytest
+import zenoh
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+from zenoh.ext import UInt8, z_deserialize
+
+from agent import double_integrator as di
+from agent.accel_limit import STATUS_ACCEL
+from agent.barriers import Obstacle, Partner, speed_rows
+from agent.barriers import obstacle_row as obstacle_row_si
+from agent.config import build_agent_configs, load_config, save_config
+from agent.control import ControlParams, control_step
+from agent.qp import STATUS_OK, solve_exact
+from formation.cli import main
+from geometry.shapes import box, segment, shape_distance
+from scenario import ScenarioError, load_scenario, parse_scenario
+from simulator.inprocess import SimOptions, simulate
+from wire.payloads import CMD_ACCEL_VERSION, Cmd, DecodeError, decode_cmd, encode
+
+SCENARIOS = Path(__file__).parent / "scenarios"
+DI_SCENARIOS = ["di-thesis-move", "di-circle", "di-shelf", "di-crossing", "di-forklift"]
+TOL = 1e-9
+
+coord = st.floats(-3.0, 3.0)
+gap = st.one_of(st.floats(0.0, 1e-3), st.floats(0.0, 0.5))  # h: most cases close to the boundary
+speed = st.floats(0.0, 0.5)
+angle = st.floats(-math.pi, math.pi)
+accel = st.floats(0.1, 3.0)
+period = st.floats(0.01, 0.2)
+gamma = st.floats(0.1, 20.0)
+
+
+def _polar(r: float, a: float) -> tuple[float, float]:
+    return (r * math.cos(a), r * math.sin(a))
+
+
+def _solve(a_nom: tuple[float, float], v: tuple[float, float], vmax: float, amax: float,
+           dt: float, rows: list) -> tuple[float, float] | None:
+    """The QP of one tick over these barrier rows with the limit rows."""
+    limits = di.limit_rows(v, v, a_nom, vmax, amax, dt)
+    return solve_exact(a_nom[0], a_nom[1], limits + rows)
+
+
+def _moved(p, v, a, t):
+    return (p[0] + v[0] * t + 0.5 * a[0] * t * t, p[1] + v[1] * t + 0.5 * a[1] * t * t)
+
+
+# --- the one-step property: h >= 0 over the whole period, no sampling margin ----------------
+
+
+@settings(max_examples=600, deadline=None)
+@given(gap, angle, speed, angle, speed, angle, st.floats(0.05, 1.0), accel, period, gamma,
+       speed, angle)
+def test_a_circle_barrier_holds_over_the_period_where_the_qp_is_feasible(
+        h0, oa, vs, va, ws, wa, ds, amax, dt, g, an, aa):
+    """Module docstring, "Sampling": with h >= 0, psi1 >= 0 and the row met, the circle's
+    h = |p - o| - Ds stays >= 0 at every instant of the period (the obstacle moving at w)."""
+    p, v, w = (0.0, 0.0), _polar(vs, va), _polar(ws, wa)
+    ox, oy = _polar(ds + h0, oa)
+    vmax = 0.5
+    o = Obstacle(ox, oy, w[0], w[1], ds)
+    h, row = di.obstacle_row(p, v, o, g, amax, vmax, dt)
+    hd = di.circle_terms(p, v, (ox, oy), w, ds)[1]
+    k = di.gain(g, amax, vmax + ws, dt)
+    assume(h >= 0.0 and hd + k * h >= 0.0)
+    a = _solve(_polar(an * amax, aa), v, vmax, amax, dt, [row])
+    assume(a is not None)
+    assert a is not None
+    for t in (0.25 * dt, 0.5 * dt, 0.75 * dt, dt):
+        q = _moved(p, v, a, t)
+        assert math.hypot(q[0] - ox - w[0] * t, q[1] - oy - w[1] * t) - ds >= -TOL
+
+
+@settings(max_examples=600, deadline=None)
+@given(gap, angle, st.floats(0.0, 1.5), st.floats(0.0, 1.0), st.floats(-1.0, 1.0), st.booleans(),
+       speed, angle, accel, period, gamma, speed, angle)
+def test_a_wall_or_shelf_barrier_holds_over_the_period_where_the_qp_is_feasible(
+        h0, yaw, hx, hy, shift, is_box, vs, va, amax, dt, g, an, aa):
+    """The same for a box whose face, or a segment whose line, lies h0 + Ds from the robot
+    (the segment shifted along itself, so its end may be the nearest point)."""
+    p, v = (0.0, 0.0), _polar(vs, va)
+    vmax, ds = 0.5, 0.15
+    c, s = math.cos(yaw), math.sin(yaw)
+    if is_box:
+        r = ds + h0 + hx
+        sh = box("s", (r * c, r * s), (2.0 * hx, 2.0 * hy + 0.01), yaw, ds)
+    else:
+        r = ds + h0
+        a = (r * c - s * (shift - hx), r * s + c * (shift - hx))
+        b = (r * c - s * (shift + hx + 0.01), r * s + c * (shift + hx + 0.01))
+        sh = segment("s", a, b, ds)
+    h, row = di.shape_row(p, v, sh, g, amax, vmax, dt)
+    k = di.gain(g, amax, vmax, dt)
+    assume(h >= 0.0 and -row[0] * v[0] - row[1] * v[1] + k * h >= 0.0)  # psi1 = g . v + k h
+    a = _solve(_polar(an * amax, aa), v, vmax, amax, dt, [row])
+    assume(a is not None)
+    assert a is not None
+    for t in (0.25 * dt, 0.5 * dt, 0.75 * dt, dt):
+        q = _moved(p, v, a, t)
+        assert shape_distance(q[0], q[1], sh)[0] - sh.ds >= -TOL
+
+
+@settings(max_examples=600, deadline=None)
+@given(gap, angle, speed, angle, speed, angle, accel, period, gamma)
+def test_two_robots_acting_at_once_keep_their_bodies_apart_over_the_period(
+        h0, qa, vs, va, us, ua, amax, dt, g):
+    """Each robot solves its own QP with its half of the pair's row (the reciprocal split),
+    both driving at each other at full acceleration: the bodies stay dsep apart over the
+    period."""
+    vmax, dsep = 0.5, 0.21
+    qx, qy = _polar(dsep + h0, qa)
+    cp = ControlParams(max_speed=vmax, period=dt, double_integrator=True, max_accel=amax,
+                       gamma_formation=g)
+    p, q = (0.0, 0.0), (qx, qy)
+    vi, vj = _polar(vs, va), _polar(us, ua)
+    hi, ri = di.separation_row(p, vi, Partner(q[0], q[1], vj[0], vj[1]), dsep, g, amax, vmax, dt)
+    _, rj = di.separation_row(q, vj, Partner(p[0], p[1], vi[0], vi[1]), dsep, g, amax, vmax, dt)
+    hd = di.circle_terms(p, vi, q, vj, dsep)[1]
+    k = di.gain(cp.gamma_formation, 2.0 * amax, 2.0 * vmax, dt)
+    assume(hi >= 0.0 and hd + k * hi >= 0.0)
+    ai = _solve(_polar(amax, qa), vi, vmax, amax, dt, [ri])
+    aj = _solve(_polar(amax, qa + math.pi), vj, vmax, amax, dt, [rj])
+    assume(ai is not None and aj is not None)
+    assert ai is not None and aj is not None
+    for t in (0.25 * dt, 0.5 * dt, 0.75 * dt, dt):
+        a, b = _moved(p, vi, ai, t), _moved(q, vj, aj, t)
+        assert math.hypot(a[0] - b[0], a[1] - b[1]) - dsep >= -TOL
+
+
+# --- limits, nominal, braking -----------------------------------------------------------------
+
+
+@settings(max_examples=300, deadline=None)
+@given(speed, angle, speed, angle, accel, period, coord, coord)
+def test_the_certified_acceleration_keeps_both_limits(vs, va, us, ua, amax, dt, gx, gy):
+    vmax = 0.5
+    face = vmax * math.cos(math.pi / 12)
+    v = _polar(min(vs, face), va)  # inside every speed polygon, whatever its heading
+    cp = ControlParams(max_speed=vmax, period=dt, double_integrator=True, max_accel=amax)
+    res = control_step(cp, (0.0, 0.0, 0.0), (gx, gy), obstacles=[Obstacle(1.0, 0.0, 0.0, 0.0, 0.3)],
+                       last_u=v)
+    assert math.hypot(res.ax, res.ay) <= amax + 1e-9
+    assert math.hypot(v[0] + res.ax * dt, v[1] + res.ay * dt) <= vmax + 1e-9
+    assert (res.ux, res.uy) == pytest.approx((v[0] + res.ax * dt, v[1] + res.ay * dt), abs=1e-12)
+
+
+def test_the_nominal_acceleration_tracks_the_nominal_velocity_and_is_clamped():
+    assert di.nominal_accel((0.1, 0.0), (0.0, 0.0), 2.0, 10.0) == pytest.approx((0.4, 0.0))
+    assert math.hypot(*di.nominal_accel((0.2, 0.2), (-0.2, 0.0), 2.0, 0.5)) == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("amax", [0.1, 0.3, 1.0])
+def test_a_robot_at_full_speed_brakes_before_a_wall_in_its_way(amax):
+    """Driving at 0.22 m/s at a wall beyond which its goal lies, the robot stops short of the
+    wall's safe distance whatever its acceleration limit: the barrier asked for braking in
+    time (module docstring, "Braking distance")."""
+    dt, vmax = 0.05, 0.22
+    cp = ControlParams(max_speed=vmax, period=dt, double_integrator=True, max_accel=amax)
+    wall = segment("w", (1.0, -2.0), (1.0, 2.0), 0.15)
+    x, y, v = 0.0, 0.0, (vmax, 0.0)
+    closest = math.inf
+    for _ in range(600):
+        res = control_step(cp, (x, y, 0.0), (3.0, 0.0), shapes=[wall], last_u=v)
+        assert res.status == STATUS_OK
+        x, y, vx, vy = di.integrate(x, y, v[0], v[1], res.ax, res.ay, dt, vmax)
+        v = (vx, vy)
+        closest = min(closest, shape_distance(x, y, wall)[0] - wall.ds)
+    assert closest >= -TOL
+    assert math.hypot(*v) < 1e-3 and 1.0 - wall.ds - x < 0.01  # stopped at the safe distance
+
+
+def test_brake_stops_a_robot_at_its_acceleration_limit():
+    v, steps = (0.2, -0.1), 0
+    while math.hypot(*v) > 0.0 and steps < 100:
+        a = di.brake(v[0], v[1], 0.5, 0.05)
+        assert math.hypot(*a) <= 0.5 + 1e-12
+        v = di.integrate(0.0, 0.0, v[0], v[1], a[0], a[1], 0.05, 1.0)[2:]
+        steps += 1
+    assert steps == math.ceil(math.hypot(0.2, 0.1) / (0.5 * 0.05))
+
+
+def test_a_speed_polygon_face_the_velocity_is_beyond_is_not_pushed_further():
+    v = (0.25, 0.0)  # beyond the face of a 0.22 m/s polygon turned away from it
+    rows = di.limit_rows(v, (0.0, 1.0), (0.0, 1.0), 0.22, 1.0, 0.05)
+    assert all(nx * 0.0 + ny * 0.0 <= b for nx, ny, b in rows)  # a = 0 meets every row
+    assert len(rows) == 2 * len(speed_rows(1.0, 0.0))
+
+
+# --- the model's scenarios ---------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", DI_SCENARIOS)
+def test_double_integrator_scenarios_meet_the_bar(name):
+    s = load_scenario(SCENARIOS / f"{name}.yaml")
+    assert s.robot.is_double_integrator and s.robot.max_accel is not None
+    summary = simulate(s, SimOptions(record=False)).summary
+    assert summary["collisions"] == 0, summary["collision_log"]
+    assert summary["formation_error_max_m"] <= 1.5 * s.controller.epsilon
+    assert summary["all_reached"]
+    assert summary["qp"]["hard_row_unmet_ticks"] == 0, summary["qp"]["hard_row_unmet"]
+
+
+def test_a_lockstep_run_of_double_integrators_equals_the_simulation(tmp_path):
+    path = SCENARIOS / "di-crossing.yaml"
+    assert main(["sim", str(path), "--out", str(tmp_path / "sim"), "--quiet", "--no-plots"]) == 0
+    assert main(["run", str(path), "--out", str(tmp_path / "run"), "--quiet", "--no-plots",
+                 "--insecure"]) == 0
+    sim = (tmp_path / "sim" / "robots.csv").read_bytes()
+    assert (tmp_path / "run" / "robots.csv").read_bytes() == sim
+    assert sim.splitlines()[0].endswith(b",h_formations,ax,ay")
+    assert json.loads((tmp_path / "run" / "summary.json").read_text())["all_reached"]
+
+
+def test_robots_csv_gains_no_columns_for_the_other_models(tmp_path):
+    path = SCENARIOS / "two-small.yaml"
+    assert main(["sim", str(path), "--out", str(tmp_path), "--quiet", "--no-plots"]) == 0
+    head = (tmp_path / "robots.csv").read_bytes().splitlines()[0]
+    assert head.endswith(b",h_formations")
+
+
+# --- the wire ----------------------------------------------------------------------------------
+
+
+def test_cmd_version_1_is_unchanged_and_version_2_carries_the_acceleration():
+    plain = Cmd(0.1, 0.2, 0.3, 0.4, 5.0)
+    raw = encode(plain)
+    assert raw[0] == 1 and len(raw) == 41 and decode_cmd(raw) == plain
+    with_accel = Cmd(0.1, 0.0, 0.08, 0.06, 5.0, 0.4, -0.3)
+    raw2 = encode(with_accel)
+    assert raw2[0] == CMD_ACCEL_VERSION and len(raw2) == 57
+    assert decode_cmd(raw2) == with_accel
+    assert z_deserialize(tuple[UInt8, float, float, float, float, float, float, float],
+                         zenoh.ZBytes(raw2)) == (2, 0.1, 0.0, 0.08, 0.06, 0.4, -0.3, 5.0)
+    with pytest.raises(DecodeError):
+        decode_cmd(raw2[:-8])
+    with pytest.raises(DecodeError, match="unsupported version 3"):
+        decode_cmd(bytes([3]) + raw2[1:])
+    with pytest.raises(ValueError, match="ay"):
+        Cmd(0.1, 0.0, 0.0, 0.0, 5.0, 0.4)
+    with pytest.raises(ValueError, match="ax"):
+        Cmd(0.1, 0.0, 0.0, 0.0, 5.0, math.nan, 0.0)
+
+
+# --- the scenario and the agent's config ---------------------------------------------------------
+
+
+def _di_text(robot: str) -> str:
+    text = (SCENARIOS / "di-thesis-move.yaml").read_text()
+    return text.replace("robot: {model: double_integrator, max_speed: 0.22, max_accel: 0.5, "
+                        "radius: 0.105}", f"robot: {robot}")
+
+
+def test_a_double_integrator_needs_max_accel_in_range():
+    with pytest.raises(ScenarioError, match=r"robot\.max_accel: required"):
+        parse_scenario(_di_text("{model: double_integrator}"))
+    with pytest.raises(ScenarioError, match=r"robot\.max_accel: must be positive"):
+        parse_scenario(_di_text("{model: double_integrator, max_accel: 0}"))
+    with pytest.raises(ScenarioError, match="robot.model: 'triple_integrator' is not one of"):
+        parse_scenario(_di_text("{model: triple_integrator, max_accel: 1}"))
+    with pytest.raises(ValueError, match="max_accel"):
+        ControlParams(max_accel=-1.0)
+
+
+def test_double_integrators_are_refused_in_a_lab_world(tmp_path, capsys):
+    with pytest.raises(ScenarioError, match="double_integrator runs in the ideal world only"):
+        parse_scenario(_di_text("{model: double_integrator, max_accel: 0.5}")
+                       + "world: {profile: turtlebot3-lab}\n")
+    path = str(SCENARIOS / "di-thesis-move.yaml")
+    assert main(["sim", path, "--out", str(tmp_path / "a"), "--quiet", "--world",
+                 "turtlebot3-lab"]) == 2
+    assert main(["sim", path, "--out", str(tmp_path / "b"), "--quiet", "--engine", "mujoco"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 2 and "ideal world only" in err[0] and "kinematic world only" in err[1]
+    s = load_scenario(path)
+    lab = dataclasses.replace(s, world=dataclasses.replace(s.world, profile="turtlebot3-lab"))
+    with pytest.raises(ValueError, match="ideal kinematic world only"):  # the last guard
+        simulate(lab, SimOptions(record=False))
+
+
+def test_the_agent_config_carries_the_model_and_other_configs_stay_as_they_were(tmp_path):
+    s = load_scenario(SCENARIOS / "di-thesis-move.yaml")
+    cfg = build_agent_configs(s)["a1"]
+    assert cfg.control.double_integrator and cfg.control.max_accel == 0.5
+    save_config(cfg, tmp_path / "a1")
+    assert load_config(tmp_path / "a1") == cfg
+    single = dataclasses.replace(s, robot=dataclasses.replace(s.robot, model="single_integrator",
+                                                              max_accel=None))
+    save_config(build_agent_configs(single)["a1"], tmp_path / "s1")
+    text = (tmp_path / "s1").read_text()
+    assert "max_accel" not in text and "double_integrator" not in text
+
+
+# --- a unicycle's acceleration limit (agent.accel_limit) ----------------------------------------
+
+UNI = ControlParams(unicycle=True, max_accel=0.5)
+
+
+@settings(max_examples=300, deadline=None)
+@given(coord, coord, angle, coord, coord, st.floats(0.05, 2.0))
+def test_a_unicycle_with_max_accel_changes_its_command_by_at_most_max_accel_dt(
+        hx, hy, theta, gx, gy, amax):
+    """The last command one the robot could take (certified towards another goal at the same
+    heading); whatever the new goal, the command moves by at most a_max dt."""
+    p = dataclasses.replace(UNI, max_accel=amax)
+    before = control_step(UNI, (0.0, 0.0, theta), (hx, hy))
+    last = (before.ux, before.uy)
+    res = control_step(p, (0.0, 0.0, theta), (gx, gy), last_u=last)
+    assert res.status == STATUS_OK
+    assert math.hypot(res.ux - last[0], res.uy - last[1]) <= amax * p.period + 1e-9
+
+
+def test_the_barrier_rows_win_over_a_unicycles_acceleration_rows():
+    """At full speed just short of an obstacle's safe distance, slowing by a_max dt is not
+    enough: the obstacle row holds and the tick is marked (and counted) ``accel``."""
+    p = dataclasses.replace(UNI, max_accel=0.1)
+    grow = p.offset + p.sampling_margin
+    o = Obstacle(0.05 + 0.3 + grow + 0.002, 0.0, 0.0, 0.0, 0.3)  # 2 mm from the grown Ds
+    res = control_step(p, (0.0, 0.0, 0.0), (3.0, 0.0), obstacles=[o], last_u=(0.22, 0.0))
+    assert res.status == STATUS_ACCEL
+    assert res.ux < 0.22 - 0.1 * p.period  # slowed by more than the acceleration rows allow
+    _, row = obstacle_row_si(res.px, res.py, o._replace(ds=o.ds + grow), p.gamma_obstacle)
+    assert row[0] * res.ux + row[1] * res.uy <= row[2] + 1e-9
+    without = control_step(dataclasses.replace(p, max_accel=None), (0.0, 0.0, 0.0), (3.0, 0.0),
+                           obstacles=[o], last_u=(0.22, 0.0))
+    assert (without.ux, without.uy) == pytest.approx((res.ux, res.uy))  # the same command
+
+
+def test_a_unicycle_run_with_max_accel_counts_its_yielded_ticks_and_others_do_not():
+    s = load_scenario(SCENARIOS / "unicycle-crossing.yaml")
+    limited = dataclasses.replace(s, robot=dataclasses.replace(s.robot, max_accel=0.5))
+    summary = simulate(limited, SimOptions(record=False)).summary
+    assert summary["qp"]["accel_yielded"] == 0
+    assert summary["all_reached"] and summary["collisions"] == 0
+    assert "accel_yielded" not in simulate(s, SimOptions(record=False)).summary["qp"]
+    with pytest.raises(ScenarioError, match=r"robot\.max_accel: only for"):
+        parse_scenario(_di_text("{model: single_integrator, max_accel: 1}"))
