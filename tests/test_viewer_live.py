@@ -118,9 +118,12 @@ def test_a_live_run_serves_the_page_and_foxglove_while_a_recorder_attaches(tmp_p
         got = foxglove_messages(st["ws_port"], {SCENE_TOPIC, FLEET_TOPIC}, 3)
         stamps = [s for s, _ in got[SCENE_TOPIC]]
         assert stamps == sorted(stamps) and stamps[-1] > stamps[0]
-        assert all(b"robot/a1" in p and b"ellipse/A" in p for _, p in got[SCENE_TOPIC])
+        assert all(b"robot/a1" in p and b"ellipse/A" in p and b"load/A" in p
+                   for _, p in got[SCENE_TOPIC])
         fleet = json.loads(got[FLEET_TOPIC][-1][1])
         assert {r["id"] for r in fleet["robots"]} == {"a1", "a2", "a3", "b1", "b2"}
+        # each formation's load, placed with the run's scenario (its members' start hull)
+        assert {ld["formation"]: len(ld["outline"]) for ld in fleet["loads"]} == {"A": 3, "B": 2}
 
         # the page in Chromium: robots drawn where the page projects them, the time moving on
         browser = Browser(f"http://127.0.0.1:{page}/")
@@ -178,6 +181,8 @@ def test_a_live_run_serves_the_page_and_foxglove_while_a_recorder_attaches(tmp_p
     assert all(abs(f["t"] - m[0] / 1e9) < 1e-6 for f, m in zip(frames, rec[FLEET_TOPIC], strict=True))
     assert abs(frames[-1]["t"] - time.time()) < 120  # wall time, not simulated time
     assert {r["formation"] for r in frames[-1]["robots"]} == {"A", "B"}  # from the diag key
+    # no scenario: the loads are the hulls of the members as heard
+    assert {ld["formation"] for ld in frames[-1]["loads"]} == {"A", "B"}
     assert all(r["h_obstacle"] is not None for r in frames[-1]["robots"])
 
 
