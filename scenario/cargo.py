@@ -126,6 +126,9 @@ def placed_load(formation: FormationSpec, start_outline: Sequence[Point],
 # ---------------------------------------------------------------------------- clearances
 
 LOAD_REACH = 1.0  # [m] things farther from a load's bounding circle than this are not measured
+# [m] overlaps shallower than this are rounding, not contact (1 micrometre): the safety
+# monitor's for every contact (simulator.metrics), here so that the viewer's load hits share it
+CONTACT_TOL = 1e-6
 
 
 class LoadContact(NamedTuple):

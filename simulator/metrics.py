@@ -13,10 +13,9 @@ import numpy as np
 
 from geometry.shapes import shape_distance
 from scenario import Scenario
-from scenario.cargo import load_clearances, load_polygon, loads_now
+from scenario.cargo import CONTACT_TOL, load_clearances, load_polygon, loads_now
 
 CONTACT_RELEASE = 1e-3  # [m] a contact ends once the clearance exceeds this (onset hysteresis)
-CONTACT_TOL = 1e-6  # [m] overlaps shallower than this are rounding, not contact (1 micrometre)
 
 
 class SafetyMonitor:

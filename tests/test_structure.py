@@ -21,7 +21,7 @@ ALLOWED = {
     "agent": {"geometry", "leader", "scenario", "wire", "runtime"},
     "camera_service": {"geometry", "scenario", "wire"},
     "simulator": {"geometry", "agent", "leader", "scenario", "wire", "runtime", "camera_service", "viewer"},
-    "viewer": {"geometry", "wire"},
+    "viewer": {"geometry", "scenario", "wire"},  # scenario: a load's placement (scenario.cargo)
     "experiments": {"geometry", "agent", "leader", "scenario", "wire", "runtime", "camera_service",
                     "simulator", "viewer"},
     "deploy": {"geometry", "agent", "leader", "scenario", "wire", "runtime"},

@@ -118,9 +118,12 @@ def test_a_live_run_serves_the_page_and_foxglove_while_a_recorder_attaches(tmp_p
         got = foxglove_messages(st["ws_port"], {SCENE_TOPIC, FLEET_TOPIC}, 3)
         stamps = [s for s, _ in got[SCENE_TOPIC]]
         assert stamps == sorted(stamps) and stamps[-1] > stamps[0]
-        assert all(b"robot/a1" in p and b"ellipse/A" in p for _, p in got[SCENE_TOPIC])
+        assert all(b"robot/a1" in p and b"ellipse/A" in p and b"load/A" in p
+                   for _, p in got[SCENE_TOPIC])
         fleet = json.loads(got[FLEET_TOPIC][-1][1])
         assert {r["id"] for r in fleet["robots"]} == {"a1", "a2", "a3", "b1", "b2"}
+        # each formation's load, placed with the run's scenario (its members' start hull)
+        assert {ld["formation"]: len(ld["outline"]) for ld in fleet["loads"]} == {"A": 3, "B": 2}
 
         # the page in Chromium: robots drawn where the page projects them, the time moving on
         browser = Browser(f"http://127.0.0.1:{page}/")
@@ -186,6 +189,8 @@ def test_a_live_run_serves_the_page_and_foxglove_while_a_recorder_attaches(tmp_p
     assert all(abs(f["t"] - m[0] / 1e9) < 1e-6 for f, m in zip(frames, rec[FLEET_TOPIC], strict=True))
     assert abs(frames[-1]["t"] - time.time()) < 120  # wall time, not simulated time
     assert {r["formation"] for r in frames[-1]["robots"]} == {"A", "B"}  # from the diag key
+    # no scenario: the loads are the hulls of the members as heard
+    assert {ld["formation"] for ld in frames[-1]["loads"]} == {"A", "B"}
     assert all(r["h_obstacle"] is not None for r in frames[-1]["robots"])
 
 
@@ -322,8 +327,10 @@ def test_a_reloaded_page_plots_the_barriers_since_the_run_started(tmp_path):
     assert main(["sim", str(ROOT / "tests" / "scenarios" / "two-small.yaml"), "--out",
                  str(tmp_path / "sim"), "--quiet", "--no-plots"]) == 0
     port = free_tcp_port()
+    # at a quarter speed: the run (9.7 s of simulated time) outlasts the page's two loads on a
+    # busy machine
     proc = formation("replay", str(tmp_path / "sim" / "run.mcap"), "--port", str(port),
-                     "--ws-port", "0", "--duration", "60")
+                     "--ws-port", "0", "--duration", "90", "--speed", "0.25")
     try:
         wait_for_tcp_port(port, timeout_s=30)
         first = wait_state(port, lambda s: s["frame"] is not None, proc=proc)["playback"]["start"]

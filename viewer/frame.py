@@ -12,11 +12,14 @@ recording, sent to the page, and read back by ``formation replay``::
      "ellipses": [{"formation", "cx", "cy", "alpha", "a", "b"}, ...],
      "obstacles": [{"name", "x", "y", "ds"}, ...],   # circles: centre and safe distance Ds
      "shapes": [{"name", "kind", "corners", "ds"}, ...],  # walls and shelves: outline [[x, y], ...]
+     "loads": [{"formation", "outline", "declared"}, ...],  # each formation's load now (issue 25)
+     "load_hits": [{"formation", "other", "clearance", "line"}, ...],  # its overlaps, as lines
      "formations": [{"name", "status", "qp", "gx", "gy", "distance"}, ...]}
 
 Non-finite numbers become ``None`` (JSON has no NaN). :func:`frames_from_series` turns a run's
 time series (in-process or multi-process, :class:`simulator.inprocess.Series`) into one frame
-per tick; :func:`formation_status` gives each formation's state from its members.
+per tick; :func:`formation_status` gives each formation's state from its members. The loads
+and their hits: :mod:`viewer.loads`.
 """
 
 from __future__ import annotations
@@ -24,6 +27,8 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Iterator, Sequence
 from typing import Any
+
+from .loads import LoadView
 
 Frame = dict[str, Any]
 
@@ -98,9 +103,11 @@ def _qp_rank(status: str) -> int:
     return QP_ORDER.index(status) if status in QP_ORDER else 0
 
 
-def frames_from_series(series: Any, scenario: Any) -> Iterator[Frame]:
+def frames_from_series(series: Any, scenario: Any, load_hits: bool = True) -> Iterator[Frame]:
     """One frame per tick of a run's time series (rows of
-    :data:`simulator.inprocess.ROBOT_COLUMNS`, ellipses and obstacles per tick)."""
+    :data:`simulator.inprocess.ROBOT_COLUMNS`, ellipses and obstacles per tick); ``load_hits``
+    False: the frames' ``load_hits`` stay empty, unlooked for (a run whose loads never
+    overlapped anything has none)."""
     goals = {r.id: r.goal for r in scenario.robots}
     centroids = {f.name: f.goal_centroid for f in scenario.formations}
     names = [f.name for f in scenario.formations]
@@ -109,6 +116,7 @@ def frames_from_series(series: Any, scenario: Any) -> Iterator[Frame]:
     ellipses = _by_time(series.ellipses)
     obstacles = _by_time(series.obstacles)
     shapes = shape_entries(getattr(scenario, "shapes", ()))
+    loads = LoadView(scenario)
     rows = series.robots
     i = 0
     while i < len(rows):
@@ -118,15 +126,17 @@ def frames_from_series(series: Any, scenario: Any) -> Iterator[Frame]:
             r = rows[i]
             robots.append(robot_entry(r[1], r[2], r[3:17], goals.get(r[1])))
             i += 1
+        circles = [{"name": o[1], "x": num(o[2]), "y": num(o[3]), "ds": num(o[4])}
+                   for o in obstacles.get(t, ())]
         yield {
             "t": float(t),
             "radius": radius,
             "robots": robots,
             "ellipses": [{"formation": e[1], "cx": num(e[2]), "cy": num(e[3]), "alpha": num(e[4]),
                           "a": num(e[5]), "b": num(e[6])} for e in ellipses.get(t, ())],
-            "obstacles": [{"name": o[1], "x": num(o[2]), "y": num(o[3]), "ds": num(o[4])}
-                          for o in obstacles.get(t, ())],
+            "obstacles": circles,
             "shapes": shapes,
+            **loads.fields(robots, circles, load_hits),
             "formations": [formation_status(n, robots, tol, centroids[n]) for n in names],
         }
 

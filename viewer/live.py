@@ -10,7 +10,10 @@ threads). :meth:`FleetWatcher.frame` decodes the newest of each with the defensi
 (simulated seconds in lock-step, wall time on real fleets). A formation's row says what its
 leader reports on ``status`` (state, distance along the route, waypoint, leader) when the leader
 has said it, else what its members' diagnostics show; each leader's ``plan`` gives the route
-drawn on the floor (``routes``).
+drawn on the floor (``routes``). Given the scenario (``formation run --live``), each
+formation's load is placed from its members' poses and its overlaps are found as the run's
+safety monitor finds them (:class:`viewer.loads.LoadView`); without one (``formation view``)
+the loads are the hulls of the members' body centres, and no overlaps are shown.
 
 It never publishes anything, so it works with any fleet, simulated or real, that the session's
 credentials may read.
@@ -46,6 +49,7 @@ from wire.payloads import (
 from wire.shapes import msg_to_shape
 
 from .frame import Frame, formation_status, num, shape_entries
+from .loads import LoadView, hull_entries
 
 # robot key kind -> (field of a robot's entry, decoder); poses are handled apart (they set the time)
 _ROBOT_KINDS = {keys.STATE: ("state", decode_state), keys.CMD: ("cmd", decode_cmd),
@@ -65,9 +69,12 @@ class FleetWatcher:
     """Newest payload per key of a fleet's key space (see the module docstring)."""
 
     def __init__(self, session: zenoh.Session, prefix: str = keys.DEFAULT_PREFIX,
-                 radius: float = DEFAULT_RADIUS, tolerance: float = DEFAULT_TOLERANCE) -> None:
+                 radius: float = DEFAULT_RADIUS, tolerance: float = DEFAULT_TOLERANCE,
+                 scenario: Any = None) -> None:
+        """``scenario``: the fleet's, when known (its loads; see the module docstring)."""
         self.prefix = keys.validate_prefix(prefix)
         self.radius = radius
+        self.loads = None if scenario is None else LoadView(scenario)
         self.tolerance = tolerance
         self._lock = threading.Lock()
         self._latest: dict[str, bytes] = {}
@@ -137,10 +144,16 @@ class FleetWatcher:
                 "ellipses": ellipses,
                 "obstacles": heard.obstacles,
                 "shapes": heard.shapes,
+                **self._loads(out_robots, heard.obstacles),
                 "routes": [{"formation": f, "points": [[num(x), num(y)] for x, y in plans[f].route]}
                            for f in sorted(plans)],
                 "formations": [leader_report(formation_status(n, out_robots, self.tolerance),
                                              reports.get(n)) for n in names]}
+
+    def _loads(self, robots: list[dict], obstacles: list[dict]) -> dict[str, list]:
+        if self.loads is None:
+            return {"loads": hull_entries(robots), "load_hits": []}
+        return self.loads.fields(robots, obstacles)
 
     def _take(self, heard: _Heard, key: str, parts: list[str], data: bytes) -> None:
         """Decode the newest payload ``data`` of ``key`` (``parts``: its path below the prefix)

@@ -6,8 +6,10 @@ server that served it about ten times a second and draws
 
 * the floor seen from above, fitted to the fleet and following it: obstacles (grey, with a ring
   at their safe distance), walls and shelves, each leader's planned route (dotted, waypoints as
-  small squares), formation ellipses, goals (squares), robots (discs in their formation's
-  colour, a heading tick, the control point when it is off the centre);
+  small squares), formation ellipses, each formation's load under its robots (hatched when
+  declared, lightly filled with a dashed edge for the members' hull), goals (squares), robots
+  (discs in their formation's colour, a heading tick, the control point when it is off the
+  centre), and a red line for each load overlap (held for a second of shown time);
 * each robot's smallest barrier value of each kind since the run started (at most the last
   ten minutes, at least a minute wide; three charts, zero marked): the page fetches the
   server's history (``GET /history``) once when it loads, so a reloaded page plots the run from
@@ -19,9 +21,10 @@ server that served it about ten times a second and draws
 * for a replay: play/pause, speed and a time slider.
 
 For tests and scripts the page exposes ``window.viewer`` (shown time, sequence number, each
-robot's projected position in CSS pixels of the viewport, and ``history``: the oldest time and
-the number of points the barrier charts hold), ``window.chartAxes`` (the charts' time span and
-where they are in the viewport) and keeps the shown time in
+robot's and load's projected position and each load overlap's line in CSS pixels of the
+viewport, and ``history``: the oldest time and the number of points the barrier charts hold),
+``window.chartAxes`` (the charts' time span and where they are in the viewport) and keeps the
+shown time in
 ``document.title`` and in ``#time``; ``window.viewerFreeze = true`` stops redrawing.
 """
 
@@ -75,9 +78,11 @@ const KINDS = ["formation", "obstacle", "formations"];
 const WINDOW_S = 60;  // [s] the charts are at least this wide, and at most historySpan
 const floor = document.getElementById("floor"), fctx = floor.getContext("2d");
 const chart = document.getElementById("chart"), cctx = chart.getContext("2d");
+const HIT_HOLD_S = 1.0;
 let view = null, history = {}, lastT = null, lastSeq = -1, colors = {}, state = null, t0 = null;
 let historySpan = 600;  // [s] the server's (GET /history span_s)
-window.viewer = { t: null, seq: -1, robots: [] };
+let hatches = {}, recentHits = {};
+window.viewer = { t: null, seq: -1, robots: [], loads: [], hits: [] };
 window.viewerFreeze = false;
 
 function colorOf(formation) {
@@ -176,6 +181,7 @@ function drawFloor(frame) {
     c.beginPath(); c.ellipse(a, b, e.a * view.s, e.b * view.s, -e.alpha, 0, 2 * Math.PI); c.stroke();
   }
   c.lineWidth = 1;
+  const loads = drawLoads(c, frame.loads || []);
   for (const r of frame.robots) {
     if (!finite(r.gx)) continue;
     const [a, b] = px(r.gx, r.gy);
@@ -203,8 +209,66 @@ function drawFloor(frame) {
     shown.push({ id: r.id, x: r.x, y: r.y, color: col,
                  cx: rect.left + a * sx, cy: rect.top + b * sy, r: rr * sx });
   }
+  const hits = drawHits(c, frame);
   drawAxes(c, gx0, gx1, gy0, gy1);  // last: on top of shelves and robots
-  return shown;
+  return { robots: shown, loads: loads, hits: hits };
+}
+
+function hatch(color) {  // diagonal stripes in a formation's colour: a declared load's fill
+  if (hatches[color]) return hatches[color];
+  const t = document.createElement("canvas"); t.width = t.height = 8;
+  const g = t.getContext("2d");
+  g.fillStyle = color; g.globalAlpha = 0.18; g.fillRect(0, 0, 8, 8);
+  g.globalAlpha = 0.6; g.strokeStyle = color; g.lineWidth = 1.5;
+  g.beginPath(); g.moveTo(-2, 10); g.lineTo(10, -2); g.moveTo(-2, 2); g.lineTo(2, -2); g.moveTo(6, 10); g.lineTo(10, 6); g.stroke();
+  return (hatches[color] = fctx.createPattern(t, "repeat"));
+}
+function toScreen(a, b) {  // canvas pixels -> CSS pixels of the viewport (for tests)
+  const rect = floor.getBoundingClientRect();
+  return [rect.left + a * rect.width / floor.width, rect.top + b * rect.height / floor.height];
+}
+function drawLoads(c, loads) {
+  // each formation's load under its robots: a declared one hatched with a solid edge, the
+  // default hull of its members lightly filled with a dashed edge (a pair's: a wide band)
+  const out = [];
+  for (const ld of loads) {
+    const pts = ld.outline.filter(p => finite(p[0])).map(p => px(p[0], p[1]));
+    if (pts.length < 2) continue;
+    const col = colorOf(ld.formation);
+    c.beginPath(); c.moveTo(pts[0][0], pts[0][1]);
+    for (const p of pts.slice(1)) c.lineTo(p[0], p[1]);
+    if (pts.length === 2) {
+      c.strokeStyle = col; c.globalAlpha = 0.3; c.lineWidth = Math.max(0.1 * view.s, 4); c.stroke();
+    } else {
+      c.closePath(); c.globalAlpha = 1; c.fillStyle = ld.declared ? hatch(col) : col;
+      if (!ld.declared) c.globalAlpha = 0.15;
+      c.fill(); c.globalAlpha = 1; c.strokeStyle = col; c.lineWidth = ld.declared ? 2 : 1;
+      if (!ld.declared) c.setLineDash([6, 4]);
+      c.stroke(); c.setLineDash([]);
+    }
+    c.globalAlpha = 1; c.lineWidth = 1;
+    const cx = pts.reduce((s, p) => s + p[0], 0) / pts.length, cy = pts.reduce((s, p) => s + p[1], 0) / pts.length;
+    const [sx, sy] = toScreen(cx, cy);
+    out.push({ formation: ld.formation, declared: ld.declared, color: col, cx: sx, cy: sy });
+  }
+  return out;
+}
+function drawHits(c, frame) {
+  // each load overlap: a red line from the load's edge to what it overlaps, held on the floor
+  // for HIT_HOLD_S of the shown time so a one-tick touch is seen at ten polls a second
+  for (const h of frame.load_hits || []) recentHits[h.formation + "/" + h.other] = { t: frame.t, h: h };
+  const out = [];
+  for (const key in recentHits) {
+    const e = recentHits[key];
+    if (e.t > frame.t || e.t < frame.t - HIT_HOLD_S) { delete recentHits[key]; continue; }
+    const [a, b] = px(e.h.line[0][0], e.h.line[0][1]), [d, f] = px(e.h.line[1][0], e.h.line[1][1]);
+    c.strokeStyle = "#d00000"; c.lineWidth = 3;
+    c.beginPath(); c.moveTo(a, b); c.lineTo(d, f); c.stroke();
+    c.fillStyle = "#d00000"; c.beginPath(); c.arc(a, b, 4, 0, 2 * Math.PI); c.fill(); c.lineWidth = 1;
+    const [sa, sb] = toScreen(a, b), [sd, sf] = toScreen(d, f);
+    out.push({ formation: e.h.formation, other: e.h.other, ax: sa, ay: sb, bx: sd, by: sf });
+  }
+  return out;
 }
 
 function chartSpan(t1) {
@@ -334,10 +398,11 @@ async function poll() {
       if (st.frame && st.seq !== lastSeq) {
         lastSeq = st.seq;
         record(st.frame);
-        const robots = drawFloor(st.frame);
+        const drawn = drawFloor(st.frame);
         drawChart(st.frame);
         side(st);
-        window.viewer = { t: st.frame.t, seq: st.seq, mode: st.mode, robots: robots, history: historyStats() };
+        window.viewer = { t: st.frame.t, seq: st.seq, mode: st.mode, robots: drawn.robots,
+                          loads: drawn.loads, hits: drawn.hits, history: historyStats() };
       }
     }
   } catch (err) {

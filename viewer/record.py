@@ -10,7 +10,10 @@ topic          schema                      what
 ``/scene``     ``foxglove.SceneUpdate``    the floor each tick, frame ``floor``: robots (body
                (protobuf)                  cylinder, heading arrow, control point, label), formation
                                            ellipses, obstacles (with a ring at their safe distance),
-                                           goals. Each tick replaces every entity (same ids).
+                                           goals, loads (translucent, in the formation's colour)
+                                           and a red line (and ball) for each load overlap
+                                           (0.25 s lifetime).
+                                           Each tick replaces every entity (same ids).
 ``/fleet``     JSON, ``jsonschema``        the whole :mod:`viewer.frame` frame: commands, QP status,
                                            slack, smallest barrier values, formation status (plot
                                            e.g. ``/fleet.robots[:]{id=="a1"}.h_obstacle``)
@@ -43,6 +46,7 @@ from foxglove.messages import (
     Color,
     CubePrimitive,
     CylinderPrimitive,
+    Duration,
     LinePrimitive,
     LinePrimitiveLineType,
     Log,
@@ -55,11 +59,13 @@ from foxglove.messages import (
     SpherePrimitive,
     TextPrimitive,
     Timestamp,
+    TriangleListPrimitive,
     Vector3,
 )
 from foxglove.websocket import Capability
 
 from geometry.limits import BURGER_RADIUS
+from scenario.cargo import CONTACT_TOL
 
 from .frame import Frame, frames_from_series
 
@@ -70,6 +76,10 @@ FRAME_ID = "floor"
 RENDERED_SCHEMAS = ("foxglove.SceneUpdate", "foxglove.Log")  # + JSON-schema channels
 ELLIPSE_POINTS = 48
 BODY_HEIGHT = 0.19  # [m] TurtleBot3 burger
+LOAD_HEIGHT = 0.02  # [m] where a load is drawn: on the floor, under the robots
+HIT_HEIGHT = 0.25  # [m] a load overlap's red line: above the robots, to be seen
+HIT_LIFETIME = Duration(0, 250_000_000)  # an overlap's line goes once no tick repeats it
+HIT_RGB = (0.85, 0.0, 0.0)
 # formation colours (RGB 0..1), the same order as the page's palette
 PALETTE = ((0.12, 0.47, 0.71), (0.84, 0.15, 0.16), (0.17, 0.63, 0.17), (0.58, 0.40, 0.74),
            (1.00, 0.50, 0.05), (0.55, 0.34, 0.29), (0.89, 0.47, 0.76), (0.09, 0.75, 0.81))
@@ -96,6 +106,12 @@ FLEET_SCHEMA: dict[str, Any] = {
         "shapes": {"type": "array", "items": {"type": "object", "properties": {
             "name": {"type": "string"}, "kind": {"type": "string"}, "ds": {"type": ["number", "null"]},
             "corners": {"type": "array", "items": {"type": "array"}}}}},
+        "loads": {"type": "array", "items": {"type": "object", "properties": {
+            "formation": {"type": "string"}, "declared": {"type": "boolean"},
+            "outline": {"type": "array", "items": {"type": "array"}}}}},
+        "load_hits": {"type": "array", "items": {"type": "object", "properties": {
+            "formation": {"type": "string"}, "other": {"type": "string"},
+            "clearance": {"type": "number"}, "line": {"type": "array", "items": {"type": "array"}}}}},
         "formations": {"type": "array", "items": {"type": "object", "properties": {
             "name": {"type": "string"}, "status": {"type": "string"}, "qp": {"type": "string"},
             "leader": {"type": ["string", "null"]}, "waypoint": {"type": ["string", "null"]},
@@ -181,6 +197,9 @@ def scene_update(frame: Frame) -> SceneUpdate:
         shape = _shape_entity(s, stamp)
         if shape is not None:
             entities.append(shape)
+    entities += [_load_entity(ld, colors.get(ld["formation"], PALETTE[0]), stamp)
+                 for ld in frame.get("loads", ())]
+    entities += [_hit_entity(h, stamp) for h in frame.get("load_hits", ())]
     return SceneUpdate(entities=entities)
 
 
@@ -241,6 +260,35 @@ def _shape_entity(s: dict[str, Any], stamp: Timestamp) -> SceneEntity | None:
     line = LinePrimitive(type=kind, thickness=0.04, pose=_pose(0.0, 0.0), points=pts,
                          color=_color((0.35, 0.35, 0.35)))
     return SceneEntity(timestamp=stamp, frame_id=FRAME_ID, id=f"shape/{s['name']}", lines=[line])
+
+
+def _load_entity(ld: dict[str, Any], rgb: tuple[float, float, float],
+                 stamp: Timestamp) -> SceneEntity:
+    """A formation's load: its outline (a segment for a pair's hull), and a translucent fill
+    (denser for a declared load than for the default hull) when it is a polygon."""
+    pts = [Point3(x=x, y=y, z=LOAD_HEIGHT) for x, y in ld["outline"]]
+    kind = LinePrimitiveLineType.LineLoop if len(pts) > 2 else LinePrimitiveLineType.LineStrip
+    line = LinePrimitive(type=kind, thickness=0.03 if ld["declared"] else 0.015,
+                         pose=_pose(0.0, 0.0), points=pts, color=_color(rgb))
+    fill = [TriangleListPrimitive(pose=_pose(0.0, 0.0), points=pts,
+                                  indices=[i for k in range(1, len(pts) - 1) for i in (0, k, k + 1)],
+                                  color=_color(rgb, 0.35 if ld["declared"] else 0.15))
+            ] if len(pts) > 2 else []
+    return SceneEntity(timestamp=stamp, frame_id=FRAME_ID, id=f"load/{ld['formation']}",
+                       lines=[line], triangles=fill)
+
+
+def _hit_entity(h: dict[str, Any], stamp: Timestamp) -> SceneEntity:
+    """A load overlap: a red line from the load's outline to what it overlaps, and a red ball
+    where it leaves the load (seen where the line has no length: a wall across a pair's load)."""
+    (ax, ay), (bx, by) = h["line"]
+    line = LinePrimitive(type=LinePrimitiveLineType.LineStrip, thickness=0.04, pose=_pose(0.0, 0.0),
+                         points=[Point3(x=ax, y=ay, z=HIT_HEIGHT), Point3(x=bx, y=by, z=HIT_HEIGHT)],
+                         color=_color(HIT_RGB))
+    ball = SpherePrimitive(pose=_pose(ax, ay, HIT_HEIGHT), size=_size(0.08, 0.08, 0.08),
+                           color=_color(HIT_RGB))
+    return SceneEntity(timestamp=stamp, frame_id=FRAME_ID, lifetime=HIT_LIFETIME,
+                       id=f"load_hit/{h['formation']}/{h['other']}", lines=[line], spheres=[ball])
 
 
 class Channels:
@@ -323,8 +371,9 @@ def summary_logs(summary: dict, t_end: float) -> list[tuple[float, str, str, str
     rejected messages and missing commands at the end."""
     out: list[tuple[float, str, str, str]] = []
     for c in summary.get("collision_log") or ():
+        who = f"load {c['a']}" if c.get("kind") == "load" else c["a"]
         out.append((float(c["t"]), "error", "safety",
-                    f"collision {c['a']} - {c['b']}: clearance {c['clearance_m']:.4f} m"))
+                    f"collision {who} - {c['b']}: clearance {c['clearance_m']:.4f} m"))
     faults = summary.get("faults") or {}
     for ev in faults.get("events") or ():
         out.append((float(ev["t_s"]), "warning", "faults", f"{ev['event']} agent {ev['robot']}"))
@@ -351,7 +400,10 @@ def write_recording(summary: dict, series: Any, scenario: Any, out: Path) -> Pat
     ch = Channels()
     ch.open_mcap(path)
     try:
-        frames = list(frames_from_series(series, scenario))
+        # overlaps are looked for only where the run's safety monitor saw a load overlap
+        load = (summary.get("min_clearance_m") or {}).get("load")
+        hits = load is not None and load < -CONTACT_TOL
+        frames = list(frames_from_series(series, scenario, load_hits=hits))
         t_end = frames[-1]["t"] if frames else 0.0
         logs = sorted([*status_logs(frames), *summary_logs(summary, t_end)], key=lambda e: e[0])
         k = 0

@@ -223,7 +223,7 @@ def live_observer(ns: argparse.Namespace, scenario: Any) -> tuple[Any, Callable 
 
     def observe(session: Any) -> Callable[[], None]:
         watcher = FleetWatcher(session, radius=scenario.robot.radius,
-                               tolerance=scenario.goal_tolerance)
+                               tolerance=scenario.goal_tolerance, scenario=scenario)
         pump = LivePump(watcher, view.hub)
 
         def detach() -> None:
