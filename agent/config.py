@@ -297,6 +297,8 @@ def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
         d.pop("footprint", None)  # method rules or thesis: likewise
     if d["control"]["method"] == "rules":
         del d["control"]["method"]  # the default: likewise
+    if not cfg.control.bounds.declared:
+        del d["control"]["bounds"]  # no bounds (all 0): likewise
     if d["solver"] == "exact":
         del d["solver"]  # the default: files stay as they were before the field existed
     d["version"] = CONFIG_VERSION

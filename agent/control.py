@@ -87,9 +87,9 @@ from geometry.ellipse import Ellipse, ellipse_terms
 from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE, BURGER_RADIUS
 from geometry.shapes import Shape
 from scenario import limits as ranges
-from scenario.model import METHODS
+from scenario.model import METHODS, Bounds
 
-from . import barriers, body, unicycle
+from . import barriers, body, margins, unicycle
 from .barriers import Neighbour, Obstacle, Partner
 from .qp import STATUS_NOMINAL, QPResult, Row, normalized_row, solve_cbf_qp, solve_exact
 
@@ -162,6 +162,7 @@ class ControlParams:
     band_first: bool = True  # formation keeping first (yield_push, band_nominal)
     shape_clear: bool = True  # static obstacles kept out of the formation's shape (shape_push)
     method: str = "rules"  # scenario.model.METHODS: rules (this module's), thesis, rigid (agent.body)
+    bounds: Bounds = Bounds()  # declared sensing and motor bounds: margins (agent.margins)
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -172,6 +173,9 @@ class ControlParams:
             elif f.name == "method":
                 if value not in METHODS:
                     raise ValueError(f"method: must be one of {', '.join(METHODS)}, got {value!r}")
+            elif f.name == "bounds":
+                if not isinstance(value, Bounds):
+                    raise ValueError(f"bounds: must be a Bounds, got {value!r}")
             elif not isinstance(value, bool):
                 raise ValueError(f"{f.name}: must be true or false, got {value!r}")
 
@@ -194,6 +198,7 @@ class ControlParams:
             period=scenario.dt,
             radius=r.radius,
             method=c.method,
+            bounds=c.bounds,
         )
 
     @property
@@ -221,8 +226,22 @@ class ControlParams:
     def separation(self) -> float:
         """[m] distance the separation rows keep between two body centres: two radii (for
         unicycles the pair barrier adds l HEADING_SMOOTH, 1 cm for a TurtleBot, which covers
-        the look-ahead points' second-order sampling error: :func:`agent.barriers.separation_terms`)."""
+        the look-ahead points' second-order sampling error: :func:`agent.barriers.separation_terms`);
+        each pair adds its margin for the declared bounds (:meth:`pair_margin`)."""
         return 2.0 * self.radius + SEP_MARGIN
+
+    @property
+    def margin(self) -> float:
+        """[m] this robot's margin for its declared bounds (:func:`agent.margins.robot_margin`;
+        0.0 without bounds): obstacles, walls and shelves keep it beyond Ds."""
+        return margins.robot_margin(self.bounds, self.max_speed, self.offset)
+
+    def pair_margin(self, u: tuple[float, float], v: tuple[float, float]) -> float:
+        """[m] the margin for the declared bounds between this robot (last velocity ``u``)
+        and a robot or formation moving at ``v`` (:func:`agent.margins.pair_margin`; 0.0
+        without bounds)."""
+        return margins.pair_margin(self.bounds, math.hypot(u[0] - v[0], u[1] - v[1]),
+                                   self.offset)
 
     @property
     def sampling_margin(self) -> float:
@@ -477,7 +496,7 @@ def build_rows(
         reach = p.max_speed
     hf, soft = _band_rows(p, px, py, theta, neighbours, reach)
     ho, contact = _contact_rows(p, px, py, obstacles, shapes, reach)
-    he, hard = _hazard_rows(p, px, py, others, pairwise, reach)
+    he, hard = _hazard_rows(p, px, py, others, pairwise, reach, last_u)
     hs, sep = _separation_rows(p, px, py, theta, partners, last_u, reach)
     contact += sep
     limit_rows = _limit_rows(p, theta, view, nominal_u)
@@ -509,10 +528,11 @@ def _contact_rows(p: ControlParams, px: float, py: float, obstacles: Sequence[Ob
     smallest h."""
     contact: list[Row] = []
     ho = math.inf
-    grow = p.offset + p.sampling_margin
+    grow = p.offset + p.sampling_margin + p.margin
     for o in obstacles:
-        if grow:
-            o = Obstacle(o.x, o.y, o.vx, o.vy, o.ds + grow)  # the body stays Ds away
+        if grow:  # the body stays Ds away; a moving obstacle is seen through the camera too
+            seen = margins.moving_obstacle_margin(p.bounds, math.hypot(o.vx, o.vy))
+            o = Obstacle(o.x, o.y, o.vx, o.vy, o.ds + grow + seen)
         h, row = barriers.obstacle_row(px, py, o, p.gamma_obstacle)
         ho = min(ho, h)
         if row[2] < reach:
@@ -523,18 +543,25 @@ def _contact_rows(p: ControlParams, px: float, py: float, obstacles: Sequence[Ob
 
 
 def _hazard_rows(p: ControlParams, px: float, py: float, others: Sequence[Ellipse],
-                 pairwise: Sequence[Neighbour], reach: float) -> tuple[float, list[Row]]:
+                 pairwise: Sequence[Neighbour], reach: float,
+                 last_u: tuple[float, float] = (0.0, 0.0)) -> tuple[float, list[Row]]:
     """Other formations' rows (their ellipses, eq. 4.12d, or the all-to-all pairs, eq. 3.5)
-    that can be active, and the smallest h."""
+    that can be active, and the smallest h; each grown by the pair's margin for the declared
+    bounds (this robot's and the other's members' errors: :meth:`ControlParams.pair_margin`)."""
     hard: list[Row] = []
     he = math.inf
     for e in others:
+        grow = p.pair_margin(last_u, (e.vx, e.vy))
+        if grow:
+            a, b = margins.grown_axes(e.a, e.b, grow)
+            e = e._replace(a=a, b=b)
         h, row = barriers.ellipse_row(px, py, e, p.gamma_formations)
         he = min(he, h)
         if row[2] < reach:
             hard.append(row)
     for n in pairwise:
-        h, row = barriers.pairwise_row(px, py, n, p.d_af, p.gamma_formations)
+        grow = p.pair_margin(last_u, (n.vx, n.vy))
+        h, row = barriers.pairwise_row(px, py, n, p.d_af + grow, p.gamma_formations)
         he = min(he, h)
         if row[2] < reach:
             hard.append(row)
@@ -586,8 +613,9 @@ def _separation_rows(p: ControlParams, px: float, py: float, theta: float,
     """The smallest separation barrier value and the hard separation rows that can be active."""
     hs = math.inf
     rows: list[Row] = []
-    dsep, gamma, off = p.separation, p.gamma_formation, p.offset
+    gamma, off = p.gamma_formation, p.offset
     for q in partners:
+        dsep = p.separation + p.pair_margin(last_u, (q.vx, q.vy))
         h, gi, gj = barriers.separation_terms((px, py), theta, (q.x, q.y), q.theta, dsep, off)
         row = barriers.separation_row(h, gi, last_u, gj, (q.vx, q.vy), gamma)
         hs = min(hs, h)
@@ -950,7 +978,7 @@ def body_params(cp: ControlParams) -> body.BodyParams:
         gamma_formations=cp.gamma_formations,
         kp=cp.kp,
         dt=cp.period,
-        grow=cp.offset + cp.sampling_margin,
+        grow=cp.offset + cp.sampling_margin + cp.margin,
         radius=cp.radius,
         load_margin=cp.epsilon + cp.offset,
     )
