@@ -117,6 +117,7 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: Sequence[Agent
         world=_world_fields(result),
         time_to_goal_by_formation_s=formation_goal_times(scenario, series,
                                                          result.monitor.time_to_goal),
+        **result.physics,  # --engine mujoco: the engine's contacts (simulator.physics)
     )
     return summary, series
 
