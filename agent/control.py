@@ -494,7 +494,7 @@ def build_rows(
         reach = math.hypot(p.max_speed, p.lookahead * p.max_turn_rate)
     else:
         reach = p.max_speed
-    hf, soft = _band_rows(p, px, py, theta, neighbours, reach)
+    hf, soft = _band_rows(p, px, py, theta, neighbours, reach, last_u)
     ho, contact = _contact_rows(p, px, py, obstacles, shapes, reach)
     he, hard = _hazard_rows(p, px, py, others, pairwise, reach, last_u)
     hs, sep = _separation_rows(p, px, py, theta, partners, last_u, reach)
@@ -504,8 +504,12 @@ def build_rows(
 
 
 def _band_rows(p: ControlParams, px: float, py: float, theta: float,
-               neighbours: Sequence[Neighbour], reach: float) -> tuple[float, list[Row]]:
-    """The formation edges' rows (eq. 4.12b) that can be active, and the smallest h."""
+               neighbours: Sequence[Neighbour], reach: float,
+               last_u: tuple[float, float] = (0.0, 0.0)) -> tuple[float, list[Row]]:
+    """The formation edges' rows (eq. 4.12b) that can be active, and the smallest h. With
+    declared bounds the band narrows by the pair's margin (:meth:`ControlParams.pair_margin`:
+    the edge is measured with both ends' errors), with the unicycles' heading narrowing at most
+    NARROW_CAP epsilon in all, so the band is never empty."""
     soft: list[Row] = []
     hf = math.inf
     eps = p.epsilon
@@ -513,6 +517,8 @@ def _band_rows(p: ControlParams, px: float, py: float, theta: float,
         narrow = 0.0
         if p.unicycle and n.theta is not None:  # the band is meant for the bodies
             narrow = heading_narrowing(theta, n.theta, p.lookahead, eps)
+        if p.bounds.declared:
+            narrow = min(narrow + p.pair_margin(last_u, (n.vx, n.vy)), NARROW_CAP * eps)
         hg, hl, rg, rl = barriers.formation_rows(px, py, n, eps, p.gamma_formation, narrow)
         hf = min(hf, hg, hl)
         if rg[2] < reach:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 from pathlib import Path
 
@@ -186,3 +187,57 @@ def test_a_bad_bounds_option_is_one_line_and_exit_2(tmp_path, capsys, spec, culp
     assert main(["sim", str(TWO_SMALL), "--out", str(tmp_path), "--quiet", "--bounds", spec]) == 2
     err = capsys.readouterr().err.strip()
     assert culprit in err and "\n" not in err and "Traceback" not in err
+
+
+def test_the_band_narrows_by_the_pairs_margin_never_below_half_of_it():
+    from agent.barriers import Neighbour
+    from agent.control import NARROW_CAP, build_rows
+
+    plain = ControlParams(epsilon=0.04)
+    kept = dataclasses.replace(plain, bounds=LAB_BOUNDS)
+    edge = [Neighbour(0.5 + 0.9 * 0.04, 0.0, 0.0, 0.0, 0.5)]  # 0.9 epsilon out: inside the band
+    assert build_rows(plain, 0.0, 0.0, 0.0, (0.0, 0.0), edge).h_formation > 0.0
+    # measured with both ends' noise (2 x 8.5 mm), the band the rows keep is that much narrower
+    assert build_rows(kept, 0.0, 0.0, 0.0, (0.0, 0.0), edge).h_formation < 0.0
+    # closing fast, the narrowing stops at NARROW_CAP epsilon: the band is never empty
+    fast = build_rows(kept, 0.0, 0.0, 0.0, (0.0, 0.0),
+                      [Neighbour(0.5 + 0.4 * 0.04, 0.0, -0.22, 0.0, 0.5)], last_u=(0.22, 0.0))
+    assert fast.h_formation > 0.0 and NARROW_CAP < 1.0
+
+
+def test_an_agent_carries_its_pose_by_its_measured_age_up_to_the_declared_latency():
+    from agent.node import AgentNode, NodeOptions
+    from wire.payloads import Pose
+
+    sc = with_bounds(load_scenario(TWO_SMALL), TURTLEBOT3_LAB)
+    cfg = build_agent_configs(sc)["a2"]
+    node = AgentNode(cfg)  # real time
+    node.last_u = (0.2, -0.1)
+    pose = Pose(1.0, 2.0, 0.0, 100.0)
+    carried, ahead = node._carried(pose, 100.05)
+    assert ahead == pytest.approx(0.05)
+    assert (carried.x, carried.y, carried.stamp) == pytest.approx((1.01, 1.995, 100.0))
+    latency = cfg.control.bounds.latency
+    assert node._carried(pose, 101.0)[1] == latency  # an older pose: no further than declared
+    assert node._carried(pose, 99.0) == (pose, 0.0)  # a stamp ahead of the clock: as it came
+    lockstep = AgentNode(cfg, NodeOptions(lockstep=True))
+    lockstep.last_u = (0.2, -0.1)
+    assert lockstep._carried(pose, 100.05) == (pose, 0.0)  # lock-step: every pose is its tick's
+    plain = AgentNode(build_agent_configs(load_scenario(TWO_SMALL))["a2"])
+    assert plain._carried(pose, 100.05) == (pose, 0.0)  # no bounds: as ever
+
+
+def test_a_lockstep_run_with_bounds_equals_the_simulation_in_the_lab_world(tmp_path):
+    common = ["--world", TURTLEBOT3_LAB, "--bounds", TURTLEBOT3_LAB, "--quiet", "--no-plots"]
+    assert main(["sim", str(TWO_SMALL), "--out", str(tmp_path / "sim"), *common]) == 0
+    assert main(["run", str(TWO_SMALL), "--out", str(tmp_path / "run"), "--insecure",
+                 *common]) == 0
+    sim = json.loads((tmp_path / "sim" / "summary.json").read_text())
+    assert sim["all_reached"] and sim["collisions"] == 0
+    assert (tmp_path / "run" / "robots.csv").read_bytes() == \
+        (tmp_path / "sim" / "robots.csv").read_bytes()
+    # the bounds changed what the robots did: the same run without them differs
+    assert main(["sim", str(TWO_SMALL), "--out", str(tmp_path / "plain"), *common[:2],
+                 *common[4:]]) == 0
+    assert (tmp_path / "plain" / "robots.csv").read_bytes() != \
+        (tmp_path / "sim" / "robots.csv").read_bytes()
