@@ -87,7 +87,8 @@ def pair_margin(b: Bounds, rel_speed: float, lookahead: float) -> float:
     a pair closing at 2 vmax keeps 2 vmax (latency + motor_lag) more. A change of command
     within one tick is what the row's own class-K term covers, as in the ideal world. Separation
     rows, another formation's ellipse (estimated from its members' states, with its velocity)
-    and the all-to-all pairwise rows grow by this much."""
+    and the all-to-all pairwise rows grow by this much; a formation edge's band narrows by it
+    (at most half of epsilon in all: :mod:`agent.control`)."""
     return 2.0 * (position_noise(b) + heading_shift(b, lookahead)) \
         + rel_speed * (b.latency + b.motor_lag)
 
