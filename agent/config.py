@@ -298,6 +298,8 @@ def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
     for name, default in (("double_integrator", False), ("max_accel", None)):
         if d["control"][name] == default:
             del d["control"][name]  # single integrators and unicycles: likewise
+    if not cfg.control.bounds.declared:
+        del d["control"]["bounds"]  # no bounds (all 0): likewise
     if d["solver"] == "exact":
         del d["solver"]  # the default: files stay as they were before the field existed
     d["version"] = CONFIG_VERSION

@@ -46,9 +46,9 @@ from geometry.ellipse import Ellipse
 from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE, BURGER_RADIUS
 from geometry.shapes import Shape
 from scenario import limits as ranges
-from scenario.model import METHODS
+from scenario.model import METHODS, Bounds
 
-from . import accel_limit, barriers, body, double_integrator, unicycle
+from . import accel_limit, barriers, body, double_integrator, margins, unicycle
 from .barriers import Neighbour, Obstacle, Partner
 from .qp import STATUS_NOMINAL, QPResult, Row, solve_exact
 
@@ -113,6 +113,7 @@ class ControlParams:
     method: str = "rigid"  # scenario.model.METHODS: rigid (agent.body) or thesis (eq. 4.2 alone)
     double_integrator: bool = False  # input acceleration (agent.double_integrator)
     max_accel: float | None = None  # [m/s^2] None: no acceleration limit
+    bounds: Bounds = Bounds()  # declared sensing and motor bounds: margins (agent.margins)
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -125,6 +126,9 @@ class ControlParams:
             elif f.name == "method":
                 if value not in METHODS:
                     raise ValueError(f"method: must be one of {', '.join(METHODS)}, got {value!r}")
+            elif f.name == "bounds":
+                if not isinstance(value, Bounds):
+                    raise ValueError(f"bounds: must be a Bounds, got {value!r}")
             elif not isinstance(value, bool):
                 raise ValueError(f"{f.name}: must be true or false, got {value!r}")
 
@@ -149,6 +153,7 @@ class ControlParams:
             method=c.method,
             double_integrator=r.is_double_integrator,
             max_accel=r.max_accel,
+            bounds=c.bounds,
         )
 
     @property
@@ -160,8 +165,22 @@ class ControlParams:
     def separation(self) -> float:
         """[m] distance the separation rows keep between two body centres: two radii (for
         unicycles the pair barrier adds l HEADING_SMOOTH, 1 cm for a TurtleBot, which covers
-        the look-ahead points' second-order sampling error: :func:`agent.barriers.separation_terms`)."""
+        the look-ahead points' second-order sampling error: :func:`agent.barriers.separation_terms`);
+        each pair adds its margin for the declared bounds (:meth:`pair_margin`)."""
         return 2.0 * self.radius + SEP_MARGIN
+
+    @property
+    def margin(self) -> float:
+        """[m] this robot's margin for its declared bounds (:func:`agent.margins.robot_margin`;
+        0.0 without bounds): obstacles, walls and shelves keep it beyond Ds."""
+        return margins.robot_margin(self.bounds, self.max_speed, self.offset)
+
+    def pair_margin(self, u: tuple[float, float], v: tuple[float, float]) -> float:
+        """[m] the margin for the declared bounds between this robot (last velocity ``u``)
+        and a robot or formation moving at ``v`` (:func:`agent.margins.pair_margin`; 0.0
+        without bounds)."""
+        return margins.pair_margin(self.bounds, math.hypot(u[0] - v[0], u[1] - v[1]),
+                                   self.offset)
 
     @property
     def sampling_margin(self) -> float:
@@ -366,9 +385,9 @@ def build_rows(
         reach = math.hypot(p.max_speed, p.lookahead * p.max_turn_rate)
     else:
         reach = p.max_speed
-    hf, soft = _band_rows(p, px, py, theta, neighbours, reach)
+    hf, soft = _band_rows(p, px, py, theta, neighbours, reach, last_u)
     ho, contact = _contact_rows(p, px, py, obstacles, shapes, reach)
-    he, hard = _hazard_rows(p, px, py, others, pairwise, reach)
+    he, hard = _hazard_rows(p, px, py, others, pairwise, reach, last_u)
     hs, sep = _separation_rows(p, px, py, theta, partners, last_u, reach)
     contact += sep
     limit_rows = _limit_rows(p, theta, view, nominal_u)
@@ -376,8 +395,12 @@ def build_rows(
 
 
 def _band_rows(p: ControlParams, px: float, py: float, theta: float,
-               neighbours: Sequence[Neighbour], reach: float) -> tuple[float, list[Row]]:
-    """The formation edges' rows (eq. 4.12b) that can be active, and the smallest h."""
+               neighbours: Sequence[Neighbour], reach: float,
+               last_u: tuple[float, float] = (0.0, 0.0)) -> tuple[float, list[Row]]:
+    """The formation edges' rows (eq. 4.12b) that can be active, and the smallest h. With
+    declared bounds the band narrows by the pair's margin (:meth:`ControlParams.pair_margin`:
+    the edge is measured with both ends' errors), with the unicycles' heading narrowing at most
+    NARROW_CAP epsilon in all, so the band is never empty."""
     soft: list[Row] = []
     hf = math.inf
     eps = p.epsilon
@@ -385,6 +408,8 @@ def _band_rows(p: ControlParams, px: float, py: float, theta: float,
         narrow = 0.0
         if p.unicycle and n.theta is not None:  # the band is meant for the bodies
             narrow = heading_narrowing(theta, n.theta, p.lookahead, eps)
+        if p.bounds.declared:
+            narrow = min(narrow + p.pair_margin(last_u, (n.vx, n.vy)), NARROW_CAP * eps)
         hg, hl, rg, rl = barriers.formation_rows(px, py, n, eps, p.gamma_formation, narrow)
         hf = min(hf, hg, hl)
         if rg[2] < reach:
@@ -400,10 +425,11 @@ def _contact_rows(p: ControlParams, px: float, py: float, obstacles: Sequence[Ob
     smallest h."""
     contact: list[Row] = []
     ho = math.inf
-    grow = p.offset + p.sampling_margin
+    grow = p.offset + p.sampling_margin + p.margin
     for o in obstacles:
-        if grow:
-            o = Obstacle(o.x, o.y, o.vx, o.vy, o.ds + grow)  # the body stays Ds away
+        if grow:  # the body stays Ds away; a moving obstacle is seen through the camera too
+            seen = margins.moving_obstacle_margin(p.bounds, math.hypot(o.vx, o.vy))
+            o = Obstacle(o.x, o.y, o.vx, o.vy, o.ds + grow + seen)
         h, row = barriers.obstacle_row(px, py, o, p.gamma_obstacle)
         ho = min(ho, h)
         if row[2] < reach:
@@ -414,18 +440,25 @@ def _contact_rows(p: ControlParams, px: float, py: float, obstacles: Sequence[Ob
 
 
 def _hazard_rows(p: ControlParams, px: float, py: float, others: Sequence[Ellipse],
-                 pairwise: Sequence[Neighbour], reach: float) -> tuple[float, list[Row]]:
+                 pairwise: Sequence[Neighbour], reach: float,
+                 last_u: tuple[float, float] = (0.0, 0.0)) -> tuple[float, list[Row]]:
     """Other formations' rows (their ellipses, eq. 4.12d, or the all-to-all pairs, eq. 3.5)
-    that can be active, and the smallest h."""
+    that can be active, and the smallest h; each grown by the pair's margin for the declared
+    bounds (this robot's and the other's members' errors: :meth:`ControlParams.pair_margin`)."""
     hard: list[Row] = []
     he = math.inf
     for e in others:
+        grow = p.pair_margin(last_u, (e.vx, e.vy))
+        if grow:
+            a, b = margins.grown_axes(e.a, e.b, grow)
+            e = e._replace(a=a, b=b)
         h, row = barriers.ellipse_row(px, py, e, p.gamma_formations)
         he = min(he, h)
         if row[2] < reach:
             hard.append(row)
     for n in pairwise:
-        h, row = barriers.pairwise_row(px, py, n, p.d_af, p.gamma_formations)
+        grow = p.pair_margin(last_u, (n.vx, n.vy))
+        h, row = barriers.pairwise_row(px, py, n, p.d_af + grow, p.gamma_formations)
         he = min(he, h)
         if row[2] < reach:
             hard.append(row)
@@ -477,8 +510,9 @@ def _separation_rows(p: ControlParams, px: float, py: float, theta: float,
     """The smallest separation barrier value and the hard separation rows that can be active."""
     hs = math.inf
     rows: list[Row] = []
-    dsep, gamma, off = p.separation, p.gamma_formation, p.offset
+    gamma, off = p.gamma_formation, p.offset
     for q in partners:
+        dsep = p.separation + p.pair_margin(last_u, (q.vx, q.vy))
         h, gi, gj = barriers.separation_terms((px, py), theta, (q.x, q.y), q.theta, dsep, off)
         row = barriers.separation_row(h, gi, last_u, gj, (q.vx, q.vy), gamma)
         hs = min(hs, h)
@@ -655,7 +689,7 @@ def body_params(cp: ControlParams) -> body.BodyParams:
         gamma_formations=cp.gamma_formations,
         kp=cp.kp,
         dt=cp.period,
-        grow=cp.offset + cp.sampling_margin,
+        grow=cp.offset + cp.sampling_margin + cp.margin,
         radius=cp.radius,
         load_margin=cp.epsilon + cp.offset,
     )

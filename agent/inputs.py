@@ -103,3 +103,18 @@ def predict_state(x: float, y: float, ux: float, uy: float, theta: float, age: f
     bx, by = unicycle.control_point(x, y, theta, -lookahead)  # the body, l behind the point
     bx, by, th = unicycle.integrate(bx, by, theta, v, omega, age)
     return (*unicycle.control_point(bx, by, th, lookahead), th)
+
+
+def carry_pose(x: float, y: float, theta: float, ux: float, uy: float, age: float,
+               lookahead: float) -> tuple[float, float, float]:
+    """A robot's own measured BODY pose carried ``age`` seconds forward under its last
+    certified command u (p + u age for a single integrator; a unicycle on the arc of
+    :func:`predict_state`, its look-ahead point moving at u): (x, y, theta) then. The agent
+    carries its pose by the pose's measured age, at most its declared latency
+    (:func:`agent.margins.carried_age`)."""
+    if age <= 0.0:
+        return x, y, theta
+    px, py = unicycle.control_point(x, y, theta, lookahead)
+    qx, qy, th = predict_state(px, py, ux, uy, theta, age, lookahead)
+    bx, by = unicycle.control_point(qx, qy, th, -lookahead)
+    return bx, by, th

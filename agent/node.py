@@ -106,8 +106,9 @@ from agent.control import Stall, StepResult, control_step
 from agent.faults import EPS, LinkFaults
 from agent.hard_rows import HardRowCounter
 from agent.inbox import RING_CAPACITY, Inbox, Receiver
-from agent.inputs import step_inputs
+from agent.inputs import carry_pose, step_inputs
 from agent.leader_step import LeaderPart
+from agent.margins import carried_age
 from agent.navigation import STALLED_AFTER_S, NavPart
 from agent.plausibility import ObstacleMemory, held_obstacle, speed_bound
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
@@ -253,6 +254,7 @@ class AgentNode:
         self._last_pose_used: float | None = None
         self._stall = Stall()  # this member's copy of its formation's jam state
         self._tick_point: tuple[float, float, float, float] | None = None
+        self._ahead = 0.0  # [s] this tick's pose carried forward by its measured age (_carried)
         self._cpu0 = time.process_time()
         self._wall0 = time.monotonic()
         # outputs and life
@@ -528,10 +530,11 @@ class AgentNode:
         self._last_pose_used = pose.stamp
         clock.note_pose(pose_entry)
         self.last_stamp = pose.stamp
+        pose, self._ahead = self._carried(pose, clock.at(t))
         off = self.cfg.control.offset
         px, py = control_point(pose.x, pose.y, pose.theta, off) if self.cfg.control.unicycle \
             else (pose.x, pose.y)
-        self._tick_point = (px, py, pose.stamp, pose.theta)
+        self._tick_point = (px, py, pose.stamp + self._ahead, pose.theta)
         clock.state_before(self._send_state)
         return await self._step(t, pose, px, py)
 
@@ -556,8 +559,20 @@ class AgentNode:
         target, waypoint = self.nav.follower.goal, self.cfg.formation_goal
         if own is not None:  # walk the route (the leader takes new goals first)
             target, waypoint = self.nav.step(stamp, clock.lockstep, own.cx, own.cy)
-        return self._control(t, pose, clock.align(states, stamp), obs, shapes, own, target,
-                             waypoint, others_msg)
+        return self._control(t, pose, clock.align(states, stamp + self._ahead), obs, shapes, own,
+                             target, waypoint, others_msg)
+
+    def _carried(self, pose: Pose, now: float) -> tuple[Pose, float]:
+        """The pose carried forward by its measured age ``now - stamp``, at most the declared
+        latency (``controller.bounds``: :func:`agent.margins.carried_age`), under the last
+        certified command; the stamp stays the camera's. Without bounds, and in lock-step (each
+        pose is its tick's: age 0, as in the in-process simulator), the pose as it came."""
+        ahead = carried_age(now - pose.stamp, self.cfg.control.bounds.latency)
+        if ahead <= 0.0 or self.clock.lockstep:
+            return pose, 0.0
+        x, y, th = carry_pose(pose.x, pose.y, pose.theta, *self.last_u, ahead,
+                              self.cfg.control.offset)
+        return Pose(x, y, th, pose.stamp), ahead
 
     def _control(self, t: float | None, pose: Pose, states: States, obs: list[Obstacle],
                  shapes: Any, own: Any, target: Any, waypoint: Any, others_msg: Others

@@ -10,6 +10,7 @@ its seed and its scenario file (written next to it) so it can be replayed with `
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import random
 from concurrent.futures import ProcessPoolExecutor
@@ -17,6 +18,7 @@ from functools import partial
 
 from geometry.limits import BURGER_MAX_SPEED, BURGER_RADIUS
 from scenario import ScenarioError
+from scenario.bounds import parse as parse_bounds
 from scenario.load import scenario_from_dict
 from scenario.world import IDEAL
 from simulator.inprocess import SimOptions, simulate
@@ -30,6 +32,7 @@ SHAPES = {
     "rectangle": ([(0.35, 0.2), (0.35, -0.2), (-0.35, -0.2), (-0.35, 0.2)],
                   [(0, 1), (0, 2), (0, 3), (1, 2), (2, 3)], 0),
 }
+DT = 0.05  # [s] every run's control period
 SHELF_Y = 1.8  # [m] shelf rows at +/- this
 SHELF_XS = (-4.9, -4.2, -3.5, -2.8, -2.1, 2.1, 2.8, 3.5, 4.2, 4.9)  # cross aisle at |x| < 1.75
 
@@ -81,7 +84,7 @@ def random_scenario(seed: int) -> dict:
                           "safe_distance": 0.45, "velocity": [vx, 0.0]})
     return {
         "name": f"montecarlo-{seed}",
-        "dt": 0.05,
+        "dt": DT,
         "duration": 150.0,
         "goal_tolerance": 0.05,
         "robot": {"model": model, "max_speed": BURGER_MAX_SPEED, "radius": BURGER_RADIUS},
@@ -92,14 +95,17 @@ def random_scenario(seed: int) -> dict:
     }
 
 
-def valid_scenario(seed: int, world: str | None = None):
+def valid_scenario(seed: int, world: str | None = None, bounds: str | None = None):
     """The first valid layout from sub-seeds of ``seed``: (mapping, scenario, sub-seed). With
     ``world`` (a profile other than the default), the mapping says so, with the run's seed as
-    the world's: its noise is the run's own, and its scenario file replays it exactly."""
+    the world's: its noise is the run's own, and its scenario file replays it exactly. With
+    ``bounds`` (``--bounds SPEC``, :mod:`scenario.bounds`), its ``controller.bounds`` too."""
     for sub in range(50):
         d = random_scenario(seed * 1000 + sub)
         if world is not None and world != IDEAL:
             d["world"] = {"profile": world, "seed": seed}
+        if bounds is not None:
+            d["controller"]["bounds"] = dataclasses.asdict(parse_bounds(bounds, DT))
         try:
             return d, scenario_from_dict(d), seed * 1000 + sub
         except ScenarioError:
@@ -107,8 +113,8 @@ def valid_scenario(seed: int, world: str | None = None):
     raise RuntimeError(f"seed {seed}: no valid layout in 50 draws")
 
 
-def run_one(seed: int, world: str | None = None) -> dict:
-    d, scenario, sub = valid_scenario(seed, world)
+def run_one(seed: int, world: str | None = None, bounds: str | None = None) -> dict:
+    d, scenario, sub = valid_scenario(seed, world, bounds)
     s = simulate(scenario, SimOptions(record=False)).summary
     obstacle_clear = s["min_clearance_m"]["obstacle"]
     return {
@@ -148,12 +154,13 @@ def _model_totals(runs: list[dict]) -> dict:
 
 
 def run_montecarlo(n: int, seed: int, workers: int = 2, progress=None,
-                   world: str | None = None) -> tuple[dict, list[dict]]:
-    """``n`` runs from ``seed``; ``world``: the world profile of every run (default ideal)."""
+                   world: str | None = None, bounds: str | None = None) -> tuple[dict, list[dict]]:
+    """``n`` runs from ``seed``; ``world``: the world profile of every run (default ideal);
+    ``bounds``: every run's controller bounds (``--bounds SPEC``; default none)."""
     seeds = [seed * 100000 + k for k in range(n)]
     results = []
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        for k, r in enumerate(pool.map(partial(run_one, world=world), seeds)):
+        for k, r in enumerate(pool.map(partial(run_one, world=world, bounds=bounds), seeds)):
             results.append(r)
             if progress:
                 progress(k + 1, n, 0.0)
@@ -163,6 +170,7 @@ def run_montecarlo(n: int, seed: int, workers: int = 2, progress=None,
         "runs": n,
         "seed": seed,
         "world": world or IDEAL,
+        "bounds": bounds or "none",
         "collisions": sum(r["collisions"] for r in results),
         "runs_with_collision": sum(1 for r in results if r["collisions"]),
         "reached_rate": sum(r["all_reached"] for r in results) / n if n else None,

@@ -83,6 +83,20 @@ def _add_world(p: argparse.ArgumentParser) -> None:
                         "scenario's world:, else ideal; docs/scenarios.md)")
 
 
+def _add_engine(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--engine", default="kinematic", choices=["kinematic", "mujoco"],
+                   help="what moves the robots: their exact kinematics, or MuJoCo's physics "
+                        "(the extra formation-cbf[physics])")
+
+
+def _add_bounds(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--bounds", default=None, metavar="SPEC",
+                   help="the controller's declared sensing and motor bounds, in place of the "
+                        "scenario's controller.bounds: a world profile's name (the bounds that "
+                        "match it) or NAME=VALUE,... of pose_noise, heading_noise, latency, "
+                        "motor_lag (docs/scenarios.md)")
+
+
 def _add_view_args(p: argparse.ArgumentParser, client: bool = False, serve: bool = True,
                    port: bool = True) -> None:
     if client:
@@ -121,9 +135,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_solver(p)
     _add_topology(p)
     _add_world(p)
-    p.add_argument("--engine", default="kinematic", choices=["kinematic", "mujoco"],
-                   help="what moves the robots: their exact kinematics, or MuJoCo's physics "
-                        "(the extra formation-cbf[physics])")
+    _add_bounds(p)
+    _add_engine(p)
 
     p = add("run", "multi-process simulation over Zenoh (router, one agent per robot, world)")
     _add_sim_args(p)
@@ -138,6 +151,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="poses from the truth, from frames detected in the world (synthetic), or "
                         "from the real camera process on rendered frames (process)")
     _add_world(p)
+    _add_bounds(p)
+    _add_engine(p)
     _add_topology(p)
     _add_solver(p)
     p.add_argument("--drop", type=float, default=0.0, help="message loss probability")
@@ -210,6 +225,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--jobs", type=int, default=2, metavar="J",
                    help="runs at a time, each in its own process (results do not depend on it)")
     _add_world(p)
+    _add_bounds(p)
     _add_out(p)
 
     p = add("bench", "benchmarks: solver, control step, fleet CPU")

@@ -4,6 +4,7 @@ from .load import ScenarioError, formation_axes, load_scenario, parse_scenario, 
 from .model import (
     SINGLE_INTEGRATOR,
     UNICYCLE,
+    Bounds,
     ControllerSpec,
     Edge,
     FormationSpec,
@@ -15,7 +16,7 @@ from .model import (
 )
 
 __all__ = [
-    "SINGLE_INTEGRATOR", "UNICYCLE", "ControllerSpec", "Edge", "FormationSpec", "Gammas",
+    "SINGLE_INTEGRATOR", "UNICYCLE", "Bounds", "ControllerSpec", "Edge", "FormationSpec", "Gammas",
     "ObstacleSpec", "RobotModel", "RobotSpec", "Scenario", "ScenarioError", "formation_axes",
     "load_scenario", "parse_scenario", "start_ellipse",
 ]

@@ -91,6 +91,15 @@ POSE_PERIOD = DT  # how often poses really come (a camera's frame period)
 STALE_AFTER = positive(10.0, "s")  # inputs older than this are stale (5 pose periods by default)
 CLOCK_TOLERANCE = positive(10.0, "s")  # a stamp this far ahead of the robot's clock is accepted
 
+# controller.bounds (scenario.model.Bounds): what a robot's controller assumes of its sensing and
+# motors; the same ranges as the world's numbers they stand for (scenario.world.RANGES)
+BOUNDS: dict[str, Range] = {
+    "pose_noise": Range(0.0, 1.0, "m"),
+    "heading_noise": Range(0.0, math.pi, "rad"),
+    "latency": Range(0.0, 10.0, "s"),
+    "motor_lag": Range(0.0, 10.0, "s"),
+}
+
 MAX_FORMATIONS = 256  # a leader's payload holds at most 256 other ellipses (wire.payloads)
 MAX_OBSTACLES = 256  # an obstacles payload holds at most 256 (wire.payloads.MAX_ITEMS)
 MAX_FORMATION_ROBOTS = 64  # members of one formation (its leader relays to each of them)
@@ -109,6 +118,7 @@ TABLE: tuple[tuple[str, str], ...] = (
     ("controller.kp", GAIN.text()),
     ("controller.gamma (each)", GAMMA.text()),
     ("controller.epsilon", EPSILON.text()),
+    *((f"controller.bounds.{k}", r.text()) for k, r in BOUNDS.items()),
     ("controller.d_af, edge Df, ellipse a and b, safe_distance", DISTANCE.text()),
     ("start and goal x, y; obstacle center", COORDINATE.text()),
     ("start heading", HEADING.text()),

@@ -57,6 +57,7 @@ from .model import (
     METHODS,
     MODELS,
     SINGLE_INTEGRATOR,
+    Bounds,
     ControllerSpec,
     Edge,
     FormationSpec,
@@ -79,7 +80,7 @@ TIEBREAKS = ("keep_right", "none")
 _TOP_KEYS = {"name", "dt", "duration", "goal_tolerance", "robot", "controller", "formations",
              "obstacles", "world"}
 _ROBOT_KEYS = {"model", "max_speed", "max_turn_rate", "lookahead", "radius", "max_accel"}
-_CONTROLLER_KEYS = {"kp", "gamma", "epsilon", "tiebreak", "d_af", "planner", "method"}
+_CONTROLLER_KEYS = {"kp", "gamma", "epsilon", "tiebreak", "d_af", "planner", "method", "bounds"}
 _GAMMA_KEYS = {"formation", "obstacle", "formations"}
 _FORMATION_KEYS = {"name", "leader", "robots", "edges", "ellipse", "waypoints", LOAD_KEY}
 _MEMBER_KEYS = {"start", "goal"}
@@ -220,7 +221,16 @@ def _controller(raw: Any) -> ControllerSpec:
         d_af=None if d_af is None else _in(d_af, "controller.d_af", limits.DISTANCE),
         planner=planner,
         method=_choice(m.get("method", d.method), "controller.method", METHODS),
+        bounds=_bounds(m.get("bounds", {})),
     )
+
+
+def _bounds(raw: Any) -> Bounds:
+    """``controller.bounds``: each bound a number in its range (:data:`limits.BOUNDS`); a
+    missing one is 0."""
+    m = _mapping(raw, "controller.bounds", set(limits.BOUNDS))
+    return Bounds(**{k: _in(m.get(k, 0.0), f"controller.bounds.{k}", r)
+                     for k, r in limits.BOUNDS.items()})
 
 
 def _choice(raw: Any, where: str, allowed: tuple[str, ...]) -> str:

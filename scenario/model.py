@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE, BURGER_RADIUS
 from geometry.shapes import Shape
 
+from . import limits
 from .reader import ScenarioError
 from .world import WorldSpec, with_profile
 
@@ -61,6 +62,29 @@ class Gammas:
 
 
 @dataclass(frozen=True)
+class Bounds:
+    """``controller.bounds``: what a robot's controller assumes of its own sensing and motors,
+    each a bound it keeps margins for (:mod:`agent.margins`); all 0 (the default): a perfect
+    robot, the controller as it always was. The agent never reads the world's profile: these
+    are the robot's declared numbers, right or wrong. Checked against
+    :data:`scenario.limits.BOUNDS` (ValueError naming the field)."""
+
+    pose_noise: float = 0.0  # [m] standard deviation of each measured position coordinate
+    heading_noise: float = 0.0  # [rad] standard deviation of the measured heading
+    latency: float = 0.0  # [s] the most a pose can be old when the robot acts on it
+    motor_lag: float = 0.0  # [s] first-order time constant from command to wheel speed
+
+    def __post_init__(self) -> None:
+        for name, allowed in limits.BOUNDS.items():
+            limits.check(getattr(self, name), name, allowed)
+
+    @property
+    def declared(self) -> bool:
+        """True when any bound is above 0 (the controller keeps margins)."""
+        return any(getattr(self, name) > 0.0 for name in limits.BOUNDS)
+
+
+@dataclass(frozen=True)
 class ControllerSpec:
     kp: float = 2.0  # eq. 4.2
     gamma: Gammas = Gammas()
@@ -69,6 +93,7 @@ class ControllerSpec:
     d_af: float | None = None  # [m] pairwise distance of eq. 3.5 (all-to-all topology only)
     planner: str = "visibility"  # route around walls and boxes, or "none"
     method: str = "rigid"  # how nominal commands are made: one of METHODS (agent.control)
+    bounds: Bounds = Bounds()  # the sensing and motor bounds the controller keeps margins for
 
 
 @dataclass(frozen=True)

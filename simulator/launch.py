@@ -248,6 +248,7 @@ def _world_options(cfg: RunConfig) -> WorldOptions:
         camera_dropouts=tuple((c.robot, c.at, c.at + c.duration)
                               for c in cfg.faults.camera_dropouts),
         pose_slots=cfg.pose_slots, clock_offset=cfg.clock_offset, stop_at_goal=not cfg.hold,
+        engine=cfg.engine,
         rmw_bases=None if cfg.rmw_base is None else run_bases(cfg.scenario.robot_ids, cfg.rmw_base))
 
 

@@ -18,6 +18,8 @@ from wire.rmw_zenoh import RmwSettings
 
 from .faults import FaultPlan
 from .fleet import RemoteAgents
+from .physics import ENGINES
+from .physics import available as physics_available
 
 CAMERAS = ("truth", "synthetic", "process")
 RESTART_POLICIES = ("on-failure", "no")
@@ -35,7 +37,9 @@ class RunConfig:
     (``python -m camera_service``) on the frames the world renders; it reads the static obstacles
     from ``scenario_path``. ``agents_per_process`` K > 1 runs the agents K to an agent host
     (:mod:`agent.host`; ``shared_session``: one Zenoh session per host). ``hold`` keeps the fleet
-    up after every goal is reached, until the scenario's duration or SIGINT/SIGTERM.
+    up after every goal is reached, until the scenario's duration or SIGINT/SIGTERM. ``engine``
+    "mujoco" has MuJoCo move the world's robots (:mod:`simulator.physics`), as ``formation sim
+    --engine mujoco`` does: a lock-step run writes the same robots.csv.
     ``pose_zones`` Z > 0 carries the poses and commands through Z zone routers of the world's
     process (:mod:`simulator.zones`). ``remote`` places the agents of ``remote.robots`` on other
     hosts (``--hosts``, :mod:`deploy.remote`); the router then listens on ``remote.endpoint``.
@@ -64,6 +68,7 @@ class RunConfig:
     rmw_base: RmwSettings | None = None
     restart: str = "on-failure"  # a crashed local agent is restarted (as systemd on a robot)
     restart_limit: int = 3  # ... at most this many times per robot; then the run aborts
+    engine: str = "kinematic"  # what moves the robots in the world: or "mujoco" (simulator.physics)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "out", Path(self.out))
@@ -76,6 +81,14 @@ class RunConfig:
         self.faults.check_robots(self.scenario.robot_ids)
         self._check_remote()
         self._check_rmw_base()
+        self._check_engine()
+
+    def _check_engine(self) -> None:
+        if self.engine not in ENGINES:
+            raise ValueError(f"--engine: {self.engine!r} is not one of {', '.join(ENGINES)}")
+        if self.engine == "mujoco" and not physics_available():
+            raise ValueError("--engine mujoco: MuJoCo is not installed "
+                             "(pip install 'formation-cbf[physics]')")
 
     def _check_rmw_base(self) -> None:
         if self.rmw_base is None:

@@ -59,3 +59,4 @@ class WorldResult:
     # pose slots > 1: the stamp each robot's pose of tick k went out with (its slot's); else empty
     robot_stamps: list[list[float]] = field(default_factory=list)
     wall_s: float = 0.0
+    physics: dict = field(default_factory=dict)  # what the engine adds to summary.json (mujoco)

@@ -118,6 +118,7 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: Sequence[Agent
         time_to_goal_by_formation_s=formation_goal_times(scenario, series,
                                                          result.monitor.time_to_goal),
         goals_by_formation=goal_counts(scenario, stats),
+        **result.physics,  # --engine mujoco: the engine's contacts (simulator.physics)
     )
     return summary, series
 

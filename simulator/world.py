@@ -473,6 +473,7 @@ class World:
                 stamp_rejected=inbox.stamps.snapshot(), clock_offset=opts.clock_offset,
                 latency_ms=list(inbox.latency_ms), wall_s=time.monotonic() - wall0, stamps=stamps,
                 robot_stamps=robot_stamps, publish_ms=publish_ms,
+                physics={} if self.lab is None else self.lab.summary_fields(),
             )
 
         try:

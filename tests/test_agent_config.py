@@ -24,7 +24,7 @@ from agent.config import (
 from agent.control import PARAM_RANGES, ControlParams
 from agent.node import AgentNode
 from scenario import limits, load_scenario
-from scenario.model import METHODS
+from scenario.model import METHODS, Bounds
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -113,7 +113,7 @@ def test_a_unicycles_sampling_margin_is_sized_for_the_camera_period_not_the_cont
 
 
 SWITCHES = [f.name for f in dataclasses.fields(ControlParams)
-            if f.name not in PARAM_RANGES and f.name != "method"]
+            if f.name not in PARAM_RANGES and f.name not in ("method", "bounds")]
 
 
 def _inside(r: limits.Range) -> st.SearchStrategy[float]:
@@ -132,6 +132,8 @@ VALID_PARAMS = st.fixed_dictionaries({
     **{name: _inside(r) for name, r in PARAM_RANGES.items()},
     **{name: st.booleans() for name in SWITCHES},
     "method": st.sampled_from(METHODS),
+    "bounds": st.fixed_dictionaries({k: _inside(r) for k, r in limits.BOUNDS.items()}).map(
+        lambda kw: Bounds(**kw)),
 }).map(lambda kw: ControlParams(**kw))
 
 
@@ -143,6 +145,15 @@ def test_any_valid_control_params_round_trip_through_the_config_file(configs, tm
     path = tmp_path_factory.mktemp("cfg") / "r2.yaml"
     save_config(cfg, path)
     assert load_config(path) == cfg
+
+
+@settings(max_examples=60, deadline=None)
+@given(data=st.data(), name=st.sampled_from(sorted(limits.BOUNDS)))
+def test_an_out_of_range_bound_is_refused_naming_it(configs, data, name):
+    d = config_to_dict(configs["r1"])
+    d["control"]["bounds"] = {name: data.draw(_outside(limits.BOUNDS[name]))}
+    with pytest.raises(ValueError, match=rf"^control\.bounds\.{name}: "):
+        config_from_dict(d)
 
 
 def test_an_unknown_method_is_refused_naming_it():

@@ -126,3 +126,25 @@ def test_the_multiprocess_world_builds_its_physics_from_its_options():
     sc = parse_scenario(TWO_SMALL.read_text())
     assert isinstance(lab_world(sc, WorldOptions(engine="mujoco")), MujocoWorld)
     assert lab_world(sc, WorldOptions()) is None
+
+
+def test_a_lockstep_run_with_mujoco_equals_the_simulation(tmp_path):
+    for mode, extra in (("sim", []), ("run", ["--insecure"])):
+        assert main([mode, str(TWO_SMALL), "--out", str(tmp_path / mode), "--quiet", "--no-plots",
+                     "--engine", "mujoco", *extra]) == 0
+    run = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert run["mode"] == "multiprocess" and run["physics"]["engine"] == "mujoco"
+    assert run["physics"]["collisions"] == 0 and run["all_reached"]
+    assert (tmp_path / "run" / "robots.csv").read_bytes() == \
+        (tmp_path / "sim" / "robots.csv").read_bytes()
+
+
+def test_a_run_takes_the_engine_into_its_world():
+    from simulator.launch import _world_options
+    from simulator.run_config import RunConfig
+
+    sc = parse_scenario(TWO_SMALL.read_text())
+    assert _world_options(RunConfig(sc, Path("out"), engine="mujoco")).engine == "mujoco"
+    assert _world_options(RunConfig(sc, Path("out"))).engine == "kinematic"
+    with pytest.raises(ValueError, match="--engine"):
+        RunConfig(sc, Path("out"), engine="bullet")

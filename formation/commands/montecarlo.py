@@ -7,10 +7,11 @@ import json
 
 import yaml
 
-from experiments.montecarlo import run_montecarlo
+from experiments.montecarlo import DT, run_montecarlo
 from formation.exits import UsageError
 from formation.outdir import begin_output
 from formation.progress import Progress
+from scenario.bounds import parse as parse_bounds
 
 
 def montecarlo_command(ns: argparse.Namespace) -> int:
@@ -18,10 +19,12 @@ def montecarlo_command(ns: argparse.Namespace) -> int:
         raise UsageError(f"--n: must be a positive number of runs, got {ns.n}")
     if ns.jobs <= 0:
         raise UsageError(f"--jobs: must be a positive number of processes, got {ns.jobs}")
+    if ns.bounds is not None:
+        parse_bounds(ns.bounds, DT)  # a bad --bounds: exit 2 before any run
     out = begin_output(ns)
     with Progress(f"montecarlo n={ns.n}", unit="runs") as progress:
         summary, results = run_montecarlo(ns.n, ns.seed, ns.jobs, progress=progress.update,
-                                          world=ns.world)
+                                          world=ns.world, bounds=ns.bounds)
     for r in results:
         if not r["all_reached"] or r["collisions"]:
             (out / f"failure-{r['seed']}.yaml").write_text(yaml.safe_dump(r["scenario"], sort_keys=False))
@@ -29,7 +32,8 @@ def montecarlo_command(ns: argparse.Namespace) -> int:
     with (out / "runs.jsonl").open("w", encoding="utf-8") as fh:
         for r in results:
             fh.write(json.dumps({k: v for k, v in r.items() if k != "scenario"}) + "\n")
-    print(f"montecarlo: {summary['runs']} runs ({summary['world']} world), "
+    print(f"montecarlo: {summary['runs']} runs ({summary['world']} world, "
+          f"bounds {summary['bounds']}), "
           f"reached {100 * summary['reached_rate']:.1f}%, "
           f"collisions {summary['collisions']} (in {summary['runs_with_collision']} runs), "
           f"deadlocks {summary['deadlocks']}, worst formation error "

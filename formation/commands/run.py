@@ -27,6 +27,7 @@ from formation.exits import EXIT_ERROR, EXIT_OK, UsageError
 from formation.outdir import begin_output
 from formation.progress import Progress, lost_words, print_summary
 from scenario import Scenario, load_scenario
+from scenario.bounds import with_bounds
 from scenario.model import with_world
 from simulator.capacity import machine_has, refusal
 from simulator.faults import FaultPlan, parse_camera_dropout, parse_kill
@@ -49,8 +50,11 @@ def run_config(ns: argparse.Namespace) -> RunConfig:
         )
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    # ScenarioError -> exit 2; --world replaces the file's world (scenario.world)
-    scenario = _with_duration(ns, with_world(load_scenario(ns.scenario), getattr(ns, "world", None)))
+    # ScenarioError -> exit 2; --world replaces the file's world (scenario.world), --bounds the
+    # controller's bounds (scenario.bounds)
+    scenario = _with_duration(ns, with_bounds(
+        with_world(load_scenario(ns.scenario), getattr(ns, "world", None)),
+        getattr(ns, "bounds", None)))
     per_process = getattr(ns, "agents_per_process", 1)
     insecure = getattr(ns, "insecure", False)
     try:
@@ -68,7 +72,7 @@ def run_config(ns: argparse.Namespace) -> RunConfig:
             solver=getattr(ns, "solver", "exact"), hold=bool(getattr(ns, "hold", False)),
             remote=_placement(ns, scenario, per_process), pose_zones=getattr(ns, "pose_zones", 0),
             rmw_base=_rmw_base(ns), restart=getattr(ns, "restart", "on-failure"),
-            restart_limit=getattr(ns, "restart_limit", 3))
+            restart_limit=getattr(ns, "restart_limit", 3), engine=getattr(ns, "engine", "kinematic"))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
 

@@ -9,6 +9,7 @@ from formation.exits import EXIT_ERROR, EXIT_OK, UsageError
 from formation.outdir import begin_output
 from formation.progress import Progress, print_summary
 from scenario import load_scenario
+from scenario.bounds import with_bounds
 from scenario.model import with_world
 from simulator.inprocess import SimOptions, simulate
 from simulator.output import write_run
@@ -16,7 +17,7 @@ from simulator.physics import available as physics_available
 
 
 def cmd_sim(ns: argparse.Namespace) -> int:
-    scenario = with_world(load_scenario(ns.scenario), ns.world)
+    scenario = with_bounds(with_world(load_scenario(ns.scenario), ns.world), ns.bounds)
     try:
         make_solver(ns.solver)
     except ValueError as exc:

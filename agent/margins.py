@@ -1,0 +1,124 @@
+"""The margins a robot keeps for its declared sensing and motor bounds (``controller.bounds``).
+
+Pure formulas, one copy each; :mod:`agent.control` grows its safe distances by them and
+:mod:`agent.node` carries its pose forward by its measured age. The agent never reads the
+world's profile: ``bounds`` (:class:`scenario.model.Bounds`) are what the robot's own config
+declares, right or wrong (a run with bounds below what the world does shows what breaks:
+README, "Promises on a real robot"). With every bound 0 each margin is exactly 0.0 and every
+row is the one it always was.
+
+What a barrier row of eq. 4.12 assumes, and what a lab robot does instead:
+
+* the position p is the robot's true position. A camera measures it with noise (standard
+  deviation ``pose_noise`` on each coordinate, ``heading_noise`` on the heading) and hands it
+  over up to ``latency`` seconds after it was taken, while the robot moved on;
+* p' = u, the certified command. A motor with a first-order lag of time constant
+  ``motor_lag`` reaches a new command only gradually, so the robot overshoots where the row
+  meant it to stop.
+
+Each of these moves the true position a bounded distance from the one the row holds
+(:func:`robot_margin`); a row that keeps the measured position that much further away keeps
+the true one where the thesis's row would. A pair of robots, each measured with its own error,
+keeps both ends' noise and their relative travel (:func:`pair_margin`).
+"""
+
+from __future__ import annotations
+
+import math
+
+from scenario.model import Bounds
+
+#: Noise is Gaussian (unbounded): the margin covers NOISE_SIGMAS standard deviations. A 2-D
+#: Gaussian position error of sigma per coordinate lies within 3 sigma sqrt(2) of the truth
+#: with probability 1 - exp(-9) = 0.99988 (its radius is Rayleigh distributed: [1]).
+NOISE_SIGMAS = 3.0
+
+
+def position_noise(b: Bounds) -> float:
+    """[m] The radius a measured position lies within: NOISE_SIGMAS sqrt(2) pose_noise.
+
+    [1] The distance of a 2-D Gaussian point (sigma on each axis, independent) from its mean
+    is Rayleigh distributed (the chi distribution with two degrees of freedom):
+    P(r > k sigma) = exp(-k^2 / 2); with k = NOISE_SIGMAS sqrt(2), exp(-9)."""
+    return NOISE_SIGMAS * math.sqrt(2.0) * b.pose_noise
+
+
+def heading_shift(b: Bounds, lookahead: float) -> float:
+    """[m] How far a heading error moves a unicycle's look-ahead point s = b + l e(theta)
+    (thesis eq. 6.2): |l (e(theta + d) - e(theta))| = 2 l sin(|d| / 2) <= l |d|, with
+    |d| <= NOISE_SIGMAS heading_noise. Single integrators (l = 0): 0."""
+    return lookahead * NOISE_SIGMAS * b.heading_noise
+
+
+def travel(b: Bounds, vmax: float) -> float:
+    """[m] How far the true position can be from the one a row acts on, beyond the noise:
+    vmax (latency + motor_lag).
+
+    * latency: a pose ``latency`` seconds old was taken that long before the robot acts; at
+      speed at most vmax it has moved at most vmax latency since (the part the agent carries
+      forward by the measured age, :func:`carried_age`, is still counted: a camera that stamps
+      on publication, as the simulated lab's does, hides the age, and the command it is carried
+      under is not the motion the motor made);
+    * motor_lag: a first-order lag v' = (u - v) / tau trails a command step from v0 to u by
+      (v0 - u) tau of distance in all (the integral of (v0 - u) exp(-t / tau)); the overshoot
+      towards a hazard the row meant to stop at is at most v0 tau <= vmax tau (a command
+      reversing to -vmax stops the motion towards it sooner, not later)."""
+    return vmax * (b.latency + b.motor_lag)
+
+
+def robot_margin(b: Bounds, vmax: float, lookahead: float) -> float:
+    """[m] The distance between a robot's true control point and the one its rows act on, at
+    most: :func:`position_noise` + :func:`heading_shift` + :func:`travel` (the sum of the
+    bounds of the three independent errors, by the triangle inequality). An obstacle's or a
+    shelf's safe distance grows by this much (the map's obstacles are exact)."""
+    return position_noise(b) + heading_shift(b, lookahead) + travel(b, vmax)
+
+
+def pair_margin(b: Bounds, rel_speed: float, lookahead: float) -> float:
+    """[m] Two robots with the same bounds, each measured with its own error, moving at
+    ``rel_speed`` relative to each other: 2 (position_noise + heading_shift) +
+    rel_speed (latency + motor_lag).
+
+    The noise is each end's own (triangle inequality on both ends). Both are seen in the same
+    camera frame, so the latency and the lag shift the pair's distance only by their RELATIVE
+    motion over that time; ``rel_speed`` is |u_i - u_j| of the two last certified velocities
+    (the ones the separation row itself splits its slack by, the same numbers on both robots,
+    so both keep the same distance). Members moving together keep little more than the noise;
+    a pair closing at 2 vmax keeps 2 vmax (latency + motor_lag) more. A change of command
+    within one tick is what the row's own class-K term covers, as in the ideal world. Separation
+    rows, another formation's ellipse (estimated from its members' states, with its velocity)
+    and the all-to-all pairwise rows grow by this much; a formation edge's band narrows by it
+    (at most half of epsilon in all: :mod:`agent.control`)."""
+    return 2.0 * (position_noise(b) + heading_shift(b, lookahead)) \
+        + rel_speed * (b.latency + b.motor_lag)
+
+
+def moving_obstacle_margin(b: Bounds, speed: float) -> float:
+    """[m] What a moving obstacle seen through the same camera adds: its position noise and
+    its travel during the latency, position_noise + speed latency. A static one (speed 0) is
+    the map's: 0."""
+    if speed <= 0.0:
+        return 0.0
+    return position_noise(b) + speed * b.latency
+
+
+def grown_axes(a: float, b: float, margin: float) -> tuple[float, float]:
+    """The semi-axes of an ellipse that contains every point within ``margin`` of the ellipse
+    with semi-axes (a, b): both scaled by (m + margin) / m, m = min(a, b).
+
+    A convex set contains another iff its support function is at least the other's in every
+    direction. The margin's set (the Minkowski sum with a disc) has support h(n) + margin; the
+    ellipse's support h(n) = sqrt(a^2 n_x^2 + b^2 n_y^2) is at least m, so the scaled ellipse's
+    k h(n) = h(n) + (k - 1) h(n) >= h(n) + margin for k = 1 + margin / m. (Adding the margin to
+    both axes falls short where a != b: its support is below h + margin off the axes.)"""
+    if margin <= 0.0:
+        return a, b
+    k = 1.0 + margin / min(a, b)
+    return a * k, b * k
+
+
+def carried_age(age: float, latency: float) -> float:
+    """[s] How far a pose is carried forward: its measured age (the agent's clock minus the
+    pose's stamp) within [0, latency]. A negative age (a clock ahead of the agent's) carries
+    nothing; an age beyond the declared latency is not trusted beyond it."""
+    return min(max(age, 0.0), latency)
