@@ -1,0 +1,79 @@
+"""Route-planning cost (issue 26): the footprint planner (geometry.footprint_plan) for a 6-robot
+line (1.5 m) in a 40 x 30 m hall with 50 shelves (5 columns x 10 rows, 1.8 m aisles, cross
+aisles between the columns), from one aisle to another; prints each plan's time and the median.
+
+    python benchmarks/route_plan.py [--plans N] [--seed S]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import random
+import statistics
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from geometry.footprint_plan import Body, plan_footprint  # noqa: E402
+from geometry.shapes import Shape, box, segment  # noqa: E402
+
+HALL = (40.0, 30.0)
+SHELF = (6.0, 0.8)
+COLUMNS = (5.0, 12.75, 20.5, 28.25, 36.0)  # shelf centres along x (cross aisles ~1.75 m)
+ROWS = tuple(2.5 + 2.6 * k for k in range(10))  # shelf centres along y (aisles 1.8 m)
+DS = 0.15  # [m] a shelf's safe distance (from a robot's centre)
+
+
+def hall() -> list[Shape]:
+    """The shelves and the hall's four walls."""
+    w, h = HALL
+    shapes = [box(f"s{c}-{r}", (x, y), SHELF, 0.0, DS)
+              for c, x in enumerate(COLUMNS) for r, y in enumerate(ROWS)]
+    corners = [(0.0, 0.0), (w, 0.0), (w, h), (0.0, h)]
+    shapes += [segment(f"wall{k}", corners[k], corners[(k + 1) % 4], DS) for k in range(4)]
+    return shapes
+
+
+def line(n: int = 6, spacing: float = 0.3) -> Body:
+    """n robots in a row along x, ``spacing`` apart, centred (no declared load: the hull)."""
+    half = (n - 1) * spacing / 2
+    return Body(tuple((-half + k * spacing, 0.0) for k in range(n)), radius=0.105)
+
+
+def queries(count: int, seed: int) -> list[tuple[tuple[float, float, float], tuple[float, float, float]]]:
+    """Start and goal poses in aisles (lengthwise), in different rows and columns."""
+    rng = random.Random(seed)
+    aisles = [0.5 * (ROWS[k] + ROWS[k + 1]) for k in range(len(ROWS) - 1)]
+    out = []
+    for _ in range(count):
+        a, b = rng.sample(aisles, 2)
+        ca, cb = rng.sample(COLUMNS, 2)
+        out.append(((ca + rng.uniform(-2, 2), a, 0.0), (cb + rng.uniform(-2, 2), b, 0.0)))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--plans", type=int, default=9)
+    parser.add_argument("--seed", type=int, default=1)
+    args = parser.parse_args(argv)
+    shapes, body = hall(), line()
+    times, rows = [], []
+    for start, goal in queries(args.plans, args.seed):
+        t0 = time.perf_counter()
+        plan = plan_footprint(start, goal, body, shapes)
+        dt = time.perf_counter() - t0
+        times.append(dt)
+        rows.append({"start": start, "goal": goal, "s": round(dt, 3), "waypoints": len(plan.route),
+                     "expanded": plan.expanded, "reason": plan.reason})
+        print(json.dumps(rows[-1]))
+    print(json.dumps({"plans": len(times), "median_s": round(statistics.median(times), 3),
+                      "max_s": round(max(times), 3), "no_route": sum(1 for r in rows if r["reason"])}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
