@@ -106,3 +106,10 @@ def predict_state(x: float, y: float, ux: float, uy: float, theta: float, age: f
     bx, by = unicycle.control_point(x, y, theta, -lookahead)  # the body, l behind the point
     bx, by, th = unicycle.integrate(bx, by, theta, v, omega, age)
     return (*unicycle.control_point(bx, by, th, lookahead), th)
+
+
+def with_heading(inputs: StepInputs, heading: float | None) -> StepInputs:
+    """``inputs`` with the current waypoint's heading in the view (None: as they are)."""
+    if heading is None or inputs.view is None:
+        return inputs
+    return inputs._replace(view=inputs.view._replace(goal_heading=heading))
