@@ -26,7 +26,7 @@ from scenario.cargo import load_polygon
 from scenario.extent import world_extent
 from scenario.model import FormationSpec
 from scenario.reader import excerpt
-from scenario.routes import initial_route
+from scenario.routes import start_plan
 from scenario.succession import formation_successor
 from wire.keys import name_problem, validate_prefix
 from wire.rmw_zenoh import RmwSettings
@@ -86,6 +86,8 @@ class AgentConfig:
     solver: str = "exact"  # QP solver (agent.qp.make_solver): exact or a qpsolvers backend
     # the formation centroid's route (waypoints, the goal centroid last); () = the goal alone
     route: tuple[tuple[float, float], ...] = ()
+    # a heading per route point (the goal shape's turn; None: any) or () (issue 26, method rigid)
+    route_headings: tuple[float | None, ...] = ()
     # leader only: every member's goal as the scenario gives it (the goal shape at heading 0)
     member_goals: tuple[tuple[str, float, float], ...] = ()
     planner: bool = True  # the leader plans routes around walls and shelves for new goals
@@ -125,6 +127,7 @@ CONFIG_RANGES: dict[str, limits.Range | tuple[limits.Range, ...]] = {
     "clock_tolerance": limits.CLOCK_TOLERANCE,
     "pose_period": limits.POSE_PERIOD,
     "route": limits.COORDINATE,
+    "route_headings": limits.HEADING,
     "member_goals": limits.COORDINATE,
     "goal_tolerance": limits.GOAL_TOLERANCE,
     "extent": (limits.COORDINATE,) * 4,
@@ -140,6 +143,7 @@ CONFIG_COUNTS = {
     "partners": limits.MAX_FORMATION_ROBOTS - 1,
     "member_goals": limits.MAX_FORMATION_ROBOTS,
     "route": limits.MAX_WAYPOINTS + 1,
+    "route_headings": limits.MAX_WAYPOINTS + 1,
     "members": limits.MAX_FORMATION_ROBOTS,
     "other_formations": limits.MAX_FORMATIONS - 1,
 }
@@ -226,7 +230,8 @@ def build_agent_configs(
     extent = (box.xmin, box.ymin, box.xmax, box.ymax)
     out: dict[str, AgentConfig] = {}
     for f in scenario.formations:
-        route = initial_route(scenario, f)
+        first = start_plan(scenario, f)
+        route = first.route
         shape = reference_shape([control_point(*r.start, off) for r in f.robots])
         leader = LeaderSettings(
             members=f.robot_ids,
@@ -262,6 +267,7 @@ def build_agent_configs(
                 zenoh=zenoh,
                 solver=solver,
                 route=route if len(route) > 1 else (),
+                route_headings=first.headings if len(route) > 1 else (),
                 member_goals=(tuple((m.id, *m.goal) for m in f.robots) if r.id == f.leader
                               else ()),
                 planner=scenario.controller.planner != "none",
@@ -295,6 +301,8 @@ def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
         d.pop("rmw", None)  # the bridge: files stay as they were before the field existed
     if d.get("footprint") is None:
         d.pop("footprint", None)  # method rules or thesis: likewise
+    if not d.get("route_headings"):
+        d.pop("route_headings", None)  # no headings: likewise
     if d["control"]["method"] == "rules":
         del d["control"]["method"]  # the default: likewise
     if d["solver"] == "exact":

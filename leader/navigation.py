@@ -133,6 +133,8 @@ class Navigator:
         self.heading = heading
         self.offsets = turn(self.reference, heading) if heading is not None else dict(self.reference)
         self.route = tuple(route) if route else (self.goal,)
+        self.headings: tuple[float | None, ...] = ()  # one per route point, or none
+        self.replans = 0  # routes to the goal followed planned again (leader.routing)
         self.rejected = 0  # goals refused (inside an obstacle, stale, another formation's)
         self.refusal = ""  # why the last goal was refused (on ``status``, version 2)
         self.unreachable = ""  # why no route reaches the goal ("" while one does): the state
@@ -177,8 +179,11 @@ class Navigator:
         if msg.heading is not None:
             self.heading = msg.heading
             self.offsets = turn(self.reference, msg.heading)
+        self.headings = ()
         if msg.waypoints:
             self.route = tuple(msg.waypoints) + (self.goal,)
+            if msg.headings:
+                self.headings = msg.headings + (msg.heading,)
         elif self.planner and shapes:
             self.route = plan_route(centroid, self.goal, shapes, self.radius)
         else:
@@ -194,7 +199,17 @@ class Navigator:
         gx, gy = self.goal
         members = tuple((m, gx + ox, gy + oy) for m, (ox, oy) in self.offsets.items())
         return PlanMsg(self.formation, self.goal_stamp if math.isfinite(self.goal_stamp) else 0.0,
-                       gx, gy, self.heading, self.route, members, stamp)
+                       gx, gy, self.heading, self.route, members, stamp, self.headings)
+
+    def hold_plan(self, stamp: float, cx: float, cy: float, heading: float | None) -> PlanMsg:
+        """No route: the plan that parks the members where the formation is (the goal shape
+        turned by ``heading``, centred at (cx, cy)); the leader keeps the goal and says why on
+        ``status``."""
+        offsets = turn(self.reference, heading) if heading is not None else self.offsets
+        members = tuple((m, cx + ox, cy + oy) for m, (ox, oy) in offsets.items())
+        return PlanMsg(self.formation, self.goal_stamp if math.isfinite(self.goal_stamp) else 0.0,
+                       cx, cy, heading, ((cx, cy),), members, stamp,
+                       (heading,) if heading is not None else ())
 
     def status(self, follower: Follower, centroid: Point, stalled: bool, stopped: bool,
                stamp: float, refused: int = 0) -> StatusMsg:

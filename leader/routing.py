@@ -110,12 +110,14 @@ class Replanner:
         self._best = math.inf
         self._best_at = 0.0
         self._leg_start = start  # where the route's first leg starts
+        self.due = ""  # a plan asked for (a new goal): the next check says so
 
     def plan(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...], why: str) -> Update:
         """Plan from ``pose`` now around the shapes and ``things``."""
         res: FootprintPlan = plan_footprint(pose, self.goal, self.body, self.shapes,
                                             [c for _n, c in things])
         self.plans += 1
+        self.due = ""
         self.last_plan = t
         self.planned = things
         self._best, self._best_at = math.inf, t
@@ -130,6 +132,10 @@ class Replanner:
               things: tuple[tuple[str, Circle], ...], turn: float = 0.0) -> str | None:
         """Why to plan again now (module docstring), or None; ``turn`` [rad]: what the formation
         has yet to turn to the current waypoint's heading (turning is progress too)."""
+        if self._leg_start is None:
+            self._leg_start = (pose[0], pose[1])
+        if self.due:
+            return self.due
         if self.by_hand or t - self.last_plan < REPLAN_EVERY_S:
             return None
         if changed(things, self.planned):

@@ -239,7 +239,7 @@ def _formation(raw: Any, where: str, robot: RobotModel, seen: dict[str, str]) ->
     ellipse = None if m.get("ellipse") is None else _ellipse_axes(m["ellipse"], f"{where}.ellipse")
     load = () if m.get(LOAD_KEY) is None else parse_load(m[LOAD_KEY], f"{where}.{LOAD_KEY}")
     waypoints = _waypoints(m, where)
-    return FormationSpec(name, leader, specs, edges, ellipse, tuple(w[:2] for w in waypoints), load,
+    return FormationSpec(name, leader, specs, edges, ellipse, tuple((w[0], w[1]) for w in waypoints), load,
                          _waypoint_headings(waypoints, where))
 
 

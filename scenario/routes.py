@@ -102,3 +102,12 @@ def initial_route(scenario: Scenario, formation: FormationSpec) -> tuple[Point, 
     if scenario.controller.planner == "none" or not scenario.shapes:
         return (goal,)
     return plan_route(formation.start_centroid, goal, scenario.shapes, route_radius(formation))
+
+
+def route_problem(scenario: Scenario) -> str | None:
+    """Why a formation's goal has no route at the start (the footprint's plan), or None."""
+    for k, f in enumerate(scenario.formations):
+        why = start_plan(scenario, f).reason
+        if why:
+            return f"formations[{k}] {f.name!r}: no route to its goal: {why}"
+    return None

@@ -786,7 +786,7 @@ def _points(value: object, name: str, limit: int) -> tuple[tuple[float, float], 
 
 def _headings(value: object, n: int, name: str) -> tuple[float | None, ...]:
     """A heading [rad] or None per point of ``name``; all None is stored as none at all."""
-    hs = tuple(value)  # type: ignore[call-overload]
+    hs: tuple[Any, ...] = tuple(value)  # type: ignore[arg-type]
     if not hs or all(h is None for h in hs):
         return ()
     if len(hs) != n:
