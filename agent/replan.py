@@ -19,7 +19,7 @@ from geometry.ellipse import Ellipse, wrap_angle
 from geometry.footprint_plan import PLAN_MARGIN, Body
 from geometry.shapes import Shape
 from leader.navigation import Follower
-from leader.routing import Replanner, StillThings, Thing, Update
+from leader.routing import Replanner, StillThings, Thing, Update, traffic
 from wire.payloads import EllipseMsg, ObstacleMsg
 
 from .body import Footprint, pose_of
@@ -36,6 +36,7 @@ class LeaderRoutes:
         self.replanner = Replanner(self.body, fp.goal_turn, (goal[0], goal[1], fp.goal_turn), (),
                                    start, by_hand)
         self.replanner.last_plan = 0.0
+        self.replanner.due = "" if by_hand else "start"  # the first tick plans (and may find none)
         self.still = StillThings()
         self._first = True
         self._static: set[str] = set()
@@ -64,7 +65,8 @@ class LeaderRoutes:
         r.shapes = tuple(shapes)
         pose = pose_of(own, self.fp.alpha0)
         p3 = (pose.cx, pose.cy, pose.theta)
-        things = self.still.update(stamp, self._things(obstacles, others, own))
+        seen = self._things(obstacles, others, own)
+        things = self.still.update(stamp, seen)
         if self._first:
             r.planned, self._first = things, False
         if self._job is not None:
@@ -74,7 +76,8 @@ class LeaderRoutes:
             return job.result()
         want = follower.heading
         turn = 0.0 if want is None else wrap_angle(pose.theta - self.fp.goal_turn - want)
-        why = r.check(stamp, p3, follower.route, follower.index, things, turn)
+        why = r.check(stamp, p3, follower.route, follower.index, things, turn,
+                      traffic(p3, self.body.rho, seen))
         if why is None:
             return None
         if lockstep:

@@ -2,7 +2,10 @@
 line (1.5 m) in a 40 x 30 m hall with 50 shelves (5 columns x 10 rows, 1.8 m aisles, cross
 aisles between the columns), from one aisle to another; prints each plan's time and the median.
 
-    python benchmarks/route_plan.py [--plans N] [--seed S]
+    python benchmarks/route_plan.py [--plans N] [--seed S] [--ticks]
+
+``--ticks`` also runs a 20 Hz loop (3 ms of Python work a tick) while the same plans run in a
+worker thread, and counts the ticks that ended after their period.
 """
 
 from __future__ import annotations
@@ -13,6 +16,7 @@ import random
 import statistics
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -55,12 +59,40 @@ def queries(count: int, seed: int) -> list[tuple[tuple[float, float, float], tup
     return out
 
 
+def ticks_while_planning(shapes: list[Shape], body: Body, plans: list, period: float = 0.05,
+                         work_s: float = 0.003) -> dict:
+    """A 20 Hz loop (each tick ``work_s`` of Python work, about a member's control step) while
+    the plans run one after another in a worker thread, as a leader's replans do
+    (agent.replan): how late the ticks ended past their deadline."""
+    pool = ThreadPoolExecutor(max_workers=1)
+    jobs = [pool.submit(plan_footprint, a, b, body, shapes) for a, b in plans]
+    late, missed, ticks = [], 0, 0
+    start = time.perf_counter()
+    while not all(j.done() for j in jobs):
+        ticks += 1
+        deadline = start + ticks * period
+        t0 = time.perf_counter()
+        while time.perf_counter() - t0 < work_s:
+            pass
+        over = time.perf_counter() - deadline
+        late.append(max(0.0, over + period))  # how long after its start the tick ended
+        missed += over > 0.0
+        time.sleep(max(0.0, deadline - time.perf_counter()))
+    pool.shutdown()
+    return {"ticks": ticks, "missed": missed, "tick_end_median_ms": round(1e3 * statistics.median(late), 2),
+            "tick_end_max_ms": round(1e3 * max(late), 2)}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--plans", type=int, default=9)
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--ticks", action="store_true",
+                        help="also run a 20 Hz loop while the plans run in a worker thread")
     args = parser.parse_args(argv)
     shapes, body = hall(), line()
+    if args.ticks:
+        print(json.dumps(ticks_while_planning(shapes, body, queries(args.plans, args.seed))))
     times, rows = [], []
     for start, goal in queries(args.plans, args.seed):
         t0 = time.perf_counter()

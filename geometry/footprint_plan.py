@@ -21,6 +21,8 @@ less the robot radius), each with :data:`PLAN_MARGIN` to spare.
   :data:`GREEDY`.
 * Near the start and the goal a pose no worse than the end's own is allowed (a formation may
   start or park closer to a wall than the margin).
+* A straight way to the goal, turning as it goes (as the rigid motion does), that scores
+  everywhere is the route: the goal alone.
 * The lattice path becomes waypoints (x, y, theta): straight runs at one heading, shortcut where
   the straight line between two of its poses scores; every turn in place is a waypoint at the
   old heading and one at the new. The last waypoint is the goal pose itself.
@@ -56,6 +58,7 @@ MOVE_NEED = 1.35  # [h] a straight move's points lie within 0.96 h of a checked 
 FINE_ERROR = 0.36  # [h] a point's distance from the fine-grid point it is read at (h / 2 / sqrt 2)
 _CAP = 1.0  # [m] the fields need no larger value
 _BLOCKED = -1e9
+DIRECT_LEFT = math.radians(20.0)  # as agent.body.TURN_LEFT_BIAS: a turn this near half a turn goes left
 MERGE_TURN = math.radians(80.0)  # turns in place up to this are one waypoint (the short way round)
 COARSE = 4  # the heuristic's grid is this many cells to a side coarser than the lattice
 _INTERIOR = 0.3  # [m] spacing of the load's inside points (a thing smaller than this may hide there)
@@ -505,12 +508,33 @@ def plan_footprint(start: Pose3, goal: Pose3, body: Body, shapes: Sequence[Shape
     s1 = lat.heading(goal[2]) * n + _flat(lat, goal)
     if not move[s1] and not turn[s1]:
         return FootprintPlan((), "the footprint does not fit at the goal")
+    if direct_clear(sr, start, goal):
+        return FootprintPlan((goal,))
     states, expanded = _astar(sr, s0, s1, limit)
     if states is None:
         why = ("no way for the footprint from its start to the goal" if expanded < limit
                else f"no route found in {limit} poses")
         return FootprintPlan((), why, expanded)
     return FootprintPlan(route_of(sr, states, start, goal), "", expanded)
+
+
+def direct_clear(sr: _Search, start: Pose3, goal: Pose3) -> bool:
+    """Whether the footprint may go straight to the goal turning as it goes (the rigid motion
+    does: the short way round, left within DIRECT_LEFT of half a turn): every pose on the way,
+    at most h / 2 and half a heading step apart, at a lattice state that may move and turn."""
+    lat = sr.lat
+    turn = (goal[2] - start[2] + math.pi - DIRECT_LEFT) % (2.0 * math.pi) - math.pi + DIRECT_LEFT
+    dth = 2.0 * math.pi / lat.headings
+    steps = max(1, int(math.ceil(max(2.0 * math.dist(start[:2], goal[:2]) / lat.h,
+                                     2.0 * abs(turn) / dth))))
+    n = lat.nx * lat.ny
+    for k in range(steps + 1):
+        f = k / steps
+        x, y = start[0] + f * (goal[0] - start[0]), start[1] + f * (goal[1] - start[1])
+        s = lat.heading(start[2] + f * turn) * n + _flat(lat, (x, y))
+        if not (sr.move[s] and sr.turn[s]):
+            return False
+    return True
 
 
 def _flat(lat: Lattice, p: Sequence[float]) -> int:

@@ -75,7 +75,10 @@ class Follower:
         self._set(self.goal, self.formation_goal, route, headings)
 
     def hold(self, cx: float, cy: float, heading: float | None) -> None:
-        """Stay parked where the formation is (no route reaches the goal)."""
+        """Stay parked where the formation is (no route reaches the goal); holding already:
+        stay where it holds."""
+        if self.holding:
+            return
         self._set(self.goal, self.formation_goal, ((cx, cy), self.formation_goal),
                   (heading, None) if heading is not None else ())
         self.holding = True

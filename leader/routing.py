@@ -6,7 +6,8 @@ to one goal pose and says each tick whether to plan it again:
 * **off the route**: the centroid is further than the footprint's smaller extent
   (:attr:`geometry.footprint_plan.Body.width`) from the leg it walks;
 * **no progress**: the distance to go along the route has not shrunk by :data:`PROGRESS_M` in
-  :data:`NO_PROGRESS_S` (not on the last :data:`SETTLE_M` to the goal, where it settles);
+  :data:`NO_PROGRESS_S` (not on the last :data:`SETTLE_M` to the goal, where it settles; the
+  clock stops while something moving is near: waiting for traffic is not being stuck);
 * **the things changed**: a round thing planned around moved, went or came
   (:class:`StillThings`: circles that stand still, parked formations).
 
@@ -38,6 +39,7 @@ PROGRESS_M = 0.1  # [m] progress: the distance to go shrinks by this
 SETTLE_M = 0.5  # [m] this near the goal on the last leg the formation settles (no replan)
 REPLAN_EVERY_S = 2.0  # [s] at most one plan this often
 RETRY_S = 5.0  # [s] no route: try again this often
+TRAFFIC_M = 1.0  # [m] a moving thing this near: the formation waits, the progress clock stops
 
 
 class Thing(NamedTuple):
@@ -74,6 +76,13 @@ class StillThings:
         for gone in set(self._since) - seen:
             del self._since[gone]
         return tuple(sorted(out))
+
+
+def traffic(pose: Pose3, rho: float, things: Iterable[Thing]) -> bool:
+    """Whether something moving is within TRAFFIC_M of the footprint's bounding circle: then
+    the formation is waiting or giving way, not stuck (no progress is no reason to replan)."""
+    return any(th.speed >= STILL_SPEED and math.dist(pose[:2], (th.x, th.y)) < rho + th.ds + TRAFFIC_M
+               for th in things)
 
 
 def changed(a: Sequence[tuple[str, Circle]], b: Sequence[tuple[str, Circle]]) -> bool:
@@ -129,9 +138,11 @@ class Replanner:
                       tuple(wrap_angle(th - self.goal_turn) for _x, _y, th in res.route), why)
 
     def check(self, t: float, pose: Pose3, route: Sequence[tuple[float, float]], index: int,
-              things: tuple[tuple[str, Circle], ...], turn: float = 0.0) -> str | None:
+              things: tuple[tuple[str, Circle], ...], turn: float = 0.0, busy: bool = False
+              ) -> str | None:
         """Why to plan again now (module docstring), or None; ``turn`` [rad]: what the formation
-        has yet to turn to the current waypoint's heading (turning is progress too)."""
+        has yet to turn to the current waypoint's heading (turning is progress too); ``busy``:
+        traffic is near (:func:`traffic`: the progress clock stops)."""
         if self._leg_start is None:
             self._leg_start = (pose[0], pose[1])
         if self.due:
@@ -142,6 +153,8 @@ class Replanner:
             return "things changed"
         if self.unreachable:
             return "retry" if t - self.last_plan >= RETRY_S else None
+        if busy:
+            self._best_at = t
         return self._off(pose, route, index) or self._stuck(t, pose, route, index, turn)
 
     def _off(self, pose: Pose3, route: Sequence[tuple[float, float]], index: int) -> str | None:

@@ -12,7 +12,7 @@ from agent.barriers import Obstacle
 from agent.body import Footprint, pose_of
 from geometry.ellipse import Ellipse, wrap_angle
 from leader.navigation import Follower
-from leader.routing import Replanner, StillThings, Thing, Update
+from leader.routing import Replanner, StillThings, Thing, Update, traffic
 from scenario import Scenario
 from scenario.routes import RIGID, StartPlan, footprint_body
 
@@ -56,14 +56,18 @@ class Replans:
             own = ellipses[name]
             fp = self.footprints[self.members[name][0]]
             pose = pose_of(own, fp.alpha0)
-            things = self.still[name].update(t, self._things(name, ellipses, obstacles))
+            seen = self._things(name, ellipses, obstacles)
+            things = self.still[name].update(t, seen)
             if t == 0.0:
                 planner.planned = things
+                if planner.unreachable:  # no route at the start: hold from the first tick
+                    self._hand(Update((), (), "start", planner.unreachable), name, own, followers)
             lead = followers[self.members[name][0]]
             want = lead.heading
             turn = 0.0 if want is None else wrap_angle(pose.theta - fp.goal_turn - want)
-            why = planner.check(t, (pose.cx, pose.cy, pose.theta), lead.route, lead.index, things,
-                                turn)
+            p3 = (pose.cx, pose.cy, pose.theta)
+            why = planner.check(t, p3, lead.route, lead.index, things, turn,
+                                traffic(p3, planner.body.rho, seen))
             if why is None:
                 continue
             upd = planner.plan(t, (pose.cx, pose.cy, pose.theta), things, why)

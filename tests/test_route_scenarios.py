@@ -39,7 +39,7 @@ def test_route_scenarios_meet_the_issue_bar(kind, model):
     if kind == "route-forklift-parks":
         assert "things changed" in whys  # the parked forklift is planned round
     if kind == "route-pushed-off":
-        assert whys & {"off route", "no progress"}
+        assert "off route" in whys
 
 
 @pytest.mark.slow
