@@ -3,26 +3,34 @@ plan again is :class:`leader.routing.Replanner`'s; this part feeds it what the l
 tick and runs the plan off the control tick.
 
 Lock-step: the plan is made in the tick that asks for it (simulated time waits; the run stays
-deterministic). Real time: the plan runs in one worker thread and the tick goes on at once; the
-route is taken at the first tick after it is done. The planner's search is Python and holds the
-GIL, which the interpreter hands over every ``sys.getswitchinterval()`` (5 ms): a tick waits at
-most that long for it (docs/navigation.md gives the figures).
+deterministic). Real time: the plan runs in a worker process (one, started at the first plan,
+``spawn``: nothing of the agent's threads or sessions is copied into it; at the lowest priority,
+:data:`PLAN_NICE`, so on a busy machine the plan waits, not the ticks) and the tick goes on at
+once; the route is taken at the first tick after it is done. A thread would not do: the search
+is Python and holds the GIL, and a 20 Hz tick beside it ended late (docs/navigation.md).
 """
 
 from __future__ import annotations
 
+import logging
 import math
+import os
 from collections.abc import Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor
+from multiprocessing import get_context
 
 from geometry.ellipse import Ellipse, wrap_angle
-from geometry.footprint_plan import PLAN_MARGIN, Body
+from geometry.footprint_plan import PLAN_MARGIN, Body, plan_footprint
 from geometry.shapes import Shape
 from leader.navigation import Follower
 from leader.routing import Replanner, StillThings, Thing, Update, traffic
 from wire.payloads import EllipseMsg, ObstacleMsg
 
 from .body import Footprint, pose_of
+
+logger = logging.getLogger(__name__)
+
+PLAN_NICE = 19  # the worker's niceness: on a busy machine the ticks come first, the plan waits
 
 
 class LeaderRoutes:
@@ -40,8 +48,9 @@ class LeaderRoutes:
         self.still = StillThings()
         self._first = True
         self._static: set[str] = set()
-        self._pool: ThreadPoolExecutor | None = None
+        self._pool: ProcessPoolExecutor | None = None
         self._job: Future | None = None
+        self._why = ""
 
     def heading(self, own: Ellipse) -> float:
         """The formation's heading (the goal shape's turn) from its ellipse."""
@@ -73,7 +82,12 @@ class LeaderRoutes:
             if not self._job.done():
                 return None
             job, self._job = self._job, None
-            return job.result()
+            try:
+                res = job.result()
+            except Exception:  # noqa: BLE001 - a worker that died: keep the route, plan later
+                logger.warning("a route plan failed", exc_info=True)
+                return None
+            return self.replanner.finish(res, self._why)
         want = follower.heading
         turn = 0.0 if want is None else wrap_angle(pose.theta - self.fp.goal_turn - want)
         why = r.check(stamp, p3, follower.route, follower.index, things, turn,
@@ -83,8 +97,10 @@ class LeaderRoutes:
         if lockstep:
             return r.plan(stamp, p3, things, why)
         if self._pool is None:
-            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="replan")
-        self._job = self._pool.submit(r.plan, stamp, p3, things, why)
+            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=get_context("spawn"),
+                                             initializer=os.nice, initargs=(PLAN_NICE,))
+        self._job = self._pool.submit(plan_footprint, *r.begin(stamp, p3, things))
+        self._why = why
         return None
 
     def _things(self, obstacles: Sequence[ObstacleMsg], others: Sequence[EllipseMsg],

@@ -5,22 +5,26 @@ aisles between the columns), from one aisle to another; prints each plan's time 
     python benchmarks/route_plan.py [--plans N] [--seed S] [--ticks]
 
 ``--ticks`` also runs a 20 Hz loop (3 ms of Python work a tick) while the same plans run in a
-worker thread, and counts the ticks that ended after their period.
+worker process (as agent.replan runs them), then in a worker thread, and counts the ticks that
+ended after their period.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import random
 import statistics
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
+from multiprocessing import get_context
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from agent.replan import PLAN_NICE  # noqa: E402
 from geometry.footprint_plan import Body, plan_footprint  # noqa: E402
 from geometry.shapes import Shape, box, segment  # noqa: E402
 
@@ -60,15 +64,25 @@ def queries(count: int, seed: int) -> list[tuple[tuple[float, float, float], tup
 
 
 def ticks_while_planning(shapes: list[Shape], body: Body, plans: list, period: float = 0.05,
-                         work_s: float = 0.003) -> dict:
+                         work_s: float = 0.003, thread: bool = False) -> dict:
     """A 20 Hz loop (each tick ``work_s`` of Python work, about a member's control step) while
-    the plans run one after another in a worker thread, as a leader's replans do
-    (agent.replan): how late the ticks ended past their deadline."""
-    pool = ThreadPoolExecutor(max_workers=1)
+    the plans run one after another in a worker (a ``spawn`` process as a leader's replans do,
+    agent.replan; or a thread): how late the ticks ended past their period."""
+    pool: Executor = (ThreadPoolExecutor(max_workers=1) if thread
+                      else ProcessPoolExecutor(max_workers=1, mp_context=get_context("spawn"),
+                                          initializer=os.nice, initargs=(PLAN_NICE,)))
+    pool.submit(int).result()  # the worker is up (a process imports the planner once)
     jobs = [pool.submit(plan_footprint, a, b, body, shapes) for a, b in plans]
+    out = _tick_loop(lambda k: not all(j.done() for j in jobs), period, work_s)
+    pool.shutdown()
+    return {"worker": "thread" if thread else "process", **out}
+
+
+def _tick_loop(going, period: float, work_s: float) -> dict:
+    """Ticks of ``work_s`` busy work every ``period`` while ``going(tick)``: how late they end."""
     late, missed, ticks = [], 0, 0
     start = time.perf_counter()
-    while not all(j.done() for j in jobs):
+    while going(ticks):
         ticks += 1
         deadline = start + ticks * period
         t0 = time.perf_counter()
@@ -78,8 +92,8 @@ def ticks_while_planning(shapes: list[Shape], body: Body, plans: list, period: f
         late.append(max(0.0, over + period))  # how long after its start the tick ended
         missed += over > 0.0
         time.sleep(max(0.0, deadline - time.perf_counter()))
-    pool.shutdown()
-    return {"ticks": ticks, "missed": missed, "tick_end_median_ms": round(1e3 * statistics.median(late), 2),
+    return {"ticks": ticks, "missed": missed,
+            "tick_end_median_ms": round(1e3 * statistics.median(late), 2),
             "tick_end_max_ms": round(1e3 * max(late), 2)}
 
 
@@ -92,18 +106,25 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     shapes, body = hall(), line()
     if args.ticks:
-        print(json.dumps(ticks_while_planning(shapes, body, queries(args.plans, args.seed))))
-    times, rows = [], []
+        print(json.dumps({"worker": "none (the machine alone)",
+                          **_tick_loop(lambda k: k < 300, 0.05, 0.003)}))
+        for thread in (False, True):
+            print(json.dumps(ticks_while_planning(shapes, body, queries(args.plans, args.seed),
+                                                  thread=thread)))
+    times, cpus, rows = [], [], []
     for start, goal in queries(args.plans, args.seed):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         plan = plan_footprint(start, goal, body, shapes)
-        dt = time.perf_counter() - t0
+        dt, cpu = time.perf_counter() - t0, time.process_time() - c0
         times.append(dt)
-        rows.append({"start": start, "goal": goal, "s": round(dt, 3), "waypoints": len(plan.route),
-                     "expanded": plan.expanded, "reason": plan.reason})
+        cpus.append(cpu)
+        rows.append({"start": start, "goal": goal, "s": round(dt, 3), "cpu_s": round(cpu, 3),
+                     "waypoints": len(plan.route), "expanded": plan.expanded, "reason": plan.reason})
         print(json.dumps(rows[-1]))
     print(json.dumps({"plans": len(times), "median_s": round(statistics.median(times), 3),
-                      "max_s": round(max(times), 3), "no_route": sum(1 for r in rows if r["reason"])}))
+                      "max_s": round(max(times), 3), "median_cpu_s": round(statistics.median(cpus), 3),
+                      "no_route": sum(1 for r in rows if r["reason"]),
+                      "load_average_1min": round(os.getloadavg()[0], 1)}))
     return 0
 
 

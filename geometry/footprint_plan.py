@@ -249,30 +249,34 @@ def _inside(poly: Sequence[Point], x: float, y: float) -> bool:
 
 
 def scores(lat: Lattice, body: Body, big_f: np.ndarray, big_g: np.ndarray, cover: float = 0.0
-           ) -> list[np.ndarray]:
+           ) -> np.ndarray:
     """For each heading, the footprint's score (smallest clearance beyond the margin) on the
-    lattice; the lattice's border is blocked. A load point within ``cover`` of a slot is left
-    out: G >= F + cover there (``cover`` at most the robot radius and every shape's Ds), so the
-    slot's reading bounds it."""
-    samples = [(p, big_f) for p in body.slots]
-    samples += [(p, big_g) for p in load_samples(load_outline(body), lat.h)
+    lattice (an array K x nx x ny); the lattice's border is blocked. A load point within
+    ``cover`` of a slot is left out: G >= F + cover there (``cover`` at most the robot radius
+    and every shape's Ds), so the slot's reading bounds it."""
+    samples = [(p, 0) for p in body.slots]
+    samples += [(p, 1) for p in load_samples(load_outline(body), lat.h)
                 if all(math.dist(p, q) > cover for q in body.slots)]
     f = lat.h / 2.0
     reach = int(math.ceil(body.rho / f)) + 2
-    padded = {id(a): np.pad(a, reach, constant_values=_BLOCKED) for a in (big_f, big_g)}
-    out = []
+    # each field padded, then split by the parity of its fine indices: a lattice-strided read
+    # of the fine grid is a plain slice of one part
+    parts = []
+    for a in (big_f, big_g):
+        pad = np.pad(a, reach, constant_values=_BLOCKED)
+        parts.append({(pi, pj): np.ascontiguousarray(pad[pi::2, pj::2]) for pi in (0, 1) for pj in (0, 1)})
+    out = np.full((lat.headings, lat.nx, lat.ny), _CAP, dtype=np.float32)
     for k in range(lat.headings):
         th = lat.theta(k)
         c, s = math.cos(th), math.sin(th)
-        score = np.full((lat.nx, lat.ny), _CAP, dtype=np.float32)
-        for (px, py), arr in samples:
+        score = out[k]
+        for (px, py), which in samples:
             di = reach + round((c * px - s * py) / f)
             dj = reach + round((s * px + c * py) / f)
-            part = padded[id(arr)][di:di + 2 * lat.nx - 1:2, dj:dj + 2 * lat.ny - 1:2]
-            np.minimum(score, part, out=score)
-        score -= body.margin
-        score[0, :] = score[-1, :] = score[:, 0] = score[:, -1] = _BLOCKED
-        out.append(score)
+            sub = parts[which][(di % 2, dj % 2)]
+            np.minimum(score, sub[di // 2:di // 2 + lat.nx, dj // 2:dj // 2 + lat.ny], out=score)
+    out -= body.margin
+    out[:, 0, :] = out[:, -1, :] = out[:, :, 0] = out[:, :, -1] = _BLOCKED
     return out
 
 
@@ -284,16 +288,16 @@ class _Search(NamedTuple):
     move: bytearray  # per state k * N + i * ny + j: may move to a neighbouring cell
     turn: bytearray  # may turn one heading step
     turn_cost: float  # [m] the outermost point's arc for one heading step
-    to_goal: list[float]  # per cell: the coarse grid's distance to the goal (the heuristic)
+    to_goal: list[float]  # per coarse cell: its distance to the goal (coarse_distance)
+    coarse_ny: int  # the coarse grid's row length
 
 
-def coarse_distance(lat: Lattice, move: bytearray, goal: Point) -> list[float]:
-    """Per lattice cell: the length of the shortest 8-connected path to the goal over a grid
-    COARSE times coarser whose cell is open where any of its cells may move at any heading,
-    less the coarse cells' diagonal twice (so it underestimates the lattice's path); inf where
-    the goal cannot be reached at all."""
-    n = lat.nx * lat.ny
-    free = np.frombuffer(bytes(move), dtype=np.uint8).reshape(lat.headings, lat.nx, lat.ny).any(axis=0)
+def coarse_distance(lat: Lattice, move: bytearray, goal: Point) -> tuple[list[float], int]:
+    """The heuristic: per cell of a grid COARSE times coarser than the lattice (row-major, the
+    second number its row length), open where any of its cells may move at any heading, the
+    length of the shortest 8-connected path to the goal's cell less the coarse cells' diagonal
+    twice (so it underestimates the lattice's path); inf where the goal cannot be reached."""
+    free = np.frombuffer(move, dtype=bool).reshape(lat.headings, lat.nx, lat.ny).any(axis=0)
     cx, cy = -(-lat.nx // COARSE), -(-lat.ny // COARSE)
     grid = np.zeros((cx * COARSE, cy * COARSE), dtype=bool)
     grid[:lat.nx, :lat.ny] = free
@@ -301,12 +305,7 @@ def coarse_distance(lat: Lattice, move: bytearray, goal: Point) -> list[float]:
     gi, gj = lat.cell(*goal)
     dist = _dijkstra(opened, cx, cy, (gi // COARSE) * cy + gj // COARSE, COARSE * lat.h)
     slack = 2.0 * math.sqrt(2.0) * COARSE * lat.h
-    per = np.array([d - slack if d < math.inf else math.inf for d in dist]).reshape(cx, cy)
-    per = np.maximum(per, 0.0)
-    cells = np.repeat(np.repeat(per, COARSE, axis=0), COARSE, axis=1)[:lat.nx, :lat.ny]
-    out = cells.ravel().tolist()
-    assert len(out) == n
-    return out
+    return [max(0.0, d - slack) for d in dist], cy
 
 
 def _dijkstra(opened: list[bool], cx: int, cy: int, goal: int, step: float) -> list[float]:
@@ -330,23 +329,23 @@ def _dijkstra(opened: list[bool], cx: int, cy: int, goal: int, step: float) -> l
     return dist
 
 
-def _allowed(lat: Lattice, sc: list[np.ndarray], ends: Sequence[Pose3], rho: float,
+def _allowed(lat: Lattice, sc: np.ndarray, ends: Sequence[Pose3], rho: float,
              need_move: float, need_turn: float) -> tuple[bytearray, bytearray]:
     """The move and turn flags of every state (module docstring), relaxed around the ends."""
-    floor = np.zeros((lat.nx, lat.ny))
+    floor = np.zeros((lat.nx, lat.ny), dtype=np.float32)
     xs = lat.x0 + lat.h * np.arange(lat.nx)
     ys = lat.y0 + lat.h * np.arange(lat.ny)
     need = max(need_move, need_turn)
     for x, y, th in ends:
         i, j = lat.cell(x, y)
-        own = float(sc[lat.heading(th)][i, j])
+        own = float(sc[lat.heading(th), i, j])
         if own >= need:
             continue
         near = np.hypot(xs[:, None] - x, ys[None, :] - y) <= rho + END_RADIUS
-        floor = np.where(near, np.minimum(floor, own - need - 1e-6), floor)
-    move = np.concatenate([(s >= floor + need_move).ravel() for s in sc])
-    turn = np.concatenate([(s >= floor + need_turn).ravel() for s in sc])
-    return bytearray(move.astype(np.uint8).tobytes()), bytearray(turn.astype(np.uint8).tobytes())
+        floor = np.where(near, np.minimum(floor, own - need - 1e-6), floor).astype(np.float32)
+    move = sc >= (floor + np.float32(need_move))[None, :, :]
+    turn = sc >= (floor + np.float32(need_turn))[None, :, :]
+    return bytearray(move.tobytes()), bytearray(turn.tobytes())
 
 
 def _astar(sr: _Search, start: int, goal: int, limit: int) -> tuple[list[int] | None, int]:
@@ -359,15 +358,15 @@ def _astar(sr: _Search, start: int, goal: int, limit: int) -> tuple[list[int] | 
     steps = [(-ny, lat.h), (ny, lat.h), (-1, lat.h), (1, lat.h),
              (-ny - 1, d2), (-ny + 1, d2), (ny - 1, d2), (ny + 1, d2)]
 
-    to_goal = sr.to_goal
+    to_goal, cny = sr.to_goal, sr.coarse_ny
 
     def heur(s: int) -> float:
-        cell = s % n
-        i, j = divmod(cell, ny)
+        i, j = divmod(s % n, ny)
         a, b = abs(i - gx), abs(j - gy)
         dk = abs(s // n - gk)
         octile = lat.h * (max(a, b) + 0.41421356 * min(a, b))
-        return GREEDY * (max(octile, to_goal[cell]) + sr.turn_cost * min(dk, kk - dk))
+        return GREEDY * (max(octile, to_goal[(i // COARSE) * cny + j // COARSE])
+                         + sr.turn_cost * min(dk, kk - dk))
 
     best = {start: 0.0}
     parent: dict[int, int] = {}
@@ -382,10 +381,13 @@ def _astar(sr: _Search, start: int, goal: int, limit: int) -> tuple[list[int] | 
         expanded += 1
         for t, cost in _next(sr, s, n, kk, steps):
             ng = g + cost
-            if ng < best.get(t, math.inf) and to_goal[t % n] < math.inf:
+            if ng < best.get(t, math.inf):
+                est = heur(t)
+                if est == math.inf:  # the goal cannot be reached from t at all
+                    continue
                 best[t] = ng
                 parent[t] = s
-                heapq.heappush(heap, (ng + heur(t), ng, t))
+                heapq.heappush(heap, (ng + est, ng, t))
     return None, expanded
 
 
@@ -502,7 +504,7 @@ def plan_footprint(start: Pose3, goal: Pose3, body: Body, shapes: Sequence[Shape
     sc = scores(lat, body, big_f, big_g, cover)
     dth = 2.0 * math.pi / headings
     move, turn = _allowed(lat, sc, (start, goal), rho, MOVE_NEED * h, 0.5 * rho * dth + FINE_ERROR * h)
-    sr = _Search(lat, move, turn, rho * dth, coarse_distance(lat, move, goal[:2]))
+    sr = _Search(lat, move, turn, rho * dth, *coarse_distance(lat, move, goal[:2]))
     n = lat.nx * lat.ny
     s0 = lat.heading(start[2]) * n + _flat(lat, start)
     s1 = lat.heading(goal[2]) * n + _flat(lat, goal)

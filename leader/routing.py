@@ -92,6 +92,17 @@ def changed(a: Sequence[tuple[str, Circle]], b: Sequence[tuple[str, Circle]]) ->
     return any(math.dist(ca[:2], cb[:2]) > MOVED_M for (_n, ca), (_m, cb) in zip(a, b, strict=True))
 
 
+class PlanJob(NamedTuple):
+    """The arguments of one :func:`geometry.footprint_plan.plan_footprint` call (picklable: a
+    worker process may run it)."""
+
+    start: Pose3
+    goal: Pose3
+    body: Body
+    shapes: tuple[Shape, ...]
+    circles: tuple[Circle, ...]
+
+
 class Update(NamedTuple):
     """A new route for the formation (the goal last), or an order to hold (``route`` empty)."""
 
@@ -123,14 +134,21 @@ class Replanner:
 
     def plan(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...], why: str) -> Update:
         """Plan from ``pose`` now around the shapes and ``things``."""
-        res: FootprintPlan = plan_footprint(pose, self.goal, self.body, self.shapes,
-                                            [c for _n, c in things])
+        return self.finish(plan_footprint(*self.begin(t, pose, things)), why)
+
+    def begin(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...]) -> PlanJob:
+        """Start a plan from ``pose`` at ``t``: the arguments of
+        :func:`geometry.footprint_plan.plan_footprint` (run it anywhere, then :meth:`finish`)."""
         self.plans += 1
         self.due = ""
         self.last_plan = t
         self.planned = things
         self._best, self._best_at = math.inf, t
         self._leg_start = (pose[0], pose[1])
+        return PlanJob(pose, self.goal, self.body, self.shapes, tuple(c for _n, c in things))
+
+    def finish(self, res: FootprintPlan, why: str) -> Update:
+        """The route (or the order to hold) from a plan :meth:`begin` started."""
         self.unreachable = res.reason
         if res.reason:
             return Update((), (), why, res.reason)
