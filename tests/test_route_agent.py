@@ -18,6 +18,7 @@ from formation.cli import main
 from geometry.ellipse import Ellipse, reference_shape
 from scenario import load_scenario
 from scenario.reader import ScenarioError
+from viewer.record import route_logs
 from wire.payloads import GoalMsg, PlanMsg, decode_goal, decode_plan, encode_nav
 from wire.shapes import shape_to_msg
 
@@ -94,3 +95,12 @@ def test_formation_check_refuses_a_goal_with_no_route_in_one_line(capsys):
     assert main(["check", str(SCENARIOS / "route-closed-room.yaml")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no route to its goal" in err[0]
+
+
+def test_the_recording_logs_each_route_planned_again():
+    logs = route_logs({"replans": [{"t": 13.0, "formation": "R", "why": "things changed", "waypoints": 7},
+                                   {"t": 5.0, "formation": "S", "why": "retry", "waypoints": 0}],
+                       "unreachable": {"S": "no way for the footprint"}})
+    assert logs[0] == (13.0, "info", "routes", "formation R plans again (things changed): 7 waypoints")
+    assert logs[1][1] == "warning" and "no way for the footprint" in logs[1][3]
+    assert route_logs({}) == []
