@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 
 from geometry.footprint_plan import Body, load_outline, plan_footprint
 from geometry.shapes import box, segment, shape_distance
+from leader.navigation import Follower
 from leader.routing import Replanner, StillThings, Thing
 
 LINE = Body(tuple((-0.6 + 0.3 * k, 0.0) for k in range(5)), radius=0.1, margin=0.0)
@@ -111,3 +112,14 @@ def test_the_replanner_plans_again_off_route_and_without_progress_but_not_by_han
     assert r.check(3.0, (-4.0, 0.0, 0.0), route, 0, (("obstacle/f", (0.0, 0.0, 0.5)),)) == "things changed"
     by_hand = Replanner(LINE, 0.0, (5.0, 0.0, 0.0), [], start=(-5.0, 0.0), by_hand=True)
     assert by_hand.check(9.0, (-4.0, 3.0, 0.0), route, 0, ()) is None
+
+
+def test_a_member_passes_a_waypoint_with_a_heading_only_once_the_formation_has_turned():
+    f = Follower("a", (5.5, 0.0), (5.0, 0.0), ((0.0, 0.0), (5.0, 0.0)), (1.0, None))
+    f.step(0.0, 0.05, heading=0.2)  # at the point, not turned yet: stays on it
+    assert f.index == 0 and f.heading == 1.0
+    f.step(0.0, 0.05, heading=0.9)
+    assert f.index == 1 and f.heading is None
+    g = Follower("a", (5.5, 0.0), (5.0, 0.0), ((0.0, 0.0), (5.0, 0.0)))
+    g.step(0.0, 0.05, heading=0.2)  # no headings: passed on position alone, as before
+    assert g.index == 1
