@@ -63,7 +63,6 @@ class LeaderRoutes:
         shapes = self.replanner.shapes
         self.replanner = Replanner(self.body, self.fp.goal_turn, (goal[0], goal[1], turn), shapes,
                                    start, by_hand)
-        self.replanner.planned = self.still.update(-math.inf, ())  # nothing planned round yet
         self.replanner.due = "" if by_hand else "new goal"
 
     def tick(self, stamp: float, lockstep: bool, own: Ellipse, follower: Follower,

@@ -85,8 +85,9 @@ class Follower:
 
     def adopt(self, plan: PlanMsg) -> bool:
         """Follow ``plan`` if it is newer than the goal followed now and names this member, or
-        is a newer route to that goal (a replan: same goal stamp, newer stamp, another route)."""
-        replan = (plan.goal_stamp == self.goal_stamp and plan.stamp > self.plan_stamp
+        is a newer route to that goal (a replan: same goal stamp, a stamp no older, another
+        route: a leader that takes a goal and plans its footprint's route in one tick puts both)."""
+        replan = (plan.goal_stamp == self.goal_stamp and plan.stamp >= self.plan_stamp
                   and (plan.route, plan.headings) != (self.route, self.headings))
         if not (plan.goal_stamp > self.goal_stamp or replan):
             return False

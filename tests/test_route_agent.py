@@ -104,3 +104,19 @@ def test_the_recording_logs_each_route_planned_again():
     assert logs[0] == (13.0, "info", "routes", "formation R plans again (things changed): 7 waypoints")
     assert logs[1][1] == "warning" and "no way for the footprint" in logs[1][3]
     assert route_logs({}) == []
+
+
+def test_a_new_goal_for_a_rigid_formation_gets_the_footprints_route_in_the_same_tick():
+    nav, _cfgs, (cx, cy) = _leader_tick("route-line-aisle", "l1")
+    sent: list[PlanMsg] = []
+    nav._put_plan = lambda plan, stamp: sent.append(plan)  # type: ignore[method-assign]
+    nav._goal = GoalMsg("L", 5.0, 0.0, None, (), 10.0)  # as _on_goal leaves it
+    own = Ellipse(cx, cy, reference_shape([(cx, cy - 0.75), (cx, cy + 0.75)]).alpha0, 0.9, 0.2)
+    nav.step(10.0, True, cx, cy, own, ((), ()))
+    assert nav.goals == 1 and nav.navigator is not None
+    assert nav.follower.headings and nav.follower.route[-1] == (5.0, 0.0)
+    assert sent[-1].headings == nav.follower.headings and sent[-1].stamp == sent[0].stamp
+    member = NavPart(_cfgs["l2"], leader=False)
+    for plan in sent:  # both plans of the tick, in order: the member ends on the footprint's
+        member.follower.adopt(plan)
+    assert member.follower.route == nav.follower.route
