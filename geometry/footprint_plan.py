@@ -14,9 +14,10 @@ less the robot radius), each with :data:`PLAN_MARGIN` to spare.
   G - margin at points spaced along (and inside) the load's outline, each read at the fine-grid
   point nearest it (error at most h / (2 sqrt 2)). One array per heading: K headings x the
   lattice, by array slices.
-* A* over (cell, heading): the 8 neighbouring cells at one heading (a pose may move if it scores
-  at least h, so every point between two cells keeps the margin), or one heading step in place
-  (at least rho dtheta / 2, rho the largest radius of the footprint). Cost: the distance moved,
+* A* over (cell, heading) (cells of 0.05 m in a scene up to 250 m^2, else 0.1 m): the 8
+  neighbouring cells at one heading (a pose may move if it scores at least MOVE_NEED h, so every
+  point between two cells, and on a shortcut, keeps the margin), or one heading step in place
+  (at least rho dtheta / 2 + FINE_ERROR h, rho the largest radius of the footprint). Cost: the distance moved,
   and the outermost point's arc for a turn; heuristic: the octile distance and that arc, times
   :data:`GREEDY`.
 * Near the start and the goal a pose no worse than the end's own is allowed (a formation may
@@ -25,7 +26,8 @@ less the robot radius), each with :data:`PLAN_MARGIN` to spare.
   everywhere is the route: the goal alone.
 * The lattice path becomes waypoints (x, y, theta): straight runs at one heading, shortcut where
   the straight line between two of its poses scores; every turn in place is a waypoint at the
-  old heading and one at the new. The last waypoint is the goal pose itself.
+  old heading and one at the new. Then waypoints that a straight move turning as it goes (as
+  the rigid motion does) joins are left out. The last waypoint is the goal pose itself.
 
 theta is the rotation of the footprint from its start frame (:class:`agent.body.Pose`). No
 route: :class:`FootprintPlan` with ``route`` empty and the reason.
@@ -49,6 +51,8 @@ Circle = tuple[float, float, float]  # (x, y, Ds [m]) a round thing, Ds from a r
 
 PLAN_MARGIN = 0.05  # [m] the footprint's clearance beyond Ds (members) and outlines (load)
 SPACING = 0.1  # [m] the lattice's cell
+FINE_SPACING = 0.05  # [m] the lattice's cell in a small scene
+FINE_CELLS = 100_000  # a scene of at most this many fine cells (250 m^2) is planned on them
 HEADINGS = 32  # headings on the lattice (every 11.25 degrees)
 GREEDY = 1.5  # the heuristic's weight (>1: fewer poses expanded, a route at most this much longer)
 END_RADIUS = 0.5  # [m] beyond the footprint's radius: around the start and the goal, no worse than they are
@@ -481,7 +485,21 @@ def route_of(sr: _Search, states: Sequence[int], start: Pose3, goal: Pose3) -> t
         pts.pop(0)
     while pts and math.dist(pts[-1][:2], goal[:2]) < lat.h and _same(pts[-1][2], goal[2], lat):
         pts.pop()
-    return tuple(pts) + (goal,)
+    return _smooth(sr, [start, *pts, goal])
+
+
+def _smooth(sr: _Search, pts: list[Pose3]) -> tuple[Pose3, ...]:
+    """The waypoints after the first that a straight move turning as it goes joins (greedy:
+    the farthest :func:`direct_clear` one each time); the last is kept."""
+    out: list[Pose3] = []
+    a = 0
+    while a < len(pts) - 1:
+        b = len(pts) - 1
+        while b > a + 1 and not direct_clear(sr, pts[a], pts[b]):
+            b -= 1
+        out.append(pts[b])
+        a = b
+    return tuple(out)
 
 
 def _wrap(a: float) -> float:
@@ -493,12 +511,16 @@ def _same(a: float, b: float, lat: Lattice) -> bool:
 
 
 def plan_footprint(start: Pose3, goal: Pose3, body: Body, shapes: Sequence[Shape] = (),
-                   circles: Sequence[Circle] = (), h: float = SPACING, headings: int = HEADINGS,
+                   circles: Sequence[Circle] = (), h: float | None = None, headings: int = HEADINGS,
                    limit: int = MAX_EXPANSIONS) -> FootprintPlan:
     """The footprint's route from pose ``start`` to pose ``goal`` around ``shapes`` and
-    ``circles`` (module docstring)."""
+    ``circles`` (module docstring); cells of ``h`` [m], by default FINE_SPACING where the area
+    holds at most FINE_CELLS of them (a small scene: narrow slots), else SPACING."""
     rho = body.rho
-    lat = lattice_for(start, goal, shapes, circles, rho, h, headings)
+    lat = lattice_for(start, goal, shapes, circles, rho, h or FINE_SPACING, headings)
+    if h is None and lat.nx * lat.ny > FINE_CELLS:
+        lat = lattice_for(start, goal, shapes, circles, rho, SPACING, headings)
+    h = lat.h
     big_f, big_g = fields(lat, shapes, circles, body.radius)
     cover = min([body.radius] + [sh.ds for sh in shapes])
     sc = scores(lat, body, big_f, big_g, cover)

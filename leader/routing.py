@@ -30,6 +30,7 @@ from typing import NamedTuple
 from geometry.ellipse import wrap_angle
 from geometry.footprint_plan import Body, Circle, FootprintPlan, Pose3, plan_footprint
 from geometry.shapes import Shape, segment_distance
+from wire.payloads import MAX_WAYPOINTS as MAX_ROUTE  # the most route points a plan holds
 
 STILL_S = 3.0  # [s] a round thing still this long is planned around (a parked forklift)
 STILL_SPEED = 0.01  # [m/s] slower than this is still
@@ -152,8 +153,11 @@ class Replanner:
         self.unreachable = res.reason
         if res.reason:
             return Update((), (), why, res.reason)
-        return Update(tuple((x, y) for x, y, _th in res.route),
-                      tuple(wrap_angle(th - self.goal_turn) for _x, _y, th in res.route), why)
+        route = res.route
+        if len(route) > MAX_ROUTE:  # a plan holds no more: the first ones and the goal; the
+            route = route[:MAX_ROUTE - 1] + route[-1:]  # rest is planned again from there
+        return Update(tuple((x, y) for x, y, _th in route),
+                      tuple(wrap_angle(th - self.goal_turn) for _x, _y, th in route), why)
 
     def check(self, t: float, pose: Pose3, route: Sequence[tuple[float, float]], index: int,
               things: tuple[tuple[str, Circle], ...], turn: float = 0.0, busy: bool = False

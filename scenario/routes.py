@@ -17,6 +17,7 @@ from geometry.footprint_plan import PLAN_MARGIN, Body, Circle, plan_footprint
 from geometry.route import Point, formation_radius, plan_route
 
 from .cargo import load_polygon
+from .limits import MAX_WAYPOINTS
 from .model import FormationSpec, Scenario
 
 RIGID = "rigid"
@@ -77,8 +78,11 @@ def start_plan(scenario: Scenario, formation: FormationSpec) -> StartPlan:
                           static_circles(scenario))
     if plan.reason:
         return StartPlan((formation.goal_centroid,), (), plan.reason)
-    return StartPlan(tuple((x, y) for x, y, _th in plan.route),
-                     tuple(wrap_angle(th - turn) for _x, _y, th in plan.route))
+    route = plan.route
+    if len(route) > MAX_WAYPOINTS + 1:  # a plan holds no more: the leader plans the rest later
+        route = route[:MAX_WAYPOINTS] + route[-1:]
+    return StartPlan(tuple((x, y) for x, y, _th in route),
+                     tuple(wrap_angle(th - turn) for _x, _y, th in route))
 
 
 def goal_offsets(formation: FormationSpec) -> tuple[Point, ...]:

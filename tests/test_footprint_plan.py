@@ -24,11 +24,12 @@ def _placed(pose, p):
 
 
 def _legs(start, route, step=0.02):
-    """Poses along the route: straight at the leg's heading, or a turn in place (the short way)."""
+    """Poses along the route: each leg a straight move turning as it goes (the short way)."""
     prev = start
     for nxt in route:
         d = math.dist(prev[:2], nxt[:2])
-        turn = math.remainder(nxt[2] - prev[2], 2.0 * math.pi)
+        left = math.radians(20.0)  # the rigid motion's rule: near half a turn it goes left
+        turn = (nxt[2] - prev[2] + math.pi - left) % (2.0 * math.pi) - math.pi + left
         n = max(1, int(d / step), int(abs(turn) * 0.8 / step))
         for k in range(n + 1):
             f = k / n

@@ -1,8 +1,8 @@
 """Issue 26's bar on its own scenarios (tests/scenarios/route-*.yaml), in process, both robot
 models: every goal reached, 0 collisions (loads counted), formation error <= 1.5 epsilon; and
-each kind does what it is there for: a line and a triangle turn to fit an aisle or a slot, a
-pushed formation and one whose aisle a forklift parks in are planned again, a goal in a closed
-room is unreachable and the formation stays parked."""
+each kind does what it is there for: a line, a triangle and a pentagon turn to fit an aisle or
+a slot, a pushed formation and one whose aisle a forklift parks in are planned again, a goal in
+a closed room is unreachable and the formation stays parked."""
 
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ from scenario import load_scenario
 from simulator.inprocess import SimOptions, simulate
 
 SCENARIOS = Path(__file__).parent / "scenarios"
-KINDS = ["route-line-aisle", "route-triangle-slot", "route-door-two-way", "route-pushed-off",
-         "route-round-shelves", "route-forklift-parks"]
+KINDS = ["route-line-aisle", "route-triangle-slot", "route-pentagon-slot", "route-door-two-way",
+         "route-pushed-off", "route-round-shelves", "route-forklift-parks"]
 MODELS = ["", "-unicycle"]
 
 
@@ -44,9 +44,10 @@ def test_route_scenarios_meet_the_issue_bar(kind, model):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("model", MODELS)
-def test_the_line_turns_to_pass_the_aisle_and_back(model):
-    """Crosswise it does not fit the aisle: its route turns it by more than 30 degrees there."""
-    res, _s = _run("route-line-aisle" + model, record=True)
+@pytest.mark.parametrize("kind", ["route-line-aisle", "route-triangle-slot", "route-pentagon-slot"])
+def test_a_long_formation_turns_to_pass_and_back(kind, model):
+    """Crosswise it does not fit the aisle or slot: its route turns it by more than 30 degrees."""
+    res, _s = _run(kind + model, record=True)
     angles = [e[4] for e in res.series.ellipses]  # (t, name, cx, cy, alpha, ...)
     start = angles[0]
     turned = max(abs(math.remainder(a - start, math.pi)) for a in angles)
