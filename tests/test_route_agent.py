@@ -15,6 +15,7 @@ import pytest
 from agent.config import build_agent_configs
 from agent.navigation import NavPart
 from formation.cli import main
+from formation.commands.goal import parse_via
 from geometry.ellipse import Ellipse, reference_shape
 from scenario import load_scenario
 from scenario.reader import ScenarioError
@@ -120,3 +121,10 @@ def test_a_new_goal_for_a_rigid_formation_gets_the_footprints_route_in_the_same_
     for plan in sent:  # both plans of the tick, in order: the member ends on the footprint's
         member.follower.adopt(plan)
     assert member.follower.route == nav.follower.route
+
+
+def test_via_takes_an_optional_heading_and_names_a_bad_one():
+    assert parse_via("1,2,0.5") == ((1.0, 2.0), 0.5) and parse_via("1,2") == ((1.0, 2.0), None)
+    for bad in ("1", "1,2,3,4", "1,x", "1,2,nan"):
+        with pytest.raises(ValueError, match="--via"):
+            parse_via(bad)
