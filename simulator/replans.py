@@ -29,7 +29,8 @@ class Replans:
         self.still: dict[str, StillThings] = {}
         self.updates: list[tuple[float, str, str, int]] = []  # (t, formation, why, waypoints)
         ctl = scenario.controller
-        if ctl.method != RIGID or ctl.planner == "none":
+        self.rigid = ctl.method == RIGID
+        if not self.rigid or ctl.planner == "none":
             return
         for f in scenario.formations:
             if f.waypoints:
@@ -43,8 +44,9 @@ class Replans:
             self.still[f.name] = StillThings()
 
     def heading(self, name: str, own: Ellipse) -> float | None:
-        """The formation's heading (the goal shape's turn) from its ellipse, when it is planned."""
-        if name not in self.planners:
+        """The formation's heading (the goal shape's turn) from its ellipse, under method rigid
+        (hand-given waypoints may carry headings too)."""
+        if not self.rigid:
             return None
         fp = self.footprints[self.members[name][0]]
         return wrap_angle(pose_of(own, fp.alpha0).theta - fp.goal_turn)
