@@ -88,6 +88,7 @@ class AgentConfig:
     route: tuple[tuple[float, float], ...] = ()
     # a heading per route point (the goal shape's turn; None: any) or () (issue 26, method rigid)
     route_headings: tuple[float | None, ...] = ()
+    route_by_hand: bool = False  # the route is the scenario's waypoints: never planned again
     # leader only: every member's goal as the scenario gives it (the goal shape at heading 0)
     member_goals: tuple[tuple[str, float, float], ...] = ()
     planner: bool = True  # the leader plans routes around walls and shelves for new goals
@@ -268,6 +269,7 @@ def build_agent_configs(
                 solver=solver,
                 route=route if len(route) > 1 else (),
                 route_headings=first.headings if len(route) > 1 else (),
+                route_by_hand=bool(f.waypoints),
                 member_goals=(tuple((m.id, *m.goal) for m in f.robots) if r.id == f.leader
                               else ()),
                 planner=scenario.controller.planner != "none",
@@ -303,6 +305,8 @@ def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
         d.pop("footprint", None)  # method rules or thesis: likewise
     if not d.get("route_headings"):
         d.pop("route_headings", None)  # no headings: likewise
+    if not d.get("route_by_hand"):
+        d.pop("route_by_hand", None)  # planned (or no route): likewise
     if d["control"]["method"] == "rules":
         del d["control"]["method"]  # the default: likewise
     if d["solver"] == "exact":

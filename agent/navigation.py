@@ -62,13 +62,12 @@ GOAL_MAX_AGE_S = 5.0  # [s] real time: an older goal is refused (the goal comman
 
 def leader_routes(cfg: AgentConfig) -> LeaderRoutes | None:
     """Method rigid with the planner on: the leader's footprint replanning (agent.replan); a
-    route given by hand (no headings from the plan) is never planned again."""
+    route given by hand (the scenario's waypoints) is never planned again."""
     fp = cfg.footprint
     if fp is None or not cfg.planner:
         return None
-    by_hand = bool(cfg.route) and not cfg.route_headings
     return LeaderRoutes(fp, cfg.radius, cfg.control.epsilon + cfg.control.offset, cfg.formation_goal,
-                        None, by_hand)
+                        None, cfg.route_by_hand)
 
 
 def config_extent(cfg: AgentConfig) -> Extent:

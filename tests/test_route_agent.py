@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from agent.config import build_agent_configs
+from agent.config import build_agent_configs, config_to_dict, load_config, save_config
 from agent.navigation import NavPart
 from formation.cli import main
 from formation.commands.goal import parse_via
@@ -128,3 +128,18 @@ def test_via_takes_an_optional_heading_and_names_a_bad_one():
     for bad in ("1", "1,2,3,4", "1,x", "1,2,nan"):
         with pytest.raises(ValueError, match="--via"):
             parse_via(bad)
+
+
+def test_a_route_given_by_hand_is_never_planned_again_and_survives_the_config_file(tmp_path):
+    src = (SCENARIOS / "route-forklift-parks.yaml").read_text()
+    p = tmp_path / "wp.yaml"
+    p.write_text(src.replace("    edges:", "    waypoints: [[0.0, 3.0, 0.5]]\n    edges:", 1))
+    cfgs = build_agent_configs(load_scenario(p))
+    cfg = cfgs["r1"]
+    assert cfg.route_by_hand and cfg.route_headings == (0.5, None)
+    save_config(cfg, tmp_path / "r1")
+    assert load_config(tmp_path / "r1") == cfg
+    nav = NavPart(cfg, leader=True)
+    assert nav.routes is not None and nav.routes.replanner.by_hand
+    planned = build_agent_configs(load_scenario(SCENARIOS / "route-forklift-parks.yaml"))["r1"]
+    assert not planned.route_by_hand and "route_by_hand" not in config_to_dict(planned)
