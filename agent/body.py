@@ -65,8 +65,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
-from geometry.ellipse import Ellipse, ellipse_terms, estimate, reference_shape, wrap_angle
+from geometry.ellipse import Ellipse, ellipse_terms, reference_shape, wrap_angle
 from geometry.shapes import Shape, segment_distance, shape_distance
+from scenario.routes import shape_turn
 
 from .barriers import Obstacle, ellipse_class_k
 from .qp import FEAS_TOL, solve_exact
@@ -380,12 +381,13 @@ def goal_twist(pose: Pose, goal: Point, goal_turn: float, rho: float, p: BodyPar
 
 
 def formation_twist(fp: Footprint, own: Ellipse, goal: Point, snap: Snapshot, p: BodyParams,
-                    push: Point = (0.0, 0.0), intent: Point | None = None
-                    ) -> tuple[Pose, TwistResult]:
-    """The formation's pose and its certified twist this tick (eq. 4.12' of the module docstring)."""
+                    push: Point = (0.0, 0.0), intent: Point | None = None,
+                    turn: float | None = None) -> tuple[Pose, TwistResult]:
+    """The formation's pose and its certified twist this tick (eq. 4.12' of the module docstring);
+    ``turn``: the rotation to turn to (a waypoint's heading), else the goal shape's."""
     pose = pose_of(own, fp.alpha0)
     rho = fp.rho
-    want = goal_twist(pose, goal, fp.goal_turn, rho, p, push, intent)
+    want = goal_twist(pose, goal, fp.goal_turn if turn is None else turn, rho, p, push, intent)
     res = solve_twist(want, rho, limit_rows(rho, p), footprint_rows(fp, pose, snap, p))
     # what seeks the goal (for member_nominal's arrival): neither the push nor an escape
     seek = (0.0, 0.0, want[2]) if intent is not None else (want[0] - push[0], want[1] - push[1],
@@ -438,14 +440,13 @@ def footprint_of(starts: Sequence[Point], bodies: Sequence[Point], goals: Sequen
     ref = reference_shape(list(starts))
     cx = sum(x for x, _y in starts) / len(starts)
     cy = sum(y for _x, y in starts) / len(starts)
-    bref = reference_shape(list(bodies))
-    turn = estimate(bref, (1.0, 1.0), list(goals), [(0.0, 0.0)] * len(goals)).alpha - bref.alpha0
+    turn = shape_turn(bodies, goals)
     if len(load) >= 2:
         pts = tuple((x - cx, y - cy) for x, y in load)
         n = len(pts)
         edges = tuple((pts[k], pts[(k + 1) % n]) for k in range(n if n > 2 else 1))
-        return Footprint(ref.offsets, ref.alpha0, index, wrap_angle(turn),
+        return Footprint(ref.offsets, ref.alpha0, index, turn,
                          pts if declared else (), edges)
     offs = ref.offsets
     edges = tuple((offs[i], offs[j]) for i in range(len(offs)) for j in range(i + 1, len(offs)))
-    return Footprint(offs, ref.alpha0, index, wrap_angle(turn), (), edges)
+    return Footprint(offs, ref.alpha0, index, turn, (), edges)

@@ -26,7 +26,7 @@ from scenario.cargo import load_polygon
 from scenario.extent import world_extent
 from scenario.model import FormationSpec
 from scenario.reader import excerpt
-from scenario.routes import initial_route
+from scenario.routes import start_plan
 from scenario.succession import formation_successor
 from wire.keys import name_problem, validate_prefix
 from wire.rmw_zenoh import RmwSettings
@@ -86,6 +86,9 @@ class AgentConfig:
     solver: str = "exact"  # QP solver (agent.qp.make_solver): exact or a qpsolvers backend
     # the formation centroid's route (waypoints, the goal centroid last); () = the goal alone
     route: tuple[tuple[float, float], ...] = ()
+    # a heading per route point (the goal shape's turn; None: any) or () (issue 26, method rigid)
+    route_headings: tuple[float | None, ...] = ()
+    route_by_hand: bool = False  # the route is the scenario's waypoints: never planned again
     # leader only: every member's goal as the scenario gives it (the goal shape at heading 0)
     member_goals: tuple[tuple[str, float, float], ...] = ()
     planner: bool = True  # the leader plans routes around walls and shelves for new goals
@@ -125,6 +128,7 @@ CONFIG_RANGES: dict[str, limits.Range | tuple[limits.Range, ...]] = {
     "clock_tolerance": limits.CLOCK_TOLERANCE,
     "pose_period": limits.POSE_PERIOD,
     "route": limits.COORDINATE,
+    "route_headings": limits.HEADING,
     "member_goals": limits.COORDINATE,
     "goal_tolerance": limits.GOAL_TOLERANCE,
     "extent": (limits.COORDINATE,) * 4,
@@ -140,6 +144,7 @@ CONFIG_COUNTS = {
     "partners": limits.MAX_FORMATION_ROBOTS - 1,
     "member_goals": limits.MAX_FORMATION_ROBOTS,
     "route": limits.MAX_WAYPOINTS + 1,
+    "route_headings": limits.MAX_WAYPOINTS + 1,
     "members": limits.MAX_FORMATION_ROBOTS,
     "other_formations": limits.MAX_FORMATIONS - 1,
 }
@@ -226,7 +231,8 @@ def build_agent_configs(
     extent = (box.xmin, box.ymin, box.xmax, box.ymax)
     out: dict[str, AgentConfig] = {}
     for f in scenario.formations:
-        route = initial_route(scenario, f)
+        first = start_plan(scenario, f)
+        route = first.route
         shape = reference_shape([control_point(*r.start, off) for r in f.robots])
         leader = LeaderSettings(
             members=f.robot_ids,
@@ -262,6 +268,8 @@ def build_agent_configs(
                 zenoh=zenoh,
                 solver=solver,
                 route=route if len(route) > 1 else (),
+                route_headings=first.headings if len(route) > 1 else (),
+                route_by_hand=bool(f.waypoints),
                 member_goals=(tuple((m.id, *m.goal) for m in f.robots) if r.id == f.leader
                               else ()),
                 planner=scenario.controller.planner != "none",
@@ -300,6 +308,10 @@ def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
             del d["control"][name]  # single integrators and unicycles: likewise
     if not cfg.control.bounds.declared:
         del d["control"]["bounds"]  # no bounds (all 0): likewise
+    if not d.get("route_headings"):
+        d.pop("route_headings", None)  # no headings: likewise
+    if not d.get("route_by_hand"):
+        d.pop("route_by_hand", None)  # planned (or no route): likewise
     if d["solver"] == "exact":
         del d["solver"]  # the default: files stay as they were before the field existed
     d["version"] = CONFIG_VERSION

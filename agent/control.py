@@ -204,6 +204,7 @@ class FormationView(NamedTuple):
     name: str = ""  # this formation's name (priority: names sort first-come-first)
     other_names: tuple[str, ...] = ()  # names of ``others``, in the same order
     yielding: bool = False  # the stall clock says jammed: see update_stall, yield_command
+    goal_heading: float | None = None  # [rad] the current waypoint's heading (the goal shape's turn)
 
 
 class Stall(NamedTuple):
@@ -702,5 +703,7 @@ def rigid_nominal(cp: ControlParams, fp: body.Footprint, view: FormationView, sn
     (:func:`agent.body.formation_twist`) and its slot (:func:`agent.body.member_nominal`);
     ``point`` is its control point, ``at`` its body position."""
     p = body_params(cp)
-    pose, res = body.formation_twist(fp, view.own, (view.goal_x, view.goal_y), snap, p, push, intent)
+    turn = None if view.goal_heading is None else fp.goal_turn + view.goal_heading
+    pose, res = body.formation_twist(fp, view.own, (view.goal_x, view.goal_y), snap, p, push, intent,
+                                     turn)
     return body.member_nominal(fp, pose, res.twist, point, at, target, p, res.goal)

@@ -118,3 +118,10 @@ def carry_pose(x: float, y: float, theta: float, ux: float, uy: float, age: floa
     qx, qy, th = predict_state(px, py, ux, uy, theta, age, lookahead)
     bx, by = unicycle.control_point(qx, qy, th, -lookahead)
     return bx, by, th
+
+
+def with_heading(inputs: StepInputs, heading: float | None) -> StepInputs:
+    """``inputs`` with the current waypoint's heading in the view (None: as they are)."""
+    if heading is None or inputs.view is None:
+        return inputs
+    return inputs._replace(view=inputs.view._replace(goal_heading=heading))

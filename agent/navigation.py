@@ -20,11 +20,15 @@ from __future__ import annotations
 import logging
 import math
 import threading
+from collections.abc import Sequence
 from typing import Any
 
 import zenoh
 
+from agent.body import pose_of
 from agent.config import AgentConfig
+from agent.replan import LeaderRoutes
+from geometry.ellipse import Ellipse, wrap_angle
 from geometry.shapes import Shape
 from leader.navigation import SAME_GOAL, Follower, Navigator
 from scenario.extent import Extent, goal_problem
@@ -33,7 +37,9 @@ from wire import keys
 from wire.payloads import (
     MAX_REASON,
     DecodeError,
+    EllipseMsg,
     GoalMsg,
+    ObstacleMsg,
     PlanMsg,
     ShapeMsg,
     StatusMsg,
@@ -52,6 +58,16 @@ REPUBLISH_S = 1.0  # [s] the leader puts its plan again this often
 STALLED_AFTER_S = 2.0  # [s] still this long away from the goal (the jam rule's clock): stalled
 GOAL_FUTURE_S = 1.0  # [s] real time: a goal stamped further ahead of the leader's clock is refused
 GOAL_MAX_AGE_S = 5.0  # [s] real time: an older goal is refused (the goal command re-sends each second)
+
+
+def leader_routes(cfg: AgentConfig) -> LeaderRoutes | None:
+    """Method rigid with the planner on: the leader's footprint replanning (agent.replan); a
+    route given by hand (the scenario's waypoints) is never planned again."""
+    fp = cfg.footprint
+    if fp is None or not cfg.planner:
+        return None
+    return LeaderRoutes(fp, cfg.radius, cfg.control.epsilon + cfg.control.offset, cfg.formation_goal,
+                        None, cfg.route_by_hand)
 
 
 def config_extent(cfg: AgentConfig) -> Extent:
@@ -79,13 +95,17 @@ class NavPart:
     def __init__(self, cfg: AgentConfig, leader: bool) -> None:
         self.cfg = cfg
         p = cfg.prefix
-        self.follower = Follower(cfg.robot_id, cfg.goal, cfg.formation_goal, cfg.route)
+        self.follower = Follower(cfg.robot_id, cfg.goal, cfg.formation_goal, cfg.route,
+                                 cfg.route_headings)
         self.navigator: Navigator | None = None
+        self.routes: LeaderRoutes | None = None  # method rigid: the footprint's replanning
         if leader:
             gx, gy = cfg.formation_goal
             ref = {m: (x - gx, y - gy) for m, x, y in cfg.member_goals} or {cfg.robot_id: (0.0, 0.0)}
             self.navigator = Navigator(cfg.formation, cfg.robot_id, ref, cfg.formation_goal,
                                        cfg.route, cfg.planner, cfg.goal_tolerance + cfg.control.offset)
+            self.navigator.headings = self.follower.headings
+            self.routes = leader_routes(cfg)
         self.plan_key = keys.plan_key(p, cfg.formation)
         self.goal_key = keys.goal_key(p, cfg.formation)
         self.status_key = keys.status_key(p, cfg.formation)
@@ -136,6 +156,8 @@ class NavPart:
                 self._publish_status(self._status(stamp, self._centroid, stopped=True))
         except Exception:  # noqa: BLE001 - shutting down: log, keep closing
             logger.debug("last status failed", exc_info=True)
+        if self.routes is not None:
+            self.routes.close()
         for d in [*self._decls, *self._pubs.values()]:
             try:
                 d.undeclare()
@@ -191,9 +213,12 @@ class NavPart:
         self._shape_src = shapes
         return self.shapes
 
-    def step(self, stamp: float, lockstep: bool, cx: float, cy: float):
+    def step(self, stamp: float, lockstep: bool, cx: float, cy: float, own: Ellipse | None = None,
+             seen: tuple[Sequence[ObstacleMsg], Sequence[EllipseMsg]] = ((), ())):
         """This tick's (target, current waypoint) for the ellipse centre (cx, cy); on the
-        leader, goals first (a goal taken now is planned from (cx, cy))."""
+        leader, goals first (a goal taken now is planned from (cx, cy)), then under method
+        rigid its replanning (``own``: the formation's ellipse; ``seen``: the circles and the
+        other formations' ellipses)."""
         with self._lock:
             goal, self._goal = self._goal, None
             plan, self._plan = self._plan, None
@@ -203,10 +228,43 @@ class NavPart:
         if plan is not None and self.follower.adopt(plan):
             self.plans += 1
         self._centroid = (cx, cy)
-        target, waypoint = self.follower.step(cx, cy)
-        if nav is not None and math.isfinite(nav.goal_stamp) and stamp - self._last_plan >= REPUBLISH_S:
-            self._put_plan(nav.plan(stamp), stamp)
+        heading = None
+        if self.cfg.footprint is not None and own is not None:
+            heading = wrap_angle(pose_of(own, self.cfg.footprint.alpha0).theta
+                                 - self.cfg.footprint.goal_turn)
+        if nav is not None and self.routes is not None and own is not None:
+            self._replan(nav, self.routes, stamp, lockstep, own, heading, seen)
+        target, waypoint = self.follower.step(cx, cy, heading)
+        if nav is not None and (math.isfinite(nav.goal_stamp) or nav.replans) \
+                and stamp - self._last_plan >= REPUBLISH_S:
+            self._put_plan(self._plan_now(nav, stamp), stamp)
         return target, waypoint
+
+    def _plan_now(self, nav: Navigator, stamp: float) -> PlanMsg:
+        """The plan the members are to follow: the route, or where to hold."""
+        if self.follower.holding:
+            hx, hy = self.follower.route[0]
+            return nav.hold_plan(stamp, hx, hy, self.follower.headings[0] if self.follower.headings
+                                 else None)
+        return nav.plan(stamp)
+
+    def _replan(self, nav: Navigator, routes: LeaderRoutes, stamp: float, lockstep: bool,
+                own: Ellipse, heading: float | None,
+                seen: tuple[Sequence[ObstacleMsg], Sequence[EllipseMsg]]) -> None:
+        """Leader, method rigid: take a new route (or hold) when one is ready; publish it."""
+        upd = routes.tick(stamp, lockstep, own, self.follower, self.shapes, seen[0], seen[1])
+        if upd is None:
+            return
+        nav.replans += 1
+        nav.unreachable = upd.reason[:MAX_REASON]
+        if upd.route:
+            nav.route, nav.headings = upd.route, upd.headings
+            self.follower.follow(upd.route, upd.headings)
+        else:
+            self.follower.hold(own.cx, own.cy, heading)
+        logger.info("%s: formation %s plans again (%s): %s", self.cfg.robot_id, self.cfg.formation,
+                    upd.why, f"route of {len(upd.route)}" if upd.route else upd.reason)
+        self._put_plan(self._plan_now(nav, stamp), stamp)
 
     def _take_goal(self, nav: Navigator, goal: GoalMsg, stamp: float, lockstep: bool,
                    centroid: tuple[float, float]) -> None:
@@ -224,6 +282,8 @@ class NavPart:
                 why = nav.accept(goal, stamp if lockstep else goal.stamp, centroid, self.shapes)
         if why is None:
             self.goals += 1
+            if self.routes is not None:
+                self.routes.new_goal(nav.goal, nav.heading, centroid, bool(goal.waypoints))
             new = nav.plan(stamp)
             self.follower.adopt(new)
             self._put_plan(new, stamp)

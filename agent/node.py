@@ -106,7 +106,7 @@ from agent.control import Stall, StepResult, control_step
 from agent.faults import EPS, LinkFaults
 from agent.hard_rows import HardRowCounter
 from agent.inbox import RING_CAPACITY, Inbox, Receiver
-from agent.inputs import carry_pose, step_inputs
+from agent.inputs import carry_pose, step_inputs, with_heading
 from agent.leader_step import LeaderPart
 from agent.margins import carried_age
 from agent.navigation import STALLED_AFTER_S, NavPart
@@ -558,7 +558,8 @@ class AgentNode:
         own = None if others_msg.own is None else msg_to_ellipse(others_msg.own)
         target, waypoint = self.nav.follower.goal, self.cfg.formation_goal
         if own is not None:  # walk the route (the leader takes new goals first)
-            target, waypoint = self.nav.step(stamp, clock.lockstep, own.cx, own.cy)
+            target, waypoint = self.nav.step(stamp, clock.lockstep, own.cx, own.cy, own,
+                                             (obstacles.obstacles, others_msg.ellipses))
         return self._control(t, pose, clock.align(states, stamp + self._ahead), obs, shapes, own,
                              target, waypoint, others_msg)
 
@@ -591,6 +592,7 @@ class AgentNode:
              for k in self.partner_keys],
         )
         self._stall = inputs.stall
+        inputs = with_heading(inputs, self.nav.follower.heading)
         res = control_step(cfg.control, (pose.x, pose.y, pose.theta), target, inputs.neighbours,
                            obs, inputs.others, inputs.view, self._solve, inputs.pairwise,
                            inputs.partners, self.last_u, inputs.hazards, shapes=shapes,

@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
+from geometry.ellipse import wrap_angle
 from geometry.route import Point, advance, formation_radius, member_target, plan_route, route_length
 from geometry.shapes import Shape, shape_distance
 from wire.payloads import MAX_REASON, MAX_REFUSED, GoalMsg, PlanMsg, StatusMsg
@@ -34,39 +35,81 @@ from wire.payloads import MAX_REASON, MAX_REFUSED, GoalMsg, PlanMsg, StatusMsg
 SAME_GOAL = "the goal followed already"  # accept(): nothing changes, not counted as refused
 
 
-class Follower:
-    """One member's walk along its formation's route (see the module docstring)."""
+HEADING_TOLERANCE = 0.15  # [rad] a waypoint with a heading is passed once the formation is this near it
 
-    __slots__ = ("robot_id", "goal", "formation_goal", "route", "index", "goal_stamp", "_offset")
+
+class Follower:
+    """One member's walk along its formation's route (see the module docstring). A route point
+    may carry a heading (``headings``, one per point or none: the footprint planner's, or a
+    hand-given ``[x, y, heading]``): the formation passes it once also turned within
+    HEADING_TOLERANCE of it, when its heading is given to :meth:`step`."""
+
+    __slots__ = ("robot_id", "goal", "formation_goal", "route", "index", "goal_stamp", "_offset",
+                 "headings", "plan_stamp", "holding")
 
     def __init__(self, robot_id: str, goal: Point, formation_goal: Point,
-                 route: Sequence[Point] = ()) -> None:
+                 route: Sequence[Point] = (), headings: Sequence[float | None] = ()) -> None:
         self.robot_id = robot_id
         self.goal_stamp = -math.inf  # the scenario's goal: any plan from the leader is newer
-        self._set(goal, formation_goal, route)
+        self.plan_stamp = -math.inf  # the stamp of the plan followed (a replan of one goal is newer)
+        self._set(goal, formation_goal, route, headings)
 
-    def _set(self, goal: Point, formation_goal: Point, route: Sequence[Point]) -> None:
+    def _set(self, goal: Point, formation_goal: Point, route: Sequence[Point],
+             headings: Sequence[float | None] = ()) -> None:
         self.goal = (goal[0], goal[1])
         self.formation_goal = (formation_goal[0], formation_goal[1])
         self.route = tuple(route) if route else (self.formation_goal,)
+        self.headings: tuple[float | None, ...] = (tuple(headings) if len(headings) == len(self.route)
+                                                   else ())
         self.index = 0
+        self.holding = False
         self._offset = (goal[0] - formation_goal[0], goal[1] - formation_goal[1])
 
+    @property
+    def heading(self) -> float | None:
+        """The current waypoint's heading (the goal shape's turn, as GoalMsg.heading), or None."""
+        return self.headings[self.index] if self.headings else None
+
+    def follow(self, route: Sequence[Point], headings: Sequence[float | None] = ()) -> None:
+        """A new route to the same goal (a replan), from its first point."""
+        self._set(self.goal, self.formation_goal, route, headings)
+
+    def hold(self, cx: float, cy: float, heading: float | None) -> None:
+        """Stay parked where the formation is (no route reaches the goal); holding already:
+        stay where it holds."""
+        if self.holding:
+            return
+        self._set(self.goal, self.formation_goal, ((cx, cy), self.formation_goal),
+                  (heading, None) if heading is not None else ())
+        self.holding = True
+
     def adopt(self, plan: PlanMsg) -> bool:
-        """Follow ``plan`` if it is newer than the goal followed now and names this member."""
-        if not plan.goal_stamp > self.goal_stamp:
+        """Follow ``plan`` if it is newer than the goal followed now and names this member, or
+        is a newer route to that goal (a replan: same goal stamp, a stamp no older, another
+        route: a leader that takes a goal and plans its footprint's route in one tick puts both)."""
+        replan = (plan.goal_stamp == self.goal_stamp and plan.stamp >= self.plan_stamp
+                  and (plan.route, plan.headings) != (self.route, self.headings))
+        if not (plan.goal_stamp > self.goal_stamp or replan):
             return False
         goal = plan.goal_of(self.robot_id)
         if goal is None:
             return False
         self.goal_stamp = plan.goal_stamp
-        self._set(goal, (plan.cx, plan.cy), plan.route)
+        self.plan_stamp = plan.stamp
+        self._set(goal, (plan.cx, plan.cy), plan.route, plan.headings)
         return True
 
-    def step(self, cx: float, cy: float) -> tuple[Point, Point]:
+    def step(self, cx: float, cy: float, heading: float | None = None) -> tuple[Point, Point]:
         """(this member's target, the formation's current waypoint) for the ellipse centre
-        (cx, cy) of this tick."""
-        self.index = advance(self.route, self.index, cx, cy)
+        (cx, cy) of this tick; ``heading``: the formation's (as the route's headings), if known."""
+        if not self.holding:
+            while True:
+                k = advance(self.route, self.index, cx, cy)
+                want = self.headings[self.index] if self.headings else None
+                if k == self.index or (heading is not None and want is not None
+                                       and abs(wrap_angle(heading - want)) > HEADING_TOLERANCE):
+                    break
+                self.index += 1
         return member_target(self.route, self.index, self.goal, self._offset), self.route[self.index]
 
 
@@ -94,6 +137,8 @@ class Navigator:
         self.heading = heading
         self.offsets = turn(self.reference, heading) if heading is not None else dict(self.reference)
         self.route = tuple(route) if route else (self.goal,)
+        self.headings: tuple[float | None, ...] = ()  # one per route point, or none
+        self.replans = 0  # routes to the goal followed planned again (leader.routing)
         self.rejected = 0  # goals refused (inside an obstacle, stale, another formation's)
         self.refusal = ""  # why the last goal was refused (on ``status``, version 2)
         self.unreachable = ""  # why no route reaches the goal ("" while one does): the state
@@ -138,8 +183,11 @@ class Navigator:
         if msg.heading is not None:
             self.heading = msg.heading
             self.offsets = turn(self.reference, msg.heading)
+        self.headings = ()
         if msg.waypoints:
             self.route = tuple(msg.waypoints) + (self.goal,)
+            if msg.headings:
+                self.headings = msg.headings + (msg.heading,)
         elif self.planner and shapes:
             self.route = plan_route(centroid, self.goal, shapes, self.radius)
         else:
@@ -155,7 +203,17 @@ class Navigator:
         gx, gy = self.goal
         members = tuple((m, gx + ox, gy + oy) for m, (ox, oy) in self.offsets.items())
         return PlanMsg(self.formation, self.goal_stamp if math.isfinite(self.goal_stamp) else 0.0,
-                       gx, gy, self.heading, self.route, members, stamp)
+                       gx, gy, self.heading, self.route, members, stamp, self.headings)
+
+    def hold_plan(self, stamp: float, cx: float, cy: float, heading: float | None) -> PlanMsg:
+        """No route: the plan that parks the members where the formation is (the goal shape
+        turned by ``heading``, centred at (cx, cy)); the leader keeps the goal and says why on
+        ``status``."""
+        offsets = turn(self.reference, heading) if heading is not None else self.offsets
+        members = tuple((m, cx + ox, cy + oy) for m, (ox, oy) in offsets.items())
+        return PlanMsg(self.formation, self.goal_stamp if math.isfinite(self.goal_stamp) else 0.0,
+                       cx, cy, heading, ((cx, cy),), members, stamp,
+                       (heading,) if heading is not None else ())
 
     def status(self, follower: Follower, centroid: Point, stalled: bool, stopped: bool,
                stamp: float, refused: int = 0) -> StatusMsg:

@@ -85,7 +85,7 @@ _GAMMA_KEYS = {"formation", "obstacle", "formations"}
 _FORMATION_KEYS = {"name", "leader", "robots", "edges", "ellipse", "waypoints", LOAD_KEY}
 _MEMBER_KEYS = {"start", "goal"}
 _ELLIPSE_KEYS = {"a", "b"}
-_OBSTACLE_KEYS = {"name", "center", "safe_distance", "velocity", "segment", "box"}
+_OBSTACLE_KEYS = {"name", "center", "safe_distance", "velocity", "stop_at", "segment", "box"}
 _BOX_KEYS = {"center", "size", "yaw"}
 PLANNERS = ("visibility", "none")
 
@@ -258,7 +258,9 @@ def _formation(raw: Any, where: str, robot: RobotModel, seen: dict[str, str]) ->
     leader = _leader(m, where, name, order, edges)
     ellipse = None if m.get("ellipse") is None else _ellipse_axes(m["ellipse"], f"{where}.ellipse")
     load = () if m.get(LOAD_KEY) is None else parse_load(m[LOAD_KEY], f"{where}.{LOAD_KEY}")
-    return FormationSpec(name, leader, specs, edges, ellipse, _waypoints(m, where), load)
+    waypoints = _waypoints(m, where)
+    return FormationSpec(name, leader, specs, edges, ellipse, tuple((w[0], w[1]) for w in waypoints), load,
+                         _waypoint_headings(waypoints, where))
 
 
 def _members(raw_robots: Any, where: str, name: str,
@@ -375,15 +377,25 @@ def _ellipse_axes(raw: Any, where: str) -> tuple[float, float]:
     return (a, b)
 
 
-def _waypoints(m: Mapping[str, Any], where: str) -> tuple[tuple[float, float], ...]:
+def _waypoints(m: Mapping[str, Any], where: str) -> tuple[tuple[float, ...], ...]:
+    """Each waypoint as [x, y] or [x, y, heading] (the goal shape's turn there, rad)."""
     raw_wp = m.get("waypoints", []) or []
     if not isinstance(raw_wp, list):
-        raise ScenarioError(f"{where}.waypoints: must be a list of [x, y]")
+        raise ScenarioError(f"{where}.waypoints: must be a list of [x, y] or [x, y, heading]")
     _count(raw_wp, f"{where}.waypoints", limits.MAX_WAYPOINTS)
-    return tuple(
-        (p[0], p[1]) for p in (_vector(w, f"{where}.waypoints[{k}]", (2,), limits.COORDINATE)
-                               for k, w in enumerate(raw_wp))
-    )
+    return tuple(_vector(w, f"{where}.waypoints[{k}]", (2, 3), limits.COORDINATE)
+                 for k, w in enumerate(raw_wp))
+
+
+def _waypoint_headings(waypoints: tuple[tuple[float, ...], ...], where: str
+                       ) -> tuple[float | None, ...]:
+    """The waypoints' headings (None where a waypoint has none); () when none has one."""
+    if all(len(w) == 2 for w in waypoints):
+        return ()
+    for k, w in enumerate(waypoints):
+        if len(w) == 3:
+            _in(w[2], f"{where}.waypoints[{k}][2]", limits.HEADING)
+    return tuple(w[2] if len(w) == 3 else None for w in waypoints)
 
 
 def _obstacle(raw: Any, where: str) -> ObstacleSpec | Shape:
@@ -397,13 +409,18 @@ def _obstacle(raw: Any, where: str) -> ObstacleSpec | Shape:
     center = _vector(m["center"], f"{where}.center", (2,), limits.COORDINATE)
     ds = _in(m["safe_distance"], f"{where}.safe_distance", limits.DISTANCE)
     vel = _vector(m.get("velocity", [0.0, 0.0]), f"{where}.velocity", (2,), limits.OBSTACLE_SPEED)
-    return ObstacleSpec(name, (center[0], center[1]), ds, (vel[0], vel[1]))
+    stop = None
+    if "stop_at" in m:
+        if tuple(vel) == (0.0, 0.0):
+            raise ScenarioError(f"{where}.stop_at: only a moving circle (with a velocity) stops")
+        stop = _positive(m["stop_at"], f"{where}.stop_at")
+    return ObstacleSpec(name, (center[0], center[1]), ds, (vel[0], vel[1]), stop)
 
 
 def _shape(m: Mapping[str, Any], where: str) -> Shape:
     """A wall (``segment: [[x, y], [x, y]]``) or a shelf (``box: {center, size, yaw}``)."""
     kind = "segment" if "segment" in m else "box"
-    for key in ("center", "velocity", "box" if kind == "segment" else "segment"):
+    for key in ("center", "velocity", "stop_at", "box" if kind == "segment" else "segment"):
         if key in m:
             raise ScenarioError(f"{where}.{key}: not allowed on a {kind} (only circles have a "
                                 "center and move; an obstacle is one of circle, segment, box)")

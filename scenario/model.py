@@ -123,6 +123,8 @@ class FormationSpec:
     # frame (origin at the centroid of the members' start body positions, the scenario's axes);
     # empty: the convex hull of the members' body centres (scenario.cargo)
     load: tuple[tuple[float, float], ...] = ()
+    # [rad] a heading per waypoint (the goal shape's turn there; None: any), or () for none
+    waypoint_headings: tuple[float | None, ...] = ()
 
     @property
     def robot_ids(self) -> tuple[str, ...]:
@@ -158,9 +160,16 @@ class ObstacleSpec:
     center: tuple[float, float]  # [m] at t = 0
     safe_distance: float  # [m] Ds of eq. 3.4, measured from the robot's centre
     velocity: tuple[float, float] = (0.0, 0.0)  # [m/s], constant
+    stop_at: float | None = None  # [s] a moving circle stops here for good (a forklift parks)
 
     def position(self, t: float) -> tuple[float, float]:
+        if self.stop_at is not None:
+            t = min(t, self.stop_at)
         return (self.center[0] + self.velocity[0] * t, self.center[1] + self.velocity[1] * t)
+
+    def velocity_at(self, t: float) -> tuple[float, float]:
+        """[m/s] its velocity at ``t``: zero once it has stopped."""
+        return (0.0, 0.0) if self.stop_at is not None and t >= self.stop_at else self.velocity
 
 
 @dataclass(frozen=True)

@@ -22,18 +22,19 @@ from agent.barriers import Obstacle
 from agent.body import Footprint, footprint_of
 from agent.control import ControlParams, Stall, StepResult, control_step
 from agent.hard_rows import HardRowCounter
-from agent.inputs import step_inputs
+from agent.inputs import step_inputs, with_heading
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
 from geometry.ellipse import ReferenceShape, estimate, reference_shape
 from leader.navigation import Follower
 from scenario import Scenario, formation_axes
 from scenario.cargo import load_polygon
-from scenario.routes import initial_route
+from scenario.routes import start_plan
 
 from .lab import LabWorld
 from .metrics import SafetyMonitor
 from .motion import motion_fields
 from .physics import world_for
+from .replans import Replans
 from .series import ROBOT_COLUMNS, Series
 from .summary import qp_fields, run_summary
 
@@ -132,10 +133,12 @@ def simulate(  # noqa: C901 (13: the in-process loop; to split with the world's 
     off = params.offset
     dt = scenario.dt
     steps = scenario.steps
-    routes = {f.name: initial_route(scenario, f) for f in scenario.formations}
+    starts = {f.name: start_plan(scenario, f) for f in scenario.formations}
+    routes = {name: sp.route for name, sp in starts.items()}
     # every member walks its formation's route with the ellipse its leader hands it
-    followers = [Follower(r.id, r.goal, f.goal_centroid, routes[f.name])
+    followers = [Follower(r.id, r.goal, f.goal_centroid, routes[f.name], starts[f.name].headings)
                  for f in scenario.formations for r in f.robots]
+    replans = Replans(scenario, starts, fleet.footprints, fleet.members)
     shapes = scenario.shapes
     state = [list(r.start) for r in robots]  # body x, y, theta
     vel = [(0.0, 0.0)] * n  # last certified control-point velocity (what `state` carries)
@@ -152,7 +155,7 @@ def simulate(  # noqa: C901 (13: the in-process loop; to split with the world's 
 
     def obstacles_at(t: float) -> list[Obstacle]:
         return [
-            Obstacle(*o.position(t), o.velocity[0], o.velocity[1], o.safe_distance)
+            Obstacle(*o.position(t), *o.velocity_at(t), o.safe_distance)
             for o in scenario.obstacles
         ]
 
@@ -165,13 +168,15 @@ def simulate(  # noqa: C901 (13: the in-process loop; to split with the world's 
         seen, obs = sensed(lab, k, state, obstacles_at(t))
         ctrl = [unicycle.control_point(s[0], s[1], s[2], off) for s in seen]
         ellipses = fleet.ellipses(ctrl, vel)
+        replans.tick(t, ellipses, obs, followers)
+        headings = {name: replans.heading(name, e) for name, e in ellipses.items()}
         results = []
         for i in range(n):
             fname = fleet.formation_of[i]
             # Every other member of the formation (graph neighbour or not: the agent subscribes to
             # their states) gets a hard separation row; in all-to-all every foreign robot too.
             own = ellipses[fname]
-            target, waypoint = followers[i].step(own.cx, own.cy)
+            target, waypoint = followers[i].step(own.cx, own.cy, headings[fname])
             inputs = step_inputs(
                 ((ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], df, seen[j][2])
                  for j, df in fleet.neighbours[i]),
@@ -183,6 +188,7 @@ def simulate(  # noqa: C901 (13: the in-process loop; to split with the world's 
                 [(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], seen[j][2]) for j in fleet.partners[i]],
             )
             stalls[i] = inputs.stall
+            inputs = with_heading(inputs, followers[i].heading)
             pose = (seen[i][0], seen[i][1], seen[i][2])
             res = control_step(params, pose, target, inputs.neighbours, obs,
                                inputs.others, inputs.view, solve, inputs.pairwise,
@@ -236,6 +242,7 @@ def simulate(  # noqa: C901 (13: the in-process loop; to split with the world's 
         **({} if lab is None else lab.summary_fields()))
     if any(len(r) > 1 for r in routes.values()):
         summary["routes"] = {name: [list(p) for p in r] for name, r in routes.items()}
+    summary.update(replans.summary())
     return SimResult(summary, series, scenario)
 
 

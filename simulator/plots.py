@@ -35,7 +35,7 @@ from matplotlib.transforms import Bbox  # noqa: E402
 from agent.hard_rows import unmet_hard_rows  # noqa: E402
 from scenario import Scenario  # noqa: E402
 from scenario.cargo import load_polygon, placed_load  # noqa: E402
-from scenario.routes import initial_route  # noqa: E402
+from scenario.routes import start_plan  # noqa: E402
 
 from .metrics import SafetyMonitor  # noqa: E402
 from .motion import REVERSAL_SPEED, is_reversal, robot_ticks, turn_angle  # noqa: E402
@@ -77,7 +77,7 @@ def draw_shapes_and_routes(ax, scenario: Scenario, fcolor: dict) -> None:
         if len(scenario.shapes) <= 24:
             ax.annotate(sh.name, (sh.cx, sh.cy), fontsize=6, ha="center", va="center", color="0.1")
     for f in scenario.formations:
-        route = initial_route(scenario, f)
+        route = start_plan(scenario, f).route  # the footprint's under method rigid
         if len(route) < 2:
             continue
         pts = [f.start_centroid, *route]

@@ -615,7 +615,8 @@ class World:
         seen = [o.position(t) for o in self.scenario.obstacles] if self.lab is None \
             else self.lab.obstacles(round(t / self.scenario.dt))
         for o, (x, y) in zip(self.scenario.obstacles, seen, strict=True):
-            obs.append(ObstacleMsg(o.name, x, y, o.velocity[0], o.velocity[1], o.safe_distance))
+            vx, vy = o.velocity_at(t)
+            obs.append(ObstacleMsg(o.name, x, y, vx, vy, o.safe_distance))
         self._obs_pub.put_message(Obstacles(stamp, tuple(obs), self._shape_msgs))
         return obs
 

@@ -83,6 +83,19 @@ def test_goal_exits_0_once_the_leader_shows_it_and_status_lists_every_formation(
             leader.close()
 
 
+def test_a_waypoint_may_carry_the_heading_the_formation_turns_to_there(router, capsys):
+    leader = LeaderStandIn(router.endpoint, "H")
+    try:
+        rc = navcmd.main(["goal", "H", "4.0", "0.5", "--via", "1.0,2.0,0.5", "3.0,2.0",
+                          "--connect", router.endpoint, "--timeout", "10"])
+        assert rc == 0, capsys.readouterr().out
+        assert leader.nav.route == ((1.0, 2.0), (3.0, 2.0), (4.0, 0.5))
+        assert leader.nav.headings == (0.5, None, None)  # the goal keeps the formation's heading
+        assert leader.nav.plan(1.0).headings == (0.5, None, None)
+    finally:
+        leader.close()
+
+
 def test_a_goal_the_leader_refuses_exits_1_saying_why_from_its_status(router, capsys):
     leader = LeaderStandIn(router.endpoint, "C")
     try:

@@ -393,9 +393,22 @@ def summary_logs(summary: dict, t_end: float) -> list[tuple[float, str, str, str
     return out
 
 
+def route_logs(summary: dict) -> list[tuple[float, str, str, str]]:
+    """Log lines for each route planned again (``summary.json``'s ``replans``, method rigid in
+    process): when, which formation, why, and its waypoints or that no route reaches its goal."""
+    no_route = summary.get("unreachable") or {}
+    out = []
+    for r in summary.get("replans") or ():
+        what = (f"{r['waypoints']} waypoints" if r["waypoints"]
+                else f"no route: {no_route.get(r['formation'], 'unreachable')}")
+        out.append((float(r["t"]), "info" if r["waypoints"] else "warning", "routes",
+                    f"formation {r['formation']} plans again ({r['why']}): {what}"))
+    return out
+
+
 def write_recording(summary: dict, series: Any, scenario: Any, out: Path) -> Path:
     """``out/run.mcap`` of a finished run: one ``/scene`` and ``/fleet`` message per tick, and
-    the logs of :func:`status_logs` and :func:`summary_logs`, in time order."""
+    the logs of :func:`status_logs`, :func:`summary_logs` and :func:`route_logs`, in time order."""
     path = Path(out) / "run.mcap"
     ch = Channels()
     ch.open_mcap(path)
@@ -405,7 +418,8 @@ def write_recording(summary: dict, series: Any, scenario: Any, out: Path) -> Pat
         hits = load is not None and load < -CONTACT_TOL
         frames = list(frames_from_series(series, scenario, load_hits=hits))
         t_end = frames[-1]["t"] if frames else 0.0
-        logs = sorted([*status_logs(frames), *summary_logs(summary, t_end)], key=lambda e: e[0])
+        logs = sorted([*status_logs(frames), *summary_logs(summary, t_end), *route_logs(summary)],
+                      key=lambda e: e[0])
         k = 0
         for f in frames:
             while k < len(logs) and logs[k][0] <= f["t"]:

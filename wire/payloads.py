@@ -82,6 +82,10 @@ STATE_VERSION = 2
 #: by its version byte.
 STATUS_VERSION = 2
 CMD_ACCEL_VERSION = 2  # Cmd with a double integrator's acceleration (ax, ay)
+#: ``goal`` and ``plan`` version 2 add a heading (0 or 1) per waypoint or route point, after the
+#: stamp (issue 26: the footprint's route turns it; a hand-given waypoint may say how). One
+#: without any heading is written as version 1, byte for byte as before.
+ROUTE_VERSION = 2
 MAX_ITEMS = 256  # most ellipses (or obstacles) one payload may carry
 # A payload longer than this is rejected before parsing [bytes]. The largest valid message (an
 # Others with 256 + 1 ellipses whose ids are 64 four-byte UTF-8 characters) is about 85 kB.
@@ -446,6 +450,7 @@ _SHAPES_VERSION = UInt8(SHAPES_VERSION)
 _STATE_VERSION = UInt8(STATE_VERSION)
 _STATUS_VERSION = UInt8(STATUS_VERSION)
 _CMD_ACCEL_VERSION = UInt8(CMD_ACCEL_VERSION)
+_ROUTE_VERSION = UInt8(ROUTE_VERSION)
 
 
 def _ellipse_fields(e: EllipseMsg) -> tuple[Any, ...]:
@@ -770,6 +775,8 @@ DECODERS: dict[str, Callable[[bytes | zenoh.ZBytes], Any]] = {
 # ``StatusMsg``  version, formation:str, state:str, leader:str, goal_stamp, gx, gy,
 #                heading:list[f64] (0 or 1), distance, waypoint, waypoints, wx, wy, stamp
 #                version 2 (:data:`STATUS_VERSION`) adds: reason:str, refused, refusal:str
+# ``GoalMsg`` and ``PlanMsg`` version 2 (:data:`ROUTE_VERSION`) add, after the stamp:
+#                headings:list[list[f64] (0 or 1)], one per waypoint or route point
 #
 # ``goal_stamp`` names a goal: the stamp the leader gave it when it accepted it (the fleet
 # manager's stamp in real time, simulated time on arrival in lock-step). A member adopts a plan
@@ -799,6 +806,20 @@ def _points(value: object, name: str, limit: int) -> tuple[tuple[float, float], 
     return tuple(out)
 
 
+def _headings(value: object, n: int, name: str) -> tuple[float | None, ...]:
+    """A heading [rad] or None per point of ``name``; all None is stored as none at all."""
+    hs: tuple[Any, ...] = tuple(value)  # type: ignore[arg-type]
+    if not hs or all(h is None for h in hs):
+        return ()
+    if len(hs) != n:
+        raise ValueError(f"{name}: {len(hs)} headings for {n} points")
+    for k, h in enumerate(hs):
+        if h is not None and (isinstance(h, bool) or not isinstance(h, numbers.Real)
+                              or not math.isfinite(h)):
+            raise ValueError(f"{name}[{k}] heading must be a finite number, got {h!r}")
+    return tuple(None if h is None else float(h) for h in hs)
+
+
 def _optional_angle(obj: object, name: str) -> None:
     value = getattr(obj, name)
     if value is not None:
@@ -819,12 +840,15 @@ class GoalMsg:
     heading: float | None = None
     waypoints: tuple[tuple[float, float], ...] = ()
     stamp: float = 0.0
+    headings: tuple[float | None, ...] = ()  # none, or one per waypoint (version 2)
 
     def __post_init__(self) -> None:
         _check_id(self.formation, "formation")
         _check_floats(self, ("x", "y", "stamp"))
         _optional_angle(self, "heading")
         object.__setattr__(self, "waypoints", _points(self.waypoints, "waypoints", MAX_WAYPOINTS))
+        object.__setattr__(self, "headings", _headings(self.headings, len(self.waypoints),
+                                                       "waypoints"))
 
 
 @dataclass(frozen=True, slots=True)
@@ -841,6 +865,7 @@ class PlanMsg:
     route: tuple[tuple[float, float], ...]
     members: tuple[tuple[str, float, float], ...]
     stamp: float
+    headings: tuple[float | None, ...] = ()  # none, or one per route point (version 2)
 
     def __post_init__(self) -> None:
         _check_id(self.formation, "formation")
@@ -850,6 +875,7 @@ class PlanMsg:
         if not route:
             raise ValueError("route must hold at least the goal")
         object.__setattr__(self, "route", route)
+        object.__setattr__(self, "headings", _headings(self.headings, len(route), "route"))
         members = tuple(tuple(m) for m in self.members)
         if len(members) > MAX_ITEMS:
             raise ValueError(f"members must hold at most {MAX_ITEMS} entries, got {len(members)}")
@@ -933,9 +959,13 @@ def encode_nav(msg: GoalMsg | PlanMsg | StatusMsg) -> bytes:
     if isinstance(msg, GoalMsg):
         t: tuple[Any, ...] = (_VERSION, msg.formation, msg.x, msg.y, _heading_list(msg.heading),
                               list(msg.waypoints), msg.stamp)
+        if msg.headings:
+            t = (_ROUTE_VERSION, *t[1:], [_heading_list(h) for h in msg.headings])
     elif isinstance(msg, PlanMsg):
         t = (_VERSION, msg.formation, msg.goal_stamp, msg.cx, msg.cy, _heading_list(msg.heading),
              list(msg.route), list(msg.members), msg.stamp)
+        if msg.headings:
+            t = (_ROUTE_VERSION, *t[1:], [_heading_list(h) for h in msg.headings])
     elif isinstance(msg, StatusMsg):
         t = (_VERSION, msg.formation, msg.state, msg.leader, msg.goal_stamp, msg.gx, msg.gy,
              _heading_list(msg.heading), msg.distance, float(msg.waypoint), float(msg.waypoints),
@@ -957,16 +987,30 @@ def _read_points(r: _Reader, name: str) -> list[tuple[float, float]]:
     return [r.floats(2, f"{name}[{k}]") for k in range(n)]  # type: ignore[misc]
 
 
-def _parse_goal(r: _Reader) -> GoalMsg:
+def _read_headings(r: _Reader, name: str) -> tuple[float | None, ...]:
+    n = r.count(name, MAX_WAYPOINTS)
+    return tuple(_read_heading(r) for _ in range(n))
+
+
+def _parse_goal(r: _Reader, version: int = WIRE_VERSION) -> GoalMsg:
     formation = r.string("formation")
     x, y = r.floats(2, "x, y")
     heading = _read_heading(r)
     waypoints = _read_points(r, "waypoints")
     (stamp,) = r.floats(1, "stamp")
-    return GoalMsg(formation, x, y, heading, tuple(waypoints), stamp)
+    headings = _read_headings(r, "headings") if version >= ROUTE_VERSION else ()
+    return GoalMsg(formation, x, y, heading, tuple(waypoints), stamp, headings)
 
 
-def _parse_plan(r: _Reader) -> PlanMsg:
+def _parse_goal_v2(r: _Reader) -> GoalMsg:
+    return _parse_goal(r, ROUTE_VERSION)
+
+
+def _parse_plan_v2(r: _Reader) -> PlanMsg:
+    return _parse_plan(r, ROUTE_VERSION)
+
+
+def _parse_plan(r: _Reader, version: int = WIRE_VERSION) -> PlanMsg:
     formation = r.string("formation")
     goal_stamp, cx, cy = r.floats(3, "goal_stamp, cx, cy")
     heading = _read_heading(r)
@@ -978,7 +1022,9 @@ def _parse_plan(r: _Reader) -> PlanMsg:
         x, y = r.floats(2, f"members[{k}]")
         members.append((rid, x, y))
     (stamp,) = r.floats(1, "stamp")
-    return PlanMsg(formation, goal_stamp, cx, cy, heading, tuple(route), tuple(members), stamp)
+    headings = _read_headings(r, "headings") if version >= ROUTE_VERSION else ()
+    return PlanMsg(formation, goal_stamp, cx, cy, heading, tuple(route), tuple(members), stamp,
+                   headings)
 
 
 def _parse_status(r: _Reader, version: int = WIRE_VERSION) -> StatusMsg:
@@ -1004,12 +1050,14 @@ def _parse_status_v2(r: _Reader) -> StatusMsg:
 
 def decode_goal(payload: bytes | zenoh.ZBytes) -> GoalMsg:
     """Decode a ``goal`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_goal, "goal")
+    return _decode(payload, _parse_goal, "goal",
+                   parsers={WIRE_VERSION: _parse_goal, ROUTE_VERSION: _parse_goal_v2})
 
 
 def decode_plan(payload: bytes | zenoh.ZBytes) -> PlanMsg:
     """Decode a ``plan`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_plan, "plan")
+    return _decode(payload, _parse_plan, "plan",
+                   parsers={WIRE_VERSION: _parse_plan, ROUTE_VERSION: _parse_plan_v2})
 
 
 def decode_status(payload: bytes | zenoh.ZBytes) -> StatusMsg:

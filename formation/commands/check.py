@@ -1,8 +1,9 @@
 """``formation check SCENARIO``: validate a scenario file, nothing else.
 
 Exit 2 with one line for an invalid file (a declared load overlapping something at the start
-among the reasons); warnings, one line each on stderr, for what a valid file allows that the
-user should know (a default load, the members' hull, overlapping something at the start).
+among the reasons, or under ``method: rigid`` a goal the footprint's plan finds no route to);
+warnings, one line each on stderr, for what a valid file allows that the user should know (a
+default load, the members' hull, overlapping something at the start).
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ from formation.commands.run import capacity_problem
 from formation.exits import EXIT_OK
 from scenario import load_scenario
 from scenario.load import scenario_warnings
+from scenario.reader import ScenarioError
+from scenario.routes import route_problem
 from scenario.succession import formation_successor
 
 
@@ -24,6 +27,9 @@ def plural(n: int, noun: str) -> str:
 
 def cmd_check(ns: argparse.Namespace) -> int:
     s = load_scenario(ns.scenario)
+    no_route = route_problem(s)
+    if no_route is not None:  # the footprint's plan (method rigid) finds no way to a goal
+        raise ScenarioError(f"{ns.scenario}: {no_route}")
     n = len(s.robot_ids)
     for w in scenario_warnings(s):
         print(f"{ns.scenario}: warning: {w}", file=sys.stderr)

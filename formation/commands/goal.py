@@ -1,6 +1,6 @@
 """``formation goal`` and ``formation status``: the fleet manager's side of the goal interface.
 
-``formation goal FID X Y [--heading RAD] [--via X,Y ...]`` puts a :class:`wire.payloads.GoalMsg`
+``formation goal FID X Y [--heading RAD] [--via X,Y[,H] ...]`` puts a :class:`wire.payloads.GoalMsg`
 on ``{prefix}/formation/FID/goal`` (stamped with this machine's clock) and waits until the
 formation's leader reports that goal in its ``status`` (published about once a second, and
 answered as a queryable): exit 0 and one status line. The goal is put again every
@@ -58,8 +58,9 @@ def add_parsers(sub) -> None:
     p.add_argument("y", type=float, help="goal centroid y [m]")
     p.add_argument("--heading", type=float, default=None, metavar="RAD",
                    help="turn the formation's goal shape to this heading [rad]")
-    p.add_argument("--via", nargs="+", default=[], metavar="X,Y",
-                   help="waypoints the centroid passes first, in order (default: none; the "
+    p.add_argument("--via", nargs="+", default=[], metavar="X,Y[,H]",
+                   help="waypoints the centroid passes first, in order, each with the heading "
+                        "[rad] the formation turns to there if H is given (default: none; the "
                         "leader plans its own route)")
     p.add_argument("--timeout", type=float, default=30.0, metavar="S",
                    help="give up after this many seconds without the leader's status (default 30)")
@@ -85,17 +86,23 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 
 def parse_point(text: str) -> tuple[float, float]:
-    """``X,Y`` -> (x, y); ValueError naming the text."""
+    """``X,Y`` or ``X,Y,H`` -> (x, y) (:func:`parse_via` keeps the heading); ValueError naming
+    the text."""
+    return parse_via(text)[0]
+
+
+def parse_via(text: str) -> tuple[tuple[float, float], float | None]:
+    """``X,Y`` or ``X,Y,H`` -> ((x, y), heading or None); ValueError naming the text."""
     parts = text.split(",")
     try:
-        if len(parts) != 2:
+        if len(parts) not in (2, 3):
             raise ValueError
-        x, y = float(parts[0]), float(parts[1])
+        values = [float(p) for p in parts]
     except ValueError:
-        raise ValueError(f"--via {text!r}: expected X,Y (two numbers)") from None
-    if not (math.isfinite(x) and math.isfinite(y)):
+        raise ValueError(f"--via {text!r}: expected X,Y or X,Y,HEADING (numbers)") from None
+    if not all(math.isfinite(v) for v in values):
         raise ValueError(f"--via {text!r}: not finite")
-    return (x, y)
+    return (values[0], values[1]), (values[2] if len(values) == 3 else None)
 
 
 def run_endpoint(ns: argparse.Namespace) -> tuple[tuple[str, ...], str | None]:
@@ -189,8 +196,9 @@ def query_status(session: zenoh.Session, prefix: str, fid: str = "*",
 
 def goal_command(ns: argparse.Namespace) -> int:
     try:
-        via = tuple(parse_point(v) for v in ns.via)
-        goal = GoalMsg(keys.validate_id(ns.fid, "formation"), ns.x, ns.y, ns.heading, via, time.time())
+        via = [parse_via(v) for v in ns.via]
+        goal = GoalMsg(keys.validate_id(ns.fid, "formation"), ns.x, ns.y, ns.heading,
+                       tuple(p for p, _h in via), time.time(), tuple(h for _p, h in via))
         check_goal(goal)
         if not (math.isfinite(ns.timeout) and ns.timeout > 0):
             raise ValueError("--timeout must be a positive number")

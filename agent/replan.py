@@ -1,0 +1,118 @@
+"""The leader's footprint routes in the agent (issue 26, ``controller.method: rigid``): when to
+plan again is :class:`leader.routing.Replanner`'s; this part feeds it what the leader sees each
+tick and runs the plan off the control tick.
+
+Lock-step: the plan is made in the tick that asks for it (simulated time waits; the run stays
+deterministic). Real time: the plan runs in a worker process (one, started at the first plan,
+``spawn``: nothing of the agent's threads or sessions is copied into it; at the lowest priority,
+:data:`PLAN_NICE`, so on a busy machine the plan waits, not the ticks) and the tick goes on at
+once; the route is taken at the first tick after it is done. A thread would not do: the search
+is Python and holds the GIL, and a 20 Hz tick beside it ended late (docs/navigation.md).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from collections.abc import Sequence
+from concurrent.futures import Future, ProcessPoolExecutor
+from multiprocessing import get_context
+
+from geometry.ellipse import Ellipse, wrap_angle
+from geometry.footprint_plan import PLAN_MARGIN, Body, plan_footprint
+from geometry.shapes import Shape
+from leader.navigation import Follower
+from leader.routing import Replanner, StillThings, Thing, Update, traffic
+from wire.payloads import EllipseMsg, ObstacleMsg
+
+from .body import Footprint, pose_of
+
+logger = logging.getLogger(__name__)
+
+PLAN_NICE = 19  # the worker's niceness: on a busy machine the ticks come first, the plan waits
+
+
+class LeaderRoutes:
+    """One leader's replanning (module docstring)."""
+
+    def __init__(self, fp: Footprint, radius: float, margin: float, goal: tuple[float, float],
+                 start: tuple[float, float] | None, by_hand: bool) -> None:
+        self.fp = fp
+        self.body = Body(fp.slots, fp.load_points, radius, PLAN_MARGIN + margin)
+        self.radius = radius
+        self.replanner = Replanner(self.body, fp.goal_turn, (goal[0], goal[1], fp.goal_turn), (),
+                                   start, by_hand)
+        self.replanner.last_plan = 0.0
+        self.replanner.due = "" if by_hand else "start"  # the first tick plans (and may find none)
+        self.still = StillThings()
+        self._first = True
+        self._static: set[str] = set()
+        self._pool: ProcessPoolExecutor | None = None
+        self._job: Future | None = None
+        self._why = ""
+
+    def heading(self, own: Ellipse) -> float:
+        """The formation's heading (the goal shape's turn) from its ellipse."""
+        return wrap_angle(pose_of(own, self.fp.alpha0).theta - self.fp.goal_turn)
+
+    def new_goal(self, goal: tuple[float, float], heading: float | None, start: tuple[float, float],
+                 by_hand: bool) -> None:
+        """A goal taken: plan for it at the next tick (unless its route was given)."""
+        turn = self.fp.goal_turn + (heading or 0.0)
+        shapes = self.replanner.shapes
+        self.replanner = Replanner(self.body, self.fp.goal_turn, (goal[0], goal[1], turn), shapes,
+                                   start, by_hand)
+        self.replanner.due = "" if by_hand else "new goal"
+
+    def tick(self, stamp: float, lockstep: bool, own: Ellipse, follower: Follower,
+             shapes: Sequence[Shape], obstacles: Sequence[ObstacleMsg],
+             others: Sequence[EllipseMsg]) -> Update | None:
+        """A new route (or an order to hold) when one is ready, else None."""
+        r = self.replanner
+        r.shapes = tuple(shapes)
+        pose = pose_of(own, self.fp.alpha0)
+        p3 = (pose.cx, pose.cy, pose.theta)
+        seen = self._things(obstacles, others, own)
+        things = self.still.update(stamp, seen)
+        if self._first:
+            r.planned, self._first = things, False
+        if self._job is not None:
+            if not self._job.done():
+                return None
+            job, self._job = self._job, None
+            try:
+                res = job.result()
+            except Exception:  # noqa: BLE001 - a worker that died: keep the route, plan later
+                logger.warning("a route plan failed", exc_info=True)
+                return None
+            return self.replanner.finish(res, self._why)
+        want = follower.heading
+        turn = 0.0 if want is None else wrap_angle(pose.theta - self.fp.goal_turn - want)
+        why = r.check(stamp, p3, follower.route, follower.index, things, turn,
+                      traffic(p3, self.body.rho, seen))
+        if why is None:
+            return None
+        if lockstep:
+            return r.plan(stamp, p3, things, why)
+        if self._pool is None:
+            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=get_context("spawn"),
+                                             initializer=os.nice, initargs=(PLAN_NICE,))
+        self._job = self._pool.submit(plan_footprint, *r.begin(stamp, p3, things))
+        self._why = why
+        return None
+
+    def _things(self, obstacles: Sequence[ObstacleMsg], others: Sequence[EllipseMsg],
+                own: Ellipse) -> list[Thing]:
+        if self._first:  # a circle still when the leader first looks is planned round at once
+            self._static = {o.id for o in obstacles if o.vx == 0.0 and o.vy == 0.0}
+        out = [Thing(f"obstacle/{o.id}", o.x, o.y, math.hypot(o.vx, o.vy), o.ds, o.id in self._static)
+               for o in obstacles]
+        out += [Thing(f"formation/{e.formation}", e.cx, e.cy, math.hypot(e.vx, e.vy),
+                      e.a + self.radius) for e in others
+                if math.dist((e.cx, e.cy), (own.cx, own.cy)) > 1e-9]
+        return out
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)

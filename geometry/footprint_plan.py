@@ -1,0 +1,566 @@
+"""A route for a formation's footprint in (x, y, heading): lattice A* (issue 26).
+
+The centroid route of :mod:`geometry.route` inflates every shape by the formation's largest
+radius: a long or uneven formation then finds no way through an aisle it fits lengthwise. This
+planner moves the footprint itself, the rigid body of :mod:`agent.body` (eq. 4.12'): each member
+a point at its slot that keeps a thing's safe distance Ds (eq. 3.4 for a circle, eq. 4.5 for a
+wall or shelf) and the load's outline, which keeps the things' physical outlines (a circle's Ds
+less the robot radius), each with :data:`PLAN_MARGIN` to spare.
+
+* Two clearance fields on a fine grid (spacing h / 2, h the lattice's): F(p), the smallest
+  distance of p from a thing less its Ds, and G(p), the smallest distance from a thing's physical
+  outline. Both are 1-Lipschitz.
+* A pose (c, theta) is scored by the smallest value of F - margin at the member slots and of
+  G - margin at points spaced along (and inside) the load's outline, each read at the fine-grid
+  point nearest it (error at most h / (2 sqrt 2)). One array per heading: K headings x the
+  lattice, by array slices.
+* A* over (cell, heading) (cells of 0.05 m in a scene up to 250 m^2, else 0.1 m): the 8
+  neighbouring cells at one heading (a pose may move if it scores at least MOVE_NEED h, so every
+  point between two cells, and on a shortcut, keeps the margin), or one heading step in place
+  (at least rho dtheta / 2 + FINE_ERROR h, rho the largest radius of the footprint). Cost: the distance moved,
+  and the outermost point's arc for a turn; heuristic: the octile distance and that arc, times
+  :data:`GREEDY`.
+* Near the start and the goal a pose no worse than the end's own is allowed (a formation may
+  start or park closer to a wall than the margin).
+* A straight way to the goal, turning as it goes (as the rigid motion does), that scores
+  everywhere is the route: the goal alone.
+* The lattice path becomes waypoints (x, y, theta): straight runs at one heading, shortcut where
+  the straight line between two of its poses scores; every turn in place is a waypoint at the
+  old heading and one at the new. Then waypoints that a straight move turning as it goes (as
+  the rigid motion does) joins are left out. The last waypoint is the goal pose itself.
+
+theta is the rotation of the footprint from its start frame (:class:`agent.body.Pose`). No
+route: :class:`FootprintPlan` with ``route`` empty and the reason.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from .shapes import Shape
+
+Point = tuple[float, float]
+Pose3 = tuple[float, float, float]  # (x [m], y [m], theta [rad])
+Circle = tuple[float, float, float]  # (x, y, Ds [m]) a round thing, Ds from a robot's centre
+
+PLAN_MARGIN = 0.05  # [m] the footprint's clearance beyond Ds (members) and outlines (load)
+SPACING = 0.1  # [m] the lattice's cell
+FINE_SPACING = 0.05  # [m] the lattice's cell in a small scene
+FINE_CELLS = 100_000  # a scene of at most this many fine cells (250 m^2) is planned on them
+HEADINGS = 32  # headings on the lattice (every 11.25 degrees)
+GREEDY = 1.5  # the heuristic's weight (>1: fewer poses expanded, a route at most this much longer)
+END_RADIUS = 0.5  # [m] beyond the footprint's radius: around the start and the goal, no worse than they are
+PAD = 1.5  # [m] the planned area: the things, the start and the goal, and this beyond the footprint
+MAX_EXPANSIONS = 400_000  # poses expanded before the search gives up (reported as no route)
+MOVE_NEED = 1.35  # [h] a straight move's points lie within 0.96 h of a checked cell, plus FINE_ERROR
+FINE_ERROR = 0.36  # [h] a point's distance from the fine-grid point it is read at (h / 2 / sqrt 2)
+_CAP = 1.0  # [m] the fields need no larger value
+_BLOCKED = -1e9
+DIRECT_LEFT = math.radians(20.0)  # as agent.body.TURN_LEFT_BIAS: a turn this near half a turn goes left
+MERGE_TURN = math.radians(80.0)  # turns in place up to this are one waypoint (the short way round)
+COARSE = 4  # the heuristic's grid is this many cells to a side coarser than the lattice
+_INTERIOR = 0.3  # [m] spacing of the load's inside points (a thing smaller than this may hide there)
+
+
+@dataclass(frozen=True)
+class Body:
+    """The footprint in its start frame (origin: the centroid; :class:`agent.body.Footprint`)."""
+
+    slots: tuple[Point, ...]  # each member's point (its control point at the start)
+    load: tuple[Point, ...] = ()  # the load's convex outline; () = the members' hull
+    radius: float = 0.0  # [m] a robot's body radius (a circle's physical size is Ds less it)
+    margin: float = PLAN_MARGIN
+
+    @property
+    def rho(self) -> float:
+        """[m] the largest distance of a footprint point from the centroid."""
+        return max([0.01] + [math.hypot(x, y) for x, y in self.slots + self.load])
+
+    @property
+    def width(self) -> float:
+        """[m] the footprint's smaller extent (across its least-width direction, bodies included)."""
+        pts = self.slots + self.load
+        best = math.inf
+        for k in range(36):
+            a = math.pi * k / 36
+            c, s = math.cos(a), math.sin(a)
+            proj = [c * x + s * y for x, y in pts]
+            best = min(best, max(proj) - min(proj))
+        return best + 2.0 * self.radius
+
+
+class FootprintPlan(NamedTuple):
+    route: tuple[Pose3, ...]  # waypoints, the goal pose last; () when none
+    reason: str = ""  # why there is no route ("" when there is one)
+    expanded: int = 0  # poses the search expanded
+
+
+@dataclass(frozen=True)
+class Lattice:
+    """The planned area: ``nx`` x ``ny`` cells of ``h`` from (x0, y0); the fine grid is twice as dense."""
+
+    x0: float
+    y0: float
+    h: float
+    nx: int
+    ny: int
+    headings: int
+
+    def cell(self, x: float, y: float) -> tuple[int, int]:
+        return (min(self.nx - 2, max(1, round((x - self.x0) / self.h))),
+                min(self.ny - 2, max(1, round((y - self.y0) / self.h))))
+
+    def point(self, i: int, j: int) -> Point:
+        return (self.x0 + i * self.h, self.y0 + j * self.h)
+
+    def heading(self, theta: float) -> int:
+        return round(theta / (2.0 * math.pi / self.headings)) % self.headings
+
+    def theta(self, k: int) -> float:
+        a = 2.0 * math.pi * k / self.headings
+        return a - 2.0 * math.pi if a > math.pi else a
+
+
+def lattice_for(start: Pose3, goal: Pose3, shapes: Sequence[Shape], circles: Sequence[Circle],
+                rho: float, h: float = SPACING, headings: int = HEADINGS) -> Lattice:
+    """The area holding the start, the goal and every thing, with rho + PAD around it."""
+    xs = [start[0], goal[0]] + [c[0] for c in circles]
+    ys = [start[1], goal[1]] + [c[1] for c in circles]
+    for sh in shapes:
+        for x, y in sh.corners():
+            xs.append(x)
+            ys.append(y)
+    pad = rho + PAD
+    x0, y0 = min(xs) - pad, min(ys) - pad
+    nx = int(math.ceil((max(xs) + pad - x0) / h)) + 1
+    ny = int(math.ceil((max(ys) + pad - y0) / h)) + 1
+    return Lattice(x0, y0, h, nx, ny, headings)
+
+
+# --------------------------------------------------------------------------- the fields
+
+
+def _box_field(xs: np.ndarray, ys: np.ndarray, sh: Shape) -> np.ndarray:
+    """Signed distance to the shape's outline on the grid xs x ys (a segment: a box of width 0)."""
+    c, s = math.cos(sh.yaw), math.sin(sh.yaw)
+    dx, dy = xs[:, None] - sh.cx, ys[None, :] - sh.cy
+    u, v = np.abs(c * dx + s * dy) - sh.hx, np.abs(-s * dx + c * dy) - sh.hy
+    out = np.hypot(np.maximum(u, 0.0), np.maximum(v, 0.0))
+    return np.where((u > 0.0) | (v > 0.0), out, np.maximum(u, v))
+
+
+def fields(lat: Lattice, shapes: Sequence[Shape], circles: Sequence[Circle], radius: float
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """(F, G) on the fine grid (module docstring), capped at _CAP; each thing only where it is
+    nearer than that."""
+    f = lat.h / 2.0
+    nfx, nfy = 2 * lat.nx - 1, 2 * lat.ny - 1
+    big_f = np.full((nfx, nfy), _CAP, dtype=np.float32)
+    big_g = np.full((nfx, nfy), _CAP, dtype=np.float32)
+    for sh in shapes:
+        corners = sh.corners()
+        win = _window(lat, [p[0] for p in corners], [p[1] for p in corners], sh.ds + _CAP)
+        if win is None:
+            continue
+        (a, b), (c, d) = win
+        dist = _box_field(lat.x0 + f * np.arange(a, b), lat.y0 + f * np.arange(c, d), sh)
+        big_f[a:b, c:d] = np.minimum(big_f[a:b, c:d], dist - sh.ds)
+        big_g[a:b, c:d] = np.minimum(big_g[a:b, c:d], dist)
+    for ox, oy, ds in circles:
+        win = _window(lat, [ox], [oy], ds + _CAP)
+        if win is None:
+            continue
+        (a, b), (c, d) = win
+        xs, ys = lat.x0 + f * np.arange(a, b), lat.y0 + f * np.arange(c, d)
+        dist = np.hypot(xs[:, None] - ox, ys[None, :] - oy)
+        big_f[a:b, c:d] = np.minimum(big_f[a:b, c:d], dist - ds)
+        big_g[a:b, c:d] = np.minimum(big_g[a:b, c:d], dist - max(0.0, ds - radius))
+    return big_f, big_g
+
+
+def _window(lat: Lattice, xs: Sequence[float], ys: Sequence[float], reach: float):
+    """The fine-grid index ranges within ``reach`` of the points' bounding box (clipped), or None."""
+    f = lat.h / 2.0
+    a = max(0, int(math.floor((min(xs) - reach - lat.x0) / f)))
+    b = min(2 * lat.nx - 1, int(math.ceil((max(xs) + reach - lat.x0) / f)) + 1)
+    c = max(0, int(math.floor((min(ys) - reach - lat.y0) / f)))
+    d = min(2 * lat.ny - 1, int(math.ceil((max(ys) + reach - lat.y0) / f)) + 1)
+    return None if a >= b or c >= d else ((a, b), (c, d))
+
+
+# -------------------------------------------------------------------------- the footprint
+
+
+def load_outline(body: Body) -> tuple[Point, ...]:
+    """The load's outline: the declared one, else the members' hull (a segment for two)."""
+    if len(body.load) >= 2:
+        return body.load
+    return _hull(body.slots) if len(body.slots) >= 2 else ()
+
+
+def _hull(pts: Sequence[Point]) -> tuple[Point, ...]:
+    """Convex hull, counter-clockwise (monotone chain)."""
+    p = sorted(set(pts))
+    if len(p) <= 2:
+        return tuple(p)
+
+    def half(seq: Sequence[Point]) -> list[Point]:
+        out: list[Point] = []
+        for q in seq:
+            while len(out) >= 2 and ((out[-1][0] - out[-2][0]) * (q[1] - out[-2][1])
+                                     - (out[-1][1] - out[-2][1]) * (q[0] - out[-2][0])) <= 0.0:
+                out.pop()
+            out.append(q)
+        return out
+
+    lower, upper = half(p), half(list(reversed(p)))
+    return tuple(lower[:-1] + upper[:-1])
+
+
+def load_samples(outline: Sequence[Point], spacing: float) -> list[Point]:
+    """Points along the outline at most ``spacing`` apart, and inside it every _INTERIOR."""
+    n = len(outline)
+    pts: list[Point] = []
+    for k in range(n if n > 2 else 1):
+        (ax, ay), (bx, by) = outline[k], outline[(k + 1) % n]
+        steps = max(1, int(math.ceil(math.hypot(bx - ax, by - ay) / spacing)))
+        pts += [(ax + (bx - ax) * t / steps, ay + (by - ay) * t / steps) for t in range(steps)]
+    if n <= 2:
+        return pts + [outline[-1]]
+    xs, ys = [p[0] for p in outline], [p[1] for p in outline]
+    x = min(xs) + _INTERIOR / 2
+    while x < max(xs):
+        y = min(ys) + _INTERIOR / 2
+        while y < max(ys):
+            if _inside(outline, x, y):
+                pts.append((x, y))
+            y += _INTERIOR
+        x += _INTERIOR
+    return pts
+
+
+def _inside(poly: Sequence[Point], x: float, y: float) -> bool:
+    """Whether (x, y) is inside the counter-clockwise convex polygon."""
+    n = len(poly)
+    return all((poly[(k + 1) % n][0] - poly[k][0]) * (y - poly[k][1])
+               - (poly[(k + 1) % n][1] - poly[k][1]) * (x - poly[k][0]) >= 0.0 for k in range(n))
+
+
+def scores(lat: Lattice, body: Body, big_f: np.ndarray, big_g: np.ndarray, cover: float = 0.0
+           ) -> np.ndarray:
+    """For each heading, the footprint's score (smallest clearance beyond the margin) on the
+    lattice (an array K x nx x ny); the lattice's border is blocked. A load point within
+    ``cover`` of a slot is left out: G >= F + cover there (``cover`` at most the robot radius
+    and every shape's Ds), so the slot's reading bounds it."""
+    samples = [(p, 0) for p in body.slots]
+    samples += [(p, 1) for p in load_samples(load_outline(body), lat.h)
+                if all(math.dist(p, q) > cover for q in body.slots)]
+    f = lat.h / 2.0
+    reach = int(math.ceil(body.rho / f)) + 2
+    # each field padded, then split by the parity of its fine indices: a lattice-strided read
+    # of the fine grid is a plain slice of one part
+    parts = []
+    for a in (big_f, big_g):
+        pad = np.pad(a, reach, constant_values=_BLOCKED)
+        parts.append({(pi, pj): np.ascontiguousarray(pad[pi::2, pj::2]) for pi in (0, 1) for pj in (0, 1)})
+    out = np.full((lat.headings, lat.nx, lat.ny), _CAP, dtype=np.float32)
+    for k in range(lat.headings):
+        th = lat.theta(k)
+        c, s = math.cos(th), math.sin(th)
+        score = out[k]
+        for (px, py), which in samples:
+            di = reach + round((c * px - s * py) / f)
+            dj = reach + round((s * px + c * py) / f)
+            sub = parts[which][(di % 2, dj % 2)]
+            np.minimum(score, sub[di // 2:di // 2 + lat.nx, dj // 2:dj // 2 + lat.ny], out=score)
+    out -= body.margin
+    out[:, 0, :] = out[:, -1, :] = out[:, :, 0] = out[:, :, -1] = _BLOCKED
+    return out
+
+
+# ---------------------------------------------------------------------------- the search
+
+
+class _Search(NamedTuple):
+    lat: Lattice
+    move: bytearray  # per state k * N + i * ny + j: may move to a neighbouring cell
+    turn: bytearray  # may turn one heading step
+    turn_cost: float  # [m] the outermost point's arc for one heading step
+    to_goal: list[float]  # per coarse cell: its distance to the goal (coarse_distance)
+    coarse_ny: int  # the coarse grid's row length
+
+
+def coarse_distance(lat: Lattice, move: bytearray, goal: Point) -> tuple[list[float], int]:
+    """The heuristic: per cell of a grid COARSE times coarser than the lattice (row-major, the
+    second number its row length), open where any of its cells may move at any heading, the
+    length of the shortest 8-connected path to the goal's cell less the coarse cells' diagonal
+    twice (so it underestimates the lattice's path); inf where the goal cannot be reached."""
+    free = np.frombuffer(move, dtype=bool).reshape(lat.headings, lat.nx, lat.ny).any(axis=0)
+    cx, cy = -(-lat.nx // COARSE), -(-lat.ny // COARSE)
+    grid = np.zeros((cx * COARSE, cy * COARSE), dtype=bool)
+    grid[:lat.nx, :lat.ny] = free
+    opened = grid.reshape(cx, COARSE, cy, COARSE).any(axis=(1, 3)).ravel().tolist()
+    gi, gj = lat.cell(*goal)
+    dist = _dijkstra(opened, cx, cy, (gi // COARSE) * cy + gj // COARSE, COARSE * lat.h)
+    slack = 2.0 * math.sqrt(2.0) * COARSE * lat.h
+    return [max(0.0, d - slack) for d in dist], cy
+
+
+def _dijkstra(opened: list[bool], cx: int, cy: int, goal: int, step: float) -> list[float]:
+    """8-connected grid distances from ``goal`` over the open cells (row-major cx x cy)."""
+    dist = [math.inf] * (cx * cy)
+    dist[goal] = 0.0
+    heap = [(0.0, goal)]
+    d2 = step * math.sqrt(2.0)
+    moves = ((-1, 0, step), (1, 0, step), (0, -1, step), (0, 1, step),
+             (-1, -1, d2), (-1, 1, d2), (1, -1, d2), (1, 1, d2))
+    while heap:
+        d, c = heapq.heappop(heap)
+        if d > dist[c]:
+            continue
+        i, j = divmod(c, cy)
+        for di, dj, w in moves:
+            a, b = i + di, j + dj
+            if 0 <= a < cx and 0 <= b < cy and opened[a * cy + b] and d + w < dist[a * cy + b]:
+                dist[a * cy + b] = d + w
+                heapq.heappush(heap, (d + w, a * cy + b))
+    return dist
+
+
+def _allowed(lat: Lattice, sc: np.ndarray, ends: Sequence[Pose3], rho: float,
+             need_move: float, need_turn: float) -> tuple[bytearray, bytearray]:
+    """The move and turn flags of every state (module docstring), relaxed around the ends."""
+    floor = np.zeros((lat.nx, lat.ny), dtype=np.float32)
+    xs = lat.x0 + lat.h * np.arange(lat.nx)
+    ys = lat.y0 + lat.h * np.arange(lat.ny)
+    need = max(need_move, need_turn)
+    for x, y, th in ends:
+        i, j = lat.cell(x, y)
+        own = float(sc[lat.heading(th), i, j])
+        if own >= need:
+            continue
+        near = np.hypot(xs[:, None] - x, ys[None, :] - y) <= rho + END_RADIUS
+        floor = np.where(near, np.minimum(floor, own - need - 1e-6), floor).astype(np.float32)
+    move = sc >= (floor + np.float32(need_move))[None, :, :]
+    turn = sc >= (floor + np.float32(need_turn))[None, :, :]
+    return bytearray(move.tobytes()), bytearray(turn.tobytes())
+
+
+def _astar(sr: _Search, start: int, goal: int, limit: int) -> tuple[list[int] | None, int]:
+    """Weighted A* from state ``start`` to ``goal``: (the states, or None; poses expanded)."""
+    lat = sr.lat
+    n, ny, kk = lat.nx * lat.ny, lat.ny, lat.headings
+    gi, gk = goal % n, goal // n
+    gx, gy = divmod(gi, ny)
+    d2 = math.sqrt(2.0) * lat.h
+    steps = [(-ny, lat.h), (ny, lat.h), (-1, lat.h), (1, lat.h),
+             (-ny - 1, d2), (-ny + 1, d2), (ny - 1, d2), (ny + 1, d2)]
+
+    to_goal, cny = sr.to_goal, sr.coarse_ny
+
+    def heur(s: int) -> float:
+        i, j = divmod(s % n, ny)
+        a, b = abs(i - gx), abs(j - gy)
+        dk = abs(s // n - gk)
+        octile = lat.h * (max(a, b) + 0.41421356 * min(a, b))
+        return GREEDY * (max(octile, to_goal[(i // COARSE) * cny + j // COARSE])
+                         + sr.turn_cost * min(dk, kk - dk))
+
+    best = {start: 0.0}
+    parent: dict[int, int] = {}
+    heap = [(heur(start), 0.0, start)]
+    expanded = 0
+    while heap and expanded < limit:
+        _, g, s = heapq.heappop(heap)
+        if g > best.get(s, math.inf):
+            continue
+        if s == goal:
+            return _unwind(parent, start, goal), expanded
+        expanded += 1
+        for t, cost in _next(sr, s, n, kk, steps):
+            ng = g + cost
+            if ng < best.get(t, math.inf):
+                est = heur(t)
+                if est == math.inf:  # the goal cannot be reached from t at all
+                    continue
+                best[t] = ng
+                parent[t] = s
+                heapq.heappush(heap, (ng + est, ng, t))
+    return None, expanded
+
+
+def _next(sr: _Search, s: int, n: int, kk: int, steps: Sequence[tuple[int, float]]):
+    """The states reachable from ``s`` in one move or one heading step, with their costs."""
+    out = []
+    if sr.move[s]:
+        out = [(s + d, c) for d, c in steps if sr.move[s + d]]
+    if sr.turn[s]:
+        k, cell = divmod(s, n)
+        for dk in (1, kk - 1):
+            t = ((k + dk) % kk) * n + cell
+            if sr.turn[t]:
+                out.append((t, sr.turn_cost))
+    return out
+
+
+def _unwind(parent: dict[int, int], start: int, goal: int) -> list[int]:
+    path = [goal]
+    while path[-1] != start:
+        path.append(parent[path[-1]])
+    path.reverse()
+    return path
+
+
+# ---------------------------------------------------------------------------- the route
+
+
+def _poses(lat: Lattice, states: Sequence[int]) -> list[tuple[int, int, int]]:
+    n = lat.nx * lat.ny
+    return [(s // n, *divmod(s % n, lat.ny)) for s in states]
+
+
+def _segment_clear(sr: _Search, k: int, a: tuple[int, int], b: tuple[int, int]) -> bool:
+    """Whether the straight move from cell a to cell b at heading k scores everywhere (points
+    every h / 2, each at its nearest cell)."""
+    lat = sr.lat
+    n = lat.nx * lat.ny
+    steps = max(1, int(math.ceil(2.0 * math.hypot(b[0] - a[0], b[1] - a[1]))))
+    for t in range(steps + 1):
+        i = round(a[0] + (b[0] - a[0]) * t / steps)
+        j = round(a[1] + (b[1] - a[1]) * t / steps)
+        if not sr.move[k * n + i * lat.ny + j]:
+            return False
+    return True
+
+
+def _runs(poses: list[tuple[int, int, int]]) -> list[list[tuple[int, int, int]]]:
+    """The path split into runs at one heading (a turn in place ends one)."""
+    runs = [[poses[0]]]
+    for p in poses[1:]:
+        if p[0] != runs[-1][-1][0]:
+            runs.append([p])
+        else:
+            runs[-1].append(p)
+    return runs
+
+
+def _shortcut(sr: _Search, run: list[tuple[int, int, int]]) -> list[tuple[int, int, int]]:
+    """The run's poses a straight move can join (greedy: the farthest clear one each time)."""
+    out = [run[0]]
+    a = 0
+    while a < len(run) - 1:
+        b = len(run) - 1
+        while b > a + 1 and not _segment_clear(sr, run[a][0], run[a][1:], run[b][1:]):
+            b -= 1
+        out.append(run[b])
+        a = b
+    return out
+
+
+def route_of(sr: _Search, states: Sequence[int], start: Pose3, goal: Pose3) -> tuple[Pose3, ...]:
+    """The waypoints of a lattice path (module docstring): the goal pose last, the start left out."""
+    lat = sr.lat
+    pts: list[Pose3] = []
+    turned = -1.0  # [rad] turned in place at the last point so far (< 0: it was reached moving)
+    for run in _runs(_poses(lat, states)):
+        for k, i, j in _shortcut(sr, run):
+            x, y = lat.point(i, j)
+            p = (x, y, lat.theta(k))
+            if pts and p == pts[-1]:
+                continue
+            step = abs(_wrap(p[2] - pts[-1][2])) if pts and p[:2] == pts[-1][:2] else -1.0
+            if step >= 0.0 and 0.0 <= turned < MERGE_TURN:
+                pts[-1] = p  # one more heading step in place: one waypoint
+                turned += step
+            else:
+                pts.append(p)
+                turned = step
+    while pts and math.dist(pts[0][:2], start[:2]) < lat.h and _same(pts[0][2], start[2], lat):
+        pts.pop(0)
+    while pts and math.dist(pts[-1][:2], goal[:2]) < lat.h and _same(pts[-1][2], goal[2], lat):
+        pts.pop()
+    return _smooth(sr, [start, *pts, goal])
+
+
+def _smooth(sr: _Search, pts: list[Pose3]) -> tuple[Pose3, ...]:
+    """The waypoints after the first that a straight move turning as it goes joins (greedy:
+    the farthest :func:`direct_clear` one each time); the last is kept."""
+    out: list[Pose3] = []
+    a = 0
+    while a < len(pts) - 1:
+        b = len(pts) - 1
+        while b > a + 1 and not direct_clear(sr, pts[a], pts[b]):
+            b -= 1
+        out.append(pts[b])
+        a = b
+    return tuple(out)
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _same(a: float, b: float, lat: Lattice) -> bool:
+    return lat.heading(a) == lat.heading(b)
+
+
+def plan_footprint(start: Pose3, goal: Pose3, body: Body, shapes: Sequence[Shape] = (),
+                   circles: Sequence[Circle] = (), h: float | None = None, headings: int = HEADINGS,
+                   limit: int = MAX_EXPANSIONS) -> FootprintPlan:
+    """The footprint's route from pose ``start`` to pose ``goal`` around ``shapes`` and
+    ``circles`` (module docstring); cells of ``h`` [m], by default FINE_SPACING where the area
+    holds at most FINE_CELLS of them (a small scene: narrow slots), else SPACING."""
+    rho = body.rho
+    lat = lattice_for(start, goal, shapes, circles, rho, h or FINE_SPACING, headings)
+    if h is None and lat.nx * lat.ny > FINE_CELLS:
+        lat = lattice_for(start, goal, shapes, circles, rho, SPACING, headings)
+    h = lat.h
+    big_f, big_g = fields(lat, shapes, circles, body.radius)
+    cover = min([body.radius] + [sh.ds for sh in shapes])
+    sc = scores(lat, body, big_f, big_g, cover)
+    dth = 2.0 * math.pi / headings
+    move, turn = _allowed(lat, sc, (start, goal), rho, MOVE_NEED * h, 0.5 * rho * dth + FINE_ERROR * h)
+    sr = _Search(lat, move, turn, rho * dth, *coarse_distance(lat, move, goal[:2]))
+    n = lat.nx * lat.ny
+    s0 = lat.heading(start[2]) * n + _flat(lat, start)
+    s1 = lat.heading(goal[2]) * n + _flat(lat, goal)
+    if not move[s1] and not turn[s1]:
+        return FootprintPlan((), "the footprint does not fit at the goal")
+    if direct_clear(sr, start, goal):
+        return FootprintPlan((goal,))
+    states, expanded = _astar(sr, s0, s1, limit)
+    if states is None:
+        why = ("no way for the footprint from its start to the goal" if expanded < limit
+               else f"no route found in {limit} poses")
+        return FootprintPlan((), why, expanded)
+    return FootprintPlan(route_of(sr, states, start, goal), "", expanded)
+
+
+def direct_clear(sr: _Search, start: Pose3, goal: Pose3) -> bool:
+    """Whether the footprint may go straight to the goal turning as it goes (the rigid motion
+    does: the short way round, left within DIRECT_LEFT of half a turn): every pose on the way,
+    at most h / 2 and half a heading step apart, at a lattice state that may move and turn."""
+    lat = sr.lat
+    turn = (goal[2] - start[2] + math.pi - DIRECT_LEFT) % (2.0 * math.pi) - math.pi + DIRECT_LEFT
+    dth = 2.0 * math.pi / lat.headings
+    steps = max(1, int(math.ceil(max(2.0 * math.dist(start[:2], goal[:2]) / lat.h,
+                                     2.0 * abs(turn) / dth))))
+    n = lat.nx * lat.ny
+    for k in range(steps + 1):
+        f = k / steps
+        x, y = start[0] + f * (goal[0] - start[0]), start[1] + f * (goal[1] - start[1])
+        s = lat.heading(start[2] + f * turn) * n + _flat(lat, (x, y))
+        if not (sr.move[s] and sr.turn[s]):
+            return False
+    return True
+
+
+def _flat(lat: Lattice, p: Sequence[float]) -> int:
+    i, j = lat.cell(p[0], p[1])
+    return i * lat.ny + j

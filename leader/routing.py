@@ -1,0 +1,197 @@
+"""When a formation's route is made again, and around what (issue 26; the leader's part, pure).
+
+A :class:`Replanner` keeps the footprint's route (:func:`geometry.footprint_plan.plan_footprint`)
+to one goal pose and says each tick whether to plan it again:
+
+* **off the route**: the centroid is further than the footprint's smaller extent
+  (:attr:`geometry.footprint_plan.Body.width`) from the leg it walks;
+* **no progress**: the distance to go along the route has not shrunk by :data:`PROGRESS_M` in
+  :data:`NO_PROGRESS_S` (not on the last :data:`SETTLE_M` to the goal, where it settles; the
+  clock stops while something moving is near: waiting for traffic is not being stuck);
+* **the things changed**: a round thing planned around moved, went or came
+  (:class:`StillThings`: circles that stand still, parked formations).
+
+At most one plan per :data:`REPLAN_EVERY_S`. No route: the formation holds where it is
+(:meth:`leader.navigation.Follower.hold`) and the reason is kept in ``unreachable`` until a
+later plan (tried again every :data:`RETRY_S`, or when the things change) finds one. Routes
+given by hand are never planned again.
+
+Headings: the planner's are the footprint's rotation from its start frame (theta of
+:class:`agent.body.Pose`); a route's are the goal shape's turn (as ``GoalMsg.heading``), theta
+less the rotation from the start shape to the goal shape (``goal_turn``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from typing import NamedTuple
+
+from geometry.ellipse import wrap_angle
+from geometry.footprint_plan import Body, Circle, FootprintPlan, Pose3, plan_footprint
+from geometry.shapes import Shape, segment_distance
+from wire.payloads import MAX_WAYPOINTS as MAX_ROUTE  # the most route points a plan holds
+
+STILL_S = 3.0  # [s] a round thing still this long is planned around (a parked forklift)
+STILL_SPEED = 0.01  # [m/s] slower than this is still
+MOVED_M = 0.3  # [m] a planned-around thing that moved this far is a change
+NO_PROGRESS_S = 5.0  # [s] no progress along the route this long: plan again
+PROGRESS_M = 0.1  # [m] progress: the distance to go shrinks by this
+SETTLE_M = 0.5  # [m] this near the goal on the last leg the formation settles (no replan)
+REPLAN_EVERY_S = 2.0  # [s] at most one plan this often
+RETRY_S = 5.0  # [s] no route: try again this often
+TRAFFIC_M = 1.0  # [m] a moving thing this near: the formation waits, the progress clock stops
+
+
+class Thing(NamedTuple):
+    """A round thing as seen this tick: a circle obstacle or another formation's ellipse."""
+
+    name: str
+    x: float
+    y: float
+    speed: float  # [m/s]
+    ds: float  # [m] from a robot's centre: a circle's Ds; a formation's semi-major axis and its Ds
+    static: bool = False  # a circle that never moves (still from the start)
+
+
+class StillThings:
+    """Which round things have stood still for :data:`STILL_S` (static circles at once)."""
+
+    def __init__(self) -> None:
+        self._since: dict[str, tuple[float, float, float]] = {}  # name -> (x, y, still since)
+
+    def update(self, t: float, things: Iterable[Thing]) -> tuple[tuple[str, Circle], ...]:
+        out = []
+        seen = set()
+        for th in things:
+            seen.add(th.name)
+            prev = self._since.get(th.name)
+            if th.speed >= STILL_SPEED:
+                self._since.pop(th.name, None)
+                continue
+            if prev is None or math.dist(prev[:2], (th.x, th.y)) > MOVED_M / 3:
+                prev = (th.x, th.y, -math.inf if th.static else t)
+                self._since[th.name] = prev
+            if t - prev[2] >= STILL_S:
+                out.append((th.name, (th.x, th.y, th.ds)))
+        for gone in set(self._since) - seen:
+            del self._since[gone]
+        return tuple(sorted(out))
+
+
+def traffic(pose: Pose3, rho: float, things: Iterable[Thing]) -> bool:
+    """Whether something moving is within TRAFFIC_M of the footprint's bounding circle: then
+    the formation is waiting or giving way, not stuck (no progress is no reason to replan)."""
+    return any(th.speed >= STILL_SPEED and math.dist(pose[:2], (th.x, th.y)) < rho + th.ds + TRAFFIC_M
+               for th in things)
+
+
+def changed(a: Sequence[tuple[str, Circle]], b: Sequence[tuple[str, Circle]]) -> bool:
+    """Whether two sets of planned-around things differ (one came or went, or moved MOVED_M)."""
+    if [n for n, _c in a] != [n for n, _c in b]:
+        return True
+    return any(math.dist(ca[:2], cb[:2]) > MOVED_M for (_n, ca), (_m, cb) in zip(a, b, strict=True))
+
+
+class PlanJob(NamedTuple):
+    """The arguments of one :func:`geometry.footprint_plan.plan_footprint` call (picklable: a
+    worker process may run it)."""
+
+    start: Pose3
+    goal: Pose3
+    body: Body
+    shapes: tuple[Shape, ...]
+    circles: tuple[Circle, ...]
+
+
+class Update(NamedTuple):
+    """A new route for the formation (the goal last), or an order to hold (``route`` empty)."""
+
+    route: tuple[tuple[float, float], ...]
+    headings: tuple[float | None, ...]
+    why: str  # what made the plan: start, off route, no progress, things changed, retry
+    reason: str = ""  # no route: why
+
+
+class Replanner:
+    """One formation's route to one goal pose (module docstring)."""
+
+    def __init__(self, body: Body, goal_turn: float, goal: Pose3, shapes: Sequence[Shape],
+                 start: tuple[float, float] | None = None, by_hand: bool = False) -> None:
+        self.body = body
+        self.width = body.width
+        self.goal_turn = goal_turn
+        self.goal = goal
+        self.shapes = tuple(shapes)
+        self.by_hand = by_hand
+        self.planned: tuple[tuple[str, Circle], ...] = ()
+        self.unreachable = ""
+        self.plans = 0
+        self.last_plan = -math.inf
+        self._best = math.inf
+        self._best_at = 0.0
+        self._leg_start = start  # where the route's first leg starts
+        self.due = ""  # a plan asked for (a new goal): the next check says so
+
+    def plan(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...], why: str) -> Update:
+        """Plan from ``pose`` now around the shapes and ``things``."""
+        return self.finish(plan_footprint(*self.begin(t, pose, things)), why)
+
+    def begin(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...]) -> PlanJob:
+        """Start a plan from ``pose`` at ``t``: the arguments of
+        :func:`geometry.footprint_plan.plan_footprint` (run it anywhere, then :meth:`finish`)."""
+        self.plans += 1
+        self.due = ""
+        self.last_plan = t
+        self.planned = things
+        self._best, self._best_at = math.inf, t
+        self._leg_start = (pose[0], pose[1])
+        return PlanJob(pose, self.goal, self.body, self.shapes, tuple(c for _n, c in things))
+
+    def finish(self, res: FootprintPlan, why: str) -> Update:
+        """The route (or the order to hold) from a plan :meth:`begin` started."""
+        self.unreachable = res.reason
+        if res.reason:
+            return Update((), (), why, res.reason)
+        route = res.route
+        if len(route) > MAX_ROUTE:  # a plan holds no more: the first ones and the goal; the
+            route = route[:MAX_ROUTE - 1] + route[-1:]  # rest is planned again from there
+        return Update(tuple((x, y) for x, y, _th in route),
+                      tuple(wrap_angle(th - self.goal_turn) for _x, _y, th in route), why)
+
+    def check(self, t: float, pose: Pose3, route: Sequence[tuple[float, float]], index: int,
+              things: tuple[tuple[str, Circle], ...], turn: float = 0.0, busy: bool = False
+              ) -> str | None:
+        """Why to plan again now (module docstring), or None; ``turn`` [rad]: what the formation
+        has yet to turn to the current waypoint's heading (turning is progress too); ``busy``:
+        traffic is near (:func:`traffic`: the progress clock stops)."""
+        if self._leg_start is None:
+            self._leg_start = (pose[0], pose[1])
+        if self.due:
+            return self.due
+        if self.by_hand or t - self.last_plan < REPLAN_EVERY_S:
+            return None
+        if changed(things, self.planned):
+            return "things changed"
+        if self.unreachable:
+            return "retry" if t - self.last_plan >= RETRY_S else None
+        if busy:
+            self._best_at = t
+        return self._off(pose, route, index) or self._stuck(t, pose, route, index, turn)
+
+    def _off(self, pose: Pose3, route: Sequence[tuple[float, float]], index: int) -> str | None:
+        a = route[index - 1] if index > 0 else (self._leg_start or route[0])
+        b = route[index]
+        d = segment_distance(pose[0], pose[1], a[0], a[1], b[0], b[1])[0]
+        return "off route" if d > self.width else None
+
+    def _stuck(self, t: float, pose: Pose3, route: Sequence[tuple[float, float]],
+               index: int, turn: float) -> str | None:
+        togo = math.dist(pose[:2], route[index]) + self.body.rho * abs(turn) + sum(
+            math.dist(route[k], route[k + 1]) for k in range(index, len(route) - 1))
+        if index >= len(route) - 1 and togo < SETTLE_M:
+            return None
+        if togo < self._best - PROGRESS_M:
+            self._best, self._best_at = togo, t
+            return None
+        return "no progress" if t - self._best_at >= NO_PROGRESS_S else None

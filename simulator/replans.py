@@ -1,0 +1,103 @@
+"""The in-process simulator's leaders' route planning (issue 26): each ``method: rigid``
+formation without hand-given waypoints keeps a :class:`leader.routing.Replanner`; every tick its
+leader's view (its ellipse, the circles, the other formations' ellipses) decides whether to plan
+again, and every member follows the new route at once (the agents publish it on ``plan``)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+from agent.barriers import Obstacle
+from agent.body import Footprint, pose_of
+from geometry.ellipse import Ellipse, wrap_angle
+from leader.navigation import Follower
+from leader.routing import Replanner, StillThings, Thing, Update, traffic
+from scenario import Scenario
+from scenario.routes import RIGID, StartPlan, footprint_body
+
+
+class Replans:
+    """Per formation: its :class:`Replanner` and its view of still things."""
+
+    def __init__(self, scenario: Scenario, starts: dict[str, StartPlan],
+                 footprints: Sequence[Footprint], members: dict[str, tuple[int, ...]]) -> None:
+        self.scenario = scenario
+        self.members = members
+        self.footprints = footprints
+        self.planners: dict[str, Replanner] = {}
+        self.still: dict[str, StillThings] = {}
+        self.updates: list[tuple[float, str, str, int]] = []  # (t, formation, why, waypoints)
+        ctl = scenario.controller
+        self.rigid = ctl.method == RIGID
+        if not self.rigid or ctl.planner == "none":
+            return
+        for f in scenario.formations:
+            if f.waypoints:
+                continue
+            body, start, turn = footprint_body(scenario, f)
+            gx, gy = f.goal_centroid
+            r = Replanner(body, turn, (gx, gy, turn), scenario.shapes, start)
+            r.unreachable = starts[f.name].reason
+            r.last_plan = 0.0
+            self.planners[f.name] = r
+            self.still[f.name] = StillThings()
+
+    def heading(self, name: str, own: Ellipse) -> float | None:
+        """The formation's heading (the goal shape's turn) from its ellipse, under method rigid
+        (hand-given waypoints may carry headings too)."""
+        if not self.rigid:
+            return None
+        fp = self.footprints[self.members[name][0]]
+        return wrap_angle(pose_of(own, fp.alpha0).theta - fp.goal_turn)
+
+    def tick(self, t: float, ellipses: dict[str, Ellipse], obstacles: Sequence[Obstacle],
+             followers: Sequence[Follower]) -> None:
+        """Plan again where a leader would, and hand the route to the members."""
+        for name, planner in self.planners.items():
+            own = ellipses[name]
+            fp = self.footprints[self.members[name][0]]
+            pose = pose_of(own, fp.alpha0)
+            seen = self._things(name, ellipses, obstacles)
+            things = self.still[name].update(t, seen)
+            if t == 0.0:
+                planner.planned = things
+                if planner.unreachable:  # no route at the start: hold from the first tick
+                    self._hand(Update((), (), "start", planner.unreachable), name, own, followers)
+            lead = followers[self.members[name][0]]
+            want = lead.heading
+            turn = 0.0 if want is None else wrap_angle(pose.theta - fp.goal_turn - want)
+            p3 = (pose.cx, pose.cy, pose.theta)
+            why = planner.check(t, p3, lead.route, lead.index, things, turn,
+                                traffic(p3, planner.body.rho, seen))
+            if why is None:
+                continue
+            upd = planner.plan(t, (pose.cx, pose.cy, pose.theta), things, why)
+            self.updates.append((t, name, why, len(upd.route)))
+            self._hand(upd, name, own, followers)
+
+    def _hand(self, upd: Update, name: str, own: Ellipse, followers: Sequence[Follower]) -> None:
+        heading = self.heading(name, own)
+        for i in self.members[name]:
+            if upd.route:
+                followers[i].follow(upd.route, upd.headings)
+            else:
+                followers[i].hold(own.cx, own.cy, heading)
+
+    def _things(self, name: str, ellipses: dict[str, Ellipse], obstacles: Sequence[Obstacle]
+                ) -> list[Thing]:
+        out = [Thing(f"obstacle/{spec.name}", o.x, o.y, math.hypot(o.vx, o.vy), o.ds,
+                     spec.velocity == (0.0, 0.0))
+               for o, spec in zip(obstacles, self.scenario.obstacles, strict=True)]
+        radius = self.scenario.robot.radius
+        out += [Thing(f"formation/{other}", e.cx, e.cy, math.hypot(e.vx, e.vy), e.a + radius)
+                for other, e in ellipses.items() if other != name]
+        return out
+
+    def summary(self) -> dict:
+        """What ``summary.json`` says of the plans (only where a formation is planned)."""
+        if not self.planners:
+            return {}
+        return {"replans": [{"t": round(t, 3), "formation": n, "why": w, "waypoints": k}
+                            for t, n, w, k in self.updates],
+                "unreachable": {n: p.unreachable for n, p in self.planners.items() if p.unreachable}}

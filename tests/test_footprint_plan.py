@@ -1,0 +1,126 @@
+"""The footprint planner (geometry.footprint_plan) and the replanning rules (leader.routing):
+a returned route's footprint (every member's body at its slot, and the load's outline) never
+comes nearer a wall, shelf or circle than its safe distance, checked exactly along every leg;
+a long formation turns where only its length fits; no route says why."""
+
+from __future__ import annotations
+
+import math
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from geometry.footprint_plan import Body, load_outline, plan_footprint
+from geometry.shapes import box, segment, shape_distance
+from leader.navigation import Follower
+from leader.routing import Replanner, StillThings, Thing
+
+LINE = Body(tuple((-0.6 + 0.3 * k, 0.0) for k in range(5)), radius=0.1, margin=0.0)
+
+
+def _placed(pose, p):
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    return (pose[0] + c * p[0] - s * p[1], pose[1] + s * p[0] + c * p[1])
+
+
+def _legs(start, route, step=0.02):
+    """Poses along the route: each leg a straight move turning as it goes (the short way)."""
+    prev = start
+    for nxt in route:
+        d = math.dist(prev[:2], nxt[:2])
+        left = math.radians(20.0)  # the rigid motion's rule: near half a turn it goes left
+        turn = (nxt[2] - prev[2] + math.pi - left) % (2.0 * math.pi) - math.pi + left
+        n = max(1, int(d / step), int(abs(turn) * 0.8 / step))
+        for k in range(n + 1):
+            f = k / n
+            yield (prev[0] + f * (nxt[0] - prev[0]), prev[1] + f * (nxt[1] - prev[1]),
+                   prev[2] + f * turn)
+        prev = nxt
+
+
+def _clearance(body, pose, shapes, circles):
+    """The smallest margin of the footprint at ``pose`` (< 0: it touches something)."""
+    worst = math.inf
+    slots = [_placed(pose, p) for p in body.slots]
+    outline = [_placed(pose, p) for p in load_outline(body)]
+    n = len(outline)
+    edge_pts = [(a[0] + (b[0] - a[0]) * f / 20, a[1] + (b[1] - a[1]) * f / 20)
+                for k in range(n) for a, b in [(outline[k], outline[(k + 1) % n])] for f in range(21)]
+    for sh in shapes:
+        worst = min([worst] + [shape_distance(x, y, sh)[0] - sh.ds for x, y in slots]
+                    + [shape_distance(x, y, sh)[0] for x, y in edge_pts])
+    for ox, oy, ds in circles:
+        worst = min([worst] + [math.dist((x, y), (ox, oy)) - ds for x, y in slots]
+                    + [math.dist((x, y), (ox, oy)) - (ds - body.radius) for x, y in edge_pts])
+    return worst
+
+
+def _aisle():
+    """Two shelf blocks with a 1.8 m aisle between them along x."""
+    return [box("n", (0.0, 3.4), (6.0, 5.0), 0.0, 0.15), box("s", (0.0, -3.4), (6.0, 5.0), 0.0, 0.15)]
+
+
+def test_a_line_crosswise_to_an_aisle_turns_into_it_and_back():
+    body = Body(tuple((0.0, -0.75 + 0.3 * k) for k in range(6)), radius=0.105, margin=0.09)
+    plan = plan_footprint((-5.0, 0.0, 0.0), (5.0, 0.0, 0.0), body, _aisle())
+    assert plan.reason == "" and plan.route[-1] == (5.0, 0.0, 0.0)
+    inside = [th for x, _y, th in plan.route if -3.0 < x < 3.0]
+    assert inside and all(abs(math.sin(th)) > 0.5 for th in inside)  # turned well away from crosswise
+    for pose in _legs((-5.0, 0.0, 0.0), plan.route):
+        assert _clearance(body, pose, _aisle(), ()) > 0.0
+
+
+def test_no_route_into_a_closed_room_says_why():
+    room = [segment(f"w{k}", a, b, 0.15) for k, (a, b) in enumerate(
+        [((1, -1), (1, 1)), ((1, 1), (3, 1)), ((3, 1), (3, -1)), ((3, -1), (1, -1))])]
+    plan = plan_footprint((-3.0, 0.0, 0.0), (2.0, 0.0, 0.0), LINE, room)
+    assert plan.route == () and "no way" in plan.reason
+
+
+@settings(max_examples=25, deadline=None)
+@given(shelves=st.lists(st.tuples(st.floats(-3.0, 3.0), st.floats(-2.0, 2.0), st.floats(0.2, 1.5),
+                                  st.floats(0.2, 1.5), st.floats(-1.6, 1.6)), min_size=1, max_size=5),
+       circles=st.lists(st.tuples(st.floats(-3.0, 3.0), st.floats(-2.0, 2.0), st.floats(0.2, 0.6)),
+                        max_size=3),
+       goal_heading=st.floats(-3.1, 3.1))
+def test_a_returned_route_keeps_the_footprint_clear_of_everything(shelves, circles, goal_heading):
+    shapes = [box(f"b{k}", (x, y), (w, d), yaw, 0.15) for k, (x, y, w, d, yaw) in enumerate(shelves)]
+    start, goal = (-5.5, 0.0, 0.0), (5.5, 0.5, goal_heading)
+    plan = plan_footprint(start, goal, LINE, shapes, circles)
+    if plan.reason:
+        return  # no route is allowed (the shelves may close the way); a route must be clear
+    for pose in _legs(start, plan.route):
+        assert _clearance(LINE, pose, shapes, circles) > -1e-9
+
+
+def test_still_things_count_after_three_seconds_and_static_circles_at_once():
+    still = StillThings()
+    things = [Thing("obstacle/pillar", 0.0, 0.0, 0.0, 0.5, static=True),
+              Thing("obstacle/forklift", 3.0, 0.0, 0.0, 0.5)]
+    assert [n for n, _c in still.update(0.0, things)] == ["obstacle/pillar"]
+    assert [n for n, _c in still.update(2.9, things)] == ["obstacle/pillar"]
+    assert [n for n, _c in still.update(3.0, things)] == ["obstacle/forklift", "obstacle/pillar"]
+    moving = [things[0], things[1]._replace(speed=0.5)]
+    assert [n for n, _c in still.update(3.1, moving)] == ["obstacle/pillar"]
+
+
+def test_the_replanner_plans_again_off_route_and_without_progress_but_not_by_hand():
+    r = Replanner(LINE, 0.0, (5.0, 0.0, 0.0), [], start=(-5.0, 0.0))
+    route = ((5.0, 0.0),)
+    assert r.check(3.0, (-4.0, 0.0, 0.0), route, 0, ()) is None
+    assert r.check(3.0, (-4.0, 1.0, 0.0), route, 0, ()) == "off route"  # the line is 0.2 m wide
+    assert r.check(9.0, (-4.0, 0.0, 0.0), route, 0, ()) == "no progress"
+    assert r.check(3.0, (-4.0, 0.0, 0.0), route, 0, (("obstacle/f", (0.0, 0.0, 0.5)),)) == "things changed"
+    by_hand = Replanner(LINE, 0.0, (5.0, 0.0, 0.0), [], start=(-5.0, 0.0), by_hand=True)
+    assert by_hand.check(9.0, (-4.0, 3.0, 0.0), route, 0, ()) is None
+
+
+def test_a_member_passes_a_waypoint_with_a_heading_only_once_the_formation_has_turned():
+    f = Follower("a", (5.5, 0.0), (5.0, 0.0), ((0.0, 0.0), (5.0, 0.0)), (1.0, None))
+    f.step(0.0, 0.05, heading=0.2)  # at the point, not turned yet: stays on it
+    assert f.index == 0 and f.heading == 1.0
+    f.step(0.0, 0.05, heading=0.9)
+    assert f.index == 1 and f.heading is None
+    g = Follower("a", (5.5, 0.0), (5.0, 0.0), ((0.0, 0.0), (5.0, 0.0)))
+    g.step(0.0, 0.05, heading=0.2)  # no headings: passed on position alone, as before
+    assert g.index == 1
