@@ -28,6 +28,11 @@ class Replans:
         self.planners: dict[str, Replanner] = {}
         self.still: dict[str, StillThings] = {}
         self.updates: list[tuple[float, str, str, int]] = []  # (t, formation, why, waypoints)
+        # a new route reaches the leader's own follower at once and the other members a tick
+        # later, as the agents' ``plan`` message does in lock-step: (formation, update, heading)
+        self._pending: list[tuple[str, Update, Ellipse]] = []
+        ids = [r.id for f in scenario.formations for r in f.robots]
+        self.leader = {f.name: ids.index(f.leader) for f in scenario.formations}
         ctl = scenario.controller
         self.rigid = ctl.method == RIGID
         if not self.rigid or ctl.planner == "none":
@@ -54,6 +59,9 @@ class Replans:
     def tick(self, t: float, ellipses: dict[str, Ellipse], obstacles: Sequence[Obstacle],
              followers: Sequence[Follower]) -> None:
         """Plan again where a leader would, and hand the route to the members."""
+        for name, upd, at in self._pending:
+            self._hand(upd, name, at, followers, leader=False)
+        self._pending = []
         for name, planner in self.planners.items():
             own = ellipses[name]
             fp = self.footprints[self.members[name][0]]
@@ -63,8 +71,10 @@ class Replans:
             if t == 0.0:
                 planner.planned = things
                 if planner.unreachable:  # no route at the start: hold from the first tick
-                    self._hand(Update((), (), "start", planner.unreachable), name, own, followers)
-            lead = followers[self.members[name][0]]
+                    hold = Update((), (), "start", planner.unreachable)
+                    self._hand(hold, name, own, followers)
+                    self._hand(hold, name, own, followers, leader=False)
+            lead = followers[self.leader[name]]
             want = lead.heading
             turn = 0.0 if want is None else wrap_angle(pose.theta - fp.goal_turn - want)
             p3 = (pose.cx, pose.cy, pose.theta)
@@ -75,10 +85,16 @@ class Replans:
             upd = planner.plan(t, (pose.cx, pose.cy, pose.theta), things, why)
             self.updates.append((t, name, why, len(upd.route)))
             self._hand(upd, name, own, followers)
+            self._pending.append((name, upd, own))
 
-    def _hand(self, upd: Update, name: str, own: Ellipse, followers: Sequence[Follower]) -> None:
+    def _hand(self, upd: Update, name: str, own: Ellipse, followers: Sequence[Follower],
+              leader: bool = True) -> None:
+        """``upd`` (planned with the formation at ``own``) to the leader's follower (``leader``)
+        or to every other member's."""
         heading = self.heading(name, own)
         for i in self.members[name]:
+            if (i == self.leader[name]) != leader:
+                continue
             if upd.route:
                 followers[i].follow(upd.route, upd.headings)
             else:
