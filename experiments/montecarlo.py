@@ -182,9 +182,16 @@ def run_montecarlo(n: int, seed: int, workers: int = 2, progress=None,
             results.append(r)
             if progress:
                 progress(k + 1, n, 0.0)
+    return summarize(results, seed, world, draw), results
+
+
+def summarize(results: list[dict], seed: int, world: str | None = None,
+              draw: str = CIRCLES) -> dict:
+    """``montecarlo.json`` of the runs ``results`` (:func:`run_one`'s, in seed order)."""
+    n = len(results)
     failed = [r for r in results if not r["all_reached"] or r["collisions"]]
     deadlocks = [r for r in results if not r["all_reached"] and not r["collisions"]]
-    summary = {
+    return {
         "runs": n,
         "seed": seed,
         "world": world or IDEAL,
@@ -214,4 +221,3 @@ def run_montecarlo(n: int, seed: int, workers: int = 2, progress=None,
                                          "collisions", "formation_error_max_m")}
                      for r in failed],
     }
-    return summary, results
