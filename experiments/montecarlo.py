@@ -6,6 +6,10 @@ the floor along the main aisle or through the cross aisle, optionally a forklift
 outer aisle, and a robot model (single integrator or unicycle). Layouts the validator refuses are
 redrawn from the next sub-seed. ``montecarlo.json`` lists the totals and, for every failed run,
 its seed and its scenario file (written next to it) so it can be replayed with ``formation sim``.
+
+That is the ``circles`` draw (the default; its shelves are round). The ``warehouse`` draw
+(:mod:`experiments.warehouse_draw`) has shelf rows as boxes, walls, pillars, parked and moving
+forklifts, and formations of 2 to 6 robots carrying loads under ``controller.method: rigid``.
 """
 
 from __future__ import annotations
@@ -22,6 +26,8 @@ from scenario.bounds import parse as parse_bounds
 from scenario.load import scenario_from_dict
 from scenario.world import IDEAL
 from simulator.inprocess import SimOptions, simulate
+
+from .warehouse_draw import warehouse_problem, warehouse_scenario
 
 # Formation shapes sized for loads robots of 0.21 m diameter carry together (a pair under a
 # 0.6 m beam, a triangle under a round table, four under a 0.8 x 0.6 m pallet): offsets from the
@@ -95,26 +101,46 @@ def random_scenario(seed: int) -> dict:
     }
 
 
-def valid_scenario(seed: int, world: str | None = None, bounds: str | None = None):
+CIRCLES, WAREHOUSE = "circles", "warehouse"
+DRAWS = (CIRCLES, WAREHOUSE)
+
+
+def draw_layout(seed: int, draw: str = CIRCLES) -> dict:
+    """The layout of sub-seed ``seed`` in draw ``draw`` (one of DRAWS)."""
+    return warehouse_scenario(seed) if draw == WAREHOUSE else random_scenario(seed)
+
+
+def _checked(d: dict, draw: str):
+    """The scenario of mapping ``d`` (the scenario checks, and the warehouse draw's own)."""
+    scenario = scenario_from_dict(d)
+    problem = warehouse_problem(scenario) if draw == WAREHOUSE else None
+    if problem is not None:
+        raise ScenarioError(problem)
+    return scenario
+
+
+def valid_scenario(seed: int, world: str | None = None, bounds: str | None = None,
+                   draw: str = CIRCLES):
     """The first valid layout from sub-seeds of ``seed``: (mapping, scenario, sub-seed). With
     ``world`` (a profile other than the default), the mapping says so, with the run's seed as
     the world's: its noise is the run's own, and its scenario file replays it exactly. With
     ``bounds`` (``--bounds SPEC``, :mod:`scenario.bounds`), its ``controller.bounds`` too."""
     for sub in range(50):
-        d = random_scenario(seed * 1000 + sub)
-        if world is not None and world != IDEAL:
-            d["world"] = {"profile": world, "seed": seed}
-        if bounds is not None:
-            d["controller"]["bounds"] = dataclasses.asdict(parse_bounds(bounds, DT))
         try:
-            return d, scenario_from_dict(d), seed * 1000 + sub
+            d = draw_layout(seed * 1000 + sub, draw)
+            if world is not None and world != IDEAL:
+                d["world"] = {"profile": world, "seed": seed}
+            if bounds is not None:
+                d["controller"]["bounds"] = dataclasses.asdict(parse_bounds(bounds, DT))
+            return d, _checked(d, draw), seed * 1000 + sub
         except ScenarioError:
             continue
     raise RuntimeError(f"seed {seed}: no valid layout in 50 draws")
 
 
-def run_one(seed: int, world: str | None = None, bounds: str | None = None) -> dict:
-    d, scenario, sub = valid_scenario(seed, world, bounds)
+def run_one(seed: int, world: str | None = None, bounds: str | None = None,
+            draw: str = CIRCLES) -> dict:
+    d, scenario, sub = valid_scenario(seed, world, bounds, draw)
     s = simulate(scenario, SimOptions(record=False)).summary
     obstacle_clear = s["min_clearance_m"]["obstacle"]
     return {
@@ -154,23 +180,34 @@ def _model_totals(runs: list[dict]) -> dict:
 
 
 def run_montecarlo(n: int, seed: int, workers: int = 2, progress=None,
-                   world: str | None = None, bounds: str | None = None) -> tuple[dict, list[dict]]:
+                   world: str | None = None, bounds: str | None = None,
+                   draw: str = CIRCLES) -> tuple[dict, list[dict]]:
     """``n`` runs from ``seed``; ``world``: the world profile of every run (default ideal);
-    ``bounds``: every run's controller bounds (``--bounds SPEC``; default none)."""
+    ``bounds``: every run's controller bounds (``--bounds SPEC``; default none); ``draw``: which
+    layouts (one of DRAWS)."""
     seeds = [seed * 100000 + k for k in range(n)]
     results = []
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        for k, r in enumerate(pool.map(partial(run_one, world=world, bounds=bounds), seeds)):
+        for k, r in enumerate(pool.map(partial(run_one, world=world, bounds=bounds, draw=draw),
+                                       seeds)):
             results.append(r)
             if progress:
                 progress(k + 1, n, 0.0)
+    return summarize(results, seed, world, draw, bounds), results
+
+
+def summarize(results: list[dict], seed: int, world: str | None = None,
+              draw: str = CIRCLES, bounds: str | None = None) -> dict:
+    """``montecarlo.json`` of the runs ``results`` (:func:`run_one`'s, in seed order)."""
+    n = len(results)
     failed = [r for r in results if not r["all_reached"] or r["collisions"]]
     deadlocks = [r for r in results if not r["all_reached"] and not r["collisions"]]
-    summary = {
+    return {
         "runs": n,
         "seed": seed,
         "world": world or IDEAL,
         "bounds": bounds or "none",
+        "draw": draw,
         "collisions": sum(r["collisions"] for r in results),
         "runs_with_collision": sum(1 for r in results if r["collisions"]),
         "reached_rate": sum(r["all_reached"] for r in results) / n if n else None,
@@ -196,4 +233,3 @@ def run_montecarlo(n: int, seed: int, workers: int = 2, progress=None,
                                          "collisions", "formation_error_max_m")}
                      for r in failed],
     }
-    return summary, results

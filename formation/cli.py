@@ -224,6 +224,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=11, help="seed of the first scenario's layout")
     p.add_argument("--jobs", type=int, default=2, metavar="J",
                    help="runs at a time, each in its own process (results do not depend on it)")
+    p.add_argument("--draw", default="circles", choices=["circles", "warehouse"], metavar="DRAW",
+                   help="the layouts: round shelves along two aisles (circles), or halls of shelf "
+                        "rows, walls, pillars and forklifts with formations of 2-6 robots carrying "
+                        "loads under the rigid method (warehouse)")
     _add_world(p)
     _add_bounds(p)
     _add_out(p)

@@ -1,4 +1,5 @@
-"""``formation montecarlo --n N --seed S --out DIR``: see :mod:`experiments.montecarlo`."""
+"""``formation montecarlo --n N --seed S [--draw circles|warehouse] --out DIR``: see
+:mod:`experiments.montecarlo`."""
 
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ def montecarlo_command(ns: argparse.Namespace) -> int:
     out = begin_output(ns)
     with Progress(f"montecarlo n={ns.n}", unit="runs") as progress:
         summary, results = run_montecarlo(ns.n, ns.seed, ns.jobs, progress=progress.update,
-                                          world=ns.world, bounds=ns.bounds)
+                                          world=ns.world, bounds=ns.bounds, draw=ns.draw)
     for r in results:
         if not r["all_reached"] or r["collisions"]:
             (out / f"failure-{r['seed']}.yaml").write_text(yaml.safe_dump(r["scenario"], sort_keys=False))
@@ -32,7 +33,7 @@ def montecarlo_command(ns: argparse.Namespace) -> int:
     with (out / "runs.jsonl").open("w", encoding="utf-8") as fh:
         for r in results:
             fh.write(json.dumps({k: v for k, v in r.items() if k != "scenario"}) + "\n")
-    print(f"montecarlo: {summary['runs']} runs ({summary['world']} world, "
+    print(f"montecarlo: {summary['runs']} runs ({summary['draw']} draw, {summary['world']} world, "
           f"bounds {summary['bounds']}), "
           f"reached {100 * summary['reached_rate']:.1f}%, "
           f"collisions {summary['collisions']} (in {summary['runs_with_collision']} runs), "
