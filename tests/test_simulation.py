@@ -25,7 +25,14 @@ NEW = {"meet-5-rectangles", "meet-6-rectangles", "warehouse-12-formations", "for
        "roundabout"}
 # Where the formation error on the bodies still exceeds 1.5 epsilon (safety holds there):
 FORMATION_GAPS = {
+    # the lab world drives single-integrator agents as differential drives (eq. 6.2's map): when
+    # the escape rule reverses the formation's motion, members facing its way turn in place while
+    # others back up, and the band breaks (3.1 eps; 1.39 eps under the old per-member rules, which
+    # reversed less); the agent's model does not know its robot turns (issue 27, left open)
+    "warehouse-lab-bounds": "single integrators on differential drives reversing (3.1 eps)",
 }
+# goals meant to have no route: tests/test_route_scenarios.py shows they hold, unreachable
+UNREACHABLE = {"route-closed-room", "route-closed-room-unicycle"}
 
 
 def _params(names):
@@ -49,7 +56,7 @@ SUMMARY_FIELDS = {
 
 
 @pytest.mark.integration
-@pytest.mark.parametrize("path", _params(SCENARIOS))
+@pytest.mark.parametrize("path", _params([p for p in SCENARIOS if p.stem not in UNREACHABLE]))
 def test_scenario_reaches_every_goal_safely(path):
     scenario = load_scenario(path)
     s = _summary(path)
