@@ -85,6 +85,7 @@ from typing import NamedTuple
 
 from geometry.ellipse import Ellipse, ellipse_terms
 from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE, BURGER_RADIUS
+from geometry.route import ADVANCE_RADIUS
 from geometry.shapes import Shape
 from scenario import limits as ranges
 from scenario.model import METHODS
@@ -255,17 +256,27 @@ class Stall(NamedTuple):
     retreat: float = 0.0  # [s] retreat time left
 
 
-def update_stall(prev: Stall, view: FormationView, dt: float) -> Stall:
-    """Jam rule, state part: a formation still for STALL_TIME while away from its goal retreats
-    for RETREAT_TIME. Uses only what every member shares (its formation's ellipse and goal)."""
+def update_stall(prev: Stall, view: FormationView, dt: float,
+                 reach: float = STALL_GOAL_DISTANCE) -> Stall:
+    """Jam rule, state part: a formation still for STALL_TIME while farther than ``reach`` from
+    its goal (:func:`stall_reach`) retreats for RETREAT_TIME. Uses only what every member shares
+    (its formation's ellipse and goal)."""
     own = view.own
-    far = math.hypot(view.goal_x - own.cx, view.goal_y - own.cy) > STALL_GOAL_DISTANCE
+    far = math.hypot(view.goal_x - own.cx, view.goal_y - own.cy) > reach
     slow = math.hypot(own.vx, own.vy) < STALL_SPEED
     still = prev.still + dt if (far and slow and prev.retreat <= 0.0) else 0.0
     retreat = max(0.0, prev.retreat - dt)
     if still >= STALL_TIME:
         return Stall(0.0, RETREAT_TIME)
     return Stall(still, retreat)
+
+
+def stall_reach(p: ControlParams) -> float:
+    """[m] how close to the goal the jam rule leaves a still formation alone. The goal it sees
+    is the route's current waypoint; the route moves on within ADVANCE_RADIUS of one, so under
+    ``method: rigid`` a formation still between that and STALL_GOAL_DISTANCE of a waypoint in a
+    doorway (both formations at their own side's) is jammed, not there: the rule counts it."""
+    return ADVANCE_RADIUS if p.method == "rigid" else STALL_GOAL_DISTANCE
 
 
 def retreat_command(view: FormationView, others: Sequence[Ellipse], vmax: float):
@@ -907,14 +918,13 @@ def control_step(
     if rules and p.keeps_band_first and not escaping and neighbours:
         ux, uy = band_nominal(p, px, py, (ux, uy), neighbours)  # formation keeping first
     if p.method == "rigid" and p.safety and view is not None and footprint is not None:
-        esc = escape_command(p, view, obstacles) if p.tiebreak else None  # a faster hazard
+        esc = rigid_intent(p, view, obstacles, hazards)
         push = tiebreak_push(view, hazards, obstacles, p.max_speed) if p.tiebreak else (0.0, 0.0)
         ux, uy = rigid_nominal(p, footprint, view, body.Snapshot(obstacles, shapes, hazards),
                                     (px, py), (x, y), goal, push, esc)
         escaping = esc is not None
     if p.unicycle and p.safety and p.method != "thesis":  # turn about the body, then drive
-        near = math.hypot(goal[0] - x, goal[1] - y) < unicycle.STEER_REVERSE_RANGE
-        ux, uy = unicycle.steer(ux, uy, theta, p.lookahead, p.max_turn_rate, reverse=near)
+        ux, uy = steered(p, pose, goal, (ux, uy))
     nux, nuy = ux, uy
 
     rows = build_rows(p, px, py, theta, (ux, uy), neighbours, obstacles, others, view, pairwise,
@@ -937,6 +947,36 @@ def control_step(
         res.ux, res.uy, v, w, px, py, res.status, res.slack, rows.h_formation, rows.h_obstacle,
         rows.h_formations, nux, nuy, solve_us, rows.h_separation, escaping,
     )
+
+
+def rigid_intent(p: ControlParams, view: FormationView, obstacles: Sequence[Obstacle],
+                 hazards: Sequence[Ellipse]) -> tuple[float, float] | None:
+    """``method: rigid``: what replaces the centroid's goal motion, with the tie-break on (both are
+    formation-level deadlock rules, ``controller.tiebreak``): the escape from a faster hazard
+    (:func:`escape_command`), else, while the jam rule says the formation retreats
+    (:func:`update_stall`), backing away from the formations that have priority
+    (:func:`retreat_command`). The formation QP keeps two bodies apart but has no order: two
+    formations that both need one doorway stand still in front of it for ever without it."""
+    if not p.tiebreak:
+        return None
+    esc = escape_command(p, view, obstacles)
+    if esc is None and view.retreating:
+        esc = retreat_command(view, hazards, p.max_speed)
+    return esc
+
+
+def steered(p: ControlParams, pose: tuple[float, float, float], goal: tuple[float, float],
+            w: tuple[float, float]) -> tuple[float, float]:
+    """A unicycle's look-ahead nominal for the intended velocity ``w`` (:func:`agent.unicycle.steer`;
+    close to its goal it may back up). Under ``method: rigid`` it is never faster than ``w``
+    (:func:`agent.unicycle.no_faster`): a member whose intent is a slot correction of millimetres
+    turns at the speed of that intent, not at its full turn rate."""
+    x, y, theta = pose
+    near = math.hypot(goal[0] - x, goal[1] - y) < unicycle.STEER_REVERSE_RANGE
+    u = unicycle.steer(w[0], w[1], theta, p.lookahead, p.max_turn_rate, reverse=near)
+    if p.method == "rigid":
+        u = unicycle.no_faster(u, math.hypot(w[0], w[1]))
+    return u
 
 
 def body_params(cp: ControlParams) -> body.BodyParams:

@@ -16,7 +16,7 @@ from leader.role import VIEW_RANGE
 
 from . import unicycle
 from .barriers import Neighbour, Partner
-from .control import FormationView, Stall, update_stall
+from .control import STALL_GOAL_DISTANCE, FormationView, Stall, update_stall
 
 Kinematic = tuple[float, float, float, float]  # control point x, y [m], velocity vx, vy [m/s]
 Heading = tuple[float, float, float, float, float]  # a Kinematic and the heading theta [rad]
@@ -44,6 +44,7 @@ def step_inputs(
     period: float,
     foreign: Iterable[Heading] | None = None,
     members: Iterable[Heading] = (),
+    stall_reach: float = STALL_GOAL_DISTANCE,
 ) -> StepInputs:
     """Inputs of one robot's step.
 
@@ -57,7 +58,8 @@ def step_inputs(
     each foreign robot, is a partner of a hard separation row; the other formations' ellipses
     stay hazards for the formation-level rules (tie-break, jam) in both topologies. A neighbour
     may carry its heading as a sixth number (from its ``state``): a unicycle formation's band on
-    the look-ahead points narrows by it.
+    the look-ahead points narrows by it. ``stall_reach``: the jam rule's "at the goal"
+    (:func:`agent.control.stall_reach`).
     """
     nb = [Neighbour(*n) for n in neighbours]
     view = None
@@ -65,7 +67,7 @@ def step_inputs(
         others = [(name, e) for name, e in others
                   if within_reach(own, e.cx, e.cy, e.a, VIEW_RANGE)]
         view = FormationView(own, *formation_goal)
-        stall = update_stall(stall, view, period)
+        stall = update_stall(stall, view, period, stall_reach)
         view = view._replace(
             name=formation,
             other_names=tuple(name for name, _e in others),

@@ -101,7 +101,7 @@ from agent.barriers import Obstacle
 from agent.base import Base, make_base
 from agent.clock import STATS_WINDOW, Clock, LockstepClock, RealtimeClock
 from agent.config import AgentConfig
-from agent.control import Stall, StepResult, control_step
+from agent.control import Stall, StepResult, control_step, stall_reach
 from agent.faults import EPS, LinkFaults
 from agent.hard_rows import HardRowCounter
 from agent.inbox import RING_CAPACITY, Inbox, Receiver
@@ -561,6 +561,7 @@ class AgentNode:
              for k in self.foreign_keys] if self.all_to_all else None,
             [(states[k].x, states[k].y, states[k].ux, states[k].uy, states[k].theta)
              for k in self.partner_keys],
+            stall_reach(cfg.control),
         )
         self._stall = inputs.stall
         res = control_step(cfg.control, (pose.x, pose.y, pose.theta), target, inputs.neighbours,

@@ -67,6 +67,21 @@ def steer(wx: float, wy: float, theta: float, lookahead: float, max_turn_rate: f
     return from_unicycle(v, omega, theta, lookahead)
 
 
+def no_faster(u: tuple[float, float], speed: float) -> tuple[float, float]:
+    """The steered command ``u`` scaled down to at most ``speed`` (its intent's), direction kept.
+
+    :func:`steer` turns at STEER_GAIN x the heading error whatever the intent's speed, so an
+    intent of a few mm/s that points behind the robot gives a look-ahead command up to
+    l x max_turn_rate (14 cm/s on a TurtleBot); the turn moves the look-ahead point, which moves
+    an intent measured there, and the command flips from tick to tick. Scaled, the turn is as
+    slow as what it serves (a full-speed intent keeps its full turn: l x max_turn_rate is below
+    the top speed)."""
+    n = math.hypot(u[0], u[1])
+    if n <= speed or n < 1e-12:
+        return u
+    return (u[0] * speed / n, u[1] * speed / n)
+
+
 def _ahead(wx: float, wy: float, theta: float) -> bool:
     return wx * math.cos(theta) + wy * math.sin(theta) >= 0.0
 

@@ -20,7 +20,7 @@ import numpy as np
 from agent import unicycle
 from agent.barriers import Obstacle
 from agent.body import Footprint, footprint_of
-from agent.control import ControlParams, Stall, StepResult, control_step
+from agent.control import ControlParams, Stall, StepResult, control_step, stall_reach
 from agent.hard_rows import HardRowCounter
 from agent.inputs import step_inputs
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
@@ -181,6 +181,7 @@ def simulate(  # noqa: C901 (13: the in-process loop; to split with the world's 
                 [(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], seen[j][2])
                  for j in range(n) if fleet.formation_of[j] != fname] if all_to_all else None,
                 [(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], seen[j][2]) for j in fleet.partners[i]],
+                stall_reach(params),
             )
             stalls[i] = inputs.stall
             pose = (seen[i][0], seen[i][1], seen[i][2])

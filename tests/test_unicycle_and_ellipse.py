@@ -93,3 +93,22 @@ def test_derived_axes_enclose_a_disk_of_the_clearance_around_every_member(points
 def test_derive_axes_rejects_a_non_positive_clearance():
     with pytest.raises(ValueError, match="clearance"):
         derive_axes(reference_shape(RECT), 0.0)
+
+
+@given(st.floats(-0.3, 0.3), st.floats(-0.3, 0.3), st.floats(-math.pi, math.pi))
+def test_a_steered_command_is_never_faster_than_its_intent_and_keeps_its_direction(wx, wy, theta):
+    """``method: rigid`` caps the steered look-ahead command at the intent's speed (a slot
+    correction of millimetres turns the robot as slowly): same direction, at most |w|."""
+    u = unicycle.steer(wx, wy, theta, 0.05, 2.84)
+    capped = unicycle.no_faster(u, math.hypot(wx, wy))
+    assert math.hypot(*capped) <= math.hypot(wx, wy) + 1e-12
+    assert capped[0] * u[1] - capped[1] * u[0] == pytest.approx(0.0, abs=1e-12)
+    assert capped[0] * u[0] + capped[1] * u[1] >= 0.0
+    if math.hypot(*u) <= math.hypot(wx, wy):
+        assert capped == u
+
+
+def test_a_tiny_intent_behind_a_unicycle_no_longer_turns_it_at_full_rate():
+    u = unicycle.steer(-0.004, 0.001, 0.0, 0.05, 2.84)  # 4 mm/s, behind: the full turn rate
+    assert math.hypot(*u) > 0.1
+    assert math.hypot(*unicycle.no_faster(u, math.hypot(-0.004, 0.001))) <= 0.0042
