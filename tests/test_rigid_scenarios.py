@@ -23,12 +23,16 @@ SCENARIOS = Path(__file__).parent / "scenarios"
 
 #: The issue's "Done when" set that does not meet the bar yet, and why (strict: a fix shows).
 FAILING = {
-    "rigid-doorway-four-unicycle": "four formations jam at one doorway: not every goal reached",
-    "rigid-eps001-turning-unicycle": "a unicycle triangle shears 2 epsilon (2 cm) crossing a "
-                                     "rectangle: its members lag the formation's turn",
-    "rigid-shelves-eight-unicycle": "two pairs meet head-on in the cross-aisle: 6 epsilon, "
-                                    "ellipse rows unmet",
-    "rigid-cross-aisle-six-unicycle": "1.52 epsilon where six formations meet in the aisle",
+    "rigid-doorway-four-unicycle": "four formations jam at one 1.3 m doorway: after 300 s not every "
+                                   "goal is reached (2.2 eps; 18 separation, 10 fallback ticks)",
+    "rigid-eps001-turning-unicycle": "2.06 eps (2 cm): the formation QP slows and turns a triangle "
+                                     "for the crossing rectangle and its unicycle members lag the "
+                                     "twist (every QP ok)",
+    "rigid-shelves-eight-unicycle": "two pairs meet head-on in the cross-aisle: 6.2 eps and "
+                                    "ellipse rows unmet (their members' QPs infeasible)",
+    "rigid-cross-aisle-six-unicycle": "1.52 eps: the formation QP reverses a rectangle for an "
+                                      "oncoming triangle (A.3's velocity term) and its unicycle "
+                                      "members turn round at different rates",
 }
 
 PASSING = sorted(p.stem for p in SCENARIOS.glob("rigid-*.yaml") if p.stem not in FAILING)
