@@ -235,6 +235,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = add("bench", "benchmarks: solver, control step, fleet CPU")
     _add_out(p)
     p.add_argument("--quick", action="store_true", help="smoke mode (CI): small and short")
+    p.add_argument("--method", default=None, metavar="M,...",
+                   help="only the per-member control step on the warehouse under these "
+                        "controller methods, side by side (e.g. rigid,thesis)")
     p.add_argument("--fleets", default=None, metavar="N@HZ,...",
                    help="only these agent fleets, e.g. 32@50,256@20 (real time)")
     p.add_argument("--agents-per-process", type=int, default=1, metavar="K",

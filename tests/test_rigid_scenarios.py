@@ -1,5 +1,6 @@
 """Issue 25's bar for ``controller.method: rigid`` on its own scenarios (tests/scenarios/rigid-*.yaml),
-in process: 0 collisions, formation error <= 1.5 epsilon, every goal reached, 0 hard rows unmet.
+in process: 0 collisions (loads counted), formation error <= 1.5 epsilon, every goal reached, 0 hard
+rows unmet, 0 reversals of the certified command outside ``motion.reversals_forced``.
 
 Each scenario is a kind the issue names: a rectangle next to a wall pushed by a forklift, a
 parked forklift in an aisle, a pentagon passing a shelf corner, a 180-degree unicycle turn at
@@ -20,34 +21,59 @@ from simulator.inprocess import SimOptions, simulate
 
 SCENARIOS = Path(__file__).parent / "scenarios"
 
-PASSING = [
-    "rigid-doorway-pair",
-    "rigid-wall-forklift",
-    "rigid-wall-forklift-unicycle",
-    "rigid-parked-forklift",
-    "rigid-parked-forklift-unicycle",
-    "rigid-pentagon-corner",
-    "rigid-pentagon-corner-unicycle",
-    "rigid-turn-180-dt01",
-    "rigid-turn-180-dt002",
-]
+#: The issue's "Done when" set that does not meet the bar yet, and why (strict: a fix shows).
+FAILING = {
+    "rigid-doorway-four-unicycle": "four formations jam at one 1.3 m doorway: after 300 s not every "
+                                   "goal is reached (2.2 eps; 18 separation, 10 fallback ticks)",
+    "rigid-eps001-turning-unicycle": "2.06 eps (2 cm): the formation QP slows and turns a triangle "
+                                     "for the crossing rectangle and its unicycle members lag the "
+                                     "twist (every QP ok)",
+    "rigid-shelves-eight-unicycle": "two pairs meet head-on in the cross-aisle: 6.2 eps and "
+                                    "ellipse rows unmet (their members' QPs infeasible)",
+    "rigid-cross-aisle-six-unicycle": "1.52 eps: the formation QP reverses a rectangle for an "
+                                      "oncoming triangle (A.3's velocity term) and its unicycle "
+                                      "members turn round at different rates",
+}
+
+PASSING = sorted(p.stem for p in SCENARIOS.glob("rigid-*.yaml") if p.stem not in FAILING)
 
 
 def _run(name: str, method: str | None = None) -> tuple[dict, float]:
     s = load_scenario(SCENARIOS / f"{name}.yaml")
     if method is not None:
         s = dataclasses.replace(s, controller=dataclasses.replace(s.controller, method=method))
-    return simulate(s, SimOptions(record=False)).summary, s.controller.epsilon
+    return simulate(s, SimOptions()).summary, s.controller.epsilon
+
+
+def _assert_bar(summary: dict, eps: float) -> None:
+    assert summary["collisions"] == 0, summary["collision_log"]
+    assert summary["formation_error_max_m"] <= 1.5 * eps
+    assert summary["all_reached"]
+    assert summary["qp"]["hard_row_unmet_ticks"] == 0, summary["qp"]["hard_row_unmet"]
+    motion = summary["motion"]
+    assert motion["reversals_total"] == motion["reversals_forced_total"], motion
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", PASSING)
 def test_rigid_meets_the_issue_bar(name):
-    summary, eps = _run(name)
-    assert summary["collisions"] == 0, summary["collision_log"]
-    assert summary["formation_error_max_m"] <= 1.5 * eps
-    assert summary["all_reached"]
-    assert summary["qp"]["hard_row_unmet_ticks"] == 0, summary["qp"]["hard_row_unmet"]
+    _assert_bar(*_run(name))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(FAILING))
+def test_rigid_short_of_the_bar(name, request):
+    request.applymarker(pytest.mark.xfail(reason=FAILING[name], strict=True))
+    _assert_bar(*_run(name))
+
+
+def test_the_set_has_each_kind_with_both_models():
+    """At least 24 scenarios, both robot models, some carrying a declared load, several rates."""
+    scenarios = [load_scenario(p) for p in SCENARIOS.glob("rigid-*.yaml")]
+    assert len(scenarios) >= 24
+    assert {s.robot.is_unicycle for s in scenarios} == {False, True}
+    assert sum(any(f.load for f in s.formations) for s in scenarios) >= 5
+    assert {0.02, 0.05, 0.1} <= {s.dt for s in scenarios}
 
 
 def test_every_rigid_scenario_says_rigid():

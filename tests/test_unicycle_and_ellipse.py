@@ -93,3 +93,4 @@ def test_derived_axes_enclose_a_disk_of_the_clearance_around_every_member(points
 def test_derive_axes_rejects_a_non_positive_clearance():
     with pytest.raises(ValueError, match="clearance"):
         derive_axes(reference_shape(RECT), 0.0)
+

@@ -7,14 +7,26 @@ import json
 import sys
 from pathlib import Path
 
-from experiments.bench import format_fleets, format_table, parse_fleets, run_bench, run_fleets
+from experiments.bench import (
+    DEFAULT_SCENARIO,
+    format_fleets,
+    format_table,
+    parse_fleets,
+    run_bench,
+    run_fleets,
+)
+from experiments.method_bench import bench_methods, format_methods, parse_methods
 from formation.exits import UsageError
 from formation.outdir import begin_output
 
 
 def bench_command(ns: argparse.Namespace) -> int:
     """``formation bench --out DIR [--quick]``, or ``--fleets N@HZ,... [--agents-per-process K]
-    [--session-per-agent] [--repeat R] [--duration S]``: only those agent fleets."""
+    [--session-per-agent] [--repeat R] [--duration S]``: only those agent fleets, or
+    ``--method M,... [--quick]``: only the per-member step under those methods."""
+    method_arg = getattr(ns, "method", None)
+    if method_arg is not None:
+        return _methods(ns, method_arg)
     fleets_arg = getattr(ns, "fleets", None)
     per_process = getattr(ns, "agents_per_process", 1)
     repeat = getattr(ns, "repeat", 1)
@@ -49,6 +61,20 @@ def bench_command(ns: argparse.Namespace) -> int:
     else:
         result = run_bench(quick=ns.quick)
         _write(out, result, format_table(result))
+    return 0
+
+
+def _methods(ns: argparse.Namespace, text: str) -> int:
+    """``--method M,...``: :mod:`experiments.method_bench` on the warehouse (``--quick``: 20 s)."""
+    try:
+        methods = parse_methods(text)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if getattr(ns, "fleets", None) is not None:
+        raise UsageError("--method and --fleets: one at a time")
+    out = begin_output(ns)
+    result = bench_methods(DEFAULT_SCENARIO, methods, 20.0 if ns.quick else None)
+    _write(out, result, format_methods(result))
     return 0
 
 
