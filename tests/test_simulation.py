@@ -70,7 +70,9 @@ def test_scenario_reaches_every_goal_safely(path):
         assert s["min_clearance_m"]["obstacle"] >= -0.005
     assert s["min_clearance_m"]["robot"] is None or s["min_clearance_m"]["robot"] >= 0.0
     assert s["qp"]["failed"] == 0
-    if path.stem not in NEW:  # the scenarios from before issue 13 never need the least-risk command
+    # the scenarios from before issue 13 never need the least-risk command (issue 25's and 26's
+    # and the double integrator's have their own test files, each with its whole bar)
+    if path.stem not in NEW and not path.stem.startswith(("rigid-", "route-", "di-")):
         assert s["qp"]["fallback"] == 0
     assert scenario.controller.epsilon > 0
 
