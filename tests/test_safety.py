@@ -167,12 +167,17 @@ def test_a_formation_crossing_the_path_of_a_hazard_as_fast_as_itself_gives_way()
 
 
 def test_escape_is_the_same_vector_for_every_member():
+    from agent.body import footprint_of
+
     p = ControlParams(tiebreak=True)
     view = _view(0.0, 0.0, 0.0, 0.0)
     forklift = [Obstacle(-4.0, 0.0, 0.33, 0.0, 0.5)]
-    noms = {(r.nominal_ux, r.nominal_uy, r.escape)
-            for r in (control_step(p, (x, y, 0.0), (x, y), obstacles=forklift, view=view)
-                      for x, y in ((0.25, 0.125), (0.25, -0.125), (-0.25, -0.125), (-0.25, 0.125)))}
+    members = [(0.25, 0.125), (0.25, -0.125), (-0.25, -0.125), (-0.25, 0.125)]
+    noms = set()
+    for k, (x, y) in enumerate(members):  # each member at its slot of the formation's body
+        fp = footprint_of(members, members, members, k)
+        r = control_step(p, (x, y, 0.0), (x, y), obstacles=forklift, view=view, footprint=fp)
+        noms.add((round(r.nominal_ux, 12), round(r.nominal_uy, 12), r.escape))
     assert len(noms) == 1 and next(iter(noms))[2]
 
 
