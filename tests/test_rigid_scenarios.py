@@ -108,13 +108,14 @@ def test_the_tiebreak_stays_under_rigid_two_rectangles_head_on_deadlock_without_
 
 
 @pytest.mark.slow
-def test_the_yield_rule_stays_two_rectangles_in_one_doorway_deadlock_without_it(monkeypatch):
-    """No barrier picks which of two formations meeting in a doorway goes first: with the stall
-    clock's yield (agent.control.yield_command) the later name backs off and both get through."""
+def test_the_yield_rule_stays_four_formations_at_one_doorway_deadlock_without_it(monkeypatch):
+    """No barrier picks which of the formations meeting in a doorway goes first: with the stall
+    clock's yield (agent.control.yield_command) the later names back off and every formation
+    gets through (its band and hard rows are the xfail above); without it they stay jammed."""
     from agent import control
 
-    summary, _eps = _run("rigid-doorway-pair")
+    summary, _eps = _run("rigid-doorway-four-unicycle")
     assert summary["all_reached"] and summary["collisions"] == 0
     monkeypatch.setattr(control, "yield_command", lambda view, others, vmax: None)
-    stuck, _eps = _run("rigid-doorway-pair")
+    stuck, _eps = _run("rigid-doorway-four-unicycle")
     assert not stuck["all_reached"] and stuck["collisions"] == 0
