@@ -72,10 +72,13 @@ def start_plan(scenario: Scenario, formation: FormationSpec) -> StartPlan:
             or scenario.controller.planner == "none":
         hs = formation.waypoint_headings
         return StartPlan(initial_route(scenario, formation), hs + (None,) if hs else ())
+    circles = static_circles(scenario)
+    if not scenario.shapes and not circles:  # open floor: the straight move, turning as it goes
+        return StartPlan((formation.goal_centroid,), (0.0,))
     body, start, turn = footprint_body(scenario, formation)
     gx, gy = formation.goal_centroid
     plan = plan_footprint((start[0], start[1], 0.0), (gx, gy, turn), body, scenario.shapes,
-                          static_circles(scenario))
+                          circles)
     if plan.reason:
         return StartPlan((formation.goal_centroid,), (), plan.reason)
     route = plan.route
