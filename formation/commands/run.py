@@ -120,7 +120,10 @@ class LaterInterruptsWait:
         return self
 
     def __exit__(self, *_exc: object) -> None:
-        if self._previous is not None:
+        # once interrupted, the process is on its way out: a Ctrl-C still coming (one of a
+        # hurried operator's several) must not meet the default handler while Python exits,
+        # which killed the process by SIGINT after the run was written (exit -2, not 130)
+        if self._previous is not None and self.count == 0:
             signal.signal(signal.SIGINT, self._previous)
 
     def run_over(self) -> None:
