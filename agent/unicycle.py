@@ -40,7 +40,7 @@ STEER_REVERSE_RANGE = 0.1  # [m] this close to its goal a robot may back up inst
 
 
 def steer(wx: float, wy: float, theta: float, lookahead: float, max_turn_rate: float,
-          reverse: bool = False, lead: float = 0.0) -> tuple[float, float]:
+          reverse: bool = False, *, lead: float) -> tuple[float, float]:
     """The look-ahead point's nominal velocity for an intended point velocity w: turn first,
     then drive (the unicycle's own nominal; eq. 4.2 stays the intended motion).
 

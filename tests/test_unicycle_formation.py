@@ -37,7 +37,7 @@ offset = st.tuples(st.floats(-0.5, 0.5), st.floats(-0.5, 0.5))
 @given(st.floats(-0.3, 0.3), st.floats(-0.3, 0.3), angle, st.booleans())
 def test_steering_turns_in_place_before_driving_and_keeps_the_limits(wx, wy, theta, reverse):
     look, wmax = 0.05, 2.84
-    ux, uy = unicycle.steer(wx, wy, theta, look, wmax, reverse=reverse)
+    ux, uy = unicycle.steer(wx, wy, theta, look, wmax, reverse=reverse, lead=0.5)
     v, omega = unicycle.to_unicycle(ux, uy, theta, look)
     assert abs(omega) <= wmax + 1e-9
     assert abs(v) <= math.hypot(wx, wy) + 1e-9
@@ -74,7 +74,7 @@ def test_a_robot_pulled_towards_a_slot_near_its_body_turns_one_way_until_its_poi
 
 
 def test_a_robot_facing_its_motion_drives_at_the_intended_velocity():
-    ux, uy = unicycle.steer(0.2, 0.0, 0.0, 0.05, 2.84)
+    ux, uy = unicycle.steer(0.2, 0.0, 0.0, 0.05, 2.84, lead=0.5)
     assert (ux, uy) == pytest.approx((0.2, 0.0))
 
 
