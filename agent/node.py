@@ -112,6 +112,7 @@ from agent.margins import carried_age
 from agent.navigation import STALLED_AFTER_S, NavPart
 from agent.plausibility import ObstacleMemory, held_obstacle, speed_bound
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
+from agent.replan import plan_pool
 from agent.schedule import ClockLoop, LockstepLoop, PoseScheduler, TickGate
 from agent.stats import AgentStats
 from agent.transport import Transport
@@ -243,6 +244,8 @@ class AgentNode:
                                  self.inbox, self.clock, self.neighbour_keys)
         self.inbox.subscribed_keys.update(self._subscription_keys())
         self.nav = NavPart(cfg, leader=self.leader.leading)  # routes, goals, plan, status
+        if self.nav.routes is not None and not options.lockstep:
+            plan_pool()  # started before the ticks (agent.replan.plan_pool)
         self.scheduler = self._scheduler()
         self.counts = TickCounts()
         self.obstacle_memory = ObstacleMemory()

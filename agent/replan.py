@@ -12,9 +12,12 @@ is Python and holds the GIL, and a 20 Hz tick beside it ended late (docs/navigat
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import logging
 import math
 import os
+import signal
 from collections.abc import Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
 from multiprocessing import get_context
@@ -48,7 +51,6 @@ class LeaderRoutes:
         self.still = StillThings()
         self._first = True
         self._static: set[str] = set()
-        self._pool: ProcessPoolExecutor | None = None
         self._job: Future | None = None
         self._why = ""
 
@@ -95,10 +97,10 @@ class LeaderRoutes:
             return None
         if lockstep:
             return r.plan(stamp, p3, things, why)
-        if self._pool is None:
-            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=get_context("spawn"),
-                                             initializer=os.nice, initargs=(PLAN_NICE,))
-        self._job = self._pool.submit(plan_footprint, *r.begin(stamp, p3, things))
+        plan = r.begin(stamp, p3, things)
+        if not plan.shapes and not plan.circles:  # an open floor: no search, no worker
+            return r.finish(plan_footprint(*plan), why)
+        self._job = plan_pool().submit(plan_footprint, *plan)
         self._why = why
         return None
 
@@ -114,5 +116,31 @@ class LeaderRoutes:
         return out
 
     def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=False, cancel_futures=True)
+        """This leader's plan in progress is dropped (the process's worker stays for others)."""
+        if self._job is not None:
+            self._job.cancel()
+            self._job = None
+
+
+_POOL: list[ProcessPoolExecutor] = []  # this process's plan worker, once started
+
+
+def plan_pool() -> ProcessPoolExecutor:
+    """This process's plan worker (an agent host's leaders share one; their plans queue), started
+    at its first use at the lowest priority from its birth: a worker's interpreter start and
+    imports cost about a third of a CPU second, which a fleet's leaders starting together took
+    from the ticks at niceness 0 (``formation bench --fleets``: hundreds of missed ticks)."""
+    if not _POOL:
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, ())
+        pool = ProcessPoolExecutor(max_workers=1, mp_context=get_context("spawn"),
+                                   initializer=os.nice, initargs=(PLAN_NICE,))
+        pool.submit(int)  # starts the process now, so it can be lowered before its imports
+        # multiprocessing's resource tracker unblocks SIGINT and SIGTERM in the calling thread;
+        # the agent takes them on its signal thread only (agent.__main__.SignalWatch): block again
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+        for pid in getattr(pool, "_processes", None) or ():  # the executor's own table
+            with contextlib.suppress(OSError):
+                os.setpriority(os.PRIO_PROCESS, pid, PLAN_NICE)
+        atexit.register(pool.shutdown, wait=False, cancel_futures=True)
+        _POOL.append(pool)
+    return _POOL[0]

@@ -516,6 +516,8 @@ def plan_footprint(start: Pose3, goal: Pose3, body: Body, shapes: Sequence[Shape
     """The footprint's route from pose ``start`` to pose ``goal`` around ``shapes`` and
     ``circles`` (module docstring); cells of ``h`` [m], by default FINE_SPACING where the area
     holds at most FINE_CELLS of them (a small scene: narrow slots), else SPACING."""
+    if not shapes and not circles:  # an open floor: the straight move (what the search finds)
+        return FootprintPlan((goal,))
     rho = body.rho
     lat = lattice_for(start, goal, shapes, circles, rho, h or FINE_SPACING, headings)
     if h is None and lat.nx * lat.ny > FINE_CELLS:
