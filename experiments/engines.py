@@ -27,12 +27,12 @@ import argparse
 import csv
 import json
 import math
+import subprocess
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from formation.cli import main as formation_main
 from scenario import Scenario, load_scenario
 
 Point = tuple[float, float]
@@ -176,14 +176,17 @@ def compare(scenario: Scenario, kinematic: Path, mujoco: Path) -> Comparison:
 
 
 def run_both(path: Path, out: Path, realtime: bool = False) -> Comparison:
-    """Run ``path`` in both engines into ``out/kinematic`` and ``out/mujoco`` and compare."""
+    """Run ``path`` in both engines into ``out/kinematic`` and ``out/mujoco`` and compare
+    (each through the ``formation`` command line, in a process of its own)."""
     common = ["--quiet", "--no-plots", "--force"]
     for engine in ("kinematic", "mujoco"):
         mode = ["run", "--realtime", "--insecure"] if realtime and engine == "mujoco" else ["sim"]
-        rc = formation_main([*mode[:1], str(path), "--out", str(out / engine), *common,
-                             *mode[1:], "--engine", engine])
-        if rc != 0:
-            raise RuntimeError(f"{path}: formation {mode[0]} --engine {engine} exited {rc}")
+        done = subprocess.run([sys.executable, "-m", "formation", mode[0], str(path), "--out",
+                               str(out / engine), *common, *mode[1:], "--engine", engine],
+                              capture_output=True, text=True, check=False)
+        if done.returncode != 0:
+            raise RuntimeError(f"{path}: formation {mode[0]} --engine {engine} exited "
+                               f"{done.returncode}: {done.stderr.strip()[-500:]}")
     return compare(load_scenario(path), out / "kinematic", out / "mujoco")
 
 

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from experiments.engines import compare, main, other_sides, winding
+from experiments.engines import compare, main, other_sides, run_both, winding
 from scenario import parse_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -91,8 +91,9 @@ def test_the_side_of_each_obstacle_is_compared_moving_ones_where_they_were(tmp_p
 
 @pytest.mark.integration
 def test_a_small_scenario_runs_in_both_engines_and_holds(tmp_path, capsys):
+    pytest.importorskip("mujoco")  # the physics extra (make test installs it)
     assert main([str(TWO_SMALL), "--out", str(tmp_path)]) == 0
-    table = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("|")]
+    table = capsys.readouterr().out.splitlines()
     assert table[0].startswith("| scenario |") and table[2].startswith("| two-small | yes / yes |")
     assert table[2].endswith("| pass |") and "| 10: same |" in table[2]
     # 5 robots around 1 circle, and each around the other formation's centroid
@@ -100,4 +101,11 @@ def test_a_small_scenario_runs_in_both_engines_and_holds(tmp_path, capsys):
         assert (tmp_path / "two-small" / engine / "robots.csv").is_file()
     # comparing again what is there gives the same table without running anything
     assert main([str(TWO_SMALL), "--out", str(tmp_path), "--compare-only"]) == 0
-    assert [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("|")] == table
+    assert capsys.readouterr().out.splitlines() == table
+
+
+def test_a_run_that_fails_is_reported_with_its_command(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: bad\n")
+    with pytest.raises(RuntimeError, match=r"bad.yaml: formation sim --engine kinematic exited 2"):
+        run_both(bad, tmp_path / "out")
