@@ -1,18 +1,20 @@
 """MuJoCo's real-time factor for N TurtleBot3 bodies (simulator.physics), without the controller.
 
-    PYTHONPATH=. python benchmarks/physics_rtf.py 4 16 40
+    PYTHONPATH=. python benchmarks/physics_rtf.py 4 16 40 [--repeat 5]
 
 N robots stand on a grid 1 m apart, each driving a circle (v 0.15 m/s, omega 0.5 rad/s) for
 SECONDS simulated seconds at dt 0.05 (25 MuJoCo steps of 2 ms per period). Printed per N: the
 real-time factor of MuJoCo's steps alone (simulated time over the time spent in ``mj_step``)
-and of the whole world step (wheel targets, steps, contact scan, poses), and the contacts
-counted (0: the circles never meet).
+and of the whole world step (wheel targets, steps, contact scan, poses), each the median of
+``--repeat`` runs (3 by default; the range in brackets), and the contacts counted (0: the
+circles never meet).
 """
 
 from __future__ import annotations
 
+import argparse
 import math
-import sys
+import statistics
 import time
 
 from scenario.load import scenario_from_dict
@@ -44,12 +46,20 @@ def measure(n: int) -> tuple[float, float, int]:
     return world.time / world.step_wall, world.time / wall, world.collisions
 
 
-def main(argv: list[str]) -> None:
-    for n in (int(a) for a in argv or ["4", "16", "40"]):
-        mj, whole, contacts = measure(n)
-        print(f"{n:3d} robots: real-time factor {mj:7.1f} (mj_step) {whole:7.1f} (world step), "
-              f"contacts {contacts}")
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description="MuJoCo's real-time factor for N robots")
+    p.add_argument("n", nargs="*", type=int, default=[4, 16, 40])
+    p.add_argument("--repeat", type=int, default=3)
+    a = p.parse_args(argv)
+    for n in a.n:
+        runs = [measure(n) for _ in range(a.repeat)]
+        mj = [r[0] for r in runs]
+        whole = [r[1] for r in runs]
+        print(f"{n:3d} robots: real-time factor {statistics.median(mj):7.1f} "
+              f"[{min(mj):.1f}-{max(mj):.1f}] (mj_step) {statistics.median(whole):7.1f} "
+              f"[{min(whole):.1f}-{max(whole):.1f}] (world step), "
+              f"contacts {max(r[2] for r in runs)}", flush=True)
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    main()
