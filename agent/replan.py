@@ -26,7 +26,7 @@ from geometry.ellipse import Ellipse, wrap_angle
 from geometry.footprint_plan import PLAN_MARGIN, Body, plan_footprint
 from geometry.shapes import Shape
 from leader.navigation import Follower
-from leader.routing import Replanner, StillThings, Thing, Update, traffic
+from leader.routing import BLOCKED, Replanner, StillThings, Thing, Update, blockers, traffic
 from wire.payloads import EllipseMsg, ObstacleMsg
 
 from .body import Footprint, pose_of
@@ -95,9 +95,10 @@ class LeaderRoutes:
                       traffic(p3, self.body.rho, seen))
         if why is None:
             return None
+        extra = blockers(p3, self.body.rho, seen) if why == BLOCKED else ()
         if lockstep:
-            return r.plan(stamp, p3, things, why)
-        plan = r.begin(stamp, p3, things)
+            return r.plan(stamp, p3, things, why, extra)
+        plan = r.begin(stamp, p3, things, extra)
         if not plan.shapes and not plan.circles:  # an open floor: no search, no worker
             return r.finish(plan_footprint(*plan), why)
         self._job = plan_pool().submit(plan_footprint, *plan)

@@ -20,7 +20,10 @@ the outer rows and the walls; side aisles at both ends join them. In the hall:
 :func:`warehouse_scenario` is the pure draw (a scenario-file mapping); :func:`warehouse_problem`
 is what the draw asks beyond the scenario checks: every load clear of walls, shelves and static
 circles by :data:`LOAD_MARGIN` at the start and at the goal, and of the other formations'
-robots and loads at the goal. :func:`experiments.montecarlo.valid_scenario` redraws from the
+robots and loads at the goal, and a route for every formation's footprint at the start (what
+``formation check`` asks: a 6-robot formation whose hull does not pass the drawn cross aisles,
+or whose only way a parked forklift closes, has no goal to reach; such a layout is not a
+deadlock of the controller). :func:`experiments.montecarlo.valid_scenario` redraws from the
 next sub-seed on either's refusal.
 """
 
@@ -36,6 +39,7 @@ from geometry.limits import BURGER_MAX_SPEED, BURGER_RADIUS
 from scenario import ScenarioError
 from scenario.cargo import load_clearances, load_polygon, loads_now
 from scenario.model import Scenario
+from scenario.routes import start_plan
 
 WALL_DS = 0.15  # [m] safe distance of walls and shelves (as in scenarios/warehouse.yaml)
 PILLAR_DS = 0.3  # [m] a round pillar: 0.39 m across
@@ -271,7 +275,22 @@ def warehouse_scenario(seed: int) -> dict:
 def warehouse_problem(s: Scenario) -> str | None:
     """What the draw refuses beyond the scenario checks (one line), or None: a load closer than
     LOAD_MARGIN to a wall, shelf or static circle at its start or goal, or touching another
-    formation's robot or load at the goal (moving circles are not where they were at the goal)."""
+    formation's robot or load at the goal (moving circles are not where they were at the goal),
+    or a formation with no route for its footprint at the start (:func:`unreachable`)."""
+    return _load_problem(s) or unreachable(s)
+
+
+def unreachable(s: Scenario) -> str | None:
+    """The first formation whose goal has no route for its footprint at the start (walls,
+    shelves and static circles: :func:`scenario.routes.start_plan`), as one line, or None."""
+    for f in s.formations:
+        reason = start_plan(s, f).reason
+        if reason:
+            return f"formation {f.name!r}: {reason}"
+    return None
+
+
+def _load_problem(s: Scenario) -> str | None:
     outlines = [load_polygon(f) for f in s.formations]
     moving = {o.name for o in s.obstacles if o.velocity != (0.0, 0.0)}
     static = {o.name for o in s.obstacles if o.velocity == (0.0, 0.0)} | {sh.name for sh in s.shapes}

@@ -9,7 +9,13 @@ to one goal pose and says each tick whether to plan it again:
   :data:`NO_PROGRESS_S` (not on the last :data:`SETTLE_M` to the goal, where it settles; the
   clock stops while something moving is near: waiting for traffic is not being stuck);
 * **the things changed**: a round thing planned around moved, went or came
-  (:class:`StillThings`: circles that stand still, parked formations).
+  (:class:`StillThings`: circles that stand still, parked formations);
+* **blocked**: no progress for :data:`BLOCKED_S` although traffic is near (two formations
+  head-on in a one-lane aisle wait for each other for ever: each creeps, so neither is ever
+  still): this plan goes round the moving formations near it too (:func:`blockers`), where it
+  is at that moment. They are not kept as planned-around things (they move on), and where no
+  route goes round them the formation keeps its route (the way may clear; it is not
+  unreachable).
 
 At most one plan per :data:`REPLAN_EVERY_S`. No route: the formation holds where it is
 (:meth:`leader.navigation.Follower.hold`) and the reason is kept in ``unreachable`` until a
@@ -41,6 +47,8 @@ SETTLE_M = 0.5  # [m] this near the goal on the last leg the formation settles (
 REPLAN_EVERY_S = 2.0  # [s] at most one plan this often
 RETRY_S = 5.0  # [s] no route: try again this often
 TRAFFIC_M = 1.0  # [m] a moving thing this near: the formation waits, the progress clock stops
+BLOCKED_S = 10.0  # [s] no progress this long with traffic near: plan round the formations there
+BLOCKED = "blocked"
 
 
 class Thing(NamedTuple):
@@ -84,6 +92,14 @@ def traffic(pose: Pose3, rho: float, things: Iterable[Thing]) -> bool:
     the formation is waiting or giving way, not stuck (no progress is no reason to replan)."""
     return any(th.speed >= STILL_SPEED and math.dist(pose[:2], (th.x, th.y)) < rho + th.ds + TRAFFIC_M
                for th in things)
+
+
+def blockers(pose: Pose3, rho: float, things: Iterable[Thing]) -> tuple[tuple[str, Circle], ...]:
+    """The moving formations near the footprint (as :func:`traffic` finds them), as circles to
+    plan round once the formation is :data:`BLOCKED` (a forklift drives on by itself)."""
+    return tuple(sorted((th.name, (th.x, th.y, th.ds)) for th in things
+                        if th.name.startswith("formation/") and th.speed >= STILL_SPEED
+                        and math.dist(pose[:2], (th.x, th.y)) < rho + th.ds + TRAFFIC_M))
 
 
 def changed(a: Sequence[tuple[str, Circle]], b: Sequence[tuple[str, Circle]]) -> bool:
@@ -130,26 +146,36 @@ class Replanner:
         self.last_plan = -math.inf
         self._best = math.inf
         self._best_at = 0.0
+        self._moved_at = 0.0  # the last progress, traffic or not
+        self._blocked = False  # the plan in progress goes round blockers
         self._leg_start = start  # where the route's first leg starts
         self.due = ""  # a plan asked for (a new goal): the next check says so
 
-    def plan(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...], why: str) -> Update:
-        """Plan from ``pose`` now around the shapes and ``things``."""
-        return self.finish(plan_footprint(*self.begin(t, pose, things)), why)
+    def plan(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...], why: str,
+             extra: tuple[tuple[str, Circle], ...] = ()) -> Update | None:
+        """Plan from ``pose`` now around the shapes, ``things`` and ``extra`` (:meth:`begin`)."""
+        return self.finish(plan_footprint(*self.begin(t, pose, things, extra)), why)
 
-    def begin(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...]) -> PlanJob:
+    def begin(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...],
+              extra: tuple[tuple[str, Circle], ...] = ()) -> PlanJob:
         """Start a plan from ``pose`` at ``t``: the arguments of
-        :func:`geometry.footprint_plan.plan_footprint` (run it anywhere, then :meth:`finish`)."""
+        :func:`geometry.footprint_plan.plan_footprint` (run it anywhere, then :meth:`finish`).
+        ``extra``: round things planned round this once (:func:`blockers`), not kept."""
         self.plans += 1
         self.due = ""
         self.last_plan = t
         self.planned = things
-        self._best, self._best_at = math.inf, t
+        self._best, self._best_at, self._moved_at = math.inf, t, t
+        self._blocked = bool(extra)
         self._leg_start = (pose[0], pose[1])
-        return PlanJob(pose, self.goal, self.body, self.shapes, tuple(c for _n, c in things))
+        return PlanJob(pose, self.goal, self.body, self.shapes,
+                       tuple(c for _n, c in things) + tuple(c for _n, c in extra))
 
-    def finish(self, res: FootprintPlan, why: str) -> Update:
-        """The route (or the order to hold) from a plan :meth:`begin` started."""
+    def finish(self, res: FootprintPlan, why: str) -> Update | None:
+        """The route (or the order to hold) from a plan :meth:`begin` started; None: keep the
+        route (no way round the blockers)."""
+        if res.reason and self._blocked:
+            return None
         self.unreachable = res.reason
         if res.reason:
             return Update((), (), why, res.reason)
@@ -175,9 +201,7 @@ class Replanner:
             return "things changed"
         if self.unreachable:
             return "retry" if t - self.last_plan >= RETRY_S else None
-        if busy:
-            self._best_at = t
-        return self._off(pose, route, index) or self._stuck(t, pose, route, index, turn)
+        return self._off(pose, route, index) or self._stuck(t, pose, route, index, turn, busy)
 
     def _off(self, pose: Pose3, route: Sequence[tuple[float, float]], index: int) -> str | None:
         a = route[index - 1] if index > 0 else (self._leg_start or route[0])
@@ -186,12 +210,16 @@ class Replanner:
         return "off route" if d > self.width else None
 
     def _stuck(self, t: float, pose: Pose3, route: Sequence[tuple[float, float]],
-               index: int, turn: float) -> str | None:
+               index: int, turn: float, busy: bool) -> str | None:
         togo = math.dist(pose[:2], route[index]) + self.body.rho * abs(turn) + sum(
             math.dist(route[k], route[k + 1]) for k in range(index, len(route) - 1))
+        if busy:  # waiting for traffic is not being stuck (the clock stops), for a while
+            self._best_at = t
         if index >= len(route) - 1 and togo < SETTLE_M:
             return None
         if togo < self._best - PROGRESS_M:
-            self._best, self._best_at = togo, t
+            self._best, self._best_at, self._moved_at = togo, t, t
             return None
+        if busy:
+            return BLOCKED if t - self._moved_at >= BLOCKED_S else None
         return "no progress" if t - self._best_at >= NO_PROGRESS_S else None

@@ -12,7 +12,7 @@ from agent.barriers import Obstacle
 from agent.body import Footprint, pose_of
 from geometry.ellipse import Ellipse, wrap_angle
 from leader.navigation import Follower
-from leader.routing import Replanner, StillThings, Thing, Update, traffic
+from leader.routing import BLOCKED, Replanner, StillThings, Thing, Update, blockers, traffic
 from scenario import Scenario
 from scenario.routes import RIGID, StartPlan, footprint_body
 
@@ -82,10 +82,13 @@ class Replans:
                                 traffic(p3, planner.body.rho, seen))
             if why is None:
                 continue
-            upd = planner.plan(t, (pose.cx, pose.cy, pose.theta), things, why)
-            self.updates.append((t, name, why, len(upd.route)))
-            self._hand(upd, name, own, followers)
-            self._pending.append((name, upd, own))
+            extra = blockers(p3, planner.body.rho, seen) if why == BLOCKED else ()
+            new = planner.plan(t, p3, things, why, extra)
+            if new is None:  # no way round the formations in the way: keep the route
+                continue
+            self.updates.append((t, name, why, len(new.route)))
+            self._hand(new, name, own, followers)
+            self._pending.append((name, new, own))
 
     def _hand(self, upd: Update, name: str, own: Ellipse, followers: Sequence[Follower],
               leader: bool = True) -> None:

@@ -10,10 +10,10 @@ import math
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from geometry.footprint_plan import Body, load_outline, plan_footprint
+from geometry.footprint_plan import Body, FootprintPlan, load_outline, plan_footprint
 from geometry.shapes import box, segment, shape_distance
 from leader.navigation import Follower
-from leader.routing import Replanner, StillThings, Thing
+from leader.routing import BLOCKED, BLOCKED_S, Replanner, StillThings, Thing, blockers
 
 LINE = Body(tuple((-0.6 + 0.3 * k, 0.0) for k in range(5)), radius=0.1, margin=0.0)
 
@@ -113,6 +113,25 @@ def test_the_replanner_plans_again_off_route_and_without_progress_but_not_by_han
     assert r.check(3.0, (-4.0, 0.0, 0.0), route, 0, (("obstacle/f", (0.0, 0.0, 0.5)),)) == "things changed"
     by_hand = Replanner(LINE, 0.0, (5.0, 0.0, 0.0), [], start=(-5.0, 0.0), by_hand=True)
     assert by_hand.check(9.0, (-4.0, 3.0, 0.0), route, 0, ()) is None
+
+
+def test_a_formation_that_waits_for_traffic_too_long_plans_round_the_formations_in_its_way():
+    """Two formations head-on in a one-lane aisle each creep: each is traffic to the other, which
+    stops the progress clock; after BLOCKED_S without progress the plan goes round them."""
+    r = Replanner(LINE, 0.0, (5.0, 0.0, 0.0), [], start=(-5.0, 0.0))
+    route = ((5.0, 0.0),)
+    assert r.check(0.0, (-4.0, 0.0, 0.0), route, 0, (), busy=True) is None
+    assert r.check(9.0, (-4.0, 0.0, 0.0), route, 0, (), busy=True) is None  # waiting, not stuck
+    assert r.check(BLOCKED_S, (-4.0, 0.0, 0.0), route, 0, (), busy=True) == BLOCKED
+    seen = [Thing("formation/b", -2.5, 0.0, 0.03, 0.5), Thing("obstacle/forklift", -3.0, 0.5, 0.1, 0.45),
+            Thing("formation/far", 4.0, 0.0, 0.2, 0.5), Thing("formation/parked", -3.0, -1.0, 0.0, 0.5)]
+    extra = blockers((-4.0, 0.0, 0.0), LINE.rho, seen)
+    assert extra == (("formation/b", (-2.5, 0.0, 0.5)),)  # moving, near, a formation
+    job = r.begin(BLOCKED_S, (-4.0, 0.0, 0.0), (), extra)
+    assert job.circles == ((-2.5, 0.0, 0.5),) and r.planned == ()  # planned round once, not kept
+    assert r.finish(FootprintPlan((), "no route"), BLOCKED) is None  # keep the route: it may clear
+    assert r.unreachable == ""
+    assert r.check(BLOCKED_S + 3.0, (-4.0, 0.0, 0.0), route, 0, (), busy=True) is None  # clock anew
 
 
 def test_a_member_passes_a_waypoint_with_a_heading_only_once_the_formation_has_turned():

@@ -78,6 +78,16 @@ def test_the_warehouse_draw_is_valid_deterministic_and_has_every_feature_for_50_
     assert all(seen.values()), seen  # every kind of obstacle, and a refused draw redrawn
 
 
+def test_a_layout_whose_goal_no_footprint_reaches_is_redrawn_not_counted_as_a_deadlock():
+    """montecarlo --draw warehouse --seed 2, run 200003 (and 300047 of seed 3): a 6-robot
+    formation with no route for its footprint at the start held for 300 s (`unreachable`, tried
+    again every 5 s): an impossible layout, which `formation check` would refuse, not a deadlock."""
+    s = parse_scenario(yaml.safe_dump(draw_layout(200003000, WAREHOUSE), sort_keys=False))
+    assert "formation 'b': no way for the footprint" in (warehouse_problem(s) or "")
+    _d, fine, sub = valid_scenario(200003, draw=WAREHOUSE)
+    assert sub == 200003001 and warehouse_problem(fine) is None
+
+
 def test_a_unicycle_formation_of_the_warehouse_draw_starts_facing_along_its_aisle():
     d, s, _ = valid_scenario(11 * 100000, draw=WAREHOUSE)
     assert s.robot.model == "unicycle"

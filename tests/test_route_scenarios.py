@@ -1,8 +1,9 @@
 """Issue 26's bar on its own scenarios (tests/scenarios/route-*.yaml), in process, both robot
 models: every goal reached, 0 collisions (loads counted), formation error <= 1.5 epsilon; and
 each kind does what it is there for: a line, a triangle and a pentagon turn to fit an aisle or
-a slot, a pushed formation and one whose aisle a forklift parks in are planned again, a goal in
-a closed room is unreachable and the formation stays parked."""
+a slot, a pushed formation and one whose aisle a forklift parks in are planned again, two
+formations head-on in a one-lane aisle do not wait for each other for ever, a goal in a closed
+room is unreachable and the formation stays parked."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from simulator.inprocess import SimOptions, simulate
 
 SCENARIOS = Path(__file__).parent / "scenarios"
 KINDS = ["route-line-aisle", "route-triangle-slot", "route-pentagon-slot", "route-door-two-way",
-         "route-pushed-off", "route-round-shelves", "route-forklift-parks"]
+         "route-pushed-off", "route-round-shelves", "route-forklift-parks", "route-head-on-aisle"]
 MODELS = ["", "-unicycle"]
 
 
@@ -40,6 +41,8 @@ def test_route_scenarios_meet_the_issue_bar(kind, model):
         assert "things changed" in whys  # the parked forklift is planned round
     if kind == "route-pushed-off":
         assert "off route" in whys
+    if kind + model == "route-head-on-aisle":  # the unicycles came apart without it too
+        assert "blocked" in whys  # one plans round the other (montecarlo run 300145 waited 300 s)
 
 
 @pytest.mark.slow
