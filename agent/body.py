@@ -112,6 +112,9 @@ class BodyParams(NamedTuple):
     grow: float = 0.0  # [m] a member's Ds grows by this (look-ahead offset, sampling margin)
     radius: float = 0.0  # [m] body radius: a circle's physical radius is Ds less this
     load_margin: float = 0.0  # [m] the load keeps this from things (members sit near, not on, slots)
+    # ellipse rows with the linear class-K gamma_formations h, not ellipse_class_k's: a double
+    # integrator's members close on an ellipse no faster (agent.double_integrator.twist_gamma)
+    linear_ellipses: bool = False
 
 
 class Pose(NamedTuple):
@@ -167,11 +170,13 @@ def shape_point_row(pose: Pose, rho: float, p: Point, sh: Shape, ds: float, gamm
 
 
 def ellipse_point_row(pose: Pose, rho: float, p: Point, e: Ellipse, gamma: float,
-                      grow: float = 0.0) -> Row3:
+                      grow: float = 0.0, linear: bool = False) -> Row3:
     """Appendix A.3 (19) on a body point (as :func:`agent.barriers.ellipse_row`), the ellipse's
-    semi-axes grown by ``grow`` (members sit up to about that far from their slots)."""
+    semi-axes grown by ``grow`` (members sit up to about that far from their slots); ``linear``:
+    alpha = gamma h (BodyParams.linear_ellipses)."""
     h, gx, gy, ga = ellipse_terms(p[0], p[1], e.cx, e.cy, e.alpha, e.a + grow, e.b + grow)
-    b = ellipse_class_k(h, gamma) - (gx * e.vx + gy * e.vy) + ga * e.alpha_rate
+    alpha = gamma * h if linear else ellipse_class_k(h, gamma)
+    b = alpha - (gx * e.vx + gy * e.vy) + ga * e.alpha_rate
     return point_row(pose, rho, p, -gx, -gy, b)
 
 
@@ -249,8 +254,8 @@ def _member_rows(pose: Pose, rho: float, slots: Sequence[Point], snap: Snapshot,
         rows += [circle_rows(pose, rho, q, o, o.ds + grow, p.gamma_obstacle) for o in snap.obstacles]
         rows += [shape_point_row(pose, rho, q, sh, sh.ds + grow, p.gamma_obstacle)
                  for sh in snap.shapes]
-        rows += [ellipse_point_row(pose, rho, q, e, p.gamma_formations, p.load_margin)
-                 for e in snap.ellipses]
+        rows += [ellipse_point_row(pose, rho, q, e, p.gamma_formations, p.load_margin,
+                                   p.linear_ellipses) for e in snap.ellipses]
     return rows
 
 
@@ -263,7 +268,8 @@ def _load_rows(fp: Footprint, pose: Pose, rho: float, snap: Snapshot, p: BodyPar
         rows += [circle_rows(pose, rho, v, o, max(0.0, o.ds - p.radius) + clear, g)
                  for o in snap.obstacles]
         rows += [shape_point_row(pose, rho, v, sh, clear, g) for sh in snap.shapes]
-        rows += [ellipse_point_row(pose, rho, v, e, p.gamma_formations) for e in snap.ellipses]
+        rows += [ellipse_point_row(pose, rho, v, e, p.gamma_formations, 0.0, p.linear_ellipses)
+                 for e in snap.ellipses]
     c = (pose.cx, pose.cy)
     things = [((o.x, o.y), (o.vx, o.vy), max(0.0, o.ds - p.radius)) for o in snap.obstacles]
     things += [(q, (0.0, 0.0), 0.0) for sh in snap.shapes for q in sh.corners()

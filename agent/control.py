@@ -682,12 +682,17 @@ def control_step(
 def body_params(cp: ControlParams) -> body.BodyParams:
     """The formation QP's numbers from a member's :class:`agent.control.ControlParams`: the turn
     limit is a unicycle's turn rate (single integrators: none beyond the slots' speeds); the
-    load keeps epsilon (how far members sit from their slots) plus the look-ahead offset."""
+    load keeps epsilon (how far members sit from their slots) plus the look-ahead offset. A
+    formation of double integrators plans its ellipse rows at the pace its members' own
+    relative-degree-2 rows keep (:func:`agent.double_integrator.twist_gamma`), so no member
+    brakes alone for another formation while the twist drives the others on."""
+    di = cp.double_integrator
     return body.BodyParams(
         vmax=cp.max_speed,
         omega_max=cp.max_turn_rate if cp.unicycle else math.inf,
         gamma_obstacle=cp.gamma_obstacle,
-        gamma_formations=cp.gamma_formations,
+        gamma_formations=double_integrator.twist_gamma(cp) if di else cp.gamma_formations,
+        linear_ellipses=di,
         kp=cp.kp,
         dt=cp.period,
         grow=cp.offset + cp.sampling_margin + cp.margin,

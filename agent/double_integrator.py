@@ -122,6 +122,23 @@ def gain(gamma: float, max_accel: float, closing: float, dt: float) -> float:
     return min(gamma, BRAKE_SHARE * max_accel / closing, 1.0 / dt)
 
 
+def twist_gamma(cp: ControlParams) -> float:
+    """[1/s] k_t, the gain of the formation twist's ellipse rows when its members are double
+    integrators (linear alpha = k_t h: ``agent.body.BodyParams.linear_ellipses``), so that a
+    slot velocity the twist allows asks nothing of its member's own :func:`ellipse_row`.
+
+    That row, -g . a <= q + 2 k h' + k^2 h, is met by a = 0 whenever h' >= -(k / 2) h - q / (2 k),
+    and q >= 0 for an ellipse that does not turn (its drift is 2 (u1'^2 / a^2 + u2'^2 / b^2)).
+    The critically damped row thus keeps a steady closing at half the pace of its first stage
+    psi1 = h' + k h >= 0; k_t = k_min / 2 with k_min the smallest pole any member's ellipse row
+    can have (:func:`gain` with another formation at most max_speed) gives h' >= -k_t h >=
+    -(k / 2) h. With the single integrator's extended class-K (``ellipse_class_k``, k h (1 + h)
+    outside) the twist drove a formation on at full speed towards another two or three
+    semi-axes out while the member nearest it braked alone, and the formation rows gave way
+    (tests/scenarios/di-three-cross.yaml: 1.81 eps before, 0.79 after)."""
+    return 0.5 * gain(cp.gamma_formations, _accel(cp), 2.0 * cp.max_speed, cp.period)
+
+
 def hocbf_row(h: float, hd: float, q: float, g: tuple[float, float], k1: float, k2: float) -> Row:
     """The row (R):  -g . a <= q + (k1 + k2) h' + k1 k2 h,  normalised; ``hd`` = h',
     ``q`` the drift of h''."""

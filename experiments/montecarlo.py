@@ -4,7 +4,9 @@ Each run draws a layout from its own seed (so a failure can be replayed alone): 
 with a cross aisle, 2 to 4 formations of 2 to 4 robots (pairs, triangles, rectangles) crossing
 the floor along the main aisle or through the cross aisle, optionally a forklift driving along an
 outer aisle, and a robot model (single integrator or unicycle). Layouts the validator refuses are
-redrawn from the next sub-seed. ``montecarlo.json`` lists the totals and, for every failed run,
+redrawn from the next sub-seed. ``--model`` gives every drawn layout one robot model in place of
+the draw's (the layout and the rest of the draw unchanged): a double integrator gets
+``max_accel`` = DI_MAX_ACCEL. ``montecarlo.json`` lists the totals and, for every failed run,
 its seed and its scenario file (written next to it) so it can be replayed with ``formation sim``.
 
 That is the ``circles`` draw (the default; its shelves are round). The ``warehouse`` draw
@@ -41,6 +43,11 @@ SHAPES = {
 DT = 0.05  # [s] every run's control period
 SHELF_Y = 1.8  # [m] shelf rows at +/- this
 SHELF_XS = (-4.9, -4.2, -3.5, -2.8, -2.1, 2.1, 2.8, 3.5, 4.2, 4.9)  # cross aisle at |x| < 1.75
+MODELS = ("single_integrator", "unicycle", "double_integrator")  # --model's choices
+# [m/s^2] a double integrator's acceleration limit under --model double_integrator: that of the
+# di-*.yaml test scenarios and docs/scenarios.md's example, a fifth of what a burger's wheels
+# give (scenario.world's turtlebot3-lab max_wheel_accel, 2.5), so the braking distance counts.
+DI_MAX_ACCEL = 0.5
 
 
 def random_scenario(seed: int) -> dict:
@@ -119,15 +126,26 @@ def _checked(d: dict, draw: str):
     return scenario
 
 
+def with_model(d: dict, model: str | None) -> dict:
+    """Layout ``d`` with robot model ``model`` (one of MODELS; None: the draw's own), in place."""
+    if model is not None:
+        robot = d["robot"]
+        robot["model"] = model
+        if model == "double_integrator":
+            robot["max_accel"] = DI_MAX_ACCEL
+    return d
+
+
 def valid_scenario(seed: int, world: str | None = None, bounds: str | None = None,
-                   draw: str = CIRCLES):
+                   draw: str = CIRCLES, model: str | None = None):
     """The first valid layout from sub-seeds of ``seed``: (mapping, scenario, sub-seed). With
     ``world`` (a profile other than the default), the mapping says so, with the run's seed as
     the world's: its noise is the run's own, and its scenario file replays it exactly. With
-    ``bounds`` (``--bounds SPEC``, :mod:`scenario.bounds`), its ``controller.bounds`` too."""
+    ``bounds`` (``--bounds SPEC``, :mod:`scenario.bounds`), its ``controller.bounds`` too; with
+    ``model`` (``--model``), every robot that model (:func:`with_model`)."""
     for sub in range(50):
         try:
-            d = draw_layout(seed * 1000 + sub, draw)
+            d = with_model(draw_layout(seed * 1000 + sub, draw), model)
             if world is not None and world != IDEAL:
                 d["world"] = {"profile": world, "seed": seed}
             if bounds is not None:
@@ -139,8 +157,8 @@ def valid_scenario(seed: int, world: str | None = None, bounds: str | None = Non
 
 
 def run_one(seed: int, world: str | None = None, bounds: str | None = None,
-            draw: str = CIRCLES) -> dict:
-    d, scenario, sub = valid_scenario(seed, world, bounds, draw)
+            draw: str = CIRCLES, model: str | None = None) -> dict:
+    d, scenario, sub = valid_scenario(seed, world, bounds, draw, model)
     s = simulate(scenario, SimOptions(record=False)).summary
     obstacle_clear = s["min_clearance_m"]["obstacle"]
     return {
@@ -181,23 +199,24 @@ def _model_totals(runs: list[dict]) -> dict:
 
 def run_montecarlo(n: int, seed: int, workers: int = 2, progress=None,
                    world: str | None = None, bounds: str | None = None,
-                   draw: str = CIRCLES) -> tuple[dict, list[dict]]:
+                   draw: str = CIRCLES, model: str | None = None) -> tuple[dict, list[dict]]:
     """``n`` runs from ``seed``; ``world``: the world profile of every run (default ideal);
     ``bounds``: every run's controller bounds (``--bounds SPEC``; default none); ``draw``: which
-    layouts (one of DRAWS)."""
+    layouts (one of DRAWS); ``model``: every run's robot model (one of MODELS; default the
+    draw's own)."""
     seeds = [seed * 100000 + k for k in range(n)]
     results = []
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        for k, r in enumerate(pool.map(partial(run_one, world=world, bounds=bounds, draw=draw),
-                                       seeds)):
+        for k, r in enumerate(pool.map(partial(run_one, world=world, bounds=bounds, draw=draw,
+                                               model=model), seeds)):
             results.append(r)
             if progress:
                 progress(k + 1, n, 0.0)
-    return summarize(results, seed, world, draw, bounds), results
+    return summarize(results, seed, world, draw, bounds, model), results
 
 
 def summarize(results: list[dict], seed: int, world: str | None = None,
-              draw: str = CIRCLES, bounds: str | None = None) -> dict:
+              draw: str = CIRCLES, bounds: str | None = None, model: str | None = None) -> dict:
     """``montecarlo.json`` of the runs ``results`` (:func:`run_one`'s, in seed order)."""
     n = len(results)
     failed = [r for r in results if not r["all_reached"] or r["collisions"]]
@@ -208,6 +227,7 @@ def summarize(results: list[dict], seed: int, world: str | None = None,
         "world": world or IDEAL,
         "bounds": bounds or "none",
         "draw": draw,
+        "model": model or "mix",
         "collisions": sum(r["collisions"] for r in results),
         "runs_with_collision": sum(1 for r in results if r["collisions"]),
         "reached_rate": sum(r["all_reached"] for r in results) / n if n else None,
@@ -225,7 +245,8 @@ def summarize(results: list[dict], seed: int, world: str | None = None,
              if r["min_clearance_obstacle_m"] is not None), default=None),
         "relaxed_ticks": sum(r.get("relaxed_ticks", 0) for r in results),
         "by_model": {m: _model_totals([r for r in results if r["model"] == m])
-                     for m in ("single_integrator", "unicycle")},
+                     for m in MODELS if m != "double_integrator"
+                     or any(r["model"] == m for r in results)},
         "over_band": [{"seed": r["seed"], "model": r["model"], "formation_error_over_epsilon":
                        r["formation_error_max_m"] / r["epsilon"]}
                       for r in results if r["formation_error_max_m"] > 1.5 * r["epsilon"]],

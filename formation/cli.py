@@ -228,6 +228,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the layouts: round shelves along two aisles (circles), or halls of shelf "
                         "rows, walls, pillars and forklifts with formations of 2-6 robots carrying "
                         "loads under the rigid method (warehouse)")
+    p.add_argument("--model", default=None,
+                   choices=["single_integrator", "unicycle", "double_integrator"], metavar="MODEL",
+                   help="every drawn formation's robot model: single_integrator, unicycle or "
+                        "double_integrator (max_accel 0.5 m/s^2) (default: the draw's own mix)")
     _add_world(p)
     _add_bounds(p)
     _add_out(p)

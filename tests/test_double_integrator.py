@@ -24,13 +24,15 @@ from agent.config import build_agent_configs, load_config, save_config
 from agent.control import ControlParams, control_step
 from agent.qp import STATUS_OK, solve_exact
 from formation.cli import main
+from geometry.ellipse import Ellipse, ellipse_terms
 from geometry.shapes import box, segment, shape_distance
 from scenario import ScenarioError, load_scenario, parse_scenario
 from simulator.inprocess import SimOptions, simulate
 from wire.payloads import CMD_ACCEL_VERSION, Cmd, DecodeError, decode_cmd, encode
 
 SCENARIOS = Path(__file__).parent / "scenarios"
-DI_SCENARIOS = ["di-thesis-move", "di-circle", "di-shelf", "di-crossing", "di-forklift"]
+DI_SCENARIOS = ["di-thesis-move", "di-circle", "di-shelf", "di-crossing", "di-forklift",
+                "di-three-cross"]
 TOL = 1e-9
 
 coord = st.floats(-3.0, 3.0)
@@ -196,6 +198,24 @@ def test_a_speed_polygon_face_the_velocity_is_beyond_is_not_pushed_further():
     rows = di.limit_rows(v, (0.0, 1.0), (0.0, 1.0), 0.22, 1.0, 0.05)
     assert all(nx * 0.0 + ny * 0.0 <= b for nx, ny, b in rows)  # a = 0 meets every row
     assert len(rows) == 2 * len(speed_rows(1.0, 0.0))
+
+
+@settings(max_examples=300, deadline=None)
+@given(coord, coord, st.tuples(speed, angle), st.tuples(speed, angle), st.floats(0.2, 1.5),
+       st.floats(0.1, 1.0), angle, st.floats(0.1, 5.0), accel, period)
+def test_a_slot_velocity_the_double_integrators_twist_allows_asks_no_braking_of_its_member(
+        px, py, v, ve, a, b_ratio, alpha, gamma, amax, dt):
+    # the twist's ellipse row (agent.body, linear alpha = twist_gamma h) met by the slot velocity
+    # v: then a = 0 meets the member's own relative-degree-2 row for that ellipse (not turning)
+    vmax = 0.22
+    cp = ControlParams(gamma_formations=gamma, max_accel=amax, double_integrator=True, period=dt)
+    vel, vel_e = _polar(min(v[0], vmax), v[1]), _polar(min(ve[0], vmax), ve[1])
+    e = Ellipse(0.0, 0.0, alpha, a, a * b_ratio, *vel_e)
+    h, gx, gy, _ = ellipse_terms(px, py, e.cx, e.cy, e.alpha, e.a, e.b)
+    assume(h > 0.0)
+    assume(gx * (vel[0] - vel_e[0]) + gy * (vel[1] - vel_e[1]) >= -di.twist_gamma(cp) * h)
+    _, (_, _, bound) = di.ellipse_row((px, py), vel, e, gamma, amax, vmax, dt)
+    assert bound >= -TOL
 
 
 # --- the model's scenarios ---------------------------------------------------------------------

@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from experiments.montecarlo import random_scenario, valid_scenario
+from experiments.montecarlo import DI_MAX_ACCEL, random_scenario, valid_scenario
 from formation.cli import main
 
 
@@ -58,3 +58,37 @@ def test_the_number_of_jobs_changes_nothing_in_the_results_and_a_bad_one_exits_2
     assert runs["1"] == runs["3"]
     assert main(["montecarlo", "--n", "3", "--jobs", "0", "--out", str(tmp_path / "bad")]) == 2
     assert "--jobs" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("model", ["single_integrator", "unicycle", "double_integrator"])
+def test_model_gives_every_drawn_layout_that_model_and_leaves_the_rest_of_the_draw(model):
+    for seed in range(6):
+        d, scenario, layout_seed = valid_scenario(seed, model=model)
+        assert scenario.robot.model == model
+        assert (scenario.robot.max_accel == DI_MAX_ACCEL) == (model == "double_integrator")
+        drawn = random_scenario(layout_seed)
+        assert d["robot"].pop("max_accel", None) == (DI_MAX_ACCEL if model == "double_integrator" else None)
+        assert {**d, "robot": {**d["robot"], "model": drawn["robot"]["model"]}} == drawn
+    assert valid_scenario(4, model=None)[0] == random_scenario(valid_scenario(4)[2])  # default: the mix
+
+
+def test_model_double_integrator_outside_the_ideal_world_exits_2(tmp_path, capsys):
+    assert main(["montecarlo", "--n", "1", "--model", "double_integrator", "--world", "turtlebot3-lab",
+                 "--out", str(tmp_path / "bad")]) == 2
+    err = capsys.readouterr().err
+    assert "--model double_integrator" in err and "Traceback" not in err
+    with pytest.raises(SystemExit) as bad:
+        main(["montecarlo", "--n", "1", "--model", "bicycle", "--out", str(tmp_path / "bad2")])
+    assert bad.value.code == 2
+
+
+@pytest.mark.integration
+def test_a_double_integrator_run_records_the_model(tmp_path, capsys):
+    out = tmp_path / "mc"
+    assert main(["montecarlo", "--n", "1", "--seed", "3", "--model", "double_integrator",
+                 "--out", str(out)]) == 0
+    summary = json.loads((out / "montecarlo.json").read_text())
+    assert summary["model"] == "double_integrator"
+    assert summary["by_model"]["double_integrator"]["runs"] == 1
+    assert summary["by_model"]["unicycle"]["runs"] == summary["by_model"]["single_integrator"]["runs"] == 0
+    assert "double_integrator model" in capsys.readouterr().out

@@ -1,4 +1,4 @@
-"""``formation montecarlo --n N --seed S [--draw circles|warehouse] --out DIR``: see
+"""``formation montecarlo --n N --seed S [--draw circles|warehouse] [--model M] --out DIR``: see
 :mod:`experiments.montecarlo`."""
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from formation.exits import UsageError
 from formation.outdir import begin_output
 from formation.progress import Progress
 from scenario.bounds import parse as parse_bounds
+from scenario.world import IDEAL
 
 
 def montecarlo_command(ns: argparse.Namespace) -> int:
@@ -22,10 +23,14 @@ def montecarlo_command(ns: argparse.Namespace) -> int:
         raise UsageError(f"--jobs: must be a positive number of processes, got {ns.jobs}")
     if ns.bounds is not None:
         parse_bounds(ns.bounds, DT)  # a bad --bounds: exit 2 before any run
+    if ns.model == "double_integrator" and ns.world not in (None, IDEAL):
+        raise UsageError(f"--model double_integrator: runs in the ideal world only, not with "
+                         f"--world {ns.world}")
     out = begin_output(ns)
     with Progress(f"montecarlo n={ns.n}", unit="runs") as progress:
         summary, results = run_montecarlo(ns.n, ns.seed, ns.jobs, progress=progress.update,
-                                          world=ns.world, bounds=ns.bounds, draw=ns.draw)
+                                          world=ns.world, bounds=ns.bounds, draw=ns.draw,
+                                          model=ns.model)
     for r in results:
         if not r["all_reached"] or r["collisions"]:
             (out / f"failure-{r['seed']}.yaml").write_text(yaml.safe_dump(r["scenario"], sort_keys=False))
@@ -33,8 +38,9 @@ def montecarlo_command(ns: argparse.Namespace) -> int:
     with (out / "runs.jsonl").open("w", encoding="utf-8") as fh:
         for r in results:
             fh.write(json.dumps({k: v for k, v in r.items() if k != "scenario"}) + "\n")
+    model = f", {ns.model} model" if ns.model else ""
     print(f"montecarlo: {summary['runs']} runs ({summary['draw']} draw, {summary['world']} world, "
-          f"bounds {summary['bounds']}), "
+          f"bounds {summary['bounds']}{model}), "
           f"reached {100 * summary['reached_rate']:.1f}%, "
           f"collisions {summary['collisions']} (in {summary['runs_with_collision']} runs), "
           f"deadlocks {summary['deadlocks']}, worst formation error "
