@@ -23,16 +23,10 @@ SCENARIOS = Path(__file__).parent / "scenarios"
 
 #: The issue's "Done when" set that does not meet the bar yet, and why (strict: a fix shows).
 FAILING = {
-    "rigid-doorway-four-unicycle": "four formations at one 1.3 m doorway: every goal, 1.39 eps, but "
-                                   "34 hard-row ticks unmet while they jam (separation, fallback)",
-    "rigid-eps001-turning-unicycle": "2.12 eps (2 cm): the formation QP slows and turns a triangle "
-                                     "for the crossing rectangle and its unicycle members lag the "
-                                     "twist (every QP ok)",
-    "rigid-shelves-eight-unicycle": "two pairs meet head-on in the cross-aisle: 6.0 eps and "
-                                    "ellipse rows unmet (their members' QPs infeasible)",
-    "rigid-cross-aisle-six-unicycle": "1.61 eps: the formation QP reverses a rectangle for an "
-                                      "oncoming triangle (A.3's velocity term) and its unicycle "
-                                      "members turn round at different rates",
+    "rigid-shelves-eight-unicycle": "two pairs meet head-on in the cross-aisle: 5.95 eps, one "
+                                    "pair never through (the formation QP relaxed, no collision)",
+    "rigid-cross-aisle-six-unicycle": "1.29 eps, 0 rows unmet, but 6 reversals (three members "
+                                      "for two ticks each at t = 75 s)",
 }
 
 PASSING = sorted(p.stem for p in SCENARIOS.glob("rigid-*.yaml") if p.stem not in FAILING)
@@ -111,7 +105,7 @@ def test_the_tiebreak_stays_under_rigid_two_rectangles_head_on_deadlock_without_
 def test_the_yield_rule_stays_four_formations_at_one_doorway_deadlock_without_it(monkeypatch):
     """No barrier picks which of the formations meeting in a doorway goes first: with the stall
     clock's yield (agent.control.yield_command) the later names back off and every formation
-    gets through (its band and hard rows are the xfail above); without it they stay jammed."""
+    gets through (meeting the bar: the test above); without it they stay jammed."""
     from agent import control
 
     summary, _eps = _run("rigid-doorway-four-unicycle")
