@@ -102,6 +102,9 @@ def test_the_tiebreak_stays_under_rigid_two_rectangles_head_on_deadlock_without_
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="with the heading-spread rows (agent.body.spread_rows) the "
+                   "four formations get through without the yield rule too: the rule needs "
+                   "another scenario that fails without it, or goes")
 def test_the_yield_rule_stays_four_formations_at_one_doorway_deadlock_without_it(monkeypatch):
     """No barrier picks which of the formations meeting in a doorway goes first: with the stall
     clock's yield (agent.control.yield_command) the later names back off and every formation
