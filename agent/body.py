@@ -30,7 +30,16 @@ slot (its start control point placed at the pose) and the load:
   d' = n . (q' - P*'), so  n . P*' <= gamma (d - D) + n . q'. The distance between two convex
   outlines is reached at a vertex of one of them, so vertices and corners cover every contact;
 * every member's speed limit on its slot velocity, |v| + rho |omega| <= vmax (a 12-gon in v for each
-  sign of omega, inscribed like :func:`agent.barriers.speed_rows`), and |omega| <= the turn limit.
+  sign of omega, inscribed like :func:`agent.barriers.speed_rows`), and |omega| <= the turn limit;
+* unicycle members, what they can follow (:func:`spread_rows`): a unicycle's body sits l e(theta)
+  behind its look-ahead point (thesis section 6.2, s = p + l e(theta)), so members whose
+  headings differ by delta hold their bodies up to 2 l sin(delta / 2) <= l delta off the rigid
+  shape their points keep. Aligned with their slots' velocities v + omega J r_i, the members'
+  headings spread by at most 2 asin(rho |omega| / |v|); the rotation the rows add beyond the
+  goal's turn therefore keeps rho |omega - omega_goal| <= sin(delta_max / 2) (d . v), d the goal
+  twist's direction of travel and delta_max = epsilon / l, so the bodies stay within epsilon of
+  their shape while the formation turns aside; without the goal's travel it does not turn aside
+  at all, it slows instead. These rows give way to the barrier rows (:func:`solve_twist`).
 
 Sampled time (item 5): over one period dt at a constant twist a body point leaves the straight line
 P + dt P' by at most rho (omega dt)^2 / 2; every distance here is convex along a straight motion, so
@@ -115,6 +124,7 @@ class BodyParams(NamedTuple):
     # ellipse rows with the linear class-K gamma_formations h, not ellipse_class_k's: a double
     # integrator's members close on an ellipse no faster (agent.double_integrator.twist_gamma)
     linear_ellipses: bool = False
+    spread: float = math.inf  # [rad] the members' largest heading spread (:func:`spread_rows`)
 
 
 class Pose(NamedTuple):
@@ -334,28 +344,57 @@ class TwistResult(NamedTuple):
     goal: Twist = (0.0, 0.0, 0.0)  # the part of the goal twist that seeks the goal
 
 
-def solve_twist(goal: Twist, rho: float, limits: Sequence[Row3], rows: Sequence[Row3]
-                ) -> TwistResult:
+def spread_rows(goal: Twist, rho: float, spread: float) -> list[Row3]:
+    """rho |omega - omega_goal| <= sin(spread / 2) (d . v), d the direction of the goal twist's
+    travel (none: omega = omega_goal), in z (module docstring: what unicycle members can
+    follow); none without a spread limit (single integrators)."""
+    if not math.isfinite(spread):
+        return []
+    n = math.hypot(goal[0], goal[1])
+    k = math.sin(0.5 * min(spread, math.pi)) / n if n > 1e-9 else 0.0
+    m = math.sqrt((k * goal[0]) ** 2 + (k * goal[1]) ** 2 + 1.0)
+    ax, ay, w = -k * goal[0] / m, -k * goal[1] / m, rho * goal[2] / m
+    return [(ax, ay, 1.0 / m, w), (ax, ay, -1.0 / m, -w)]
+
+
+def solve_twist(goal: Twist, rho: float, limits: Sequence[Row3], rows: Sequence[Row3],
+                follow: Sequence[Row3] = ()) -> TwistResult:
     """The twist closest to ``goal`` (weights 1, 1, rho^2) meeting ``limits`` and ``rows``; where
     the rows cannot all hold, they are relaxed by their smallest common slack (the limits never:
-    they hold the zero twist)."""
+    they hold the zero twist). ``follow`` (:func:`spread_rows`) give way first: where the rows
+    hold but not with them, they are left out (a barrier never waits on what members can
+    follow); where the rows themselves were relaxed (a jam: the least-risk twist), they are
+    relaxed after them by their own smallest common slack, so that twist does not jump between
+    a tick whose rows held and one whose rows did not (left out there too: 48 reversals in
+    tests/scenarios/rigid-doorway-four-unicycle.yaml)."""
     zhat = (goal[0], goal[1], rho * goal[2])
-    base = list(limits)
-    z = solve3(zhat, base + list(rows))
+    base = list(limits) + list(rows)
+    z = solve3(zhat, base)
     slack = 0.0
     if z is None:
-        slack = _min_slack(base, rows)
-        z = solve3(zhat, base + [(a1, a2, a3, b + slack) for a1, a2, a3, b in rows])
-        z = z or (0.0, 0.0, 0.0)
+        slack = _min_slack(list(limits), rows)
+        base = list(limits) + _shifted(rows, slack)
+        z = solve3(zhat, base) or (0.0, 0.0, 0.0)
+    if follow:
+        zf = solve3(zhat, base + list(follow))
+        if zf is None and slack > 0.0:
+            zf = solve3(zhat, base + _shifted(follow, _min_slack(base, follow, z)))
+        z = zf or z
     return TwistResult((z[0], z[1], z[2] / rho), slack, len(rows), goal)
 
 
-def _min_slack(base: list[Row3], rows: Sequence[Row3]) -> float:
-    """The smallest s >= 0 with the limits and the rows shifted by s feasible (bisection)."""
-    lo, hi = 0.0, max(0.0, max(-b for *_a, b in rows)) + 1e-6
+def _shifted(rows: Sequence[Row3], slack: float) -> list[Row3]:
+    return [(a1, a2, a3, b + slack) for a1, a2, a3, b in rows]
+
+
+def _min_slack(base: list[Row3], rows: Sequence[Row3],
+               at: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> float:
+    """The smallest s >= 0 with ``base`` and the rows shifted by s feasible (bisection); ``at``
+    meets ``base`` (the zero twist meets the limits), so s = max(a . at - b) is enough."""
+    lo, hi = 0.0, max(0.0, max(_dot(r, at) - r[3] for r in rows)) + 1e-6
     for _ in range(_BISECT_STEPS):
         mid = 0.5 * (lo + hi)
-        if solve3((0.0, 0.0, 0.0), base + [(a1, a2, a3, b + mid) for a1, a2, a3, b in rows]) is None:
+        if solve3(at, base + _shifted(rows, mid)) is None:
             lo = mid
         else:
             hi = mid
@@ -394,7 +433,8 @@ def formation_twist(fp: Footprint, own: Ellipse, goal: Point, snap: Snapshot, p:
     pose = pose_of(own, fp.alpha0)
     rho = fp.rho
     want = goal_twist(pose, goal, fp.goal_turn if turn is None else turn, rho, p, push, intent)
-    res = solve_twist(want, rho, limit_rows(rho, p), footprint_rows(fp, pose, snap, p))
+    res = solve_twist(want, rho, limit_rows(rho, p), footprint_rows(fp, pose, snap, p),
+                      spread_rows(want, rho, p.spread))
     # what seeks the goal (for member_nominal's arrival): neither the push nor an escape
     seek = (0.0, 0.0, want[2]) if intent is not None else (want[0] - push[0], want[1] - push[1],
                                                            want[2])

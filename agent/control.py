@@ -682,7 +682,8 @@ def control_step(
 def body_params(cp: ControlParams) -> body.BodyParams:
     """The formation QP's numbers from a member's :class:`agent.control.ControlParams`: the turn
     limit is a unicycle's turn rate (single integrators: none beyond the slots' speeds); the
-    load keeps epsilon (how far members sit from their slots) plus the look-ahead offset. A
+    load keeps epsilon (how far members sit from their slots) plus the look-ahead offset; a
+    unicycle formation's heading spread is epsilon / l (:func:`agent.body.spread_rows`). A
     formation of double integrators plans its ellipse rows at the pace its members' own
     relative-degree-2 rows keep (:func:`agent.double_integrator.twist_gamma`), so no member
     brakes alone for another formation while the twist drives the others on."""
@@ -698,6 +699,7 @@ def body_params(cp: ControlParams) -> body.BodyParams:
         grow=cp.offset + cp.sampling_margin + cp.margin,
         radius=cp.radius,
         load_margin=cp.epsilon + cp.offset,
+        spread=cp.epsilon / cp.offset if cp.unicycle else math.inf,
     )
 
 

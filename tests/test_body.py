@@ -10,6 +10,7 @@ import random
 import warnings
 
 import numpy as np
+import pytest
 import qpsolvers
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
@@ -182,3 +183,50 @@ def test_the_goal_turn_of_a_rotated_goal_shape():
     goals = [(5.0, 5.0), (5.0, 6.0), (4.5, 6.0)]  # turned by +90 degrees
     fp = body.footprint_of(starts, starts, goals, 0)
     assert math.isclose(fp.goal_turn, math.pi / 2, abs_tol=1e-9)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(-math.pi, math.pi), st.floats(0.01, 0.22), st.floats(0.05, 1.0),
+       st.floats(0.05, 3.0), st.floats(-1.4, 1.4), st.floats(0.0, 0.22), st.floats(-1.0, 1.0),
+       st.floats(0.0, 2.0 * math.pi))
+def test_spread_rows_keep_the_slots_velocities_within_the_spread(heading, speed, rho, spread,
+                                                                   off, norm, frac, at):
+    """A twist meeting the spread rows of a goal without turn moves every point of the body
+    (within rho of the centroid) within spread / 2 of the twist's own direction of travel, so
+    members aligned with their slots' velocities differ in heading by at most the spread; and
+    the rows allow every turn up to that bound (drawn: a travel within 80 degrees of the goal's,
+    a turn rate a fraction of the bound)."""
+    goal = (speed * math.cos(heading), speed * math.sin(heading), 0.0)
+    rows = body.spread_rows(goal, rho, spread)
+    v = (norm * math.cos(heading + off), norm * math.sin(heading + off))
+    assume(norm * math.cos(off) > 1e-6)
+    bound = math.sin(0.5 * spread) * norm * math.cos(off) / rho  # [rad/s]
+    w = frac * bound
+    z = (v[0], v[1], rho * w)
+    assert all(a1 * z[0] + a2 * z[1] + a3 * z[2] <= b + 1e-12 for a1, a2, a3, b in rows)
+    outside = (v[0], v[1], math.copysign(rho * bound * 1.01 + 1e-9, frac))
+    assert any(a1 * outside[0] + a2 * outside[1] + a3 * outside[2] > b for a1, a2, a3, b in rows)
+    r = (rho * math.cos(at), rho * math.sin(at))
+    sv = (v[0] - w * r[1], v[1] + w * r[0])
+    cos = (sv[0] * v[0] + sv[1] * v[1]) / (math.hypot(*sv) * math.hypot(*v))
+    assert math.acos(max(-1.0, min(1.0, cos))) <= 0.5 * spread + 1e-9
+
+
+def test_spread_rows_leave_the_goals_turn_and_give_way_to_the_barriers():
+    """The goal's own turn is a twist the rows allow (a formation turning to its goal shape), a
+    turn with no travel is only the goal's, single integrators get none, and where a barrier row
+    needs a turn the spread rows forbid, the barrier wins (the rows are left out)."""
+    rho = 0.4
+    limits = body.limit_rows(rho, PARAMS)
+    goal = (0.1, 0.0, 0.2)  # within the slots' speed limit: 0.1 + rho 0.2 < 0.22 cos 15 deg
+    assert body.solve_twist(goal, rho, limits, [], body.spread_rows(goal, rho, 0.8)).twist == \
+        pytest.approx(goal)
+    still = body.spread_rows((0.0, 0.0, 0.0), rho, 0.8)
+    assert body.solve_twist((0.0, 0.0, 0.5), rho, limits, [], still).twist == \
+        pytest.approx((0.0, 0.0, 0.0), abs=1e-9)
+    assert body.spread_rows(goal, rho, math.inf) == []
+    # a barrier row that needs the body to turn by at least 0.4 rad/s: rho omega >= 0.16
+    turn = [(0.0, 0.0, -1.0, -0.16)]
+    res = body.solve_twist((0.2, 0.0, 0.0), rho, limits, turn, body.spread_rows((0.2, 0.0, 0.0),
+                                                                                  rho, 0.1))
+    assert res.twist[2] * rho >= 0.16 - 1e-9 and res.slack == 0.0

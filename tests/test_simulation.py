@@ -31,12 +31,14 @@ FORMATION_GAPS = {
     # reversed less); the agent's model does not know its robot turns (issue 27, left open)
     "warehouse-lab-bounds": "single integrators on differential drives reversing (3.1 eps)",
     # issue 25's scenarios still short of the bar (tests/test_rigid_scenarios.py says why)
-    "rigid-eps001-turning-unicycle": "unicycle members lag the formation's turn (2.12 eps)",
-    "rigid-shelves-eight-unicycle": "two pairs head-on in a cross-aisle (6.0 eps)",
-    "rigid-cross-aisle-six-unicycle": "members turn round at different rates (1.61 eps)",
+    "rigid-shelves-eight-unicycle": "two pairs head-on in a cross-aisle (5.95 eps)",
+    "rigid-doorway-four-unicycle": "four formations jam at one doorway (1.66 eps)",
 }
 # goals meant to have no route: tests/test_route_scenarios.py shows they hold, unreachable
 UNREACHABLE = {"route-closed-room", "route-closed-room-unicycle"}
+# where a goal is meant to be reached and is not yet (safety holds there)
+NOT_THROUGH: dict[str, str] = {}  # none at present (rigid-shelves-eight-unicycle was, until the
+# replanner's blocked rule planned its pair round the other)
 
 
 def _params(names):
@@ -59,8 +61,19 @@ SUMMARY_FIELDS = {
 }
 
 
+def _through_params(names):
+    out = []
+    for p in _params(names):
+        (path,) = p.values
+        marks = list(p.marks)
+        if path.stem in NOT_THROUGH:
+            marks.append(pytest.mark.xfail(strict=True, reason=NOT_THROUGH[path.stem]))
+        out.append(pytest.param(path, marks=marks, id=path.stem))
+    return out
+
+
 @pytest.mark.integration
-@pytest.mark.parametrize("path", _params([p for p in SCENARIOS if p.stem not in UNREACHABLE]))
+@pytest.mark.parametrize("path", _through_params([p for p in SCENARIOS if p.stem not in UNREACHABLE]))
 def test_scenario_reaches_every_goal_safely(path):
     scenario = load_scenario(path)
     s = _summary(path)
