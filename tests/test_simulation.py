@@ -61,19 +61,21 @@ SUMMARY_FIELDS = {
 }
 
 
-def _through_params(names):
+def _expected(names, failing: dict[str, str]):
+    """``names`` as parameters, those in ``failing`` strict expected failures with its reason."""
     out = []
     for p in _params(names):
         (path,) = p.values
         marks = list(p.marks)
-        if path.stem in NOT_THROUGH:
-            marks.append(pytest.mark.xfail(strict=True, reason=NOT_THROUGH[path.stem]))
+        if path.stem in failing:
+            marks.append(pytest.mark.xfail(strict=True, reason=failing[path.stem]))
         out.append(pytest.param(path, marks=marks, id=path.stem))
     return out
 
 
 @pytest.mark.integration
-@pytest.mark.parametrize("path", _through_params([p for p in SCENARIOS if p.stem not in UNREACHABLE]))
+@pytest.mark.parametrize("path", _expected([p for p in SCENARIOS if p.stem not in UNREACHABLE],
+                                             NOT_THROUGH))
 def test_scenario_reaches_every_goal_safely(path):
     scenario = load_scenario(path)
     s = _summary(path)
@@ -90,18 +92,7 @@ def test_scenario_reaches_every_goal_safely(path):
     assert scenario.controller.epsilon > 0
 
 
-def _gap_params(names):
-    out = []
-    for p in _params(names):
-        (path,) = p.values
-        marks = list(p.marks)
-        if path.stem in FORMATION_GAPS:
-            marks.append(pytest.mark.xfail(strict=True, reason=FORMATION_GAPS[path.stem]))
-        out.append(pytest.param(path, marks=marks, id=path.stem))
-    return out
-
-
-@pytest.mark.parametrize("path", _gap_params(SCENARIOS))
+@pytest.mark.parametrize("path", _expected(SCENARIOS, FORMATION_GAPS))
 def test_scenario_keeps_the_formation_error_on_the_bodies_within_one_and_a_half_epsilon(path):
     scenario = load_scenario(path)
     assert _summary(path)["formation_error_max_m"] <= 1.5 * scenario.controller.epsilon
