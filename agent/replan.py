@@ -18,6 +18,8 @@ import logging
 import math
 import os
 import signal
+import threading
+import time
 from collections.abc import Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
 from multiprocessing import get_context
@@ -124,6 +126,21 @@ class LeaderRoutes:
 
 
 _POOL: list[ProcessPoolExecutor] = []  # this process's plan worker, once started
+ORPHAN_POLL_S = 1.0  # [s] how often the plan worker looks whether its agent is still there
+
+
+def _worker_start(parent: int) -> None:
+    """The plan worker's start: the lowest priority, and an exit once the agent that started it
+    is gone. A killed agent's worker would otherwise wait on its job queue for ever (it holds
+    the queue's write end itself, so it never reads an end of file)."""
+    os.nice(PLAN_NICE)
+    threading.Thread(target=_exit_with, args=(parent,), name="orphan-watch", daemon=True).start()
+
+
+def _exit_with(parent: int) -> None:
+    while os.getppid() == parent:
+        time.sleep(ORPHAN_POLL_S)
+    os._exit(0)  # nothing to save: a plan in progress is for the agent that is gone
 
 
 def plan_pool() -> ProcessPoolExecutor:
@@ -134,7 +151,7 @@ def plan_pool() -> ProcessPoolExecutor:
     if not _POOL:
         mask = signal.pthread_sigmask(signal.SIG_BLOCK, ())
         pool = ProcessPoolExecutor(max_workers=1, mp_context=get_context("spawn"),
-                                   initializer=os.nice, initargs=(PLAN_NICE,))
+                                   initializer=_worker_start, initargs=(os.getpid(),))
         pool.submit(int)  # starts the process now, so it can be lowered before its imports
         # multiprocessing's resource tracker unblocks SIGINT and SIGTERM in the calling thread;
         # the agent takes them on its signal thread only (agent.__main__.SignalWatch): block again

@@ -143,3 +143,45 @@ def test_a_route_given_by_hand_is_never_planned_again_and_survives_the_config_fi
     assert nav.routes is not None and nav.routes.replanner.by_hand
     planned = build_agent_configs(load_scenario(SCENARIOS / "route-forklift-parks.yaml"))["r1"]
     assert not planned.route_by_hand and "route_by_hand" not in config_to_dict(planned)
+
+
+PLAN_POOL_CHILD = """
+import os, sys, time
+from agent.replan import PLAN_NICE, plan_pool
+pool = plan_pool()
+pool.submit(int).result()
+(pid,) = list(pool._processes)
+print(pid, os.getpriority(os.PRIO_PROCESS, pid) == PLAN_NICE, flush=True)
+time.sleep(600)
+"""
+
+
+def test_the_route_plan_worker_runs_at_the_lowest_priority_and_ends_when_its_agent_is_killed():
+    """agent.replan.plan_pool: the worker is at PLAN_NICE, and a SIGKILLed agent's worker exits
+    by itself (it holds its own queue's write end, so no end of file would ever tell it)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    child = subprocess.Popen([sys.executable, "-c", PLAN_POOL_CHILD], stdout=subprocess.PIPE,
+                             text=True, env=dict(os.environ))
+    try:
+        pid_text, lowest = (child.stdout.readline() if child.stdout else "").split()
+        worker = int(pid_text)
+        assert lowest == "True"
+        os.kill(worker, 0)  # alive while its agent is
+    finally:
+        child.send_signal(signal.SIGKILL)
+        child.wait(30)
+        if child.stdout is not None:
+            child.stdout.close()
+    deadline = time.monotonic() + 60.0  # only ends a wait that would never end
+    while True:
+        try:
+            os.kill(worker, 0)
+        except ProcessLookupError:
+            break
+        assert time.monotonic() < deadline, "the plan worker outlived its agent"
+        time.sleep(0.1)
