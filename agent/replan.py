@@ -3,11 +3,12 @@ plan again is :class:`leader.routing.Replanner`'s; this part feeds it what the l
 tick and runs the plan off the control tick.
 
 Lock-step: the plan is made in the tick that asks for it (simulated time waits; the run stays
-deterministic). Real time: the plan runs in a worker process (one per agent process, its leaders share it,
-started with the node before the ticks, ``spawn``: nothing of the agent's threads or sessions is copied into it; at the lowest priority,
-:data:`PLAN_NICE`, so on a busy machine the plan waits, not the ticks) and the tick goes on at
-once; the route is taken at the first tick after it is done. A thread would not do: the search
-is Python and holds the GIL, and a 20 Hz tick beside it ended late (docs/navigation.md).
+deterministic). Real time: the plan runs in a worker process (one per agent process, its leaders
+share it, started with the node before the ticks, ``spawn``: nothing of the agent's threads or
+sessions is copied into it; at the lowest priority, :data:`PLAN_NICE`, so on a busy machine the
+plan waits, not the ticks) and the tick goes on at once; the route is taken at the first tick
+after it is done. A thread would not do: the search is Python and holds the GIL, and a 20 Hz
+tick beside it ended late (docs/navigation.md).
 """
 
 from __future__ import annotations
