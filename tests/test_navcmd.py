@@ -4,6 +4,7 @@ router, explicit endpoints, multicast scouting off). The fleet itself: tests/tes
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Iterator
 
 import pytest
@@ -32,7 +33,8 @@ class LeaderStandIn:
     """A leader's goal and status handling on its own session (what the agent does, minus
     the control): accepts goals with a Navigator, answers status queries."""
 
-    def __init__(self, endpoint: str, fid: str) -> None:
+    def __init__(self, endpoint: str, fid: str, quiet_s: float = 0.0) -> None:
+        self.quiet_until = time.monotonic() + quiet_s  # a busy leader: no answers until then
         conf = ZenohSettings(mode="client", connect=(endpoint,)).to_config()
         self.session = zenoh.open(conf)
         self.nav = Navigator(fid, f"{fid}1", {f"{fid}1": (0.25, 0.0), f"{fid}2": (-0.25, 0.0)}, (0.0, 0.0))
@@ -57,6 +59,8 @@ class LeaderStandIn:
                 self.refused.append(why)
 
     def on_query(self, query: zenoh.Query) -> None:
+        if time.monotonic() < self.quiet_until:
+            return
         with self.lock:
             s = self.nav.status(self.follower, (0.0, 0.0), False, False, 1.0)
         query.reply(query.key_expr, encode_nav(s))
@@ -106,6 +110,19 @@ def test_a_goal_the_leader_refuses_exits_1_saying_why_from_its_status(router, ca
         assert "its leader refused it: the goal of 'C1' lies within the safe distance of box 'shelf'" in err
         assert "C: reached goal (0.000, 0.000)" in err and "1 goal(s) refused" in err
         assert "within the safe distance of box 'shelf'" in leader.refused[0]
+    finally:
+        leader.close()
+
+
+def test_a_refusal_is_counted_once_when_the_leader_answers_late(router, capsys):
+    # the leader answers no query for its first 1.5 s: the goal waits for its first answer,
+    # else that answer counted this goal's refusal as an old one and the goal went again
+    leader = LeaderStandIn(router.endpoint, "Q", quiet_s=1.5)
+    try:
+        rc = navcmd.main(["goal", "Q", "2.0", "0.0", "--connect", router.endpoint, "--timeout", "60"])
+        err = capsys.readouterr().err
+        assert rc == 1 and "its leader refused it" in err and "1 goal(s) refused" in err, err
+        assert len(leader.refused) == 1
     finally:
         leader.close()
 

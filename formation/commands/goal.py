@@ -1,7 +1,8 @@
 """``formation goal`` and ``formation status``: the fleet manager's side of the goal interface.
 
 ``formation goal FID X Y [--heading RAD] [--via X,Y[,H] ...]`` puts a :class:`wire.payloads.GoalMsg`
-on ``{prefix}/formation/FID/goal`` (stamped with this machine's clock) and waits until the
+on ``{prefix}/formation/FID/goal`` (stamped with this machine's clock; first it waits for the
+leader's status, to count its refusals before) and waits until the
 formation's leader reports that goal in its ``status`` (published about once a second, and
 answered as a queryable): exit 0 and one status line. The goal is put again every
 :data:`RESEND_S` until then (a leader ignores a goal equal to the one it follows), so it reaches
@@ -26,6 +27,7 @@ scenario's extent again), and a formation that no leader answers for while other
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import queue
 import sys
@@ -234,9 +236,17 @@ def _send_and_wait(session: zenoh.Session, ns: argparse.Namespace, goal: GoalMsg
     payload = encode_nav(goal)
     deadline = time.monotonic() + ns.timeout
     last: StatusMsg | None = None
-    # the leader's refusals before this goal went out: one more afterwards is this goal's
-    before = query_status(session, ns.prefix, goal.formation, timeout=min(ns.timeout, 1.0))
-    refused_before = before[0].refused if before else None
+    # the leader's refusals before this goal went out: one more afterwards is this goal's. The
+    # goal goes out only once the leader has answered: sent before, a busy leader's first
+    # answer could count its refusal already, and the goal went again (two refused)
+    refused_before: int | None = None
+    while refused_before is None and time.monotonic() < deadline:
+        before = query_status(session, ns.prefix, goal.formation,
+                              timeout=max(0.05, min(deadline - time.monotonic(), 1.0)))
+        with contextlib.suppress(queue.Empty):
+            before.append(seen.get_nowait())  # one it published meanwhile does as well
+        if before:
+            last, refused_before = before[0], before[0].refused
     try:
         while time.monotonic() < deadline:
             pub.put(payload)
