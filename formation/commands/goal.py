@@ -221,6 +221,19 @@ def goal_command(ns: argparse.Namespace) -> int:
         session.close()
 
 
+def _first_status(session: zenoh.Session, prefix: str, fid: str,
+                  seen: queue.SimpleQueue[StatusMsg], deadline: float) -> StatusMsg | None:
+    """The leader's first status (asked for, or published meanwhile), or None by ``deadline``."""
+    while time.monotonic() < deadline:
+        found = query_status(session, prefix, fid,
+                             timeout=max(0.05, min(deadline - time.monotonic(), 1.0)))
+        with contextlib.suppress(queue.Empty):
+            found.append(seen.get_nowait())
+        if found:
+            return found[0]
+    return None
+
+
 def _send_and_wait(session: zenoh.Session, ns: argparse.Namespace, goal: GoalMsg) -> int:
     status_key = keys.status_key(ns.prefix, goal.formation)
     seen: queue.SimpleQueue[StatusMsg] = queue.SimpleQueue()
@@ -235,18 +248,11 @@ def _send_and_wait(session: zenoh.Session, ns: argparse.Namespace, goal: GoalMsg
     pub = session.declare_publisher(keys.goal_key(ns.prefix, goal.formation))
     payload = encode_nav(goal)
     deadline = time.monotonic() + ns.timeout
-    last: StatusMsg | None = None
     # the leader's refusals before this goal went out: one more afterwards is this goal's. The
     # goal goes out only once the leader has answered: sent before, a busy leader's first
     # answer could count its refusal already, and the goal went again (two refused)
-    refused_before: int | None = None
-    while refused_before is None and time.monotonic() < deadline:
-        before = query_status(session, ns.prefix, goal.formation,
-                              timeout=max(0.05, min(deadline - time.monotonic(), 1.0)))
-        with contextlib.suppress(queue.Empty):
-            before.append(seen.get_nowait())  # one it published meanwhile does as well
-        if before:
-            last, refused_before = before[0], before[0].refused
+    last = _first_status(session, ns.prefix, goal.formation, seen, deadline)
+    refused_before = last.refused if last is not None else None
     try:
         while time.monotonic() < deadline:
             pub.put(payload)
