@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -43,6 +44,7 @@ logger = logging.getLogger(__name__)
 
 RING_CAPACITY = 256  # real time: samples kept per key between two ticks (a flood beyond it
 # loses its oldest samples uncounted; about one per tick arrives in normal operation)
+CONTEST_HOLD_S = 1.0  # [s] real time: zero and no state this long after an input's second source
 DECODERS: dict[str, Callable[[bytes], Any]] = {  # mailbox class -> payload reader
     keys.POSE: decode_pose, keys.STATE: decode_state, keys.OTHERS: decode_others,
     keys.ELLIPSE: decode_ellipse, keys.OBSTACLES: decode_obstacles, keys.BEACON: decode_ellipse,
@@ -152,6 +154,9 @@ class Inbox:
         self.reacquire = Reacquire(receiver.speed)
         self.reacquired = 0  # poses taken as the new kept pose after a jump
         self._still_since_jump = True
+        # real time: when an input last had a second source (:meth:`_conflicts`); the robot
+        # commands zero and withholds its state until CONTEST_HOLD_S after it (:meth:`contested`)
+        self._contested_at = -math.inf
         self.arrived = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._transport: Transport | None = None
@@ -177,8 +182,16 @@ class Inbox:
                 self.catch_ups += 1
             if reason is not None:
                 self.stamps.count(cls, reason)
-                if reason == OLDER and prev is not None and self._conflicts(cls, msg, prev[0]):
-                    self._flag(cls, "refused as older and disagreeing with the kept one")
+            # stamped before the kept message (refused as older, or taken past a kept one
+            # stamped ahead of the clock) and disagreeing with it: a second source on the key
+            if reason in (None, OLDER) and prev is not None and msg.stamp < prev[0].stamp \
+                    and self._conflicts(cls, msg, prev[0]):
+                self._flag(cls, "stamped before the kept one and disagreeing with it")
+                self._contested_at = now  # neither source is trusted until it has gone quiet
+                if cls == keys.POSE:
+                    self.reacquire.reset()  # a second source's poses re-acquire nothing
+                return False
+            if reason is not None:
                 return False
             # plausible after the kept message while that one is fresh; a stale one says nothing
             # any more (a robot carried elsewhere, or a forged first pose: it blocks for at most
@@ -215,10 +228,10 @@ class Inbox:
         logger.info("%s: implausible %s %s", self.robot_id, cls, what)
 
     def _conflicts(self, cls: str, msg: Any, kept: Any) -> bool:
-        """Real time: a pose or obstacle list refused as older that disagrees with the kept one.
+        """Real time: a pose or obstacle list stamped before the kept one that disagrees with it.
         One publisher's messages arrive in order, so this is a second source on the key (a
         faulty camera, a clock step, a forger stamping ahead: docs/faults.md), and neither is
-        to be trusted: the robot stops while they disagree."""
+        to be trusted: the robot stops until CONTEST_HOLD_S after the last (:meth:`contested`)."""
         if self.lockstep:
             return False
         if cls == keys.POSE:
@@ -227,6 +240,13 @@ class Inbox:
         if cls == keys.OBSTACLES:
             return {o.id for o in msg.obstacles} != {o.id for o in kept.obstacles}
         return False
+
+    def contested(self) -> bool:
+        """Whether an input of this robot had a second source within :data:`CONTEST_HOLD_S`
+        (real time; :meth:`_conflicts`): then neither source is to be trusted, and the robot
+        commands zero and publishes no state from its pose (its neighbours hold theirs, then
+        stop as its state goes stale) until the input has been one source for that long."""
+        return self.receiver.now() - self._contested_at < CONTEST_HOLD_S
 
     def note_command(self, moving: bool) -> None:
         """The node sent a command; ``moving``: not the zero command (ends "still since the

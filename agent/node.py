@@ -131,6 +131,7 @@ logger = logging.getLogger(__name__)
 
 STATUS_STALE = "stale"  # trace status of a tick that commanded zero for stale inputs
 IMPLAUSIBLE = "implausible"  # stale_why: a tick that commanded zero after an implausible input
+CONTESTED = "contested"  # stale_why: zero, no state: an input had a second source (agent.inbox)
 POSE_AT_SEND = "pose_at_send"  # stale_why: the pose went stale while the command was computed
 TRACE_COLUMNS = ("t", "px", "py", "ux", "uy", "v", "omega", "status", "slack",
                  "h_formation", "h_obstacle", "h_formations", "solve_us")
@@ -524,6 +525,8 @@ class AgentNode:
             self.send_command(Cmd(0.0, 0.0, 0.0, 0.0, clock.cmd_stamp(t, self.last_stamp)))
             return None
         pose: Pose = pose_entry[0]
+        if self.inbox.contested():  # two sources on an input: neither is trusted (no state sent)
+            return self._zero(t, CONTESTED)
         # lock-step: no pose in this frame (camera dropout); the second check cannot fail (the
         # mailbox keeps stamps in order)
         if not clock.pose_current(pose_entry, t) or check_stamp(

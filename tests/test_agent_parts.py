@@ -11,7 +11,7 @@ import pytest
 from agent.clock import LockstepClock, RealtimeClock
 from agent.fault_inject import FaultInjector
 from agent.faults import LinkFaults
-from agent.inbox import Inbox, Receiver
+from agent.inbox import CONTEST_HOLD_S, Inbox, Receiver
 from agent.transport import Transport
 from wire import keys
 from wire.payloads import Pose, State, encode
@@ -143,6 +143,35 @@ def test_a_pose_stamped_ahead_of_the_clock_cannot_make_the_genuine_ones_after_it
     assert inbox.stamps.snapshot().get(keys.POSE, {}).get("older", 0) == 0
     stale_replay = (Pose(1.0, 0.0, 0.0, 99.99), 100.02)  # still refused: older than used
     assert not accept(key, stale_replay, genuine)
+
+
+def test_a_second_source_on_the_pose_holds_the_robot_until_it_has_been_quiet_for_a_while() -> None:
+    # real time: a genuine pose refused as older that disagrees with the kept (forged) one is a
+    # second source on the key; the robot stays commanded zero, and tells no neighbour its
+    # position, until CONTEST_HOLD_S after the last such pose (not just the tick after it)
+    clock = [100.0]
+    inbox = _pose_inbox(clock)
+    accept, key = inbox._acceptor(keys.POSE), keys.pose_key("warehouse", "a1")
+    forged = (Pose(1.2, 0.0, 0.0, 100.09), 100.0)  # walked 0.2 m from the robot, +90 ms
+    assert accept(key, forged, None) and not inbox.contested()
+    clock[0] = 100.03
+    genuine = (Pose(1.0, 0.0, 0.0, 100.02), 100.03)  # captured before the forged one arrived
+    assert not accept(key, genuine, forged)
+    assert inbox.contested() and inbox.take_implausible()
+    clock[0] = 100.03 + 0.9 * CONTEST_HOLD_S
+    assert inbox.contested()  # held, though no input broke physics since
+    clock[0] = 100.03 + 1.1 * CONTEST_HOLD_S
+    assert not inbox.contested()
+    # lock-step knows one source (the simulated world's): nothing is ever contested there
+    clock[0] = 100.0
+    lockstep = Inbox("a1", Receiver(lambda: clock[0], lambda: False, 0.1, 1.0, 0.5),
+                     TrafficCounter("warehouse"), LinkFaults(), (0.05, True), threading.Lock(),
+                     polled=True)
+    accept = lockstep._acceptor(keys.POSE)
+    assert accept(key, forged, None)
+    clock[0] = 100.03
+    assert not accept(key, genuine, forged)  # refused as a jump, as before
+    assert not lockstep.contested()
 
 
 def _pose_inbox(clock: list[float]) -> Inbox:

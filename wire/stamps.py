@@ -24,8 +24,9 @@ a pose walked 2 cm a message moved two robots into each other, empty obstacle li
 obstacles. Clamped, a message ahead of the clock can refuse the genuine messages stamped before
 the moment it arrived, and no later ones: one forged message costs at most the genuine messages
 already in flight (the latency's worth), and a forged stream interleaved with the genuine one no
-longer hides it: both are taken, their poses disagree, and the plausibility check
-(:mod:`agent.plausibility`) refuses the jumps and the robot commands zero (docs/faults.md).
+longer hides it: a message stamped before the kept one that disagrees with it is a second
+source, and the agent stops until the input has had one source for a while (``agent.inbox``,
+docs/faults.md).
 
 Which clock is ``now``:
 
