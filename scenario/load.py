@@ -67,6 +67,7 @@ from .model import (
     RobotSpec,
     Scenario,
     check_model_world,
+    model_world_warning,
 )
 from .reader import ScenarioError, excerpt, load_yaml, read_text
 from .shipped import resolve
@@ -701,6 +702,9 @@ def scenario_warnings(s: Scenario) -> list[str]:
     out = [f"formations[{c.formation}]: its load (the hull of its members) overlaps "
            f"{c.other!r} at the start by {-c.clearance:.3f} m"
            for c in start_load_contacts(s) if not s.formations[c.formation].load]
+    drive = model_world_warning(s.robot, s.world)
+    if drive is not None:
+        out.append(drive)
     for k, f in enumerate(s.formations):
         for n, e in enumerate(f.edges):
             if e.df - eps < 2.0 * r + 1e-6:

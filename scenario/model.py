@@ -219,6 +219,22 @@ def with_world(scenario: Scenario, name: str | None) -> Scenario:
     return out
 
 
+def model_world_warning(robot: RobotModel, world: WorldSpec, engine: str = "kinematic"
+                        ) -> str | None:
+    """A single integrator on differential drives (a world profile other than ideal, or the
+    MuJoCo engine), said in one line, or None. Each body centre then moves only along its
+    heading (eq. 6.2), which the single integrator's rows do not know: on a sharp turn or a
+    reversal a member lags its slot and bodies can meet (docs/physics.md: the warehouse at 3.15
+    epsilon in MuJoCo, 2.47 in the lab world, against 0.92 and 1.10 as unicycles)."""
+    if robot.model != SINGLE_INTEGRATOR or (world.ideal and engine == "kinematic"):
+        return None
+    where = f"world profile {world.profile!r}" if not world.ideal else f"the {engine} engine"
+    return (f"robot.model: single_integrator on the differential drives of {where}: a body "
+            f"centre moves only along its heading (eq. 6.2), which its rows do not know, so on "
+            f"a turn or a reversal bodies can meet; model: unicycle steers each look-ahead "
+            f"point (docs/physics.md)")
+
+
 def check_model_world(robot: RobotModel, world: WorldSpec) -> None:
     """Double integrators move in the ideal world only (ScenarioError otherwise)."""
     if robot.is_double_integrator and not world.ideal:

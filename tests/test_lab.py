@@ -205,6 +205,27 @@ def test_a_lost_frame_hands_the_robots_the_last_frame_that_came():
 
 # --- whole runs ---------------------------------------------------------------------------------
 
+def test_single_integrators_on_differential_drives_are_warned_of_once(tmp_path, capsys):
+    # a lab world's robots are differential drives: a single integrator's body centre moves only
+    # along its heading there (eq. 6.2), which its rows do not know (docs/physics.md)
+    lab = _with_world(TWO_SMALL, tmp_path, {"profile": TURTLEBOT3_LAB})
+    assert main(["check", str(lab)]) == 0
+    err = capsys.readouterr().err
+    assert err.count("warning: robot.model: single_integrator on the differential drives of "
+                     "world profile 'turtlebot3-lab'") == 1, err
+    d = yaml.safe_load(lab.read_text())
+    d["robot"]["model"] = "unicycle"
+    unicycles = tmp_path / "uni.yaml"
+    unicycles.write_text(yaml.safe_dump(d, sort_keys=False))
+    assert load_scenario(unicycles).robot.is_unicycle
+    assert main(["check", str(unicycles)]) == 0 and "warning" not in capsys.readouterr().err
+    assert main(["check", str(TWO_SMALL)]) == 0 and "warning" not in capsys.readouterr().err
+    # the command line's world: said before the run
+    assert main(["sim", str(TWO_SMALL), "--out", str(tmp_path / "o"), "--quiet", "--no-plots",
+                 "--world", TURTLEBOT3_LAB]) == 0
+    assert "single_integrator on the differential drives" in capsys.readouterr().err
+
+
 def test_an_ideal_world_section_changes_nothing(tmp_path):
     ideal = _with_world(TWO_SMALL, tmp_path, {"profile": "ideal", "seed": 5})
     assert main(["sim", str(TWO_SMALL), "--out", str(tmp_path / "a"), "--quiet", "--no-plots"]) == 0

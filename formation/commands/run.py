@@ -28,7 +28,7 @@ from formation.outdir import begin_output
 from formation.progress import Progress, lost_words, print_summary
 from scenario import Scenario, load_scenario
 from scenario.bounds import with_bounds
-from scenario.model import with_world
+from scenario.model import model_world_warning, with_world
 from simulator.capacity import machine_has, refusal
 from simulator.faults import FaultPlan, parse_camera_dropout, parse_kill
 from simulator.fleet import RemoteAgents
@@ -93,6 +93,9 @@ def _rmw_base(ns: argparse.Namespace) -> RmwSettings | None:
 def run_command(ns: argparse.Namespace) -> int:
     """``formation run``; see the module docstring. Returns the exit status."""
     config = run_config(ns)
+    drive = model_world_warning(config.scenario.robot, config.scenario.world, config.engine)
+    if drive is not None:
+        print(f"{ns.scenario}: warning: {drive}", file=sys.stderr)
     if not getattr(ns, "no_capacity_check", False):
         _check_capacity(config)  # before any process starts
     _check_space(config.out)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from agent.qp import make_solver
 from formation.exits import EXIT_ERROR, EXIT_OK, UsageError
@@ -10,7 +11,7 @@ from formation.outdir import begin_output
 from formation.progress import Progress, print_summary
 from scenario import load_scenario
 from scenario.bounds import with_bounds
-from scenario.model import with_world
+from scenario.model import model_world_warning, with_world
 from simulator.inprocess import SimOptions, simulate
 from simulator.output import write_run
 from simulator.physics import available as physics_available
@@ -27,6 +28,9 @@ def cmd_sim(ns: argparse.Namespace) -> int:
     if ns.engine == "mujoco" and not physics_available():
         raise UsageError("--engine mujoco: MuJoCo is not installed "
                          "(pip install 'formation-cbf[physics]')")
+    drive = model_world_warning(scenario.robot, scenario.world, ns.engine)
+    if drive is not None:
+        print(f"{ns.scenario}: warning: {drive}", file=sys.stderr)
     out = begin_output(ns)
     opts = SimOptions(safety=not ns.no_safety, solver=ns.solver, topology=ns.topology,
                       engine=ns.engine)
