@@ -61,6 +61,7 @@ STALL_TIME = 4.0  # [s] still this long, away from the goal: a jam
 YIELD_TIME = 5.0  # [s] how long a jammed formation without priority backs away
 YIELD_RANGE = 1.0  # [m] beyond touching ellipses, formations that count for yielding
 YIELD_GAIN = 0.5  # backing speed as a fraction of max speed
+YIELD_EASE = 1.0  # [s] the backing slows to zero over the yield's last this long
 STALL_GOAL_DISTANCE = 0.1  # [m] closer than this to its target (goal or waypoint) a formation is not jammed
 ESCAPE_MIN_SPEED = 0.02  # [m/s] obstacles slower than this are static for the escape rule
 ESCAPE_RANGE = 6.0  # [m] moving hazards farther than this from the centroid are ignored
@@ -203,7 +204,7 @@ class FormationView(NamedTuple):
     goal_y: float
     name: str = ""  # this formation's name (priority: names sort first-come-first)
     other_names: tuple[str, ...] = ()  # names of ``others``, in the same order
-    yielding: bool = False  # the stall clock says jammed: see update_stall, yield_command
+    yielding: float = 0.0  # [s] the stall clock says jammed, yield this long still (update_stall)
     goal_heading: float | None = None  # [rad] the current waypoint's heading (the goal shape's turn)
 
 
@@ -233,7 +234,8 @@ def yield_command(view: FormationView, others: Sequence[Ellipse], vmax: float
     """A jam (two formations in a doorway, three or more at a crossing: no barrier picks who
     goes first) is broken by priority: a yielding formation backs away from every nearby
     formation whose name sorts before its own, at YIELD_GAIN vmax; None when there is none (it
-    has priority and keeps going)."""
+    has priority and keeps going). Over its last YIELD_EASE seconds the backing slows to zero
+    (an instant turn back to the goal was a reversal of every member's command)."""
     own = view.own
     rx = ry = 0.0
     for e, name in zip(others, view.other_names, strict=False):
@@ -248,7 +250,8 @@ def yield_command(view: FormationView, others: Sequence[Ellipse], vmax: float
     n = math.hypot(rx, ry)
     if n < 1e-9:
         return None
-    return (YIELD_GAIN * vmax * rx / n, YIELD_GAIN * vmax * ry / n)
+    speed = YIELD_GAIN * vmax * min(1.0, view.yielding / YIELD_EASE)
+    return (speed * rx / n, speed * ry / n)
 
 
 class StepResult(NamedTuple):

@@ -67,7 +67,7 @@ def step_inputs(
         view = FormationView(own, *formation_goal)
         stall = update_stall(stall, view, period)
         view = view._replace(name=formation, other_names=tuple(name for name, _e in others),
-                             yielding=stall.yielding > 0.0)
+                             yielding=stall.yielding)
     hazards = [e for _name, e in others]
     partners = [Partner(*m) for m in members]
     if foreign is not None:

@@ -124,15 +124,19 @@ def test_a_still_formation_away_from_its_target_yields_after_the_stall_time():
     assert update_stall(Stall(3.99), at_target, 0.05) == Stall(0.0, 0.0)
 
 
-def test_only_the_formation_without_priority_yields():
-    from agent.control import yield_command
+def test_only_the_formation_without_priority_yields_and_it_eases_off_at_the_end():
+    from agent.control import YIELD_EASE, YIELD_GAIN, YIELD_TIME, yield_command
 
-    a = view(0.0, 0.0, 5.0, 0.0)._replace(name="A", other_names=("B",), yielding=True)
-    b = view(1.5, 0.0, -5.0, 0.0)._replace(name="B", other_names=("A",), yielding=True)
+    a = view(0.0, 0.0, 5.0, 0.0)._replace(name="A", other_names=("B",), yielding=YIELD_TIME)
+    b = view(1.5, 0.0, -5.0, 0.0)._replace(name="B", other_names=("A",), yielding=YIELD_TIME)
     assert yield_command(a, [b.own], 0.22) is None  # A has priority: keeps going
     back = yield_command(b, [a.own], 0.22)
-    assert back[0] > 0 and back[1] == pytest.approx(0.0)  # B backs away from A (+x)
-    far = view(9.0, 0.0, -5.0, 0.0)._replace(name="B", other_names=("A",), yielding=True)
+    assert back == pytest.approx((YIELD_GAIN * 0.22, 0.0))  # B backs away from A (+x)
+    # over the last YIELD_EASE seconds the backing slows to nothing: no instant turn back
+    easing = [yield_command(b._replace(yielding=left), [a.own], 0.22)[0]
+              for left in (YIELD_EASE, 0.75 * YIELD_EASE, 0.5 * YIELD_EASE, 0.01)]
+    assert easing == sorted(easing, reverse=True) and easing[-1] < 0.02 * back[0]
+    far = view(9.0, 0.0, -5.0, 0.0)._replace(name="B", other_names=("A",), yielding=YIELD_TIME)
     assert yield_command(far, [a.own], 0.22) is None
 
 

@@ -32,7 +32,6 @@ FORMATION_GAPS = {
     "warehouse-lab-bounds": "single integrators on differential drives reversing (3.1 eps)",
     # issue 25's scenarios still short of the bar (tests/test_rigid_scenarios.py says why)
     "rigid-shelves-eight-unicycle": "two pairs head-on in a cross-aisle (5.95 eps)",
-    "rigid-doorway-four-unicycle": "four formations jam at one doorway (1.66 eps)",
 }
 # goals meant to have no route: tests/test_route_scenarios.py shows they hold, unreachable
 UNREACHABLE = {"route-closed-room", "route-closed-room-unicycle"}
