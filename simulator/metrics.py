@@ -43,6 +43,8 @@ class SafetyMonitor:
         self.min_clearance_obstacle = math.inf
         self._shapes = scenario.shapes
         self._shape_contact = np.zeros((self._n, len(self._shapes)), dtype=bool)
+        # the log entry of each contact still going on, by key, for its deepest_m
+        self._open: dict[tuple, dict] = {}
         self.min_clearance_shape = dict.fromkeys((sh.name for sh in self._shapes), math.inf)
         self._outlines = [load_polygon(f) for f in scenario.formations]  # loads at the start
         self._load_contact: set[tuple[int, str]] = set()
@@ -64,11 +66,12 @@ class SafetyMonitor:
             for k in np.nonzero(onset)[0]:
                 self.collisions += 1
                 a, b = ids[self._iu[0][k]], ids[self._iu[1][k]]
-                self.collision_log.append({"t": round(t, 6), "a": a, "b": b,
-                                           "clearance_m": float(clear[k])})
+                self._log(("r", int(k)), {"t": round(t, 6), "a": a, "b": b,
+                                          "clearance_m": float(clear[k])})
             # A pair stays "in contact" until it is clearly apart again, so a pair grazing the
             # limit for a while is one collision, not one per tick.
             self._robot_contact = (clear < -CONTACT_TOL) | (self._robot_contact & (clear <= CONTACT_RELEASE))
+            self._deepen("r", clear, self._robot_contact)
         if len(self._ds):
             obs = np.asarray(obstacles, dtype=float).reshape(-1, 2)
             d = np.sqrt(np.sum((pos[:, None, :] - obs[None, :, :]) ** 2, axis=2)) - self._ds
@@ -77,9 +80,10 @@ class SafetyMonitor:
             onset = (d < -CONTACT_TOL) & ~self._obstacle_contact
             for i, j in zip(*np.nonzero(onset), strict=True):
                 self.collisions += 1
-                self.collision_log.append({"t": round(t, 6), "a": ids[i], "b": names[j],
-                                           "clearance_m": float(d[i, j])})
+                self._log(("o", int(i), int(j)), {"t": round(t, 6), "a": ids[i], "b": names[j],
+                                                  "clearance_m": float(d[i, j])})
             self._obstacle_contact = (d < -CONTACT_TOL) | (self._obstacle_contact & (d <= CONTACT_RELEASE))
+            self._deepen("o", d, self._obstacle_contact)
         if self._shapes:
             self._update_shapes(t, pos)
         if any(self._outlines):
@@ -106,9 +110,10 @@ class SafetyMonitor:
                 inside = d < -CONTACT_TOL
                 if inside and not self._shape_contact[i, j]:
                     self.collisions += 1
-                    self.collision_log.append({"t": round(t, 6), "a": ids[i], "b": sh.name,
-                                               "clearance_m": float(d)})
+                    self._log(("s", i, j), {"t": round(t, 6), "a": ids[i], "b": sh.name,
+                                            "clearance_m": float(d)})
                 self._shape_contact[i, j] = inside or (self._shape_contact[i, j] and d <= CONTACT_RELEASE)
+                self._still(("s", i, j), float(d), bool(self._shape_contact[i, j]))
 
     def _update_loads(self, t: float, pos: np.ndarray,
                       obstacles: Sequence[tuple[float, float]]) -> None:
@@ -123,14 +128,38 @@ class SafetyMonitor:
             key = (c.formation, c.other)
             if c.clearance < -CONTACT_TOL and key not in self._load_contact:
                 self.collisions += 1
-                self.collision_log.append({
+                self._log(("l",) + key, {
                     "t": round(t, 6), "a": self.scenario.formations[c.formation].name,
                     "b": c.other, "clearance_m": c.clearance, "kind": "load",
                     "x": round(c.x, 4), "y": round(c.y, 4)})
             if c.clearance < -CONTACT_TOL or (key in self._load_contact
                                                and c.clearance <= CONTACT_RELEASE):
                 contact.add(key)
+            self._still(("l",) + key, c.clearance, key in contact)
         self._load_contact = contact
+
+    def _log(self, key: tuple, entry: dict) -> None:
+        """A new collision: its log entry (``clearance_m`` at its first tick; ``deepest_m``, the
+        least clearance while the contact lasts, is kept up to date)."""
+        entry["deepest_m"] = entry["clearance_m"]
+        self.collision_log.append(entry)
+        self._open[key] = entry
+
+    def _still(self, key: tuple, clearance: float, touching: bool) -> None:
+        """One contact's clearance this tick: deepen its entry, or close it once released."""
+        entry = self._open.get(key)
+        if entry is None:
+            return
+        if touching:
+            entry["deepest_m"] = min(entry["deepest_m"], clearance)
+        else:
+            del self._open[key]
+
+    def _deepen(self, kind: str, clear: np.ndarray, touching: np.ndarray) -> None:
+        """:meth:`_still` for every open contact of one array (robot pairs, or robot x circle)."""
+        for key in [k for k in self._open if k[0] == kind]:
+            idx = key[1:]
+            self._still(key, float(clear[idx]), bool(touching[idx]))
 
     @property
     def all_reached(self) -> bool:

@@ -261,6 +261,34 @@ def test_own_members_never_count_and_another_formations_robot_does():
     assert mon.update(0.2, pos, []) is None and mon.collisions == len(mon.collision_log)  # held
 
 
+def test_a_contact_logs_its_first_tick_and_keeps_its_deepest_until_released():
+    two = copy.deepcopy(BASE)
+    two["formations"].append({"name": "B", "leader": "b1",
+                              "robots": {"b1": {"start": [3.0, 3.0], "goal": [5.0, 3.0]},
+                                         "b2": {"start": [3.0, 3.5], "goal": [5.0, 3.5]}},
+                              "edges": [["b1", "b2"]]})
+    s = scenario_from_dict(two)
+    mon = SafetyMonitor(s)
+    pos = np.array([r.start[:2] for r in s.robots])
+
+    def b1_at(t: float, x: float) -> list[dict]:
+        pos[3] = (x, 0.2)
+        pos[4] = (x, 0.6)
+        mon.update(t, pos, [])
+        return [e for e in mon.collision_log if e.get("kind") == "load" and e["b"] == "b1"]
+
+    # b1's body (radius r) reaches over A's left edge x = 0 by -c: its clearance is c
+    r = s.robot.radius
+    for k, c in enumerate([-0.01, -0.05, -0.12, -0.03]):
+        log = b1_at(0.1 * (k + 1), -c - r)
+    assert len(log) == 1  # one contact, held
+    assert log[0]["clearance_m"] == pytest.approx(-0.01, abs=1e-6)  # its first tick
+    assert log[0]["deepest_m"] == pytest.approx(-0.12, abs=1e-6)  # its worst
+    assert b1_at(1.0, -1.0)[0]["deepest_m"] == pytest.approx(-0.12, abs=1e-6)  # released
+    log = b1_at(1.1, 0.02 - r)
+    assert len(log) == 2 and log[1]["deepest_m"] == log[1]["clearance_m"] == pytest.approx(
+        -0.02, abs=1e-6)  # a new contact, its own entry
+
 def test_the_load_follows_its_members_rigidly():
     s = scenario({"size": [0.6, 0.3]})
     f = s.formations[0]
