@@ -32,7 +32,7 @@ from wire.payloads import CMD_ACCEL_VERSION, Cmd, DecodeError, decode_cmd, encod
 
 SCENARIOS = Path(__file__).parent / "scenarios"
 DI_SCENARIOS = ["di-thesis-move", "di-circle", "di-shelf", "di-crossing", "di-forklift",
-                "di-three-cross"]
+                "di-three-cross", "di-pushed-to-shelves", "di-shelf-rows-deadlock"]
 TOL = 1e-9
 
 coord = st.floats(-3.0, 3.0)
