@@ -239,18 +239,23 @@ def test_a_wall_between_a_pair_is_a_load_collision_the_robots_alone_miss():
     assert 1.5 <= loads[0]["x"] <= 2.5 + 0.1
 
 
+def _with_pair_b():
+    """BASE's triangle A and a pair B (b1, b2) beside it."""
+    two = copy.deepcopy(BASE)
+    two["formations"].append({"name": "B", "leader": "b1",
+                              "robots": {"b1": {"start": [3.0, 3.0], "goal": [5.0, 3.0]},
+                                         "b2": {"start": [3.0, 3.5], "goal": [5.0, 3.5]}},
+                              "edges": [["b1", "b2"]]})
+    return scenario_from_dict(two)
+
+
 def test_own_members_never_count_and_another_formations_robot_does():
     s = scenario()
     mon = SafetyMonitor(s)
     start = np.array([r.start[:2] for r in s.robots])
     mon.update(0.0, start, [])
     assert mon.collisions == 0  # its members are on the hull's corners
-    two = copy.deepcopy(BASE)
-    two["formations"].append({"name": "B", "leader": "b1",
-                              "robots": {"b1": {"start": [3.0, 3.0], "goal": [5.0, 3.0]},
-                                         "b2": {"start": [3.0, 3.5], "goal": [5.0, 3.5]}},
-                              "edges": [["b1", "b2"]]})
-    s2 = scenario_from_dict(two)
+    s2 = _with_pair_b()
     mon = SafetyMonitor(s2)
     pos = np.array([r.start[:2] for r in s2.robots])
     pos[3] = (0.5, 0.5)  # b1 inside A's triangle
@@ -262,12 +267,7 @@ def test_own_members_never_count_and_another_formations_robot_does():
 
 
 def test_a_contact_logs_its_first_tick_and_keeps_its_deepest_until_released():
-    two = copy.deepcopy(BASE)
-    two["formations"].append({"name": "B", "leader": "b1",
-                              "robots": {"b1": {"start": [3.0, 3.0], "goal": [5.0, 3.0]},
-                                         "b2": {"start": [3.0, 3.5], "goal": [5.0, 3.5]}},
-                              "edges": [["b1", "b2"]]})
-    s = scenario_from_dict(two)
+    s = _with_pair_b()
     mon = SafetyMonitor(s)
     pos = np.array([r.start[:2] for r in s.robots])
 
