@@ -136,6 +136,8 @@ class SafetyMonitor:
                                                and c.clearance <= CONTACT_RELEASE):
                 contact.add(key)
             self._still(("l",) + key, c.clearance, key in contact)
+        for key in [k for k in self._open if k[0] == "l" and k[1:] not in contact]:
+            del self._open[key]  # out of reach this tick: apart, so that contact has ended
         self._load_contact = contact
 
     def _log(self, key: tuple, entry: dict) -> None:

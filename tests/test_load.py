@@ -289,6 +289,7 @@ def test_a_contact_logs_its_first_tick_and_keeps_its_deepest_until_released():
     assert len(log) == 2 and log[1]["deepest_m"] == log[1]["clearance_m"] == pytest.approx(
         -0.02, abs=1e-6)  # a new contact, its own entry
 
+
 def test_the_load_follows_its_members_rigidly():
     s = scenario({"size": [0.6, 0.3]})
     f = s.formations[0]
