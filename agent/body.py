@@ -102,6 +102,10 @@ class Footprint:
     goal_turn: float = 0.0  # [rad] rotation from the start shape to the goal shape
     load_points: tuple[Point, ...] = ()  # a declared load's vertices (the default hull's are slots)
     load_edges: tuple[tuple[Point, Point], ...] = ()  # the load's outline edges
+    # the members' start body positions and the load's outline about their centroid (the
+    # rigid fit the safety monitor places the load by: agent.load_rows)
+    fit0: tuple[Point, ...] = ()
+    outline0: tuple[Point, ...] = ()
 
     @property
     def rho(self) -> float:
@@ -487,12 +491,15 @@ def footprint_of(starts: Sequence[Point], bodies: Sequence[Point], goals: Sequen
     cx = sum(x for x, _y in starts) / len(starts)
     cy = sum(y for _x, y in starts) / len(starts)
     turn = shape_turn(bodies, goals)
+    bx = sum(x for x, _y in bodies) / len(bodies)
+    by = sum(y for _x, y in bodies) / len(bodies)
+    fit0 = tuple((x - bx, y - by) for x, y in bodies)
     if len(load) >= 2:
         pts = tuple((x - cx, y - cy) for x, y in load)
         n = len(pts)
         edges = tuple((pts[k], pts[(k + 1) % n]) for k in range(n if n > 2 else 1))
-        return Footprint(ref.offsets, ref.alpha0, index, turn,
-                         pts if declared else (), edges)
+        return Footprint(ref.offsets, ref.alpha0, index, turn, pts if declared else (), edges,
+                         fit0, tuple((x - bx, y - by) for x, y in load))
     offs = ref.offsets
     edges = tuple((offs[i], offs[j]) for i in range(len(offs)) for j in range(i + 1, len(offs)))
-    return Footprint(offs, ref.alpha0, index, turn, (), edges)
+    return Footprint(offs, ref.alpha0, index, turn, (), edges, fit0)

@@ -48,7 +48,7 @@ from geometry.shapes import Shape
 from scenario import limits as ranges
 from scenario.model import METHODS, Bounds
 
-from . import accel_limit, barriers, body, double_integrator, margins, unicycle
+from . import accel_limit, barriers, body, double_integrator, load_rows, margins, unicycle
 from .barriers import Neighbour, Obstacle, Partner
 from .qp import STATUS_NOMINAL, QPResult, Row, solve_exact
 
@@ -378,13 +378,16 @@ def build_rows(
     partners: Sequence[Partner] = (),
     last_u: tuple[float, float] = (0.0, 0.0),
     shapes: Sequence[Shape] = (),
+    load: load_rows.MemberLoad | None = None,
 ) -> Rows:
     """Every barrier row (eq. 4.12b-e with appendix A's velocity terms) and limit row for the
     control point (px, py) of a robot with heading ``theta``.
 
     A barrier row with b >= the largest speed the limit rows allow can never be active: it is
     left out of the QP (exactly: it cannot change the solution, nor any relaxation, since the
-    limits are never relaxed). Its barrier value still counts for the reported minimum."""
+    limits are never relaxed). Its barrier value still counts for the reported minimum.
+    ``load``: this member's formation's load (:func:`agent.load_rows.member_load`): its rows
+    (:mod:`agent.load_rows`) are contact rows, their barrier counted with the obstacles'."""
     if p.unicycle:
         reach = math.hypot(p.max_speed, p.lookahead * p.max_turn_rate)
     else:
@@ -394,6 +397,13 @@ def build_rows(
     he, hard = _hazard_rows(p, px, py, others, pairwise, reach, last_u)
     hs, sep = _separation_rows(p, px, py, theta, partners, last_u, reach)
     contact += sep
+    if load is not None:
+        hl, lrows = load_rows.load_rows(
+            load.placed, load.member, load.velocities, load.headings, obstacles, shapes, p.radius,
+            load_rows.LOAD_CLEAR + p.sampling_margin + p.margin, p.gamma_obstacle, reach,
+            p.max_speed)
+        ho = min(ho, hl)
+        contact += lrows
     limit_rows = _limit_rows(p, theta, view, nominal_u)
     return Rows(limit_rows, hard, soft, hf, ho, he, hs, contact)
 
@@ -654,15 +664,17 @@ def control_step(
         lead = 1.0 / body.band_gain(p.kp, p.period)  # where the slot's pull aims the point
         ux, uy = unicycle.steer(ux, uy, theta, p.lookahead, p.max_turn_rate, reverse=near, lead=lead)
     nux, nuy = ux, uy
+    load = (load_rows.member_load(footprint, pose, last_u, partners, off, p.unicycle)
+            if p.method == "rigid" and p.safety and footprint is not None else None)
     if p.double_integrator:  # the same nominal, as an acceleration under relative-degree-2 rows
         d = double_integrator.step(p, (x, y), last_u, (ux, uy), double_integrator.Inputs(
-            neighbours, obstacles, others, pairwise, partners, shapes), solve, clock)
+            neighbours, obstacles, others, pairwise, partners, shapes, load), solve, clock)
         return StepResult(d.vx, d.vy, math.hypot(d.vx, d.vy), 0.0, x, y, d.status, d.slack,
                           d.h_formation, d.h_obstacle, d.h_formations, nux, nuy, d.solve_us,
                           d.h_separation, escaping, d.ax, d.ay)
 
     rows = build_rows(p, px, py, theta, (ux, uy), neighbours, obstacles, others, view, pairwise,
-                      partners, last_u, shapes)
+                      partners, last_u, shapes, load)
     limits, hard, soft = rows.limits, rows.hard, rows.soft
 
     t0 = clock() if clock is not None else 0

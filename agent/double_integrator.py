@@ -63,7 +63,7 @@ from typing import NamedTuple, Protocol
 from geometry.ellipse import Ellipse
 from geometry.shapes import Shape, shape_distance
 
-from . import barriers
+from . import barriers, load_rows
 from .barriers import Neighbour, Obstacle, Partner
 from .qp import STATUS_NOMINAL, QPResult, Row, normalized_row, solve_cbf_qp, solve_exact
 
@@ -94,6 +94,8 @@ class ControlParams(Protocol):
     def safety(self) -> bool: ...
     @property
     def separation(self) -> float: ...
+    @property
+    def radius(self) -> float: ...
 
 BRAKE_SHARE = 0.5  # a barrier on its boundary asks for at most this share of max_accel
 NOMINAL_DAMPING = 2.0  # a = NOMINAL_DAMPING kp (u - v): damping ratio 1/sqrt(2)
@@ -282,6 +284,7 @@ class Inputs(NamedTuple):
     pairwise: Sequence[Neighbour] = ()
     partners: Sequence[Partner] = ()
     shapes: Sequence[Shape] = ()
+    load: load_rows.MemberLoad | None = None  # its formation's load (method rigid)
 
 
 class Rows(NamedTuple):
@@ -332,7 +335,44 @@ def build_rows(cp: ControlParams, p: tuple[float, float], v: tuple[float, float]
         h, row = separation_row(p, v, q, cp.separation, cp.gamma_formation, amax, vmax, dt)
         hs = min(hs, h)
         _keep(contact, row, amax)
+    if inp.load is not None:
+        h, rows = load_rows_of(cp, inp.load, inp.obstacles, inp.shapes)
+        ho = min(ho, h)
+        for row in rows:
+            _keep(contact, row, amax)
     return Rows(soft, hard, contact, (hf, ho, he, hs))
+
+
+def load_rows_of(cp: ControlParams, load: load_rows.MemberLoad, obstacles: Sequence[Obstacle],
+                 shapes: Sequence[Shape]) -> tuple[float, list[Row]]:
+    """The load's rows (:mod:`agent.load_rows`) as HOCBFs: with h' = dh/dq . q' +
+    sum_k g_k . v_k (the members' velocities now) the condition
+    sum_k g_k . a_k >= -(2 k h' + k^2 h) (the curvature of h'' left out, as for the distances
+    above; k = :func:`gain` for a closing speed of max_speed plus the thing's) is split in equal
+    shares of acceleration: member i holds  g_i/|g_i| . a >= -(2 k h' + k^2 h) / S,
+    S = sum_k |g_k| (L.2). Returns (the smallest h, the rows)."""
+    amax, vmax, dt = _accel(cp), cp.max_speed, cp.period
+    gamma = cp.gamma_obstacle
+    hmin = math.inf
+    rows: list[Row] = []
+
+    def far_gap(thing: float, spread: float) -> float:
+        k = gain(gamma, amax, vmax + thing, dt)  # b >= (k^2 gap - 2 k (S vmax + thing)) / S
+        return (amax * spread + 2.0 * k * (spread * vmax + thing)) / (k * k)
+
+    for f in load_rows.features(load.placed, None, obstacles, shapes, cp.radius,
+                                load_rows.LOAD_CLEAR, far_gap):
+        hmin = min(hmin, f.h)
+        gx, gy = f.g[load.member]
+        gi = math.hypot(gx, gy)
+        if gi < 1e-9:
+            continue
+        hd = f.q_term + sum(g[0] * w[0] + g[1] * w[1] for g, w in zip(f.g, load.velocities,
+                                                                           strict=True))
+        k = gain(gamma, amax, vmax + f.thing_speed, dt)
+        s = sum(math.hypot(g[0], g[1]) for g in f.g)
+        rows.append(normalized_row(-gx, -gy, gi * (2.0 * k * hd + k * k * f.h) / s))
+    return hmin, rows
 
 
 def _accel(cp: ControlParams) -> float:

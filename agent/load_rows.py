@@ -1,0 +1,232 @@
+"""Each member's own rows for its formation's load (issues 25 and 26): the last safety filter
+keeps the load, not only the member's body, off walls, shelves and circles.
+
+The formation's twist QP (:mod:`agent.body`) plans the load clear of things with its footprint
+rows. Where those cannot all hold (another formation's ellipse rows, with A.3's velocity term,
+push the formation towards a shelf), the twist QP relaxes them by one common slack, and each
+member's QP, which held only its own body's rows, let the members carry the load into the shelf
+(the warehouse draw of ``formation montecarlo --draw warehouse``: nine loads 10-333 mm deep). So
+each member's QP also holds these rows, as contact rows: never relaxed to reach a goal, kept
+exact in a fallback (:func:`agent.qp.solve_cbf_qp`), where the other formation's margin rows give
+way instead.
+
+The load is where the safety monitor measures it (:func:`scenario.cargo.loads_now`): its start
+outline placed by the least-squares rigid fit (:func:`geometry.rigid.rigid_fit`) of the members'
+start body positions a_k (about their centroid) onto their current ones b_k, centroid c. The fit's
+angle is theta = atan2(C, D), C = sum a_k x (b_k - c), D = sum a_k . (b_k - c); since sum a_k = 0,
+
+    omega = theta' = sum_k w_k . b_k',   w_k = (D J a_k - C a_k) / (C^2 + D^2),
+
+and a point P of the placed load moves at  P' = c' + omega J (P - c),  so with c' = mean b_k',
+
+    P' = sum_k [ b_k' / n + J (P - c) (w_k . b_k') ]                                   (L.1)
+
+linear in every member's body velocity. A barrier h on the load (eq. 4.5 on a distance) with
+dh/dP = m then has h' = sum_k g_k . b_k' + dh/dq . q', g_k = m / n + (m . J (P - c)) w_k. For a
+unicycle the body moves at e (e . u) under eq. 6.2 (u its look-ahead point's velocity, e its
+heading), so its gradient in u is (g_k . e_k) e_k.
+
+The condition  sum_k g_k . u_k >= -gamma h - dh/dq . q'  involves every member. Each takes an
+equal share in speed, the reciprocal split of :func:`agent.barriers.separation_row` for n
+robots: with v_k the members' last certified velocities (their ``state``), the slack at them is
+c = gamma h + dh/dq . q' + sum_k g_k . v_k, and member i holds
+
+    g_i/|g_i| . (u_i - v_i) >= -c / S,   S = sum_k |g_k|                                 (L.2)
+
+Summed (times |g_k|) over the members, the rows give the condition for ANY commands the members
+return at the same time; each counts only on the others meeting their own rows. With c >= 0
+(safe at the current velocities) every member may keep its velocity; the split in speed (not
+|g|^2 as for a pair) gives a member with little effect on the distance no tight row.
+
+The features are those of :func:`agent.body._load_rows`: each shape corner and circle centre
+against each load edge (the distance between two convex outlines is reached at a vertex of one of
+them), and each load vertex against each shape; a circle's physical radius is its Ds less the
+robot radius, and the load keeps :data:`LOAD_CLEAR` (plus the robot's margins) from each.
+
+Pure functions over floats.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from typing import NamedTuple
+
+from geometry.shapes import Shape, segment_distance, shape_distance
+
+from .barriers import Obstacle, Partner
+from .body import Footprint
+from .qp import Row, normalized_row
+
+Point = tuple[float, float]
+
+LOAD_CLEAR = 0.01  # [m] the load keeps this from a shape or circle in the members' own rows
+_TINY = 1e-9
+
+
+class PlacedLoad(NamedTuple):
+    """The load now: its outline placed by the rigid fit, the members' centroid and (L.1)'s w_k."""
+
+    outline: tuple[Point, ...]
+    cx: float
+    cy: float
+    w: tuple[Point, ...]  # d omega / d b_k' per member
+    radius: float  # [m] the outline's largest distance from (cx, cy)
+    spread: float  # 1 + radius sum_k |w_k|: a bound of S = sum_k |g_k| for a unit m (L.2)
+
+
+def place_load(start: Sequence[Point], outline: Sequence[Point],
+               bodies: Sequence[Point]) -> PlacedLoad | None:
+    """The load whose outline (``outline``, about the start bodies' centroid) the fit of the
+    start body offsets ``start`` (about their centroid, member order) onto ``bodies`` places;
+    None when the fit has no angle (every start offset zero, or the bodies all at one point)."""
+    n = len(bodies)
+    cx = sum(b[0] for b in bodies) / n
+    cy = sum(b[1] for b in bodies) / n
+    cross = dot = 0.0
+    for (ax, ay), (bx, by) in zip(start, bodies, strict=True):
+        cross += ax * (by - cy) - ay * (bx - cx)
+        dot += ax * (bx - cx) + ay * (by - cy)
+    q = cross * cross + dot * dot
+    if q < _TINY:
+        return None
+    th = math.atan2(cross, dot)
+    c, s = math.cos(th), math.sin(th)
+    placed = tuple((cx + c * x - s * y, cy + s * x + c * y) for x, y in outline)
+    w = tuple(((-dot * ay - cross * ax) / q, (dot * ax - cross * ay) / q) for ax, ay in start)
+    radius = max(math.hypot(x - cx, y - cy) for x, y in placed)
+    return PlacedLoad(placed, cx, cy, w, radius, 1.0 + radius * sum(math.hypot(*a) for a in w))
+
+
+def gradients(load: PlacedLoad, p: Point, m: Point,
+              headings: Sequence[float] | None) -> list[Point]:
+    """g_k of (L.1) for a barrier with dh/dP = ``m`` at the load point ``p``, per member, in
+    its command (a unicycle's look-ahead point velocity where ``headings`` are given)."""
+    n = len(load.w)
+    k = m[0] * -(p[1] - load.cy) + m[1] * (p[0] - load.cx)  # m . J (P - c)
+    g = [(m[0] / n + k * wx, m[1] / n + k * wy) for wx, wy in load.w]
+    if headings is None:
+        return g
+    out = []
+    for (gx, gy), th in zip(g, headings, strict=True):
+        ex, ey = math.cos(th), math.sin(th)
+        ge = gx * ex + gy * ey
+        out.append((ge * ex, ge * ey))
+    return out
+
+
+def share_row(g: Sequence[Point], velocities: Sequence[Point], member: int, h: float,
+              q_term: float, gamma: float) -> Row | None:
+    """Member ``member``'s row (L.2) of the condition sum_k g_k . u_k >= -gamma h - q_term,
+    normalised; None when its gradient is zero (it cannot change h)."""
+    gx, gy = g[member]
+    gi = math.hypot(gx, gy)
+    if gi < _TINY:
+        return None
+    c = gamma * h + q_term + sum(a[0] * v[0] + a[1] * v[1] for a, v in zip(g, velocities, strict=True))
+    s = sum(math.hypot(a[0], a[1]) for a in g)
+    vx, vy = velocities[member]
+    # g_i . (u - v_i) >= -|g_i| c / S   <=>   -g_i . u <= |g_i| c / S - g_i . v_i
+    return normalized_row(-gx, -gy, gi * c / s - (gx * vx + gy * vy))
+
+
+class MemberLoad(NamedTuple):
+    """A member's formation's load as its QP sees it."""
+
+    placed: PlacedLoad
+    member: int  # this member's index
+    velocities: list[Point]  # every member's last certified command
+    headings: list[float] | None  # unicycles: every member's heading
+
+
+def member_load(fp: Footprint, pose: tuple[float, float, float], last_u: Point,
+                partners: Sequence[Partner], offset: float, unicycle: bool) -> MemberLoad | None:
+    """The load placed at the members' bodies now: this robot's ``pose`` and its formation's
+    other members, the first of ``partners`` in member order (their control points, ``offset``
+    ahead of their bodies, and headings from their ``state``); None without an outline or with
+    members missing."""
+    n = len(fp.fit0)
+    if len(fp.outline0) < 2 or len(partners) < n - 1:
+        return None
+    mates = iter(partners[:n - 1])
+    bodies, vel, heads = [], [], []
+    for k in range(n):
+        if k == fp.member:
+            bodies.append((pose[0], pose[1]))
+            vel.append(last_u)
+            heads.append(pose[2])
+            continue
+        q = next(mates)
+        bodies.append((q.x - offset * math.cos(q.theta), q.y - offset * math.sin(q.theta)))
+        vel.append((q.vx, q.vy))
+        heads.append(q.theta)
+    placed = place_load(fp.fit0, fp.outline0, bodies)
+    if placed is None:
+        return None
+    return MemberLoad(placed, fp.member, vel, heads if unicycle else None)
+
+
+class Feature(NamedTuple):
+    """One barrier on the load: h, its gradient g_k in each member's command (L.1), the thing's
+    part of h' (dh/dq . q') and the thing's speed."""
+
+    h: float
+    g: list[Point]
+    q_term: float
+    thing_speed: float
+
+
+def features(load: PlacedLoad, headings: Sequence[float] | None, obstacles: Sequence[Obstacle],
+             shapes: Sequence[Shape], radius: float, clear: float,
+             far_gap: Callable[[float, float], float]) -> list[Feature]:
+    """Every barrier of the module docstring on the placed ``load`` against ``obstacles`` (Ds
+    for the body; physical radius Ds - ``radius``) and ``shapes``, each kept ``clear`` [m] off.
+    Things farther beyond the load's bounding circle than ``far_gap(thing speed, S bound)``
+    have no row that can be active and are left out."""
+    out: list[Feature] = []
+    pts = load.outline
+    edges = [(pts[k], pts[(k + 1) % len(pts)]) for k in range(len(pts) if len(pts) > 2 else 1)]
+
+    def gap(dist: float) -> float:
+        return dist - load.radius
+
+    things = [((o.x, o.y), (o.vx, o.vy), max(0.0, o.ds - radius) + clear) for o in obstacles
+              if gap(math.hypot(o.x - load.cx, o.y - load.cy) - o.ds)
+              <= far_gap(math.hypot(o.vx, o.vy), load.spread)]
+    near_shapes = [sh for sh in shapes
+                   if gap(shape_distance(load.cx, load.cy, sh)[0]) <= far_gap(0.0, load.spread)]
+    things += [(q, (0.0, 0.0), clear) for sh in near_shapes for q in sh.corners()]
+    for q, qv, r in things:  # a corner or circle against each edge
+        speed = math.hypot(qv[0], qv[1])
+        for (ax, ay), (bx, by) in edges:
+            d, nx, ny = segment_distance(q[0], q[1], ax, ay, bx, by)  # n: from the edge to q
+            p = (q[0] - d * nx, q[1] - d * ny)
+            out.append(Feature(d - r, gradients(load, p, (-nx, -ny), headings),
+                               nx * qv[0] + ny * qv[1], speed))
+    for sh in near_shapes:  # each vertex against each shape
+        for v in pts:
+            d, gx, gy = shape_distance(v[0], v[1], sh)
+            out.append(Feature(d - clear, gradients(load, v, (gx, gy), headings), 0.0, 0.0))
+    return out
+
+
+def load_rows(load: PlacedLoad, member: int, velocities: Sequence[Point],
+              headings: Sequence[float] | None, obstacles: Sequence[Obstacle],
+              shapes: Sequence[Shape], radius: float, clear: float, gamma: float,
+              reach: float, speed: float) -> tuple[float, list[Row]]:
+    """Member ``member``'s rows (L.2) of :func:`features`; rows with b >= ``reach`` (never
+    active) are left out. ``velocities``: every member's last certified command (member order);
+    ``speed``: the members' speed limit. Returns (the smallest h, the rows).
+
+    A thing is left out beyond the gap where, with h >= gap, |v_k| <= speed and S <= the bound,
+    b = c / S - g_i . v_i / |g_i| >= (gamma gap - thing speed) / S - 2 speed >= reach (at most
+    2 speed for any robot model)."""
+    hmin = math.inf
+    rows: list[Row] = []
+    for f in features(load, headings, obstacles, shapes, radius, clear,
+                      lambda thing, s: (thing + 4.0 * speed * s) / gamma):
+        hmin = min(hmin, f.h)
+        row = share_row(f.g, velocities, member, f.h, f.q_term, gamma)
+        if row is not None and row[2] < reach:
+            rows.append(row)
+    return hmin, rows

@@ -1,0 +1,144 @@
+"""agent.load_rows: each member's own rows for its formation's load."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+
+from agent import load_rows
+from agent.barriers import Obstacle, Partner
+from agent.body import footprint_of
+from agent.control import ControlParams, control_step
+from geometry.rigid import rigid_fit
+from geometry.shapes import box
+
+coord = st.floats(-2.0, 2.0)
+speed = st.floats(-0.3, 0.3)
+
+
+def _start_and_now(draw_pts, turn, shift):
+    start = [(x, y) for x, y in draw_pts]
+    cx = sum(x for x, _ in start) / len(start)
+    cy = sum(y for _, y in start) / len(start)
+    offs = [(x - cx, y - cy) for x, y in start]
+    c, s = math.cos(turn), math.sin(turn)
+    now = [(c * x - s * y + shift[0], s * x + c * y + shift[1]) for x, y in offs]
+    return offs, now
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(coord, coord), min_size=2, max_size=6), st.floats(-3.0, 3.0),
+       st.tuples(coord, coord), st.lists(st.tuples(st.floats(-0.05, 0.05), st.floats(-0.05, 0.05)),
+                                         min_size=6, max_size=6))
+def test_the_load_is_placed_where_the_safety_monitor_places_it(pts, turn, shift, jitter):
+    offs, now = _start_and_now(pts, turn, shift)
+    assume(sum(x * x + y * y for x, y in offs) > 0.05)
+    now = [(x + j[0], y + j[1]) for (x, y), j in zip(now, jitter, strict=False)]
+    outline = [(0.5, 0.2), (-0.4, 0.3), (0.1, -0.6)]
+    placed = load_rows.place_load(offs, outline, now)
+    assert placed is not None
+    want = rigid_fit(offs, now).apply_all(outline)
+    for p, q in zip(placed.outline, want, strict=True):
+        assert p == pytest.approx(q, abs=1e-9)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(coord, coord), min_size=2, max_size=5), st.floats(-3.0, 3.0),
+       st.lists(st.tuples(speed, speed), min_size=5, max_size=5), st.tuples(coord, coord),
+       st.floats(0.0, 2 * math.pi))
+def test_the_gradients_are_the_load_points_velocity_under_the_fit(pts, turn, vel, p0, mdir):
+    """(L.1): g_k . u_k summed is d/dt (m . P) for P the load point the fit carries."""
+    offs, now = _start_and_now(pts, turn, (0.3, -0.2))
+    assume(min(math.hypot(*o) for o in offs) > 0.1)
+    assume(min(math.dist(a, b) for i, a in enumerate(offs) for b in offs[i + 1:]) > 0.1)
+    vel = vel[:len(now)]
+    placed = load_rows.place_load(offs, [p0], now)
+    assert placed is not None
+    m = (math.cos(mdir), math.sin(mdir))
+    g = load_rows.gradients(placed, placed.outline[0], m, None)
+    rate = sum(a[0] * v[0] + a[1] * v[1] for a, v in zip(g, vel, strict=True))
+    dt = 1e-6
+    later = [(x + dt * v[0], y + dt * v[1]) for (x, y), v in zip(now, vel, strict=True)]
+    moved = load_rows.place_load(offs, [p0], later)
+    assert moved is not None
+    fd = (m[0] * (moved.outline[0][0] - placed.outline[0][0])
+          + m[1] * (moved.outline[0][1] - placed.outline[0][1])) / dt
+    assert rate == pytest.approx(fd, abs=1e-4)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.tuples(speed, speed), min_size=2, max_size=5),
+       st.lists(st.tuples(speed, speed), min_size=5, max_size=5),
+       st.lists(st.tuples(speed, speed), min_size=5, max_size=5),
+       st.floats(-0.5, 0.5), st.floats(-0.2, 0.2))
+def test_commands_that_meet_every_members_row_meet_the_loads_condition(g, v, du, h, q_term):
+    """(L.2): whatever commands the members return together, each inside its own row, the
+    load's barrier condition sum g_k . u_k >= -gamma h - q_term holds."""
+    n = len(g)
+    assume(all(math.hypot(*a) > 1e-3 for a in g))
+    v, du = v[:n], du[:n]
+    gamma = 1.0
+    u = []
+    for k in range(n):  # project each member's try onto its own row
+        row = load_rows.share_row(g, v, k, h, q_term, gamma)
+        assert row is not None
+        ux, uy = v[k][0] + du[k][0], v[k][1] + du[k][1]
+        ax, ay, b = row
+        over = ax * ux + ay * uy - b
+        if over > 0:
+            ux, uy = ux - over * ax, uy - over * ay
+        u.append((ux, uy))
+    total = sum(a[0] * w[0] + a[1] * w[1] for a, w in zip(g, u, strict=True))
+    assert total >= -gamma * h - q_term - 1e-9
+
+
+def _pair_step(shapes, obstacles, goal_y):
+    """One tick of member 0 of a pair 1 m apart along x, both still, driven to +y."""
+    p = ControlParams()
+    fp = footprint_of([(0.0, 0.0), (1.0, 0.0)], [(0.0, 0.0), (1.0, 0.0)],
+                      [(0.0, goal_y), (1.0, goal_y)], 0, [(0.0, 0.0), (1.0, 0.0)], False)
+    return control_step(p, (0.0, 0.0, 0.0), (0.0, goal_y), obstacles=obstacles, shapes=shapes,
+                        partners=[Partner(1.0, 0.0, 0.0, 0.0)], footprint=fp)
+
+
+def test_a_member_does_not_carry_the_load_onto_a_shelf_corner_between_it_and_its_partner():
+    """A thin post whose corners sit 4.5 cm above the middle of the pair's load (0.5 m from
+    each robot, beyond their own safe distance): a member driven towards it closes on it no
+    faster than the load's barrier allows (gamma h, h = 4.5 cm less LOAD_CLEAR, its share with
+    its still partner), and the same member with the post 0.5 m away goes on at full speed."""
+    post = box("post", (0.5, 0.07), (0.05, 0.05), 0.0, 0.2)
+    near = _pair_step([post], [], 1.0)
+    assert 0.0 <= near.uy <= 0.045 - load_rows.LOAD_CLEAR + 1e-6
+    far = box("post", (0.5, 0.55), (0.05, 0.05), 0.0, 0.2)
+    free = _pair_step([far], [], 1.0)
+    assert free.uy > 0.15
+    assert free.h_obstacle > near.h_obstacle
+
+
+def test_a_circle_coming_at_the_load_pushes_its_members_away():
+    """A circle (physical radius 0.1 m) 0.14 m from the middle of the pair's load, coming at it
+    at 0.2 m/s: each member backs away, though the circle is 0.5 m from either body."""
+    coming = Obstacle(0.5, 0.14 + 0.1, 0.0, -0.2, 0.1 + ControlParams().radius)
+    res = _pair_step([], [coming], 1.0)
+    assert res.uy < -0.05
+
+
+def test_a_double_integrator_brakes_before_its_load_meets_a_shelf_corner():
+    """The pair of double integrators moving at 0.2 m/s towards the post 10 cm above their
+    load's middle: each member's load row (a HOCBF) brakes it, though its own body is 0.5 m
+    from the post; with the post far away it keeps its speed."""
+    p = ControlParams(double_integrator=True, max_accel=1.0)
+    fp = footprint_of([(0.0, 0.0), (1.0, 0.0)], [(0.0, 0.0), (1.0, 0.0)],
+                      [(0.0, 1.0), (1.0, 1.0)], 0, [(0.0, 0.0), (1.0, 0.0)], False)
+
+    def step(post_y):
+        post = box("post", (0.5, post_y), (0.05, 0.05), 0.0, 0.2)
+        return control_step(p, (0.0, 0.0, 0.0), (0.0, 5.0), shapes=[post],
+                            partners=[Partner(1.0, 0.0, 0.0, 0.2)], last_u=(0.0, 0.2),
+                            footprint=fp)
+
+    assert step(0.125).ay < -0.2
+    assert step(2.0).ay >= 0.0
