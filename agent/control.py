@@ -398,10 +398,8 @@ def build_rows(
     hs, sep = _separation_rows(p, px, py, theta, partners, last_u, reach)
     contact += sep
     if load is not None:
-        hl, lrows = load_rows.load_rows(
-            load.placed, load.member, load.velocities, load.headings, obstacles, shapes, p.radius,
-            load_rows.LOAD_CLEAR + p.sampling_margin + p.margin, p.gamma_obstacle, reach,
-            p.max_speed)
+        hl, lrows = load_rows.load_rows(load, obstacles, shapes, p.radius, load_rows.LOAD_CLEAR
+                                        + p.sampling_margin + p.margin, p.gamma_obstacle, reach)
         ho = min(ho, hl)
         contact += lrows
     limit_rows = _limit_rows(p, theta, view, nominal_u)

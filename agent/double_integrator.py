@@ -346,32 +346,29 @@ def build_rows(cp: ControlParams, p: tuple[float, float], v: tuple[float, float]
 def load_rows_of(cp: ControlParams, load: load_rows.MemberLoad, obstacles: Sequence[Obstacle],
                  shapes: Sequence[Shape]) -> tuple[float, list[Row]]:
     """The load's rows (:mod:`agent.load_rows`) as HOCBFs: with h' = dh/dq . q' +
-    sum_k g_k . v_k (the members' velocities now) the condition
+    sum_k g_k . v_k (the members' velocities now: :attr:`agent.load_rows.Feature.hdot`) the condition
     sum_k g_k . a_k >= -(2 k h' + k^2 h) (the curvature of h'' left out, as for the distances
     above; k = :func:`gain` for a closing speed of max_speed plus the thing's) is split in equal
     shares of acceleration: member i holds  g_i/|g_i| . a >= -(2 k h' + k^2 h) / S,
     S = sum_k |g_k| (L.2). Returns (the smallest h, the rows)."""
     amax, vmax, dt = _accel(cp), cp.max_speed, cp.period
     gamma = cp.gamma_obstacle
-    hmin = math.inf
     rows: list[Row] = []
 
-    def far_gap(thing: float, spread: float) -> float:
-        k = gain(gamma, amax, vmax + thing, dt)  # b >= (k^2 gap - 2 k (S vmax + thing)) / S
-        return (amax * spread + 2.0 * k * (spread * vmax + thing)) / (k * k)
+    def inactive(h: float, hdot: float, s: float, thing: float) -> bool:  # b = x / S >= amax
+        k = gain(gamma, amax, vmax + thing, dt)
+        return 2.0 * k * hdot + k * k * h >= amax * s
 
-    for f in load_rows.features(load.placed, None, obstacles, shapes, cp.radius,
-                                load_rows.LOAD_CLEAR, far_gap):
-        hmin = min(hmin, f.h)
+    hmin, feats = load_rows.features(load, obstacles, shapes, cp.radius, load_rows.LOAD_CLEAR,
+                                     inactive)
+    for f in feats:
         gx, gy = f.g[load.member]
         gi = math.hypot(gx, gy)
         if gi < 1e-9:
             continue
-        hd = f.q_term + sum(g[0] * w[0] + g[1] * w[1] for g, w in zip(f.g, load.velocities,
-                                                                           strict=True))
-        k = gain(gamma, amax, vmax + f.thing_speed, dt)
+        kf = gain(gamma, amax, vmax + f.thing_speed, dt)
         s = sum(math.hypot(g[0], g[1]) for g in f.g)
-        rows.append(normalized_row(-gx, -gy, gi * (2.0 * k * hd + k * k * f.h) / s))
+        rows.append(normalized_row(-gx, -gy, gi * (2.0 * kf * f.hdot + kf * kf * f.h) / s))
     return hmin, rows
 
 

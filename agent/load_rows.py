@@ -40,8 +40,10 @@ return at the same time; each counts only on the others meeting their own rows. 
 
 The features are those of :func:`agent.body._load_rows`: each shape corner and circle centre
 against each load edge (the distance between two convex outlines is reached at a vertex of one of
-them), and each load vertex against each shape; a circle's physical radius is its Ds less the
-robot radius, and the load keeps :data:`LOAD_CLEAR` (plus the robot's margins) from each.
+them), and each vertex of a declared load against each shape (the default hull's vertices sit
+where the members' bodies are, up to the fit's error, and their own rows keep them Ds away); a
+circle's physical radius is its Ds less the robot radius, and the load keeps :data:`LOAD_CLEAR`
+(plus the robot's margins) from each.
 
 Pure functions over floats.
 """
@@ -115,19 +117,19 @@ def gradients(load: PlacedLoad, p: Point, m: Point,
     return out
 
 
-def share_row(g: Sequence[Point], velocities: Sequence[Point], member: int, h: float,
-              q_term: float, gamma: float) -> Row | None:
-    """Member ``member``'s row (L.2) of the condition sum_k g_k . u_k >= -gamma h - q_term,
-    normalised; None when its gradient is zero (it cannot change h)."""
+def share_row(g: Sequence[Point], v: Point, member: int, h: float, hdot: float,
+              gamma: float) -> Row | None:
+    """Member ``member``'s row (L.2) of the condition sum_k g_k . u_k >= -gamma h - dh/dq . q'
+    (``hdot``: h' at the members' last commands v_k, sum_k g_k . v_k + dh/dq . q'; ``v`` this
+    member's), normalised; None when its gradient is zero (it cannot change h)."""
     gx, gy = g[member]
     gi = math.hypot(gx, gy)
     if gi < _TINY:
         return None
-    c = gamma * h + q_term + sum(a[0] * v[0] + a[1] * v[1] for a, v in zip(g, velocities, strict=True))
+    c = gamma * h + hdot
     s = sum(math.hypot(a[0], a[1]) for a in g)
-    vx, vy = velocities[member]
     # g_i . (u - v_i) >= -|g_i| c / S   <=>   -g_i . u <= |g_i| c / S - g_i . v_i
-    return normalized_row(-gx, -gy, gi * c / s - (gx * vx + gy * vy))
+    return normalized_row(-gx, -gy, gi * c / s - (gx * v[0] + gy * v[1]))
 
 
 class MemberLoad(NamedTuple):
@@ -137,6 +139,7 @@ class MemberLoad(NamedTuple):
     member: int  # this member's index
     velocities: list[Point]  # every member's last certified command
     headings: list[float] | None  # unicycles: every member's heading
+    declared: bool = True  # a declared load's vertices get rows (the default hull's are the members)
 
 
 def member_load(fp: Footprint, pose: tuple[float, float, float], last_u: Point,
@@ -163,70 +166,106 @@ def member_load(fp: Footprint, pose: tuple[float, float, float], last_u: Point,
     placed = place_load(fp.fit0, fp.outline0, bodies)
     if placed is None:
         return None
-    return MemberLoad(placed, fp.member, vel, heads if unicycle else None)
+    return MemberLoad(placed, fp.member, vel, heads if unicycle else None, bool(fp.load_points))
 
 
 class Feature(NamedTuple):
-    """One barrier on the load: h, its gradient g_k in each member's command (L.1), the thing's
-    part of h' (dh/dq . q') and the thing's speed."""
+    """One barrier on the load: h, its gradient g_k in each member's command (L.1) and h' at
+    the members' last commands (with the thing's part, dh/dq . q')."""
 
     h: float
     g: list[Point]
-    q_term: float
+    hdot: float
     thing_speed: float
 
 
-def features(load: PlacedLoad, headings: Sequence[float] | None, obstacles: Sequence[Obstacle],
-             shapes: Sequence[Shape], radius: float, clear: float,
-             far_gap: Callable[[float, float], float]) -> list[Feature]:
-    """Every barrier of the module docstring on the placed ``load`` against ``obstacles`` (Ds
-    for the body; physical radius Ds - ``radius``) and ``shapes``, each kept ``clear`` [m] off.
-    Things farther beyond the load's bounding circle than ``far_gap(thing speed, S bound)``
-    have no row that can be active and are left out."""
-    out: list[Feature] = []
-    pts = load.outline
-    edges = [(pts[k], pts[(k + 1) % len(pts)]) for k in range(len(pts) if len(pts) > 2 else 1)]
-
-    def gap(dist: float) -> float:
-        return dist - load.radius
-
-    things = [((o.x, o.y), (o.vx, o.vy), max(0.0, o.ds - radius) + clear) for o in obstacles
-              if gap(math.hypot(o.x - load.cx, o.y - load.cy) - o.ds)
-              <= far_gap(math.hypot(o.vx, o.vy), load.spread)]
-    near_shapes = [sh for sh in shapes
-                   if gap(shape_distance(load.cx, load.cy, sh)[0]) <= far_gap(0.0, load.spread)]
-    things += [(q, (0.0, 0.0), clear) for sh in near_shapes for q in sh.corners()]
-    for q, qv, r in things:  # a corner or circle against each edge
-        speed = math.hypot(qv[0], qv[1])
-        for (ax, ay), (bx, by) in edges:
-            d, nx, ny = segment_distance(q[0], q[1], ax, ay, bx, by)  # n: from the edge to q
-            p = (q[0] - d * nx, q[1] - d * ny)
-            out.append(Feature(d - r, gradients(load, p, (-nx, -ny), headings),
-                               nx * qv[0] + ny * qv[1], speed))
-    for sh in near_shapes:  # each vertex against each shape
-        for v in pts:
-            d, gx, gy = shape_distance(v[0], v[1], sh)
-            out.append(Feature(d - clear, gradients(load, v, (gx, gy), headings), 0.0, 0.0))
+def body_velocities(velocities: Sequence[Point], headings: Sequence[float] | None) -> list[Point]:
+    """The members' body velocities under their commands: a unicycle's body moves at
+    e (e . u) (eq. 6.2), a single or double integrator's at its command."""
+    if headings is None:
+        return list(velocities)
+    out = []
+    for (vx, vy), th in zip(velocities, headings, strict=True):
+        ex, ey = math.cos(th), math.sin(th)
+        s = ex * vx + ey * vy
+        out.append((s * ex, s * ey))
     return out
 
 
-def load_rows(load: PlacedLoad, member: int, velocities: Sequence[Point],
-              headings: Sequence[float] | None, obstacles: Sequence[Obstacle],
-              shapes: Sequence[Shape], radius: float, clear: float, gamma: float,
-              reach: float, speed: float) -> tuple[float, list[Row]]:
-    """Member ``member``'s rows (L.2) of :func:`features`; rows with b >= ``reach`` (never
-    active) are left out. ``velocities``: every member's last certified command (member order);
-    ``speed``: the members' speed limit. Returns (the smallest h, the rows).
-
-    A thing is left out beyond the gap where, with h >= gap, |v_k| <= speed and S <= the bound,
-    b = c / S - g_i . v_i / |g_i| >= (gamma gap - thing speed) / S - 2 speed >= reach (at most
-    2 speed for any robot model)."""
+def features(load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence[Shape],
+             radius: float, clear: float,
+             inactive: Callable[[float, float, float, float], bool]) -> tuple[float, list[Feature]]:
+    """Every barrier of the module docstring on the member's placed load against ``obstacles``
+    (Ds for the body; physical radius Ds - ``radius``) and ``shapes``, each kept ``clear`` [m]
+    off, that can be active, and the smallest h of those measured. ``inactive(h, h', S, v)``
+    says a barrier of value at least h, rate at least h' and S = sum_k |g_k| at most S, against
+    a thing moving at v, has no active row. It culls things first by lower bounds over the
+    load's bounding circle (h' >= -(the thing's speed + the fastest load point's),
+    S <= ``spread``), then each barrier by its h and its h' at the members' last commands (L.1
+    with those: m . P'), S <= 1 + |m . J (P - c)| sum_k |w_k|, before its gradients are
+    worked out."""
+    placed, headings = load.placed, load.headings
+    out: list[Feature] = []
     hmin = math.inf
+    pts = placed.outline
+    edges = [(pts[k], pts[(k + 1) % len(pts)]) for k in range(len(pts) if len(pts) > 2 else 1)]
+    cx, cy, big, spread = placed.cx, placed.cy, placed.radius, placed.spread
+    wsum = (spread - 1.0) / big if big > 0.0 else 0.0
+    vel = body_velocities(load.velocities, headings)
+    n = len(vel)
+    mvx, mvy = sum(v[0] for v in vel) / n, sum(v[1] for v in vel) / n
+    om = sum(w[0] * v[0] + w[1] * v[1] for w, v in zip(placed.w, vel, strict=True))
+    fastest = math.hypot(mvx, mvy) + abs(om) * big
+
+    def add(p: Point, m: Point, h: float, q_term: float, speed: float) -> None:
+        nonlocal hmin
+        hmin = min(hmin, h)
+        rx, ry = p[0] - cx, p[1] - cy
+        hdot = q_term + m[0] * (mvx - om * ry) + m[1] * (mvy + om * rx)  # + m . P' (L.1)
+        if inactive(h, hdot, 1.0 + abs(m[1] * rx - m[0] * ry) * wsum, speed):
+            return
+        out.append(Feature(h, gradients(placed, p, m, headings), hdot, speed))
+
+    things = []
+    for o in obstacles:
+        speed = math.hypot(o.vx, o.vy)
+        r = max(0.0, o.ds - radius) + clear
+        if not inactive(math.hypot(o.x - cx, o.y - cy) - big - r, -speed - fastest, spread,
+                        speed):
+            things.append(((o.x, o.y), (o.vx, o.vy), r, speed))
+    near_shapes = [sh for sh in shapes  # first by the shape's own bounding circle (cheap)
+                   if not inactive(math.hypot(sh.cx - cx, sh.cy - cy) - math.hypot(sh.hx, sh.hy)
+                                   - big - clear, -fastest, spread, 0.0)
+                   and not inactive(shape_distance(cx, cy, sh)[0] - big - clear, -fastest, spread,
+                                    0.0)]
+    things += [(q, (0.0, 0.0), clear, 0.0) for sh in near_shapes for q in sh.corners()
+               if not inactive(math.hypot(q[0] - cx, q[1] - cy) - big - clear, -fastest, spread,
+                               0.0)]
+    for q, qv, r, speed in things:  # a corner or circle against each edge
+        for (ax, ay), (bx, by) in edges:
+            d, nx, ny = segment_distance(q[0], q[1], ax, ay, bx, by)  # n: from the edge to q
+            add((q[0] - d * nx, q[1] - d * ny), (-nx, -ny), d - r, nx * qv[0] + ny * qv[1], speed)
+    for sh in near_shapes if load.declared else ():  # each declared vertex against each shape
+        for v in pts:
+            d, gx, gy = shape_distance(v[0], v[1], sh)
+            add(v, (gx, gy), d - clear, 0.0, 0.0)
+    return hmin, out
+
+
+def load_rows(load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence[Shape],
+              radius: float, clear: float, gamma: float, reach: float) -> tuple[float, list[Row]]:
+    """The member's rows (L.2) of :func:`features`; rows with b >= ``reach`` (the largest
+    command the limit rows allow: never active) are left out. Returns (the smallest h, the rows).
+
+    A barrier is inactive when, with its slack c = gamma h + h' >= 0 and S at most its bound,
+    b = c / S - g_i . v_i / |g_i| >= c / S - |v_i| >= reach."""
     rows: list[Row] = []
-    for f in features(load, headings, obstacles, shapes, radius, clear,
-                      lambda thing, s: (thing + 4.0 * speed * s) / gamma):
-        hmin = min(hmin, f.h)
-        row = share_row(f.g, velocities, member, f.h, f.q_term, gamma)
+    v = load.velocities[load.member]
+    floor = reach + math.hypot(v[0], v[1])
+    hmin, feats = features(load, obstacles, shapes, radius, clear,
+                           lambda h, hdot, s, _v: gamma * h + hdot >= s * floor)
+    for f in feats:
+        row = share_row(f.g, v, load.member, f.h, f.hdot, gamma)
         if row is not None and row[2] < reach:
             rows.append(row)
     return hmin, rows

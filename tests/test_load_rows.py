@@ -81,9 +81,10 @@ def test_commands_that_meet_every_members_row_meet_the_loads_condition(g, v, du,
     assume(all(math.hypot(*a) > 1e-3 for a in g))
     v, du = v[:n], du[:n]
     gamma = 1.0
+    hdot = q_term + sum(a[0] * w[0] + a[1] * w[1] for a, w in zip(g, v, strict=True))
     u = []
     for k in range(n):  # project each member's try onto its own row
-        row = load_rows.share_row(g, v, k, h, q_term, gamma)
+        row = load_rows.share_row(g, v[k], k, h, hdot, gamma)
         assert row is not None
         ux, uy = v[k][0] + du[k][0], v[k][1] + du[k][1]
         ax, ay, b = row
