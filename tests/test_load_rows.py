@@ -143,3 +143,32 @@ def test_a_double_integrator_brakes_before_its_load_meets_a_shelf_corner():
 
     assert step(0.125).ay < -0.2
     assert step(2.0).ay >= 0.0
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.tuples(coord, coord), min_size=2, max_size=4), st.floats(-3.0, 3.0),
+       st.lists(st.tuples(speed, speed), min_size=4, max_size=4),
+       st.lists(st.tuples(st.floats(-3.0, 3.0), st.floats(-3.0, 3.0)), min_size=1, max_size=4),
+       st.lists(st.tuples(st.floats(-3.0, 3.0), st.floats(-3.0, 3.0), speed, speed), max_size=3),
+       st.booleans(), st.booleans())
+def test_culling_leaves_out_only_rows_that_cannot_be_active(pts, turn, vel, posts, circles,
+                                                             unicycle, declared):
+    """load_rows' bounds (by the bounding circle, then by h and h') drop no row that the QP
+    could meet: the same rows as every barrier worked out and filtered by b < reach."""
+    offs, now = _start_and_now(pts, turn, (0.1, 0.2))
+    assume(min(math.dist(a, b) for i, a in enumerate(offs) for b in offs[i + 1:]) > 0.1)
+    n = len(now)
+    outline = [(-0.8, -0.5), (0.8, -0.5), (0.8, 0.5), (-0.8, 0.5)]
+    placed = load_rows.place_load(offs, outline, now)
+    assume(placed is not None)
+    heads = [0.3 * k for k in range(n)] if unicycle else None
+    load = load_rows.MemberLoad(placed, 0, vel[:n], heads, declared)
+    shapes = [box(f"s{k}", p, (0.4, 0.3), 0.2 * k, 0.2) for k, p in enumerate(posts)]
+    obstacles = [Obstacle(x, y, vx, vy, 0.3) for x, y, vx, vy in circles]
+    reach = 0.22
+    _, got = load_rows.load_rows(load, obstacles, shapes, 0.1, 0.01, 1.0, reach)
+    _, feats = load_rows.features(load, obstacles, shapes, 0.1, 0.01, lambda *a: False)
+    want = [r for f in feats
+            if (r := load_rows.share_row(f.g, vel[0], 0, f.h, f.hdot, 1.0)) is not None
+            and r[2] < reach]
+    assert sorted(got) == sorted(want)
