@@ -106,15 +106,7 @@ def gradients(load: PlacedLoad, p: Point, m: Point,
     its command (a unicycle's look-ahead point velocity where ``headings`` are given)."""
     n = len(load.w)
     k = m[0] * -(p[1] - load.cy) + m[1] * (p[0] - load.cx)  # m . J (P - c)
-    g = [(m[0] / n + k * wx, m[1] / n + k * wy) for wx, wy in load.w]
-    if headings is None:
-        return g
-    out = []
-    for (gx, gy), th in zip(g, headings, strict=True):
-        ex, ey = math.cos(th), math.sin(th)
-        ge = gx * ex + gy * ey
-        out.append((ge * ex, ge * ey))
-    return out
+    return onto_headings([(m[0] / n + k * wx, m[1] / n + k * wy) for wx, wy in load.w], headings)
 
 
 def share_row(g: Sequence[Point], v: Point, member: int, h: float, hdot: float,
@@ -179,15 +171,16 @@ class Feature(NamedTuple):
     thing_speed: float
 
 
-def body_velocities(velocities: Sequence[Point], headings: Sequence[float] | None) -> list[Point]:
-    """The members' body velocities under their commands: a unicycle's body moves at
-    e (e . u) (eq. 6.2), a single or double integrator's at its command."""
+def onto_headings(vectors: Sequence[Point], headings: Sequence[float] | None) -> list[Point]:
+    """Each vector's part along its member's heading, e (e . x) (unchanged without headings): a
+    unicycle's body moves at e (e . u) under eq. 6.2, so this maps its command to its body's
+    velocity, and a body-velocity gradient g to the one in its command, (g . e) e."""
     if headings is None:
-        return list(velocities)
+        return list(vectors)
     out = []
-    for (vx, vy), th in zip(velocities, headings, strict=True):
+    for (x, y), th in zip(vectors, headings, strict=True):
         ex, ey = math.cos(th), math.sin(th)
-        s = ex * vx + ey * vy
+        s = ex * x + ey * y
         out.append((s * ex, s * ey))
     return out
 
@@ -211,7 +204,7 @@ def features(load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence[S
     edges = [(pts[k], pts[(k + 1) % len(pts)]) for k in range(len(pts) if len(pts) > 2 else 1)]
     cx, cy, big, spread = placed.cx, placed.cy, placed.radius, placed.spread
     wsum = (spread - 1.0) / big if big > 0.0 else 0.0
-    vel = body_velocities(load.velocities, headings)
+    vel = onto_headings(load.velocities, headings)  # the bodies' velocities
     n = len(vel)
     mvx, mvy = sum(v[0] for v in vel) / n, sum(v[1] for v in vel) / n
     om = sum(w[0] * v[0] + w[1] * v[1] for w, v in zip(placed.w, vel, strict=True))
