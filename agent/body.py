@@ -479,6 +479,12 @@ def member_nominal(fp: Footprint, pose: Pose, twist: Twist, point: Point, body: 
 # ---------------------------------------------------------------------- from a scenario
 
 
+def outline_edges(pts: Sequence[Point]) -> tuple[tuple[Point, Point], ...]:
+    """An outline's edges, counter-clockwise (two points: the one segment)."""
+    n = len(pts)
+    return tuple((pts[k], pts[(k + 1) % n]) for k in range(n if n > 2 else 1))
+
+
 def footprint_of(starts: Sequence[Point], bodies: Sequence[Point], goals: Sequence[Point],
                  index: int, load: Sequence[Point] = (), declared: bool = True) -> Footprint:
     """A member's :class:`Footprint` from its formation's start control points ``starts``, start
@@ -496,8 +502,7 @@ def footprint_of(starts: Sequence[Point], bodies: Sequence[Point], goals: Sequen
     fit0 = tuple((x - bx, y - by) for x, y in bodies)
     if len(load) >= 2:
         pts = tuple((x - cx, y - cy) for x, y in load)
-        n = len(pts)
-        edges = tuple((pts[k], pts[(k + 1) % n]) for k in range(n if n > 2 else 1))
+        edges = outline_edges(pts)
         return Footprint(ref.offsets, ref.alpha0, index, turn, pts if declared else (), edges,
                          fit0, tuple((x - bx, y - by) for x, y in load))
     offs = ref.offsets

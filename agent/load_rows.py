@@ -57,7 +57,7 @@ from typing import NamedTuple
 from geometry.shapes import Shape, segment_distance, shape_distance
 
 from .barriers import Obstacle, Partner
-from .body import Footprint
+from .body import Footprint, outline_edges
 from .qp import Row, normalized_row
 
 Point = tuple[float, float]
@@ -201,7 +201,7 @@ def features(load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence[S
     out: list[Feature] = []
     hmin = math.inf
     pts = placed.outline
-    edges = [(pts[k], pts[(k + 1) % len(pts)]) for k in range(len(pts) if len(pts) > 2 else 1)]
+    edges = outline_edges(pts)
     cx, cy, big, spread = placed.cx, placed.cy, placed.radius, placed.spread
     wsum = (spread - 1.0) / big if big > 0.0 else 0.0
     vel = onto_headings(load.velocities, headings)  # the bodies' velocities
