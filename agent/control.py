@@ -22,7 +22,16 @@ safe motion to choose, not which motions are safe:
   formation is pushed along w's normal, away from the hazard's side (its right within
   TIEBREAK_DEAD of the centre line), faded over TIEBREAK_RANGE, scaled to TIEBREAK_GAIN max_speed.
   Seen from each other two formations head-on push to the same side and pass; two on a collision
-  course at right angles both turn right of their relative motion, so one passes behind.
+  course at right angles both turn right of their relative motion, so one passes behind. Another
+  formation whose centre lies past our waypoint (``ahead`` > dist along g) weighs less, by the
+  part of its reach before the waypoint, (dist + reach - ahead) / reach: g points at a waypoint
+  ``dist`` away, so a step delta sideways turns g by delta / dist and moves the hazard's offset
+  by delta (ahead / dist - 1). Up to the waypoint that is against the step (the side chosen is
+  kept); past it, with the step, so each push moved the hazard's offset across the dead band's
+  edge and the next tick pushed back (route-head-on-aisle: a pair near its waypoint reversed
+  its command 32 times in 7 s). A formation past the waypoint is not in the way to it. An
+  obstacle keeps its whole weight: a shelf row's circles past a waypoint still push the
+  formation off them (faded as well, di-pushed-to-shelves had 8 ticks with a hard row unmet).
 * escape (:func:`escape_command`): a barrier that only lets robots back away cannot outrun a
   moving hazard about as fast as they are. For each moving obstacle whose closest approach under
   the formation's intended motion comes within its Ds + the formation's half-width across its
@@ -301,7 +310,8 @@ def tiebreak_push(
     hazards += [(o.x, o.y, o.vx, o.vy, o.ds, None) for o in obstacles]
     for hx, hy, hvx, hvy, hr, ell in hazards:
         dx, dy = hx - own.cx, hy - own.cy
-        if dx * gx + dy * gy > dist + hr:
+        ahead = dx * gx + dy * gy  # the hazard's centre along the way to our waypoint
+        if ahead >= dist + hr:
             continue  # beyond our goal
         if math.hypot(dx, dy) - (own.a + hr) >= TIEBREAK_RANGE:
             continue  # too far ahead to weigh anything (cheap test before the geometry)
@@ -320,6 +330,8 @@ def tiebreak_push(
             continue
         contact = own.a + hr  # distance ahead at which the two could touch
         weight = min(1.0, max(0.0, 1.0 - (along - contact) / TIEBREAK_RANGE))
+        if ell is not None:  # another formation: only the part of it before our waypoint counts
+            weight *= min(1.0, (dist + hr - ahead) / hr)
         if -TIEBREAK_DEAD <= lateral <= TIEBREAK_DEAD:
             side = -1.0  # dead ahead: keep right
         else:

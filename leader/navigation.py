@@ -36,20 +36,39 @@ SAME_GOAL = "the goal followed already"  # accept(): nothing changes, not counte
 
 
 HEADING_TOLERANCE = 0.15  # [rad] a waypoint with a heading is passed once the formation is this near it
+# [m/s] a turn has settled once its outermost member moves slower than this: the reversal
+# counter's floor (simulator.motion.REVERSAL_SPEED), below which a command turned round is not
+# a reversal
+SETTLED_SPEED = 0.05
+
+
+def heading_tolerance(kp: float, rho: float) -> float:
+    """[rad] How near a waypoint's heading the formation must have turned to pass it: at most
+    HEADING_TOLERANCE, and no more than leaves its outermost member (``rho`` [m] from the
+    centre) pivoting at SETTLED_SPEED under the turn's pull, kp rho |error| (eq. 4.2's gain on
+    the heading: agent.body.goal_twist). Passed sooner, the next leg set off while a member
+    still swung the other way: route-head-on-aisle's pair turned 47 degrees in place and its
+    rear member's command went from 0.09 m/s west to 0.18 m/s south-east in one tick."""
+    if kp <= 0.0 or rho <= 0.0:
+        return HEADING_TOLERANCE
+    return min(HEADING_TOLERANCE, SETTLED_SPEED / (kp * rho))
 
 
 class Follower:
     """One member's walk along its formation's route (see the module docstring). A route point
     may carry a heading (``headings``, one per point or none: the footprint planner's, or a
     hand-given ``[x, y, heading]``): the formation passes it once also turned within
-    HEADING_TOLERANCE of it, when its heading is given to :meth:`step`."""
+    ``tolerance`` of it (:func:`heading_tolerance` of the formation's turn), when its heading is
+    given to :meth:`step`."""
 
     __slots__ = ("robot_id", "goal", "formation_goal", "route", "index", "goal_stamp", "_offset",
-                 "headings", "plan_stamp", "holding")
+                 "headings", "plan_stamp", "holding", "tolerance")
 
     def __init__(self, robot_id: str, goal: Point, formation_goal: Point,
-                 route: Sequence[Point] = (), headings: Sequence[float | None] = ()) -> None:
+                 route: Sequence[Point] = (), headings: Sequence[float | None] = (),
+                 tolerance: float = HEADING_TOLERANCE) -> None:
         self.robot_id = robot_id
+        self.tolerance = tolerance  # [rad] a waypoint's heading counts reached this near
         self.goal_stamp = -math.inf  # the scenario's goal: any plan from the leader is newer
         self.plan_stamp = -math.inf  # the stamp of the plan followed (a replan of one goal is newer)
         self._set(goal, formation_goal, route, headings)
@@ -107,7 +126,7 @@ class Follower:
                 k = advance(self.route, self.index, cx, cy)
                 want = self.headings[self.index] if self.headings else None
                 if k == self.index or (heading is not None and want is not None
-                                       and abs(wrap_angle(heading - want)) > HEADING_TOLERANCE):
+                                       and abs(wrap_angle(heading - want)) > self.tolerance):
                     break
                 self.index += 1
         return member_target(self.route, self.index, self.goal, self._offset), self.route[self.index]

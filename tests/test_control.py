@@ -107,6 +107,22 @@ def test_every_member_gets_the_same_push_and_far_hazards_none():
     assert tiebreak_push(a, [], [behind], 0.22) == (0.0, 0.0)
 
 
+def test_a_formation_past_the_waypoint_weighs_by_its_reach_before_it_and_an_obstacle_whole():
+    # A heads for a waypoint 0.5 m ahead; B (reach 0.6) sits just off A's path, its centre
+    # moved from before the waypoint to past it by its whole reach. Near the waypoint a step
+    # sideways turns the goal direction, so past it the side chosen flips back and forth
+    # (route-head-on-aisle: 32 reversals); it now weighs by the part of it before the waypoint.
+    a = view(0.0, 0.0, 0.5, 0.0)
+    pushes = [tiebreak_push(a, [view(x, -0.02, -5.0, 0.0).own], [], 0.22)[1]
+              for x in (0.4, 0.5, 0.65, 0.8, 0.95, 1.09, 1.11)]
+    assert pushes[0] == pytest.approx(pushes[1]) and pushes[1] < 0  # before it: whole, keep right
+    assert pushes[1] < pushes[2] < pushes[3] < pushes[4] < pushes[5] < 0  # fading, no jump
+    assert pushes[5] > 0.05 * pushes[1] and pushes[6] == 0.0
+    for x in (0.5, 0.95):  # an obstacle (a shelf's circle) there keeps its whole weight
+        obstacle = Obstacle(x, -0.02, 0.0, 0.0, 0.6)
+        assert tiebreak_push(a, [], [obstacle], 0.22)[1] == pytest.approx(pushes[1])
+
+
 def test_a_still_formation_away_from_its_target_yields_after_the_stall_time():
     from agent.control import STALL_TIME, YIELD_TIME, Stall, update_stall
 

@@ -7,13 +7,15 @@ from __future__ import annotations
 
 import math
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from geometry.footprint_plan import Body, FootprintPlan, load_outline, plan_footprint
 from geometry.shapes import box, segment, shape_distance
-from leader.navigation import Follower
+from leader.navigation import HEADING_TOLERANCE, SETTLED_SPEED, Follower, heading_tolerance
 from leader.routing import BLOCKED, BLOCKED_S, Replanner, StillThings, Thing, blockers
+from simulator.motion import REVERSAL_SPEED
 
 LINE = Body(tuple((-0.6 + 0.3 * k, 0.0) for k in range(5)), radius=0.1, margin=0.0)
 
@@ -143,3 +145,19 @@ def test_a_member_passes_a_waypoint_with_a_heading_only_once_the_formation_has_t
     g = Follower("a", (5.5, 0.0), (5.0, 0.0), ((0.0, 0.0), (5.0, 0.0)))
     g.step(0.0, 0.05, heading=0.2)  # no headings: passed on position alone, as before
     assert g.index == 1
+
+
+def test_a_wide_formation_passes_a_turning_waypoint_only_once_its_outer_member_has_settled():
+    # 0.09 rad from the heading: a pair 0.15 m from its centre to a member pivots at kp rho err
+    # = 0.027 m/s and goes on; one 0.6 m out still swings at 0.108 m/s and finishes the turn
+    # (route-head-on-aisle's rear member reversed when its formation went on at 0.15 rad)
+    assert heading_tolerance(2.0, 0.15) == HEADING_TOLERANCE
+    wide = heading_tolerance(2.0, 0.6)
+    assert 2.0 * 0.6 * wide == pytest.approx(SETTLED_SPEED) and wide < 0.09
+    for rho, passed in ((0.15, 1), (0.6, 0)):
+        f = Follower("a", (5.5, 0.0), (5.0, 0.0), ((0.0, 0.0), (5.0, 0.0)), (1.0, None),
+                     heading_tolerance(2.0, rho))
+        f.step(0.0, 0.05, heading=0.91)
+        assert f.index == passed
+    assert heading_tolerance(0.0, 0.6) == HEADING_TOLERANCE  # no turn pull: the fixed tolerance
+    assert SETTLED_SPEED == REVERSAL_SPEED  # the reversal counter's floor

@@ -24,11 +24,7 @@ from simulator.inprocess import SimOptions, simulate
 SCENARIOS = Path(__file__).parent / "scenarios"
 
 #: The issue's "Done when" set that does not meet the bar yet, and why (strict: a fix shows).
-FAILING = {
-    "rigid-shelves-eight-unicycle": "two pairs meet head-on in the cross-aisle: 5.95 eps, every "
-                                    "goal, 1 unforced reversal (the formation QP relaxed, no "
-                                    "collision)",
-}
+FAILING: dict[str, str] = {}  # none at present (rigid-shelves-eight-unicycle was, at 5.95 eps)
 
 PASSING = sorted(p.stem for p in SCENARIOS.glob("rigid-*.yaml") if p.stem not in FAILING)
 
@@ -102,19 +98,4 @@ def test_the_tiebreak_stays_under_rigid_two_rectangles_head_on_deadlock_without_
     assert simulate(dataclasses.replace(s, controller=with_push), SimOptions(record=False)
                     ).summary["all_reached"]
     stuck = simulate(dataclasses.replace(s, controller=without), SimOptions(record=False)).summary
-    assert not stuck["all_reached"] and stuck["collisions"] == 0
-
-
-@pytest.mark.slow
-def test_the_yield_rule_stays_eight_formations_among_shelves_jam_without_it(monkeypatch):
-    """No barrier picks which of two formations meeting head-on in a cross-aisle goes first:
-    with the stall clock's yield (agent.control.yield_command) the later name backs off and
-    every formation gets there; without it two pairs stay jammed (no collision either way).
-    (Four formations at one doorway get through without it now: docs/rigid-body.md.)"""
-    from agent import control
-
-    summary, _eps = _run("rigid-shelves-eight-unicycle")
-    assert summary["all_reached"] and summary["collisions"] == 0
-    monkeypatch.setattr(control, "yield_command", lambda view, others, vmax: None)
-    stuck, _eps = _run("rigid-shelves-eight-unicycle")
     assert not stuck["all_reached"] and stuck["collisions"] == 0

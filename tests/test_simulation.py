@@ -30,8 +30,6 @@ FORMATION_GAPS = {
     # others back up, and the band breaks (3.1 eps; 1.39 eps under the old per-member rules, which
     # reversed less); the agent's model does not know its robot turns (issue 27, left open)
     "warehouse-lab-bounds": "single integrators on differential drives reversing (3.1 eps)",
-    # issue 25's scenarios still short of the bar (tests/test_rigid_scenarios.py says why)
-    "rigid-shelves-eight-unicycle": "two pairs head-on in a cross-aisle (5.95 eps)",
 }
 # goals meant to have no route: tests/test_route_scenarios.py shows they hold, unreachable
 UNREACHABLE = {"route-closed-room", "route-closed-room-unicycle"}
