@@ -10,8 +10,8 @@ footprint's barrier rows, then the member's slot velocity plus a pull to its slo
 eq. 4.2 on the member's own goal alone. Either way the per-robot CBF-QP below, every row as the
 thesis has it, is the last safety filter; hard rows are never relaxed to reach a goal.
 
-Two formation-level rules stay, both only shaping the goal motion the formation's QP starts from,
-both computed by every member from the same shared data (the formation's ellipse and goal, the
+Three formation-level rules stay, each only shaping the goal motion the formation's QP starts from,
+each computed by every member from the same shared data (the formation's ellipse and goal, the
 other formations' ellipses, the obstacles); each does what a barrier cannot, as it is about which
 safe motion to choose, not which motions are safe:
 
@@ -38,6 +38,8 @@ safe motion to choose, not which motions are safe:
   path + ESCAPE_MARGIN, the intended motion becomes a step sideways, away from the hazard's path
   line, plus what is left of the motion without its part towards that line. Where that cannot be
   done in time, the hard rows meet and the QP returns the least-risk command (counted).
+* yield (:func:`yield_command`): formations standing still in each other's way (the stall clock,
+  :func:`update_stall`) are a jam whose order no barrier picks; the later name backs away.
 
 Separation (:func:`agent.barriers.separation_row`): every pair of robots that can touch gets a
 hard row with a reciprocal split of the pair's slack; see that function for why two robots

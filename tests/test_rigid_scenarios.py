@@ -99,3 +99,19 @@ def test_the_tiebreak_stays_under_rigid_two_rectangles_head_on_deadlock_without_
                     ).summary["all_reached"]
     stuck = simulate(dataclasses.replace(s, controller=without), SimOptions(record=False)).summary
     assert not stuck["all_reached"] and stuck["collisions"] == 0
+
+
+@pytest.mark.slow
+def test_the_yield_rule_stays_two_big_formations_break_the_band_without_it(monkeypatch):
+    """No barrier picks which of two formations standing still in each other's way goes first:
+    with the stall clock's yield (agent.control.yield_command) the later name backs off and both
+    pass within the band; without it the six and the five unicycles of montecarlo run 100094
+    press past each other and the band breaks (no collision either way)."""
+    from agent import control
+
+    summary, eps = _run("yield-six-five-unicycle")
+    assert summary["all_reached"] and summary["collisions"] == 0
+    assert summary["formation_error_max_m"] <= 1.5 * eps
+    monkeypatch.setattr(control, "yield_command", lambda view, others, vmax: None)
+    pressed, eps = _run("yield-six-five-unicycle")
+    assert pressed["collisions"] == 0 and pressed["formation_error_max_m"] > 1.5 * eps
