@@ -125,9 +125,16 @@ class LaterInterruptsWait:
     def __exit__(self, *_exc: object) -> None:
         # once interrupted, the process is on its way out: a Ctrl-C still coming (one of a
         # hurried operator's several) must not meet the default handler while Python exits,
-        # which killed the process by SIGINT after the run was written (exit -2, not 130)
-        if self._previous is not None and self.count == 0:
+        # which killed the process by SIGINT after the run was written (exit -2, not 130).
+        # Python's own exit puts back the default action for a handler written in Python (this
+        # one), so a Ctrl-C in the last teardown still did that on a loaded machine; an
+        # ignored signal stays ignored through it.
+        if self._previous is None:
+            return
+        if self.count == 0:
             signal.signal(signal.SIGINT, self._previous)
+        else:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
 
     def run_over(self) -> None:
         """From now on no SIGINT interrupts: the run's files are being written."""
