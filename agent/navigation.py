@@ -30,7 +30,7 @@ from agent.config import AgentConfig
 from agent.replan import LeaderRoutes
 from geometry.ellipse import Ellipse, wrap_angle
 from geometry.shapes import Shape
-from leader.navigation import HEADING_TOLERANCE, SAME_GOAL, Follower, Navigator, heading_tolerance
+from leader.navigation import SAME_GOAL, Follower, Navigator, heading_tolerance
 from scenario.extent import Extent, goal_problem
 from scenario.limits import COORDINATE
 from wire import keys
@@ -96,9 +96,9 @@ class NavPart:
         self.cfg = cfg
         p = cfg.prefix
         self.follower = Follower(cfg.robot_id, cfg.goal, cfg.formation_goal, cfg.route,
-                                 cfg.route_headings,
-                                 HEADING_TOLERANCE if cfg.footprint is None
-                                 else heading_tolerance(cfg.control.kp, cfg.footprint.rho))
+                                 cfg.route_headings, heading_tolerance(
+                                     cfg.control.kp, None if cfg.footprint is None
+                                     else cfg.footprint.rho))
         self.navigator: Navigator | None = None
         self.routes: LeaderRoutes | None = None  # method rigid: the footprint's replanning
         if leader:

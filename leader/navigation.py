@@ -42,14 +42,15 @@ HEADING_TOLERANCE = 0.15  # [rad] a waypoint with a heading is passed once the f
 SETTLED_SPEED = 0.05
 
 
-def heading_tolerance(kp: float, rho: float) -> float:
+def heading_tolerance(kp: float, rho: float | None) -> float:
     """[rad] How near a waypoint's heading the formation must have turned to pass it: at most
     HEADING_TOLERANCE, and no more than leaves its outermost member (``rho`` [m] from the
-    centre) pivoting at SETTLED_SPEED under the turn's pull, kp rho |error| (eq. 4.2's gain on
-    the heading: agent.body.goal_twist). Passed sooner, the next leg set off while a member
-    still swung the other way: route-head-on-aisle's pair turned 47 degrees in place and its
-    rear member's command went from 0.09 m/s west to 0.18 m/s south-east in one tick."""
-    if kp <= 0.0 or rho <= 0.0:
+    centre; None: no rigid body, HEADING_TOLERANCE) pivoting at SETTLED_SPEED under the turn's
+    pull, kp rho |error| (eq. 4.2's gain on the heading: agent.body.goal_twist). Passed sooner,
+    the next leg set off while a member still swung the other way: route-head-on-aisle's pair
+    turned 47 degrees in place and its rear member's command went from 0.09 m/s west to
+    0.18 m/s south-east in one tick."""
+    if rho is None or kp <= 0.0 or rho <= 0.0:
         return HEADING_TOLERANCE
     return min(HEADING_TOLERANCE, SETTLED_SPEED / (kp * rho))
 

@@ -25,7 +25,7 @@ from agent.hard_rows import HardRowCounter
 from agent.inputs import step_inputs, with_heading
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
 from geometry.ellipse import ReferenceShape, estimate, reference_shape
-from leader.navigation import HEADING_TOLERANCE, Follower, heading_tolerance
+from leader.navigation import Follower, heading_tolerance
 from scenario import Scenario, formation_axes
 from scenario.cargo import load_polygon
 from scenario.routes import start_plan
@@ -136,10 +136,11 @@ def simulate(  # noqa: C901 (13: the in-process loop; to split with the world's 
     starts = {f.name: start_plan(scenario, f) for f in scenario.formations}
     routes = {name: sp.route for name, sp in starts.items()}
     # every member walks its formation's route with the ellipse its leader hands it
+    members = [(f, r) for f in scenario.formations for r in f.robots]  # robot order
     followers = [Follower(r.id, r.goal, f.goal_centroid, routes[f.name], starts[f.name].headings,
-                          heading_tolerance(params.kp, fleet.footprints[i].rho) if fleet.footprints
-                          else HEADING_TOLERANCE)
-                 for i, (f, r) in enumerate((f, r) for f in scenario.formations for r in f.robots)]
+                          heading_tolerance(params.kp, fleet.footprints[i].rho
+                                            if fleet.footprints else None))
+                 for i, (f, r) in enumerate(members)]
     replans = Replans(scenario, starts, fleet.footprints, fleet.members)
     shapes = scenario.shapes
     state = [list(r.start) for r in robots]  # body x, y, theta

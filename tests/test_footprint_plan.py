@@ -160,4 +160,5 @@ def test_a_wide_formation_passes_a_turning_waypoint_only_once_its_outer_member_h
         f.step(0.0, 0.05, heading=0.91)
         assert f.index == passed
     assert heading_tolerance(0.0, 0.6) == HEADING_TOLERANCE  # no turn pull: the fixed tolerance
+    assert heading_tolerance(2.0, None) == HEADING_TOLERANCE  # no rigid body (method thesis)
     assert SETTLED_SPEED == REVERSAL_SPEED  # the reversal counter's floor
