@@ -161,6 +161,7 @@ class Navigator:
         self.replans = 0  # routes to the goal followed planned again (leader.routing)
         self.rejected = 0  # goals refused (inside an obstacle, stale, another formation's)
         self.refusal = ""  # why the last goal was refused (on ``status``, version 2)
+        self._refused_msg: GoalMsg | None = None  # the last goal refused (one put again counts once)
         self.unreachable = ""  # why no route reaches the goal ("" while one does): the state
 
     def same(self, msg: GoalMsg) -> bool:
@@ -189,14 +190,19 @@ class Navigator:
     def accept(self, msg: GoalMsg, stamp: float, centroid: Point, shapes: Sequence[Shape]) -> str | None:
         """Take ``msg`` as the formation's goal, stamped ``stamp`` (its own stamp in real time,
         the tick's simulated time in lock-step); the route starts at ``centroid``. Returns why it
-        was refused, or None when it was taken (then :meth:`plan` is the new plan)."""
+        was refused, or None when it was taken (then :meth:`plan` is the new plan). The same
+        message refused and put again (``formation goal`` puts it every second until the status
+        shows it) is refused again but counted once: a busy leader's status could otherwise show
+        one goal refused twice."""
         if self.same(msg):
             return SAME_GOAL
         why = self.problem(msg, shapes)
         if why is None and not stamp > self.goal_stamp:
             why = f"goal stamped {stamp} is not newer than the one followed"
         if why is not None:
-            self.refuse(why)
+            if msg != self._refused_msg:  # the same goal put again is the same refusal
+                self.refuse(why)
+                self._refused_msg = msg
             return why
         self.goal_stamp = stamp
         self.goal = (msg.x, msg.y)

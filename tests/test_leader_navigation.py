@@ -113,3 +113,14 @@ def test_real_time_goal_stamps_far_ahead_or_stale_are_refused():
     assert stamp_problem(100.0 + GOAL_FUTURE_S * 0.5, 100.0) is None
     assert "in the future" in stamp_problem(100.0 + GOAL_FUTURE_S + 0.1, 100.0)
     assert "ago" in stamp_problem(100.0 - GOAL_MAX_AGE_S - 0.1, 100.0)
+
+
+def test_a_refused_goal_put_again_is_counted_once_and_a_new_one_again():
+    nav = navigator()
+    inside = GoalMsg("A", 2.0, 0.0, None, (), 1.0)  # inside the shelf's safe distance
+    for _ in range(3):  # formation goal puts it again each second until the status shows it
+        assert "safe distance" in nav.accept(inside, 1.0, (0.0, 0.0), [SHELF])
+    assert nav.rejected == 1
+    again = GoalMsg("A", 2.0, 0.0, None, (), 2.0)  # the same place asked anew: a new goal
+    assert nav.accept(again, 2.0, (0.0, 0.0), [SHELF]) is not None
+    assert nav.rejected == 2

@@ -141,10 +141,26 @@ def test_a_goal_taken_but_unreachable_exits_1_with_the_leaders_reason(router, ca
         leader.close()
 
 
+def answering(endpoint: str, fid: str, within: float = 60.0) -> bool:
+    """Whether the leader of ``fid`` answers a status query through the router within
+    ``within`` seconds (its queryable reaches the router some time after it is declared; a
+    query before that goes to no one: a fleet that is up answers, a stand-in just made may not)."""
+    session = zenoh.open(ZenohSettings(mode="client", connect=(endpoint,)).to_config())
+    try:
+        deadline = time.monotonic() + within
+        while time.monotonic() < deadline:
+            if any(s.formation == fid for s in navcmd.query_status(session, "warehouse", fid, 1.0)):
+                return True
+        return False
+    finally:
+        session.close()
+
+
 def test_an_unknown_formation_is_refused_at_once_and_run_finds_the_endpoint(router, tmp_path, capsys):
     leader = LeaderStandIn(router.endpoint, "D")
     (tmp_path / "endpoint").write_text(router.endpoint + "\n")  # as `formation run --hold` writes
     try:
+        assert answering(router.endpoint, "D")  # the fleet is up: its leaders answer
         # no --connect: the run folder's endpoint (no secure/ folder there: no credentials)
         rc = navcmd.main(["goal", "NOPE", "1.0", "0.5", "--run", str(tmp_path), "--timeout", "600"])
         err = capsys.readouterr().err
