@@ -279,7 +279,7 @@ class NavPart:
         else:
             why = None if lockstep else stamp_problem(goal.stamp, stamp)
             if why is not None:
-                nav.refuse(why)
+                nav.refuse(why, goal)
             else:
                 why = nav.accept(goal, stamp if lockstep else goal.stamp, centroid, self.shapes)
         if why is None:

@@ -200,9 +200,7 @@ class Navigator:
         if why is None and not stamp > self.goal_stamp:
             why = f"goal stamped {stamp} is not newer than the one followed"
         if why is not None:
-            if msg != self._refused_msg:  # the same goal put again is the same refusal
-                self.refuse(why)
-                self._refused_msg = msg
+            self.refuse(why, msg)
             return why
         self.goal_stamp = stamp
         self.goal = (msg.x, msg.y)
@@ -220,10 +218,14 @@ class Navigator:
             self.route = (self.goal,)
         return None
 
-    def refuse(self, why: str) -> None:
-        """Count a refused goal and keep why (the door's refusals come here too)."""
-        self.rejected += 1
+    def refuse(self, why: str, msg: GoalMsg | None = None) -> None:
+        """Count a refused goal and keep why (the door's refusals come here too); ``msg``, the
+        goal refused, is counted once when it is put again (the same refusal)."""
         self.refusal = why[:MAX_REASON]
+        if msg is not None and msg == self._refused_msg:
+            return
+        self.rejected += 1
+        self._refused_msg = msg
 
     def plan(self, stamp: float) -> PlanMsg:
         gx, gy = self.goal
