@@ -321,6 +321,9 @@ COMMANDS = {
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     ns = parser.parse_args(argv)
+    # no argv: this call is the program (the console script, python -m formation), which ends
+    # when the command does (formation.commands.run.LaterInterruptsWait)
+    ns.whole_process = argv is None
     logging.basicConfig(
         level=logging.DEBUG if ns.verbose else logging.WARNING,
         format="%(asctime)s %(name)s %(levelname)s %(message)s",

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 from importlib.metadata import version
 from pathlib import Path
 
@@ -14,6 +15,7 @@ import yaml
 
 from agent.config import build_agent_configs, config_from_dict, config_to_dict
 from formation.cli import build_parser, main
+from formation.commands.run import LaterInterruptsWait
 from scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -86,11 +88,31 @@ def test_run_with_an_unknown_solver_is_exit_2_before_anything_starts(tmp_path, c
 @pytest.mark.integration
 def test_run_with_a_qpsolvers_backend_runs_the_agents_on_it(tmp_path):
     out = tmp_path / "o"
+    before = signal.getsignal(signal.SIGINT)
     assert main(["run", str(SCENARIO), "--out", str(out), "--solver", "osqp", "--quiet",
                  "--no-plots"]) == 0
+    # called from Python, the run leaves SIGINT as it found it (an ignored one was inherited by
+    # every process the tests started later: formation replay never stopped on Ctrl-C)
+    assert signal.getsignal(signal.SIGINT) is before
     summary = json.loads((out / "summary.json").read_text())
     assert summary["solver"] == "osqp" and summary["all_reached"] and summary["collisions"] == 0
     assert yaml.safe_load((out / "configs" / "a1.yaml").read_text())["solver"] == "osqp"
+
+
+@pytest.mark.parametrize("whole_process", [False, True])
+def test_an_interrupted_run_ignores_sigint_on_its_way_out_only_as_the_whole_program(whole_process):
+    before = signal.getsignal(signal.SIGINT)
+    try:
+        with LaterInterruptsWait(whole_process) as interrupts:
+            assert signal.getsignal(signal.SIGINT) not in (before, signal.SIG_IGN)
+            interrupts.run_over()  # the run's files are being written: Ctrl-C only hurries
+        after = signal.getsignal(signal.SIGINT)
+        assert after is (signal.SIG_IGN if whole_process else before)
+    finally:
+        signal.signal(signal.SIGINT, before)
+    with LaterInterruptsWait(whole_process):  # never interrupted: put back as it was
+        pass
+    assert signal.getsignal(signal.SIGINT) is before
 
 
 DEPLOY_SCENARIO = """\

@@ -103,7 +103,7 @@ def run_command(ns: argparse.Namespace) -> int:
         _reach_hosts(config.remote)  # over SSH, before anything starts
     if getattr(ns, "dry_run", False):
         return _dry_run(config)
-    with LaterInterruptsWait() as interrupts:
+    with LaterInterruptsWait(whole_process=getattr(ns, "whole_process", False)) as interrupts:
         return _run(ns, config, interrupts)
 
 
@@ -111,10 +111,17 @@ class LaterInterruptsWait:
     """SIGINT in ``formation run``: the first stops the run (``KeyboardInterrupt``, as ever);
     every later one, or one that comes once the run is over, only says the shutdown is under
     way, so summary.json, robots.csv and run.mcap are still written (marked ``aborted``). The
-    shutdown's every wait is bounded (:class:`simulator.fleet.Fleet`), so it ends anyway."""
+    shutdown's every wait is bounded (:class:`simulator.fleet.Fleet`), so it ends anyway.
 
-    def __init__(self) -> None:
+    ``whole_process``: the command is the program (``formation run`` from a shell), which ends
+    when the command does; then, once interrupted, SIGINT stays ignored on the way out. Called in
+    a process that goes on (``main([...])`` from Python), the handler before is put back
+    whatever happened: an ignored SIGINT would outlive the run and be inherited by every process
+    started later (``formation replay`` from a test then never stopped on Ctrl-C)."""
+
+    def __init__(self, whole_process: bool = False) -> None:
         self.count = 0
+        self.whole_process = whole_process
         self._previous: Any = None
 
     def __enter__(self) -> LaterInterruptsWait:
@@ -131,10 +138,10 @@ class LaterInterruptsWait:
         # ignored signal stays ignored through it.
         if self._previous is None:
             return
-        if self.count == 0:
-            signal.signal(signal.SIGINT, self._previous)
-        else:
+        if self.count > 0 and self.whole_process:
             signal.signal(signal.SIGINT, signal.SIG_IGN)
+        else:
+            signal.signal(signal.SIGINT, self._previous)
 
     def run_over(self) -> None:
         """From now on no SIGINT interrupts: the run's files are being written."""
