@@ -104,8 +104,11 @@ class NavPart:
         if leader:
             gx, gy = cfg.formation_goal
             ref = {m: (x - gx, y - gy) for m, x, y in cfg.member_goals} or {cfg.robot_id: (0.0, 0.0)}
+            role = cfg.leader or cfg.standby
+            fleet = (cfg.formation, *(role.other_formations if role is not None else ()))
             self.navigator = Navigator(cfg.formation, cfg.robot_id, ref, cfg.formation_goal,
-                                       cfg.route, cfg.planner, cfg.goal_tolerance + cfg.control.offset)
+                                       cfg.route, cfg.planner, cfg.goal_tolerance + cfg.control.offset,
+                                       fleet=fleet)
             self.navigator.headings = self.follower.headings
             self.routes = leader_routes(cfg)
         self.plan_key = keys.plan_key(p, cfg.formation)

@@ -145,8 +145,11 @@ class Navigator:
 
     def __init__(self, formation: str, leader_id: str, reference: Mapping[str, Point],
                  goal: Point, route: Sequence[Point] = (), planner: bool = True,
-                 tolerance: float = 0.05, heading: float | None = None) -> None:
+                 tolerance: float = 0.05, heading: float | None = None,
+                 fleet: Sequence[str] = ()) -> None:
         self.formation = formation
+        # every formation of the scenario, this one included (on ``status``, version 3)
+        self.fleet = tuple(sorted({formation, *fleet})) if fleet else ()
         self.leader_id = leader_id
         self.reference = dict(reference)
         self.radius = formation_radius(list(self.reference.values()))
@@ -258,4 +261,5 @@ class Navigator:
                          gx, gy, self.heading, route_length(centroid, route[index:]), index,
                          len(route), wx, wy, stamp,
                          reason=self.unreachable[:MAX_REASON] if state == "unreachable" else "",
-                         refused=min(self.rejected + refused, MAX_REFUSED), refusal=self.refusal)
+                         refused=min(self.rejected + refused, MAX_REFUSED), refusal=self.refusal,
+                         fleet=self.fleet)

@@ -35,7 +35,7 @@ reasons = st.text(max_size=40)
 statuses = st.builds(StatusMsg, ids, st.sampled_from(STATUS_STATES), ids,
                      finite, finite, finite, headings, st.floats(0, 1e6), st.integers(0, 64),
                      st.integers(0, 64), finite, finite, finite, reasons,
-                     st.integers(0, 2**31 - 1), reasons)
+                     st.integers(0, 2**31 - 1), reasons, st.lists(ids, max_size=4).map(tuple))
 DECODE = {GoalMsg: decode_goal, PlanMsg: decode_plan, StatusMsg: decode_status}
 
 GOAL = GoalMsg("A", 1.0, 2.0, 0.5, ((1.0, 0.0),), 3.0)
@@ -45,7 +45,9 @@ STATUS = StatusMsg("A", "moving", "a1", 3.0, 1.0, 2.0, 0.5, 2.25, 1, 2, 1.0, 2.0
 STATUS2 = StatusMsg("A", "unreachable", "a1", 3.0, 1.0, 2.0, 0.5, 2.25, 1, 2, 1.0, 2.0, 4.0,
                     reason="no route: the goal lies in a closed room", refused=2,
                     refusal="waypoint 0 lies within the safe distance of box 'shelf'")
-EXAMPLES = [GOAL, PLAN, STATUS, STATUS2]
+STATUS3 = StatusMsg("A", "moving", "a1", 3.0, 1.0, 2.0, 0.5, 2.25, 1, 2, 1.0, 2.0, 4.0,
+                    fleet=("A", "B", "shelf-movers"))
+EXAMPLES = [GOAL, PLAN, STATUS, STATUS2, STATUS3]
 
 
 @settings(max_examples=150, deadline=None)
@@ -63,7 +65,7 @@ def test_the_goal_layout_is_readable_by_zenohs_own_deserializer():
     assert got[-2] == [("a1", 1.0, 2.25), ("a2", 1.0, 1.75)]
 
 
-def test_a_status_with_nothing_new_stays_version_1_byte_for_byte_and_v2_carries_the_rest():
+def test_a_status_with_nothing_new_stays_version_1_byte_for_byte_v2_and_v3_carry_the_rest():
     v1 = encode_nav(STATUS)
     assert v1[0] == 1  # an older fleet manager still reads it
     got = z_deserialize(tuple[UInt8, str, str, str, float, float, float, list[float], float, float,
@@ -73,8 +75,20 @@ def test_a_status_with_nothing_new_stays_version_1_byte_for_byte_and_v2_carries_
     assert v2[0] == 2
     got2 = decode_status(v2)
     assert (got2.state, got2.refused) == ("unreachable", 2) and got2.reason.startswith("no route")
-    with pytest.raises(DecodeError, match="unsupported version 3"):
-        decode_status(b"\x03" + v2[1:])
+    v3 = encode_nav(STATUS3)
+    assert v3[0] == 3 and v3.startswith(b"\x03" + encode_nav(STATUS)[1:])
+    assert decode_status(v3).fleet == ("A", "B", "shelf-movers")
+    with pytest.raises(DecodeError, match="unsupported version 4"):
+        decode_status(b"\x04" + v3[1:])
+
+
+def test_a_status_refuses_a_fleet_naming_a_bad_id_or_too_many():
+    with pytest.raises(ValueError, match=r"fleet\[1\]"):
+        StatusMsg("A", "moving", "a1", 0.0, 0.0, 0.0, None, 0.0, 0, 1, 0.0, 0.0, 0.0,
+                  fleet=("A", "a/b"))
+    with pytest.raises(ValueError, match="at most 256"):
+        StatusMsg("A", "moving", "a1", 0.0, 0.0, 0.0, None, 0.0, 0, 1, 0.0, 0.0, 0.0,
+                  fleet=tuple(f"f{k}" for k in range(257)))
 
 
 def test_a_status_refuses_a_reason_too_long_or_a_negative_count():

@@ -81,6 +81,11 @@ STATE_VERSION = 2
 #: with any of them (or the state ``unreachable``) is version 2, which an older decoder refuses
 #: by its version byte.
 STATUS_VERSION = 2
+#: ``status`` version 3 adds, after version 2's fields, ``fleet``: every formation of the
+#: leader's scenario, its own included (list[str]). ``formation goal`` tells an unknown
+#: formation from one whose leader has not answered yet by it, from any one leader's answer.
+#: A status without it is written as version 1 or 2 as before.
+STATUS_FLEET_VERSION = 3
 CMD_ACCEL_VERSION = 2  # Cmd with a double integrator's acceleration (ax, ay)
 #: ``goal`` and ``plan`` version 2 add a heading (0 or 1) per waypoint or route point, after the
 #: stamp (issue 26: the footprint's route turns it; a hand-given waypoint may say how). One
@@ -449,6 +454,7 @@ _VERSION = UInt8(WIRE_VERSION)
 _SHAPES_VERSION = UInt8(SHAPES_VERSION)
 _STATE_VERSION = UInt8(STATE_VERSION)
 _STATUS_VERSION = UInt8(STATUS_VERSION)
+_STATUS_FLEET_VERSION = UInt8(STATUS_FLEET_VERSION)
 _CMD_ACCEL_VERSION = UInt8(CMD_ACCEL_VERSION)
 _ROUTE_VERSION = UInt8(ROUTE_VERSION)
 
@@ -775,6 +781,7 @@ DECODERS: dict[str, Callable[[bytes | zenoh.ZBytes], Any]] = {
 # ``StatusMsg``  version, formation:str, state:str, leader:str, goal_stamp, gx, gy,
 #                heading:list[f64] (0 or 1), distance, waypoint, waypoints, wx, wy, stamp
 #                version 2 (:data:`STATUS_VERSION`) adds: reason:str, refused, refusal:str
+#                version 3 (:data:`STATUS_FLEET_VERSION`) adds after those: fleet:list[str]
 # ``GoalMsg`` and ``PlanMsg`` version 2 (:data:`ROUTE_VERSION`) add, after the stamp:
 #                headings:list[list[f64] (0 or 1)], one per waypoint or route point
 #
@@ -908,7 +915,8 @@ class StatusMsg:
     route [m], the current waypoint (index, route length, position) and the leader's id.
     Version 2 (:data:`STATUS_VERSION`): ``reason`` why the state (``unreachable``: why no route
     reaches the goal), ``refused`` goals the leader refused since it started and ``refusal``, why
-    it refused the last one."""
+    it refused the last one. Version 3 (:data:`STATUS_FLEET_VERSION`): ``fleet``, every
+    formation of the leader's scenario (its own included; () where not said)."""
 
     formation: str
     state: str
@@ -926,10 +934,17 @@ class StatusMsg:
     reason: str = ""
     refused: int = 0
     refusal: str = ""
+    fleet: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         _check_id(self.formation, "formation")
         _check_id(self.leader, "leader")
+        fleet = tuple(self.fleet)
+        if len(fleet) > MAX_ITEMS:
+            raise ValueError(f"fleet must name at most {MAX_ITEMS} formations, got {len(fleet)}")
+        for k, name in enumerate(fleet):
+            _check_id(name, f"fleet[{k}]")
+        object.__setattr__(self, "fleet", fleet)
         for name in ("reason", "refusal"):
             text = getattr(self, name)
             if not isinstance(text, str) or len(text) > MAX_REASON:
@@ -970,7 +985,10 @@ def encode_nav(msg: GoalMsg | PlanMsg | StatusMsg) -> bytes:
         t = (_VERSION, msg.formation, msg.state, msg.leader, msg.goal_stamp, msg.gx, msg.gy,
              _heading_list(msg.heading), msg.distance, float(msg.waypoint), float(msg.waypoints),
              msg.wx, msg.wy, msg.stamp)
-        if msg.state == "unreachable" or msg.reason or msg.refused or msg.refusal:
+        if msg.fleet:
+            t = (_STATUS_FLEET_VERSION, *t[1:], msg.reason, float(msg.refused), msg.refusal,
+                 list(msg.fleet))
+        elif msg.state == "unreachable" or msg.reason or msg.refused or msg.refusal:
             t = (_STATUS_VERSION, *t[1:], msg.reason, float(msg.refused), msg.refusal)
     else:
         raise ValueError(f"msg must be a GoalMsg, PlanMsg or StatusMsg, got {type(msg).__name__}")
@@ -1039,13 +1057,22 @@ def _parse_status(r: _Reader, version: int = WIRE_VERSION) -> StatusMsg:
         reason = r.string("reason")
         (refused,) = r.floats(1, "refused")
         refusal = r.string("refusal")
+    fleet: tuple[str, ...] = ()
+    if version >= STATUS_FLEET_VERSION:
+        n = r.count("fleet", MAX_ITEMS)
+        fleet = tuple(r.string(f"fleet[{k}]") for k in range(n))
     # whole numbers carried as f64: StatusMsg checks them and makes them ints
     return StatusMsg(formation, state, leader, goal_stamp, gx, gy, heading, distance,
-                     waypoint, waypoints, wx, wy, stamp, reason, refused, refusal)  # type: ignore[arg-type]
+                     waypoint, waypoints, wx, wy, stamp, reason, refused, refusal,  # type: ignore[arg-type]
+                     fleet)
 
 
 def _parse_status_v2(r: _Reader) -> StatusMsg:
     return _parse_status(r, STATUS_VERSION)
+
+
+def _parse_status_v3(r: _Reader) -> StatusMsg:
+    return _parse_status(r, STATUS_FLEET_VERSION)
 
 
 def decode_goal(payload: bytes | zenoh.ZBytes) -> GoalMsg:
@@ -1063,7 +1090,8 @@ def decode_plan(payload: bytes | zenoh.ZBytes) -> PlanMsg:
 def decode_status(payload: bytes | zenoh.ZBytes) -> StatusMsg:
     """Decode a ``status`` payload; raises only :class:`DecodeError`."""
     return _decode(payload, _parse_status, "status",
-                   parsers={WIRE_VERSION: _parse_status, STATUS_VERSION: _parse_status_v2})
+                   parsers={WIRE_VERSION: _parse_status, STATUS_VERSION: _parse_status_v2,
+                            STATUS_FLEET_VERSION: _parse_status_v3})
 
 
 DECODERS.update({keys.GOAL: decode_goal, keys.PLAN: decode_plan, keys.STATUS: decode_status})

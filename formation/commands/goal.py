@@ -21,7 +21,8 @@ that wants credentials, or refuses them, is said so in one line (:func:`wire.zco
 ``goal`` refuses at once (exit 2, one line) a goal that is not finite, lies outside the
 coordinate range of every scenario (:data:`scenario.limits.COORDINATE`), or a route longer than a
 plan holds (:func:`scenario.extent.goal_problem`; the leader checks the goal against its own
-scenario's extent again), and a formation that no leader answers for while others do.
+scenario's extent again), and a formation that no answering leader's status names (each names
+every formation of its scenario: a formation whose own leader has not answered yet is known).
 """
 
 from __future__ import annotations
@@ -142,10 +143,17 @@ def check_goal(goal: GoalMsg) -> None:
 
 
 def unknown_formation(session: zenoh.Session, prefix: str, fid: str, timeout: float) -> str | None:
-    """Why ``fid`` is not a formation of the fleet (other leaders answer, not its), or None."""
-    known = [s.formation for s in query_status(session, prefix, timeout=timeout)]
-    if not known or fid in known:
+    """Why ``fid`` is not a formation of the fleet, or None. A leader's status names every
+    formation of its scenario (``fleet``, status version 3), so one answer is enough: a formation
+    whose own leader has not answered yet (a fleet starting, a busy leader) is still known. Only
+    where no answer says so (older leaders) do the formations that answered stand for the fleet."""
+    found = query_status(session, prefix, timeout=timeout)
+    if not found:
         return None  # none answered yet (a fleet starting): wait for it as before
+    said = [s.fleet for s in found if s.fleet]
+    known = sorted(set().union(*said)) if said else [s.formation for s in found]
+    if fid in known:
+        return None
     return f"no formation {fid!r} in the fleet (known: {', '.join(known)})"
 
 
