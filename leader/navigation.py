@@ -148,7 +148,7 @@ class Navigator:
                  tolerance: float = 0.05, heading: float | None = None,
                  fleet: Sequence[str] = ()) -> None:
         self.formation = formation
-        # every formation of the scenario, this one included (on ``status``, version 3)
+        # every formation of the scenario, this one included (on ``status``, version 2)
         self.fleet = tuple(sorted({formation, *fleet})) if fleet else ()
         self.leader_id = leader_id
         self.reference = dict(reference)

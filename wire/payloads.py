@@ -74,18 +74,15 @@ SHAPE_BOX = 2
 #: ``state`` is at version 2 (it gained the heading); a version-1 decoder refuses it by its
 #: version byte ("unsupported version 2"), and this decoder refuses version-1 states.
 STATE_VERSION = 2
-#: ``status`` version 2 adds why the formation is in its state (``reason``: the planner's word
-#: for ``unreachable``), how many goals its leader refused (``refused``, a whole number carried
-#: as f64) and why it refused the last one (``refusal``). A status with nothing of these is
-#: written as version 1, byte for byte as before, so an older fleet manager still reads it; one
-#: with any of them (or the state ``unreachable``) is version 2, which an older decoder refuses
-#: by its version byte.
+#: ``status`` version 2 (the one new status version of issues 25-27) adds why the formation is
+#: in its state (``reason``: the planner's word for ``unreachable``), how many goals its leader
+#: refused (``refused``, a whole number carried as f64), why it refused the last one
+#: (``refusal``) and every formation of the leader's scenario, its own included (``fleet``:
+#: ``formation goal`` tells an unknown formation from one whose leader has not answered yet by
+#: any one leader's answer). A status with nothing of these is written as version 1, byte for
+#: byte as before, so an older fleet manager still reads it; one with any of them (or the state
+#: ``unreachable``) is version 2, which an older decoder refuses by its version byte.
 STATUS_VERSION = 2
-#: ``status`` version 3 adds, after version 2's fields, ``fleet``: every formation of the
-#: leader's scenario, its own included (list[str]). ``formation goal`` tells an unknown
-#: formation from one whose leader has not answered yet by it, from any one leader's answer.
-#: A status without it is written as version 1 or 2 as before.
-STATUS_FLEET_VERSION = 3
 CMD_ACCEL_VERSION = 2  # Cmd with a double integrator's acceleration (ax, ay)
 #: ``goal`` and ``plan`` version 2 add a heading (0 or 1) per waypoint or route point, after the
 #: stamp (issue 26: the footprint's route turns it; a hand-given waypoint may say how). One
@@ -454,7 +451,6 @@ _VERSION = UInt8(WIRE_VERSION)
 _SHAPES_VERSION = UInt8(SHAPES_VERSION)
 _STATE_VERSION = UInt8(STATE_VERSION)
 _STATUS_VERSION = UInt8(STATUS_VERSION)
-_STATUS_FLEET_VERSION = UInt8(STATUS_FLEET_VERSION)
 _CMD_ACCEL_VERSION = UInt8(CMD_ACCEL_VERSION)
 _ROUTE_VERSION = UInt8(ROUTE_VERSION)
 
@@ -780,8 +776,8 @@ DECODERS: dict[str, Callable[[bytes | zenoh.ZBytes], Any]] = {
 #                route:list[(x, y)], members:list[(id:str, gx, gy)], stamp
 # ``StatusMsg``  version, formation:str, state:str, leader:str, goal_stamp, gx, gy,
 #                heading:list[f64] (0 or 1), distance, waypoint, waypoints, wx, wy, stamp
-#                version 2 (:data:`STATUS_VERSION`) adds: reason:str, refused, refusal:str
-#                version 3 (:data:`STATUS_FLEET_VERSION`) adds after those: fleet:list[str]
+#                version 2 (:data:`STATUS_VERSION`) adds: reason:str, refused, refusal:str,
+#                fleet:list[str]
 # ``GoalMsg`` and ``PlanMsg`` version 2 (:data:`ROUTE_VERSION`) add, after the stamp:
 #                headings:list[list[f64] (0 or 1)], one per waypoint or route point
 #
@@ -915,8 +911,8 @@ class StatusMsg:
     route [m], the current waypoint (index, route length, position) and the leader's id.
     Version 2 (:data:`STATUS_VERSION`): ``reason`` why the state (``unreachable``: why no route
     reaches the goal), ``refused`` goals the leader refused since it started and ``refusal``, why
-    it refused the last one. Version 3 (:data:`STATUS_FLEET_VERSION`): ``fleet``, every
-    formation of the leader's scenario (its own included; () where not said)."""
+    it refused the last one, and ``fleet``, every formation of the leader's scenario (its own
+    included; () where not said)."""
 
     formation: str
     state: str
@@ -985,11 +981,9 @@ def encode_nav(msg: GoalMsg | PlanMsg | StatusMsg) -> bytes:
         t = (_VERSION, msg.formation, msg.state, msg.leader, msg.goal_stamp, msg.gx, msg.gy,
              _heading_list(msg.heading), msg.distance, float(msg.waypoint), float(msg.waypoints),
              msg.wx, msg.wy, msg.stamp)
-        if msg.fleet:
-            t = (_STATUS_FLEET_VERSION, *t[1:], msg.reason, float(msg.refused), msg.refusal,
+        if msg.state == "unreachable" or msg.reason or msg.refused or msg.refusal or msg.fleet:
+            t = (_STATUS_VERSION, *t[1:], msg.reason, float(msg.refused), msg.refusal,
                  list(msg.fleet))
-        elif msg.state == "unreachable" or msg.reason or msg.refused or msg.refusal:
-            t = (_STATUS_VERSION, *t[1:], msg.reason, float(msg.refused), msg.refusal)
     else:
         raise ValueError(f"msg must be a GoalMsg, PlanMsg or StatusMsg, got {type(msg).__name__}")
     return z_serialize(t).to_bytes()
@@ -1058,7 +1052,7 @@ def _parse_status(r: _Reader, version: int = WIRE_VERSION) -> StatusMsg:
         (refused,) = r.floats(1, "refused")
         refusal = r.string("refusal")
     fleet: tuple[str, ...] = ()
-    if version >= STATUS_FLEET_VERSION:
+    if version >= STATUS_VERSION:
         n = r.count("fleet", MAX_ITEMS)
         fleet = tuple(r.string(f"fleet[{k}]") for k in range(n))
     # whole numbers carried as f64: StatusMsg checks them and makes them ints
@@ -1069,10 +1063,6 @@ def _parse_status(r: _Reader, version: int = WIRE_VERSION) -> StatusMsg:
 
 def _parse_status_v2(r: _Reader) -> StatusMsg:
     return _parse_status(r, STATUS_VERSION)
-
-
-def _parse_status_v3(r: _Reader) -> StatusMsg:
-    return _parse_status(r, STATUS_FLEET_VERSION)
 
 
 def decode_goal(payload: bytes | zenoh.ZBytes) -> GoalMsg:
@@ -1090,8 +1080,7 @@ def decode_plan(payload: bytes | zenoh.ZBytes) -> PlanMsg:
 def decode_status(payload: bytes | zenoh.ZBytes) -> StatusMsg:
     """Decode a ``status`` payload; raises only :class:`DecodeError`."""
     return _decode(payload, _parse_status, "status",
-                   parsers={WIRE_VERSION: _parse_status, STATUS_VERSION: _parse_status_v2,
-                            STATUS_FLEET_VERSION: _parse_status_v3})
+                   parsers={WIRE_VERSION: _parse_status, STATUS_VERSION: _parse_status_v2})
 
 
 DECODERS.update({keys.GOAL: decode_goal, keys.PLAN: decode_plan, keys.STATUS: decode_status})

@@ -144,7 +144,7 @@ def check_goal(goal: GoalMsg) -> None:
 
 def unknown_formation(session: zenoh.Session, prefix: str, fid: str, timeout: float) -> str | None:
     """Why ``fid`` is not a formation of the fleet, or None. A leader's status names every
-    formation of its scenario (``fleet``, status version 3), so one answer is enough: a formation
+    formation of its scenario (``fleet``, status version 2), so one answer is enough: a formation
     whose own leader has not answered yet (a fleet starting, a busy leader) is still known. Only
     where no answer says so (older leaders) do the formations that answered stand for the fleet."""
     found = query_status(session, prefix, timeout=timeout)
