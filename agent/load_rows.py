@@ -54,6 +54,7 @@ import math
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
+from geometry.rigid import fit_sums
 from geometry.shapes import Shape, segment_distance, shape_distance
 
 from .barriers import Obstacle, Partner
@@ -82,13 +83,7 @@ def place_load(start: Sequence[Point], outline: Sequence[Point],
     """The load whose outline (``outline``, about the start bodies' centroid) the fit of the
     start body offsets ``start`` (about their centroid, member order) onto ``bodies`` places;
     None when the fit has no angle (every start offset zero, or the bodies all at one point)."""
-    n = len(bodies)
-    cx = sum(b[0] for b in bodies) / n
-    cy = sum(b[1] for b in bodies) / n
-    cross = dot = 0.0
-    for (ax, ay), (bx, by) in zip(start, bodies, strict=True):
-        cross += ax * (by - cy) - ay * (bx - cx)
-        dot += ax * (bx - cx) + ay * (by - cy)
+    cx, cy, cross, dot = fit_sums(start, bodies)
     q = cross * cross + dot * dot
     if q < _TINY:
         return None

@@ -38,6 +38,30 @@ class RigidMotion(NamedTuple):
         return tuple(self.apply(p) for p in points)
 
 
+class FitSums(NamedTuple):
+    """What the fit's rotation is made of: the centroid (bx, by) of the current points, and
+    sum a_i' x b_i' and sum a_i' . b_i' (module docstring); theta = atan2(cross, dot)."""
+
+    bx: float
+    by: float
+    cross: float
+    dot: float
+
+
+def fit_sums(offsets: Sequence[Point], now: Sequence[Point]) -> FitSums:
+    """:class:`FitSums` of the start points' ``offsets`` about their centroid (a_i') and the
+    current points ``now`` (b_i, member order)."""
+    n = len(now)
+    bx = sum(p[0] for p in now) / n
+    by = sum(p[1] for p in now) / n
+    cross = dot = 0.0
+    for (ux, uy), (qx, qy) in zip(offsets, now, strict=True):
+        vx, vy = qx - bx, qy - by
+        cross += ux * vy - uy * vx
+        dot += ux * vx + uy * vy
+    return FitSums(bx, by, cross, dot)
+
+
 def rigid_fit(start: Sequence[Point], now: Sequence[Point]) -> RigidMotion:
     """The least-squares proper rigid motion mapping ``start[i]`` onto ``now[i]`` (see the
     module docstring). One point: a pure translation; points all at their centroid: no rotation."""
@@ -46,13 +70,7 @@ def rigid_fit(start: Sequence[Point], now: Sequence[Point]) -> RigidMotion:
         raise ValueError(f"start/now: need the same positive number of points, got {n}, {len(now)}")
     ax = sum(p[0] for p in start) / n
     ay = sum(p[1] for p in start) / n
-    bx = sum(p[0] for p in now) / n
-    by = sum(p[1] for p in now) / n
-    cross = dot = 0.0
-    for (px, py), (qx, qy) in zip(start, now, strict=True):
-        ux, uy, vx, vy = px - ax, py - ay, qx - bx, qy - by
-        cross += ux * vy - uy * vx
-        dot += ux * vx + uy * vy
+    bx, by, cross, dot = fit_sums([(px - ax, py - ay) for px, py in start], now)
     theta = math.atan2(cross, dot) if (cross or dot) else 0.0
     c, s = math.cos(theta), math.sin(theta)
     return RigidMotion(theta, bx - (c * ax - s * ay), by - (s * ax + c * ay))
