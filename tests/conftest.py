@@ -5,11 +5,16 @@ An agent catches a failure inside its tick, answers it with the zero command and
 is a bug (issue 28). So after each test that had a ``tmp_path``, every ``summary.json`` under
 it is read and the test errors when one counts a tick error; a test that causes them on
 purpose marks itself ``tick_errors_expected``.
+
+And a test leaves SIGINT's handler as it found it: an ignored SIGINT is inherited by every
+process the tests start later (a ``formation replay`` then never stopped on Ctrl-C, and three
+tests of another file failed far from the cause).
 """
 
 from __future__ import annotations
 
 import json
+import signal
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -40,4 +45,15 @@ def _no_hidden_tick_errors(request: pytest.FixtureRequest) -> Iterator[None]:
     found = tick_errors_in(Path(tmp))
     if found:
         pytest.fail("agents' ticks raised (tick_errors; their logs say where): " + "; ".join(found),
+                    pytrace=False)
+
+
+@pytest.fixture(autouse=True)
+def _sigint_left_as_found() -> Iterator[None]:
+    before = signal.getsignal(signal.SIGINT)
+    yield
+    after = signal.getsignal(signal.SIGINT)
+    if after is not before:
+        signal.signal(signal.SIGINT, before)  # the tests after this one run as they should
+        pytest.fail(f"the test left SIGINT's handler changed ({before!r} -> {after!r})",
                     pytrace=False)
