@@ -1047,12 +1047,11 @@ def _parse_status(r: _Reader, version: int = WIRE_VERSION) -> StatusMsg:
     heading = _read_heading(r)
     distance, waypoint, waypoints, wx, wy, stamp = r.floats(6, "distance .. stamp")
     reason, refused, refusal = "", 0.0, ""
+    fleet: tuple[str, ...] = ()
     if version >= STATUS_VERSION:
         reason = r.string("reason")
         (refused,) = r.floats(1, "refused")
         refusal = r.string("refusal")
-    fleet: tuple[str, ...] = ()
-    if version >= STATUS_VERSION:
         n = r.count("fleet", MAX_ITEMS)
         fleet = tuple(r.string(f"fleet[{k}]") for k in range(n))
     # whole numbers carried as f64: StatusMsg checks them and makes them ints
