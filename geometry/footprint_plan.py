@@ -53,6 +53,7 @@ PLAN_MARGIN = 0.05  # [m] the footprint's clearance beyond Ds (members) and outl
 SPACING = 0.1  # [m] the lattice's cell
 FINE_SPACING = 0.05  # [m] the lattice's cell in a small scene
 FINE_CELLS = 100_000  # a scene of at most this many fine cells (250 m^2) is planned on them
+FALLBACK_CELLS = 400_000  # a larger scene (up to 1,000 m^2) is planned on them where SPACING fails
 HEADINGS = 32  # headings on the lattice (every 11.25 degrees)
 GREEDY = 1.5  # the heuristic's weight (>1: fewer poses expanded, a route at most this much longer)
 END_RADIUS = 0.5  # [m] beyond the footprint's radius: around the start and the goal, no worse than they are
@@ -515,14 +516,28 @@ def plan_footprint(start: Pose3, goal: Pose3, body: Body, shapes: Sequence[Shape
                    limit: int = MAX_EXPANSIONS) -> FootprintPlan:
     """The footprint's route from pose ``start`` to pose ``goal`` around ``shapes`` and
     ``circles`` (module docstring); cells of ``h`` [m], by default FINE_SPACING where the area
-    holds at most FINE_CELLS of them (a small scene: narrow slots), else SPACING."""
+    holds at most FINE_CELLS of them (a small scene: narrow slots), else SPACING, and where
+    SPACING finds no route, FINE_SPACING again if the area holds at most FALLBACK_CELLS of them:
+    a move must score MOVE_NEED h, so a gap the footprint fits by less than about 0.14 m a side
+    is shut on the coarse lattice (a hexagon of six robots between two shelves 1.68 m apart,
+    montecarlo warehouse run 100162) and open on the fine one."""
     if not shapes and not circles:  # an open floor: the straight move (what the search finds)
         return FootprintPlan((goal,))
-    rho = body.rho
-    lat = lattice_for(start, goal, shapes, circles, rho, h or FINE_SPACING, headings)
-    if h is None and lat.nx * lat.ny > FINE_CELLS:
-        lat = lattice_for(start, goal, shapes, circles, rho, SPACING, headings)
-    h = lat.h
+    fine = lattice_for(start, goal, shapes, circles, body.rho, h or FINE_SPACING, headings)
+    if h is not None or fine.nx * fine.ny <= FINE_CELLS:
+        return _plan_on(fine, start, goal, body, shapes, circles, limit)
+    coarse = _plan_on(lattice_for(start, goal, shapes, circles, body.rho, SPACING, headings),
+                      start, goal, body, shapes, circles, limit)
+    if coarse.route or fine.nx * fine.ny > FALLBACK_CELLS:
+        return coarse
+    again = _plan_on(fine, start, goal, body, shapes, circles, limit)
+    return again._replace(expanded=coarse.expanded + again.expanded)
+
+
+def _plan_on(lat: Lattice, start: Pose3, goal: Pose3, body: Body, shapes: Sequence[Shape],
+             circles: Sequence[Circle], limit: int) -> FootprintPlan:
+    """:func:`plan_footprint` on the lattice ``lat``."""
+    rho, h, headings = body.rho, lat.h, lat.headings
     big_f, big_g = fields(lat, shapes, circles, body.radius)
     cover = min([body.radius] + [sh.ds for sh in shapes])
     sc = scores(lat, body, big_f, big_g, cover)

@@ -72,6 +72,27 @@ def test_a_line_crosswise_to_an_aisle_turns_into_it_and_back():
         assert _clearance(body, pose, _aisle(), ()) > 0.0
 
 
+def test_a_large_hall_is_planned_again_on_the_fine_lattice_where_the_coarse_one_is_shut():
+    """A hall of 22 x 13 m (over FINE_CELLS fine cells: planned on the 0.1 m lattice) whose one
+    way north is a 1.68 m gap in a shelf row; a hexagon of six robots fits it turned, by less
+    than the coarse lattice's MOVE_NEED h a side (montecarlo warehouse run 100162)."""
+    hall = [segment(f"w{k}", a, b, 0.15) for k, (a, b) in enumerate(
+        [((-11, -6.5), (11, -6.5)), ((11, -6.5), (11, 6.5)), ((11, 6.5), (-11, 6.5)),
+         ((-11, 6.5), (-11, -6.5))])]
+    row = [box("west", (-5.92, 0.0), (10.16, 0.9), 0.0, 0.15),  # x -11.0 .. -0.84
+           box("east", (5.92, 0.0), (10.16, 0.9), 0.0, 0.15)]  # x 0.84 .. 11.0
+    hexagon = Body(tuple((0.5 * math.cos(k * math.pi / 3), 0.5 * math.sin(k * math.pi / 3))
+                         for k in range(6)), radius=0.105, margin=0.15)
+    start, goal = (0.0, -3.0, 0.0), (0.0, 3.0, 0.0)
+    coarse = plan_footprint(start, goal, hexagon, hall + row, h=0.1)
+    assert coarse.route == ()  # shut at 0.1 m
+    plan = plan_footprint(start, goal, hexagon, hall + row)
+    assert plan.reason == "" and plan.route[-1] == goal, plan
+    assert plan.expanded > coarse.expanded  # the coarse search ran first
+    for pose in _legs(start, plan.route):
+        assert _clearance(hexagon, pose, hall + row, ()) > 0.0
+
+
 def test_no_route_into_a_closed_room_says_why():
     room = [segment(f"w{k}", a, b, 0.15) for k, (a, b) in enumerate(
         [((1, -1), (1, 1)), ((1, 1), (3, 1)), ((3, 1), (3, -1)), ((3, -1), (1, -1))])]
