@@ -42,6 +42,7 @@ from pathlib import Path  # noqa: E402
 from agent.config import load_config  # noqa: E402
 from agent.faults import LinkFaults  # noqa: E402
 from agent.node import AgentNode, NodeOptions  # noqa: E402
+from agent.replan import close_plan_pool  # noqa: E402
 from runtime.lifeline import watch_parent  # noqa: E402
 from wire.acl import read_credentials  # noqa: E402
 from wire.zconf import UsrPwdAuth, use_zenoh_threads  # noqa: E402
@@ -210,6 +211,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         logger.exception("agent %s failed", cfg.robot_id)
         print(f"agent {cfg.robot_id}: {type(exc).__name__}: {exc}", file=sys.stderr)
         status = 1
+    close_plan_pool()  # not left to Python's exit, which waits for the worker's current plan
     if ns.stats is not None and written.acquire(blocking=False):
         try:
             write_stats(node, ns.stats)

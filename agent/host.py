@@ -51,6 +51,7 @@ import zenoh  # noqa: E402
 from agent.__main__ import SignalWatch, build_parser, node_options, stop_event, write_stats  # noqa: E402
 from agent.config import AgentConfig, load_config  # noqa: E402
 from agent.node import AgentNode, NodeOptions, zenoh_config  # noqa: E402
+from agent.replan import close_plan_pool  # noqa: E402
 from agent.schedule import PoseScheduler  # noqa: E402
 from agent.stats import AgentStats  # noqa: E402
 from runtime.lifeline import watch_parent  # noqa: E402
@@ -237,6 +238,7 @@ def serve_planned(planned: list[tuple[AgentConfig, NodeOptions, Path]], ns: argp
     finally:
         if worker is not None:
             worker.stop()
+        close_plan_pool()  # as agent.__main__: not left to Python's exit
     for node, (_, _, stats) in zip(nodes, planned, strict=False):
         write_stats(node, stats)
     return status

@@ -185,3 +185,40 @@ def test_the_route_plan_worker_runs_at_the_lowest_priority_and_ends_when_its_age
             break
         assert time.monotonic() < deadline, "the plan worker outlived its agent"
         time.sleep(0.1)
+
+
+PLAN_POOL_CLOSE_CHILD = """
+import os, time
+from agent.replan import close_plan_pool, plan_pool
+pool = plan_pool()
+pool.submit(int).result()
+(pid,) = list(pool._processes)
+busy = pool.submit(time.sleep, 600)  # a plan that takes the worker as long as a busy CPU would
+while not busy.running():
+    time.sleep(0.01)
+print(pid, flush=True)
+close_plan_pool()
+"""
+
+
+def test_a_stopping_agent_does_not_wait_for_its_plan_workers_current_plan():
+    """agent.replan.close_plan_pool (agent.__main__ and agent.host call it on the way out):
+    the process exits at once although its worker is in the middle of a plan; left to Python's
+    exit, the executor waited for the plan (here 600 s) and the agent outlived its SIGTERM."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    child = subprocess.run([sys.executable, "-c", PLAN_POOL_CLOSE_CHILD], capture_output=True,
+                           text=True, env=dict(os.environ), timeout=120)  # ends only a hang
+    assert child.returncode == 0, child.stderr
+    worker = int(child.stdout.split()[0])
+    deadline = time.monotonic() + 60.0
+    while True:
+        try:
+            os.kill(worker, 0)
+        except ProcessLookupError:
+            break
+        assert time.monotonic() < deadline, "the plan worker outlived its agent"
+        time.sleep(0.1)
