@@ -145,6 +145,22 @@ def test_a_route_given_by_hand_is_never_planned_again_and_survives_the_config_fi
     assert not planned.route_by_hand and "route_by_hand" not in config_to_dict(planned)
 
 
+def _wait_until_gone(worker: int) -> None:
+    """Until the plan worker ``worker`` has exited; fails if it outlives its agent by 60 s (the
+    limit only ends a wait that would never end)."""
+    import os
+    import time
+
+    deadline = time.monotonic() + 60.0
+    while True:
+        try:
+            os.kill(worker, 0)
+        except ProcessLookupError:
+            return
+        assert time.monotonic() < deadline, "the plan worker outlived its agent"
+        time.sleep(0.1)
+
+
 PLAN_POOL_CHILD = """
 import os, sys, time
 from agent.replan import PLAN_NICE, plan_pool
@@ -163,7 +179,6 @@ def test_the_route_plan_worker_runs_at_the_lowest_priority_and_ends_when_its_age
     import signal
     import subprocess
     import sys
-    import time
 
     child = subprocess.Popen([sys.executable, "-c", PLAN_POOL_CHILD], stdout=subprocess.PIPE,
                              text=True, env=dict(os.environ))
@@ -177,14 +192,7 @@ def test_the_route_plan_worker_runs_at_the_lowest_priority_and_ends_when_its_age
         child.wait(30)
         if child.stdout is not None:
             child.stdout.close()
-    deadline = time.monotonic() + 60.0  # only ends a wait that would never end
-    while True:
-        try:
-            os.kill(worker, 0)
-        except ProcessLookupError:
-            break
-        assert time.monotonic() < deadline, "the plan worker outlived its agent"
-        time.sleep(0.1)
+    _wait_until_gone(worker)
 
 
 PLAN_POOL_CLOSE_CHILD = """
@@ -208,17 +216,9 @@ def test_a_stopping_agent_does_not_wait_for_its_plan_workers_current_plan():
     import os
     import subprocess
     import sys
-    import time
 
     child = subprocess.run([sys.executable, "-c", PLAN_POOL_CLOSE_CHILD], capture_output=True,
                            text=True, env=dict(os.environ), timeout=120)  # ends only a hang
     assert child.returncode == 0, child.stderr
     worker = int(child.stdout.split()[0])
-    deadline = time.monotonic() + 60.0
-    while True:
-        try:
-            os.kill(worker, 0)
-        except ProcessLookupError:
-            break
-        assert time.monotonic() < deadline, "the plan worker outlived its agent"
-        time.sleep(0.1)
+    _wait_until_gone(worker)
