@@ -17,7 +17,7 @@ from geometry.ellipse import ellipse_value
 from geometry.polygon import area, convex_hull, points_distance, polygon_distance
 from geometry.rigid import RigidMotion, rigid_fit
 from scenario import ScenarioError
-from scenario.cargo import load_polygon, placed_load
+from scenario.cargo import load_clearances, load_polygon, loads_now, placed_load
 from scenario.load import formation_axes, scenario_from_dict, scenario_warnings, start_ellipse
 from simulator.inprocess import simulate
 from simulator.metrics import SafetyMonitor
@@ -239,14 +239,19 @@ def test_a_wall_between_a_pair_is_a_load_collision_the_robots_alone_miss():
     assert 1.5 <= loads[0]["x"] <= 2.5 + 0.1
 
 
-def _with_pair_b():
-    """BASE's triangle A and a pair B (b1, b2) beside it."""
+def _with_pair_b_mapping() -> dict:
+    """BASE's triangle A and a pair B (b1, b2) beside it, as a mapping."""
     two = copy.deepcopy(BASE)
     two["formations"].append({"name": "B", "leader": "b1",
                               "robots": {"b1": {"start": [3.0, 3.0], "goal": [5.0, 3.0]},
                                          "b2": {"start": [3.0, 3.5], "goal": [5.0, 3.5]}},
                               "edges": [["b1", "b2"]]})
-    return scenario_from_dict(two)
+    return two
+
+
+def _with_pair_b():
+    """BASE's triangle A and a pair B (b1, b2) beside it."""
+    return scenario_from_dict(_with_pair_b_mapping())
 
 
 def test_own_members_never_count_and_another_formations_robot_does():
@@ -264,6 +269,42 @@ def test_own_members_never_count_and_another_formations_robot_does():
     kinds = sorted((e["a"], e["b"]) for e in mon.collision_log if e.get("kind") == "load")
     assert ("A", "b1") in kinds
     assert mon.update(0.2, pos, []) is None and mon.collisions == len(mon.collision_log)  # held
+
+
+def _with_pair_b_and_circles():
+    d = copy.deepcopy(BASE)
+    d["formations"] += _with_pair_b_mapping()["formations"][1:]
+    d["obstacles"] = [{"name": "o1", "center": [8.0, 8.0], "safe_distance": 0.4},
+                      {"name": "o2", "center": [-8.0, 8.0], "safe_distance": 0.9}]
+    return scenario_from_dict(d)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.tuples(st.floats(-4.0, 5.0), st.floats(-4.0, 5.0)), min_size=4, max_size=4),
+       angle, st.floats(0.0, 2.0))
+def test_the_bounding_circle_sort_leaves_out_only_what_is_out_of_reach(pts, theta, reach):
+    """load_clearances measures only the robots and circles whose disks come near a load's
+    bounding circle: exactly what measuring every one against every load gives."""
+    s = _with_pair_b_and_circles()
+    bodies = np.array([r.start[:2] for r in s.robots])
+    bodies[3], bodies[4] = pts[0], pts[1]  # B's two robots anywhere near A
+    circles = [pts[2], pts[3]]
+    fit = RigidMotion(theta, 0.3, -0.2)
+    a_now = [fit.apply((float(bodies[m, 0]), float(bodies[m, 1]))) for m in range(3)]
+    bodies[:3] = a_now
+    loads = loads_now(s, [load_polygon(f) for f in s.formations], bodies)
+    got = [c for c in load_clearances(s, loads, bodies, circles, reach)
+           if s.formations[c.formation].name == "A" and c.other in ("b1", "b2", "o1", "o2")]
+    want = []
+    for m, rid in ((3, "b1"), (4, "b2")):
+        d = float(points_distance(bodies[m:m + 1], loads[0])[0]) - s.robot.radius
+        if d <= reach:
+            want.append((rid, d))
+    for (x, y), o in zip(circles, s.obstacles, strict=True):
+        d = float(points_distance(np.array([(x, y)]), loads[0])[0]) - (o.safe_distance - s.robot.radius)
+        if d <= reach:
+            want.append((o.name, d))
+    assert [(c.other, c.clearance) for c in got] == want
 
 
 def test_a_contact_logs_its_first_tick_and_keeps_its_deepest_until_released():
