@@ -55,7 +55,7 @@ logger = logging.getLogger(__name__)
 
 STATUS_PERIOD_S = 1.0  # [s] status publication period (stamp time: simulated in lock-step)
 REPUBLISH_S = 1.0  # [s] the leader puts its plan again this often
-STALLED_AFTER_S = 2.0  # [s] still this long away from the goal (the jam rule's clock): stalled
+STALLED_AFTER_S = 2.0  # [s] still this long away from the goal (agent.control.update_stall): stalled
 GOAL_FUTURE_S = 1.0  # [s] real time: a goal stamped further ahead of the leader's clock is refused
 GOAL_MAX_AGE_S = 5.0  # [s] real time: an older goal is refused (the goal command re-sends each second)
 

@@ -36,12 +36,17 @@ def limit_rows(theta: float, lookahead: float, max_speed: float, max_turn_rate: 
 
 STEER_GAIN = 2.0  # [1/s] turn rate per radian of heading error in the steered nominal
 STEER_LEFT_BIAS = math.radians(20.0)  # headings this close to opposite the motion turn left
+# A robot already turning keeps its way round while the aim lies within this beyond half a turn
+# that way (a hysteresis about "behind": the robot's own turn moves an aim near the bias's edge
+# across it, and the robot turned left, right, left on consecutive ticks).
+STEER_KEEP = math.radians(45.0)
+STEER_KEEP_RATE = 0.1  # [rad/s] turning at least this fast counts as turning (steer's ``turning``)
 SMALL_TURN = 1e-7  # [rad] a step turning less than this is integrated as its chord (integrate)
 STEER_REVERSE_RANGE = 0.1  # [m] this close to its goal a robot may back up instead of turning
 
 
 def steer(wx: float, wy: float, theta: float, lookahead: float, max_turn_rate: float,
-          reverse: bool = False, *, lead: float) -> tuple[float, float]:
+          reverse: bool = False, *, lead: float, turning: float = 0.0) -> tuple[float, float]:
     """The look-ahead point's nominal velocity for an intended point velocity w: turn first,
     then drive (the unicycle's own nominal; eq. 4.2 stays the intended motion).
 
@@ -61,8 +66,10 @@ def steer(wx: float, wy: float, theta: float, lookahead: float, max_turn_rate: f
     a robot whose slot lay behind its look-ahead point saw w swing round as fast as it turned and
     turned back and forth in place (a reversal every tick, measured in
     tests/scenarios/shelf-pushed-unicycle.yaml). Members of a formation turn the same way: an
-    error within STEER_LEFT_BIAS of opposite turns left. With ``reverse`` (close to the goal)
-    the robot backs up rather than turning round when the aim lies behind it."""
+    error within STEER_LEFT_BIAS of opposite turns left. A robot already ``turning`` [rad/s,
+    its last turn rate] at least STEER_KEEP_RATE keeps its way round while the error that way
+    is at most half a turn plus STEER_KEEP (:func:`turn_error`). With ``reverse`` (close to
+    the goal) the robot backs up rather than turning round when the aim lies behind it."""
     if math.hypot(wx, wy) < 1e-9:
         return (0.0, 0.0)
     c, s = math.cos(theta), math.sin(theta)
@@ -72,10 +79,21 @@ def steer(wx: float, wy: float, theta: float, lookahead: float, max_turn_rate: f
         err = (err + 0.5 * math.pi) % math.pi - 0.5 * math.pi  # nearest of forwards and back
         v = along
     else:
-        err = (err + math.pi - STEER_LEFT_BIAS) % (2.0 * math.pi) - math.pi + STEER_LEFT_BIAS
+        err = turn_error(err, turning)
         v = max(along, 0.0)
     omega = max(-max_turn_rate, min(max_turn_rate, STEER_GAIN * err))
     return from_unicycle(v, omega, theta, lookahead)
+
+
+def turn_error(err: float, turning: float = 0.0) -> float:
+    """The heading error ``err`` [rad] as the turn to make: the short way round, left where
+    the aim lies within STEER_LEFT_BIAS of behind; for a robot ``turning`` [rad/s] at least
+    STEER_KEEP_RATE, its own way round while that is at most pi + STEER_KEEP."""
+    short = (err + math.pi - STEER_LEFT_BIAS) % (2.0 * math.pi) - math.pi + STEER_LEFT_BIAS
+    if abs(turning) < STEER_KEEP_RATE or short * turning >= 0.0:
+        return short
+    other = short - math.copysign(2.0 * math.pi, short)  # the same aim, the robot's own way
+    return other if abs(other) <= math.pi + STEER_KEEP else short
 
 
 def _ahead(wx: float, wy: float, theta: float) -> bool:

@@ -73,6 +73,51 @@ def test_a_robot_pulled_towards_a_slot_near_its_body_turns_one_way_until_its_poi
     assert len(signs) <= 1  # no back and forth
 
 
+@settings(max_examples=300, deadline=None)
+@given(st.floats(-3 * math.pi, 3 * math.pi), st.floats(-3.0, 3.0))
+def test_the_turn_to_make_is_the_aim_and_at_most_a_half_turn_and_the_keep_beyond(err, turning):
+    turn = unicycle.turn_error(err, turning)
+    assert math.cos(turn - err) == pytest.approx(1.0)  # the same aim
+    assert abs(turn) <= math.pi + max(unicycle.STEER_KEEP, unicycle.STEER_LEFT_BIAS) + 1e-9
+    if abs(turning) < unicycle.STEER_KEEP_RATE:  # at rest: the short way, left near behind
+        assert unicycle.turn_error(err) == turn
+        assert -math.pi + unicycle.STEER_LEFT_BIAS <= turn <= math.pi + unicycle.STEER_LEFT_BIAS + 1e-9
+
+
+def test_a_robot_turning_keeps_its_way_round_an_aim_near_behind_and_leaves_it_beyond():
+    behind_right = math.radians(-165.0)  # within the left bias: a robot at rest turns left
+    assert unicycle.turn_error(behind_right) > 0.0
+    assert unicycle.turn_error(behind_right, turning=-1.0) == pytest.approx(behind_right)
+    right_150 = math.radians(-150.0)
+    assert unicycle.turn_error(right_150) == pytest.approx(right_150)
+    assert unicycle.turn_error(right_150, turning=1.0) == pytest.approx(math.radians(210.0))
+    right_130 = math.radians(-130.0)  # 230 degrees the robot's own way: past the keep
+    assert unicycle.turn_error(right_130, turning=1.0) == pytest.approx(right_130)
+
+
+@settings(max_examples=300, deadline=None)
+@given(angle, st.lists(st.floats(-0.35, 0.35), min_size=20, max_size=20))
+def test_an_aim_wandering_about_behind_a_turning_robot_never_turns_it_back(theta, jitter):
+    """An aim up to 20 degrees either side of behind a robot that is turning, moved each tick
+    by up to 40 degrees (the robot's own turn, its nominal's change; seen from the body, with
+    the look-ahead offset, up to 24 degrees off behind): the robot turns one way throughout
+    (the left bias alone turned it left, right, left across its edge: yield-six-five-unicycle,
+    robot a4 at 17.9 s)."""
+    look, wmax, dt = 0.05, 2.84, 0.05
+    th = theta
+    turning = -1.0  # already turning right, as a4 was
+    signs = set()
+    for j in jitter:
+        aim = th + math.pi + j  # about behind the robot
+        w = 0.15
+        ux, uy = unicycle.steer(w * math.cos(aim), w * math.sin(aim), th, look, wmax, lead=2.0,
+                                turning=turning)
+        v, turning = unicycle.to_unicycle(ux, uy, th, look)
+        signs.add(turning > 0.0)
+        th += turning * dt * 0.1  # turning slowly (acceleration-limited): the aim stays behind
+    assert signs == {False}
+
+
 def test_a_robot_facing_its_motion_drives_at_the_intended_velocity():
     ux, uy = unicycle.steer(0.2, 0.0, 0.0, 0.05, 2.84, lead=0.5)
     assert (ux, uy) == pytest.approx((0.2, 0.0))
