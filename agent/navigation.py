@@ -31,6 +31,7 @@ from agent.replan import LeaderRoutes
 from geometry.ellipse import Ellipse, wrap_angle
 from geometry.shapes import Shape
 from leader.navigation import SAME_GOAL, Follower, Navigator, heading_tolerance
+from leader.routing import Other
 from scenario.extent import Extent, goal_problem
 from scenario.limits import COORDINATE
 from wire import keys
@@ -45,6 +46,7 @@ from wire.payloads import (
     StatusMsg,
     decode_goal,
     decode_plan,
+    decode_status,
     encode_nav,
 )
 from wire.shapes import msg_to_shape
@@ -58,6 +60,7 @@ REPUBLISH_S = 1.0  # [s] the leader puts its plan again this often
 STALLED_AFTER_S = 2.0  # [s] still this long away from the goal (agent.control.update_stall): stalled
 GOAL_FUTURE_S = 1.0  # [s] real time: a goal stamped further ahead of the leader's clock is refused
 GOAL_MAX_AGE_S = 5.0  # [s] real time: an older goal is refused (the goal command re-sends each second)
+REPORT_MAX_AGE_S = 5.0  # [s] another leader's status older than this (by its stamp) is not used
 
 
 def leader_routes(cfg: AgentConfig) -> LeaderRoutes | None:
@@ -67,7 +70,7 @@ def leader_routes(cfg: AgentConfig) -> LeaderRoutes | None:
     if fp is None or not cfg.planner:
         return None
     return LeaderRoutes(fp, cfg.radius, cfg.control.epsilon + cfg.control.offset, cfg.formation_goal,
-                        None, cfg.route_by_hand)
+                        None, cfg.route_by_hand, cfg.formation)
 
 
 def config_extent(cfg: AgentConfig) -> Extent:
@@ -119,6 +122,7 @@ class NavPart:
         self._lock = threading.Lock()
         self._goal: GoalMsg | None = None  # newest unhandled goal (leader)
         self._plan: PlanMsg | None = None  # newest unhandled plan (member)
+        self._reports: dict[str, StatusMsg] = {}  # the other leaders' newest statuses (routes)
         self._status_bytes: bytes | None = None
         self._last_status = -math.inf
         self._last_plan = -math.inf
@@ -153,6 +157,9 @@ class NavPart:
             self._pubs[k] = CountingPublisher(session.declare_publisher(k), counter)
         self._decls.append(session.declare_subscriber(self.goal_key, self._on_goal))
         self._decls.append(session.declare_queryable(self.status_key, self._on_query))
+        if self.routes is not None:  # who is waiting for whom (leader.routing: giving way)
+            self._decls.append(session.declare_subscriber(
+                keys.all_formations_key(self.cfg.prefix, keys.STATUS), self._on_status))
 
     def close(self, stamp: float) -> None:
         """Leader: a last ``stopped`` status; then undeclare everything."""
@@ -199,6 +206,33 @@ class NavPart:
         with self._lock:
             if plan.formation == self.cfg.formation:
                 self._plan = plan
+
+    def _on_status(self, sample: zenoh.Sample) -> None:  # Zenoh thread
+        try:
+            status = decode_status(self._count(sample))
+        except DecodeError as exc:
+            with self._lock:
+                self.dropped += 1
+            logger.warning("%s: dropped a status: %s", self.cfg.robot_id, exc)
+            return
+        if status.formation == self.cfg.formation:
+            return
+        with self._lock:
+            old = self._reports.get(status.formation)
+            if old is None or status.stamp >= old.stamp:
+                self._reports[status.formation] = status
+
+    def reports(self, stamp: float, seen: Sequence[EllipseMsg]) -> dict[str, Other]:
+        """The other formations in view as their leaders last reported them (statuses at most
+        REPORT_MAX_AGE_S old), where their ellipses are now."""
+        with self._lock:
+            got = dict(self._reports)
+        out = {}
+        for e in seen:
+            st = got.get(e.formation)
+            if st is not None and abs(stamp - st.stamp) <= REPORT_MAX_AGE_S:
+                out[e.formation] = Other(st.state, e.cx, e.cy, st.gx, st.gy, e.a)
+        return out
 
     def _on_query(self, query: zenoh.Query) -> None:  # Zenoh thread
         data = self._status_bytes
@@ -257,7 +291,8 @@ class NavPart:
                 own: Ellipse, heading: float | None,
                 seen: tuple[Sequence[ObstacleMsg], Sequence[EllipseMsg]]) -> None:
         """Leader, method rigid: take a new route (or hold) when one is ready; publish it."""
-        upd = routes.tick(stamp, lockstep, own, self.follower, self.shapes, seen[0], seen[1])
+        upd = routes.tick(stamp, lockstep, own, self.follower, self.shapes, seen[0], seen[1],
+                          self.reports(stamp, seen[1]))
         if upd is None:
             return
         nav.replans += 1

@@ -21,7 +21,7 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
 from multiprocessing import get_context
 
@@ -29,7 +29,20 @@ from geometry.ellipse import Ellipse, wrap_angle
 from geometry.footprint_plan import PLAN_MARGIN, Body, plan_footprint
 from geometry.shapes import Shape
 from leader.navigation import Follower
-from leader.routing import BLOCKED, Replanner, StillThings, Thing, Update, blockers, traffic
+from leader.routing import (
+    BLOCKED,
+    GIVE_WAY,
+    JobResult,
+    Other,
+    Replanner,
+    StillThings,
+    Thing,
+    Update,
+    blockers,
+    give_way_job,
+    plan_job,
+    traffic,
+)
 from wire.payloads import EllipseMsg, ObstacleMsg
 
 from .body import Footprint, pose_of
@@ -43,13 +56,15 @@ class LeaderRoutes:
     """One leader's replanning (module docstring)."""
 
     def __init__(self, fp: Footprint, radius: float, margin: float, goal: tuple[float, float],
-                 start: tuple[float, float] | None, by_hand: bool) -> None:
+                 start: tuple[float, float] | None, by_hand: bool, name: str = "") -> None:
         self.fp = fp
+        self.name = name  # the formation's
         self.body = Body(fp.slots, fp.load_points, radius, PLAN_MARGIN + margin)
         self.radius = radius
         self.replanner = Replanner(self.body, fp.goal_turn, (goal[0], goal[1], fp.goal_turn), (),
                                    start, by_hand)
         self.replanner.last_plan = 0.0
+        self.replanner.name = name
         self.replanner.due = "" if by_hand else "start"  # the first tick plans (and may find none)
         self.still = StillThings()
         self._first = True
@@ -68,12 +83,15 @@ class LeaderRoutes:
         shapes = self.replanner.shapes
         self.replanner = Replanner(self.body, self.fp.goal_turn, (goal[0], goal[1], turn), shapes,
                                    start, by_hand)
+        self.replanner.name = self.name
         self.replanner.due = "" if by_hand else "new goal"
 
     def tick(self, stamp: float, lockstep: bool, own: Ellipse, follower: Follower,
              shapes: Sequence[Shape], obstacles: Sequence[ObstacleMsg],
-             others: Sequence[EllipseMsg]) -> Update | None:
-        """A new route (or an order to hold) when one is ready, else None."""
+             others: Sequence[EllipseMsg], reports: Mapping[str, Other] | None = None
+             ) -> Update | None:
+        """A new route (or an order to hold) when one is ready, else None; ``reports``: the
+        other formations' statuses where they are seen (:class:`leader.routing.Other`)."""
         r = self.replanner
         r.shapes = tuple(shapes)
         pose = pose_of(own, self.fp.alpha0)
@@ -83,29 +101,51 @@ class LeaderRoutes:
         if self._first:
             r.planned, self._first = things, False
         if self._job is not None:
-            if not self._job.done():
-                return None
-            job, self._job = self._job, None
-            try:
-                res = job.result()
-            except Exception:  # noqa: BLE001 - a worker that died: keep the route, plan later
-                logger.warning("a route plan failed", exc_info=True)
-                return None
-            return self.replanner.finish(res, self._why)
+            return self._collect()
         want = follower.heading
         turn = 0.0 if want is None else wrap_angle(pose.theta - self.fp.goal_turn - want)
+        reports = reports or {}
         why = r.check(stamp, p3, follower.route, follower.index, things, turn,
-                      traffic(p3, self.body.rho, seen))
+                      traffic(p3, self.body.rho, seen), reports)
         if why is None:
             return None
+        if why == GIVE_WAY:
+            return self._give_way(stamp, lockstep, p3, things, reports)
         extra = blockers(p3, self.body.rho, seen) if why == BLOCKED else ()
         if lockstep:
             return r.plan(stamp, p3, things, why, extra)
         plan = r.begin(stamp, p3, things, extra)
         if not plan.shapes and not plan.circles:  # an open floor: no search, no worker
-            return r.finish(plan_footprint(*plan), why)
-        self._job = plan_pool().submit(plan_footprint, *plan)
+            return r.finish(plan_footprint(*plan[:5]), why)
+        self._job = plan_pool().submit(plan_job, plan)
         self._why = why
+        return None
+
+    def _collect(self) -> Update | None:
+        """The plan the worker was given, once it is done (a route, a hold, a place aside)."""
+        assert self._job is not None
+        if not self._job.done():
+            return None
+        job, self._job = self._job, None
+        try:
+            res = job.result()
+        except Exception:  # noqa: BLE001 - a worker that died: keep the route, plan later
+            logger.warning("a route plan failed", exc_info=True)
+            return None
+        if isinstance(res, JobResult):
+            return self.replanner.finish(res, self._why)
+        return self.replanner.finish_give_way(res, self._why)
+
+    def _give_way(self, stamp: float, lockstep: bool, p3: tuple[float, float, float],
+                  things: tuple, reports: Mapping[str, Other]) -> Update | None:
+        """Stand aside for the formation :meth:`leader.routing.Replanner.give_way` names."""
+        r = self.replanner
+        keeper = r.give_way(stamp, reports)
+        aside = r.begin_give_way(stamp, p3, things, keeper, reports[keeper], self.radius)
+        if lockstep:
+            return r.finish_give_way(give_way_job(aside), keeper)
+        self._job = plan_pool().submit(give_way_job, aside)
+        self._why = keeper
         return None
 
     def _things(self, obstacles: Sequence[ObstacleMsg], others: Sequence[EllipseMsg],

@@ -559,6 +559,71 @@ def _plan_on(lat: Lattice, start: Pose3, goal: Pose3, body: Body, shapes: Sequen
     return FootprintPlan(route_of(sr, states, start, goal), "", expanded)
 
 
+def plan_aside(start: Pose3, body: Body, shapes: Sequence[Shape], circles: Sequence[Circle],
+               way: Sequence[Point], clear: float, limit: int = MAX_EXPANSIONS) -> FootprintPlan:
+    """A formation giving way: the route to the nearest pose (by the lattice's path length)
+    the footprint can reach from ``start`` around ``shapes`` and ``circles`` with its centroid
+    at least ``clear`` from the polyline ``way`` (another formation's way), the pose last; no
+    such pose: no route, and the reason. The lattice is :func:`plan_footprint`'s first (fine
+    in a small scene, else SPACING), over the things, the start and the way."""
+    pts = [(x, y, 0.0) for x, y in way]
+    extent = list(circles) + pts
+    lat = lattice_for(start, start, shapes, extent, body.rho, FINE_SPACING)
+    if lat.nx * lat.ny > FINE_CELLS:
+        lat = lattice_for(start, start, shapes, extent, body.rho, SPACING)
+    big_f, big_g = fields(lat, shapes, circles, body.radius)
+    cover = min([body.radius] + [sh.ds for sh in shapes])
+    sc = scores(lat, body, big_f, big_g, cover)
+    dth = 2.0 * math.pi / lat.headings
+    move, turn = _allowed(lat, sc, (start,), body.rho, MOVE_NEED * lat.h,
+                          0.5 * body.rho * dth + FINE_ERROR * lat.h)
+    sr = _Search(lat, move, turn, body.rho * dth, [], 1)
+    away = _away(lat, way, clear)
+    n, ny, kk = lat.nx * lat.ny, lat.ny, lat.headings
+    d2 = math.sqrt(2.0) * lat.h
+    steps = [(-ny, lat.h), (ny, lat.h), (-1, lat.h), (1, lat.h),
+             (-ny - 1, d2), (-ny + 1, d2), (ny - 1, d2), (ny + 1, d2)]
+    s0 = lat.heading(start[2]) * n + _flat(lat, start)
+    best = {s0: 0.0}
+    parent: dict[int, int] = {}
+    heap = [(0.0, s0)]
+    expanded = 0
+    while heap and expanded < limit:
+        g, s = heapq.heappop(heap)
+        if g > best.get(s, math.inf):
+            continue
+        if away[s % n] and move[s] and turn[s]:
+            i, j = divmod(s % n, ny)
+            x, y = lat.point(i, j)
+            goal = (x, y, lat.theta(s // n))
+            if s == s0:
+                return FootprintPlan((start,), "", expanded)
+            return FootprintPlan(route_of(sr, _unwind(parent, s0, s), start, goal), "", expanded)
+        expanded += 1
+        for t, cost in _next(sr, s, n, kk, steps):
+            if g + cost < best.get(t, math.inf):
+                best[t] = g + cost
+                parent[t] = s
+                heapq.heappush(heap, (g + cost, t))
+    why = ("no place off the other's way for the footprint" if expanded < limit
+           else f"no place found in {limit} poses")
+    return FootprintPlan((), why, expanded)
+
+
+def _away(lat: Lattice, way: Sequence[Point], clear: float) -> list[bool]:
+    """Per lattice cell (row-major): whether its point lies at least ``clear`` from ``way``."""
+    xs = (lat.x0 + lat.h * np.arange(lat.nx))[:, None]
+    ys = (lat.y0 + lat.h * np.arange(lat.ny))[None, :]
+    d = np.full((lat.nx, lat.ny), np.inf)
+    pts = list(way) if len(way) > 1 else list(way) * 2
+    for (ax, ay), (bx, by) in zip(pts[:-1], pts[1:], strict=True):
+        ex, ey = bx - ax, by - ay
+        ee = max(ex * ex + ey * ey, 1e-12)
+        t = np.clip(((xs - ax) * ex + (ys - ay) * ey) / ee, 0.0, 1.0)
+        d = np.minimum(d, np.hypot(xs - ax - t * ex, ys - ay - t * ey))
+    return (d >= clear).ravel().tolist()
+
+
 def direct_clear(sr: _Search, start: Pose3, goal: Pose3) -> bool:
     """Whether the footprint may go straight to the goal turning as it goes (the rigid motion
     does: the short way round, left within DIRECT_LEFT of half a turn): every pose on the way,

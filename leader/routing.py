@@ -30,11 +30,11 @@ less the rotation from the start shape to the goal shape (``goal_turn``).
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import NamedTuple
 
 from geometry.ellipse import wrap_angle
-from geometry.footprint_plan import Body, Circle, FootprintPlan, Pose3, plan_footprint
+from geometry.footprint_plan import Body, Circle, FootprintPlan, Pose3, plan_aside, plan_footprint
 from geometry.shapes import Shape, segment_distance
 from wire.payloads import MAX_WAYPOINTS as MAX_ROUTE  # the most route points a plan holds
 
@@ -49,6 +49,13 @@ RETRY_S = 5.0  # [s] no route: try again this often
 TRAFFIC_M = 1.0  # [m] a moving thing this near: the formation waits, the progress clock stops
 BLOCKED_S = 10.0  # [s] no progress this long with traffic near: plan round the formations there
 BLOCKED = "blocked"
+GIVE_WAY = "give way"
+GIVE_WAY_S = 90.0  # [s] a formation giving way stands aside at most this long
+GIVE_WAY_MARGIN = 0.3  # [m] beyond both radii: how far from the other's way it stands aside
+UNREACHABLE = "unreachable"  # a status state (wire.payloads.STATUS_STATES)
+FORMATION = "formation/"  # a Thing's name prefix for another formation
+NEAR_SLACK_M = 0.02  # [m] giving way, the other's circle shrinks to this inside the footprint's reach
+REACHED = "reached"
 
 
 class Thing(NamedTuple):
@@ -111,13 +118,87 @@ def changed(a: Sequence[tuple[str, Circle]], b: Sequence[tuple[str, Circle]]) ->
 
 class PlanJob(NamedTuple):
     """The arguments of one :func:`geometry.footprint_plan.plan_footprint` call (picklable: a
-    worker process may run it)."""
+    worker process may run it), and the parked formations among ``circles`` (:func:`plan_job`)."""
 
     start: Pose3
     goal: Pose3
     body: Body
     shapes: tuple[Shape, ...]
     circles: tuple[Circle, ...]
+    formations: tuple[tuple[str, Circle], ...] = ()
+
+
+class JobResult(NamedTuple):
+    """A plan, and where it found no route only because of parked formations, their names."""
+
+    plan: FootprintPlan
+    blocked_by: tuple[str, ...] = ()
+
+
+def plan_job(job: PlanJob) -> JobResult:
+    """The footprint's route (:func:`plan_footprint`); where there is none and formations are
+    parked in the way, the route without them too: the formations it passes are what blocks
+    the way (each may be waiting for this one: :meth:`Replanner.give_way`)."""
+    res = plan_footprint(job.start, job.goal, job.body, job.shapes, job.circles)
+    if res.route or not job.formations:
+        return JobResult(res)
+    parked = [c for _n, c in job.formations]
+    rest = tuple(c for c in job.circles if c not in parked)
+    through = plan_footprint(job.start, job.goal, job.body, job.shapes, rest)
+    if not through.route:
+        return JobResult(res)
+    way = [job.start[:2]] + [p[:2] for p in through.route]
+    return JobResult(res, tuple(n for n, (x, y, ds) in job.formations
+                                if way_distance(way, x, y) < ds + job.body.rho))
+
+
+def way_distance(way: Sequence[tuple[float, float]], x: float, y: float) -> float:
+    """The distance from (x, y) to the polyline ``way``."""
+    if len(way) == 1:
+        return math.dist(way[0], (x, y))
+    return min(segment_distance(x, y, a[0], a[1], b[0], b[1])[0]
+               for a, b in zip(way[:-1], way[1:], strict=True))
+
+
+class Other(NamedTuple):
+    """Another formation as its leader reports it (``status``) where its ellipse is seen."""
+
+    state: str  # a status state (wire.payloads.STATUS_STATES)
+    x: float  # [m] its centroid now
+    y: float
+    gx: float  # [m] its goal centroid
+    gy: float
+    a: float  # [m] its ellipse's semi-major axis
+
+
+class GiveWayJob(NamedTuple):
+    """One :func:`give_way_job` (picklable)."""
+
+    start: Pose3
+    body: Body
+    shapes: tuple[Shape, ...]
+    circles: tuple[Circle, ...]  # what this formation plans round (the other one included)
+    other: Other
+    other_circles: tuple[Circle, ...]  # what the other's way goes round (neither of the two)
+    radius: float  # [m] a robot's
+
+
+def give_way_job(job: GiveWayJob) -> FootprintPlan:
+    """Where to stand aside: the other's way (a robot's disc from its centroid to its goal,
+    round the shapes and ``other_circles``), and the route to the nearest pose whose centroid
+    is GIVE_WAY_MARGIN beyond both radii off it (:func:`plan_aside`); no route where the other
+    has no way either, or this formation is not in it."""
+    o = job.other
+    disc = Body(tuple((0.01 * math.cos(k * 2.1), 0.01 * math.sin(k * 2.1)) for k in range(3)),
+                radius=job.radius)  # a robot's body, its centre on the way
+    way = plan_footprint((o.x, o.y, 0.0), (o.gx, o.gy, 0.0), disc, job.shapes, job.other_circles)
+    if not way.route:
+        return FootprintPlan((), "the other formation has no way either")
+    pts = [(o.x, o.y)] + [p[:2] for p in way.route]
+    clear = job.body.rho + o.a + job.radius + GIVE_WAY_MARGIN
+    if way_distance(pts, job.start[0], job.start[1]) >= clear:
+        return FootprintPlan((), "not in the other formation's way")
+    return plan_aside(job.start, job.body, job.shapes, job.circles, pts, clear)
 
 
 class Update(NamedTuple):
@@ -150,11 +231,54 @@ class Replanner:
         self._blocked = False  # the plan in progress goes round blockers
         self._leg_start = start  # where the route's first leg starts
         self.due = ""  # a plan asked for (a new goal): the next check says so
+        self.name = ""  # the formation's (who gives way to whom: the later name to the earlier)
+        self.blocked_by: tuple[str, ...] = ()  # no route only because these formations stand in it
+        self.giving_way = ""  # the formation this one stands aside for
+        self._gave_at = -math.inf
 
     def plan(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...], why: str,
              extra: tuple[tuple[str, Circle], ...] = ()) -> Update | None:
         """Plan from ``pose`` now around the shapes, ``things`` and ``extra`` (:meth:`begin`)."""
-        return self.finish(plan_footprint(*self.begin(t, pose, things, extra)), why)
+        return self.finish(plan_job(self.begin(t, pose, things, extra)), why)
+
+    def give_way(self, t: float, others: Mapping[str, Other]) -> str:
+        """The formation to stand aside for now, or "": one whose name sorts before this one's,
+        that blocks this one's way (this one finds no route while that one stands in it) and
+        reports no route itself (it may be waiting for this one: two formations in each other's
+        only way, montecarlo warehouse run 200148)."""
+        if not self.unreachable or self.giving_way or t - self._gave_at < RETRY_S:
+            return ""
+        for name in self.blocked_by:
+            o = others.get(name)
+            if o is not None and o.state == UNREACHABLE and name < self.name:
+                return name
+        return ""
+
+    def begin_give_way(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...],
+                       name: str, other: Other, radius: float) -> GiveWayJob:
+        """Start standing aside for formation ``name`` (:func:`give_way_job`; then
+        :meth:`finish_give_way`)."""
+        self.plans += 1
+        self.last_plan = self._gave_at = t
+        self.planned = things
+        own = FORMATION + name
+        circles = []
+        for n, (x, y, ds) in things:
+            if n == own:  # the other, no nearer than it is now: the way out may pass it closely
+                ds = min(ds, math.dist(pose[:2], (x, y)) - self.body.rho - NEAR_SLACK_M)
+            circles.append((x, y, ds))
+        return GiveWayJob(pose, self.body, self.shapes, tuple(circles), other,
+                          tuple(c for n, c in things if n != own), radius)
+
+    def finish_give_way(self, res: FootprintPlan, name: str) -> Update | None:
+        """The route aside (the formation holds at its end until :meth:`check` plans again), or
+        None: no place aside, it stays unreachable (tried again after RETRY_S)."""
+        if not res.route:
+            return None
+        self.giving_way = name
+        self._best, self._best_at, self._moved_at = math.inf, self._gave_at, self._gave_at
+        return Update(tuple((x, y) for x, y, _th in res.route),
+                      tuple(wrap_angle(th - self.goal_turn) for _x, _y, th in res.route), GIVE_WAY)
 
     def begin(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...],
               extra: tuple[tuple[str, Circle], ...] = ()) -> PlanJob:
@@ -168,35 +292,52 @@ class Replanner:
         self._best, self._best_at, self._moved_at = math.inf, t, t
         self._blocked = bool(extra)
         self._leg_start = (pose[0], pose[1])
+        self.giving_way = ""
+        parked = () if extra else tuple((n[len(FORMATION):], c) for n, c in things
+                                        if n.startswith(FORMATION))
         return PlanJob(pose, self.goal, self.body, self.shapes,
-                       tuple(c for _n, c in things) + tuple(c for _n, c in extra))
+                       tuple(c for _n, c in things) + tuple(c for _n, c in extra), parked)
 
-    def finish(self, res: FootprintPlan, why: str) -> Update | None:
+    def finish(self, res: FootprintPlan | JobResult, why: str) -> Update | None:
         """The route (or the order to hold) from a plan :meth:`begin` started; None: keep the
         route (no way round the blockers)."""
-        if res.reason and self._blocked:
+        plan = res.plan if isinstance(res, JobResult) else res
+        self.blocked_by = res.blocked_by if isinstance(res, JobResult) else ()
+        if plan.reason and self._blocked:
             return None
-        self.unreachable = res.reason
-        if res.reason:
-            return Update((), (), why, res.reason)
-        route = res.route
+        self.unreachable = plan.reason
+        if plan.reason and self.blocked_by:
+            self.unreachable = f"{plan.reason} while formation {', '.join(self.blocked_by)} stands in it"
+        if plan.reason:
+            return Update((), (), why, self.unreachable)
+        route = plan.route
         if len(route) > MAX_ROUTE:  # a plan holds no more: the first ones and the goal; the
             route = route[:MAX_ROUTE - 1] + route[-1:]  # rest is planned again from there
         return Update(tuple((x, y) for x, y, _th in route),
                       tuple(wrap_angle(th - self.goal_turn) for _x, _y, th in route), why)
 
     def check(self, t: float, pose: Pose3, route: Sequence[tuple[float, float]], index: int,
-              things: tuple[tuple[str, Circle], ...], turn: float = 0.0, busy: bool = False
-              ) -> str | None:
+              things: tuple[tuple[str, Circle], ...], turn: float = 0.0, busy: bool = False,
+              others: Mapping[str, Other] | None = None) -> str | None:
         """Why to plan again now (module docstring), or None; ``turn`` [rad]: what the formation
         has yet to turn to the current waypoint's heading (turning is progress too); ``busy``:
-        traffic is near (:func:`traffic`: the progress clock stops)."""
+        traffic is near (:func:`traffic`: the progress clock stops); ``others``: the other
+        formations' reports (:class:`Other`), for giving way (GIVE_WAY: :meth:`begin_give_way`
+        with :meth:`give_way`'s formation)."""
+        others = others or {}
         if self._leg_start is None:
             self._leg_start = (pose[0], pose[1])
         if self.due:
             return self.due
         if self.by_hand or t - self.last_plan < REPLAN_EVERY_S:
             return None
+        if self.giving_way:  # aside until the other has arrived (or for GIVE_WAY_S)
+            o = others.get(self.giving_way)
+            if o is not None and o.state != REACHED and t - self._gave_at < GIVE_WAY_S:
+                return None
+            return "given way"
+        if self.give_way(t, others):
+            return GIVE_WAY
         if changed(things, self.planned):
             return "things changed"
         if self.unreachable:

@@ -12,7 +12,20 @@ from agent.barriers import Obstacle
 from agent.body import Footprint, pose_of
 from geometry.ellipse import Ellipse, wrap_angle
 from leader.navigation import Follower
-from leader.routing import BLOCKED, Replanner, StillThings, Thing, Update, blockers, traffic
+from leader.routing import (
+    BLOCKED,
+    GIVE_WAY,
+    REACHED,
+    UNREACHABLE,
+    Other,
+    Replanner,
+    StillThings,
+    Thing,
+    Update,
+    blockers,
+    give_way_job,
+    traffic,
+)
 from scenario import Scenario
 from scenario.routes import RIGID, StartPlan, footprint_body
 
@@ -28,6 +41,7 @@ class Replans:
         self.planners: dict[str, Replanner] = {}
         self.still: dict[str, StillThings] = {}
         self.updates: list[tuple[float, str, str, int]] = []  # (t, formation, why, waypoints)
+
         # a new route reaches the leader's own follower at once and the other members a tick
         # later, as the agents' ``plan`` message does in lock-step: (formation, update, heading)
         self._pending: list[tuple[str, Update, Ellipse]] = []
@@ -43,6 +57,7 @@ class Replans:
             body, start, turn = footprint_body(scenario, f)
             gx, gy = f.goal_centroid
             r = Replanner(body, turn, (gx, gy, turn), scenario.shapes, start)
+            r.name = f.name
             r.unreachable = starts[f.name].reason
             r.last_plan = 0.0
             self.planners[f.name] = r
@@ -62,6 +77,7 @@ class Replans:
         for name, upd, at in self._pending:
             self._hand(upd, name, at, followers, leader=False)
         self._pending = []
+        others = self._reports(ellipses)
         for name, planner in self.planners.items():
             own = ellipses[name]
             fp = self.footprints[self.members[name][0]]
@@ -79,16 +95,35 @@ class Replans:
             turn = 0.0 if want is None else wrap_angle(pose.theta - fp.goal_turn - want)
             p3 = (pose.cx, pose.cy, pose.theta)
             why = planner.check(t, p3, lead.route, lead.index, things, turn,
-                                traffic(p3, planner.body.rho, seen))
+                                traffic(p3, planner.body.rho, seen), others)
             if why is None:
                 continue
-            extra = blockers(p3, planner.body.rho, seen) if why == BLOCKED else ()
-            new = planner.plan(t, p3, things, why, extra)
+            if why == GIVE_WAY:
+                keeper = planner.give_way(t, others)
+                job = planner.begin_give_way(t, p3, things, keeper, others[keeper],
+                                             self.scenario.robot.radius)
+                new = planner.finish_give_way(give_way_job(job), keeper)
+            else:
+                extra = blockers(p3, planner.body.rho, seen) if why == BLOCKED else ()
+                new = planner.plan(t, p3, things, why, extra)
             if new is None:  # no way round the formations in the way: keep the route
                 continue
             self.updates.append((t, name, why, len(new.route)))
             self._hand(new, name, own, followers)
             self._pending.append((name, new, own))
+
+    def _reports(self, ellipses: dict[str, Ellipse]) -> dict[str, Other]:
+        """What each planned formation's leader would report on ``status`` (its state and
+        goal; reached within the goal tolerance of its goal centroid), where it is now."""
+        out = {}
+        tol = self.scenario.goal_tolerance + self.scenario.robot.control_offset
+        for name, p in self.planners.items():
+            e = ellipses[name]
+            gx, gy = p.goal[0], p.goal[1]
+            state = (REACHED if math.dist((e.cx, e.cy), (gx, gy)) <= tol else
+                     UNREACHABLE if p.unreachable else "moving")
+            out[name] = Other(state, e.cx, e.cy, gx, gy, e.a)
+        return out
 
     def _hand(self, upd: Update, name: str, own: Ellipse, followers: Sequence[Follower],
               leader: bool = True) -> None:

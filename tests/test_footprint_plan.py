@@ -11,10 +11,25 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from geometry.footprint_plan import Body, FootprintPlan, load_outline, plan_footprint
+from geometry.footprint_plan import Body, FootprintPlan, load_outline, plan_aside, plan_footprint
 from geometry.shapes import box, segment, shape_distance
 from leader.navigation import HEADING_TOLERANCE, SETTLED_SPEED, Follower, heading_tolerance
-from leader.routing import BLOCKED, BLOCKED_S, Replanner, StillThings, Thing, blockers
+from leader.routing import (
+    BLOCKED,
+    BLOCKED_S,
+    GIVE_WAY,
+    GIVE_WAY_S,
+    REACHED,
+    UNREACHABLE,
+    GiveWayJob,
+    Other,
+    Replanner,
+    StillThings,
+    Thing,
+    blockers,
+    give_way_job,
+    plan_job,
+)
 from simulator.motion import REVERSAL_SPEED
 
 LINE = Body(tuple((-0.6 + 0.3 * k, 0.0) for k in range(5)), radius=0.1, margin=0.0)
@@ -183,3 +198,90 @@ def test_a_wide_formation_passes_a_turning_waypoint_only_once_its_outer_member_h
     assert heading_tolerance(0.0, 0.6) == HEADING_TOLERANCE  # no turn pull: the fixed tolerance
     assert heading_tolerance(2.0, None) == HEADING_TOLERANCE  # no rigid body (method thesis)
     assert SETTLED_SPEED == REVERSAL_SPEED  # the reversal counter's floor
+
+
+def _dead_end():
+    """A 2 m wide corridor along x from x = -1 to 6 (walls at y = +-1), closed at x = 6, that
+    opens at x = -1 into a hall 10 m wide (walls at x = -7, y = +-5)."""
+    walls = [((-7, -5), (-7, 5)), ((-7, 5), (-1, 5)), ((-7, -5), (-1, -5)), ((-1, 5), (-1, 1)),
+             ((-1, -5), (-1, -1)), ((-1, 1), (6, 1)), ((-1, -1), (6, -1)), ((6, -1), (6, 1))]
+    return [segment(f"w{k}", a, b, 0.15) for k, (a, b) in enumerate(walls)]
+
+
+def test_a_formation_giving_way_backs_out_of_a_dead_end_to_the_nearest_place_off_the_way():
+    """The other formation's way runs down the corridor's axis and on across the hall to
+    (-6, 0): the nearest place off it (by 1.5 m) is in the hall beside the corridor's mouth,
+    and the footprint's route there is clear all along."""
+    square = Body(((0.3, 0.3), (-0.3, 0.3), (-0.3, -0.3), (0.3, -0.3)), radius=0.105, margin=0.05)
+    way = [(5.0, 0.0), (-6.0, 0.0)]
+    start = (2.0, 0.0, math.pi)
+    plan = plan_aside(start, square, _dead_end(), (), way, 1.5)
+    assert plan.reason == "", plan
+    x, y, _th = plan.route[-1]
+    assert abs(y) >= 1.5 - 1e-9 and -7.0 < x < -1.0  # out of the corridor, off the way
+    assert x > -3.5  # the nearest such place: just out of the corridor's mouth
+    for pose in _legs(start, plan.route):
+        assert _clearance(square, pose, _dead_end(), ()) > 0.0
+
+
+def test_giving_way_where_no_place_is_off_the_way_says_so():
+    square = Body(((0.3, 0.3), (-0.3, 0.3), (-0.3, -0.3), (0.3, -0.3)), radius=0.105, margin=0.05)
+    plan = plan_aside((2.0, 0.0, 0.0), square, _dead_end(), (), [(5.0, 0.0), (-6.0, 0.0)], 6.0)
+    assert plan.route == () and "no place" in plan.reason
+
+
+def test_a_formation_already_off_the_way_stays_where_it_is():
+    square = Body(((0.3, 0.3), (-0.3, 0.3), (-0.3, -0.3), (0.3, -0.3)), radius=0.105, margin=0.05)
+    start = (-4.0, 3.0, 0.0)
+    plan = plan_aside(start, square, _dead_end(), (), [(5.0, 0.0), (-6.0, 0.0)], 1.5)
+    assert plan.route == (start,)
+
+
+def test_two_formations_in_each_others_only_way_the_later_name_gives_way_and_then_goes_on():
+    """A square deep in the dead end (goal out in the hall) and another at its mouth (goal deep
+    inside): each plans round the other as parked and finds no route; the plan without the
+    parked formations names the one in the way. The later name stands aside, off the earlier
+    one's way, once that one reports no route too; the earlier one never does; after GIVE_WAY_S,
+    or once the other reports it has arrived, the one aside plans for its goal again."""
+    square = Body(((0.3, 0.3), (-0.3, 0.3), (-0.3, -0.3), (0.3, -0.3)), radius=0.105, margin=0.05)
+    walls = _dead_end()
+    inner = Replanner(square, 0.0, (-5.0, 0.0, 0.0), walls, start=(4.0, 0.0))
+    outer = Replanner(square, 0.0, (4.5, 0.0, 0.0), walls, start=(0.5, 0.0))
+    inner.name, outer.name = "a", "b"
+    inner_at, outer_at = (4.0, 0.0, 0.0), (0.5, 0.0, 0.0)
+    # each sees the other parked: a circle of its ellipse's semi-major axis and a robot radius
+    sees_outer = (("formation/b", (0.5, 0.0, 0.53)),)
+    sees_inner = (("formation/a", (4.0, 0.0, 0.53)),)
+    held = inner.finish(plan_job(inner.begin(0.0, inner_at, sees_outer)), "start")
+    assert held is not None and held.route == () and inner.blocked_by == ("b",)
+    assert "formation b" in inner.unreachable
+    outer.finish(plan_job(outer.begin(0.0, outer_at, sees_inner)), "start")
+    assert outer.blocked_by == ("a",)
+    reports = {"a": Other(UNREACHABLE, 4.0, 0.0, -5.0, 0.0, 0.42),
+               "b": Other(UNREACHABLE, 0.5, 0.0, 4.5, 0.0, 0.42)}
+    assert inner.check(6.0, inner_at, ((-5.0, 0.0),), 0, sees_outer, others=reports) != GIVE_WAY
+    assert outer.check(6.0, outer_at, ((4.5, 0.0),), 0, sees_inner, others=reports) == GIVE_WAY
+    assert outer.give_way(6.0, reports) == "a"
+    job = outer.begin_give_way(6.0, outer_at, sees_inner, "a", reports["a"], 0.105)
+    upd = outer.finish_give_way(give_way_job(job), "a")
+    assert upd is not None and upd.why == GIVE_WAY and outer.giving_way == "a"
+    x, y = upd.route[-1]
+    assert abs(y) > 0.42 + square.rho + 0.105 and x < -1.0  # out in the hall, off a's way
+    assert outer.check(20.0, (x, y, 0.0), upd.route, len(upd.route) - 1, (), others=reports) is None
+    arrived = {**reports, "a": Other(REACHED, -5.0, 0.0, -5.0, 0.0, 0.42)}
+    assert outer.check(30.0, (x, y, 0.0), upd.route, len(upd.route) - 1, (), others=arrived) == "given way"
+    end = len(upd.route) - 1
+    assert outer.check(6.0 + GIVE_WAY_S - 1.0, (x, y, 0.0), upd.route, end, (), others=reports) is None
+    assert outer.check(6.0 + GIVE_WAY_S, (x, y, 0.0), upd.route, end, (), others=reports) == "given way"
+
+
+def test_a_formation_not_in_the_others_way_or_whose_other_has_a_route_does_not_give_way():
+    square = Body(((0.3, 0.3), (-0.3, 0.3), (-0.3, -0.3), (0.3, -0.3)), radius=0.105, margin=0.05)
+    r = Replanner(square, 0.0, (4.5, 0.0, 0.0), _dead_end(), start=(0.5, 0.0))
+    r.name, r.unreachable, r.blocked_by = "b", "no way", ("a",)
+    moving = {"a": Other("moving", 4.0, 0.0, 5.0, 0.0, 0.42)}
+    assert r.give_way(6.0, moving) == ""  # a has a route: it will move on
+    assert r.give_way(6.0, {}) == ""  # a not heard (or its report too old)
+    off = GiveWayJob((-4.0, 3.0, 0.0), square, tuple(_dead_end()), (), Other(
+        UNREACHABLE, 4.0, 0.0, 5.0, 0.0, 0.42), (), 0.105)
+    assert give_way_job(off).reason == "not in the other formation's way"

@@ -3,7 +3,8 @@ models: every goal reached, 0 collisions (loads counted), formation error <= 1.5
 each kind does what it is there for: a line, a triangle and a pentagon turn to fit an aisle or
 a slot, a pushed formation and one whose aisle a forklift parks in are planned again, two
 formations head-on in a one-lane aisle do not wait for each other for ever, a goal in a closed
-room is unreachable and the formation stays parked."""
+room is unreachable and the formation stays parked, and of two formations in each other's only
+way the later name gives way."""
 
 from __future__ import annotations
 
@@ -72,3 +73,19 @@ def test_a_goal_in_a_closed_room_is_unreachable_and_the_formation_stays_parked(m
         first.setdefault(row[1], (row[3], row[4]))
         moved = max(moved, math.dist(first[row[1]], (row[3], row[4])))
     assert moved < 0.1  # parked, not driving into the room's wall
+
+
+@pytest.mark.slow
+def test_of_two_formations_in_each_others_only_way_the_later_name_gives_way():
+    """Montecarlo warehouse run 200148: c and d each found no route while the other stood in
+    its way and held to the end. Now d (the later name) stands aside off c's way, c passes,
+    and every goal is reached within the bar."""
+    res, s = _run("route-give-way", record=True)
+    summary = res.summary
+    assert summary["all_reached"] and summary["collisions"] == 0, summary["collision_log"]
+    assert summary["formation_error_max_m"] <= 1.5 * s.controller.epsilon
+    assert not summary["unreachable"]
+    motion = summary["motion"]
+    assert motion["reversals_total"] == motion["reversals_forced_total"], motion
+    gave = [r for r in summary["replans"] if r["why"] == "give way"]
+    assert [r["formation"] for r in gave] == ["d"]
