@@ -40,7 +40,7 @@ STEER_LEFT_BIAS = math.radians(20.0)  # headings this close to opposite the moti
 # that way (a hysteresis about "behind": the robot's own turn moves an aim near the bias's edge
 # across it, and the robot turned left, right, left on consecutive ticks).
 STEER_KEEP = math.radians(45.0)
-STEER_KEEP_RATE = 0.1  # [rad/s] turning at least this fast counts as turning (steer's ``turning``)
+STEER_KEEP_RATE = 1.0  # [rad/s] turning at least this fast counts as turning (steer's ``turning``)
 SMALL_TURN = 1e-7  # [rad] a step turning less than this is integrated as its chord (integrate)
 STEER_REVERSE_RANGE = 0.1  # [m] this close to its goal a robot may back up instead of turning
 

@@ -77,12 +77,12 @@ def test_the_control_step_reads_no_clock_unless_given_one() -> None:
 
 def test_step_inputs_carry_the_view_the_stall_and_switch_ellipses_for_pairs_in_all_to_all() -> None:
     # members and foreign robots are separation partners; the ellipses stay hazards in both
-    # topologies (tie-break and jam rule)
+    # topologies (tie-break and the formation QP)
     from agent.control import Stall
     from agent.inputs import step_inputs
     from geometry.ellipse import Ellipse
 
-    own = Ellipse(0.0, 0.0, 0.0, 0.6, 0.3)  # still, far from its goal: the jam rule counts
+    own = Ellipse(0.0, 0.0, 0.0, 0.6, 0.3)  # still, far from its goal: the stall clock runs
     other = Ellipse(3.0, 0.0, 0.0, 0.6, 0.3)
     reduced = step_inputs([(0.1, 0.2, 0.0, 0.0, 0.5)], own, "F1", (5.0, 0.0), [("F2", other)],
                           Stall(), 0.05, members=[(0.1, 0.2, 0.0, 0.0, 0.3), (0.6, 0.2, 0.0, 0.0, 0.0)])
@@ -97,8 +97,8 @@ def test_step_inputs_carry_the_view_the_stall_and_switch_ellipses_for_pairs_in_a
     assert a2a.others == [] and [(p.x, p.y, p.df) for p in a2a.pairwise] == [(3.0, 0.1, 0.0)]
     assert [(q.x, q.theta) for q in a2a.partners] == [(3.0, 1.0)] and a2a.hazards == [other]
 
-    blind = step_inputs([], None, "F1", (5.0, 0.0), [], Stall(1.0, 0.0), 0.05)
-    assert blind.view is None and blind.stall == Stall(1.0, 0.0)
+    blind = step_inputs([], None, "F1", (5.0, 0.0), [], Stall(1.0), 0.05)
+    assert blind.view is None and blind.stall == Stall(1.0)
 
 
 @pytest.mark.integration
