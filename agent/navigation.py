@@ -20,7 +20,7 @@ from __future__ import annotations
 import logging
 import math
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import zenoh
@@ -184,38 +184,32 @@ class NavPart:
             self._counter.count_recv(str(sample.key_expr), len(data))
         return data
 
-    def _on_goal(self, sample: zenoh.Sample) -> None:  # Zenoh thread
+    def _decoded(self, sample: zenoh.Sample, decode: Callable[[bytes], Any], what: str) -> Any:
+        """The sample's message, or None: malformed, dropped and counted."""
         try:
-            goal = decode_goal(self._count(sample))
+            return decode(self._count(sample))
         except DecodeError as exc:
             with self._lock:
                 self.dropped += 1
-            logger.warning("%s: dropped a goal: %s", self.cfg.robot_id, exc)
-            return
-        with self._lock:
-            self._goal = goal
+            logger.warning("%s: dropped a %s: %s", self.cfg.robot_id, what, exc)
+            return None
+
+    def _on_goal(self, sample: zenoh.Sample) -> None:  # Zenoh thread
+        goal = self._decoded(sample, decode_goal, "goal")
+        if goal is not None:
+            with self._lock:
+                self._goal = goal
 
     def _on_plan(self, sample: zenoh.Sample) -> None:  # Zenoh thread
-        try:
-            plan = decode_plan(self._count(sample))
-        except DecodeError as exc:
+        plan = self._decoded(sample, decode_plan, "plan")
+        if plan is not None:
             with self._lock:
-                self.dropped += 1
-            logger.warning("%s: dropped a plan: %s", self.cfg.robot_id, exc)
-            return
-        with self._lock:
-            if plan.formation == self.cfg.formation:
-                self._plan = plan
+                if plan.formation == self.cfg.formation:
+                    self._plan = plan
 
     def _on_status(self, sample: zenoh.Sample) -> None:  # Zenoh thread
-        try:
-            status = decode_status(self._count(sample))
-        except DecodeError as exc:
-            with self._lock:
-                self.dropped += 1
-            logger.warning("%s: dropped a status: %s", self.cfg.robot_id, exc)
-            return
-        if status.formation == self.cfg.formation:
+        status = self._decoded(sample, decode_status, "status")
+        if status is None or status.formation == self.cfg.formation:
             return
         with self._lock:
             old = self._reports.get(status.formation)
@@ -291,8 +285,9 @@ class NavPart:
                 own: Ellipse, heading: float | None,
                 seen: tuple[Sequence[ObstacleMsg], Sequence[EllipseMsg]]) -> None:
         """Leader, method rigid: take a new route (or hold) when one is ready; publish it."""
-        upd = routes.tick(stamp, lockstep, own, self.follower, self.shapes, seen[0], seen[1],
-                          self.reports(stamp, seen[1]))
+        r = routes.replanner  # the others' reports matter only to one with no route or aside
+        reports = self.reports(stamp, seen[1]) if r.unreachable or r.giving_way else {}
+        upd = routes.tick(stamp, lockstep, own, self.follower, self.shapes, seen[0], seen[1], reports)
         if upd is None:
             return
         nav.replans += 1

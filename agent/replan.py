@@ -26,7 +26,7 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from multiprocessing import get_context
 
 from geometry.ellipse import Ellipse, wrap_angle
-from geometry.footprint_plan import PLAN_MARGIN, Body, plan_footprint
+from geometry.footprint_plan import PLAN_MARGIN, Body
 from geometry.shapes import Shape
 from leader.navigation import Follower
 from leader.routing import (
@@ -116,7 +116,7 @@ class LeaderRoutes:
             return r.plan(stamp, p3, things, why, extra)
         plan = r.begin(stamp, p3, things, extra)
         if not plan.shapes and not plan.circles:  # an open floor: no search, no worker
-            return r.finish(plan_footprint(*plan[:5]), why)
+            return r.finish(plan_job(plan), why)
         self._job = plan_pool().submit(plan_job, plan)
         self._why = why
         return None

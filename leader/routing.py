@@ -52,10 +52,10 @@ BLOCKED = "blocked"
 GIVE_WAY = "give way"
 GIVE_WAY_S = 90.0  # [s] a formation giving way stands aside at most this long
 GIVE_WAY_MARGIN = 0.3  # [m] beyond both radii: how far from the other's way it stands aside
-UNREACHABLE = "unreachable"  # a status state (wire.payloads.STATUS_STATES)
+UNREACHABLE = "unreachable"  # status states (wire.payloads.STATUS_STATES)
+REACHED = "reached"
 FORMATION = "formation/"  # a Thing's name prefix for another formation
 NEAR_SLACK_M = 0.02  # [m] giving way, the other's circle shrinks to this inside the footprint's reach
-REACHED = "reached"
 
 
 class Thing(NamedTuple):

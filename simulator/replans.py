@@ -77,7 +77,8 @@ class Replans:
         for name, upd, at in self._pending:
             self._hand(upd, name, at, followers, leader=False)
         self._pending = []
-        others = self._reports(ellipses)
+        waiting = any(p.unreachable or p.giving_way for p in self.planners.values())
+        others = self._reports(ellipses) if waiting else {}  # read only by those (give_way)
         for name, planner in self.planners.items():
             own = ellipses[name]
             fp = self.footprints[self.members[name][0]]
