@@ -359,9 +359,7 @@ def _astar(sr: _Search, start: int, goal: int, limit: int) -> tuple[list[int] | 
     n, ny, kk = lat.nx * lat.ny, lat.ny, lat.headings
     gi, gk = goal % n, goal // n
     gx, gy = divmod(gi, ny)
-    d2 = math.sqrt(2.0) * lat.h
-    steps = [(-ny, lat.h), (ny, lat.h), (-1, lat.h), (1, lat.h),
-             (-ny - 1, d2), (-ny + 1, d2), (ny - 1, d2), (ny + 1, d2)]
+    steps = _steps(lat)
 
     to_goal, cny = sr.to_goal, sr.coarse_ny
 
@@ -534,16 +532,31 @@ def plan_footprint(start: Pose3, goal: Pose3, body: Body, shapes: Sequence[Shape
     return again._replace(expanded=coarse.expanded + again.expanded)
 
 
-def _plan_on(lat: Lattice, start: Pose3, goal: Pose3, body: Body, shapes: Sequence[Shape],
-             circles: Sequence[Circle], limit: int) -> FootprintPlan:
-    """:func:`plan_footprint` on the lattice ``lat``."""
-    rho, h, headings = body.rho, lat.h, lat.headings
+def _flags(lat: Lattice, body: Body, shapes: Sequence[Shape], circles: Sequence[Circle],
+           ends: Sequence[Pose3]) -> tuple[bytearray, bytearray, float]:
+    """The move and turn flags of every state of ``lat`` for the footprint (relaxed around
+    ``ends``), and the cost of one heading step [m]."""
+    rho, h = body.rho, lat.h
     big_f, big_g = fields(lat, shapes, circles, body.radius)
     cover = min([body.radius] + [sh.ds for sh in shapes])
     sc = scores(lat, body, big_f, big_g, cover)
-    dth = 2.0 * math.pi / headings
-    move, turn = _allowed(lat, sc, (start, goal), rho, MOVE_NEED * h, 0.5 * rho * dth + FINE_ERROR * h)
-    sr = _Search(lat, move, turn, rho * dth, *coarse_distance(lat, move, goal[:2]))
+    dth = 2.0 * math.pi / lat.headings
+    move, turn = _allowed(lat, sc, ends, rho, MOVE_NEED * h, 0.5 * rho * dth + FINE_ERROR * h)
+    return move, turn, rho * dth
+
+
+def _steps(lat: Lattice) -> list[tuple[int, float]]:
+    """The eight moves to a neighbouring cell: (state offset, length [m])."""
+    ny, d2 = lat.ny, math.sqrt(2.0) * lat.h
+    return [(-ny, lat.h), (ny, lat.h), (-1, lat.h), (1, lat.h),
+            (-ny - 1, d2), (-ny + 1, d2), (ny - 1, d2), (ny + 1, d2)]
+
+
+def _plan_on(lat: Lattice, start: Pose3, goal: Pose3, body: Body, shapes: Sequence[Shape],
+             circles: Sequence[Circle], limit: int) -> FootprintPlan:
+    """:func:`plan_footprint` on the lattice ``lat``."""
+    move, turn, turn_cost = _flags(lat, body, shapes, circles, (start, goal))
+    sr = _Search(lat, move, turn, turn_cost, *coarse_distance(lat, move, goal[:2]))
     n = lat.nx * lat.ny
     s0 = lat.heading(start[2]) * n + _flat(lat, start)
     s1 = lat.heading(goal[2]) * n + _flat(lat, goal)
@@ -571,18 +584,11 @@ def plan_aside(start: Pose3, body: Body, shapes: Sequence[Shape], circles: Seque
     lat = lattice_for(start, start, shapes, extent, body.rho, FINE_SPACING)
     if lat.nx * lat.ny > FINE_CELLS:
         lat = lattice_for(start, start, shapes, extent, body.rho, SPACING)
-    big_f, big_g = fields(lat, shapes, circles, body.radius)
-    cover = min([body.radius] + [sh.ds for sh in shapes])
-    sc = scores(lat, body, big_f, big_g, cover)
-    dth = 2.0 * math.pi / lat.headings
-    move, turn = _allowed(lat, sc, (start,), body.rho, MOVE_NEED * lat.h,
-                          0.5 * body.rho * dth + FINE_ERROR * lat.h)
-    sr = _Search(lat, move, turn, body.rho * dth, [], 1)
+    move, turn, turn_cost = _flags(lat, body, shapes, circles, (start,))
+    sr = _Search(lat, move, turn, turn_cost, [], 1)  # no heuristic: the nearest place wins
     away = _away(lat, way, clear)
     n, ny, kk = lat.nx * lat.ny, lat.ny, lat.headings
-    d2 = math.sqrt(2.0) * lat.h
-    steps = [(-ny, lat.h), (ny, lat.h), (-1, lat.h), (1, lat.h),
-             (-ny - 1, d2), (-ny + 1, d2), (ny - 1, d2), (ny + 1, d2)]
+    steps = _steps(lat)
     s0 = lat.heading(start[2]) * n + _flat(lat, start)
     best = {s0: 0.0}
     parent: dict[int, int] = {}
