@@ -38,6 +38,8 @@ safe motion to choose, not which motions are safe:
   path + ESCAPE_MARGIN, the intended motion becomes a step sideways, away from the hazard's path
   line, plus what is left of the motion without its part towards that line. Where that cannot be
   done in time, the hard rows meet and the QP returns the least-risk command (counted).
+* yield (:func:`yield_command`): formations standing still in each other's way (the stall clock,
+  :func:`update_stall`) are a jam whose order no barrier picks; the later name backs away.
 
 Separation (:func:`agent.barriers.separation_row`): every pair of robots that can touch gets a
 hard row with a reciprocal split of the pair's slack; see that function for why two robots
@@ -66,6 +68,11 @@ TIEBREAK_DEAD = 0.05  # [m] lateral offsets this small count as dead ahead: keep
 TIEBREAK_RANGE = 2.0  # [m] distance ahead of contact over which the push fades in
 TIEBREAK_GAIN = 0.35  # push as a fraction of max speed
 STALL_SPEED = 0.02  # [m/s] a formation centroid slower than this is "still"
+STALL_TIME = 4.0  # [s] still this long, away from the goal: a jam
+YIELD_TIME = 5.0  # [s] how long a jammed formation without priority backs away
+YIELD_RANGE = 1.0  # [m] beyond touching ellipses, formations that count for yielding
+YIELD_GAIN = 0.5  # backing speed as a fraction of max speed
+YIELD_EASE = 1.0  # [s] the backing slows to zero over the yield's last this long
 STALL_GOAL_DISTANCE = 0.1  # [m] closer than this to its target (goal or waypoint) a formation is not jammed
 ESCAPE_MIN_SPEED = 0.02  # [m/s] obstacles slower than this are static for the escape rule
 ESCAPE_RANGE = 6.0  # [m] moving hazards farther than this from the centroid are ignored
@@ -208,24 +215,54 @@ class FormationView(NamedTuple):
     goal_y: float
     name: str = ""  # this formation's name (priority: names sort first-come-first)
     other_names: tuple[str, ...] = ()  # names of ``others``, in the same order
+    yielding: float = 0.0  # [s] the stall clock says jammed, yield this long still (update_stall)
     goal_heading: float | None = None  # [rad] the current waypoint's heading (the goal shape's turn)
 
 
 class Stall(NamedTuple):
-    """How long the formation has been nearly still away from its goal (every member keeps an
-    identical copy; the leader reports ``stalled`` from it)."""
+    """How long the formation has been nearly still away from its goal, and how long it still
+    yields (every member keeps an identical copy; the leader reports ``stalled`` from it)."""
 
     still: float = 0.0  # [s]
+    yielding: float = 0.0  # [s] left
 
 
 def update_stall(prev: Stall, view: FormationView, dt: float) -> Stall:
-    """The stall clock: it runs while the formation's centroid is slower than STALL_SPEED
-    farther than STALL_GOAL_DISTANCE from its target, from what every member shares (its
-    formation's ellipse and target)."""
+    """The stall clock: it runs while the formation's centroid is slower than STALL_SPEED away
+    from its goal, from what every member shares (its formation's ellipse and goal); still for
+    STALL_TIME, the formation yields for YIELD_TIME (:func:`yield_command`)."""
     own = view.own
     far = math.hypot(view.goal_x - own.cx, view.goal_y - own.cy) > STALL_GOAL_DISTANCE
     slow = math.hypot(own.vx, own.vy) < STALL_SPEED
-    return Stall(prev.still + dt if far and slow else 0.0)
+    still = prev.still + dt if far and slow and prev.yielding <= 0.0 else 0.0
+    if still >= STALL_TIME:
+        return Stall(0.0, YIELD_TIME)
+    return Stall(still, max(0.0, prev.yielding - dt))
+
+
+def yield_command(view: FormationView, others: Sequence[Ellipse], vmax: float
+                  ) -> tuple[float, float] | None:
+    """A jam (two formations in a doorway, three or more at a crossing: no barrier picks who
+    goes first) is broken by priority: a yielding formation backs away from every nearby
+    formation whose name sorts before its own, at YIELD_GAIN vmax; None when there is none (it
+    has priority and keeps going). Over its last YIELD_EASE seconds the backing slows to zero
+    (an instant turn back to the goal was a reversal of every member's command)."""
+    own = view.own
+    rx = ry = 0.0
+    for e, name in zip(others, view.other_names, strict=False):
+        if not name or name >= view.name:
+            continue
+        dx, dy = own.cx - e.cx, own.cy - e.cy
+        d = math.hypot(dx, dy)
+        if d < 1e-9 or d > own.a + e.a + YIELD_RANGE:
+            continue
+        rx += dx / d
+        ry += dy / d
+    n = math.hypot(rx, ry)
+    if n < 1e-9:
+        return None
+    speed = YIELD_GAIN * vmax * min(1.0, view.yielding / YIELD_EASE)
+    return (speed * rx / n, speed * ry / n)
 
 
 class StepResult(NamedTuple):
@@ -628,6 +665,8 @@ def control_step(
     escaping = False
     if p.method == "rigid" and p.safety and view is not None and footprint is not None:
         esc = escape_command(p, view, obstacles) if p.tiebreak else None  # a faster hazard
+        if esc is None and p.tiebreak and view.yielding:  # a jam: the later name backs off
+            esc = yield_command(view, hazards, p.max_speed)
         push = tiebreak_push(view, hazards, obstacles, p.max_speed) if p.tiebreak else (0.0, 0.0)
         ux, uy = rigid_nominal(p, footprint, view, body.Snapshot(obstacles, shapes, hazards),
                                     (px, py), (x, y), goal, push, esc)

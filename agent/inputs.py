@@ -66,7 +66,8 @@ def step_inputs(
                   if within_reach(own, e.cx, e.cy, e.a, VIEW_RANGE)]
         view = FormationView(own, *formation_goal)
         stall = update_stall(stall, view, period)
-        view = view._replace(name=formation, other_names=tuple(name for name, _e in others))
+        view = view._replace(name=formation, other_names=tuple(name for name, _e in others),
+                             yielding=stall.yielding)
     hazards = [e for _name, e in others]
     partners = [Partner(*m) for m in members]
     if foreign is not None:

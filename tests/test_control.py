@@ -123,18 +123,37 @@ def test_a_formation_past_the_waypoint_weighs_by_its_reach_before_it_and_an_obst
         assert tiebreak_push(a, [], [obstacle], 0.22)[1] == pytest.approx(pushes[1])
 
 
-def test_the_stall_clock_runs_while_the_formation_is_still_away_from_its_target():
-    from agent.control import Stall, update_stall
+def test_a_still_formation_away_from_its_target_yields_after_the_stall_time():
+    from agent.control import STALL_TIME, YIELD_TIME, Stall, update_stall
 
     jammed = view(0.0, 0.0, 5.0, 0.0)  # centroid velocity 0, target 5 m away
     s = Stall()
-    for _ in range(80):
+    ticks = 0
+    while s.yielding == 0.0 and ticks < 1000:
         s = update_stall(s, jammed, 0.05)
-    assert s.still == pytest.approx(4.0)
+        ticks += 1
+    assert abs(ticks * 0.05 - STALL_TIME) <= 0.05 + 1e-9
+    assert s.yielding == pytest.approx(YIELD_TIME)
     moving = view(0.0, 0.0, 5.0, 0.0, vx=0.2)
     assert update_stall(Stall(3.0), moving, 0.05).still == 0.0
     at_target = view(4.95, 0.0, 5.0, 0.0)
-    assert update_stall(Stall(3.99), at_target, 0.05) == Stall(0.0)
+    assert update_stall(Stall(3.99), at_target, 0.05) == Stall(0.0, 0.0)
+
+
+def test_only_the_formation_without_priority_yields_and_it_eases_off_at_the_end():
+    from agent.control import YIELD_EASE, YIELD_GAIN, YIELD_TIME, yield_command
+
+    a = view(0.0, 0.0, 5.0, 0.0)._replace(name="A", other_names=("B",), yielding=YIELD_TIME)
+    b = view(1.5, 0.0, -5.0, 0.0)._replace(name="B", other_names=("A",), yielding=YIELD_TIME)
+    assert yield_command(a, [b.own], 0.22) is None  # A has priority: keeps going
+    back = yield_command(b, [a.own], 0.22)
+    assert back == pytest.approx((YIELD_GAIN * 0.22, 0.0))  # B backs away from A (+x)
+    # over the last YIELD_EASE seconds the backing slows to nothing: no instant turn back
+    easing = [yield_command(b._replace(yielding=left), [a.own], 0.22)[0]
+              for left in (YIELD_EASE, 0.75 * YIELD_EASE, 0.5 * YIELD_EASE, 0.01)]
+    assert easing == sorted(easing, reverse=True) and easing[-1] < 0.02 * back[0]
+    far = view(9.0, 0.0, -5.0, 0.0)._replace(name="B", other_names=("A",), yielding=YIELD_TIME)
+    assert yield_command(far, [a.own], 0.22) is None
 
 
 def test_unicycles_keep_a_sampling_margin_around_obstacles_and_integrators_none():

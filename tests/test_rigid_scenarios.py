@@ -102,6 +102,20 @@ def test_the_tiebreak_stays_under_rigid_two_rectangles_head_on_deadlock_without_
 
 
 @pytest.mark.slow
+def test_the_yield_rule_stays_a_hexagon_and_a_triangle_stand_still_for_ever_without_it(monkeypatch):
+    """No barrier picks which of two formations standing still in each other's way goes first.
+    Montecarlo warehouse run 200030: with the stall clock's yield (agent.control.yield_command)
+    the later name backs off, its blocked replan takes it round, and the run meets the bar;
+    without it the triangle's replans each meet the hexagon again and no goal is reached."""
+    from agent import control
+
+    _assert_bar(*_run("yield-hexagon-triangle"))
+    monkeypatch.setattr(control, "yield_command", lambda view, others, vmax: None)
+    jammed, _eps = _run("yield-hexagon-triangle")
+    assert jammed["collisions"] == 0 and not jammed["all_reached"]
+
+
+@pytest.mark.slow
 def test_a_turning_unicycle_keeps_its_way_round_and_six_and_five_meet_the_bar():
     """Montecarlo run 100094: a six and a five of unicycles turning in place in each other's way.
     Robot a4's aim lay near behind it, either side of the steering's left-bias edge, and it

@@ -19,7 +19,8 @@ SCENARIOS = sorted((ROOT / "scenarios").glob("*.yaml")) + sorted((ROOT / "tests/
 
 # Issue 13's scenarios. The big ones take minutes on a loaded 2-core machine: they run with
 # FORMATION_SLOW=1 (measured figures in the README's known limitations).
-SLOW = {"meet-6-rectangles", "warehouse-12-formations", "route-give-way"}  # give-way: its own test
+SLOW = {"meet-6-rectangles", "warehouse-12-formations", "route-give-way",  # these two: their own
+        "yield-hexagon-triangle"}  # tests (test_route_scenarios, test_rigid_scenarios)
 NEW = {"meet-5-rectangles", "meet-6-rectangles", "warehouse-12-formations", "forklift-overtakes",
        "forklift-crossing-fast", "unicycle-turn-90", "unicycle-turn-180", "hexagon-turn-pair-cross",
        "roundabout"}
