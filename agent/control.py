@@ -228,9 +228,10 @@ class Stall(NamedTuple):
 
 
 def update_stall(prev: Stall, view: FormationView, dt: float) -> Stall:
-    """The stall clock: it runs while the formation's centroid is slower than STALL_SPEED away
-    from its goal, from what every member shares (its formation's ellipse and goal); still for
-    STALL_TIME, the formation yields for YIELD_TIME (:func:`yield_command`)."""
+    """The stall clock: it runs while the formation's centroid is slower than STALL_SPEED
+    farther than STALL_GOAL_DISTANCE from its target, from what every member shares (its
+    formation's ellipse and target); still for STALL_TIME, the formation yields for YIELD_TIME
+    (:func:`yield_command`), and the clock starts again after the yield."""
     own = view.own
     far = math.hypot(view.goal_x - own.cx, view.goal_y - own.cy) > STALL_GOAL_DISTANCE
     slow = math.hypot(own.vx, own.vy) < STALL_SPEED
