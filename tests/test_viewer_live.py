@@ -32,10 +32,17 @@ SCENARIO = (ROOT / "tests" / "scenarios" / "two-small.yaml").read_text(encoding=
     "goal: [0.4, -0.3]", "goal: [-0.6, -0.3]")
 
 
+def _ctrl_c_stops() -> None:
+    """In the child: Ctrl-C's default action, which these tests stop it with, even where the
+    tests themselves run with SIGINT ignored (a shell runs ``cmd &`` without job control so, and
+    an ignored signal is inherited: formation replay then never stopped)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def formation(*args: str, **kw) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "formation", *args], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True, **kw)
+                            start_new_session=True, preexec_fn=_ctrl_c_stops, **kw)
 
 
 def get_state(port: int) -> dict:
