@@ -9,11 +9,13 @@ the same robots.csv as ``sim`` under any profile. The ideal world never reaches 
 goes to the wheels as it is; a single-integrator agent's velocity ``u`` (of its position, the
 body centre) goes through eq. 6.2's look-ahead map (:func:`agent.unicycle.to_unicycle`, with
 ``robot.lookahead`` and the robot's heading), as the robot's own firmware would turn it into
-wheel speeds. Each wheel's target rim speed ``v -+ omega track / 2`` is clipped to
-``max_wheel_speed`` (the motor saturates), the wheel approaches it with a first-order lag of
-time constant ``motor_lag`` and never faster than ``max_wheel_accel``; the body integrates the
-unicycle (eq. 6.1) from the two wheel speeds, SUBSTEPS times per control period. A robot that
-gets no command is told to stop: its wheels ramp down the same way.
+wheel speeds; asked to move well behind its heading, the firmware backs up, its control point
+``lookahead`` behind the body (:func:`command_rates`). Each wheel's target rim speed
+``v -+ omega track / 2`` is clipped to ``max_wheel_speed`` (the motor saturates), the wheel
+approaches it with a first-order lag of time constant ``motor_lag`` and never faster than
+``max_wheel_accel``; the body integrates the unicycle (eq. 6.1) from the two wheel speeds,
+SUBSTEPS times per control period. A robot that gets no command is told to stop: its wheels ramp
+down the same way.
 
 **Sensing.** An overhead camera takes frame ``f`` at ``f / camera_fps`` (every tick when the
 rate is ``inf``) and publishes it ``camera_latency`` later; a frame is lost with probability
@@ -88,14 +90,39 @@ def drive(pose: Pose3, wheels: tuple[float, float], rates: tuple[float, float], 
     return (x, y, th), (left, right)
 
 
-def command_rates(cmd: Command | None, theta: float, unicycle: bool,
-                  lookahead: float) -> tuple[float, float]:
-    """The ``(v, omega)`` a command asks of a differential drive: a unicycle's own, a single
-    integrator's through eq. 6.2; none (no command): stop."""
+# A single integrator's firmware drives backwards (its control point l BEHIND the body) once the
+# asked velocity lies more than REVERSE_ENTER from its heading, and forwards again once it lies
+# within REVERSE_LEAVE: a hysteresis, as eq. 6.2 turns the look-ahead and look-behind points
+# opposite ways for a velocity across the heading.
+REVERSE_ENTER = math.radians(120.0)
+REVERSE_LEAVE = math.radians(60.0)
+
+
+def command_rates(cmd: Command | None, theta: float, unicycle: bool, lookahead: float,
+                  backwards: bool = False) -> tuple[float, float, bool]:
+    """The ``(v, omega)`` a command asks of a differential drive, and whether it now drives
+    backwards: a unicycle's own; a single integrator's through eq. 6.2 with the control point
+    ``lookahead`` ahead of the body, or behind it while it drives ``backwards`` (see
+    REVERSE_ENTER); none (no command): stop.
+
+    Under eq. 6.2 alone a point ahead that is asked to move backwards swings the body round it
+    (the robot turns round in place, its body moving 2 l), unless the velocity lies exactly
+    along the heading: of a formation reversing, members turned round and members backing up
+    held their bodies up to 2 l off the shape (warehouse-lab-bounds, 3.1 epsilon)."""
     if cmd is None:
-        return (0.0, 0.0)
+        return (0.0, 0.0, backwards)
     ux, uy, v, omega = cmd
-    return (v, omega) if unicycle else to_unicycle(ux, uy, theta, lookahead)
+    if unicycle:
+        return (v, omega, False)
+    speed = math.hypot(ux, uy)
+    if speed > 1e-9:
+        along = (math.cos(theta) * ux + math.sin(theta) * uy) / speed
+        if not backwards and along < math.cos(REVERSE_ENTER):
+            backwards = True
+        elif backwards and along > math.cos(REVERSE_LEAVE):
+            backwards = False
+    v, omega = to_unicycle(ux, uy, theta, -lookahead if backwards else lookahead)
+    return (v, omega, backwards)
 
 
 def _lerp_pose(a: Sequence[float], b: Sequence[float], s: float) -> Pose3:
@@ -207,6 +234,7 @@ class LabWorld:
         self.lookahead = scenario.robot.lookahead
         starts = [r.start for r in scenario.robots]
         self.wheels = [(0.0, 0.0)] * len(starts)
+        self.backwards = [False] * len(starts)  # a single integrator's firmware (command_rates)
         self.camera = Camera(self.spec, scenario.dt, starts, scenario.obstacles)
 
     @classmethod
@@ -219,8 +247,9 @@ class LabWorld:
         """Every robot's true pose after one control period under its command."""
         out = []
         for i, (s, c) in enumerate(zip(state, cmds, strict=True)):
-            rates = command_rates(c, s[2], self.unicycle, self.lookahead)
-            pose, self.wheels[i] = drive((s[0], s[1], s[2]), self.wheels[i], rates, self.spec,
+            v, omega, self.backwards[i] = command_rates(c, s[2], self.unicycle, self.lookahead,
+                                                        self.backwards[i])
+            pose, self.wheels[i] = drive((s[0], s[1], s[2]), self.wheels[i], (v, omega), self.spec,
                                          self.dt)
             out.append(pose)
         return out

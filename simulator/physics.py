@@ -15,7 +15,8 @@ promises can be checked against bodies with mass, wheels that slip and motors th
   the effective inertia at the wheel over the lag). Floor friction: :data:`FLOOR_FRICTION`.
 * **Commands.** An agent's command becomes the two wheel targets as in the lab world
   (:func:`simulator.lab.command_rates`: a unicycle's ``(v, omega)``, a single integrator's
-  velocity through eq. 6.2), held for the control period over :data:`TIMESTEP` steps.
+  velocity through eq. 6.2, its control point ahead of the body or, driving backwards, behind
+  it), held for the control period over :data:`TIMESTEP` steps.
 * **Obstacles.** Walls and shelves are static boxes (a wall 2 cm thick), circles are cylinders of
   radius ``safe_distance - robot.radius`` (the ``safe_distance`` of a circle includes the
   robot's own radius), moving circles are kinematic (mocap) bodies that follow their velocity.
@@ -169,6 +170,7 @@ class MujocoWorld(LabWorld):
         self.substeps = max(1, round(scenario.dt / TIMESTEP))
         self.time = 0.0
         self._theta = [r.start[2] for r in scenario.robots]
+        self._backwards = [False] * n  # a single integrator's firmware (command_rates)
         self._touching: set[tuple[str, str]] = set()
         self.collisions = 0
         self.collision_log: list[dict[str, Any]] = []
@@ -195,7 +197,8 @@ class MujocoWorld(LabWorld):
         spec = PROFILES[TURTLEBOT3_LAB]
         ctrl = self.data.ctrl
         for k, (s, c) in enumerate(zip(state, cmds, strict=True)):
-            v, omega = command_rates(c, s[2], self.unicycle, self.lookahead)
+            v, omega, self._backwards[k] = command_rates(c, s[2], self.unicycle, self.lookahead,
+                                                         self._backwards[k])
             left, right = wheel_targets(v, omega, spec.track)
             ctrl[2 * k] = left / spec.wheel_radius
             ctrl[2 * k + 1] = right / spec.wheel_radius

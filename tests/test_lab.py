@@ -14,7 +14,7 @@ import yaml
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from agent.unicycle import integrate
+from agent.unicycle import integrate, to_unicycle
 from experiments.montecarlo import run_one
 from formation.cli import main
 from scenario import ScenarioError, load_scenario, parse_scenario
@@ -22,7 +22,7 @@ from scenario.load import scenario_from_dict
 from scenario.model import ObstacleSpec, with_world
 from scenario.world import IDEAL, PROFILES, TURTLEBOT3_LAB, WorldSpec, parse_world
 from simulator.inprocess import SimOptions, simulate
-from simulator.lab import Camera, LabWorld, command_rates, drive, wheel_step
+from simulator.lab import REVERSE_ENTER, REVERSE_LEAVE, Camera, LabWorld, command_rates, drive, wheel_step
 
 ROOT = Path(__file__).resolve().parent.parent
 TWO_SMALL = ROOT / "tests" / "scenarios" / "two-small.yaml"
@@ -137,10 +137,48 @@ def test_a_step_command_reaches_63_percent_after_one_time_constant():
 
 def test_a_single_integrator_drives_its_wheels_through_the_lookahead_map():
     # velocity along the heading: straight on; across it: a turn of |u| / l
-    assert command_rates((0.2, 0.0, 0.0, 0.0), 0.0, False, 0.05) == pytest.approx((0.2, 0.0))
-    assert command_rates((0.0, 0.1, 0.0, 0.0), 0.0, False, 0.05) == pytest.approx((0.0, 2.0))
-    assert command_rates((9.0, 9.0, 0.1, 0.5), 0.0, True, 0.05) == (0.1, 0.5)
-    assert command_rates(None, 0.0, True, 0.05) == (0.0, 0.0)
+    assert command_rates((0.2, 0.0, 0.0, 0.0), 0.0, False, 0.05) == pytest.approx((0.2, 0.0, False))
+    assert command_rates((0.0, 0.1, 0.0, 0.0), 0.0, False, 0.05) == pytest.approx((0.0, 2.0, False))
+    assert command_rates((9.0, 9.0, 0.1, 0.5), 0.0, True, 0.05) == (0.1, 0.5, False)
+    assert command_rates(None, 0.0, True, 0.05) == (0.0, 0.0, False)
+
+
+@given(st.floats(-math.pi, math.pi), st.floats(-math.pi, math.pi), st.floats(0.01, 0.3),
+       st.booleans())
+def test_a_single_integrators_control_point_moves_at_its_command_ahead_or_behind(
+        theta, angle, speed, backwards):
+    # eq. 6.2 exactly, for the point l ahead of the body or, driving backwards, l behind it
+    ux, uy = speed * math.cos(angle), speed * math.sin(angle)
+    v, omega, back = command_rates((ux, uy, 0.0, 0.0), theta, False, 0.05, backwards)
+    off = (theta - angle + math.pi) % (2 * math.pi) - math.pi
+    if abs(off) > REVERSE_ENTER + 1e-9:
+        assert back
+    elif abs(off) < REVERSE_LEAVE - 1e-9:
+        assert not back
+    else:
+        assert back == backwards  # between the two: it keeps its way (the hysteresis)
+    point = 0.05 * (-1.0 if back else 1.0)
+    moved = (v * math.cos(theta) - point * omega * math.sin(theta),
+             v * math.sin(theta) + point * omega * math.cos(theta))
+    assert moved == pytest.approx((ux, uy), abs=1e-9)
+
+
+def test_a_single_integrator_sent_backwards_backs_up_its_body_without_turning_round():
+    # facing +x, asked to move -x with a little sideways: under eq. 6.2's point ahead alone the
+    # robot turns round in place, its body swinging 2 l; the firmware backs up instead
+    spec = dataclasses.replace(LAB, motor_lag=0.0)
+    pose, wheels, back = (0.0, 0.0, 0.0), (0.0, 0.0), False
+    for _ in range(100):  # 5 s at 0.05 s
+        v, omega, back = command_rates((-0.1, 0.005, 0.0, 0.0), pose[2], False, 0.05, back)
+        pose, wheels = drive(pose, wheels, (v, omega), spec, 0.05)
+    assert back
+    assert abs(pose[2]) < 0.2  # still facing +x
+    assert pose[0] == pytest.approx(-0.5, abs=0.03)  # the body came 0.5 m back
+    pose, wheels = (0.0, 0.0, 0.0), (0.0, 0.0)
+    for _ in range(100):
+        v, omega = to_unicycle(-0.1, 0.005, pose[2], 0.05)
+        pose, wheels = drive(pose, wheels, (v, omega), spec, 0.05)
+    assert abs(math.cos(pose[2]) + 1.0) < 0.05  # the point ahead alone: turned round
 
 
 # --- sensing ------------------------------------------------------------------------------------

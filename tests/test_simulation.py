@@ -25,13 +25,8 @@ NEW = {"meet-5-rectangles", "meet-6-rectangles", "warehouse-12-formations", "for
        "forklift-crossing-fast", "unicycle-turn-90", "unicycle-turn-180", "hexagon-turn-pair-cross",
        "roundabout"}
 # Where the formation error on the bodies still exceeds 1.5 epsilon (safety holds there):
-FORMATION_GAPS = {
-    # the lab world drives single-integrator agents as differential drives (eq. 6.2's map): when
-    # the escape rule reverses the formation's motion, members facing its way turn in place while
-    # others back up, and the band breaks (3.1 eps; 1.39 eps under the old per-member rules, which
-    # reversed less); the agent's model does not know its robot turns (issue 27, left open)
-    "warehouse-lab-bounds": "single integrators on differential drives reversing (3.1 eps)",
-}
+FORMATION_GAPS: dict[str, str] = {}  # none at present (warehouse-lab-bounds was, 3.1 eps, until
+# the lab world's single-integrator firmware backed up rather than turning round: simulator.lab)
 # goals meant to have no route: tests/test_route_scenarios.py shows they hold, unreachable
 UNREACHABLE = {"route-closed-room", "route-closed-room-unicycle"}
 # where a goal is meant to be reached and is not yet (safety holds there)
