@@ -142,6 +142,12 @@ def pose_of(own: Ellipse, alpha0: float) -> Pose:
     return Pose(own.cx, own.cy, wrap_angle(own.alpha - alpha0))
 
 
+def motion_of(own: Ellipse, rho: float) -> tuple[float, float, float]:
+    """The formation's motion from its leader's ellipse's rates: the centroid's velocity [m/s]
+    and its outermost member's speed of rotation rho |alpha'| [m/s]."""
+    return (own.vx, own.vy, rho * abs(own.alpha_rate))
+
+
 def place(pose: Pose, p: Point) -> Point:
     """A start-frame point placed at ``pose``: c + R(theta) p."""
     c, s = math.cos(pose.theta), math.sin(pose.theta)

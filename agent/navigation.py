@@ -25,7 +25,7 @@ from typing import Any
 
 import zenoh
 
-from agent.body import pose_of
+from agent.body import motion_of, pose_of
 from agent.config import AgentConfig
 from agent.replan import LeaderRoutes
 from geometry.ellipse import Ellipse, wrap_angle
@@ -262,12 +262,14 @@ class NavPart:
             self.plans += 1
         self._centroid = (cx, cy)
         heading = None
+        motion = (0.0, 0.0, 0.0)  # the formation's (Follower.step)
         if self.cfg.footprint is not None and own is not None:
             heading = wrap_angle(pose_of(own, self.cfg.footprint.alpha0).theta
                                  - self.cfg.footprint.goal_turn)
+            motion = motion_of(own, self.cfg.footprint.rho)
         if nav is not None and self.routes is not None and own is not None:
             self._replan(nav, self.routes, stamp, lockstep, own, heading, seen)
-        target, waypoint = self.follower.step(cx, cy, heading)
+        target, waypoint = self.follower.step(cx, cy, heading, motion)
         if nav is not None and (math.isfinite(nav.goal_stamp) or nav.replans) \
                 and stamp - self._last_plan >= REPUBLISH_S:
             self._put_plan(self._plan_now(nav, stamp), stamp)

@@ -41,6 +41,7 @@ HEADING_TOLERANCE = 0.15  # [rad] a waypoint with a heading is passed once the f
 # counter's floor (simulator.motion.REVERSAL_SPEED), below which a command turned round is not
 # a reversal
 SETTLED_SPEED = 0.05
+ASIDE = math.radians(60.0)  # a centroid moving further than this off the next leg has not settled
 
 
 def heading_tolerance(kp: float, rho: float | None) -> float:
@@ -120,18 +121,39 @@ class Follower:
         self._set(goal, (plan.cx, plan.cy), plan.route, plan.headings)
         return True
 
-    def step(self, cx: float, cy: float, heading: float | None = None) -> tuple[Point, Point]:
+    def step(self, cx: float, cy: float, heading: float | None = None,
+             motion: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[Point, Point]:
         """(this member's target, the formation's current waypoint) for the ellipse centre
-        (cx, cy) of this tick; ``heading``: the formation's (as the route's headings), if known."""
+        (cx, cy) of this tick; ``heading``: the formation's (as the route's headings), if known;
+        ``motion``: its centroid's velocity [m/s] and its outermost member's speed of rotation
+        [m/s] (the ellipse's rates). A waypoint with a heading is passed once the formation has
+        turned within ``tolerance`` of it and, while its centroid drifts more than ASIDE off
+        the leg after it, once no member can move at SETTLED_SPEED: route-give-way's hexagon
+        (single integrators) turned within the tolerance while its centroid still crept
+        0.035 m/s north and pivoted at 0.035 m/s; the leg after it led east, and its outer
+        member's command went from 0.056 m/s north-west to 0.077 m/s south-east in one tick."""
         if not self.holding:
             while True:
                 k = advance(self.route, self.index, cx, cy)
                 want = self.headings[self.index] if self.headings else None
-                if k == self.index or (heading is not None and want is not None
-                                       and abs(wrap_angle(heading - want)) > self.tolerance):
+                if k == self.index or (heading is not None and want is not None and (
+                        abs(wrap_angle(heading - want)) > self.tolerance
+                        or self._unsettled(cx, cy, motion))):
                     break
                 self.index += 1
         return member_target(self.route, self.index, self.goal, self._offset), self.route[self.index]
+
+    def _unsettled(self, cx: float, cy: float, motion: tuple[float, float, float]) -> bool:
+        """Whether a member may still move at SETTLED_SPEED or more while the centroid drifts
+        more than ASIDE from the leg after the current waypoint (that leg then turns some
+        member's command round in one tick)."""
+        vx, vy, spin = motion
+        speed = math.hypot(vx, vy)
+        if speed + spin <= SETTLED_SPEED or self.index + 1 >= len(self.route):
+            return False
+        nx, ny = self.route[self.index + 1][0] - cx, self.route[self.index + 1][1] - cy
+        leg = math.hypot(nx, ny)
+        return leg > 1e-9 and nx * vx + ny * vy < math.cos(ASIDE) * leg * speed
 
 
 def turn(offsets: Mapping[str, Point], heading: float) -> dict[str, Point]:

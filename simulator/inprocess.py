@@ -19,7 +19,7 @@ import numpy as np
 
 from agent import accel_limit, double_integrator, unicycle
 from agent.barriers import Obstacle
-from agent.body import Footprint, footprint_of
+from agent.body import Footprint, footprint_of, motion_of
 from agent.control import ControlParams, Stall, StepResult, control_step
 from agent.hard_rows import HardRowCounter
 from agent.inputs import step_inputs, with_heading
@@ -179,7 +179,10 @@ def simulate(  # noqa: C901 (13: the in-process loop; to split with the world's 
             # Every other member of the formation (graph neighbour or not: the agent subscribes to
             # their states) gets a hard separation row; in all-to-all every foreign robot too.
             own = ellipses[fname]
-            target, waypoint = followers[i].step(own.cx, own.cy, headings[fname])
+            fp = fleet.footprints[i]
+            target, waypoint = followers[i].step(own.cx, own.cy, headings[fname],
+                                                 motion_of(own, fp.rho) if fp is not None
+                                                 else (0.0, 0.0, 0.0))
             inputs = step_inputs(
                 ((ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], df, seen[j][2])
                  for j, df in fleet.neighbours[i]),

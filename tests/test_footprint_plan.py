@@ -11,6 +11,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from agent.body import motion_of
+from geometry.ellipse import Ellipse
 from geometry.footprint_plan import Body, FootprintPlan, load_outline, plan_aside, plan_footprint
 from geometry.shapes import box, segment, shape_distance
 from leader.navigation import HEADING_TOLERANCE, SETTLED_SPEED, Follower, heading_tolerance
@@ -198,6 +200,26 @@ def test_a_wide_formation_passes_a_turning_waypoint_only_once_its_outer_member_h
     assert heading_tolerance(0.0, 0.6) == HEADING_TOLERANCE  # no turn pull: the fixed tolerance
     assert heading_tolerance(2.0, None) == HEADING_TOLERANCE  # no rigid body (method thesis)
     assert SETTLED_SPEED == REVERSAL_SPEED  # the reversal counter's floor
+
+
+def test_a_turning_waypoint_waits_for_a_drift_off_the_next_leg_to_settle():
+    # route-give-way's hexagon turned within the tolerance while its centroid crept 0.035 m/s
+    # north and pivoted at 0.035 m/s; the leg after the waypoint led east, and its outer
+    # member's command went from 0.056 m/s north-west to 0.077 m/s south-east (a reversal)
+    route = ((0.0, 0.0), (5.0, 0.0))
+    f = Follower("a", (5.5, 0.0), (5.0, 0.0), route, (1.0, None))
+    f.step(0.0, 0.05, heading=0.95, motion=(0.001, 0.035, 0.035))
+    assert f.index == 0  # turned, still drifting across the next leg: stays on the waypoint
+    f.step(0.0, 0.05, heading=0.95, motion=(0.001, 0.02, 0.026))
+    assert f.index == 1  # every member slower than SETTLED_SPEED
+    for along in ((0.1, 0.0, 0.03), (0.06, 0.08, 0.03)):  # along the next leg, 53 degrees off it
+        g = Follower("a", (5.5, 0.0), (5.0, 0.0), route, (1.0, None))
+        g.step(0.0, 0.05, heading=0.95, motion=along)
+        assert g.index == 1  # moving on the way the next leg goes: nothing turns round
+    h = Follower("a", (5.5, 0.0), (5.0, 0.0), route, (1.0, None))
+    h.step(0.0, 0.05, heading=0.5, motion=(0.0, 0.0, 0.0))
+    assert h.index == 0  # at rest but not turned: the heading still holds it
+    assert motion_of(Ellipse(0.0, 0.0, 0.0, 1.0, 0.5, 0.03, -0.04, -0.1), 0.5) == (0.03, -0.04, 0.05)
 
 
 def _dead_end():

@@ -96,10 +96,6 @@ def test_of_two_formations_in_each_others_only_way_the_later_name_gives_way():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason=(
-    "one unforced reversal (robot c5 at 131.3 s): hexagon c crept 0.03 m/s while it turned at a "
-    "waypoint; the next leg set off within the heading tolerance and c5's command went from "
-    "0.056 m/s north-west to 0.077 m/s south-east (README, known limitations)"))
 def test_giving_way_reverses_no_command():
     res, _s = _give_way()
     motion = res.summary["motion"]
