@@ -69,6 +69,7 @@ Pure functions over floats; no numpy on this hot path.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -209,8 +210,10 @@ def edge_row(pose: Pose, rho: float, edge: tuple[Point, Point], q: Point, qv: Po
     return point_row(pose, rho, (px, py), nx, ny, gamma * (d - clear) + nx * qv[0] + ny * qv[1])
 
 
-def limit_rows(rho: float, p: BodyParams) -> list[Row3]:
-    """|v| + rho |omega| <= vmax (every slot's speed) and |omega| <= omega_max, in z."""
+@functools.lru_cache(maxsize=64)
+def limit_rows(rho: float, p: BodyParams) -> tuple[Row3, ...]:
+    """|v| + rho |omega| <= vmax (every slot's speed) and |omega| <= omega_max, in z (the same
+    for every tick of a formation: cached)."""
     face = p.vmax * math.cos(math.pi / LIMIT_SIDES)
     k = 1.0 / math.sqrt(2.0)
     rows: list[Row3] = []
@@ -220,7 +223,7 @@ def limit_rows(rho: float, p: BodyParams) -> list[Row3]:
         rows += [(k * c, k * s, k, k * face), (k * c, k * s, -k, k * face)]
     if math.isfinite(p.omega_max):
         rows += [(0.0, 0.0, 1.0, rho * p.omega_max), (0.0, 0.0, -1.0, rho * p.omega_max)]
-    return rows
+    return tuple(rows)
 
 
 class Snapshot(NamedTuple):
@@ -246,8 +249,11 @@ def near(snap: Snapshot, pose: Pose, rho: float, p: BodyParams) -> Snapshot:
     go, gf = p.gamma_obstacle, p.gamma_formations
     obstacles = [o for o in snap.obstacles
                  if not far(math.dist(c, (o.x, o.y)) - o.ds, math.hypot(o.vx, o.vy), go, rho, p)]
-    shapes = [sh for sh in snap.shapes
-              if not far(shape_distance(c[0], c[1], sh)[0] - sh.ds, 0.0, go, rho, p)]
+    shapes = [sh for sh in snap.shapes  # the shape's bounding circle first (a lower bound)
+              if not far(math.dist(c, (sh.cx, sh.cy)) - math.hypot(sh.hx, sh.hy) - sh.ds - 1e-9,
+                         0.0,
+                         go, rho, p)
+              and not far(shape_distance(c[0], c[1], sh)[0] - sh.ds, 0.0, go, rho, p)]
     ellipses = [e for e in snap.ellipses
                 if not far(math.dist(c, (e.cx, e.cy)) - e.a,
                            math.hypot(e.vx, e.vy) + e.a * abs(e.alpha_rate), gf, rho, p)]

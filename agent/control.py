@@ -369,13 +369,24 @@ class Rows(NamedTuple):
 
 def _shape_rows(px: float, py: float, shapes: Sequence[Shape], gamma: float, grow: float,
                 reach: float, hard: list[Row]) -> float:
-    """Append the rows of the walls and shelves that can be active to ``hard``; the smallest h."""
+    """Append the rows of the walls and shelves that can be active to ``hard``; the smallest h.
+    A shape's bounding circle bounds its h from below: a shape whose bound is at least
+    reach / gamma has no active row, and is measured only if its bound lies below the smallest
+    h of the others (the same rows, in the same order, and the same h as measuring all)."""
     hmin = math.inf
+    later = []
     for sh in shapes:
+        low = math.hypot(px - sh.cx, py - sh.cy) - math.hypot(sh.hx, sh.hy) - sh.ds - grow - 1e-9
+        if gamma * low >= reach:
+            later.append((low, sh))
+            continue
         h, row = barriers.shape_row(px, py, sh, gamma, grow)
         hmin = min(hmin, h)
         if row[2] < reach:
             hard.append(row)
+    for low, sh in later:
+        if low < hmin:
+            hmin = min(hmin, barriers.shape_row(px, py, sh, gamma, grow)[0])
     return hmin
 
 

@@ -76,7 +76,7 @@ def test_the_twist_meets_every_row_and_is_relaxed_only_when_it_must():
         z = (res.twist[0], res.twist[1], 0.4 * res.twist[2])
         assert max(np.dot(r[:3], z) - r[3] for r in limits) <= 1e-8  # limits: never relaxed
         assert max(np.dot(r[:3], z) - r[3] - res.slack for r in rows) <= 1e-8
-        if body.solve3((0.0, 0.0, 0.0), limits + rows) is not None:
+        if body.solve3((0.0, 0.0, 0.0), [*limits, *rows]) is not None:
             assert res.slack == 0.0
 
 

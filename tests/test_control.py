@@ -8,16 +8,19 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from agent import barriers
 from agent.barriers import Neighbour, Obstacle
 from agent.control import (
     ControlParams,
     FormationView,
+    _shape_rows,
     build_rows,
     control_step,
     nominal,
     tiebreak_push,
 )
 from agent.qp import STATUS_OK, STATUS_RELAXED
+from geometry import shapes
 from leader.ellipse import Ellipse
 
 coord = st.floats(-2, 2)
@@ -166,3 +169,33 @@ def test_unicycles_keep_a_sampling_margin_around_obstacles_and_integrators_none(
     expected = 1.0 - (0.3 + 0.05 + uni.sampling_margin)  # distance to the grown circle
     assert math.sqrt(rows.h_obstacle + (0.3 + 0.05 + uni.sampling_margin) ** 2) == pytest.approx(1.0)
     assert expected > 0
+
+
+_coord = st.floats(-5.0, 5.0)
+
+
+@st.composite
+def _shapes(draw):
+    out = []
+    for k in range(draw(st.integers(1, 8))):
+        if draw(st.booleans()):
+            out.append(shapes.segment(f"w{k}", (draw(_coord), draw(_coord)),
+                                      (draw(_coord), draw(_coord)), draw(st.floats(0.1, 0.5))))
+        else:
+            out.append(shapes.box(f"b{k}", (draw(_coord), draw(_coord)),
+                                  (draw(st.floats(0.01, 6.0)), draw(st.floats(0.01, 2.0))),
+                                  draw(st.floats(-math.pi, math.pi)), draw(st.floats(0.1, 0.5))))
+    return out
+
+
+@settings(max_examples=300, deadline=None)
+@given(_shapes(), _coord, _coord, st.floats(0.1, 2.0), st.floats(0.0, 0.1), st.floats(0.01, 1.0))
+def test_wall_and_shelf_rows_skip_only_what_measuring_everything_would_not_change(
+        shs, px, py, gamma, grow, reach):
+    # the bounding circles only skip work: the same rows, in the same order, and the same
+    # smallest h as measuring every shape
+    rows: list = []
+    hmin = _shape_rows(px, py, shs, gamma, grow, reach, rows)
+    every = [barriers.shape_row(px, py, sh, gamma, grow) for sh in shs]
+    assert hmin == min(h for h, _ in every)
+    assert rows == [row for _, row in every if row[2] < reach]
