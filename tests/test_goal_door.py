@@ -16,7 +16,7 @@ import pytest
 import zenoh
 
 from formation.commands import goal as navcmd
-from runtime.testing import free_tcp_port
+from runtime.testing import free_tcp_port, wait_for_matching
 from tests.test_hold import start_fleet, wait_endpoint
 from wire import keys
 from wire.payloads import GoalMsg, encode_nav
@@ -27,17 +27,35 @@ pytestmark = pytest.mark.integration  # starts processes, Zenoh routers, sshd or
 GOAL_A = (2.25, 0.25)
 
 
+def _refusals(session, timeout: float = 60.0) -> int:
+    """Formation A's refused-goal count on its leader's status."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        found = {s.formation: s for s in navcmd.query_status(session, "warehouse", timeout=1.0)}
+        if "A" in found:
+            return found["A"].refused
+        time.sleep(0.2)
+    raise AssertionError("formation A's leader never answered a status query")
+
+
 def _put_raw_goals(endpoint: str, manager) -> None:
+    """Two goals ``formation goal`` would not send, put raw; each waits until the leader's
+    status counts its refusal (a put before the route to the leader's subscriber exists, or
+    while the leader is busy, is not lost to a fixed sleep: one was, on a loaded machine)."""
     conf = ZenohSettings(mode="client", connect=(endpoint,),
                          auth=read_auth_file(manager).auth).to_config()
     route = tuple((0.3 + 0.005 * k, 0.3) for k in range(64))  # a GoalMsg holds 64: a plan not
     with zenoh.open(conf) as session:
         pub = session.declare_publisher(keys.goal_key("warehouse", "A"))
-        time.sleep(1.0)  # the route to the leader's subscriber is in place
-        for msg in (GoalMsg("A", 1e308, 1e308, None, (), time.time()),
-                    GoalMsg("A", 0.3, 0.3, None, route, time.time() + 0.001)):
-            pub.put(encode_nav(msg))
-            time.sleep(1.5)  # the goal command's own pace
+        wait_for_matching(pub, 60.0)  # the leader has subscribed
+        for k, msg in enumerate((GoalMsg("A", 1e308, 1e308, None, (), time.time()),
+                                 GoalMsg("A", 0.3, 0.3, None, route, time.time() + 0.001))):
+            before = _refusals(session)
+            deadline = time.monotonic() + 60.0
+            while _refusals(session) <= before:  # put again until counted (counted once)
+                assert time.monotonic() < deadline, f"raw goal {k} was never refused"
+                pub.put(encode_nav(msg))
+                time.sleep(1.0)
         pub.undeclare()
 
 
