@@ -76,7 +76,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 from geometry.ellipse import Ellipse, ellipse_terms, reference_shape, wrap_angle
-from geometry.shapes import Shape, segment_distance, shape_distance
+from geometry.shapes import Shape, distance_floor, segment_distance, shape_distance
 from scenario.routes import shape_turn
 
 from .barriers import Obstacle, ellipse_class_k
@@ -250,9 +250,7 @@ def near(snap: Snapshot, pose: Pose, rho: float, p: BodyParams) -> Snapshot:
     obstacles = [o for o in snap.obstacles
                  if not far(math.dist(c, (o.x, o.y)) - o.ds, math.hypot(o.vx, o.vy), go, rho, p)]
     shapes = [sh for sh in snap.shapes  # the shape's bounding circle first (a lower bound)
-              if not far(math.dist(c, (sh.cx, sh.cy)) - math.hypot(sh.hx, sh.hy) - sh.ds - 1e-9,
-                         0.0,
-                         go, rho, p)
+              if not far(distance_floor(c[0], c[1], sh) - sh.ds, 0.0, go, rho, p)
               and not far(shape_distance(c[0], c[1], sh)[0] - sh.ds, 0.0, go, rho, p)]
     ellipses = [e for e in snap.ellipses
                 if not far(math.dist(c, (e.cx, e.cy)) - e.a,

@@ -55,7 +55,7 @@ from typing import NamedTuple
 
 from geometry.ellipse import Ellipse
 from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE, BURGER_RADIUS
-from geometry.shapes import Shape
+from geometry.shapes import Shape, distance_floor
 from scenario import limits as ranges
 from scenario.model import METHODS, Bounds
 
@@ -376,7 +376,7 @@ def _shape_rows(px: float, py: float, shapes: Sequence[Shape], gamma: float, gro
     hmin = math.inf
     later = []
     for sh in shapes:
-        low = math.hypot(px - sh.cx, py - sh.cy) - math.hypot(sh.hx, sh.hy) - sh.ds - grow - 1e-9
+        low = distance_floor(px, py, sh) - sh.ds - grow
         if gamma * low >= reach:
             later.append((low, sh))
             continue

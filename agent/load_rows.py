@@ -55,7 +55,7 @@ from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 from geometry.rigid import fit_sums
-from geometry.shapes import Shape, segment_distance, shape_distance
+from geometry.shapes import Shape, distance_floor, segment_distance, shape_distance
 
 from .barriers import Obstacle, Partner
 from .body import Footprint, outline_edges
@@ -222,8 +222,8 @@ def features(load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence[S
                         speed):
             things.append(((o.x, o.y), (o.vx, o.vy), r, speed))
     near_shapes = [sh for sh in shapes  # first by the shape's own bounding circle (cheap)
-                   if not inactive(math.hypot(sh.cx - cx, sh.cy - cy) - math.hypot(sh.hx, sh.hy)
-                                   - big - clear, -fastest, spread, 0.0)
+                   if not inactive(distance_floor(cx, cy, sh) - big - clear, -fastest, spread,
+                                   0.0)
                    and not inactive(shape_distance(cx, cy, sh)[0] - big - clear, -fastest, spread,
                                     0.0)]
     things += [(q, (0.0, 0.0), clear, 0.0) for sh in near_shapes for q in sh.corners()
