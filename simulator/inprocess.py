@@ -179,10 +179,8 @@ def simulate(  # noqa: C901 (13: the in-process loop; to split with the world's 
             # Every other member of the formation (graph neighbour or not: the agent subscribes to
             # their states) gets a hard separation row; in all-to-all every foreign robot too.
             own = ellipses[fname]
-            fp = fleet.footprints[i]
             target, waypoint = followers[i].step(own.cx, own.cy, headings[fname],
-                                                 motion_of(own, fp.rho) if fp is not None
-                                                 else (0.0, 0.0, 0.0))
+                                                 motion_of(own, fleet.footprints[i].rho))
             inputs = step_inputs(
                 ((ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], df, seen[j][2])
                  for j, df in fleet.neighbours[i]),
