@@ -41,7 +41,8 @@ STEER_LEFT_BIAS = math.radians(20.0)  # headings this close to opposite the moti
 # headings' spread and their slots' pulls, a few degrees each. Measured against 20 and 45 degrees
 # on the five lab-world unicycle runs then over the band (`formation montecarlo --world
 # turtlebot3-lab --model unicycle`, runs 700088, 700098, 700188 with and without bounds, 1100084):
-# worst 1.51 eps at 30, 2.57 at 20, 1.51 at 45 (before: 1.84).
+# worst 1.51 eps at 30 and at 45 (1100084, not a turn), 2.57 at 20 (before: 1.84); 700088 0.94
+# at 30 and 1.33 at 45.
 STEER_ROUND_BIAS = math.radians(30.0)
 # A robot already turning keeps its way round while the aim lies within this beyond half a turn
 # that way (a hysteresis about "behind": the robot's own turn moves an aim near the bias's edge
