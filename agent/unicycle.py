@@ -36,14 +36,6 @@ def limit_rows(theta: float, lookahead: float, max_speed: float, max_turn_rate: 
 
 STEER_GAIN = 2.0  # [1/s] turn rate per radian of heading error in the steered nominal
 STEER_LEFT_BIAS = math.radians(20.0)  # headings this close to opposite the motion turn left
-# A turn round (w asks the look-ahead point to go behind the body) within this of behind turns left.
-# It is decided on w's own direction: members of one reversing formation differ there by their
-# headings' spread and their slots' pulls, a few degrees each. Measured against 20 and 45 degrees
-# on the five lab-world unicycle runs then over the band (`formation montecarlo --world
-# turtlebot3-lab --model unicycle`, runs 700088, 700098, 700188 with and without bounds, 1100084):
-# worst 1.51 eps at 30 and at 45 (1100084, not a turn), 2.57 at 20 (before: 1.84); 700088 0.94
-# at 30 and 1.33 at 45.
-STEER_ROUND_BIAS = math.radians(30.0)
 # A robot already turning keeps its way round while the aim lies within this beyond half a turn
 # that way (a hysteresis about "behind": the robot's own turn moves an aim near the bias's edge
 # across it, and the robot turned left, right, left on consecutive ticks).
@@ -74,13 +66,7 @@ def steer(wx: float, wy: float, theta: float, lookahead: float, max_turn_rate: f
     a robot whose slot lay behind its look-ahead point saw w swing round as fast as it turned and
     turned back and forth in place (a reversal every tick, measured in
     tests/scenarios/shelf-pushed-unicycle.yaml). Members of a formation turn the same way: an
-    error within STEER_LEFT_BIAS of opposite turns left. Once that point lies behind the BODY
-    (w's part along the heading below -l / lead: a turn round), the heading aimed at is w's own
-    direction, left within STEER_ROUND_BIAS of behind: with |w| lead near l the point sits next
-    to the body, and its direction seen from there swung with every millimetre of w (members of
-    one reversing formation aimed 97 to 175 degrees off their headings and turned round both
-    ways, their bodies sweeping apart: run 700088 of the lab world,
-    tests/scenarios/lab-unicycles-turn-round.yaml, 1.77 epsilon). A robot already ``turning`` [rad/s,
+    error within STEER_LEFT_BIAS of opposite turns left. A robot already ``turning`` [rad/s,
     its last turn rate] at least STEER_KEEP_RATE keeps its way round while the error that way
     is at most half a turn plus STEER_KEEP (:func:`turn_error`). With ``reverse`` (close to
     the goal) the robot backs up rather than turning round when the aim lies behind it."""
@@ -92,9 +78,6 @@ def steer(wx: float, wy: float, theta: float, lookahead: float, max_turn_rate: f
     if reverse:
         err = (err + 0.5 * math.pi) % math.pi - 0.5 * math.pi  # nearest of forwards and back
         v = along
-    elif along * lead < -lookahead:  # a turn round: aim along w itself
-        err = turn_error(math.atan2(wy, wx) - theta, turning, STEER_ROUND_BIAS)
-        v = 0.0
     else:
         err = turn_error(err, turning)
         v = max(along, 0.0)
@@ -102,11 +85,11 @@ def steer(wx: float, wy: float, theta: float, lookahead: float, max_turn_rate: f
     return from_unicycle(v, omega, theta, lookahead)
 
 
-def turn_error(err: float, turning: float = 0.0, bias: float = STEER_LEFT_BIAS) -> float:
+def turn_error(err: float, turning: float = 0.0) -> float:
     """The heading error ``err`` [rad] as the turn to make: the short way round, left where
-    the aim lies within ``bias`` of behind; for a robot ``turning`` [rad/s] at least
+    the aim lies within STEER_LEFT_BIAS of behind; for a robot ``turning`` [rad/s] at least
     STEER_KEEP_RATE, its own way round while that is at most pi + STEER_KEEP."""
-    short = (err + math.pi - bias) % (2.0 * math.pi) - math.pi + bias
+    short = (err + math.pi - STEER_LEFT_BIAS) % (2.0 * math.pi) - math.pi + STEER_LEFT_BIAS
     if abs(turning) < STEER_KEEP_RATE or short * turning >= 0.0:
         return short
     other = short - math.copysign(2.0 * math.pi, short)  # the same aim, the robot's own way
