@@ -27,7 +27,14 @@ import zenoh
 
 from agent.fault_inject import FaultInjector
 from agent.faults import EPS, LinkFaults
-from agent.plausibility import JUMP_MARGIN_M, Reacquire, ellipses_ok, jump_ok, velocity_ok
+from agent.plausibility import (
+    JUMP_MARGIN_M,
+    Reacquire,
+    ellipse_ok,
+    ellipses_ok,
+    jump_ok,
+    velocity_ok,
+)
 from agent.transport import Transport
 from wire import keys
 from wire.payloads import (
@@ -103,10 +110,9 @@ def plausible(cls: str, msg: Any, prev: Any | None, speed: float) -> bool:
         return prev is None or jump_ok(prev.x, prev.y, prev.stamp, msg.x, msg.y, msg.stamp,
                                        speed, JUMP_MARGIN_M)
     if cls in (keys.ELLIPSE, keys.BEACON):
-        return velocity_ok(msg.vx, msg.vy, speed)
+        return ellipse_ok(msg, speed)
     if cls == keys.OTHERS:
-        return ellipses_ok(msg.ellipses, speed) and (
-            msg.own is None or velocity_ok(msg.own.vx, msg.own.vy, speed))
+        return ellipses_ok(msg.ellipses, speed) and (msg.own is None or ellipse_ok(msg.own, speed))
     return True
 
 

@@ -40,7 +40,8 @@ Member = tuple[float, float, float, float]  # control point x, y, velocity x, y
 def inflate(m: EllipseMsg, grow: float) -> EllipseMsg:
     """``m`` with both semi-axes grown by ``grow`` [m]: a stale ellipse covering everywhere its
     formation can have gone since (``grow = max_speed * age``); centre, velocities and stamp
-    are kept."""
+    are kept, its member points dropped (they are as old: the members' rows then take the
+    ellipse's motion into account as from a formation that sends none, :mod:`agent.body`)."""
     return EllipseMsg(m.formation, m.cx, m.cy, m.alpha, m.a + grow, m.b + grow, m.vx, m.vy,
                       m.alpha_rate, m.stamp)
 
@@ -175,7 +176,7 @@ class LeaderPart:
             self.own_others = None
             return False
         if self.trace:
-            self.ellipse_trace.append((stamp, *own))
+            self.ellipse_trace.append((stamp, *own[:8]))  # not its points
         # both topologies (all-to-all: for the tie-break and the jam rule, not for rows)
         msg = ellipse_to_msg(role.formation, own, stamp)
         t.publish(role.ellipse_key, msg)

@@ -9,7 +9,8 @@ what a genuine message can say, given the last one accepted on the same key:
   JUMP_MARGIN_M`` (the margin covers the camera's noise; ``elapsed`` is taken from the stamps,
   so a pose after a dropout may move as far as the robot could have driven meanwhile);
 * a **velocity** beyond what the robots' limits allow: a state's ``(ux, uy)`` or an ellipse's
-  centroid velocity longer than :func:`speed_bound`.
+  centroid velocity longer than :func:`speed_bound`;
+* an ellipse's **member point** far outside it (:func:`points_ok`).
 
 Such a message is dropped and counted; the agent's next tick commands zero (the least-risk
 command) and counts it (``agent.node``). The first message on a key has nothing to be compared
@@ -49,6 +50,8 @@ SPEED_FACTOR = 1.2  # a genuine message moves at most this times the robots' spe
 JUMP_MARGIN_M = 0.05  # [m] a pose may move this much more (camera noise, rounding)
 REACQUIRE_POSES = 3  # consecutive agreeing poses after a jump that re-acquire the marker
 REACQUIRE_SPAN_S = 0.3  # [s] ... over at least this long (several frames of any camera's rate)
+POINT_REACH = 2.0  # an ellipse's member points lie within this many semi-major axes of it
+POINT_MARGIN_M = 1.0  # [m] ... and this much more
 OBSTACLE_HOLD_S = 2.0  # [s] how long a missing obstacle is kept (its Ds grown meanwhile)
 
 
@@ -101,9 +104,22 @@ def velocity_ok(vx: float, vy: float, speed: float) -> bool:
     return math.hypot(vx, vy) <= speed + 1e-9
 
 
+def points_ok(e: EllipseMsg) -> bool:
+    """Whether every member point of ``e`` is within :data:`POINT_REACH` of it: 2 a (its
+    semi-major axis) from its centre, plus :data:`POINT_MARGIN_M`. A genuine leader's members
+    sit inside their ellipse, and one whose band broke stays well within this."""
+    reach = (POINT_REACH * e.a + POINT_MARGIN_M) ** 2
+    return all((x - e.cx) ** 2 + (y - e.cy) ** 2 <= reach for x, y in e.points)
+
+
+def ellipse_ok(e: EllipseMsg, speed: float) -> bool:
+    """Whether ``e``'s centroid velocity is within ``speed`` and its points near it."""
+    return velocity_ok(e.vx, e.vy, speed) and points_ok(e)
+
+
 def ellipses_ok(ellipses: Iterable[EllipseMsg], speed: float) -> bool:
-    """Whether every ellipse's centroid velocity is within ``speed``."""
-    return all(velocity_ok(e.vx, e.vy, speed) for e in ellipses)
+    """Whether every ellipse passes :func:`ellipse_ok`."""
+    return all(ellipse_ok(e, speed) for e in ellipses)
 
 
 def held_obstacle(o: ObstacleMsg, age: float, px: float, py: float) -> Obstacle:

@@ -41,6 +41,9 @@ class Ellipse(NamedTuple):
     vx: float = 0.0  # [m/s] centroid velocity
     vy: float = 0.0  # [m/s]
     alpha_rate: float = 0.0  # [rad/s]
+    # [m] the members' control points it was estimated from (:func:`estimate`; none from a
+    # leader that predates them): what other formations keep out of their own ellipses
+    points: tuple[Point, ...] = ()
 
 
 class ReferenceShape(NamedTuple):
@@ -104,7 +107,7 @@ def estimate(
     Orientation: the rotation theta that best maps the reference offsets r_i onto the current
     offsets q_i (least squares, theta = atan2(sum r x q, sum r . q)), so alpha = alpha0 + theta.
     Rates: centroid velocity is the mean velocity; alpha_rate is the least-squares angular
-    velocity sum(q x (v - v_c)) / sum |q|^2.
+    velocity sum(q x (v - v_c)) / sum |q|^2. ``points`` are the ``positions``.
     """
     n = len(shape.offsets)
     if len(positions) != n or len(velocities) != n:
@@ -120,7 +123,8 @@ def estimate(
         w += qx * (uy - vy) - qy * (ux - vx)
     theta = math.atan2(cross, dot) if (cross or dot) else 0.0
     rate = w / q2 if q2 > 1e-12 else 0.0
-    return Ellipse(cx, cy, wrap_angle(shape.alpha0 + theta), axes[0], axes[1], vx, vy, rate)
+    return Ellipse(cx, cy, wrap_angle(shape.alpha0 + theta), axes[0], axes[1], vx, vy, rate,
+                   tuple(positions))
 
 
 def within_reach(own: Ellipse, cx: float, cy: float, a: float, reach: float) -> bool:

@@ -32,12 +32,13 @@ VIEW_RANGE = 4.0
 
 def ellipse_to_msg(formation: str, e: Ellipse, stamp: float) -> EllipseMsg:
     """The wire form of ``e`` for ``formation``."""
-    return EllipseMsg(formation, e.cx, e.cy, e.alpha, e.a, e.b, e.vx, e.vy, e.alpha_rate, stamp)
+    return EllipseMsg(formation, e.cx, e.cy, e.alpha, e.a, e.b, e.vx, e.vy, e.alpha_rate, stamp,
+                      e.points)
 
 
 def msg_to_ellipse(m: EllipseMsg) -> Ellipse:
     """The controller's form of a received ellipse."""
-    return Ellipse(m.cx, m.cy, m.alpha, m.a, m.b, m.vx, m.vy, m.alpha_rate)
+    return Ellipse(m.cx, m.cy, m.alpha, m.a, m.b, m.vx, m.vy, m.alpha_rate, m.points)
 
 
 class LeaderRole:

@@ -217,7 +217,7 @@ def simulate(  # noqa: C901 (13: the in-process loop; to split with the world's 
                 ) + ((res.ax, res.ay) if params.double_integrator else ()))
         if options.record:
             for name, e in ellipses.items():
-                series.ellipses.append((t, name, *e))
+                series.ellipses.append((t, name, *e[:8]))  # not its points
             for o, spec in zip(obs, scenario.obstacles, strict=True):
                 series.obstacles.append((t, spec.name, o.x, o.y, spec.safe_distance))
         # move every robot with its own command (all computed from the same snapshot)

@@ -19,13 +19,14 @@ from agent.plausibility import (
     ObstacleMemory,
     held_obstacle,
     jump_ok,
+    points_ok,
     speed_bound,
     velocity_ok,
 )
 from formation.cli import main
 from simulator.inprocess import Series
 from simulator.plots import hard_row_ticks
-from wire.payloads import ObstacleMsg, Obstacles
+from wire.payloads import EllipseMsg, ObstacleMsg, Obstacles, Others
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -178,3 +179,26 @@ def test_a_forger_at_three_times_the_camera_rate_never_reacquires_between_genuin
             assert not tracker.offer(5.0 + rng.uniform(-0.01, 0.01), 0.0, t, True)
     tracker.reset()
     assert _feed(tracker, [(5.0, 0.0, 10.0), (0.0, 0.0, 10.01), (5.0, 0.0, 10.02)]) == []
+
+
+def test_an_ellipse_whose_member_point_lies_far_outside_it_is_implausible():
+    """A genuine leader's members sit inside its ellipse (a broken band leaves them well within
+    twice its semi-major axis plus 1 m); a point beyond would make the other formations keep
+    their ellipses off a place no member is: the message is dropped, as an ``ellipse``, a
+    ``beacon`` or inside an ``others``."""
+    from agent.inbox import plausible
+    from wire import keys
+
+    near = EllipseMsg("f", 1.0, 1.0, 0.0, 0.6, 0.3, 0.0, 0.0, 0.0, 5.0,
+                      ((1.5, 1.0), (0.5, 1.0), (1.0, 1.0 + 2 * 0.6 + 0.99)))
+    far = EllipseMsg("f", 1.0, 1.0, 0.0, 0.6, 0.3, 0.0, 0.0, 0.0, 5.0, ((1.0, 1.0 + 2 * 0.6 + 1.01),))
+    assert points_ok(near) and not points_ok(far)
+    assert points_ok(EllipseMsg("f", 1.0, 1.0, 0.0, 0.6, 0.3, 0.0, 0.0, 0.0, 5.0))  # none sent
+    speed = 0.3
+    assert plausible(keys.ELLIPSE, near, None, speed) and not plausible(keys.ELLIPSE, far, None, speed)
+    assert not plausible(keys.BEACON, far, None, speed)
+    assert not plausible(keys.OTHERS, Others("g", 5.0, (far,), None), None, speed)
+    own_far = EllipseMsg("g", *[getattr(far, k) for k in ("cx", "cy", "alpha", "a", "b", "vx", "vy",
+                                                          "alpha_rate", "stamp")], far.points)
+    assert not plausible(keys.OTHERS, Others("g", 5.0, (near,), own_far), None, speed)
+    assert plausible(keys.OTHERS, Others("g", 5.0, (near,), None), None, speed)

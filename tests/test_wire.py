@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import dataclasses
 import json
 import math
 import os
@@ -51,10 +52,13 @@ states = st.builds(State, finite, finite, finite, finite, finite, finite)
 cmds = st.builds(Cmd, finite, finite, finite, finite, finite)
 
 
+point_lists = st.lists(st.tuples(finite, finite), max_size=6).map(tuple)
+
+
 def ellipses_of(formation: st.SearchStrategy[str]) -> st.SearchStrategy[EllipseMsg]:
     return st.builds(
         EllipseMsg, formation, finite, finite, finite, positive, positive, finite, finite,
-        finite, finite,
+        finite, finite, st.just(()) | point_lists,
     )
 
 
@@ -91,6 +95,7 @@ any_message = st.one_of(poses, states, cmds, ellipses, others_msgs(), obstacles_
 
 E_A = EllipseMsg("A", 1.0, 2.0, 0.0, 0.5, 0.25, 1.0, 0.0, -1.0, 3.0)
 E_B = EllipseMsg("B", 1.0, 2.0, 0.0, 0.5, 0.25, 1.0, 0.0, -1.0, 3.0)
+E_A2 = dataclasses.replace(E_A, points=((1.0, 2.0), (0.5, -1.0)))  # wire version 2
 EXAMPLES = [
     Pose(1.0, 2.0, 0.5, 3.0),
     State(1.0, 2.0, 0.5, -1.0, 3.0),
@@ -98,6 +103,8 @@ EXAMPLES = [
     E_A,
     Others("B", 4.0, (E_A,), E_B),
     Obstacles(3.0, (ObstacleMsg("o1", 1.0, 2.0, 0.0, -1.0, 0.5),)),
+    E_A2,
+    Others("B", 4.0, (E_A2,), E_B),
 ]
 
 # --- round trips ------------------------------------------------------------------------------
@@ -162,6 +169,11 @@ PINNED = [
     (EXAMPLES[4], V1 + "0142" + F4 + "01" + ELLIPSE_A + "01" + ELLIPSE_B, 1 + 2 + 8 + 1 + 74 * 2 + 1),
     # version, stamp 3.0, list of 1 obstacle: id "o1", x, y, vx, vy, ds
     (EXAMPLES[5], V1 + F3 + "01" + "026f31" + F1 + F2 + F0 + FM1 + F05, 1 + 8 + 1 + 3 + 40),
+    # version 2: the ellipse, then its points as a list of (x, y)
+    (EXAMPLES[6], "02" + ELLIPSE_A + "02" + F1 + F2 + F05 + FM1, 75 + 1 + 32),
+    # version 2 others: every ellipse with its points list (the own one's empty)
+    (EXAMPLES[7], "02" + "0142" + F4 + "01" + ELLIPSE_A + "02" + F1 + F2 + F05 + FM1
+     + "01" + ELLIPSE_B + "00", 1 + 2 + 8 + 1 + 74 + 33 + 1 + 74 + 1),
 ]
 
 
@@ -185,6 +197,8 @@ def test_a_string_longer_than_127_bytes_has_a_two_byte_length_varint() -> None:
 
 
 _E = tuple[str, float, float, float, float, float, float, float, float, float]
+_E2 = tuple[str, float, float, float, float, float, float, float, float, float,
+            list[tuple[float, float]]]
 REFERENCE_TYPES = {
     Pose: tuple[UInt8, float, float, float, float],
     State: tuple[UInt8, float, float, float, float, float, float],
@@ -193,14 +207,33 @@ REFERENCE_TYPES = {
     Others: tuple[UInt8, str, float, list[_E], list[_E]],
     Obstacles: tuple[UInt8, float, list[tuple[str, float, float, float, float, float]]],
 }
+REFERENCE_TYPES_V2 = {  # an ellipse with points, an others any of whose ellipses has them
+    EllipseMsg: tuple[UInt8, str, float, float, float, float, float, float, float, float, float,
+                      list[tuple[float, float]]],
+    Others: tuple[UInt8, str, float, list[_E2], list[_E2]],
+}
+
+
+def _with_points(msg: object) -> bool:
+    if isinstance(msg, EllipseMsg):
+        return bool(msg.points)
+    if isinstance(msg, Others):
+        return any(e.points for e in msg.ellipses) or (msg.own is not None and bool(msg.own.points))
+    return False
+
+
+def _ellipse_fields(e: EllipseMsg, v2: bool) -> tuple[object, ...]:
+    base = tuple(getattr(e, f) for f in EllipseMsg.__dataclass_fields__ if f != "points")
+    return (*base, list(e.points)) if v2 else base
 
 
 def _fields(msg: object) -> tuple[object, ...]:
     if isinstance(msg, EllipseMsg):
-        return tuple(getattr(msg, f) for f in EllipseMsg.__dataclass_fields__)
+        return _ellipse_fields(msg, _with_points(msg))
     if isinstance(msg, Others):
-        own = [] if msg.own is None else [_fields(msg.own)]
-        return (msg.formation, msg.stamp, [_fields(e) for e in msg.ellipses], own)
+        v2 = _with_points(msg)
+        own = [] if msg.own is None else [_ellipse_fields(msg.own, v2)]
+        return (msg.formation, msg.stamp, [_ellipse_fields(e, v2) for e in msg.ellipses], own)
     if isinstance(msg, Obstacles):
         return (msg.stamp, [tuple(getattr(o, f) for f in ObstacleMsg.__dataclass_fields__)
                             for o in msg.obstacles])
@@ -215,8 +248,10 @@ def _fields(msg: object) -> tuple[object, ...]:
 @given(msg=any_message)
 def test_zenohs_own_deserializer_reads_what_we_write(msg: payloads.Message) -> None:
     # the reference reader, on valid payloads only (it can abort the process on hostile ones)
-    got = z_deserialize(REFERENCE_TYPES[type(msg)], zenoh.ZBytes(encode(msg)))
-    assert got == (2 if isinstance(msg, State) else 1, *_fields(msg))
+    v2 = _with_points(msg)
+    types = REFERENCE_TYPES_V2 if v2 else REFERENCE_TYPES
+    got = z_deserialize(types[type(msg)], zenoh.ZBytes(encode(msg)))
+    assert got == (2 if isinstance(msg, State) or v2 else 1, *_fields(msg))
 
 
 # --- defensive decoding -----------------------------------------------------------------------
@@ -456,7 +491,8 @@ def test_an_absurd_element_count_fails_fast_without_allocating() -> None:
 
 def test_the_largest_valid_message_fits_under_the_payload_limit() -> None:
     def big(formation: str) -> EllipseMsg:
-        return EllipseMsg(formation, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0)
+        return EllipseMsg(formation, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0,
+                          ((0.5, -0.5),) * payloads.MAX_POINTS)
 
     own_id = "\U0001F916" * keys.MAX_ID_LEN  # 4 UTF-8 bytes per character
     others = tuple(big(f"{i:03d}" + "\U0001F916" * 61) for i in range(payloads.MAX_ITEMS))
@@ -911,3 +947,39 @@ def test_use_zenoh_threads_sets_a_profile_unless_the_user_chose_their_own(monkey
     assert os.environ[zconf.RUNTIME_ENV] == "(app: (worker_threads: 2))"
     with pytest.raises(KeyError):
         zconf.use_zenoh_threads("nonsense")
+
+
+# --- an ellipse's member points (wire version 2) ------------------------------------------------
+
+
+def test_an_ellipse_without_points_is_written_as_version_1_byte_for_byte() -> None:
+    assert encode(E_A)[0] == 1 and encode(E_A2)[0] == 2
+    assert encode(E_A2)[:75] == b"\x02" + encode(E_A)[1:]
+    assert encode(Others("B", 4.0, (E_A,), E_B))[0] == 1
+    assert encode(Others("B", 4.0, (E_A,), dataclasses.replace(E_B, points=((0.0, 0.0),))))[0] == 2
+    assert decode_ellipse(encode(E_A)).points == ()
+
+
+def test_points_beyond_the_limit_or_not_finite_are_refused_built_and_decoded() -> None:
+    fields = [getattr(E_A, f) for f in ("formation", "cx", "cy", "alpha", "a", "b", "vx", "vy",
+                                        "alpha_rate", "stamp")]
+    with pytest.raises(ValueError, match="at most 64"):
+        EllipseMsg(*fields, points=((0.0, 0.0),) * (payloads.MAX_POINTS + 1))
+    with pytest.raises(ValueError, match="finite"):
+        EllipseMsg(*fields, points=((0.0, math.inf),))
+    with pytest.raises(ValueError, match=r"points\[0\]"):
+        EllipseMsg(*fields, points=((0.0, 1.0, 2.0),))
+    too_many = z_serialize((UInt8(2), *fields, [(0.0, 0.0)] * 65)).to_bytes()
+    with pytest.raises(DecodeError, match="at most 64"):
+        decode_ellipse(too_many)
+    for bad in (math.nan, math.inf, -math.inf):
+        data = z_serialize((UInt8(2), *fields, [(0.0, 0.0), (bad, 1.0)])).to_bytes()
+        with pytest.raises(DecodeError, match="finite"):
+            decode_ellipse(data)
+        others = z_serialize((UInt8(2), "B", 0.0, [(*fields, [(bad, 0.0)])], [])).to_bytes()
+        with pytest.raises(DecodeError, match="finite"):
+            decode_others(others)
+    # a version-1 others has no points list: one where version 2 expects it is truncated
+    v1_body = encode(Others("B", 4.0, (E_A,), None))[1:]
+    with pytest.raises(DecodeError, match="truncated"):
+        decode_others(b"\x02" + v1_body)

@@ -15,7 +15,9 @@ payload        fields in order (``u8`` version, then ``f64`` unless marked ``str
 ``Cmd``        version, v, omega, ux, uy, stamp                                          41
 ``Cmd``        version 2, v, omega, ux, uy, ax, ay, stamp                                57
 ``EllipseMsg`` version, formation:str, cx, cy, alpha, a, b, vx, vy, alpha_rate, stamp   73+n
+``EllipseMsg`` version 2, the same, then points:list[P]                                varies
 ``Others``     version, formation:str, stamp, ellipses:list[E], own:list[E] (0 or 1)  varies
+``Others``     version 2, the same with every ``E`` followed by its points:list[P]     varies
 ``Obstacles``  version, stamp, obstacles:list[O]                                         varies
 ``Obstacles``  version 2, stamp, obstacles:list[O], shapes:list[S]                       varies
 =============  =======================================================================  =====
@@ -24,7 +26,10 @@ where ``E`` is an ellipse without the version, ``(formation:str, cx, cy, alpha, 
 alpha_rate, stamp)``, ``O`` is ``(id:str, x, y, vx, vy, ds)``, and ``n`` is the length of the
 formation id's varint plus its UTF-8 bytes. ``S`` is a wall or shelf, ``(id:str, kind:u8, cx, cy,
 hx, hy, yaw, ds)``: kind 1 a segment (centre, half length ``hx``, ``hy = 0``, direction ``yaw``),
-kind 2 a box (centre, half sizes, yaw); see :mod:`geometry.shapes`. ``Others.own`` (the
+kind 2 a box (centre, half sizes, yaw); see :mod:`geometry.shapes`. ``P`` is a point ``(x, y)``:
+an ellipse's ``points`` are its formation's members' control points it was estimated from (at
+most :data:`MAX_POINTS`), which the other formations keep out of their own ellipses (the mirror
+rows of :mod:`agent.body`). ``Others.own`` (the
 leader's own ellipse, or none) is a list of 0 or 1 elements because the format has no
 optional type. The version byte is
 :data:`WIRE_VERSION` for every kind; a decoder accepts exactly that version, except that an
@@ -32,7 +37,9 @@ optional type. The version byte is
 predates shapes refuses it with "unsupported version 2"; circles alone keep version 1, byte for
 byte as before); likewise a ``Cmd`` carrying a double integrator's certified acceleration
 ``ax, ay`` is written as :data:`CMD_ACCEL_VERSION` and every other ``Cmd`` as version 1, and
-:func:`decode_cmd` accepts both. Units: metres,
+:func:`decode_cmd` accepts both; an ``EllipseMsg`` with points, or an ``Others`` any of whose
+ellipses has points, is written as :data:`ELLIPSE_POINTS_VERSION` (without points: version 1,
+byte for byte as before), and their decoders accept both. Units: metres,
 radians, seconds, metres per second, radians per second; ``stamp`` is the sender's clock in
 seconds. ``Pose`` and ``State`` carry no id: the key names the robot.
 
@@ -52,6 +59,7 @@ above the decoders); tests check both agree on valid payloads.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import numbers
@@ -88,10 +96,15 @@ CMD_ACCEL_VERSION = 2  # Cmd with a double integrator's acceleration (ax, ay)
 #: stamp (issue 26: the footprint's route turns it; a hand-given waypoint may say how). One
 #: without any heading is written as version 1, byte for byte as before.
 ROUTE_VERSION = 2
+#: ``ellipse`` and ``others`` version 2 carry each ellipse's members' control points (issue 26:
+#: a formation keeps its own ellipse off the other formations' members, :mod:`agent.body`).
+ELLIPSE_POINTS_VERSION = 2
 MAX_ITEMS = 256  # most ellipses (or obstacles) one payload may carry
+MAX_POINTS = 64  # most points one ellipse carries (scenario.limits.MAX_FORMATION_ROBOTS)
 # A payload longer than this is rejected before parsing [bytes]. The largest valid message (an
-# Others with 256 + 1 ellipses whose ids are 64 four-byte UTF-8 characters) is about 85 kB.
-MAX_PAYLOAD_BYTES = 131072
+# Others with 256 + 1 ellipses whose ids are 64 four-byte UTF-8 characters, each with 64
+# points) is about 350 kB.
+MAX_PAYLOAD_BYTES = 393216
 
 
 class DecodeError(ValueError):
@@ -225,7 +238,9 @@ class EllipseMsg:
     """One formation's bounding ellipse: ``{prefix}/formation/{fid}/ellipse``.
 
     Centroid ``cx, cy`` [m], orientation ``alpha`` [rad], semi-axes ``a, b`` [m], centroid
-    velocity ``vx, vy`` [m/s], ``alpha_rate`` [rad/s], ``stamp`` [s] (eq. 4.6, appendix A.3).
+    velocity ``vx, vy`` [m/s], ``alpha_rate`` [rad/s], ``stamp`` [s] (eq. 4.6, appendix A.3);
+    ``points`` [m]: the members' control points it was estimated from (none from a sender that
+    predates them; wire version :data:`ELLIPSE_POINTS_VERSION`).
     """
 
     formation: str
@@ -238,6 +253,7 @@ class EllipseMsg:
     vy: float
     alpha_rate: float
     stamp: float
+    points: tuple[tuple[float, float], ...] = ()
 
     def __post_init__(self) -> None:
         _check_id(self.formation, "formation")
@@ -248,6 +264,8 @@ class EllipseMsg:
             raise ValueError(f"a must be > 0, got {self.a!r}")
         if self.b <= 0.0:
             raise ValueError(f"b must be > 0, got {self.b!r}")
+        if self.points != ():
+            object.__setattr__(self, "points", _points(self.points, "points", MAX_POINTS))
 
 
 def _ellipse_tuple(value: object, name: str) -> tuple[EllipseMsg, ...]:
@@ -436,13 +454,32 @@ def _ds_not_negative(values: tuple[float, ...]) -> bool:  # x, y, vx, vy, ds
 
 
 _ELLIPSE_SETTERS = _slot_setters(EllipseMsg)
+_ELLIPSE_V1_SETTERS = _ELLIPSE_SETTERS[:-1]  # every field but points (left at its default)
 _OBSTACLE_SETTERS = _slot_setters(ObstacleMsg)
 _OTHERS_SETTERS = _slot_setters(Others)
 _OBSTACLES_SETTERS = _slot_setters(Obstacles)
 
 
-def _ellipses(items: list[Item]) -> tuple[EllipseMsg, ...]:
-    return _build_items(EllipseMsg, _ELLIPSE_SETTERS, items, _axes_positive)
+def _ellipses(items: list[Item],
+              points: list[tuple[tuple[float, float], ...]] | None = None) -> tuple[EllipseMsg, ...]:
+    """The ellipses of decoded items, each with its ``points`` (version 2; read by
+    :meth:`_Reader.points`, so already pairs of floats: only their finiteness is checked)."""
+    put = _ELLIPSE_SETTERS[-1]
+    built = _build_items(EllipseMsg, _ELLIPSE_V1_SETTERS, items, _axes_positive)
+    if points is None:
+        for msg in built:  # a trusted build leaves the slot unset
+            put(msg, ())
+        return built
+    total = 0.0
+    for pts in points:
+        for x, y in pts:
+            total += x + y
+    if not _isfinite(total):
+        return tuple(EllipseMsg(ident, *values, points=pts)  # type: ignore[misc, arg-type]
+                     for (ident, values), pts in zip(items, points, strict=True))
+    for msg, pts in zip(built, points, strict=True):
+        put(msg, pts)
+    return built
 
 
 # --- encoding ---------------------------------------------------------------------------------
@@ -453,10 +490,15 @@ _STATE_VERSION = UInt8(STATE_VERSION)
 _STATUS_VERSION = UInt8(STATUS_VERSION)
 _CMD_ACCEL_VERSION = UInt8(CMD_ACCEL_VERSION)
 _ROUTE_VERSION = UInt8(ROUTE_VERSION)
+_ELLIPSE_POINTS_VERSION = UInt8(ELLIPSE_POINTS_VERSION)
 
 
 def _ellipse_fields(e: EllipseMsg) -> tuple[Any, ...]:
     return (e.formation, e.cx, e.cy, e.alpha, e.a, e.b, e.vx, e.vy, e.alpha_rate, e.stamp)
+
+
+def _ellipse_fields_v2(e: EllipseMsg) -> tuple[Any, ...]:
+    return (*_ellipse_fields(e), list(e.points))
 
 
 def _wire_tuple(msg: Message) -> tuple[Any, ...]:
@@ -468,15 +510,19 @@ def _wire_tuple(msg: Message) -> tuple[Any, ...]:
         return (_CMD_ACCEL_VERSION, msg.v, msg.omega, msg.ux, msg.uy, msg.ax, msg.ay, msg.stamp)
     if isinstance(msg, Cmd):
         return (_VERSION, msg.v, msg.omega, msg.ux, msg.uy, msg.stamp)
+    if isinstance(msg, EllipseMsg) and msg.points:
+        return (_ELLIPSE_POINTS_VERSION, *_ellipse_fields_v2(msg))
     if isinstance(msg, EllipseMsg):
         return (_VERSION, *_ellipse_fields(msg))
     if isinstance(msg, Others):
-        own = [] if msg.own is None else [_ellipse_fields(msg.own)]
+        v2 = any(e.points for e in msg.ellipses) or (msg.own is not None and bool(msg.own.points))
+        fields_of = _ellipse_fields_v2 if v2 else _ellipse_fields
+        own = [] if msg.own is None else [fields_of(msg.own)]
         return (
-            _VERSION,
+            _ELLIPSE_POINTS_VERSION if v2 else _VERSION,
             msg.formation,
             msg.stamp,
-            [_ellipse_fields(e) for e in msg.ellipses],
+            [fields_of(e) for e in msg.ellipses],
             own,
         )
     if isinstance(msg, Obstacles) and msg.shapes:
@@ -515,6 +561,12 @@ def encode_zbytes(msg: Message) -> zenoh.ZBytes:
 
 _MAX_VARINT_BYTES = 10  # an unsigned LEB128 u64 takes at most 10 bytes
 _FLOATS = {n: struct.Struct(f"<{n}d") for n in range(1, 10)}
+
+
+@functools.lru_cache(maxsize=MAX_POINTS)
+def _pairs(n: int) -> struct.Struct:
+    """The format of ``n`` points (2 n f64)."""
+    return struct.Struct(f"<{2 * n}d")
 
 
 def _as_bytes(payload: object) -> bytes:
@@ -612,6 +664,18 @@ class _Reader:
         """An ellipse without the version (``name[index]`` in error messages)."""
         return self.item(_FLOATS[9], name, index, "formation")
 
+    def points(self, name: str, index: int | None = None) -> tuple[tuple[float, float], ...]:
+        """An ellipse's ``points:list[(x, y)]`` (version 2)."""
+        what = (name if index is None else f"{name}[{index}]") + ".points"
+        n = self.count(what, MAX_POINTS)
+        if not n:
+            return ()
+        fmt = _pairs(n)
+        self._need(fmt.size, what)
+        values = fmt.unpack_from(self.data, self.pos)
+        self.pos += fmt.size
+        return tuple(zip(values[0::2], values[1::2], strict=True))
+
     def obstacle(self, index: int) -> Item:
         return self.item(_FLOATS[5], "obstacles", index, "id")
 
@@ -686,15 +750,31 @@ def _parse_ellipse(r: _Reader) -> EllipseMsg:
     return _ellipses([r.ellipse("ellipse")])[0]
 
 
-def _parse_others(r: _Reader) -> Others:
+def _parse_ellipse_points(r: _Reader) -> EllipseMsg:
+    """Version 2: the ellipse as in version 1, then its points."""
+    item = r.ellipse("ellipse")
+    return _ellipses([item], [r.points("ellipse")])[0]
+
+
+_ELLIPSE_PARSERS = {WIRE_VERSION: _parse_ellipse, ELLIPSE_POINTS_VERSION: _parse_ellipse_points}
+
+
+def _parse_others(r: _Reader, with_points: bool = False) -> Others:
     formation = r.string("formation")
     (stamp,) = r.floats(1, "stamp")
     n = r.count("ellipses", MAX_ITEMS)
-    items = [r.ellipse("ellipses", i) for i in range(n)]
+    items: list[Item] = []
+    points: list[tuple[tuple[float, float], ...]] | None = [] if with_points else None
+    for i in range(n):
+        items.append(r.ellipse("ellipses", i))
+        if points is not None:
+            points.append(r.points("ellipses", i))
     n_own = r.count("own", 1)
     if n_own:
         items.append(r.ellipse("own"))
-    built = _ellipses(items)
+        if points is not None:
+            points.append(r.points("own"))
+    built = _ellipses(items, points)
     ellipses, own = (built[:-1], built[-1]) if n_own else (built, None)
     names = {e.formation for e in ellipses}
     if (formation in _VALID_IDS and _isfinite(stamp) and len(names) == n
@@ -724,6 +804,10 @@ def _parse_obstacles_with_shapes(r: _Reader) -> Obstacles:
 
 
 _OBSTACLES_PARSERS = {WIRE_VERSION: _parse_obstacles, SHAPES_VERSION: _parse_obstacles_with_shapes}
+_OTHERS_PARSERS: dict[int, Callable[[_Reader], Others]] = {
+    WIRE_VERSION: _parse_others,
+    ELLIPSE_POINTS_VERSION: functools.partial(_parse_others, with_points=True),
+}
 
 
 def decode_pose(payload: bytes | zenoh.ZBytes) -> Pose:
@@ -743,12 +827,12 @@ def decode_cmd(payload: bytes | zenoh.ZBytes) -> Cmd:
 
 def decode_ellipse(payload: bytes | zenoh.ZBytes) -> EllipseMsg:
     """Decode an ``ellipse`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_ellipse, "ellipse")
+    return _decode(payload, _parse_ellipse, "ellipse", parsers=_ELLIPSE_PARSERS)
 
 
 def decode_others(payload: bytes | zenoh.ZBytes) -> Others:
     """Decode an ``others`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_others, "others")
+    return _decode(payload, _parse_others, "others", parsers=_OTHERS_PARSERS)
 
 
 def decode_obstacles(payload: bytes | zenoh.ZBytes) -> Obstacles:
