@@ -23,7 +23,8 @@ slot (its start control point placed at the pose) and the load:
   -grad d . P' <= gamma (d - Ds);
 * other formations' ellipses, appendix A.3 (19) on a slot:
   -dh/dp . P' <= alpha(h) + dh/dc . c_e' + dh/dalpha . alpha_e' (alpha = the extended class-K of
-  :func:`agent.barriers.ellipse_class_k`);
+  :func:`agent.barriers.ellipse_class_k`); for a formation that sends its member points, half of
+  alpha and without the other ellipse's motion (below, "Two formations");
 * the load's outline: each vertex as a point of the body against shapes and circles (physical
   size: the shape itself, a circle's Ds less the robot radius), and each edge against every shape
   corner and circle centre q: with P* the edge's point nearest q and n = (q - P*)/|q - P*|,
@@ -40,6 +41,30 @@ slot (its start control point placed at the pose) and the load:
   twist's direction of travel and delta_max = epsilon / l, so the bodies stay within epsilon of
   their shape while the formation turns aside; without the goal's travel it does not turn aside
   at all, it slows instead. These rows give way to the barrier rows (:func:`solve_twist`).
+
+Two formations. Appendix A.3 keeps each formation's members out of the other's ellipse and
+credits the other ellipse's motion: a formation whose ellipse moves away leaves room, one that
+comes closer takes it. Nothing keeps a formation's own ellipse off the other's members, and an
+ellipse reaches beyond its robots (it holds a clearance disk round each member), so a formation
+could drive on while its ellipse swept over a smaller one, whose members then had to flee at
+the pace it came: a chase (montecarlo --draw warehouse --seed 2 run 200047: a pentagon boxed in
+by a shelf and a third formation broke its band to 6.2 epsilon and never reached its goal). So
+a leader sends its members' control points with its ellipse (wire ``ellipse`` and ``others``
+version 2), and every formation keeps, besides its slots out of the other's ellipse, its own
+ellipse off the other's points (:func:`mirror_rows`): for q such a point and h = h_own(q),
+dh/dt = -dh/dq . v + dh/dalpha omega >= -alpha(h) / 2, q held still. Each side takes half of
+alpha and credits nothing of the other's motion, as the separation rows split one barrier
+between two robots; the two halves add to appendix A.3's condition on the pair, so the
+barrier holds whatever each side does within its half. A formation that sends no points
+(an older leader, or a stale ellipse the leader grew: :func:`agent.leader_step.inflate`) is
+kept out of as before.
+
+Turning back. Where the goal twist would send a slot back against its motion now (more than
+120 degrees from its velocity under the own ellipse's rates, while it moves faster than
+BRAKE_FROM), the formation keeps that motion, braked by BRAKE_DECEL dt a tick, until it is
+slow (:func:`brake_before_turning_back`): a new route that leads back (a blocked plan, a parked
+thing gone or come) stops the body before it moves the other way, as a carried load would. An
+escape (an ``intent``) is never braked.
 
 Sampled time (item 5): over one period dt at a constant twist a body point leaves the straight line
 P + dt P' by at most rho (omega dt)^2 / 2; every distance here is convex along a straight motion, so
@@ -90,6 +115,13 @@ LIMIT_SIDES = 12  # sides of the polygon inscribed in the speed disk (as agent.b
 TURN_LEFT_BIAS = math.radians(20.0)  # a turn within this of 180 degrees goes left (all alike)
 ARRIVE_RANGE = 0.1  # [m] within this of its target a member blends to eq. 4.2 on it
 _BISECT_STEPS = 40
+# the share of appendix A.3's alpha(h) each of two formations takes where both send member
+# points: each keeps its own members off the other's ellipse and its own ellipse off the other's
+# members by half of it (module docstring, "Two formations")
+MIRROR_SHARE = 0.5
+BRAKE_FROM = 0.04  # [m/s] a formation moving faster than this brakes before turning back
+BRAKE_DECEL = 1.0  # [m/s^2] ... at this rate (brake_before_turning_back)
+BRAKE_COS = math.cos(math.radians(120.0))  # a slot's new velocity this far from its own turns back
 
 
 @dataclass(frozen=True)
@@ -191,14 +223,47 @@ def shape_point_row(pose: Pose, rho: float, p: Point, sh: Shape, ds: float, gamm
 
 
 def ellipse_point_row(pose: Pose, rho: float, p: Point, e: Ellipse, gamma: float,
-                      grow: float = 0.0, linear: bool = False) -> Row3:
+                      grow: float = 0.0, linear: bool = False, shared: bool = True) -> Row3:
     """Appendix A.3 (19) on a body point (as :func:`agent.barriers.ellipse_row`), the ellipse's
     semi-axes grown by ``grow`` (members sit up to about that far from their slots); ``linear``:
-    alpha = gamma h (BodyParams.linear_ellipses)."""
+    alpha = gamma h (BodyParams.linear_ellipses). Where the other formation sends its member
+    points (``e.points``), it keeps its own ellipse off this formation's points by half of
+    alpha (:func:`mirror_rows`), so this row takes the other half and leaves the ellipse's
+    motion out: -dh/dp . P' <= alpha(h) / 2 (not for a point the other does not know of:
+    ``shared`` False, the load's vertices)."""
     h, gx, gy, ga = ellipse_terms(p[0], p[1], e.cx, e.cy, e.alpha, e.a + grow, e.b + grow)
     alpha = gamma * h if linear else ellipse_class_k(h, gamma)
-    b = alpha - (gx * e.vx + gy * e.vy) + ga * e.alpha_rate
+    if shared and e.points:
+        b = MIRROR_SHARE * alpha
+    else:
+        b = alpha - (gx * e.vx + gy * e.vy) + ga * e.alpha_rate
     return point_row(pose, rho, p, -gx, -gy, b)
+
+
+def mirror_rows(own: Ellipse, pose: Pose, rho: float, others: Sequence[Ellipse],
+                p: BodyParams) -> list[Row3]:
+    """The formation's own ellipse kept off the other formations' member points q (those
+    ``e.points`` each other formation sends; module docstring), by the half of appendix A.3's
+    alpha that the other leaves to it: with h = h_own(q) of eq. 4.6 and q held still,
+    dh/dt = dh/dc . v + dh/dalpha omega = -dh/dq . v + dh/dalpha omega >= -alpha(h) / 2, so
+
+        dh/dq . v - dh/dalpha omega <= alpha(h) / 2.
+
+    The own ellipse is grown by the load margin, as the other's rows grow it for their slots
+    (:func:`_member_rows`): both halves then bound the same h, and a formation standing still
+    is not pushed by one that keeps to its half."""
+    rows: list[Row3] = []
+    gamma = p.gamma_formations
+    a, b = own.a + p.load_margin, own.b + p.load_margin
+    for e in others:
+        for qx, qy in e.points:
+            h, gx, gy, ga = ellipse_terms(qx, qy, own.cx, own.cy, own.alpha, a, b)
+            alpha = gamma * h if p.linear_ellipses else ellipse_class_k(h, gamma)
+            a3 = -ga / rho
+            n = math.sqrt(gx * gx + gy * gy + a3 * a3)
+            if n > 1e-12:
+                rows.append((gx / n, gy / n, a3 / n, MIRROR_SHARE * alpha / n))
+    return rows
 
 
 def edge_row(pose: Pose, rho: float, edge: tuple[Point, Point], q: Point, qv: Point, clear: float,
@@ -258,14 +323,22 @@ def near(snap: Snapshot, pose: Pose, rho: float, p: BodyParams) -> Snapshot:
     return Snapshot(obstacles, shapes, ellipses)
 
 
-def footprint_rows(fp: Footprint, pose: Pose, snap: Snapshot, p: BodyParams) -> list[Row3]:
-    """Every footprint barrier row that can be active (b below the largest |z| the limits allow)."""
+def footprint_rows(fp: Footprint, pose: Pose, snap: Snapshot, p: BodyParams,
+                   own: Ellipse | None = None) -> list[Row3]:
+    """Every footprint barrier row that can be active (b below the largest |z| the limits
+    allow); with the formation's ``own`` ellipse, its :func:`mirror_rows` too."""
     rho = fp.rho
+    others = snap.ellipses
     snap = near(snap, pose, rho, p)
     margin = arc_margin(rho, min(p.omega_max, p.vmax / rho), p.dt)  # the limits bound omega so
     slots = [place(pose, s) for s in fp.slots]
     rows = _member_rows(pose, rho, slots, snap, p, margin)
     rows += _load_rows(fp, pose, rho, snap, p, margin)
+    if own is not None:  # the own ellipse reaches beyond rho: its bounding circle for near's test
+        wide = [e for e in others if e.points and not far(
+            math.dist((own.cx, own.cy), (e.cx, e.cy)) - e.a - max(0.0, own.a + p.load_margin - rho),
+            math.hypot(e.vx, e.vy) + e.a * abs(e.alpha_rate), p.gamma_formations, rho, p)]
+        rows += mirror_rows(own, pose, rho, wide, p)
     reach = p.vmax * (1.0 + 1e-9)
     return [r for r in rows if r[3] < reach]
 
@@ -292,8 +365,8 @@ def _load_rows(fp: Footprint, pose: Pose, rho: float, snap: Snapshot, p: BodyPar
         rows += [circle_rows(pose, rho, v, o, max(0.0, o.ds - p.radius) + clear, g)
                  for o in snap.obstacles]
         rows += [shape_point_row(pose, rho, v, sh, clear, g) for sh in snap.shapes]
-        rows += [ellipse_point_row(pose, rho, v, e, p.gamma_formations, 0.0, p.linear_ellipses)
-                 for e in snap.ellipses]
+        rows += [ellipse_point_row(pose, rho, v, e, p.gamma_formations, 0.0, p.linear_ellipses,
+                                   False) for e in snap.ellipses]
     c = (pose.cx, pose.cy)
     things = [((o.x, o.y), (o.vx, o.vy), max(0.0, o.ds - p.radius)) for o in snap.obstacles]
     things += [(q, (0.0, 0.0), 0.0) for sh in snap.shapes for q in sh.corners()
@@ -439,6 +512,31 @@ def goal_twist(pose: Pose, goal: Point, goal_turn: float, rho: float, p: BodyPar
     return (scale * vx + push[0], scale * vy + push[1], scale * w)
 
 
+def brake_before_turning_back(want: Twist, moving: Twist, offsets: Sequence[Point],
+                              dt: float) -> Twist:
+    """The goal twist, or, where it would send a slot back against its motion now, that motion
+    braked: ``moving`` is the formation's twist now (its own ellipse's velocity and turn rate),
+    ``offsets`` its slots from the centroid (world axes). A slot moving faster than BRAKE_FROM
+    whose velocity under ``want`` lies more than 120 degrees from its velocity now turns back;
+    then the body keeps its motion, slowed so its fastest slot loses BRAKE_DECEL dt of speed.
+    A new route or waypoint that leads back (traffic in the way, a parked thing gone or come)
+    makes the body stop before it moves the other way, as a carried load would, instead of its
+    members' commands flipping within one tick (route-head-on-aisle, route-give-way)."""
+    fastest = 0.0
+    back = False
+    for rx, ry in offsets:
+        nx, ny = moving[0] - moving[2] * ry, moving[1] + moving[2] * rx
+        speed = math.hypot(nx, ny)
+        fastest = max(fastest, speed)
+        wx, wy = want[0] - want[2] * ry, want[1] + want[2] * rx
+        if speed > BRAKE_FROM and nx * wx + ny * wy < BRAKE_COS * speed * math.hypot(wx, wy):
+            back = True
+    if not back:
+        return want
+    k = max(0.0, fastest - BRAKE_DECEL * dt) / fastest
+    return (k * moving[0], k * moving[1], k * moving[2])
+
+
 def formation_twist(fp: Footprint, own: Ellipse, goal: Point, snap: Snapshot, p: BodyParams,
                     push: Point = (0.0, 0.0), intent: Point | None = None,
                     turn: float | None = None) -> tuple[Pose, TwistResult]:
@@ -447,7 +545,10 @@ def formation_twist(fp: Footprint, own: Ellipse, goal: Point, snap: Snapshot, p:
     pose = pose_of(own, fp.alpha0)
     rho = fp.rho
     want = goal_twist(pose, goal, fp.goal_turn if turn is None else turn, rho, p, push, intent)
-    res = solve_twist(want, rho, limit_rows(rho, p), footprint_rows(fp, pose, snap, p),
+    if intent is None:
+        offsets = [(x - pose.cx, y - pose.cy) for x, y in (place(pose, q) for q in fp.slots)]
+        want = brake_before_turning_back(want, (own.vx, own.vy, own.alpha_rate), offsets, p.dt)
+    res = solve_twist(want, rho, limit_rows(rho, p), footprint_rows(fp, pose, snap, p, own),
                       spread_rows(want, rho, p.spread))
     # what seeks the goal (for member_nominal's arrival): neither the push nor an escape
     seek = (0.0, 0.0, want[2]) if intent is not None else (want[0] - push[0], want[1] - push[1],

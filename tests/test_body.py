@@ -17,8 +17,8 @@ from hypothesis import strategies as st
 from scipy import sparse
 
 from agent import body
-from agent.barriers import Obstacle
-from geometry.ellipse import Ellipse
+from agent.barriers import Obstacle, ellipse_class_k
+from geometry.ellipse import Ellipse, ellipse_value
 from geometry.shapes import box, segment, shape_distance
 
 PARAMS = body.BodyParams(vmax=0.22, omega_max=math.inf, gamma_obstacle=1.0, gamma_formations=1.0,
@@ -230,3 +230,133 @@ def test_spread_rows_leave_the_goals_turn_and_give_way_to_the_barriers():
     res = body.solve_twist((0.2, 0.0, 0.0), rho, limits, turn, body.spread_rows((0.2, 0.0, 0.0),
                                                                                   rho, 0.1))
     assert res.twist[2] * rho >= 0.16 - 1e-9 and res.slack == 0.0
+
+
+# --- two formations: each keeps its own ellipse off the other's members (the mirror rows) ------
+
+
+def _turned(e: Ellipse, twist, dt: float) -> Ellipse:
+    """``e`` moved rigidly by ``twist`` about its centre for dt."""
+    return e._replace(cx=e.cx + twist[0] * dt, cy=e.cy + twist[1] * dt,
+                      alpha=e.alpha + twist[2] * dt)
+
+
+def _h(e: Ellipse, q, grow: float = 0.0) -> float:
+    return ellipse_value(e._replace(a=e.a + grow, b=e.b + grow), q[0], q[1])
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0), st.floats(-math.pi, math.pi),
+       st.floats(0.3, 1.2), st.floats(0.2, 1.0), st.floats(0.0, 0.1),
+       st.tuples(st.floats(-0.3, 0.3), st.floats(-0.3, 0.3), st.floats(-2.0, 2.0)),
+       st.tuples(st.floats(-2.5, 2.5), st.floats(-2.5, 2.5)), st.floats(0.1, 0.8))
+def test_a_mirror_row_is_half_the_cbf_condition_on_the_own_ellipse_over_a_member_point(
+        cx, cy, alpha, a, aspect, grow, twist, q, rho):
+    """The row's left side is -dh/dt of h = h_own(q) (eq. 4.6, the own ellipse grown by the load
+    margin) under the twist, q held still; its right side is half of alpha(h)."""
+    own = Ellipse(cx, cy, alpha, a, a * aspect)
+    assume(abs(_h(own, q, grow)) > 1e-3 and math.dist(q, (cx, cy)) > 0.05)  # a gradient
+    p = PARAMS._replace(load_margin=grow)
+    other = Ellipse(q[0] + 0.5, q[1], 0.0, 0.6, 0.3, points=(q,))
+    (row,) = body.mirror_rows(own, body.Pose(cx, cy, alpha), rho, [other], p)
+    z = (twist[0], twist[1], rho * twist[2])
+    lhs = row[0] * z[0] + row[1] * z[1] + row[2] * z[2]
+    eps = 1e-6  # central difference: h is far from linear in the turn for a thin ellipse
+    dh = (_h(_turned(own, twist, eps), q, grow) - _h(_turned(own, twist, -eps), q, grow)) / (2 * eps)
+    h = _h(own, q, grow)
+    half_alpha = body.MIRROR_SHARE * ellipse_class_k(h, p.gamma_formations)
+    scale = half_alpha / row[3]  # the row is normalised: both sides by one positive factor
+    assert scale > 0.0
+    assert math.isclose(lhs * scale, -dh, rel_tol=1e-3, abs_tol=1e-5)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(0.4, 1.2), st.floats(0.3, 1.0), st.floats(-math.pi, math.pi),
+       st.floats(0.0, 2.0 * math.pi), st.floats(0.02, 0.8),
+       st.tuples(st.floats(-0.3, 0.3), st.floats(-0.3, 0.3), st.floats(-2.0, 2.0)),
+       st.tuples(st.floats(-0.3, 0.3), st.floats(-0.3, 0.3), st.floats(-2.0, 2.0)))
+def test_the_two_halves_add_up_to_appendix_a3_on_the_pair(a, aspect, alpha, bearing, gap,
+                                                          goal_a, goal_b):
+    """Formation B's slot q outside A's ellipse: B's twist keeps q off A's ellipse by half of
+    alpha (crediting nothing of A's motion), A's twist keeps its ellipse off q by the other
+    half; whatever each asks for, dh/dt >= -alpha(h) for h = h_A(q) under both motions."""
+    p = PARAMS._replace(load_margin=0.05)
+    grow = p.load_margin
+    own_a = Ellipse(0.0, 0.0, alpha, a, a * aspect)
+    # q on the ray at ``bearing``, ``gap`` beyond A's grown ellipse
+    dx, dy = math.cos(bearing), math.sin(bearing)
+    lo, hi = 0.0, 10.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if _h(own_a, (mid * dx, mid * dy), grow) < 0.0 else (lo, mid)
+    q = ((hi + gap) * dx, (hi + gap) * dy)
+    pose_b = body.Pose(q[0] + 0.15, q[1], 0.0)  # B's slots: q and one 0.3 m beside it
+    own_b = Ellipse(q[0] + 0.15, q[1], 0.0, 0.5, 0.3, points=(q, (q[0] + 0.3, q[1])))
+    a_sends = own_a._replace(points=((0.0, 0.0),))
+    row_b = body.ellipse_point_row(pose_b, 0.3, q, a_sends, p.gamma_formations, grow)
+    (row_a, _) = body.mirror_rows(own_a, body.Pose(0.0, 0.0, alpha), 0.5, [own_b], p)
+    tw_a = body.solve_twist(goal_a, 0.5, body.limit_rows(0.5, p), [row_a]).twist
+    tw_b = body.solve_twist(goal_b, 0.3, body.limit_rows(0.3, p), [row_b]).twist
+    eps = 1e-6
+    q1 = body.point_velocity(pose_b, tw_b, q)
+    h0 = _h(own_a, q, grow)
+    h1 = _h(_turned(own_a, tw_a, eps), (q[0] + eps * q1[0], q[1] + eps * q1[1]), grow)
+    assert (h1 - h0) / eps >= -ellipse_class_k(h0, p.gamma_formations) - 1e-4
+
+
+def test_a_formation_does_not_chase_a_smaller_one_its_ellipse_reaches():
+    """A long pair drives at a small formation whose members its ellipse (round its own
+    members' clearance disks) is about to cover, while its own members are far from the small
+    one's ellipse: without the other's points it drives on at full speed (its ellipse then
+    sweeps over the small one, which must flee: run 200047); with them it slows to keep its
+    ellipse off them."""
+    fp = body.Footprint(((-0.6, 0.0), (0.6, 0.0)), 0.0, 0)
+    own = Ellipse(0.0, 0.0, 0.0, 1.0, 0.3)
+    small = Ellipse(1.3, 0.0, 0.0, 0.25, 0.2, points=((1.15, 0.0), (1.45, 0.0)))
+    legacy = small._replace(points=())
+    goal = (5.0, 0.0)
+    _pose, free = body.formation_twist(fp, own, goal, body.Snapshot((), (), (legacy,)), PARAMS)
+    _pose, held = body.formation_twist(fp, own, goal, body.Snapshot((), (), (small,)), PARAMS)
+    assert free.twist[0] > 0.2
+    assert 0.0 < held.twist[0] < 0.1
+    # and nothing of its own members' rows changed: they are far from the small ellipse
+    h_slot = ellipse_value(small, 0.6, 0.0)
+    assert h_slot > 5.0
+
+
+# --- a body that turns back brakes first ------------------------------------------------------
+
+
+def test_a_formation_asked_to_turn_back_brakes_first_and_then_goes():
+    """A pair driving east at 0.2 m/s whose new route leads west keeps driving east, slowed by
+    BRAKE_DECEL dt a tick, until it is slower than BRAKE_FROM; then the route's twist holds.
+    No slot's command flips by more than 90 degrees between two ticks while it is fast."""
+    offsets = [(-0.3, 0.0), (0.3, 0.0)]
+    dt = 0.05
+    want = (-0.2, 0.0, 0.0)
+    moving = (0.2, 0.0, 0.0)
+    ticks = 0
+    while True:
+        got = body.brake_before_turning_back(want, moving, offsets, dt)
+        if got == want:
+            break
+        assert got[0] > 0.0 and got[1] == 0.0
+        assert math.isclose(got[0], moving[0] - body.BRAKE_DECEL * dt)
+        moving = got  # the members follow the braked twist
+        ticks += 1
+    assert moving[0] <= body.BRAKE_FROM + 1e-12
+    assert ticks == math.ceil((0.2 - body.BRAKE_FROM) / (body.BRAKE_DECEL * dt) - 1e-9)
+
+
+def test_a_turn_that_sends_an_outer_slot_back_brakes_too_and_a_sideways_one_does_not():
+    offsets = [(-0.6, 0.0), (0.6, 0.0)]
+    moving = (0.0, 0.15, 0.0)  # north
+    # the centroid keeps going north, but a fast turn sends the east slot south
+    spin = (0.0, 0.05, 0.4)
+    assert body.brake_before_turning_back(spin, moving, offsets, 0.05) != spin
+    # east is 90 degrees off: no slot turns back
+    east = (0.15, 0.0, 0.0)
+    assert body.brake_before_turning_back(east, moving, offsets, 0.05) == east
+    # nearly at rest: nothing to brake
+    slow = (0.0, 0.03, 0.0)
+    assert body.brake_before_turning_back((0.0, -0.2, 0.0), slow, offsets, 0.05) == (0.0, -0.2, 0.0)
