@@ -342,8 +342,9 @@ class NavPart:
         assert self.navigator is not None
         if not (math.isfinite(centroid[0]) and math.isfinite(centroid[1])):
             centroid = self.follower.route[self.follower.index]
-        return self.navigator.status(self.follower, centroid, stalled, stopped or self.stopped, stamp,
-                                     refused=self.goals_refused)
+        boxed = self.routes is not None and self.routes.replanner.boxed_in
+        return self.navigator.status(self.follower, centroid, stalled or boxed,
+                                     stopped or self.stopped, stamp, refused=self.goals_refused)
 
     def _publish_status(self, status: StatusMsg) -> None:
         data = encode_nav(status)

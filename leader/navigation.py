@@ -15,7 +15,8 @@
   (eq. 4.2) is the current waypoint plus its offset, its own goal on the last leg.
 * :meth:`Navigator.status` reports the state (``moving``, ``reached``: the centroid within the
   goal tolerance of the goal centroid on the last leg, ``stalled``: the stall clock sees the
-  formation still away from its target, ``stopped``: the leader commanded zero for missing
+  formation still away from its target, or its replanner finds it boxed in
+  (:attr:`leader.routing.Replanner.boxed_in`), ``stopped``: the leader commanded zero for missing
   inputs, or shuts down,
   ``unreachable``: no route reaches the goal, with the reason), the distance to go along the
   route, the current waypoint, and how many goals were refused and why the last one was.

@@ -15,7 +15,11 @@ to one goal pose and says each tick whether to plan it again:
   still): this plan goes round the moving formations near it too (:func:`blockers`), where it
   is at that moment. They are not kept as planned-around things (they move on), and where no
   route goes round them the formation keeps its route (the way may clear; it is not
-  unreachable).
+  unreachable) and is **boxed in** (:attr:`Replanner.boxed_in`, reported ``stalled``) until it
+  makes progress again: a formation that holds with no route of its own (``unreachable``) and
+  stands in its way gives way to it as to one with no route (:meth:`Replanner.give_way`). Since
+  formations keep their ellipses off each other's members (:mod:`agent.body`), one no longer
+  shoves a holding one aside (route-give-way: hexagon c, boxed in behind the holding d).
 
 At most one plan per :data:`REPLAN_EVERY_S`. No route: the formation holds where it is
 (:meth:`leader.navigation.Follower.hold`) and the reason is kept in ``unreachable`` until a
@@ -54,6 +58,7 @@ GIVE_WAY_S = 90.0  # [s] a formation giving way stands aside at most this long
 GIVE_WAY_MARGIN = 0.3  # [m] beyond both radii: how far from the other's way it stands aside
 UNREACHABLE = "unreachable"  # status states (wire.payloads.STATUS_STATES)
 REACHED = "reached"
+STALLED = "stalled"
 FORMATION = "formation/"  # a Thing's name prefix for another formation
 NEAR_SLACK_M = 0.02  # [m] giving way, the other's circle shrinks to this inside the footprint's reach
 
@@ -235,6 +240,7 @@ class Replanner:
         self.blocked_by: tuple[str, ...] = ()  # no route only because these formations stand in it
         self.giving_way = ""  # the formation this one stands aside for
         self._gave_at = -math.inf
+        self.boxed_in = False  # blocked, and no route round the formations in its way
 
     def plan(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...], why: str,
              extra: tuple[tuple[str, Circle], ...] = ()) -> Update | None:
@@ -244,13 +250,13 @@ class Replanner:
     def give_way(self, t: float, others: Mapping[str, Other]) -> str:
         """The formation to stand aside for now, or "": one whose name sorts before this one's,
         that blocks this one's way (this one finds no route while that one stands in it) and
-        reports no route itself (it may be waiting for this one: two formations in each other's
-        only way, montecarlo warehouse run 200148)."""
+        reports no route itself, or that it is boxed in (``stalled``): it may be waiting for
+        this one (two formations in each other's only way, montecarlo warehouse run 200148)."""
         if not self.unreachable or self.giving_way or t - self._gave_at < RETRY_S:
             return ""
         for name in self.blocked_by:
             o = others.get(name)
-            if o is not None and o.state == UNREACHABLE and name < self.name:
+            if o is not None and o.state in (UNREACHABLE, STALLED) and name < self.name:
                 return name
         return ""
 
@@ -303,7 +309,8 @@ class Replanner:
         route (no way round the blockers)."""
         plan = res.plan if isinstance(res, JobResult) else res
         self.blocked_by = res.blocked_by if isinstance(res, JobResult) else ()
-        if plan.reason and self._blocked:
+        self.boxed_in = bool(plan.reason) and self._blocked
+        if self.boxed_in:
             return None
         self.unreachable = plan.reason
         if plan.reason and self.blocked_by:
@@ -360,6 +367,7 @@ class Replanner:
             return None
         if togo < self._best - PROGRESS_M:
             self._best, self._best_at, self._moved_at = togo, t, t
+            self.boxed_in = False
             return None
         if busy:
             return BLOCKED if t - self._moved_at >= BLOCKED_S else None

@@ -16,6 +16,7 @@ from leader.routing import (
     BLOCKED,
     GIVE_WAY,
     REACHED,
+    STALLED,
     UNREACHABLE,
     Other,
     Replanner,
@@ -115,14 +116,15 @@ class Replans:
 
     def _reports(self, ellipses: dict[str, Ellipse]) -> dict[str, Other]:
         """What each planned formation's leader would report on ``status`` (its state and
-        goal; reached within the goal tolerance of its goal centroid), where it is now."""
+        goal; reached within the goal tolerance of its goal centroid; stalled where it is boxed
+        in, as the agent's leader also says when its stall clock runs), where it is now."""
         out = {}
         tol = self.scenario.goal_tolerance + self.scenario.robot.control_offset
         for name, p in self.planners.items():
             e = ellipses[name]
             gx, gy = p.goal[0], p.goal[1]
             state = (REACHED if math.dist((e.cx, e.cy), (gx, gy)) <= tol else
-                     UNREACHABLE if p.unreachable else "moving")
+                     UNREACHABLE if p.unreachable else STALLED if p.boxed_in else "moving")
             out[name] = Other(state, e.cx, e.cy, gx, gy, e.a)
         return out
 

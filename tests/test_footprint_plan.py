@@ -22,6 +22,7 @@ from leader.routing import (
     GIVE_WAY,
     GIVE_WAY_S,
     REACHED,
+    STALLED,
     UNREACHABLE,
     GiveWayJob,
     Other,
@@ -295,6 +296,30 @@ def test_two_formations_in_each_others_only_way_the_later_name_gives_way_and_the
     end = len(upd.route) - 1
     assert outer.check(6.0 + GIVE_WAY_S - 1.0, (x, y, 0.0), upd.route, end, (), others=reports) is None
     assert outer.check(6.0 + GIVE_WAY_S, (x, y, 0.0), upd.route, end, (), others=reports) == "given way"
+
+
+def test_a_formation_boxed_in_behind_a_holding_one_is_given_way():
+    """A square deep in the dead end has a route out, but the holding square at the mouth stands
+    in it and nothing shoves that one aside (each formation keeps its ellipse off the other's
+    members): its blocked plan round the one in its way finds nothing, so it keeps its route and
+    is boxed in (reported stalled). The holding one, with no route of its own while the first
+    stands in its way, gives way to it as to one with no route; once the first makes progress
+    it is no longer boxed in."""
+    square = Body(((0.3, 0.3), (-0.3, 0.3), (-0.3, -0.3), (0.3, -0.3)), radius=0.105, margin=0.05)
+    walls = _dead_end()
+    inner = Replanner(square, 0.0, (-5.0, 0.0, 0.0), walls, start=(4.0, 0.0))
+    inner.name = "a"
+    route = ((0.5, 0.0), (-5.0, 0.0))
+    extra = (("formation/b", (0.5, 0.0, 0.53)),)
+    assert inner.finish(plan_job(inner.begin(20.0, (3.0, 0.0, 0.0), (), extra)), BLOCKED) is None
+    assert inner.boxed_in and not inner.unreachable  # it keeps its route: the way may clear
+    outer = Replanner(square, 0.0, (4.5, 0.0, 0.0), walls, start=(0.5, 0.0))
+    outer.name, outer.unreachable, outer.blocked_by = "b", "no way", ("a",)
+    boxed = {"a": Other(STALLED, 3.0, 0.0, -5.0, 0.0, 0.42)}
+    assert outer.give_way(26.0, boxed) == "a"
+    # the first one moves on (1 m along its route): no longer boxed in
+    assert inner.check(23.0, (2.0, 0.0, 0.0), route, 0, ()) is None
+    assert not inner.boxed_in
 
 
 def test_a_formation_not_in_the_others_way_or_whose_other_has_a_route_does_not_give_way():
