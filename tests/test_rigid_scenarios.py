@@ -24,7 +24,10 @@ from simulator.inprocess import SimOptions, simulate
 SCENARIOS = Path(__file__).parent / "scenarios"
 
 #: The issue's "Done when" set that does not meet the bar yet, and why (strict: a fix shows).
-FAILING: dict[str, str] = {}  # none at present (rigid-shelves-eight-unicycle was, at 5.95 eps)
+FAILING: dict[str, str] = {  # (rigid-shelves-eight-unicycle was, at 5.95 eps)
+    "rigid-doorway-four-unicycle": "1.68 eps since each formation keeps its ellipse off the "
+                                   "others' members: F's members turn round both ways",
+}
 
 PASSING = sorted(p.stem for p in SCENARIOS.glob("rigid-*.yaml") if p.stem not in FAILING)
 
