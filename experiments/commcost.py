@@ -166,7 +166,8 @@ def fleet_of(scenario: Scenario) -> tuple[list[int], list[int]]:
 def analytic_bytes(scenario: Scenario, topology: str,
                    ellipses: Sequence[tuple] | None = None) -> dict[str, int | float]:
     """Payload bytes per control tick on each inter-robot class, from the encoded size of each
-    message with the scenario's formation ids (every float field has a fixed size).
+    message with the scenario's formation ids (every float field has a fixed size; an ellipse
+    carries one point per member).
 
     A leader's ``others`` holds only the formations within :data:`leader.role.VIEW_RANGE` of its
     ellipse: given the run's ellipses (``series.ellipses`` rows: t, formation, then the
@@ -177,10 +178,12 @@ def analytic_bytes(scenario: Scenario, topology: str,
     counts = analytic_deliveries(sizes, edges, topology)
     state = len(encode(State(0.0, 0.0, 0.0, 0.0, 0.0)))
 
-    def ellipse(fid: str) -> EllipseMsg:
-        return EllipseMsg(fid, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0)
-
     members = {f.name: len(f.robots) for f in scenario.formations}
+
+    def ellipse(fid: str) -> EllipseMsg:  # with its members' control points (wire version 2)
+        return EllipseMsg(fid, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0,
+                          ((0.0, 0.0),) * members[fid])
+
     names = list(members)
 
     def others_bytes(f: str, in_view: Sequence[str]) -> int:

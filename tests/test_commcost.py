@@ -62,14 +62,18 @@ def test_constraint_rows_count_formation_and_separation_rows_and_the_rows_for_ot
 
 
 def test_payload_bytes_of_a_pair_and_a_rectangle_match_the_wire_layout():
-    # State 49 B (version 2, with the heading); an ellipse of formation "f0" 73 + 3 B; Others =
-    # 1 version + 3 id + 8 stamp + 1 list count + 75 B per other ellipse + 1 list count + 75 B
-    # for its own ellipse. All-to-all now exchanges the same ellipses (tie-break, jam rule).
+    # State 49 B (version 2, with the heading); an ellipse of formation "f0" with its m members'
+    # points (version 2) 73 + 3 + 1 + 16 m B: the pair's 109, the rectangle's 141; Others =
+    # 1 version + 3 id + 8 stamp + 1 list count + (75 + 1 + 16 m) B per other ellipse + 1 list
+    # count + the same for its own ellipse, to each member but the leader (1 and 3).
+    # All-to-all exchanges the same ellipses (tie-break, jam rule).
     sc = scenario_from_dict(crossing_scenario(2))
-    assert analytic_bytes(sc, "reduced") == {"state": 14 * 49, "ellipse": 2 * 76,
-                                             "others": 4 * (14 + 2 * 75)}
-    assert analytic_bytes(sc, "all-to-all") == {"state": 30 * 49, "ellipse": 2 * 76,
-                                                "others": 4 * (14 + 2 * 75)}
+    pair, rect = 75 + 1 + 16 * 2, 75 + 1 + 16 * 4
+    others = 1 * (14 + rect + pair) + 3 * (14 + pair + rect)
+    assert analytic_bytes(sc, "reduced") == {"state": 14 * 49, "ellipse": 1 + pair + 1 + rect,
+                                             "others": others}
+    assert analytic_bytes(sc, "all-to-all") == {"state": 30 * 49, "ellipse": 1 + pair + 1 + rect,
+                                                "others": others}
 
 
 def test_others_bytes_count_only_the_formations_each_leader_has_in_view():
@@ -80,7 +84,10 @@ def test_others_bytes_count_only_the_formations_each_leader_has_in_view():
     near = [(0.0, a, 0.0, 0.0, 0.0, 0.5, 0.3), (0.0, b, 2.0, 0.0, 0.0, 0.5, 0.3)]
     far = [(0.05, a, 0.0, 0.0, 0.0, 0.5, 0.3), (0.05, b, 2.0 + VIEW_RANGE, 0.0, 0.0, 0.5, 0.3)]
     seen = analytic_bytes(sc, "reduced", near + far)["others"]
-    assert seen == (4 * (14 + 2 * 75) + 4 * (14 + 75)) / 2
+    pair, rect = 75 + 1 + 16 * 2, 75 + 1 + 16 * 4  # an ellipse with its members' points
+    together = 1 * (14 + rect + pair) + 3 * (14 + pair + rect)
+    apart = 1 * (14 + pair) + 3 * (14 + rect)
+    assert seen == (together + apart) / 2
     assert analytic_bytes(sc, "reduced", near)["others"] == analytic_bytes(sc, "reduced")["others"]
 
 
