@@ -289,9 +289,13 @@ def _drive(cfg: RunConfig, hooks: _Hooks, fleet: Fleet, world: World, endpoint: 
     """Wait for every agent, announce the fleet, run the world; a run that had started and
     stopped early keeps what it measured (and says why)."""
     world.wait_for_agents(abort=fleet.check)
-    (cfg.out / "endpoint").write_text(endpoint + "\n", encoding="utf-8")
-    if hooks.announce is not None:
-        hooks.announce(endpoint)
+
+    def started() -> None:
+        # inside the world's run: a Ctrl-C once the endpoint is out still leaves what was
+        # measured (here, it once fell between this file and the run: exit 130, no summary)
+        (cfg.out / "endpoint").write_text(endpoint + "\n", encoding="utf-8")
+        if hooks.announce is not None:
+            hooks.announce(endpoint)
 
     def abort() -> None:
         if cfg.hold and fleet.signalled is not None:
@@ -305,7 +309,7 @@ def _drive(cfg: RunConfig, hooks: _Hooks, fleet: Fleet, world: World, endpoint: 
 
     on_tick = driver.on_tick if cfg.fault_run or driver.restart_limit else None
     try:
-        return _world_loop(world, hooks, abort, on_tick), None
+        return _world_loop(world, hooks, abort, on_tick, started), None
     except (ChildFailed, KeyboardInterrupt, TimeoutError) as exc:
         if world.result is None:
             raise
@@ -313,12 +317,14 @@ def _drive(cfg: RunConfig, hooks: _Hooks, fleet: Fleet, world: World, endpoint: 
 
 
 def _world_loop(world: World, hooks: _Hooks, abort: Callable[[], None],
-                on_tick: Callable[[int, float], None] | None) -> WorldResult:
+                on_tick: Callable[[int, float], None] | None,
+                started: Callable[[], None]) -> WorldResult:
     stop = hooks.stop_requested.is_set
     if hooks.progress_factory is None:
-        return world.run(abort=abort, on_tick=on_tick, stop=stop)
+        return world.run(abort=abort, on_tick=on_tick, stop=stop, started=started)
     with hooks.progress_factory() as progress:
-        return world.run(progress=progress.update, abort=abort, on_tick=on_tick, stop=stop)
+        return world.run(progress=progress.update, abort=abort, on_tick=on_tick, stop=stop,
+                         started=started)
 
 
 def _run_options(cfg: RunConfig, board: dict[str, dict]) -> dict:

@@ -422,8 +422,11 @@ class World:
         abort: Callable[[], None] = lambda: None,
         on_tick: Callable[[int, float], None] | None = None,
         stop: Callable[[], bool] = lambda: False,
+        started: Callable[[], None] | None = None,
     ) -> WorldResult:
         """Run the scenario; ``abort()`` is called while waiting and may raise to stop;
+        ``started()`` once the run can keep what it measured (a Ctrl-C from then on still
+        leaves a result: ``formation run`` writes its endpoint file there);
         ``on_tick(k, t)`` before the poses of tick ``k`` (simulated time ``t``) are published;
         ``stop()`` True ends the run after the tick in progress (``formation run --hold``)."""
         sc = self.scenario
@@ -477,6 +480,8 @@ class World:
             )
 
         try:
+            if started is not None:
+                started()
             for k in range(sc.steps):
                 t = k * dt
                 if on_tick is not None:

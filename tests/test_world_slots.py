@@ -170,3 +170,27 @@ def test_in_real_time_every_pose_of_the_last_frame_gets_its_period_for_the_comma
     assert result.steps == steps
     assert len(result.latency_ms) == steps * len(ids)  # one command per pose, the last included
     assert max(result.latency_ms) < dt * 1e3
+
+
+def test_a_ctrl_c_as_the_run_starts_still_leaves_what_was_measured() -> None:
+    """CI once saw ``formation run`` exit 130 with no summary.json: its endpoint file (the sign
+    that the world runs) was written before the world's run began, and a Ctrl-C in between met
+    no result. The endpoint now goes out from inside the run (``started``)."""
+    scenario = load_scenario(SCENARIO)
+    conf = zconf.make_config("peer", listen=["tcp/127.0.0.1:0"])
+    calls = []
+
+    def started() -> None:
+        calls.append(1)
+        raise KeyboardInterrupt
+
+    with zenoh.open(conf) as session:
+        world = World(scenario, session, WorldOptions(realtime=True))
+        try:
+            with pytest.raises(KeyboardInterrupt):
+                world.run(started=started)
+        finally:
+            world.close()
+    assert calls == [1]
+    assert world.result is not None and world.result.steps == 0
+    assert world.result.series.robots == []  # nothing was stepped
