@@ -34,7 +34,7 @@ from wire.payloads import EllipseMsg, Others, State
 
 logger = logging.getLogger(__name__)
 
-Member = tuple[float, float, float, float]  # control point x, y, velocity x, y
+Member = tuple[float, float, float, float, float]  # control point x, y, velocity x, y, heading
 
 
 def inflate(m: EllipseMsg, grow: float) -> EllipseMsg:
@@ -155,7 +155,7 @@ class LeaderPart:
     # --- the step -------------------------------------------------------------------------------
 
     async def lead(self, px: float, py: float, stamp: float, ts: float | None,
-                   last_u: tuple[float, float]) -> bool:
+                   last_u: tuple[float, float], theta: float = 0.0) -> bool:
         """Leader role for this tick: estimate and publish the ellipse (and, in real time, the
         beacon when due), collect the other leaders' ellipses, publish ``others``. False when an
         ellipse that may be in view is missing or stale beyond ``ellipse_hold``.
@@ -171,7 +171,7 @@ class LeaderPart:
         role, clock, t = self.role, self._clock, self._transport
         assert role is not None and t is not None  # only called on the leader, once open
         await clock.wait(self._inbox, [(keys.STATE, k) for k in self._member_keys.values()], stamp)
-        own = role.estimate(self.members_now(px, py, ts, last_u))
+        own = role.estimate(self.members_now(px, py, ts, last_u, theta))
         if own is None:
             self.own_others = None
             return False
@@ -249,22 +249,23 @@ class LeaderPart:
         return None, False
 
     def members_now(self, px: float, py: float, ts: float | None,
-                    last_u: tuple[float, float]) -> dict[str, Member]:
-        """Every member's control point and velocity it has fresh (its own from itself). A
+                    last_u: tuple[float, float], theta: float = 0.0) -> dict[str, Member]:
+        """Every member's control point, velocity and heading it has fresh (its own from
+        itself, ``theta`` its body heading). A
         successor leading for a dead leader (``acting``) also takes the dead robot's last
         state, and every velocity as zero: the formation stands still."""
-        members: dict[str, Member] = {self.cfg.robot_id: (px, py, *last_u)}
+        members: dict[str, Member] = {self.cfg.robot_id: (px, py, *last_u, theta)}
         for m, k in self._member_keys.items():
             entry = self._inbox.latest(keys.STATE, k)
             if entry is not None and (self._clock.fresh(entry, ts) or self.acting):
                 s: State = entry[0]
-                members[m] = (s.x, s.y, s.ux, s.uy)
+                members[m] = (s.x, s.y, s.ux, s.uy, s.theta)
         if self.acting:  # a standing formation: its ellipse at rest
             self.acting_ticks += 1
             if not self._acting_since_tick:
                 self._acting_since_tick = True
                 self.takeovers += 1
-            members = {m: (x, y, 0.0, 0.0) for m, (x, y, _, _) in members.items()}
+            members = {m: (x, y, 0.0, 0.0, th) for m, (x, y, _, _, th) in members.items()}
         return members
 
     # --- listening (leader.listen, real time) ---------------------------------------------------

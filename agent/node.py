@@ -551,7 +551,7 @@ class AgentNode:
         clock, stamp = self.clock, pose.stamp
         others_ready = True
         if self.leader.leading:
-            others_ready = await self.leader.lead(px, py, stamp, stamp, self.last_u)
+            others_ready = await self.leader.lead(px, py, stamp, stamp, self.last_u, pose.theta)
         await clock.wait(self.inbox, self._tick_inputs(), stamp)
         fresh = self._fresh_inputs(stamp, others_ready)
         if isinstance(fresh, str):

@@ -48,7 +48,7 @@ def fleet_snapshot(scenario, speed: float = 0.2) -> tuple[ControlParams, list[Ro
     robots = scenario.robots
     ctrl = [(r.start[0], r.start[1]) for r in robots]
     vel = [(speed, 0.0)] * len(robots)
-    ellipses = fleet.ellipses(ctrl, vel)
+    ellipses = fleet.ellipses(ctrl, vel, [r.start[2] for r in robots])
     obs = [Obstacle(o.center[0], o.center[1], o.velocity[0], o.velocity[1], o.safe_distance)
            for o in scenario.obstacles]
     inputs = []

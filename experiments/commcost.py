@@ -180,9 +180,9 @@ def analytic_bytes(scenario: Scenario, topology: str,
 
     members = {f.name: len(f.robots) for f in scenario.formations}
 
-    def ellipse(fid: str) -> EllipseMsg:  # with its members' control points (wire version 2)
+    def ellipse(fid: str) -> EllipseMsg:  # with its members' points and headings (version 2)
         return EllipseMsg(fid, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0,
-                          ((0.0, 0.0),) * members[fid])
+                          ((0.0, 0.0),) * members[fid], (0.0,) * members[fid])
 
     names = list(members)
 

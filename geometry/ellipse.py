@@ -44,6 +44,9 @@ class Ellipse(NamedTuple):
     # [m] the members' control points it was estimated from (:func:`estimate`; none from a
     # leader that predates them): what other formations keep out of their own ellipses
     points: tuple[Point, ...] = ()
+    # [rad] the members' body headings, in the order of ``points`` (unicycle formations; none
+    # otherwise): every member then knows how far each one is from facing the formation's motion
+    headings: tuple[float, ...] = ()
 
 
 class ReferenceShape(NamedTuple):
@@ -100,6 +103,7 @@ def estimate(
     axes: tuple[float, float],
     positions: Sequence[Point],
     velocities: Sequence[Point],
+    headings: Sequence[float] = (),
 ) -> Ellipse:
     """The formation's ellipse now, from its members' positions and velocities.
 
@@ -107,11 +111,12 @@ def estimate(
     Orientation: the rotation theta that best maps the reference offsets r_i onto the current
     offsets q_i (least squares, theta = atan2(sum r x q, sum r . q)), so alpha = alpha0 + theta.
     Rates: centroid velocity is the mean velocity; alpha_rate is the least-squares angular
-    velocity sum(q x (v - v_c)) / sum |q|^2. ``points`` are the ``positions``.
+    velocity sum(q x (v - v_c)) / sum |q|^2. ``points`` are the ``positions``, ``headings``
+    the members' body headings (none, or one per member).
     """
     n = len(shape.offsets)
-    if len(positions) != n or len(velocities) != n:
-        raise ValueError(f"positions/velocities: expected {n} members")
+    if len(positions) != n or len(velocities) != n or len(headings) not in (0, n):
+        raise ValueError(f"positions/velocities/headings: expected {n} members")
     cx, cy = centroid(positions)
     vx, vy = centroid(velocities)
     cross = dot = q2 = w = 0.0
@@ -124,7 +129,7 @@ def estimate(
     theta = math.atan2(cross, dot) if (cross or dot) else 0.0
     rate = w / q2 if q2 > 1e-12 else 0.0
     return Ellipse(cx, cy, wrap_angle(shape.alpha0 + theta), axes[0], axes[1], vx, vy, rate,
-                   tuple(positions))
+                   tuple(positions), tuple(headings))
 
 
 def within_reach(own: Ellipse, cx: float, cy: float, a: float, reach: float) -> bool:

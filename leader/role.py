@@ -18,7 +18,8 @@ from wire.payloads import EllipseMsg, Others
 
 from .settings import LeaderSettings
 
-Kinematic = tuple[float, float, float, float]  # control point x, y [m] and velocity ux, uy [m/s]
+# control point x, y [m], velocity ux, uy [m/s] and body heading [rad]
+Kinematic = tuple[float, float, float, float, float]
 
 # [m] A formation hands its members only the other formations within this gap of its own
 # ellipse (:func:`geometry.ellipse.within_reach`). Nothing farther can act on a member: every
@@ -33,12 +34,12 @@ VIEW_RANGE = 4.0
 def ellipse_to_msg(formation: str, e: Ellipse, stamp: float) -> EllipseMsg:
     """The wire form of ``e`` for ``formation``."""
     return EllipseMsg(formation, e.cx, e.cy, e.alpha, e.a, e.b, e.vx, e.vy, e.alpha_rate, stamp,
-                      e.points)
+                      e.points, e.headings)
 
 
 def msg_to_ellipse(m: EllipseMsg) -> Ellipse:
     """The controller's form of a received ellipse."""
-    return Ellipse(m.cx, m.cy, m.alpha, m.a, m.b, m.vx, m.vy, m.alpha_rate, m.points)
+    return Ellipse(m.cx, m.cy, m.alpha, m.a, m.b, m.vx, m.vy, m.alpha_rate, m.points, m.headings)
 
 
 class LeaderRole:
@@ -74,7 +75,7 @@ class LeaderRole:
             return None
         pts = [(members[m][0], members[m][1]) for m in self.members]
         vel = [(members[m][2], members[m][3]) for m in self.members]
-        return estimate(self.shape, self.axes, pts, vel)
+        return estimate(self.shape, self.axes, pts, vel, [members[m][4] for m in self.members])
 
     def others(self, own: Ellipse, received: Mapping[str, EllipseMsg], stamp: float) -> Others:
         """The ``others`` message: every other formation's latest ellipse within

@@ -108,12 +108,15 @@ class FleetModel:
             footprints,
         )
 
-    def ellipses(self, ctrl: list[tuple[float, float]], vel: list[tuple[float, float]]):
+    def ellipses(self, ctrl: list[tuple[float, float]], vel: list[tuple[float, float]],
+                 headings: list[float]):
+        """Each formation's ellipse, as its leader estimates it from its members' ``state``
+        (control points, velocities and body headings)."""
         out = {}
         for name, idx in self.members.items():
             out[name] = estimate(
-                self.shapes[name], self.axes[name], [ctrl[k] for k in idx], [vel[k] for k in idx]
-            )
+                self.shapes[name], self.axes[name], [ctrl[k] for k in idx], [vel[k] for k in idx],
+                [headings[k] for k in idx])
         return out
 
 
@@ -170,7 +173,7 @@ def simulate(  # noqa: C901 (13: the in-process loop; to split with the world's 
         # what the agents see: the truth, or in a lab world the camera's view (simulator.lab)
         seen, obs = sensed(lab, k, state, obstacles_at(t))
         ctrl = [unicycle.control_point(s[0], s[1], s[2], off) for s in seen]
-        ellipses = fleet.ellipses(ctrl, vel)
+        ellipses = fleet.ellipses(ctrl, vel, [s[2] for s in seen])
         replans.tick(t, ellipses, obs, followers)
         headings = {name: replans.heading(name, e) for name, e in ellipses.items()}
         results = []

@@ -63,12 +63,13 @@ def test_constraint_rows_count_formation_and_separation_rows_and_the_rows_for_ot
 
 def test_payload_bytes_of_a_pair_and_a_rectangle_match_the_wire_layout():
     # State 49 B (version 2, with the heading); an ellipse of formation "f0" with its m members'
-    # points (version 2) 73 + 3 + 1 + 16 m B: the pair's 109, the rectangle's 141; Others =
-    # 1 version + 3 id + 8 stamp + 1 list count + (75 + 1 + 16 m) B per other ellipse + 1 list
-    # count + the same for its own ellipse, to each member but the leader (1 and 3).
+    # points and headings (version 2) 73 + 3 + 1 + 16 m + 1 + 8 m B: the pair's 126, the
+    # rectangle's 174; Others = 1 version + 3 id + 8 stamp + 1 list count + (75 + 2 + 24 m) B per
+    # other ellipse + 1 list count + the same for its own ellipse, to each member but the leader
+    # (1 and 3).
     # All-to-all exchanges the same ellipses (tie-break, jam rule).
     sc = scenario_from_dict(crossing_scenario(2))
-    pair, rect = 75 + 1 + 16 * 2, 75 + 1 + 16 * 4
+    pair, rect = 75 + 2 + 24 * 2, 75 + 2 + 24 * 4
     others = 1 * (14 + rect + pair) + 3 * (14 + pair + rect)
     assert analytic_bytes(sc, "reduced") == {"state": 14 * 49, "ellipse": 1 + pair + 1 + rect,
                                              "others": others}
@@ -84,7 +85,7 @@ def test_others_bytes_count_only_the_formations_each_leader_has_in_view():
     near = [(0.0, a, 0.0, 0.0, 0.0, 0.5, 0.3), (0.0, b, 2.0, 0.0, 0.0, 0.5, 0.3)]
     far = [(0.05, a, 0.0, 0.0, 0.0, 0.5, 0.3), (0.05, b, 2.0 + VIEW_RANGE, 0.0, 0.0, 0.5, 0.3)]
     seen = analytic_bytes(sc, "reduced", near + far)["others"]
-    pair, rect = 75 + 1 + 16 * 2, 75 + 1 + 16 * 4  # an ellipse with its members' points
+    pair, rect = 75 + 2 + 24 * 2, 75 + 2 + 24 * 4  # an ellipse with its members' points, headings
     together = 1 * (14 + rect + pair) + 3 * (14 + pair + rect)
     apart = 1 * (14 + pair) + 3 * (14 + rect)
     assert seen == (together + apart) / 2

@@ -29,13 +29,13 @@ def role(scenario) -> LeaderRole:
     return LeaderRole(cfg.formation, cfg.leader)
 
 
-def moved_states(scenario) -> dict[str, tuple[float, float, float, float]]:
-    """F1 moved, rotated a little, with different velocities per member."""
+def moved_states(scenario) -> dict[str, tuple[float, float, float, float, float]]:
+    """F1 moved, rotated a little, with different velocities and headings per member."""
     f = scenario.formations[0]
     out = {}
     for k, r in enumerate(f.robots):
         x, y = control_point(*r.start, 0.0)
-        out[r.id] = (x + 1.0 - 0.05 * y, y + 0.3 + 0.05 * x, 0.1 + 0.01 * k, -0.02 * k)
+        out[r.id] = (x + 1.0 - 0.05 * y, y + 0.3 + 0.05 * x, 0.1 + 0.01 * k, -0.02 * k, 0.3 * k)
     return out
 
 
@@ -45,11 +45,13 @@ def test_the_role_estimates_the_same_ellipse_as_estimate_on_the_members_states(s
     got = role.estimate(states)
     shape = reference_shape([control_point(*r.start, 0.0) for r in f.robots])
     want = estimate(shape, formation_axes(scenario, f), [s[:2] for s in states.values()],
-                    [s[2:] for s in states.values()])
+                    [s[2:4] for s in states.values()], [s[4] for s in states.values()])
     assert got is not None
     assert_allclose(tuple(got[:8]), tuple(want[:8]), atol=1e-12)
     # the members' control points travel with it (the other formations' mirror rows)
     assert got.points == want.points == tuple(s[:2] for s in states.values())
+    # and their headings (a formation of unicycles waits for its members to face its motion)
+    assert got.headings == want.headings == tuple(s[4] for s in states.values())
 
 
 def test_the_role_has_no_ellipse_while_a_member_is_missing(scenario, role):
@@ -78,6 +80,7 @@ def test_others_holds_the_other_leaders_ellipses_and_the_own_one(scenario, role)
     assert msg.own is not None
     assert_allclose(tuple(msg_to_ellipse(msg.own)[:8]), tuple(own[:8]))
     assert msg_to_ellipse(msg.own).points == own.points and len(own.points) == 4
+    assert msg_to_ellipse(msg.own).headings == own.headings and len(own.headings) == 4
     assert msg.stamp == 3.0
 
 

@@ -55,10 +55,20 @@ cmds = st.builds(Cmd, finite, finite, finite, finite, finite)
 point_lists = st.lists(st.tuples(finite, finite), max_size=6).map(tuple)
 
 
+@st.composite
+def points_and_headings(draw: st.DrawFn) -> tuple[tuple, tuple]:
+    """An ellipse's points, and none or one heading per point."""
+    pts = draw(point_lists)
+    hs = draw(st.just(()) | st.lists(finite, min_size=len(pts), max_size=len(pts)).map(tuple))
+    return pts, hs
+
+
 def ellipses_of(formation: st.SearchStrategy[str]) -> st.SearchStrategy[EllipseMsg]:
     return st.builds(
-        EllipseMsg, formation, finite, finite, finite, positive, positive, finite, finite,
-        finite, finite, st.just(()) | point_lists,
+        lambda e, ph: dataclasses.replace(e, points=ph[0], headings=ph[1]),
+        st.builds(EllipseMsg, formation, finite, finite, finite, positive, positive, finite,
+                  finite, finite, finite),
+        st.just(((), ())) | points_and_headings(),
     )
 
 
@@ -95,7 +105,7 @@ any_message = st.one_of(poses, states, cmds, ellipses, others_msgs(), obstacles_
 
 E_A = EllipseMsg("A", 1.0, 2.0, 0.0, 0.5, 0.25, 1.0, 0.0, -1.0, 3.0)
 E_B = EllipseMsg("B", 1.0, 2.0, 0.0, 0.5, 0.25, 1.0, 0.0, -1.0, 3.0)
-E_A2 = dataclasses.replace(E_A, points=((1.0, 2.0), (0.5, -1.0)))  # wire version 2
+E_A2 = dataclasses.replace(E_A, points=((1.0, 2.0), (0.5, -1.0)), headings=(0.25, 3.0))  # v2
 EXAMPLES = [
     Pose(1.0, 2.0, 0.5, 3.0),
     State(1.0, 2.0, 0.5, -1.0, 3.0),
@@ -169,11 +179,12 @@ PINNED = [
     (EXAMPLES[4], V1 + "0142" + F4 + "01" + ELLIPSE_A + "01" + ELLIPSE_B, 1 + 2 + 8 + 1 + 74 * 2 + 1),
     # version, stamp 3.0, list of 1 obstacle: id "o1", x, y, vx, vy, ds
     (EXAMPLES[5], V1 + F3 + "01" + "026f31" + F1 + F2 + F0 + FM1 + F05, 1 + 8 + 1 + 3 + 40),
-    # version 2: the ellipse, then its points as a list of (x, y)
-    (EXAMPLES[6], "02" + ELLIPSE_A + "02" + F1 + F2 + F05 + FM1, 75 + 1 + 32),
-    # version 2 others: every ellipse with its points list (the own one's empty)
-    (EXAMPLES[7], "02" + "0142" + F4 + "01" + ELLIPSE_A + "02" + F1 + F2 + F05 + FM1
-     + "01" + ELLIPSE_B + "00", 1 + 2 + 8 + 1 + 74 + 33 + 1 + 74 + 1),
+    # version 2: the ellipse, then its points as a list of (x, y), then their headings
+    (EXAMPLES[6], "02" + ELLIPSE_A + "02" + F1 + F2 + F05 + FM1 + "02" + F025 + F3,
+     75 + 1 + 32 + 1 + 16),
+    # version 2 others: every ellipse with its points and headings lists (the own one's empty)
+    (EXAMPLES[7], "02" + "0142" + F4 + "01" + ELLIPSE_A + "02" + F1 + F2 + F05 + FM1 + "02" + F025
+     + F3 + "01" + ELLIPSE_B + "00" + "00", 1 + 2 + 8 + 1 + 74 + 33 + 17 + 1 + 74 + 2),
 ]
 
 
@@ -198,7 +209,7 @@ def test_a_string_longer_than_127_bytes_has_a_two_byte_length_varint() -> None:
 
 _E = tuple[str, float, float, float, float, float, float, float, float, float]
 _E2 = tuple[str, float, float, float, float, float, float, float, float, float,
-            list[tuple[float, float]]]
+            list[tuple[float, float]], list[float]]
 REFERENCE_TYPES = {
     Pose: tuple[UInt8, float, float, float, float],
     State: tuple[UInt8, float, float, float, float, float, float],
@@ -209,7 +220,7 @@ REFERENCE_TYPES = {
 }
 REFERENCE_TYPES_V2 = {  # an ellipse with points, an others any of whose ellipses has them
     EllipseMsg: tuple[UInt8, str, float, float, float, float, float, float, float, float, float,
-                      list[tuple[float, float]]],
+                      list[tuple[float, float]], list[float]],
     Others: tuple[UInt8, str, float, list[_E2], list[_E2]],
 }
 
@@ -223,8 +234,9 @@ def _with_points(msg: object) -> bool:
 
 
 def _ellipse_fields(e: EllipseMsg, v2: bool) -> tuple[object, ...]:
-    base = tuple(getattr(e, f) for f in EllipseMsg.__dataclass_fields__ if f != "points")
-    return (*base, list(e.points)) if v2 else base
+    base = tuple(getattr(e, f) for f in EllipseMsg.__dataclass_fields__
+                 if f not in ("points", "headings"))
+    return (*base, list(e.points), list(e.headings)) if v2 else base
 
 
 def _fields(msg: object) -> tuple[object, ...]:
@@ -492,7 +504,7 @@ def test_an_absurd_element_count_fails_fast_without_allocating() -> None:
 def test_the_largest_valid_message_fits_under_the_payload_limit() -> None:
     def big(formation: str) -> EllipseMsg:
         return EllipseMsg(formation, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0,
-                          ((0.5, -0.5),) * payloads.MAX_POINTS)
+                          ((0.5, -0.5),) * payloads.MAX_POINTS, (1.5,) * payloads.MAX_POINTS)
 
     own_id = "\U0001F916" * keys.MAX_ID_LEN  # 4 UTF-8 bytes per character
     others = tuple(big(f"{i:03d}" + "\U0001F916" * 61) for i in range(payloads.MAX_ITEMS))
@@ -969,17 +981,37 @@ def test_points_beyond_the_limit_or_not_finite_are_refused_built_and_decoded() -
         EllipseMsg(*fields, points=((0.0, math.inf),))
     with pytest.raises(ValueError, match=r"points\[0\]"):
         EllipseMsg(*fields, points=((0.0, 1.0, 2.0),))
-    too_many = z_serialize((UInt8(2), *fields, [(0.0, 0.0)] * 65)).to_bytes()
+    too_many = z_serialize((UInt8(2), *fields, [(0.0, 0.0)] * 65, [])).to_bytes()
     with pytest.raises(DecodeError, match="at most 64"):
         decode_ellipse(too_many)
     for bad in (math.nan, math.inf, -math.inf):
-        data = z_serialize((UInt8(2), *fields, [(0.0, 0.0), (bad, 1.0)])).to_bytes()
+        data = z_serialize((UInt8(2), *fields, [(0.0, 0.0), (bad, 1.0)], [])).to_bytes()
         with pytest.raises(DecodeError, match="finite"):
             decode_ellipse(data)
-        others = z_serialize((UInt8(2), "B", 0.0, [(*fields, [(bad, 0.0)])], [])).to_bytes()
+        data = z_serialize((UInt8(2), *fields, [(0.0, 0.0)], [bad])).to_bytes()
+        with pytest.raises(DecodeError, match="finite"):
+            decode_ellipse(data)
+        others = z_serialize((UInt8(2), "B", 0.0, [(*fields, [(bad, 0.0)], [])], [])).to_bytes()
         with pytest.raises(DecodeError, match="finite"):
             decode_others(others)
     # a version-1 others has no points list: one where version 2 expects it is truncated
     v1_body = encode(Others("B", 4.0, (E_A,), None))[1:]
     with pytest.raises(DecodeError, match="truncated"):
         decode_others(b"\x02" + v1_body)
+
+
+def test_headings_must_match_the_points_one_for_one_built_and_decoded() -> None:
+    fields = [getattr(E_A, f) for f in ("formation", "cx", "cy", "alpha", "a", "b", "vx", "vy",
+                                        "alpha_rate", "stamp")]
+    with pytest.raises(ValueError, match="1 headings for 2 points"):
+        EllipseMsg(*fields, points=((0.0, 0.0), (1.0, 1.0)), headings=(0.5,))
+    with pytest.raises(ValueError, match=r"headings\[0\]"):
+        EllipseMsg(*fields, points=((0.0, 0.0),), headings=(math.nan,))
+    assert decode_ellipse(encode(E_A2)).headings == (0.25, 3.0)
+    assert decode_ellipse(encode(dataclasses.replace(E_A2, headings=()))).headings == ()
+    wrong = z_serialize((UInt8(2), *fields, [(0.0, 0.0), (1.0, 1.0)], [0.5])).to_bytes()
+    with pytest.raises(DecodeError, match="1 headings for 2 points"):
+        decode_ellipse(wrong)
+    hostile = z_serialize((UInt8(2), *fields, [(0.0, 0.0)], [0.5] * 65)).to_bytes()
+    with pytest.raises(DecodeError, match="at most 64"):
+        decode_ellipse(hostile)

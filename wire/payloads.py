@@ -15,9 +15,9 @@ payload        fields in order (``u8`` version, then ``f64`` unless marked ``str
 ``Cmd``        version, v, omega, ux, uy, stamp                                          41
 ``Cmd``        version 2, v, omega, ux, uy, ax, ay, stamp                                57
 ``EllipseMsg`` version, formation:str, cx, cy, alpha, a, b, vx, vy, alpha_rate, stamp   73+n
-``EllipseMsg`` version 2, the same, then points:list[P]                                varies
+``EllipseMsg`` version 2, the same, then points:list[P], headings:list[f64]           varies
 ``Others``     version, formation:str, stamp, ellipses:list[E], own:list[E] (0 or 1)  varies
-``Others``     version 2, the same with every ``E`` followed by its points:list[P]     varies
+``Others``     version 2, the same with every ``E`` followed by its points and headings varies
 ``Obstacles``  version, stamp, obstacles:list[O]                                         varies
 ``Obstacles``  version 2, stamp, obstacles:list[O], shapes:list[S]                       varies
 =============  =======================================================================  =====
@@ -29,7 +29,8 @@ hx, hy, yaw, ds)``: kind 1 a segment (centre, half length ``hx``, ``hy = 0``, di
 kind 2 a box (centre, half sizes, yaw); see :mod:`geometry.shapes`. ``P`` is a point ``(x, y)``:
 an ellipse's ``points`` are its formation's members' control points it was estimated from (at
 most :data:`MAX_POINTS`), which the other formations keep out of their own ellipses (the mirror
-rows of :mod:`agent.body`). ``Others.own`` (the
+rows of :mod:`agent.body`), and ``headings`` those members' body headings [rad] (none, or one
+per point: a formation of unicycles waits for its members to face its motion). ``Others.own`` (the
 leader's own ellipse, or none) is a list of 0 or 1 elements because the format has no
 optional type. The version byte is
 :data:`WIRE_VERSION` for every kind; a decoder accepts exactly that version, except that an
@@ -103,8 +104,8 @@ MAX_ITEMS = 256  # most ellipses (or obstacles) one payload may carry
 MAX_POINTS = 64  # most points one ellipse carries (scenario.limits.MAX_FORMATION_ROBOTS)
 # A payload longer than this is rejected before parsing [bytes]. The largest valid message (an
 # Others with 256 + 1 ellipses whose ids are 64 four-byte UTF-8 characters, each with 64
-# points) is about 350 kB.
-MAX_PAYLOAD_BYTES = 393216
+# points and headings) is about 480 kB.
+MAX_PAYLOAD_BYTES = 524288
 
 
 class DecodeError(ValueError):
@@ -240,7 +241,9 @@ class EllipseMsg:
     Centroid ``cx, cy`` [m], orientation ``alpha`` [rad], semi-axes ``a, b`` [m], centroid
     velocity ``vx, vy`` [m/s], ``alpha_rate`` [rad/s], ``stamp`` [s] (eq. 4.6, appendix A.3);
     ``points`` [m]: the members' control points it was estimated from (none from a sender that
-    predates them; wire version :data:`ELLIPSE_POINTS_VERSION`).
+    predates them; wire version :data:`ELLIPSE_POINTS_VERSION`); ``headings`` [rad]: their body
+    headings, none or one per point (a formation of unicycles waits for its members to face its
+    motion: :func:`agent.body.pace`).
     """
 
     formation: str
@@ -254,6 +257,7 @@ class EllipseMsg:
     alpha_rate: float
     stamp: float
     points: tuple[tuple[float, float], ...] = ()
+    headings: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         _check_id(self.formation, "formation")
@@ -266,6 +270,8 @@ class EllipseMsg:
             raise ValueError(f"b must be > 0, got {self.b!r}")
         if self.points != ():
             object.__setattr__(self, "points", _points(self.points, "points", MAX_POINTS))
+        if self.headings != ():
+            object.__setattr__(self, "headings", _point_headings(self.headings, len(self.points)))
 
 
 def _ellipse_tuple(value: object, name: str) -> tuple[EllipseMsg, ...]:
@@ -454,31 +460,37 @@ def _ds_not_negative(values: tuple[float, ...]) -> bool:  # x, y, vx, vy, ds
 
 
 _ELLIPSE_SETTERS = _slot_setters(EllipseMsg)
-_ELLIPSE_V1_SETTERS = _ELLIPSE_SETTERS[:-1]  # every field but points (left at its default)
+_ELLIPSE_V1_SETTERS = _ELLIPSE_SETTERS[:-2]  # every field but points and headings (defaults)
 _OBSTACLE_SETTERS = _slot_setters(ObstacleMsg)
 _OTHERS_SETTERS = _slot_setters(Others)
 _OBSTACLES_SETTERS = _slot_setters(Obstacles)
 
 
-def _ellipses(items: list[Item],
-              points: list[tuple[tuple[float, float], ...]] | None = None) -> tuple[EllipseMsg, ...]:
-    """The ellipses of decoded items, each with its ``points`` (version 2; read by
-    :meth:`_Reader.points`, so already pairs of floats: only their finiteness is checked)."""
-    put = _ELLIPSE_SETTERS[-1]
+Points = tuple[tuple[tuple[float, float], ...], tuple[float, ...]]  # an ellipse's points, headings
+
+
+def _ellipses(items: list[Item], points: list[Points] | None = None) -> tuple[EllipseMsg, ...]:
+    """The ellipses of decoded items, each with its ``points`` and ``headings`` (version 2;
+    read by :meth:`_Reader.points`, so already pairs of floats and as many headings as points:
+    only their finiteness is checked)."""
+    put_points, put_headings = _ELLIPSE_SETTERS[-2], _ELLIPSE_SETTERS[-1]
     built = _build_items(EllipseMsg, _ELLIPSE_V1_SETTERS, items, _axes_positive)
     if points is None:
-        for msg in built:  # a trusted build leaves the slot unset
-            put(msg, ())
+        for msg in built:  # a trusted build leaves the slots unset
+            put_points(msg, ())
+            put_headings(msg, ())
         return built
     total = 0.0
-    for pts in points:
+    for pts, hs in points:
         for x, y in pts:
             total += x + y
+        total += sum(hs)
     if not _isfinite(total):
-        return tuple(EllipseMsg(ident, *values, points=pts)  # type: ignore[misc, arg-type]
-                     for (ident, values), pts in zip(items, points, strict=True))
-    for msg, pts in zip(built, points, strict=True):
-        put(msg, pts)
+        return tuple(EllipseMsg(ident, *values, points=pts, headings=hs)  # type: ignore[misc, arg-type]
+                     for (ident, values), (pts, hs) in zip(items, points, strict=True))
+    for msg, (pts, hs) in zip(built, points, strict=True):
+        put_points(msg, pts)
+        put_headings(msg, hs)
     return built
 
 
@@ -498,7 +510,7 @@ def _ellipse_fields(e: EllipseMsg) -> tuple[Any, ...]:
 
 
 def _ellipse_fields_v2(e: EllipseMsg) -> tuple[Any, ...]:
-    return (*_ellipse_fields(e), list(e.points))
+    return (*_ellipse_fields(e), list(e.points), list(e.headings))
 
 
 def _wire_tuple(msg: Message) -> tuple[Any, ...]:
@@ -567,6 +579,12 @@ _FLOATS = {n: struct.Struct(f"<{n}d") for n in range(1, 10)}
 def _pairs(n: int) -> struct.Struct:
     """The format of ``n`` points (2 n f64)."""
     return struct.Struct(f"<{2 * n}d")
+
+
+@functools.lru_cache(maxsize=MAX_POINTS)
+def _singles(n: int) -> struct.Struct:
+    """The format of ``n`` headings (n f64)."""
+    return struct.Struct(f"<{n}d")
 
 
 def _as_bytes(payload: object) -> bytes:
@@ -664,17 +682,29 @@ class _Reader:
         """An ellipse without the version (``name[index]`` in error messages)."""
         return self.item(_FLOATS[9], name, index, "formation")
 
-    def points(self, name: str, index: int | None = None) -> tuple[tuple[float, float], ...]:
-        """An ellipse's ``points:list[(x, y)]`` (version 2)."""
+    def points(self, name: str, index: int | None = None) -> Points:
+        """An ellipse's ``points:list[(x, y)]`` and ``headings:list[f64]`` (version 2; no
+        headings, or one per point)."""
         what = (name if index is None else f"{name}[{index}]") + ".points"
         n = self.count(what, MAX_POINTS)
-        if not n:
-            return ()
-        fmt = _pairs(n)
+        pts: tuple[tuple[float, float], ...] = ()
+        if n:
+            fmt = _pairs(n)
+            self._need(fmt.size, what)
+            values = fmt.unpack_from(self.data, self.pos)
+            self.pos += fmt.size
+            pts = tuple(zip(values[0::2], values[1::2], strict=True))
+        what = (name if index is None else f"{name}[{index}]") + ".headings"
+        k = self.count(what, MAX_POINTS)
+        if k not in (0, n):
+            raise DecodeError(f"{what}: {k} headings for {n} points")
+        if not k:
+            return pts, ()
+        fmt = _singles(k)
         self._need(fmt.size, what)
-        values = fmt.unpack_from(self.data, self.pos)
+        hs = fmt.unpack_from(self.data, self.pos)
         self.pos += fmt.size
-        return tuple(zip(values[0::2], values[1::2], strict=True))
+        return pts, hs
 
     def obstacle(self, index: int) -> Item:
         return self.item(_FLOATS[5], "obstacles", index, "id")
@@ -764,7 +794,7 @@ def _parse_others(r: _Reader, with_points: bool = False) -> Others:
     (stamp,) = r.floats(1, "stamp")
     n = r.count("ellipses", MAX_ITEMS)
     items: list[Item] = []
-    points: list[tuple[tuple[float, float], ...]] | None = [] if with_points else None
+    points: list[Points] | None = [] if with_points else None
     for i in range(n):
         items.append(r.ellipse("ellipses", i))
         if points is not None:
@@ -891,6 +921,17 @@ def _points(value: object, name: str, limit: int) -> tuple[tuple[float, float], 
                 raise ValueError(f"{name}[{k}] must hold finite numbers, got {p!r}")
         out.append((float(x), float(y)))
     return tuple(out)
+
+
+def _point_headings(value: object, n: int) -> tuple[float, ...]:
+    """An ellipse's ``headings``: one finite number per point."""
+    hs: tuple[Any, ...] = tuple(value)  # type: ignore[arg-type]
+    if len(hs) != n:
+        raise ValueError(f"headings: {len(hs)} headings for {n} points")
+    for k, h in enumerate(hs):
+        if isinstance(h, bool) or not isinstance(h, numbers.Real) or not math.isfinite(h):
+            raise ValueError(f"headings[{k}] must be a finite number, got {h!r}")
+    return tuple(float(h) for h in hs)
 
 
 def _headings(value: object, n: int, name: str) -> tuple[float | None, ...]:
