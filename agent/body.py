@@ -59,6 +59,16 @@ barrier holds whatever each side does within its half. A formation that sends no
 (an older leader, or a stale ellipse the leader grew: :func:`agent.leader_step.inflate`) is
 kept out of as before.
 
+Facing the motion. A unicycle member drives only along its heading; asked to move its slot
+elsewhere, it turns in place first (:func:`agent.unicycle.steer`), then drives while it turns the
+rest. Each member picks its own way round, and members whose headings differ by a few degrees
+can pick opposite ways: driving while they turn, their bodies sweep arcs on opposite sides and
+the formation bends (the turn round when its motion reverses: tests/scenarios/
+lab-unicycles-turn-round.yaml, rigid-doorway-four-unicycle.yaml). So a leader sends its members'
+body headings with their points, and a formation of unicycles asks for :func:`pace`'s share of
+its goal twist until every member faces its slot's motion: its members turn in place, bodies
+still, whichever way each turns, and the formation drives once they face it.
+
 Turning back. Where the goal twist would send a slot back against its motion now (more than
 120 degrees from its velocity under the own ellipse's rates, while it moves faster than
 BRAKE_FROM), the formation keeps that motion, braked by BRAKE_DECEL dt a tick, until it is
@@ -429,6 +439,7 @@ class TwistResult(NamedTuple):
     slack: float  # [m/s] how much the barrier rows were relaxed (0: all met)
     rows: int  # footprint rows in the QP
     goal: Twist = (0.0, 0.0, 0.0)  # the part of the goal twist that seeks the goal
+    aim: Twist | None = None  # the twist the formation waits to make (:func:`pace` < 1), else None
 
 
 def spread_rows(goal: Twist, rho: float, spread: float) -> list[Row3]:
@@ -541,19 +552,60 @@ def formation_twist(fp: Footprint, own: Ellipse, goal: Point, snap: Snapshot, p:
                     push: Point = (0.0, 0.0), intent: Point | None = None,
                     turn: float | None = None) -> tuple[Pose, TwistResult]:
     """The formation's pose and its certified twist this tick (eq. 4.12' of the module docstring);
-    ``turn``: the rotation to turn to (a waypoint's heading), else the goal shape's."""
+    ``turn``: the rotation to turn to (a waypoint's heading), else the goal shape's. A formation
+    of unicycles whose ellipse came with its members' headings asks for :func:`pace`'s share of
+    its goal twist while they turn to face its motion; ``aim`` is then the twist it waits to make
+    (certified as the full goal twist would be), which its members turn to face."""
     pose = pose_of(own, fp.alpha0)
     rho = fp.rho
     want = goal_twist(pose, goal, fp.goal_turn if turn is None else turn, rho, p, push, intent)
     if intent is None:
         offsets = [(x - pose.cx, y - pose.cy) for x, y in (place(pose, q) for q in fp.slots)]
         want = brake_before_turning_back(want, (own.vx, own.vy, own.alpha_rate), offsets, p.dt)
-    res = solve_twist(want, rho, limit_rows(rho, p), footprint_rows(fp, pose, snap, p, own),
-                      spread_rows(want, rho, p.spread))
+    rows = footprint_rows(fp, pose, snap, p, own)
+    res = solve_twist(want, rho, limit_rows(rho, p), rows, spread_rows(want, rho, p.spread))
+    aim = None
+    if intent is None and own.headings and math.isfinite(p.spread):  # unicycle members
+        k = pace(res.twist, pose, fp, own.headings)
+        if k < 1.0:  # the same rows, a slower goal: the twist once its members face it is the aim
+            aim, want = res.twist, (k * want[0], k * want[1], k * want[2])
+            res = solve_twist(want, rho, limit_rows(rho, p), rows, spread_rows(want, rho, p.spread))
     # what seeks the goal (for member_nominal's arrival): neither the push nor an escape
     seek = (0.0, 0.0, want[2]) if intent is not None else (want[0] - push[0], want[1] - push[1],
                                                            want[2])
-    return pose, res._replace(goal=seek)
+    return pose, res._replace(goal=seek, aim=aim)
+
+
+PACE_FROM = 0.02  # [m/s] a slot asked to move slower than this needs no facing
+PACE_MOVING = 0.1  # [m/s] nor does a formation none of whose slots is asked to move this fast
+PACE_ALIGNED = math.radians(30.0)  # a member facing its slot's motion this closely: full pace
+PACE_SIDEWAYS = math.radians(90.0)  # ... this far off (or more): the formation waits
+PACE_FLOOR = 0.25  # but never slower than this share of its goal twist (a member may not turn)
+
+
+def pace(want: Twist, pose: Pose, fp: Footprint, headings: Sequence[float]) -> float:
+    """The share of its goal twist a formation of unicycles asks for while its members turn to
+    face their slots' motion under ``want`` (the twist certified for the full goal): 1 with every
+    member (``headings`` [rad], in slot order) within PACE_ALIGNED of it, PACE_FLOOR with one
+    PACE_SIDEWAYS off or more, linear in the cosine between; slots slower than PACE_FROM do not
+    count. A unicycle drives only along its heading, so a member still turning while its slot
+    moves sweeps an arc, and members turning round opposite ways (each picks its own way,
+    :func:`agent.unicycle.turn_error`) part by twice that. Waiting, they turn in place, their
+    bodies still, whichever way each turns. The floor keeps a formation moving whose member
+    cannot turn where it stands (its look-ahead point against a shelf's row)."""
+    if len(headings) != len(fp.slots):
+        return 1.0
+    lo, hi = math.cos(PACE_SIDEWAYS), math.cos(PACE_ALIGNED)
+    k, fastest = 1.0, 0.0
+    for q, th in zip(fp.slots, headings, strict=True):
+        vx, vy = point_velocity(pose, want, place(pose, q))
+        speed = math.hypot(vx, vy)
+        fastest = max(fastest, speed)
+        if speed < PACE_FROM:
+            continue
+        cos = (vx * math.cos(th) + vy * math.sin(th)) / speed
+        k = min(k, max(0.0, min(1.0, (cos - lo) / (hi - lo))))
+    return 1.0 if fastest < PACE_MOVING else max(k, PACE_FLOOR)
 
 
 def band_gain(kp: float, dt: float) -> float:

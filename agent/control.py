@@ -675,20 +675,21 @@ def control_step(
     if hazards is None:
         hazards = others
     escaping = False
+    aim = None
     if p.method == "rigid" and p.safety and view is not None and footprint is not None:
         esc = escape_command(p, view, obstacles) if p.tiebreak else None  # a faster hazard
         if esc is None and p.tiebreak and view.yielding:  # a jam: the later name backs off
             esc = yield_command(view, hazards, p.max_speed)
         push = tiebreak_push(view, hazards, obstacles, p.max_speed) if p.tiebreak else (0.0, 0.0)
-        ux, uy = rigid_nominal(p, footprint, view, body.Snapshot(obstacles, shapes, hazards),
-                                    (px, py), (x, y), goal, push, esc)
+        (ux, uy), aim = rigid_nominal(p, footprint, view, body.Snapshot(obstacles, shapes, hazards),
+                                      (px, py), (x, y), goal, push, esc)
         escaping = esc is not None
     if p.unicycle and p.safety and p.method != "thesis":  # turn about the body, then drive
         near = math.hypot(goal[0] - x, goal[1] - y) < unicycle.STEER_REVERSE_RANGE
         lead = 1.0 / body.band_gain(p.kp, p.period)  # where the slot's pull aims the point
         turning = unicycle.to_unicycle(last_u[0], last_u[1], theta, p.lookahead)[1]
         ux, uy = unicycle.steer(ux, uy, theta, p.lookahead, p.max_turn_rate, reverse=near, lead=lead,
-                                turning=turning)
+                                turning=turning, aim=aim)
     nux, nuy = ux, uy
     load = (load_rows.member_load(footprint, pose, last_u, partners, off, p.unicycle)
             if p.method == "rigid" and p.safety and footprint is not None else None)
@@ -751,7 +752,8 @@ def body_params(cp: ControlParams) -> body.BodyParams:
 
 def rigid_nominal(cp: ControlParams, fp: body.Footprint, view: FormationView, snap: body.Snapshot,
                   point: body.Point, at: body.Point, target: body.Point,
-                  push: body.Point = (0.0, 0.0), intent: body.Point | None = None) -> body.Point:
+                  push: body.Point = (0.0, 0.0), intent: body.Point | None = None
+                  ) -> tuple[body.Point, body.Point | None]:
     """``controller.method: rigid``: a member's nominal from the formation's twist
     (:func:`agent.body.formation_twist`) and its slot (:func:`agent.body.member_nominal`);
     ``point`` is its control point, ``at`` its body position."""
@@ -759,4 +761,8 @@ def rigid_nominal(cp: ControlParams, fp: body.Footprint, view: FormationView, sn
     turn = None if view.goal_heading is None else fp.goal_turn + view.goal_heading
     pose, res = body.formation_twist(fp, view.own, (view.goal_x, view.goal_y), snap, p, push, intent,
                                      turn)
-    return body.member_nominal(fp, pose, res.twist, point, at, target, p, res.goal)
+    nominal = body.member_nominal(fp, pose, res.twist, point, at, target, p, res.goal)
+    if res.aim is None:
+        return nominal, None
+    slot = body.place(pose, fp.slots[fp.member])
+    return nominal, body.point_velocity(pose, res.aim, slot)  # the slot's motion once faced

@@ -40,13 +40,16 @@ STEER_LEFT_BIAS = math.radians(20.0)  # headings this close to opposite the moti
 # that way (a hysteresis about "behind": the robot's own turn moves an aim near the bias's edge
 # across it, and the robot turned left, right, left on consecutive ticks).
 STEER_KEEP = math.radians(45.0)
-STEER_KEEP_RATE = 1.0  # [rad/s] turning at least this fast counts as turning (steer's ``turning``)
+# [rad/s] turning at least this fast counts as turning (steer's ``turning``); a turn a member's
+# rows slow (its look-ahead point near a row's edge, 0.9 rad/s) still keeps its way round
+STEER_KEEP_RATE = 0.3
 SMALL_TURN = 1e-7  # [rad] a step turning less than this is integrated as its chord (integrate)
 STEER_REVERSE_RANGE = 0.1  # [m] this close to its goal a robot may back up instead of turning
 
 
 def steer(wx: float, wy: float, theta: float, lookahead: float, max_turn_rate: float,
-          reverse: bool = False, *, lead: float, turning: float = 0.0) -> tuple[float, float]:
+          reverse: bool = False, *, lead: float, turning: float = 0.0,
+          aim: tuple[float, float] | None = None) -> tuple[float, float]:
     """The look-ahead point's nominal velocity for an intended point velocity w: turn first,
     then drive (the unicycle's own nominal; eq. 4.2 stays the intended motion).
 
@@ -69,11 +72,18 @@ def steer(wx: float, wy: float, theta: float, lookahead: float, max_turn_rate: f
     error within STEER_LEFT_BIAS of opposite turns left. A robot already ``turning`` [rad/s,
     its last turn rate] at least STEER_KEEP_RATE keeps its way round while the error that way
     is at most half a turn plus STEER_KEEP (:func:`turn_error`). With ``reverse`` (close to
-    the goal) the robot backs up rather than turning round when the aim lies behind it."""
-    if math.hypot(wx, wy) < 1e-9:
+    the goal) the robot backs up rather than turning round when the aim lies behind it. ``aim``
+    [m/s]: the motion its formation waits for it to face (:func:`agent.body.pace`); it then
+    turns towards that direction, and drives only by w."""
+    if aim is not None and math.hypot(*aim) < 1e-9:
+        aim = None
+    if math.hypot(wx, wy) < 1e-9 and aim is None:
         return (0.0, 0.0)
     c, s = math.cos(theta), math.sin(theta)
-    err = math.atan2(lookahead * s + wy * lead, lookahead * c + wx * lead) - theta
+    if aim is not None:  # the formation waits for this member to face its slot's motion
+        err = math.atan2(aim[1], aim[0]) - theta
+    else:
+        err = math.atan2(lookahead * s + wy * lead, lookahead * c + wx * lead) - theta
     along = wx * c + wy * s
     if reverse:
         err = (err + 0.5 * math.pi) % math.pi - 0.5 * math.pi  # nearest of forwards and back

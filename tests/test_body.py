@@ -360,3 +360,75 @@ def test_a_turn_that_sends_an_outer_slot_back_brakes_too_and_a_sideways_one_does
     # nearly at rest: nothing to brake
     slow = (0.0, 0.03, 0.0)
     assert body.brake_before_turning_back((0.0, -0.2, 0.0), slow, offsets, 0.05) == (0.0, -0.2, 0.0)
+
+
+# --- a formation of unicycles waits for its members to face its motion ------------------------
+
+
+UNI = PARAMS._replace(spread=0.05 / 0.05)  # unicycle members: epsilon / offset
+PAIR = body.Footprint(((-0.3, 0.0), (0.3, 0.0)), 0.0, 0)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(-math.pi, math.pi), st.floats(body.PACE_MOVING, 0.22), st.floats(-0.5, 0.5),
+       st.lists(st.floats(-math.pi, math.pi), min_size=3, max_size=3), st.integers(0, 2),
+       st.floats(0.0, math.pi))
+def test_the_pace_is_set_by_the_member_facing_its_slots_motion_worst(
+        travel, speed, omega, offs, which, worse):
+    """Full pace with every member within PACE_ALIGNED of its slot's motion, the floor with one
+    PACE_SIDEWAYS off or more, in between otherwise; turning a member further from its slot's
+    motion never raises it."""
+    fp = body.Footprint(((-0.3, 0.0), (0.3, 0.0), (0.0, 0.4)), 0.0, 0)
+    pose = body.Pose(1.0, -2.0, 0.3)
+    want = (speed * math.cos(travel), speed * math.sin(travel), omega)
+    vel = [body.point_velocity(pose, want, body.place(pose, q)) for q in fp.slots]
+    assume(all(math.hypot(*v) >= body.PACE_FROM for v in vel))
+    dirs = [math.atan2(v[1], v[0]) for v in vel]
+    k = body.pace(want, pose, fp, [d + o for d, o in zip(dirs, offs, strict=True)])
+    worst = max(abs(body.wrap_angle(o)) for o in offs)
+    assert body.PACE_FLOOR <= k <= 1.0
+    if worst <= body.PACE_ALIGNED - 1e-9:
+        assert k == 1.0
+    if worst >= body.PACE_SIDEWAYS + 1e-9:
+        assert k == body.PACE_FLOOR
+    if body.PACE_ALIGNED + 1e-6 < worst < body.PACE_SIDEWAYS - 1e-6:
+        assert k < 1.0
+    # one member turned further away (by up to half a turn, not past behind): never faster
+    o = abs(body.wrap_angle(offs[which]))
+    turned = list(offs)
+    turned[which] = math.copysign(min(math.pi, o + worse), body.wrap_angle(offs[which]) or 1.0)
+    assert body.pace(want, pose, fp, [d + t for d, t in zip(dirs, turned, strict=True)]) <= k
+
+
+def test_a_slow_formation_does_not_wait_and_a_slow_slot_is_not_waited_for():
+    pose = body.Pose(0.0, 0.0, 0.0)
+    slow = (body.PACE_MOVING * 0.9, 0.0, 0.0)
+    assert body.pace(slow, pose, PAIR, [math.pi, math.pi]) == 1.0  # both face back, but it creeps
+    # a pair spinning about its first member's slot: that slot stands, the other moves fast
+    spin = (0.0, -0.6 * 0.3, 0.6)
+    fp = body.Footprint(((0.0, 0.0), (0.6, 0.0)), 0.0, 0)
+    vel = body.point_velocity(pose, spin, body.place(pose, fp.slots[1]))
+    assert math.hypot(*vel) > body.PACE_MOVING
+    facing = math.atan2(vel[1], vel[0])
+    assert body.pace(spin, pose, fp, [facing + math.pi, facing]) == 1.0
+    assert body.pace(spin, pose, fp, [facing, facing + math.pi]) == body.PACE_FLOOR
+
+
+def test_a_formation_whose_members_face_back_asks_for_the_floor_and_aims_at_the_full_twist():
+    """A pair at rest whose goal lies behind its members: the twist is the floor's share of the
+    one certified for the full goal, which is the aim its members turn to face; once they face
+    it, the formation drives at the full twist and there is nothing to aim at. Single
+    integrators (no spread limit) never wait."""
+    own = Ellipse(0.0, 0.0, 0.0, 0.6, 0.2, headings=(math.pi, math.pi))
+    goal = (-5.0, 0.0)
+    snap = body.Snapshot((), (), ())
+    _pose, full = body.formation_twist(PAIR, own._replace(headings=()), goal, snap, UNI)
+    _pose, waiting = body.formation_twist(PAIR, own._replace(headings=(0.0, 0.1)), goal, snap, UNI)
+    assert full.twist[0] < -0.2 and full.aim is None
+    assert waiting.aim == pytest.approx(full.twist)
+    assert waiting.twist[0] == pytest.approx(body.PACE_FLOOR * full.twist[0])
+    _pose, facing = body.formation_twist(PAIR, own, goal, snap, UNI)
+    assert facing.twist == pytest.approx(full.twist) and facing.aim is None
+    _pose, holonomic = body.formation_twist(PAIR, own._replace(headings=(0.0, 0.1)), goal, snap,
+                                            PARAMS)
+    assert holonomic.aim is None and holonomic.twist[0] < -0.2

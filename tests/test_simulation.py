@@ -30,8 +30,6 @@ NEW = {"meet-5-rectangles", "meet-6-rectangles", "warehouse-12-formations", "for
 FORMATION_GAPS: dict[str, str] = {
     "warehouse-lab-bounds": "1.67 eps: single integrators in the lab world, one member of "
                             "formation west backs up while the others drive (README)",
-    "rigid-doorway-four-unicycle": "1.68 eps: formation F's members turn round both ways after a "
-                                   "waypoint reverses its turn (docs/rigid-body.md)",
 }
 # goals meant to have no route: tests/test_route_scenarios.py shows they hold, unreachable
 UNREACHABLE = {"route-closed-room", "route-closed-room-unicycle"}
