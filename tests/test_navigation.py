@@ -14,6 +14,7 @@ from geometry.shapes import box, path_clearance, segment, shape_distance
 from scenario import ScenarioError, load_scenario, parse_scenario
 from scenario.routes import initial_route, route_radius
 from simulator.inprocess import SimOptions, simulate
+from tests.scenario_runs import summary_of
 
 ROOT = Path(__file__).resolve().parent.parent
 NAV = sorted((ROOT / "tests" / "scenarios").glob("nav-*.yaml")) + [ROOT / "scenarios" / "warehouse.yaml"]
@@ -129,7 +130,7 @@ def test_advance_walks_the_route_and_member_targets_end_at_the_goals():
 def test_navigation_scenarios_reach_every_goal_safely_in_process(path):
     s = load_scenario(path)
     assert s.shapes
-    summary = simulate(s, SimOptions(record=False)).summary
+    summary = summary_of(path)
     assert summary["all_reached"], summary["collision_log"]
     assert summary["collisions"] == 0
     assert summary["formation_error_max_m"] <= 1.5 * s.controller.epsilon

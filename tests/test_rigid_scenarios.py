@@ -20,6 +20,7 @@ from agent.config import build_agent_configs, config_to_dict, load_config, save_
 from leader import routing
 from scenario import load_scenario
 from simulator.inprocess import SimOptions, simulate
+from tests.scenario_runs import summary_of
 
 SCENARIOS = Path(__file__).parent / "scenarios"
 
@@ -35,8 +36,9 @@ PASSING = sorted(p.stem for p in SCENARIOS.glob("rigid-*.yaml") if p.stem not in
 
 def _run(name: str, method: str | None = None) -> tuple[dict, float]:
     s = load_scenario(SCENARIOS / f"{name}.yaml")
-    if method is not None:
-        s = dataclasses.replace(s, controller=dataclasses.replace(s.controller, method=method))
+    if method is None:
+        return summary_of(SCENARIOS / f"{name}.yaml"), s.controller.epsilon
+    s = dataclasses.replace(s, controller=dataclasses.replace(s.controller, method=method))
     return simulate(s, SimOptions()).summary, s.controller.epsilon
 
 

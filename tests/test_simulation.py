@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import functools
 import json
 import os
 from pathlib import Path
@@ -13,6 +12,7 @@ import pytest
 from formation.cli import main
 from scenario import load_scenario
 from simulator.inprocess import SimOptions, simulate
+from tests.scenario_runs import summary_of
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = sorted((ROOT / "scenarios").glob("*.yaml")) + sorted((ROOT / "tests/scenarios").glob("*.yaml"))
@@ -48,9 +48,8 @@ def _params(names):
     return out
 
 
-@functools.cache
 def _summary(path: Path) -> dict:
-    return simulate(load_scenario(path), SimOptions(record=False)).summary
+    return summary_of(path)
 
 SUMMARY_FIELDS = {
     "scenario", "mode", "steps", "sim_time_s", "all_reached", "time_to_goal_s", "collisions",
