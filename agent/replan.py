@@ -140,7 +140,7 @@ class LeaderRoutes:
                   things: tuple, reports: Mapping[str, Other]) -> Update | None:
         """Stand aside for the formation :meth:`leader.routing.Replanner.give_way` names."""
         r = self.replanner
-        keeper = r.give_way(stamp, reports)
+        keeper = r.give_way(stamp, reports, p3)
         aside = r.begin_give_way(stamp, p3, things, keeper, reports[keeper], self.radius)
         if lockstep:
             return r.finish_give_way(give_way_job(aside), keeper)

@@ -55,6 +55,9 @@ BLOCKED_S = 10.0  # [s] no progress this long with traffic near: plan round the 
 BLOCKED = "blocked"
 GIVE_WAY = "give way"
 GIVE_WAY_S = 90.0  # [s] a formation giving way stands aside at most this long
+# [m] this near its goal a formation counts as parked there (it may stand in another's way; one
+# kept 0.6 m short of it by the formation it blocks never settles: warehouse draw run 300117)
+PARKED_M = 1.0
 GIVE_WAY_MARGIN = 0.3  # [m] beyond both radii: how far from the other's way it stands aside
 UNREACHABLE = "unreachable"  # status states (wire.payloads.STATUS_STATES)
 REACHED = "reached"
@@ -247,17 +250,31 @@ class Replanner:
         """Plan from ``pose`` now around the shapes, ``things`` and ``extra`` (:meth:`begin`)."""
         return self.finish(plan_job(self.begin(t, pose, things, extra)), why)
 
-    def give_way(self, t: float, others: Mapping[str, Other]) -> str:
+    def parked(self, pose: Pose3) -> bool:
+        """At or near its goal (within PARKED_M of it; a route given by hand is never moved):
+        where a formation stops, and may stand in another's only way."""
+        return not self.by_hand and math.dist(pose[:2], self.goal[:2]) <= PARKED_M
+
+    def give_way(self, t: float, others: Mapping[str, Other], pose: Pose3 | None = None) -> str:
         """The formation to stand aside for now, or "": one whose name sorts before this one's,
         that blocks this one's way (this one finds no route while that one stands in it) and
         reports no route itself, or that it is boxed in (``stalled``): it may be waiting for
-        this one (two formations in each other's only way, montecarlo warehouse run 200148)."""
-        if not self.unreachable or self.giving_way or t - self._gave_at < RETRY_S:
+        this one (two formations in each other's only way, montecarlo warehouse run 200148).
+        A formation ``parked`` at its goal (``pose``) tries standing aside for any that reports
+        no route (:func:`give_way_job` finds out whether it stands in that one's way: the
+        warehouse draw's runs 300047 and 300117 deadlocked behind a formation parked in the
+        only way through)."""
+        if self.giving_way or t - self._gave_at < RETRY_S:
             return ""
-        for name in self.blocked_by:
-            o = others.get(name)
-            if o is not None and o.state in (UNREACHABLE, STALLED) and name < self.name:
-                return name
+        if self.unreachable:
+            for name in self.blocked_by:
+                o = others.get(name)
+                if o is not None and o.state in (UNREACHABLE, STALLED) and name < self.name:
+                    return name
+        elif pose is not None and self.parked(pose):
+            for name in sorted(others):
+                if name != self.name and others[name].state == UNREACHABLE:
+                    return name
         return ""
 
     def begin_give_way(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...],
@@ -343,7 +360,7 @@ class Replanner:
             if o is not None and o.state != REACHED and t - self._gave_at < GIVE_WAY_S:
                 return None
             return "given way"
-        if self.give_way(t, others):
+        if self.give_way(t, others, pose):
             return GIVE_WAY
         if changed(things, self.planned):
             return "things changed"

@@ -101,7 +101,7 @@ class Replans:
             if why is None:
                 continue
             if why == GIVE_WAY:
-                keeper = planner.give_way(t, others)
+                keeper = planner.give_way(t, others, p3)
                 job = planner.begin_give_way(t, p3, things, keeper, others[keeper],
                                              self.scenario.robot.radius)
                 new = planner.finish_give_way(give_way_job(job), keeper)
@@ -123,8 +123,10 @@ class Replans:
         for name, p in self.planners.items():
             e = ellipses[name]
             gx, gy = p.goal[0], p.goal[1]
+            # one standing aside follows a route (the agent's leader reports it moving)
             state = (REACHED if math.dist((e.cx, e.cy), (gx, gy)) <= tol else
-                     UNREACHABLE if p.unreachable else STALLED if p.boxed_in else "moving")
+                     UNREACHABLE if p.unreachable and not p.giving_way else
+                     STALLED if p.boxed_in else "moving")
             out[name] = Other(state, e.cx, e.cy, gx, gy, e.a)
         return out
 

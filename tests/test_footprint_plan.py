@@ -332,3 +332,38 @@ def test_a_formation_not_in_the_others_way_or_whose_other_has_a_route_does_not_g
     off = GiveWayJob((-4.0, 3.0, 0.0), square, tuple(_dead_end()), (), Other(
         UNREACHABLE, 4.0, 0.0, 5.0, 0.0, 0.42), (), 0.105)
     assert give_way_job(off).reason == "not in the other formation's way"
+
+
+def test_a_formation_parked_in_the_only_way_stands_aside_for_the_one_with_no_route():
+    """The warehouse draw's runs 300047 and 300117: a square parked at (or, kept short by the
+    other, within 1 m of) its goal at the dead end's mouth stands in the only way of one deep
+    inside that reports no route. Nothing asked a formation with a route to move; now one
+    parked near its goal stands aside for any that reports no route where it stands in that
+    one's way, and plans for its goal again once that one has arrived. Still moving, or parked
+    off the other's way, it does not."""
+    square = Body(((0.3, 0.3), (-0.3, 0.3), (-0.3, -0.3), (0.3, -0.3)), radius=0.105, margin=0.05)
+    walls = _dead_end()
+    parked = Replanner(square, 0.0, (0.5, 0.0, 0.0), walls, start=(-5.0, 0.0))
+    parked.name = "b"
+    at = (0.5 + 0.8, 0.0, 0.0)  # 0.8 m short of its goal: near enough
+    assert parked.parked(at) and not parked.parked((-1.0, 0.0, 0.0))
+    stuck = {"a": Other(UNREACHABLE, 4.0, 0.0, -5.0, 0.0, 0.42)}
+    assert parked.give_way(6.0, stuck) == ""  # no pose: the old rule (it has a route)
+    assert parked.check(6.0, at, ((0.5, 0.0),), 0, (), others=stuck) == GIVE_WAY
+    assert parked.give_way(6.0, stuck, at) == "a"
+    job = parked.begin_give_way(6.0, at, (), "a", stuck["a"], 0.105)
+    upd = parked.finish_give_way(give_way_job(job), "a")
+    assert upd is not None and parked.giving_way == "a"
+    x, y = upd.route[-1]
+    assert abs(y) > 0.42 + square.rho + 0.105  # out in the hall, off a's way
+    arrived = {"a": Other(REACHED, -5.0, 0.0, -5.0, 0.0, 0.42)}
+    assert parked.check(30.0, (x, y, 0.0), upd.route, len(upd.route) - 1, (),
+                        others=arrived) == "given way"
+    # moving on its route (far from its goal), or someone with a route: no standing aside
+    going = Replanner(square, 0.0, (0.5, 0.0, 0.0), walls, start=(-5.0, 0.0))
+    going.name = "b"
+    assert going.give_way(6.0, stuck, (-3.0, 0.0, 0.0)) == ""
+    assert going.give_way(6.0, {"a": Other("moving", 4.0, 0.0, -5.0, 0.0, 0.42)}, at) == ""
+    # parked out of the way: the job finds it is not in the way, and nothing moves
+    off = GiveWayJob((-4.0, 3.0, 0.0), square, tuple(walls), (), stuck["a"], (), 0.105)
+    assert give_way_job(off).reason == "not in the other formation's way"
