@@ -588,8 +588,10 @@ def pace(want: Twist, pose: Pose, fp: Footprint, headings: Sequence[float]) -> f
     face their slots' motion under ``want`` (the twist certified for the full goal): 1 with every
     member (``headings`` [rad], in slot order) within PACE_ALIGNED of it, PACE_FLOOR with one
     PACE_SIDEWAYS off or more, linear in the cosine between; slots slower than PACE_FROM do not
-    count. A unicycle drives only along its heading, so a member still turning while its slot
-    moves sweeps an arc, and members turning round opposite ways (each picks its own way,
+    count, and a formation none of whose slots is asked for PACE_MOVING does not wait (its aims
+    there are the band's noise: a member turned back and forth after them). A unicycle drives
+    only along its heading, so a member still turning while its slot moves sweeps an arc, and
+    members turning round opposite ways (each picks its own way,
     :func:`agent.unicycle.turn_error`) part by twice that. Waiting, they turn in place, their
     bodies still, whichever way each turns. The floor keeps a formation moving whose member
     cannot turn where it stands (its look-ahead point against a shelf's row)."""
