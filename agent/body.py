@@ -617,17 +617,21 @@ def band_gain(kp: float, dt: float) -> float:
 
 
 def member_nominal(fp: Footprint, pose: Pose, twist: Twist, point: Point, body: Point,
-                   target: Point, p: BodyParams, goal: Twist = (0.0, 0.0, 0.0)) -> Point:
+                   target: Point, p: BodyParams, goal: Twist = (0.0, 0.0, 0.0),
+                   arriving: bool = True) -> Point:
     """This member's nominal velocity: its slot's velocity under ``twist`` plus k (slot - point)
-    (:func:`band_gain`; ``point`` its control point), clamped to vmax. With its ``body`` within
-    ARRIVE_RANGE of its ``target`` (its goal on the last leg) it blends, by w from 0 to 1, into
+    (:func:`band_gain`; ``point`` its control point), clamped to vmax. ``arriving`` (its
+    ``target`` its goal on the last leg, or its slot where the formation holds), with its
+    ``body`` within ARRIVE_RANGE of it, it blends, by w from 0 to 1, into
     eq. 4.2 on the target plus only what the rows changed of the ``goal`` twist (twist - w goal):
     a goal shape that is not exactly a rigid copy of the start shape is still reached, a unicycle
     formation parks on its bodies' goals (its pose is its look-ahead points'), and a formation
-    parked at its goal still gives way."""
+    parked at its goal still gives way. A waypoint the formation passes is no place to settle:
+    there the blend took the turn to its heading out of the twist, and a pentagon whose members
+    stood within 2 cm of their targets never turned (warehouse run 300130)."""
     slot = place(pose, fp.slots[fp.member])
     dist = math.hypot(target[0] - body[0], target[1] - body[1])
-    w = min(1.0, max(0.0, 1.0 - dist / ARRIVE_RANGE))
+    w = min(1.0, max(0.0, 1.0 - dist / ARRIVE_RANGE)) if arriving else 0.0
     sv = point_velocity(pose, (twist[0] - w * goal[0], twist[1] - w * goal[1],
                                twist[2] - w * goal[2]), slot)
     k = band_gain(p.kp, p.dt)

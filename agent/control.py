@@ -217,6 +217,7 @@ class FormationView(NamedTuple):
     other_names: tuple[str, ...] = ()  # names of ``others``, in the same order
     yielding: float = 0.0  # [s] the stall clock says jammed, yield this long still (update_stall)
     goal_heading: float | None = None  # [rad] the current waypoint's heading (the goal shape's turn)
+    arriving: bool = True  # the target is where the member settles (not a waypoint passed)
 
 
 class Stall(NamedTuple):
@@ -761,7 +762,8 @@ def rigid_nominal(cp: ControlParams, fp: body.Footprint, view: FormationView, sn
     turn = None if view.goal_heading is None else fp.goal_turn + view.goal_heading
     pose, res = body.formation_twist(fp, view.own, (view.goal_x, view.goal_y), snap, p, push, intent,
                                      turn)
-    nominal = body.member_nominal(fp, pose, res.twist, point, at, target, p, res.goal)
+    nominal = body.member_nominal(fp, pose, res.twist, point, at, target, p, res.goal,
+                                  view.arriving)
     if res.aim is None:
         return nominal, None
     slot = body.place(pose, fp.slots[fp.member])

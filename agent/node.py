@@ -106,7 +106,7 @@ from agent.control import Stall, StepResult, control_step
 from agent.faults import EPS, LinkFaults
 from agent.hard_rows import HardRowCounter
 from agent.inbox import RING_CAPACITY, Inbox, Receiver
-from agent.inputs import carry_pose, step_inputs, with_heading
+from agent.inputs import carry_pose, step_inputs, with_waypoint
 from agent.leader_step import LeaderPart
 from agent.margins import carried_age
 from agent.navigation import STALLED_AFTER_S, NavPart
@@ -598,7 +598,7 @@ class AgentNode:
              for k in self.partner_keys],
         )
         self._stall = inputs.stall
-        inputs = with_heading(inputs, self.nav.follower.heading)
+        inputs = with_waypoint(inputs, self.nav.follower.heading, self.nav.follower.arriving)
         res = control_step(cfg.control, (pose.x, pose.y, pose.theta), target, inputs.neighbours,
                            obs, inputs.others, inputs.view, self._solve, inputs.pairwise,
                            inputs.partners, self.last_u, inputs.hazards, shapes=shapes,

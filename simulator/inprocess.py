@@ -22,7 +22,7 @@ from agent.barriers import Obstacle
 from agent.body import Footprint, footprint_of, motion_of
 from agent.control import ControlParams, Stall, StepResult, control_step
 from agent.hard_rows import HardRowCounter
-from agent.inputs import step_inputs, with_heading
+from agent.inputs import step_inputs, with_waypoint
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
 from geometry.ellipse import ReferenceShape, estimate, reference_shape
 from leader.navigation import Follower, heading_tolerance
@@ -195,7 +195,7 @@ def simulate(  # noqa: C901 (13: the in-process loop; to split with the world's 
                 [(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], seen[j][2]) for j in fleet.partners[i]],
             )
             stalls[i] = inputs.stall
-            inputs = with_heading(inputs, followers[i].heading)
+            inputs = with_waypoint(inputs, followers[i].heading, followers[i].arriving)
             pose = (seen[i][0], seen[i][1], seen[i][2])
             res = control_step(params, pose, target, inputs.neighbours, obs,
                                inputs.others, inputs.view, solve, inputs.pairwise,

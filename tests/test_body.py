@@ -178,6 +178,21 @@ def test_a_member_at_its_slot_moves_with_the_twist_and_far_ones_are_pulled_back(
     assert v[0] > u[0]
 
 
+def test_a_member_settles_on_its_target_only_where_it_arrives_not_at_a_waypoint_passed():
+    """At its target (its goal, or its slot where the formation holds) a member blends into
+    eq. 4.2 on it and keeps only what the rows changed of the goal twist; at a waypoint the
+    formation passes it keeps its slot's motion, the turn to the waypoint's heading included
+    (warehouse run 300130: blended there, a pentagon never turned and never passed it)."""
+    fp = body.Footprint(((-0.25, 0.0), (0.25, 0.0)), 0.0, 1)
+    pose = body.Pose(1.0, 1.0, 0.0)
+    turn = (0.0, 0.0, 0.4)  # the goal twist: turn in place
+    slot = body.place(pose, fp.slots[1])
+    settle = body.member_nominal(fp, pose, turn, slot, slot, slot, PARAMS, turn)
+    assert math.hypot(*settle) < 1e-12  # at its target: nothing left to do
+    passing = body.member_nominal(fp, pose, turn, slot, slot, slot, PARAMS, turn, arriving=False)
+    assert math.isclose(passing[0], 0.0, abs_tol=1e-12) and math.isclose(passing[1], 0.4 * 0.25)
+
+
 def test_the_goal_turn_of_a_rotated_goal_shape():
     starts = [(0.0, 0.0), (1.0, 0.0), (1.0, 0.5)]
     goals = [(5.0, 5.0), (5.0, 6.0), (4.5, 6.0)]  # turned by +90 degrees
