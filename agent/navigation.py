@@ -287,9 +287,9 @@ class NavPart:
                 own: Ellipse, heading: float | None,
                 seen: tuple[Sequence[ObstacleMsg], Sequence[EllipseMsg]]) -> None:
         """Leader, method rigid: take a new route (or hold) when one is ready; publish it."""
-        r = routes.replanner  # the others' reports matter only to one with no route, aside or
+        r = routes.replanner  # the others' reports matter only to one with no route, aside,
         reports = self.reports(stamp, seen[1]) if r.unreachable or r.giving_way or r.parked(
-            (own.cx, own.cy, 0.0)) else {}  # parked at its goal (it may stand in one's way)
+            (own.cx, own.cy, 0.0)) or r.stuck(stamp) else {}  # parked or stuck (in one's way)
         upd = routes.tick(stamp, lockstep, own, self.follower, self.shapes, seen[0], seen[1], reports)
         if upd is None:
             return

@@ -255,15 +255,21 @@ class Replanner:
         where a formation stops, and may stand in another's only way."""
         return not self.by_hand and math.dist(pose[:2], self.goal[:2]) <= PARKED_M
 
+    def stuck(self, t: float) -> bool:
+        """No progress along its route for BLOCKED_S (traffic or not; a route given by hand is
+        never moved): it may be waiting for one that waits for it."""
+        return not self.by_hand and t - self._moved_at >= BLOCKED_S
+
     def give_way(self, t: float, others: Mapping[str, Other], pose: Pose3 | None = None) -> str:
         """The formation to stand aside for now, or "": one whose name sorts before this one's,
         that blocks this one's way (this one finds no route while that one stands in it) and
         reports no route itself, or that it is boxed in (``stalled``): it may be waiting for
         this one (two formations in each other's only way, montecarlo warehouse run 200148).
-        A formation ``parked`` at its goal (``pose``) tries standing aside for any that reports
-        no route (:func:`give_way_job` finds out whether it stands in that one's way: the
-        warehouse draw's runs 300047 and 300117 deadlocked behind a formation parked in the
-        only way through)."""
+        A formation ``parked`` at its goal (``pose``), or :meth:`stuck` on its way, tries standing
+        aside for any that reports no route (:func:`give_way_job` finds out whether it stands in
+        that one's way: the warehouse draw's runs 300047 and 300117 deadlocked behind a
+        formation parked in the only way through; in 300130 a triangle 1.02 m from its goal,
+        which the pentagon with no route stood on, waited for it in a one-lane aisle)."""
         if self.giving_way or t - self._gave_at < RETRY_S:
             return ""
         if self.unreachable:
@@ -271,7 +277,7 @@ class Replanner:
                 o = others.get(name)
                 if o is not None and o.state in (UNREACHABLE, STALLED) and name < self.name:
                     return name
-        elif pose is not None and self.parked(pose):
+        elif pose is not None and (self.parked(pose) or self.stuck(t)):
             for name in sorted(others):
                 if name != self.name and others[name].state == UNREACHABLE:
                     return name
@@ -280,16 +286,17 @@ class Replanner:
     def begin_give_way(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...],
                        name: str, other: Other, radius: float) -> GiveWayJob:
         """Start standing aside for formation ``name`` (:func:`give_way_job`; then
-        :meth:`finish_give_way`)."""
+        :meth:`finish_give_way`). The other is planned round where it stands, still or not (one
+        with no route creeps as it holds: warehouse run 300130's triangle, planning round the
+        shelves alone, was sent past the pentagon it gave way to in a one-lane aisle)."""
         self.plans += 1
         self.last_plan = self._gave_at = t
         self.planned = things
         own = FORMATION + name
-        circles = []
-        for n, (x, y, ds) in things:
-            if n == own:  # the other, no nearer than it is now: the way out may pass it closely
-                ds = min(ds, math.dist(pose[:2], (x, y)) - self.body.rho - NEAR_SLACK_M)
-            circles.append((x, y, ds))
+        near = math.dist(pose[:2], (other.x, other.y)) - self.body.rho - NEAR_SLACK_M
+        circles = [(x, y, ds) for n, (x, y, ds) in things if n != own]
+        # no nearer than it is now: the way out may pass it closely
+        circles.append((other.x, other.y, min(other.a + radius, near)))
         return GiveWayJob(pose, self.body, self.shapes, tuple(circles), other,
                           tuple(c for n, c in things if n != own), radius)
 

@@ -367,3 +367,44 @@ def test_a_formation_parked_in_the_only_way_stands_aside_for_the_one_with_no_rou
     # parked out of the way: the job finds it is not in the way, and nothing moves
     off = GiveWayJob((-4.0, 3.0, 0.0), square, tuple(walls), (), stuck["a"], (), 0.105)
     assert give_way_job(off).reason == "not in the other formation's way"
+
+
+def _aisle():
+    """A one-lane aisle (2 m wide) along x from -5 to 6 between two halls, all inside walls
+    at x = -10 and 11, y = +-5."""
+    walls = [((-10, -5), (11, -5)), ((-10, 5), (11, 5)), ((-10, -5), (-10, 5)), ((11, -5), (11, 5)),
+             ((-5, 1), (6, 1)), ((-5, -1), (6, -1)), ((-5, 1), (-5, 5)), ((-5, -1), (-5, -5)),
+             ((6, 1), (6, 5)), ((6, -1), (6, -5))]
+    return [segment(f"w{k}", a, b, 0.15) for k, (a, b) in enumerate(walls)]
+
+
+def test_a_formation_stuck_on_its_way_stands_aside_for_the_one_with_no_route_and_not_through_it():
+    """Warehouse run 300130: a triangle 1.02 m from its goal (just further than PARKED_M), on
+    which a pentagon with no route stood, waited for it in a one-lane aisle for ever. A
+    formation that has made no progress for BLOCKED_S stands aside as a parked one does; and
+    it plans its way aside round the other where that one stands, still or not (the pentagon
+    crept as it held, so it was no still thing, and the triangle was sent west through it)."""
+    square = Body(((0.3, 0.3), (-0.3, 0.3), (-0.3, -0.3), (0.3, -0.3)), radius=0.105, margin=0.05)
+    walls = _aisle()
+    giver = Replanner(square, 0.0, (-8.0, 3.0, 0.0), walls, start=(-1.5, 0.0))
+    giver.name = "b"
+    at = (-1.5, 0.0, 0.0)
+    assert not giver.parked(at)
+    other = {"a": Other(UNREACHABLE, -3.0, 0.0, 9.0, 0.0, 0.42)}  # in the aisle, bound east
+    assert giver.give_way(BLOCKED_S - 1.0, other, at) == ""  # not stuck yet
+    assert giver.check(BLOCKED_S - 1.0, at, ((-8.0, 3.0),), 0, ()) is None  # progress: the first
+    assert giver.give_way(2.0 * BLOCKED_S - 2.0, other, at) == ""
+    assert giver.stuck(2.0 * BLOCKED_S - 1.0)
+    assert giver.give_way(2.0 * BLOCKED_S - 1.0, other, at) == "a"
+    # the other is in no list of still things (it creeps), and is planned round all the same
+    job = giver.begin_give_way(2.0 * BLOCKED_S - 1.0, at, (), "a", other["a"], 0.105)
+    assert job.circles == ((-3.0, 0.0, pytest.approx(0.42 + 0.105)),)
+    upd = giver.finish_give_way(give_way_job(job), "a")
+    assert upd is not None and giver.giving_way == "a"
+    x, y = upd.route[-1]
+    assert x > 6.0 and abs(y) > 0.42 + square.rho + 0.105  # out of the aisle's east end, aside
+    assert all(px > -1.6 for px, _py in upd.route)  # never west, through the other
+    # a route given by hand is never moved
+    by_hand = Replanner(square, 0.0, (-8.0, 3.0, 0.0), walls, start=(-1.5, 0.0), by_hand=True)
+    by_hand.name = "b"
+    assert not by_hand.stuck(100.0) and by_hand.give_way(100.0, other, at) == ""
