@@ -217,7 +217,7 @@ class FormationView(NamedTuple):
     other_names: tuple[str, ...] = ()  # names of ``others``, in the same order
     yielding: float = 0.0  # [s] the stall clock says jammed, yield this long still (update_stall)
     goal_heading: float | None = None  # [rad] the current waypoint's heading (the goal shape's turn)
-    arriving: bool = True  # a member may settle on its target (not while the formation turns there)
+    arriving: bool = True  # the target is where the member settles (not a waypoint passed)
 
 
 class Stall(NamedTuple):

@@ -121,8 +121,8 @@ def carry_pose(x: float, y: float, theta: float, ux: float, uy: float, age: floa
 
 
 def with_waypoint(inputs: StepInputs, heading: float | None, arriving: bool = True) -> StepInputs:
-    """``inputs`` with the current waypoint's heading (None: none) in the view, and whether a
-    member may settle on its target (:attr:`leader.navigation.Follower.arriving`)."""
+    """``inputs`` with the current waypoint's heading (None: none) in the view, and whether the
+    member settles on its target there (:attr:`leader.navigation.Follower.arriving`)."""
     if inputs.view is None or (heading is None and arriving):
         return inputs
     return inputs._replace(view=inputs.view._replace(goal_heading=heading, arriving=arriving))

@@ -12,7 +12,8 @@
 * Every member (the leader too) runs a :class:`Follower`: it adopts a plan from its own leader
   whose goal is newer than the one it follows, and each tick walks the route with the
   formation's ellipse centre (:func:`geometry.route.advance`); its target for the nominal command
-  (eq. 4.2) is the current waypoint plus its offset, its own goal on the last leg.
+  (eq. 4.2) is the current waypoint plus its offset (turned to the waypoint's heading where it
+  has one), its own goal on the last leg.
 * :meth:`Navigator.status` reports the state (``moving``, ``reached``: the centroid within the
   goal tolerance of the goal centroid on the last leg, ``stalled``: the stall clock sees the
   formation still away from its target, or its replanner finds it boxed in
@@ -66,7 +67,7 @@ class Follower:
     given to :meth:`step`."""
 
     __slots__ = ("robot_id", "goal", "formation_goal", "route", "index", "goal_stamp", "_offset",
-                 "headings", "plan_stamp", "holding", "tolerance", "turning")
+                 "headings", "plan_stamp", "holding", "tolerance", "goal_heading")
 
     def __init__(self, robot_id: str, goal: Point, formation_goal: Point,
                  route: Sequence[Point] = (), headings: Sequence[float | None] = (),
@@ -75,7 +76,9 @@ class Follower:
         self.tolerance = tolerance  # [rad] a waypoint's heading counts reached this near
         self.goal_stamp = -math.inf  # the scenario's goal: any plan from the leader is newer
         self.plan_stamp = -math.inf  # the stamp of the plan followed (a replan of one goal is newer)
-        self.turning = False  # at a waypoint, still turning to its heading (:attr:`arriving`)
+        # [rad] the goal shape's turn at the goal (PlanMsg.heading; the scenario's goals: 0): the
+        # offsets' own, from which a waypoint's heading turns them (:meth:`step`)
+        self.goal_heading = 0.0
         self._set(goal, formation_goal, route, headings)
 
     def _set(self, goal: Point, formation_goal: Point, route: Sequence[Point],
@@ -96,12 +99,10 @@ class Follower:
 
     @property
     def arriving(self) -> bool:
-        """Whether a member may settle on its target (:func:`agent.body.member_nominal`): not
-        while the formation, at a waypoint, still turns to its heading. Settled there, on the
-        waypoint plus its goal offset, a member takes the turn out of its own command: warehouse
-        run 300130's pentagon stood 0.25 rad short of a waypoint's heading, every member within
-        2 cm of its target, and never turned, so it never passed it."""
-        return not self.turning
+        """On the last leg (its target is its own goal), or holding (its slot where the formation
+        holds): where a member settles on its target (:func:`agent.body.member_nominal`), not on
+        a waypoint the formation passes."""
+        return self.holding or self.index >= len(self.route) - 1
 
     def follow(self, route: Sequence[Point], headings: Sequence[float | None] = ()) -> None:
         """A new route to the same goal (a replan), from its first point."""
@@ -129,6 +130,7 @@ class Follower:
             return False
         self.goal_stamp = plan.goal_stamp
         self.plan_stamp = plan.stamp
+        self.goal_heading = plan.heading if plan.heading is not None else 0.0
         self._set(goal, (plan.cx, plan.cy), plan.route, plan.headings)
         return True
 
@@ -143,20 +145,19 @@ class Follower:
         (single integrators) turned within the tolerance while its centroid still crept
         0.035 m/s north and pivoted at 0.035 m/s; the leg after it led east, and its outer
         member's command went from 0.056 m/s north-west to 0.077 m/s south-east in one tick."""
-        self.turning = False
         if not self.holding:
             while True:
                 k = advance(self.route, self.index, cx, cy)
                 want = self.headings[self.index] if self.headings else None
-                if k == self.index:
-                    break
-                if heading is not None and want is not None and (
+                if k == self.index or (heading is not None and want is not None and (
                         abs(wrap_angle(heading - want)) > self.tolerance
-                        or self._unsettled(cx, cy, motion)):
-                    self.turning = abs(wrap_angle(heading - want)) > self.tolerance
+                        or self._unsettled(cx, cy, motion))):
                     break
                 self.index += 1
-        return member_target(self.route, self.index, self.goal, self._offset), self.route[self.index]
+        want = self.headings[self.index] if self.headings else None
+        turned = 0.0 if want is None else want - self.goal_heading
+        return (member_target(self.route, self.index, self.goal, self._offset, turned),
+                self.route[self.index])
 
     def _unsettled(self, cx: float, cy: float, motion: tuple[float, float, float]) -> bool:
         """Whether a member may still move at SETTLED_SPEED or more while the centroid drifts

@@ -178,11 +178,11 @@ def test_a_member_at_its_slot_moves_with_the_twist_and_far_ones_are_pulled_back(
     assert v[0] > u[0]
 
 
-def test_a_member_does_not_settle_on_its_target_while_the_formation_still_turns_there():
-    """At its target a member blends into eq. 4.2 on it and keeps only what the rows changed
-    of the goal twist; not arriving (the formation still turns to a waypoint's heading there)
-    it keeps its slot's motion, the turn included (warehouse run 300130: settled there, a
-    pentagon never turned and never passed the waypoint)."""
+def test_a_member_settles_on_its_target_only_where_it_arrives_not_at_a_waypoint_passed():
+    """At its target (its goal, or its slot where the formation holds) a member blends into
+    eq. 4.2 on it and keeps only what the rows changed of the goal twist; at a waypoint the
+    formation passes it keeps its slot's motion, the turn to the waypoint's heading included
+    (warehouse run 300130: blended there, a pentagon never turned and never passed it)."""
     fp = body.Footprint(((-0.25, 0.0), (0.25, 0.0)), 0.0, 1)
     pose = body.Pose(1.0, 1.0, 0.0)
     turn = (0.0, 0.0, 0.4)  # the goal twist: turn in place

@@ -16,6 +16,7 @@ from scenario import ScenarioError, load_scenario, parse_scenario
 from scenario.routes import initial_route, route_radius
 from simulator.inprocess import SimOptions, simulate
 from tests.scenario_runs import summary_of
+from wire.payloads import PlanMsg
 
 ROOT = Path(__file__).resolve().parent.parent
 NAV = sorted((ROOT / "tests" / "scenarios").glob("nav-*.yaml")) + [ROOT / "scenarios" / "warehouse.yaml"]
@@ -124,21 +125,29 @@ def test_advance_walks_the_route_and_member_targets_end_at_the_goals():
     assert advance(route, 2, 2.0, 1.0) == 2  # never past the goal
     assert member_target(route, 1, (2.3, 1.0), (0.3, 0.0)) == (1.3, 1.0)
     assert member_target(route, 2, (2.3, 1.0), (0.3, 0.0)) == (2.3, 1.0)  # the goal itself
+    # a waypoint with a heading: the slot at the formation's pose there (turned a quarter)
+    assert member_target(route, 1, (2.3, 1.0), (0.3, 0.0), math.pi / 2) == pytest.approx((1.0, 1.3))
+    assert member_target(route, 2, (2.3, 1.0), (0.3, 0.0), math.pi / 2) == (2.3, 1.0)
 
 
-def test_a_follower_does_not_settle_at_a_waypoint_it_still_turns_to():
-    """Warehouse run 300130: a pentagon stood at a waypoint 0.25 rad short of its heading,
-    each member within 2 cm of its target there, so each settled on it (agent.body's
-    member_nominal blends into eq. 4.2 on a target within ARRIVE_RANGE) and took the turn out
-    of its own command: the formation never turned, so it never passed the waypoint. While it
-    still turns there, its members are not arriving; turned, or on the last leg, they are."""
+def test_a_follower_s_target_at_a_waypoint_with_a_heading_is_its_slot_turned_there():
+    """Warehouse run 300130: a pentagon stood 0.25 rad short of a waypoint's heading, each
+    member within 2 cm of its target, the waypoint plus its goal offset unturned, so each
+    blended into parking there (agent.body.member_nominal) and the turn never came. The target
+    is the member's slot at the waypoint's pose: the goal offset turned by the waypoint's
+    heading less the goal's (a plan's heading; the scenario's goals: 0)."""
     f = Follower("m", (5.3, 0.0), (5.0, 0.0), ((2.0, 0.0), (5.0, 0.0)), (math.pi / 2, None))
-    target, waypoint = f.step(0.0, 0.0, 0.0)  # on its way to the waypoint
-    assert waypoint == (2.0, 0.0) and target == (2.3, 0.0) and f.arriving
-    target, waypoint = f.step(2.0, 0.0, 0.0)  # there, a quarter turn short
-    assert waypoint == (2.0, 0.0) and target == (2.3, 0.0) and not f.arriving
+    target, waypoint = f.step(2.0, 0.0, 0.0)  # at the waypoint, a quarter turn short
+    assert waypoint == (2.0, 0.0) and target == pytest.approx((2.0, 0.3))
     target, waypoint = f.step(2.0, 0.0, math.pi / 2)  # turned: on to the goal, its own
-    assert waypoint == (5.0, 0.0) and target == (5.3, 0.0) and f.arriving
+    assert waypoint == (5.0, 0.0) and target == (5.3, 0.0)
+    # a plan whose goal shape is turned already a quarter: its offsets are; no turn more
+    turned = PlanMsg("f", 1.0, 5.0, 0.0, math.pi / 2, ((2.0, 0.0), (5.0, 0.0)), (("m", 5.0, 0.3),),
+                     1.0, (math.pi / 2, math.pi / 2))
+    g = Follower("m", (5.3, 0.0), (5.0, 0.0))
+    assert g.adopt(turned)
+    target, _ = g.step(0.0, 0.0, 0.0)
+    assert target == pytest.approx((2.0, 0.3))
 
 
 @pytest.mark.integration
