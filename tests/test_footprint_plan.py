@@ -369,7 +369,7 @@ def test_a_formation_parked_in_the_only_way_stands_aside_for_the_one_with_no_rou
     assert give_way_job(off).reason == "not in the other formation's way"
 
 
-def _aisle():
+def _one_lane_aisle():
     """A one-lane aisle (2 m wide) along x from -5 to 6 between two halls, all inside walls
     at x = -10 and 11, y = +-5."""
     walls = [((-10, -5), (11, -5)), ((-10, 5), (11, 5)), ((-10, -5), (-10, 5)), ((11, -5), (11, 5)),
@@ -385,7 +385,7 @@ def test_a_formation_stuck_on_its_way_stands_aside_for_the_one_with_no_route_and
     it plans its way aside round the other where that one stands, still or not (the pentagon
     crept as it held, so it was no still thing, and the triangle was sent west through it)."""
     square = Body(((0.3, 0.3), (-0.3, 0.3), (-0.3, -0.3), (0.3, -0.3)), radius=0.105, margin=0.05)
-    walls = _aisle()
+    walls = _one_lane_aisle()
     giver = Replanner(square, 0.0, (-8.0, 3.0, 0.0), walls, start=(-1.5, 0.0))
     giver.name = "b"
     at = (-1.5, 0.0, 0.0)
