@@ -148,13 +148,13 @@ class Follower:
         if not self.holding:
             while True:
                 k = advance(self.route, self.index, cx, cy)
-                want = self.headings[self.index] if self.headings else None
+                want = self.heading
                 if k == self.index or (heading is not None and want is not None and (
                         abs(wrap_angle(heading - want)) > self.tolerance
                         or self._unsettled(cx, cy, motion))):
                     break
                 self.index += 1
-        want = self.headings[self.index] if self.headings else None
+        want = self.heading
         turned = 0.0 if want is None else want - self.goal_heading
         return (member_target(self.route, self.index, self.goal, self._offset, turned),
                 self.route[self.index])
