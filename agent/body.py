@@ -623,17 +623,26 @@ def member_nominal(fp: Footprint, pose: Pose, twist: Twist, point: Point, body: 
     (:func:`band_gain`; ``point`` its control point), clamped to vmax. ``arriving`` (its
     ``target`` its goal on the last leg, or its slot where the formation holds), with its
     ``body`` within ARRIVE_RANGE of it, it blends, by w from 0 to 1, into
-    eq. 4.2 on the target plus only what the rows changed of the ``goal`` twist (twist - w goal):
-    a goal shape that is not exactly a rigid copy of the start shape is still reached, a unicycle
-    formation parks on its bodies' goals (its pose is its look-ahead points'), and a formation
-    parked at its goal still gives way. A waypoint the formation passes is no place to settle:
-    there the blend took the turn to its heading out of the twist, and a pentagon whose members
-    stood within 2 cm of their targets never turned (warehouse run 300130)."""
+    eq. 4.2 on the target plus what the rows added to the ``goal`` twist: at the slot, the twist's
+    velocity less the share s of the goal's velocity it carries (s its projection on the goal's,
+    in [0, 1]), so a goal shape that is not exactly a rigid copy of the start shape is still
+    reached, a unicycle formation parks on its bodies' goals (its pose is its look-ahead points'),
+    and a formation parked at its goal still gives way. Only the share carried comes off: rows
+    that slow the twist to a crawl (another formation's ellipse beside the goal) leave the
+    member's own pull to its target whole, where taking off the whole goal pulled it back
+    against that pull and it stopped 57 mm short (rigid-doorway-four-unicycle). A waypoint the
+    formation passes is no place to settle: there the blend took the turn to its heading out of
+    the twist, and a pentagon whose members stood within 2 cm of their targets never turned
+    (warehouse run 300130)."""
     slot = place(pose, fp.slots[fp.member])
     dist = math.hypot(target[0] - body[0], target[1] - body[1])
     w = min(1.0, max(0.0, 1.0 - dist / ARRIVE_RANGE)) if arriving else 0.0
-    sv = point_velocity(pose, (twist[0] - w * goal[0], twist[1] - w * goal[1],
-                               twist[2] - w * goal[2]), slot)
+    sv = point_velocity(pose, twist, slot)
+    if w > 0.0:
+        gv = point_velocity(pose, goal, slot)
+        gg = gv[0] * gv[0] + gv[1] * gv[1]
+        s = min(1.0, max(0.0, (sv[0] * gv[0] + sv[1] * gv[1]) / gg)) if gg > 0.0 else 0.0
+        sv = (sv[0] - w * s * gv[0], sv[1] - w * s * gv[1])
     k = band_gain(p.kp, p.dt)
     ux, uy = sv[0] + k * (slot[0] - point[0]), sv[1] + k * (slot[1] - point[1])
     if w > 0.0:  # the slot's pull moves over to the target

@@ -78,7 +78,11 @@ class Thing(NamedTuple):
 
 
 class StillThings:
-    """Which round things have stood still for :data:`STILL_S` (static circles at once)."""
+    """Which round things have stood still for :data:`STILL_S` (static circles at once). One
+    counted still stays so while it stays within MOVED_M / 3 of where it stood, whatever its
+    speed: a parked formation's ellipse moves now and then as its members settle, and each time
+    its speed passed STILL_SPEED it went and came back 3 s later, so every formation planned
+    again every 3 s and one that was passing it never got by (warehouse run 200114)."""
 
     def __init__(self) -> None:
         self._since: dict[str, tuple[float, float, float]] = {}  # name -> (x, y, still since)
@@ -89,10 +93,13 @@ class StillThings:
         for th in things:
             seen.add(th.name)
             prev = self._since.get(th.name)
-            if th.speed >= STILL_SPEED:
+            if prev is not None and math.dist(prev[:2], (th.x, th.y)) > MOVED_M / 3:
+                prev = None  # it moved: still from now on, if at all
+            settled = prev is not None and t - prev[2] >= STILL_S
+            if th.speed >= STILL_SPEED and not settled:
                 self._since.pop(th.name, None)
                 continue
-            if prev is None or math.dist(prev[:2], (th.x, th.y)) > MOVED_M / 3:
+            if prev is None:
                 prev = (th.x, th.y, -math.inf if th.static else t)
                 self._since[th.name] = prev
             if t - prev[2] >= STILL_S:

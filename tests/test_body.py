@@ -193,6 +193,26 @@ def test_a_member_settles_on_its_target_only_where_it_arrives_not_at_a_waypoint_
     assert math.isclose(passing[0], 0.0, abs_tol=1e-12) and math.isclose(passing[1], 0.4 * 0.25)
 
 
+def test_a_member_arriving_under_a_slowed_twist_keeps_its_pull_and_gives_way_to_a_push():
+    """Rows that slow the goal twist to a crawl (another formation's ellipse beside the goal)
+    take off only the share of the goal they carry: the member still closes on its target
+    (rigid-doorway-four-unicycle stopped 57 mm short when the whole goal came off); rows that
+    push the formation away keep the whole push."""
+    fp = body.Footprint(((-0.25, 0.0), (0.25, 0.0)), 0.0, 1)
+    pose = body.Pose(1.0, 1.0, 0.0)
+    goal = (0.05, 0.0, 0.0)  # the goal twist: on towards +x
+    slot = body.place(pose, fp.slots[1])
+    target = (slot[0] + 0.05, slot[1])  # half ARRIVE_RANGE ahead
+    w = 0.5  # halfway into the blend
+    crawl = body.member_nominal(fp, pose, (0.01, 0.0, 0.0), slot, slot, target, PARAMS, goal)
+    # (1 - w) of the crawl and w of eq. 4.2's whole pull; taking off w of the whole goal left
+    # 0.01 - w 0.05 + w kp 0.05 = 0.035, the crawl's shortfall pulling back against the pull
+    assert math.isclose(crawl[0], (1 - w) * 0.01 + w * PARAMS.kp * 0.05)
+    assert math.isclose(crawl[1], 0.0, abs_tol=1e-12)
+    push = body.member_nominal(fp, pose, (-0.03, 0.02, 0.0), slot, slot, target, PARAMS, goal)
+    assert math.isclose(push[1], 0.02)  # sideways: what the rows added, kept whole
+    assert math.isclose(push[0], -0.03 + w * (PARAMS.kp * 0.05))  # the push back, kept whole
+
 def test_the_goal_turn_of_a_rotated_goal_shape():
     starts = [(0.0, 0.0), (1.0, 0.0), (1.0, 0.5)]
     goals = [(5.0, 5.0), (5.0, 6.0), (4.5, 6.0)]  # turned by +90 degrees

@@ -21,6 +21,7 @@ from leader.routing import (
     BLOCKED_S,
     GIVE_WAY,
     GIVE_WAY_S,
+    MOVED_M,
     REACHED,
     STALLED,
     UNREACHABLE,
@@ -142,7 +143,28 @@ def test_still_things_count_after_three_seconds_and_static_circles_at_once():
     assert [n for n, _c in still.update(2.9, things)] == ["obstacle/pillar"]
     assert [n for n, _c in still.update(3.0, things)] == ["obstacle/forklift", "obstacle/pillar"]
     moving = [things[0], things[1]._replace(speed=0.5)]
-    assert [n for n, _c in still.update(3.1, moving)] == ["obstacle/pillar"]
+    # once counted still, a thing stays so until it has moved MOVED_M / 3 from where it stood
+    assert [n for n, _c in still.update(3.1, moving)] == ["obstacle/forklift", "obstacle/pillar"]
+    gone = [things[0], things[1]._replace(x=3.0 + MOVED_M / 3 + 0.01, speed=0.5)]
+    assert [n for n, _c in still.update(3.3, gone)] == ["obstacle/pillar"]
+    back = [things[0], things[1]._replace(x=3.2)]  # and counts again only 3 s after it stops
+    assert [n for n, _c in still.update(3.4, back)] == ["obstacle/pillar"]
+    assert [n for n, _c in still.update(6.4, back)] == ["obstacle/forklift", "obstacle/pillar"]
+
+
+def test_a_parked_formation_whose_ellipse_twitches_stays_planned_around():
+    """Warehouse run 200114: a parked formation's speed passed STILL_SPEED now and then as its
+    members settled; each time it left the planned-around set and came back 3 s later, and every
+    formation planned again each time. Where it stands, a twitch changes nothing."""
+    still = StillThings()
+    parked = Thing("formation/b", 1.0, -5.0, 0.0, 1.4)
+    seen = []
+    for k in range(200):  # 20 s at 10 Hz, a 2 cm, 0.05 m/s twitch every 4 s from 3.5 s
+        t = 0.1 * k
+        twitch = k % 40 == 35
+        th = parked._replace(x=1.0 + (0.02 if twitch else 0.0), speed=0.05 if twitch else 0.0)
+        seen.append([n for n, _c in still.update(t, [th])])
+    assert all(s == [] for s in seen[:30]) and all(s == ["formation/b"] for s in seen[30:])
 
 
 def test_the_replanner_plans_again_off_route_and_without_progress_but_not_by_hand():

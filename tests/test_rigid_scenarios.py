@@ -26,11 +26,6 @@ SCENARIOS = Path(__file__).parent / "scenarios"
 
 #: The issue's "Done when" set that does not meet the bar yet, and why (strict: a fix shows).
 FAILING: dict[str, str] = {
-    "rigid-doorway-four-unicycle": "W's bodies end 0.057 m from their goals (tolerance 0.05): X, "
-                                   "parked last beside it, holds W's twist to a crawl, and the "
-                                   "blend into the goal (agent.body.member_nominal) balances "
-                                   "the crawl against the pull; 0.83 eps and every goal while "
-                                   "members also settled on waypoints they passed",
     "rigid-shelves-eight-unicycle": "1 unforced reversal (0.79 eps): while formation e waits "
                                     "for a member to face its motion (agent.body.pace), e1 turns "
                                     "towards its own slot's barely moving aim and back",
