@@ -213,6 +213,7 @@ def test_a_member_arriving_under_a_slowed_twist_keeps_its_pull_and_gives_way_to_
     assert math.isclose(push[1], 0.02)  # sideways: what the rows added, kept whole
     assert math.isclose(push[0], -0.03 + w * (PARAMS.kp * 0.05))  # the push back, kept whole
 
+
 def test_the_goal_turn_of_a_rotated_goal_shape():
     starts = [(0.0, 0.0), (1.0, 0.0), (1.0, 0.5)]
     goals = [(5.0, 5.0), (5.0, 6.0), (4.5, 6.0)]  # turned by +90 degrees
