@@ -580,7 +580,10 @@ PACE_FROM = 0.02  # [m/s] a slot asked to move slower than this needs no facing
 PACE_MOVING = 0.1  # [m/s] nor does a formation none of whose slots is asked to move this fast
 PACE_ALIGNED = math.radians(30.0)  # a member facing its slot's motion this closely: full pace
 PACE_SIDEWAYS = math.radians(90.0)  # ... this far off (or more): the formation waits
-PACE_FLOOR = 0.25  # but never slower than this share of its goal twist (a member may not turn)
+# but never slower than this share of its goal twist (a member may not turn); at 0.25 a member
+# turning round drove its slot 8 cm (2 epsilon) on before it faced it (rigid-doorway-four-unicycle
+# 1.62 eps once the later-named of two blocked formations went round, Replanner.waits_for)
+PACE_FLOOR = 0.1
 
 
 def pace(want: Twist, pose: Pose, fp: Footprint, headings: Sequence[float]) -> float:

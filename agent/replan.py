@@ -40,6 +40,7 @@ from leader.routing import (
     Update,
     blockers,
     give_way_job,
+    lanes,
     plan_job,
     traffic,
 )
@@ -112,10 +113,12 @@ class LeaderRoutes:
         if why == GIVE_WAY:
             return self._give_way(stamp, lockstep, p3, things, reports)
         extra = blockers(p3, self.body.rho, seen) if why == BLOCKED else ()
+        if why == BLOCKED and r.waits_for(stamp, extra):
+            return None
         if lockstep:
-            return r.plan(stamp, p3, things, why, extra)
-        plan = r.begin(stamp, p3, things, extra)
-        if not plan.shapes and not plan.circles:  # an open floor: no search, no worker
+            return r.plan(stamp, p3, things, why, extra, lanes(seen))
+        plan = r.begin(stamp, p3, things, extra, lanes(seen))
+        if not plan.shapes and not plan.circles and not plan.lanes:  # open floor: no search, no worker
             return r.finish(plan_job(plan), why)
         self._job = plan_pool().submit(plan_job, plan)
         self._why = why
@@ -152,8 +155,8 @@ class LeaderRoutes:
                 own: Ellipse) -> list[Thing]:
         if self._first:  # a circle still when the leader first looks is planned round at once
             self._static = {o.id for o in obstacles if o.vx == 0.0 and o.vy == 0.0}
-        out = [Thing(f"obstacle/{o.id}", o.x, o.y, math.hypot(o.vx, o.vy), o.ds, o.id in self._static)
-               for o in obstacles]
+        out = [Thing(f"obstacle/{o.id}", o.x, o.y, math.hypot(o.vx, o.vy), o.ds, o.id in self._static,
+                     o.vx, o.vy) for o in obstacles]
         out += [Thing(f"formation/{e.formation}", e.cx, e.cy, math.hypot(e.vx, e.vy),
                       e.a + self.radius) for e in others
                 if math.dist((e.cx, e.cy), (own.cx, own.cy)) > 1e-9]

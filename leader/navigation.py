@@ -151,7 +151,7 @@ class Follower:
                 want = self.heading
                 if k == self.index or (heading is not None and want is not None and (
                         abs(wrap_angle(heading - want)) > self.tolerance
-                        or self._unsettled(cx, cy, motion))):
+                        or self._unsettled(cx, cy, motion) or self._turns_back(heading, motion))):
                     break
                 self.index += 1
         want = self.heading
@@ -170,6 +170,21 @@ class Follower:
         nx, ny = self.route[self.index + 1][0] - cx, self.route[self.index + 1][1] - cy
         leg = math.hypot(nx, ny)
         return leg > 1e-9 and nx * vx + ny * vy < math.cos(ASIDE) * leg * speed
+
+
+    def _turns_back(self, heading: float, motion: tuple[float, float, float]) -> bool:
+        """Whether the next waypoint's heading lies the other way round from ``heading`` than
+        the current one's, while a member may still move at SETTLED_SPEED or more: passing on,
+        the formation's turn would reverse in one tick and its outer member's command with it.
+        route-head-on-aisle's pair, let go after waiting and turning at 0.067 m/s towards -1.178
+        rad, passed it at -1.104 (within the tolerance) for -0.785 beyond it: a reversal."""
+        moving = math.hypot(motion[0], motion[1]) + motion[2] > SETTLED_SPEED
+        if not moving or self.index + 1 >= len(self.headings):
+            return False
+        nxt, want = self.headings[self.index + 1], self.headings[self.index]
+        if nxt is None or want is None:
+            return False
+        return wrap_angle(want - heading) * wrap_angle(nxt - heading) < 0.0
 
 
 def turn(offsets: Mapping[str, Point], heading: float) -> dict[str, Point]:

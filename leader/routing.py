@@ -39,7 +39,7 @@ from typing import NamedTuple
 
 from geometry.ellipse import wrap_angle
 from geometry.footprint_plan import Body, Circle, FootprintPlan, Pose3, plan_aside, plan_footprint
-from geometry.shapes import Shape, segment_distance
+from geometry.shapes import Shape, segment_distance, segment_segment_distance
 from wire.payloads import MAX_WAYPOINTS as MAX_ROUTE  # the most route points a plan holds
 
 STILL_S = 3.0  # [s] a round thing still this long is planned around (a parked forklift)
@@ -55,6 +55,9 @@ BLOCKED_S = 10.0  # [s] no progress this long with traffic near: plan round the 
 BLOCKED = "blocked"
 GIVE_WAY = "give way"
 GIVE_WAY_S = 90.0  # [s] a formation giving way stands aside at most this long
+LANE_S = 60.0  # [s] a moving thing's way this far ahead is what a route does not meet head-on
+HEAD_ON = math.cos(math.radians(135.0))  # a leg this far or further from its motion meets it
+LANE_CLEAR_M = 0.1  # [m] beyond its Ds and the footprint's reach: a lane circle the start is clear of
 # [m] this near its goal a formation counts as parked there (it may stand in another's way; one
 # kept 0.6 m short of it by the formation it blocks never settles: warehouse draw run 300117)
 PARKED_M = 1.0
@@ -75,6 +78,8 @@ class Thing(NamedTuple):
     speed: float  # [m/s]
     ds: float  # [m] from a robot's centre: a circle's Ds; a formation's semi-major axis and its Ds
     static: bool = False  # a circle that never moves (still from the start)
+    vx: float = 0.0  # [m/s] its velocity
+    vy: float = 0.0
 
 
 class StillThings:
@@ -124,6 +129,46 @@ def blockers(pose: Pose3, rho: float, things: Iterable[Thing]) -> tuple[tuple[st
                         and math.dist(pose[:2], (th.x, th.y)) < rho + th.ds + TRAFFIC_M))
 
 
+Lane = tuple[float, float, float, float, float]  # (x, y, vx, vy, Ds) a moving round thing
+
+
+def lanes(things: Iterable[Thing]) -> tuple[Lane, ...]:
+    """The moving round things that are no formation (a forklift drives on by itself, a
+    formation plans its own way), for :func:`plan_job`'s check of oncoming traffic."""
+    return tuple(sorted((th.x, th.y, th.vx, th.vy, th.ds) for th in things
+                        if not th.name.startswith(FORMATION) and th.speed >= STILL_SPEED))
+
+
+def oncoming(start: Pose3, route: Sequence[Pose3], rho: float, lane: Lane) -> bool:
+    """Whether a leg of ``route`` (from ``start``) runs head-on (within HEAD_ON) into where
+    the thing of ``lane`` drives in the next LANE_S: within its Ds and the footprint's reach."""
+    x, y, vx, vy, ds = lane
+    speed = math.hypot(vx, vy)
+    ends = ((x, y), (x + vx * LANE_S, y + vy * LANE_S))
+    pts = [start[:2]] + [p[:2] for p in route]
+    for a, b in zip(pts[:-1], pts[1:], strict=True):
+        dx, dy = b[0] - a[0], b[1] - a[1]
+        leg = math.hypot(dx, dy)
+        if (leg > 1e-9 and dx * vx + dy * vy < HEAD_ON * leg * speed
+                and segment_segment_distance(a, b, *ends) < ds + rho):
+            return True
+    return False
+
+
+def lane_circles(start: Pose3, rho: float, lane: Lane) -> tuple[Circle, ...]:
+    """Where the thing of ``lane`` drives in the next LANE_S, as circles of its Ds half a Ds
+    apart, less those the footprint at ``start`` already reaches (it is not planned out of a
+    place it stands in: its barriers keep it off the thing itself)."""
+    x, y, vx, vy, ds = lane
+    n = max(1, math.ceil(math.hypot(vx, vy) * LANE_S / (0.5 * ds)))
+    out = []
+    for k in range(n + 1):
+        cx, cy = x + vx * LANE_S * k / n, y + vy * LANE_S * k / n
+        if math.dist(start[:2], (cx, cy)) > ds + rho + LANE_CLEAR_M:
+            out.append((cx, cy, ds))
+    return tuple(out)
+
+
 def changed(a: Sequence[tuple[str, Circle]], b: Sequence[tuple[str, Circle]]) -> bool:
     """Whether two sets of planned-around things differ (one came or went, or moved MOVED_M)."""
     if [n for n, _c in a] != [n for n, _c in b]:
@@ -141,6 +186,7 @@ class PlanJob(NamedTuple):
     shapes: tuple[Shape, ...]
     circles: tuple[Circle, ...]
     formations: tuple[tuple[str, Circle], ...] = ()
+    lanes: tuple[Lane, ...] = ()  # moving things (:func:`lanes`): a route head-on into one goes round
 
 
 class JobResult(NamedTuple):
@@ -155,6 +201,11 @@ def plan_job(job: PlanJob) -> JobResult:
     parked in the way, the route without them too: the formations it passes are what blocks
     the way (each may be waiting for this one: :meth:`Replanner.give_way`)."""
     res = plan_footprint(job.start, job.goal, job.body, job.shapes, job.circles)
+    ahead = [ln for ln in job.lanes if res.route and oncoming(job.start, res.route, job.body.rho, ln)]
+    if ahead:  # round where they drive, if there is a way; else the way, and the barriers wait
+        round_ = plan_footprint(job.start, job.goal, job.body, job.shapes, job.circles + tuple(
+            c for ln in ahead for c in lane_circles(job.start, job.body.rho, ln)))
+        res = round_ if round_.route else res
     if res.route or not job.formations:
         return JobResult(res)
     parked = [c for _n, c in job.formations]
@@ -253,9 +304,10 @@ class Replanner:
         self.boxed_in = False  # blocked, and no route round the formations in its way
 
     def plan(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...], why: str,
-             extra: tuple[tuple[str, Circle], ...] = ()) -> Update | None:
+             extra: tuple[tuple[str, Circle], ...] = (), moving: tuple[Lane, ...] = ()
+             ) -> Update | None:
         """Plan from ``pose`` now around the shapes, ``things`` and ``extra`` (:meth:`begin`)."""
-        return self.finish(plan_job(self.begin(t, pose, things, extra)), why)
+        return self.finish(plan_job(self.begin(t, pose, things, extra, moving)), why)
 
     def parked(self, pose: Pose3) -> bool:
         """At or near its goal (within PARKED_M of it; a route given by hand is never moved):
@@ -290,6 +342,16 @@ class Replanner:
                     return name
         return ""
 
+    def waits_for(self, t: float, extra: Sequence[tuple[str, Circle]]) -> bool:
+        """Blocked by ``extra`` (:func:`blockers`), whether to keep the route a while longer:
+        one of them sorts after this formation, and the later name is the one that goes round
+        (two formations blocked by each other both went round each other, opposite ways, and
+        met at the same gap again: montecarlo warehouse run 100187). For BLOCKED_S more at
+        most: the later one may not be waiting for this one at all."""
+        return (not self.by_hand and t - self._moved_at < 2.0 * BLOCKED_S
+                and any(n[len(FORMATION):] > self.name for n, _c in extra
+                        if n.startswith(FORMATION)))
+
     def begin_give_way(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...],
                        name: str, other: Other, radius: float) -> GiveWayJob:
         """Start standing aside for formation ``name`` (:func:`give_way_job`; then
@@ -318,10 +380,12 @@ class Replanner:
                       tuple(wrap_angle(th - self.goal_turn) for _x, _y, th in res.route), GIVE_WAY)
 
     def begin(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...],
-              extra: tuple[tuple[str, Circle], ...] = ()) -> PlanJob:
+              extra: tuple[tuple[str, Circle], ...] = (), moving: tuple[Lane, ...] = ()) -> PlanJob:
         """Start a plan from ``pose`` at ``t``: the arguments of
         :func:`geometry.footprint_plan.plan_footprint` (run it anywhere, then :meth:`finish`).
-        ``extra``: round things planned round this once (:func:`blockers`), not kept."""
+        ``extra``: round things planned round this once (:func:`blockers`), not kept;
+        ``moving``: the things driving about (:func:`lanes`), whose way a route does not meet
+        head-on where it can go round."""
         self.plans += 1
         self.due = ""
         self.last_plan = t
@@ -333,7 +397,7 @@ class Replanner:
         parked = () if extra else tuple((n[len(FORMATION):], c) for n, c in things
                                         if n.startswith(FORMATION))
         return PlanJob(pose, self.goal, self.body, self.shapes,
-                       tuple(c for _n, c in things) + tuple(c for _n, c in extra), parked)
+                       tuple(c for _n, c in things) + tuple(c for _n, c in extra), parked, moving)
 
     def finish(self, res: FootprintPlan | JobResult, why: str) -> Update | None:
         """The route (or the order to hold) from a plan :meth:`begin` started; None: keep the

@@ -25,6 +25,7 @@ from leader.routing import (
     Update,
     blockers,
     give_way_job,
+    lanes,
     traffic,
 )
 from scenario import Scenario
@@ -107,7 +108,9 @@ class Replans:
                 new = planner.finish_give_way(give_way_job(job), keeper)
             else:
                 extra = blockers(p3, planner.body.rho, seen) if why == BLOCKED else ()
-                new = planner.plan(t, p3, things, why, extra)
+                if why == BLOCKED and planner.waits_for(t, extra):
+                    continue
+                new = planner.plan(t, p3, things, why, extra, lanes(seen))
             if new is None:  # no way round the formations in the way: keep the route
                 continue
             self.updates.append((t, name, why, len(new.route)))
@@ -146,7 +149,7 @@ class Replans:
     def _things(self, name: str, ellipses: dict[str, Ellipse], obstacles: Sequence[Obstacle]
                 ) -> list[Thing]:
         out = [Thing(f"obstacle/{spec.name}", o.x, o.y, math.hypot(o.vx, o.vy), o.ds,
-                     spec.velocity == (0.0, 0.0))
+                     spec.velocity == (0.0, 0.0), o.vx, o.vy)
                for o, spec in zip(obstacles, self.scenario.obstacles, strict=True)]
         radius = self.scenario.robot.radius
         out += [Thing(f"formation/{other}", e.cx, e.cy, math.hypot(e.vx, e.vy), e.a + radius)

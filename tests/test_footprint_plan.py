@@ -21,17 +21,22 @@ from leader.routing import (
     BLOCKED_S,
     GIVE_WAY,
     GIVE_WAY_S,
+    LANE_S,
     MOVED_M,
     REACHED,
     STALLED,
     UNREACHABLE,
     GiveWayJob,
     Other,
+    PlanJob,
     Replanner,
     StillThings,
     Thing,
     blockers,
     give_way_job,
+    lane_circles,
+    lanes,
+    oncoming,
     plan_job,
 )
 from simulator.motion import REVERSAL_SPEED
@@ -197,6 +202,25 @@ def test_a_formation_that_waits_for_traffic_too_long_plans_round_the_formations_
     assert r.check(BLOCKED_S + 3.0, (-4.0, 0.0, 0.0), route, 0, (), busy=True) is None  # clock anew
 
 
+def test_of_two_formations_blocked_by_each_other_the_later_name_goes_round():
+    """a and b stand head-on, each blocked by the other: b (the later name) plans round a, a keeps
+    its route for BLOCKED_S more, then goes round too (b may not be waiting for it at all)."""
+    route = ((5.0, 0.0),)
+    a, b = (Replanner(LINE, 0.0, (5.0, 0.0, 0.0), [], start=(-5.0, 0.0)) for _ in range(2))
+    a.name, b.name = "a", "b"
+    for r in (a, b):
+        assert r.check(0.0, (-4.0, 0.0, 0.0), route, 0, (), busy=True) is None
+        assert r.check(BLOCKED_S, (-4.0, 0.0, 0.0), route, 0, (), busy=True) == BLOCKED
+    sees_b = (("formation/b", (-2.5, 0.0, 0.5)), ("obstacle/forklift", (-3.0, 0.5, 0.45)))
+    assert a.waits_for(BLOCKED_S, sees_b)
+    assert not a.waits_for(2.0 * BLOCKED_S, sees_b)  # no longer than BLOCKED_S more
+    assert not b.waits_for(BLOCKED_S, (("formation/a", (-2.5, 0.0, 0.5)),))
+    assert not a.waits_for(BLOCKED_S, ())
+    by_hand = Replanner(LINE, 0.0, (5.0, 0.0, 0.0), [], start=(-5.0, 0.0), by_hand=True)
+    by_hand.name = "a"
+    assert not by_hand.waits_for(BLOCKED_S, sees_b)
+
+
 def test_a_member_passes_a_waypoint_with_a_heading_only_once_the_formation_has_turned():
     f = Follower("a", (5.5, 0.0), (5.0, 0.0), ((0.0, 0.0), (5.0, 0.0)), (1.0, None))
     f.step(0.0, 0.05, heading=0.2)  # at the point, not turned yet: stays on it
@@ -243,6 +267,21 @@ def test_a_turning_waypoint_waits_for_a_drift_off_the_next_leg_to_settle():
     h.step(0.0, 0.05, heading=0.5, motion=(0.0, 0.0, 0.0))
     assert h.index == 0  # at rest but not turned: the heading still holds it
     assert motion_of(Ellipse(0.0, 0.0, 0.0, 1.0, 0.5, 0.03, -0.04, -0.1), 0.5) == (0.03, -0.04, 0.05)
+
+
+def test_a_turning_waypoint_whose_next_heading_lies_back_the_other_way_waits_for_the_turn_to_settle():
+    # route-head-on-aisle's pair turned at 0.067 m/s towards -1.178 rad, passed it at -1.104 for
+    # the next waypoint's -0.785 (back the way it came) and its outer member reversed
+    route = ((2.23, 0.99), (2.23, 0.99), (3.03, 1.79))
+    spinning = (0.063, 0.007, 0.067)
+    f = Follower("a", (3.0, 1.8), (3.03, 1.79), route, (-1.178, -0.785, -0.196), 0.083)
+    f.step(2.16, 0.964, heading=-1.104, motion=spinning)
+    assert f.index == 0  # within the tolerance, still turning: the next turn is back
+    f.step(2.16, 0.964, heading=-1.17, motion=(0.01, 0.0, 0.03))
+    assert f.index == 1  # settled: on to -0.785 (and not past it: -1.17 is 0.6 rad short)
+    g = Follower("a", (3.0, 1.8), (3.03, 1.79), route, (-1.178, -1.5, -0.196), 0.083)
+    g.step(2.16, 0.964, heading=-1.104, motion=spinning)
+    assert g.index == 1  # the next heading lies on the way it turns: no need to settle
 
 
 def _dead_end():
@@ -430,3 +469,49 @@ def test_a_formation_stuck_on_its_way_stands_aside_for_the_one_with_no_route_and
     by_hand = Replanner(square, 0.0, (-8.0, 3.0, 0.0), walls, start=(-1.5, 0.0), by_hand=True)
     by_hand.name = "b"
     assert not by_hand.stuck(100.0) and by_hand.give_way(100.0, other, at) == ""
+
+
+def _two_aisles(closed_north: bool = False):
+    """A hall 20 m x 4 m (walls at x = +-10, y = +-2) split along x by a shelf row (y -0.45 ..
+    0.45, x -7 .. 7); ``closed_north``: a wall shuts the north aisle at x = 7 (a dead end)."""
+    walls = [((-10, -2), (10, -2)), ((10, -2), (10, 2)), ((10, 2), (-10, 2)), ((-10, 2), (-10, -2))]
+    out = [segment(f"w{k}", a, b, 0.15) for k, (a, b) in enumerate(walls)]
+    out.append(box("row", (0.0, 0.0), (14.0, 0.9), 0.0, 0.15))
+    if closed_north:
+        out.append(segment("plug", (7.0, 0.0), (7.0, 2.0), 0.15))
+    return out
+
+
+def test_a_route_head_on_into_a_forklifts_way_goes_round_it_where_there_is_a_way():
+    """warehouse run 300099: a hexagon sent down the middle aisle head-on into a forklift (no
+    room beside it) stood, then backed away from it for 100 s. A route that meets a moving
+    thing's next LANE_S head-on goes round where that thing drives, where another way exists."""
+    shapes = _two_aisles()
+    start, goal = (-8.5, -1.2, 0.0), (8.5, -1.2, 0.0)  # the south aisle's robots: y -1.85 .. -0.6
+    forklift = Thing("obstacle/forklift", 5.0, -1.225, 0.1, 0.6, False, -0.1, 0.0)  # fills it
+    moving = lanes([forklift, Thing("formation/b", 0.0, 1.0, 0.2, 0.5, False, 0.2, 0.0),
+                    Thing("obstacle/parked", 0.0, 1.0, 0.0, 0.45)])
+    assert moving == ((5.0, -1.225, -0.1, 0.0, 0.6),)  # neither a formation nor a still thing
+    plain = plan_job(PlanJob(start, goal, LINE, tuple(shapes), ()))
+    assert max(p[1] for p in plain.plan.route) < 0.0  # down the south aisle
+    assert oncoming(start, plain.plan.route, LINE.rho, moving[0])
+    round_ = plan_job(PlanJob(start, goal, LINE, tuple(shapes), (), (), moving))
+    assert round_.plan.route and max(p[1] for p in round_.plan.route) > 0.45  # the north aisle
+    assert not oncoming(start, round_.plan.route, LINE.rho, moving[0])
+    ahead = (5.0, -1.225, 0.1, 0.0, 0.6)  # driving the same way: followed, not met
+    assert not oncoming(start, plain.plan.route, LINE.rho, ahead)
+    same = plan_job(PlanJob(start, goal, LINE, tuple(shapes), (), (), (ahead,)))
+    assert same.plan.route == plain.plan.route
+    dead_end = tuple(_two_aisles(closed_north=True))  # no other way: the way, the barriers wait
+    kept = plan_job(PlanJob(start, goal, LINE, dead_end, (), (), moving))
+    assert kept.plan.route and max(p[1] for p in kept.plan.route) < 0.0 and not kept.plan.reason
+
+
+def test_a_lane_is_circles_along_the_next_lane_s_less_those_the_start_reaches():
+    lane = (5.0, 0.0, -0.1, 0.0, 0.4)
+    far = lane_circles((-10.0, 0.0, 0.0), 0.5, lane)
+    assert far[0] == (5.0, 0.0, 0.4) and far[-1][0] == pytest.approx(5.0 - 0.1 * LANE_S)
+    assert all(a[0] - b[0] <= 0.2 + 1e-9 for a, b in zip(far[:-1], far[1:], strict=True))  # Ds / 2 apart
+    near = lane_circles((1.0, 0.0, 0.0), 0.5, lane)
+    assert near and all(math.dist((1.0, 0.0), c[:2]) > 0.4 + 0.5 for c in near)
+    assert len(near) < len(far)
