@@ -25,13 +25,11 @@ SLOW = {"meet-6-rectangles", "warehouse-12-formations", "route-give-way",  # the
 NEW = {"meet-5-rectangles", "meet-6-rectangles", "warehouse-12-formations", "forklift-overtakes",
        "forklift-crossing-fast", "unicycle-turn-90", "unicycle-turn-180", "hexagon-turn-pair-cross",
        "roundabout"}
-# Where the formation error on the bodies still exceeds 1.5 epsilon (safety holds there):
-# (warehouse-lab-bounds was, 3.1 eps, until the lab world's single-integrator firmware backed up
-# rather than turning round: simulator.lab)
-FORMATION_GAPS: dict[str, str] = {
-    "warehouse-lab-bounds": "1.67 eps: single integrators in the lab world, one member of "
-                            "formation west backs up while the others drive (README)",
-}
+# Where the formation error on the bodies still exceeds 1.5 epsilon (safety holds there): none
+# since 2026-11-28 (warehouse-lab-bounds was, 3.1 eps until the lab world's single-integrator
+# firmware backed up rather than turning round, then 1.51 to 1.67 eps until routes went round
+# oncoming forklifts: 1.21 eps, leader.routing.oncoming)
+FORMATION_GAPS: dict[str, str] = {}
 # goals meant to have no route: tests/test_route_scenarios.py shows they hold, unreachable
 UNREACHABLE = {"route-closed-room", "route-closed-room-unicycle"}
 # where a goal is meant to be reached and is not yet (safety holds there)
