@@ -107,7 +107,7 @@ class LeaderRoutes:
         turn = 0.0 if want is None else wrap_angle(pose.theta - self.fp.goal_turn - want)
         reports = reports or {}
         why = r.check(stamp, p3, follower.route, follower.index, things, turn,
-                      traffic(p3, self.body.rho, seen), reports)
+                      traffic(p3, self.body.rho, seen), reports, seen)
         if why is None:
             return None
         if why == GIVE_WAY:

@@ -10,6 +10,8 @@ to one goal pose and says each tick whether to plan it again:
   clock stops while something moving is near: waiting for traffic is not being stuck);
 * **the things changed**: a round thing planned around moved, went or came
   (:class:`StillThings`: circles that stand still, parked formations);
+* **way clear**: on a blocked plan's detour, every formation it went round has left the way
+  it was on (:meth:`Replanner.way_clear`);
 * **blocked**: no progress for :data:`BLOCKED_S` although traffic is near (two formations
   head-on in a one-lane aisle wait for each other for ever: each creeps, so neither is ever
   still): this plan goes round the moving formations near it too (:func:`blockers`), where it
@@ -24,7 +26,8 @@ to one goal pose and says each tick whether to plan it again:
 At most one plan per :data:`REPLAN_EVERY_S`. No route: the formation holds where it is
 (:meth:`leader.navigation.Follower.hold`) and the reason is kept in ``unreachable`` until a
 later plan (tried again every :data:`RETRY_S`, or when the things change) finds one. Routes
-given by hand are never planned again.
+given by hand are never planned again. A plan whose legs meet a moving circle head-on within
+:data:`LANE_S` is made again round where it drives, where that finds a route (:func:`oncoming`).
 
 Headings: the planner's are the footprint's rotation from its start frame (theta of
 :class:`agent.body.Pose`); a route's are the goal shape's turn (as ``GoalMsg.heading``), theta
@@ -53,6 +56,7 @@ RETRY_S = 5.0  # [s] no route: try again this often
 TRAFFIC_M = 1.0  # [m] a moving thing this near: the formation waits, the progress clock stops
 BLOCKED_S = 10.0  # [s] no progress this long with traffic near: plan round the formations there
 BLOCKED = "blocked"
+WAY_CLEAR = "way clear"  # the formations a blocked plan went round have left the way it was on
 GIVE_WAY = "give way"
 GIVE_WAY_S = 90.0  # [s] a formation giving way stands aside at most this long
 LANE_S = 60.0  # [s] a moving thing's way this far ahead is what a route does not meet head-on
@@ -295,6 +299,11 @@ class Replanner:
         self._best_at = 0.0
         self._moved_at = 0.0  # the last progress, traffic or not
         self._blocked = False  # the plan in progress goes round blockers
+        # the way a blocked plan left (from where the formation stood) and the formations it went
+        # round (:meth:`way_clear`); () when the route is no such detour
+        self._way: tuple[tuple[float, float], ...] = ()  # where the formation stands, then its route
+        self._left: tuple[tuple[float, float], ...] = ()
+        self._round: tuple[str, ...] = ()
         self._leg_start = start  # where the route's first leg starts
         self.due = ""  # a plan asked for (a new goal): the next check says so
         self.name = ""  # the formation's (who gives way to whom: the later name to the earlier)
@@ -352,6 +361,22 @@ class Replanner:
                 and any(n[len(FORMATION):] > self.name for n, _c in extra
                         if n.startswith(FORMATION)))
 
+    def way_clear(self, seen: Sequence[Thing]) -> bool:
+        """On a detour round formations it was blocked by, whether all of them have left the
+        way it was on (none within its reach and the footprint's of that way, from where the
+        formation stood when blocked): then it plans again without them (WAY_CLEAR). In warehouse
+        run 100187, c, blocked by b passing north through the cross-aisle gap c needed, was sent
+        8 m west round it at 205 s; b was through 10 s later, and c came back only when b parked
+        at its goal, 36 s later: 3 m short of its goal at 300 s."""
+        if not self._round or not self._left:
+            return False
+        where = {th.name: th for th in seen}
+        for name in self._round:
+            th = where.get(name)
+            if th is not None and way_distance(self._left, th.x, th.y) < th.ds + self.body.rho:
+                return False
+        return True
+
     def begin_give_way(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...],
                        name: str, other: Other, radius: float) -> GiveWayJob:
         """Start standing aside for formation ``name`` (:func:`give_way_job`; then
@@ -392,6 +417,8 @@ class Replanner:
         self.planned = things
         self._best, self._best_at, self._moved_at = math.inf, t, t
         self._blocked = bool(extra)
+        self._round = tuple(n for n, _c in extra)
+        self._left = self._way if extra else ()
         self._leg_start = (pose[0], pose[1])
         self.giving_way = ""
         parked = () if extra else tuple((n[len(FORMATION):], c) for n, c in things
@@ -405,6 +432,8 @@ class Replanner:
         plan = res.plan if isinstance(res, JobResult) else res
         self.blocked_by = res.blocked_by if isinstance(res, JobResult) else ()
         self.boxed_in = bool(plan.reason) and self._blocked
+        if plan.reason:
+            self._round, self._left = (), ()
         if self.boxed_in:
             return None
         self.unreachable = plan.reason
@@ -420,15 +449,17 @@ class Replanner:
 
     def check(self, t: float, pose: Pose3, route: Sequence[tuple[float, float]], index: int,
               things: tuple[tuple[str, Circle], ...], turn: float = 0.0, busy: bool = False,
-              others: Mapping[str, Other] | None = None) -> str | None:
+              others: Mapping[str, Other] | None = None, seen: Sequence[Thing] = ()) -> str | None:
         """Why to plan again now (module docstring), or None; ``turn`` [rad]: what the formation
         has yet to turn to the current waypoint's heading (turning is progress too); ``busy``:
         traffic is near (:func:`traffic`: the progress clock stops); ``others``: the other
         formations' reports (:class:`Other`), for giving way (GIVE_WAY: :meth:`begin_give_way`
-        with :meth:`give_way`'s formation)."""
+        with :meth:`give_way`'s formation); ``seen``: every round thing this tick
+        (:meth:`way_clear`)."""
         others = others or {}
         if self._leg_start is None:
             self._leg_start = (pose[0], pose[1])
+        self._way = ((pose[0], pose[1]),) + tuple(route[index:])
         if self.due:
             return self.due
         if self.by_hand or t - self.last_plan < REPLAN_EVERY_S:
@@ -442,6 +473,8 @@ class Replanner:
             return GIVE_WAY
         if changed(things, self.planned):
             return "things changed"
+        if self.way_clear(seen):
+            return WAY_CLEAR
         if self.unreachable:
             return "retry" if t - self.last_plan >= RETRY_S else None
         return self._off(pose, route, index) or self._stuck(t, pose, route, index, turn, busy)

@@ -98,7 +98,7 @@ class Replans:
             turn = 0.0 if want is None else wrap_angle(pose.theta - fp.goal_turn - want)
             p3 = (pose.cx, pose.cy, pose.theta)
             why = planner.check(t, p3, lead.route, lead.index, things, turn,
-                                traffic(p3, planner.body.rho, seen), others)
+                                traffic(p3, planner.body.rho, seen), others, seen)
             if why is None:
                 continue
             if why == GIVE_WAY:

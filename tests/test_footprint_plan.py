@@ -24,8 +24,10 @@ from leader.routing import (
     LANE_S,
     MOVED_M,
     REACHED,
+    REPLAN_EVERY_S,
     STALLED,
     UNREACHABLE,
+    WAY_CLEAR,
     GiveWayJob,
     Other,
     PlanJob,
@@ -201,6 +203,28 @@ def test_a_formation_that_waits_for_traffic_too_long_plans_round_the_formations_
     assert r.unreachable == ""
     assert r.check(BLOCKED_S + 3.0, (-4.0, 0.0, 0.0), route, 0, (), busy=True) is None  # clock anew
 
+
+def test_a_detour_round_blockers_is_planned_again_once_they_have_left_the_way():
+    """warehouse run 100187: c went round b, which was passing through the gap c needed, and came
+    back only when b parked 36 s later. Once every formation the detour went round is off the
+    way c was on (beyond its reach and the footprint's), c plans again without them."""
+    r = Replanner(LINE, 0.0, (5.0, 0.0, 0.0), [], start=(-5.0, 0.0))
+    route = ((5.0, 0.0),)
+    assert r.check(0.0, (-4.0, 0.0, 0.0), route, 0, (), busy=True) is None
+    assert r.check(BLOCKED_S, (-4.0, 0.0, 0.0), route, 0, (), busy=True) == BLOCKED
+    b = Thing("formation/b", -2.5, 0.0, 0.03, 0.5)
+    r.finish(plan_job(r.begin(BLOCKED_S, (-4.0, 0.0, 0.0), (), blockers((-4.0, 0.0, 0.0), LINE.rho, [b]))),
+             BLOCKED)
+    detour = ((-4.0, 2.0), (5.0, 2.0), (5.0, 0.0))
+    t = BLOCKED_S + REPLAN_EVERY_S
+    assert r.check(t, (-4.0, 1.0, 0.0), detour, 0, (), seen=[b]) is None  # b still on the way
+    moved_along = b._replace(x=1.0, y=0.3)
+    assert r.check(t, (-4.0, 1.0, 0.0), detour, 0, (), seen=[moved_along]) is None  # still on it
+    gone = b._replace(x=1.0, y=-3.0)
+    assert r.check(t, (-4.0, 1.0, 0.0), detour, 0, (), seen=[gone]) == WAY_CLEAR
+    assert r.check(t, (-4.0, 1.0, 0.0), detour, 0, (), seen=[]) == WAY_CLEAR  # out of sight
+    r.plan(t, (-4.0, 1.0, 0.0), (), WAY_CLEAR)  # without them: no detour to come back from
+    assert r.check(t + REPLAN_EVERY_S, (-4.0, 1.0, 0.0), route, 0, (), seen=[gone]) is None
 
 def test_of_two_formations_blocked_by_each_other_the_later_name_goes_round():
     """a and b stand head-on, each blocked by the other: b (the later name) plans round a, a keeps
