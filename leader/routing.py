@@ -301,7 +301,7 @@ class Replanner:
         self._blocked = False  # the plan in progress goes round blockers
         # the way a blocked plan left (from where the formation stood) and the formations it went
         # round (:meth:`way_clear`); () when the route is no such detour
-        self._way: tuple[tuple[float, float], ...] = ()  # where the formation stands, then its route
+        self._way: tuple[tuple[float, float], ...] = ()  # where it stood when blocked, then its route
         self._left: tuple[tuple[float, float], ...] = ()
         self._round: tuple[str, ...] = ()
         self._leg_start = start  # where the route's first leg starts
@@ -459,7 +459,6 @@ class Replanner:
         others = others or {}
         if self._leg_start is None:
             self._leg_start = (pose[0], pose[1])
-        self._way = ((pose[0], pose[1]),) + tuple(route[index:])
         if self.due:
             return self.due
         if self.by_hand or t - self.last_plan < REPLAN_EVERY_S:
@@ -497,6 +496,9 @@ class Replanner:
             self._best, self._best_at, self._moved_at = togo, t, t
             self.boxed_in = False
             return None
+        if busy and t - self._moved_at >= BLOCKED_S:
+            self._way = ((pose[0], pose[1]),) + tuple(route[index:])  # should it go round: way_clear
+            return BLOCKED
         if busy:
-            return BLOCKED if t - self._moved_at >= BLOCKED_S else None
+            return None
         return "no progress" if t - self._best_at >= NO_PROGRESS_S else None
