@@ -171,7 +171,6 @@ class Follower:
         leg = math.hypot(nx, ny)
         return leg > 1e-9 and nx * vx + ny * vy < math.cos(ASIDE) * leg * speed
 
-
     def _turns_back(self, heading: float, motion: tuple[float, float, float]) -> bool:
         """Whether the next waypoint's heading lies the other way round from ``heading`` than
         the current one's, while a member may still move at SETTLED_SPEED or more: passing on,
