@@ -89,6 +89,7 @@ import asyncio
 import logging
 import math
 import statistics
+import threading
 import time
 import traceback
 from collections import deque
@@ -267,6 +268,10 @@ class AgentNode:
         self._base: Base | None = None  # a real robot base adapter (agent.base), when cfg.base is not "world"
         self._stop: asyncio.Event | None = None
         self.zero_sent = False  # the zero command of the way out has been published
+        # Commands go out one at a time, and none but zero after the way out's zero: a tick
+        # that outlived closing (the tick lock not had in time) must not follow the zero.
+        self._cmd_lock = threading.Lock()
+        self.late_commands = 0  # commands of such a tick, dropped and logged
 
     def _scheduler(self) -> LockstepLoop | PoseScheduler | ClockLoop:
         cfg = self.cfg
@@ -408,8 +413,9 @@ class AgentNode:
             return
 
         def zero() -> None:
-            self.send_command(Cmd(0.0, 0.0, 0.0, 0.0, self.last_stamp))
-            self.zero_sent = True
+            with self._cmd_lock:
+                self._send(Cmd(0.0, 0.0, 0.0, 0.0, self.last_stamp))
+                self.zero_sent = True
 
         within(step_limit, f"{rid}: zero command on exit", zero)
         token = self.leader.take_token()
@@ -429,11 +435,15 @@ class AgentNode:
 
     def emergency_zero(self) -> bool:
         """From any thread and without the tick lock (a shutdown that overran its time limit):
-        publish the zero command unless :meth:`close` already did. True once it is sent."""
+        publish the zero command unless :meth:`close` already did. True once it is sent. The
+        command lock is waited for at most ``STEP_LIMIT_S`` (a publish that hangs holds it)."""
         if self.zero_sent:
             return True
         t = self.transport
+        locked = self._cmd_lock.acquire(timeout=STEP_LIMIT_S)
         try:
+            if self.zero_sent:
+                return True
             if t is None or not t.publish(self.cmd_key, Cmd(0.0, 0.0, 0.0, 0.0, self.last_stamp)):
                 return False
             if self._base is not None:
@@ -441,6 +451,9 @@ class AgentNode:
         except Exception:  # noqa: BLE001 - last resort: report, the caller exits anyway
             logger.exception("%s: emergency zero command failed", self.cfg.robot_id)
             return False
+        finally:
+            if locked:
+                self._cmd_lock.release()
         self.zero_sent = True
         return True
 
@@ -693,7 +706,20 @@ class AgentNode:
         return None
 
     def send_command(self, cmd: Cmd) -> None:
-        self.inbox.note_command(any((cmd.v, cmd.omega, cmd.ux, cmd.uy)))
+        """Publish a tick's command (and drive the base), unless the way out's zero went first:
+        then a non-zero command is dropped and counted (``late_commands``)."""
+        moving = any((cmd.v, cmd.omega, cmd.ux, cmd.uy))
+        with self._cmd_lock:
+            if self.zero_sent and moving:
+                self.late_commands += 1
+                logger.warning("%s: a tick outlived closing: its command after the zero dropped",
+                               self.cfg.robot_id)
+                return
+            self._send(cmd, moving)
+
+    def _send(self, cmd: Cmd, moving: bool = False) -> None:
+        """Under the command lock: publish ``cmd`` (``moving``: not zero) and drive the base."""
+        self.inbox.note_command(moving)
         if self.transport is not None:
             self.transport.publish(self.cmd_key, cmd)
         if self._base is not None:

@@ -39,13 +39,14 @@ class TickGate:
 
     def __init__(self) -> None:
         self.lock = threading.Lock()
-        self.closing = False  # set (under the lock) when closing starts: no more ticks
+        self.closing = False  # set when closing starts: no tick starts after it (read under the lock)
 
     def close(self, timeout: float) -> bool:
-        """Let a tick in progress end (up to ``timeout``), then stop every later one; False if
-        the tick still runs."""
-        got = self.lock.acquire(timeout=timeout)
+        """Stop every later tick, then let a tick in progress end (up to ``timeout``); False if
+        it still runs. The flag goes first: under a flood, callbacks that take the lock for a
+        moment each could keep it from this thread past ``timeout`` (the lock is not fair)."""
         self.closing = True
+        got = self.lock.acquire(timeout=timeout)
         if got:
             self.lock.release()
         return got

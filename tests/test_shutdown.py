@@ -15,6 +15,7 @@ from agent.transport import Transport
 from runtime.shutdown import within
 from scenario import load_scenario
 from simulator.world import World
+from wire.payloads import Cmd
 
 ROOT = Path(__file__).resolve().parent.parent
 LIMIT = 0.2
@@ -105,6 +106,39 @@ def test_the_agent_closes_even_while_a_tick_holds_its_lock():
         assert node.gate.closing
     finally:
         node.gate.lock.release()
+
+
+def test_a_tick_that_outlives_closing_sends_nothing_after_the_zero_command():
+    """CI, issue 13's flood test: a tick held the lock past the closing wait and its command
+    followed the zero one, so the robot's last command was to drive on. Here the tick ends the
+    moment the zero goes out, while closing still undeclares (hung for LIMIT)."""
+    cfg = build_agent_configs(load_scenario(ROOT / "tests" / "scenarios" / "two-small.yaml"))["a1"]
+    node = AgentNode(cfg)
+    release, zeroed = threading.Event(), threading.Event()
+    cmd_pub = Hangs(release)
+    cmd_pub.put_message = lambda msg: (cmd_pub.put.append(msg), zeroed.set())  # type: ignore
+    transport = node.transport = Transport(Hangs(release), node.counter)
+    transport.adopt(node.cmd_key, cmd_pub)
+    transport.keep(None, Hangs(release))
+    node.gate.lock.acquire()  # a tick in progress, past the closing wait
+
+    def tick_ends() -> None:
+        assert zeroed.wait(HUNG_S)
+        node.send_command(Cmd(0.2, 0.1, 0.2, 0.0, 1.0))  # its command
+        node.send_command(Cmd(0.0, 0.0, 0.0, 0.0, 1.0))  # a stop may still go out
+
+    tick = threading.Thread(target=tick_ends, daemon=True)
+    tick.start()
+    try:
+        finishes(lambda: node.close(step_limit=LIMIT))
+        tick.join(HUNG_S)
+    finally:
+        node.gate.lock.release()
+        release.set()
+    assert [(m.v, m.omega) for m in cmd_pub.put][0] == (0.0, 0.0)
+    assert all((m.v, m.omega, m.ux, m.uy) == (0.0, 0.0, 0.0, 0.0) for m in cmd_pub.put)
+    assert node.late_commands == 1
+    assert node.emergency_zero()  # already sent: nothing more
 
 
 def test_the_world_closes_in_bounded_time_when_undeclaring_hangs():
