@@ -70,7 +70,7 @@ def leader_routes(cfg: AgentConfig) -> LeaderRoutes | None:
     if fp is None or not cfg.planner:
         return None
     return LeaderRoutes(fp, cfg.radius, cfg.control.epsilon + cfg.control.offset, cfg.formation_goal,
-                        None, cfg.route_by_hand, cfg.formation)
+                        None, cfg.route_by_hand, cfg.formation, cfg.control.max_speed)
 
 
 def config_extent(cfg: AgentConfig) -> Extent:

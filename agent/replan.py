@@ -57,8 +57,10 @@ class LeaderRoutes:
     """One leader's replanning (module docstring)."""
 
     def __init__(self, fp: Footprint, radius: float, margin: float, goal: tuple[float, float],
-                 start: tuple[float, float] | None, by_hand: bool, name: str = "") -> None:
+                 start: tuple[float, float] | None, by_hand: bool, name: str = "",
+                 speed: float = math.inf) -> None:
         self.fp = fp
+        self.speed = speed  # [m/s] the formation's top speed (a robot's)
         self.name = name  # the formation's
         self.body = Body(fp.slots, fp.load_points, radius, PLAN_MARGIN + margin)
         self.radius = radius
@@ -66,6 +68,7 @@ class LeaderRoutes:
                                    start, by_hand)
         self.replanner.last_plan = 0.0
         self.replanner.name = name
+        self.replanner.speed = speed
         self.replanner.due = "" if by_hand else "start"  # the first tick plans (and may find none)
         self.still = StillThings()
         self._first = True
@@ -85,6 +88,7 @@ class LeaderRoutes:
         self.replanner = Replanner(self.body, self.fp.goal_turn, (goal[0], goal[1], turn), shapes,
                                    start, by_hand)
         self.replanner.name = self.name
+        self.replanner.speed = self.speed
         self.replanner.due = "" if by_hand else "new goal"
 
     def tick(self, stamp: float, lockstep: bool, own: Ellipse, follower: Follower,

@@ -143,18 +143,27 @@ def lanes(things: Iterable[Thing]) -> tuple[Lane, ...]:
                         if not th.name.startswith(FORMATION) and th.speed >= STILL_SPEED))
 
 
-def oncoming(start: Pose3, route: Sequence[Pose3], rho: float, lane: Lane) -> bool:
+def oncoming(start: Pose3, route: Sequence[Pose3], rho: float, lane: Lane,
+             speed: float = math.inf) -> bool:
     """Whether a leg of ``route`` (from ``start``) runs head-on (within HEAD_ON) into where
-    the thing of ``lane`` drives in the next LANE_S: within its Ds and the footprint's reach."""
+    the thing of ``lane`` drives in the next LANE_S: within its Ds and the footprint's reach.
+    ``speed`` [m/s]: the formation's top speed; the thing's way counts from the earliest the
+    formation can reach the leg on (one that has driven past the leg by then is gone: warehouse
+    run 300091's hexagon, sent 40 m east round a forklift that was already past the aisle's
+    mouth and leaving it; it came back after the pentagon had parked in its way)."""
     x, y, vx, vy, ds = lane
-    speed = math.hypot(vx, vy)
-    ends = ((x, y), (x + vx * LANE_S, y + vy * LANE_S))
+    u = math.hypot(vx, vy)
     pts = [start[:2]] + [p[:2] for p in route]
+    done = 0.0  # [m] the route before this leg
     for a, b in zip(pts[:-1], pts[1:], strict=True):
         dx, dy = b[0] - a[0], b[1] - a[1]
         leg = math.hypot(dx, dy)
-        if (leg > 1e-9 and dx * vx + dy * vy < HEAD_ON * leg * speed
-                and segment_segment_distance(a, b, *ends) < ds + rho):
+        ahead = done / speed  # [s] the earliest the formation is on this leg
+        done += leg
+        if leg <= 1e-9 or ahead >= LANE_S or dx * vx + dy * vy >= HEAD_ON * leg * u:
+            continue
+        ends = ((x + vx * ahead, y + vy * ahead), (x + vx * LANE_S, y + vy * LANE_S))
+        if segment_segment_distance(a, b, *ends) < ds + rho:
             return True
     return False
 
@@ -191,6 +200,7 @@ class PlanJob(NamedTuple):
     circles: tuple[Circle, ...]
     formations: tuple[tuple[str, Circle], ...] = ()
     lanes: tuple[Lane, ...] = ()  # moving things (:func:`lanes`): a route head-on into one goes round
+    speed: float = math.inf  # [m/s] the formation's top speed (:func:`oncoming`)
 
 
 class JobResult(NamedTuple):
@@ -205,7 +215,8 @@ def plan_job(job: PlanJob) -> JobResult:
     parked in the way, the route without them too: the formations it passes are what blocks
     the way (each may be waiting for this one: :meth:`Replanner.give_way`)."""
     res = plan_footprint(job.start, job.goal, job.body, job.shapes, job.circles)
-    ahead = [ln for ln in job.lanes if res.route and oncoming(job.start, res.route, job.body.rho, ln)]
+    ahead = [ln for ln in job.lanes
+             if res.route and oncoming(job.start, res.route, job.body.rho, ln, job.speed)]
     if ahead:  # round where they drive, if there is a way; else the way, and the barriers wait
         round_ = plan_footprint(job.start, job.goal, job.body, job.shapes, job.circles + tuple(
             c for ln in ahead for c in lane_circles(job.start, job.body.rho, ln)))
@@ -287,6 +298,7 @@ class Replanner:
                  start: tuple[float, float] | None = None, by_hand: bool = False) -> None:
         self.body = body
         self.width = body.width
+        self.speed = math.inf  # [m/s] the formation's top speed (a robot's: :func:`oncoming`)
         self.goal_turn = goal_turn
         self.goal = goal
         self.shapes = tuple(shapes)
@@ -424,7 +436,8 @@ class Replanner:
         parked = () if extra else tuple((n[len(FORMATION):], c) for n, c in things
                                         if n.startswith(FORMATION))
         return PlanJob(pose, self.goal, self.body, self.shapes,
-                       tuple(c for _n, c in things) + tuple(c for _n, c in extra), parked, moving)
+                       tuple(c for _n, c in things) + tuple(c for _n, c in extra), parked, moving,
+                       self.speed)
 
     def finish(self, res: FootprintPlan | JobResult, why: str) -> Update | None:
         """The route (or the order to hold) from a plan :meth:`begin` started; None: keep the

@@ -60,6 +60,7 @@ class Replans:
             gx, gy = f.goal_centroid
             r = Replanner(body, turn, (gx, gy, turn), scenario.shapes, start)
             r.name = f.name
+            r.speed = scenario.robot.max_speed
             r.unreachable = starts[f.name].reason
             r.last_plan = 0.0
             self.planners[f.name] = r

@@ -531,6 +531,20 @@ def test_a_route_head_on_into_a_forklifts_way_goes_round_it_where_there_is_a_way
     assert kept.plan.route and max(p[1] for p in kept.plan.route) < 0.0 and not kept.plan.reason
 
 
+def test_a_forklift_past_the_leg_before_the_formation_can_get_there_is_not_oncoming():
+    """warehouse run 300091: a forklift driving south out of the aisle a hexagon's route went
+    north up, already past the aisle's mouth, sent it 40 m round the hall the other way. Its
+    way counts from the earliest the formation can be on each leg (at its top speed)."""
+    start, route = (0.0, 0.0, 0.0), ((10.0, 0.0, 0.0), (10.0, 10.0, 0.0))  # 10 m east, then north
+    leaving = (10.5, 3.0, 0.0, -0.15, 0.45)  # at the aisle's mouth, driving south out of it
+    assert oncoming(start, route, 0.6, leaving)  # timeless: its way crosses the leg's start
+    assert not oncoming(start, route, 0.6, leaving, speed=0.22)  # gone 45 s before it gets there
+    coming = (10.5, 12.0, 0.0, -0.15, 0.45)  # still up the aisle when the formation turns into it
+    assert oncoming(start, route, 0.6, coming, speed=0.22)
+    late = (10.5, 30.0, 0.0, -0.15, 0.45)  # reaches the aisle only after LANE_S
+    assert not oncoming(start, route, 0.6, late, speed=0.22)
+
+
 def test_a_lane_is_circles_along_the_next_lane_s_less_those_the_start_reaches():
     lane = (5.0, 0.0, -0.1, 0.0, 0.4)
     far = lane_circles((-10.0, 0.0, 0.0), 0.5, lane)
