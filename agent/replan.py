@@ -30,7 +30,6 @@ from geometry.footprint_plan import PLAN_MARGIN, Body
 from geometry.shapes import Shape
 from leader.navigation import Follower
 from leader.routing import (
-    BLOCKED,
     GIVE_WAY,
     JobResult,
     Other,
@@ -38,9 +37,7 @@ from leader.routing import (
     StillThings,
     Thing,
     Update,
-    blockers,
     give_way_job,
-    lanes,
     plan_job,
     traffic,
 )
@@ -116,12 +113,11 @@ class LeaderRoutes:
             return None
         if why == GIVE_WAY:
             return self._give_way(stamp, lockstep, p3, things, reports)
-        extra = blockers(p3, self.body.rho, seen) if why == BLOCKED else ()
-        if why == BLOCKED and r.waits_for(stamp, extra):
+        plan = r.job_for(stamp, p3, things, why, seen)
+        if plan is None:
             return None
         if lockstep:
-            return r.plan(stamp, p3, things, why, extra, lanes(seen))
-        plan = r.begin(stamp, p3, things, extra, lanes(seen))
+            return r.finish(plan_job(plan), why)
         if not plan.shapes and not plan.circles and not plan.lanes:  # open floor: no search, no worker
             return r.finish(plan_job(plan), why)
         self._job = plan_pool().submit(plan_job, plan)

@@ -330,6 +330,17 @@ class Replanner:
         """Plan from ``pose`` now around the shapes, ``things`` and ``extra`` (:meth:`begin`)."""
         return self.finish(plan_job(self.begin(t, pose, things, extra, moving)), why)
 
+    def job_for(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...], why: str,
+                seen: Sequence[Thing]) -> PlanJob | None:
+        """The plan :meth:`check`'s ``why`` asks for (:meth:`begin`; run :func:`plan_job`, then
+        :meth:`finish`), or None: blocked by a formation that goes round instead
+        (:meth:`waits_for`). Blocked, it plans round the formations there (:func:`blockers`)
+        once; every plan keeps off the ways of the moving things (:func:`lanes`)."""
+        extra = blockers(pose, self.body.rho, seen) if why == BLOCKED else ()
+        if why == BLOCKED and self.waits_for(t, extra):
+            return None
+        return self.begin(t, pose, things, extra, lanes(seen))
+
     def parked(self, pose: Pose3) -> bool:
         """At or near its goal (within PARKED_M of it; a route given by hand is never moved):
         where a formation stops, and may stand in another's only way."""

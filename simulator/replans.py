@@ -13,7 +13,6 @@ from agent.body import Footprint, pose_of
 from geometry.ellipse import Ellipse, wrap_angle
 from leader.navigation import Follower
 from leader.routing import (
-    BLOCKED,
     GIVE_WAY,
     REACHED,
     STALLED,
@@ -23,9 +22,8 @@ from leader.routing import (
     StillThings,
     Thing,
     Update,
-    blockers,
     give_way_job,
-    lanes,
+    plan_job,
     traffic,
 )
 from scenario import Scenario
@@ -108,10 +106,10 @@ class Replans:
                                              self.scenario.robot.radius)
                 new = planner.finish_give_way(give_way_job(job), keeper)
             else:
-                extra = blockers(p3, planner.body.rho, seen) if why == BLOCKED else ()
-                if why == BLOCKED and planner.waits_for(t, extra):
+                plan = planner.job_for(t, p3, things, why, seen)
+                if plan is None:
                     continue
-                new = planner.plan(t, p3, things, why, extra, lanes(seen))
+                new = planner.finish(plan_job(plan), why)
             if new is None:  # no way round the formations in the way: keep the route
                 continue
             self.updates.append((t, name, why, len(new.route)))
