@@ -116,10 +116,8 @@ class LeaderRoutes:
         plan = r.job_for(stamp, p3, things, why, seen)
         if plan is None:
             return None
-        if lockstep:
-            return r.finish(plan_job(plan), why)
-        if not plan.shapes and not plan.circles and not plan.lanes:  # open floor: no search, no worker
-            return r.finish(plan_job(plan), why)
+        if lockstep or not (plan.shapes or plan.circles or plan.lanes):  # open floor: no search
+            return r.finish(plan_job(plan), why)  # lock-step, or nothing worth a worker
         self._job = plan_pool().submit(plan_job, plan)
         self._why = why
         return None
