@@ -310,7 +310,6 @@ class Replanner:
         self._best = math.inf
         self._best_at = 0.0
         self._moved_at = 0.0  # the last progress, traffic or not
-        self._blocked = False  # the plan in progress goes round blockers
         # the way a blocked plan left (from where the formation stood) and the formations it went
         # round (:meth:`way_clear`); () when the route is no such detour
         self._way: tuple[tuple[float, float], ...] = ()  # where it stood when blocked, then its route
@@ -439,7 +438,6 @@ class Replanner:
         self.last_plan = t
         self.planned = things
         self._best, self._best_at, self._moved_at = math.inf, t, t
-        self._blocked = bool(extra)
         self._round = tuple(n for n, _c in extra)
         self._left = self._way if extra else ()
         self._leg_start = (pose[0], pose[1])
@@ -455,7 +453,7 @@ class Replanner:
         route (no way round the blockers)."""
         plan = res.plan if isinstance(res, JobResult) else res
         self.blocked_by = res.blocked_by if isinstance(res, JobResult) else ()
-        self.boxed_in = bool(plan.reason) and self._blocked
+        self.boxed_in = bool(plan.reason) and bool(self._round)  # it went round blockers
         if plan.reason:
             self._round, self._left = (), ()
         if self.boxed_in:
