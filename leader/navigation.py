@@ -163,10 +163,10 @@ class Follower:
         """Whether a member may still move at SETTLED_SPEED or more while the centroid drifts
         more than ASIDE from the leg after the current waypoint (that leg then turns some
         member's command round in one tick)."""
-        vx, vy, spin = motion
-        speed = math.hypot(vx, vy)
-        if speed + spin <= SETTLED_SPEED or self.index + 1 >= len(self.route):
+        if settled(motion) or self.index + 1 >= len(self.route):
             return False
+        vx, vy, _spin = motion
+        speed = math.hypot(vx, vy)
         nx, ny = self.route[self.index + 1][0] - cx, self.route[self.index + 1][1] - cy
         leg = math.hypot(nx, ny)
         return leg > 1e-9 and nx * vx + ny * vy < math.cos(ASIDE) * leg * speed
@@ -177,13 +177,18 @@ class Follower:
         the formation's turn would reverse in one tick and its outer member's command with it.
         route-head-on-aisle's pair, let go after waiting and turning at 0.067 m/s towards -1.178
         rad, passed it at -1.104 (within the tolerance) for -0.785 beyond it: a reversal."""
-        moving = math.hypot(motion[0], motion[1]) + motion[2] > SETTLED_SPEED
-        if not moving or self.index + 1 >= len(self.headings):
+        if settled(motion) or self.index + 1 >= len(self.headings):
             return False
         nxt, want = self.headings[self.index + 1], self.headings[self.index]
         if nxt is None or want is None:
             return False
         return wrap_angle(want - heading) * wrap_angle(nxt - heading) < 0.0
+
+
+def settled(motion: tuple[float, float, float]) -> bool:
+    """Whether no member can move at SETTLED_SPEED or more (``motion``: the centroid's velocity
+    and the outermost member's speed of rotation [m/s], as :meth:`Follower.step` takes it)."""
+    return math.hypot(motion[0], motion[1]) + motion[2] <= SETTLED_SPEED
 
 
 def turn(offsets: Mapping[str, Point], heading: float) -> dict[str, Point]:
