@@ -62,10 +62,9 @@ class LeaderRoutes:
         self.body = Body(fp.slots, fp.load_points, radius, PLAN_MARGIN + margin)
         self.radius = radius
         self.replanner = Replanner(self.body, fp.goal_turn, (goal[0], goal[1], fp.goal_turn), (),
-                                   start, by_hand)
+                                   start, by_hand, speed)
         self.replanner.last_plan = 0.0
         self.replanner.name = name
-        self.replanner.speed = speed
         self.replanner.due = "" if by_hand else "start"  # the first tick plans (and may find none)
         self.still = StillThings()
         self._first = True
@@ -83,9 +82,8 @@ class LeaderRoutes:
         turn = self.fp.goal_turn + (heading or 0.0)
         shapes = self.replanner.shapes
         self.replanner = Replanner(self.body, self.fp.goal_turn, (goal[0], goal[1], turn), shapes,
-                                   start, by_hand)
+                                   start, by_hand, self.speed)
         self.replanner.name = self.name
-        self.replanner.speed = self.speed
         self.replanner.due = "" if by_hand else "new goal"
 
     def tick(self, stamp: float, lockstep: bool, own: Ellipse, follower: Follower,

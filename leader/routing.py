@@ -295,10 +295,11 @@ class Replanner:
     """One formation's route to one goal pose (module docstring)."""
 
     def __init__(self, body: Body, goal_turn: float, goal: Pose3, shapes: Sequence[Shape],
-                 start: tuple[float, float] | None = None, by_hand: bool = False) -> None:
+                 start: tuple[float, float] | None = None, by_hand: bool = False,
+                 speed: float = math.inf) -> None:
         self.body = body
         self.width = body.width
-        self.speed = math.inf  # [m/s] the formation's top speed (a robot's: :func:`oncoming`)
+        self.speed = speed  # [m/s] the formation's top speed (a robot's: :func:`oncoming`)
         self.goal_turn = goal_turn
         self.goal = goal
         self.shapes = tuple(shapes)

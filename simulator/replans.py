@@ -56,9 +56,9 @@ class Replans:
                 continue
             body, start, turn = footprint_body(scenario, f)
             gx, gy = f.goal_centroid
-            r = Replanner(body, turn, (gx, gy, turn), scenario.shapes, start)
+            r = Replanner(body, turn, (gx, gy, turn), scenario.shapes, start,
+                          speed=scenario.robot.max_speed)
             r.name = f.name
-            r.speed = scenario.robot.max_speed
             r.unreachable = starts[f.name].reason
             r.last_plan = 0.0
             self.planners[f.name] = r
