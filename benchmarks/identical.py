@@ -6,7 +6,7 @@
 Runs ``formation sim`` on every shipped and test scenario (the code of ``--tree``, default this
 checkout) and records the SHA-256 of each ``robots.csv``; each ``--run`` NAME (a file stem, or
 ``shipped`` for every shipped scenario) is also run as a lock-step ``formation run``. ``--compare``
-prints the files whose fingerprints differ and exits 1 if any does.
+prints the files run in both whose fingerprints differ and exits 1 if any does.
 """
 
 from __future__ import annotations
@@ -41,10 +41,12 @@ def fingerprint(job: tuple[Path, Path, str]) -> tuple[str, str]:
 
 def compare(a: Path, b: Path) -> int:
     left, right = json.loads(a.read_text()), json.loads(b.read_text())
-    differ = sorted(k for k in left.keys() | right.keys() if left.get(k) != right.get(k))
+    both = left.keys() & right.keys()
+    differ = sorted(k for k in both if left[k] != right[k])
     for key in differ:
-        print(f"differs: {key}  {left.get(key)}  {right.get(key)}")
-    print(f"{len(left.keys() & right.keys()) - len(differ)} of {len(left.keys() | right.keys())} identical")
+        print(f"differs: {key}  {left[key]}  {right[key]}")
+    alone = sorted(left.keys() ^ right.keys())
+    print(f"{len(both) - len(differ)} of {len(both)} run in both identical; {len(alone)} run in one only")
     return 1 if differ else 0
 
 
