@@ -16,6 +16,8 @@ and the files disagree.
 * ``sim``: the ``summary.json`` that ``formation sim`` writes;
 * ``montecarlo``: the ``montecarlo.json`` that ``formation montecarlo`` writes;
 * ``scenario_bar``: the lines ``benchmarks/scenario_bar.py`` prints;
+* ``engines``: the markdown rows ``python -m experiments.engines`` prints, one per scenario (rows
+  that share a command run it once);
 * ``table``: figures read off a benchmark's printed report (``formation bench``,
   ``experiments.engines``, ...); ``--rerun`` runs the commands and leaves the figures to be
   copied into the file from their output.
@@ -28,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import functools
 import json
 import os
 import platform
@@ -43,7 +46,7 @@ ROOT = Path(__file__).resolve().parent.parent
 RESULTS_DIR = ROOT / "docs" / "results"
 PAGE = ROOT / "docs" / "results.md"
 PROVENANCE = ("command", "commit", "machine", "date")
-KINDS = ("sim", "montecarlo", "scenario_bar", "table")
+KINDS = ("sim", "montecarlo", "scenario_bar", "engines", "table")
 
 HEADER = """# Results
 
@@ -195,6 +198,22 @@ def from_scenario_bar(lines: Iterable[str]) -> dict[str, Any]:
     return {"met": met, "files": met + len(failing), "failing": ", ".join(failing) or "none"}
 
 
+def from_engines(lines: Iterable[str]) -> dict[str, dict[str, Any]]:
+    """Each scenario's figures from the markdown rows ``python -m experiments.engines`` prints."""
+    figures = {}
+    for line in lines:
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) != 8 or cells[0] in ("scenario", "---"):
+            continue
+        name, reached, collisions, contacts, eps, _time, sides, bar = cells
+        pairs, _, flipped = sides.partition(": ")
+        if flipped != "same":
+            flipped = f"{flipped.split(' ')[0]} of {pairs} pairs flipped"
+        figures[name] = {"reached": reached, "collisions": collisions, "contacts": int(contacts),
+                         "eps": eps, "sides": flipped, "bar": bar.lower()}
+    return figures
+
+
 def argv_of(command: str) -> list[str]:
     """The argv that runs a stored command with this interpreter (``formation``, ``python``)."""
     args = shlex.split(command)
@@ -230,11 +249,25 @@ def run_command(command: str, out: Path) -> subprocess.CompletedProcess:
     args = argv_of(command)
     if args[1] != "benchmarks/scenario_bar.py":
         args = with_out(args, out)
+    if args[1:3] == ["-m", "experiments.engines"]:  # exits 1 when a scenario misses the bar
+        return subprocess.run(args, cwd=ROOT, env=env, text=True, capture_output=True)
     return subprocess.run(args, cwd=ROOT, env=env, text=True, capture_output=True, check=True)
+
+
+@functools.lru_cache(maxsize=8)
+def engines_figures(command: str) -> dict[str, dict[str, Any]]:
+    """Every scenario's figures from one run of an ``experiments.engines`` command."""
+    with tempfile.TemporaryDirectory() as tmp:
+        return from_engines(run_command(command, Path(tmp) / "out").stdout.splitlines())
 
 
 def rerun_row(kind: str, row: Result) -> dict[str, Any]:
     """Run one row's command again and return its new figures (kinds with a reader only)."""
+    if kind == "engines":
+        figures = engines_figures(row["command"])
+        if row["values"]["label"] not in figures:
+            raise ValueError(f"{row['command']}: printed no row for {row['values']['label']}")
+        return figures[row["values"]["label"]]
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "out"
         done = run_command(row["command"], out)

@@ -110,3 +110,18 @@ def test_a_sim_result_is_rerun_for_real(tmp_path: Path):
     (tmp_path / "demo.json").write_text(json.dumps(result), encoding="utf-8")
     row = results.rerun("demo", tmp_path)["rows"][0]
     assert row["values"]["reached"] is True and row["values"]["collisions"] == 0
+
+
+def test_the_engines_rows_are_read_back_by_scenario():
+    lines = ["| scenario | every goal (kin. / MuJoCo) | collisions (kin. / MuJoCo) | MuJoCo contacts "
+             "| worst error [eps] (kin. / MuJoCo) | time to goal [s] (kin. / MuJoCo) "
+             "| sides: pairs compared, flipped | bar |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- |",
+             "| warehouse | yes / yes | 0 / 0 | 0 | 0.09 / 1.13 | 86.2 / 88.8 | 168: same | pass |",
+             "| rigid-cross-aisle-four | yes / yes | 0 / 2 | 0 | 0.19 / 1.44 | 81.5 / 130.0 "
+             "| 80: 12 flipped: a1/D, a2/D | FAIL |"]
+    figures = results.from_engines(lines)
+    assert figures["warehouse"] == {"reached": "yes / yes", "collisions": "0 / 0", "contacts": 0,
+                                    "eps": "0.09 / 1.13", "sides": "same", "bar": "pass"}
+    assert figures["rigid-cross-aisle-four"]["sides"] == "12 of 80 pairs flipped"
+    assert figures["rigid-cross-aisle-four"]["bar"] == "fail"
