@@ -1,4 +1,4 @@
-"""The camera service's ``CONFIG.yaml`` and the calibration's ``FLOOR.yaml`` (DESIGN.md).
+"""The camera service's ``CONFIG.yaml`` and the calibration's ``FLOOR.yaml`` (docs/camera.md).
 
 Both are strict, like the scenario file: an unknown key, a missing one or a bad value raises
 :class:`ConfigError` (a ``ValueError``) naming it by its path (``markers.height_m``,

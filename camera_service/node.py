@@ -1,4 +1,4 @@
-"""The camera process: frames in, ``pose`` and ``obstacles`` out over Zenoh (issue 17).
+"""The camera process: frames in, ``pose`` and ``obstacles`` out over Zenoh.
 
 :class:`CameraNode` owns one Zenoh session, a frame source (:mod:`camera_service.sources`), a
 :class:`camera_service.locate.Locator` and an :class:`camera_service.tracking.ObstacleTracker`.

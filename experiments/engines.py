@@ -1,4 +1,4 @@
-"""Both engines on one scenario: the kinematic world and MuJoCo side by side (issue 27).
+"""Both engines on one scenario: the kinematic world and MuJoCo side by side.
 
     python -m experiments.engines SCENARIO... --out DIR [--realtime]
 
@@ -136,7 +136,7 @@ class Comparison:
 
     @property
     def holds(self) -> bool:
-        """Issue 27's bar in MuJoCo: 0 contacts, every goal, <= 1.5 eps, the same sides."""
+        """The bar in MuJoCo: 0 contacts, every goal, <= 1.5 eps, the same sides."""
         s = self.mujoco.summary
         return (self.contacts == 0 and bool(s["all_reached"]) and self.eps(self.mujoco) <= 1.5
                 and not self.flipped)

@@ -1,6 +1,6 @@
 """``formation bench --method M,...``: one member's whole control step on a scenario under each
-``controller.method``, side by side (issue 25's cost bar: the median per-member step on the
-warehouse, the formation-level QP included, against ``method: thesis``).
+``controller.method``, side by side (what the rigid method costs: the median per-member step on
+the warehouse, the formation-level QP included, against ``method: thesis``).
 
 Each method runs the scenario in process (:func:`simulator.inprocess.simulate`, no recording)
 from start to end; every call of :func:`agent.control.control_step` in that run is timed whole

@@ -1,4 +1,4 @@
-"""The warehouse draw of ``formation montecarlo --draw warehouse`` (issue 26, item 4).
+"""The warehouse draw of ``formation montecarlo --draw warehouse``.
 
 Each run draws, from its own seed, a hall closed by four walls with 2 or 3 shelf rows (boxes)
 running east-west, each row cut by 1 or 2 cross aisles; with probability 1/2 one row is a

@@ -1,4 +1,4 @@
-"""The ``formation`` command: one front end, one subcommand per job (DESIGN.md, "Command line").
+"""The ``formation`` command: one front end, one subcommand per job (docs/cli.md).
 
 Exit status: 0 when the command did its work (a summary reports safety; it is not an exit code),
 2 for invalid input with one line naming the culprit, 1 for anything else, with a message.

@@ -1,4 +1,4 @@
-"""The ``--out DIR`` of the commands that write a run's output (issue 12): a run owns its folder.
+"""The ``--out DIR`` of the commands that write a run's output: a run owns its folder.
 
 * Checked before anything runs: a path naming a file, a folder under a file, or a folder this
   process cannot write is invalid input (exit status 2, one line), not a traceback after the work

@@ -1,4 +1,4 @@
-"""Shutdown steps with a time limit (issue 12): undeclaring a publisher or closing a Zenoh
+"""Shutdown steps with a time limit: undeclaring a publisher or closing a Zenoh
 session blocks on the network, and a router that is gone or a peer that does not answer must
 not keep a process from ending. Each step runs on a daemon thread; the caller waits at most
 ``limit`` seconds, logs a step that did not finish in time and goes on (the thread is left to

@@ -1,4 +1,4 @@
-"""A formation's load (issue 25): the ``load:`` key, its checks, and where the load is.
+"""A formation's load: the ``load:`` key, its checks, and where the load is.
 
 A formation may declare what it carries, in the start frame (origin at the centroid of the
 members' start body positions, axes parallel to the scenario's x and y):
@@ -176,8 +176,8 @@ def _near(pts: np.ndarray, radii: np.ndarray | float, bound: tuple[Point, float]
           reach: float) -> np.ndarray:
     """Which disks (centres ``pts``, radii ``radii``) may come within ``reach`` of a load whose
     bounding circle is ``bound``: the distance to the circle is a lower bound of the distance to
-    the load (a sort, not a measure: only these are measured exactly; a fleet of 256 robots
-    measured every robot against every load, 26 ms a tick)."""
+    the load (a sort, not a measure: only these are measured exactly, since measuring every
+    robot against every load costs a large fleet tens of milliseconds a tick)."""
     (cx, cy), r = bound
     gap = np.hypot(pts[:, 0] - cx, pts[:, 1] - cy) - r - radii
     return gap <= reach + NEAR_SLACK

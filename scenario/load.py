@@ -1,4 +1,4 @@
-"""Load and validate a scenario file (DESIGN.md, "Scenario file: a contract").
+"""Load and validate a scenario file (the contract in docs/scenarios.md).
 
 Every problem is reported as one :class:`ScenarioError` whose message names the culprit by its
 path in the file (``formations[1].edges[0]``) and says what is wrong, quoting at most a short

@@ -1,4 +1,4 @@
-"""Typed, frozen view of a scenario file (the contract in DESIGN.md, "Scenario file").
+"""Typed, frozen view of a scenario file (the contract in docs/scenarios.md).
 
 Every number here is already validated by :mod:`scenario.load`; code that receives a
 :class:`Scenario` may rely on it: finite values, known robot names, rigid graphs, a leader

@@ -237,8 +237,8 @@ if getattr(yaml, "__with_libyaml__", False):
     class FastScenarioLoader(_Limits, CParser, Composer, SafeConstructor, Resolver):
         """:class:`ScenarioLoader` with libyaml's parser: libyaml turns the text into events
         (iteratively, without recursion), and the same Python composer, limits, constructor
-        and resolver as :class:`ScenarioLoader` build the data. Loading a 1,000-robot fleet
-        file of 100 kB takes about 250 ms of CPU against 670 ms (docs/performance.md)."""
+        and resolver as :class:`ScenarioLoader` build the data, at well under half the CPU of the
+        pure-Python parser (docs/performance.md, "What bounds it")."""
 
         def __init__(self, stream: str) -> None:
             CParser.__init__(self, stream)

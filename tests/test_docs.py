@@ -172,6 +172,61 @@ def test_no_doc_points_outside_the_project():
         assert "DESIGN.md" not in text, doc  # the contracts live in docs/ now
 
 
+README_MAX_LINES = 250
+PACKAGES = ("geometry", "agent", "leader", "camera_service", "deploy", "scenario", "wire", "runtime",
+            "simulator", "experiments", "formation", "viewer")
+# a commit hash: 7-12 or 40 hex digits with a letter and a digit, not part of a number (2.21e-03)
+COMMIT = re.compile(r"(?<![.\w-])(?=[0-9a-f]*[a-f])(?=[0-9a-f]*\d)(?:[0-9a-f]{40}|[0-9a-f]{7,12})"
+                    r"(?![\w-])")
+# a tracker's issue: "issue 27", "issues 25-27", "#26" (not a colour such as #222, nor PR #388)
+ISSUE = re.compile(r"\b[Ii]ssues? \d+|(?<![&\w\"])#\d{2}(?![\w])")
+NOT_HASHES = {"ed25519"}
+LINK = re.compile(r"\[[^\]]*\]\(([^)\s]+)\)")
+
+
+def _history_refs(path: Path, skip=lambda line: False) -> list[str]:
+    found = []
+    for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+        if skip(line):
+            continue
+        hits = [m.group(0) for m in COMMIT.finditer(line) if m.group(0) not in NOT_HASHES]
+        hits += [m.group(0) for m in ISSUE.finditer(line)]
+        found += [f"{path.relative_to(ROOT)}:{number}: {hit}" for hit in hits]
+    return found
+
+
+def test_the_readme_is_a_front_door_of_under_250_lines():
+    lines = (ROOT / "README.md").read_text(encoding="utf-8").splitlines()
+    assert len(lines) < README_MAX_LINES, f"README.md has {len(lines)} lines: move detail to docs/"
+
+
+def test_every_relative_link_of_the_docs_resolves():
+    for doc in [*DOCS, ROOT / "CHANGELOG.md"]:
+        for target in LINK.findall(doc.read_text(encoding="utf-8")):
+            if target.startswith(("http://", "https://", "mailto:", "#")):
+                continue
+            path = (doc.parent / target.split("#")[0]).resolve()
+            assert path.exists(), f"{doc.relative_to(ROOT)}: link to {target} finds nothing"
+
+
+def test_the_docs_hold_no_commit_hashes_or_issue_numbers():
+    """History lives in CHANGELOG.md and git; results.md names commits on its provenance lines."""
+    found = []
+    for doc in DOCS:
+        provenance = (lambda line: line.startswith("- main ")) if doc.name == "results.md" else (
+            lambda line: False)
+        found += _history_refs(doc, provenance)
+    assert not found, "history in the docs:\n" + "\n".join(found)
+
+
+def test_production_code_holds_no_commit_hashes_or_issue_numbers():
+    """Code says what and why; which issue or commit made it so is git's to say."""
+    files = [p for package in PACKAGES for p in sorted((ROOT / package).rglob("*.py"))]
+    files += sorted((ROOT / "scenarios").glob("*.yaml"))
+    found = [hit for path in files for hit in _history_refs(path)]
+    assert not found, "history in the code:\n" + "\n".join(found)
+
+
 def test_the_thesis_is_cited_by_its_title():
     readme = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())
     assert "Coordination of Multi Robot Systems for Warehouse Automation" in readme

@@ -12,7 +12,7 @@ recording, sent to the page, and read back by ``formation replay``::
      "ellipses": [{"formation", "cx", "cy", "alpha", "a", "b"}, ...],
      "obstacles": [{"name", "x", "y", "ds"}, ...],   # circles: centre and safe distance Ds
      "shapes": [{"name", "kind", "corners", "ds"}, ...],  # walls and shelves: outline [[x, y], ...]
-     "loads": [{"formation", "outline", "declared"}, ...],  # each formation's load now (issue 25)
+     "loads": [{"formation", "outline", "declared"}, ...],  # each formation's load at this tick
      "load_hits": [{"formation", "other", "clearance", "line"}, ...],  # its overlaps, as lines
      "formations": [{"name", "status", "qp", "gx", "gy", "distance"}, ...]}
 

@@ -1,4 +1,4 @@
-"""Each formation's load in a frame (issue 25): where it is and what it overlaps.
+"""Each formation's load in a frame: where it is and what it overlaps.
 
 A frame (:mod:`viewer.frame`) carries
 

@@ -1,4 +1,4 @@
-"""Zenoh key space of formation-cbf (DESIGN.md, "Zenoh key space").
+"""Zenoh key space of formation-cbf (docs/keys.md).
 
 Every key starts with a configurable prefix (default ``warehouse``; it may have several
 ``/``-separated chunks, such as ``lab2/warehouse``):

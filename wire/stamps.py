@@ -1,4 +1,4 @@
-"""The one stamp check every input passes (DESIGN.md: "Every input's stamp passes one check").
+"""The one stamp check every input passes (docs/faults.md, "Time: the one stamp check").
 
 A message's ``stamp`` is the time its content was measured (a pose: the camera frame's capture
 time; a state, ellipse or command: the stamp of the pose it was computed from). A receiver judges

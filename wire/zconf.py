@@ -33,8 +33,7 @@ the endpoints it names; turn it on with ``multicast_scouting=True`` / ``--multic
 
 Zenoh's threads: by default a zenoh-python session runs five async runtimes (``app``, ``rx``,
 ``tx``, ``acc``, ``net``) on their own worker threads, so one message in or out wakes two or three
-threads. On a 2-core machine running dozens of agents those wake-ups were most of the cost: an
-agent took about 830 context switches a second at 50 Hz and the router about 3 000.
+threads. With dozens of agents on a few cores those wake-ups are most of the cost of a message.
 :func:`use_zenoh_threads` sets the ``ZENOH_RUNTIME`` environment variable (which Zenoh reads when
 its runtime starts) to one of two profiles, unless the user set it to something else:
 
@@ -47,9 +46,9 @@ its runtime starts) to one of two profiles, unless the user set it to something 
   64 kB) from a publisher with blocking congestion control waited for queue space that only the
   same thread could free, and it forwarded nothing after that.
 
-Measured with 8 agents at 50 Hz: context switches fell to about 160 (agent) and 360 (router) a
-second and fleet CPU by about a sixth (docs/performance.md). Every formation-cbf entry point calls
-it before its first session.
+Fewer threads woken means fewer context switches per message and less CPU per agent
+(docs/performance.md, "The message path of a fleet"). Every formation-cbf entry point calls it
+before its first session.
 """
 
 from __future__ import annotations

@@ -64,7 +64,7 @@ def run_config(ns: argparse.Namespace) -> RunConfig:
             pose_slots=getattr(ns, "pose_slots", 1), scenario_path=Path(ns.scenario),
             clock_offset=getattr(ns, "clock_offset_ms", 0.0) / 1000.0,
             agents_per_process=per_process,
-            # an agent host shares one Zenoh session among its agents (measured cheaper,
+            # an agent host shares one Zenoh session among its agents (cheaper per tick:
             # docs/performance.md) unless asked otherwise or under access control (the
             # default: each robot logs in as itself)
             shared_session=(per_process > 1 and not getattr(ns, "session_per_agent", False)
