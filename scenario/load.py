@@ -70,7 +70,7 @@ from .model import (
     model_world_warning,
 )
 from .reader import ScenarioError, excerpt, load_yaml, read_text
-from .shipped import resolve
+from .shipped import find
 from .spatial import Grid
 from .world import parse_world
 
@@ -93,8 +93,8 @@ PLANNERS = ("visibility", "none")
 
 def load_scenario(path: str | Path) -> Scenario:
     """Read, parse and validate the scenario at ``path`` (or the shipped scenario a path that
-    does not exist names: :func:`scenario.shipped.resolve`)."""
-    p = resolve(path)
+    does not exist names: :func:`scenario.shipped.find`)."""
+    p = find(path)
     text = read_text(p)
     try:
         return parse_scenario(text, source=str(p))
