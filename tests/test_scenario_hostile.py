@@ -286,7 +286,7 @@ def test_validation_work_grows_linearly_with_the_robots(monkeypatch):
     """Counts the inner checks between robots (pair distances and ellipse tests) and the robot
     lookups by id: 4 times the robots is at most about 4 times the work."""
     work = {"pairs": 0, "ellipse": 0, "lookups": 0}
-    closer, ellipse_value = load_module._closer, load_module.ellipse_value
+    closer, ellipse_value = load_module.closer, load_module.ellipse_value
     spec = load_module.Scenario.robot_spec
 
     def count(key, fn):
@@ -295,7 +295,7 @@ def test_validation_work_grows_linearly_with_the_robots(monkeypatch):
             return fn(*args, **kwargs)
         return wrapped
 
-    monkeypatch.setattr(load_module, "_closer", count("pairs", closer))
+    monkeypatch.setattr(load_module, "closer", count("pairs", closer))
     monkeypatch.setattr(load_module, "ellipse_value", count("ellipse", ellipse_value))
     monkeypatch.setattr(load_module.Scenario, "robot_spec", count("lookups", spec))
     totals = {}
