@@ -104,9 +104,10 @@ def _reason(module: str, qualname: str, fixtures: tuple[str, ...]) -> str | None
 
 
 def _in_tests(module: object) -> bool:
-    """Whether ``module`` is a file of the tests folder (imported as ``test_x`` or ``tests.x``)."""
+    """Whether ``module`` is a file of the tests folder (imported as ``test_x`` or ``tests.x``),
+    this reader itself left out."""
     file = getattr(module, "__file__", None)
-    return isinstance(file, str) and _folder(file) == TESTS
+    return isinstance(file, str) and _folder(file) == TESTS and Path(file).name != "heavy.py"
 
 
 @functools.cache
@@ -178,7 +179,7 @@ def _facts(module_name: str, name: str) -> tuple[str | None, tuple[tuple[str, st
     own = _definitions(module_name)
     uses: list[tuple[str, str]] = []
     refused = _refusals(node)
-    for sub in ast.walk(node):
+    for sub in _walk_body(node):
         obj: object = None
         if isinstance(sub, ast.Name):
             if sub.id in own:
@@ -201,6 +202,13 @@ def _facts(module_name: str, name: str) -> tuple[str | None, tuple[tuple[str, st
         if isinstance(home, str) and _in_tests(sys.modules.get(home)) and hasattr(obj, "__name__"):
             uses.append((home, getattr(obj, "__name__", "")))
     return None, tuple(uses)
+
+
+def _walk_body(node: ast.AST) -> Iterator[ast.AST]:
+    """Every node of a definition's body, its decorators left out (a ``parametrize`` list names
+    what the test is handed, not what it runs)."""
+    for part in getattr(node, "body", [node]):
+        yield from ast.walk(part)
 
 
 def _refusals(node: ast.AST) -> set[int]:
