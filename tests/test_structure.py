@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import pytest
@@ -30,10 +31,16 @@ ALLOWED = {
 PROJECT = set(ALLOWED) | {"formation"}
 
 
+@functools.cache
+def _tree(path: Path) -> ast.Module:
+    """The syntax tree of the file at ``path``, parsed once for every check here."""
+    return ast.parse(path.read_text(encoding="utf-8"))
+
+
 def _modules(path: Path) -> set[str]:
     """Every module imported anywhere in ``path`` (lazy imports included)."""
     found = set()
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+    for node in ast.walk(_tree(path)):
         if isinstance(node, ast.Import):
             names = [a.name for a in node.names]
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
@@ -165,7 +172,7 @@ def _import_targets(path: Path, known: set[str]) -> set[str]:
     name = _module_name(path)
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     found: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+    for node in ast.walk(_tree(path)):
         if isinstance(node, ast.Import):
             found.update(a.name for a in node.names)
         elif isinstance(node, ast.ImportFrom):
@@ -252,12 +259,13 @@ def _private(name: str) -> bool:
     return name.startswith("_") and not (name.startswith("__") and name.endswith("__"))
 
 
-def private_reads(source: str) -> list[tuple[int, str]]:
+def private_reads(source: str | ast.Module) -> list[tuple[int, str]]:
     """(line, what) for each read of another module's private name in ``source``: ``from m
     import _x``, and ``obj._x`` on anything but ``self`` and ``cls`` (a module, another object,
     a call's result), unless the name is public all the same (:data:`PUBLIC_UNDERSCORED`)."""
     found = []
-    for node in ast.walk(ast.parse(source)):
+    tree = ast.parse(source) if isinstance(source, str) else source
+    for node in ast.walk(tree):
         if isinstance(node, ast.ImportFrom):
             found += [(node.lineno, f"from {'.' * node.level}{node.module or ''} import {a.name}")
                       for a in node.names if _private(a.name)]
@@ -274,7 +282,7 @@ def private_reads(source: str) -> list[tuple[int, str]]:
 def test_no_module_reads_another_modules_private_names() -> None:
     found = [f"{path.relative_to(ROOT)}:{line}: {what}"
              for pkg in PRIVATE_SCOPE for path in sorted((ROOT / pkg).rglob("*.py"))
-             for line, what in private_reads(path.read_text(encoding="utf-8"))]
+             for line, what in private_reads(_tree(path))]
     assert found == [], f"{len(found)} reads of private names:\n" + "\n".join(found)
 
 
