@@ -272,7 +272,7 @@ class Guard:
 
         from simulator.inprocess import SimResult
 
-        self._wrap(subprocess.Popen, "__init__", lambda a: f"starts a process ({_argv(a)})")
+        self._wrap(subprocess.Popen, "__init__", _started)
         self._wrap(multiprocessing.process.BaseProcess, "start", lambda a: "starts a process")
         self._wrap(os, "fork", lambda a: "forks a process")
         self._wrap(socket.socket, "bind", _bound)
@@ -311,6 +311,17 @@ def _bound(args: tuple) -> str | None:
     if frame is not None and frame.f_code is free_tcp_port.__code__:
         return None
     return f"binds a socket ({args[1] if len(args) > 1 else ''})"
+
+
+def _started(args: tuple) -> str | None:
+    """The event of ``subprocess.Popen``; ``None`` for ``fc-list``, which matplotlib runs to list
+    the system's fonts when it builds its font cache (once, in a fresh environment, in whichever
+    test draws first)."""
+    argv = args[1] if len(args) > 1 else ""
+    program = argv[0] if isinstance(argv, list | tuple) and argv else argv
+    if isinstance(program, str) and Path(program).name == "fc-list":
+        return None
+    return f"starts a process ({_argv(args)})"
 
 
 def _argv(args: tuple) -> str:

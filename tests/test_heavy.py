@@ -100,3 +100,14 @@ def test_the_guard_sees_a_bound_socket_but_not_free_tcp_port():
         assert [e.split(" (")[0] for e in guard.report()] == ["binds a socket"]
     finally:
         guard.uninstall()
+
+
+def test_matplotlib_listing_the_fonts_is_no_process_of_the_test():
+    guard = Guard()
+    guard.install()
+    try:
+        with pytest.raises(OSError):  # fc-list under a name no machine has: nothing starts
+            subprocess.Popen(["/nonexistent/fc-list", "--help"])
+        assert list(guard.report()) == []
+    finally:
+        guard.uninstall()
