@@ -19,12 +19,15 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
-# Tests that start processes, Zenoh routers, sshd or a browser, or run whole scenarios, are marked
-# `integration` (pyproject's markers); `make test` runs them too.
+# Tests that start processes, open Zenoh sessions, bind sockets or run whole scenarios are marked
+# `integration` (tests/conftest.py marks them by reading them, and fails one that does so unmarked);
+# those that take seconds in-process are marked `slow`. `make check` leaves both out, `make test`
+# runs them too. A few of the largest scenarios of tests/test_simulation.py run only with
+# FORMATION_SLOW=1 (`FORMATION_SLOW=1 make test`), in either.
 check: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/python -m mypy
-	$(BIN)/python -m pytest -q -m "not integration"
+	$(BIN)/python -m pytest -q -m "not integration and not slow"
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

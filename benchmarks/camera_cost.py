@@ -16,15 +16,15 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
+import cv2
+import numpy as np
 
-from camera_service.locate import Locator  # noqa: E402
-from experiments.camera import _frames  # noqa: E402
+from camera_service.locate import Locator
+from experiments.camera import synthetic_frames
 
 
 def main(frames: int = 60) -> None:
-    jpgs, cal, ids = _frames(16, 15.0)
+    jpgs, cal, ids = synthetic_frames(16, 15.0)
     loc = Locator(cal, "DICT_4X4_50", 0.10, 0.0, wanted=list(ids.values()))
     dec, det = [], []
     c0 = time.process_time()

@@ -21,6 +21,7 @@ import sys
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
@@ -69,7 +70,13 @@ def add_calibrate_args(p: argparse.ArgumentParser) -> None:
                    help="largest accepted marker error [m] (default 0.02)")
 
 
-def add_parsers(sub: argparse._SubParsersAction) -> dict[str, Callable[[argparse.Namespace], int]]:
+class Subparsers(Protocol):
+    """What ``add_subparsers()`` returns, as far as adding a subcommand uses it."""
+
+    def add_parser(self, name: str, **kwargs: Any) -> argparse.ArgumentParser: ...
+
+
+def add_parsers(sub: Subparsers) -> dict[str, Callable[[argparse.Namespace], int]]:
     """Add ``camera`` and ``calibrate`` to ``formation``'s subcommands; returns their handlers."""
     add_camera_args(sub.add_parser("camera", help="the camera service: frames -> poses, obstacles"))
     add_calibrate_args(sub.add_parser("calibrate", help="floor homography from ArUco markers"))

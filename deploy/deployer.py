@@ -33,6 +33,7 @@ import importlib.metadata
 import importlib.util
 import logging
 import os
+import re
 import shlex
 import shutil
 import subprocess
@@ -40,26 +41,22 @@ import sys
 import tempfile
 import time
 import zipfile
-
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10: the robots' side runs there, deploy needs 3.11
-    tomllib = None  # type: ignore[assignment]
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from agent.config import AgentConfig, build_agent_configs, save_config
 from scenario import Scenario
 
-from . import rmw_zenoh, scripts
+from . import pyproject, rmw_zenoh, scripts
 from .inventory import Inventory, InventoryError, RobotHost
 from .secure import fleet_secrets, robot_auth
 from .ssh import Result, SshTarget, scp_argv, scp_files, ssh_argv, ssh_run
 from .zenoh_config import agent_zenoh_settings, bridge_json5, has_secrets, zenoh_json5
 
 logger = logging.getLogger(__name__)
+T = TypeVar("T")
 
 STAMP_FILE = ".deploy-stamp"
 CONFIG_FILE = "robot.yaml"
@@ -118,18 +115,23 @@ def project_root() -> Path:
     return root
 
 
-def _pyproject(root: Path) -> dict:
-    if tomllib is None:
-        raise BuildError("formation deploy needs Python 3.11 or newer on this machine (tomllib); "
-                         "the robots may run 3.10")
-    return tomllib.loads((root / "pyproject.toml").read_text("utf-8"))
-
-
 def wheel_name(root: Path | None = None) -> str:
     """The file name ``pip wheel`` gives the project (pure Python, any platform)."""
-    meta = _pyproject(root or project_root())
-    name = meta["project"]["name"].replace("-", "_")
-    return f"{name}-{meta['project']['version']}-py3-none-any.whl"
+    text = _pyproject_text(root or project_root())
+    name = re.sub(r"[-_.]+", "_", _field(pyproject.string, text, "project", "name"))
+    return f"{name}-{_field(pyproject.string, text, 'project', 'version')}-py3-none-any.whl"
+
+
+def _pyproject_text(root: Path) -> str:
+    return (root / "pyproject.toml").read_text("utf-8")
+
+
+def _field(read: Callable[[str, str, str], T], text: str, table: str, key: str) -> T:
+    """``read(text, table, key)`` (deploy.pyproject), its error a :class:`BuildError`."""
+    try:
+        return read(text, table, key)
+    except pyproject.PyprojectError as exc:
+        raise BuildError(f"pyproject.toml: {exc}") from None
 
 
 def agent_args(inv: Inventory) -> list[str]:
@@ -236,8 +238,7 @@ def build_wheel(out_dir: Path, root: Path | None = None) -> Path:
     back to an isolated build (which fetches the build requirements) when that fails.
     """
     root = root or project_root()
-    meta = _pyproject(root)
-    packages = meta.get("tool", {}).get("setuptools", {}).get("packages", [])
+    packages = _field(pyproject.strings, _pyproject_text(root), "tool.setuptools", "packages")
     out_dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="formation-wheel-") as tmp:
         src = Path(tmp) / "src"

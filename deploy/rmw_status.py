@@ -63,7 +63,7 @@ def status_lines(inv: Inventory, viewer_file: Path | None = None) -> list[str]:
         else:
             conf = make_config("client", connect=[inv.zenoh.router] if inv.zenoh.router else [])
         session = zenoh.open(conf)
-    except Exception as exc:  # zenoh.ZError: the router is not there
+    except Exception as exc:  # noqa: BLE001 - zenoh.ZError: the router (or the file) is not there
         return [f"rmw_zenoh: cannot reach the router to look for the bases: {exc}"]
     try:
         found = base_subscribers(session, inv)

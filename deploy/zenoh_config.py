@@ -119,7 +119,7 @@ def check_json5(text: str) -> None:
     """Parse ``text`` with zenoh; ``ValueError`` with zenoh's reason if it rejects it."""
     try:
         zenoh.Config.from_json5(text)
-    except Exception as exc:  # zenoh.ZError
+    except zenoh.ZError as exc:
         raise ValueError(f"zenoh rejects the generated configuration: {exc}") from None
 
 

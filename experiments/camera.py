@@ -52,7 +52,9 @@ PREFIX = "bench"
 DRAIN_S = 2.0  # [s] after the last frame, before the camera process is stopped
 
 
-def _frames(robots: int, fps: float) -> tuple[list[bytes], Calibration, dict[str, int]]:
+def synthetic_frames(robots: int, fps: float) -> tuple[list[bytes], Calibration, dict[str, int]]:
+    """JPEG frames of ``robots`` markers moving for the benchmark, at ``fps``, with the camera's
+    calibration and the robots' marker ids."""
     cal = synthetic_camera(SIZE, ARENA, tilt=0.1)
     ids = {f"r{i}": i for i in range(robots)}
     rng = np.random.default_rng(5)
@@ -84,7 +86,7 @@ def _child_error(proc: subprocess.Popen[str]) -> str:
 def bench_camera(robots: int = 16, fps: float = 15.0, frames: int = 450,
                  work: Path | None = None) -> dict:
     """Run the camera process on ``frames`` frames (see the module docstring)."""
-    jpgs, cal, ids = _frames(robots, fps)
+    jpgs, cal, ids = synthetic_frames(robots, fps)
     with tempfile.TemporaryDirectory(prefix="bench-camera-") as tmp:
         d = Path(work) if work is not None else Path(tmp)
         d.mkdir(parents=True, exist_ok=True)

@@ -496,24 +496,30 @@ def write_markdown(rows: Sequence[dict[str, Any]], path: Path) -> None:
     Path(path).write_text(text, encoding="utf-8")
 
 
-def analytic_curve(formations: Sequence[int], topology: str) -> tuple[list[int], list[float], list[float]]:
-    """(robots, deliveries per robot per s, payload bytes per robot per s) of the analytic model
-    for the crossing layouts of every fleet size in ``formations``, with every formation in
-    view (the most a tick can carry; a run's own figure counts only those in view)."""
-    robots, messages, nbytes = [], [], []
-    for f in formations:
-        sc = scenario_from_dict(crossing_scenario(f))
-        sizes, edges = fleet_of(sc)
-        n = sum(sizes)
-        robots.append(n)
-        messages.append(sum(analytic_deliveries(sizes, edges, topology).values()) / (n * sc.dt))
-        nbytes.append(sum(analytic_bytes(sc, topology).values()) / (n * sc.dt))
-    return robots, messages, nbytes
+PANELS = (("messages_per_robot_per_s", "deliveries per robot per s"),
+          ("bytes_per_robot_per_s", "payload bytes per robot per s"))
+
+
+def plot_series(rows: Sequence[dict[str, Any]]) -> dict[tuple[str, str, str], tuple[list[int], list[float]]]:
+    """What :func:`plot` draws: ``(figure, topology, "measured" | "analytic")`` -> (robots,
+    values), at the fleet sizes measured only. The analytic value is each run's own (its row's
+    ``analytic_*``: the ``others`` of the formations each leader had in view, as the tables of
+    commcost.md give it), which the measured one equals; no line joins sizes never run."""
+    pairs = paired(rows)
+    out = {}
+    for key, _label in PANELS:
+        for idx, topology in enumerate(TOPOLOGIES):
+            pts = [p[idx] for p in pairs]
+            robots = [r["robots"] for r in pts]
+            out[(key, topology, "measured")] = (robots, [r[key] for r in pts])
+            out[(key, topology, "analytic")] = (robots, [r[f"analytic_{key}"] for r in pts])
+    return out
 
 
 def plot(rows: Sequence[dict[str, Any]], path: Path) -> None:
     """Messages and bytes per robot per second against fleet size, both topologies, log scale:
-    markers measured, dashed lines the analytic model over every fleet size in between."""
+    filled markers measured, open ones the analytic model of the same run
+    (:func:`plot_series`)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -521,20 +527,16 @@ def plot(rows: Sequence[dict[str, Any]], path: Path) -> None:
 
     pairs = paired(rows)
     measured_sizes = [p[0]["formations"] for p in pairs]
-    span = list(range(min(measured_sizes), max(measured_sizes) + 1)) if pairs else []
+    series = plot_series(rows)
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.2), constrained_layout=True)
-    panels = (("messages_per_robot_per_s", 1, "deliveries per robot per s"),
-              ("bytes_per_robot_per_s", 2, "payload bytes per robot per s"))
-    curves = {t: analytic_curve(span, t) for t in TOPOLOGIES}
-    for ax, (key, column, label) in zip(axes, panels, strict=True):
-        for idx, (topology, colour, marker) in enumerate(
-                (("reduced", "tab:blue", "o"), ("all-to-all", "tab:red", "s"))):
-            curve = curves[topology]
-            ax.plot(curve[0], curve[column], color=colour, linestyle="--", linewidth=1,
-                    label=f"{topology}, analytic")
-            pts = [p[idx] for p in pairs]
-            ax.plot([r["robots"] for r in pts], [r[key] for r in pts], marker=marker, color=colour,
-                    linestyle="none", markersize=7, label=f"{topology}, measured")
+    for ax, (key, label) in zip(axes, PANELS, strict=True):
+        for topology, colour, marker in (("reduced", "tab:blue", "o"), ("all-to-all", "tab:red", "s")):
+            xs, ys = series[(key, topology, "measured")]
+            ax.plot(xs, ys, marker=marker, color=colour, linestyle="none", markersize=7,
+                    label=f"{topology}, measured")
+            xs, ys = series[(key, topology, "analytic")]
+            ax.plot(xs, ys, marker=marker, color=colour, linestyle="none", markersize=12,
+                    markerfacecolor="none", label=f"{topology}, analytic")
         for red, a2a in pairs:
             ax.annotate(f"{ratio(red[key], a2a[key]):.2f}x", (red["robots"], red[key]),
                         textcoords="offset points", xytext=(-24, 8), fontsize=8, color="tab:blue")

@@ -23,6 +23,7 @@ from formation.outdir import FOLDER_COMMANDS, OutputFolder, check_out
 from scenario import ScenarioError
 from wire.zconf import use_zenoh_threads
 
+from .argspec import Parser
 from .exits import EXIT_ERROR, EXIT_INVALID, EXIT_OK, UsageError
 from .progress import Progress, print_summary
 
@@ -105,8 +106,8 @@ def _add_view_args(p: argparse.ArgumentParser, client: bool = False, serve: bool
         add_serve_args(p, port=port)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+def build_parser() -> Parser:
+    parser = Parser(
         prog="formation", formatter_class=_HelpFormatter,
         description="Distributed CBF formation control for warehouse robots over Zenoh.",
         epilog="Exit status: 0 the command did its work, 2 invalid input (one line naming it), "

@@ -11,30 +11,18 @@ import argparse
 import sys
 from pathlib import Path
 
+from formation.argspec import Argument, Parser
 from formation.cli import build_parser
 
 MARKER = "<!-- generated below by: .venv/bin/python -m formation.clidoc --write docs/cli.md -->"
-
-
-def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
-    for action in parser._actions:  # argparse keeps no public list of subcommands
-        if isinstance(action, argparse._SubParsersAction):
-            return dict(action.choices)
-    return {}
-
-
-def _help_of(parser: argparse.ArgumentParser) -> dict[str, str]:
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            return {a.dest: a.help or "" for a in action._choices_actions}
-    return {}
 
 
 def _cell(text: str) -> str:
     return " ".join(text.split()).replace("|", "\\|")
 
 
-def _option_row(action: argparse.Action) -> str:
+def _option_row(argument: Argument) -> str:
+    action = argument.action
     if action.option_strings:
         names = ", ".join(f"`{s}`" for s in action.option_strings)
         if action.nargs != 0:
@@ -46,7 +34,7 @@ def _option_row(action: argparse.Action) -> str:
         notes.append("one of " + ", ".join(f"`{c}`" for c in action.choices))
     if action.required and action.option_strings:
         notes.append("required")
-    if isinstance(action, argparse._AppendAction):
+    if argument.kind == "append":
         notes.append("may be given more than once")
     if action.option_strings and action.nargs != 0 and action.default not in (None, argparse.SUPPRESS):
         notes.append(f"default `{action.default}`")
@@ -54,31 +42,30 @@ def _option_row(action: argparse.Action) -> str:
     return f"| {names} | {_cell(text)} | {_cell('; '.join(notes))} |"
 
 
-def _section(name: str, sub: argparse.ArgumentParser, summary: str) -> list[str]:
+def _section(name: str, sub: Parser, summary: str) -> list[str]:
     usage = " ".join(sub.format_usage().split())
     usage = usage.removeprefix("usage: ")
     lines = [f"### `formation {name}`", "", _cell(summary) + ("." if summary else ""), "",
              "```text", usage, "```", ""]
-    actions = [a for a in sub._actions if not isinstance(a, argparse._HelpAction)]
-    if actions:
+    arguments = [a for a in sub.arguments if a.kind != "help"]
+    if arguments:
         lines += ["| argument | meaning | notes |", "| --- | --- | --- |"]
-        lines += [_option_row(a) for a in actions]
+        lines += [_option_row(a) for a in arguments]
         lines.append("")
     return lines
 
 
-def render(parser: argparse.ArgumentParser | None = None) -> str:
+def render(parser: Parser | None = None) -> str:
     """The generated part of docs/cli.md."""
     parser = parser or build_parser()
     lines = ["## Every command and option", "",
              "Global options, before the command:", "",
              "| argument | meaning | notes |", "| --- | --- | --- |"]
-    lines += [_option_row(a) for a in parser._actions
-              if a.option_strings and not isinstance(a, argparse._HelpAction)]
+    lines += [_option_row(a) for a in parser.arguments
+              if a.action.option_strings and a.kind != "help"]
     lines.append("")
-    helps = _help_of(parser)
-    for name, sub in _subparsers(parser).items():
-        lines += _section(name, sub, helps.get(name, ""))
+    for name, command in parser.commands.items():
+        lines += _section(name, command.parser, command.help)
     return "\n".join(lines).rstrip() + "\n"
 
 

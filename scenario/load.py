@@ -70,7 +70,7 @@ from .model import (
     model_world_warning,
 )
 from .reader import ScenarioError, excerpt, load_yaml, read_text
-from .shipped import resolve
+from .shipped import find
 from .spatial import Grid
 from .world import parse_world
 
@@ -93,8 +93,8 @@ PLANNERS = ("visibility", "none")
 
 def load_scenario(path: str | Path) -> Scenario:
     """Read, parse and validate the scenario at ``path`` (or the shipped scenario a path that
-    does not exist names: :func:`scenario.shipped.resolve`)."""
-    p = resolve(path)
+    does not exist names: :func:`scenario.shipped.find`)."""
+    p = find(path)
     text = read_text(p)
     try:
         return parse_scenario(text, source=str(p))
@@ -652,14 +652,14 @@ def _first_overlap(points: list[tuple[float, ...]], min_distance: float) -> tupl
     to each other are at most a few per cell, so the work is linear in the points."""
     grid = Grid(min_distance)
     for b, (x, y) in enumerate(points):
-        close = [a for a in grid.near(x, y) if _closer(points[a], (x, y), min_distance)]
+        close = [a for a in grid.near(x, y) if closer(points[a], (x, y), min_distance)]
         if close:
             return min(close), b
         grid.add(b, x, y)
     return None
 
 
-def _closer(p: tuple[float, ...], q: tuple[float, ...], distance: float) -> bool:
+def closer(p: tuple[float, ...], q: tuple[float, ...], distance: float) -> bool:
     """Whether the points ``p`` and ``q`` are closer than ``distance`` (the inner pair check)."""
     return math.dist(p[:2], q[:2]) < distance
 

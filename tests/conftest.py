@@ -1,24 +1,30 @@
-"""What every test shares: a run a test leaves behind must not hide a tick that raised.
+"""What every test shares.
 
-An agent catches a failure inside its tick, answers it with the zero command and counts it
-(``tick_errors``, summed in ``summary.json``'s ``agents``): the fleet survives, but the failure
-is a bug (issue 28). So after each test that had a ``tmp_path``, every ``summary.json`` under
-it is read and the test errors when one counts a tick error; a test that causes them on
-purpose marks itself ``tick_errors_expected``.
+A run a test leaves behind must not hide a tick that raised. An agent catches a failure inside
+its tick, answers it with the zero command and counts it (``tick_errors``, summed in
+``summary.json``'s ``agents``): the fleet survives, but the failure is a bug. So after each test
+that had a ``tmp_path``, every ``summary.json`` under it is read and the test errors when one
+counts a tick error; a test that causes them on purpose marks itself ``tick_errors_expected``.
 
-And a test leaves SIGINT's handler as it found it: an ignored SIGINT is inherited by every
-process the tests start later (a ``formation replay`` then never stopped on Ctrl-C, and three
-tests of another file failed far from the cause).
+A test leaves SIGINT's handler as it found it: an ignored SIGINT is inherited by every process
+the tests start later (a ``formation replay`` then never stopped on Ctrl-C, and three tests of
+another file failed far from the cause).
+
+A test that starts a process, opens a Zenoh session, binds a socket or runs a whole scenario is
+``integration`` (``make check`` leaves it out): marked here by reading it, and failed when it does
+one of these unmarked (tests/heavy.py).
 """
 
 from __future__ import annotations
 
 import json
 import signal
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from pathlib import Path
 
 import pytest
+
+from tests.heavy import Guard, heavy_reason
 
 
 def tick_errors_in(folder: Path) -> list[str]:
@@ -57,3 +63,52 @@ def _sigint_left_as_found() -> Iterator[None]:
         signal.signal(signal.SIGINT, before)  # the tests after this one run as they should
         pytest.fail(f"the test left SIGINT's handler changed ({before!r} -> {after!r})",
                     pytrace=False)
+
+
+# --- integration: marked by reading the test, caught by watching it -----------------------------
+
+GUARD = Guard()
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    GUARD.install()
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    GUARD.uninstall()
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Mark `integration` every test whose source (or a fixture's, or a tests helper's it calls)
+    starts a process, opens a Zenoh session or runs a whole scenario (tests/heavy.py), before
+    ``-m "not integration"`` picks the tests of ``make check``."""
+    for item in items:
+        if not isinstance(item, pytest.Function) or item.get_closest_marker("integration"):
+            continue
+        reason = heavy_reason(item.module, item.function, list(item.fixturenames))
+        if reason is not None:
+            item.add_marker(pytest.mark.integration(reason=reason))
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    GUARD.clear()  # before the fixtures: a fixture's router counts for the test it serves
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None],
+                              ) -> Generator[None, pytest.TestReport, pytest.TestReport]:
+    """A test not marked `integration` that still starts a process, opens a session, binds a
+    socket or runs a whole scenario fails, saying what it did: mark it (or make it smaller)."""
+    report = yield
+    if call.when != "call" or not report.passed or item.get_closest_marker("integration"):
+        return report
+    events = list(GUARD.report())
+    if events:
+        report.outcome = "failed"
+        report.longrepr = ("not marked `integration`, yet it " + "; ".join(events)
+                           + ": mark it @pytest.mark.integration (tests/heavy.py marks the tests "
+                           "whose source calls simulate, summary_of, subprocess, zenoh.open, "
+                           "RouterProcess or a formation command that runs)")
+    return report

@@ -22,33 +22,47 @@ ROOT = Path(__file__).resolve().parent.parent
 SCENARIO = ROOT / "tests" / "scenarios" / "two-small.yaml"
 
 
-def _subparsers(parser: argparse.ArgumentParser):
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            yield from action.choices.items()
+def _shown(parser: argparse.ArgumentParser, action: argparse.Action) -> str:
+    """The help ``parser`` prints for ``action``, its option strings left out."""
+    formatter = parser.formatter_class(prog=parser.prog)
+    formatter.add_argument(action)
+    shown = formatter.format_help()
+    for option in action.option_strings:
+        shown = shown.replace(option, "")
+    return " ".join(shown.split())
 
 
 def test_every_argument_of_every_subcommand_has_help_text_and_its_default():
     parser = build_parser()
     missing, no_default = [], []
-    commands = dict(_subparsers(parser))
+    commands = {name: c.parser for name, c in parser.commands.items()}
     assert {"check", "sim", "run", "commcost", "montecarlo", "bench", "deploy", "view", "record",
             "replay"} <= set(commands)
     for name, sub in [("formation", parser), *commands.items()]:
-        formatter = sub._get_formatter()
-        for action in sub._actions:
+        for argument in sub.arguments:
+            action = argument.action
             if not (action.help or "").strip():
                 missing.append(f"{name} {'/'.join(action.option_strings) or action.dest}")
                 continue
-            shown = formatter._get_help_string(action) or ""
             has_default = action.option_strings and not action.required and not any(
                 action.default is v for v in (None, False, argparse.SUPPRESS))
-            if has_default and "default" not in shown.lower():
+            if has_default and "default" not in _shown(sub, action).lower():
                 no_default.append(f"{name} {action.option_strings[0]}")
     assert missing == [] and no_default == []
-    for choice in next(a for a in parser._actions
-                       if isinstance(a, argparse._SubParsersAction))._choices_actions:
-        assert (choice.help or "").strip(), choice.dest
+    for name, command in parser.commands.items():
+        assert command.help.strip(), name
+
+
+def test_the_parser_keeps_every_argument_argparse_has():
+    """formation.argspec's record is complete: the same actions argparse's own help shows."""
+    parser = build_parser()
+    for sub in [parser, *(c.parser for c in parser.commands.values())]:
+        shown = sub.format_help()
+        for argument in sub.arguments:
+            for option in argument.action.option_strings:
+                assert option in shown, (sub.prog, option)
+        options = {o for a in sub.arguments for o in a.action.option_strings}
+        assert {w.strip("[],|") for w in sub.format_usage().split() if w.startswith("[-")} <= options
 
 
 def test_help_shows_defaults(capsys):

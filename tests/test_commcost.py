@@ -18,6 +18,8 @@ from experiments.commcost import (
     crossing_scenario,
     fleet_of,
     parse_formations,
+    plot,
+    plot_series,
     run_commcost,
     wildcard_echo,
     write_outputs,
@@ -180,5 +182,27 @@ def test_real_run_of_both_topologies_counts_exactly_the_analytic_deliveries(tmp_
     md = (tmp_path / "commcost.md").read_text(encoding="utf-8")
     assert "| 2 | 6 |" in md
     assert (tmp_path / "commcost.png").read_bytes()[:8] == PNG_MAGIC
+    series = plot_series(rows)  # the figure's measured markers sit on its analytic ones
+    for (key, topology, kind), (xs, ys) in series.items():
+        if kind == "measured":
+            assert (xs, pytest.approx(ys)) == series[(key, topology, "analytic")]
     assert (tmp_path / "scenarios" / "commcost-2.yaml").is_file()
     assert (tmp_path / "runs" / "reduced-2" / "summary.json").is_file()
+
+
+def _row(formations: int, topology: str, robots: int, measured: float, analytic: float) -> dict:
+    return {"formations": formations, "topology": topology, "robots": robots,
+            "messages_per_robot_per_s": measured, "analytic_messages_per_robot_per_s": analytic,
+            "bytes_per_robot_per_s": 10 * measured, "analytic_bytes_per_robot_per_s": 10 * analytic}
+
+
+def test_the_figure_draws_the_analytic_value_only_where_it_was_measured_and_the_runs_own(tmp_path):
+    rows = [_row(2, "reduced", 6, 40.0, 40.0), _row(2, "all-to-all", 6, 100.0, 100.0),
+            _row(5, "reduced", 14, 45.0, 45.5), _row(5, "all-to-all", 14, 260.0, 260.0)]
+    series = plot_series(rows)
+    assert series[("messages_per_robot_per_s", "reduced", "analytic")] == ([6, 14], [40.0, 45.5])
+    assert series[("bytes_per_robot_per_s", "all-to-all", "analytic")] == ([6, 14], [1000.0, 2600.0])
+    assert series[("bytes_per_robot_per_s", "reduced", "measured")] == ([6, 14], [400.0, 450.0])
+    assert {xs == [6, 14] for xs, _ in series.values()} == {True}  # no robot count between
+    plot(rows, tmp_path / "commcost.png")
+    assert (tmp_path / "commcost.png").read_bytes()[:8] == PNG_MAGIC

@@ -176,11 +176,11 @@ def kill_agents(install_dirs: list[Path]) -> None:
 @pytest.fixture(scope="module")
 def source_snapshot(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A copy of the source tree, so files others edit meanwhile do not change the wheel."""
-    import tomllib
+    from deploy import pyproject
 
     snap = tmp_path_factory.mktemp("src")
     shutil.copy2(ROOT / "pyproject.toml", snap / "pyproject.toml")
-    packages = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
+    packages = pyproject.strings((ROOT / "pyproject.toml").read_text(), "tool.setuptools", "packages")
     for pkg in (p for p in packages if "." not in p):  # a subpackage comes with its parent
         shutil.copytree(ROOT / pkg, snap / pkg, ignore=shutil.ignore_patterns("__pycache__"))
     return snap

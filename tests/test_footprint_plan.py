@@ -332,6 +332,7 @@ def test_a_formation_giving_way_backs_out_of_a_dead_end_to_the_nearest_place_off
         assert _clearance(square, pose, _dead_end(), ()) > 0.0
 
 
+@pytest.mark.slow  # seconds in-process: left out of `make check`
 def test_giving_way_where_no_place_is_off_the_way_says_so():
     square = Body(((0.3, 0.3), (-0.3, 0.3), (-0.3, -0.3), (0.3, -0.3)), radius=0.105, margin=0.05)
     plan = plan_aside((2.0, 0.0, 0.0), square, _dead_end(), (), [(5.0, 0.0), (-6.0, 0.0)], 6.0)

@@ -8,6 +8,7 @@ import json
 import math
 from pathlib import Path
 
+import pytest
 import yaml
 
 from experiments.montecarlo import CIRCLES, WAREHOUSE, draw_layout, valid_scenario
@@ -55,6 +56,7 @@ def _check_hall(d: dict, s) -> None:
     assert warehouse_problem(s) is None
 
 
+@pytest.mark.slow  # seconds in-process: left out of `make check`
 def test_the_warehouse_draw_is_valid_deterministic_and_has_every_feature_for_50_seeds():
     seen = {"models": set(), "sizes": set(), "pillars": 0, "parked": 0, "moving": 0,
             "partitions": 0, "redraws": 0}

@@ -167,4 +167,4 @@ def test_check_command_accepts_a_valid_file(capsys):
 
 def test_missing_file_is_invalid_input(tmp_path, capsys):
     assert main(["check", str(tmp_path / "nope.yaml")]) == 2
-    assert "cannot read" in capsys.readouterr().err
+    assert "nope.yaml: no such file" in capsys.readouterr().err

@@ -23,6 +23,7 @@ from formation.commands.check import plural
 from scenario import ScenarioError, limits, load_scenario, parse_scenario, reader
 from scenario.bench import fleet_mapping as fleet
 from scenario.reader import MAX_FILE_BYTES, excerpt
+from scenario.shipped import shipped_names
 from wire import acl, keys
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -285,7 +286,7 @@ def test_validation_work_grows_linearly_with_the_robots(monkeypatch):
     """Counts the inner checks between robots (pair distances and ellipse tests) and the robot
     lookups by id: 4 times the robots is at most about 4 times the work."""
     work = {"pairs": 0, "ellipse": 0, "lookups": 0}
-    closer, ellipse_value = load_module._closer, load_module.ellipse_value
+    closer, ellipse_value = load_module.closer, load_module.ellipse_value
     spec = load_module.Scenario.robot_spec
 
     def count(key, fn):
@@ -294,7 +295,7 @@ def test_validation_work_grows_linearly_with_the_robots(monkeypatch):
             return fn(*args, **kwargs)
         return wrapped
 
-    monkeypatch.setattr(load_module, "_closer", count("pairs", closer))
+    monkeypatch.setattr(load_module, "closer", count("pairs", closer))
     monkeypatch.setattr(load_module, "ellipse_value", count("ellipse", ellipse_value))
     monkeypatch.setattr(load_module.Scenario, "robot_spec", count("lookups", spec))
     totals = {}
@@ -330,7 +331,7 @@ def test_a_start_inside_another_formations_ellipse_is_found_by_the_grid():
 
 
 def test_load_scenario_reports_a_missing_file_in_one_line(tmp_path):
-    with pytest.raises(ScenarioError, match="cannot read"):
+    with pytest.raises(ScenarioError, match=r"missing\.yaml: no such file$"):
         load_scenario(tmp_path / "missing.yaml")
 
 
@@ -395,3 +396,17 @@ def test_a_start_too_near_an_obstacle_names_the_safe_distance_and_the_look_ahead
 def test_check_counts_in_the_right_number(tmp_path, capsys):
     assert [plural(1, "formation"), plural(2, "obstacle"), plural(0, "robot")] == [
         "1 formation", "2 obstacles", "0 robots"]
+
+
+@pytest.mark.parametrize("name", ["thesis-5.2.3", "thesis-5.2.3.yaml", "scenarios/thesis-5.2.3.yaml"])
+def test_a_name_that_is_no_file_nor_shipped_scenario_says_so_and_names_the_shipped_ones(capsys, name):
+    assert main(["check", name]) == 2
+    line = _one_line(capsys)
+    assert line.startswith(f"formation check: error: {name}: no such file, nor a shipped scenario")
+    assert all(shipped in line for shipped in shipped_names()) and "thesis-5.2.2" in line
+
+
+def test_a_missing_path_that_is_not_a_bare_name_is_only_no_such_file(tmp_path, capsys):
+    path = tmp_path / "nowhere" / "thesis-5.2.3.yaml"
+    assert main(["check", str(path)]) == 2
+    assert _one_line(capsys) == f"formation check: error: {path}: no such file"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import pytest
@@ -30,10 +31,16 @@ ALLOWED = {
 PROJECT = set(ALLOWED) | {"formation"}
 
 
+@functools.cache
+def _tree(path: Path) -> ast.Module:
+    """The syntax tree of the file at ``path``, parsed once for every check here."""
+    return ast.parse(path.read_text(encoding="utf-8"))
+
+
 def _modules(path: Path) -> set[str]:
     """Every module imported anywhere in ``path`` (lazy imports included)."""
     found = set()
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+    for node in ast.walk(_tree(path)):
         if isinstance(node, ast.Import):
             names = [a.name for a in node.names]
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
@@ -165,7 +172,7 @@ def _import_targets(path: Path, known: set[str]) -> set[str]:
     name = _module_name(path)
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     found: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+    for node in ast.walk(_tree(path)):
         if isinstance(node, ast.Import):
             found.update(a.name for a in node.names)
         elif isinstance(node, ast.ImportFrom):
@@ -197,13 +204,7 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
             elif w in on_stack:
                 low[v] = min(low[v], index[w])
         if low[v] == index[v]:
-            comp = []
-            while True:
-                w = stack.pop()
-                on_stack.discard(w)
-                comp.append(w)
-                if w == v:
-                    break
+            comp = _pop_component(stack, on_stack, v)
             if len(comp) > 1:
                 out.append(sorted(comp))
 
@@ -211,6 +212,17 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
         if v not in index:
             visit(v)
     return out
+
+
+def _pop_component(stack: list[str], on_stack: set[str], root: str) -> list[str]:
+    """Tarjan's step: the modules on ``stack`` down to ``root``, taken off it."""
+    comp = []
+    while True:
+        w = stack.pop()
+        on_stack.discard(w)
+        comp.append(w)
+        if w == root:
+            return comp
 
 
 def _project_files() -> list[Path]:
@@ -231,3 +243,69 @@ def test_the_circle_check_finds_a_circle_through_lazy_relative_and_from_imports(
     path = ROOT / "agent" / "inputs.py"  # `from . import unicycle`, `from .control import ...`
     known = {_module_name(p) for p in _project_files()}
     assert {"agent.unicycle", "agent.control", "agent.barriers"} <= _import_targets(path, known)
+
+
+# --- no module reads another module's private names ------------------------------------------
+
+PRIVATE_SCOPE = sorted(PROJECT | {"benchmarks", "tests"})
+# Names with a leading underscore that are public all the same, each with the reason
+PUBLIC_UNDERSCORED = {
+    "_replace": "namedtuple's documented API (the underscore keeps it apart from field names)",
+    "_asdict": "namedtuple's documented API",
+    "_fields": "namedtuple's documented API",
+    "_make": "namedtuple's documented API",
+}
+PUBLIC_MODULE_UNDERSCORED = {
+    ("os", "_exit"): "documented: leave the process at once, without cleanup (a forked child)",
+}
+
+
+def _private(name: str) -> bool:
+    return name.startswith("_") and not (name.startswith("__") and name.endswith("__"))
+
+
+def private_reads(source: str | ast.Module) -> list[tuple[int, str]]:
+    """(line, what) for each read of another module's private name in ``source``: ``from m
+    import _x``, and ``obj._x`` on anything but ``self`` and ``cls`` (a module, another object,
+    a call's result), unless the name is public all the same (:data:`PUBLIC_UNDERSCORED`)."""
+    found = []
+    tree = ast.parse(source) if isinstance(source, str) else source
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            found += [(node.lineno, f"from {'.' * node.level}{node.module or ''} import {a.name}")
+                      for a in node.names if _private(a.name)]
+        elif isinstance(node, ast.Attribute) and _private(node.attr):
+            owner = node.value
+            if isinstance(owner, ast.Name) and (
+                    owner.id in ("self", "cls") or (owner.id, node.attr) in PUBLIC_MODULE_UNDERSCORED):
+                continue
+            if node.attr not in PUBLIC_UNDERSCORED:
+                found.append((node.lineno, f"{ast.unparse(owner)[:40]}.{node.attr}"))
+    return found
+
+
+def test_no_module_reads_another_modules_private_names() -> None:
+    found = [f"{path.relative_to(ROOT)}:{line}: {what}"
+             for pkg in PRIVATE_SCOPE for path in sorted((ROOT / pkg).rglob("*.py"))
+             for line, what in private_reads(_tree(path))]
+    assert found == [], f"{len(found)} reads of private names:\n" + "\n".join(found)
+
+
+def test_the_private_name_check_finds_imports_modules_and_objects_but_not_self() -> None:
+    source = """
+from m import _x, y
+from . import _sibling
+import os
+def f(obj, other):
+    os._exit(0)
+    obj._y
+    other.part._z
+    make()._w
+    point._replace(x=1)
+class C:
+    def g(self):
+        return self._a, cls._b, super()._c
+"""
+    assert [what for _line, what in private_reads(source)] == [
+        "from m import _x", "from . import _sibling", "obj._y", "other.part._z", "make()._w",
+        "super()._c"]

@@ -154,7 +154,7 @@ def watcher(scenario=None):
     w = FleetWatcher(Session(), scenario=scenario)
 
     def put(key: str, data: bytes) -> None:
-        w._on_sample(SimpleNamespace(key_expr=key, payload=SimpleNamespace(to_bytes=lambda: data)))
+        w.on_sample(SimpleNamespace(key_expr=key, payload=SimpleNamespace(to_bytes=lambda: data)))
 
     def at(where, formation_of):
         for rid, (x, y) in where.items():

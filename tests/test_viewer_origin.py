@@ -86,7 +86,7 @@ def test_the_foxglove_websocket_refuses_another_sites_page_and_serves_its_own(vi
 def test_a_raw_foreign_handshake_gets_403_and_the_foxglove_server_has_a_loopback_port(view):
     import socket
 
-    backend = view.gate._server.backend
+    backend = view.gate.backend
     assert backend[0] == "127.0.0.1" and backend[1] != view.hub.ws_port
     with socket.create_connection(("127.0.0.1", view.hub.ws_port), timeout=10) as s:
         s.sendall(b"GET / HTTP/1.1\r\nHost: x\r\nOrigin: http://evil.example\r\n\r\n")

@@ -133,7 +133,7 @@ def _watcher():
     w = FleetWatcher(Session())
 
     def put(key: str, data: bytes) -> None:
-        w._on_sample(SimpleNamespace(key_expr=key, payload=SimpleNamespace(to_bytes=lambda: data)))
+        w.on_sample(SimpleNamespace(key_expr=key, payload=SimpleNamespace(to_bytes=lambda: data)))
 
     return w, put
 

@@ -88,9 +88,9 @@ class FleetWatcher:
                  keys.all_formations_key(p, keys.ELLIPSE), keys.all_formations_key(p, keys.STATUS),
                  keys.all_formations_key(p, keys.PLAN), keys.obstacles_key(p)]
         self._subs = [session.declare_subscriber(
-            e, zenoh.handlers.Callback(self._on_sample, indirect=False)) for e in exprs]
+            e, zenoh.handlers.Callback(self.on_sample, indirect=False)) for e in exprs]
 
-    def _on_sample(self, sample: zenoh.Sample) -> None:
+    def on_sample(self, sample: zenoh.Sample) -> None:
         data = sample.payload.to_bytes()
         key = str(sample.key_expr)
         with self._lock:

@@ -156,6 +156,11 @@ class OriginGate:
         self._thread.start()
 
     @property
+    def backend(self) -> tuple[str, int]:
+        """The Foxglove server's address this gate forwards an admitted page to."""
+        return self._server.backend
+
+    @property
     def page_port(self) -> int | None:
         return self._server.page_port
 
