@@ -17,6 +17,7 @@ import dataclasses
 import math
 import statistics
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from agent.stats import AgentStats
@@ -52,15 +53,25 @@ def qp_fields(solves: int, solve_us: Sequence[float], relaxed: int, fallback: in
     }
 
 
-def run_summary(scenario: Scenario, mode: str, steps: int, sim_time: float, monitor: SafetyMonitor,
-                min_h: dict[str, float | None], qp: dict[str, Any], comm: dict[str, Any],
-                safety: bool, solver: str, motion: dict[str, Any] | None = None,
+@dataclass(frozen=True)
+class RunKind:
+    """How a run ran: ``mode`` ("inprocess" or "multiprocess"), with barriers or not
+    (``safety``), and the QP ``solver``."""
+
+    mode: str
+    safety: bool
+    solver: str
+
+
+def run_summary(scenario: Scenario, kind: RunKind, steps: int, sim_time: float,
+                monitor: SafetyMonitor, min_h: dict[str, float | None], qp: dict[str, Any],
+                comm: dict[str, Any], motion: dict[str, Any] | None = None,
                 **extra: Any) -> dict[str, Any]:
     """The summary of a run of ``scenario`` (see the module docstring); ``extra`` goes after
     ``solver`` in the order given."""
     return {
         "scenario": scenario.name,
-        "mode": mode,
+        "mode": kind.mode,
         "steps": steps,
         "sim_time_s": round(sim_time, 6),
         **monitor.summary_fields(),
@@ -69,8 +80,8 @@ def run_summary(scenario: Scenario, mode: str, steps: int, sim_time: float, moni
         "qp": qp,
         **({"motion": motion} if motion is not None else {}),
         "comm": comm,
-        "safety": safety,
-        "solver": solver,
+        "safety": kind.safety,
+        "solver": kind.solver,
         "world_profile": scenario.world.summary(),  # the world the run had (scenario.world)
         **extra,
         "collision_log": monitor.collision_log[:COLLISION_LOG_MAX],
@@ -103,13 +114,14 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: Sequence[Agent
     solve_us = [row[12] for s in stats for row in s.trace if row[12] is not None]
     snap = traffic.merge([result.traffic, *(s.traffic for s in stats)])
     summary = run_summary(
-        scenario, "multiprocess", result.steps, sim_time, result.monitor, _min_h(stats),
+        scenario, RunKind("multiprocess", safety, solver), result.steps, sim_time,
+        result.monitor, _min_h(stats),
         qp_fields(sum(s.solves for s in stats), solve_us, sum(s.relaxed for s in stats),
                   sum(s.fallback for s in stats), sum(s.failed for s in stats),
                   sum(s.hard_row_unmet_ticks for s in stats),
                   sum_counts(s.hard_row_unmet for s in stats),
                   escape=sum(s.escape_ticks for s in stats)),
-        comm_summary(snap, topology, len(scenario.robot_ids), sim_time), safety, solver,
+        comm_summary(snap, topology, len(scenario.robot_ids), sim_time),
         motion=motion_fields(series.robots, ROBOT_COLUMNS, scenario),
         realtime=realtime,
         camera=camera,
