@@ -313,6 +313,22 @@ def _latency(ms: list[float]) -> dict | None:
             "p99_ms": xs[min(len(xs) - 1, int(math.ceil(0.99 * len(xs))) - 1)], "max_ms": xs[-1]}
 
 
+def world_summary(result: WorldResult) -> dict:
+    """What the world alone (``python -m simulator.world_cli``) reports of its run."""
+    return {
+        "steps": result.steps,
+        "sim_time_s": round(result.sim_time, 6),
+        **result.monitor.summary_fields(),
+        "missing_cmds": result.missing_cmds,
+        "zero_cmds": result.zero_cmds,
+        "malformed_cmds": result.malformed_cmds,
+        "stamp_rejected": result.stamp_rejected,
+        "traffic": result.traffic,
+        "wall_s": result.wall_s,
+        "latency_ms": result.latency_ms,
+    }
+
+
 # --------------------------------------------------------------------------- an early end
 
 
