@@ -25,6 +25,7 @@ from scenario import Scenario
 from wire import keys, traffic
 from wire.stamps import merge_counts
 
+from .goals import first_at_goals
 from .metrics import SafetyMonitor
 from .motion import motion_fields
 from .series import ROBOT_COLUMNS, Series, WorldResult
@@ -206,18 +207,12 @@ def formation_goal_times(scenario: Scenario, series: Series,
     series ends with the state the last tick started from, so a formation first seen there
     when every robot reached (``all_reached_at``, the run's end) gets that time."""
     goal = {r.id: r.goal for r in scenario.robots}
-    tol = scenario.goal_tolerance
-    at: dict[float, set[str]] = {}
-    for row in series.robots:
-        t, rid, x, y = row[0], row[1], row[3], row[4]
-        gx, gy = goal[rid]
-        if math.hypot(x - gx, y - gy) <= tol:
-            at.setdefault(t, set()).add(rid)
     out: dict[str, float | None] = {}
     for f in scenario.formations:
-        ids = set(f.robot_ids)
-        first = next((round(t, 6) for t in sorted(at) if ids <= at[t]), None)
-        if first is None and all_reached_at is not None:
+        first = first_at_goals(series, goal, scenario.goal_tolerance, f.robot_ids)
+        if first is not None:
+            first = round(first, 6)
+        elif all_reached_at is not None:
             first = round(all_reached_at, 6)
         out[f.name] = first
     return out
