@@ -201,7 +201,7 @@ def _agents_entry(n: int, dt: float, result: WorldResult, stats: Sequence[AgentS
         "world_cpu_percent": 100.0 * usage.own_cpu / wall if wall > 0 else None,
         "load_avg_1min": {"before": loads[0], "after": loads[1]},
         "fleet_cpu_percent": 100.0 * ours / wall if wall > 0 else None,
-        # other people's processes on the machine meanwhile (percent of one core; 2 cores = 200)
+        # other people's processes on the machine meanwhile (percent of one core)
         "others_cpu_percent": None if busy is None or wall <= 0 else
         max(0.0, 100.0 * (busy - ours) / wall),
     }

@@ -136,7 +136,7 @@ class SafetyMonitor:
 
     def _update_loads(self, t: float, pos: np.ndarray,
                       obstacles: Sequence[tuple[float, float]]) -> None:
-        """Each formation's load (issue 25), placed by the rigid fit of its members' start body
+        """Each formation's load, placed by the rigid fit of its members' start body
         positions onto ``pos``, against everything but its own members
         (:func:`scenario.cargo.load_clearances`); an overlap counts like a robot's collision,
         logged with ``kind: load``, ``a`` the formation and (x, y) where."""

@@ -8,8 +8,8 @@ import time
 from collections.abc import Callable
 
 ABORT_EVERY_S = 0.05  # [s] the longest ``abort()`` is not called while the world waits, and the
-# shortest between two calls (a launcher's check polls every child process: at 8 pose slots and
-# 32 agents, checking at every slot cost the world a fifth of its CPU)
+# shortest between two calls (a launcher's check polls every child process: checking it at
+# every pose slot of a large fleet costs the world much of its CPU)
 
 
 def at_most_every(period: float, fn: Callable[[], None]) -> Callable[[], None]:
