@@ -170,10 +170,10 @@ class World:
             raise ValueError("zones: every robot needs a zone (zone_of) among the sessions given")
         self.zones = tuple(zones)
         self.zone_of = dict(zone_of) if zones and zone_of is not None else {}
-        self._pose_pubs = [CountingPublisher(self._session_of(r).declare_publisher(
+        self.pose_pubs = [CountingPublisher(self._session_of(r).declare_publisher(
             keys.pose_key(p, r)), self.counter) for r in self.ids]
         self._shape_msgs = tuple(shape_to_msg(sh) for sh in scenario.shapes)  # static walls, shelves
-        self._obs_pub = CountingPublisher(session.declare_publisher(keys.obstacles_key(p)),
+        self.obs_pub = CountingPublisher(session.declare_publisher(keys.obstacles_key(p)),
                                           self.counter)
         self.inbox = CmdInbox(p, self.counter, self.ids, options.stale_after)
         self.inbox.realtime = options.realtime
@@ -184,14 +184,14 @@ class World:
         # callback only decodes and stores under the inbox lock). With zones, one subscriber per
         # robot on its zone's session: its command arrives there, never through another zone.
         if options.rmw_bases:
-            self._subs = RmwBaseReader(options.rmw_bases, self.inbox.offer,
+            self.subs = RmwBaseReader(options.rmw_bases, self.inbox.offer,
                                        self.inbox.count_malformed).declare(self._session_of)
         elif self.zones:
-            self._subs = [self._session_of(r).declare_subscriber(
+            self.subs = [self._session_of(r).declare_subscriber(
                 keys.cmd_key(p, r), zenoh.handlers.Callback(self.inbox.callback, indirect=False))
                 for r in self.ids]
         else:
-            self._subs = [session.declare_subscriber(
+            self.subs = [session.declare_subscriber(
                 keys.all_robots_key(p, keys.CMD),
                 zenoh.handlers.Callback(self.inbox.callback, indirect=False))]
         self._camera: SyntheticCamera | None = None
@@ -215,11 +215,11 @@ class World:
         """Undeclare the world's subscribers and publishers, each step waiting at most
         ``step_limit`` seconds (:func:`runtime.shutdown.within`: a hung step is logged, not waited
         for); the session is its owner's to close."""
-        subs, pubs = list(self._subs), [*self._pose_pubs, self._obs_pub]
+        subs, pubs = list(self.subs), [*self.pose_pubs, self.obs_pub]
         within(step_limit, f"world: undeclaring {len(subs)} subscribers", lambda: _undeclare(subs))
         within(step_limit, f"world: undeclaring {len(pubs)} publishers", lambda: _undeclare(pubs))
-        self._subs.clear()
-        self._pose_pubs.clear()
+        self.subs.clear()
+        self.pose_pubs.clear()
         if self.frames is not None:
             self.frames.undeclare()
 
@@ -230,7 +230,7 @@ class World:
         deadline = time.monotonic() + self.options.start_timeout
         if self.frames is not None:
             self.frames.wait_subscribed(self.options.start_timeout, abort)
-        for rid, pub in zip(self.ids, self._pose_pubs, strict=True):
+        for rid, pub in zip(self.ids, self.pose_pubs, strict=True):
             if robots is not None and rid not in robots:
                 continue
             while not pub.publisher.matching_status.matching:  # type: ignore[attr-defined]
@@ -245,7 +245,7 @@ class World:
     def wait_unsubscribed(self, rid: str, timeout: float = 5.0) -> bool:
         """Wait until nothing subscribes to ``rid``'s pose (its agent is gone); False if the
         timeout passed first."""
-        pub = self._pose_pubs[self.ids.index(rid)]
+        pub = self.pose_pubs[self.ids.index(rid)]
         deadline = time.monotonic() + timeout
         while pub.publisher.matching_status.matching:  # type: ignore[attr-defined]
             if time.monotonic() > deadline:
@@ -437,7 +437,7 @@ class World:
         for o, (x, y) in zip(self.scenario.obstacles, seen, strict=True):
             vx, vy = o.velocity_at(t)
             obs.append(ObstacleMsg(o.name, x, y, vx, vy, o.safe_distance))
-        self._obs_pub.put_message(Obstacles(stamp, tuple(obs), self._shape_msgs))
+        self.obs_pub.put_message(Obstacles(stamp, tuple(obs), self._shape_msgs))
         return obs
 
     def _publish_pose(self, i: int, t: float, stamp: float, p: tuple[float, float, float]) -> None:
@@ -446,7 +446,7 @@ class World:
         if any(r == rid and t0 <= t + 1e-9 < t1 for r, t0, t1 in self.options.camera_dropouts):
             self.camera_dropped += 1
             return
-        self._pose_pubs[i].put_message(Pose(p[0], p[1], p[2], stamp))
+        self.pose_pubs[i].put_message(Pose(p[0], p[1], p[2], stamp))
 
     def _publish(self, t: float, stamp: float, state: Sequence[tuple[float, float, float]]) -> None:
         if self.frames is not None:  # the camera process publishes poses and obstacles
