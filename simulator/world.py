@@ -160,7 +160,6 @@ class World:
         self.lab = lab_world(scenario, options)  # None: the ideal world
         self.counter = TrafficCounter(options.prefix)
         self.ids = scenario.robot_ids
-        self.formation_of = {rid: scenario.formation_of(rid).name for rid in self.ids}
         self.tick = FleetTick(scenario, self.lab)  # the run's (run() starts a new one)
         p = options.prefix
         for o in scenario.obstacles:
@@ -174,7 +173,7 @@ class World:
             keys.pose_key(p, r)), self.counter) for r in self.ids]
         self._shape_msgs = tuple(shape_to_msg(sh) for sh in scenario.shapes)  # static walls, shelves
         self.obs_pub = CountingPublisher(session.declare_publisher(keys.obstacles_key(p)),
-                                          self.counter)
+                                         self.counter)
         self.inbox = CmdInbox(p, self.counter, self.ids, options.stale_after)
         self.inbox.realtime = options.realtime
         self.inbox.clock_offset = options.clock_offset
@@ -185,7 +184,7 @@ class World:
         # robot on its zone's session: its command arrives there, never through another zone.
         if options.rmw_bases:
             self.subs = RmwBaseReader(options.rmw_bases, self.inbox.offer,
-                                       self.inbox.count_malformed).declare(self._session_of)
+                                      self.inbox.count_malformed).declare(self._session_of)
         elif self.zones:
             self.subs = [self._session_of(r).declare_subscriber(
                 keys.cmd_key(p, r), zenoh.handlers.Callback(self.inbox.callback, indirect=False))
@@ -501,8 +500,6 @@ class Counts:
 def is_zero(c: Cmd | None) -> bool:
     """Whether ``c`` is a command to stand still."""
     return c is not None and c.v == 0.0 and c.omega == 0.0 and c.ux == 0.0 and c.uy == 0.0
-
-
 
 
 @dataclass
