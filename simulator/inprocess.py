@@ -162,7 +162,8 @@ def record(tick: FleetTick, t: float, before: Sequence[Pose], results: Sequence[
     """The period that began at ``t`` in ``before``: every robot's row with its QP's outcome,
     the ellipses its leader estimated (not their points) and the obstacles as seen."""
     off = tick.scenario.robot.control_offset
-    # the true pose's control point, as the multi-process world records it
+    # the control point of the pose computed from; in a lab world the true pose's, as the
+    # multi-process world records it (not that of the pose the camera handed the agent)
     points = ([(r.px, r.py) for r in results] if tick.lab is None
               else [unicycle.control_point(s[0], s[1], s[2], off) for s in before])
     tick.record_robots(t, before, results, points,
