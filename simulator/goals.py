@@ -25,6 +25,23 @@ from .series import Series, WorldResult
 Point = tuple[float, float]
 
 
+def goals_sent(scenario: Scenario, followed: Mapping[str, Mapping[str, Any]],
+               ) -> dict[str, dict[str, Any]]:
+    """Of the goals the leaders follow (formation -> ``{"goal": [x, y], "heading": h,
+    "goal_stamp": s}``, their last statuses), those sent at run time, as ``{"goal", "heading"}``:
+    a goal stamped after the start, or one other than the scenario's (a lock-step leader stamps
+    a goal with the tick's simulated time, which is 0 at the first tick)."""
+    out: dict[str, dict[str, Any]] = {}
+    for f in scenario.formations:
+        got = followed.get(f.name)
+        if got is None:
+            continue
+        goal, heading = (got["goal"][0], got["goal"][1]), got.get("heading")
+        if got.get("goal_stamp", 0.0) > 0.0 or goal != f.goal_centroid or heading is not None:
+            out[f.name] = {"goal": [goal[0], goal[1]], "heading": heading}
+    return out
+
+
 def sent_goal(goal: Point, heading: float | None, offsets: Mapping[str, Point]) -> dict[str, Point]:
     """Each member's goal for a formation sent the goal centroid ``goal`` with ``heading``
     (None: the scenario's shape as it is); ``offsets``: each member's goal offset from the goal

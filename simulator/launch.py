@@ -51,7 +51,7 @@ from .bases import run_bases, with_rmw_bases
 from .counters import agent_stats
 from .faults import FAULT_WORLD_TIMEOUT_S, FaultDriver, fault_summary
 from .fleet import START_TIMEOUT_S, Child, ChildFailed, Fleet, unique_children
-from .goals import judge_by_goals_sent
+from .goals import goals_sent, judge_by_goals_sent
 from .run_config import RunConfig
 from .series import Series
 from .status_board import StatusBoard
@@ -286,7 +286,7 @@ def _run_world(cfg: RunConfig, hooks: _Hooks, fleet: Fleet, endpoint: str,
                 detach()
             world.close()
             board = statuses.latest()  # each leader's last status
-            sent = statuses.sent()
+            sent = goals_sent(cfg.scenario, statuses.goals())
             statuses.close()
     return _Outcome(result, stopped, board, driver.log, dict(driver.restarts), sent)
 

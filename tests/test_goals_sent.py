@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from scenario import load_scenario
-from simulator.goals import judge_by_goals_sent, sent_goal, with_goals
+from simulator.goals import goals_sent, judge_by_goals_sent, sent_goal, with_goals
 from simulator.metrics import SafetyMonitor
 from simulator.series import Series, WorldResult
 from simulator.summary import formation_goal_times
@@ -95,3 +95,16 @@ def test_the_trajectories_figure_marks_the_goals_sent(monkeypatch, tmp_path):
     output.write_run({"goals_sent": SENT}, result.series, SCENARIO, tmp_path)
     assert drawn["trajectories.png"]["a1"] == pytest.approx((2.5, 0.25))
     assert drawn["trajectories.png"]["b1"] == pytest.approx((2.25, -0.35))
+
+
+def test_the_goals_sent_are_those_stamped_after_the_start_or_other_than_the_scenarios():
+    a, b = (f.goal_centroid for f in SCENARIO.formations)
+    followed = {"A": {"goal": list(a), "heading": None, "goal_stamp": 0.0},  # the scenario's
+                "B": {"goal": list(b), "heading": None, "goal_stamp": 3.5}}  # sent again
+    assert goals_sent(SCENARIO, followed) == {"B": {"goal": list(b), "heading": None}}
+    # taken at the first tick of a lock-step run (stamped 0): told apart by where it lies
+    followed["A"] = {"goal": [2.25, 0.25], "heading": None, "goal_stamp": 0.0}
+    assert goals_sent(SCENARIO, followed)["A"] == {"goal": [2.25, 0.25], "heading": None}
+    followed["A"] = {"goal": list(a), "heading": 1.0, "goal_stamp": 0.0}  # only turned
+    assert goals_sent(SCENARIO, followed)["A"]["heading"] == 1.0
+    assert goals_sent(SCENARIO, {"Z": followed["A"]}) == {}  # not a formation of the scenario
