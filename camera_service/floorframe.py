@@ -18,7 +18,7 @@ import cv2
 
 from camera_service.calibration import save_calibration, synthetic_camera
 from camera_service.config import load_floor
-from camera_service.render import render_aruco_frame
+from camera_service.render import MarkerPrint, render_aruco_frame
 
 MARGIN_M = 0.5  # [m] floor seen beyond the outermost markers
 
@@ -38,7 +38,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                          max(xs) + MARGIN_M, max(ys) + MARGIN_M), tilt=ns.tilt)
         poses = {f"m{k}": (x, y, 0.0) for k, (x, y) in floor.markers.items()}
         frame = render_aruco_frame(poses, camera, {f"m{k}": k for k in floor.markers},
-                                   dictionary=floor.dictionary, marker_side=floor.size_m,
+                                   printed=MarkerPrint(floor.dictionary), marker_side=floor.size_m,
                                    robot_radius=0.0)
     except (OSError, ValueError) as exc:
         print(f"{p.prog}: {exc}", file=sys.stderr)

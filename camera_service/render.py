@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from functools import lru_cache
 
 import cv2
@@ -217,15 +218,23 @@ def _finish(
     return frame
 
 
+@dataclass(frozen=True)
+class MarkerPrint:
+    """How every robot's marker is printed: its ArUco ``dictionary`` and the white
+    ``quiet_zone`` [modules] around its black square."""
+
+    dictionary: str = DEFAULT_DICTIONARY
+    quiet_zone: int = QUIET_ZONE
+
+
 def render_aruco_frame(
     poses: Mapping[str, PoseLike],
     calibration: Calibration,
     marker_ids: Mapping[str, int],
     obstacles: Iterable[tuple[float, float, float]] = (),
     *,
-    dictionary: str = DEFAULT_DICTIONARY,
+    printed: MarkerPrint = MarkerPrint(),
     marker_side: float = MARKER_SIDE,
-    quiet_zone: int = QUIET_ZONE,
     robot_radius: float = ROBOT_RADIUS,
     noise_std: float = 0.0,
     blur_sigma: float = 0.0,
@@ -234,13 +243,15 @@ def render_aruco_frame(
     """An overhead BGR frame (uint8) with one ArUco marker per robot.
 
     ``poses`` maps robot id -> ``(x, y, theta)`` [m, m, rad]; every posed robot needs an entry in
-    ``marker_ids`` (robot id -> marker id of ``dictionary``). ``obstacles`` are ``(x, y, radius)``
-    [m] drawn as grey discs. ``marker_side`` [m] is the black square's side; ``quiet_zone``
+    ``marker_ids`` (robot id -> marker id of ``printed.dictionary``). ``obstacles`` are
+    ``(x, y, radius)`` [m] drawn as grey discs. ``marker_side`` [m] is the black square's side;
+    ``printed.quiet_zone``
     [modules] the white margin around it. ``noise_std`` [grey levels] adds Gaussian sensor noise
     drawn from ``rng`` (a fixed seed when omitted, so the function stays deterministic);
     ``blur_sigma`` [px] a Gaussian optical blur. Set ``robot_radius`` to 0 to leave bodies out.
     """
     checked = _check_poses(poses)
+    dictionary, quiet_zone = printed.dictionary, printed.quiet_zone
     ids = check_marker_ids(marker_ids, dictionary)
     missing = sorted(set(checked) - set(ids))
     if missing:

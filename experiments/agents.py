@@ -7,10 +7,11 @@ import json
 import logging
 import statistics
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from contextlib import ExitStack
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import zenoh
 
@@ -20,6 +21,7 @@ from experiments.fleet_scenario import fleet_scenario
 from experiments.machine import load_avg, machine_busy_s, percentile, proc_cpu_s, proc_rss_mb
 from runtime.ports import free_tcp_port, tcp_endpoint
 from simulator.fleet import START_TIMEOUT_S, Fleet, unique_children
+from simulator.series import WorldResult
 from simulator.summary import sum_counts
 from simulator.world import World, WorldOptions
 from simulator.zones import PoseZones
@@ -96,8 +98,9 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
         except (OSError, ValueError, TypeError):
             logger.warning("agent %s wrote no counters", rid)
     busy = None if busy0 is None or busy1 is None else busy1 - busy0
-    entry = _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, share, own_cpu,
-                          (router_cpu0, router_cpu1, router_rss), (load_before, load_after), busy)
+    entry = _agents_entry(n, dt, result, stats, FleetUsage(
+        cpu0, cpu1, rss, share, own_cpu, (router_cpu0, router_cpu1, router_rss),
+        (load_before, load_after), busy))
     entry["ticks_on"] = "pose" if tick_on_pose else "clock"
     entry["pose_slots"] = pose_slots
     entry["agents_per_process"] = per_process
@@ -106,16 +109,44 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
     return entry
 
 
-def _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, share, own_cpu, router, loads, busy) -> dict:
-    """One fleet's figures; ``cpu0``/``cpu1``/``rss`` are per agent process (or host), ``share``
-    the part of each that one agent counts as its own (1/K for a host of K)."""
+@dataclass(frozen=True)
+class FleetUsage:
+    """What a fleet's processes used over a run: ``cpu0``/``cpu1`` [s] (CPU time before and
+    after) and ``rss`` [MB] per agent process (or host), ``share`` the part of each that one
+    agent counts as its own (1/K for a host of K), ``own_cpu`` [s] the world's process's CPU
+    time, ``router`` its (CPU before, CPU after, RSS), ``loads`` the load average before and
+    after, ``busy`` [s] the machine's busy time meanwhile (None if unknown)."""
+
+    cpu0: dict[str, float | None]
+    cpu1: dict[str, float | None]
+    rss: dict[str, float | None]
+    share: dict[str, float]
+    own_cpu: float
+    router: tuple[float | None, float | None, float | None]
+    loads: tuple[Any, Any]
+    busy: float | None
+
+    def cpu_used(self) -> dict[str, float]:
+        """CPU time [s] each agent process (or host) used over the run, where both are known."""
+        out: dict[str, float] = {}
+        for r, before in self.cpu0.items():
+            after = self.cpu1.get(r)
+            if before is not None and after is not None:
+                out[r] = after - before
+        return out
+
+
+def _agents_entry(n: int, dt: float, result: WorldResult, stats: Sequence[AgentStats],
+                  usage: FleetUsage) -> dict:
+    """One fleet's figures (see :class:`FleetUsage`)."""
+    rss, share, router, loads, busy = usage.rss, usage.share, usage.router, usage.loads, usage.busy
+    used = usage.cpu_used()
     wall = result.wall_s
     lat = result.latency_ms
     period_ms = dt * 1e3
     poses = n * result.steps - result.camera_dropped
     in_time = sum(1 for x in lat if x <= period_ms)
-    cpu_pct = [100.0 * share[r] * (cpu1[r] - cpu0[r]) / wall for r in cpu0
-               if cpu0[r] is not None and cpu1.get(r) is not None and wall > 0]
+    cpu_pct = [100.0 * share[r] * u / wall for r, u in used.items() if wall > 0]
     rss_mb = [share[r] * v for r, v in rss.items() if v is not None]
 
     p50 = statistics.median(lat) if lat else None
@@ -131,8 +162,8 @@ def _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, share, own_cpu, router,
         if pose_in is not None:
             cmd_back = transport - pose_in
     r0, r1, rrss = router
-    ours = sum(cpu1[r] - cpu0[r] for r in cpu0 if cpu0[r] is not None and cpu1.get(r) is not None)
-    ours += own_cpu + (0.0 if r0 is None or r1 is None else r1 - r0)
+    ours = sum(used.values())
+    ours += usage.own_cpu + (0.0 if r0 is None or r1 is None else r1 - r0)
     return {
         "robots": n,
         "rate_hz_target": 1.0 / dt,
@@ -167,10 +198,10 @@ def _agents_entry(n, dt, result, stats, cpu0, cpu1, rss, share, own_cpu, router,
         "rss_mb_per_agent_max": max(rss_mb) if rss_mb else None,
         "router_cpu_percent": None if r0 is None or r1 is None else 100.0 * (r1 - r0) / wall,
         "router_rss_mb": rrss,
-        "world_cpu_percent": 100.0 * own_cpu / wall if wall > 0 else None,
+        "world_cpu_percent": 100.0 * usage.own_cpu / wall if wall > 0 else None,
         "load_avg_1min": {"before": loads[0], "after": loads[1]},
         "fleet_cpu_percent": 100.0 * ours / wall if wall > 0 else None,
-        # other people's processes on the machine meanwhile (percent of one core; 2 cores = 200)
+        # other people's processes on the machine meanwhile (percent of one core)
         "others_cpu_percent": None if busy is None or wall <= 0 else
         max(0.0, 100.0 * (busy - ours) / wall),
     }

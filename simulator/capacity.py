@@ -5,8 +5,8 @@ A valid scenario of 13,312 robots passed ``check`` and ``run`` started agents un
 robots and the options that shape its processes; :func:`machine_has` reads what the machine
 grants (memory available, the cgroup's memory and process limits where the run is inside one,
 the file descriptor limit); :func:`refusal` compares the two and names the first limit passed,
-with the options that would fit. Figures measured on the 2-core development machine
-(``/proc/PID/smaps_rollup`` of a running fleet, Pss), with :data:`HEADROOM` on top.
+with the options that would fit. The figures are measured (``/proc/PID/smaps_rollup`` of a
+running fleet, Pss), with :data:`HEADROOM` on top.
 """
 
 from __future__ import annotations

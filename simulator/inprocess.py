@@ -13,11 +13,10 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import NamedTuple
 
-import numpy as np
-
-from agent import accel_limit, double_integrator, unicycle
+from agent import accel_limit, unicycle
 from agent.barriers import Obstacle
 from agent.body import Footprint, footprint_of, motion_of
 from agent.control import ControlParams, Stall, StepResult, control_step
@@ -31,16 +30,16 @@ from scenario.cargo import load_polygon
 from scenario.routes import start_plan
 
 from .lab import LabWorld
-from .metrics import SafetyMonitor
 from .motion import motion_fields
 from .physics import world_for
 from .replans import Replans
 from .series import ROBOT_COLUMNS, Series
-from .summary import qp_fields, run_summary
+from .summary import RunKind, qp_fields, run_summary
+from .tick import FleetTick, Pose
+
+__all__ = ["ROBOT_COLUMNS", "FleetModel", "Series", "SimOptions", "SimResult", "simulate"]
 
 TOPOLOGIES = ("reduced", "all-to-all")
-
-
 
 @dataclass(frozen=True)
 class SimOptions:
@@ -120,140 +119,197 @@ class FleetModel:
         return out
 
 
-def simulate(  # noqa: C901 (13: the in-process loop; to split with the world's tick next)
+def simulate(
     scenario: Scenario,
     options: SimOptions = SimOptions(),
     progress: Callable[[int, int, float], None] | None = None,
 ) -> SimResult:
+    """Run ``scenario`` with every robot's command computed here (:class:`FleetControl`) and
+    applied by the fleet's tick (:class:`simulator.tick.FleetTick`)."""
     if options.topology not in TOPOLOGIES:
         raise ValueError(f"topology: {options.topology!r} is not one of {TOPOLOGIES}")
-    solve = options.solve_fn or make_solver(options.solver)
-    fleet = FleetModel.build(scenario, safety=options.safety)
-    params = fleet.params
-    robots = scenario.robots
-    ids = scenario.robot_ids
-    n = len(robots)
-    off = params.offset
-    dt = scenario.dt
-    steps = scenario.steps
-    starts = {f.name: start_plan(scenario, f) for f in scenario.formations}
-    routes = {name: sp.route for name, sp in starts.items()}
-    # every member walks its formation's route with the ellipse its leader hands it
-    members = [(f, r) for f in scenario.formations for r in f.robots]  # robot order
-    followers = [Follower(r.id, r.goal, f.goal_centroid, routes[f.name], starts[f.name].headings,
-                          heading_tolerance(params.kp, fleet.footprints[i].rho
-                                            if fleet.footprints else None))
-                 for i, (f, r) in enumerate(members)]
-    replans = Replans(scenario, starts, fleet.footprints, fleet.members)
-    shapes = scenario.shapes
-    state = [list(r.start) for r in robots]  # body x, y, theta
-    vel = [(0.0, 0.0)] * n  # last certified control-point velocity (what `state` carries)
-    monitor = SafetyMonitor(scenario)
+    control = FleetControl(scenario, options)
     lab = world_for(scenario, options.engine)  # None: the ideal kinematic world
-    series = Series()
-    solve_us: list[float] = []
-    counts = {STATUS_RELAXED: 0, STATUS_FALLBACK: 0, STATUS_FAILED: 0, accel_limit.STATUS_ACCEL: 0}
-    hard = HardRowCounter()  # ticks on which a hard row was not met (agent.hard_rows)
-    min_h = {"formation": math.inf, "obstacle": math.inf, "formations": math.inf}
-    all_to_all = options.topology == "all-to-all"
-    escape_ticks = 0  # robot-ticks whose nominal was the formation-level escape
-    stalls = [Stall()] * n  # each robot's copy of its formation's jam state
-
-    def obstacles_at(t: float) -> list[Obstacle]:
-        return [
-            Obstacle(*o.position(t), *o.velocity_at(t), o.safe_distance)
-            for o in scenario.obstacles
-        ]
-
-    monitor.update(0.0, np.array([s[:2] for s in state]), [o[:2] for o in obstacles_at(0.0)])
-    k = 0
-    t = 0.0
-    for k in range(steps):
+    tick = FleetTick(scenario, lab, options.stop_at_goal, progress)
+    state: list[Pose] = [(r.start[0], r.start[1], r.start[2]) for r in scenario.robots]
+    tick.start(state)
+    dt = scenario.dt
+    k, t = 0, 0.0
+    for k in range(scenario.steps):
         t = k * dt
         # what the agents see: the truth, or in a lab world the camera's view (simulator.lab)
-        seen, obs = sensed(lab, k, state, obstacles_at(t))
-        ctrl = [unicycle.control_point(s[0], s[1], s[2], off) for s in seen]
-        ellipses = fleet.ellipses(ctrl, vel, [s[2] for s in seen])
-        replans.tick(t, ellipses, obs, followers)
-        headings = {name: replans.heading(name, e) for name, e in ellipses.items()}
-        results = []
-        for i in range(n):
-            fname = fleet.formation_of[i]
-            # Every other member of the formation (graph neighbour or not: the agent subscribes to
-            # their states) gets a hard separation row; in all-to-all every foreign robot too.
-            own = ellipses[fname]
-            target, waypoint = followers[i].step(own.cx, own.cy, headings[fname],
-                                                 motion_of(own, fleet.footprints[i].rho))
-            inputs = step_inputs(
-                ((ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], df, seen[j][2])
-                 for j, df in fleet.neighbours[i]),
-                own, fname, waypoint,
-                [(name, e) for name, e in ellipses.items() if name != fname],
-                stalls[i], dt,
-                [(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], seen[j][2])
-                 for j in range(n) if fleet.formation_of[j] != fname] if all_to_all else None,
-                [(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], seen[j][2]) for j in fleet.partners[i]],
-            )
-            stalls[i] = inputs.stall
-            inputs = with_waypoint(inputs, followers[i].heading, followers[i].arriving)
-            pose = (seen[i][0], seen[i][1], seen[i][2])
-            res = control_step(params, pose, target, inputs.neighbours, obs,
-                               inputs.others, inputs.view, solve, inputs.pairwise,
-                               inputs.partners, vel[i], inputs.hazards, shapes=shapes,
-                               clock=time.perf_counter_ns, footprint=fleet.footprints[i])
-            results.append(res)
-            hard.add(res)
-            solve_us.append(res.solve_us)
-            if res.status in counts:
-                counts[res.status] += 1
-            escape_ticks += res.escape
-            min_h["formation"] = min(min_h["formation"], res.h_formation)
-            min_h["obstacle"] = min(min_h["obstacle"], res.h_obstacle)
-            min_h["formations"] = min(min_h["formations"], res.h_formations)
-            if options.record:
-                x, y, th = state[i]
-                # the true pose's control point, as the multi-process world records it
-                px, py = (res.px, res.py) if lab is None else unicycle.control_point(x, y, th, off)
-                series.robots.append((
-                    t, ids[i], fname, x, y, th, px, py, res.ux, res.uy, res.v, res.omega,
-                    res.status, res.slack, res.h_formation, res.h_obstacle, res.h_formations,
-                ) + ((res.ax, res.ay) if params.double_integrator else ()))
-        if options.record:
-            for name, e in ellipses.items():
-                series.ellipses.append((t, name, *e[:8]))  # not its points
-            for o, spec in zip(obs, scenario.obstacles, strict=True):
-                series.obstacles.append((t, spec.name, o.x, o.y, spec.safe_distance))
+        seen, obs = sensed(lab, k, state, obstacles_at(scenario, t))
+        results, ellipses = control.commands(t, seen, obs)
         # move every robot with its own command (all computed from the same snapshot)
-        state = advance(lab, state, results, params.unicycle, dt,
-                        (vel, params.max_speed) if params.double_integrator else None)
-        vel = [(res.ux, res.uy) for res in results]
+        before, state = state, tick.move(state, results)
+        if options.record:
+            record(tick, t, before, results, ellipses, obs)
         t = (k + 1) * dt
-        monitor.update(t, np.array([s[:2] for s in state]), [o[:2] for o in obstacles_at(t)])
-        if progress is not None:
-            progress(k + 1, steps, t)
-        if options.stop_at_goal and monitor.all_reached:
+        if tick.check(k, t, state):
             break
+    return SimResult(summarise(scenario, options, control, tick, (k + 1, t)), tick.series,
+                     scenario)
 
+
+def obstacles_at(scenario: Scenario, t: float) -> list[Obstacle]:
+    """Every obstacle of ``scenario`` at time ``t``, as the agents' rows take it."""
+    return [Obstacle(*o.position(t), *o.velocity_at(t), o.safe_distance)
+            for o in scenario.obstacles]
+
+
+def record(tick: FleetTick, t: float, before: Sequence[Pose], results: Sequence[StepResult],
+           ellipses: dict, obs: Sequence[Obstacle]) -> None:
+    """The period that began at ``t`` in ``before``: every robot's row with its QP's outcome,
+    the ellipses its leader estimated (not their points) and the obstacles as seen."""
+    off = tick.scenario.robot.control_offset
+    # the control point of the pose computed from; in a lab world the true pose's, as the
+    # multi-process world records it (not that of the pose the camera handed the agent)
+    points = ([(r.px, r.py) for r in results] if tick.lab is None
+              else [unicycle.control_point(s[0], s[1], s[2], off) for s in before])
+    tick.record_robots(t, before, results, points,
+                       [(r.status, r.slack, r.h_formation, r.h_obstacle, r.h_formations)
+                        for r in results])
+    for name, e in ellipses.items():
+        tick.series.ellipses.append((t, name, *e[:8]))
+    tick.record_obstacles(t, [(o.x, o.y) for o in obs])
+
+
+def summarise(scenario: Scenario, options: SimOptions, control: FleetControl, tick: FleetTick,
+              end: tuple[int, float]) -> dict:
+    """summary.json of an in-process run that ended after ``end = (ticks, sim_time)``."""
+    ticks, t = end
+    stats = control.stats
     edges_total = sum(len(f.edges) for f in scenario.formations)
-    ticks = k + 1
     summary = run_summary(
-        scenario, "inprocess", ticks, t, monitor,
-        {key: (v if math.isfinite(v) else None) for key, v in min_h.items()},
-        qp_fields(len(solve_us), solve_us, counts[STATUS_RELAXED], counts[STATUS_FALLBACK],
-                  counts[STATUS_FAILED], hard.ticks, hard.by_reason, escape=escape_ticks,
-                  **accel_limit.summary_fields(params.max_accel, params.double_integrator,
-                                               counts[accel_limit.STATUS_ACCEL])),
+        scenario, RunKind("inprocess", options.safety, options.solver), ticks, t, tick.monitor,
+        stats.min_h_fields(),
+        stats.qp_fields(control.params),
         logical_comm(scenario, options.topology, ticks, t, edges_total),
-        options.safety, options.solver,
-        motion=motion_fields(series.robots, ROBOT_COLUMNS, scenario) if options.record else None,
-        **({} if lab is None else lab.summary_fields()))
+        motion=motion_fields(tick.series.robots, ROBOT_COLUMNS, scenario) if options.record else None,
+        **({} if tick.lab is None else tick.lab.summary_fields()))
+    routes = control.routes
     if any(len(r) > 1 for r in routes.values()):
         summary["routes"] = {name: [list(p) for p in r] for name, r in routes.items()}
-    summary.update(replans.summary())
-    return SimResult(summary, series, scenario)
+    summary.update(control.replans.summary())
+    return summary
 
 
-def sensed(lab: LabWorld | None, k: int, state: list[list[float]], obs: list[Obstacle],
+@dataclass
+class QPStats:
+    """What an in-process run counts about its QPs."""
+
+    solve_us: list[float] = field(default_factory=list)
+    counts: dict[str, int] = field(default_factory=lambda: {
+        STATUS_RELAXED: 0, STATUS_FALLBACK: 0, STATUS_FAILED: 0, accel_limit.STATUS_ACCEL: 0})
+    hard: HardRowCounter = field(default_factory=HardRowCounter)  # ticks a hard row was unmet
+    min_h: dict[str, float] = field(default_factory=lambda: {
+        "formation": math.inf, "obstacle": math.inf, "formations": math.inf})
+    escape_ticks: int = 0  # robot-ticks whose nominal was the formation-level escape
+
+    def add(self, res: StepResult) -> None:
+        self.hard.add(res)
+        self.solve_us.append(res.solve_us)
+        if res.status in self.counts:
+            self.counts[res.status] += 1
+        self.escape_ticks += res.escape
+        self.min_h["formation"] = min(self.min_h["formation"], res.h_formation)
+        self.min_h["obstacle"] = min(self.min_h["obstacle"], res.h_obstacle)
+        self.min_h["formations"] = min(self.min_h["formations"], res.h_formations)
+
+    def min_h_fields(self) -> dict[str, float | None]:
+        return {key: (v if math.isfinite(v) else None) for key, v in self.min_h.items()}
+
+    def qp_fields(self, params: ControlParams) -> dict:
+        counts = self.counts
+        return qp_fields(len(self.solve_us), self.solve_us, counts[STATUS_RELAXED],
+                         counts[STATUS_FALLBACK], counts[STATUS_FAILED], self.hard.ticks,
+                         self.hard.by_reason, escape=self.escape_ticks,
+                         **accel_limit.summary_fields(params.max_accel, params.double_integrator,
+                                                      counts[accel_limit.STATUS_ACCEL]))
+
+
+class FleetControl:
+    """Every robot's agent, in process: each computes its command with
+    :func:`agent.control.control_step` from what the distributed system hands it."""
+
+    def __init__(self, scenario: Scenario, options: SimOptions) -> None:
+        self.scenario = scenario
+        self.solve = options.solve_fn or make_solver(options.solver)
+        self.fleet = fleet = FleetModel.build(scenario, safety=options.safety)
+        self.params = params = fleet.params
+        self.n = n = len(scenario.robots)
+        starts = {f.name: start_plan(scenario, f) for f in scenario.formations}
+        self.routes = {name: sp.route for name, sp in starts.items()}
+        # every member walks its formation's route with the ellipse its leader hands it
+        members = [(f, r) for f in scenario.formations for r in f.robots]  # robot order
+        self.followers = [
+            Follower(r.id, r.goal, f.goal_centroid, self.routes[f.name], starts[f.name].headings,
+                     heading_tolerance(params.kp, fleet.footprints[i].rho
+                                       if fleet.footprints else None))
+            for i, (f, r) in enumerate(members)]
+        self.replans = Replans(scenario, starts, fleet.footprints, fleet.members)
+        self.all_to_all = options.topology == "all-to-all"
+        self.vel = [(0.0, 0.0)] * n  # last certified control-point velocity (what `state` carries)
+        self.stalls = [Stall()] * n  # each robot's copy of its formation's jam state
+        self.stats = QPStats()
+
+    def commands(self, t: float, seen: Sequence[Sequence[float]], obs: list[Obstacle],
+                 ) -> tuple[list[StepResult], dict]:
+        """Every robot's command at ``t`` from the poses and obstacles it is handed (all from
+        the same snapshot), and the ellipses the leaders estimated."""
+        off = self.params.offset
+        ctrl = [unicycle.control_point(s[0], s[1], s[2], off) for s in seen]
+        ellipses = self.fleet.ellipses(ctrl, self.vel, [s[2] for s in seen])
+        self.replans.tick(t, ellipses, obs, self.followers)
+        headings = {name: self.replans.heading(name, e) for name, e in ellipses.items()}
+        results = [self.command(i, View(seen, ctrl, ellipses, headings, obs))
+                   for i in range(self.n)]
+        for res in results:
+            self.stats.add(res)
+        self.vel = [(res.ux, res.uy) for res in results]
+        return results, ellipses
+
+    def command(self, i: int, view: View) -> StepResult:
+        """Robot ``i``'s command. Every other member of its formation (graph neighbour or not:
+        the agent subscribes to their states) gets a hard separation row; in all-to-all every
+        foreign robot too."""
+        fleet, params, vel, seen, ctrl = self.fleet, self.params, self.vel, view.seen, view.ctrl
+        fname = fleet.formation_of[i]
+        own = view.ellipses[fname]
+        target, waypoint = self.followers[i].step(own.cx, own.cy, view.headings[fname],
+                                                  motion_of(own, fleet.footprints[i].rho))
+        inputs = step_inputs(
+            ((ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], df, seen[j][2])
+             for j, df in fleet.neighbours[i]),
+            own, fname, waypoint,
+            [(name, e) for name, e in view.ellipses.items() if name != fname],
+            self.stalls[i], self.scenario.dt,
+            [(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], seen[j][2])
+             for j in range(self.n) if fleet.formation_of[j] != fname] if self.all_to_all else None,
+            [(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], seen[j][2]) for j in fleet.partners[i]],
+        )
+        self.stalls[i] = inputs.stall
+        inputs = with_waypoint(inputs, self.followers[i].heading, self.followers[i].arriving)
+        pose = (seen[i][0], seen[i][1], seen[i][2])
+        res = control_step(params, pose, target, inputs.neighbours, view.obs,
+                           inputs.others, inputs.view, self.solve, inputs.pairwise,
+                           inputs.partners, vel[i], inputs.hazards, shapes=self.scenario.shapes,
+                           clock=time.perf_counter_ns, footprint=fleet.footprints[i])
+        return res
+
+
+class View(NamedTuple):
+    """What the robots are handed at one tick: poses, control points, the leaders' ellipses
+    and headings, obstacles."""
+
+    seen: Sequence[Sequence[float]]
+    ctrl: list[tuple[float, float]]
+    ellipses: dict
+    headings: dict[str, float | None]
+    obs: list[Obstacle]
+
+
+def sensed(lab: LabWorld | None, k: int, state: Sequence[Pose], obs: list[Obstacle],
            ) -> tuple[Sequence[Sequence[float]], list[Obstacle]]:
     """The poses and obstacles the agents are handed at tick ``k``: the truth in the ideal
     world, the lab camera's view otherwise (:mod:`simulator.lab`)."""
@@ -261,29 +317,6 @@ def sensed(lab: LabWorld | None, k: int, state: list[list[float]], obs: list[Obs
         return state, obs
     xy = lab.obstacles(k)
     return lab.sense(k, state), [o._replace(x=p[0], y=p[1]) for o, p in zip(obs, xy, strict=True)]
-
-
-def advance(lab: LabWorld | None, state: list[list[float]], results: Sequence[StepResult],
-            is_unicycle: bool, dt: float,
-            accel: tuple[Sequence[tuple[float, float]], float] | None = None,
-            ) -> list[list[float]]:
-    """Every robot's body pose one period on under its command: exact kinematics (single
-    integrator, or the unicycle of eq. 6.1) in the ideal world, the lab's wheels otherwise.
-    ``accel``: double integrators, (every robot's velocity now, max_speed), moved by
-    :func:`agent.double_integrator.integrate` under its certified acceleration."""
-    if accel is not None:
-        vel, vmax = accel
-        return [[*double_integrator.integrate(s[0], s[1], v[0], v[1], r.ax, r.ay, dt, vmax)[:2], s[2]]
-                for s, v, r in zip(state, vel, results, strict=True)]
-    if lab is not None:
-        return [list(p) for p in lab.move(state, [(r.ux, r.uy, r.v, r.omega) for r in results])]
-    out = []
-    for (x, y, th), res in zip(state, results, strict=True):
-        if is_unicycle:
-            out.append(list(unicycle.integrate(x, y, th, res.v, res.omega, dt)))
-        else:
-            out.append([x + res.ux * dt, y + res.uy * dt, th])
-    return out
 
 
 def logical_comm(scenario: Scenario, topology: str, ticks: int, sim_time: float, edges: int):

@@ -94,10 +94,10 @@ def drive(pose: Pose3, wheels: tuple[float, float], rates: tuple[float, float], 
 # l BEHIND the body) once the asked velocity lies more than REVERSE_ENTER from its heading, and
 # forwards again once it lies within REVERSE_LEAVE. The narrow hysteresis keeps a velocity
 # across the heading from switching it every tick; either way the robot then turns away from
-# 90 degrees. Of 120/60, 95/85, 120/85 and 135/90 degrees, measured on 18 single-integrator runs
-# (the warehouse in MuJoCo with either camera, in the lab world with and without bounds, world
-# seeds 0-3, and the thesis's files in the lab), 95/85 left the fewest over 1.5 eps: 2 (1.61,
-# 1.67), against 4, 3 and 5. The choice is each robot's own, so members can still choose apart.
+# 90 degrees. Of the pairs 120/60, 95/85, 120/85 and 135/90 degrees, tried on single-integrator
+# runs (the warehouse in MuJoCo with either camera, in the lab world with and without bounds,
+# and the thesis's files in the lab), 95/85 leaves the fewest formation errors over 1.5 eps.
+# The choice is each robot's own, so members can still choose apart.
 REVERSE_ENTER = math.radians(95.0)
 REVERSE_LEAVE = math.radians(85.0)
 

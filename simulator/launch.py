@@ -35,7 +35,7 @@ import signal
 import threading
 from collections.abc import Callable
 from contextlib import ExitStack
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -51,6 +51,7 @@ from .bases import run_bases, with_rmw_bases
 from .counters import agent_stats
 from .faults import FAULT_WORLD_TIMEOUT_S, FaultDriver, fault_summary
 from .fleet import START_TIMEOUT_S, Child, ChildFailed, Fleet, unique_children
+from .goals import goals_sent, judge_by_goals_sent
 from .run_config import RunConfig
 from .series import Series
 from .status_board import StatusBoard
@@ -83,6 +84,7 @@ class _Outcome:
     board: dict[str, dict]
     events: list[dict]
     restarts: dict[str, int]  # robot -> its crashed agents restarted (--restart on-failure)
+    sent: dict[str, dict] = field(default_factory=dict)  # the goals leaders took at run time
 
 
 class RunAborted(RuntimeError):
@@ -171,7 +173,9 @@ def _launch_fleet(cfg: RunConfig, hooks: _Hooks, endpoint: str,
     stats = [agent_stats(cfg.out / "agents" / f"{rid}.json", c, running=rid in agents,
                          lost_ok=outcome.stopped is not None, lost=lost)
              for rid, c in configs.items()]
-    summary, series = build_summary(cfg.scenario, outcome.result, stats, cfg.topology,
+    # a formation sent a goal at run time is judged at that goal, not the scenario's
+    judged = judge_by_goals_sent(cfg.scenario, outcome.result, outcome.sent)
+    summary, series = build_summary(judged, outcome.result, stats, cfg.topology,
                                     cfg.realtime, cfg.camera, cfg.safety, cfg.solver)
     if lost:
         summary["lost_files"] = lost  # write_run adds what else does not fit
@@ -181,6 +185,8 @@ def _launch_fleet(cfg: RunConfig, hooks: _Hooks, endpoint: str,
         summary["restarts"] = outcome.restarts
     summary["secure"] = False if creds is None else creds.summary()
     summary.update(_run_options(cfg, outcome.board))
+    if outcome.sent:
+        summary["goals_sent"] = outcome.sent  # the goals the verdict and the figures use
     if outcome.stopped is not None:
         mark_aborted(summary, stats, outcome.stopped)
         raise RunAborted(summary["aborted"], summary, series, outcome.stopped)
@@ -280,8 +286,9 @@ def _run_world(cfg: RunConfig, hooks: _Hooks, fleet: Fleet, endpoint: str,
                 detach()
             world.close()
             board = statuses.latest()  # each leader's last status
+            sent = goals_sent(cfg.scenario, statuses.goals())
             statuses.close()
-    return _Outcome(result, stopped, board, driver.log, dict(driver.restarts))
+    return _Outcome(result, stopped, board, driver.log, dict(driver.restarts), sent)
 
 
 def _drive(cfg: RunConfig, hooks: _Hooks, fleet: Fleet, world: World, endpoint: str,

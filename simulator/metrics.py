@@ -52,6 +52,7 @@ class SafetyMonitor:
         self.formation_error_max = 0.0
         self.time_to_goal: float | None = None
         self.reached = np.zeros(self._n, dtype=bool)
+        self._last: np.ndarray | None = None  # the positions of the last update
 
     def update(self, t: float, positions: np.ndarray, obstacles: Sequence[tuple[float, float]]):
         """``positions``: (n, 2) body centres in scenario robot order; ``obstacles``: centres."""
@@ -92,10 +93,28 @@ class SafetyMonitor:
             e = pos[self._edges[:, 0]] - pos[self._edges[:, 1]]
             err = np.abs(np.sqrt(np.sum(e * e, axis=1)) - self._df)
             self.formation_error_max = max(self.formation_error_max, float(np.max(err)))
-        gd = np.sqrt(np.sum((pos - self._goals) ** 2, axis=1))
-        self.reached = gd <= self.scenario.goal_tolerance
+        self._last = pos
+        self.reached = self._at_goals(pos)
         if self.time_to_goal is None and bool(np.all(self.reached)):
             self.time_to_goal = t
+
+    def _at_goals(self, pos: np.ndarray) -> np.ndarray:
+        gd = np.sqrt(np.sum((pos - self._goals) ** 2, axis=1))
+        return gd <= self.scenario.goal_tolerance
+
+    def retarget(self, goals: Sequence[tuple[float, float]], first_at: float | None,
+                 end: float) -> None:
+        """Judge the run against ``goals`` (every robot's, in scenario order; the goals its
+        formation was last sent, :mod:`simulator.goals`) instead of the scenario's: whether the
+        last positions checked are at them, and ``time_to_goal`` the first time every robot was
+        (``first_at``; ``end``, the run's end, when only the last positions were)."""
+        self._goals = np.array(goals, dtype=float)
+        if self._last is not None:
+            self.reached = self._at_goals(self._last)
+        if not self.all_reached:
+            self.time_to_goal = None
+        else:
+            self.time_to_goal = first_at if first_at is not None else end
 
     def _update_shapes(self, t: float, pos: np.ndarray) -> None:
         """Walls and shelves: clearance = distance from the shape (signed, negative inside a
@@ -117,7 +136,7 @@ class SafetyMonitor:
 
     def _update_loads(self, t: float, pos: np.ndarray,
                       obstacles: Sequence[tuple[float, float]]) -> None:
-        """Each formation's load (issue 25), placed by the rigid fit of its members' start body
+        """Each formation's load, placed by the rigid fit of its members' start body
         positions onto ``pos``, against everything but its own members
         (:func:`scenario.cargo.load_clearances`); an overlap counts like a robot's collision,
         logged with ``kind: load``, ``a`` the formation and (x, y) where."""

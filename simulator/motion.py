@@ -1,4 +1,4 @@
-"""Commands a robot can follow (issue 25): reversals of the certified command, per robot.
+"""Commands a robot can follow: reversals of the certified command, per robot.
 
 A **reversal** is a tick whose certified control-point velocity (ux, uy) and the previous tick's
 are both at least :data:`REVERSAL_SPEED` and more than :data:`REVERSAL_ANGLE` apart: on a

@@ -31,6 +31,7 @@ from pathlib import Path
 from scenario import Scenario
 from viewer.record import write_recording
 
+from .goals import with_goals
 from .series import Series, robot_columns
 
 ELLIPSE_COLUMNS = ("t", "formation", "cx", "cy", "alpha", "a", "b", "vx", "vy", "alpha_rate")
@@ -104,8 +105,10 @@ def _bulk_writers(summary: dict, series: Series, scenario: Scenario,
         # here, not at the top: matplotlib loads only for a run that draws its figures
         from .plots import plot_motion, plot_safety, plot_trajectories
 
+        # the goals drawn are those the run was judged at (a goal sent at run time: that one)
+        drawn = with_goals(scenario, summary.get("goals_sent") or {})
         for name, draw in zip(PLOTS, (plot_trajectories, plot_safety, plot_motion), strict=True):
-            writers.append((name, functools.partial(draw, series, scenario)))
+            writers.append((name, functools.partial(draw, series, drawn)))
     return writers
 
 

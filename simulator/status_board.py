@@ -19,6 +19,7 @@ class StatusBoard:
     def __init__(self, session: zenoh.Session, prefix: str) -> None:
         self._lock = threading.Lock()
         self._latest: dict[str, dict] = {}
+        self._goals: dict[str, dict] = {}  # formation -> the goal its leader follows
         self._sub = session.declare_subscriber(f"{prefix}/formation/*/status", self._on_status)
 
     def _on_status(self, sample: zenoh.Sample) -> None:
@@ -31,10 +32,18 @@ class StatusBoard:
                 "state": s.state, "goal": [s.gx, s.gy], "heading": s.heading,
                 "distance_m": s.distance, "waypoint": s.waypoint, "waypoints": s.waypoints,
                 "leader": s.leader, "stamp": s.stamp}
+            self._goals[s.formation] = {"goal": [s.gx, s.gy], "heading": s.heading,
+                                        "goal_stamp": s.goal_stamp}
 
     def latest(self) -> dict[str, dict]:
         with self._lock:
             return {k: dict(v) for k, v in sorted(self._latest.items())}
+
+    def goals(self) -> dict[str, dict]:
+        """The goal each formation's leader follows: ``goal`` centroid, ``heading`` and
+        ``goal_stamp`` (0 for the scenario's), as :func:`simulator.goals.goals_sent` takes them."""
+        with self._lock:
+            return {k: dict(v) for k, v in sorted(self._goals.items())}
 
     def close(self) -> None:
         try:

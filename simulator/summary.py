@@ -17,6 +17,7 @@ import dataclasses
 import math
 import statistics
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from agent.stats import AgentStats
@@ -24,6 +25,7 @@ from scenario import Scenario
 from wire import keys, traffic
 from wire.stamps import merge_counts
 
+from .goals import first_at_goals
 from .metrics import SafetyMonitor
 from .motion import motion_fields
 from .series import ROBOT_COLUMNS, Series, WorldResult
@@ -52,15 +54,25 @@ def qp_fields(solves: int, solve_us: Sequence[float], relaxed: int, fallback: in
     }
 
 
-def run_summary(scenario: Scenario, mode: str, steps: int, sim_time: float, monitor: SafetyMonitor,
-                min_h: dict[str, float | None], qp: dict[str, Any], comm: dict[str, Any],
-                safety: bool, solver: str, motion: dict[str, Any] | None = None,
+@dataclass(frozen=True)
+class RunKind:
+    """How a run ran: ``mode`` ("inprocess" or "multiprocess"), with barriers or not
+    (``safety``), and the QP ``solver``."""
+
+    mode: str
+    safety: bool
+    solver: str
+
+
+def run_summary(scenario: Scenario, kind: RunKind, steps: int, sim_time: float,
+                monitor: SafetyMonitor, min_h: dict[str, float | None], qp: dict[str, Any],
+                comm: dict[str, Any], motion: dict[str, Any] | None = None,
                 **extra: Any) -> dict[str, Any]:
     """The summary of a run of ``scenario`` (see the module docstring); ``extra`` goes after
     ``solver`` in the order given."""
     return {
         "scenario": scenario.name,
-        "mode": mode,
+        "mode": kind.mode,
         "steps": steps,
         "sim_time_s": round(sim_time, 6),
         **monitor.summary_fields(),
@@ -69,8 +81,8 @@ def run_summary(scenario: Scenario, mode: str, steps: int, sim_time: float, moni
         "qp": qp,
         **({"motion": motion} if motion is not None else {}),
         "comm": comm,
-        "safety": safety,
-        "solver": solver,
+        "safety": kind.safety,
+        "solver": kind.solver,
         "world_profile": scenario.world.summary(),  # the world the run had (scenario.world)
         **extra,
         "collision_log": monitor.collision_log[:COLLISION_LOG_MAX],
@@ -103,13 +115,14 @@ def build_summary(scenario: Scenario, result: WorldResult, stats: Sequence[Agent
     solve_us = [row[12] for s in stats for row in s.trace if row[12] is not None]
     snap = traffic.merge([result.traffic, *(s.traffic for s in stats)])
     summary = run_summary(
-        scenario, "multiprocess", result.steps, sim_time, result.monitor, _min_h(stats),
+        scenario, RunKind("multiprocess", safety, solver), result.steps, sim_time,
+        result.monitor, _min_h(stats),
         qp_fields(sum(s.solves for s in stats), solve_us, sum(s.relaxed for s in stats),
                   sum(s.fallback for s in stats), sum(s.failed for s in stats),
                   sum(s.hard_row_unmet_ticks for s in stats),
                   sum_counts(s.hard_row_unmet for s in stats),
                   escape=sum(s.escape_ticks for s in stats)),
-        comm_summary(snap, topology, len(scenario.robot_ids), sim_time), safety, solver,
+        comm_summary(snap, topology, len(scenario.robot_ids), sim_time),
         motion=motion_fields(series.robots, ROBOT_COLUMNS, scenario),
         realtime=realtime,
         camera=camera,
@@ -194,18 +207,12 @@ def formation_goal_times(scenario: Scenario, series: Series,
     series ends with the state the last tick started from, so a formation first seen there
     when every robot reached (``all_reached_at``, the run's end) gets that time."""
     goal = {r.id: r.goal for r in scenario.robots}
-    tol = scenario.goal_tolerance
-    at: dict[float, set[str]] = {}
-    for row in series.robots:
-        t, rid, x, y = row[0], row[1], row[3], row[4]
-        gx, gy = goal[rid]
-        if math.hypot(x - gx, y - gy) <= tol:
-            at.setdefault(t, set()).add(rid)
     out: dict[str, float | None] = {}
     for f in scenario.formations:
-        ids = set(f.robot_ids)
-        first = next((round(t, 6) for t in sorted(at) if ids <= at[t]), None)
-        if first is None and all_reached_at is not None:
+        first = first_at_goals(series, goal, scenario.goal_tolerance, f.robot_ids)
+        if first is not None:
+            first = round(first, 6)
+        elif all_reached_at is not None:
             first = round(all_reached_at, 6)
         out[f.name] = first
     return out
@@ -299,6 +306,22 @@ def _latency(ms: list[float]) -> dict | None:
     xs = sorted(ms)
     return {"samples": len(xs), "median_ms": statistics.median(xs),
             "p99_ms": xs[min(len(xs) - 1, int(math.ceil(0.99 * len(xs))) - 1)], "max_ms": xs[-1]}
+
+
+def world_summary(result: WorldResult) -> dict:
+    """What the world alone (``python -m simulator.world_cli``) reports of its run."""
+    return {
+        "steps": result.steps,
+        "sim_time_s": round(result.sim_time, 6),
+        **result.monitor.summary_fields(),
+        "missing_cmds": result.missing_cmds,
+        "zero_cmds": result.zero_cmds,
+        "malformed_cmds": result.malformed_cmds,
+        "stamp_rejected": result.stamp_rejected,
+        "traffic": result.traffic,
+        "wall_s": result.wall_s,
+        "latency_ms": result.latency_ms,
+    }
 
 
 # --------------------------------------------------------------------------- an early end

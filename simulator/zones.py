@@ -1,6 +1,6 @@
 """Pose zones: the world's poses and the agents' commands through zone routers, not the run's.
 
-Measured (docs/performance.md, issue 18): with one router for everything, a pose went world ->
+Measured (docs/performance.md): with one router for everything, a pose went world ->
 router -> agent and its command agent -> router -> world, and the router's one process relayed
 every pose, command and state of the fleet. With ``Z`` pose zones the world opens ``Z`` Zenoh
 sessions in ``router`` mode, each listening on its own endpoint and linked to the run's router,

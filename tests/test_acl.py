@@ -387,11 +387,11 @@ def test_an_agent_with_refused_credentials_says_so(router, tmp_path):
 
 
 def test_a_client_command_takes_auth_file_and_says_when_it_is_refused(router, tmp_path):
-    """``--auth FILE`` (wire.zconf.add_zenoh_args), here on ``python -m simulator.world``."""
+    """``--auth FILE`` (wire.zconf.add_zenoh_args), here on ``python -m simulator.world_cli``."""
     bad = tmp_path / "stale-manager.json5"
     acl.write_client_file(bad, UsrPwdAuth(acl.MANAGER_USER, "from-another-run"), [router.endpoint])
     proc = subprocess.run(
-        [sys.executable, "-m", "simulator.world", str(ROOT / "tests" / "scenarios" / "two-small.yaml"),
+        [sys.executable, "-m", "simulator.world_cli", str(ROOT / "tests" / "scenarios" / "two-small.yaml"),
          "--auth", str(bad)], env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True,
         text=True, timeout=60)
     assert proc.returncode == 1

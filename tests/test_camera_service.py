@@ -43,6 +43,7 @@ from camera_service import (
 )
 from camera_service.calibration import Calibration, calibration_from_dict, calibration_to_dict
 from camera_service.markers import check_marker_ids
+from camera_service.render import MarkerPrint
 
 ARENA = (0.0, 0.0, 4.0, 3.0)  # [m] seen by the default synthetic camera
 MARKER_INSET = 0.08  # [m] centre to arena edge: the marker with its quiet zone stays in view
@@ -386,7 +387,7 @@ def test_rendering_is_deterministic_and_noise_follows_the_generator():
         (lambda cal: render_aruco_frame({"a": (0, 0)}, cal, {"a": 1}), "poses"),
         (lambda cal: render_aruco_frame({}, cal, {}, [(0, 0, -1)]), "obstacles"),
         (lambda cal: render_aruco_frame({}, cal, {}, marker_side=0), "marker_side"),
-        (lambda cal: render_aruco_frame({}, cal, {}, dictionary="DICT_9X9_1"), "dictionary"),
+        (lambda cal: render_aruco_frame({}, cal, {}, printed=MarkerPrint("DICT_9X9_1")), "dictionary"),
         (lambda cal: render_aruco_frame({}, cal, {}, noise_std=-1), "noise_std"),
         (lambda cal: render_blob_frame({"a": (0, 0, 0)}, cal, {}), "hues"),
         (lambda cal: render_blob_frame({"a": (0, 0, 0)}, cal, {"a": 180}), "hue"),

@@ -101,6 +101,8 @@ def test_goals_sent_to_a_running_fleet_are_reached_around_the_shelf(tmp_path, mo
         assert f"--connect {endpoint} --auth {manager}" in log, log
         # one ending: the held run stopped, never "NOT all goals reached at t=<first arrival>"
         assert "held until t=" in log and "goals reached at t=" not in log, log
+        # judged at the goals the formations were sent, which they reached (not the scenario's)
+        assert "every robot at its last goal" in log and "UNSAFE OR INCOMPLETE" not in log, log
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -111,5 +113,9 @@ def test_goals_sent_to_a_running_fleet_are_reached_around_the_shelf(tmp_path, mo
     assert summary["formation_error_max_m"] <= 1.5 * 0.05
     assert summary["formations_status"]["A"]["state"] == "reached"
     assert summary["formations_status"]["B"]["goal"] == [2.25, -0.6]
+    assert summary["all_reached"] is True and summary["time_to_goal_s"] is not None
+    assert summary["goals_sent"]["A"] == {"goal": [2.25, 0.25], "heading": None}
+    assert summary["goals_sent"]["B"]["heading"] == pytest.approx(math.pi / 2)
+    assert all(t is not None for t in summary["time_to_goal_by_formation_s"].values())
     assert summary["comm"]["classes"]["goal"]["recv"]["messages"] >= 2
     assert summary["comm"]["classes"]["plan"]["recv"]["messages"] >= 2

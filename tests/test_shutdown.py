@@ -144,12 +144,12 @@ def test_a_tick_that_outlives_closing_sends_nothing_after_the_zero_command():
 def test_the_world_closes_in_bounded_time_when_undeclaring_hangs():
     release = threading.Event()
     world = object.__new__(World)  # only what close() touches
-    world._subs = [Hangs(release)]
-    world._pose_pubs = [Hangs(release), Hangs(release)]
-    world._obs_pub = Hangs(release)
+    world.subs = [Hangs(release)]
+    world.pose_pubs = [Hangs(release), Hangs(release)]
+    world.obs_pub = Hangs(release)
     world.frames = None  # no --camera process frame publisher
     try:
         finishes(lambda: world.close(step_limit=LIMIT))  # returns though no undeclare ever ends
-        assert world._subs == [] and world._pose_pubs == []
+        assert world.subs == [] and world.pose_pubs == []
     finally:
         release.set()

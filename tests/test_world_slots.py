@@ -120,22 +120,22 @@ def test_the_worlds_abort_check_is_rate_limited_but_still_made_while_it_waits(
 ) -> None:
     """The launcher's check polls every child process: the world calls it at most every
     ABORT_EVERY_S, however many slots a period has, and at least that often while sleeping."""
-    from simulator import world
+    from simulator import pacing
 
     clock = FakeClock()  # sleep() advances it: no wall-clock time in the counts
-    monkeypatch.setattr(world, "time", clock)
+    monkeypatch.setattr(pacing, "time", clock)
     calls: list[float] = []
-    check = world._at_most_every(world.ABORT_EVERY_S, lambda: calls.append(clock.now))
+    check = pacing.at_most_every(pacing.ABORT_EVERY_S, lambda: calls.append(clock.now))
     for _ in range(100):
         check()
     assert len(calls) == 1
-    wake = clock.now + 6 * world.ABORT_EVERY_S
-    world._sleep_until(wake, check)
+    wake = clock.now + 6 * pacing.ABORT_EVERY_S
+    pacing.sleep_until(wake, check)
     assert clock.now >= wake
     assert len(calls) >= 3
     gaps = [b - a for a, b in itertools.pairwise(calls)]
-    assert min(gaps) >= world.ABORT_EVERY_S
-    assert max(gaps) <= 2 * world.ABORT_EVERY_S + 1e-9  # still made while it waits
+    assert min(gaps) >= pacing.ABORT_EVERY_S
+    assert max(gaps) <= 2 * pacing.ABORT_EVERY_S + 1e-9  # still made while it waits
 
 
 @pytest.mark.integration
