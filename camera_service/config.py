@@ -219,7 +219,7 @@ def _auth(user: Any, password: Any) -> UsrPwdAuth | None:
     return UsrPwdAuth(user, password)
 
 
-def _static_obstacles(path: Path) -> tuple[tuple[StaticObstacle, ...], tuple[Shape, ...]]:
+def load_static_obstacles(path: Path) -> tuple[tuple[StaticObstacle, ...], tuple[Shape, ...]]:
     """The scenario's obstacles that do not move: its circles without a velocity, and its walls
     and shelves (published as they are, :mod:`geometry.shapes`)."""
     try:
@@ -258,7 +258,7 @@ def config_from_dict(data: Any, base: Path, path: str = "<config>") -> ServiceCo
     statics: tuple[StaticObstacle, ...] = ()
     shapes: tuple[Shape, ...] = ()
     if m.get("static_obstacles") is not None:
-        statics, shapes = _static_obstacles(_path(m["static_obstacles"], "static_obstacles", base))
+        statics, shapes = load_static_obstacles(_path(m["static_obstacles"], "static_obstacles", base))
     _check_unique_names([o.name for o in obstacles.values()] + [o.name for o in statics]
                         + [s.name for s in shapes])
     prefix = _prefix(m.get("prefix", keys.DEFAULT_PREFIX))

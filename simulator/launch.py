@@ -246,7 +246,7 @@ def _start_agents(fleet: Fleet, cfg: RunConfig, configs: dict[str, AgentConfig],
     return agents
 
 
-def _world_options(cfg: RunConfig) -> WorldOptions:
+def world_options(cfg: RunConfig) -> WorldOptions:
     return WorldOptions(
         realtime=cfg.realtime, camera=cfg.camera, prefix=keys.DEFAULT_PREFIX,
         start_timeout=START_TIMEOUT_S,
@@ -272,7 +272,7 @@ def _run_world(cfg: RunConfig, hooks: _Hooks, fleet: Fleet, endpoint: str,
                          connect_timeout_s=10.0,
                          auth=None if creds is None else creds.world).to_config()
     with zenoh.open(conf) as session:
-        world = World(cfg.scenario, session, _world_options(cfg),
+        world = World(cfg.scenario, session, world_options(cfg),
                       () if zones is None else zones.sessions,
                       None if zones is None else zones.zone_of)
         statuses = StatusBoard(session, keys.DEFAULT_PREFIX)

@@ -93,11 +93,11 @@ def _bulk_writers(summary: dict, series: Series, scenario: Scenario,
                   plots: bool) -> list[tuple[str, Callable[[Path], None]]]:
     """(name, writer of that file at a given path) for each bulk file of the run, in order."""
     writers: list[tuple[str, Callable[[Path], None]]] = [
-        ("robots.csv", functools.partial(_write_csv, columns=robot_columns(scenario),
+        ("robots.csv", functools.partial(write_csv_rows, columns=robot_columns(scenario),
                                          rows=series.robots)),
-        ("ellipses.csv", functools.partial(_write_csv, columns=ELLIPSE_COLUMNS,
+        ("ellipses.csv", functools.partial(write_csv_rows, columns=ELLIPSE_COLUMNS,
                                            rows=series.ellipses)),
-        ("obstacles.csv", functools.partial(_write_csv, columns=OBSTACLE_COLUMNS,
+        ("obstacles.csv", functools.partial(write_csv_rows, columns=OBSTACLE_COLUMNS,
                                             rows=series.obstacles)),
         ("run.mcap", lambda path: _record(summary, series, scenario, path.parent)),
     ]
@@ -175,7 +175,7 @@ def write_json(path: Path, data, rename: bool = True) -> None:
         raise
 
 
-def _write_csv(path: Path, columns, rows) -> None:
+def write_csv_rows(path: Path, columns, rows) -> None:
     with path.open("w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow(columns)

@@ -240,11 +240,11 @@ def test_the_planners_quick_accept_never_passes_a_leg_closer_than_wanted():
 
 
 def test_the_camera_service_publishes_a_scenarios_walls_and_shelves_as_static_obstacles():
-    from camera_service.config import _static_obstacles
+    from camera_service.config import load_static_obstacles
     from wire.payloads import Obstacles, decode_obstacles, encode
     from wire.shapes import msg_to_shape, shape_to_msg
 
-    circles, shapes = _static_obstacles(ROOT / "tests" / "scenarios" / "nav-behind-shelf.yaml")
+    circles, shapes = load_static_obstacles(ROOT / "tests" / "scenarios" / "nav-behind-shelf.yaml")
     assert circles == () and [s.name for s in shapes] == ["shelf", "wall-s"]
     back = decode_obstacles(encode(Obstacles(1.0, (), tuple(shape_to_msg(s) for s in shapes))))
     assert tuple(msg_to_shape(m) for m in back.shapes) == shapes

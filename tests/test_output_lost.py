@@ -42,7 +42,7 @@ def _no_temporaries(out: Path) -> None:
 
 def test_a_bulk_file_that_does_not_fit_is_deleted_and_named_in_the_summary(run, tmp_path, monkeypatch):
     s, result = run
-    write_csv = output._write_csv
+    write_csv = output.write_csv_rows
 
     def half_then_full(path, columns, rows):
         if path.name == "robots.csv":
@@ -50,7 +50,7 @@ def test_a_bulk_file_that_does_not_fit_is_deleted_and_named_in_the_summary(run, 
             raise _full(path)
         write_csv(path, columns, rows)
 
-    monkeypatch.setattr(output, "_write_csv", half_then_full)
+    monkeypatch.setattr(output, "write_csv_rows", half_then_full)
     summary = dict(result.summary)
     lost = output.write_run(summary, result.series, s, tmp_path, plots=False)
     assert lost == [{"file": "robots.csv", "error": "disk full"}]

@@ -140,11 +140,11 @@ def test_a_lockstep_run_with_mujoco_equals_the_simulation(tmp_path):
 
 
 def test_a_run_takes_the_engine_into_its_world():
-    from simulator.launch import _world_options
+    from simulator.launch import world_options
     from simulator.run_config import RunConfig
 
     sc = parse_scenario(TWO_SMALL.read_text())
-    assert _world_options(RunConfig(sc, Path("out"), engine="mujoco")).engine == "mujoco"
-    assert _world_options(RunConfig(sc, Path("out"))).engine == "kinematic"
+    assert world_options(RunConfig(sc, Path("out"), engine="mujoco")).engine == "mujoco"
+    assert world_options(RunConfig(sc, Path("out"))).engine == "kinematic"
     with pytest.raises(ValueError, match="--engine"):
         RunConfig(sc, Path("out"), engine="bullet")
