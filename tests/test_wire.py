@@ -35,6 +35,7 @@ from wire.payloads import (
     decode_state,
     encode,
 )
+from wire.reader import decode_payload
 
 # --- strategies -------------------------------------------------------------------------------
 
@@ -351,7 +352,7 @@ def test_state_version_2_carries_the_heading_and_a_version_1_decoder_refuses_it_
     assert decode_state(data) == new
     # The decoder of the previous release: version byte 1 and five floats.
     def old_decoder(payload: bytes) -> State:
-        return payloads._decode(payload, lambda r: State(*r.floats(5, "state")), "state", 1)
+        return decode_payload(payload, lambda r: State(*r.floats(5, "state")), "state", 1)
 
     with pytest.raises(DecodeError, match="state: unsupported version 2 \\(expected 1\\)"):
         old_decoder(data)

@@ -49,13 +49,13 @@ finite, ids valid (see :mod:`wire.keys`), ellipse semi-axes ``a, b > 0``, obstac
 at most :data:`MAX_ITEMS` ellipses or obstacles, no repeated formation or obstacle id, and the
 ``Others`` own ellipse belonging to its formation and not repeated among the others.
 
-Decoding is defensive: ``decode_*`` raises nothing but :class:`DecodeError` (a ``ValueError``),
-for a payload that is not bytes, empty, longer than :data:`MAX_PAYLOAD_BYTES`, of another
-version, truncated, followed by trailing bytes, holding a non-canonical (over-long) varint,
-invalid UTF-8, more than :data:`MAX_ITEMS` entries, or a message that fails validation
-(non-finite numbers, invalid ids). Decoding is written in Python over ``struct`` rather than with
-``zenoh.ext.z_deserialize``, which can abort the process on a hostile length (see the comment
-above the decoders); tests check both agree on valid payloads.
+Decoding is defensive (:mod:`wire.reader`): ``decode_*`` raises nothing but
+:class:`DecodeError` (a ``ValueError``), for a payload that is not bytes, empty, longer than
+:data:`MAX_PAYLOAD_BYTES`, of another version, truncated, followed by trailing bytes, holding a
+non-canonical (over-long) varint, invalid UTF-8, more than :data:`MAX_ITEMS` entries, or a
+message that fails validation (non-finite numbers, invalid ids). Decoding is written in Python
+over ``struct`` rather than with ``zenoh.ext.z_deserialize``, which can abort the process on a
+hostile length (see :mod:`wire.reader`); tests check both agree on valid payloads.
 """
 
 from __future__ import annotations
@@ -64,8 +64,7 @@ import functools
 import logging
 import math
 import numbers
-import struct
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, fields
 from typing import Any, TypeAlias
 
@@ -74,9 +73,14 @@ from zenoh.ext import UInt8, z_serialize
 
 from wire import keys
 
+# DecodeError and MAX_PAYLOAD_BYTES are this module's interface too (what decode_* raises, the
+# size it refuses)
+from wire.reader import FLOATS, MAX_POINTS, WIRE_VERSION, Item, Points, Reader, decode_payload
+from wire.reader import MAX_PAYLOAD_BYTES as MAX_PAYLOAD_BYTES
+from wire.reader import DecodeError as DecodeError
+
 logger = logging.getLogger(__name__)
 
-WIRE_VERSION = 1
 SHAPES_VERSION = 2  # Obstacles with walls or shelves
 SHAPE_SEGMENT = 1  # ShapeMsg.kind
 SHAPE_BOX = 2
@@ -94,22 +98,13 @@ STATE_VERSION = 2
 STATUS_VERSION = 2
 CMD_ACCEL_VERSION = 2  # Cmd with a double integrator's acceleration (ax, ay)
 #: ``goal`` and ``plan`` version 2 add a heading (0 or 1) per waypoint or route point, after the
-#: stamp (issue 26: the footprint's route turns it; a hand-given waypoint may say how). One
+#: stamp (the footprint's route turns it; a hand-given waypoint may say how). One
 #: without any heading is written as version 1, byte for byte as before.
 ROUTE_VERSION = 2
-#: ``ellipse`` and ``others`` version 2 carry each ellipse's members' control points (issue 26:
+#: ``ellipse`` and ``others`` version 2 carry each ellipse's members' control points (
 #: a formation keeps its own ellipse off the other formations' members, :mod:`agent.body`).
 ELLIPSE_POINTS_VERSION = 2
 MAX_ITEMS = 256  # most ellipses (or obstacles) one payload may carry
-MAX_POINTS = 64  # most points one ellipse carries (scenario.limits.MAX_FORMATION_ROBOTS)
-# A payload longer than this is rejected before parsing [bytes]. The largest valid message (an
-# Others with 256 + 1 ellipses whose ids are 64 four-byte UTF-8 characters, each with 64
-# points and headings) is about 480 kB.
-MAX_PAYLOAD_BYTES = 524288
-
-
-class DecodeError(ValueError):
-    """A payload that is not a valid message of the expected kind."""
 
 
 def _finite(obj: object, name: str) -> None:
@@ -433,9 +428,6 @@ def _build_trusted(cls: type, setters: tuple[Callable[[Any, Any], None], ...],
     return obj
 
 
-Item: TypeAlias = tuple[str, tuple[float, ...]]  # a decoded (id, floats) entry
-
-
 def _build_items(cls: type, setters: tuple[Callable[[Any, Any], None], ...], items: list[Item],
                  in_range: Callable[[tuple[float, ...]], bool]) -> tuple[Any, ...]:
     """The ``cls`` messages of decoded ``(id, floats)`` items, where ``in_range`` is the
@@ -466,12 +458,9 @@ _OTHERS_SETTERS = _slot_setters(Others)
 _OBSTACLES_SETTERS = _slot_setters(Obstacles)
 
 
-Points = tuple[tuple[tuple[float, float], ...], tuple[float, ...]]  # an ellipse's points, headings
-
-
 def _ellipses(items: list[Item], points: list[Points] | None = None) -> tuple[EllipseMsg, ...]:
     """The ellipses of decoded items, each with its ``points`` and ``headings`` (version 2;
-    read by :meth:`_Reader.points`, so already pairs of floats and as many headings as points:
+    read by :meth:`wire.reader.Reader.points`, so already pairs of floats and as many headings as points:
     only their finiteness is checked)."""
     put_points, put_headings = _ELLIPSE_SETTERS[-2], _ELLIPSE_SETTERS[-1]
     built = _build_items(EllipseMsg, _ELLIPSE_V1_SETTERS, items, _axes_positive)
@@ -563,211 +552,39 @@ def encode_zbytes(msg: Message) -> zenoh.ZBytes:
     return z_serialize(_wire_tuple(msg))
 
 
-# --- decoding ---------------------------------------------------------------------------------
-#
-# Decoding is plain Python over the bytes, NOT zenoh.ext.z_deserialize: zenoh-python 1.10's
-# z_deserialize reserves a string's memory from the length the payload claims before checking it
-# against the payload, so a 9-byte payload claiming a 2**35-byte string aborts the whole process
-# ("memory allocation of 34359738368 bytes failed"), which no Python ``except`` can catch. Here
-# every length and count is checked against what is left of the payload before anything is read.
-
-_MAX_VARINT_BYTES = 10  # an unsigned LEB128 u64 takes at most 10 bytes
-_FLOATS = {n: struct.Struct(f"<{n}d") for n in range(1, 10)}
+# --- decoding (wire.reader: the defensive cursor) ---------------------------------------------
 
 
-@functools.lru_cache(maxsize=MAX_POINTS)
-def _pairs(n: int) -> struct.Struct:
-    """The format of ``n`` points (2 n f64)."""
-    return struct.Struct(f"<{2 * n}d")
+def _read_ellipse(r: Reader, name: str, index: int | None = None) -> Item:
+    """An ellipse without the version (``name[index]`` in error messages)."""
+    return r.item(FLOATS[9], name, index, "formation")
 
 
-@functools.lru_cache(maxsize=MAX_POINTS)
-def _singles(n: int) -> struct.Struct:
-    """The format of ``n`` headings (n f64)."""
-    return struct.Struct(f"<{n}d")
+def _read_obstacle(r: Reader, index: int) -> Item:
+    return r.item(FLOATS[5], "obstacles", index, "id")
 
 
-def _as_bytes(payload: object) -> bytes:
-    if isinstance(payload, bytes):
-        return payload
-    if isinstance(payload, bytearray | memoryview):
-        return bytes(payload)
-    if isinstance(payload, zenoh.ZBytes):
-        return payload.to_bytes()
-    raise DecodeError(f"payload must be bytes or zenoh.ZBytes, got {type(payload).__name__}")
+def _read_shape(r: Reader, index: int) -> ShapeMsg:
+    what = f"shapes[{index}]"
+    ident = r.string(f"{what}.id")
+    kind = r.u8(f"{what}.kind")
+    return ShapeMsg(ident, kind, *r.floats(6, what))
 
 
-class _Reader:
-    """A cursor over one payload; every read checks the bytes it needs are there."""
-
-    __slots__ = ("data", "pos")
-
-    def __init__(self, data: bytes, pos: int) -> None:
-        self.data = data
-        self.pos = pos
-
-    def _need(self, n: int, what: str) -> None:
-        if n > len(self.data) - self.pos:
-            raise DecodeError(
-                f"truncated: {what} needs {n} bytes at offset {self.pos}, "
-                f"{len(self.data) - self.pos} left"
-            )
-
-    def floats(self, n: int, what: str) -> tuple[float, ...]:
-        fmt = _FLOATS[n]
-        self._need(fmt.size, what)
-        values = fmt.unpack_from(self.data, self.pos)
-        self.pos += fmt.size
-        return values
-
-    def varint(self, what: str) -> int:
-        value = 0
-        for index in range(_MAX_VARINT_BYTES):
-            self._need(1, what)
-            byte = self.data[self.pos]
-            self.pos += 1
-            value |= (byte & 0x7F) << (7 * index)
-            if not byte & 0x80:
-                if byte == 0 and index > 0:
-                    raise DecodeError(f"non-canonical varint for {what}")
-                return value
-        raise DecodeError(f"varint for {what} longer than {_MAX_VARINT_BYTES} bytes")
-
-    def string(self, what: str) -> str:
-        n = self.varint(what)
-        self._need(n, what)
-        raw = self.data[self.pos : self.pos + n]
-        self.pos += n
-        try:
-            return raw.decode("utf-8")
-        except UnicodeDecodeError:
-            raise DecodeError(f"{what} is not valid UTF-8") from None
-
-    def count(self, what: str, limit: int) -> int:
-        n = self.varint(what)
-        if n > limit:
-            raise DecodeError(f"{what} must hold at most {limit} entries, got {n}")
-        return n
-
-    def _id_and_floats(self, fmt: struct.Struct) -> tuple[str, tuple[float, ...]] | None:
-        """The usual case of an ``(id:str, f64 * k)`` item, read in one go: a one-byte length,
-        valid UTF-8 and every byte present. ``None`` (nothing consumed) for anything else,
-        which the caller then reads field by field, with the checks and messages of
-        :meth:`string` and :meth:`floats`."""
-        data, pos = self.data, self.pos
-        if pos >= len(data) or data[pos] & 0x80:
-            return None
-        start = pos + 1 + data[pos]
-        end = start + fmt.size
-        if end > len(data):
-            return None
-        try:
-            ident = data[pos + 1 : start].decode("utf-8")
-        except UnicodeDecodeError:
-            return None
-        self.pos = end
-        return ident, fmt.unpack_from(data, start)
-
-    def item(self, fmt: struct.Struct, name: str, index: int | None, id_field: str) -> Item:
-        """An ``(id:str, f64 * k)`` item; ``name[index]`` names it and ``id_field`` its id in
-        error messages."""
-        item = self._id_and_floats(fmt)
-        if item is not None:
-            return item
-        what = name if index is None else f"{name}[{index}]"
-        ident = self.string(f"{what}.{id_field}")
-        return ident, self.floats(fmt.size // 8, what)
-
-    def ellipse(self, name: str, index: int | None = None) -> Item:
-        """An ellipse without the version (``name[index]`` in error messages)."""
-        return self.item(_FLOATS[9], name, index, "formation")
-
-    def points(self, name: str, index: int | None = None) -> Points:
-        """An ellipse's ``points:list[(x, y)]`` and ``headings:list[f64]`` (version 2; no
-        headings, or one per point)."""
-        what = (name if index is None else f"{name}[{index}]") + ".points"
-        n = self.count(what, MAX_POINTS)
-        pts: tuple[tuple[float, float], ...] = ()
-        if n:
-            fmt = _pairs(n)
-            self._need(fmt.size, what)
-            values = fmt.unpack_from(self.data, self.pos)
-            self.pos += fmt.size
-            pts = tuple(zip(values[0::2], values[1::2], strict=True))
-        what = (name if index is None else f"{name}[{index}]") + ".headings"
-        k = self.count(what, MAX_POINTS)
-        if k not in (0, n):
-            raise DecodeError(f"{what}: {k} headings for {n} points")
-        if not k:
-            return pts, ()
-        fmt = _singles(k)
-        self._need(fmt.size, what)
-        hs = fmt.unpack_from(self.data, self.pos)
-        self.pos += fmt.size
-        return pts, hs
-
-    def obstacle(self, index: int) -> Item:
-        return self.item(_FLOATS[5], "obstacles", index, "id")
-
-    def shape(self, index: int) -> ShapeMsg:
-        what = f"shapes[{index}]"
-        ident = self.string(f"{what}.id")
-        self._need(1, f"{what}.kind")
-        kind = self.data[self.pos]
-        self.pos += 1
-        return ShapeMsg(ident, kind, *self.floats(6, what))
-
-    def end(self) -> None:
-        if self.pos != len(self.data):
-            raise DecodeError(
-                f"trailing bytes: {len(self.data) - self.pos} after the message's "
-                f"{self.pos} bytes"
-            )
-
-
-def _decode(payload: object, parse: Callable[[_Reader], Any], kind: str,
-            version: int = WIRE_VERSION,
-            parsers: Mapping[int, Callable[[_Reader], Any]] | None = None) -> Any:
-    """Decode ``payload`` with ``parse`` (version ``version``), or with the parser ``parsers``
-    names for its version byte."""
-    try:
-        data = _as_bytes(payload)
-        if not data:
-            raise DecodeError("empty payload")
-        if len(data) > MAX_PAYLOAD_BYTES:
-            raise DecodeError(f"payload of {len(data)} bytes exceeds {MAX_PAYLOAD_BYTES}")
-        if parsers is not None and data[0] in parsers:
-            parse = parsers[data[0]]
-        elif data[0] != version:
-            known = " or ".join(str(v) for v in sorted(parsers or (version,)))
-            raise DecodeError(f"unsupported version {data[0]} (expected {known})")
-        reader = _Reader(data, 1)
-        try:
-            msg = parse(reader)
-        except DecodeError:
-            raise
-        except (ValueError, TypeError) as exc:  # a field failed the message's own validation
-            raise DecodeError(f"invalid message ({exc})") from None
-        reader.end()
-        return msg
-    except DecodeError as exc:
-        raise DecodeError(f"{kind}: {exc}") from None
-
-
-def _parse_pose(r: _Reader) -> Pose:
+def _parse_pose(r: Reader) -> Pose:
     return Pose(*r.floats(4, "pose"))
 
 
-def _parse_state(r: _Reader) -> State:
+def _parse_state(r: Reader) -> State:
     x, y, ux, uy, theta, stamp = r.floats(6, "state")
     return State(x, y, ux, uy, stamp, theta)
 
 
-def _parse_cmd(r: _Reader) -> Cmd:
+def _parse_cmd(r: Reader) -> Cmd:
     return Cmd(*r.floats(5, "cmd"))
 
 
-def _parse_cmd_accel(r: _Reader) -> Cmd:
+def _parse_cmd_accel(r: Reader) -> Cmd:
     """Version 2: a double integrator's command with its acceleration."""
     v, omega, ux, uy, ax, ay, stamp = r.floats(7, "cmd")
     return Cmd(v, omega, ux, uy, stamp, ax, ay)
@@ -776,32 +593,32 @@ def _parse_cmd_accel(r: _Reader) -> Cmd:
 _CMD_PARSERS = {WIRE_VERSION: _parse_cmd, CMD_ACCEL_VERSION: _parse_cmd_accel}
 
 
-def _parse_ellipse(r: _Reader) -> EllipseMsg:
-    return _ellipses([r.ellipse("ellipse")])[0]
+def _parse_ellipse(r: Reader) -> EllipseMsg:
+    return _ellipses([_read_ellipse(r, "ellipse")])[0]
 
 
-def _parse_ellipse_points(r: _Reader) -> EllipseMsg:
+def _parse_ellipse_points(r: Reader) -> EllipseMsg:
     """Version 2: the ellipse as in version 1, then its points."""
-    item = r.ellipse("ellipse")
+    item = _read_ellipse(r, "ellipse")
     return _ellipses([item], [r.points("ellipse")])[0]
 
 
 _ELLIPSE_PARSERS = {WIRE_VERSION: _parse_ellipse, ELLIPSE_POINTS_VERSION: _parse_ellipse_points}
 
 
-def _parse_others(r: _Reader, with_points: bool = False) -> Others:
+def _parse_others(r: Reader, with_points: bool = False) -> Others:
     formation = r.string("formation")
     (stamp,) = r.floats(1, "stamp")
     n = r.count("ellipses", MAX_ITEMS)
     items: list[Item] = []
     points: list[Points] | None = [] if with_points else None
     for i in range(n):
-        items.append(r.ellipse("ellipses", i))
+        items.append(_read_ellipse(r, "ellipses", i))
         if points is not None:
             points.append(r.points("ellipses", i))
     n_own = r.count("own", 1)
     if n_own:
-        items.append(r.ellipse("own"))
+        items.append(_read_ellipse(r, "own"))
         if points is not None:
             points.append(r.points("own"))
     built = _ellipses(items, points)
@@ -813,28 +630,28 @@ def _parse_others(r: _Reader, with_points: bool = False) -> Others:
     return Others(formation, stamp, ellipses, own)
 
 
-def _parse_obstacles(r: _Reader) -> Obstacles:
+def _parse_obstacles(r: Reader) -> Obstacles:
     (stamp,) = r.floats(1, "stamp")
     n = r.count("obstacles", MAX_ITEMS)
-    items = [r.obstacle(i) for i in range(n)]
+    items = [_read_obstacle(r, i) for i in range(n)]
     obstacles = _build_items(ObstacleMsg, _OBSTACLE_SETTERS, items, _ds_not_negative)
     if _isfinite(stamp) and len({o.id for o in obstacles}) == n:
         return _build_trusted(Obstacles, _OBSTACLES_SETTERS, (stamp, obstacles, ()))
     return Obstacles(stamp, obstacles)
 
 
-def _parse_obstacles_with_shapes(r: _Reader) -> Obstacles:
+def _parse_obstacles_with_shapes(r: Reader) -> Obstacles:
     """Version 2: the circles as in version 1, then the walls and shelves."""
     (stamp,) = r.floats(1, "stamp")
     n = r.count("obstacles", MAX_ITEMS)
-    items = [r.obstacle(i) for i in range(n)]
+    items = [_read_obstacle(r, i) for i in range(n)]
     obstacles = _build_items(ObstacleMsg, _OBSTACLE_SETTERS, items, _ds_not_negative)
     m = r.count("shapes", MAX_ITEMS - n)
-    return Obstacles(stamp, obstacles, tuple(r.shape(i) for i in range(m)))
+    return Obstacles(stamp, obstacles, tuple(_read_shape(r, i) for i in range(m)))
 
 
 _OBSTACLES_PARSERS = {WIRE_VERSION: _parse_obstacles, SHAPES_VERSION: _parse_obstacles_with_shapes}
-_OTHERS_PARSERS: dict[int, Callable[[_Reader], Others]] = {
+_OTHERS_PARSERS: dict[int, Callable[[Reader], Others]] = {
     WIRE_VERSION: _parse_others,
     ELLIPSE_POINTS_VERSION: functools.partial(_parse_others, with_points=True),
 }
@@ -842,32 +659,32 @@ _OTHERS_PARSERS: dict[int, Callable[[_Reader], Others]] = {
 
 def decode_pose(payload: bytes | zenoh.ZBytes) -> Pose:
     """Decode a ``pose`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_pose, "pose")
+    return decode_payload(payload, _parse_pose, "pose")
 
 
 def decode_state(payload: bytes | zenoh.ZBytes) -> State:
     """Decode a ``state`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_state, "state", STATE_VERSION)
+    return decode_payload(payload, _parse_state, "state", STATE_VERSION)
 
 
 def decode_cmd(payload: bytes | zenoh.ZBytes) -> Cmd:
     """Decode a ``cmd`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_cmd, "cmd", parsers=_CMD_PARSERS)
+    return decode_payload(payload, _parse_cmd, "cmd", parsers=_CMD_PARSERS)
 
 
 def decode_ellipse(payload: bytes | zenoh.ZBytes) -> EllipseMsg:
     """Decode an ``ellipse`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_ellipse, "ellipse", parsers=_ELLIPSE_PARSERS)
+    return decode_payload(payload, _parse_ellipse, "ellipse", parsers=_ELLIPSE_PARSERS)
 
 
 def decode_others(payload: bytes | zenoh.ZBytes) -> Others:
     """Decode an ``others`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_others, "others", parsers=_OTHERS_PARSERS)
+    return decode_payload(payload, _parse_others, "others", parsers=_OTHERS_PARSERS)
 
 
 def decode_obstacles(payload: bytes | zenoh.ZBytes) -> Obstacles:
     """Decode an ``obstacles`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_obstacles, "obstacles", parsers=_OBSTACLES_PARSERS)
+    return decode_payload(payload, _parse_obstacles, "obstacles", parsers=_OBSTACLES_PARSERS)
 
 
 #: The decoder of each key class (see :func:`wire.keys.key_class`).
@@ -1114,22 +931,22 @@ def encode_nav(msg: GoalMsg | PlanMsg | StatusMsg) -> bytes:
     return z_serialize(t).to_bytes()
 
 
-def _read_heading(r: _Reader) -> float | None:
+def _read_heading(r: Reader) -> float | None:
     n = r.count("heading", 1)
     return r.floats(1, "heading")[0] if n else None
 
 
-def _read_points(r: _Reader, name: str) -> list[tuple[float, float]]:
+def _read_points(r: Reader, name: str) -> list[tuple[float, float]]:
     n = r.count(name, MAX_WAYPOINTS)
     return [r.floats(2, f"{name}[{k}]") for k in range(n)]  # type: ignore[misc]
 
 
-def _read_headings(r: _Reader, name: str) -> tuple[float | None, ...]:
+def _read_headings(r: Reader, name: str) -> tuple[float | None, ...]:
     n = r.count(name, MAX_WAYPOINTS)
     return tuple(_read_heading(r) for _ in range(n))
 
 
-def _parse_goal(r: _Reader, version: int = WIRE_VERSION) -> GoalMsg:
+def _parse_goal(r: Reader, version: int = WIRE_VERSION) -> GoalMsg:
     formation = r.string("formation")
     x, y = r.floats(2, "x, y")
     heading = _read_heading(r)
@@ -1139,15 +956,15 @@ def _parse_goal(r: _Reader, version: int = WIRE_VERSION) -> GoalMsg:
     return GoalMsg(formation, x, y, heading, tuple(waypoints), stamp, headings)
 
 
-def _parse_goal_v2(r: _Reader) -> GoalMsg:
+def _parse_goal_v2(r: Reader) -> GoalMsg:
     return _parse_goal(r, ROUTE_VERSION)
 
 
-def _parse_plan_v2(r: _Reader) -> PlanMsg:
+def _parse_plan_v2(r: Reader) -> PlanMsg:
     return _parse_plan(r, ROUTE_VERSION)
 
 
-def _parse_plan(r: _Reader, version: int = WIRE_VERSION) -> PlanMsg:
+def _parse_plan(r: Reader, version: int = WIRE_VERSION) -> PlanMsg:
     formation = r.string("formation")
     goal_stamp, cx, cy = r.floats(3, "goal_stamp, cx, cy")
     heading = _read_heading(r)
@@ -1164,7 +981,7 @@ def _parse_plan(r: _Reader, version: int = WIRE_VERSION) -> PlanMsg:
                    headings)
 
 
-def _parse_status(r: _Reader, version: int = WIRE_VERSION) -> StatusMsg:
+def _parse_status(r: Reader, version: int = WIRE_VERSION) -> StatusMsg:
     formation = r.string("formation")
     state = r.string("state")
     leader = r.string("leader")
@@ -1185,25 +1002,25 @@ def _parse_status(r: _Reader, version: int = WIRE_VERSION) -> StatusMsg:
                      fleet)
 
 
-def _parse_status_v2(r: _Reader) -> StatusMsg:
+def _parse_status_v2(r: Reader) -> StatusMsg:
     return _parse_status(r, STATUS_VERSION)
 
 
 def decode_goal(payload: bytes | zenoh.ZBytes) -> GoalMsg:
     """Decode a ``goal`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_goal, "goal",
+    return decode_payload(payload, _parse_goal, "goal",
                    parsers={WIRE_VERSION: _parse_goal, ROUTE_VERSION: _parse_goal_v2})
 
 
 def decode_plan(payload: bytes | zenoh.ZBytes) -> PlanMsg:
     """Decode a ``plan`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_plan, "plan",
+    return decode_payload(payload, _parse_plan, "plan",
                    parsers={WIRE_VERSION: _parse_plan, ROUTE_VERSION: _parse_plan_v2})
 
 
 def decode_status(payload: bytes | zenoh.ZBytes) -> StatusMsg:
     """Decode a ``status`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_status, "status",
+    return decode_payload(payload, _parse_status, "status",
                    parsers={WIRE_VERSION: _parse_status, STATUS_VERSION: _parse_status_v2})
 
 
