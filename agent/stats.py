@@ -13,7 +13,7 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
-#: trace columns (agent.node.TRACE_COLUMNS) travel with the trace, so a reader needs no import.
+#: trace columns (agent.tick.TRACE_COLUMNS) travel with the trace, so a reader needs no import.
 Trace = list[list[Any]]
 
 
