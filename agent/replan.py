@@ -31,7 +31,7 @@ from geometry.footprint_plan import PLAN_MARGIN, Body
 from geometry.shapes import Shape
 from leader.navigation import Follower
 from leader.route_driver import RouteDriver
-from leader.routing import Other, Replanner, Thing, Update
+from leader.routing import Other, Reason, Replanner, Thing, Update
 from wire.payloads import EllipseMsg, ObstacleMsg
 
 from .body import Footprint, pose_of
@@ -54,7 +54,7 @@ class LeaderRoutes:
                               start, by_hand, speed)
         replanner.last_plan = 0.0
         replanner.name = name
-        replanner.due = "" if by_hand else "start"  # the first tick plans (and may find none)
+        replanner.due = None if by_hand else Reason.START  # the first tick plans (and may find none)
         self.driver = RouteDriver(replanner, fp.goal_turn, radius)
         self._static: set[str] = set()
 
@@ -75,7 +75,7 @@ class LeaderRoutes:
         replanner = Replanner(self.body, self.fp.goal_turn, (goal[0], goal[1], turn), shapes,
                               start, by_hand, self.speed)
         replanner.name = self.name
-        replanner.due = "" if by_hand else "new goal"
+        replanner.due = None if by_hand else Reason.NEW_GOAL
         self.driver.replanner = replanner
 
     def tick(self, stamp: float, lockstep: bool, own: Ellipse, follower: Follower,

@@ -161,9 +161,8 @@ def member_target(route: Sequence[Point], index: int, goal: Point, offset: Point
     """A member's target: its own goal on the last leg, else the waypoint plus its offset (its
     goal's from the goal centroid) turned by ``turned`` [rad]: a waypoint with a heading is the
     formation's pose there, so a member's target is its slot at that pose (the goal shape's
-    offset at the goal's heading would park a formation that must still turn at the waypoint:
-    warehouse seed 3's run 300130, whose pentagon stood 0.25 rad short of a waypoint's heading
-    with every member within 2 cm of its unturned target)."""
+    offset at the goal's heading would park a formation that must still turn at the waypoint: a
+    pentagon stood short of a waypoint's heading with every member near its unturned target)."""
     if index >= len(route) - 1:
         return goal
     wx, wy = route[index]

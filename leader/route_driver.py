@@ -20,9 +20,9 @@ from geometry.ellipse import wrap_angle
 from geometry.footprint_plan import Pose3
 from leader.navigation import Follower
 from leader.routing import (
-    GIVE_WAY,
     JobResult,
     Other,
+    Reason,
     Replanner,
     StillThings,
     Thing,
@@ -47,7 +47,8 @@ class RouteDriver:
         self.still = StillThings()
         self.first = True  # no tick yet: the first one's still things count as planned round
         self._job: Future[Any] | None = None
-        self._why = ""
+        self._why = Reason.START  # what the plan in progress is for
+        self._keeper = ""  # or the formation it stands aside for
 
     def tick(self, t: float, pose: Pose3, follower: Follower, seen: Sequence[Thing],
              reports: Mapping[str, Other], submit: Submit | None = None) -> Update | None:
@@ -67,7 +68,7 @@ class RouteDriver:
                       traffic(pose, r.body.rho, seen), reports, seen)
         if why is None:
             return None
-        if why == GIVE_WAY:
+        if why == Reason.GIVE_WAY:
             return self._give_way(t, pose, things, reports, submit)
         plan = r.job_for(t, pose, things, why, seen)
         if plan is None:
@@ -91,7 +92,7 @@ class RouteDriver:
             return None
         if isinstance(res, JobResult):
             return self.replanner.finish(res, self._why)
-        return self.replanner.finish_give_way(res, self._why)
+        return self.replanner.finish_give_way(res, self._keeper)
 
     def _give_way(self, t: float, pose: Pose3, things: tuple, reports: Mapping[str, Other],
                   submit: Submit | None) -> Update | None:
@@ -102,7 +103,7 @@ class RouteDriver:
         if submit is None:
             return r.finish_give_way(give_way_job(aside), keeper)
         self._job = submit(give_way_job, aside)
-        self._why = keeper
+        self._keeper = keeper
         return None
 
     def close(self) -> None:

@@ -14,7 +14,7 @@ from agent.body import Footprint, pose_of
 from geometry.ellipse import Ellipse, wrap_angle
 from leader.navigation import Follower
 from leader.route_driver import RouteDriver
-from leader.routing import REACHED, STALLED, UNREACHABLE, Other, Replanner, Thing, Update
+from leader.routing import REACHED, STALLED, UNREACHABLE, Other, Reason, Replanner, Thing, Update
 from scenario import Scenario
 from scenario.routes import RIGID, StartPlan, footprint_body
 
@@ -29,7 +29,7 @@ class Replans:
         self.members = members
         self.footprints = footprints
         self.drivers: dict[str, RouteDriver] = {}
-        self.updates: list[tuple[float, str, str, int]] = []  # (t, formation, why, waypoints)
+        self.updates: list[tuple[float, str, Reason, int]] = []  # (t, formation, why, waypoints)
 
         # a new route reaches the leader's own follower at once and the other members a tick
         # later, as the agents' ``plan`` message does in lock-step: (formation, update, heading)
@@ -81,7 +81,7 @@ class Replans:
             pose = pose_of(own, fp.alpha0)
             seen = self._things(name, ellipses, obstacles)
             if t == 0.0 and driver.replanner.unreachable:  # no route at the start: hold from
-                hold = Update((), (), "start", driver.replanner.unreachable)  # the first tick
+                hold = Update((), (), Reason.START, driver.replanner.unreachable)  # the first tick
                 self._hand(hold, name, own, followers)
                 self._hand(hold, name, own, followers, leader=False)
             lead = followers[self.leader[name]]
@@ -135,6 +135,6 @@ class Replans:
         """What ``summary.json`` says of the plans (only where a formation is planned)."""
         if not self.planners:
             return {}
-        return {"replans": [{"t": round(t, 3), "formation": n, "why": w, "waypoints": k}
+        return {"replans": [{"t": round(t, 3), "formation": n, "why": w.value, "waypoints": k}
                             for t, n, w, k in self.updates],
                 "unreachable": {n: p.unreachable for n, p in self.planners.items() if p.unreachable}}
