@@ -64,7 +64,7 @@ class DecodeMemo:
     """A payload decoder that remembers the values of the last payloads it decoded, shared by
     every agent of one process: in an agent host each agent decodes the same ``obstacles``
     message every tick, the members of a formation the same ``others`` and the neighbours of a
-    robot its same ``state`` (issue 18: a host of 32 decoded each obstacles list 32 times).
+    robot its same ``state`` (without it a host of N agents decodes each obstacles list N times).
     Decoded messages are frozen, so sharing one changes nothing an agent sees; a payload that
     does not decode raises every time (each agent counts its own drop). Thread-safe under
     the GIL (a lost insert costs one more decode); emptied when it holds ``size`` payloads."""

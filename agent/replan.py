@@ -132,8 +132,8 @@ def submit_plan(fn: Callable[[Any], Any], arg: Any) -> Future[Any]:
 def plan_pool() -> ProcessPoolExecutor:
     """This process's plan worker (an agent host's leaders share one; their plans queue), started
     at its first use at the lowest priority from its birth: a worker's interpreter start and
-    imports cost about a third of a CPU second, which a fleet's leaders starting together took
-    from the ticks at niceness 0 (``formation bench --fleets``: hundreds of missed ticks)."""
+    imports cost about a third of a CPU second, which a fleet's leaders starting together would
+    take from the ticks at niceness 0 (``formation bench --fleets`` shows the missed ticks)."""
     if not _POOL:
         mask = signal.pthread_sigmask(signal.SIG_BLOCK, ())
         pool = ProcessPoolExecutor(max_workers=1, mp_context=get_context("spawn"),
@@ -153,9 +153,9 @@ def plan_pool() -> ProcessPoolExecutor:
 def close_plan_pool() -> None:
     """The agent is stopping: its plan worker's queued plans are cancelled and the worker is
     killed (a plan in progress is for the agent that is going). Left to Python's exit, the
-    executor's own exit hook waited for the worker's current job, which at niceness 19 on a busy
-    CPU took as long as the CPU was busy: an agent got SIGTERM and was still there 15 s later (a
-    fresh clone's make test, load about 6), past the signal's bounded shutdown."""
+    executor's own exit hook waits for the worker's current job, which at niceness 19 on a busy
+    CPU takes as long as the CPU is busy: an agent given SIGTERM would outlive the signal's
+    bounded shutdown."""
     while _POOL:
         pool = _POOL.pop()
         workers = list((getattr(pool, "_processes", None) or {}).values())

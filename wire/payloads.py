@@ -87,7 +87,7 @@ SHAPE_BOX = 2
 #: ``state`` is at version 2 (it gained the heading); a version-1 decoder refuses it by its
 #: version byte ("unsupported version 2"), and this decoder refuses version-1 states.
 STATE_VERSION = 2
-#: ``status`` version 2 (the one new status version of issues 25-27) adds why the formation is
+#: ``status`` version 2 (the one new status version) adds why the formation is
 #: in its state (``reason``: the planner's word for ``unreachable``), how many goals its leader
 #: refused (``refused``, a whole number carried as f64), why it refused the last one
 #: (``refusal``) and every formation of the leader's scenario, its own included (``fleet``:
@@ -407,7 +407,7 @@ Message: TypeAlias = Pose | State | Cmd | EllipseMsg | Others | Obstacles
 # A decoder checks a whole list of ellipses or obstacles at once (every float of the list in one
 # sum, the ids against the set of ids already found valid, each item's range rule) and, when all
 # pass, builds the items without running each one's checks again (an ``Others`` of eight
-# ellipses, the message every member decodes each tick, 35 -> 29 us). Anything that fails the
+# ellipses is the message every member decodes each tick). Anything that fails the
 # quick check goes through the constructors, which accept it or raise the usual error.
 
 _new = object.__new__
