@@ -108,6 +108,16 @@ class Follower:
         """A new route to the same goal (a replan), from its first point."""
         self._set(self.goal, self.formation_goal, route, headings)
 
+    def take(self, route: Sequence[Point], headings: Sequence[float | None], cx: float, cy: float,
+             heading: float | None) -> None:
+        """A replan's route (:class:`leader.routing.Update`), or where it has none, hold at
+        (cx, cy) turned to ``heading``: what the leader and, through ``plan``, every member
+        does with a new route."""
+        if route:
+            self.follow(route, headings)
+        else:
+            self.hold(cx, cy, heading)
+
     def hold(self, cx: float, cy: float, heading: float | None) -> None:
         """Stay parked where the formation is (no route reaches the goal); holding already:
         stay where it holds."""

@@ -116,10 +116,7 @@ class Replans:
         for i in self.members[name]:
             if (i == self.leader[name]) != leader:
                 continue
-            if upd.route:
-                followers[i].follow(upd.route, upd.headings)
-            else:
-                followers[i].hold(own.cx, own.cy, heading)
+            followers[i].take(upd.route, upd.headings, own.cx, own.cy, heading)
 
     def _things(self, name: str, ellipses: dict[str, Ellipse], obstacles: Sequence[Obstacle]
                 ) -> list[Thing]:
