@@ -131,7 +131,13 @@ class Receiver:
 
 class Inbox:
     """The latest accepted message per key (module docstring). ``lock`` is the tick lock: the
-    inbox takes it where it stores from the loop while a tick may read on another thread."""
+    inbox takes it where it stores from the loop while a tick may read on another thread.
+
+    Over 20 attributes on purpose: every check a received message passes (its stamp, its
+    plausibility, a second source, a marker re-acquire, the link faults) runs on the one accept
+    path under that lock, and each reads the others' state (a contest resets a re-acquire run, a
+    re-acquire needs the commands since the jump); split into objects they would each hold the
+    others."""
 
     def __init__(self, robot_id: str, receiver: Receiver, counter: TrafficCounter,
                  link_faults: LinkFaults, timing: tuple[float, bool], lock: threading.Lock,

@@ -401,7 +401,7 @@ class AgentNode:
         return AgentStats(
             robot=self.cfg.robot_id, formation=self.cfg.formation,
             leader=self.cfg.leader is not None,  # by configuration (see takeovers)
-            acting_leader=ld.acting,  # a successor leading for a dead leader at the end
+            acting_leader=ld.succession.acting,  # a successor leading for a dead leader at the end
             lockstep=self.options.lockstep, ticks=c.ticks, overruns=sc.overruns,
             deadline_ticks=sc.deadline_ticks, early_poses=sc.early_poses, stale=c.stale,
             waiting=c.waiting, lockstep_timeouts=self.clock.timeouts,
@@ -411,9 +411,9 @@ class AgentNode:
             obstacles_dropped_after_hold=tk.obstacle_memory.dropped,
             obstacle_held_ticks=c.obstacle_held_ticks, hard_row_unmet_ticks=tk.hard.ticks,
             hard_row_unmet=dict(tk.hard.by_reason), inflated=ld.inflated,
-            listening=sorted(ld.listening),  # leader.listen: formations heard every tick
-            listen_changes=ld.listen_changes, takeovers=ld.takeovers,
-            acting_leader_ticks=ld.acting_ticks, nav=self.nav.stats(), goal_refusal=self.nav.refusal,
+            listening=sorted(ld.listen.heard),  # leader.listen: formations heard every tick
+            listen_changes=ld.listen.changes, takeovers=ld.succession.takeovers,
+            acting_leader_ticks=ld.succession.ticks, nav=self.nav.stats(), goal_refusal=self.nav.refusal,
             fault_dropped=dict(inbox.faults.dropped), fault_delayed=inbox.faults.delayed,
             solves=c.solves, escape_ticks=c.escape_ticks, tick_errors=c.tick_errors,
             reacquired=inbox.reacquired,

@@ -19,7 +19,10 @@ Trace = list[list[Any]]
 
 @dataclass
 class AgentStats:
-    """Every counter of one agent over a run (see docs/outputs.md, "agents/ROBOT.json")."""
+    """Every counter of one agent over a run (see docs/outputs.md, "agents/ROBOT.json").
+
+    Over 20 fields on purpose: it is the agent's JSON file, one field per key, flat so that a
+    reader finds each counter by its name in the file and a renamed one is refused."""
 
     robot: str
     formation: str
