@@ -36,20 +36,17 @@ from leader.routing import Other
 from scenario.extent import Extent, goal_problem
 from scenario.limits import COORDINATE
 from wire import keys
-from wire.payloads import (
+from wire.navigation import (
     MAX_REASON,
-    DecodeError,
-    EllipseMsg,
     GoalMsg,
-    ObstacleMsg,
     PlanMsg,
-    ShapeMsg,
     StatusMsg,
     decode_goal,
     decode_plan,
     decode_status,
     encode_nav,
 )
+from wire.payloads import DecodeError, EllipseMsg, ObstacleMsg, ShapeMsg
 from wire.shapes import msg_to_shape
 from wire.stamps import FUTURE, check_stamp
 from wire.traffic import CountingPublisher, TrafficCounter

@@ -8,7 +8,7 @@ The route's life:
    for a footprint under ``method: rigid``);
 2. **goal**: a goal from the fleet manager is checked and routed by the leader's
    :class:`leader.navigation.Navigator`, which hands it to every member as a
-   :class:`wire.payloads.PlanMsg`; each member walks it with its
+   :class:`wire.navigation.PlanMsg`; each member walks it with its
    :class:`leader.navigation.Follower`;
 3. **replanning**: under ``method: rigid`` a :class:`Replanner` (this module: the policy) says each
    tick whether to plan again and why (:class:`Reason`), and :class:`leader.route_driver.RouteDriver`
@@ -73,7 +73,7 @@ from typing import NamedTuple
 from geometry.ellipse import wrap_angle
 from geometry.footprint_plan import Body, Circle, FootprintPlan, Pose3, plan_aside, plan_footprint
 from geometry.shapes import Shape, segment_distance, segment_segment_distance
-from wire.payloads import MAX_WAYPOINTS as MAX_ROUTE  # the most route points a plan holds
+from wire.navigation import MAX_WAYPOINTS as MAX_ROUTE  # the most route points a plan holds
 
 
 class Reason(str, Enum):
@@ -165,7 +165,7 @@ PROGRESS = Progress()
 PACE = Pace()
 GIVING = GiveWay()
 LANES = Lanes()
-UNREACHABLE = "unreachable"  # status states (wire.payloads.STATUS_STATES)
+UNREACHABLE = "unreachable"  # status states (wire.navigation.STATUS_STATES)
 REACHED = "reached"
 STALLED = "stalled"
 FORMATION = "formation/"  # a Thing's name prefix for another formation
@@ -344,7 +344,7 @@ def way_distance(way: Sequence[tuple[float, float]], x: float, y: float) -> floa
 class Other(NamedTuple):
     """Another formation as its leader reports it (``status``) where its ellipse is seen."""
 
-    state: str  # a status state (wire.payloads.STATUS_STATES)
+    state: str  # a status state (wire.navigation.STATUS_STATES)
     x: float  # [m] its centroid now
     y: float
     gx: float  # [m] its goal centroid

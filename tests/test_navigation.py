@@ -16,7 +16,7 @@ from scenario import ScenarioError, load_scenario, parse_scenario
 from scenario.routes import initial_route, route_radius
 from simulator.inprocess import SimOptions, simulate
 from tests.scenario_runs import summary_of
-from wire.payloads import PlanMsg
+from wire.navigation import PlanMsg
 
 ROOT = Path(__file__).resolve().parent.parent
 NAV = sorted((ROOT / "tests" / "scenarios").glob("nav-*.yaml")) + [ROOT / "scenarios" / "warehouse.yaml"]

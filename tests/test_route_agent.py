@@ -20,7 +20,7 @@ from geometry.ellipse import Ellipse, reference_shape
 from scenario import load_scenario
 from scenario.reader import ScenarioError
 from viewer.record import route_logs
-from wire.payloads import GoalMsg, PlanMsg, decode_goal, decode_plan, encode_nav
+from wire.navigation import GoalMsg, PlanMsg, decode_goal, decode_plan, encode_nav
 from wire.shapes import shape_to_msg
 
 SCENARIOS = Path(__file__).parent / "scenarios"

@@ -17,7 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from zenoh.ext import UInt8, z_deserialize, z_serialize
 
-from wire import keys, payloads, traffic, zconf
+from wire import decoders, keys, payloads, traffic, zconf
 from wire.payloads import (
     Cmd,
     DecodeError,
@@ -577,8 +577,8 @@ def test_encode_rejects_an_object_that_is_not_a_payload() -> None:
 
 
 def test_decoders_are_listed_per_key_class() -> None:
-    assert set(payloads.DECODERS) == set(keys.KEY_CLASSES) - {keys.OTHER}
-    assert payloads.DECODERS["state"] is decode_state
+    assert set(decoders.DECODERS) == set(keys.KEY_CLASSES) - {keys.OTHER}
+    assert decoders.DECODERS["state"] is decode_state
 
 
 # --- keys ------------------------------------------------------------------------------------
