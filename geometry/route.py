@@ -86,7 +86,7 @@ class _Legs:
                 if end < 2:
                     want = min(want, self.end_gap[end][j])
             # quick accept: the leg misses the shape's rectangle grown by the clearance wanted
-            if _hits_grown_box(pa, pb, sh, self.frames[j], want) and \
+            if hits_grown_box(pa, pb, sh, self.frames[j], want) and \
                     path_clearance(pa, pb, sh) < want - 1e-9:
                 return False
         return True
@@ -122,7 +122,7 @@ def _astar(nodes: Sequence[Point], usable) -> list[int] | None:
     return None
 
 
-def _hits_grown_box(p0: Point, p1: Point, sh: Shape, frame: tuple[float, float], grow: float) -> bool:
+def hits_grown_box(p0: Point, p1: Point, sh: Shape, frame: tuple[float, float], grow: float) -> bool:
     """Whether the leg p0-p1 meets the shape's rectangle grown by ``grow`` on every side
     (Liang-Barsky clipping in the shape's frame). False means the leg keeps at least ``grow``
     from the shape; True says nothing (the grown rectangle's corners are square)."""

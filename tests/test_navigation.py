@@ -220,7 +220,7 @@ def test_multi_process_lock_step_walks_the_same_routes_as_the_in_process_simulat
 def test_the_planners_quick_accept_never_passes_a_leg_closer_than_wanted():
     import random
 
-    from geometry.route import _hits_grown_box
+    from geometry.route import hits_grown_box
 
     rng = random.Random(1)
     accepted = 0
@@ -233,7 +233,7 @@ def test_the_planners_quick_accept_never_passes_a_leg_closer_than_wanted():
                          (rng.uniform(-3, 3), rng.uniform(-3, 3)), 0.15)
         p0, p1 = (rng.uniform(-4, 4), rng.uniform(-4, 4)), (rng.uniform(-4, 4), rng.uniform(-4, 4))
         want = rng.uniform(0.1, 1.0)
-        if not _hits_grown_box(p0, p1, sh, (math.cos(sh.yaw), math.sin(sh.yaw)), want):
+        if not hits_grown_box(p0, p1, sh, (math.cos(sh.yaw), math.sin(sh.yaw)), want):
             accepted += 1
             assert path_clearance(p0, p1, sh) >= want - 1e-9
     assert accepted > 300
