@@ -97,9 +97,9 @@ def test_a_line_crosswise_to_an_aisle_turns_into_it_and_back():
 
 
 def test_a_large_hall_is_planned_again_on_the_fine_lattice_where_the_coarse_one_is_shut():
-    """A hall of 22 x 13 m (over FINE_CELLS fine cells: planned on the 0.1 m lattice) whose one
+    """A hall of 22 x 13 m (over Grid.fine_cells fine cells: planned on the 0.1 m lattice) whose one
     way north is a 1.68 m gap in a shelf row; a hexagon of six robots fits it turned, by less
-    than the coarse lattice's MOVE_NEED h a side (montecarlo warehouse run 100162)."""
+    than the coarse lattice's Search.move_need h a side (a warehouse draw's hall)."""
     hall = [segment(f"w{k}", a, b, 0.15) for k, (a, b) in enumerate(
         [((-11, -6.5), (11, -6.5)), ((11, -6.5), (11, 6.5)), ((11, 6.5), (-11, 6.5)),
          ((-11, 6.5), (-11, -6.5))])]
@@ -158,7 +158,7 @@ def test_still_things_count_after_three_seconds_and_static_circles_at_once():
 
 
 def test_a_parked_formation_whose_ellipse_twitches_stays_planned_around():
-    """Warehouse run 200114: a parked formation's speed passed STILL.speed now and then as its
+    """In a warehouse run a parked formation's speed passed STILL.speed now and then as its
     members settled; each time it left the planned-around set and came back 3 s later, and every
     formation planned again each time. Where it stands, a twitch changes nothing."""
     still = StillThings()
@@ -203,8 +203,8 @@ def test_a_formation_that_waits_for_traffic_too_long_plans_round_the_formations_
 
 
 def test_a_detour_round_blockers_is_planned_again_once_they_have_left_the_way():
-    """warehouse run 100187: c went round b, which was passing through the gap c needed, and came
-    back only when b parked 36 s later. Once every formation the detour went round is off the
+    """In a warehouse run c went round b, which was passing through the gap c needed, and came
+    back only when b had parked. Once every formation the detour went round is off the
     way c was on (beyond its reach and the footprint's), c plans again without them."""
     r = Replanner(LINE, 0.0, (5.0, 0.0, 0.0), [], start=(-5.0, 0.0))
     route = ((5.0, 0.0),)
@@ -418,7 +418,7 @@ def test_a_formation_not_in_the_others_way_or_whose_other_has_a_route_does_not_g
 
 
 def test_a_formation_parked_in_the_only_way_stands_aside_for_the_one_with_no_route():
-    """The warehouse draw's runs 300047 and 300117: a square parked at (or, kept short by the
+    """In warehouse draws a square parked at (or, kept short by the
     other, within 1 m of) its goal at the dead end's mouth stands in the only way of one deep
     inside that reports no route. Nothing asked a formation with a route to move; now one
     parked near its goal stands aside for any that reports no route where it stands in that
@@ -462,9 +462,9 @@ def _one_lane_aisle():
 
 
 def test_a_formation_stuck_on_its_way_stands_aside_for_the_one_with_no_route_and_not_through_it():
-    """Warehouse run 300130: a triangle 1.02 m from its goal (just further than GIVING.parked_m), on
-    which a pentagon with no route stood, waited for it in a one-lane aisle for ever. A
-    formation that has made no progress for PROGRESS.blocked_s stands aside as a parked one does; and
+    """A triangle 1.02 m from its goal (just further than GIVING.parked_m), on which a pentagon
+    with no route stood, waited for it in a one-lane aisle for ever. A formation that has made
+    no progress for PROGRESS.blocked_s stands aside as a parked one does; and
     it plans its way aside round the other where that one stands, still or not (the pentagon
     crept as it held, so it was no still thing, and the triangle was sent west through it)."""
     square = Body(((0.3, 0.3), (-0.3, 0.3), (-0.3, -0.3), (0.3, -0.3)), radius=0.105, margin=0.05)
@@ -505,7 +505,7 @@ def _two_aisles(closed_north: bool = False):
 
 
 def test_a_route_head_on_into_a_forklifts_way_goes_round_it_where_there_is_a_way():
-    """warehouse run 300099: a hexagon sent down the middle aisle head-on into a forklift (no
+    """In a warehouse draw a hexagon sent down the middle aisle head-on into a forklift (no
     room beside it) stood, then backed away from it for 100 s. A route that meets a moving
     thing's next LANES.ahead_s head-on goes round where that thing drives, where another way exists."""
     shapes = _two_aisles()
@@ -530,7 +530,7 @@ def test_a_route_head_on_into_a_forklifts_way_goes_round_it_where_there_is_a_way
 
 
 def test_a_forklift_past_the_leg_before_the_formation_can_get_there_is_not_oncoming():
-    """warehouse run 300091: a forklift driving south out of the aisle a hexagon's route went
+    """In a warehouse draw a forklift driving south out of the aisle a hexagon's route went
     north up, already past the aisle's mouth, sent it 40 m round the hall the other way. Its
     way counts from the earliest the formation can be on each leg (at its top speed)."""
     start, route = (0.0, 0.0, 0.0), ((10.0, 0.0, 0.0), (10.0, 10.0, 0.0))  # 10 m east, then north

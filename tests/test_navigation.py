@@ -131,7 +131,7 @@ def test_advance_walks_the_route_and_member_targets_end_at_the_goals():
 
 
 def test_a_follower_s_target_at_a_waypoint_with_a_heading_is_its_slot_turned_there():
-    """Warehouse run 300130: a pentagon stood 0.25 rad short of a waypoint's heading, each
+    """A pentagon stood 0.25 rad short of a waypoint's heading, each
     member within 2 cm of its target, the waypoint plus its goal offset unturned, so each
     blended into parking there (agent.body.member_nominal) and the turn never came. The target
     is the member's slot at the waypoint's pose: the goal offset turned by the waypoint's

@@ -1,4 +1,4 @@
-"""Shutdown steps have time limits (issue 12): a Zenoh undeclare or session close that hangs
+"""Shutdown steps have time limits: a Zenoh undeclare or session close that hangs
 (a router that is gone) is logged and left behind, and the agent and the world still close,
 the agent's zero command first."""
 
@@ -109,7 +109,7 @@ def test_the_agent_closes_even_while_a_tick_holds_its_lock():
 
 
 def test_a_tick_that_outlives_closing_sends_nothing_after_the_zero_command():
-    """CI, issue 13's flood test: a tick held the lock past the closing wait and its command
+    """Under a flood of messages a tick held the lock past the closing wait and its command
     followed the zero one, so the robot's last command was to drive on. Here the tick ends the
     moment the zero goes out, while closing still undeclares (hung for LIMIT)."""
     cfg = build_agent_configs(load_scenario(ROOT / "tests" / "scenarios" / "two-small.yaml"))["a1"]
