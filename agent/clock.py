@@ -1,4 +1,4 @@
-"""The agent's two clocks, so that its tick is written once (:meth:`agent.node.AgentNode.tick`).
+"""The agent's two clocks, so that its tick is written once (:meth:`agent.tick.Ticker.tick`).
 
 *Lock-step* (:class:`LockstepClock`, the simulated world): the tick belongs to a frame, stamped
 ``t``; each phase waits (up to ``lockstep_timeout``) for the inputs stamped ``t``; freshness is

@@ -64,7 +64,7 @@ class DecodeMemo:
     """A payload decoder that remembers the values of the last payloads it decoded, shared by
     every agent of one process: in an agent host each agent decodes the same ``obstacles``
     message every tick, the members of a formation the same ``others`` and the neighbours of a
-    robot its same ``state`` (issue 18: a host of 32 decoded each obstacles list 32 times).
+    robot its same ``state`` (without it a host of N agents decodes each obstacles list N times).
     Decoded messages are frozen, so sharing one changes nothing an agent sees; a payload that
     does not decode raises every time (each agent counts its own drop). Thread-safe under
     the GIL (a lost insert costs one more decode); emptied when it holds ``size`` payloads."""
@@ -131,7 +131,13 @@ class Receiver:
 
 class Inbox:
     """The latest accepted message per key (module docstring). ``lock`` is the tick lock: the
-    inbox takes it where it stores from the loop while a tick may read on another thread."""
+    inbox takes it where it stores from the loop while a tick may read on another thread.
+
+    Over 20 attributes on purpose: every check a received message passes (its stamp, its
+    plausibility, a second source, a marker re-acquire, the link faults) runs on the one accept
+    path under that lock, and each reads the others' state (a contest resets a re-acquire run, a
+    re-acquire needs the commands since the jump); split into objects they would each hold the
+    others."""
 
     def __init__(self, robot_id: str, receiver: Receiver, counter: TrafficCounter,
                  link_faults: LinkFaults, timing: tuple[float, bool], lock: threading.Lock,

@@ -16,6 +16,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 import zenoh
@@ -57,6 +58,27 @@ def newest(fid: str, *entries: tuple[EllipseMsg, float] | None
     return best
 
 
+@dataclass
+class Listening:
+    """Real time: which other formations the leader hears every tick (:mod:`leader.listen`)."""
+
+    heard: frozenset[str]  # the formations whose ellipse is subscribed to
+    want: frozenset[str] | None = None  # the set the last tick asked for, not yet subscribed
+    beacon_stamp: float | None = None  # the stamp of the last beacon put
+    changes: int = 0  # subscription changes made for leader.listen
+    quiet: dict[str, float] = field(default_factory=dict)  # formation -> leader.listen.quiet_until
+
+
+@dataclass
+class Succession:
+    """A successor leading for a dead leader (:mod:`leader.succession`)."""
+
+    acting: bool = False  # this successor leads now, for a dead leader
+    takeovers: int = 0  # times this successor led at least one tick for a dead leader
+    ticks: int = 0  # ticks it led for a dead leader
+    counted: bool = False  # this takeover is counted (once it led a tick)
+
+
 class LeaderPart:
     """The leader's state and step (module docstring); leads nothing unless :attr:`role` is set
     (the configured leader from the start, a successor after :meth:`take_over`)."""
@@ -83,19 +105,10 @@ class LeaderPart:
         self.ellipse_trace: list[tuple] = []  # (stamp, *Ellipse) per tick
         self.inflated = 0  # ticks that used another formation's stale ellipse, inflated
         # leader.listen: the other formations whose ellipse is subscribed to (all in lock-step;
-        # in real time none at the start, then those near), the set the last tick asked for,
-        # the stamp of the last beacon put
-        self.listening: frozenset[str] = frozenset(self.role.other_keys.values()) \
-            if self.role is not None and lockstep else frozenset()
-        self._listen_want: frozenset[str] | None = None
-        self.beacon_stamp: float | None = None
-        self.listen_changes = 0  # subscription changes made for leader.listen
-        self._quiet: dict[str, float] = {}  # formation -> leader.listen.quiet_until
-        # fault containment (leader.succession)
-        self.acting = False  # this successor leads now, for a dead leader
-        self.takeovers = 0  # times this successor led at least one tick for a dead leader
-        self.acting_ticks = 0
-        self._acting_since_tick = False
+        # in real time none at the start, then those near)
+        self.listen = Listening(frozenset(self.role.other_keys.values())
+                                if self.role is not None and lockstep else frozenset())
+        self.succession = Succession()  # fault containment (leader.succession)
         self._token: Any = None
         self._transport: Transport | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -180,9 +193,9 @@ class LeaderPart:
         # both topologies (all-to-all: for the tie-break and the jam rule, not for rows)
         msg = ellipse_to_msg(role.formation, own, stamp)
         t.publish(role.ellipse_key, msg)
-        if self.realtime and beacon_due(stamp, self.beacon_stamp):
+        if self.realtime and beacon_due(stamp, self.listen.beacon_stamp):
             t.publish(role.beacon_key, msg)
-            self.beacon_stamp = stamp
+            self.listen.beacon_stamp = stamp
         await clock.wait(self._inbox, [(keys.ELLIPSE, k) for k in role.other_keys], stamp)
         received, want, complete, inflated = self.collect(role, own, clock.at(ts), ts)
         self.inflated += inflated
@@ -195,8 +208,8 @@ class LeaderPart:
 
     def _ask(self, want: frozenset[str]) -> None:
         """Real time: have the loop listen to ``want`` (:meth:`relisten`) if that is news."""
-        if want != self.listening and want != self._listen_want:
-            self._listen_want = want
+        if want != self.listen.heard and want != self.listen.want:
+            self.listen.want = want
             if self._loop is not None:
                 self._loop.call_soon_threadsafe(self.relisten)
 
@@ -210,7 +223,7 @@ class LeaderPart:
         want: set[str] = set()  # real time: the formations to hear every tick (leader.listen)
         complete, inflated = True, False
         for k, fid in role.other_keys.items():
-            q = self._quiet.get(fid)
+            q = self.listen.quiet.get(fid)
             if q is not None and q - QUIET_MAX_S <= now < q:
                 continue  # far, whatever it did since (leader.listen.quiet_until)
             entry = newest(fid, self._inbox.latest(keys.ELLIPSE, k),
@@ -235,11 +248,11 @@ class LeaderPart:
         m = entry[0]
         age = max(0.0, now - m.stamp)
         gap = grown_gap(own, m, speed * age)
-        if hears(gap, fid in self.listening):
+        if hears(gap, fid in self.listen.heard):
             want.add(fid)
-            self._quiet.pop(fid, None)
+            self.listen.quiet.pop(fid, None)
         else:
-            self._quiet[fid] = quiet_until(now, gap, speed)
+            self.listen.quiet[fid] = quiet_until(now, gap, speed)
         if self._clock.fresh(entry, ts):
             return m, True
         if gap > VIEW_RANGE:
@@ -257,14 +270,14 @@ class LeaderPart:
         members: dict[str, Member] = {self.cfg.robot_id: (px, py, *last_u, theta)}
         for m, k in self._member_keys.items():
             entry = self._inbox.latest(keys.STATE, k)
-            if entry is not None and (self._clock.fresh(entry, ts) or self.acting):
+            if entry is not None and (self._clock.fresh(entry, ts) or self.succession.acting):
                 s: State = entry[0]
                 members[m] = (s.x, s.y, s.ux, s.uy, s.theta)
-        if self.acting:  # a standing formation: its ellipse at rest
-            self.acting_ticks += 1
-            if not self._acting_since_tick:
-                self._acting_since_tick = True
-                self.takeovers += 1
+        if self.succession.acting:  # a standing formation: its ellipse at rest
+            self.succession.ticks += 1
+            if not self.succession.counted:
+                self.succession.counted = True
+                self.succession.takeovers += 1
             members = {m: (x, y, 0.0, 0.0, th) for m, (x, y, _, _, th) in members.items()}
         return members
 
@@ -277,7 +290,7 @@ class LeaderPart:
         waiting on a declaration."""
         gate, inbox = self._gate, self._inbox
         with gate.lock:
-            role, want = self.role, self._listen_want
+            role, want = self.role, self.listen.want
             if gate.closing or self._transport is None or role is None or want is None:
                 return
             subscribed = inbox.subscribed_keys
@@ -290,10 +303,10 @@ class LeaderPart:
             if not undo:
                 for k, sub, take in made:
                     inbox.install(k, keys.ELLIPSE, sub, take)
-                self.listening = want
-                self.listen_changes += len(add) + len(drop)
-                if self._listen_want == want:
-                    self._listen_want = None
+                self.listen.heard = want
+                self.listen.changes += len(add) + len(drop)
+                if self.listen.want == want:
+                    self.listen.want = None
         gone = drop + ([sub for _, sub, _ in made] if undo else [])
         if gone:
             within(STEP_LIMIT_S, f"{self.cfg.robot_id}: undeclaring {len(gone)} ellipse "
@@ -306,9 +319,9 @@ class LeaderPart:
         with self._gate.lock:
             if self._gate.closing or self._transport is None:
                 return
-            if not alive and not self.acting:
+            if not alive and not self.succession.acting:
                 self.take_over()
-            elif alive and self.acting:
+            elif alive and self.succession.acting:
                 self.step_down()
 
     def take_over(self) -> None:
@@ -328,14 +341,14 @@ class LeaderPart:
                                                         else []):
             t.publisher(k)
         self._subscribe_others(role)
-        self.listening = frozenset(fid for k, fid in role.other_keys.items()
+        self.listen.heard = frozenset(fid for k, fid in role.other_keys.items()
                                    if k in inbox.subscribed_keys)
-        self._listen_want = None
-        self.beacon_stamp = None
+        self.listen.want = None
+        self.listen.beacon_stamp = None
         self.role = role
         self._member_keys = member_keys
-        self.acting = True
-        self._acting_since_tick = False  # counted as a takeover once it leads a tick (not when
+        self.succession.acting = True
+        self.succession.counted = False  # counted as a takeover once it leads a tick (not when
         # the leader merely closed first at the end of a run)
         logger.warning("%s: leader %s of %s is gone: leading the standing formation",
                        cfg.robot_id, cfg.leader_id, cfg.formation)
@@ -358,6 +371,6 @@ class LeaderPart:
         self.role = None
         self._member_keys = {}
         self.own_others = None
-        self.acting = False
+        self.succession.acting = False
         logger.warning("%s: leader %s of %s is back: member again", self.cfg.robot_id,
                        self.cfg.leader_id, self.cfg.formation)

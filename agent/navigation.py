@@ -21,7 +21,8 @@ import logging
 import math
 import threading
 from collections.abc import Callable, Sequence
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 import zenoh
 
@@ -35,20 +36,17 @@ from leader.routing import Other
 from scenario.extent import Extent, goal_problem
 from scenario.limits import COORDINATE
 from wire import keys
-from wire.payloads import (
+from wire.navigation import (
     MAX_REASON,
-    DecodeError,
-    EllipseMsg,
     GoalMsg,
-    ObstacleMsg,
     PlanMsg,
-    ShapeMsg,
     StatusMsg,
     decode_goal,
     decode_plan,
     decode_status,
     encode_nav,
 )
+from wire.payloads import DecodeError, EllipseMsg, ObstacleMsg, ShapeMsg
 from wire.shapes import msg_to_shape
 from wire.stamps import FUTURE, check_stamp
 from wire.traffic import CountingPublisher, TrafficCounter
@@ -92,6 +90,33 @@ def stamp_problem(goal_stamp: float, now: float) -> str | None:
     return None
 
 
+class NavKeys(NamedTuple):
+    """The formation's navigation keys."""
+
+    plan: str
+    goal: str
+    status: str
+
+
+@dataclass
+class NavCounts:
+    """What the navigation part counts (``nav`` in the agent's counters)."""
+
+    goals: int = 0  # goals taken
+    plans: int = 0  # plans adopted (members)
+    dropped: int = 0  # malformed goals or plans
+    goals_refused: int = 0  # goals outside the world, not finite or with over-long routes
+
+
+@dataclass
+class Sent:
+    """The leader's last status (its bytes, for queries) and when it last put a status and a plan."""
+
+    status_bytes: bytes | None = None
+    status_at: float = -math.inf
+    plan_at: float = -math.inf
+
+
 class NavPart:
     """One agent's navigation state and its Zenoh endpoints (see the module docstring)."""
 
@@ -114,26 +139,20 @@ class NavPart:
                                        fleet=fleet)
             self.navigator.headings = self.follower.headings
             self.routes = leader_routes(cfg)
-        self.plan_key = keys.plan_key(p, cfg.formation)
-        self.goal_key = keys.goal_key(p, cfg.formation)
-        self.status_key = keys.status_key(p, cfg.formation)
+        self.keys = NavKeys(keys.plan_key(p, cfg.formation), keys.goal_key(p, cfg.formation),
+                            keys.status_key(p, cfg.formation))
         self.shapes: tuple[Shape, ...] = ()
         self._shape_src: tuple[ShapeMsg, ...] = ()
         self._lock = threading.Lock()
         self._goal: GoalMsg | None = None  # newest unhandled goal (leader)
         self._plan: PlanMsg | None = None  # newest unhandled plan (member)
         self._reports: dict[str, StatusMsg] = {}  # the other leaders' newest statuses (routes)
-        self._status_bytes: bytes | None = None
-        self._last_status = -math.inf
-        self._last_plan = -math.inf
+        self._sent = Sent()
         self._counter: TrafficCounter | None = None
         self._pubs: dict[str, CountingPublisher] = {}
         self._decls: list[Any] = []
         self.extent = config_extent(cfg)
-        self.dropped = 0  # malformed goals or plans
-        self.goals_refused = 0  # goals outside the world, not finite or with over-long routes
-        self.goals = 0  # goals taken
-        self.plans = 0  # plans adopted (members)
+        self.counts = NavCounts()
         self.stopped = False  # the leader's last tick commanded zero for missing inputs
         self._centroid = (math.nan, math.nan)  # the formation's last known ellipse centre
 
@@ -151,12 +170,12 @@ class NavPart:
     def open(self, session: zenoh.Session, counter: TrafficCounter) -> None:
         self._counter = counter
         if self.navigator is None:
-            self._decls.append(session.declare_subscriber(self.plan_key, self._on_plan))
+            self._decls.append(session.declare_subscriber(self.keys.plan, self._on_plan))
             return
-        for k in (self.plan_key, self.status_key):
+        for k in (self.keys.plan, self.keys.status):
             self._pubs[k] = CountingPublisher(session.declare_publisher(k), counter)
-        self._decls.append(session.declare_subscriber(self.goal_key, self._on_goal))
-        self._decls.append(session.declare_queryable(self.status_key, self._on_query))
+        self._decls.append(session.declare_subscriber(self.keys.goal, self._on_goal))
+        self._decls.append(session.declare_queryable(self.keys.status, self._on_query))
         if self.routes is not None:  # who is waiting for whom (leader.routing: giving way)
             self._decls.append(session.declare_subscriber(
                 keys.all_formations_key(self.cfg.prefix, keys.STATUS), self._on_status))
@@ -164,8 +183,8 @@ class NavPart:
     def close(self, stamp: float) -> None:
         """Leader: a last ``stopped`` status; then undeclare everything."""
         try:
-            if self.navigator is not None and self.status_key in self._pubs:
-                self._publish_status(self._status(stamp, self._centroid, stopped=True))
+            if self.navigator is not None and self.keys.status in self._pubs:
+                self._publish_status(self.status_now(stamp, self._centroid, stopped=True))
         except Exception:  # noqa: BLE001 - shutting down: log, keep closing
             logger.debug("last status failed", exc_info=True)
         if self.routes is not None:
@@ -190,15 +209,19 @@ class NavPart:
             return decode(self._count(sample))
         except DecodeError as exc:
             with self._lock:
-                self.dropped += 1
+                self.counts.dropped += 1
             logger.warning("%s: dropped a %s: %s", self.cfg.robot_id, what, exc)
             return None
 
     def _on_goal(self, sample: zenoh.Sample) -> None:  # Zenoh thread
         goal = self._decoded(sample, decode_goal, "goal")
         if goal is not None:
-            with self._lock:
-                self._goal = goal
+            self.offer_goal(goal)
+
+    def offer_goal(self, goal: GoalMsg) -> None:
+        """A goal received (the newest waits for the next tick; any thread)."""
+        with self._lock:
+            self._goal = goal
 
     def _on_plan(self, sample: zenoh.Sample) -> None:  # Zenoh thread
         plan = self._decoded(sample, decode_plan, "plan")
@@ -229,11 +252,11 @@ class NavPart:
         return out
 
     def _on_query(self, query: zenoh.Query) -> None:  # Zenoh thread
-        data = self._status_bytes
+        data = self._sent.status_bytes
         if data is None:
             return
         try:
-            query.reply(self.status_key, data)
+            query.reply(self.keys.status, data)
         except Exception:  # noqa: BLE001 - the querier went away
             logger.debug("status reply failed", exc_info=True)
 
@@ -259,7 +282,7 @@ class NavPart:
         if nav is not None and goal is not None:
             self._take_goal(nav, goal, stamp, lockstep, (cx, cy))
         if plan is not None and self.follower.adopt(plan):
-            self.plans += 1
+            self.counts.plans += 1
         self._centroid = (cx, cy)
         heading = None
         motion = (0.0, 0.0, 0.0)  # the formation's (Follower.step)
@@ -271,11 +294,11 @@ class NavPart:
             self._replan(nav, self.routes, stamp, lockstep, own, heading, seen)
         target, waypoint = self.follower.step(cx, cy, heading, motion)
         if nav is not None and (math.isfinite(nav.goal_stamp) or nav.replans) \
-                and stamp - self._last_plan >= REPUBLISH_S:
-            self._put_plan(self._plan_now(nav, stamp), stamp)
+                and stamp - self._sent.plan_at >= REPUBLISH_S:
+            self.put_plan(self.plan_now(nav, stamp), stamp)
         return target, waypoint
 
-    def _plan_now(self, nav: Navigator, stamp: float) -> PlanMsg:
+    def plan_now(self, nav: Navigator, stamp: float) -> PlanMsg:
         """The plan the members are to follow: the route, or where to hold."""
         if self.follower.holding:
             hx, hy = self.follower.route[0]
@@ -297,12 +320,10 @@ class NavPart:
         nav.unreachable = upd.reason[:MAX_REASON]
         if upd.route:
             nav.route, nav.headings = upd.route, upd.headings
-            self.follower.follow(upd.route, upd.headings)
-        else:
-            self.follower.hold(own.cx, own.cy, heading)
+        self.follower.take(upd.route, upd.headings, own.cx, own.cy, heading)
         logger.info("%s: formation %s plans again (%s): %s", self.cfg.robot_id, self.cfg.formation,
                     upd.why, f"route of {len(upd.route)}" if upd.route else upd.reason)
-        self._put_plan(self._plan_now(nav, stamp), stamp)
+        self.put_plan(self.plan_now(nav, stamp), stamp)
 
     def _take_goal(self, nav: Navigator, goal: GoalMsg, stamp: float, lockstep: bool,
                    centroid: tuple[float, float]) -> None:
@@ -310,7 +331,7 @@ class NavPart:
         length: ``goals_refused``), then its stamp and the Navigator's rules (``rejected``)."""
         why = goal_problem(goal.x, goal.y, goal.heading, goal.waypoints, self.extent)
         if why is not None:
-            self.goals_refused += 1
+            self.counts.goals_refused += 1
             nav.refusal = why[:MAX_REASON]
         else:
             why = None if lockstep else stamp_problem(goal.stamp, stamp)
@@ -319,12 +340,12 @@ class NavPart:
             else:
                 why = nav.accept(goal, stamp if lockstep else goal.stamp, centroid, self.shapes)
         if why is None:
-            self.goals += 1
+            self.counts.goals += 1
             if self.routes is not None:
                 self.routes.new_goal(nav.goal, nav.heading, centroid, bool(goal.waypoints))
             new = nav.plan(stamp)
             self.follower.adopt(new)
-            self._put_plan(new, stamp)
+            self.put_plan(new, stamp)
             logger.info("%s: formation %s takes goal (%.3f, %.3f), route of %d",
                         self.cfg.robot_id, self.cfg.formation, goal.x, goal.y, len(new.route))
         elif why != SAME_GOAL:
@@ -334,33 +355,34 @@ class NavPart:
         """Leader, after each tick (``stopped``: it commanded zero for missing inputs): publish
         the status if one is due."""
         self.stopped = stopped
-        if self.navigator is None or stamp - self._last_status < STATUS_PERIOD_S:
+        if self.navigator is None or stamp - self._sent.status_at < STATUS_PERIOD_S:
             return
-        self._publish_status(self._status(stamp, self._centroid, stalled=stalled))
+        self._publish_status(self.status_now(stamp, self._centroid, stalled=stalled))
 
-    def _status(self, stamp: float, centroid: tuple[float, float], stalled: bool = False,
+    def status_now(self, stamp: float, centroid: tuple[float, float], stalled: bool = False,
                 stopped: bool = False) -> StatusMsg:
         assert self.navigator is not None
         if not (math.isfinite(centroid[0]) and math.isfinite(centroid[1])):
             centroid = self.follower.route[self.follower.index]
         boxed = self.routes is not None and self.routes.replanner.boxed_in
         return self.navigator.status(self.follower, centroid, stalled or boxed,
-                                     stopped or self.stopped, stamp, refused=self.goals_refused)
+                                     stopped or self.stopped, stamp, refused=self.counts.goals_refused)
 
     def _publish_status(self, status: StatusMsg) -> None:
         data = encode_nav(status)
-        self._status_bytes = data
-        self._last_status = status.stamp
-        pub = self._pubs.get(self.status_key)
+        self._sent.status_bytes = data
+        self._sent.status_at = status.stamp
+        pub = self._pubs.get(self.keys.status)
         if pub is not None:
             pub.put(data)
 
-    def _put_plan(self, plan: PlanMsg, stamp: float) -> None:
-        self._last_plan = stamp
-        pub = self._pubs.get(self.plan_key)
+    def put_plan(self, plan: PlanMsg, stamp: float) -> None:
+        self._sent.plan_at = stamp
+        pub = self._pubs.get(self.keys.plan)
         if pub is not None:
             pub.put(encode_nav(plan))
 
     def stats(self) -> dict[str, Any]:
-        return {"goals": self.goals, "rejected": self.rejected, "plans": self.plans,
-                "dropped": self.dropped, "goals_refused": self.goals_refused}
+        c = self.counts
+        return {"goals": c.goals, "rejected": self.rejected, "plans": c.plans, "dropped": c.dropped,
+                "goals_refused": c.goals_refused}

@@ -1,6 +1,7 @@
-"""The leader's footprint routes in the agent (issue 26, ``controller.method: rigid``): when to
-plan again is :class:`leader.routing.Replanner`'s; this part feeds it what the leader sees each
-tick and runs the plan off the control tick.
+"""The leader's footprint routes in the agent (``controller.method: rigid``): when to plan
+again is :class:`leader.routing.Replanner`'s and the tick's driving of it
+:class:`leader.route_driver.RouteDriver`'s (the simulator's too); this part turns what the leader
+sees into the driver's terms and runs the plan off the control tick.
 
 Lock-step: the plan is made in the tick that asks for it (simulated time waits; the run stays
 deterministic). Real time: the plan runs in a worker process (one per agent process, its leaders
@@ -15,37 +16,25 @@ from __future__ import annotations
 
 import atexit
 import contextlib
-import logging
 import math
 import os
 import signal
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
 from multiprocessing import get_context
+from typing import Any
 
 from geometry.ellipse import Ellipse, wrap_angle
 from geometry.footprint_plan import PLAN_MARGIN, Body
 from geometry.shapes import Shape
 from leader.navigation import Follower
-from leader.routing import (
-    GIVE_WAY,
-    JobResult,
-    Other,
-    Replanner,
-    StillThings,
-    Thing,
-    Update,
-    give_way_job,
-    plan_job,
-    traffic,
-)
+from leader.route_driver import RouteDriver
+from leader.routing import Other, Reason, Replanner, Thing, Update
 from wire.payloads import EllipseMsg, ObstacleMsg
 
 from .body import Footprint, pose_of
-
-logger = logging.getLogger(__name__)
 
 PLAN_NICE = 19  # the worker's niceness: on a busy machine the ticks come first, the plan waits
 
@@ -61,16 +50,18 @@ class LeaderRoutes:
         self.name = name  # the formation's
         self.body = Body(fp.slots, fp.load_points, radius, PLAN_MARGIN + margin)
         self.radius = radius
-        self.replanner = Replanner(self.body, fp.goal_turn, (goal[0], goal[1], fp.goal_turn), (),
-                                   start, by_hand, speed)
-        self.replanner.last_plan = 0.0
-        self.replanner.name = name
-        self.replanner.due = "" if by_hand else "start"  # the first tick plans (and may find none)
-        self.still = StillThings()
-        self._first = True
+        replanner = Replanner(self.body, fp.goal_turn, (goal[0], goal[1], fp.goal_turn), (),
+                              start, by_hand, speed)
+        replanner.last_plan = 0.0
+        replanner.name = name
+        replanner.due = None if by_hand else Reason.START  # the first tick plans (and may find none)
+        self.driver = RouteDriver(replanner, fp.goal_turn, radius)
         self._static: set[str] = set()
-        self._job: Future | None = None
-        self._why = ""
+
+    @property
+    def replanner(self) -> Replanner:
+        """The policy of the goal the formation follows now."""
+        return self.driver.replanner
 
     def heading(self, own: Ellipse) -> float:
         """The formation's heading (the goal shape's turn) from its ellipse."""
@@ -81,10 +72,11 @@ class LeaderRoutes:
         """A goal taken: plan for it at the next tick (unless its route was given)."""
         turn = self.fp.goal_turn + (heading or 0.0)
         shapes = self.replanner.shapes
-        self.replanner = Replanner(self.body, self.fp.goal_turn, (goal[0], goal[1], turn), shapes,
-                                   start, by_hand, self.speed)
-        self.replanner.name = self.name
-        self.replanner.due = "" if by_hand else "new goal"
+        replanner = Replanner(self.body, self.fp.goal_turn, (goal[0], goal[1], turn), shapes,
+                              start, by_hand, self.speed)
+        replanner.name = self.name
+        replanner.due = None if by_hand else Reason.NEW_GOAL
+        self.driver.replanner = replanner
 
     def tick(self, stamp: float, lockstep: bool, own: Ellipse, follower: Follower,
              shapes: Sequence[Shape], obstacles: Sequence[ObstacleMsg],
@@ -92,64 +84,15 @@ class LeaderRoutes:
              ) -> Update | None:
         """A new route (or an order to hold) when one is ready, else None; ``reports``: the
         other formations' statuses where they are seen (:class:`leader.routing.Other`)."""
-        r = self.replanner
-        r.shapes = tuple(shapes)
+        self.replanner.shapes = tuple(shapes)
         pose = pose_of(own, self.fp.alpha0)
-        p3 = (pose.cx, pose.cy, pose.theta)
         seen = self._things(obstacles, others, own)
-        things = self.still.update(stamp, seen)
-        if self._first:
-            r.planned, self._first = things, False
-        if self._job is not None:
-            return self._collect()
-        want = follower.heading
-        turn = 0.0 if want is None else wrap_angle(pose.theta - self.fp.goal_turn - want)
-        reports = reports or {}
-        why = r.check(stamp, p3, follower.route, follower.index, things, turn,
-                      traffic(p3, self.body.rho, seen), reports, seen)
-        if why is None:
-            return None
-        if why == GIVE_WAY:
-            return self._give_way(stamp, lockstep, p3, things, reports)
-        plan = r.job_for(stamp, p3, things, why, seen)
-        if plan is None:
-            return None
-        if lockstep or not (plan.shapes or plan.circles or plan.lanes):  # open floor: no search
-            return r.finish(plan_job(plan), why)  # lock-step, or nothing worth a worker
-        self._job = plan_pool().submit(plan_job, plan)
-        self._why = why
-        return None
-
-    def _collect(self) -> Update | None:
-        """The plan the worker was given, once it is done (a route, a hold, a place aside)."""
-        assert self._job is not None
-        if not self._job.done():
-            return None
-        job, self._job = self._job, None
-        try:
-            res = job.result()
-        except Exception:  # noqa: BLE001 - a worker that died: keep the route, plan later
-            logger.warning("a route plan failed", exc_info=True)
-            return None
-        if isinstance(res, JobResult):
-            return self.replanner.finish(res, self._why)
-        return self.replanner.finish_give_way(res, self._why)
-
-    def _give_way(self, stamp: float, lockstep: bool, p3: tuple[float, float, float],
-                  things: tuple, reports: Mapping[str, Other]) -> Update | None:
-        """Stand aside for the formation :meth:`leader.routing.Replanner.give_way` names."""
-        r = self.replanner
-        keeper = r.give_way(stamp, reports, p3)
-        aside = r.begin_give_way(stamp, p3, things, keeper, reports[keeper], self.radius)
-        if lockstep:
-            return r.finish_give_way(give_way_job(aside), keeper)
-        self._job = plan_pool().submit(give_way_job, aside)
-        self._why = keeper
-        return None
+        return self.driver.tick(stamp, (pose.cx, pose.cy, pose.theta), follower, seen,
+                                reports or {}, None if lockstep else submit_plan)
 
     def _things(self, obstacles: Sequence[ObstacleMsg], others: Sequence[EllipseMsg],
                 own: Ellipse) -> list[Thing]:
-        if self._first:  # a circle still when the leader first looks is planned round at once
+        if self.driver.first:  # a circle still when the leader first looks is planned round at once
             self._static = {o.id for o in obstacles if o.vx == 0.0 and o.vy == 0.0}
         out = [Thing(f"obstacle/{o.id}", o.x, o.y, math.hypot(o.vx, o.vy), o.ds, o.id in self._static,
                      o.vx, o.vy) for o in obstacles]
@@ -160,9 +103,7 @@ class LeaderRoutes:
 
     def close(self) -> None:
         """This leader's plan in progress is dropped (the process's worker stays for others)."""
-        if self._job is not None:
-            self._job.cancel()
-            self._job = None
+        self.driver.close()
 
 
 _POOL: list[ProcessPoolExecutor] = []  # this process's plan worker, once started
@@ -183,11 +124,16 @@ def _exit_with(parent: int) -> None:
     os._exit(0)  # nothing to save: a plan in progress is for the agent that is gone
 
 
+def submit_plan(fn: Callable[[Any], Any], arg: Any) -> Future[Any]:
+    """Run ``fn(arg)`` on this process's plan worker (:func:`plan_pool`)."""
+    return plan_pool().submit(fn, arg)
+
+
 def plan_pool() -> ProcessPoolExecutor:
     """This process's plan worker (an agent host's leaders share one; their plans queue), started
     at its first use at the lowest priority from its birth: a worker's interpreter start and
-    imports cost about a third of a CPU second, which a fleet's leaders starting together took
-    from the ticks at niceness 0 (``formation bench --fleets``: hundreds of missed ticks)."""
+    imports cost about a third of a CPU second, which a fleet's leaders starting together would
+    take from the ticks at niceness 0 (``formation bench --fleets`` shows the missed ticks)."""
     if not _POOL:
         mask = signal.pthread_sigmask(signal.SIG_BLOCK, ())
         pool = ProcessPoolExecutor(max_workers=1, mp_context=get_context("spawn"),
@@ -207,9 +153,9 @@ def plan_pool() -> ProcessPoolExecutor:
 def close_plan_pool() -> None:
     """The agent is stopping: its plan worker's queued plans are cancelled and the worker is
     killed (a plan in progress is for the agent that is going). Left to Python's exit, the
-    executor's own exit hook waited for the worker's current job, which at niceness 19 on a busy
-    CPU took as long as the CPU was busy: an agent got SIGTERM and was still there 15 s later (a
-    fresh clone's make test, load about 6), past the signal's bounded shutdown."""
+    executor's own exit hook waits for the worker's current job, which at niceness 19 on a busy
+    CPU takes as long as the CPU is busy: an agent given SIGTERM would outlive the signal's
+    bounded shutdown."""
     while _POOL:
         pool = _POOL.pop()
         workers = list((getattr(pool, "_processes", None) or {}).values())

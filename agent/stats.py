@@ -13,13 +13,16 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
-#: trace columns (agent.node.TRACE_COLUMNS) travel with the trace, so a reader needs no import.
+#: trace columns (agent.tick.TRACE_COLUMNS) travel with the trace, so a reader needs no import.
 Trace = list[list[Any]]
 
 
 @dataclass
 class AgentStats:
-    """Every counter of one agent over a run (see docs/outputs.md, "agents/ROBOT.json")."""
+    """Every counter of one agent over a run (see docs/outputs.md, "agents/ROBOT.json").
+
+    Over 20 fields on purpose: it is the agent's JSON file, one field per key, flat so that a
+    reader finds each counter by its name in the file and a renamed one is refused."""
 
     robot: str
     formation: str

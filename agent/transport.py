@@ -2,6 +2,9 @@
 subscribers, liveliness handles), so that the parts that publish or subscribe share one
 record of it and closing undeclares everything once.
 
+:class:`CommandOut` is the way the agent's commands leave: published on ``cmd`` and, on a real
+robot, sent to its base, one at a time and none but zero once the way out's zero has gone.
+
 The interface is small on purpose: :meth:`Transport.publish` a message on a declared key,
 :meth:`Transport.declare` a subscriber (recorded with :meth:`Transport.keep`),
 :meth:`Transport.forget` one (handed back for the caller to undeclare outside its lock).
@@ -9,9 +12,16 @@ The interface is small on purpose: :meth:`Transport.publish` a message on a decl
 
 from __future__ import annotations
 
+import logging
+import threading
+from collections.abc import Callable
 from typing import Any
 
+from runtime.shutdown import STEP_LIMIT_S
+from wire.payloads import Cmd
 from wire.traffic import CountingPublisher, TrafficCounter
+
+logger = logging.getLogger(__name__)
 
 
 class Transport:
@@ -72,3 +82,69 @@ class Transport:
         self._subs.clear()
         self._sub_by_key.clear()
         self._pubs.clear()
+
+
+class CommandOut:
+    """Where an agent's commands go (its ``cmd`` key and its base, :mod:`agent.base`), one at a
+    time, and none but zero after the way out's zero: a tick that outlived closing (the tick
+    lock not had in time) must not follow the zero."""
+
+    def __init__(self, robot_id: str, cmd_key: str, note_command: Callable[[bool], None]) -> None:
+        self.robot_id = robot_id
+        self.cmd_key = cmd_key
+        self.note_command = note_command  # the inbox's: a moving command or not (agent.inbox)
+        self.transport: Transport | None = None
+        self.base: Any = None  # a real robot base adapter (agent.base), when cfg.base is not "world"
+        self.zero_sent = False  # the zero command of the way out has been published
+        self.lock = threading.Lock()
+        self.late_commands = 0  # commands of such a tick, dropped and logged
+
+    def send_command(self, cmd: Cmd) -> None:
+        """Publish a tick's command (and drive the base), unless the way out's zero went first:
+        then a non-zero command is dropped and counted (``late_commands``)."""
+        moving = any((cmd.v, cmd.omega, cmd.ux, cmd.uy))
+        with self.lock:
+            if self.zero_sent and moving:
+                self.late_commands += 1
+                logger.warning("%s: a tick outlived closing: its command after the zero dropped",
+                               self.robot_id)
+                return
+            self.send(cmd, moving)
+
+    def send(self, cmd: Cmd, moving: bool = False) -> None:
+        """Under :attr:`lock`: publish ``cmd`` (``moving``: not zero) and drive the base."""
+        self.note_command(moving)
+        if self.transport is not None:
+            self.transport.publish(self.cmd_key, cmd)
+        if self.base is not None:
+            self.base.send(cmd.v, cmd.omega, cmd.stamp)
+
+    def zero_on_exit(self, stamp: float) -> None:
+        """The way out's zero command; none but zero follows it."""
+        with self.lock:
+            self.send(Cmd(0.0, 0.0, 0.0, 0.0, stamp))
+            self.zero_sent = True
+
+    def emergency_zero(self, stamp: float) -> bool:
+        """From any thread and without the tick lock (a shutdown that overran its time limit):
+        publish the zero command unless the way out's zero went already. True once it is sent.
+        The command lock is waited for at most ``STEP_LIMIT_S`` (a publish that hangs holds it)."""
+        if self.zero_sent:
+            return True
+        t = self.transport
+        locked = self.lock.acquire(timeout=STEP_LIMIT_S)
+        try:
+            if self.zero_sent:
+                return True
+            if t is None or not t.publish(self.cmd_key, Cmd(0.0, 0.0, 0.0, 0.0, stamp)):
+                return False
+            if self.base is not None:
+                self.base.send(0.0, 0.0, stamp)
+        except Exception:  # noqa: BLE001 - last resort: report, the caller exits anyway
+            logger.exception("%s: emergency zero command failed", self.robot_id)
+            return False
+        finally:
+            if locked:
+                self.lock.release()
+        self.zero_sent = True
+        return True

@@ -1,4 +1,4 @@
-"""A route for a formation's footprint in (x, y, heading): lattice A* (issue 26).
+"""A route for a formation's footprint in (x, y, heading): lattice A*.
 
 The centroid route of :mod:`geometry.route` inflates every shape by the formation's largest
 radius: a long or uneven formation then finds no way through an aisle it fits lengthwise. This
@@ -15,11 +15,11 @@ less the robot radius), each with :data:`PLAN_MARGIN` to spare.
   point nearest it (error at most h / (2 sqrt 2)). One array per heading: K headings x the
   lattice, by array slices.
 * A* over (cell, heading) (cells of 0.05 m in a scene up to 250 m^2, else 0.1 m): the 8
-  neighbouring cells at one heading (a pose may move if it scores at least MOVE_NEED h, so every
-  point between two cells, and on a shortcut, keeps the margin), or one heading step in place
-  (at least rho dtheta / 2 + FINE_ERROR h, rho the largest radius of the footprint). Cost: the distance moved,
-  and the outermost point's arc for a turn; heuristic: the octile distance and that arc, times
-  :data:`GREEDY`.
+  neighbouring cells at one heading (a pose may move if it scores at least
+  :attr:`Search.move_need` h, so every point between two cells, and on a shortcut, keeps the
+  margin), or one heading step in place (at least rho dtheta / 2 + :attr:`Search.fine_error` h,
+  rho the largest radius of the footprint). Cost: the distance moved, and the outermost point's
+  arc for a turn; heuristic: the octile distance and that arc, times :attr:`Search.greedy`.
 * Near the start and the goal a pose no worse than the end's own is allowed (a formation may
   start or park closer to a wall than the margin).
 * A straight way to the goal, turning as it goes (as the rigid motion does), that scores
@@ -35,6 +35,7 @@ route: :class:`FootprintPlan` with ``route`` empty and the reason.
 
 from __future__ import annotations
 
+import functools
 import heapq
 import math
 from collections.abc import Sequence
@@ -50,23 +51,49 @@ Pose3 = tuple[float, float, float]  # (x [m], y [m], theta [rad])
 Circle = tuple[float, float, float]  # (x, y, Ds [m]) a round thing, Ds from a robot's centre
 
 PLAN_MARGIN = 0.05  # [m] the footprint's clearance beyond Ds (members) and outlines (load)
-SPACING = 0.1  # [m] the lattice's cell
-FINE_SPACING = 0.05  # [m] the lattice's cell in a small scene
-FINE_CELLS = 100_000  # a scene of at most this many fine cells (250 m^2) is planned on them
-FALLBACK_CELLS = 400_000  # a larger scene (up to 1,000 m^2) is planned on them where SPACING fails
-HEADINGS = 32  # headings on the lattice (every 11.25 degrees)
-GREEDY = 1.5  # the heuristic's weight (>1: fewer poses expanded, a route at most this much longer)
-END_RADIUS = 0.5  # [m] beyond the footprint's radius: around the start and the goal, no worse than they are
-PAD = 1.5  # [m] the planned area: the things, the start and the goal, and this beyond the footprint
-MAX_EXPANSIONS = 400_000  # poses expanded before the search gives up (reported as no route)
-MOVE_NEED = 1.35  # [h] a straight move's points lie within 0.96 h of a checked cell, plus FINE_ERROR
-FINE_ERROR = 0.36  # [h] a point's distance from the fine-grid point it is read at (h / 2 / sqrt 2)
 _CAP = 1.0  # [m] the fields need no larger value
 _BLOCKED = -1e9
-DIRECT_LEFT = math.radians(20.0)  # as agent.body.TURN_LEFT_BIAS: a turn this near half a turn goes left
-MERGE_TURN = math.radians(80.0)  # turns in place up to this are one waypoint (the short way round)
-COARSE = 4  # the heuristic's grid is this many cells to a side coarser than the lattice
-_INTERIOR = 0.3  # [m] spacing of the load's inside points (a thing smaller than this may hide there)
+
+
+@dataclass(frozen=True)
+class Grid:
+    """The lattice the search runs on (:func:`lattice_for`, :func:`plan_footprint`)."""
+
+    spacing: float = 0.1  # [m] the cell (finer: narrower gaps found, a slower search)
+    fine_spacing: float = 0.05  # [m] the cell in a small scene (finer: tighter slots, more cells)
+    fine_cells: int = 100_000  # a scene of at most this many fine cells (250 m^2) is planned on them
+    fallback_cells: int = 400_000  # up to this many (1,000 m^2): fine again where ``spacing`` fails
+    headings: int = 32  # headings on the lattice, every 11.25 degrees (more: finer turns, slower)
+    coarse: int = 4  # the heuristic's grid is this much coarser (more: a cheaper, weaker heuristic)
+    pad: float = 1.5  # [m] planned beyond the footprint round everything (more: wider detours, more cells)
+
+
+@dataclass(frozen=True)
+class Search:
+    """The A* over the lattice (:func:`plan_footprint`)."""
+
+    greedy: float = 1.5  # the heuristic's weight (>1: fewer poses expanded, a route up to this longer)
+    max_expansions: int = 400_000  # poses expanded before "no route" (more: harder routes, slower no)
+    end_radius: float = 0.5  # [m] round the ends, no worse than they are (larger: starts nearer walls)
+    # [h] a straight move's points lie within 0.96 h of a checked cell, plus fine_error (lower:
+    # gaps found narrower than the margin keeps)
+    move_need: float = 1.35
+    fine_error: float = 0.36  # [h] a point's distance from the fine-grid point it is read at (h / 2 / sqrt 2)
+
+
+@dataclass(frozen=True)
+class Waypoints:
+    """How a lattice path becomes waypoints, and the load's sample points."""
+
+    # as agent.body.TURN_LEFT_BIAS: a turn this near half a turn goes left (the rigid motion's way)
+    direct_left: float = math.radians(20.0)
+    merge_turn: float = math.radians(80.0)  # turns in place up to this are one waypoint (more: fewer)
+    interior: float = 0.3  # [m] the load's inside points this apart (less: smaller things seen, slower)
+
+
+GRID = Grid()
+SEARCH = Search()
+WAYPOINTS = Waypoints()
 
 
 @dataclass(frozen=True)
@@ -83,9 +110,10 @@ class Body:
         """[m] the largest distance of a footprint point from the centroid."""
         return max([0.01] + [math.hypot(x, y) for x, y in self.slots + self.load])
 
-    @property
+    @functools.cached_property
     def width(self) -> float:
-        """[m] the footprint's smaller extent (across its least-width direction, bodies included)."""
+        """[m] the footprint's smaller extent (across its least-width direction, bodies included;
+        worked out once)."""
         pts = self.slots + self.load
         best = math.inf
         for k in range(36):
@@ -129,15 +157,15 @@ class Lattice:
 
 
 def lattice_for(start: Pose3, goal: Pose3, shapes: Sequence[Shape], circles: Sequence[Circle],
-                rho: float, h: float = SPACING, headings: int = HEADINGS) -> Lattice:
-    """The area holding the start, the goal and every thing, with rho + PAD around it."""
+                rho: float, h: float = GRID.spacing, headings: int = GRID.headings) -> Lattice:
+    """The area holding the start, the goal and every thing, with rho + GRID.pad around it."""
     xs = [start[0], goal[0]] + [c[0] for c in circles]
     ys = [start[1], goal[1]] + [c[1] for c in circles]
     for sh in shapes:
         for x, y in sh.corners():
             xs.append(x)
             ys.append(y)
-    pad = rho + PAD
+    pad = rho + GRID.pad
     x0, y0 = min(xs) - pad, min(ys) - pad
     nx = int(math.ceil((max(xs) + pad - x0) / h)) + 1
     ny = int(math.ceil((max(ys) + pad - y0) / h)) + 1
@@ -225,7 +253,7 @@ def _hull(pts: Sequence[Point]) -> tuple[Point, ...]:
 
 
 def load_samples(outline: Sequence[Point], spacing: float) -> list[Point]:
-    """Points along the outline at most ``spacing`` apart, and inside it every _INTERIOR."""
+    """Points along the outline at most ``spacing`` apart, and inside it every WAYPOINTS.interior."""
     n = len(outline)
     pts: list[Point] = []
     for k in range(n if n > 2 else 1):
@@ -235,14 +263,14 @@ def load_samples(outline: Sequence[Point], spacing: float) -> list[Point]:
     if n <= 2:
         return pts + [outline[-1]]
     xs, ys = [p[0] for p in outline], [p[1] for p in outline]
-    x = min(xs) + _INTERIOR / 2
+    x = min(xs) + WAYPOINTS.interior / 2
     while x < max(xs):
-        y = min(ys) + _INTERIOR / 2
+        y = min(ys) + WAYPOINTS.interior / 2
         while y < max(ys):
             if _inside(outline, x, y):
                 pts.append((x, y))
-            y += _INTERIOR
-        x += _INTERIOR
+            y += WAYPOINTS.interior
+        x += WAYPOINTS.interior
     return pts
 
 
@@ -298,18 +326,18 @@ class _Search(NamedTuple):
 
 
 def coarse_distance(lat: Lattice, move: bytearray, goal: Point) -> tuple[list[float], int]:
-    """The heuristic: per cell of a grid COARSE times coarser than the lattice (row-major, the
+    """The heuristic: per cell of a grid GRID.coarse times coarser than the lattice (row-major, the
     second number its row length), open where any of its cells may move at any heading, the
     length of the shortest 8-connected path to the goal's cell less the coarse cells' diagonal
     twice (so it underestimates the lattice's path); inf where the goal cannot be reached."""
     free = np.frombuffer(move, dtype=bool).reshape(lat.headings, lat.nx, lat.ny).any(axis=0)
-    cx, cy = -(-lat.nx // COARSE), -(-lat.ny // COARSE)
-    grid = np.zeros((cx * COARSE, cy * COARSE), dtype=bool)
+    cx, cy = -(-lat.nx // GRID.coarse), -(-lat.ny // GRID.coarse)
+    grid = np.zeros((cx * GRID.coarse, cy * GRID.coarse), dtype=bool)
     grid[:lat.nx, :lat.ny] = free
-    opened = grid.reshape(cx, COARSE, cy, COARSE).any(axis=(1, 3)).ravel().tolist()
+    opened = grid.reshape(cx, GRID.coarse, cy, GRID.coarse).any(axis=(1, 3)).ravel().tolist()
     gi, gj = lat.cell(*goal)
-    dist = _dijkstra(opened, cx, cy, (gi // COARSE) * cy + gj // COARSE, COARSE * lat.h)
-    slack = 2.0 * math.sqrt(2.0) * COARSE * lat.h
+    dist = _dijkstra(opened, cx, cy, (gi // GRID.coarse) * cy + gj // GRID.coarse, GRID.coarse * lat.h)
+    slack = 2.0 * math.sqrt(2.0) * GRID.coarse * lat.h
     return [max(0.0, d - slack) for d in dist], cy
 
 
@@ -346,7 +374,7 @@ def _allowed(lat: Lattice, sc: np.ndarray, ends: Sequence[Pose3], rho: float,
         own = float(sc[lat.heading(th), i, j])
         if own >= need:
             continue
-        near = np.hypot(xs[:, None] - x, ys[None, :] - y) <= rho + END_RADIUS
+        near = np.hypot(xs[:, None] - x, ys[None, :] - y) <= rho + SEARCH.end_radius
         floor = np.where(near, np.minimum(floor, own - need - 1e-6), floor).astype(np.float32)
     move = sc >= (floor + np.float32(need_move))[None, :, :]
     turn = sc >= (floor + np.float32(need_turn))[None, :, :]
@@ -362,13 +390,14 @@ def _astar(sr: _Search, start: int, goal: int, limit: int) -> tuple[list[int] | 
     steps = _steps(lat)
 
     to_goal, cny = sr.to_goal, sr.coarse_ny
+    greedy, coarse = SEARCH.greedy, GRID.coarse
 
     def heur(s: int) -> float:
         i, j = divmod(s % n, ny)
         a, b = abs(i - gx), abs(j - gy)
         dk = abs(s // n - gk)
         octile = lat.h * (max(a, b) + 0.41421356 * min(a, b))
-        return GREEDY * (max(octile, to_goal[(i // COARSE) * cny + j // COARSE])
+        return greedy * (max(octile, to_goal[(i // coarse) * cny + j // coarse])
                          + sr.turn_cost * min(dk, kk - dk))
 
     best = {start: 0.0}
@@ -474,7 +503,7 @@ def route_of(sr: _Search, states: Sequence[int], start: Pose3, goal: Pose3) -> t
             if pts and p == pts[-1]:
                 continue
             step = abs(_wrap(p[2] - pts[-1][2])) if pts and p[:2] == pts[-1][:2] else -1.0
-            if step >= 0.0 and 0.0 <= turned < MERGE_TURN:
+            if step >= 0.0 and 0.0 <= turned < WAYPOINTS.merge_turn:
                 pts[-1] = p  # one more heading step in place: one waypoint
                 turned += step
             else:
@@ -510,23 +539,24 @@ def _same(a: float, b: float, lat: Lattice) -> bool:
 
 
 def plan_footprint(start: Pose3, goal: Pose3, body: Body, shapes: Sequence[Shape] = (),
-                   circles: Sequence[Circle] = (), h: float | None = None, headings: int = HEADINGS,
-                   limit: int = MAX_EXPANSIONS) -> FootprintPlan:
+                   circles: Sequence[Circle] = (), h: float | None = None, headings: int = GRID.headings,
+                   limit: int = SEARCH.max_expansions) -> FootprintPlan:
     """The footprint's route from pose ``start`` to pose ``goal`` around ``shapes`` and
-    ``circles`` (module docstring); cells of ``h`` [m], by default FINE_SPACING where the area
-    holds at most FINE_CELLS of them (a small scene: narrow slots), else SPACING, and where
-    SPACING finds no route, FINE_SPACING again if the area holds at most FALLBACK_CELLS of them:
-    a move must score MOVE_NEED h, so a gap the footprint fits by less than about 0.14 m a side
-    is shut on the coarse lattice (a hexagon of six robots between two shelves 1.68 m apart,
-    montecarlo warehouse run 100162) and open on the fine one."""
+    ``circles`` (module docstring); cells of ``h`` [m], by default :attr:`Grid.fine_spacing` where
+    the area holds at most :attr:`Grid.fine_cells` of them (a small scene: narrow slots), else
+    :attr:`Grid.spacing`, and where that finds no route, the fine spacing again if the area holds
+    at most :attr:`Grid.fallback_cells` of them: a move must score :attr:`Search.move_need` h, so a
+    gap the footprint fits by less than about 0.14 m a side is shut on the coarse lattice (a
+    hexagon of six robots between two shelves 1.68 m apart, in the warehouse) and open on the fine
+    one."""
     if not shapes and not circles:  # an open floor: the straight move (what the search finds)
         return FootprintPlan((goal,))
-    fine = lattice_for(start, goal, shapes, circles, body.rho, h or FINE_SPACING, headings)
-    if h is not None or fine.nx * fine.ny <= FINE_CELLS:
+    fine = lattice_for(start, goal, shapes, circles, body.rho, h or GRID.fine_spacing, headings)
+    if h is not None or fine.nx * fine.ny <= GRID.fine_cells:
         return _plan_on(fine, start, goal, body, shapes, circles, limit)
-    coarse = _plan_on(lattice_for(start, goal, shapes, circles, body.rho, SPACING, headings),
+    coarse = _plan_on(lattice_for(start, goal, shapes, circles, body.rho, GRID.spacing, headings),
                       start, goal, body, shapes, circles, limit)
-    if coarse.route or fine.nx * fine.ny > FALLBACK_CELLS:
+    if coarse.route or fine.nx * fine.ny > GRID.fallback_cells:
         return coarse
     again = _plan_on(fine, start, goal, body, shapes, circles, limit)
     return again._replace(expanded=coarse.expanded + again.expanded)
@@ -541,7 +571,7 @@ def _flags(lat: Lattice, body: Body, shapes: Sequence[Shape], circles: Sequence[
     cover = min([body.radius] + [sh.ds for sh in shapes])
     sc = scores(lat, body, big_f, big_g, cover)
     dth = 2.0 * math.pi / lat.headings
-    move, turn = _allowed(lat, sc, ends, rho, MOVE_NEED * h, 0.5 * rho * dth + FINE_ERROR * h)
+    move, turn = _allowed(lat, sc, ends, rho, SEARCH.move_need * h, 0.5 * rho * dth + SEARCH.fine_error * h)
     return move, turn, rho * dth
 
 
@@ -573,17 +603,17 @@ def _plan_on(lat: Lattice, start: Pose3, goal: Pose3, body: Body, shapes: Sequen
 
 
 def plan_aside(start: Pose3, body: Body, shapes: Sequence[Shape], circles: Sequence[Circle],
-               way: Sequence[Point], clear: float, limit: int = MAX_EXPANSIONS) -> FootprintPlan:
+               way: Sequence[Point], clear: float, limit: int = SEARCH.max_expansions) -> FootprintPlan:
     """A formation giving way: the route to the nearest pose (by the lattice's path length)
     the footprint can reach from ``start`` around ``shapes`` and ``circles`` with its centroid
     at least ``clear`` from the polyline ``way`` (another formation's way), the pose last; no
     such pose: no route, and the reason. The lattice is :func:`plan_footprint`'s first (fine
-    in a small scene, else SPACING), over the things, the start and the way."""
+    in a small scene, else GRID.spacing), over the things, the start and the way."""
     pts = [(x, y, 0.0) for x, y in way]
     extent = list(circles) + pts
-    lat = lattice_for(start, start, shapes, extent, body.rho, FINE_SPACING)
-    if lat.nx * lat.ny > FINE_CELLS:
-        lat = lattice_for(start, start, shapes, extent, body.rho, SPACING)
+    lat = lattice_for(start, start, shapes, extent, body.rho, GRID.fine_spacing)
+    if lat.nx * lat.ny > GRID.fine_cells:
+        lat = lattice_for(start, start, shapes, extent, body.rho, GRID.spacing)
     move, turn, turn_cost = _flags(lat, body, shapes, circles, (start,))
     sr = _Search(lat, move, turn, turn_cost, [], 1)  # no heuristic: the nearest place wins
     away = _away(lat, way, clear)
@@ -632,10 +662,11 @@ def _away(lat: Lattice, way: Sequence[Point], clear: float) -> list[bool]:
 
 def direct_clear(sr: _Search, start: Pose3, goal: Pose3) -> bool:
     """Whether the footprint may go straight to the goal turning as it goes (the rigid motion
-    does: the short way round, left within DIRECT_LEFT of half a turn): every pose on the way,
+    does: the short way round, left within WAYPOINTS.direct_left of half a turn): every pose on the way,
     at most h / 2 and half a heading step apart, at a lattice state that may move and turn."""
     lat = sr.lat
-    turn = (goal[2] - start[2] + math.pi - DIRECT_LEFT) % (2.0 * math.pi) - math.pi + DIRECT_LEFT
+    left = WAYPOINTS.direct_left
+    turn = (goal[2] - start[2] + math.pi - left) % (2.0 * math.pi) - math.pi + left
     dth = 2.0 * math.pi / lat.headings
     steps = max(1, int(math.ceil(max(2.0 * math.dist(start[:2], goal[:2]) / lat.h,
                                      2.0 * abs(turn) / dth))))

@@ -86,7 +86,7 @@ class _Legs:
                 if end < 2:
                     want = min(want, self.end_gap[end][j])
             # quick accept: the leg misses the shape's rectangle grown by the clearance wanted
-            if _hits_grown_box(pa, pb, sh, self.frames[j], want) and \
+            if hits_grown_box(pa, pb, sh, self.frames[j], want) and \
                     path_clearance(pa, pb, sh) < want - 1e-9:
                 return False
         return True
@@ -122,7 +122,7 @@ def _astar(nodes: Sequence[Point], usable) -> list[int] | None:
     return None
 
 
-def _hits_grown_box(p0: Point, p1: Point, sh: Shape, frame: tuple[float, float], grow: float) -> bool:
+def hits_grown_box(p0: Point, p1: Point, sh: Shape, frame: tuple[float, float], grow: float) -> bool:
     """Whether the leg p0-p1 meets the shape's rectangle grown by ``grow`` on every side
     (Liang-Barsky clipping in the shape's frame). False means the leg keeps at least ``grow``
     from the shape; True says nothing (the grown rectangle's corners are square)."""
@@ -161,9 +161,8 @@ def member_target(route: Sequence[Point], index: int, goal: Point, offset: Point
     """A member's target: its own goal on the last leg, else the waypoint plus its offset (its
     goal's from the goal centroid) turned by ``turned`` [rad]: a waypoint with a heading is the
     formation's pose there, so a member's target is its slot at that pose (the goal shape's
-    offset at the goal's heading would park a formation that must still turn at the waypoint:
-    warehouse seed 3's run 300130, whose pentagon stood 0.25 rad short of a waypoint's heading
-    with every member within 2 cm of its unturned target)."""
+    offset at the goal's heading would park a formation that must still turn at the waypoint: a
+    pentagon stood short of a waypoint's heading with every member near its unturned target)."""
     if index >= len(route) - 1:
         return goal
     wx, wy = route[index]

@@ -1,5 +1,5 @@
-"""Which other formations a leader hears at full rate (issue 18: a fleet's leaders each took
-every other leader's ellipse every tick, so that intake grew with the square of the fleet).
+"""Which other formations a leader hears at full rate (were every leader to take every other
+leader's ellipse every tick, a fleet's intake would grow with the square of the fleet).
 
 A leader needs another formation's ellipse each tick only while that formation may come within
 :data:`leader.role.VIEW_RANGE` of its own ellipse (nothing farther reaches its members'

@@ -1,14 +1,14 @@
 """Goals, routes and status of one formation: the leader's :class:`Navigator` and every member's
 :class:`Follower` (DESIGN.md keys ``goal``, ``plan``, ``status``).
 
-* The fleet manager sends the leader a :class:`wire.payloads.GoalMsg` (goal centroid, optional
+* The fleet manager sends the leader a :class:`wire.navigation.GoalMsg` (goal centroid, optional
   heading, optional waypoints). The leader's :meth:`Navigator.accept` checks it (finite, not
   inside a wall's or shelf's safe distance, newer than the goal it follows), turns the
   formation's goal shape by the heading (the shape as written in the scenario's goals is
   heading 0; no heading keeps the current one), gives each member its goal (goal centroid plus
   its turned offset), and routes the centroid: the given waypoints, else
   :func:`geometry.route.plan_route` around the walls and shelves from where the formation is
-  now (unless planning is off). The result is a :class:`wire.payloads.PlanMsg`.
+  now (unless planning is off). The result is a :class:`wire.navigation.PlanMsg`.
 * Every member (the leader too) runs a :class:`Follower`: it adopts a plan from its own leader
   whose goal is newer than the one it follows, and each tick walks the route with the
   formation's ellipse centre (:func:`geometry.route.advance`); its target for the nominal command
@@ -33,7 +33,7 @@ from collections.abc import Mapping, Sequence
 from geometry.ellipse import wrap_angle
 from geometry.route import Point, advance, formation_radius, member_target, plan_route, route_length
 from geometry.shapes import Shape, shape_distance
-from wire.payloads import MAX_REASON, MAX_REFUSED, GoalMsg, PlanMsg, StatusMsg
+from wire.navigation import MAX_REASON, MAX_REFUSED, GoalMsg, PlanMsg, StatusMsg
 
 SAME_GOAL = "the goal followed already"  # accept(): nothing changes, not counted as refused
 
@@ -107,6 +107,16 @@ class Follower:
     def follow(self, route: Sequence[Point], headings: Sequence[float | None] = ()) -> None:
         """A new route to the same goal (a replan), from its first point."""
         self._set(self.goal, self.formation_goal, route, headings)
+
+    def take(self, route: Sequence[Point], headings: Sequence[float | None], cx: float, cy: float,
+             heading: float | None) -> None:
+        """A replan's route (:class:`leader.routing.Update`), or where it has none, hold at
+        (cx, cy) turned to ``heading``: what the leader and, through ``plan``, every member
+        does with a new route."""
+        if route:
+            self.follow(route, headings)
+        else:
+            self.hold(cx, cy, heading)
 
     def hold(self, cx: float, cy: float, heading: float | None) -> None:
         """Stay parked where the formation is (no route reaches the goal); holding already:

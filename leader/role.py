@@ -27,7 +27,7 @@ Kinematic = tuple[float, float, float, float, float]
 # an ellipse row that far out cannot bind (its class-K term grows with h squared; A.3). The
 # margin covers two formations closing at top speed for several seconds, and the view is
 # rebuilt every tick. Without it, each member of a fleet of F formations decoded F - 1 ellipses
-# a tick (issue 18: the tick's cost grew with the fleet, not with the neighbourhood).
+# a tick (the tick's cost grew with the fleet, not with the neighbourhood).
 VIEW_RANGE = 4.0
 
 

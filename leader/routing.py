@@ -1,33 +1,61 @@
-"""When a formation's route is made again, and around what (issue 26; the leader's part, pure).
+"""A formation's route, from its first plan to the one its members follow (the leader's part, pure).
 
-A :class:`Replanner` keeps the footprint's route (:func:`geometry.footprint_plan.plan_footprint`)
-to one goal pose and says each tick whether to plan it again:
+The route's life:
 
-* **off the route**: the centroid is further than the footprint's smaller extent
-  (:attr:`geometry.footprint_plan.Body.width`) from the leg it walks;
-* **no progress**: the distance to go along the route has not shrunk by :data:`PROGRESS_M` in
-  :data:`NO_PROGRESS_S` (not on the last :data:`SETTLE_M` to the goal, where it settles; the
-  clock stops while something moving is near: waiting for traffic is not being stuck);
-* **the things changed**: a round thing planned around moved, went or came
-  (:class:`StillThings`: circles that stand still, parked formations);
-* **way clear**: on a blocked plan's detour, every formation it went round has left the way
-  it was on (:meth:`Replanner.way_clear`);
-* **blocked**: no progress for :data:`BLOCKED_S` although traffic is near (two formations
-  head-on in a one-lane aisle wait for each other for ever: each creeps, so neither is ever
-  still): this plan goes round the moving formations near it too (:func:`blockers`), where it
-  is at that moment. They are not kept as planned-around things (they move on), and where no
-  route goes round them the formation keeps its route (the way may clear; it is not
-  unreachable) and is **boxed in** (:attr:`Replanner.boxed_in`, reported ``stalled``) until it
-  makes progress again: a formation that holds with no route of its own (``unreachable``) and
-  stands in its way gives way to it as to one with no route (:meth:`Replanner.give_way`). Since
-  formations keep their ellipses off each other's members (:mod:`agent.body`), one no longer
-  shoves a holding one aside (route-give-way: hexagon c, boxed in behind the holding d).
+1. **start**: the route each formation starts with is its file's waypoints or the plan round the
+   walls and shelves (:func:`scenario.routes.start_plan`; the planners are
+   :func:`geometry.route.plan_route` for a centroid and :func:`geometry.footprint_plan.plan_footprint`
+   for a footprint under ``method: rigid``);
+2. **goal**: a goal from the fleet manager is checked and routed by the leader's
+   :class:`leader.navigation.Navigator`, which hands it to every member as a
+   :class:`wire.navigation.PlanMsg`; each member walks it with its
+   :class:`leader.navigation.Follower`;
+3. **replanning**: under ``method: rigid`` a :class:`Replanner` (this module: the policy) says each
+   tick whether to plan again and why (:class:`Reason`), and :class:`leader.route_driver.RouteDriver`
+   (the one driver, for the agent's leader and the in-process simulator alike) runs the plan and
+   hands the new route (an :class:`Update`) to the followers, on ``plan`` to the other members.
 
-At most one plan per :data:`REPLAN_EVERY_S`. No route: the formation holds where it is
-(:meth:`leader.navigation.Follower.hold`) and the reason is kept in ``unreachable`` until a
-later plan (tried again every :data:`RETRY_S`, or when the things change) finds one. Routes
-given by hand are never planned again. A plan whose legs meet a moving circle head-on within
-:data:`LANE_S` is made again round where it drives, where that finds a route (:func:`oncoming`).
+Why a route is planned again is one :class:`Reason` each (their values are what ``summary.json``
+and the log say); the tuning constants are grouped by what they decide (:class:`Stillness`,
+:class:`Progress`, :class:`Pace`, :class:`GiveWay`, :class:`Lanes`). At most one plan per
+:attr:`Pace.every_s`. No route: the formation holds where it is
+(:meth:`leader.navigation.Follower.hold`) and the reason is kept in ``unreachable`` until a later
+plan (:attr:`Reason.RETRY` every :attr:`Pace.retry_s`, or when the things change) finds one.
+Routes given by hand are never planned again. A plan whose legs meet a moving circle head-on
+within :attr:`Lanes.ahead_s` is made again round where it drives, where that finds a route
+(:func:`oncoming`).
+
+The deadlock rules (each pinned by the tests/scenarios file named):
+
+* **blocked** (:attr:`Reason.BLOCKED`): no progress for :attr:`Progress.blocked_s` although
+  traffic is near: the plan goes round the moving formations near it (:func:`blockers`), because
+  two formations head-on in a one-lane aisle each creep and so wait for each other for ever
+  (route-head-on-aisle.yaml);
+* **the later name goes round** (:meth:`Replanner.waits_for`): of two formations blocked by each
+  other, the one whose name sorts later plans round, the earlier keeps its route a while, because
+  both going round each other the opposite ways met at the same gap again
+  (route-head-on-aisle.yaml);
+* **way clear** (:attr:`Reason.WAY_CLEAR`): once the formations a detour went round have left
+  the way it was on, it plans again without them, because a detour kept after the way cleared
+  sent a formation far off for nothing (no scenario file reaches it yet: the rule's test in
+  tests/test_footprint_plan.py pins it);
+* **boxed in** (:attr:`Replanner.boxed_in`, reported ``stalled``): blocked, and no route round
+  the formations in its way: it keeps its route, because the way may clear and it is not
+  unreachable (route-give-way.yaml: hexagon c behind the holding d);
+* **give way** (:attr:`Reason.GIVE_WAY`, :meth:`Replanner.give_way`): a formation with no route
+  only because another stands in it stands aside for it when that one sorts earlier and reports
+  no route or boxed in, and a formation parked at its goal or stuck on its way stands aside for
+  one with no route, because two formations in each other's only way otherwise hold to the end
+  (route-give-way.yaml, route-stuck-in-the-way-unicycle.yaml,
+  route-parked-in-the-way-unicycle.yaml); :attr:`Reason.GIVEN_WAY` takes it back to its goal once
+  the other has arrived, or after :attr:`GiveWay.most_s`.
+
+The other reasons: :attr:`Reason.OFF_ROUTE` (the centroid further than the footprint's smaller
+extent, :attr:`geometry.footprint_plan.Body.width`, from the leg it walks), :attr:`Reason.NO_PROGRESS`
+(the distance to go has not shrunk by :attr:`Progress.progress_m` in
+:attr:`Progress.no_progress_s`, not on the last :attr:`Progress.settle_m` to the goal; the clock
+stops while something moving is near), :attr:`Reason.THINGS_CHANGED` (a round thing planned
+round moved, went or came: :class:`StillThings`).
 
 Headings: the planner's are the footprint's rotation from its start frame (theta of
 :class:`agent.body.Pose`); a route's are the goal shape's turn (as ``GoalMsg.heading``), theta
@@ -38,39 +66,109 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from enum import Enum
 from typing import NamedTuple
 
 from geometry.ellipse import wrap_angle
 from geometry.footprint_plan import Body, Circle, FootprintPlan, Pose3, plan_aside, plan_footprint
 from geometry.shapes import Shape, segment_distance, segment_segment_distance
-from wire.payloads import MAX_WAYPOINTS as MAX_ROUTE  # the most route points a plan holds
+from wire.navigation import MAX_WAYPOINTS as MAX_ROUTE  # the most route points a plan holds
 
-STILL_S = 3.0  # [s] a round thing still this long is planned around (a parked forklift)
-STILL_SPEED = 0.01  # [m/s] slower than this is still
-MOVED_M = 0.3  # [m] a planned-around thing that moved this far is a change
-NO_PROGRESS_S = 5.0  # [s] no progress along the route this long: plan again
-PROGRESS_M = 0.1  # [m] progress: the distance to go shrinks by this
-SETTLE_M = 0.5  # [m] this near the goal on the last leg the formation settles (no replan)
-REPLAN_EVERY_S = 2.0  # [s] at most one plan this often
-RETRY_S = 5.0  # [s] no route: try again this often
-TRAFFIC_M = 1.0  # [m] a moving thing this near: the formation waits, the progress clock stops
-BLOCKED_S = 10.0  # [s] no progress this long with traffic near: plan round the formations there
-BLOCKED = "blocked"
-WAY_CLEAR = "way clear"  # the formations a blocked plan went round have left the way it was on
-GIVE_WAY = "give way"
-GIVE_WAY_S = 90.0  # [s] a formation giving way stands aside at most this long
-LANE_S = 60.0  # [s] a moving thing's way this far ahead is what a route does not meet head-on
-HEAD_ON = math.cos(math.radians(135.0))  # a leg this far or further from its motion meets it
-LANE_CLEAR_M = 0.1  # [m] beyond its Ds and the footprint's reach: a lane circle the start is clear of
-# [m] this near its goal a formation counts as parked there (it may stand in another's way; one
-# kept 0.6 m short of it by the formation it blocks never settles: warehouse draw run 300117)
-PARKED_M = 1.0
-GIVE_WAY_MARGIN = 0.3  # [m] beyond both radii: how far from the other's way it stands aside
-UNREACHABLE = "unreachable"  # status states (wire.payloads.STATUS_STATES)
+
+class Reason(str, Enum):
+    """Why a formation's route is planned again (:meth:`Replanner.check`), one sentence of why
+    each and the tests/scenarios file that pins it; the value is what ``summary.json``'s
+    ``replans`` and the agent's log say (unchanged strings)."""
+
+    #: the agent leader's first tick plans: the route it was configured with was planned before it
+    #: saw any thing (route-line-aisle.yaml, tests/test_route_agent.py)
+    START = "start"
+    #: a goal taken from the fleet manager is planned for at the next tick: the route it came with
+    #: was planned from elsewhere (route-line-aisle.yaml, tests/test_route_agent.py)
+    NEW_GOAL = "new goal"
+    #: the centroid left the leg it walks by more than the footprint's smaller extent: the route no
+    #: longer starts where the formation is (route-pushed-off.yaml)
+    OFF_ROUTE = "off route"
+    #: the distance to go has not shrunk for a while with no traffic near: a minimum the route did
+    #: not foresee (route-parked-twitch-unicycle.yaml)
+    NO_PROGRESS = "no progress"
+    #: a round thing planned round moved, went or came: the route was made for other things
+    #: (route-forklift-parks.yaml)
+    THINGS_CHANGED = "things changed"
+    #: no route yet, tried again now and then: the way may have opened (route-closed-room.yaml)
+    RETRY = "retry"
+    #: no progress for long with traffic near: plan round it (the deadlock rules, module docstring)
+    BLOCKED = "blocked"
+    #: the formations a blocked plan went round have left the way (the deadlock rules)
+    WAY_CLEAR = "way clear"
+    #: stand aside for a formation with no route (the deadlock rules)
+    GIVE_WAY = "give way"
+    #: the one it stood aside for has arrived, or it stood aside long enough: back to its own goal
+    #: (route-give-way.yaml)
+    GIVEN_WAY = "given way"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+@dataclass(frozen=True)
+class Stillness:
+    """What counts as a thing standing still, to be planned round (:class:`StillThings`)."""
+
+    still_s: float = 3.0  # [s] still this long: planned round (shorter: round a forklift's pause)
+    speed: float = 0.01  # [m/s] slower is still (higher: a creeping formation taken for parked)
+    moved_m: float = 0.3  # [m] a planned-round thing this far off is a change (lower: replans for jitter)
+
+
+@dataclass(frozen=True)
+class Progress:
+    """When the formation counts as stuck on its route (:meth:`Replanner.check`)."""
+
+    no_progress_s: float = 5.0  # [s] no progress this long: plan again (shorter: replans mid-turn)
+    progress_m: float = 0.1  # [m] progress is the distance to go shrinking this (lower: drift counts)
+    settle_m: float = 0.5  # [m] this near the goal on the last leg: settling (lower: replans parking)
+    traffic_m: float = 1.0  # [m] a moving thing this near stops the clock (larger: waits on traffic longer)
+    blocked_s: float = 10.0  # [s] stuck in traffic this long: plan round it (shorter: detours for passers-by)
+
+
+@dataclass(frozen=True)
+class Pace:
+    """How often the formation plans at most."""
+
+    every_s: float = 2.0  # [s] at most one plan this often (shorter: reacts sooner, more plans)
+    retry_s: float = 5.0  # [s] no route: try again this often (shorter: finds an opened way sooner)
+
+
+@dataclass(frozen=True)
+class GiveWay:
+    """Standing aside for a formation with no route (:meth:`Replanner.give_way`)."""
+
+    most_s: float = 90.0  # [s] aside at most this long (longer: lets a slow one by, may strand this)
+    parked_m: float = 1.0  # [m] this near its goal: parked there (larger: more formations stand aside)
+    margin: float = 0.3  # [m] beyond both radii off the other's way (larger: safer, needs more room)
+    near_slack_m: float = 0.02  # [m] the other's circle inside the reach (larger: a tighter way out)
+
+
+@dataclass(frozen=True)
+class Lanes:
+    """Moving things' ways a route does not meet head-on (:func:`oncoming`)."""
+
+    ahead_s: float = 60.0  # [s] a thing's way this far ahead counts (longer: avoids more, detours more)
+    # a leg this far from the thing's motion or further meets it (nearer -1: fewer legs meet it)
+    head_on: float = math.cos(math.radians(135.0))
+    clear_m: float = 0.1  # [m] a lane circle beyond Ds and reach of the start (larger: fewer dropped)
+
+
+STILL = Stillness()
+PROGRESS = Progress()
+PACE = Pace()
+GIVING = GiveWay()
+LANES = Lanes()
+UNREACHABLE = "unreachable"  # status states (wire.navigation.STATUS_STATES)
 REACHED = "reached"
 STALLED = "stalled"
 FORMATION = "formation/"  # a Thing's name prefix for another formation
-NEAR_SLACK_M = 0.02  # [m] giving way, the other's circle shrinks to this inside the footprint's reach
 
 
 class Thing(NamedTuple):
@@ -87,11 +185,12 @@ class Thing(NamedTuple):
 
 
 class StillThings:
-    """Which round things have stood still for :data:`STILL_S` (static circles at once). One
-    counted still stays so while it stays within MOVED_M / 3 of where it stood, whatever its
+    """Which round things have stood still for :attr:`Stillness.still_s` (static circles at once).
+    One counted still stays so while it stays within a third of :attr:`Stillness.moved_m` of where
+    it stood, whatever its
     speed: a parked formation's ellipse moves now and then as its members settle, and each time
-    its speed passed STILL_SPEED it went and came back 3 s later, so every formation planned
-    again every 3 s and one that was passing it never got by (warehouse run 200114)."""
+    its speed passed STILL.speed it went and came back 3 s later, so every formation planned
+    again every 3 s and one that was passing it never got by (in a warehouse run)."""
 
     def __init__(self) -> None:
         self._since: dict[str, tuple[float, float, float]] = {}  # name -> (x, y, still since)
@@ -102,16 +201,16 @@ class StillThings:
         for th in things:
             seen.add(th.name)
             prev = self._since.get(th.name)
-            if prev is not None and math.dist(prev[:2], (th.x, th.y)) > MOVED_M / 3:
+            if prev is not None and math.dist(prev[:2], (th.x, th.y)) > STILL.moved_m / 3:
                 prev = None  # it moved: still from now on, if at all
-            settled = prev is not None and t - prev[2] >= STILL_S
-            if th.speed >= STILL_SPEED and not settled:
+            settled = prev is not None and t - prev[2] >= STILL.still_s
+            if th.speed >= STILL.speed and not settled:
                 self._since.pop(th.name, None)
                 continue
             if prev is None:
                 prev = (th.x, th.y, -math.inf if th.static else t)
                 self._since[th.name] = prev
-            if t - prev[2] >= STILL_S:
+            if t - prev[2] >= STILL.still_s:
                 out.append((th.name, (th.x, th.y, th.ds)))
         for gone in set(self._since) - seen:
             del self._since[gone]
@@ -119,18 +218,19 @@ class StillThings:
 
 
 def traffic(pose: Pose3, rho: float, things: Iterable[Thing]) -> bool:
-    """Whether something moving is within TRAFFIC_M of the footprint's bounding circle: then
+    """Whether something moving is within PROGRESS.traffic_m of the footprint's bounding circle: then
     the formation is waiting or giving way, not stuck (no progress is no reason to replan)."""
-    return any(th.speed >= STILL_SPEED and math.dist(pose[:2], (th.x, th.y)) < rho + th.ds + TRAFFIC_M
+    return any(th.speed >= STILL.speed
+               and math.dist(pose[:2], (th.x, th.y)) < rho + th.ds + PROGRESS.traffic_m
                for th in things)
 
 
 def blockers(pose: Pose3, rho: float, things: Iterable[Thing]) -> tuple[tuple[str, Circle], ...]:
     """The moving formations near the footprint (as :func:`traffic` finds them), as circles to
-    plan round once the formation is :data:`BLOCKED` (a forklift drives on by itself)."""
+    plan round once the formation is :data:`Reason.BLOCKED` (a forklift drives on by itself)."""
     return tuple(sorted((th.name, (th.x, th.y, th.ds)) for th in things
-                        if th.name.startswith("formation/") and th.speed >= STILL_SPEED
-                        and math.dist(pose[:2], (th.x, th.y)) < rho + th.ds + TRAFFIC_M))
+                        if th.name.startswith("formation/") and th.speed >= STILL.speed
+                        and math.dist(pose[:2], (th.x, th.y)) < rho + th.ds + PROGRESS.traffic_m))
 
 
 Lane = tuple[float, float, float, float, float]  # (x, y, vx, vy, Ds) a moving round thing
@@ -140,17 +240,17 @@ def lanes(things: Iterable[Thing]) -> tuple[Lane, ...]:
     """The moving round things that are no formation (a forklift drives on by itself, a
     formation plans its own way), for :func:`plan_job`'s check of oncoming traffic."""
     return tuple(sorted((th.x, th.y, th.vx, th.vy, th.ds) for th in things
-                        if not th.name.startswith(FORMATION) and th.speed >= STILL_SPEED))
+                        if not th.name.startswith(FORMATION) and th.speed >= STILL.speed))
 
 
 def oncoming(start: Pose3, route: Sequence[Pose3], rho: float, lane: Lane,
              speed: float = math.inf) -> bool:
-    """Whether a leg of ``route`` (from ``start``) runs head-on (within HEAD_ON) into where
-    the thing of ``lane`` drives in the next LANE_S: within its Ds and the footprint's reach.
+    """Whether a leg of ``route`` (from ``start``) runs head-on (within LANES.head_on) into where
+    the thing of ``lane`` drives in the next LANES.ahead_s: within its Ds and the footprint's reach.
     ``speed`` [m/s]: the formation's top speed; the thing's way counts from the earliest the
-    formation can reach the leg on (one that has driven past the leg by then is gone: warehouse
-    run 300091's hexagon, sent 40 m east round a forklift that was already past the aisle's
-    mouth and leaving it; it came back after the pentagon had parked in its way)."""
+    formation can reach the leg on (one that has driven past the leg by then is gone: counted
+    from now, a hexagon of the warehouse draw was sent 40 m round a forklift that was already
+    past the aisle's mouth and leaving it)."""
     x, y, vx, vy, ds = lane
     u = math.hypot(vx, vy)
     pts = [start[:2]] + [p[:2] for p in route]
@@ -160,33 +260,33 @@ def oncoming(start: Pose3, route: Sequence[Pose3], rho: float, lane: Lane,
         leg = math.hypot(dx, dy)
         ahead = done / speed  # [s] the earliest the formation is on this leg
         done += leg
-        if leg <= 1e-9 or ahead >= LANE_S or dx * vx + dy * vy >= HEAD_ON * leg * u:
+        if leg <= 1e-9 or ahead >= LANES.ahead_s or dx * vx + dy * vy >= LANES.head_on * leg * u:
             continue
-        ends = ((x + vx * ahead, y + vy * ahead), (x + vx * LANE_S, y + vy * LANE_S))
+        ends = ((x + vx * ahead, y + vy * ahead), (x + vx * LANES.ahead_s, y + vy * LANES.ahead_s))
         if segment_segment_distance(a, b, *ends) < ds + rho:
             return True
     return False
 
 
 def lane_circles(start: Pose3, rho: float, lane: Lane) -> tuple[Circle, ...]:
-    """Where the thing of ``lane`` drives in the next LANE_S, as circles of its Ds half a Ds
+    """Where the thing of ``lane`` drives in the next LANES.ahead_s, as circles of its Ds half a Ds
     apart, less those the footprint at ``start`` already reaches (it is not planned out of a
     place it stands in: its barriers keep it off the thing itself)."""
     x, y, vx, vy, ds = lane
-    n = max(1, math.ceil(math.hypot(vx, vy) * LANE_S / (0.5 * ds)))
+    n = max(1, math.ceil(math.hypot(vx, vy) * LANES.ahead_s / (0.5 * ds)))
     out = []
     for k in range(n + 1):
-        cx, cy = x + vx * LANE_S * k / n, y + vy * LANE_S * k / n
-        if math.dist(start[:2], (cx, cy)) > ds + rho + LANE_CLEAR_M:
+        cx, cy = x + vx * LANES.ahead_s * k / n, y + vy * LANES.ahead_s * k / n
+        if math.dist(start[:2], (cx, cy)) > ds + rho + LANES.clear_m:
             out.append((cx, cy, ds))
     return tuple(out)
 
 
 def changed(a: Sequence[tuple[str, Circle]], b: Sequence[tuple[str, Circle]]) -> bool:
-    """Whether two sets of planned-around things differ (one came or went, or moved MOVED_M)."""
+    """Whether two sets of planned-around things differ (one came or went, or moved STILL.moved_m)."""
     if [n for n, _c in a] != [n for n, _c in b]:
         return True
-    return any(math.dist(ca[:2], cb[:2]) > MOVED_M for (_n, ca), (_m, cb) in zip(a, b, strict=True))
+    return any(math.dist(ca[:2], cb[:2]) > STILL.moved_m for (_n, ca), (_m, cb) in zip(a, b, strict=True))
 
 
 class PlanJob(NamedTuple):
@@ -244,7 +344,7 @@ def way_distance(way: Sequence[tuple[float, float]], x: float, y: float) -> floa
 class Other(NamedTuple):
     """Another formation as its leader reports it (``status``) where its ellipse is seen."""
 
-    state: str  # a status state (wire.payloads.STATUS_STATES)
+    state: str  # a status state (wire.navigation.STATUS_STATES)
     x: float  # [m] its centroid now
     y: float
     gx: float  # [m] its goal centroid
@@ -267,7 +367,7 @@ class GiveWayJob(NamedTuple):
 def give_way_job(job: GiveWayJob) -> FootprintPlan:
     """Where to stand aside: the other's way (a robot's disc from its centroid to its goal,
     round the shapes and ``other_circles``), and the route to the nearest pose whose centroid
-    is GIVE_WAY_MARGIN beyond both radii off it (:func:`plan_aside`); no route where the other
+    is GIVING.margin beyond both radii off it (:func:`plan_aside`); no route where the other
     has no way either, or this formation is not in it."""
     o = job.other
     disc = Body(tuple((0.01 * math.cos(k * 2.1), 0.01 * math.sin(k * 2.1)) for k in range(3)),
@@ -276,7 +376,7 @@ def give_way_job(job: GiveWayJob) -> FootprintPlan:
     if not way.route:
         return FootprintPlan((), "the other formation has no way either")
     pts = [(o.x, o.y)] + [p[:2] for p in way.route]
-    clear = job.body.rho + o.a + job.radius + GIVE_WAY_MARGIN
+    clear = job.body.rho + o.a + job.radius + GIVING.margin
     if way_distance(pts, job.start[0], job.start[1]) >= clear:
         return FootprintPlan((), "not in the other formation's way")
     return plan_aside(job.start, job.body, job.shapes, job.circles, pts, clear)
@@ -287,8 +387,31 @@ class Update(NamedTuple):
 
     route: tuple[tuple[float, float], ...]
     headings: tuple[float | None, ...]
-    why: str  # what made the plan: start, off route, no progress, things changed, retry
+    why: Reason  # what made the plan
     reason: str = ""  # no route: why
+
+
+@dataclass
+class ProgressClock:
+    """How far the formation had yet to go at its best, and since when (:meth:`Replanner.check`)."""
+
+    best: float = math.inf  # [m] the least distance to go since the last plan
+    best_at: float = 0.0  # [s] when it was reached (or traffic last held the formation up)
+    moved_at: float = 0.0  # [s] the last progress, traffic or not
+
+    def restart(self, t: float) -> None:
+        """A new route at ``t``: no distance to go yet."""
+        self.best, self.best_at, self.moved_at = math.inf, t, t
+
+
+@dataclass
+class Detour:
+    """The way a blocked plan left (from where the formation stood) and the formations it went
+    round (:meth:`Replanner.way_clear`); empty when the route is no such detour."""
+
+    way: tuple[tuple[float, float], ...] = ()  # where it stood when blocked, then its route
+    left: tuple[tuple[float, float], ...] = ()  # the way the current detour left
+    round: tuple[str, ...] = ()  # the formations it went round
 
 
 class Replanner:
@@ -298,7 +421,6 @@ class Replanner:
                  start: tuple[float, float] | None = None, by_hand: bool = False,
                  speed: float = math.inf) -> None:
         self.body = body
-        self.width = body.width
         self.speed = speed  # [m/s] the formation's top speed (a robot's: :func:`oncoming`)
         self.goal_turn = goal_turn
         self.goal = goal
@@ -308,60 +430,54 @@ class Replanner:
         self.unreachable = ""
         self.plans = 0
         self.last_plan = -math.inf
-        self._best = math.inf
-        self._best_at = 0.0
-        self._moved_at = 0.0  # the last progress, traffic or not
-        # the way a blocked plan left (from where the formation stood) and the formations it went
-        # round (:meth:`way_clear`); () when the route is no such detour
-        self._way: tuple[tuple[float, float], ...] = ()  # where it stood when blocked, then its route
-        self._left: tuple[tuple[float, float], ...] = ()
-        self._round: tuple[str, ...] = ()
+        self._progress = ProgressClock()
+        self._detour = Detour()
         self._leg_start = start  # where the route's first leg starts
-        self.due = ""  # a plan asked for (a new goal): the next check says so
+        self.due: Reason | None = None  # a plan asked for (a new goal): the next check says so
         self.name = ""  # the formation's (who gives way to whom: the later name to the earlier)
         self.blocked_by: tuple[str, ...] = ()  # no route only because these formations stand in it
         self.giving_way = ""  # the formation this one stands aside for
         self._gave_at = -math.inf
         self.boxed_in = False  # blocked, and no route round the formations in its way
 
-    def plan(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...], why: str,
+    def plan(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...], why: Reason,
              extra: tuple[tuple[str, Circle], ...] = (), moving: tuple[Lane, ...] = ()
              ) -> Update | None:
         """Plan from ``pose`` now around the shapes, ``things`` and ``extra`` (:meth:`begin`)."""
         return self.finish(plan_job(self.begin(t, pose, things, extra, moving)), why)
 
-    def job_for(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...], why: str,
+    def job_for(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...], why: Reason,
                 seen: Sequence[Thing]) -> PlanJob | None:
         """The plan :meth:`check`'s ``why`` asks for (:meth:`begin`; run :func:`plan_job`, then
         :meth:`finish`), or None: blocked by a formation that goes round instead
         (:meth:`waits_for`). Blocked, it plans round the formations there (:func:`blockers`)
         once; every plan keeps off the ways of the moving things (:func:`lanes`)."""
-        extra = blockers(pose, self.body.rho, seen) if why == BLOCKED else ()
-        if why == BLOCKED and self.waits_for(t, extra):
+        extra = blockers(pose, self.body.rho, seen) if why == Reason.BLOCKED else ()
+        if why == Reason.BLOCKED and self.waits_for(t, extra):
             return None
         return self.begin(t, pose, things, extra, lanes(seen))
 
     def parked(self, pose: Pose3) -> bool:
-        """At or near its goal (within PARKED_M of it; a route given by hand is never moved):
+        """At or near its goal (within GIVING.parked_m of it; a route given by hand is never moved):
         where a formation stops, and may stand in another's only way."""
-        return not self.by_hand and math.dist(pose[:2], self.goal[:2]) <= PARKED_M
+        return not self.by_hand and math.dist(pose[:2], self.goal[:2]) <= GIVING.parked_m
 
     def stuck(self, t: float) -> bool:
-        """No progress along its route for BLOCKED_S (traffic or not; a route given by hand is
+        """No progress along its route for PROGRESS.blocked_s (traffic or not; a route given by hand is
         never moved): it may be waiting for one that waits for it."""
-        return not self.by_hand and t - self._moved_at >= BLOCKED_S
+        return not self.by_hand and t - self._progress.moved_at >= PROGRESS.blocked_s
 
     def give_way(self, t: float, others: Mapping[str, Other], pose: Pose3 | None = None) -> str:
         """The formation to stand aside for now, or "": one whose name sorts before this one's,
         that blocks this one's way (this one finds no route while that one stands in it) and
         reports no route itself, or that it is boxed in (``stalled``): it may be waiting for
-        this one (two formations in each other's only way, montecarlo warehouse run 200148).
+        this one (two formations in each other's only way: route-give-way).
         A formation ``parked`` at its goal (``pose``), or :meth:`stuck` on its way, tries standing
         aside for any that reports no route (:func:`give_way_job` finds out whether it stands in
-        that one's way: the warehouse draw's runs 300047 and 300117 deadlocked behind a
-        formation parked in the only way through; in 300130 a triangle 1.02 m from its goal,
-        which the pentagon with no route stood on, waited for it in a one-lane aisle)."""
-        if self.giving_way or t - self._gave_at < RETRY_S:
+        that one's way: a formation parked in the only way through deadlocked the one behind it,
+        route-parked-in-the-way-unicycle; a triangle just short of its goal waited in a one-lane
+        aisle for the pentagon it stood in the way of, route-stuck-in-the-way-unicycle)."""
+        if self.giving_way or t - self._gave_at < PACE.retry_s:
             return ""
         if self.unreachable:
             for name in self.blocked_by:
@@ -378,25 +494,24 @@ class Replanner:
         """Blocked by ``extra`` (:func:`blockers`), whether to keep the route a while longer:
         one of them sorts after this formation, and the later name is the one that goes round
         (two formations blocked by each other both went round each other, opposite ways, and
-        met at the same gap again: montecarlo warehouse run 100187). For BLOCKED_S more at
-        most: the later one may not be waiting for this one at all."""
-        return (not self.by_hand and t - self._moved_at < 2.0 * BLOCKED_S
+        met at the same gap again). For :attr:`Progress.blocked_s` more at most: the later one
+        may not be waiting for this one at all."""
+        return (not self.by_hand and t - self._progress.moved_at < 2.0 * PROGRESS.blocked_s
                 and any(n[len(FORMATION):] > self.name for n, _c in extra
                         if n.startswith(FORMATION)))
 
     def way_clear(self, seen: Sequence[Thing]) -> bool:
         """On a detour round formations it was blocked by, whether all of them have left the
         way it was on (none within its reach and the footprint's of that way, from where the
-        formation stood when blocked): then it plans again without them (WAY_CLEAR). In warehouse
-        run 100187, c, blocked by b passing north through the cross-aisle gap c needed, was sent
-        8 m west round it at 205 s; b was through 10 s later, and c came back only when b parked
-        at its goal, 36 s later: 3 m short of its goal at 300 s."""
-        if not self._round or not self._left:
+        formation stood when blocked): then it plans again without them (:attr:`Reason.WAY_CLEAR`).
+        Without it a formation sent round another passing through the gap it needed came back
+        only when that one had parked at its goal, long after the gap was free."""
+        if not self._detour.round or not self._detour.left:
             return False
         where = {th.name: th for th in seen}
-        for name in self._round:
+        for name in self._detour.round:
             th = where.get(name)
-            if th is not None and way_distance(self._left, th.x, th.y) < th.ds + self.body.rho:
+            if th is not None and way_distance(self._detour.left, th.x, th.y) < th.ds + self.body.rho:
                 return False
         return True
 
@@ -404,13 +519,13 @@ class Replanner:
                        name: str, other: Other, radius: float) -> GiveWayJob:
         """Start standing aside for formation ``name`` (:func:`give_way_job`; then
         :meth:`finish_give_way`). The other is planned round where it stands, still or not (one
-        with no route creeps as it holds: warehouse run 300130's triangle, planning round the
-        shelves alone, was sent past the pentagon it gave way to in a one-lane aisle)."""
+        with no route creeps as it holds: a triangle planning round the shelves alone was sent past
+        the pentagon it gave way to in a one-lane aisle, route-stuck-in-the-way-unicycle)."""
         self.plans += 1
         self.last_plan = self._gave_at = t
         self.planned = things
         own = FORMATION + name
-        near = math.dist(pose[:2], (other.x, other.y)) - self.body.rho - NEAR_SLACK_M
+        near = math.dist(pose[:2], (other.x, other.y)) - self.body.rho - GIVING.near_slack_m
         circles = [(x, y, ds) for n, (x, y, ds) in things if n != own]
         # no nearer than it is now: the way out may pass it closely
         circles.append((other.x, other.y, min(other.a + radius, near)))
@@ -419,13 +534,14 @@ class Replanner:
 
     def finish_give_way(self, res: FootprintPlan, name: str) -> Update | None:
         """The route aside (the formation holds at its end until :meth:`check` plans again), or
-        None: no place aside, it stays unreachable (tried again after RETRY_S)."""
+        None: no place aside, it stays unreachable (tried again after PACE.retry_s)."""
         if not res.route:
             return None
         self.giving_way = name
-        self._best, self._best_at, self._moved_at = math.inf, self._gave_at, self._gave_at
+        self._progress.restart(self._gave_at)
         return Update(tuple((x, y) for x, y, _th in res.route),
-                      tuple(wrap_angle(th - self.goal_turn) for _x, _y, th in res.route), GIVE_WAY)
+                      tuple(wrap_angle(th - self.goal_turn) for _x, _y, th in res.route),
+                      Reason.GIVE_WAY)
 
     def begin(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...],
               extra: tuple[tuple[str, Circle], ...] = (), moving: tuple[Lane, ...] = ()) -> PlanJob:
@@ -435,12 +551,12 @@ class Replanner:
         ``moving``: the things driving about (:func:`lanes`), whose way a route does not meet
         head-on where it can go round."""
         self.plans += 1
-        self.due = ""
+        self.due = None
         self.last_plan = t
         self.planned = things
-        self._best, self._best_at, self._moved_at = math.inf, t, t
-        self._round = tuple(n for n, _c in extra)
-        self._left = self._way if extra else ()
+        self._progress.restart(t)
+        self._detour.round = tuple(n for n, _c in extra)
+        self._detour.left = self._detour.way if extra else ()
         self._leg_start = (pose[0], pose[1])
         self.giving_way = ""
         parked = () if extra else tuple((n[len(FORMATION):], c) for n, c in things
@@ -449,14 +565,14 @@ class Replanner:
                        tuple(c for _n, c in things) + tuple(c for _n, c in extra), parked, moving,
                        self.speed)
 
-    def finish(self, res: FootprintPlan | JobResult, why: str) -> Update | None:
+    def finish(self, res: FootprintPlan | JobResult, why: Reason) -> Update | None:
         """The route (or the order to hold) from a plan :meth:`begin` started; None: keep the
         route (no way round the blockers)."""
         plan = res.plan if isinstance(res, JobResult) else res
         self.blocked_by = res.blocked_by if isinstance(res, JobResult) else ()
-        self.boxed_in = bool(plan.reason) and bool(self._round)  # it went round blockers
+        self.boxed_in = bool(plan.reason) and bool(self._detour.round)  # it went round blockers
         if plan.reason:
-            self._round, self._left = (), ()
+            self._detour.round, self._detour.left = (), ()
         if self.boxed_in:
             return None
         self.unreachable = plan.reason
@@ -472,11 +588,13 @@ class Replanner:
 
     def check(self, t: float, pose: Pose3, route: Sequence[tuple[float, float]], index: int,
               things: tuple[tuple[str, Circle], ...], turn: float = 0.0, busy: bool = False,
-              others: Mapping[str, Other] | None = None, seen: Sequence[Thing] = ()) -> str | None:
+              others: Mapping[str, Other] | None = None, seen: Sequence[Thing] = ()
+              ) -> Reason | None:
         """Why to plan again now (module docstring), or None; ``turn`` [rad]: what the formation
         has yet to turn to the current waypoint's heading (turning is progress too); ``busy``:
         traffic is near (:func:`traffic`: the progress clock stops); ``others``: the other
-        formations' reports (:class:`Other`), for giving way (GIVE_WAY: :meth:`begin_give_way`
+        formations' reports (:class:`Other`), for giving way (:attr:`Reason.GIVE_WAY`:
+        :meth:`begin_give_way`
         with :meth:`give_way`'s formation); ``seen``: every round thing this tick
         (:meth:`way_clear`)."""
         others = others or {}
@@ -484,44 +602,45 @@ class Replanner:
             self._leg_start = (pose[0], pose[1])
         if self.due:
             return self.due
-        if self.by_hand or t - self.last_plan < REPLAN_EVERY_S:
+        if self.by_hand or t - self.last_plan < PACE.every_s:
             return None
-        if self.giving_way:  # aside until the other has arrived (or for GIVE_WAY_S)
+        if self.giving_way:  # aside until the other has arrived (or for GIVING.most_s)
             o = others.get(self.giving_way)
-            if o is not None and o.state != REACHED and t - self._gave_at < GIVE_WAY_S:
+            if o is not None and o.state != REACHED and t - self._gave_at < GIVING.most_s:
                 return None
-            return "given way"
+            return Reason.GIVEN_WAY
         if self.give_way(t, others, pose):
-            return GIVE_WAY
+            return Reason.GIVE_WAY
         if changed(things, self.planned):
-            return "things changed"
+            return Reason.THINGS_CHANGED
         if self.way_clear(seen):
-            return WAY_CLEAR
+            return Reason.WAY_CLEAR
         if self.unreachable:
-            return "retry" if t - self.last_plan >= RETRY_S else None
+            return Reason.RETRY if t - self.last_plan >= PACE.retry_s else None
         return self._off(pose, route, index) or self._stuck(t, pose, route, index, turn, busy)
 
-    def _off(self, pose: Pose3, route: Sequence[tuple[float, float]], index: int) -> str | None:
+    def _off(self, pose: Pose3, route: Sequence[tuple[float, float]], index: int) -> Reason | None:
         a = route[index - 1] if index > 0 else (self._leg_start or route[0])
         b = route[index]
         d = segment_distance(pose[0], pose[1], a[0], a[1], b[0], b[1])[0]
-        return "off route" if d > self.width else None
+        return Reason.OFF_ROUTE if d > self.body.width else None
 
     def _stuck(self, t: float, pose: Pose3, route: Sequence[tuple[float, float]],
-               index: int, turn: float, busy: bool) -> str | None:
+               index: int, turn: float, busy: bool) -> Reason | None:
         togo = math.dist(pose[:2], route[index]) + self.body.rho * abs(turn) + sum(
             math.dist(route[k], route[k + 1]) for k in range(index, len(route) - 1))
+        p = self._progress
         if busy:  # waiting for traffic is not being stuck (the clock stops), for a while
-            self._best_at = t
-        if index >= len(route) - 1 and togo < SETTLE_M:
+            p.best_at = t
+        if index >= len(route) - 1 and togo < PROGRESS.settle_m:
             return None
-        if togo < self._best - PROGRESS_M:
-            self._best, self._best_at, self._moved_at = togo, t, t
+        if togo < p.best - PROGRESS.progress_m:
+            p.best, p.best_at, p.moved_at = togo, t, t
             self.boxed_in = False
             return None
-        if busy and t - self._moved_at >= BLOCKED_S:
-            self._way = ((pose[0], pose[1]),) + tuple(route[index:])  # should it go round: way_clear
-            return BLOCKED
+        if busy and t - p.moved_at >= PROGRESS.blocked_s:
+            self._detour.way = ((pose[0], pose[1]),) + tuple(route[index:])  # should it go round: way_clear
+            return Reason.BLOCKED
         if busy:
             return None
-        return "no progress" if t - self._best_at >= NO_PROGRESS_S else None
+        return Reason.NO_PROGRESS if t - p.best_at >= PROGRESS.no_progress_s else None

@@ -1,4 +1,4 @@
-"""The successor of a dead leader (fault containment, issue 14).
+"""The successor of a dead leader (fault containment).
 
 Who it is: :mod:`scenario.succession` (the first member adjacent to every other member, in the
 scenario's robot order). What it does (``agent.node``): it watches the leader's liveliness token

@@ -1,7 +1,8 @@
-"""The in-process simulator's leaders' route planning (issue 26): each ``method: rigid``
-formation without hand-given waypoints keeps a :class:`leader.routing.Replanner`; every tick its
-leader's view (its ellipse, the circles, the other formations' ellipses) decides whether to plan
-again, and every member follows the new route at once (the agents publish it on ``plan``)."""
+"""The in-process simulator's leaders' route planning: each ``method: rigid`` formation without
+hand-given waypoints keeps a :class:`leader.route_driver.RouteDriver` (the agent's leader drives
+the same one); every tick its leader's view (its ellipse, the circles, the other formations'
+ellipses) decides whether to plan again, and the new route reaches the leader at once and the
+other members a tick later (as the agents' ``plan`` message does in lock-step)."""
 
 from __future__ import annotations
 
@@ -12,35 +13,23 @@ from agent.barriers import Obstacle
 from agent.body import Footprint, pose_of
 from geometry.ellipse import Ellipse, wrap_angle
 from leader.navigation import Follower
-from leader.routing import (
-    GIVE_WAY,
-    REACHED,
-    STALLED,
-    UNREACHABLE,
-    Other,
-    Replanner,
-    StillThings,
-    Thing,
-    Update,
-    give_way_job,
-    plan_job,
-    traffic,
-)
+from leader.route_driver import RouteDriver
+from leader.routing import REACHED, STALLED, UNREACHABLE, Other, Reason, Replanner, Thing, Update
 from scenario import Scenario
 from scenario.routes import RIGID, StartPlan, footprint_body
 
 
 class Replans:
-    """Per formation: its :class:`Replanner` and its view of still things."""
+    """Per formation: its :class:`RouteDriver` (its :class:`Replanner` and its view of still
+    things)."""
 
     def __init__(self, scenario: Scenario, starts: dict[str, StartPlan],
                  footprints: Sequence[Footprint], members: dict[str, tuple[int, ...]]) -> None:
         self.scenario = scenario
         self.members = members
         self.footprints = footprints
-        self.planners: dict[str, Replanner] = {}
-        self.still: dict[str, StillThings] = {}
-        self.updates: list[tuple[float, str, str, int]] = []  # (t, formation, why, waypoints)
+        self.drivers: dict[str, RouteDriver] = {}
+        self.updates: list[tuple[float, str, Reason, int]] = []  # (t, formation, why, waypoints)
 
         # a new route reaches the leader's own follower at once and the other members a tick
         # later, as the agents' ``plan`` message does in lock-step: (formation, update, heading)
@@ -61,8 +50,13 @@ class Replans:
             r.name = f.name
             r.unreachable = starts[f.name].reason
             r.last_plan = 0.0
-            self.planners[f.name] = r
-            self.still[f.name] = StillThings()
+            fp = footprints[members[f.name][0]]
+            self.drivers[f.name] = RouteDriver(r, fp.goal_turn, scenario.robot.radius)
+
+    @property
+    def planners(self) -> dict[str, Replanner]:
+        """Per planned formation: the policy of its route."""
+        return {name: d.replanner for name, d in self.drivers.items()}
 
     def heading(self, name: str, own: Ellipse) -> float | None:
         """The formation's heading (the goal shape's turn) from its ellipse, under method rigid
@@ -78,41 +72,23 @@ class Replans:
         for name, upd, at in self._pending:
             self._hand(upd, name, at, followers, leader=False)
         self._pending = []
-        waiting = any(p.unreachable or p.giving_way for p in self.planners.values())
+        planners = self.planners
+        waiting = any(p.unreachable or p.giving_way for p in planners.values())
         others = self._reports(ellipses) if waiting else {}  # read only by those (give_way)
-        for name, planner in self.planners.items():
+        for name, driver in self.drivers.items():
             own = ellipses[name]
             fp = self.footprints[self.members[name][0]]
             pose = pose_of(own, fp.alpha0)
             seen = self._things(name, ellipses, obstacles)
-            things = self.still[name].update(t, seen)
-            if t == 0.0:
-                planner.planned = things
-                if planner.unreachable:  # no route at the start: hold from the first tick
-                    hold = Update((), (), "start", planner.unreachable)
-                    self._hand(hold, name, own, followers)
-                    self._hand(hold, name, own, followers, leader=False)
+            if t == 0.0 and driver.replanner.unreachable:  # no route at the start: hold from
+                hold = Update((), (), Reason.START, driver.replanner.unreachable)  # the first tick
+                self._hand(hold, name, own, followers)
+                self._hand(hold, name, own, followers, leader=False)
             lead = followers[self.leader[name]]
-            want = lead.heading
-            turn = 0.0 if want is None else wrap_angle(pose.theta - fp.goal_turn - want)
-            p3 = (pose.cx, pose.cy, pose.theta)
-            why = planner.check(t, p3, lead.route, lead.index, things, turn,
-                                traffic(p3, planner.body.rho, seen), others, seen)
-            if why is None:
+            new = driver.tick(t, (pose.cx, pose.cy, pose.theta), lead, seen, others)
+            if new is None:  # no plan, or no way round the formations in the way: keep the route
                 continue
-            if why == GIVE_WAY:
-                keeper = planner.give_way(t, others, p3)
-                job = planner.begin_give_way(t, p3, things, keeper, others[keeper],
-                                             self.scenario.robot.radius)
-                new = planner.finish_give_way(give_way_job(job), keeper)
-            else:
-                plan = planner.job_for(t, p3, things, why, seen)
-                if plan is None:
-                    continue
-                new = planner.finish(plan_job(plan), why)
-            if new is None:  # no way round the formations in the way: keep the route
-                continue
-            self.updates.append((t, name, why, len(new.route)))
+            self.updates.append((t, name, new.why, len(new.route)))
             self._hand(new, name, own, followers)
             self._pending.append((name, new, own))
 
@@ -140,10 +116,7 @@ class Replans:
         for i in self.members[name]:
             if (i == self.leader[name]) != leader:
                 continue
-            if upd.route:
-                followers[i].follow(upd.route, upd.headings)
-            else:
-                followers[i].hold(own.cx, own.cy, heading)
+            followers[i].take(upd.route, upd.headings, own.cx, own.cy, heading)
 
     def _things(self, name: str, ellipses: dict[str, Ellipse], obstacles: Sequence[Obstacle]
                 ) -> list[Thing]:
@@ -159,6 +132,6 @@ class Replans:
         """What ``summary.json`` says of the plans (only where a formation is planned)."""
         if not self.planners:
             return {}
-        return {"replans": [{"t": round(t, 3), "formation": n, "why": w, "waypoints": k}
+        return {"replans": [{"t": round(t, 3), "formation": n, "why": w.value, "waypoints": k}
                             for t, n, w, k in self.updates],
                 "unreachable": {n: p.unreachable for n, p in self.planners.items() if p.unreachable}}

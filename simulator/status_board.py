@@ -8,7 +8,8 @@ import threading
 
 import zenoh
 
-from wire.payloads import DecodeError, decode_status
+from wire.navigation import decode_status
+from wire.payloads import DecodeError
 
 logger = logging.getLogger(__name__)
 

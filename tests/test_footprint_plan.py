@@ -17,20 +17,18 @@ from geometry.footprint_plan import Body, FootprintPlan, load_outline, plan_asid
 from geometry.shapes import box, segment, shape_distance
 from leader.navigation import HEADING_TOLERANCE, SETTLED_SPEED, Follower, heading_tolerance
 from leader.routing import (
-    BLOCKED,
-    BLOCKED_S,
-    GIVE_WAY,
-    GIVE_WAY_S,
-    LANE_S,
-    MOVED_M,
+    GIVING,
+    LANES,
+    PACE,
+    PROGRESS,
     REACHED,
-    REPLAN_EVERY_S,
     STALLED,
+    STILL,
     UNREACHABLE,
-    WAY_CLEAR,
     GiveWayJob,
     Other,
     PlanJob,
+    Reason,
     Replanner,
     StillThings,
     Thing,
@@ -99,9 +97,9 @@ def test_a_line_crosswise_to_an_aisle_turns_into_it_and_back():
 
 
 def test_a_large_hall_is_planned_again_on_the_fine_lattice_where_the_coarse_one_is_shut():
-    """A hall of 22 x 13 m (over FINE_CELLS fine cells: planned on the 0.1 m lattice) whose one
+    """A hall of 22 x 13 m (over Grid.fine_cells fine cells: planned on the 0.1 m lattice) whose one
     way north is a 1.68 m gap in a shelf row; a hexagon of six robots fits it turned, by less
-    than the coarse lattice's MOVE_NEED h a side (montecarlo warehouse run 100162)."""
+    than the coarse lattice's Search.move_need h a side (a warehouse draw's hall)."""
     hall = [segment(f"w{k}", a, b, 0.15) for k, (a, b) in enumerate(
         [((-11, -6.5), (11, -6.5)), ((11, -6.5), (11, 6.5)), ((11, 6.5), (-11, 6.5)),
          ((-11, 6.5), (-11, -6.5))])]
@@ -150,9 +148,9 @@ def test_still_things_count_after_three_seconds_and_static_circles_at_once():
     assert [n for n, _c in still.update(2.9, things)] == ["obstacle/pillar"]
     assert [n for n, _c in still.update(3.0, things)] == ["obstacle/forklift", "obstacle/pillar"]
     moving = [things[0], things[1]._replace(speed=0.5)]
-    # once counted still, a thing stays so until it has moved MOVED_M / 3 from where it stood
+    # once counted still, a thing stays so until it has moved STILL.moved_m / 3 from where it stood
     assert [n for n, _c in still.update(3.1, moving)] == ["obstacle/forklift", "obstacle/pillar"]
-    gone = [things[0], things[1]._replace(x=3.0 + MOVED_M / 3 + 0.01, speed=0.5)]
+    gone = [things[0], things[1]._replace(x=3.0 + STILL.moved_m / 3 + 0.01, speed=0.5)]
     assert [n for n, _c in still.update(3.3, gone)] == ["obstacle/pillar"]
     back = [things[0], things[1]._replace(x=3.2)]  # and counts again only 3 s after it stops
     assert [n for n, _c in still.update(3.4, back)] == ["obstacle/pillar"]
@@ -160,7 +158,7 @@ def test_still_things_count_after_three_seconds_and_static_circles_at_once():
 
 
 def test_a_parked_formation_whose_ellipse_twitches_stays_planned_around():
-    """Warehouse run 200114: a parked formation's speed passed STILL_SPEED now and then as its
+    """In a warehouse run a parked formation's speed passed STILL.speed now and then as its
     members settled; each time it left the planned-around set and came back 3 s later, and every
     formation planned again each time. Where it stands, a twitch changes nothing."""
     still = StillThings()
@@ -187,62 +185,62 @@ def test_the_replanner_plans_again_off_route_and_without_progress_but_not_by_han
 
 def test_a_formation_that_waits_for_traffic_too_long_plans_round_the_formations_in_its_way():
     """Two formations head-on in a one-lane aisle each creep: each is traffic to the other, which
-    stops the progress clock; after BLOCKED_S without progress the plan goes round them."""
+    stops the progress clock; after PROGRESS.blocked_s without progress the plan goes round them."""
     r = Replanner(LINE, 0.0, (5.0, 0.0, 0.0), [], start=(-5.0, 0.0))
     route = ((5.0, 0.0),)
     assert r.check(0.0, (-4.0, 0.0, 0.0), route, 0, (), busy=True) is None
     assert r.check(9.0, (-4.0, 0.0, 0.0), route, 0, (), busy=True) is None  # waiting, not stuck
-    assert r.check(BLOCKED_S, (-4.0, 0.0, 0.0), route, 0, (), busy=True) == BLOCKED
+    assert r.check(PROGRESS.blocked_s, (-4.0, 0.0, 0.0), route, 0, (), busy=True) == Reason.BLOCKED
     seen = [Thing("formation/b", -2.5, 0.0, 0.03, 0.5), Thing("obstacle/forklift", -3.0, 0.5, 0.1, 0.45),
             Thing("formation/far", 4.0, 0.0, 0.2, 0.5), Thing("formation/parked", -3.0, -1.0, 0.0, 0.5)]
     extra = blockers((-4.0, 0.0, 0.0), LINE.rho, seen)
     assert extra == (("formation/b", (-2.5, 0.0, 0.5)),)  # moving, near, a formation
-    job = r.begin(BLOCKED_S, (-4.0, 0.0, 0.0), (), extra)
+    job = r.begin(PROGRESS.blocked_s, (-4.0, 0.0, 0.0), (), extra)
     assert job.circles == ((-2.5, 0.0, 0.5),) and r.planned == ()  # planned round once, not kept
-    assert r.finish(FootprintPlan((), "no route"), BLOCKED) is None  # keep the route: it may clear
+    assert r.finish(FootprintPlan((), "no route"), Reason.BLOCKED) is None  # keep the route: it may clear
     assert r.unreachable == ""
-    assert r.check(BLOCKED_S + 3.0, (-4.0, 0.0, 0.0), route, 0, (), busy=True) is None  # clock anew
+    assert r.check(PROGRESS.blocked_s + 3.0, (-4.0, 0.0, 0.0), route, 0, (), busy=True) is None  # clock anew
 
 
 def test_a_detour_round_blockers_is_planned_again_once_they_have_left_the_way():
-    """warehouse run 100187: c went round b, which was passing through the gap c needed, and came
-    back only when b parked 36 s later. Once every formation the detour went round is off the
+    """In a warehouse run c went round b, which was passing through the gap c needed, and came
+    back only when b had parked. Once every formation the detour went round is off the
     way c was on (beyond its reach and the footprint's), c plans again without them."""
     r = Replanner(LINE, 0.0, (5.0, 0.0, 0.0), [], start=(-5.0, 0.0))
     route = ((5.0, 0.0),)
     assert r.check(0.0, (-4.0, 0.0, 0.0), route, 0, (), busy=True) is None
-    assert r.check(BLOCKED_S, (-4.0, 0.0, 0.0), route, 0, (), busy=True) == BLOCKED
+    assert r.check(PROGRESS.blocked_s, (-4.0, 0.0, 0.0), route, 0, (), busy=True) == Reason.BLOCKED
     b = Thing("formation/b", -2.5, 0.0, 0.03, 0.5)
-    r.finish(plan_job(r.begin(BLOCKED_S, (-4.0, 0.0, 0.0), (), blockers((-4.0, 0.0, 0.0), LINE.rho, [b]))),
-             BLOCKED)
+    extra = blockers((-4.0, 0.0, 0.0), LINE.rho, [b])
+    r.finish(plan_job(r.begin(PROGRESS.blocked_s, (-4.0, 0.0, 0.0), (), extra)), Reason.BLOCKED)
     detour = ((-4.0, 2.0), (5.0, 2.0), (5.0, 0.0))
-    t = BLOCKED_S + REPLAN_EVERY_S
+    t = PROGRESS.blocked_s + PACE.every_s
     assert r.check(t, (-4.0, 1.0, 0.0), detour, 0, (), seen=[b]) is None  # b still on the way
     moved_along = b._replace(x=1.0, y=0.3)
     assert r.check(t, (-4.0, 1.0, 0.0), detour, 0, (), seen=[moved_along]) is None  # still on it
     gone = b._replace(x=1.0, y=-3.0)
-    assert r.check(t, (-4.0, 1.0, 0.0), detour, 0, (), seen=[gone]) == WAY_CLEAR
-    assert r.check(t, (-4.0, 1.0, 0.0), detour, 0, (), seen=[]) == WAY_CLEAR  # out of sight
-    r.plan(t, (-4.0, 1.0, 0.0), (), WAY_CLEAR)  # without them: no detour to come back from
-    assert r.check(t + REPLAN_EVERY_S, (-4.0, 1.0, 0.0), route, 0, (), seen=[gone]) is None
+    assert r.check(t, (-4.0, 1.0, 0.0), detour, 0, (), seen=[gone]) == Reason.WAY_CLEAR
+    assert r.check(t, (-4.0, 1.0, 0.0), detour, 0, (), seen=[]) == Reason.WAY_CLEAR  # out of sight
+    r.plan(t, (-4.0, 1.0, 0.0), (), Reason.WAY_CLEAR)  # without them: no detour to come back from
+    assert r.check(t + PACE.every_s, (-4.0, 1.0, 0.0), route, 0, (), seen=[gone]) is None
 
 def test_of_two_formations_blocked_by_each_other_the_later_name_goes_round():
     """a and b stand head-on, each blocked by the other: b (the later name) plans round a, a keeps
-    its route for BLOCKED_S more, then goes round too (b may not be waiting for it at all)."""
+    its route for PROGRESS.blocked_s more, then goes round too (b may not be waiting for it at all)."""
     route = ((5.0, 0.0),)
     a, b = (Replanner(LINE, 0.0, (5.0, 0.0, 0.0), [], start=(-5.0, 0.0)) for _ in range(2))
     a.name, b.name = "a", "b"
     for r in (a, b):
         assert r.check(0.0, (-4.0, 0.0, 0.0), route, 0, (), busy=True) is None
-        assert r.check(BLOCKED_S, (-4.0, 0.0, 0.0), route, 0, (), busy=True) == BLOCKED
+        assert r.check(PROGRESS.blocked_s, (-4.0, 0.0, 0.0), route, 0, (), busy=True) == Reason.BLOCKED
     sees_b = (("formation/b", (-2.5, 0.0, 0.5)), ("obstacle/forklift", (-3.0, 0.5, 0.45)))
-    assert a.waits_for(BLOCKED_S, sees_b)
-    assert not a.waits_for(2.0 * BLOCKED_S, sees_b)  # no longer than BLOCKED_S more
-    assert not b.waits_for(BLOCKED_S, (("formation/a", (-2.5, 0.0, 0.5)),))
-    assert not a.waits_for(BLOCKED_S, ())
+    assert a.waits_for(PROGRESS.blocked_s, sees_b)
+    assert not a.waits_for(2.0 * PROGRESS.blocked_s, sees_b)  # no longer than PROGRESS.blocked_s more
+    assert not b.waits_for(PROGRESS.blocked_s, (("formation/a", (-2.5, 0.0, 0.5)),))
+    assert not a.waits_for(PROGRESS.blocked_s, ())
     by_hand = Replanner(LINE, 0.0, (5.0, 0.0, 0.0), [], start=(-5.0, 0.0), by_hand=True)
     by_hand.name = "a"
-    assert not by_hand.waits_for(BLOCKED_S, sees_b)
+    assert not by_hand.waits_for(PROGRESS.blocked_s, sees_b)
 
 
 def test_a_member_passes_a_waypoint_with_a_heading_only_once_the_formation_has_turned():
@@ -350,7 +348,7 @@ def test_two_formations_in_each_others_only_way_the_later_name_gives_way_and_the
     """A square deep in the dead end (goal out in the hall) and another at its mouth (goal deep
     inside): each plans round the other as parked and finds no route; the plan without the
     parked formations names the one in the way. The later name stands aside, off the earlier
-    one's way, once that one reports no route too; the earlier one never does; after GIVE_WAY_S,
+    one's way, once that one reports no route too; the earlier one never does; after GIVING.most_s,
     or once the other reports it has arrived, the one aside plans for its goal again."""
     square = Body(((0.3, 0.3), (-0.3, 0.3), (-0.3, -0.3), (0.3, -0.3)), radius=0.105, margin=0.05)
     walls = _dead_end()
@@ -361,27 +359,27 @@ def test_two_formations_in_each_others_only_way_the_later_name_gives_way_and_the
     # each sees the other parked: a circle of its ellipse's semi-major axis and a robot radius
     sees_outer = (("formation/b", (0.5, 0.0, 0.53)),)
     sees_inner = (("formation/a", (4.0, 0.0, 0.53)),)
-    held = inner.finish(plan_job(inner.begin(0.0, inner_at, sees_outer)), "start")
+    held = inner.finish(plan_job(inner.begin(0.0, inner_at, sees_outer)), Reason.START)
     assert held is not None and held.route == () and inner.blocked_by == ("b",)
     assert "formation b" in inner.unreachable
-    outer.finish(plan_job(outer.begin(0.0, outer_at, sees_inner)), "start")
+    outer.finish(plan_job(outer.begin(0.0, outer_at, sees_inner)), Reason.START)
     assert outer.blocked_by == ("a",)
     reports = {"a": Other(UNREACHABLE, 4.0, 0.0, -5.0, 0.0, 0.42),
                "b": Other(UNREACHABLE, 0.5, 0.0, 4.5, 0.0, 0.42)}
-    assert inner.check(6.0, inner_at, ((-5.0, 0.0),), 0, sees_outer, others=reports) != GIVE_WAY
-    assert outer.check(6.0, outer_at, ((4.5, 0.0),), 0, sees_inner, others=reports) == GIVE_WAY
+    assert inner.check(6.0, inner_at, ((-5.0, 0.0),), 0, sees_outer, others=reports) != Reason.GIVE_WAY
+    assert outer.check(6.0, outer_at, ((4.5, 0.0),), 0, sees_inner, others=reports) == Reason.GIVE_WAY
     assert outer.give_way(6.0, reports) == "a"
     job = outer.begin_give_way(6.0, outer_at, sees_inner, "a", reports["a"], 0.105)
     upd = outer.finish_give_way(give_way_job(job), "a")
-    assert upd is not None and upd.why == GIVE_WAY and outer.giving_way == "a"
+    assert upd is not None and upd.why == Reason.GIVE_WAY and outer.giving_way == "a"
     x, y = upd.route[-1]
     assert abs(y) > 0.42 + square.rho + 0.105 and x < -1.0  # out in the hall, off a's way
     assert outer.check(20.0, (x, y, 0.0), upd.route, len(upd.route) - 1, (), others=reports) is None
     arrived = {**reports, "a": Other(REACHED, -5.0, 0.0, -5.0, 0.0, 0.42)}
     assert outer.check(30.0, (x, y, 0.0), upd.route, len(upd.route) - 1, (), others=arrived) == "given way"
     end = len(upd.route) - 1
-    assert outer.check(6.0 + GIVE_WAY_S - 1.0, (x, y, 0.0), upd.route, end, (), others=reports) is None
-    assert outer.check(6.0 + GIVE_WAY_S, (x, y, 0.0), upd.route, end, (), others=reports) == "given way"
+    assert outer.check(6.0 + GIVING.most_s - 1.0, (x, y, 0.0), upd.route, end, (), others=reports) is None
+    assert outer.check(6.0 + GIVING.most_s, (x, y, 0.0), upd.route, end, (), others=reports) == "given way"
 
 
 def test_a_formation_boxed_in_behind_a_holding_one_is_given_way():
@@ -397,7 +395,7 @@ def test_a_formation_boxed_in_behind_a_holding_one_is_given_way():
     inner.name = "a"
     route = ((0.5, 0.0), (-5.0, 0.0))
     extra = (("formation/b", (0.5, 0.0, 0.53)),)
-    assert inner.finish(plan_job(inner.begin(20.0, (3.0, 0.0, 0.0), (), extra)), BLOCKED) is None
+    assert inner.finish(plan_job(inner.begin(20.0, (3.0, 0.0, 0.0), (), extra)), Reason.BLOCKED) is None
     assert inner.boxed_in and not inner.unreachable  # it keeps its route: the way may clear
     outer = Replanner(square, 0.0, (4.5, 0.0, 0.0), walls, start=(0.5, 0.0))
     outer.name, outer.unreachable, outer.blocked_by = "b", "no way", ("a",)
@@ -421,7 +419,7 @@ def test_a_formation_not_in_the_others_way_or_whose_other_has_a_route_does_not_g
 
 
 def test_a_formation_parked_in_the_only_way_stands_aside_for_the_one_with_no_route():
-    """The warehouse draw's runs 300047 and 300117: a square parked at (or, kept short by the
+    """In warehouse draws a square parked at (or, kept short by the
     other, within 1 m of) its goal at the dead end's mouth stands in the only way of one deep
     inside that reports no route. Nothing asked a formation with a route to move; now one
     parked near its goal stands aside for any that reports no route where it stands in that
@@ -435,7 +433,7 @@ def test_a_formation_parked_in_the_only_way_stands_aside_for_the_one_with_no_rou
     assert parked.parked(at) and not parked.parked((-1.0, 0.0, 0.0))
     stuck = {"a": Other(UNREACHABLE, 4.0, 0.0, -5.0, 0.0, 0.42)}
     assert parked.give_way(6.0, stuck) == ""  # no pose: the old rule (it has a route)
-    assert parked.check(6.0, at, ((0.5, 0.0),), 0, (), others=stuck) == GIVE_WAY
+    assert parked.check(6.0, at, ((0.5, 0.0),), 0, (), others=stuck) == Reason.GIVE_WAY
     assert parked.give_way(6.0, stuck, at) == "a"
     job = parked.begin_give_way(6.0, at, (), "a", stuck["a"], 0.105)
     upd = parked.finish_give_way(give_way_job(job), "a")
@@ -465,9 +463,9 @@ def _one_lane_aisle():
 
 
 def test_a_formation_stuck_on_its_way_stands_aside_for_the_one_with_no_route_and_not_through_it():
-    """Warehouse run 300130: a triangle 1.02 m from its goal (just further than PARKED_M), on
-    which a pentagon with no route stood, waited for it in a one-lane aisle for ever. A
-    formation that has made no progress for BLOCKED_S stands aside as a parked one does; and
+    """A triangle 1.02 m from its goal (just further than GIVING.parked_m), on which a pentagon
+    with no route stood, waited for it in a one-lane aisle for ever. A formation that has made
+    no progress for PROGRESS.blocked_s stands aside as a parked one does; and
     it plans its way aside round the other where that one stands, still or not (the pentagon
     crept as it held, so it was no still thing, and the triangle was sent west through it)."""
     square = Body(((0.3, 0.3), (-0.3, 0.3), (-0.3, -0.3), (0.3, -0.3)), radius=0.105, margin=0.05)
@@ -477,13 +475,13 @@ def test_a_formation_stuck_on_its_way_stands_aside_for_the_one_with_no_route_and
     at = (-1.5, 0.0, 0.0)
     assert not giver.parked(at)
     other = {"a": Other(UNREACHABLE, -3.0, 0.0, 9.0, 0.0, 0.42)}  # in the aisle, bound east
-    assert giver.give_way(BLOCKED_S - 1.0, other, at) == ""  # not stuck yet
-    assert giver.check(BLOCKED_S - 1.0, at, ((-8.0, 3.0),), 0, ()) is None  # progress: the first
-    assert giver.give_way(2.0 * BLOCKED_S - 2.0, other, at) == ""
-    assert giver.stuck(2.0 * BLOCKED_S - 1.0)
-    assert giver.give_way(2.0 * BLOCKED_S - 1.0, other, at) == "a"
+    assert giver.give_way(PROGRESS.blocked_s - 1.0, other, at) == ""  # not stuck yet
+    assert giver.check(PROGRESS.blocked_s - 1.0, at, ((-8.0, 3.0),), 0, ()) is None  # progress: the first
+    assert giver.give_way(2.0 * PROGRESS.blocked_s - 2.0, other, at) == ""
+    assert giver.stuck(2.0 * PROGRESS.blocked_s - 1.0)
+    assert giver.give_way(2.0 * PROGRESS.blocked_s - 1.0, other, at) == "a"
     # the other is in no list of still things (it creeps), and is planned round all the same
-    job = giver.begin_give_way(2.0 * BLOCKED_S - 1.0, at, (), "a", other["a"], 0.105)
+    job = giver.begin_give_way(2.0 * PROGRESS.blocked_s - 1.0, at, (), "a", other["a"], 0.105)
     assert job.circles == ((-3.0, 0.0, pytest.approx(0.42 + 0.105)),)
     upd = giver.finish_give_way(give_way_job(job), "a")
     assert upd is not None and giver.giving_way == "a"
@@ -508,9 +506,9 @@ def _two_aisles(closed_north: bool = False):
 
 
 def test_a_route_head_on_into_a_forklifts_way_goes_round_it_where_there_is_a_way():
-    """warehouse run 300099: a hexagon sent down the middle aisle head-on into a forklift (no
+    """In a warehouse draw a hexagon sent down the middle aisle head-on into a forklift (no
     room beside it) stood, then backed away from it for 100 s. A route that meets a moving
-    thing's next LANE_S head-on goes round where that thing drives, where another way exists."""
+    thing's next LANES.ahead_s head-on goes round where that thing drives, where another way exists."""
     shapes = _two_aisles()
     start, goal = (-8.5, -1.2, 0.0), (8.5, -1.2, 0.0)  # the south aisle's robots: y -1.85 .. -0.6
     forklift = Thing("obstacle/forklift", 5.0, -1.225, 0.1, 0.6, False, -0.1, 0.0)  # fills it
@@ -533,7 +531,7 @@ def test_a_route_head_on_into_a_forklifts_way_goes_round_it_where_there_is_a_way
 
 
 def test_a_forklift_past_the_leg_before_the_formation_can_get_there_is_not_oncoming():
-    """warehouse run 300091: a forklift driving south out of the aisle a hexagon's route went
+    """In a warehouse draw a forklift driving south out of the aisle a hexagon's route went
     north up, already past the aisle's mouth, sent it 40 m round the hall the other way. Its
     way counts from the earliest the formation can be on each leg (at its top speed)."""
     start, route = (0.0, 0.0, 0.0), ((10.0, 0.0, 0.0), (10.0, 10.0, 0.0))  # 10 m east, then north
@@ -542,14 +540,14 @@ def test_a_forklift_past_the_leg_before_the_formation_can_get_there_is_not_oncom
     assert not oncoming(start, route, 0.6, leaving, speed=0.22)  # gone 45 s before it gets there
     coming = (10.5, 12.0, 0.0, -0.15, 0.45)  # still up the aisle when the formation turns into it
     assert oncoming(start, route, 0.6, coming, speed=0.22)
-    late = (10.5, 30.0, 0.0, -0.15, 0.45)  # reaches the aisle only after LANE_S
+    late = (10.5, 30.0, 0.0, -0.15, 0.45)  # reaches the aisle only after LANES.ahead_s
     assert not oncoming(start, route, 0.6, late, speed=0.22)
 
 
 def test_a_lane_is_circles_along_the_next_lane_s_less_those_the_start_reaches():
     lane = (5.0, 0.0, -0.1, 0.0, 0.4)
     far = lane_circles((-10.0, 0.0, 0.0), 0.5, lane)
-    assert far[0] == (5.0, 0.0, 0.4) and far[-1][0] == pytest.approx(5.0 - 0.1 * LANE_S)
+    assert far[0] == (5.0, 0.0, 0.4) and far[-1][0] == pytest.approx(5.0 - 0.1 * LANES.ahead_s)
     assert all(a[0] - b[0] <= 0.2 + 1e-9 for a, b in zip(far[:-1], far[1:], strict=True))  # Ds / 2 apart
     near = lane_circles((1.0, 0.0, 0.0), 0.5, lane)
     assert near and all(math.dist((1.0, 0.0), c[:2]) > 0.4 + 0.5 for c in near)

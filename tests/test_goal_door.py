@@ -19,7 +19,7 @@ from formation.commands import goal as navcmd
 from runtime.testing import free_tcp_port, wait_for_matching
 from tests.test_hold import start_fleet, wait_endpoint
 from wire import keys
-from wire.payloads import GoalMsg, encode_nav
+from wire.navigation import GoalMsg, encode_nav
 from wire.zconf import ZenohSettings, read_auth_file
 
 pytestmark = pytest.mark.integration  # starts processes, Zenoh routers, sshd or a browser

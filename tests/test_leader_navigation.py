@@ -9,7 +9,7 @@ import pytest
 from geometry.route import ROUTE_MARGIN
 from geometry.shapes import box, path_clearance
 from leader.navigation import SAME_GOAL, Follower, Navigator
-from wire.payloads import GoalMsg, PlanMsg
+from wire.navigation import GoalMsg, PlanMsg
 
 REF = {"a1": (0.25, 0.0), "a2": (-0.25, 0.0)}
 SHELF = box("shelf", (2.0, 0.0), (0.6, 2.0), 0.0, 0.15)

@@ -212,19 +212,19 @@ def test_an_agent_carries_its_pose_by_its_measured_age_up_to_the_declared_latenc
     sc = with_bounds(load_scenario(TWO_SMALL), TURTLEBOT3_LAB)
     cfg = build_agent_configs(sc)["a2"]
     node = AgentNode(cfg)  # real time
-    node.last_u = (0.2, -0.1)
+    node.ticker.last_u = (0.2, -0.1)
     pose = Pose(1.0, 2.0, 0.0, 100.0)
-    carried, ahead = node._carried(pose, 100.05)
+    carried, ahead = node.ticker.carried(pose, 100.05)
     assert ahead == pytest.approx(0.05)
     assert (carried.x, carried.y, carried.stamp) == pytest.approx((1.01, 1.995, 100.0))
     latency = cfg.control.bounds.latency
-    assert node._carried(pose, 101.0)[1] == latency  # an older pose: no further than declared
-    assert node._carried(pose, 99.0) == (pose, 0.0)  # a stamp ahead of the clock: as it came
+    assert node.ticker.carried(pose, 101.0)[1] == latency  # an older pose: no further than declared
+    assert node.ticker.carried(pose, 99.0) == (pose, 0.0)  # a stamp ahead of the clock: as it came
     lockstep = AgentNode(cfg, NodeOptions(lockstep=True))
-    lockstep.last_u = (0.2, -0.1)
-    assert lockstep._carried(pose, 100.05) == (pose, 0.0)  # lock-step: every pose is its tick's
+    lockstep.ticker.last_u = (0.2, -0.1)
+    assert lockstep.ticker.carried(pose, 100.05) == (pose, 0.0)  # lock-step: every pose is its tick's
     plain = AgentNode(build_agent_configs(load_scenario(TWO_SMALL))["a2"])
-    assert plain._carried(pose, 100.05) == (pose, 0.0)  # no bounds: as ever
+    assert plain.ticker.carried(pose, 100.05) == (pose, 0.0)  # no bounds: as ever
 
 
 def test_a_lockstep_run_with_bounds_equals_the_simulation_in_the_lab_world(tmp_path):

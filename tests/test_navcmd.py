@@ -15,7 +15,8 @@ from geometry.shapes import box
 from leader.navigation import Follower, Navigator
 from runtime.testing import RouterProcess
 from wire import keys
-from wire.payloads import DecodeError, decode_goal, encode_nav
+from wire.navigation import decode_goal, encode_nav
+from wire.payloads import DecodeError
 from wire.zconf import ZenohSettings
 
 pytestmark = pytest.mark.integration  # starts processes, Zenoh routers, sshd or a browser

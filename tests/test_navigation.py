@@ -16,7 +16,7 @@ from scenario import ScenarioError, load_scenario, parse_scenario
 from scenario.routes import initial_route, route_radius
 from simulator.inprocess import SimOptions, simulate
 from tests.scenario_runs import summary_of
-from wire.payloads import PlanMsg
+from wire.navigation import PlanMsg
 
 ROOT = Path(__file__).resolve().parent.parent
 NAV = sorted((ROOT / "tests" / "scenarios").glob("nav-*.yaml")) + [ROOT / "scenarios" / "warehouse.yaml"]
@@ -131,7 +131,7 @@ def test_advance_walks_the_route_and_member_targets_end_at_the_goals():
 
 
 def test_a_follower_s_target_at_a_waypoint_with_a_heading_is_its_slot_turned_there():
-    """Warehouse run 300130: a pentagon stood 0.25 rad short of a waypoint's heading, each
+    """A pentagon stood 0.25 rad short of a waypoint's heading, each
     member within 2 cm of its target, the waypoint plus its goal offset unturned, so each
     blended into parking there (agent.body.member_nominal) and the turn never came. The target
     is the member's slot at the waypoint's pose: the goal offset turned by the waypoint's
@@ -220,7 +220,7 @@ def test_multi_process_lock_step_walks_the_same_routes_as_the_in_process_simulat
 def test_the_planners_quick_accept_never_passes_a_leg_closer_than_wanted():
     import random
 
-    from geometry.route import _hits_grown_box
+    from geometry.route import hits_grown_box
 
     rng = random.Random(1)
     accepted = 0
@@ -233,7 +233,7 @@ def test_the_planners_quick_accept_never_passes_a_leg_closer_than_wanted():
                          (rng.uniform(-3, 3), rng.uniform(-3, 3)), 0.15)
         p0, p1 = (rng.uniform(-4, 4), rng.uniform(-4, 4)), (rng.uniform(-4, 4), rng.uniform(-4, 4))
         want = rng.uniform(0.1, 1.0)
-        if not _hits_grown_box(p0, p1, sh, (math.cos(sh.yaw), math.sin(sh.yaw)), want):
+        if not hits_grown_box(p0, p1, sh, (math.cos(sh.yaw), math.sin(sh.yaw)), want):
             accepted += 1
             assert path_clearance(p0, p1, sh) >= want - 1e-9
     assert accepted > 300

@@ -98,7 +98,7 @@ def test_the_tiebreak_stays_under_rigid_two_rectangles_head_on_pass_sooner_with_
     (agent.body.mirror_rows); now they get by without it too, 13.6 s later (42.4 s against
     28.75 s). (The replanner's blocked rule, which plans round the other after 10 s, is off
     here: it would break the jam too, later and by a detour.)"""
-    monkeypatch.setattr(routing, "BLOCKED_S", math.inf)
+    monkeypatch.setattr(routing, "PROGRESS", dataclasses.replace(routing.PROGRESS, blocked_s=math.inf))
     s = load_scenario(SCENARIOS / "head-on-rectangles.yaml")
     with_push = dataclasses.replace(s.controller, method="rigid")
     without = dataclasses.replace(s.controller, method="rigid", tiebreak="none")

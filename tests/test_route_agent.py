@@ -20,7 +20,7 @@ from geometry.ellipse import Ellipse, reference_shape
 from scenario import load_scenario
 from scenario.reader import ScenarioError
 from viewer.record import route_logs
-from wire.payloads import GoalMsg, PlanMsg, decode_goal, decode_plan, encode_nav
+from wire.navigation import GoalMsg, PlanMsg, decode_goal, decode_plan, encode_nav
 from wire.shapes import shape_to_msg
 
 SCENARIOS = Path(__file__).parent / "scenarios"
@@ -44,16 +44,16 @@ def test_a_leader_with_a_goal_in_a_closed_room_holds_and_says_unreachable():
     nav, _cfgs, (cx, cy) = _leader_tick("route-closed-room", "r1")
     assert nav.navigator is not None and "no way" in nav.navigator.unreachable
     assert nav.follower.holding and nav.follower.route[0] == (cx, cy)
-    status = nav._status(1.0, (cx, cy))
+    status = nav.status_now(1.0, (cx, cy))
     assert status.state == "unreachable" and status.reason
-    hold = nav._plan_now(nav.navigator, 1.0)
+    hold = nav.plan_now(nav.navigator, 1.0)
     assert hold.route == ((cx, cy),)  # the members park where the formation is
 
 
 def test_a_rigid_leader_plans_headings_its_members_adopt_and_a_replan_too():
     nav, cfgs, _c = _leader_tick("route-line-aisle", "l1")
     assert nav.navigator is not None and nav.navigator.unreachable == ""
-    plan = nav._plan_now(nav.navigator, 0.0)
+    plan = nav.plan_now(nav.navigator, 0.0)
     assert plan.headings and len(plan.headings) == len(plan.route)
     wire = decode_plan(encode_nav(plan))
     assert wire == plan and encode_nav(plan)[0] == 2
@@ -110,11 +110,11 @@ def test_the_recording_logs_each_route_planned_again():
 def test_a_new_goal_for_a_rigid_formation_gets_the_footprints_route_in_the_same_tick():
     nav, _cfgs, (cx, cy) = _leader_tick("route-line-aisle", "l1")
     sent: list[PlanMsg] = []
-    nav._put_plan = lambda plan, stamp: sent.append(plan)  # type: ignore[method-assign]
-    nav._goal = GoalMsg("L", 5.0, 0.0, None, (), 10.0)  # as _on_goal leaves it
+    nav.put_plan = lambda plan, stamp: sent.append(plan)  # type: ignore[method-assign]
+    nav.offer_goal(GoalMsg("L", 5.0, 0.0, None, (), 10.0))
     own = Ellipse(cx, cy, reference_shape([(cx, cy - 0.75), (cx, cy + 0.75)]).alpha0, 0.9, 0.2)
     nav.step(10.0, True, cx, cy, own, ((), ()))
-    assert nav.goals == 1 and nav.navigator is not None
+    assert nav.counts.goals == 1 and nav.navigator is not None
     assert nav.follower.headings and nav.follower.route[-1] == (5.0, 0.0)
     assert sent[-1].headings == nav.follower.headings and sent[-1].stamp == sent[0].stamp
     member = NavPart(_cfgs["l2"], leader=False)

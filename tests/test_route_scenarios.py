@@ -47,7 +47,7 @@ def test_route_scenarios_meet_the_issue_bar(kind, model):
     if kind == "route-pushed-off":
         assert "off route" in whys
     if kind + model == "route-head-on-aisle":  # the unicycles came apart without it too
-        assert "blocked" in whys  # one plans round the other (montecarlo run 300145 waited 300 s)
+        assert "blocked" in whys  # one plans round the other (without it both wait for ever)
 
 
 @pytest.mark.slow
@@ -84,7 +84,7 @@ def _give_way():
 
 @pytest.mark.slow
 def test_of_two_formations_in_each_others_only_way_the_later_name_gives_way():
-    """Montecarlo warehouse run 200148: c and d each found no route while the other stood in
+    """c and d each found no route while the other stood in
     its way and held to the end. Now d (the later name) stands aside off c's way, c passes,
     and every goal is reached within the band, without contact."""
     res, s = _give_way()

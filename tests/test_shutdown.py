@@ -1,4 +1,4 @@
-"""Shutdown steps have time limits (issue 12): a Zenoh undeclare or session close that hangs
+"""Shutdown steps have time limits: a Zenoh undeclare or session close that hangs
 (a router that is gone) is logged and left behind, and the agent and the world still close,
 the agent's zero command first."""
 
@@ -84,7 +84,7 @@ def test_the_agent_closes_in_bounded_time_when_every_zenoh_step_hangs_zero_comma
     release = threading.Event()
     cmd_pub, session = Hangs(release), Hangs(release)
     transport = node.transport = Transport(session, node.counter)
-    transport.adopt(node.cmd_key, cmd_pub)
+    transport.adopt(node.keys.cmd, cmd_pub)
     transport.keep(None, Hangs(release))
     try:
         with caplog.at_level(logging.WARNING):
@@ -109,7 +109,7 @@ def test_the_agent_closes_even_while_a_tick_holds_its_lock():
 
 
 def test_a_tick_that_outlives_closing_sends_nothing_after_the_zero_command():
-    """CI, issue 13's flood test: a tick held the lock past the closing wait and its command
+    """Under a flood of messages a tick held the lock past the closing wait and its command
     followed the zero one, so the robot's last command was to drive on. Here the tick ends the
     moment the zero goes out, while closing still undeclares (hung for LIMIT)."""
     cfg = build_agent_configs(load_scenario(ROOT / "tests" / "scenarios" / "two-small.yaml"))["a1"]
@@ -118,7 +118,7 @@ def test_a_tick_that_outlives_closing_sends_nothing_after_the_zero_command():
     cmd_pub = Hangs(release)
     cmd_pub.put_message = lambda msg: (cmd_pub.put.append(msg), zeroed.set())  # type: ignore
     transport = node.transport = Transport(Hangs(release), node.counter)
-    transport.adopt(node.cmd_key, cmd_pub)
+    transport.adopt(node.keys.cmd, cmd_pub)
     transport.keep(None, Hangs(release))
     node.gate.lock.acquire()  # a tick in progress, past the closing wait
 
@@ -137,7 +137,7 @@ def test_a_tick_that_outlives_closing_sends_nothing_after_the_zero_command():
         release.set()
     assert [(m.v, m.omega) for m in cmd_pub.put][0] == (0.0, 0.0)
     assert all((m.v, m.omega, m.ux, m.uy) == (0.0, 0.0, 0.0, 0.0) for m in cmd_pub.put)
-    assert node.late_commands == 1
+    assert node.out.late_commands == 1
     assert node.emergency_zero()  # already sent: nothing more
 
 

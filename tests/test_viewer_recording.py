@@ -168,7 +168,8 @@ def test_the_fleet_watcher_drops_and_counts_malformed_messages_and_builds_frames
 
 def test_the_fleet_watcher_shows_each_leaders_status_and_planned_route():
     from wire.diag import Diag, encode_diag
-    from wire.payloads import PlanMsg, Pose, StatusMsg, encode, encode_nav
+    from wire.navigation import PlanMsg, StatusMsg, encode_nav
+    from wire.payloads import Pose, encode
 
     w, put = _watcher()
     for rid, form in (("a1", "A"), ("b1", "B")):
@@ -195,7 +196,8 @@ def test_the_fleet_watcher_shows_each_leaders_status_and_planned_route():
 
 def test_the_fleet_watcher_shows_the_goals_a_leader_refused_and_why():
     from wire.diag import Diag, encode_diag
-    from wire.payloads import Pose, StatusMsg, encode, encode_nav
+    from wire.navigation import StatusMsg, encode_nav
+    from wire.payloads import Pose, encode
 
     w, put = _watcher()
     put("warehouse/robot/a1/pose", encode(Pose(0.0, 0.0, 0.0, 5.0)))

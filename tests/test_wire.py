@@ -17,7 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from zenoh.ext import UInt8, z_deserialize, z_serialize
 
-from wire import keys, payloads, traffic, zconf
+from wire import decoders, keys, payloads, traffic, zconf
 from wire.payloads import (
     Cmd,
     DecodeError,
@@ -35,6 +35,7 @@ from wire.payloads import (
     decode_state,
     encode,
 )
+from wire.reader import decode_payload
 
 # --- strategies -------------------------------------------------------------------------------
 
@@ -351,7 +352,7 @@ def test_state_version_2_carries_the_heading_and_a_version_1_decoder_refuses_it_
     assert decode_state(data) == new
     # The decoder of the previous release: version byte 1 and five floats.
     def old_decoder(payload: bytes) -> State:
-        return payloads._decode(payload, lambda r: State(*r.floats(5, "state")), "state", 1)
+        return decode_payload(payload, lambda r: State(*r.floats(5, "state")), "state", 1)
 
     with pytest.raises(DecodeError, match="state: unsupported version 2 \\(expected 1\\)"):
         old_decoder(data)
@@ -576,8 +577,8 @@ def test_encode_rejects_an_object_that_is_not_a_payload() -> None:
 
 
 def test_decoders_are_listed_per_key_class() -> None:
-    assert set(payloads.DECODERS) == set(keys.KEY_CLASSES) - {keys.OTHER}
-    assert payloads.DECODERS["state"] is decode_state
+    assert set(decoders.DECODERS) == set(keys.KEY_CLASSES) - {keys.OTHER}
+    assert decoders.DECODERS["state"] is decode_state
 
 
 # --- keys ------------------------------------------------------------------------------------

@@ -9,10 +9,9 @@ from hypothesis import strategies as st
 from zenoh.ext import UInt8, z_deserialize
 
 from wire import keys
-from wire.payloads import (
-    DECODERS,
+from wire.decoders import DECODERS
+from wire.navigation import (
     STATUS_STATES,
-    DecodeError,
     GoalMsg,
     PlanMsg,
     StatusMsg,
@@ -21,6 +20,7 @@ from wire.payloads import (
     decode_status,
     encode_nav,
 )
+from wire.payloads import DecodeError
 
 finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 ids = st.text(alphabet="abcxyz-_0123456789", min_size=1, max_size=8)

@@ -8,7 +8,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from zenoh.ext import UInt8, z_deserialize
 
-from wire import payloads
 from wire.payloads import (
     MAX_ITEMS,
     SHAPE_BOX,
@@ -20,6 +19,7 @@ from wire.payloads import (
     decode_obstacles,
     encode,
 )
+from wire.reader import decode_payload
 
 finite = st.floats(allow_nan=False, allow_infinity=False)
 non_negative = st.floats(min_value=0.0, allow_infinity=False)
@@ -70,7 +70,7 @@ def test_circles_alone_keep_version_1_byte_for_byte():
 def test_a_decoder_that_predates_shapes_refuses_them_naming_the_version():
     # the version-1-only decoder, as every build before shapes had it
     with pytest.raises(DecodeError, match=r"obstacles: unsupported version 2 \(expected 1\)"):
-        payloads._decode(encode(EXAMPLE), payloads._parse_obstacles, "obstacles")
+        decode_payload(encode(EXAMPLE), lambda r: None, "obstacles")
     bad = bytearray(encode(EXAMPLE))
     bad[0] = 3
     with pytest.raises(DecodeError, match=r"unsupported version 3 \(expected 1 or 2\)"):

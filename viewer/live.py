@@ -33,18 +33,15 @@ import zenoh
 from geometry.limits import BURGER_RADIUS
 from wire import keys
 from wire.diag import DIAG, all_diag_key, decode_diag
+from wire.navigation import PlanMsg, StatusMsg, decode_plan, decode_status
 from wire.payloads import (
     DecodeError,
-    PlanMsg,
     Pose,
-    StatusMsg,
     decode_cmd,
     decode_ellipse,
     decode_obstacles,
-    decode_plan,
     decode_pose,
     decode_state,
-    decode_status,
 )
 from wire.shapes import msg_to_shape
 

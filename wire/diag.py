@@ -28,7 +28,7 @@ import zenoh
 from zenoh.ext import UInt8, z_serialize
 
 from wire import keys
-from wire.payloads import WIRE_VERSION, DecodeError, _as_bytes, _Reader
+from wire.reader import WIRE_VERSION, DecodeError, Reader, as_bytes
 
 DIAG = "diag"
 DIAG_PERIOD_S = 0.25  # [s] at most 4 diagnostics a second per robot
@@ -88,14 +88,14 @@ def encode_diag(d: Diag) -> bytes:
 def decode_diag(payload: object) -> Diag:
     """The :class:`Diag` in ``payload``; :class:`DecodeError` for anything else."""
     try:
-        data = _as_bytes(payload)
+        data = as_bytes(payload)
     except (TypeError, ValueError) as exc:
         raise DecodeError(f"diag: {exc}") from None
     if not data or len(data) > MAX_DIAG_BYTES:
         raise DecodeError(f"diag: payload of {len(data)} bytes")
     if data[0] != WIRE_VERSION:
         raise DecodeError(f"diag: unsupported version {data[0]}")
-    r = _Reader(data, 1)
+    r = Reader(data, 1)
     formation = r.string("diag.formation")
     status = r.string("diag.status")
     values = r.floats(4, "diag") + r.floats(4, "diag") + r.floats(4, "diag")

@@ -49,13 +49,13 @@ finite, ids valid (see :mod:`wire.keys`), ellipse semi-axes ``a, b > 0``, obstac
 at most :data:`MAX_ITEMS` ellipses or obstacles, no repeated formation or obstacle id, and the
 ``Others`` own ellipse belonging to its formation and not repeated among the others.
 
-Decoding is defensive: ``decode_*`` raises nothing but :class:`DecodeError` (a ``ValueError``),
-for a payload that is not bytes, empty, longer than :data:`MAX_PAYLOAD_BYTES`, of another
-version, truncated, followed by trailing bytes, holding a non-canonical (over-long) varint,
-invalid UTF-8, more than :data:`MAX_ITEMS` entries, or a message that fails validation
-(non-finite numbers, invalid ids). Decoding is written in Python over ``struct`` rather than with
-``zenoh.ext.z_deserialize``, which can abort the process on a hostile length (see the comment
-above the decoders); tests check both agree on valid payloads.
+Decoding is defensive (:mod:`wire.reader`): ``decode_*`` raises nothing but
+:class:`DecodeError` (a ``ValueError``), for a payload that is not bytes, empty, longer than
+:data:`MAX_PAYLOAD_BYTES`, of another version, truncated, followed by trailing bytes, holding a
+non-canonical (over-long) varint, invalid UTF-8, more than :data:`MAX_ITEMS` entries, or a
+message that fails validation (non-finite numbers, invalid ids). Decoding is written in Python
+over ``struct`` rather than with ``zenoh.ext.z_deserialize``, which can abort the process on a
+hostile length (see :mod:`wire.reader`); tests check both agree on valid payloads.
 """
 
 from __future__ import annotations
@@ -64,8 +64,7 @@ import functools
 import logging
 import math
 import numbers
-import struct
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, fields
 from typing import Any, TypeAlias
 
@@ -74,45 +73,28 @@ from zenoh.ext import UInt8, z_serialize
 
 from wire import keys
 
+# DecodeError and MAX_PAYLOAD_BYTES are this module's interface too (what decode_* raises, the
+# size it refuses)
+from wire.reader import FLOATS, MAX_POINTS, WIRE_VERSION, Item, Points, Reader, decode_payload
+from wire.reader import MAX_PAYLOAD_BYTES as MAX_PAYLOAD_BYTES
+from wire.reader import DecodeError as DecodeError
+
 logger = logging.getLogger(__name__)
 
-WIRE_VERSION = 1
 SHAPES_VERSION = 2  # Obstacles with walls or shelves
 SHAPE_SEGMENT = 1  # ShapeMsg.kind
 SHAPE_BOX = 2
 #: ``state`` is at version 2 (it gained the heading); a version-1 decoder refuses it by its
 #: version byte ("unsupported version 2"), and this decoder refuses version-1 states.
 STATE_VERSION = 2
-#: ``status`` version 2 (the one new status version of issues 25-27) adds why the formation is
-#: in its state (``reason``: the planner's word for ``unreachable``), how many goals its leader
-#: refused (``refused``, a whole number carried as f64), why it refused the last one
-#: (``refusal``) and every formation of the leader's scenario, its own included (``fleet``:
-#: ``formation goal`` tells an unknown formation from one whose leader has not answered yet by
-#: any one leader's answer). A status with nothing of these is written as version 1, byte for
-#: byte as before, so an older fleet manager still reads it; one with any of them (or the state
-#: ``unreachable``) is version 2, which an older decoder refuses by its version byte.
-STATUS_VERSION = 2
 CMD_ACCEL_VERSION = 2  # Cmd with a double integrator's acceleration (ax, ay)
-#: ``goal`` and ``plan`` version 2 add a heading (0 or 1) per waypoint or route point, after the
-#: stamp (issue 26: the footprint's route turns it; a hand-given waypoint may say how). One
-#: without any heading is written as version 1, byte for byte as before.
-ROUTE_VERSION = 2
-#: ``ellipse`` and ``others`` version 2 carry each ellipse's members' control points (issue 26:
+#: ``ellipse`` and ``others`` version 2 carry each ellipse's members' control points (
 #: a formation keeps its own ellipse off the other formations' members, :mod:`agent.body`).
 ELLIPSE_POINTS_VERSION = 2
 MAX_ITEMS = 256  # most ellipses (or obstacles) one payload may carry
-MAX_POINTS = 64  # most points one ellipse carries (scenario.limits.MAX_FORMATION_ROBOTS)
-# A payload longer than this is rejected before parsing [bytes]. The largest valid message (an
-# Others with 256 + 1 ellipses whose ids are 64 four-byte UTF-8 characters, each with 64
-# points and headings) is about 480 kB.
-MAX_PAYLOAD_BYTES = 524288
 
 
-class DecodeError(ValueError):
-    """A payload that is not a valid message of the expected kind."""
-
-
-def _finite(obj: object, name: str) -> None:
+def check_finite(obj: object, name: str) -> None:
     """Check the float field ``name`` of a frozen dataclass and store it as a plain float."""
     value = getattr(obj, name)
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
@@ -131,7 +113,7 @@ _VALID_IDS: set[str] = set()
 _VALID_IDS_MAX = 4096
 
 
-def _check_id(value: object, name: str) -> None:
+def check_id(value: object, name: str) -> None:
     """:func:`wire.keys.validate_id`, remembering plain strings that passed."""
     if type(value) is str and value in _VALID_IDS:
         return
@@ -152,17 +134,44 @@ def _plain_finite(values: tuple[Any, ...]) -> bool:
     return _isfinite(sum(values))
 
 
-def _check_floats(obj: object, names: Iterable[str]) -> None:
-    """Check the float fields ``names`` of ``obj`` like :func:`_finite`.
+def check_floats(obj: object, names: Iterable[str]) -> None:
+    """Check the float fields ``names`` of ``obj`` like :func:`check_finite`.
 
     The fast path accepts a plain finite ``float`` as it is (what every decoder and nearly every
-    caller passes: ``float(v)`` of it is ``v``); anything else takes :func:`_finite`, which
+    caller passes: ``float(v)`` of it is ``v``); anything else takes :func:`check_finite`, which
     converts it or raises, so the behaviour is the same either way. The messages' constructors
     try :func:`_plain_finite` first and call this only when it fails."""
     for name in names:
         value = getattr(obj, name)
         if type(value) is not float or not _isfinite(value):
-            _finite(obj, name)
+            check_finite(obj, name)
+
+
+def points_field(value: object, name: str, limit: int) -> tuple[tuple[float, float], ...]:
+    pts = tuple(tuple(p) for p in value)  # type: ignore[attr-defined]
+    if len(pts) > limit:
+        raise ValueError(f"{name} must hold at most {limit} points, got {len(pts)}")
+    out = []
+    for k, p in enumerate(pts):
+        if len(p) != 2:
+            raise ValueError(f"{name}[{k}] must be (x, y), got {p!r}")
+        x, y = p
+        for v in (x, y):
+            if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
+                raise ValueError(f"{name}[{k}] must hold finite numbers, got {p!r}")
+        out.append((float(x), float(y)))
+    return tuple(out)
+
+
+def _point_headings(value: object, n: int) -> tuple[float, ...]:
+    """An ellipse's ``headings``: one finite number per point."""
+    hs: tuple[Any, ...] = tuple(value)  # type: ignore[arg-type]
+    if len(hs) != n:
+        raise ValueError(f"headings: {len(hs)} headings for {n} points")
+    for k, h in enumerate(hs):
+        if isinstance(h, bool) or not isinstance(h, numbers.Real) or not math.isfinite(h):
+            raise ValueError(f"headings[{k}] must be a finite number, got {h!r}")
+    return tuple(float(h) for h in hs)
 
 
 _POSE_FLOATS = ("x", "y", "theta", "stamp")
@@ -183,7 +192,7 @@ class Pose:
 
     def __post_init__(self) -> None:
         if not _plain_finite((self.x, self.y, self.theta, self.stamp)):
-            _check_floats(self, _POSE_FLOATS)
+            check_floats(self, _POSE_FLOATS)
 
 
 @dataclass(frozen=True, slots=True)
@@ -204,7 +213,7 @@ class State:
 
     def __post_init__(self) -> None:
         if not _plain_finite((self.x, self.y, self.ux, self.uy, self.stamp, self.theta)):
-            _check_floats(self, _STATE_FLOATS)
+            check_floats(self, _STATE_FLOATS)
 
 
 @dataclass(frozen=True, slots=True)
@@ -226,9 +235,9 @@ class Cmd:
 
     def __post_init__(self) -> None:
         if not _plain_finite((self.v, self.omega, self.ux, self.uy, self.stamp)):
-            _check_floats(self, _CMD_FLOATS)
+            check_floats(self, _CMD_FLOATS)
         if self.ax is not None or self.ay is not None:
-            _check_floats(self, ("ax", "ay"))
+            check_floats(self, ("ax", "ay"))
 
 
 _ELLIPSE_FLOATS = ("cx", "cy", "alpha", "a", "b", "vx", "vy", "alpha_rate", "stamp")
@@ -260,16 +269,16 @@ class EllipseMsg:
     headings: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
-        _check_id(self.formation, "formation")
+        check_id(self.formation, "formation")
         if not _plain_finite((self.cx, self.cy, self.alpha, self.a, self.b, self.vx, self.vy,
                               self.alpha_rate, self.stamp)):
-            _check_floats(self, _ELLIPSE_FLOATS)
+            check_floats(self, _ELLIPSE_FLOATS)
         if self.a <= 0.0:
             raise ValueError(f"a must be > 0, got {self.a!r}")
         if self.b <= 0.0:
             raise ValueError(f"b must be > 0, got {self.b!r}")
         if self.points != ():
-            object.__setattr__(self, "points", _points(self.points, "points", MAX_POINTS))
+            object.__setattr__(self, "points", points_field(self.points, "points", MAX_POINTS))
         if self.headings != ():
             object.__setattr__(self, "headings", _point_headings(self.headings, len(self.points)))
 
@@ -298,8 +307,8 @@ class Others:
     own: EllipseMsg | None = None
 
     def __post_init__(self) -> None:
-        _check_id(self.formation, "formation")
-        _check_floats(self, _STAMP)
+        check_id(self.formation, "formation")
+        check_floats(self, _STAMP)
         ellipses = _ellipse_tuple(self.ellipses, "ellipses")
         object.__setattr__(self, "ellipses", ellipses)
         seen: set[str] = set()
@@ -333,9 +342,9 @@ class ObstacleMsg:
     ds: float
 
     def __post_init__(self) -> None:
-        _check_id(self.id, "id")
+        check_id(self.id, "id")
         if not _plain_finite((self.x, self.y, self.vx, self.vy, self.ds)):
-            _check_floats(self, _OBSTACLE_FLOATS)
+            check_floats(self, _OBSTACLE_FLOATS)
         if self.ds < 0.0:
             raise ValueError(f"ds must be >= 0, got {self.ds!r}")
 
@@ -359,11 +368,11 @@ class ShapeMsg:
     ds: float
 
     def __post_init__(self) -> None:
-        _check_id(self.id, "id")
+        check_id(self.id, "id")
         if type(self.kind) is not int or self.kind not in (SHAPE_SEGMENT, SHAPE_BOX):
             raise ValueError(f"kind must be {SHAPE_SEGMENT} (segment) or {SHAPE_BOX} (box), "
                              f"got {self.kind!r}")
-        _check_floats(self, _SHAPE_FLOATS)
+        check_floats(self, _SHAPE_FLOATS)
         if self.hx < 0.0 or self.hy < 0.0 or self.ds < 0.0:
             raise ValueError(f"hx, hy and ds must be >= 0, got {self.hx!r}, {self.hy!r}, {self.ds!r}")
         if self.kind == SHAPE_SEGMENT and self.hy != 0.0:
@@ -380,7 +389,7 @@ class Obstacles:
     shapes: tuple[ShapeMsg, ...] = ()
 
     def __post_init__(self) -> None:
-        _check_floats(self, _STAMP)
+        check_floats(self, _STAMP)
         items = tuple(self.obstacles)
         shapes = tuple(self.shapes)
         if len(items) + len(shapes) > MAX_ITEMS:
@@ -412,7 +421,7 @@ Message: TypeAlias = Pose | State | Cmd | EllipseMsg | Others | Obstacles
 # A decoder checks a whole list of ellipses or obstacles at once (every float of the list in one
 # sum, the ids against the set of ids already found valid, each item's range rule) and, when all
 # pass, builds the items without running each one's checks again (an ``Others`` of eight
-# ellipses, the message every member decodes each tick, 35 -> 29 us). Anything that fails the
+# ellipses is the message every member decodes each tick). Anything that fails the
 # quick check goes through the constructors, which accept it or raise the usual error.
 
 _new = object.__new__
@@ -431,9 +440,6 @@ def _build_trusted(cls: type, setters: tuple[Callable[[Any, Any], None], ...],
     for put, value in zip(setters, values, strict=True):
         put(obj, value)
     return obj
-
-
-Item: TypeAlias = tuple[str, tuple[float, ...]]  # a decoded (id, floats) entry
 
 
 def _build_items(cls: type, setters: tuple[Callable[[Any, Any], None], ...], items: list[Item],
@@ -466,12 +472,9 @@ _OTHERS_SETTERS = _slot_setters(Others)
 _OBSTACLES_SETTERS = _slot_setters(Obstacles)
 
 
-Points = tuple[tuple[tuple[float, float], ...], tuple[float, ...]]  # an ellipse's points, headings
-
-
 def _ellipses(items: list[Item], points: list[Points] | None = None) -> tuple[EllipseMsg, ...]:
     """The ellipses of decoded items, each with its ``points`` and ``headings`` (version 2;
-    read by :meth:`_Reader.points`, so already pairs of floats and as many headings as points:
+    read by :meth:`wire.reader.Reader.points`, so already pairs of floats and as many headings as points:
     only their finiteness is checked)."""
     put_points, put_headings = _ELLIPSE_SETTERS[-2], _ELLIPSE_SETTERS[-1]
     built = _build_items(EllipseMsg, _ELLIPSE_V1_SETTERS, items, _axes_positive)
@@ -499,9 +502,7 @@ def _ellipses(items: list[Item], points: list[Points] | None = None) -> tuple[El
 _VERSION = UInt8(WIRE_VERSION)
 _SHAPES_VERSION = UInt8(SHAPES_VERSION)
 _STATE_VERSION = UInt8(STATE_VERSION)
-_STATUS_VERSION = UInt8(STATUS_VERSION)
 _CMD_ACCEL_VERSION = UInt8(CMD_ACCEL_VERSION)
-_ROUTE_VERSION = UInt8(ROUTE_VERSION)
 _ELLIPSE_POINTS_VERSION = UInt8(ELLIPSE_POINTS_VERSION)
 
 
@@ -563,211 +564,39 @@ def encode_zbytes(msg: Message) -> zenoh.ZBytes:
     return z_serialize(_wire_tuple(msg))
 
 
-# --- decoding ---------------------------------------------------------------------------------
-#
-# Decoding is plain Python over the bytes, NOT zenoh.ext.z_deserialize: zenoh-python 1.10's
-# z_deserialize reserves a string's memory from the length the payload claims before checking it
-# against the payload, so a 9-byte payload claiming a 2**35-byte string aborts the whole process
-# ("memory allocation of 34359738368 bytes failed"), which no Python ``except`` can catch. Here
-# every length and count is checked against what is left of the payload before anything is read.
-
-_MAX_VARINT_BYTES = 10  # an unsigned LEB128 u64 takes at most 10 bytes
-_FLOATS = {n: struct.Struct(f"<{n}d") for n in range(1, 10)}
+# --- decoding (wire.reader: the defensive cursor) ---------------------------------------------
 
 
-@functools.lru_cache(maxsize=MAX_POINTS)
-def _pairs(n: int) -> struct.Struct:
-    """The format of ``n`` points (2 n f64)."""
-    return struct.Struct(f"<{2 * n}d")
+def _read_ellipse(r: Reader, name: str, index: int | None = None) -> Item:
+    """An ellipse without the version (``name[index]`` in error messages)."""
+    return r.item(FLOATS[9], name, index, "formation")
 
 
-@functools.lru_cache(maxsize=MAX_POINTS)
-def _singles(n: int) -> struct.Struct:
-    """The format of ``n`` headings (n f64)."""
-    return struct.Struct(f"<{n}d")
+def _read_obstacle(r: Reader, index: int) -> Item:
+    return r.item(FLOATS[5], "obstacles", index, "id")
 
 
-def _as_bytes(payload: object) -> bytes:
-    if isinstance(payload, bytes):
-        return payload
-    if isinstance(payload, bytearray | memoryview):
-        return bytes(payload)
-    if isinstance(payload, zenoh.ZBytes):
-        return payload.to_bytes()
-    raise DecodeError(f"payload must be bytes or zenoh.ZBytes, got {type(payload).__name__}")
+def _read_shape(r: Reader, index: int) -> ShapeMsg:
+    what = f"shapes[{index}]"
+    ident = r.string(f"{what}.id")
+    kind = r.u8(f"{what}.kind")
+    return ShapeMsg(ident, kind, *r.floats(6, what))
 
 
-class _Reader:
-    """A cursor over one payload; every read checks the bytes it needs are there."""
-
-    __slots__ = ("data", "pos")
-
-    def __init__(self, data: bytes, pos: int) -> None:
-        self.data = data
-        self.pos = pos
-
-    def _need(self, n: int, what: str) -> None:
-        if n > len(self.data) - self.pos:
-            raise DecodeError(
-                f"truncated: {what} needs {n} bytes at offset {self.pos}, "
-                f"{len(self.data) - self.pos} left"
-            )
-
-    def floats(self, n: int, what: str) -> tuple[float, ...]:
-        fmt = _FLOATS[n]
-        self._need(fmt.size, what)
-        values = fmt.unpack_from(self.data, self.pos)
-        self.pos += fmt.size
-        return values
-
-    def varint(self, what: str) -> int:
-        value = 0
-        for index in range(_MAX_VARINT_BYTES):
-            self._need(1, what)
-            byte = self.data[self.pos]
-            self.pos += 1
-            value |= (byte & 0x7F) << (7 * index)
-            if not byte & 0x80:
-                if byte == 0 and index > 0:
-                    raise DecodeError(f"non-canonical varint for {what}")
-                return value
-        raise DecodeError(f"varint for {what} longer than {_MAX_VARINT_BYTES} bytes")
-
-    def string(self, what: str) -> str:
-        n = self.varint(what)
-        self._need(n, what)
-        raw = self.data[self.pos : self.pos + n]
-        self.pos += n
-        try:
-            return raw.decode("utf-8")
-        except UnicodeDecodeError:
-            raise DecodeError(f"{what} is not valid UTF-8") from None
-
-    def count(self, what: str, limit: int) -> int:
-        n = self.varint(what)
-        if n > limit:
-            raise DecodeError(f"{what} must hold at most {limit} entries, got {n}")
-        return n
-
-    def _id_and_floats(self, fmt: struct.Struct) -> tuple[str, tuple[float, ...]] | None:
-        """The usual case of an ``(id:str, f64 * k)`` item, read in one go: a one-byte length,
-        valid UTF-8 and every byte present. ``None`` (nothing consumed) for anything else,
-        which the caller then reads field by field, with the checks and messages of
-        :meth:`string` and :meth:`floats`."""
-        data, pos = self.data, self.pos
-        if pos >= len(data) or data[pos] & 0x80:
-            return None
-        start = pos + 1 + data[pos]
-        end = start + fmt.size
-        if end > len(data):
-            return None
-        try:
-            ident = data[pos + 1 : start].decode("utf-8")
-        except UnicodeDecodeError:
-            return None
-        self.pos = end
-        return ident, fmt.unpack_from(data, start)
-
-    def item(self, fmt: struct.Struct, name: str, index: int | None, id_field: str) -> Item:
-        """An ``(id:str, f64 * k)`` item; ``name[index]`` names it and ``id_field`` its id in
-        error messages."""
-        item = self._id_and_floats(fmt)
-        if item is not None:
-            return item
-        what = name if index is None else f"{name}[{index}]"
-        ident = self.string(f"{what}.{id_field}")
-        return ident, self.floats(fmt.size // 8, what)
-
-    def ellipse(self, name: str, index: int | None = None) -> Item:
-        """An ellipse without the version (``name[index]`` in error messages)."""
-        return self.item(_FLOATS[9], name, index, "formation")
-
-    def points(self, name: str, index: int | None = None) -> Points:
-        """An ellipse's ``points:list[(x, y)]`` and ``headings:list[f64]`` (version 2; no
-        headings, or one per point)."""
-        what = (name if index is None else f"{name}[{index}]") + ".points"
-        n = self.count(what, MAX_POINTS)
-        pts: tuple[tuple[float, float], ...] = ()
-        if n:
-            fmt = _pairs(n)
-            self._need(fmt.size, what)
-            values = fmt.unpack_from(self.data, self.pos)
-            self.pos += fmt.size
-            pts = tuple(zip(values[0::2], values[1::2], strict=True))
-        what = (name if index is None else f"{name}[{index}]") + ".headings"
-        k = self.count(what, MAX_POINTS)
-        if k not in (0, n):
-            raise DecodeError(f"{what}: {k} headings for {n} points")
-        if not k:
-            return pts, ()
-        fmt = _singles(k)
-        self._need(fmt.size, what)
-        hs = fmt.unpack_from(self.data, self.pos)
-        self.pos += fmt.size
-        return pts, hs
-
-    def obstacle(self, index: int) -> Item:
-        return self.item(_FLOATS[5], "obstacles", index, "id")
-
-    def shape(self, index: int) -> ShapeMsg:
-        what = f"shapes[{index}]"
-        ident = self.string(f"{what}.id")
-        self._need(1, f"{what}.kind")
-        kind = self.data[self.pos]
-        self.pos += 1
-        return ShapeMsg(ident, kind, *self.floats(6, what))
-
-    def end(self) -> None:
-        if self.pos != len(self.data):
-            raise DecodeError(
-                f"trailing bytes: {len(self.data) - self.pos} after the message's "
-                f"{self.pos} bytes"
-            )
-
-
-def _decode(payload: object, parse: Callable[[_Reader], Any], kind: str,
-            version: int = WIRE_VERSION,
-            parsers: Mapping[int, Callable[[_Reader], Any]] | None = None) -> Any:
-    """Decode ``payload`` with ``parse`` (version ``version``), or with the parser ``parsers``
-    names for its version byte."""
-    try:
-        data = _as_bytes(payload)
-        if not data:
-            raise DecodeError("empty payload")
-        if len(data) > MAX_PAYLOAD_BYTES:
-            raise DecodeError(f"payload of {len(data)} bytes exceeds {MAX_PAYLOAD_BYTES}")
-        if parsers is not None and data[0] in parsers:
-            parse = parsers[data[0]]
-        elif data[0] != version:
-            known = " or ".join(str(v) for v in sorted(parsers or (version,)))
-            raise DecodeError(f"unsupported version {data[0]} (expected {known})")
-        reader = _Reader(data, 1)
-        try:
-            msg = parse(reader)
-        except DecodeError:
-            raise
-        except (ValueError, TypeError) as exc:  # a field failed the message's own validation
-            raise DecodeError(f"invalid message ({exc})") from None
-        reader.end()
-        return msg
-    except DecodeError as exc:
-        raise DecodeError(f"{kind}: {exc}") from None
-
-
-def _parse_pose(r: _Reader) -> Pose:
+def _parse_pose(r: Reader) -> Pose:
     return Pose(*r.floats(4, "pose"))
 
 
-def _parse_state(r: _Reader) -> State:
+def _parse_state(r: Reader) -> State:
     x, y, ux, uy, theta, stamp = r.floats(6, "state")
     return State(x, y, ux, uy, stamp, theta)
 
 
-def _parse_cmd(r: _Reader) -> Cmd:
+def _parse_cmd(r: Reader) -> Cmd:
     return Cmd(*r.floats(5, "cmd"))
 
 
-def _parse_cmd_accel(r: _Reader) -> Cmd:
+def _parse_cmd_accel(r: Reader) -> Cmd:
     """Version 2: a double integrator's command with its acceleration."""
     v, omega, ux, uy, ax, ay, stamp = r.floats(7, "cmd")
     return Cmd(v, omega, ux, uy, stamp, ax, ay)
@@ -776,32 +605,32 @@ def _parse_cmd_accel(r: _Reader) -> Cmd:
 _CMD_PARSERS = {WIRE_VERSION: _parse_cmd, CMD_ACCEL_VERSION: _parse_cmd_accel}
 
 
-def _parse_ellipse(r: _Reader) -> EllipseMsg:
-    return _ellipses([r.ellipse("ellipse")])[0]
+def _parse_ellipse(r: Reader) -> EllipseMsg:
+    return _ellipses([_read_ellipse(r, "ellipse")])[0]
 
 
-def _parse_ellipse_points(r: _Reader) -> EllipseMsg:
+def _parse_ellipse_points(r: Reader) -> EllipseMsg:
     """Version 2: the ellipse as in version 1, then its points."""
-    item = r.ellipse("ellipse")
+    item = _read_ellipse(r, "ellipse")
     return _ellipses([item], [r.points("ellipse")])[0]
 
 
 _ELLIPSE_PARSERS = {WIRE_VERSION: _parse_ellipse, ELLIPSE_POINTS_VERSION: _parse_ellipse_points}
 
 
-def _parse_others(r: _Reader, with_points: bool = False) -> Others:
+def _parse_others(r: Reader, with_points: bool = False) -> Others:
     formation = r.string("formation")
     (stamp,) = r.floats(1, "stamp")
     n = r.count("ellipses", MAX_ITEMS)
     items: list[Item] = []
     points: list[Points] | None = [] if with_points else None
     for i in range(n):
-        items.append(r.ellipse("ellipses", i))
+        items.append(_read_ellipse(r, "ellipses", i))
         if points is not None:
             points.append(r.points("ellipses", i))
     n_own = r.count("own", 1)
     if n_own:
-        items.append(r.ellipse("own"))
+        items.append(_read_ellipse(r, "own"))
         if points is not None:
             points.append(r.points("own"))
     built = _ellipses(items, points)
@@ -813,28 +642,28 @@ def _parse_others(r: _Reader, with_points: bool = False) -> Others:
     return Others(formation, stamp, ellipses, own)
 
 
-def _parse_obstacles(r: _Reader) -> Obstacles:
+def _parse_obstacles(r: Reader) -> Obstacles:
     (stamp,) = r.floats(1, "stamp")
     n = r.count("obstacles", MAX_ITEMS)
-    items = [r.obstacle(i) for i in range(n)]
+    items = [_read_obstacle(r, i) for i in range(n)]
     obstacles = _build_items(ObstacleMsg, _OBSTACLE_SETTERS, items, _ds_not_negative)
     if _isfinite(stamp) and len({o.id for o in obstacles}) == n:
         return _build_trusted(Obstacles, _OBSTACLES_SETTERS, (stamp, obstacles, ()))
     return Obstacles(stamp, obstacles)
 
 
-def _parse_obstacles_with_shapes(r: _Reader) -> Obstacles:
+def _parse_obstacles_with_shapes(r: Reader) -> Obstacles:
     """Version 2: the circles as in version 1, then the walls and shelves."""
     (stamp,) = r.floats(1, "stamp")
     n = r.count("obstacles", MAX_ITEMS)
-    items = [r.obstacle(i) for i in range(n)]
+    items = [_read_obstacle(r, i) for i in range(n)]
     obstacles = _build_items(ObstacleMsg, _OBSTACLE_SETTERS, items, _ds_not_negative)
     m = r.count("shapes", MAX_ITEMS - n)
-    return Obstacles(stamp, obstacles, tuple(r.shape(i) for i in range(m)))
+    return Obstacles(stamp, obstacles, tuple(_read_shape(r, i) for i in range(m)))
 
 
 _OBSTACLES_PARSERS = {WIRE_VERSION: _parse_obstacles, SHAPES_VERSION: _parse_obstacles_with_shapes}
-_OTHERS_PARSERS: dict[int, Callable[[_Reader], Others]] = {
+_OTHERS_PARSERS: dict[int, Callable[[Reader], Others]] = {
     WIRE_VERSION: _parse_others,
     ELLIPSE_POINTS_VERSION: functools.partial(_parse_others, with_points=True),
 }
@@ -842,369 +671,29 @@ _OTHERS_PARSERS: dict[int, Callable[[_Reader], Others]] = {
 
 def decode_pose(payload: bytes | zenoh.ZBytes) -> Pose:
     """Decode a ``pose`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_pose, "pose")
+    return decode_payload(payload, _parse_pose, "pose")
 
 
 def decode_state(payload: bytes | zenoh.ZBytes) -> State:
     """Decode a ``state`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_state, "state", STATE_VERSION)
+    return decode_payload(payload, _parse_state, "state", STATE_VERSION)
 
 
 def decode_cmd(payload: bytes | zenoh.ZBytes) -> Cmd:
     """Decode a ``cmd`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_cmd, "cmd", parsers=_CMD_PARSERS)
+    return decode_payload(payload, _parse_cmd, "cmd", parsers=_CMD_PARSERS)
 
 
 def decode_ellipse(payload: bytes | zenoh.ZBytes) -> EllipseMsg:
     """Decode an ``ellipse`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_ellipse, "ellipse", parsers=_ELLIPSE_PARSERS)
+    return decode_payload(payload, _parse_ellipse, "ellipse", parsers=_ELLIPSE_PARSERS)
 
 
 def decode_others(payload: bytes | zenoh.ZBytes) -> Others:
     """Decode an ``others`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_others, "others", parsers=_OTHERS_PARSERS)
+    return decode_payload(payload, _parse_others, "others", parsers=_OTHERS_PARSERS)
 
 
 def decode_obstacles(payload: bytes | zenoh.ZBytes) -> Obstacles:
     """Decode an ``obstacles`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_obstacles, "obstacles", parsers=_OBSTACLES_PARSERS)
-
-
-#: The decoder of each key class (see :func:`wire.keys.key_class`).
-DECODERS: dict[str, Callable[[bytes | zenoh.ZBytes], Any]] = {
-    keys.POSE: decode_pose,
-    keys.STATE: decode_state,
-    keys.CMD: decode_cmd,
-    keys.ELLIPSE: decode_ellipse,
-    keys.BEACON: decode_ellipse,
-    keys.OTHERS: decode_others,
-    keys.OBSTACLES: decode_obstacles,
-}
-
-
-# --- navigation: goal, plan, status (DESIGN.md key space) ------------------------------------
-#
-# ``GoalMsg``    version, formation:str, x, y, heading:list[f64] (0 or 1), waypoints:list[(x, y)],
-#                stamp
-# ``PlanMsg``    version, formation:str, goal_stamp, cx, cy, heading:list[f64] (0 or 1),
-#                route:list[(x, y)], members:list[(id:str, gx, gy)], stamp
-# ``StatusMsg``  version, formation:str, state:str, leader:str, goal_stamp, gx, gy,
-#                heading:list[f64] (0 or 1), distance, waypoint, waypoints, wx, wy, stamp
-#                version 2 (:data:`STATUS_VERSION`) adds: reason:str, refused, refusal:str,
-#                fleet:list[str]
-# ``GoalMsg`` and ``PlanMsg`` version 2 (:data:`ROUTE_VERSION`) add, after the stamp:
-#                headings:list[list[f64] (0 or 1)], one per waypoint or route point
-#
-# ``goal_stamp`` names a goal: the stamp the leader gave it when it accepted it (the fleet
-# manager's stamp in real time, simulated time on arrival in lock-step). A member adopts a plan
-# whose goal_stamp is newer than the one it follows. ``waypoint`` and ``waypoints`` (the index
-# of the current waypoint and the route's length; the goal is the last) are whole numbers
-# carried as f64.
-
-MAX_WAYPOINTS = 64  # most waypoints in a goal or route
-STATUS_STATES = ("moving", "reached", "stalled", "stopped", "unreachable")
-MAX_REASON = 200  # longest reason or refusal [characters]; a longer one is cut by the writer
-MAX_REFUSED = 2**31 - 1  # the refused-goal count saturates here (the writer clamps it)
-
-
-def _points(value: object, name: str, limit: int) -> tuple[tuple[float, float], ...]:
-    pts = tuple(tuple(p) for p in value)  # type: ignore[attr-defined]
-    if len(pts) > limit:
-        raise ValueError(f"{name} must hold at most {limit} points, got {len(pts)}")
-    out = []
-    for k, p in enumerate(pts):
-        if len(p) != 2:
-            raise ValueError(f"{name}[{k}] must be (x, y), got {p!r}")
-        x, y = p
-        for v in (x, y):
-            if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
-                raise ValueError(f"{name}[{k}] must hold finite numbers, got {p!r}")
-        out.append((float(x), float(y)))
-    return tuple(out)
-
-
-def _point_headings(value: object, n: int) -> tuple[float, ...]:
-    """An ellipse's ``headings``: one finite number per point."""
-    hs: tuple[Any, ...] = tuple(value)  # type: ignore[arg-type]
-    if len(hs) != n:
-        raise ValueError(f"headings: {len(hs)} headings for {n} points")
-    for k, h in enumerate(hs):
-        if isinstance(h, bool) or not isinstance(h, numbers.Real) or not math.isfinite(h):
-            raise ValueError(f"headings[{k}] must be a finite number, got {h!r}")
-    return tuple(float(h) for h in hs)
-
-
-def _headings(value: object, n: int, name: str) -> tuple[float | None, ...]:
-    """A heading [rad] or None per point of ``name``; all None is stored as none at all."""
-    hs: tuple[Any, ...] = tuple(value)  # type: ignore[arg-type]
-    if not hs or all(h is None for h in hs):
-        return ()
-    if len(hs) != n:
-        raise ValueError(f"{name}: {len(hs)} headings for {n} points")
-    for k, h in enumerate(hs):
-        if h is not None and (isinstance(h, bool) or not isinstance(h, numbers.Real)
-                              or not math.isfinite(h)):
-            raise ValueError(f"{name}[{k}] heading must be a finite number, got {h!r}")
-    return tuple(None if h is None else float(h) for h in hs)
-
-
-def _optional_angle(obj: object, name: str) -> None:
-    value = getattr(obj, name)
-    if value is not None:
-        _finite(obj, name)
-
-
-@dataclass(frozen=True, slots=True)
-class GoalMsg:
-    """A new goal for a formation: ``{prefix}/formation/{fid}/goal`` (fleet manager -> leader).
-
-    Centroid ``x, y`` [m]; ``heading`` [rad] turns the formation's goal shape (the shape as
-    written in the scenario's goals is heading 0), ``None`` keeps the current one; the centroid
-    passes ``waypoints`` in order first (none: the leader plans a route); ``stamp`` [s]."""
-
-    formation: str
-    x: float
-    y: float
-    heading: float | None = None
-    waypoints: tuple[tuple[float, float], ...] = ()
-    stamp: float = 0.0
-    headings: tuple[float | None, ...] = ()  # none, or one per waypoint (version 2)
-
-    def __post_init__(self) -> None:
-        _check_id(self.formation, "formation")
-        _check_floats(self, ("x", "y", "stamp"))
-        _optional_angle(self, "heading")
-        object.__setattr__(self, "waypoints", _points(self.waypoints, "waypoints", MAX_WAYPOINTS))
-        object.__setattr__(self, "headings", _headings(self.headings, len(self.waypoints),
-                                                       "waypoints"))
-
-
-@dataclass(frozen=True, slots=True)
-class PlanMsg:
-    """A leader's plan for its members: ``{prefix}/formation/{fid}/plan``: the goal it follows
-    (``goal_stamp``, centroid, heading), the centroid's route (the goal last) and each member's
-    goal ``(id, x, y)``."""
-
-    formation: str
-    goal_stamp: float
-    cx: float
-    cy: float
-    heading: float | None
-    route: tuple[tuple[float, float], ...]
-    members: tuple[tuple[str, float, float], ...]
-    stamp: float
-    headings: tuple[float | None, ...] = ()  # none, or one per route point (version 2)
-
-    def __post_init__(self) -> None:
-        _check_id(self.formation, "formation")
-        _check_floats(self, ("goal_stamp", "cx", "cy", "stamp"))
-        _optional_angle(self, "heading")
-        route = _points(self.route, "route", MAX_WAYPOINTS)
-        if not route:
-            raise ValueError("route must hold at least the goal")
-        object.__setattr__(self, "route", route)
-        object.__setattr__(self, "headings", _headings(self.headings, len(route), "route"))
-        members = tuple(tuple(m) for m in self.members)
-        if len(members) > MAX_ITEMS:
-            raise ValueError(f"members must hold at most {MAX_ITEMS} entries, got {len(members)}")
-        seen: set[str] = set()
-        out = []
-        for k, m in enumerate(members):
-            if len(m) != 3:
-                raise ValueError(f"members[{k}] must be (id, x, y), got {m!r}")
-            rid = m[0]
-            _check_id(rid, f"members[{k}].id")
-            assert isinstance(rid, str)  # _check_id accepts only a str
-            if rid in seen:
-                raise ValueError(f"members repeat id {rid!r}")
-            seen.add(rid)
-            out.append((rid, *_points([m[1:]], f"members[{k}]", 1)[0]))
-        object.__setattr__(self, "members", tuple(out))
-
-    def goal_of(self, robot_id: str) -> tuple[float, float] | None:
-        for rid, x, y in self.members:
-            if rid == robot_id:
-                return (x, y)
-        return None
-
-
-@dataclass(frozen=True, slots=True)
-class StatusMsg:
-    """A leader's report: ``{prefix}/formation/{fid}/status`` (published about once a second
-    and answered as a queryable). ``state`` is one of :data:`STATUS_STATES`; the goal it
-    follows (``goal_stamp``, centroid, heading), the centroid's ``distance`` to go along the
-    route [m], the current waypoint (index, route length, position) and the leader's id.
-    Version 2 (:data:`STATUS_VERSION`): ``reason`` why the state (``unreachable``: why no route
-    reaches the goal), ``refused`` goals the leader refused since it started and ``refusal``, why
-    it refused the last one, and ``fleet``, every formation of the leader's scenario (its own
-    included; () where not said)."""
-
-    formation: str
-    state: str
-    leader: str
-    goal_stamp: float
-    gx: float
-    gy: float
-    heading: float | None
-    distance: float
-    waypoint: int
-    waypoints: int
-    wx: float
-    wy: float
-    stamp: float
-    reason: str = ""
-    refused: int = 0
-    refusal: str = ""
-    fleet: tuple[str, ...] = ()
-
-    def __post_init__(self) -> None:
-        _check_id(self.formation, "formation")
-        _check_id(self.leader, "leader")
-        fleet = tuple(self.fleet)
-        if len(fleet) > MAX_ITEMS:
-            raise ValueError(f"fleet must name at most {MAX_ITEMS} formations, got {len(fleet)}")
-        for k, name in enumerate(fleet):
-            _check_id(name, f"fleet[{k}]")
-        object.__setattr__(self, "fleet", fleet)
-        for name in ("reason", "refusal"):
-            text = getattr(self, name)
-            if not isinstance(text, str) or len(text) > MAX_REASON:
-                raise ValueError(f"{name} must be text of at most {MAX_REASON} characters")
-        if self.state not in STATUS_STATES:
-            raise ValueError(f"state must be one of {STATUS_STATES}, got {self.state!r}")
-        _check_floats(self, ("goal_stamp", "gx", "gy", "distance", "wx", "wy", "stamp"))
-        _optional_angle(self, "heading")
-        for name in ("waypoint", "waypoints", "refused"):
-            v = getattr(self, name)
-            if isinstance(v, float) and v.is_integer():
-                v = int(v)
-                object.__setattr__(self, name, v)
-            limit = MAX_REFUSED if name == "refused" else MAX_WAYPOINTS
-            if type(v) is not int or not 0 <= v <= limit:
-                raise ValueError(f"{name} must be a whole number in [0, {limit}], got {v!r}")
-        if self.distance < 0.0:
-            raise ValueError(f"distance must be >= 0, got {self.distance!r}")
-
-
-def _heading_list(h: float | None) -> list[float]:
-    return [] if h is None else [h]
-
-
-def encode_nav(msg: GoalMsg | PlanMsg | StatusMsg) -> bytes:
-    """Serialize a goal, plan or status (layouts above)."""
-    if isinstance(msg, GoalMsg):
-        t: tuple[Any, ...] = (_VERSION, msg.formation, msg.x, msg.y, _heading_list(msg.heading),
-                              list(msg.waypoints), msg.stamp)
-        if msg.headings:
-            t = (_ROUTE_VERSION, *t[1:], [_heading_list(h) for h in msg.headings])
-    elif isinstance(msg, PlanMsg):
-        t = (_VERSION, msg.formation, msg.goal_stamp, msg.cx, msg.cy, _heading_list(msg.heading),
-             list(msg.route), list(msg.members), msg.stamp)
-        if msg.headings:
-            t = (_ROUTE_VERSION, *t[1:], [_heading_list(h) for h in msg.headings])
-    elif isinstance(msg, StatusMsg):
-        t = (_VERSION, msg.formation, msg.state, msg.leader, msg.goal_stamp, msg.gx, msg.gy,
-             _heading_list(msg.heading), msg.distance, float(msg.waypoint), float(msg.waypoints),
-             msg.wx, msg.wy, msg.stamp)
-        if msg.state == "unreachable" or msg.reason or msg.refused or msg.refusal or msg.fleet:
-            t = (_STATUS_VERSION, *t[1:], msg.reason, float(msg.refused), msg.refusal,
-                 list(msg.fleet))
-    else:
-        raise ValueError(f"msg must be a GoalMsg, PlanMsg or StatusMsg, got {type(msg).__name__}")
-    return z_serialize(t).to_bytes()
-
-
-def _read_heading(r: _Reader) -> float | None:
-    n = r.count("heading", 1)
-    return r.floats(1, "heading")[0] if n else None
-
-
-def _read_points(r: _Reader, name: str) -> list[tuple[float, float]]:
-    n = r.count(name, MAX_WAYPOINTS)
-    return [r.floats(2, f"{name}[{k}]") for k in range(n)]  # type: ignore[misc]
-
-
-def _read_headings(r: _Reader, name: str) -> tuple[float | None, ...]:
-    n = r.count(name, MAX_WAYPOINTS)
-    return tuple(_read_heading(r) for _ in range(n))
-
-
-def _parse_goal(r: _Reader, version: int = WIRE_VERSION) -> GoalMsg:
-    formation = r.string("formation")
-    x, y = r.floats(2, "x, y")
-    heading = _read_heading(r)
-    waypoints = _read_points(r, "waypoints")
-    (stamp,) = r.floats(1, "stamp")
-    headings = _read_headings(r, "headings") if version >= ROUTE_VERSION else ()
-    return GoalMsg(formation, x, y, heading, tuple(waypoints), stamp, headings)
-
-
-def _parse_goal_v2(r: _Reader) -> GoalMsg:
-    return _parse_goal(r, ROUTE_VERSION)
-
-
-def _parse_plan_v2(r: _Reader) -> PlanMsg:
-    return _parse_plan(r, ROUTE_VERSION)
-
-
-def _parse_plan(r: _Reader, version: int = WIRE_VERSION) -> PlanMsg:
-    formation = r.string("formation")
-    goal_stamp, cx, cy = r.floats(3, "goal_stamp, cx, cy")
-    heading = _read_heading(r)
-    route = _read_points(r, "route")
-    n = r.count("members", MAX_ITEMS)
-    members: list[tuple[str, float, float]] = []
-    for k in range(n):
-        rid = r.string(f"members[{k}].id")
-        x, y = r.floats(2, f"members[{k}]")
-        members.append((rid, x, y))
-    (stamp,) = r.floats(1, "stamp")
-    headings = _read_headings(r, "headings") if version >= ROUTE_VERSION else ()
-    return PlanMsg(formation, goal_stamp, cx, cy, heading, tuple(route), tuple(members), stamp,
-                   headings)
-
-
-def _parse_status(r: _Reader, version: int = WIRE_VERSION) -> StatusMsg:
-    formation = r.string("formation")
-    state = r.string("state")
-    leader = r.string("leader")
-    goal_stamp, gx, gy = r.floats(3, "goal_stamp, gx, gy")
-    heading = _read_heading(r)
-    distance, waypoint, waypoints, wx, wy, stamp = r.floats(6, "distance .. stamp")
-    reason, refused, refusal = "", 0.0, ""
-    fleet: tuple[str, ...] = ()
-    if version >= STATUS_VERSION:
-        reason = r.string("reason")
-        (refused,) = r.floats(1, "refused")
-        refusal = r.string("refusal")
-        n = r.count("fleet", MAX_ITEMS)
-        fleet = tuple(r.string(f"fleet[{k}]") for k in range(n))
-    # whole numbers carried as f64: StatusMsg checks them and makes them ints
-    return StatusMsg(formation, state, leader, goal_stamp, gx, gy, heading, distance,
-                     waypoint, waypoints, wx, wy, stamp, reason, refused, refusal,  # type: ignore[arg-type]
-                     fleet)
-
-
-def _parse_status_v2(r: _Reader) -> StatusMsg:
-    return _parse_status(r, STATUS_VERSION)
-
-
-def decode_goal(payload: bytes | zenoh.ZBytes) -> GoalMsg:
-    """Decode a ``goal`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_goal, "goal",
-                   parsers={WIRE_VERSION: _parse_goal, ROUTE_VERSION: _parse_goal_v2})
-
-
-def decode_plan(payload: bytes | zenoh.ZBytes) -> PlanMsg:
-    """Decode a ``plan`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_plan, "plan",
-                   parsers={WIRE_VERSION: _parse_plan, ROUTE_VERSION: _parse_plan_v2})
-
-
-def decode_status(payload: bytes | zenoh.ZBytes) -> StatusMsg:
-    """Decode a ``status`` payload; raises only :class:`DecodeError`."""
-    return _decode(payload, _parse_status, "status",
-                   parsers={WIRE_VERSION: _parse_status, STATUS_VERSION: _parse_status_v2})
-
-
-DECODERS.update({keys.GOAL: decode_goal, keys.PLAN: decode_plan, keys.STATUS: decode_status})
+    return decode_payload(payload, _parse_obstacles, "obstacles", parsers=_OBSTACLES_PARSERS)

@@ -1,6 +1,6 @@
 """``formation goal`` and ``formation status``: the fleet manager's side of the goal interface.
 
-``formation goal FID X Y [--heading RAD] [--via X,Y[,H] ...]`` puts a :class:`wire.payloads.GoalMsg`
+``formation goal FID X Y [--heading RAD] [--via X,Y[,H] ...]`` puts a :class:`wire.navigation.GoalMsg`
 on ``{prefix}/formation/FID/goal`` (stamped with this machine's clock; first it waits for the
 leader's status, to count its refusals before) and waits until the
 formation's leader reports that goal in its ``status`` (published about once a second, and
@@ -41,7 +41,8 @@ import zenoh
 from scenario.extent import Extent, goal_problem
 from scenario.limits import COORDINATE
 from wire import keys
-from wire.payloads import DecodeError, GoalMsg, StatusMsg, decode_status, encode_nav
+from wire.navigation import GoalMsg, StatusMsg, decode_status, encode_nav
+from wire.payloads import DecodeError
 from wire.zconf import ZenohSettings, read_auth_file
 from wire.zconf import open_session as open_zenoh
 
