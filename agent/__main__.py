@@ -130,7 +130,7 @@ def _emergency_exit(node: AgentNode, stats: Path | None, done: threading.Event,
     if stats is not None and written.acquire(blocking=False):
         try:
             write_stats(node, stats)
-        except Exception:  # noqa: BLE001 - last resort
+        except Exception:  # last resort
             logger.exception("agent %s: writing counters failed", node.cfg.robot_id)
     logging.shutdown()
     os._exit(0)
@@ -207,7 +207,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         daemon=True).start())
     try:
         asyncio.run(serve(node, watch))
-    except Exception as exc:  # noqa: BLE001 - a process front end: report and exit 1
+    except Exception as exc:  # a process front end: report and exit 1
         logger.exception("agent %s failed", cfg.robot_id)
         print(f"agent {cfg.robot_id}: {type(exc).__name__}: {exc}", file=sys.stderr)
         status = 1

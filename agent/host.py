@@ -36,27 +36,27 @@ import signal
 if __name__ == "__main__":
     signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
 
-import argparse  # noqa: E402
-import asyncio  # noqa: E402
-import logging  # noqa: E402
-import sys  # noqa: E402
-import threading  # noqa: E402
-import time  # noqa: E402
-from collections import deque  # noqa: E402
-from collections.abc import Sequence  # noqa: E402
-from pathlib import Path  # noqa: E402
+import argparse
+import asyncio
+import logging
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Sequence
+from pathlib import Path
 
-import zenoh  # noqa: E402
+import zenoh
 
-from agent.__main__ import SignalWatch, build_parser, node_options, stop_event, write_stats  # noqa: E402
-from agent.config import AgentConfig, load_config  # noqa: E402
-from agent.node import AgentNode, NodeOptions, zenoh_config  # noqa: E402
-from agent.replan import close_plan_pool  # noqa: E402
-from agent.schedule import PoseScheduler  # noqa: E402
-from agent.stats import AgentStats  # noqa: E402
-from runtime.lifeline import watch_parent  # noqa: E402
-from wire.acl import read_credentials  # noqa: E402
-from wire.zconf import use_zenoh_threads  # noqa: E402
+from agent.__main__ import SignalWatch, build_parser, node_options, stop_event, write_stats
+from agent.config import AgentConfig, load_config
+from agent.node import AgentNode, NodeOptions, zenoh_config
+from agent.replan import close_plan_pool
+from agent.schedule import PoseScheduler
+from agent.stats import AgentStats
+from runtime.lifeline import watch_parent
+from wire.acl import read_credentials
+from wire.zconf import use_zenoh_threads
 
 logger = logging.getLogger("agent.host")
 
@@ -231,7 +231,7 @@ def serve_planned(planned: list[tuple[AgentConfig, NodeOptions, Path]], ns: argp
             shared = SharedSession(zenoh.open(zenoh_config(planned[0][0], opt0.connect_timeout)), k)
         nodes = [HostedNode(cfg, options, shared, k, worker) for cfg, options, _ in planned]
         asyncio.run(serve_all(nodes, watch))
-    except Exception as exc:  # noqa: BLE001 - a process front end: report and exit 1
+    except Exception as exc:  # a process front end: report and exit 1
         logger.exception("agent host (%s) failed", ", ".join(cfg.robot_id for cfg, _, _ in planned))
         print(f"agent host: {type(exc).__name__}: {exc}", file=sys.stderr)
         status = 1

@@ -185,14 +185,14 @@ class NavPart:
         try:
             if self.navigator is not None and self.keys.status in self._pubs:
                 self._publish_status(self.status_now(stamp, self._centroid, stopped=True))
-        except Exception:  # noqa: BLE001 - shutting down: log, keep closing
+        except Exception:  # shutting down: log, keep closing
             logger.debug("last status failed", exc_info=True)
         if self.routes is not None:
             self.routes.close()
         for d in [*self._decls, *self._pubs.values()]:
             try:
                 d.undeclare()
-            except Exception:  # noqa: BLE001
+            except Exception:
                 logger.debug("undeclare failed", exc_info=True)
         self._decls.clear()
         self._pubs.clear()
@@ -257,7 +257,7 @@ class NavPart:
             return
         try:
             query.reply(self.keys.status, data)
-        except Exception:  # noqa: BLE001 - the querier went away
+        except Exception:  # the querier went away
             logger.debug("status reply failed", exc_info=True)
 
     # --- each tick ---------------------------------------------------------------------------

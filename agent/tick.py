@@ -182,7 +182,7 @@ class Ticker:
         try:
             self.parts.out.send_command(Cmd(0.0, 0.0, 0.0, 0.0,
                                             self.clock.cmd_stamp(t, self.last_stamp)))
-        except Exception:  # noqa: BLE001 - the zero command itself failed: logged, go on
+        except Exception:  # the zero command itself failed: logged, go on
             logger.debug("%s: zero command after a tick error failed", self.cfg.robot_id,
                          exc_info=True)
 

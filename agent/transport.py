@@ -140,7 +140,7 @@ class CommandOut:
                 return False
             if self.base is not None:
                 self.base.send(0.0, 0.0, stamp)
-        except Exception:  # noqa: BLE001 - last resort: report, the caller exits anyway
+        except Exception:  # last resort: report, the caller exits anyway
             logger.exception("%s: emergency zero command failed", self.robot_id)
             return False
         finally:

@@ -14,13 +14,13 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import numpy as np  # noqa: E402
-import overhead_rig as R  # noqa: E402
-import test_camera_process as T  # noqa: E402
+import numpy as np
+import overhead_rig as R
+import test_camera_process as T
 
-from camera_service.calibrate import calibrate_image  # noqa: E402
-from camera_service.config import FloorMarkers  # noqa: E402
-from camera_service.locate import Locator  # noqa: E402
+from camera_service.calibrate import calibrate_image
+from camera_service.config import FloorMarkers
+from camera_service.locate import Locator
 
 floor = FloorMarkers("DICT_4X4_50", 0.16, T.FLOOR)
 for seed in range(int(sys.argv[1]), int(sys.argv[2])):

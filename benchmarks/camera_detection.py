@@ -22,7 +22,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from camera_service import (  # noqa: E402
+from camera_service import (
     CameraConfig,
     CameraService,
     default_hues,

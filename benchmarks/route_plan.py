@@ -24,9 +24,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from agent.replan import PLAN_NICE  # noqa: E402
-from geometry.footprint_plan import Body, plan_footprint  # noqa: E402
-from geometry.shapes import Shape, box, segment  # noqa: E402
+from agent.replan import PLAN_NICE
+from geometry.footprint_plan import Body, plan_footprint
+from geometry.shapes import Shape, box, segment
 
 HALL = (40.0, 30.0)
 SHELF = (6.0, 0.8)

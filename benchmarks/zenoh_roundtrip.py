@@ -23,16 +23,16 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-import zenoh  # noqa: E402
+import zenoh
 
-from runtime.testing import (  # noqa: E402
+from runtime.testing import (
     RouterProcess,
     free_tcp_port,
     tcp_endpoint,
     wait_for_matching,
 )
-from wire import keys, zconf  # noqa: E402
-from wire.payloads import State, decode_state, encode  # noqa: E402
+from wire import keys, zconf
+from wire.payloads import State, decode_state, encode
 
 REPLY_TIMEOUT_S = 5.0
 

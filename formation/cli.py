@@ -344,7 +344,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"formation {ns.command}: interrupted", file=sys.stderr)
         return 130
-    except Exception as exc:  # noqa: BLE001 - the front end turns any failure into a message
+    except Exception as exc:  # the front end turns any failure into a message
         if ns.verbose:
             raise
         print(f"formation {ns.command}: {failure_words(exc, getattr(ns, 'out', None))}",

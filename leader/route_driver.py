@@ -87,7 +87,7 @@ class RouteDriver:
         job, self._job = self._job, None
         try:
             res = job.result()
-        except Exception:  # noqa: BLE001 - a worker that died: keep the route, plan later
+        except Exception:  # a worker that died: keep the route, plan later
             logger.warning("a route plan failed", exc_info=True)
             return None
         if isinstance(res, JobResult):

@@ -166,7 +166,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:
         print(f"runtime.router: {exc}", file=sys.stderr)
         return 2
-    except Exception as exc:  # zenoh.ZError: cannot listen, etc.
+    except Exception as exc:  # noqa: BLE001 - zenoh.ZError (cannot listen, etc.) is no narrower class
         print(f"runtime.router: {exc}", file=sys.stderr)
         return 1
     return 0

@@ -23,7 +23,7 @@ def undeclare_all(handles: Iterable[Any]) -> None:
     for h in handles:
         try:
             h.undeclare()
-        except Exception:  # noqa: BLE001 - closing or letting go: log, keep going
+        except Exception:  # closing or letting go: log, keep going
             logger.debug("undeclare failed", exc_info=True)
 
 

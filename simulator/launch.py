@@ -148,7 +148,7 @@ def _launch(cfg: RunConfig, hooks: _Hooks) -> tuple[dict, Series]:
         if cfg.remote is not None:
             try:  # an early way out: the agents there have stopped; remove the run's files
                 cfg.remote.collect(cfg.out)
-            except Exception:  # noqa: BLE001 - best effort on a way out that already failed
+            except Exception:  # best effort on a way out that already failed
                 logger.warning("could not tidy the run's files on the other hosts", exc_info=True)
 
 

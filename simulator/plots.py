@@ -22,24 +22,24 @@ from typing import cast
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-from matplotlib.lines import Line2D  # noqa: E402
-from matplotlib.patches import Circle, Ellipse, Patch, Polygon  # noqa: E402
-from matplotlib.text import Text  # noqa: E402
-from matplotlib.ticker import FixedLocator, FormatStrFormatter, NullLocator  # noqa: E402
-from matplotlib.transforms import Bbox  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Circle, Ellipse, Patch, Polygon
+from matplotlib.text import Text
+from matplotlib.ticker import FixedLocator, FormatStrFormatter, NullLocator
+from matplotlib.transforms import Bbox
 
-from agent.hard_rows import unmet_hard_rows  # noqa: E402
-from scenario import Scenario  # noqa: E402
-from scenario.cargo import load_polygon, placed_load  # noqa: E402
-from scenario.routes import start_plan  # noqa: E402
+from agent.hard_rows import unmet_hard_rows
+from scenario import Scenario
+from scenario.cargo import load_polygon, placed_load
+from scenario.routes import start_plan
 
-from .metrics import SafetyMonitor  # noqa: E402
-from .motion import REVERSAL_SPEED, is_reversal, robot_ticks, turn_angle  # noqa: E402
-from .series import ROBOT_COLUMNS, Series  # noqa: E402
+from .metrics import SafetyMonitor
+from .motion import REVERSAL_SPEED, is_reversal, robot_ticks, turn_angle
+from .series import ROBOT_COLUMNS, Series
 
 _COL = {name: k for k, name in enumerate(ROBOT_COLUMNS)}
 SNAPSHOTS = 5  # instants at which robots, ellipses and moving obstacles are drawn together

@@ -49,5 +49,5 @@ class StatusBoard:
     def close(self) -> None:
         try:
             self._sub.undeclare()
-        except Exception:  # noqa: BLE001 - the session may be closing
+        except Exception:  # the session may be closing
             logger.debug("status board undeclare failed", exc_info=True)

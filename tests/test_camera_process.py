@@ -389,7 +389,7 @@ class _FakeCapture:
         self.script = script  # list of bools: read succeeds?
         self.opened = script is not None
 
-    def isOpened(self):  # noqa: N802 - OpenCV's name
+    def isOpened(self):  # OpenCV's name
         return self.opened
 
     def read(self):

@@ -98,7 +98,7 @@ class FleetWatcher:
         for s in self._subs:
             try:
                 s.undeclare()
-            except Exception:  # noqa: BLE001 - the session may be closed already
+            except Exception:  # the session may be closed already
                 logger.debug("undeclare failed", exc_info=True)
         self._subs.clear()
 

@@ -167,7 +167,7 @@ class _Handler(BaseHTTPRequestHandler):
         self._send(403, b"cross-origin request refused\n", "text/plain")
         return True
 
-    def do_GET(self) -> None:  # noqa: N802 - http.server's name
+    def do_GET(self) -> None:  # http.server's name
         if self._foreign():
             return
         path = self.path.split("?", 1)[0]
@@ -179,7 +179,7 @@ class _Handler(BaseHTTPRequestHandler):
         else:
             self._send(404, b"not found\n", "text/plain")
 
-    def do_POST(self) -> None:  # noqa: N802
+    def do_POST(self) -> None:
         if self._foreign():
             return
         if self.path != "/control" or self.hub.control is None:
@@ -238,7 +238,7 @@ class LivePump:
         while not self._stop.wait(self.period):
             try:
                 frame = self.watcher.frame()
-            except Exception:  # noqa: BLE001 - a viewer never takes anything down
+            except Exception:  # a viewer never takes anything down
                 logger.exception("viewer: building a frame failed")
                 continue
             if frame is not None and frame["t"] != last_t:
@@ -283,7 +283,7 @@ class View:
         for fn in reversed(self._closers):
             try:
                 fn()
-            except Exception:  # noqa: BLE001
+            except Exception:
                 logger.debug("viewer close step failed", exc_info=True)
         self.page.close()
         if self.gate is not None:

@@ -297,7 +297,7 @@ def write_router_config(path: str | os.PathLike[str], conf: Mapping[str, Any]) -
     text = json.dumps(conf, indent=2) + "\n"
     try:
         zenoh.Config.from_json5(text)
-    except Exception as exc:  # zenoh.ZError: an unknown key or a bad value
+    except Exception as exc:  # noqa: BLE001 - zenoh.ZError: an unknown key or a bad value
         raise ValueError(f"router config rejected by zenoh: {exc}") from None
     Path(path).write_text(text, encoding="utf-8")
 

@@ -131,7 +131,7 @@ class ZenohSettings:
         if self.config_file is not None:
             try:
                 conf = zenoh.Config.from_file(self.config_file)
-            except Exception as exc:
+            except Exception as exc:  # noqa: BLE001 - zenoh.ZError: unreadable or not JSON5
                 raise ValueError(f"config_file {self.config_file!r}: {exc}") from None
         else:
             conf = zenoh.Config()
@@ -205,7 +205,7 @@ def use_zenoh_threads(profile: str) -> bool:
 def _insert(conf: zenoh.Config, key: str, value: object, name: str) -> None:
     try:
         conf.insert_json5(key, json.dumps(value))
-    except Exception as exc:  # zenoh.ZError
+    except Exception as exc:  # noqa: BLE001 - zenoh.ZError
         raise ValueError(f"{name} {value!r} rejected by zenoh ({key}): {exc}") from None
 
 
@@ -349,7 +349,7 @@ def read_auth_file(path: str | os.PathLike[str]) -> AuthFile:
         return AuthFile(name, UsrPwdAuth(user, password), ())
     try:
         conf = zenoh.Config.from_file(name)
-    except Exception as exc:  # zenoh.ZError: not JSON5, an unknown key
+    except Exception as exc:  # noqa: BLE001 - zenoh.ZError: not JSON5, an unknown key
         raise ValueError(f"--auth {name}: not a Zenoh configuration: {exc}") from None
 
     def get(key: str) -> object:
