@@ -86,7 +86,7 @@ class AgentConfig:
     solver: str = "exact"  # QP solver (agent.qp.make_solver): exact or a qpsolvers backend
     # the formation centroid's route (waypoints, the goal centroid last); () = the goal alone
     route: tuple[tuple[float, float], ...] = ()
-    # a heading per route point (the goal shape's turn; None: any) or () (issue 26, method rigid)
+    # a heading per route point (the goal shape's turn; None: any) or () (method rigid)
     route_headings: tuple[float | None, ...] = ()
     route_by_hand: bool = False  # the route is the scenario's waypoints: never planned again
     # leader only: every member's goal as the scenario gives it (the goal shape at heading 0)

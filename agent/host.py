@@ -1,6 +1,6 @@
 """``python -m agent.host --agent CONFIG,STATS[,AUTH] ... [agent options]``: K agents, one process.
 
-For big simulations on few cores (``formation run --agents-per-process K``, issue 18): each
+For big simulations on few cores (``formation run --agents-per-process K``): each
 ``--agent`` is one robot's :class:`agent.node.AgentNode` with its own configuration, its own
 Zenoh keys and its own counters file, exactly as ``python -m agent --config CONFIG --stats STATS
 [--zenoh-auth AUTH]`` would run it; every other option (``--lockstep``, faults, ``--no-trace``,
@@ -10,15 +10,15 @@ the host's one tick thread (:class:`TickWorker`) ticks each queued node on its n
 the node's own tick lock, with the same tick code as a process of its own: while the host keeps
 up every pose gets its tick, and a host that falls behind skips to each robot's newest pose
 (``superseded_poses`` in its counters) instead of working through a backlog, so its latency stays
-bounded. ``--direct-ticks`` ticks on Zenoh's thread instead, as a single agent does (measured
-against each other in docs/performance.md). One process per robot stays the default and what
+bounded. ``--direct-ticks`` ticks on Zenoh's thread instead, as a single agent does (both measured in
+docs/results.md). One process per robot stays the default and what
 deploy installs.
 
 Sessions: by default each node opens its own Zenoh session (a client of the router, as a separate
 process would). ``--shared-session`` gives every node of the host one session instead: fewer
 sessions and links on the router, and the nodes' messages to each other stay in the process. It
 is refused with per-robot credentials (``AUTH``), since each robot must log in as itself for the
-router's access control list. docs/performance.md has both measured.
+router's access control list. docs/results.md has both measured.
 
 SIGINT or SIGTERM stops every node: each publishes its zero command, undeclares and closes (its
 session, or its share of the common one, closed last), and writes its counters to its STATS file.

@@ -1,4 +1,4 @@
-"""Per-robot Zenoh users for a deployed fleet, and the router's access control (issue 14).
+"""Per-robot Zenoh users for a deployed fleet, and the router's access control.
 
 With ``zenoh.access_control`` on (the default in client mode), deploy gives every process of the
 fleet its own Zenoh user, each with only the rights it needs (:func:`wire.acl.fleet_acl`):
