@@ -1,4 +1,4 @@
-"""Calibration and parallax accuracy of the camera service (issue 17), on the independent
+"""Calibration and parallax accuracy of the camera service, on the independent
 pinhole renderer of the tests (tests/overhead_rig.py, scene of tests/test_camera_process.py).
 
     python3 benchmarks/camera_accuracy.py FIRST_SEED LAST_SEED [d]

@@ -1,4 +1,4 @@
-"""Route-planning cost (issue 26): the footprint planner (geometry.footprint_plan) for a 6-robot
+"""Route-planning cost: the footprint planner (geometry.footprint_plan) for a 6-robot
 line (1.5 m) in a 40 x 30 m hall with 50 shelves (5 columns x 10 rows, 1.8 m aisles, cross
 aisles between the columns), from one aisle to another; prints each plan's time and the median.
 

@@ -1,4 +1,4 @@
-"""Issue 25's bar over every shipped and test scenario, in process, one line per file.
+"""The scenario bar over every shipped and test scenario, in process, one line per file.
 
     PYTHONPATH=. python benchmarks/scenario_bar.py [--jobs 2] [--method rigid|thesis] [NAME ...]
 
