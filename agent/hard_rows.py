@@ -1,6 +1,6 @@
 """Which hard rows a control tick did not meet, and a counter of such ticks.
 
-Hard rows (DESIGN.md, agent.qp) are never relaxed to reach a goal: obstacles (eq. 4.5), other
+Hard rows (docs/controller.md, agent.qp) are never relaxed to reach a goal: obstacles (eq. 4.5), other
 formations' ellipses (eq. 4.6), the separation between robots where the control step has it, and
 the speed limits. A tick did not meet them when
 

@@ -7,7 +7,7 @@ problem over an interval cut by the earlier rows. It is exact up to rounding and
 infeasibility when an interval empties. qpsolvers backends (osqp, daqp, quadprog, clarabel, ...)
 can be chosen by name instead; they are the oracle the tests compare against.
 
-Infeasible ticks (DESIGN.md, "Control notes"): formation rows ("soft") are relaxed by the
+Infeasible ticks (docs/controller.md): formation rows ("soft") are relaxed by the
 smallest common slack that restores feasibility; obstacle and inter-formation rows ("hard") and
 the speed limits are never relaxed to reach a goal. If the hard rows and the limits alone are
 infeasible (a barrier already violated, say), the least-risk command is returned: the hard rows

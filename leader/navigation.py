@@ -1,5 +1,5 @@
 """Goals, routes and status of one formation: the leader's :class:`Navigator` and every member's
-:class:`Follower` (DESIGN.md keys ``goal``, ``plan``, ``status``).
+:class:`Follower` (the keys ``goal``, ``plan``, ``status`` of docs/keys.md).
 
 * The fleet manager sends the leader a :class:`wire.navigation.GoalMsg` (goal centroid, optional
   heading, optional waypoints). The leader's :meth:`Navigator.accept` checks it (finite, not

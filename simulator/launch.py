@@ -1,4 +1,4 @@
-"""``formation run``: the multi-process simulation over Zenoh (DESIGN.md, "Command line").
+"""``formation run``: the multi-process simulation over Zenoh (docs/cli.md).
 
 :func:`launch` takes a checked :class:`simulator.run_config.RunConfig` and only orchestrates the
 run's :class:`Fleet`. It picks a loopback port and starts, each in its own process group

@@ -1,7 +1,7 @@
 """Safety and progress measured on true body positions, for ``summary.json``.
 
 The same monitor serves the in-process simulator and the multi-process world, so both report
-collisions, clearances and formation error the same way (DESIGN.md, "Run output").
+collisions, clearances and formation error the same way (docs/outputs.md).
 """
 
 from __future__ import annotations

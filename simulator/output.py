@@ -2,7 +2,7 @@
 
 Shared by ``formation sim`` and ``formation run`` so both write the same files:
 
-* ``summary.json`` - the contract of DESIGN.md ("Run output");
+* ``summary.json`` - the contract of docs/outputs.md;
 * ``robots.csv`` - one row per robot per tick (:data:`simulator.inprocess.ROBOT_COLUMNS`; a run of
   double integrators adds ``ax, ay``, :func:`simulator.series.robot_columns`);
 * ``ellipses.csv``, ``obstacles.csv`` - per tick;

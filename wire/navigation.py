@@ -1,5 +1,5 @@
-"""The navigation payloads of formation-cbf: ``goal``, ``plan`` and ``status`` (DESIGN.md key
-space), in the wire format of :mod:`wire.payloads` and read with its defensive reader
+"""The navigation payloads of formation-cbf: ``goal``, ``plan`` and ``status`` (docs/keys.md
+key space), in the wire format of :mod:`wire.payloads` and read with its defensive reader
 (:mod:`wire.reader`). Layouts::
 
     ``GoalMsg``    version, formation:str, x, y, heading:list[f64] (0 or 1), waypoints:list[(x, y)],
