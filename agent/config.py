@@ -55,6 +55,12 @@ def agent_zenoh(**fields: Any) -> ZenohSettings:
 
 @dataclass(frozen=True)
 class AgentConfig:
+    """One robot's agent configuration, as the launcher or deploy writes it and the agent reads it.
+
+    Over 20 fields on purpose: it is the flat, frozen record of one file (``load_config``), each
+    field one key of it, so that a file and its record read the same; the parts of the agent
+    each take the fields they need."""
+
     robot_id: str
     formation: str
     leader_id: str

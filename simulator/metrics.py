@@ -19,7 +19,11 @@ CONTACT_RELEASE = 1e-3  # [m] a contact ends once the clearance exceeds this (on
 
 
 class SafetyMonitor:
-    """Feed it every tick's body positions; read the summary fields at the end."""
+    """Feed it every tick's body positions; read the summary fields at the end.
+
+    Over 20 attributes on purpose: each running minimum, count and onset memory is one field of
+    ``summary.json`` (or what it needs to count once per onset), kept side by side so that every
+    tick updates them from one pass over the bodies."""
 
     def __init__(self, scenario: Scenario) -> None:
         self.scenario = scenario

@@ -29,6 +29,9 @@ RESTART_POLICIES = ("on-failure", "no")
 class RunConfig:
     """Everything a multi-process run is started with (see :mod:`simulator.launch`).
 
+    Over 20 fields on purpose: one frozen record of every option of ``formation run``, checked
+    once where it is built, so that no later part reads an option unchecked.
+
     ``faults`` injects the faults of :class:`simulator.faults.FaultPlan`; ``secure`` runs the
     router with user/password authentication and the access control list of :mod:`wire.acl`,
     every process logging in as itself. ``pose_slots`` and ``clock_offset`` [s] are the world's
