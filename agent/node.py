@@ -103,7 +103,7 @@ from agent.barriers import Obstacle
 from agent.base import Base, make_base
 from agent.clock import STATS_WINDOW, Clock, LockstepClock, RealtimeClock
 from agent.config import AgentConfig
-from agent.control import Stall, StepResult, control_step
+from agent.control import Controller, Stall, StepResult
 from agent.faults import EPS, LinkFaults
 from agent.hard_rows import HardRowCounter
 from agent.inbox import RING_CAPACITY, Inbox, Receiver
@@ -612,10 +612,9 @@ class AgentNode:
         )
         self._stall = inputs.stall
         inputs = with_waypoint(inputs, self.nav.follower.heading, self.nav.follower.arriving)
-        res = control_step(cfg.control, (pose.x, pose.y, pose.theta), target, inputs.neighbours,
-                           obs, inputs.others, inputs.view, self._solve, inputs.pairwise,
-                           inputs.partners, self.last_u, inputs.hazards, shapes=shapes,
-                           clock=time.perf_counter_ns, footprint=cfg.footprint)
+        res = Controller(cfg.control, self._solve, time.perf_counter_ns).step(inputs._replace(
+            pose=(pose.x, pose.y, pose.theta), goal=target, obstacles=obs, last_u=self.last_u,
+            shapes=shapes, footprint=cfg.footprint))
         if self.clock.gone_stale(stamp):
             return self._zero(t, POSE_AT_SEND)  # never send a command from a pose gone stale
         if self.leader.leading:

@@ -20,7 +20,7 @@ import numpy as np
 from agent import accel_limit, double_integrator, unicycle
 from agent.barriers import Obstacle
 from agent.body import Footprint, footprint_of, motion_of
-from agent.control import ControlParams, Stall, StepResult, control_step
+from agent.control import Controller, ControlParams, Stall, StepResult
 from agent.hard_rows import HardRowCounter
 from agent.inputs import step_inputs, with_waypoint
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
@@ -130,6 +130,7 @@ def simulate(  # noqa: C901 (13: the in-process loop; to split with the world's 
     solve = options.solve_fn or make_solver(options.solver)
     fleet = FleetModel.build(scenario, safety=options.safety)
     params = fleet.params
+    controller = Controller(params, solve, time.perf_counter_ns)  # one for every robot
     robots = scenario.robots
     ids = scenario.robot_ids
     n = len(robots)
@@ -197,10 +198,9 @@ def simulate(  # noqa: C901 (13: the in-process loop; to split with the world's 
             stalls[i] = inputs.stall
             inputs = with_waypoint(inputs, followers[i].heading, followers[i].arriving)
             pose = (seen[i][0], seen[i][1], seen[i][2])
-            res = control_step(params, pose, target, inputs.neighbours, obs,
-                               inputs.others, inputs.view, solve, inputs.pairwise,
-                               inputs.partners, vel[i], inputs.hazards, shapes=shapes,
-                               clock=time.perf_counter_ns, footprint=fleet.footprints[i])
+            res = controller.step(inputs._replace(
+                pose=pose, goal=target, obstacles=obs, last_u=vel[i], shapes=shapes,
+                footprint=fleet.footprints[i]))
             results.append(res)
             hard.add(res)
             solve_us.append(res.solve_us)

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from agent import barriers, unicycle
 from agent.barriers import Neighbour, Obstacle, Partner
-from agent.control import ControlParams, FormationView, control_step, escape_command
+from agent.control import Controller, ControlParams, FormationView, StepInput, escape_command
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, solve_exact
 from formation.cli import main
 from leader.ellipse import Ellipse
@@ -38,8 +38,8 @@ def _both_step(p: ControlParams, pose_i, pose_j, v_i, v_j, goal_i, goal_j):
     separation partner (its control point, last velocity and heading, as its state gives)."""
     ci = unicycle.control_point(*pose_i, p.offset)
     cj = unicycle.control_point(*pose_j, p.offset)
-    ri = control_step(p, pose_i, goal_i, partners=[Partner(*cj, *v_j, pose_j[2])], last_u=v_i)
-    rj = control_step(p, pose_j, goal_j, partners=[Partner(*ci, *v_i, pose_i[2])], last_u=v_j)
+    ri = Controller(p).step(StepInput(pose_i, goal_i, partners=[Partner(*cj, *v_j, pose_j[2])], last_u=v_i))
+    rj = Controller(p).step(StepInput(pose_j, goal_j, partners=[Partner(*ci, *v_i, pose_i[2])], last_u=v_j))
     return ri, rj
 
 
@@ -176,7 +176,7 @@ def test_escape_is_the_same_vector_for_every_member():
     noms = set()
     for k, (x, y) in enumerate(members):  # each member at its slot of the formation's body
         fp = footprint_of(members, members, members, k)
-        r = control_step(p, (x, y, 0.0), (x, y), obstacles=forklift, view=view, footprint=fp)
+        r = Controller(p).step(StepInput((x, y, 0.0), (x, y), obstacles=forklift, view=view, footprint=fp))
         noms.add((round(r.nominal_ux, 12), round(r.nominal_uy, 12), r.escape))
     assert len(noms) == 1 and next(iter(noms))[2]
 

@@ -1,0 +1,30 @@
+"""The speed disk |u| <= r as the regular polygon inscribed in it (the QP's rows are linear).
+
+One vertex lies along the direction the caller rotates the polygon to (the nominal motion), so the
+clamped nominal command itself stays feasible. The per-robot speed rows
+(:func:`agent.barriers.speed_rows`), the acceleration rows (:mod:`agent.accel_limit`,
+:mod:`agent.double_integrator`) and the formation twist's slot-speed rows (:mod:`agent.body`) are
+all this polygon.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+SIDES = 12  # sides of the polygon inscribed in the speed disk
+
+
+def face(radius: float, sides: int = SIDES) -> float:
+    """The distance of each face from the centre: radius cos(pi / sides)."""
+    return radius * math.cos(math.pi / sides)
+
+
+@functools.lru_cache(maxsize=8)
+def normals(sides: int = SIDES) -> tuple[tuple[float, float], ...]:
+    """Unit face normals of the polygon for heading 0: angles pi/sides + 2 pi k / sides."""
+    return tuple(
+        (math.cos(math.pi / sides + 2.0 * math.pi * k / sides),
+         math.sin(math.pi / sides + 2.0 * math.pi * k / sides))
+        for k in range(sides)
+    )
