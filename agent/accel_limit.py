@@ -12,7 +12,7 @@ one the robot can follow. The rows join the limit rows; the barrier rows stay ha
 barrier rows cannot hold together with them (the QP falls back or fails), the barrier rows win:
 the tick is solved again without the acceleration rows, and its status is :data:`STATUS_ACCEL`
 (counted: ``qp.accel_yielded`` in the summary). Without ``max_accel`` there are no such rows and
-the QP is exactly as before. Double integrators have their own rows
+the QP is the plain one. Double integrators have their own rows
 (:mod:`agent.double_integrator`).
 """
 

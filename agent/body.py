@@ -503,13 +503,13 @@ def solve_twist(goal: Twist, rho: float, limits: Sequence[Row3], rows: Sequence[
     z = solve3(zhat, base)
     slack = 0.0
     if z is None:
-        slack = _min_slack(list(limits), rows)
+        slack = _min_twist_slack(list(limits), rows)
         base = list(limits) + _shifted(rows, slack)
         z = solve3(zhat, base) or (0.0, 0.0, 0.0)
     if follow:
         zf = solve3(zhat, base + list(follow))
         if zf is None and slack > 0.0:
-            zf = solve3(zhat, base + _shifted(follow, _min_slack(base, follow, z)))
+            zf = solve3(zhat, base + _shifted(follow, _min_twist_slack(base, follow, z)))
         z = zf or z
     return TwistResult((z[0], z[1], z[2] / rho), slack, len(rows), goal)
 
@@ -518,7 +518,7 @@ def _shifted(rows: Sequence[Row3], slack: float) -> list[Row3]:
     return [(a1, a2, a3, b + slack) for a1, a2, a3, b in rows]
 
 
-def _min_slack(base: list[Row3], rows: Sequence[Row3],
+def _min_twist_slack(base: list[Row3], rows: Sequence[Row3],
                at: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> float:
     """The smallest s >= 0 with ``base`` and the rows shifted by s feasible (bisection,
     :mod:`geometry.slack`); ``at`` meets ``base`` (the zero twist meets the limits), so
@@ -564,7 +564,10 @@ def brake_before_turning_back(want: Twist, moving: Twist, offsets: Sequence[Poin
     then the body keeps its motion, slowed so its fastest slot loses ``brake_decel`` dt of speed.
     A new route or waypoint that leads back (traffic in the way, a parked thing gone or come)
     makes the body stop before it moves the other way, as a carried load would, instead of its
-    members' commands flipping within one tick (route-head-on-aisle, route-give-way)."""
+    members' commands flipping within one tick.
+
+    Why: a rigid body with a load cannot reverse in one tick, and members that try part from
+    each other. Pinned by tests/scenarios/route-head-on-aisle.yaml (and route-give-way.yaml)."""
     t = BODY_TUNING
     fastest = 0.0
     back = False
@@ -620,7 +623,11 @@ def pace(want: Twist, pose: Pose, fp: Footprint, headings: Sequence[float]) -> f
     members turning round opposite ways (each picks its own way,
     :func:`agent.unicycle.turn_error`) part by twice that. Waiting, they turn in place, their
     bodies still, whichever way each turns. The floor keeps a formation moving whose member
-    cannot turn where it stands (its look-ahead point against a shelf's row)."""
+    cannot turn where it stands (its look-ahead point against a shelf's row).
+
+    Why (wait-to-face): members turning round opposite ways while their slots move sweep their
+    bodies apart and bend the formation. Pinned by tests/scenarios/lab-unicycles-turn-round.yaml
+    (and rigid-doorway-four-unicycle.yaml)."""
     if len(headings) != len(fp.slots):
         return 1.0
     t = BODY_TUNING
@@ -659,8 +666,11 @@ def member_nominal(fp: Footprint, pose: Pose, twist: Twist, point: Point, body: 
     member's own pull to its target whole, where taking off the whole goal pulled it back
     against that pull and it stopped short (tests/scenarios/rigid-doorway-four-unicycle.yaml). A waypoint the
     formation passes is no place to settle: there the blend took the turn to its heading out of
-    the twist, and a pentagon whose members stood within 2 cm of their targets never turned
-    (the pentagon of the warehouse scenario)."""
+    the twist, and a pentagon whose members stood within 2 cm of their targets never turned.
+
+    Why (arrival blend): a goal shape is not exactly a rigid copy of the start shape, so only a
+    member's own pull settles it on its goal. Pinned by
+    tests/scenarios/rigid-doorway-four-unicycle.yaml."""
     slot = place(pose, fp.slots[fp.member])
     dist = math.hypot(target[0] - body[0], target[1] - body[1])
     w = min(1.0, max(0.0, 1.0 - dist / BODY_TUNING.arrive_range)) if arriving else 0.0

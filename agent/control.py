@@ -1,8 +1,13 @@
 """One robot's control step: nominal command, barrier rows, QP (thesis eq. 4.12).
 
-:func:`control_step` is the single function the agent process, the in-process simulator and the
-tests all call. It takes plain numbers (the robot's pose, its goal, what its neighbours, the
-obstacles and its leader told it) and returns the command with the barrier values it saw.
+:class:`Controller` is what the agent process, the in-process simulator and the tests all use:
+made once from the robot's parameters (:class:`agent.params.ControlParams`), its solver, an
+optional clock and the rules' tuning (:class:`ControlTuning`), and called once a tick with one
+:class:`agent.params.StepInput` (plain numbers: the robot's pose, its goal, what its neighbours,
+the obstacles and its leader told it); it returns one :class:`StepResult`, the command with the
+barrier values it saw. Each robot model has one row builder (:class:`RowBuilder`): velocity rows
+for single integrators and unicycles (:func:`build_rows`), acceleration rows for double
+integrators (:func:`agent.double_integrator.hocbf_rows`).
 
 The nominal (``controller.method``): ``rigid``, the default, takes each member's nominal from
 its formation's rigid motion (:mod:`agent.body`: one small QP over the formation's twist with the
@@ -18,9 +23,9 @@ safe motion to choose, not which motions are safe:
 * keep right (:func:`tiebreak_push`, ``controller.tiebreak: keep_right``): two formations meeting
   head-on, or a formation facing a hazard dead ahead, stall under a CBF-QP, whose optimum is
   symmetric and has no sideways part. Relative to each hazard in the way (ahead along the relative
-  motion w = max_speed g - v_hazard, inside the corridor of both half-widths + TIEBREAK_MARGIN) the
-  formation is pushed along w's normal, away from the hazard's side (its right within
-  TIEBREAK_DEAD of the centre line), faded over TIEBREAK_RANGE, scaled to TIEBREAK_GAIN max_speed.
+  motion w = max_speed g - v_hazard, inside the corridor of both half-widths + ``margin``) the
+  formation is pushed along w's normal, away from the hazard's side (its right within ``dead``
+  of the centre line), faded over ``range``, scaled to ``gain`` max_speed (:class:`TiebreakTuning`).
   Seen from each other two formations head-on push to the same side and pass; two on a collision
   course at right angles both turn right of their relative motion, so one passes behind. Another
   formation whose centre lies past our waypoint (``ahead`` > dist along g) weighs less, by the
@@ -28,15 +33,16 @@ safe motion to choose, not which motions are safe:
   ``dist`` away, so a step delta sideways turns g by delta / dist and moves the hazard's offset
   by delta (ahead / dist - 1). Up to the waypoint that is against the step (the side chosen is
   kept); past it, with the step, so each push moved the hazard's offset across the dead band's
-  edge and the next tick pushed back (route-head-on-aisle: a pair near its waypoint reversed
-  its command 32 times in 7 s). A formation past the waypoint is not in the way to it. An
+  edge and the next tick pushed back (a pair near its waypoint reversed its command tick after
+  tick in tests/scenarios/route-head-on-aisle.yaml). A formation past the waypoint is not in the way to it. An
   obstacle keeps its whole weight: a shelf row's circles past a waypoint still push the
-  formation off them (faded as well, di-pushed-to-shelves had 8 ticks with a hard row unmet).
+  formation off them (faded as well: tests/scenarios/di-pushed-to-shelves.yaml).
 * escape (:func:`escape_command`): a barrier that only lets robots back away cannot outrun a
   moving hazard about as fast as they are. For each moving obstacle whose closest approach under
   the formation's intended motion comes within its Ds + the formation's half-width across its
-  path + ESCAPE_MARGIN, the intended motion becomes a step sideways, away from the hazard's path
-  line, plus what is left of the motion without its part towards that line. Where that cannot be
+  path + ``margin`` (:class:`EscapeTuning`), the intended motion becomes a step sideways, away
+  from the hazard's path line, plus what is left of the motion without its part towards that
+  line. Where that cannot be
   done in time, the hard rows meet and the QP returns the least-risk command (counted).
 * yield (:func:`yield_command`): formations standing still in each other's way (the stall clock,
   :func:`update_stall`) are a jam whose order no barrier picks; the later name backs away.
@@ -145,7 +151,7 @@ def update_stall(prev: Stall, view: FormationView, dt: float, t: StallTuning = T
 
     Why: formations standing still in each other's way are a jam no barrier resolves; the clock
     is how every member agrees, from the same shared data, that they are in one.
-    Pinned by tests/scenarios/rigid-doorway-pair.yaml."""
+    Pinned by tests/scenarios/yield-hexagon-triangle.yaml."""
     own = view.own
     far = math.hypot(view.goal_x - own.cx, view.goal_y - own.cy) > t.goal_distance
     slow = math.hypot(own.vx, own.vy) < t.speed
@@ -164,7 +170,7 @@ def yield_command(view: FormationView, others: Sequence[Ellipse], vmax: float,
     to zero (an instant turn back to the goal was a reversal of every member's command).
 
     Why: a jam's order is not a safety question, so no barrier picks it; a fixed priority by
-    name does, the same on every member. Pinned by tests/scenarios/rigid-doorway-pair.yaml."""
+    name does, the same on every member. Pinned by tests/scenarios/yield-hexagon-triangle.yaml."""
     own = view.own
     rx = ry = 0.0
     for e, name in zip(others, view.other_names, strict=False):
@@ -424,13 +430,13 @@ def body_df(px: float, py: float, theta: float, n: Neighbour, lookahead: float) 
 
     With d = s_i - s_j and q = l (e_i - e_j), the bodies are |d - q| apart, so the look-ahead
     edge's error against Df_ij + |d| - |d - q| is exactly the body edge's error against Df_ij.
-    The formation rows and :func:`band_nominal` measure every unicycle edge against this
+    The formation rows and the members' pull to their slots measure every unicycle edge against this
     distance, so they hold the bodies where the headings differ. Against Df_ij itself they held
     the look-ahead points: a member turning in place (bodies still) moved its look-ahead point
     by up to 2 l, and the rows and the band's repair then moved its neighbours' bodies after it
-    (measured in `formation montecarlo`: look-ahead edges inside the band while the bodies were
-    1.6-1.7 epsilon out, at arrival and where one member was pushed round by another
-    formation's ellipse row). Without the neighbour's heading the edge keeps Df_ij."""
+    (look-ahead edges inside the band while the bodies were well out of it, at arrival and where
+    one member was pushed round by another formation's ellipse row:
+    tests/scenarios/unicycle-arrival-shelves.yaml). Without the neighbour's heading the edge keeps Df_ij."""
     if n.theta is None:
         return n.df
     dx, dy = px - n.x, py - n.y
@@ -496,7 +502,7 @@ def escape_command(
     vector for every member, or None when no moving hazard threatens the formation.
 
     Why: a barrier only lets robots back away, which does not outrun a hazard about as fast as
-    they are; stepping off its path does. Pinned by tests/scenarios/di-forklift.yaml."""
+    they are; stepping off its path does. Pinned by tests/scenarios/forklift-crossing-fast.yaml."""
     t, dead = tuning.escape, tuning.tiebreak.dead
     own = view.own
     vmax = p.max_speed
@@ -663,7 +669,7 @@ class Controller:
 
 
 def body_params(cp: ControlParams) -> body.BodyParams:
-    """The formation QP's numbers from a member's :class:`agent.control.ControlParams`: the turn
+    """The formation QP's numbers from a member's :class:`agent.params.ControlParams`: the turn
     limit is a unicycle's turn rate (single integrators: none beyond the slots' speeds); the
     load keeps epsilon (how far members sit from their slots) plus the look-ahead offset; a
     unicycle formation's heading spread is epsilon / l (:func:`agent.body.spread_rows`). A
@@ -673,8 +679,8 @@ def body_params(cp: ControlParams) -> body.BodyParams:
     keeps max_speed dt more: a double integrator's velocity is part of its state, so a velocity
     the twist asks for takes hold only over the next period, in which the members, and the load
     fitted to them, can still move up to max_speed dt beyond what the twist's load rows allowed
-    (montecarlo --model double_integrator seeds 7 and 11: 4 loads into shelves, up to 223 mm
-    deep, and a deadlock in 400 runs before; 1 load, 0 deadlocks after)."""
+    (without it, loads of double-integrator formations ran into shelves in the ``formation
+    montecarlo --model double_integrator`` draws)."""
     di = cp.double_integrator
     return body.BodyParams(
         vmax=cp.max_speed,

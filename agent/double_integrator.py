@@ -117,7 +117,7 @@ def twist_gamma(cp: ControlParams) -> float:
     -(k / 2) h. With the single integrator's extended class-K (``ellipse_class_k``, k h (1 + h)
     outside) the twist drove a formation on at full speed towards another two or three
     semi-axes out while the member nearest it braked alone, and the formation rows gave way
-    (tests/scenarios/di-three-cross.yaml: 1.81 eps before, 0.79 after)."""
+    (tests/scenarios/di-three-cross.yaml)."""
     return 0.5 * gain(cp.gamma_formations, _accel(cp), 2.0 * cp.max_speed, cp.period)
 
 

@@ -134,7 +134,7 @@ def integrate(x: float, y: float, theta: float, v: float, omega: float, dt: floa
     ``omega dt`` is tiny, and lost up to 2e-8 m a step at ``omega = 1.1e-8``; below ``small_turn``
     (:class:`SteerTuning`) the same arc is its chord, ``v dt (1 - a^2 / 6)`` along the mid
     heading ``theta + a`` (``a = omega dt / 2``: the series of ``sin(a) / a``, exact in floating point
-    there). Above it the arc as before, whose rounding is then under 1e-9 of the step."""
+    there). Above it the arc, whose rounding is then under 1e-9 of the step."""
     half = 0.5 * omega * dt
     if abs(half) < 0.5 * STEER.small_turn:
         chord = v * dt * (1.0 - half * half / 6.0)

@@ -20,7 +20,7 @@ Eight measurements, written to ``bench.json`` and as a table (``bench.txt`` and 
   Every pose of a tick leaves at once, as from one overhead camera frame. For comparison, the
   32- and 64-agent fleets also run with the world publishing each formation's poses in its own
   slot of the period (``agents_pose_slots``, ``pose_slots`` = N/4), as robots localising on
-  their own clocks would, so the N agents do not all wake in the same instant on this 2-core
+  their own clocks would, so the N agents do not all wake in the same instant on one shared
   machine (on robots each agent has its own CPU), and one fleet runs with agents ticking on
   their own clock (``agents_clock_ticks``). Reported per fleet: achieved command rate, missed ticks, pose ->
   command latency (p50, p99) and its parts, CPU and memory (RSS) per agent, and the agents'
@@ -48,8 +48,8 @@ as a percentage of one core; memory is ``VmRSS`` of ``/proc/PID/status`` at the 
 fleets asked, optionally in agent hosts (``--agents-per-process K``, :mod:`agent.host`), each fleet
 ``--repeat`` times, every run with its own load average.
 
-The machine's load average is recorded beside every timing: this is a shared 2-core machine, and
-timings taken under other people's load are upper bounds.
+The machine's load average is recorded beside every timing: timings taken under other load are
+upper bounds.
 """
 
 from __future__ import annotations

@@ -21,7 +21,11 @@ def wrap_angle(angle: float) -> float:
 
 def wrap_left(angle: float, bias: float = LEFT_BIAS) -> float:
     """Angle wrapped into [-pi + bias, pi + bias): the short way round, except that a turn
-    within ``bias`` of half a turn goes left (positive)."""
+    within ``bias`` of half a turn goes left (positive).
+
+    Why (left-turn bias): members that each see a turn of about half a turn must all turn the
+    same way, and rounding alone would split them. Pinned by
+    tests/scenarios/rigid-turn-180-dt005.yaml (a formation turning by 180 degrees)."""
     return (angle + math.pi - bias) % (2.0 * math.pi) - math.pi + bias
 
 

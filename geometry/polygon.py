@@ -1,4 +1,4 @@
-"""Convex polygons: a formation's load (issue 25) against points, disks, walls, shelves and other
+"""Convex polygons: a formation's load against points, disks, walls, shelves and other
 loads.
 
 A polygon is a sequence of vertices (x, y), counter-clockwise; two vertices make a segment and
