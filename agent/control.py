@@ -366,7 +366,7 @@ def _band_rows(p: ControlParams, px: float, py: float, theta: float,
         narrow = 0.0
         if p.unicycle and n.theta is not None:  # the band is meant for the bodies
             narrow = heading_narrowing(theta, n.theta, p.lookahead, eps)
-        if p.bounds.declared:
+        if p.declared:
             narrow = min(narrow + p.pair_margin(last_u, (n.vx, n.vy)), ROW_TUNING.narrow_cap * eps)
         hg, hl, rg, rl = barriers.formation_rows(px, py, n, eps, p.gamma_formation, narrow)
         hf = min(hf, hg, hl)
@@ -568,7 +568,7 @@ class Controller:
     acceleration rows. :meth:`step` holds no state between ticks: one Controller serves every
     robot with the same parameters."""
 
-    __slots__ = ("params", "solve", "clock", "tuning", "rows")
+    __slots__ = ("params", "solve", "clock", "tuning", "rows", "body")
 
     def __init__(self, params: ControlParams, solve: Callable = solve_exact,
                  clock: Callable[[], int] | None = None, tuning: ControlTuning = TUNING) -> None:
@@ -578,6 +578,9 @@ class Controller:
         self.tuning = tuning
         self.rows: RowBuilder = (double_integrator.hocbf_rows if params.double_integrator
                                  else build_rows)
+        # the formation QP's numbers, which depend on the parameters alone (method rigid)
+        self.body = (body_params(params) if params.method == "rigid" and params.safety
+                     else None)
 
     def step(self, inp: StepInput) -> StepResult:
         """One tick for one robot (:class:`StepInput` says what each input is)."""
@@ -586,12 +589,13 @@ class Controller:
         off = p.offset
         px, py = (unicycle.control_point(x, y, theta, off) if p.unicycle else (x, y))
         if p.unicycle:  # the band is meant for the bodies: measure each edge there (body_df)
-            inp = inp._replace(neighbours=[n._replace(df=body_df(px, py, theta, n, off))
-                                           for n in inp.neighbours])
+            inp = StepInput(inp.pose, inp.goal,
+                            [n._replace(df=body_df(px, py, theta, n, off)) for n in inp.neighbours],
+                            *inp[3:])
         (ux, uy), escaping = self._nominal(inp, (px, py))
         fp = inp.footprint
         load = (load_rows.member_load(fp, inp.pose, inp.last_u, inp.partners, off, p.unicycle)
-                if p.method == "rigid" and p.safety and fp is not None else None)
+                if self.body is not None and fp is not None else None)
         rows = self.rows(p, (px, py), theta, (ux, uy), inp, load)
         if p.double_integrator:  # the same nominal, as an acceleration under relative-degree-2 rows
             d = double_integrator.step(p, rows, (x, y), inp.last_u, (ux, uy), self.solve,
@@ -611,15 +615,16 @@ class Controller:
         u = nominal(p.kp, x, y, goal[0], goal[1], p.max_speed)
         aim = None
         escaping = False
-        view, fp = inp.view, inp.footprint
-        if p.method == "rigid" and p.safety and view is not None and fp is not None:
-            u, aim, escaping = self._formation_nominal(inp, view, fp, point)
+        view, fp, bp = inp.view, inp.footprint, self.body
+        if bp is not None and view is not None and fp is not None:
+            u, aim, escaping = self._formation_nominal(inp, bp, view, fp, point)
         if p.unicycle and p.safety and p.method != "thesis":  # turn about the body, then drive
             u = self._face(inp, u, aim)
         return u, escaping
 
-    def _formation_nominal(self, inp: StepInput, view: FormationView, fp: body.Footprint,
-                           point: body.Point) -> tuple[body.Point, body.Point | None, bool]:
+    def _formation_nominal(self, inp: StepInput, bp: body.BodyParams, view: FormationView,
+                           fp: body.Footprint, point: body.Point
+                           ) -> tuple[body.Point, body.Point | None, bool]:
         """``method: rigid``: the member's nominal from its formation's twist, with the escape,
         the yield and keep right shaping the formation's goal motion."""
         p, t = self.params, self.tuning
@@ -629,7 +634,7 @@ class Controller:
             esc = yield_command(view, hazards, p.max_speed, t.stall)
         push = (tiebreak_push(view, hazards, inp.obstacles, p.max_speed, t.tiebreak)
                 if p.tiebreak else (0.0, 0.0))
-        u, aim = rigid_nominal(p, fp, view, body.Snapshot(inp.obstacles, inp.shapes, hazards),
+        u, aim = rigid_nominal(bp, fp, view, body.Snapshot(inp.obstacles, inp.shapes, hazards),
                                point, inp.pose[:2], inp.goal, push, esc)
         return u, aim, esc is not None
 
@@ -697,14 +702,14 @@ def body_params(cp: ControlParams) -> body.BodyParams:
     )
 
 
-def rigid_nominal(cp: ControlParams, fp: body.Footprint, view: FormationView, snap: body.Snapshot,
+def rigid_nominal(p: body.BodyParams, fp: body.Footprint, view: FormationView, snap: body.Snapshot,
                   point: body.Point, at: body.Point, target: body.Point,
                   push: body.Point = (0.0, 0.0), intent: body.Point | None = None
                   ) -> tuple[body.Point, body.Point | None]:
     """``controller.method: rigid``: a member's nominal from the formation's twist
     (:func:`agent.body.formation_twist`) and its slot (:func:`agent.body.member_nominal`);
-    ``point`` is its control point, ``at`` its body position."""
-    p = body_params(cp)
+    ``point`` is its control point, ``at`` its body position; ``p`` the formation QP's numbers
+    (:func:`body_params`)."""
     turn = None if view.goal_heading is None else fp.goal_turn + view.goal_heading
     pose, res = body.formation_twist(fp, view.own, (view.goal_x, view.goal_y), snap, p, push, intent,
                                      turn)

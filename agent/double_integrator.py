@@ -283,7 +283,14 @@ def hocbf_rows(cp: ControlParams, point: tuple[float, float], theta: float,
         hf = min(hf, hg, hl)
         _keep(soft, rg, amax)
         _keep(soft, rl, amax)
-    ho, contact = _contact_hocbf(cp, p, v, inp.obstacles, inp.shapes)
+    for o in inp.obstacles:
+        h, row = obstacle_hocbf(p, v, o, cp.gamma_obstacle, amax, vmax, dt)
+        ho = min(ho, h)
+        _keep(contact, row, amax)
+    for sh in inp.shapes:
+        h, row = shape_hocbf(p, v, sh, cp.gamma_obstacle, amax, vmax, dt)
+        ho = min(ho, h)
+        _keep(contact, row, amax)
     for e in inp.others:
         h, row = ellipse_hocbf(p, v, e, cp.gamma_formations, amax, vmax, dt)
         he = min(he, h)
@@ -303,24 +310,6 @@ def hocbf_rows(cp: ControlParams, point: tuple[float, float], theta: float,
         for row in rows:
             _keep(contact, row, amax)
     return Rows(limits, hard, soft, hf, ho, he, hs, contact)
-
-
-def _contact_hocbf(cp: ControlParams, p: tuple[float, float], v: tuple[float, float],
-                   obstacles: Sequence[Obstacle], shapes: Sequence[Shape]
-                   ) -> tuple[float, list[Row]]:
-    """The circles' and the walls' and shelves' rows that can be active, and the smallest h."""
-    amax, vmax, dt = _accel(cp), cp.max_speed, cp.period
-    contact: list[Row] = []
-    ho = math.inf
-    for o in obstacles:
-        h, row = obstacle_hocbf(p, v, o, cp.gamma_obstacle, amax, vmax, dt)
-        ho = min(ho, h)
-        _keep(contact, row, amax)
-    for sh in shapes:
-        h, row = shape_hocbf(p, v, sh, cp.gamma_obstacle, amax, vmax, dt)
-        ho = min(ho, h)
-        _keep(contact, row, amax)
-    return ho, contact
 
 
 def load_rows_of(cp: ControlParams, load: load_rows.MemberLoad, obstacles: Sequence[Obstacle],

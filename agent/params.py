@@ -8,6 +8,7 @@ A module of its own so that each robot model's row builder (:func:`agent.control
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
@@ -64,7 +65,8 @@ PARAM_RANGES: dict[str, ranges.Range] = {
 @dataclass(frozen=True)
 class ControlParams:
     """The controller's parameters; every number is checked against :data:`PARAM_RANGES` and
-    every switch must be a bool (ValueError naming the field) when one is built."""
+    every switch must be a bool (ValueError naming the field) when one is built. The numbers
+    derived from them alone (offset, margins, separation) are computed once, on first use."""
 
     kp: float = 2.0  # eq. 4.2
     gamma_formation: float = 1.0
@@ -126,12 +128,17 @@ class ControlParams:
             bounds=c.bounds,
         )
 
-    @property
+    @functools.cached_property
+    def declared(self) -> bool:
+        """Whether any sensing or motor bound is declared (:attr:`scenario.model.Bounds.declared`)."""
+        return self.bounds.declared
+
+    @functools.cached_property
     def offset(self) -> float:
         """Control point offset from the body centre [m]."""
         return self.lookahead if self.unicycle else 0.0
 
-    @property
+    @functools.cached_property
     def separation(self) -> float:
         """[m] distance the separation rows keep between two body centres: two radii (for
         unicycles the pair barrier adds l HEADING_SMOOTH, 1 cm for a TurtleBot, which covers
@@ -139,7 +146,7 @@ class ControlParams:
         each pair adds its margin for the declared bounds (:meth:`pair_margin`)."""
         return 2.0 * self.radius + ROW_TUNING.sep_margin
 
-    @property
+    @functools.cached_property
     def margin(self) -> float:
         """[m] this robot's margin for its declared bounds (:func:`agent.margins.robot_margin`;
         0.0 without bounds): obstacles, walls and shelves keep it beyond Ds."""
@@ -152,7 +159,7 @@ class ControlParams:
         return margins.pair_margin(self.bounds, math.hypot(u[0] - v[0], u[1] - v[1]),
                                    self.offset)
 
-    @property
+    @functools.cached_property
     def sampling_margin(self) -> float:
         """[m] extra obstacle clearance for a unicycle's look-ahead point under sampled control.
 
