@@ -130,39 +130,18 @@ Twist = tuple[float, float, float]  # (vx [m/s], vy [m/s], omega [rad/s]) about 
 class BodyTuning:
     """The formation QP's tuning (the module docstring has each rule)."""
 
-    # [m] within this of its target a member blends to eq. 4.2 on it: wider settles sooner and
-    # softer, narrower holds the formation's shape closer to the goal
-    arrive_range: float = 0.1
-    # the share of appendix A.3's alpha(h) each of two formations takes where both send member
-    # points ("Two formations"): more for one side leaves less for the other; the two add to 1
-    mirror_share: float = 0.5
-    # [m/s] a formation moving faster than this brakes before turning back: lower brakes even a
-    # crawl, higher lets a faster body flip its members' commands within a tick
-    brake_from: float = 0.04
-    # [m/s^2] the rate of that braking: harder stops sooner, softer turns back later
-    brake_decel: float = 1.0
-    # a slot's new velocity this far (cos 120 degrees) from its own turns back: nearer 0 brakes
-    # for sharper turns too, nearer -1 only for full reversals
-    brake_cos: float = math.cos(math.radians(120.0))
-    # [m/s] a slot asked to move slower than this needs no facing: higher ignores more of the
-    # band's noise, lower waits for members on slow slots too
-    pace_from: float = 0.02
-    # [m/s] nor does a formation none of whose slots is asked to move this fast
-    pace_moving: float = 0.1
-    # [rad] a member facing its slot's motion this closely lets the formation go at full pace:
-    # wider drives sooner with members still turning, narrower waits longer
-    pace_aligned: float = math.radians(30.0)
-    # [rad] ... this far off (or more) the formation waits (at pace_floor)
-    pace_sideways: float = math.radians(90.0)
-    # the least share of its goal twist a waiting formation keeps (a member may be unable to
-    # turn): higher keeps moving, lower drives a turning member's slot less far before it faces
-    # it (0.25 drove it 2 epsilon on in rigid-doorway-four-unicycle)
-    pace_floor: float = 0.1
-    # halvings of the twist QP's slack search: more is a tighter slack, each one a 3-D solve
-    bisect_steps: int = 40
-    # [m] the smallest slot radius rho (it weighs omega in the QP): a formation of one robot
-    # still has a turn that costs something
-    min_rho: float = 0.01
+    arrive_range: float = 0.1  # [m] blend to eq. 4.2 within this: wider settles softer, holds less shape
+    mirror_share: float = 0.5  # each formation's share of A.3's alpha: more for one, less for the other
+    brake_from: float = 0.04  # [m/s] faster bodies brake before turning back: lower brakes crawls too
+    brake_decel: float = 1.0  # [m/s^2] that braking: harder stops sooner, softer turns back later
+    brake_cos: float = math.cos(math.radians(120.0))  # this far off a slot's motion is back: 0 brakes more
+    pace_from: float = 0.02  # [m/s] slower slots need no facing: higher ignores more of the band's noise
+    pace_moving: float = 0.1  # [m/s] a formation with no slot this fast does not wait: higher waits less
+    pace_aligned: float = math.radians(30.0)  # facing within this: full pace; wider drives on while turning
+    pace_sideways: float = math.radians(90.0)  # this far off the formation waits: narrower waits sooner
+    pace_floor: float = 0.1  # least goal-twist share while waiting: higher drives unfaced slots on
+    bisect_steps: int = 40  # halvings of the twist QP's slack search: tighter slack, one 3-D solve each
+    min_rho: float = 0.01  # [m] least slot radius (weighs omega): a one-robot formation's turn still costs
 
 
 BODY_TUNING = BodyTuning()

@@ -74,60 +74,36 @@ from .qp import STATUS_NOMINAL, QPResult, Row, Rows, solve_exact
 class TiebreakTuning:
     """Keep right (:func:`tiebreak_push`)."""
 
-    # [m] corridor half-width beyond both radii in which a hazard counts as in the way: wider
-    # steers round more hazards, narrower only those dead ahead
-    margin: float = 0.15
-    # [m] lateral offsets this small count as dead ahead (keep right): wider decides for more
-    # near-symmetric meetings, narrower lets the measured side decide
-    dead: float = 0.05
-    # [m] distance ahead of contact over which the push fades in: longer turns aside earlier
-    range: float = 2.0
-    # the push as a fraction of max speed: stronger passes wider, weaker bends the path less
-    gain: float = 0.35
+    margin: float = 0.15  # [m] corridor beyond both radii: wider steers round more hazards, narrower fewer
+    dead: float = 0.05  # [m] offsets this small are dead ahead (keep right): wider decides more meetings
+    range: float = 2.0  # [m] the push fades in over this before contact: longer turns aside earlier
+    gain: float = 0.35  # push / max speed: stronger passes wider, weaker bends the path less
 
 
 @dataclass(frozen=True, slots=True)
 class StallTuning:
     """The stall clock (:func:`update_stall`) and the yield (:func:`yield_command`)."""
 
-    # [m/s] a formation centroid slower than this is "still": higher counts crawls as jams
-    speed: float = 0.02
-    # [s] still this long, away from the goal: a jam; shorter yields sooner, longer waits for
-    # a jam to clear by itself
-    time: float = 4.0
-    # [m] closer than this to its target (goal or waypoint) a formation is not jammed
-    goal_distance: float = 0.1
-    # [s] how long a jammed formation without priority backs away: longer frees more room,
-    # shorter loses less ground
-    yield_time: float = 5.0
-    # [m] beyond touching ellipses, formations that count for yielding
-    yield_range: float = 1.0
-    # the backing speed as a fraction of max speed: faster frees the way sooner
-    yield_gain: float = 0.5
-    # [s] the backing slows to zero over the yield's last this long: longer is a softer turn
-    # back to the goal, shorter a quicker one
-    yield_ease: float = 1.0
+    speed: float = 0.02  # [m/s] a centroid slower than this is still: higher counts crawls as jams
+    time: float = 4.0  # [s] still this long is a jam: shorter yields sooner, longer waits for it to clear
+    goal_distance: float = 0.1  # [m] nearer its target a formation is not jammed: wider ignores more
+    yield_time: float = 5.0  # [s] the yield's length: longer frees more room, shorter loses less ground
+    yield_range: float = 1.0  # [m] beyond touching ellipses, formations that count: wider yields to more
+    yield_gain: float = 0.5  # backing speed / max speed: faster frees the way sooner, slower jerks less
+    yield_ease: float = 1.0  # [s] the backing eases to zero over this: longer is a softer turn back
 
 
 @dataclass(frozen=True, slots=True)
 class EscapeTuning:
     """The escape from moving hazards (:func:`escape_command`)."""
 
-    # [m/s] obstacles slower than this are static for the escape (the barriers alone keep off)
-    min_speed: float = 0.02
-    # [m] moving hazards farther than this from the centroid are ignored: longer starts sooner
-    range: float = 6.0
-    # [s] closest approaches further ahead than this do not count yet
-    horizon: float = 20.0
-    # [m] lateral room beyond the hazard's Ds and the members' half-width: more clears wider
-    margin: float = 0.15
-    # [m] the ellipse's pad beyond the members (leader.ellipse derives it so)
-    pad: float = 0.02
-    # [m] the sideways step aims this far beyond the room needed, so it gets there
-    overshoot: float = 0.05
-    # [1/s] sideways speed per metre still to clear: higher steps aside faster, leaving less
-    # speed for the intended motion
-    gain: float = 2.0
+    min_speed: float = 0.02  # [m/s] slower obstacles are static (barriers alone): lower escapes crawlers
+    range: float = 6.0  # [m] farther hazards are ignored: longer starts sooner, on more false alarms
+    horizon: float = 20.0  # [s] later closest approaches do not count yet: longer reacts earlier
+    margin: float = 0.15  # [m] room beyond Ds and the half-width: more clears wider, stepping farther
+    pad: float = 0.02  # [m] the ellipse's pad beyond the members (as leader.ellipse derives it)
+    overshoot: float = 0.05  # [m] the step aims this far beyond the room needed: more gets there sooner
+    gain: float = 2.0  # [1/s] sideways speed per metre to clear: higher steps faster, less speed onward
 
 
 @dataclass(frozen=True, slots=True)

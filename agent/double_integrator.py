@@ -74,12 +74,8 @@ from .qp import STATUS_NOMINAL, QPResult, Row, Rows, normalized_row, solve_cbf_q
 class DITuning:
     """The double integrator's tuning (module docstring)."""
 
-    # a barrier on its boundary asks for at most this share of max_accel ("Braking distance"):
-    # more brakes later and harder, less keeps more of the acceleration for the goal
-    brake_share: float = 0.5
-    # a = nominal_damping kp (u - v): 2 gives the damping ratio 1/sqrt(2) ("Nominal"); more
-    # follows the nominal velocity faster
-    nominal_damping: float = 2.0
+    brake_share: float = 0.5  # max_accel share a barrier asks at its boundary: more brakes later, harder
+    nominal_damping: float = 2.0  # a = this kp (u - v); 2 damps at 1/sqrt(2): more follows u faster
 
 
 DI_TUNING = DITuning()

@@ -29,16 +29,10 @@ from .body import Footprint
 class RowTuning:
     """The velocity rows' tuning (:func:`agent.control.build_rows`)."""
 
-    # [m] separation rows keep bodies this much beyond touching: more is a wider berth between
-    # members, less lets them pass closer
-    sep_margin: float = 0.0
-    # unicycles: the band on the look-ahead points narrows by at most this x eps
-    # (:func:`agent.control.heading_narrowing`): more keeps room for more turning, less keeps
-    # a wider band
-    narrow_cap: float = 0.5
-    # [m] a formation farther than this from its goal orients the speed polygon along its way
-    # there, nearer along the member's nominal
-    heading_from: float = 0.05
+    sep_margin: float = 0.0  # [m] bodies kept this far beyond touching: more is a wider berth, slower passing
+    narrow_cap: float = 0.5  # unicycle band narrowing cap / eps: more room for turns, a narrower band
+    heading_from: float = 0.05  # [m] farther from its goal the speed polygon faces it, nearer the nominal
+    pair_clearance: float = 0.25  # [m] default all-to-all D_Af beyond two radii: more is safer, less room
 
 
 ROW_TUNING = RowTuning()
@@ -119,7 +113,7 @@ class ControlParams:
             max_turn_rate=r.max_turn_rate,
             tiebreak=c.tiebreak == "keep_right",
             safety=safety,
-            d_af=c.d_af if c.d_af is not None else 2.0 * r.radius + 0.25,
+            d_af=c.d_af if c.d_af is not None else 2.0 * r.radius + ROW_TUNING.pair_clearance,
             period=scenario.dt,
             radius=r.radius,
             method=c.method,

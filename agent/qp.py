@@ -32,17 +32,10 @@ Row = tuple[float, float, float]  # (ax, ay, b): ax * ux + ay * uy <= b
 class QPTuning:
     """The per-robot QP's numerical tuning."""
 
-    # [m/s] a row counts as met within this: looser accepts commands a hair past a row, tighter
-    # turns rounding into infeasible ticks
-    feas_tol: float = 1e-9
-    # halvings of the slack search: more is a tighter slack, each one an exact solve
-    bisect_steps: int = 60
-    # the slack search ends once its bracket is at most abs + rel slack wide: earlier is cheaper,
-    # later a smaller slack
-    bisect_stop: tuple[float, float] = (1e-12, 1e-9)
-    # the slack found grows by this many feas_tol, so the final solve, started elsewhere, finds
-    # the same thin set non-empty; more is a looser relaxation
-    slack_pad: float = 4.0
+    feas_tol: float = 1e-9  # [m/s] a row is met within this: looser accepts tiny misses, tighter fails
+    bisect_steps: int = 60  # halvings of the slack search: a tighter slack, one exact solve each
+    bisect_stop: tuple[float, float] = (1e-12, 1e-9)  # bracket (abs, rel) ending it: wider is cheaper, looser
+    slack_pad: float = 4.0  # feas_tol added to the slack so the final solve finds it: more is looser
 
 
 QP_TUNING = QPTuning()

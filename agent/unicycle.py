@@ -40,24 +40,11 @@ def drive_limit_rows(theta: float, lookahead: float, max_speed: float, max_turn_
 class SteerTuning:
     """The unicycle's turn-then-drive nominal (:func:`steer`)."""
 
-    # [1/s] turn rate per radian of heading error: higher faces the motion sooner, lower turns
-    # more smoothly (the turn-rate limit caps it either way)
-    gain: float = 2.0
-    # [rad] a robot already turning keeps its way round while the aim lies within this beyond
-    # half a turn that way: a hysteresis about "behind" (its own turn moves an aim near the left
-    # bias's edge across it, and it turned left, right, left on consecutive ticks); wider keeps
-    # a turn longer, narrower lets it reverse sooner
-    keep: float = math.radians(45.0)
-    # [rad/s] turning at least this fast counts as turning for ``keep``: lower also holds turns
-    # a member's rows slow (its look-ahead point near a row's edge, 0.9 rad/s), higher only fast
-    # ones
-    keep_rate: float = 0.3
-    # [m] this close to its goal a robot may back up instead of turning round: wider backs up
-    # more often, narrower turns round for smaller moves
-    reverse_range: float = 0.1
-    # [rad] a step turning less than this is integrated as its chord (:func:`integrate`): the
-    # arc's two nearly equal sines lose precision below it
-    small_turn: float = 1e-7
+    gain: float = 2.0  # [1/s] turn rate per radian of error: higher faces sooner, lower turns smoother
+    keep: float = math.radians(45.0)  # [rad] a turning robot keeps its way this far past behind: fewer flips
+    keep_rate: float = 0.3  # [rad/s] turning this fast counts for keep: lower also holds slowed turns
+    reverse_range: float = 0.1  # [m] this near its goal a robot backs up rather than turning round
+    small_turn: float = 1e-7  # [rad] smaller steps integrate as the chord: the arc's sines lose digits below
 
 
 STEER = SteerTuning()
