@@ -204,10 +204,6 @@ def separation_row(
 # -------------------------------------------------------------------------- speed limits
 
 
-def speed_rows(vmax: float, heading: float, sides: int = speed_polygon.SIDES) -> list[Row]:
-    """|u| <= vmax as a regular polygon inscribed in the disk (:mod:`geometry.speed_polygon`),
-    one vertex along ``heading`` (the nominal direction), so the clamped nominal command itself
-    stays feasible."""
-    face = speed_polygon.face(vmax, sides)
-    c0, s0 = math.cos(heading), math.sin(heading)
-    return [(c0 * c - s0 * s, s0 * c + c0 * s, face) for c, s in speed_polygon.normals(sides)]
+#: |u| <= vmax as a regular polygon inscribed in the disk, one vertex along the nominal direction
+#: (:func:`geometry.speed_polygon.rows`): the speed limit rows.
+speed_rows = speed_polygon.rows

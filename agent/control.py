@@ -300,7 +300,7 @@ def build_rows(p: ControlParams, point: tuple[float, float], theta: float,
                load: load_rows.MemberLoad | None = None) -> Rows:
     """Every barrier row (eq. 4.12b-e with appendix A's velocity terms) and limit row for the
     control point ``point`` of a robot with heading ``theta`` (the :class:`RowBuilder` of single
-    integrators and unicycles).
+    integrators and unicycles; a unicycle's edges measured between the bodies, :func:`body_df`).
 
     A barrier row with b >= the largest speed the limit rows allow can never be active: it is
     left out of the QP (exactly: it cannot change the solution, nor any relaxation, since the
@@ -309,11 +309,14 @@ def build_rows(p: ControlParams, point: tuple[float, float], theta: float,
     (:mod:`agent.load_rows`) are contact rows, their barrier counted with the obstacles'."""
     px, py = point
     last_u = inp.last_u
+    neighbours = inp.neighbours
     if p.unicycle:
         reach = math.hypot(p.max_speed, p.lookahead * p.max_turn_rate)
+        # the band is meant for the bodies: measure each edge there (body_df)
+        neighbours = [n._replace(df=body_df(px, py, theta, n, p.offset)) for n in neighbours]
     else:
         reach = p.max_speed
-    hf, soft = _band_rows(p, px, py, theta, inp.neighbours, reach, last_u)
+    hf, soft = _band_rows(p, px, py, theta, neighbours, reach, last_u)
     ho, contact = _contact_rows(p, px, py, inp.obstacles, inp.shapes, reach)
     he, hard = _hazard_rows(p, px, py, inp.others, inp.pairwise, reach, last_u)
     hs, sep = _separation_rows(p, px, py, theta, inp.partners, last_u, reach)
@@ -564,18 +567,13 @@ class Controller:
         x, y, theta = inp.pose
         off = p.offset
         px, py = (unicycle.control_point(x, y, theta, off) if p.unicycle else (x, y))
-        if p.unicycle:  # the band is meant for the bodies: measure each edge there (body_df)
-            inp = StepInput(inp.pose, inp.goal,
-                            [n._replace(df=body_df(px, py, theta, n, off)) for n in inp.neighbours],
-                            *inp[3:])
         (ux, uy), escaping = self._nominal(inp, (px, py))
         fp = inp.footprint
         load = (load_rows.member_load(fp, inp.pose, inp.last_u, inp.partners, off, p.unicycle)
                 if self.body is not None and fp is not None else None)
         rows = self.rows(p, (px, py), theta, (ux, uy), inp, load)
         if p.double_integrator:  # the same nominal, as an acceleration under relative-degree-2 rows
-            d = double_integrator.step(p, rows, (x, y), inp.last_u, (ux, uy), self.solve,
-                                       self.clock)
+            d = double_integrator.step(p, rows, (x, y), inp.last_u, self.solve, self.clock)
             return StepResult(d.vx, d.vy, math.hypot(d.vx, d.vy), 0.0, x, y, d.status, d.slack,
                               rows.h_formation, rows.h_obstacle, rows.h_formations, ux, uy,
                               d.solve_us, rows.h_separation, escaping, d.ax, d.ay)

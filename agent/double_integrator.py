@@ -95,9 +95,11 @@ class DIStep(NamedTuple):
     solve_us: float
 
 
-def gain(gamma: float, max_accel: float, closing: float, dt: float) -> float:
-    """[1/s] both poles of a hazard's HOCBF (module docstring, "Braking distance")."""
-    return min(gamma, DI_TUNING.brake_share * max_accel / closing, 1.0 / dt)
+def gain(gamma: float, max_accel: float, closing: float, dt: float,
+         share: float = DI_TUNING.brake_share) -> float:
+    """[1/s] both poles of a hazard's HOCBF (module docstring, "Braking distance"); ``share``
+    the share of max_accel a barrier asks on its boundary."""
+    return min(gamma, share * max_accel / closing, 1.0 / dt)
 
 
 def twist_gamma(cp: ControlParams) -> float:
@@ -219,9 +221,9 @@ def accel_limit_rows(v: tuple[float, float], u_nom: tuple[float, float], a_nom: 
 
 
 def nominal_accel(u_nom: tuple[float, float], v: tuple[float, float], kp: float,
-                  amax: float) -> tuple[float, float]:
-    """a = nominal_damping kp (u - v), clamped to amax (module docstring, "Nominal")."""
-    c = DI_TUNING.nominal_damping
+                  amax: float, c: float = DI_TUNING.nominal_damping) -> tuple[float, float]:
+    """a = c kp (u - v), clamped to amax (module docstring, "Nominal"); ``c`` the nominal
+    damping (:class:`DITuning`)."""
     ax, ay = c * kp * (u_nom[0] - v[0]), c * kp * (u_nom[1] - v[1])
     n = math.hypot(ax, ay)
     if n > amax:
@@ -267,8 +269,8 @@ def hocbf_rows(cp: ControlParams, point: tuple[float, float], theta: float,
     integrator has no heading: ``theta`` is not read)."""
     p, v = point, inp.last_u
     amax, vmax, dt = _accel(cp), cp.max_speed, cp.period
-    limits = accel_limit_rows(v, nominal_u, nominal_accel(nominal_u, v, cp.kp, amax), vmax, amax,
-                              dt)
+    a_nom = nominal_accel(nominal_u, v, cp.kp, amax)
+    limits = accel_limit_rows(v, nominal_u, a_nom, vmax, amax, dt)
     soft: list[Row] = []
     hard: list[Row] = []
     contact: list[Row] = []
@@ -305,7 +307,7 @@ def hocbf_rows(cp: ControlParams, point: tuple[float, float], theta: float,
         ho = min(ho, h)
         for row in rows:
             _keep(contact, row, amax)
-    return Rows(limits, hard, soft, hf, ho, he, hs, contact)
+    return Rows(limits, hard, soft, hf, ho, he, hs, contact, a_nom)
 
 
 def load_rows_of(cp: ControlParams, load: load_rows.MemberLoad, obstacles: Sequence[Obstacle],
@@ -344,14 +346,13 @@ def _accel(cp: ControlParams) -> float:
 
 
 def step(cp: ControlParams, rows: Rows, p: tuple[float, float], v: tuple[float, float],
-         u_nom: tuple[float, float], solve=solve_exact,
-         clock: Callable[[], int] | None = None) -> DIStep:
+         solve=solve_exact, clock: Callable[[], int] | None = None) -> DIStep:
     """One tick on ``rows`` (:func:`hocbf_rows`): the acceleration closest to the nominal
-    (:func:`nominal_accel` towards ``u_nom``) meeting every row, solved by
-    :func:`agent.qp.solve_cbf_qp` (formation rows relaxed if need be, counted; hard rows never);
-    with safety off the nominal within the limits."""
-    amax, dt = _accel(cp), cp.period
-    a_nom = nominal_accel(u_nom, v, cp.kp, amax)
+    (``rows.target``, :func:`nominal_accel` towards the nominal velocity) meeting every row,
+    solved by :func:`agent.qp.solve_cbf_qp` (formation rows relaxed if need be, counted; hard
+    rows never); with safety off the nominal within the limits."""
+    dt = cp.period
+    a_nom = rows.target if rows.target is not None else (0.0, 0.0)
     t0 = clock() if clock is not None else 0
     if cp.safety:
         res = solve_cbf_qp(a_nom[0], a_nom[1], rows.limits, rows.hard, rows.soft, solve,

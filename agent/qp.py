@@ -60,6 +60,9 @@ class Rows(NamedTuple):
     h_formations: float
     h_separation: float = math.inf
     contact: Sequence[Row] = ()  # obstacles and body separation: hard, kept in a fallback
+    # the QP's nominal where the robot's input is not its velocity (a double integrator's
+    # acceleration); None: the nominal velocity itself
+    target: tuple[float, float] | None = None
 
 
 class QPResult(NamedTuple):

@@ -20,6 +20,15 @@ def face(radius: float, sides: int = SIDES) -> float:
     return radius * math.cos(math.pi / sides)
 
 
+def rows(radius: float, heading: float, sides: int = SIDES) -> list[tuple[float, float, float]]:
+    """|u| <= radius as the polygon's rows (nx, ny, face), meaning nx ux + ny uy <= face, with
+    one vertex along ``heading`` (the nominal direction), so the clamped nominal command itself
+    stays feasible."""
+    f = face(radius, sides)
+    c0, s0 = math.cos(heading), math.sin(heading)
+    return [(c0 * c - s0 * s, s0 * c + c0 * s, f) for c, s in normals(sides)]
+
+
 @functools.lru_cache(maxsize=8)
 def normals(sides: int = SIDES) -> tuple[tuple[float, float], ...]:
     """Unit face normals of the polygon for heading 0: angles pi/sides + 2 pi k / sides."""
