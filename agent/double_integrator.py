@@ -254,60 +254,88 @@ def brake(vx: float, vy: float, amax: float, dt: float) -> tuple[float, float]:
     return ax, ay
 
 
-def _keep(rows: list[Row], row: Row, amax: float) -> None:
-    """Append ``row`` unless no |a| <= amax can violate it (normalised: b >= amax)."""
-    if row[2] < amax:
-        rows.append(row)
-
-
 def hocbf_rows(cp: ControlParams, point: tuple[float, float], theta: float,
                nominal_u: tuple[float, float], inp: StepInput,
                load: load_rows.MemberLoad | None = None) -> Rows:
     """Every barrier row of the module docstring for a robot at ``point`` moving at
     ``inp.last_u`` (its velocity now), and the limit rows about the nominal acceleration towards
     ``nominal_u`` (the :class:`agent.control.RowBuilder` of double integrators; a double
-    integrator has no heading: ``theta`` is not read)."""
+    integrator has no heading: ``theta`` is not read). A row that no |a| <= max_accel can
+    violate (normalised: b >= max_accel) is left out; its h still counts."""
     p, v = point, inp.last_u
     amax, vmax, dt = _accel(cp), cp.max_speed, cp.period
     a_nom = nominal_accel(nominal_u, v, cp.kp, amax)
     limits = accel_limit_rows(v, nominal_u, a_nom, vmax, amax, dt)
+    hf, soft = _band_part(cp, p, v, inp.neighbours, amax)
+    ho, hs, contact = _contact_part(cp, p, v, inp, amax)
+    he, hard = _hazard_part(cp, p, v, inp, amax)
+    if load is not None:
+        h, rows = load_rows_of(cp, load, inp.obstacles, inp.shapes)
+        ho = min(ho, h)
+        contact += [row for row in rows if row[2] < amax]
+    return Rows(limits, hard, soft, hf, ho, he, hs, contact, a_nom)
+
+
+def _band_part(cp: ControlParams, p: tuple[float, float], v: tuple[float, float],
+               neighbours: Sequence[Neighbour], amax: float) -> tuple[float, list[Row]]:
+    """The formation edges' rows (soft) that can be active, and the smallest h."""
     soft: list[Row] = []
-    hard: list[Row] = []
-    contact: list[Row] = []
-    hf = ho = he = hs = math.inf
-    kf = min(cp.gamma_formation, 1.0 / dt)
-    for n in inp.neighbours:
+    hf = math.inf
+    kf = min(cp.gamma_formation, 1.0 / cp.period)
+    for n in neighbours:
         hg, hl, rg, rl = band_hocbf(p, v, n, cp.epsilon, kf)
         hf = min(hf, hg, hl)
-        _keep(soft, rg, amax)
-        _keep(soft, rl, amax)
+        if rg[2] < amax:
+            soft.append(rg)
+        if rl[2] < amax:
+            soft.append(rl)
+    return hf, soft
+
+
+def _contact_part(cp: ControlParams, p: tuple[float, float], v: tuple[float, float],
+                  inp: StepInput, amax: float) -> tuple[float, float, list[Row]]:
+    """The circles', walls' and shelves' and the separation rows that can be active, and the
+    smallest h of the things and of the separations."""
+    vmax, dt = cp.max_speed, cp.period
+    contact: list[Row] = []
+    ho = hs = math.inf
     for o in inp.obstacles:
         h, row = obstacle_hocbf(p, v, o, cp.gamma_obstacle, amax, vmax, dt)
         ho = min(ho, h)
-        _keep(contact, row, amax)
+        if row[2] < amax:
+            contact.append(row)
     for sh in inp.shapes:
         h, row = shape_hocbf(p, v, sh, cp.gamma_obstacle, amax, vmax, dt)
         ho = min(ho, h)
-        _keep(contact, row, amax)
+        if row[2] < amax:
+            contact.append(row)
+    for q in inp.partners:
+        h, row = separation_hocbf(p, v, q, cp.separation, cp.gamma_formation, amax, vmax, dt)
+        hs = min(hs, h)
+        if row[2] < amax:
+            contact.append(row)
+    return ho, hs, contact
+
+
+def _hazard_part(cp: ControlParams, p: tuple[float, float], v: tuple[float, float],
+                 inp: StepInput, amax: float) -> tuple[float, list[Row]]:
+    """Other formations' rows (their ellipses, or the all-to-all pairs) that can be active, and
+    the smallest h."""
+    vmax, dt = cp.max_speed, cp.period
+    hard: list[Row] = []
+    he = math.inf
     for e in inp.others:
         h, row = ellipse_hocbf(p, v, e, cp.gamma_formations, amax, vmax, dt)
         he = min(he, h)
-        _keep(hard, row, amax)
+        if row[2] < amax:
+            hard.append(row)
     for nb in inp.pairwise:
         h, row = obstacle_hocbf(p, v, Obstacle(nb.x, nb.y, nb.vx, nb.vy, cp.d_af),
                                 cp.gamma_formations, amax, vmax, dt)
         he = min(he, h)
-        _keep(hard, row, amax)
-    for q in inp.partners:
-        h, row = separation_hocbf(p, v, q, cp.separation, cp.gamma_formation, amax, vmax, dt)
-        hs = min(hs, h)
-        _keep(contact, row, amax)
-    if load is not None:
-        h, rows = load_rows_of(cp, load, inp.obstacles, inp.shapes)
-        ho = min(ho, h)
-        for row in rows:
-            _keep(contact, row, amax)
-    return Rows(limits, hard, soft, hf, ho, he, hs, contact, a_nom)
+        if row[2] < amax:
+            hard.append(row)
+    return he, hard
 
 
 def load_rows_of(cp: ControlParams, load: load_rows.MemberLoad, obstacles: Sequence[Obstacle],
