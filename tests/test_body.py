@@ -1,4 +1,4 @@
-"""The formation's rigid motion (agent.body, issue 25): the 3-variable QP against an oracle, the
+"""The formation's rigid motion (agent.body): the 3-variable QP against an oracle, the
 footprint rows as CBF conditions on the twist, one sampled step that never crosses a wall, and the
 member's nominal."""
 
@@ -182,7 +182,7 @@ def test_a_member_settles_on_its_target_only_where_it_arrives_not_at_a_waypoint_
     """At its target (its goal, or its slot where the formation holds) a member blends into
     eq. 4.2 on it and keeps only what the rows changed of the goal twist; at a waypoint the
     formation passes it keeps its slot's motion, the turn to the waypoint's heading included
-    (warehouse run 300130: blended there, a pentagon never turned and never passed it)."""
+    (blended there, a pentagon in the warehouse never turned and never passed it)."""
     fp = body.Footprint(((-0.25, 0.0), (0.25, 0.0)), 0.0, 1)
     pose = body.Pose(1.0, 1.0, 0.0)
     turn = (0.0, 0.0, 0.4)  # the goal twist: turn in place
@@ -344,7 +344,7 @@ def test_a_formation_does_not_chase_a_smaller_one_its_ellipse_reaches():
     """A long pair drives at a small formation whose members its ellipse (round its own
     members' clearance disks) is about to cover, while its own members are far from the small
     one's ellipse: without the other's points it drives on at full speed (its ellipse then
-    sweeps over the small one, which must flee: run 200047); with them it slows to keep its
+    sweeps over the small one, which must flee); with them it slows to keep its
     ellipse off them."""
     fp = body.Footprint(((-0.6, 0.0), (0.6, 0.0)), 0.0, 0)
     own = Ellipse(0.0, 0.0, 0.0, 1.0, 0.3)

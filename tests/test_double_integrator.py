@@ -1,4 +1,4 @@
-"""Double-integrator robots (issue 27, item 2; :mod:`agent.double_integrator`): each barrier's
+"""Double-integrator robots (:mod:`agent.double_integrator`): each barrier's
 one-step property under the exact sampled double integrator, the limit rows, braking, the
 model's scenarios in process (0 collisions, <= 1.5 epsilon, every goal), a lock-step run equal
 to ``sim``, the ``cmd`` payload's version 2, and the scenario's and agent config's checks."""

@@ -1,4 +1,4 @@
-"""Issue 13, control design: hard separation with a sound split, escape from moving hazards,
+"""Control design: hard separation with a sound split, escape from moving hazards,
 unicycle bodies through the headings, all-to-all with the same formation-level rules."""
 
 from __future__ import annotations
