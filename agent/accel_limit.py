@@ -1,4 +1,4 @@
-"""A unicycle's acceleration limit (issue 27): rows on the change of its certified command.
+"""A unicycle's acceleration limit: rows on the change of its certified command.
 
 A unicycle with ``robot.max_accel`` a_max is commanded through its look-ahead point's velocity u
 (chapter 6.2), which the robot follows exactly under eq. 6.2. Its certified u may change by at
@@ -6,13 +6,13 @@ most a_max dt per control period,
 
     |u - u_prev| <= a_max dt,
 
-as :data:`agent.barriers.SPEED_SIDES` rows of the polygon inscribed in that disk about u_prev
+as the rows of the polygon (:mod:`geometry.speed_polygon`) inscribed in that disk about u_prev
 (the last certified command, one vertex towards the nominal), so the command the QP certifies is
 one the robot can follow. The rows join the limit rows; the barrier rows stay hard. Where the
 barrier rows cannot hold together with them (the QP falls back or fails), the barrier rows win:
 the tick is solved again without the acceleration rows, and its status is :data:`STATUS_ACCEL`
 (counted: ``qp.accel_yielded`` in the summary). Without ``max_accel`` there are no such rows and
-the QP is exactly as before. Double integrators have their own rows
+the QP is the plain one. Double integrators have their own rows
 (:mod:`agent.double_integrator`).
 """
 

@@ -9,10 +9,10 @@ centroid and orientation). Pure functions over floats; no numpy on this hot path
 
 from __future__ import annotations
 
-import functools
 import math
 from typing import NamedTuple
 
+from geometry import speed_polygon
 from geometry.circle import circle_h
 from geometry.ellipse import ellipse_terms
 from geometry.shapes import Shape, shape_distance
@@ -204,22 +204,6 @@ def separation_row(
 # -------------------------------------------------------------------------- speed limits
 
 
-SPEED_SIDES = 12  # sides of the polygon inscribed in the speed disk
-
-
-def speed_rows(vmax: float, heading: float, sides: int = SPEED_SIDES) -> list[Row]:
-    """|u| <= vmax as a regular polygon inscribed in the disk, one vertex along ``heading``
-    (the nominal direction), so the clamped nominal command itself stays feasible."""
-    face = vmax * math.cos(math.pi / sides)
-    c0, s0 = math.cos(heading), math.sin(heading)
-    return [(c0 * c - s0 * s, s0 * c + c0 * s, face) for c, s in _polygon_normals(sides)]
-
-
-@functools.lru_cache(maxsize=8)
-def _polygon_normals(sides: int) -> tuple[tuple[float, float], ...]:
-    """Unit face normals of the polygon for heading 0: angles pi/sides + 2 pi k / sides."""
-    return tuple(
-        (math.cos(math.pi / sides + 2.0 * math.pi * k / sides),
-         math.sin(math.pi / sides + 2.0 * math.pi * k / sides))
-        for k in range(sides)
-    )
+#: |u| <= vmax as a regular polygon inscribed in the disk, one vertex along the nominal direction
+#: (:func:`geometry.speed_polygon.rows`): the speed limit rows.
+speed_rows = speed_polygon.rows

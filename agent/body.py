@@ -1,4 +1,4 @@
-"""The formation as one rigid body: a safety QP over its twist (issue 25, ``controller.method: rigid``).
+"""The formation as one rigid body: a safety QP over its twist (``controller.method: rigid``).
 
 The formation's pose is (c, theta): c its centroid and theta the rotation of its start shape, both
 read from the ellipse its leader publishes (eq. 4.7 for c; ``alpha - alpha0`` for theta, the
@@ -47,8 +47,8 @@ credits the other ellipse's motion: a formation whose ellipse moves away leaves 
 comes closer takes it. Nothing keeps a formation's own ellipse off the other's members, and an
 ellipse reaches beyond its robots (it holds a clearance disk round each member), so a formation
 could drive on while its ellipse swept over a smaller one, whose members then had to flee at
-the pace it came: a chase (montecarlo --draw warehouse --seed 2 run 200047: a pentagon boxed in
-by a shelf and a third formation broke its band to 6.2 epsilon and never reached its goal). So
+the pace it came: a chase (a pentagon boxed in by a shelf and a third formation in the warehouse
+draw of ``formation montecarlo`` broke its band and never reached its goal). So
 a leader sends its members' control points with its ellipse (wire ``ellipse`` and ``others``
 version 2), and every formation keeps, besides its slots out of the other's ellipse, its own
 ellipse off the other's points (:func:`mirror_rows`): for q such a point and h = h_own(q),
@@ -71,12 +71,12 @@ still, whichever way each turns, and the formation drives once they face it.
 
 Turning back. Where the goal twist would send a slot back against its motion now (more than
 120 degrees from its velocity under the own ellipse's rates, while it moves faster than
-BRAKE_FROM), the formation keeps that motion, braked by BRAKE_DECEL dt a tick, until it is
+``brake_from``), the formation keeps that motion, braked by ``brake_decel`` dt a tick, until it is
 slow (:func:`brake_before_turning_back`): a new route that leads back (a blocked plan, a parked
 thing gone or come) stops the body before it moves the other way, as a carried load would. An
 escape (an ``intent``) is never braked.
 
-Sampled time (item 5): over one period dt at a constant twist a body point leaves the straight line
+Sampled time: over one period dt at a constant twist a body point leaves the straight line
 P + dt P' by at most rho (omega dt)^2 / 2; every distance here is convex along a straight motion, so
 the row with gamma dt <= 1 keeps h >= 0 at the next sample once the safe distance is grown by that
 bound (:func:`arc_margin`) - the property the tests check for dt in [0.02, 0.1].
@@ -110,8 +110,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
-from geometry.ellipse import Ellipse, ellipse_terms, reference_shape, wrap_angle
+from geometry import speed_polygon
+from geometry.angles import wrap_angle, wrap_left
+from geometry.ellipse import Ellipse, ellipse_terms, reference_shape
 from geometry.shapes import Shape, distance_floor, segment_distance, shape_distance
+from geometry.slack import smallest_slack
 from scenario.routes import shape_turn
 
 from .barriers import Obstacle, ellipse_class_k
@@ -121,17 +124,27 @@ Point = tuple[float, float]
 Row3 = tuple[float, float, float, float]  # (a1, a2, a3, b): a . z <= b, z = (vx, vy, rho omega)
 Twist = tuple[float, float, float]  # (vx [m/s], vy [m/s], omega [rad/s]) about the centroid
 
-LIMIT_SIDES = 12  # sides of the polygon inscribed in the speed disk (as agent.barriers.SPEED_SIDES)
-TURN_LEFT_BIAS = math.radians(20.0)  # a turn within this of 180 degrees goes left (all alike)
-ARRIVE_RANGE = 0.1  # [m] within this of its target a member blends to eq. 4.2 on it
-_BISECT_STEPS = 40
-# the share of appendix A.3's alpha(h) each of two formations takes where both send member
-# points: each keeps its own members off the other's ellipse and its own ellipse off the other's
-# members by half of it (module docstring, "Two formations")
-MIRROR_SHARE = 0.5
-BRAKE_FROM = 0.04  # [m/s] a formation moving faster than this brakes before turning back
-BRAKE_DECEL = 1.0  # [m/s^2] ... at this rate (brake_before_turning_back)
-BRAKE_COS = math.cos(math.radians(120.0))  # a slot's new velocity this far from its own turns back
+
+
+@dataclass(frozen=True, slots=True)
+class BodyTuning:
+    """The formation QP's tuning (the module docstring has each rule)."""
+
+    arrive_range: float = 0.1  # [m] blend to eq. 4.2 within this: wider settles softer, holds less shape
+    mirror_share: float = 0.5  # each formation's share of A.3's alpha: more for one, less for the other
+    brake_from: float = 0.04  # [m/s] faster bodies brake before turning back: lower brakes crawls too
+    brake_decel: float = 1.0  # [m/s^2] that braking: harder stops sooner, softer turns back later
+    brake_cos: float = math.cos(math.radians(120.0))  # this far off a slot's motion is back: 0 brakes more
+    pace_from: float = 0.02  # [m/s] slower slots need no facing: higher ignores more of the band's noise
+    pace_moving: float = 0.1  # [m/s] a formation with no slot this fast does not wait: higher waits less
+    pace_aligned: float = math.radians(30.0)  # facing within this: full pace; wider drives on while turning
+    pace_sideways: float = math.radians(90.0)  # this far off the formation waits: narrower waits sooner
+    pace_floor: float = 0.1  # least goal-twist share while waiting: higher drives unfaced slots on
+    bisect_steps: int = 40  # halvings of the twist QP's slack search: tighter slack, one 3-D solve each
+    min_rho: float = 0.01  # [m] least slot radius (weighs omega): a one-robot formation's turn still costs
+
+
+BODY_TUNING = BodyTuning()
 
 
 @dataclass(frozen=True)
@@ -153,7 +166,7 @@ class Footprint:
     @property
     def rho(self) -> float:
         """[m] the largest slot radius (at least 1 cm: it weighs omega in the QP)."""
-        return max([0.01] + [math.hypot(x, y) for x, y in self.slots])
+        return max([BODY_TUNING.min_rho] + [math.hypot(x, y) for x, y in self.slots])
 
 
 class BodyParams(NamedTuple):
@@ -244,7 +257,7 @@ def ellipse_point_row(pose: Pose, rho: float, p: Point, e: Ellipse, gamma: float
     h, gx, gy, ga = ellipse_terms(p[0], p[1], e.cx, e.cy, e.alpha, e.a + grow, e.b + grow)
     alpha = gamma * h if linear else ellipse_class_k(h, gamma)
     if shared and e.points:
-        b = MIRROR_SHARE * alpha
+        b = BODY_TUNING.mirror_share * alpha
     else:
         b = alpha - (gx * e.vx + gy * e.vy) + ga * e.alpha_rate
     return point_row(pose, rho, p, -gx, -gy, b)
@@ -272,7 +285,7 @@ def mirror_rows(own: Ellipse, pose: Pose, rho: float, others: Sequence[Ellipse],
             a3 = -ga / rho
             n = math.sqrt(gx * gx + gy * gy + a3 * a3)
             if n > 1e-12:
-                rows.append((gx / n, gy / n, a3 / n, MIRROR_SHARE * alpha / n))
+                rows.append((gx / n, gy / n, a3 / n, BODY_TUNING.mirror_share * alpha / n))
     return rows
 
 
@@ -286,15 +299,14 @@ def edge_row(pose: Pose, rho: float, edge: tuple[Point, Point], q: Point, qv: Po
 
 
 @functools.lru_cache(maxsize=64)
-def limit_rows(rho: float, p: BodyParams) -> tuple[Row3, ...]:
-    """|v| + rho |omega| <= vmax (every slot's speed) and |omega| <= omega_max, in z (the same
-    for every tick of a formation: cached)."""
-    face = p.vmax * math.cos(math.pi / LIMIT_SIDES)
+def twist_limit_rows(rho: float, p: BodyParams) -> tuple[Row3, ...]:
+    """|v| + rho |omega| <= vmax (every slot's speed: the speed polygon of
+    :mod:`geometry.speed_polygon` in v for each sign of omega) and |omega| <= omega_max, in z
+    (the same for every tick of a formation: cached)."""
+    face = speed_polygon.face(p.vmax)
     k = 1.0 / math.sqrt(2.0)
     rows: list[Row3] = []
-    for j in range(LIMIT_SIDES):
-        ang = math.pi / LIMIT_SIDES + 2.0 * math.pi * j / LIMIT_SIDES
-        c, s = math.cos(ang), math.sin(ang)
+    for c, s in speed_polygon.normals():
         rows += [(k * c, k * s, k, k * face), (k * c, k * s, -k, k * face)]
     if math.isfinite(p.omega_max):
         rows += [(0.0, 0.0, 1.0, rho * p.omega_max), (0.0, 0.0, -1.0, rho * p.omega_max)]
@@ -470,13 +482,13 @@ def solve_twist(goal: Twist, rho: float, limits: Sequence[Row3], rows: Sequence[
     z = solve3(zhat, base)
     slack = 0.0
     if z is None:
-        slack = _min_slack(list(limits), rows)
+        slack = _min_twist_slack(list(limits), rows)
         base = list(limits) + _shifted(rows, slack)
         z = solve3(zhat, base) or (0.0, 0.0, 0.0)
     if follow:
         zf = solve3(zhat, base + list(follow))
         if zf is None and slack > 0.0:
-            zf = solve3(zhat, base + _shifted(follow, _min_slack(base, follow, z)))
+            zf = solve3(zhat, base + _shifted(follow, _min_twist_slack(base, follow, z)))
         z = zf or z
     return TwistResult((z[0], z[1], z[2] / rho), slack, len(rows), goal)
 
@@ -485,18 +497,17 @@ def _shifted(rows: Sequence[Row3], slack: float) -> list[Row3]:
     return [(a1, a2, a3, b + slack) for a1, a2, a3, b in rows]
 
 
-def _min_slack(base: list[Row3], rows: Sequence[Row3],
+def _min_twist_slack(base: list[Row3], rows: Sequence[Row3],
                at: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> float:
-    """The smallest s >= 0 with ``base`` and the rows shifted by s feasible (bisection); ``at``
-    meets ``base`` (the zero twist meets the limits), so s = max(a . at - b) is enough."""
-    lo, hi = 0.0, max(0.0, max(_dot(r, at) - r[3] for r in rows)) + 1e-6
-    for _ in range(_BISECT_STEPS):
-        mid = 0.5 * (lo + hi)
-        if solve3(at, base + _shifted(rows, mid)) is None:
-            lo = mid
-        else:
-            hi = mid
-    return hi + 4.0 * FEAS_TOL
+    """The smallest s >= 0 with ``base`` and the rows shifted by s feasible (bisection,
+    :mod:`geometry.slack`); ``at`` meets ``base`` (the zero twist meets the limits), so
+    s = max(a . at - b) is enough."""
+    hi = max(0.0, max(_dot(r, at) - r[3] for r in rows)) + 1e-6
+
+    def feasible(mid: float) -> bool:
+        return solve3(at, base + _shifted(rows, mid)) is not None
+
+    return smallest_slack(feasible, hi, BODY_TUNING.bisect_steps) + 4.0 * FEAS_TOL
 
 
 # ---------------------------------------------------------------------------- the motion
@@ -505,16 +516,16 @@ def _min_slack(base: list[Row3], rows: Sequence[Row3],
 def goal_twist(pose: Pose, goal: Point, goal_turn: float, rho: float, p: BodyParams,
                push: Point = (0.0, 0.0), intent: Point | None = None) -> Twist:
     """eq. 4.2 on the centroid and on the orientation towards the goal shape's (a turn within
-    TURN_LEFT_BIAS of 180 degrees goes left for every member alike), both scaled by one factor
-    into the slots' speed limit (|v| + rho |omega| <= vmax cos(pi / LIMIT_SIDES)), so the move
-    and the turn end together; plus the formation-level ``push`` (the tie-break of
-    :func:`agent.control.tiebreak_push`). An ``intent`` (the escape of
-    :func:`agent.control.escape_command`) replaces the centroid's part; the turn gets what
-    speed it leaves."""
+    :data:`geometry.angles.LEFT_BIAS` of 180 degrees goes left for every member alike,
+    :func:`geometry.angles.wrap_left`), both scaled by one factor into the slots' speed limit
+    (|v| + rho |omega| <= the speed polygon's face), so the move and the turn end together;
+    plus the formation-level ``push`` (the tie-break of :func:`agent.control.tiebreak_push`).
+    An ``intent`` (the escape of :func:`agent.control.escape_command`) replaces the centroid's
+    part; the turn gets what speed it leaves."""
     turn = goal_turn - pose.theta
-    turn = (turn + math.pi - TURN_LEFT_BIAS) % (2.0 * math.pi) - math.pi + TURN_LEFT_BIAS
+    turn = wrap_left(turn)
     vx, vy, w = p.kp * (goal[0] - pose.cx), p.kp * (goal[1] - pose.cy), p.kp * turn
-    face = p.vmax * math.cos(math.pi / LIMIT_SIDES)
+    face = speed_polygon.face(p.vmax)
     if intent is not None:
         vx, vy = intent
         w = math.copysign(min(abs(w), max(0.0, face - math.hypot(vx, vy)) / rho), w)
@@ -527,12 +538,16 @@ def brake_before_turning_back(want: Twist, moving: Twist, offsets: Sequence[Poin
                               dt: float) -> Twist:
     """The goal twist, or, where it would send a slot back against its motion now, that motion
     braked: ``moving`` is the formation's twist now (its own ellipse's velocity and turn rate),
-    ``offsets`` its slots from the centroid (world axes). A slot moving faster than BRAKE_FROM
+    ``offsets`` its slots from the centroid (world axes). A slot moving faster than ``brake_from``
     whose velocity under ``want`` lies more than 120 degrees from its velocity now turns back;
-    then the body keeps its motion, slowed so its fastest slot loses BRAKE_DECEL dt of speed.
+    then the body keeps its motion, slowed so its fastest slot loses ``brake_decel`` dt of speed.
     A new route or waypoint that leads back (traffic in the way, a parked thing gone or come)
     makes the body stop before it moves the other way, as a carried load would, instead of its
-    members' commands flipping within one tick (route-head-on-aisle, route-give-way)."""
+    members' commands flipping within one tick.
+
+    Why: a rigid body with a load cannot reverse in one tick, and members that try part from
+    each other. Pinned by tests/scenarios/route-head-on-aisle.yaml (and route-give-way.yaml)."""
+    t = BODY_TUNING
     fastest = 0.0
     back = False
     for rx, ry in offsets:
@@ -540,11 +555,11 @@ def brake_before_turning_back(want: Twist, moving: Twist, offsets: Sequence[Poin
         speed = math.hypot(nx, ny)
         fastest = max(fastest, speed)
         wx, wy = want[0] - want[2] * ry, want[1] + want[2] * rx
-        if speed > BRAKE_FROM and nx * wx + ny * wy < BRAKE_COS * speed * math.hypot(wx, wy):
+        if speed > t.brake_from and nx * wx + ny * wy < t.brake_cos * speed * math.hypot(wx, wy):
             back = True
     if not back:
         return want
-    k = max(0.0, fastest - BRAKE_DECEL * dt) / fastest
+    k = max(0.0, fastest - t.brake_decel * dt) / fastest
     return (k * moving[0], k * moving[1], k * moving[2])
 
 
@@ -563,54 +578,49 @@ def formation_twist(fp: Footprint, own: Ellipse, goal: Point, snap: Snapshot, p:
         offsets = [(x - pose.cx, y - pose.cy) for x, y in (place(pose, q) for q in fp.slots)]
         want = brake_before_turning_back(want, (own.vx, own.vy, own.alpha_rate), offsets, p.dt)
     rows = footprint_rows(fp, pose, snap, p, own)
-    res = solve_twist(want, rho, limit_rows(rho, p), rows, spread_rows(want, rho, p.spread))
+    res = solve_twist(want, rho, twist_limit_rows(rho, p), rows, spread_rows(want, rho, p.spread))
     aim = None
     if intent is None and own.headings and math.isfinite(p.spread):  # unicycle members
         k = pace(res.twist, pose, fp, own.headings)
         if k < 1.0:  # the same rows, a slower goal: the twist once its members face it is the aim
             aim, want = res.twist, (k * want[0], k * want[1], k * want[2])
-            res = solve_twist(want, rho, limit_rows(rho, p), rows, spread_rows(want, rho, p.spread))
+            res = solve_twist(want, rho, twist_limit_rows(rho, p), rows, spread_rows(want, rho, p.spread))
     # what seeks the goal (for member_nominal's arrival): neither the push nor an escape
     seek = (0.0, 0.0, want[2]) if intent is not None else (want[0] - push[0], want[1] - push[1],
                                                            want[2])
     return pose, res._replace(goal=seek, aim=aim)
 
 
-PACE_FROM = 0.02  # [m/s] a slot asked to move slower than this needs no facing
-PACE_MOVING = 0.1  # [m/s] nor does a formation none of whose slots is asked to move this fast
-PACE_ALIGNED = math.radians(30.0)  # a member facing its slot's motion this closely: full pace
-PACE_SIDEWAYS = math.radians(90.0)  # ... this far off (or more): the formation waits
-# but never slower than this share of its goal twist (a member may not turn); at 0.25 a member
-# turning round drove its slot 8 cm (2 epsilon) on before it faced it (rigid-doorway-four-unicycle
-# 1.62 eps once the later-named of two blocked formations went round, Replanner.waits_for)
-PACE_FLOOR = 0.1
-
-
 def pace(want: Twist, pose: Pose, fp: Footprint, headings: Sequence[float]) -> float:
     """The share of its goal twist a formation of unicycles asks for while its members turn to
     face their slots' motion under ``want`` (the twist certified for the full goal): 1 with every
-    member (``headings`` [rad], in slot order) within PACE_ALIGNED of it, PACE_FLOOR with one
-    PACE_SIDEWAYS off or more, linear in the cosine between; slots slower than PACE_FROM do not
-    count, and a formation none of whose slots is asked for PACE_MOVING does not wait (its aims
+    member (``headings`` [rad], in slot order) within ``pace_aligned`` of it, ``pace_floor`` with one
+    ``pace_sideways`` off or more, linear in the cosine between; slots slower than ``pace_from`` do not
+    count, and a formation none of whose slots is asked for ``pace_moving`` does not wait (its aims
     there are the band's noise: a member turned back and forth after them). A unicycle drives
     only along its heading, so a member still turning while its slot moves sweeps an arc, and
     members turning round opposite ways (each picks its own way,
     :func:`agent.unicycle.turn_error`) part by twice that. Waiting, they turn in place, their
     bodies still, whichever way each turns. The floor keeps a formation moving whose member
-    cannot turn where it stands (its look-ahead point against a shelf's row)."""
+    cannot turn where it stands (its look-ahead point against a shelf's row).
+
+    Why (wait-to-face): members turning round opposite ways while their slots move sweep their
+    bodies apart and bend the formation. Pinned by tests/scenarios/lab-unicycles-turn-round.yaml
+    (and rigid-doorway-four-unicycle.yaml)."""
     if len(headings) != len(fp.slots):
         return 1.0
-    lo, hi = math.cos(PACE_SIDEWAYS), math.cos(PACE_ALIGNED)
+    t = BODY_TUNING
+    lo, hi = math.cos(t.pace_sideways), math.cos(t.pace_aligned)
     k, fastest = 1.0, 0.0
     for q, th in zip(fp.slots, headings, strict=True):
         vx, vy = point_velocity(pose, want, place(pose, q))
         speed = math.hypot(vx, vy)
         fastest = max(fastest, speed)
-        if speed < PACE_FROM:
+        if speed < t.pace_from:
             continue
         cos = (vx * math.cos(th) + vy * math.sin(th)) / speed
         k = min(k, max(0.0, min(1.0, (cos - lo) / (hi - lo))))
-    return 1.0 if fastest < PACE_MOVING else max(k, PACE_FLOOR)
+    return 1.0 if fastest < t.pace_moving else max(k, t.pace_floor)
 
 
 def band_gain(kp: float, dt: float) -> float:
@@ -625,7 +635,7 @@ def member_nominal(fp: Footprint, pose: Pose, twist: Twist, point: Point, body: 
     """This member's nominal velocity: its slot's velocity under ``twist`` plus k (slot - point)
     (:func:`band_gain`; ``point`` its control point), clamped to vmax. ``arriving`` (its
     ``target`` its goal on the last leg, or its slot where the formation holds), with its
-    ``body`` within ARRIVE_RANGE of it, it blends, by w from 0 to 1, into
+    ``body`` within ``arrive_range`` of it, it blends, by w from 0 to 1, into
     eq. 4.2 on the target plus what the rows added to the ``goal`` twist: at the slot, the twist's
     velocity less the share s of the goal's velocity it carries (s its projection on the goal's,
     in [0, 1]), so a goal shape that is not exactly a rigid copy of the start shape is still
@@ -633,13 +643,16 @@ def member_nominal(fp: Footprint, pose: Pose, twist: Twist, point: Point, body: 
     and a formation parked at its goal still gives way. Only the share carried comes off: rows
     that slow the twist to a crawl (another formation's ellipse beside the goal) leave the
     member's own pull to its target whole, where taking off the whole goal pulled it back
-    against that pull and it stopped 57 mm short (rigid-doorway-four-unicycle). A waypoint the
+    against that pull and it stopped short (tests/scenarios/rigid-doorway-four-unicycle.yaml). A waypoint the
     formation passes is no place to settle: there the blend took the turn to its heading out of
-    the twist, and a pentagon whose members stood within 2 cm of their targets never turned
-    (warehouse run 300130)."""
+    the twist, and a pentagon whose members stood within 2 cm of their targets never turned.
+
+    Why (arrival blend): a goal shape is not exactly a rigid copy of the start shape, so only a
+    member's own pull settles it on its goal. Pinned by
+    tests/scenarios/rigid-doorway-four-unicycle.yaml."""
     slot = place(pose, fp.slots[fp.member])
     dist = math.hypot(target[0] - body[0], target[1] - body[1])
-    w = min(1.0, max(0.0, 1.0 - dist / ARRIVE_RANGE)) if arriving else 0.0
+    w = min(1.0, max(0.0, 1.0 - dist / BODY_TUNING.arrive_range)) if arriving else 0.0
     sv = point_velocity(pose, twist, slot)
     if w > 0.0:
         gv = point_velocity(pose, goal, slot)

@@ -24,8 +24,8 @@ ellipses move at constant velocity in the scenario), as eq. 4.12's rows take its
 Braking distance. With h a distance (circles, walls and shelves, separation), on psi1 = 0 the
 row (R) asks for a deceleration of at most k1 s <= k1 s_max along g, s_max the largest closing
 speed (max_speed, plus the obstacle's speed, or twice max_speed for a pair sharing it). The gain
-is therefore :func:`gain`: k = min(gamma, BRAKE_SHARE max_accel / s_max, 1 / dt), so the
-deceleration a barrier can ask for on its boundary is at most BRAKE_SHARE of what the robot
+is therefore :func:`gain`: k = min(gamma, brake_share max_accel / s_max, 1 / dt) (:class:`DITuning`), so the
+deceleration a barrier can ask for on its boundary is at most brake_share of what the robot
 has, and from psi1 >= 0 (s <= k h) the stopping distance s^2 / (2 a_b) with a_b = k s_max is at
 most h / 2: a robot inside the set can always still brake before h = 0. Both poles are k
 (k1 = k2 = k: critically damped, no overshoot of the boundary).
@@ -58,47 +58,27 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import NamedTuple, Protocol
+from dataclasses import dataclass
+from typing import NamedTuple
 
 from geometry.ellipse import Ellipse
 from geometry.shapes import Shape, shape_distance
 
 from . import barriers, load_rows
 from .barriers import Neighbour, Obstacle, Partner
-from .qp import STATUS_NOMINAL, QPResult, Row, normalized_row, solve_cbf_qp, solve_exact
+from .params import ControlParams, StepInput
+from .qp import STATUS_NOMINAL, QPResult, Row, Rows, normalized_row, solve_cbf_qp, solve_exact
 
 
-class ControlParams(Protocol):
-    """The numbers of :class:`agent.control.ControlParams` this module reads (agent.control
-    imports this module, so it names them here rather than importing that class)."""
+@dataclass(frozen=True, slots=True)
+class DITuning:
+    """The double integrator's tuning (module docstring)."""
 
-    @property
-    def kp(self) -> float: ...
-    @property
-    def gamma_formation(self) -> float: ...
-    @property
-    def gamma_obstacle(self) -> float: ...
-    @property
-    def gamma_formations(self) -> float: ...
-    @property
-    def epsilon(self) -> float: ...
-    @property
-    def max_speed(self) -> float: ...
-    @property
-    def max_accel(self) -> float | None: ...
-    @property
-    def period(self) -> float: ...
-    @property
-    def d_af(self) -> float: ...
-    @property
-    def safety(self) -> bool: ...
-    @property
-    def separation(self) -> float: ...
-    @property
-    def radius(self) -> float: ...
+    brake_share: float = 0.5  # max_accel share a barrier asks at its boundary: more brakes later, harder
+    nominal_damping: float = 2.0  # a = this kp (u - v); 2 damps at 1/sqrt(2): more follows u faster
 
-BRAKE_SHARE = 0.5  # a barrier on its boundary asks for at most this share of max_accel
-NOMINAL_DAMPING = 2.0  # a = NOMINAL_DAMPING kp (u - v): damping ratio 1/sqrt(2)
+
+DI_TUNING = DITuning()
 
 
 class DIStep(NamedTuple):
@@ -112,22 +92,20 @@ class DIStep(NamedTuple):
     vy: float
     status: str
     slack: float  # [m/s^2]
-    h_formation: float
-    h_obstacle: float
-    h_formations: float
-    h_separation: float
     solve_us: float
 
 
-def gain(gamma: float, max_accel: float, closing: float, dt: float) -> float:
-    """[1/s] both poles of a hazard's HOCBF (module docstring, "Braking distance")."""
-    return min(gamma, BRAKE_SHARE * max_accel / closing, 1.0 / dt)
+def gain(gamma: float, max_accel: float, closing: float, dt: float,
+         share: float = DI_TUNING.brake_share) -> float:
+    """[1/s] both poles of a hazard's HOCBF (module docstring, "Braking distance"); ``share``
+    the share of max_accel a barrier asks on its boundary."""
+    return min(gamma, share * max_accel / closing, 1.0 / dt)
 
 
 def twist_gamma(cp: ControlParams) -> float:
     """[1/s] k_t, the gain of the formation twist's ellipse rows when its members are double
     integrators (linear alpha = k_t h: ``agent.body.BodyParams.linear_ellipses``), so that a
-    slot velocity the twist allows asks nothing of its member's own :func:`ellipse_row`.
+    slot velocity the twist allows asks nothing of its member's own :func:`ellipse_hocbf`.
 
     That row, -g . a <= q + 2 k h' + k^2 h, is met by a = 0 whenever h' >= -(k / 2) h - q / (2 k),
     and q >= 0 for an ellipse that does not turn (its drift is 2 (u1'^2 / a^2 + u2'^2 / b^2)).
@@ -137,7 +115,7 @@ def twist_gamma(cp: ControlParams) -> float:
     -(k / 2) h. With the single integrator's extended class-K (``ellipse_class_k``, k h (1 + h)
     outside) the twist drove a formation on at full speed towards another two or three
     semi-axes out while the member nearest it braked alone, and the formation rows gave way
-    (tests/scenarios/di-three-cross.yaml: 1.81 eps before, 0.79 after)."""
+    (tests/scenarios/di-three-cross.yaml)."""
     return 0.5 * gain(cp.gamma_formations, _accel(cp), 2.0 * cp.max_speed, cp.period)
 
 
@@ -160,7 +138,7 @@ def circle_terms(p: tuple[float, float], v: tuple[float, float], c: tuple[float,
     return d - ds, gx * (v[0] - w[0]) + gy * (v[1] - w[1]), (gx, gy)
 
 
-def obstacle_row(p, v, o: Obstacle, gamma: float, amax: float, vmax: float,
+def obstacle_hocbf(p, v, o: Obstacle, gamma: float, amax: float, vmax: float,
                  dt: float) -> tuple[float, Row]:
     """A circle (static or moving at constant velocity) of eq. 4.5: (h, row)."""
     h, hd, g = circle_terms(p, v, (o.x, o.y), (o.vx, o.vy), o.ds)
@@ -168,7 +146,7 @@ def obstacle_row(p, v, o: Obstacle, gamma: float, amax: float, vmax: float,
     return h, hocbf_row(h, hd, 0.0, g, k, k)
 
 
-def shape_row(p, v, sh: Shape, gamma: float, amax: float, vmax: float,
+def shape_hocbf(p, v, sh: Shape, gamma: float, amax: float, vmax: float,
               dt: float) -> tuple[float, Row]:
     """A wall or shelf: h = dist(p, shape) - Ds, h' = g . v with g = d dist / dp (a unit
     vector); the shape is convex and still, so (R) holds with q = 0 (module docstring)."""
@@ -178,7 +156,7 @@ def shape_row(p, v, sh: Shape, gamma: float, amax: float, vmax: float,
     return h, hocbf_row(h, gx * v[0] + gy * v[1], 0.0, (gx, gy), k, k)
 
 
-def band_rows(p, v, n: Neighbour, eps: float, k: float) -> tuple[float, float, Row, Row]:
+def band_hocbf(p, v, n: Neighbour, eps: float, k: float) -> tuple[float, float, Row, Row]:
     """One formation edge (eq. 4.3, 4.4, soft): with d = p - p_j, r = v - v_j,
     h_g = |d|^2 - (Df - eps)^2:  h_g' = 2 d . r,  h_g'' = 2 d . a + 2 |r|^2;
     h_l = (Df + eps)^2 - |d|^2:  h_l' = -2 d . r, h_l'' = -2 d . a - 2 |r|^2.
@@ -192,7 +170,7 @@ def band_rows(p, v, n: Neighbour, eps: float, k: float) -> tuple[float, float, R
     return hg, hl, row_g, row_l
 
 
-def ellipse_row(p, v, e: Ellipse, gamma: float, amax: float, vmax: float,
+def ellipse_hocbf(p, v, e: Ellipse, gamma: float, amax: float, vmax: float,
                 dt: float) -> tuple[float, Row]:
     """Another formation's ellipse (eq. 4.6), moving at (vx, vy) and turning at alpha_rate = w,
     both taken constant. In its frame u = R(alpha)^T (p - c), h = u1^2/a^2 + u2^2/b^2 - 1; with
@@ -217,7 +195,7 @@ def ellipse_row(p, v, e: Ellipse, gamma: float, amax: float, vmax: float,
     return h, hocbf_row(h, hd, q, (g1 * c - g2 * s, g1 * s + g2 * c), k, k)
 
 
-def separation_row(p, v, q: Partner, dsep: float, gamma: float, amax: float, vmax: float,
+def separation_hocbf(p, v, q: Partner, dsep: float, gamma: float, amax: float, vmax: float,
                    dt: float) -> tuple[float, Row]:
     """Two bodies kept dsep apart: h = |p - p_j| - dsep, the pair's condition
     g . (a - a_j) >= -(2 k h' + k^2 h) (h' = g . (v - v_j)) split in halves: this robot takes
@@ -225,13 +203,13 @@ def separation_row(p, v, q: Partner, dsep: float, gamma: float, amax: float, vma
     ``state``s, the mirror row; the two rows add up to the pair's condition for any two
     accelerations the two QPs return (the reciprocal split of
     :func:`agent.barriers.separation_row`, here about a = 0). Each robot's share of the braking
-    is k s / 2 <= BRAKE_SHARE max_accel for closing speeds s <= 2 max_speed."""
+    is k s / 2 <= brake_share max_accel for closing speeds s <= 2 max_speed."""
     h, hd, g = circle_terms(p, v, (q.x, q.y), (q.vx, q.vy), dsep)
     k = gain(gamma, 2.0 * amax, 2.0 * vmax, dt)
     return h, normalized_row(-g[0], -g[1], 0.5 * (2.0 * k * hd + k * k * h))
 
 
-def limit_rows(v: tuple[float, float], u_nom: tuple[float, float], a_nom: tuple[float, float],
+def accel_limit_rows(v: tuple[float, float], u_nom: tuple[float, float], a_nom: tuple[float, float],
                vmax: float, amax: float, dt: float) -> list[Row]:
     """|a| <= amax (a polygon, a vertex along ``a_nom``) and v + a dt inside the speed polygon
     (a vertex along ``u_nom``), each face n . (v + a dt) <= max(face, n . v)."""
@@ -243,9 +221,10 @@ def limit_rows(v: tuple[float, float], u_nom: tuple[float, float], a_nom: tuple[
 
 
 def nominal_accel(u_nom: tuple[float, float], v: tuple[float, float], kp: float,
-                  amax: float) -> tuple[float, float]:
-    """a = NOMINAL_DAMPING kp (u - v), clamped to amax (module docstring, "Nominal")."""
-    ax, ay = NOMINAL_DAMPING * kp * (u_nom[0] - v[0]), NOMINAL_DAMPING * kp * (u_nom[1] - v[1])
+                  amax: float, c: float = DI_TUNING.nominal_damping) -> tuple[float, float]:
+    """a = c kp (u - v), clamped to amax (module docstring, "Nominal"); ``c`` the nominal
+    damping (:class:`DITuning`)."""
+    ax, ay = c * kp * (u_nom[0] - v[0]), c * kp * (u_nom[1] - v[1])
     n = math.hypot(ax, ay)
     if n > amax:
         ax, ay = ax * amax / n, ay * amax / n
@@ -275,72 +254,88 @@ def brake(vx: float, vy: float, amax: float, dt: float) -> tuple[float, float]:
     return ax, ay
 
 
-class Inputs(NamedTuple):
-    """What one tick's rows are built from (as :func:`agent.control.control_step` takes them)."""
-
-    neighbours: Sequence[Neighbour] = ()
-    obstacles: Sequence[Obstacle] = ()
-    others: Sequence[Ellipse] = ()
-    pairwise: Sequence[Neighbour] = ()
-    partners: Sequence[Partner] = ()
-    shapes: Sequence[Shape] = ()
-    load: load_rows.MemberLoad | None = None  # its formation's load (method rigid)
-
-
-class Rows(NamedTuple):
-    soft: list[Row]
-    hard: list[Row]  # ellipses and all-to-all pairs (margin rows)
-    contact: list[Row]  # circles, walls, shelves, separation
-    h: tuple[float, float, float, float]  # smallest h_formation, h_obstacle, h_formations, h_sep
-
-
-def _keep(rows: list[Row], row: Row, amax: float) -> None:
-    """Append ``row`` unless no |a| <= amax can violate it (normalised: b >= amax)."""
-    if row[2] < amax:
-        rows.append(row)
-
-
-def build_rows(cp: ControlParams, p: tuple[float, float], v: tuple[float, float],
-               inp: Inputs) -> Rows:
-    """Every barrier row of the module docstring for a robot at p moving at v."""
+def hocbf_rows(cp: ControlParams, point: tuple[float, float], theta: float,
+               nominal_u: tuple[float, float], inp: StepInput,
+               load: load_rows.MemberLoad | None = None) -> Rows:
+    """Every barrier row of the module docstring for a robot at ``point`` moving at
+    ``inp.last_u`` (its velocity now), and the limit rows about the nominal acceleration towards
+    ``nominal_u`` (the :class:`agent.control.RowBuilder` of double integrators; a double
+    integrator has no heading: ``theta`` is not read). A row that no |a| <= max_accel can
+    violate (normalised: b >= max_accel) is left out; its h still counts."""
+    p, v = point, inp.last_u
     amax, vmax, dt = _accel(cp), cp.max_speed, cp.period
+    a_nom = nominal_accel(nominal_u, v, cp.kp, amax)
+    limits = accel_limit_rows(v, nominal_u, a_nom, vmax, amax, dt)
+    hf, soft = _band_part(cp, p, v, inp.neighbours, amax)
+    ho, hs, contact = _contact_part(cp, p, v, inp, amax)
+    he, hard = _hazard_part(cp, p, v, inp, amax)
+    if load is not None:
+        h, rows = load_rows_of(cp, load, inp.obstacles, inp.shapes)
+        ho = min(ho, h)
+        contact += [row for row in rows if row[2] < amax]
+    return Rows(limits, hard, soft, hf, ho, he, hs, contact, a_nom)
+
+
+def _band_part(cp: ControlParams, p: tuple[float, float], v: tuple[float, float],
+               neighbours: Sequence[Neighbour], amax: float) -> tuple[float, list[Row]]:
+    """The formation edges' rows (soft) that can be active, and the smallest h."""
     soft: list[Row] = []
-    hard: list[Row] = []
-    contact: list[Row] = []
-    hf = ho = he = hs = math.inf
-    kf = min(cp.gamma_formation, 1.0 / dt)
-    for n in inp.neighbours:
-        hg, hl, rg, rl = band_rows(p, v, n, cp.epsilon, kf)
+    hf = math.inf
+    kf = min(cp.gamma_formation, 1.0 / cp.period)
+    for n in neighbours:
+        hg, hl, rg, rl = band_hocbf(p, v, n, cp.epsilon, kf)
         hf = min(hf, hg, hl)
-        _keep(soft, rg, amax)
-        _keep(soft, rl, amax)
+        if rg[2] < amax:
+            soft.append(rg)
+        if rl[2] < amax:
+            soft.append(rl)
+    return hf, soft
+
+
+def _contact_part(cp: ControlParams, p: tuple[float, float], v: tuple[float, float],
+                  inp: StepInput, amax: float) -> tuple[float, float, list[Row]]:
+    """The circles', walls' and shelves' and the separation rows that can be active, and the
+    smallest h of the things and of the separations."""
+    vmax, dt = cp.max_speed, cp.period
+    contact: list[Row] = []
+    ho = hs = math.inf
     for o in inp.obstacles:
-        h, row = obstacle_row(p, v, o, cp.gamma_obstacle, amax, vmax, dt)
+        h, row = obstacle_hocbf(p, v, o, cp.gamma_obstacle, amax, vmax, dt)
         ho = min(ho, h)
-        _keep(contact, row, amax)
+        if row[2] < amax:
+            contact.append(row)
     for sh in inp.shapes:
-        h, row = shape_row(p, v, sh, cp.gamma_obstacle, amax, vmax, dt)
+        h, row = shape_hocbf(p, v, sh, cp.gamma_obstacle, amax, vmax, dt)
         ho = min(ho, h)
-        _keep(contact, row, amax)
-    for e in inp.others:
-        h, row = ellipse_row(p, v, e, cp.gamma_formations, amax, vmax, dt)
-        he = min(he, h)
-        _keep(hard, row, amax)
-    for nb in inp.pairwise:
-        h, row = obstacle_row(p, v, Obstacle(nb.x, nb.y, nb.vx, nb.vy, cp.d_af),
-                              cp.gamma_formations, amax, vmax, dt)
-        he = min(he, h)
-        _keep(hard, row, amax)
+        if row[2] < amax:
+            contact.append(row)
     for q in inp.partners:
-        h, row = separation_row(p, v, q, cp.separation, cp.gamma_formation, amax, vmax, dt)
+        h, row = separation_hocbf(p, v, q, cp.separation, cp.gamma_formation, amax, vmax, dt)
         hs = min(hs, h)
-        _keep(contact, row, amax)
-    if inp.load is not None:
-        h, rows = load_rows_of(cp, inp.load, inp.obstacles, inp.shapes)
-        ho = min(ho, h)
-        for row in rows:
-            _keep(contact, row, amax)
-    return Rows(soft, hard, contact, (hf, ho, he, hs))
+        if row[2] < amax:
+            contact.append(row)
+    return ho, hs, contact
+
+
+def _hazard_part(cp: ControlParams, p: tuple[float, float], v: tuple[float, float],
+                 inp: StepInput, amax: float) -> tuple[float, list[Row]]:
+    """Other formations' rows (their ellipses, or the all-to-all pairs) that can be active, and
+    the smallest h."""
+    vmax, dt = cp.max_speed, cp.period
+    hard: list[Row] = []
+    he = math.inf
+    for e in inp.others:
+        h, row = ellipse_hocbf(p, v, e, cp.gamma_formations, amax, vmax, dt)
+        he = min(he, h)
+        if row[2] < amax:
+            hard.append(row)
+    for nb in inp.pairwise:
+        h, row = obstacle_hocbf(p, v, Obstacle(nb.x, nb.y, nb.vx, nb.vy, cp.d_af),
+                                cp.gamma_formations, amax, vmax, dt)
+        he = min(he, h)
+        if row[2] < amax:
+            hard.append(row)
+    return he, hard
 
 
 def load_rows_of(cp: ControlParams, load: load_rows.MemberLoad, obstacles: Sequence[Obstacle],
@@ -378,23 +373,21 @@ def _accel(cp: ControlParams) -> float:
     return cp.max_accel
 
 
-def step(cp: ControlParams, p: tuple[float, float], v: tuple[float, float],
-         u_nom: tuple[float, float], inp: Inputs, solve=solve_exact,
-         clock: Callable[[], int] | None = None) -> DIStep:
-    """One tick: the acceleration closest to the nominal (:func:`nominal_accel` towards
-    ``u_nom``) meeting every row, solved by :func:`agent.qp.solve_cbf_qp` (formation rows
-    relaxed if need be, counted; hard rows never); with safety off the nominal within the
-    limits."""
-    amax, dt = _accel(cp), cp.period
-    a_nom = nominal_accel(u_nom, v, cp.kp, amax)
-    limits = limit_rows(v, u_nom, a_nom, cp.max_speed, amax, dt)
-    rows = build_rows(cp, p, v, inp)
+def step(cp: ControlParams, rows: Rows, p: tuple[float, float], v: tuple[float, float],
+         solve=solve_exact, clock: Callable[[], int] | None = None) -> DIStep:
+    """One tick on ``rows`` (:func:`hocbf_rows`): the acceleration closest to the nominal
+    (``rows.target``, :func:`nominal_accel` towards the nominal velocity) meeting every row,
+    solved by :func:`agent.qp.solve_cbf_qp` (formation rows relaxed if need be, counted; hard
+    rows never); with safety off the nominal within the limits."""
+    dt = cp.period
+    a_nom = rows.target if rows.target is not None else (0.0, 0.0)
     t0 = clock() if clock is not None else 0
     if cp.safety:
-        res = solve_cbf_qp(a_nom[0], a_nom[1], limits, rows.hard, rows.soft, solve, rows.contact)
+        res = solve_cbf_qp(a_nom[0], a_nom[1], rows.limits, rows.hard, rows.soft, solve,
+                           rows.contact)
     else:
-        a = solve_exact(a_nom[0], a_nom[1], limits) or (0.0, 0.0)
+        a = solve_exact(a_nom[0], a_nom[1], rows.limits) or (0.0, 0.0)
         res = QPResult(a[0], a[1], STATUS_NOMINAL, 0.0, True)
     solve_us = (clock() - t0) * 1e-3 if clock is not None else 0.0
     _, _, vx, vy = integrate(p[0], p[1], v[0], v[1], res.ux, res.uy, dt, cp.max_speed)
-    return DIStep(res.ux, res.uy, vx, vy, res.status, res.slack, *rows.h, solve_us)
+    return DIStep(res.ux, res.uy, vx, vy, res.status, res.slack, solve_us)

@@ -177,7 +177,7 @@ class Inbox:
 
     # --- what is accepted -----------------------------------------------------------------------
 
-    def _acceptor(self, cls: str) -> Callable[[str, Entry, Entry | None], bool]:
+    def acceptor(self, cls: str) -> Callable[[str, Entry, Entry | None], bool]:
         """The mailbox's ``accept`` for class ``cls``: the stamp check (future, stale, older than
         the one kept; counted per reason), then plausibility against the one kept (counted;
         the next tick commands zero). Runs where the mailbox stores: the loop's thread, or
@@ -279,7 +279,7 @@ class Inbox:
         if box is None:
             box = self._boxes[cls] = Mailbox(None if self.polled else self._loop,
                                              stamped(MEMOS[cls]), counter=self.counter,
-                                             accept=self._acceptor(cls))
+                                             accept=self.acceptor(cls))
         return box
 
     def offer(self, cls: str, key: str, payload: bytes) -> None:

@@ -2,36 +2,25 @@
 the agent (:mod:`agent.node`, from received messages) and the in-process simulator
 (:mod:`simulator.inprocess`, from the fleet's state).
 
-No clock, no network: numbers in, the arguments of :func:`agent.control.control_step` out, with
-the formation's jam-rule memory (:class:`agent.control.Stall`) carried from tick to tick.
+No clock, no network: numbers in, the :class:`agent.control.StepInput` of
+:meth:`agent.control.Controller.step` out (the caller adds the pose, goal, obstacles, shapes, last
+command and footprint), with the formation's jam-rule memory (:class:`agent.control.Stall`)
+carried from tick to tick.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from typing import NamedTuple
 
 from geometry.ellipse import Ellipse, within_reach
 from leader.role import VIEW_RANGE
 
 from . import unicycle
 from .barriers import Neighbour, Partner
-from .control import FormationView, Stall, update_stall
+from .control import FormationView, Stall, StepInput, update_stall
 
 Kinematic = tuple[float, float, float, float]  # control point x, y [m], velocity vx, vy [m/s]
 Heading = tuple[float, float, float, float, float]  # a Kinematic and the heading theta [rad]
-
-
-class StepInputs(NamedTuple):
-    """What :func:`agent.control.control_step` is handed besides pose, goal and obstacles."""
-
-    neighbours: list[Neighbour]
-    others: list[Ellipse]  # other formations' ellipses (empty in the all-to-all baseline)
-    view: FormationView | None  # own formation, for the tie-break; None without its ellipse
-    pairwise: list[Neighbour]  # all-to-all baseline: robots of other formations (eq. 3.5)
-    stall: Stall  # the jam rule's memory after this tick
-    partners: list[Partner]  # robots it could touch: a hard separation row each
-    hazards: list[Ellipse]  # every other formation's ellipse, for the formation-level rules
 
 
 def step_inputs(
@@ -44,8 +33,8 @@ def step_inputs(
     period: float,
     foreign: Iterable[Heading] | None = None,
     members: Iterable[Heading] = (),
-) -> StepInputs:
-    """Inputs of one robot's step.
+) -> StepInput:
+    """Inputs of one robot's step (its ``stall`` the jam rule's memory after this tick).
 
     ``neighbours`` are (x, y, vx, vy, Df) of its graph neighbours; ``own`` is its formation's
     ellipse (None: no view, the stall memory is kept as it is); ``others`` are the other
@@ -78,7 +67,8 @@ def step_inputs(
     else:
         ellipses = hazards
         pair = []
-    return StepInputs(nb, ellipses, view, pair, stall, partners, hazards)
+    return StepInput(neighbours=nb, others=ellipses, view=view, pairwise=pair, partners=partners,
+                     hazards=hazards, stall=stall)
 
 
 def predict_state(x: float, y: float, ux: float, uy: float, theta: float, age: float,
@@ -120,7 +110,7 @@ def carry_pose(x: float, y: float, theta: float, ux: float, uy: float, age: floa
     return bx, by, th
 
 
-def with_waypoint(inputs: StepInputs, heading: float | None, arriving: bool = True) -> StepInputs:
+def with_waypoint(inputs: StepInput, heading: float | None, arriving: bool = True) -> StepInput:
     """``inputs`` with the current waypoint's heading (None: none) in the view, and whether the
     member settles on its target there (:attr:`leader.navigation.Follower.arriving`)."""
     if inputs.view is None or (heading is None and arriving):

@@ -1,11 +1,11 @@
-"""Each member's own rows for its formation's load (issues 25 and 26): the last safety filter
+"""Each member's own rows for its formation's load: the last safety filter
 keeps the load, not only the member's body, off walls, shelves and circles.
 
 The formation's twist QP (:mod:`agent.body`) plans the load clear of things with its footprint
 rows. Where those cannot all hold (another formation's ellipse rows, with A.3's velocity term,
 push the formation towards a shelf), the twist QP relaxes them by one common slack, and each
 member's QP, which held only its own body's rows, let the members carry the load into the shelf
-(the warehouse draw of ``formation montecarlo --draw warehouse``: nine loads 10-333 mm deep). So
+(the warehouse draw of ``formation montecarlo --draw warehouse``). So
 each member's QP also holds these rows, as contact rows: never relaxed to reach a goal, kept
 exact in a fallback (:func:`agent.qp.solve_cbf_qp`), where the other formation's margin rows give
 way instead.

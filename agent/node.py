@@ -2,7 +2,7 @@
 
 The node is thin: it keeps the latest decoded message per key (a :class:`wire.traffic.Mailbox`
 per key class, fed from Zenoh's threads through ``loop.call_soon_threadsafe``) and, each tick,
-hands ``control_step`` the same inputs the in-process simulator builds
+hands the controller the same inputs the in-process simulator builds
 (:mod:`simulator.inprocess`): the neighbours' control points and last certified velocities from
 their ``state``, the obstacles, the other formations' ellipses and a
 :class:`agent.control.FormationView` of its own formation's ellipse, both from its leader's

@@ -20,18 +20,49 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import NamedTuple
+
+from geometry.slack import smallest_slack
 
 Row = tuple[float, float, float]  # (ax, ay, b): ax * ux + ay * uy <= b
 
-FEAS_TOL = 1e-9  # [m/s] a row counts as satisfied within this
-_BISECT_STEPS = 60
+
+@dataclass(frozen=True, slots=True)
+class QPTuning:
+    """The per-robot QP's numerical tuning."""
+
+    feas_tol: float = 1e-9  # [m/s] a row is met within this: looser accepts tiny misses, tighter fails
+    bisect_steps: int = 60  # halvings of the slack search: a tighter slack, one exact solve each
+    bisect_stop: tuple[float, float] = (1e-12, 1e-9)  # bracket (abs, rel) ending it: wider is cheaper, looser
+    slack_pad: float = 4.0  # feas_tol added to the slack so the final solve finds it: more is looser
+
+
+QP_TUNING = QPTuning()
+FEAS_TOL = QP_TUNING.feas_tol
 
 STATUS_OK = "ok"
 STATUS_RELAXED = "relaxed"  # formation rows relaxed by `slack`
 STATUS_FALLBACK = "fallback"  # hard rows infeasible: least-risk command
 STATUS_FAILED = "failed"  # solver error: zero command
 STATUS_NOMINAL = "nominal"  # safety off: the nominal command
+
+
+class Rows(NamedTuple):
+    """One tick's QP rows from a robot model's row builder (all normalised,
+    ``ax * ux + ay * uy <= b``; u a velocity, or an acceleration for a double integrator)."""
+
+    limits: list[Row]  # speed (turn-rate, acceleration) limits: never relaxed
+    hard: list[Row]  # other formations' ellipses (or pairwise robots): never relaxed
+    soft: list[Row]  # formation edges: relaxed by the smallest slack only if infeasible
+    h_formation: float  # smallest barrier value of each kind (inf when there is none)
+    h_obstacle: float
+    h_formations: float
+    h_separation: float = math.inf
+    contact: Sequence[Row] = ()  # obstacles and body separation: hard, kept in a fallback
+    # the QP's nominal where the robot's input is not its velocity (a double integrator's
+    # acceleration); None: the nominal velocity itself
+    target: tuple[float, float] | None = None
 
 
 class QPResult(NamedTuple):
@@ -160,21 +191,19 @@ def make_solver(name: str | None):
 
 def _min_slack(rows_fixed: list[Row], rows_relaxed: Sequence[Row], start: tuple[float, float]):
     """Smallest s >= 0 with rows_fixed and (rows_relaxed + s) feasible; ``start`` satisfies
-    rows_fixed. Returns (s, rows_relaxed shifted by s). Bisection on the exact solver."""
+    rows_fixed. Returns (s, rows_relaxed shifted by s). Bisection (:mod:`geometry.slack`) on the
+    exact solver."""
+    t = QP_TUNING
     hi = max(0.0, max(ax * start[0] + ay * start[1] - b for ax, ay, b in rows_relaxed))
-    hi += FEAS_TOL
-    lo = 0.0
-    for _ in range(_BISECT_STEPS):
-        mid = 0.5 * (lo + hi)
+    hi += t.feas_tol
+
+    def feasible(mid: float) -> bool:
         shifted = [(ax, ay, b + mid) for ax, ay, b in rows_relaxed]
-        if solve_exact(start[0], start[1], rows_fixed + shifted) is None:
-            lo = mid
-        else:
-            hi = mid
-        if hi - lo <= 1e-12 + 1e-9 * hi:
-            break
+        return solve_exact(start[0], start[1], rows_fixed + shifted) is not None
+
+    hi = smallest_slack(feasible, hi, t.bisect_steps, t.bisect_stop)
     # A little extra so the final solve, started elsewhere, finds the same thin set non-empty.
-    hi += 4.0 * FEAS_TOL
+    hi += t.slack_pad * t.feas_tol
     return hi, [(ax, ay, b + hi) for ax, ay, b in rows_relaxed]
 
 

@@ -10,7 +10,7 @@ A tick, for the pose stamped ``t``:
 3. if any input is stale (pose, a neighbour's state, ``others``, ``obstacles``; older than
    ``stale_after``), or a leader misses another formation's ellipse: command zero, count
    ``stale``; otherwise walk the route (:class:`agent.navigation.NavPart`), run
-   ``control_step`` and publish ``cmd`` stamped ``t``.
+   the controller (:meth:`agent.control.Controller.step`) and publish ``cmd`` stamped ``t``.
 
 The ticker owns the tick's memory (the last certified velocity and pose stamp, the jam rule's
 state, the obstacle memory) and its counters (:class:`TickCounts`); the commands go out through
@@ -33,7 +33,7 @@ from agent import double_integrator
 from agent.barriers import Obstacle
 from agent.clock import STATS_WINDOW, Clock
 from agent.config import AgentConfig
-from agent.control import Stall, StepResult, control_step
+from agent.control import Controller, Stall, StepResult
 from agent.hard_rows import HardRowCounter
 from agent.inbox import Inbox
 from agent.inputs import carry_pose, step_inputs, with_waypoint
@@ -137,7 +137,8 @@ class Ticker:
         self.counts = TickCounts()
         self.obstacle_memory = ObstacleMemory()
         self.hard = HardRowCounter()  # ticks on which a hard row was not met
-        self.solve = make_solver(cfg.solver)  # the config's QP solver (exact by default)
+        # built once: the config's QP solver (exact by default), the QP timed for solve_us
+        self.controller = Controller(cfg.control, make_solver(cfg.solver), time.perf_counter_ns)
         self.after: Callable[[StepResult | None], None] | None = None  # after every tick
         # the tick's memory
         self.last_u = (0.0, 0.0)
@@ -289,10 +290,9 @@ class Ticker:
         self._stall = inputs.stall
         nav = self.parts.nav
         inputs = with_waypoint(inputs, nav.follower.heading, nav.follower.arriving)
-        res = control_step(cfg.control, (pose.x, pose.y, pose.theta), target, inputs.neighbours,
-                           obs, inputs.others, inputs.view, self.solve, inputs.pairwise,
-                           inputs.partners, self.last_u, inputs.hazards, shapes=shapes,
-                           clock=time.perf_counter_ns, footprint=cfg.footprint)
+        res = self.controller.step(inputs._replace(
+            pose=(pose.x, pose.y, pose.theta), goal=target, obstacles=obs, last_u=self.last_u,
+            shapes=shapes, footprint=cfg.footprint))
         if self.clock.gone_stale(stamp):
             return self._zero(t, POSE_AT_SEND)  # never send a command from a pose gone stale
         if self.parts.leader.leading:

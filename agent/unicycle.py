@@ -2,13 +2,15 @@
 
 The controller moves the look-ahead point s = p + l (cos theta, sin theta); eq. 6.2 maps its
 velocity u to (v, omega). Both are linear in u, so the robot's speed and turn-rate limits become
-four QP rows (:func:`limit_rows`) and the certified command is never clipped afterwards.
+four QP rows (:func:`drive_limit_rows`) and the certified command is never clipped afterwards.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
+from geometry.angles import wrap_half_turn, wrap_left
 from geometry.unicycle import control_point  # noqa: F401  (re-exported)
 
 from .qp import Row
@@ -27,24 +29,25 @@ def from_unicycle(v: float, omega: float, theta: float, lookahead: float) -> tup
     return (c * v - s * w, s * v + c * w)
 
 
-def limit_rows(theta: float, lookahead: float, max_speed: float, max_turn_rate: float) -> list[Row]:
+def drive_limit_rows(theta: float, lookahead: float, max_speed: float, max_turn_rate: float) -> list[Row]:
     """|v| <= max_speed and |omega| <= max_turn_rate as rows on u (already |a| = 1)."""
     c, s = math.cos(theta), math.sin(theta)
     w = lookahead * max_turn_rate
     return [(c, s, max_speed), (-c, -s, max_speed), (-s, c, w), (s, -c, w)]
 
 
-STEER_GAIN = 2.0  # [1/s] turn rate per radian of heading error in the steered nominal
-STEER_LEFT_BIAS = math.radians(20.0)  # headings this close to opposite the motion turn left
-# A robot already turning keeps its way round while the aim lies within this beyond half a turn
-# that way (a hysteresis about "behind": the robot's own turn moves an aim near the bias's edge
-# across it, and the robot turned left, right, left on consecutive ticks).
-STEER_KEEP = math.radians(45.0)
-# [rad/s] turning at least this fast counts as turning (steer's ``turning``); a turn a member's
-# rows slow (its look-ahead point near a row's edge, 0.9 rad/s) still keeps its way round
-STEER_KEEP_RATE = 0.3
-SMALL_TURN = 1e-7  # [rad] a step turning less than this is integrated as its chord (integrate)
-STEER_REVERSE_RANGE = 0.1  # [m] this close to its goal a robot may back up instead of turning
+@dataclass(frozen=True, slots=True)
+class SteerTuning:
+    """The unicycle's turn-then-drive nominal (:func:`steer`)."""
+
+    gain: float = 2.0  # [1/s] turn rate per radian of error: higher faces sooner, lower turns smoother
+    keep: float = math.radians(45.0)  # [rad] a turning robot keeps its way this far past behind: fewer flips
+    keep_rate: float = 0.3  # [rad/s] turning this fast counts for keep: lower also holds slowed turns
+    reverse_range: float = 0.1  # [m] this near its goal a robot backs up rather than turning round
+    small_turn: float = 1e-7  # [rad] smaller steps integrate as the chord: the arc's sines lose digits below
+
+
+STEER = SteerTuning()
 
 
 def steer(wx: float, wy: float, theta: float, lookahead: float, max_turn_rate: float,
@@ -56,9 +59,9 @@ def steer(wx: float, wy: float, theta: float, lookahead: float, max_turn_rate: f
     Fed w directly, the look-ahead point drags the body round it whenever w points away from
     the heading: the robot turns at |w| sin(err) / l (4.4 rad/s for a TurtleBot) while its body
     swings on a circle of radius l, and two members turning opposite ways move their bodies up
-    to 2 l apart. Here the robot turns in place about its body at STEER_GAIN x the heading
-    error (the body stays where it is) and drives at the part of w along its heading, none
-    backwards: v = max(w . e(theta), 0), omega = STEER_GAIN err (clamped), and u is the
+    to 2 l apart. Here the robot turns in place about its body at ``gain`` (:class:`SteerTuning`)
+    x the heading error (the body stays where it is) and drives at the part of w along its
+    heading, none backwards: v = max(w . e(theta), 0), omega = gain err (clamped), and u is the
     look-ahead velocity of that (v, omega) (eq. 6.2 inverted).
 
     The heading aimed at is that of the point where w asks the look-ahead point to be ``lead``
@@ -69,9 +72,9 @@ def steer(wx: float, wy: float, theta: float, lookahead: float, max_turn_rate: f
     a robot whose slot lay behind its look-ahead point saw w swing round as fast as it turned and
     turned back and forth in place (a reversal every tick, measured in
     tests/scenarios/shelf-pushed-unicycle.yaml). Members of a formation turn the same way: an
-    error within STEER_LEFT_BIAS of opposite turns left. A robot already ``turning`` [rad/s,
-    its last turn rate] at least STEER_KEEP_RATE keeps its way round while the error that way
-    is at most half a turn plus STEER_KEEP (:func:`turn_error`). With ``reverse`` (close to
+    error within :data:`geometry.angles.LEFT_BIAS` of opposite turns left. A robot already ``turning`` [rad/s,
+    its last turn rate] at least ``keep_rate`` keeps its way round while the error that way
+    is at most half a turn plus ``keep`` (:func:`turn_error`). With ``reverse`` (close to
     the goal) the robot backs up rather than turning round when the aim lies behind it. ``aim``
     [m/s]: the motion its formation waits for it to face (:func:`agent.body.pace`); it then
     turns towards that direction, and drives only by w."""
@@ -86,24 +89,25 @@ def steer(wx: float, wy: float, theta: float, lookahead: float, max_turn_rate: f
         err = math.atan2(lookahead * s + wy * lead, lookahead * c + wx * lead) - theta
     along = wx * c + wy * s
     if reverse:
-        err = (err + 0.5 * math.pi) % math.pi - 0.5 * math.pi  # nearest of forwards and back
+        err = wrap_half_turn(err)  # nearest of forwards and back
         v = along
     else:
         err = turn_error(err, turning)
         v = max(along, 0.0)
-    omega = max(-max_turn_rate, min(max_turn_rate, STEER_GAIN * err))
+    omega = max(-max_turn_rate, min(max_turn_rate, STEER.gain * err))
     return from_unicycle(v, omega, theta, lookahead)
 
 
 def turn_error(err: float, turning: float = 0.0) -> float:
     """The heading error ``err`` [rad] as the turn to make: the short way round, left where
-    the aim lies within STEER_LEFT_BIAS of behind; for a robot ``turning`` [rad/s] at least
-    STEER_KEEP_RATE, its own way round while that is at most pi + STEER_KEEP."""
-    short = (err + math.pi - STEER_LEFT_BIAS) % (2.0 * math.pi) - math.pi + STEER_LEFT_BIAS
-    if abs(turning) < STEER_KEEP_RATE or short * turning >= 0.0:
+    the aim lies within :data:`geometry.angles.LEFT_BIAS` of behind (:func:`geometry.angles.wrap_left`);
+    for a robot ``turning`` [rad/s] at least ``keep_rate``, its own way round while that is at
+    most pi + ``keep``."""
+    short = wrap_left(err)
+    if abs(turning) < STEER.keep_rate or short * turning >= 0.0:
         return short
     other = short - math.copysign(2.0 * math.pi, short)  # the same aim, the robot's own way
-    return other if abs(other) <= math.pi + STEER_KEEP else short
+    return other if abs(other) <= math.pi + STEER.keep else short
 
 
 def _ahead(wx: float, wy: float, theta: float) -> bool:
@@ -114,12 +118,12 @@ def integrate(x: float, y: float, theta: float, v: float, omega: float, dt: floa
     """Exact unicycle motion (eq. 6.1) over dt with constant (v, omega): an arc or a line.
 
     The arc ``(v / omega) (sin th1 - sin th)`` subtracts two nearly equal sines when the turn
-    ``omega dt`` is tiny, and lost up to 2e-8 m a step at ``omega = 1.1e-8``; below
-    :data:`SMALL_TURN` the same arc is its chord, ``v dt (1 - a^2 / 6)`` along the mid heading
-    ``theta + a`` (``a = omega dt / 2``: the series of ``sin(a) / a``, exact in floating point
-    there). Above it the arc as before, whose rounding is then under 1e-9 of the step."""
+    ``omega dt`` is tiny, and lost up to 2e-8 m a step at ``omega = 1.1e-8``; below ``small_turn``
+    (:class:`SteerTuning`) the same arc is its chord, ``v dt (1 - a^2 / 6)`` along the mid
+    heading ``theta + a`` (``a = omega dt / 2``: the series of ``sin(a) / a``, exact in floating point
+    there). Above it the arc, whose rounding is then under 1e-9 of the step."""
     half = 0.5 * omega * dt
-    if abs(half) < 0.5 * SMALL_TURN:
+    if abs(half) < 0.5 * STEER.small_turn:
         chord = v * dt * (1.0 - half * half / 6.0)
         return (x + chord * math.cos(theta + half), y + chord * math.sin(theta + half),
                 theta + omega * dt)

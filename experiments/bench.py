@@ -2,7 +2,7 @@
 
 Eight measurements, written to ``bench.json`` and as a table (``bench.txt`` and stdout):
 
-* **step**: one robot's full control step (:func:`agent.control.control_step`: nominal command,
+* **step**: one robot's full control step (:meth:`agent.control.Controller.step`: nominal command,
   barrier rows, QP) for a robot of a 4-robot formation with 2 obstacles and 3 other formations
   in view, with its two parts (:func:`agent.control.build_rows` and the exact solve) apart,
   and the same step for a single and a double integrator side by side (``by_model``).
@@ -20,7 +20,7 @@ Eight measurements, written to ``bench.json`` and as a table (``bench.txt`` and 
   Every pose of a tick leaves at once, as from one overhead camera frame. For comparison, the
   32- and 64-agent fleets also run with the world publishing each formation's poses in its own
   slot of the period (``agents_pose_slots``, ``pose_slots`` = N/4), as robots localising on
-  their own clocks would, so the N agents do not all wake in the same instant on this 2-core
+  their own clocks would, so the N agents do not all wake in the same instant on one shared
   machine (on robots each agent has its own CPU), and one fleet runs with agents ticking on
   their own clock (``agents_clock_ticks``). Reported per fleet: achieved command rate, missed ticks, pose ->
   command latency (p50, p99) and its parts, CPU and memory (RSS) per agent, and the agents'
@@ -48,8 +48,8 @@ as a percentage of one core; memory is ``VmRSS`` of ``/proc/PID/status`` at the 
 fleets asked, optionally in agent hosts (``--agents-per-process K``, :mod:`agent.host`), each fleet
 ``--repeat`` times, every run with its own load average.
 
-The machine's load average is recorded beside every timing: this is a shared 2-core machine, and
-timings taken under other people's load are upper bounds.
+The machine's load average is recorded beside every timing: timings taken under other load are
+upper bounds.
 """
 
 from __future__ import annotations
@@ -66,7 +66,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from agent.barriers import Neighbour, Obstacle
-from agent.control import ControlParams, FormationView, build_rows, control_step
+from agent.control import Controller, ControlParams, FormationView, StepInput, build_rows
 from agent.qp import Row, qpsolvers_solver, solve_exact
 from experiments.agents import bench_agents
 from experiments.central import CENTRAL_BACKENDS, bench_central
@@ -164,11 +164,9 @@ def bench_solvers(instances, repeat: int, backends: Sequence[str]) -> dict:
 # ------------------------------------------------------------------------ one control step
 
 
-def step_instance():
+def step_instance() -> tuple[ControlParams, StepInput]:
     """One robot of a 4-robot formation with 2 obstacles and 3 other formations in view."""
     p = ControlParams()
-    pose = (0.0, 0.0, 0.0)
-    goal = (5.0, 0.0)
     neighbours = [Neighbour(-0.5, 0.0, 0.2, 0.0, 0.5), Neighbour(0.0, -0.25, 0.2, 0.0, 0.25),
                   Neighbour(-0.5, -0.25, 0.2, 0.01, 0.559)]
     obstacles = [Obstacle(1.2, 0.4, 0.0, 0.0, 0.3), Obstacle(2.0, -0.8, 0.05, 0.0, 0.3)]
@@ -176,20 +174,21 @@ def step_instance():
               Ellipse(1.0, -2.0, 1.5, 0.6, 0.45, 0.0, 0.2, 0.01),
               Ellipse(-2.0, 2.0, 0.0, 0.55, 0.3, 0.1, -0.1, 0.0)]
     view = FormationView(Ellipse(-0.25, -0.125, 0.0, 0.6, 0.45, 0.2, 0.0, 0.0), 4.75, -0.125)
-    return p, pose, goal, neighbours, obstacles, others, view
+    return p, StepInput(pose=(0.0, 0.0, 0.0), goal=(5.0, 0.0), neighbours=neighbours,
+                        obstacles=obstacles, others=others, view=view)
 
 
 def bench_step(n: int, backends: Sequence[str] = BACKENDS) -> dict:
     """The full step, its two parts, and the solve of the same step's QP by every backend."""
-    p, pose, goal, nb, obs, others, view = step_instance()
-    res = control_step(p, pose, goal, nb, obs, others, view, clock=time.perf_counter_ns)
-    rows = build_rows(p, pose[0], pose[1], pose[2], (res.nominal_ux, res.nominal_uy), nb, obs,
-                      others, view)
-    qp_rows = rows.limits + list(rows.contact) + rows.hard + rows.soft
+    p, inp = step_instance()
+    controller = Controller(p, clock=time.perf_counter_ns)  # made once, as the agent's loop does
+    res = controller.step(inp)
+    point, theta = inp.pose[:2], inp.pose[2]
     nux, nuy = res.nominal_ux, res.nominal_uy
-    full = timed(lambda: control_step(p, pose, goal, nb, obs, others, view, clock=time.perf_counter_ns), n)
-    build = timed(lambda: build_rows(p, pose[0], pose[1], pose[2], (nux, nuy), nb, obs, others,
-                                      view), n)
+    rows = build_rows(p, point, theta, (nux, nuy), inp)
+    qp_rows = rows.limits + list(rows.contact) + rows.hard + rows.soft
+    full = timed(lambda: controller.step(inp), n)
+    build = timed(lambda: build_rows(p, point, theta, (nux, nuy), inp), n)
     solve = {"exact": statistics.median(timed(lambda: solve_exact(nux, nuy, qp_rows), n))}
     for name in backends:
         try:
@@ -217,19 +216,18 @@ def bench_step_models(n: int, rounds: int = 10) -> dict:
     """The same step (:func:`step_instance`) for a single integrator and a double integrator
     (max_accel DI_ACCEL, moving at DI_VELOCITY), timed in alternating rounds so machine noise
     hits both alike: medians [us] side by side."""
-    p, pose, goal, nb, obs, others, view = step_instance()
-    d = replace(p, double_integrator=True, max_accel=DI_ACCEL)
+    p, inp = step_instance()
+    inp = inp._replace(last_u=DI_VELOCITY)
+    single = Controller(p)
+    double = Controller(replace(p, double_integrator=True, max_accel=DI_ACCEL))
     times: dict[str, list[float]] = {"single_integrator": [], "double_integrator": []}
     k = max(1, n // rounds)
     for _ in range(rounds):
-        times["single_integrator"] += timed(
-            lambda: control_step(p, pose, goal, nb, obs, others, view, last_u=DI_VELOCITY), k)
-        times["double_integrator"] += timed(
-            lambda: control_step(d, pose, goal, nb, obs, others, view, last_u=DI_VELOCITY), k)
+        times["single_integrator"] += timed(lambda: single.step(inp), k)
+        times["double_integrator"] += timed(lambda: double.step(inp), k)
     out: dict = {m: statistics.median(t) for m, t in times.items()}
     out["double_over_single"] = out["double_integrator"] / out["single_integrator"]
-    out["double_integrator_status"] = control_step(d, pose, goal, nb, obs, others, view,
-                                                   last_u=DI_VELOCITY).status
+    out["double_integrator_status"] = double.step(inp).status
     return out
 
 

@@ -8,18 +8,16 @@ import statistics
 import time
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import qpsolvers
 from scipy import sparse
 
-from agent.barriers import Neighbour, Obstacle
-from agent.control import ControlParams, FormationView, Stall, build_rows, control_step
+from agent.barriers import Obstacle
+from agent.control import Controller, ControlParams, Stall, StepInput, build_rows
 from agent.inputs import step_inputs
 from experiments.fleet_scenario import fleet_scenario
 from experiments.machine import timed
-from geometry.ellipse import Ellipse
 from simulator.inprocess import FleetModel
 
 logger = logging.getLogger(__name__)
@@ -28,19 +26,7 @@ CENTRAL_BACKENDS = ("osqp", "clarabel", "daqp", "quadprog")
 CENTRAL_BUDGET_S = 3.0  # [s] a backend slower than this on one centralized solve is not repeated
 
 
-@dataclass(frozen=True)
-class RobotInputs:
-    """What one robot's control step is handed at the benchmark's snapshot."""
-
-    pose: tuple[float, float, float]
-    goal: tuple[float, float]
-    neighbours: list[Neighbour]
-    obstacles: list[Obstacle]
-    others: list[Ellipse]
-    view: FormationView
-
-
-def fleet_snapshot(scenario, speed: float = 0.2) -> tuple[ControlParams, list[RobotInputs], list]:
+def fleet_snapshot(scenario, speed: float = 0.2) -> tuple[ControlParams, list[StepInput], list]:
     """Every robot's inputs with the fleet at its start, each robot moving at ``speed`` along
     +x (what the in-process simulator hands the control step); also every robot's formation
     name and the formation edges as (i, j, Df) robot indices."""
@@ -61,8 +47,8 @@ def fleet_snapshot(scenario, speed: float = 0.2) -> tuple[ControlParams, list[Ro
                            [(name, e) for name, e in ellipses.items() if name != fname],
                            Stall(), scenario.dt)
         assert step.view is not None  # every formation has its ellipse here
-        inputs.append(RobotInputs((r.start[0], r.start[1], 0.0), r.goal, step.neighbours, obs,
-                                  step.others, step.view))
+        inputs.append(step._replace(pose=(r.start[0], r.start[1], 0.0), goal=r.goal,
+                                    obstacles=obs))
     index = {rid: k for k, rid in enumerate(scenario.robot_ids)}
     edges = [(index[e.i], index[e.j], e.df) for f in scenario.formations for e in f.edges]
     return fleet.params, inputs, edges
@@ -71,7 +57,7 @@ def fleet_snapshot(scenario, speed: float = 0.2) -> tuple[ControlParams, list[Ro
 # ------------------------------------------------------------------- centralized solving
 
 
-def central_problem(params: ControlParams, inputs: Sequence[RobotInputs], formation_of: Sequence[str],
+def central_problem(params: ControlParams, inputs: Sequence[StepInput], formation_of: Sequence[str],
                     edges: Sequence[tuple[int, int, float]], nominal: Sequence[tuple[float, float]]):
     """The centralized QP ``min sum |u_i - nominal_i|^2  s.t.  G u <= h`` over u = (u_1 .. u_N)
     as sparse (P, q, G, h): every robot's speed, obstacle and ellipse rows
@@ -87,8 +73,7 @@ def central_problem(params: ControlParams, inputs: Sequence[RobotInputs], format
     m = 0
     # single-robot rows, by the agent's own row builder
     for i, r in enumerate(inputs):
-        built = build_rows(params, r.pose[0], r.pose[1], r.pose[2], nominal[i], (), r.obstacles,
-                           r.others, r.view)
+        built = build_rows(params, r.pose[:2], r.pose[2], nominal[i], r._replace(neighbours=()))
         single = np.array(built.limits + list(built.contact) + built.hard, dtype=float).reshape(-1, 3)
         k = len(single)
         idx = np.arange(m, m + k)
@@ -162,14 +147,15 @@ def bench_central(sizes: Sequence[int], backends: Sequence[str], repeat: int,
         params, inputs, edges = fleet_snapshot(scenario)
         formation_of = [scenario.formation_of(r).name for r in scenario.robot_ids]
 
-        def all_steps(params=params, inputs=inputs):
-            return [control_step(params, r.pose, r.goal, r.neighbours, r.obstacles, r.others,
-                                 r.view, clock=time.perf_counter_ns) for r in inputs]
+        controller = Controller(params, clock=time.perf_counter_ns)
+
+        def all_steps(controller=controller, inputs=inputs):
+            return [controller.step(r) for r in inputs]
 
         steps = all_steps()
         nominal = [(s.nominal_ux, s.nominal_uy) for s in steps]
         dist_times = timed(all_steps, repeat)
-        def build(params: ControlParams = params, inputs: list[RobotInputs] = inputs,
+        def build(params: ControlParams = params, inputs: list[StepInput] = inputs,
                   fo: list[str] = formation_of, e: list = edges,
                   nom: list[tuple[float, float]] = nominal) -> object:
             return central_problem(params, inputs, fo, e, nom)

@@ -3,7 +3,7 @@
 the warehouse, the formation-level QP included, against ``method: thesis``).
 
 Each method runs the scenario in process (:func:`simulator.inprocess.simulate`, no recording)
-from start to end; every call of :func:`agent.control.control_step` in that run is timed whole
+from start to end; every call of :meth:`agent.control.Controller.step` in that run is timed whole
 (nominal command, under ``rigid`` the formation's twist QP of :func:`agent.body.formation_twist`,
 the robot's rows and its QP), and under ``rigid`` the formation QP alone as well. Under ``rigid``
 every member computes the formation QP itself (:mod:`agent.body`): there is no leader-only part.
@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import agent.body
+import agent.control
 import simulator.inprocess
 from experiments.machine import load_avg, percentile
 from scenario import load_scenario
@@ -70,7 +71,7 @@ def bench_method(scenario_path: Path, method: str, duration: float | None = None
     steps: list[float] = []
     twist: list[float] = []
     load0 = load_avg()
-    with _timing(simulator.inprocess, "control_step", steps), \
+    with _timing(agent.control.Controller, "step", steps), \
             _timing(agent.body, "formation_twist", twist):
         summary = simulator.inprocess.simulate(
             scenario, simulator.inprocess.SimOptions(record=False)).summary

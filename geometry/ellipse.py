@@ -23,6 +23,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .angles import wrap_angle
+
 Point = tuple[float, float]
 
 _ASPECTS = np.linspace(0.25, 1.0, 61)  # b/a ratios tried by derive_axes
@@ -91,11 +93,6 @@ def derive_axes(shape: ReferenceShape, clearance: float) -> tuple[float, float]:
     area = _ASPECTS * a * a
     best = int(np.argmin(area))
     return float(a[best]), float(_ASPECTS[best] * a[best])
-
-
-def wrap_angle(angle: float) -> float:
-    """Angle wrapped into [-pi, pi)."""
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def estimate(

@@ -1,4 +1,4 @@
-"""Convex polygons: a formation's load (issue 25) against points, disks, walls, shelves and other
+"""Convex polygons: a formation's load against points, disks, walls, shelves and other
 loads.
 
 A polygon is a sequence of vertices (x, y), counter-clockwise; two vertices make a segment and
@@ -18,6 +18,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from .angles import wrap_angle
 from .shapes import segment_distance
 
 Point = tuple[float, float]
@@ -67,7 +68,7 @@ def is_convex(poly: Sequence[Point]) -> bool:
         a = math.atan2(poly[(k + 1) % n][1] - poly[k][1], poly[(k + 1) % n][0] - poly[k][0])
         b = math.atan2(poly[(k + 2) % n][1] - poly[(k + 1) % n][1],
                        poly[(k + 2) % n][0] - poly[(k + 1) % n][0])
-        winding += (b - a + math.pi) % (2.0 * math.pi) - math.pi
+        winding += wrap_angle(b - a)
     return abs(abs(winding) - 2.0 * math.pi) < 1e-6
 
 

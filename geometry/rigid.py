@@ -1,6 +1,6 @@
 """The least-squares rigid motion of a point set (2-D Kabsch), and placing a body by it.
 
-A formation's load (issue 25) moves with its members as one rigid body: each tick it is placed
+A formation's load moves with its members as one rigid body: each tick it is placed
 by the proper rotation R(theta) and translation t that map the members' start positions a_i
 onto their current ones b_i best in the least-squares sense:
 

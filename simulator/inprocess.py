@@ -1,4 +1,4 @@
-"""In-process simulation: every robot through :func:`agent.control.control_step`.
+"""In-process simulation: every robot through :meth:`agent.control.Controller.step`.
 
 The data each robot sees is what the distributed system hands it: its neighbours' control
 points and last commands (their ``state``), the obstacles, and the ellipses its leader estimates
@@ -19,7 +19,7 @@ from typing import NamedTuple
 from agent import accel_limit, unicycle
 from agent.barriers import Obstacle
 from agent.body import Footprint, footprint_of, motion_of
-from agent.control import ControlParams, Stall, StepResult, control_step
+from agent.control import Controller, ControlParams, Stall, StepResult
 from agent.hard_rows import HardRowCounter
 from agent.inputs import step_inputs, with_waypoint
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
@@ -230,13 +230,14 @@ class QPStats:
 
 class FleetControl:
     """Every robot's agent, in process: each computes its command with
-    :func:`agent.control.control_step` from what the distributed system hands it."""
+    :meth:`agent.control.Controller.step` from what the distributed system hands it."""
 
     def __init__(self, scenario: Scenario, options: SimOptions) -> None:
         self.scenario = scenario
         self.solve = options.solve_fn or make_solver(options.solver)
         self.fleet = fleet = FleetModel.build(scenario, safety=options.safety)
         self.params = params = fleet.params
+        self.controller = Controller(params, self.solve, time.perf_counter_ns)  # one, every robot
         self.n = n = len(scenario.robots)
         starts = {f.name: start_plan(scenario, f) for f in scenario.formations}
         self.routes = {name: sp.route for name, sp in starts.items()}
@@ -273,7 +274,7 @@ class FleetControl:
         """Robot ``i``'s command. Every other member of its formation (graph neighbour or not:
         the agent subscribes to their states) gets a hard separation row; in all-to-all every
         foreign robot too."""
-        fleet, params, vel, seen, ctrl = self.fleet, self.params, self.vel, view.seen, view.ctrl
+        fleet, vel, seen, ctrl = self.fleet, self.vel, view.seen, view.ctrl
         fname = fleet.formation_of[i]
         own = view.ellipses[fname]
         target, waypoint = self.followers[i].step(own.cx, own.cy, view.headings[fname],
@@ -291,11 +292,9 @@ class FleetControl:
         self.stalls[i] = inputs.stall
         inputs = with_waypoint(inputs, self.followers[i].heading, self.followers[i].arriving)
         pose = (seen[i][0], seen[i][1], seen[i][2])
-        res = control_step(params, pose, target, inputs.neighbours, view.obs,
-                           inputs.others, inputs.view, self.solve, inputs.pairwise,
-                           inputs.partners, vel[i], inputs.hazards, shapes=self.scenario.shapes,
-                           clock=time.perf_counter_ns, footprint=fleet.footprints[i])
-        return res
+        return self.controller.step(inputs._replace(
+            pose=pose, goal=target, obstacles=view.obs, last_u=vel[i], shapes=self.scenario.shapes,
+            footprint=fleet.footprints[i]))
 
 
 class View(NamedTuple):

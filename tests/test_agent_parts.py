@@ -133,7 +133,7 @@ def test_a_pose_stamped_ahead_of_the_clock_cannot_make_the_genuine_ones_after_it
     rx = Receiver(lambda: clock[0], lambda: False, 0.1, 0.25, 0.5)
     inbox = Inbox("a1", rx, TrafficCounter("warehouse"), LinkFaults(), (0.05, False),
                   threading.Lock(), polled=True)
-    accept = inbox._acceptor(keys.POSE)
+    accept = inbox.acceptor(keys.POSE)
     key = keys.pose_key("warehouse", "a1")
     forged = (Pose(1.0, 0.0, 0.0, 100.09), 100.0)
     assert accept(key, forged, None)
@@ -151,7 +151,7 @@ def test_a_second_source_on_the_pose_holds_the_robot_until_it_has_been_quiet_for
     # position, until CONTEST_HOLD_S after the last such pose (not just the tick after it)
     clock = [100.0]
     inbox = _pose_inbox(clock)
-    accept, key = inbox._acceptor(keys.POSE), keys.pose_key("warehouse", "a1")
+    accept, key = inbox.acceptor(keys.POSE), keys.pose_key("warehouse", "a1")
     forged = (Pose(1.2, 0.0, 0.0, 100.09), 100.0)  # walked 0.2 m from the robot, +90 ms
     assert accept(key, forged, None) and not inbox.contested()
     clock[0] = 100.03
@@ -167,7 +167,7 @@ def test_a_second_source_on_the_pose_holds_the_robot_until_it_has_been_quiet_for
     lockstep = Inbox("a1", Receiver(lambda: clock[0], lambda: False, 0.1, 1.0, 0.5),
                      TrafficCounter("warehouse"), LinkFaults(), (0.05, True), threading.Lock(),
                      polled=True)
-    accept = lockstep._acceptor(keys.POSE)
+    accept = lockstep.acceptor(keys.POSE)
     assert accept(key, forged, None)
     clock[0] = 100.03
     assert not accept(key, genuine, forged)  # refused as a jump, as before
@@ -183,7 +183,7 @@ def _pose_inbox(clock: list[float]) -> Inbox:
 
 def _walk_jumped(inbox: Inbox, clock: list[float], kept, moving_after: int | None) -> list[bool]:
     """Poses 5 m from the kept one, agreeing with each other, every 0.1 s: which were taken."""
-    accept, key, taken = inbox._acceptor(keys.POSE), keys.pose_key("warehouse", "a1"), []
+    accept, key, taken = inbox.acceptor(keys.POSE), keys.pose_key("warehouse", "a1"), []
     for k in range(6):
         clock[0] += 0.1
         entry = (Pose(5.0, 0.0, 0.0, clock[0]), clock[0])
@@ -198,12 +198,12 @@ def test_a_marker_that_jumped_is_reacquired_only_while_its_robot_was_commanded_z
     clock = [100.0]
     inbox = _pose_inbox(clock)
     kept = (Pose(0.0, 0.0, 0.0, 100.0), 100.0)
-    assert inbox._acceptor(keys.POSE)(keys.pose_key("warehouse", "a1"), kept, None)
+    assert inbox.acceptor(keys.POSE)(keys.pose_key("warehouse", "a1"), kept, None)
     taken = _walk_jumped(inbox, clock, kept, moving_after=None)
     assert taken.index(True) >= 2 and inbox.reacquired == 1  # a few agreeing poses, then taken
     clock2 = [200.0]
     moved = _pose_inbox(clock2)
     kept2 = (Pose(0.0, 0.0, 0.0, 200.0), 200.0)
-    assert moved._acceptor(keys.POSE)(keys.pose_key("warehouse", "a1"), kept2, None)
+    assert moved.acceptor(keys.POSE)(keys.pose_key("warehouse", "a1"), kept2, None)
     assert not any(_walk_jumped(moved, clock2, kept2, moving_after=0))  # it moved: never taken
     assert moved.reacquired == 0 and moved.implausible[keys.POSE] == 6

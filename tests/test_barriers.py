@@ -85,10 +85,11 @@ def test_obstacle_row_is_the_cbf_condition_with_the_obstacle_velocity(px, py, ox
 
 
 @settings(max_examples=300, deadline=None)
-@given(coord, coord, coord, coord, vel, vel, vel, vel, st.floats(-0.5, 0.5),
+@given(st.tuples(coord, coord), coord, coord, vel, vel, vel, vel, st.floats(-0.5, 0.5),
        st.floats(-math.pi, math.pi), st.floats(0.1, 2.0))
-def test_ellipse_row_includes_centroid_velocity_and_alpha_rate(px, py, cx, cy, ux, uy, vx, vy, w,
+def test_ellipse_row_includes_centroid_velocity_and_alpha_rate(point, cx, cy, ux, uy, vx, vy, w,
                                                                alpha, gamma):
+    px, py = point
     e = Ellipse(cx, cy, alpha, 0.6, 0.3, vx, vy, w)
     h, gx, gy, _ = barriers.ellipse_terms(px, py, cx, cy, alpha, 0.6, 0.3)
     g = math.hypot(gx, gy)

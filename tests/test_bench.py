@@ -104,7 +104,7 @@ def test_central_problem_holds_every_robot_and_its_rows():
     assert pm.shape == (16, 16) and q.shape == (16,)
     single = 0
     for r, u in zip(inputs, nominal, strict=True):
-        rows = build_rows(params, *r.pose, u, (), r.obstacles, r.others, r.view)
+        rows = build_rows(params, r.pose[:2], r.pose[2], u, r._replace(neighbours=()))
         single += len(rows.limits) + len(rows.hard) + len(rows.contact)
     # each robot's own rows + 2 formations x 5 edges x 2 bands + 4 x 4 cross-formation pairs
     assert g.shape == (single + 20 + 16, 16)

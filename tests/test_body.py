@@ -1,4 +1,4 @@
-"""The formation's rigid motion (agent.body, issue 25): the 3-variable QP against an oracle, the
+"""The formation's rigid motion (agent.body): the 3-variable QP against an oracle, the
 footprint rows as CBF conditions on the twist, one sampled step that never crosses a wall, and the
 member's nominal."""
 
@@ -67,7 +67,7 @@ def test_solve3_agrees_with_a_qpsolvers_oracle_on_random_instances():
 
 def test_the_twist_meets_every_row_and_is_relaxed_only_when_it_must():
     rng = random.Random(3)
-    limits = body.limit_rows(0.4, PARAMS)
+    limits = body.twist_limit_rows(0.4, PARAMS)
     for _ in range(200):
         centre = np.array([rng.uniform(-0.05, 0.05) for _ in range(3)])
         rows = [_unit_row(rng, centre) for _ in range(rng.randint(1, 10))]
@@ -131,7 +131,7 @@ def test_a_footprint_point_never_crosses_a_wall_in_one_step(slots, th, dt, gdt, 
     margin = body.arc_margin(fp.rho, min(p.omega_max, p.vmax / fp.rho), dt)
     assume(lowest >= sh.ds + margin)  # the slots start inside the (grown) safe set
     rows = body.footprint_rows(fp, pose, body.Snapshot((), (sh,), ()), p)
-    res = body.solve_twist(goal, fp.rho, body.limit_rows(fp.rho, p), rows)
+    res = body.solve_twist(goal, fp.rho, body.twist_limit_rows(fp.rho, p), rows)
     assert res.slack == 0.0
     for q in pts:
         nx, ny = _moved(pose, res.twist, q, dt)
@@ -158,11 +158,11 @@ def test_the_load_edge_keeps_a_shelf_corner_out_that_no_member_is_near():
     corner_box = box("b", (0.0, -0.6), (0.4, 1.0), 0.0, 0.15)  # top face at y = -0.1
     pose = body.Pose(0.0, 0.0, 0.0)
     rows = body.footprint_rows(fp, pose, body.Snapshot((), (corner_box,), ()), PARAMS)
-    res = body.solve_twist((0.0, -0.22, 0.0), fp.rho, body.limit_rows(fp.rho, PARAMS), rows)
+    res = body.solve_twist((0.0, -0.22, 0.0), fp.rho, body.twist_limit_rows(fp.rho, PARAMS), rows)
     assert res.twist[1] > -0.22 * 0.5
     no_load = dataclasses.replace(fp, load_edges=())
     rows = body.footprint_rows(no_load, pose, body.Snapshot((), (corner_box,), ()), PARAMS)
-    free = body.solve_twist((0.0, -0.22, 0.0), fp.rho, body.limit_rows(fp.rho, PARAMS), rows)
+    free = body.solve_twist((0.0, -0.22, 0.0), fp.rho, body.twist_limit_rows(fp.rho, PARAMS), rows)
     assert free.twist[1] < res.twist[1] - 0.05
 
 
@@ -182,7 +182,7 @@ def test_a_member_settles_on_its_target_only_where_it_arrives_not_at_a_waypoint_
     """At its target (its goal, or its slot where the formation holds) a member blends into
     eq. 4.2 on it and keeps only what the rows changed of the goal twist; at a waypoint the
     formation passes it keeps its slot's motion, the turn to the waypoint's heading included
-    (warehouse run 300130: blended there, a pentagon never turned and never passed it)."""
+    (blended there, a pentagon in the warehouse never turned and never passed it)."""
     fp = body.Footprint(((-0.25, 0.0), (0.25, 0.0)), 0.0, 1)
     pose = body.Pose(1.0, 1.0, 0.0)
     turn = (0.0, 0.0, 0.4)  # the goal twist: turn in place
@@ -253,7 +253,7 @@ def test_spread_rows_leave_the_goals_turn_and_give_way_to_the_barriers():
     turn with no travel is only the goal's, single integrators get none, and where a barrier row
     needs a turn the spread rows forbid, the barrier wins (the rows are left out)."""
     rho = 0.4
-    limits = body.limit_rows(rho, PARAMS)
+    limits = body.twist_limit_rows(rho, PARAMS)
     goal = (0.1, 0.0, 0.2)  # within the slots' speed limit: 0.1 + rho 0.2 < 0.22 cos 15 deg
     assert body.solve_twist(goal, rho, limits, [], body.spread_rows(goal, rho, 0.8)).twist == \
         pytest.approx(goal)
@@ -300,7 +300,7 @@ def test_a_mirror_row_is_half_the_cbf_condition_on_the_own_ellipse_over_a_member
     eps = 1e-6  # central difference: h is far from linear in the turn for a thin ellipse
     dh = (_h(_turned(own, twist, eps), q, grow) - _h(_turned(own, twist, -eps), q, grow)) / (2 * eps)
     h = _h(own, q, grow)
-    half_alpha = body.MIRROR_SHARE * ellipse_class_k(h, p.gamma_formations)
+    half_alpha = body.BODY_TUNING.mirror_share * ellipse_class_k(h, p.gamma_formations)
     scale = half_alpha / row[3]  # the row is normalised: both sides by one positive factor
     assert scale > 0.0
     assert math.isclose(lhs * scale, -dh, rel_tol=1e-3, abs_tol=1e-5)
@@ -331,8 +331,8 @@ def test_the_two_halves_add_up_to_appendix_a3_on_the_pair(a, aspect, alpha, bear
     a_sends = own_a._replace(points=((0.0, 0.0),))
     row_b = body.ellipse_point_row(pose_b, 0.3, q, a_sends, p.gamma_formations, grow)
     (row_a, _) = body.mirror_rows(own_a, body.Pose(0.0, 0.0, alpha), 0.5, [own_b], p)
-    tw_a = body.solve_twist(goal_a, 0.5, body.limit_rows(0.5, p), [row_a]).twist
-    tw_b = body.solve_twist(goal_b, 0.3, body.limit_rows(0.3, p), [row_b]).twist
+    tw_a = body.solve_twist(goal_a, 0.5, body.twist_limit_rows(0.5, p), [row_a]).twist
+    tw_b = body.solve_twist(goal_b, 0.3, body.twist_limit_rows(0.3, p), [row_b]).twist
     eps = 1e-6
     q1 = body.point_velocity(pose_b, tw_b, q)
     h0 = _h(own_a, q, grow)
@@ -344,7 +344,7 @@ def test_a_formation_does_not_chase_a_smaller_one_its_ellipse_reaches():
     """A long pair drives at a small formation whose members its ellipse (round its own
     members' clearance disks) is about to cover, while its own members are far from the small
     one's ellipse: without the other's points it drives on at full speed (its ellipse then
-    sweeps over the small one, which must flee: run 200047); with them it slows to keep its
+    sweeps over the small one, which must flee); with them it slows to keep its
     ellipse off them."""
     fp = body.Footprint(((-0.6, 0.0), (0.6, 0.0)), 0.0, 0)
     own = Ellipse(0.0, 0.0, 0.0, 1.0, 0.3)
@@ -377,11 +377,12 @@ def test_a_formation_asked_to_turn_back_brakes_first_and_then_goes():
         if got == want:
             break
         assert got[0] > 0.0 and got[1] == 0.0
-        assert math.isclose(got[0], moving[0] - body.BRAKE_DECEL * dt)
+        assert math.isclose(got[0], moving[0] - body.BODY_TUNING.brake_decel * dt)
         moving = got  # the members follow the braked twist
         ticks += 1
-    assert moving[0] <= body.BRAKE_FROM + 1e-12
-    assert ticks == math.ceil((0.2 - body.BRAKE_FROM) / (body.BRAKE_DECEL * dt) - 1e-9)
+    assert moving[0] <= body.BODY_TUNING.brake_from + 1e-12
+    t = body.BODY_TUNING
+    assert ticks == math.ceil((0.2 - t.brake_from) / (t.brake_decel * dt) - 1e-9)
 
 
 def test_a_turn_that_sends_an_outer_slot_back_brakes_too_and_a_sideways_one_does_not():
@@ -406,7 +407,7 @@ PAIR = body.Footprint(((-0.3, 0.0), (0.3, 0.0)), 0.0, 0)
 
 
 @settings(max_examples=300, deadline=None)
-@given(st.floats(-math.pi, math.pi), st.floats(body.PACE_MOVING, 0.22), st.floats(-0.5, 0.5),
+@given(st.floats(-math.pi, math.pi), st.floats(body.BODY_TUNING.pace_moving, 0.22), st.floats(-0.5, 0.5),
        st.lists(st.floats(-math.pi, math.pi), min_size=3, max_size=3), st.integers(0, 2),
        st.floats(0.0, math.pi))
 def test_the_pace_is_set_by_the_member_facing_its_slots_motion_worst(
@@ -418,17 +419,17 @@ def test_the_pace_is_set_by_the_member_facing_its_slots_motion_worst(
     pose = body.Pose(1.0, -2.0, 0.3)
     want = (speed * math.cos(travel), speed * math.sin(travel), omega)
     vel = [body.point_velocity(pose, want, body.place(pose, q)) for q in fp.slots]
-    assume(all(math.hypot(*v) >= body.PACE_FROM for v in vel))
-    assume(max(math.hypot(*v) for v in vel) >= body.PACE_MOVING + 1e-9)  # a formation that moves
+    assume(all(math.hypot(*v) >= body.BODY_TUNING.pace_from for v in vel))
+    assume(max(math.hypot(*v) for v in vel) >= body.BODY_TUNING.pace_moving + 1e-9)  # a formation that moves
     dirs = [math.atan2(v[1], v[0]) for v in vel]
     k = body.pace(want, pose, fp, [d + o for d, o in zip(dirs, offs, strict=True)])
     worst = max(abs(body.wrap_angle(o)) for o in offs)
-    assert body.PACE_FLOOR <= k <= 1.0
-    if worst <= body.PACE_ALIGNED - 1e-9:
+    assert body.BODY_TUNING.pace_floor <= k <= 1.0
+    if worst <= body.BODY_TUNING.pace_aligned - 1e-9:
         assert k == 1.0
-    if worst >= body.PACE_SIDEWAYS + 1e-9:
-        assert k == body.PACE_FLOOR
-    if body.PACE_ALIGNED + 1e-6 < worst < body.PACE_SIDEWAYS - 1e-6:
+    if worst >= body.BODY_TUNING.pace_sideways + 1e-9:
+        assert k == body.BODY_TUNING.pace_floor
+    if body.BODY_TUNING.pace_aligned + 1e-6 < worst < body.BODY_TUNING.pace_sideways - 1e-6:
         assert k < 1.0
     # one member turned further away (by up to half a turn, not past behind): never faster
     o = abs(body.wrap_angle(offs[which]))
@@ -439,16 +440,16 @@ def test_the_pace_is_set_by_the_member_facing_its_slots_motion_worst(
 
 def test_a_slow_formation_does_not_wait_and_a_slow_slot_is_not_waited_for():
     pose = body.Pose(0.0, 0.0, 0.0)
-    slow = (body.PACE_MOVING * 0.9, 0.0, 0.0)
+    slow = (body.BODY_TUNING.pace_moving * 0.9, 0.0, 0.0)
     assert body.pace(slow, pose, PAIR, [math.pi, math.pi]) == 1.0  # both face back, but it creeps
     # a pair spinning about its first member's slot: that slot stands, the other moves fast
     spin = (0.0, -0.6 * 0.3, 0.6)
     fp = body.Footprint(((0.0, 0.0), (0.6, 0.0)), 0.0, 0)
     vel = body.point_velocity(pose, spin, body.place(pose, fp.slots[1]))
-    assert math.hypot(*vel) > body.PACE_MOVING
+    assert math.hypot(*vel) > body.BODY_TUNING.pace_moving
     facing = math.atan2(vel[1], vel[0])
     assert body.pace(spin, pose, fp, [facing + math.pi, facing]) == 1.0
-    assert body.pace(spin, pose, fp, [facing, facing + math.pi]) == body.PACE_FLOOR
+    assert body.pace(spin, pose, fp, [facing, facing + math.pi]) == body.BODY_TUNING.pace_floor
 
 
 def test_a_formation_whose_members_face_back_asks_for_the_floor_and_aims_at_the_full_twist():
@@ -463,7 +464,7 @@ def test_a_formation_whose_members_face_back_asks_for_the_floor_and_aims_at_the_
     _pose, waiting = body.formation_twist(PAIR, own._replace(headings=(0.0, 0.1)), goal, snap, UNI)
     assert full.twist[0] < -0.2 and full.aim is None
     assert waiting.aim == pytest.approx(full.twist)
-    assert waiting.twist[0] == pytest.approx(body.PACE_FLOOR * full.twist[0])
+    assert waiting.twist[0] == pytest.approx(body.BODY_TUNING.pace_floor * full.twist[0])
     _pose, facing = body.formation_twist(PAIR, own, goal, snap, UNI)
     assert facing.twist == pytest.approx(full.twist) and facing.aim is None
     _pose, holonomic = body.formation_twist(PAIR, own._replace(headings=(0.0, 0.1)), goal, snap,

@@ -11,12 +11,13 @@ from hypothesis import strategies as st
 from agent import barriers
 from agent.barriers import Neighbour, Obstacle
 from agent.control import (
+    Controller,
     ControlParams,
     FormationView,
-    _shape_rows,
+    StepInput,
     build_rows,
-    control_step,
     nominal,
+    shape_rows,
     tiebreak_push,
 )
 from agent.qp import STATUS_OK, STATUS_RELAXED
@@ -37,9 +38,9 @@ def test_every_command_satisfies_every_row_it_was_given(x, y, th, gx, gy, nbrs, 
                   if math.hypot(nx - x, ny - y) > 0.1]
     obstacles = [Obstacle(ox, oy, 0.0, 0.0, ds) for ox, oy, ds in obs]
     others = [Ellipse(1.5, -1.0, 0.3, 0.6, 0.3, 0.05, 0.0, 0.1)]
-    res = control_step(p, (x, y, th), (gx, gy), neighbours, obstacles, others)
-    rows = build_rows(p, res.px, res.py, th, (res.nominal_ux, res.nominal_uy), neighbours, obstacles,
-                      others)
+    inp = StepInput((x, y, th), (gx, gy), neighbours, obstacles, others)
+    res = Controller(p).step(inp)
+    rows = build_rows(p, (res.px, res.py), th, (res.nominal_ux, res.nominal_uy), inp)
     u = (res.ux, res.uy)
     viol = lambda rs, s=0.0: max((ax * u[0] + ay * u[1] - b - s for ax, ay, b in rs), default=-1)  # noqa: E731
     if res.status in (STATUS_OK, STATUS_RELAXED):
@@ -55,15 +56,16 @@ def test_every_command_satisfies_every_row_it_was_given(x, y, th, gx, gy, nbrs, 
 
 def test_without_constraints_the_command_is_the_clamped_p_controller_of_eq_4_2():
     p = ControlParams()
-    res = control_step(p, (0.0, 0.0, 0.0), (0.05, 0.02))
+    res = Controller(p).step(StepInput((0.0, 0.0, 0.0), (0.05, 0.02)))
     assert (res.ux, res.uy) == pytest.approx((0.1, 0.04))
     assert nominal(2.0, 0.0, 0.0, 10.0, 0.0, 0.22) == pytest.approx((0.22, 0.0))
 
 
 def test_no_safety_ignores_the_barriers():
     obstacle = [Obstacle(0.4, 0.0, 0.0, 0.0, 0.3)]  # right in the way
-    safe = control_step(ControlParams(), (0.0, 0.0, 0.0), (5.0, 0.0), obstacles=obstacle)
-    unsafe = control_step(ControlParams(safety=False), (0.0, 0.0, 0.0), (5.0, 0.0), obstacles=obstacle)
+    safe = Controller(ControlParams()).step(StepInput((0.0, 0.0, 0.0), (5.0, 0.0), obstacles=obstacle))
+    unsafe = Controller(ControlParams(safety=False)).step(
+        StepInput((0.0, 0.0, 0.0), (5.0, 0.0), obstacles=obstacle))
     assert unsafe.ux == pytest.approx(0.22) and unsafe.status == "nominal"
     assert safe.ux < unsafe.ux
 
@@ -127,7 +129,7 @@ def test_a_formation_past_the_waypoint_weighs_by_its_reach_before_it_and_an_obst
 
 
 def test_a_still_formation_away_from_its_target_yields_after_the_stall_time():
-    from agent.control import STALL_TIME, YIELD_TIME, Stall, update_stall
+    from agent.control import TUNING, Stall, update_stall
 
     jammed = view(0.0, 0.0, 5.0, 0.0)  # centroid velocity 0, target 5 m away
     s = Stall()
@@ -135,8 +137,8 @@ def test_a_still_formation_away_from_its_target_yields_after_the_stall_time():
     while s.yielding == 0.0 and ticks < 1000:
         s = update_stall(s, jammed, 0.05)
         ticks += 1
-    assert abs(ticks * 0.05 - STALL_TIME) <= 0.05 + 1e-9
-    assert s.yielding == pytest.approx(YIELD_TIME)
+    assert abs(ticks * 0.05 - TUNING.stall.time) <= 0.05 + 1e-9
+    assert s.yielding == pytest.approx(TUNING.stall.yield_time)
     moving = view(0.0, 0.0, 5.0, 0.0, vx=0.2)
     assert update_stall(Stall(3.0), moving, 0.05).still == 0.0
     at_target = view(4.95, 0.0, 5.0, 0.0)
@@ -144,18 +146,19 @@ def test_a_still_formation_away_from_its_target_yields_after_the_stall_time():
 
 
 def test_only_the_formation_without_priority_yields_and_it_eases_off_at_the_end():
-    from agent.control import YIELD_EASE, YIELD_GAIN, YIELD_TIME, yield_command
+    from agent.control import TUNING, yield_command
 
-    a = view(0.0, 0.0, 5.0, 0.0)._replace(name="A", other_names=("B",), yielding=YIELD_TIME)
-    b = view(1.5, 0.0, -5.0, 0.0)._replace(name="B", other_names=("A",), yielding=YIELD_TIME)
+    a = view(0.0, 0.0, 5.0, 0.0)._replace(name="A", other_names=("B",), yielding=TUNING.stall.yield_time)
+    b = view(1.5, 0.0, -5.0, 0.0)._replace(name="B", other_names=("A",), yielding=TUNING.stall.yield_time)
     assert yield_command(a, [b.own], 0.22) is None  # A has priority: keeps going
     back = yield_command(b, [a.own], 0.22)
-    assert back == pytest.approx((YIELD_GAIN * 0.22, 0.0))  # B backs away from A (+x)
-    # over the last YIELD_EASE seconds the backing slows to nothing: no instant turn back
+    assert back == pytest.approx((TUNING.stall.yield_gain * 0.22, 0.0))  # B backs away from A (+x)
+    # over the last yield_ease seconds the backing slows to nothing: no instant turn back
+    ease = TUNING.stall.yield_ease
     easing = [yield_command(b._replace(yielding=left), [a.own], 0.22)[0]
-              for left in (YIELD_EASE, 0.75 * YIELD_EASE, 0.5 * YIELD_EASE, 0.01)]
+              for left in (ease, 0.75 * ease, 0.5 * ease, 0.01)]
     assert easing == sorted(easing, reverse=True) and easing[-1] < 0.02 * back[0]
-    far = view(9.0, 0.0, -5.0, 0.0)._replace(name="B", other_names=("A",), yielding=YIELD_TIME)
+    far = view(9.0, 0.0, -5.0, 0.0)._replace(name="B", other_names=("A",), yielding=TUNING.stall.yield_time)
     assert yield_command(far, [a.own], 0.22) is None
 
 
@@ -165,7 +168,7 @@ def test_unicycles_keep_a_sampling_margin_around_obstacles_and_integrators_none(
     assert uni.sampling_margin == pytest.approx(0.5 * 0.05 * 2.84 ** 2 * 0.05)
     assert ControlParams(unicycle=False).sampling_margin == 0.0
     obstacle = [Obstacle(1.0, 0.0, 0.0, 0.0, 0.3)]
-    rows = build_rows(uni, 0.0, 0.0, 0.0, (0.2, 0.0), obstacles=obstacle)
+    rows = build_rows(uni, (0.0, 0.0), 0.0, (0.2, 0.0), StepInput(obstacles=obstacle))
     expected = 1.0 - (0.3 + 0.05 + uni.sampling_margin)  # distance to the grown circle
     assert math.sqrt(rows.h_obstacle + (0.3 + 0.05 + uni.sampling_margin) ** 2) == pytest.approx(1.0)
     assert expected > 0
@@ -195,7 +198,7 @@ def test_wall_and_shelf_rows_skip_only_what_measuring_everything_would_not_chang
     # the bounding circles only skip work: the same rows, in the same order, and the same
     # smallest h as measuring every shape
     rows: list = []
-    hmin = _shape_rows(px, py, shs, gamma, grow, reach, rows)
+    hmin = shape_rows(px, py, shs, gamma, grow, reach, rows)
     every = [barriers.shape_row(px, py, sh, gamma, grow) for sh in shs]
     assert hmin == min(h for h, _ in every)
     assert rows == [row for _, row in every if row[2] < reach]

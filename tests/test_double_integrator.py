@@ -1,4 +1,4 @@
-"""Double-integrator robots (issue 27, item 2; :mod:`agent.double_integrator`): each barrier's
+"""Double-integrator robots (:mod:`agent.double_integrator`): each barrier's
 one-step property under the exact sampled double integrator, the limit rows, braking, the
 model's scenarios in process (0 collisions, <= 1.5 epsilon, every goal), a lock-step run equal
 to ``sim``, the ``cmd`` payload's version 2, and the scenario's and agent config's checks."""
@@ -21,7 +21,7 @@ from agent.accel_limit import STATUS_ACCEL
 from agent.barriers import Obstacle, Partner, speed_rows
 from agent.barriers import obstacle_row as obstacle_row_si
 from agent.config import build_agent_configs, load_config, save_config
-from agent.control import ControlParams, control_step
+from agent.control import Controller, ControlParams, StepInput
 from agent.qp import STATUS_OK, solve_exact
 from formation.cli import main
 from geometry.ellipse import Ellipse, ellipse_terms
@@ -52,7 +52,7 @@ def _polar(r: float, a: float) -> tuple[float, float]:
 def _solve(a_nom: tuple[float, float], v: tuple[float, float], vmax: float, amax: float,
            dt: float, rows: list) -> tuple[float, float] | None:
     """The QP of one tick over these barrier rows with the limit rows."""
-    limits = di.limit_rows(v, v, a_nom, vmax, amax, dt)
+    limits = di.accel_limit_rows(v, v, a_nom, vmax, amax, dt)
     return solve_exact(a_nom[0], a_nom[1], limits + rows)
 
 
@@ -64,17 +64,18 @@ def _moved(p, v, a, t):
 
 
 @settings(max_examples=600, deadline=None)
-@given(gap, angle, speed, angle, speed, angle, st.floats(0.05, 1.0), accel, period, gamma,
-       speed, angle)
+@given(gap, angle, st.tuples(speed, angle), st.tuples(speed, angle), st.floats(0.05, 1.0), accel,
+       period, gamma, st.tuples(speed, angle))
 def test_a_circle_barrier_holds_over_the_period_where_the_qp_is_feasible(
-        h0, oa, vs, va, ws, wa, ds, amax, dt, g, an, aa):
+        h0, oa, robot_v, obstacle_v, ds, amax, dt, g, nominal):
     """Module docstring, "Sampling": with h >= 0, psi1 >= 0 and the row met, the circle's
     h = |p - o| - Ds stays >= 0 at every instant of the period (the obstacle moving at w)."""
+    (vs, va), (ws, wa), (an, aa) = robot_v, obstacle_v, nominal
     p, v, w = (0.0, 0.0), _polar(vs, va), _polar(ws, wa)
     ox, oy = _polar(ds + h0, oa)
     vmax = 0.5
     o = Obstacle(ox, oy, w[0], w[1], ds)
-    h, row = di.obstacle_row(p, v, o, g, amax, vmax, dt)
+    h, row = di.obstacle_hocbf(p, v, o, g, amax, vmax, dt)
     hd = di.circle_terms(p, v, (ox, oy), w, ds)[1]
     k = di.gain(g, amax, vmax + ws, dt)
     assume(h >= 0.0 and hd + k * h >= 0.0)
@@ -87,12 +88,13 @@ def test_a_circle_barrier_holds_over_the_period_where_the_qp_is_feasible(
 
 
 @settings(max_examples=600, deadline=None)
-@given(gap, angle, st.floats(0.0, 1.5), st.floats(0.0, 1.0), st.floats(-1.0, 1.0), st.booleans(),
-       speed, angle, accel, period, gamma, speed, angle)
+@given(gap, angle, st.tuples(st.floats(0.0, 1.5), st.floats(0.0, 1.0)), st.floats(-1.0, 1.0),
+       st.booleans(), st.tuples(speed, angle), accel, period, gamma, st.tuples(speed, angle))
 def test_a_wall_or_shelf_barrier_holds_over_the_period_where_the_qp_is_feasible(
-        h0, yaw, hx, hy, shift, is_box, vs, va, amax, dt, g, an, aa):
+        h0, yaw, half, shift, is_box, robot_v, amax, dt, g, nominal):
     """The same for a box whose face, or a segment whose line, lies h0 + Ds from the robot
     (the segment shifted along itself, so its end may be the nearest point)."""
+    (vs, va), (an, aa), (hx, hy) = robot_v, nominal, half
     p, v = (0.0, 0.0), _polar(vs, va)
     vmax, ds = 0.5, 0.15
     c, s = math.cos(yaw), math.sin(yaw)
@@ -104,7 +106,7 @@ def test_a_wall_or_shelf_barrier_holds_over_the_period_where_the_qp_is_feasible(
         a = (r * c - s * (shift - hx), r * s + c * (shift - hx))
         b = (r * c - s * (shift + hx + 0.01), r * s + c * (shift + hx + 0.01))
         sh = segment("s", a, b, ds)
-    h, row = di.shape_row(p, v, sh, g, amax, vmax, dt)
+    h, row = di.shape_hocbf(p, v, sh, g, amax, vmax, dt)
     k = di.gain(g, amax, vmax, dt)
     assume(h >= 0.0 and -row[0] * v[0] - row[1] * v[1] + k * h >= 0.0)  # psi1 = g . v + k h
     a = _solve(_polar(an * amax, aa), v, vmax, amax, dt, [row])
@@ -128,8 +130,8 @@ def test_two_robots_acting_at_once_keep_their_bodies_apart_over_the_period(
                        gamma_formation=g)
     p, q = (0.0, 0.0), (qx, qy)
     vi, vj = _polar(vs, va), _polar(us, ua)
-    hi, ri = di.separation_row(p, vi, Partner(q[0], q[1], vj[0], vj[1]), dsep, g, amax, vmax, dt)
-    _, rj = di.separation_row(q, vj, Partner(p[0], p[1], vi[0], vi[1]), dsep, g, amax, vmax, dt)
+    hi, ri = di.separation_hocbf(p, vi, Partner(q[0], q[1], vj[0], vj[1]), dsep, g, amax, vmax, dt)
+    _, rj = di.separation_hocbf(q, vj, Partner(p[0], p[1], vi[0], vi[1]), dsep, g, amax, vmax, dt)
     hd = di.circle_terms(p, vi, q, vj, dsep)[1]
     k = di.gain(cp.gamma_formation, 2.0 * amax, 2.0 * vmax, dt)
     assume(hi >= 0.0 and hd + k * hi >= 0.0)
@@ -152,8 +154,8 @@ def test_the_certified_acceleration_keeps_both_limits(vs, va, us, ua, amax, dt, 
     face = vmax * math.cos(math.pi / 12)
     v = _polar(min(vs, face), va)  # inside every speed polygon, whatever its heading
     cp = ControlParams(max_speed=vmax, period=dt, double_integrator=True, max_accel=amax)
-    res = control_step(cp, (0.0, 0.0, 0.0), (gx, gy), obstacles=[Obstacle(1.0, 0.0, 0.0, 0.0, 0.3)],
-                       last_u=v)
+    res = Controller(cp).step(StepInput((0.0, 0.0, 0.0), (gx, gy),
+                                        obstacles=[Obstacle(1.0, 0.0, 0.0, 0.0, 0.3)], last_u=v))
     assert math.hypot(res.ax, res.ay) <= amax + 1e-9
     assert math.hypot(v[0] + res.ax * dt, v[1] + res.ay * dt) <= vmax + 1e-9
     assert (res.ux, res.uy) == pytest.approx((v[0] + res.ax * dt, v[1] + res.ay * dt), abs=1e-12)
@@ -175,7 +177,7 @@ def test_a_robot_at_full_speed_brakes_before_a_wall_in_its_way(amax):
     x, y, v = 0.0, 0.0, (vmax, 0.0)
     closest = math.inf
     for _ in range(600):
-        res = control_step(cp, (x, y, 0.0), (3.0, 0.0), shapes=[wall], last_u=v)
+        res = Controller(cp).step(StepInput((x, y, 0.0), (3.0, 0.0), shapes=[wall], last_u=v))
         assert res.status == STATUS_OK
         x, y, vx, vy = di.integrate(x, y, v[0], v[1], res.ax, res.ay, dt, vmax)
         v = (vx, vy)
@@ -196,7 +198,7 @@ def test_brake_stops_a_robot_at_its_acceleration_limit():
 
 def test_a_speed_polygon_face_the_velocity_is_beyond_is_not_pushed_further():
     v = (0.25, 0.0)  # beyond the face of a 0.22 m/s polygon turned away from it
-    rows = di.limit_rows(v, (0.0, 1.0), (0.0, 1.0), 0.22, 1.0, 0.05)
+    rows = di.accel_limit_rows(v, (0.0, 1.0), (0.0, 1.0), 0.22, 1.0, 0.05)
     assert all(nx * 0.0 + ny * 0.0 <= b for nx, ny, b in rows)  # a = 0 meets every row
     assert len(rows) == 2 * len(speed_rows(1.0, 0.0))
 
@@ -215,7 +217,7 @@ def test_a_slot_velocity_the_double_integrators_twist_allows_asks_no_braking_of_
     h, gx, gy, _ = ellipse_terms(px, py, e.cx, e.cy, e.alpha, e.a, e.b)
     assume(h > 0.0)
     assume(gx * (vel[0] - vel_e[0]) + gy * (vel[1] - vel_e[1]) >= -di.twist_gamma(cp) * h)
-    _, (_, _, bound) = di.ellipse_row((px, py), vel, e, gamma, amax, vmax, dt)
+    _, (_, _, bound) = di.ellipse_hocbf((px, py), vel, e, gamma, amax, vmax, dt)
     assert bound >= -TOL
 
 
@@ -335,9 +337,9 @@ def test_a_unicycle_with_max_accel_changes_its_command_by_at_most_max_accel_dt(
     """The last command one the robot could take (certified towards another goal at the same
     heading); whatever the new goal, the command moves by at most a_max dt."""
     p = dataclasses.replace(UNI, max_accel=amax)
-    before = control_step(UNI, (0.0, 0.0, theta), (hx, hy))
+    before = Controller(UNI).step(StepInput((0.0, 0.0, theta), (hx, hy)))
     last = (before.ux, before.uy)
-    res = control_step(p, (0.0, 0.0, theta), (gx, gy), last_u=last)
+    res = Controller(p).step(StepInput((0.0, 0.0, theta), (gx, gy), last_u=last))
     assert res.status == STATUS_OK
     assert math.hypot(res.ux - last[0], res.uy - last[1]) <= amax * p.period + 1e-9
 
@@ -348,13 +350,13 @@ def test_the_barrier_rows_win_over_a_unicycles_acceleration_rows():
     p = dataclasses.replace(UNI, max_accel=0.1)
     grow = p.offset + p.sampling_margin
     o = Obstacle(0.05 + 0.3 + grow + 0.002, 0.0, 0.0, 0.0, 0.3)  # 2 mm from the grown Ds
-    res = control_step(p, (0.0, 0.0, 0.0), (3.0, 0.0), obstacles=[o], last_u=(0.22, 0.0))
+    res = Controller(p).step(StepInput((0.0, 0.0, 0.0), (3.0, 0.0), obstacles=[o], last_u=(0.22, 0.0)))
     assert res.status == STATUS_ACCEL
     assert res.ux < 0.22 - 0.1 * p.period  # slowed by more than the acceleration rows allow
     _, row = obstacle_row_si(res.px, res.py, o._replace(ds=o.ds + grow), p.gamma_obstacle)
     assert row[0] * res.ux + row[1] * res.uy <= row[2] + 1e-9
-    without = control_step(dataclasses.replace(p, max_accel=None), (0.0, 0.0, 0.0), (3.0, 0.0),
-                           obstacles=[o], last_u=(0.22, 0.0))
+    without = Controller(dataclasses.replace(p, max_accel=None)).step(
+        StepInput((0.0, 0.0, 0.0), (3.0, 0.0), obstacles=[o], last_u=(0.22, 0.0)))
     assert (without.ux, without.uy) == pytest.approx((res.ux, res.uy))  # the same command
 
 

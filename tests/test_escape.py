@@ -1,4 +1,4 @@
-"""Issue 13 item 2: escape from hazards the robots cannot outrun.
+"""Escape from hazards the robots cannot outrun.
 
 The envelope (a forklift up to 1.5 x the robots' top speed, first seen at least 4 m away, room to
 step aside) ends with no contact, for a parked and a moving formation, from five bearings; where

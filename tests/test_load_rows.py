@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from agent import load_rows
 from agent.barriers import Obstacle, Partner
 from agent.body import footprint_of
-from agent.control import ControlParams, control_step
+from agent.control import Controller, ControlParams, StepInput
 from geometry.rigid import rigid_fit
 from geometry.shapes import box
 
@@ -101,8 +101,9 @@ def _pair_step(shapes, obstacles, goal_y):
     p = ControlParams()
     fp = footprint_of([(0.0, 0.0), (1.0, 0.0)], [(0.0, 0.0), (1.0, 0.0)],
                       [(0.0, goal_y), (1.0, goal_y)], 0, [(0.0, 0.0), (1.0, 0.0)], False)
-    return control_step(p, (0.0, 0.0, 0.0), (0.0, goal_y), obstacles=obstacles, shapes=shapes,
-                        partners=[Partner(1.0, 0.0, 0.0, 0.0)], footprint=fp)
+    return Controller(p).step(StepInput((0.0, 0.0, 0.0), (0.0, goal_y), obstacles=obstacles,
+                                        shapes=shapes, partners=[Partner(1.0, 0.0, 0.0, 0.0)],
+                                        footprint=fp))
 
 
 def test_a_member_does_not_carry_the_load_onto_a_shelf_corner_between_it_and_its_partner():
@@ -137,9 +138,9 @@ def test_a_double_integrator_brakes_before_its_load_meets_a_shelf_corner():
 
     def step(post_y):
         post = box("post", (0.5, post_y), (0.05, 0.05), 0.0, 0.2)
-        return control_step(p, (0.0, 0.0, 0.0), (0.0, 5.0), shapes=[post],
-                            partners=[Partner(1.0, 0.0, 0.0, 0.2)], last_u=(0.0, 0.2),
-                            footprint=fp)
+        return Controller(p).step(StepInput((0.0, 0.0, 0.0), (0.0, 5.0), shapes=[post],
+                                            partners=[Partner(1.0, 0.0, 0.0, 0.2)],
+                                            last_u=(0.0, 0.2), footprint=fp))
 
     assert step(0.125).ay < -0.2
     assert step(2.0).ay >= 0.0

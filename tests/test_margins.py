@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from agent import margins
 from agent.barriers import Obstacle
 from agent.config import build_agent_configs, config_from_dict, config_to_dict
-from agent.control import ControlParams, control_step
+from agent.control import Controller, ControlParams, StepInput
 from agent.inputs import carry_pose
 from formation.cli import main
 from scenario import Bounds, ScenarioError, load_scenario
@@ -120,7 +120,7 @@ def _stop_distance(params: ControlParams) -> float:
     x, y, closest = 0.0, 0.0, math.inf
     obstacle = Obstacle(2.0, 0.0, 0.0, 0.0, 0.5)
     for _ in range(400):
-        res = control_step(params, (x, y, 0.0), (4.0, 0.0), obstacles=[obstacle])
+        res = Controller(params).step(StepInput((x, y, 0.0), (4.0, 0.0), obstacles=[obstacle]))
         x, y = x + res.ux * params.period, y + res.uy * params.period
         closest = min(closest, math.hypot(x - 2.0, y))
     return closest
@@ -191,18 +191,19 @@ def test_a_bad_bounds_option_is_one_line_and_exit_2(tmp_path, capsys, spec, culp
 
 def test_the_band_narrows_by_the_pairs_margin_never_below_half_of_it():
     from agent.barriers import Neighbour
-    from agent.control import NARROW_CAP, build_rows
+    from agent.control import ROW_TUNING, StepInput, build_rows
 
     plain = ControlParams(epsilon=0.04)
     kept = dataclasses.replace(plain, bounds=LAB_BOUNDS)
     edge = [Neighbour(0.5 + 0.9 * 0.04, 0.0, 0.0, 0.0, 0.5)]  # 0.9 epsilon out: inside the band
-    assert build_rows(plain, 0.0, 0.0, 0.0, (0.0, 0.0), edge).h_formation > 0.0
+    assert build_rows(plain, (0.0, 0.0), 0.0, (0.0, 0.0), StepInput(neighbours=edge)).h_formation > 0.0
     # measured with both ends' noise (2 x 8.5 mm), the band the rows keep is that much narrower
-    assert build_rows(kept, 0.0, 0.0, 0.0, (0.0, 0.0), edge).h_formation < 0.0
-    # closing fast, the narrowing stops at NARROW_CAP epsilon: the band is never empty
-    fast = build_rows(kept, 0.0, 0.0, 0.0, (0.0, 0.0),
-                      [Neighbour(0.5 + 0.4 * 0.04, 0.0, -0.22, 0.0, 0.5)], last_u=(0.22, 0.0))
-    assert fast.h_formation > 0.0 and NARROW_CAP < 1.0
+    assert build_rows(kept, (0.0, 0.0), 0.0, (0.0, 0.0), StepInput(neighbours=edge)).h_formation < 0.0
+    # closing fast, the narrowing stops at narrow_cap epsilon: the band is never empty
+    fast = build_rows(kept, (0.0, 0.0), 0.0, (0.0, 0.0),
+                      StepInput(neighbours=[Neighbour(0.5 + 0.4 * 0.04, 0.0, -0.22, 0.0, 0.5)],
+                                last_u=(0.22, 0.0)))
+    assert fast.h_formation > 0.0 and ROW_TUNING.narrow_cap < 1.0
 
 
 def test_an_agent_carries_its_pose_by_its_measured_age_up_to_the_declared_latency():

@@ -6,11 +6,10 @@ from pathlib import Path
 
 import pytest
 
-from agent.control import control_step
+from agent.control import Controller
 from experiments.method_bench import bench_method, format_methods, parse_methods
 from formation.cli import main
 from scenario import load_scenario
-from simulator import inprocess
 
 SCENARIO = Path(__file__).parent / "scenarios" / "rigid-turn-180-dt005.yaml"
 
@@ -24,6 +23,7 @@ def test_methods_are_parsed_and_a_wrong_one_is_named():
 
 
 def test_every_member_step_is_timed_and_the_formation_qp_only_under_rigid():
+    step = Controller.step
     robots = len(load_scenario(SCENARIO).robot_ids)
     rigid = bench_method(SCENARIO, "rigid", duration=1.0)
     thesis = bench_method(SCENARIO, "thesis", duration=1.0)
@@ -31,7 +31,7 @@ def test_every_member_step_is_timed_and_the_formation_qp_only_under_rigid():
     assert rigid["formation_qp"]["median_us"] is not None
     assert thesis["formation_qp"]["median_us"] is None
     assert rigid["formation_qp"]["median_us"] > 0.0
-    assert inprocess.control_step is control_step  # the timer is gone after the run
+    assert Controller.step is step  # the timer is gone after the run
     table = format_methods({"scenario": str(SCENARIO), "methods": [rigid, thesis]})
     assert "rigid" in table and "thesis" in table
 

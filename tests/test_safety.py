@@ -1,4 +1,4 @@
-"""Issue 13, control design: hard separation with a sound split, escape from moving hazards,
+"""Control design: hard separation with a sound split, escape from moving hazards,
 unicycle bodies through the headings, all-to-all with the same formation-level rules."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from agent import barriers, unicycle
 from agent.barriers import Neighbour, Obstacle, Partner
-from agent.control import ControlParams, FormationView, control_step, escape_command
+from agent.control import Controller, ControlParams, FormationView, StepInput, escape_command
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, solve_exact
 from formation.cli import main
 from leader.ellipse import Ellipse
@@ -38,22 +38,23 @@ def _both_step(p: ControlParams, pose_i, pose_j, v_i, v_j, goal_i, goal_j):
     separation partner (its control point, last velocity and heading, as its state gives)."""
     ci = unicycle.control_point(*pose_i, p.offset)
     cj = unicycle.control_point(*pose_j, p.offset)
-    ri = control_step(p, pose_i, goal_i, partners=[Partner(*cj, *v_j, pose_j[2])], last_u=v_i)
-    rj = control_step(p, pose_j, goal_j, partners=[Partner(*ci, *v_i, pose_i[2])], last_u=v_j)
+    ri = Controller(p).step(StepInput(pose_i, goal_i, partners=[Partner(*cj, *v_j, pose_j[2])], last_u=v_i))
+    rj = Controller(p).step(StepInput(pose_j, goal_j, partners=[Partner(*ci, *v_i, pose_i[2])], last_u=v_j))
     return ri, rj
 
 
 @settings(max_examples=150, deadline=None)
-@given(coord, coord, st.floats(0.0, 0.3), angle, speed, angle, speed, angle, coord, coord, coord, coord)
+@given(coord, coord, st.floats(0.0, 0.3), angle, speed, angle, speed, angle, st.tuples(coord, coord),
+       st.tuples(coord, coord))
 def test_two_robots_solving_at_once_never_get_closer_than_two_radii(
-    x, y, gap, bearing, si, ai, sj, aj, gxi, gyi, gxj, gyj,
+    x, y, gap, bearing, si, ai, sj, aj, goal_i, goal_j,
 ):
     # Any start at least two radii apart, any last velocities (consistent or not), any goals
     # (the nominal command drives them anywhere, through each other too).
     pi = (x, y, 0.0)
     pj = (x + (DSEP + gap) * math.cos(bearing), y + (DSEP + gap) * math.sin(bearing), 0.0)
     vi, vj = _velocity(si, ai), _velocity(sj, aj)
-    ri, rj = _both_step(SI, pi, pj, vi, vj, (gxi * 3, gyi * 3), (gxj * 3, gyj * 3))
+    ri, rj = _both_step(SI, pi, pj, vi, vj, (goal_i[0] * 3, goal_i[1] * 3), (goal_j[0] * 3, goal_j[1] * 3))
     if STATUS_FALLBACK in (ri.status, rj.status) or STATUS_FAILED in (ri.status, rj.status):
         return  # a hard row could not be met: counted, and not what this property is about
     xi, yi = pi[0] + ri.ux * DT, pi[1] + ri.uy * DT
@@ -176,7 +177,7 @@ def test_escape_is_the_same_vector_for_every_member():
     noms = set()
     for k, (x, y) in enumerate(members):  # each member at its slot of the formation's body
         fp = footprint_of(members, members, members, k)
-        r = control_step(p, (x, y, 0.0), (x, y), obstacles=forklift, view=view, footprint=fp)
+        r = Controller(p).step(StepInput((x, y, 0.0), (x, y), obstacles=forklift, view=view, footprint=fp))
         noms.add((round(r.nominal_ux, 12), round(r.nominal_uy, 12), r.escape))
     assert len(noms) == 1 and next(iter(noms))[2]
 

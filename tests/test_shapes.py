@@ -11,7 +11,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from agent import barriers
-from agent.control import ControlParams, build_rows, control_step
+from agent.control import Controller, ControlParams, StepInput, build_rows
 from agent.qp import qpsolvers_solver, solve_exact
 from geometry import shapes
 from geometry.shapes import box, box_distance, path_clearance, segment, segment_distance, shape_h
@@ -158,7 +158,7 @@ def test_qp_with_shape_rows_agrees_with_the_qpsolvers_oracle():
         if min(shapes.shape_distance(px, py, w)[0] - w.ds for w in walls) < 0.0:
             continue
         nux, nuy = rng.uniform(-0.22, 0.22), rng.uniform(-0.22, 0.22)
-        rows = build_rows(params, px, py, 0.0, (nux, nuy), shapes=walls)
+        rows = build_rows(params, (px, py), 0.0, (nux, nuy), StepInput(shapes=walls))
         all_rows = rows.limits + rows.hard + list(rows.contact)  # shapes are contact rows
         mine = solve_exact(nux, nuy, all_rows)
         ref = oracle(nux, nuy, all_rows)
@@ -177,7 +177,7 @@ def test_driving_straight_at_a_wall_stops_short_of_ds():
     wall = segment("w", (-1.0, 1.0), (1.0, 1.0), 0.3)
     x, y = 0.05, 0.0
     for _ in range(400):
-        res = control_step(params, (x, y, 0.0), (0.05, 3.0), shapes=[wall])
+        res = Controller(params).step(StepInput((x, y, 0.0), (0.05, 3.0), shapes=[wall]))
         x, y = x + res.ux * 0.05, y + res.uy * 0.05
         assert 1.0 - y >= 0.3 - 1e-9
     assert 1.0 - y == pytest.approx(0.3, abs=0.01)

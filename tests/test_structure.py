@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from agent.control import ControlParams, control_step
+from agent.control import Controller, ControlParams, StepInput
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -74,10 +74,11 @@ def test_product_code_does_not_import_the_test_helpers() -> None:
 
 
 def test_the_control_step_reads_no_clock_unless_given_one() -> None:
-    pure = control_step(ControlParams(), (0.0, 0.0, 0.0), (1.0, 0.5))
+    pure = Controller(ControlParams()).step(StepInput((0.0, 0.0, 0.0), (1.0, 0.5)))
     assert pure.solve_us == 0.0
     ticks = iter([1_000, 6_000])
-    timed = control_step(ControlParams(), (0.0, 0.0, 0.0), (1.0, 0.5), clock=lambda: next(ticks))
+    timed = Controller(ControlParams(), clock=lambda: next(ticks)).step(
+        StepInput((0.0, 0.0, 0.0), (1.0, 0.5)))
     assert timed.solve_us == pytest.approx(5.0)
     assert (timed.ux, timed.uy) == (pure.ux, pure.uy)
 

@@ -26,7 +26,7 @@ def test_eq_6_2_and_its_inverse_round_trip(ux, uy, theta):
 @settings(max_examples=200, deadline=None)
 @given(speed, speed, angle)
 def test_limit_rows_are_exactly_the_speed_and_turn_rate_limits(ux, uy, theta):
-    rows = unicycle.limit_rows(theta, 0.05, 0.22, 2.84)
+    rows = unicycle.drive_limit_rows(theta, 0.05, 0.22, 2.84)
     v, w = unicycle.to_unicycle(ux, uy, theta, 0.05)
     inside = all(ax * ux + ay * uy <= b + 1e-12 for ax, ay, b in rows)
     assert inside == (abs(v) <= 0.22 + 1e-12 and abs(w) <= 2.84 + 1e-10)

@@ -18,11 +18,12 @@ from hypothesis import strategies as st
 from agent import unicycle
 from agent.barriers import Neighbour
 from agent.control import (
-    NARROW_CAP,
+    ROW_TUNING,
     body_df,
     heading_narrowing,
 )
 from agent.inputs import predict_state
+from geometry.angles import LEFT_BIAS
 from scenario import load_scenario
 from simulator.inprocess import SimOptions, simulate
 
@@ -78,10 +79,10 @@ def test_a_robot_pulled_towards_a_slot_near_its_body_turns_one_way_until_its_poi
 def test_the_turn_to_make_is_the_aim_and_at_most_a_half_turn_and_the_keep_beyond(err, turning):
     turn = unicycle.turn_error(err, turning)
     assert math.cos(turn - err) == pytest.approx(1.0)  # the same aim
-    assert abs(turn) <= math.pi + max(unicycle.STEER_KEEP, unicycle.STEER_LEFT_BIAS) + 1e-9
-    if abs(turning) < unicycle.STEER_KEEP_RATE:  # at rest: the short way, left near behind
+    assert abs(turn) <= math.pi + max(unicycle.STEER.keep, LEFT_BIAS) + 1e-9
+    if abs(turning) < unicycle.STEER.keep_rate:  # at rest: the short way, left near behind
         assert unicycle.turn_error(err) == turn
-        assert -math.pi + unicycle.STEER_LEFT_BIAS <= turn <= math.pi + unicycle.STEER_LEFT_BIAS + 1e-9
+        assert -math.pi + LEFT_BIAS <= turn <= math.pi + LEFT_BIAS + 1e-9
 
 
 def test_a_robot_turning_keeps_its_way_round_an_aim_near_behind_and_leaves_it_beyond():
@@ -134,7 +135,8 @@ def test_a_look_ahead_edge_inside_the_narrowed_band_keeps_the_body_edge_inside_t
         x, y, ti, dir_, tj, frac, df, eps):
     look = 0.05
     narrow = heading_narrowing(ti, tj, look, eps)
-    assert 0.0 <= narrow <= NARROW_CAP * eps < eps  # the band on the look-ahead points never empties
+    cap = ROW_TUNING.narrow_cap
+    assert 0.0 <= narrow <= cap * eps < eps  # the band on the look-ahead points never empties
     heading_term = look * math.hypot(math.cos(ti) - math.cos(tj), math.sin(ti) - math.sin(tj))
     dist = df + frac * (eps - narrow)  # a look-ahead edge anywhere inside the narrowed band
     si, sj = (x, y), (x + dist * math.cos(dir_), y + dist * math.sin(dir_))
@@ -143,7 +145,7 @@ def test_a_look_ahead_edge_inside_the_narrowed_band_keeps_the_body_edge_inside_t
     body = math.dist(bi, bj)
     # the bodies keep the band by the narrowing, plus whatever heading term the cap leaves
     assert abs(body - df) <= eps + max(0.0, heading_term - narrow) + 1e-12
-    if heading_term <= NARROW_CAP * eps:
+    if heading_term <= ROW_TUNING.narrow_cap * eps:
         assert abs(body - df) <= eps + 1e-12
 
 

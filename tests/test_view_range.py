@@ -74,4 +74,4 @@ def test_the_step_inputs_keep_exactly_the_formations_the_leader_hands_on(own, ot
 
 
 def test_every_formation_level_rule_looks_no_farther_than_the_view_range():
-    assert control.TIEBREAK_RANGE < VIEW_RANGE
+    assert control.TUNING.tiebreak.range < VIEW_RANGE
