@@ -44,6 +44,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .angles import LEFT_BIAS, wrap_angle, wrap_left
 from .shapes import Shape
 
 Point = tuple[float, float]
@@ -85,8 +86,8 @@ class Search:
 class Waypoints:
     """How a lattice path becomes waypoints, and the load's sample points."""
 
-    # as agent.body.TURN_LEFT_BIAS: a turn this near half a turn goes left (the rigid motion's way)
-    direct_left: float = math.radians(20.0)
+    # a turn this near half a turn goes left, as the rigid motion turns (geometry.angles.wrap_left)
+    direct_left: float = LEFT_BIAS
     merge_turn: float = math.radians(80.0)  # turns in place up to this are one waypoint (more: fewer)
     interior: float = 0.3  # [m] the load's inside points this apart (less: smaller things seen, slower)
 
@@ -502,7 +503,7 @@ def route_of(sr: _Search, states: Sequence[int], start: Pose3, goal: Pose3) -> t
             p = (x, y, lat.theta(k))
             if pts and p == pts[-1]:
                 continue
-            step = abs(_wrap(p[2] - pts[-1][2])) if pts and p[:2] == pts[-1][:2] else -1.0
+            step = abs(wrap_angle(p[2] - pts[-1][2])) if pts and p[:2] == pts[-1][:2] else -1.0
             if step >= 0.0 and 0.0 <= turned < WAYPOINTS.merge_turn:
                 pts[-1] = p  # one more heading step in place: one waypoint
                 turned += step
@@ -528,10 +529,6 @@ def _smooth(sr: _Search, pts: list[Pose3]) -> tuple[Pose3, ...]:
         out.append(pts[b])
         a = b
     return tuple(out)
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def _same(a: float, b: float, lat: Lattice) -> bool:
@@ -666,7 +663,7 @@ def direct_clear(sr: _Search, start: Pose3, goal: Pose3) -> bool:
     at most h / 2 and half a heading step apart, at a lattice state that may move and turn."""
     lat = sr.lat
     left = WAYPOINTS.direct_left
-    turn = (goal[2] - start[2] + math.pi - left) % (2.0 * math.pi) - math.pi + left
+    turn = wrap_left(goal[2] - start[2], left)
     dth = 2.0 * math.pi / lat.headings
     steps = max(1, int(math.ceil(max(2.0 * math.dist(start[:2], goal[:2]) / lat.h,
                                      2.0 * abs(turn) / dth))))
