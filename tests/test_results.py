@@ -81,6 +81,7 @@ def test_a_stored_command_runs_with_this_interpreter_into_the_given_folder(tmp_p
         results.argv_of("make demo")
 
 
+@pytest.mark.integration  # provenance asks git for the commit
 def test_a_rerun_stores_the_new_figures_and_this_machine_as_provenance(tmp_path: Path):
     shutil.copy(results.RESULTS_DIR / "demo.json", tmp_path / "demo.json")
     seen = []
