@@ -99,6 +99,50 @@ class Flood:
             time.sleep(0.002)
 
 
+def _start_agents(configs: dict, stats: dict, logs: dict, tmp_path, procs: dict) -> None:
+    """Every agent of AGENTS as a process of its own, each with its extra options, into
+    ``procs`` as it starts (so that a failure half way still reaps those started)."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    for (prefix, rid), extra in AGENTS.items():
+        path = tmp_path / f"{prefix}-{rid}.yaml"
+        save_config(configs[prefix][rid], path)
+        procs[(prefix, rid)] = subprocess.Popen(
+            [sys.executable, "-m", "agent", "--config", str(path),
+             "--stats", str(stats[(prefix, rid)]), "--no-trace", *extra],
+            env=env, stdin=subprocess.DEVNULL, stderr=logs[(prefix, rid)],
+            start_new_session=True)
+
+
+def _signal_under_the_flood(flood: Flood, procs: dict, moving, cmds: dict) -> dict:
+    """Once every agent commands motion, flood for a while and stop the agents, half with
+    SIGTERM and half with SIGINT, while the flood goes on; their exit codes."""
+    for (_prefix, key), pub in flood.pubs.items():
+        if key.endswith("/pose"):
+            wait_for_matching(pub, TIMEOUT_S)
+    flood.start()
+    try:
+        deadline = time.monotonic() + TIMEOUT_S
+        while not all(moving(a) for a in AGENTS):  # every agent commands motion
+            assert time.monotonic() < deadline, {a: cmds[a][-2:] for a in AGENTS if not moving(a)}
+            time.sleep(0.05)
+        flood.flooding.set()
+        time.sleep(1.5)
+        for k, p in enumerate(procs.values()):  # stop them while the flood goes on
+            p.send_signal(signal.SIGTERM if k % 2 == 0 else signal.SIGINT)
+        return {a: p.wait(TIMEOUT_S) for a, p in procs.items()}
+    finally:
+        flood.stop()
+
+
+def _reap(procs: dict, logs: dict) -> None:
+    for p in procs.values():
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+    for f in logs.values():
+        f.close()
+
+
 def test_sigterm_and_sigint_under_a_flood_end_in_zero_and_counters_for_every_agent(
         router, tmp_path):
     scenario = load_scenario(SCENARIO)
@@ -106,7 +150,6 @@ def test_sigterm_and_sigint_under_a_flood_end_in_zero_and_counters_for_every_age
     configs = {prefix: build_agent_configs(scenario, prefix=prefix, zenoh=zs)
                for prefix in ("ls", "rt")}
     starts = {r.id: r.start[:2] for r in scenario.robots}
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
     conf = zconf.make_config("client", connect=[router.endpoint], connect_timeout_s=TIMEOUT_S)
     lock = threading.Lock()
     cmds: dict[tuple[str, str], list[Cmd]] = {a: [] for a in AGENTS}
@@ -127,42 +170,15 @@ def test_sigterm_and_sigint_under_a_flood_end_in_zero_and_counters_for_every_age
         subs = [session.declare_subscriber(keys.all_robots_key(prefix, keys.CMD), on_cmd)
                 for prefix in ("ls", "rt")]
         try:
-            for (prefix, rid), extra in AGENTS.items():
-                path = tmp_path / f"{prefix}-{rid}.yaml"
-                save_config(configs[prefix][rid], path)
-                procs[(prefix, rid)] = subprocess.Popen(
-                    [sys.executable, "-m", "agent", "--config", str(path),
-                     "--stats", str(stats[(prefix, rid)]), "--no-trace", *extra],
-                    env=env, stdin=subprocess.DEVNULL, stderr=logs[(prefix, rid)],
-                    start_new_session=True)
+            _start_agents(configs, stats, logs, tmp_path, procs)
             flood = Flood(session, starts)
-            for (_prefix, key), pub in flood.pubs.items():
-                if key.endswith("/pose"):
-                    wait_for_matching(pub, TIMEOUT_S)
-            flood.start()
-            try:
-                deadline = time.monotonic() + TIMEOUT_S
-                while not all(moving(a) for a in AGENTS):  # every agent commands motion
-                    assert time.monotonic() < deadline, {a: cmds[a][-2:] for a in AGENTS if not moving(a)}
-                    time.sleep(0.05)
-                flood.flooding.set()
-                time.sleep(1.5)
-                for k, p in enumerate(procs.values()):  # stop them while the flood goes on
-                    p.send_signal(signal.SIGTERM if k % 2 == 0 else signal.SIGINT)
-                codes = {a: p.wait(TIMEOUT_S) for a, p in procs.items()}
-            finally:
-                flood.stop()
+            codes = _signal_under_the_flood(flood, procs, moving, cmds)
             time.sleep(0.5)  # the last commands cross the router
             assert flood.sent > 10_000
         finally:
             for sub in subs:
                 sub.undeclare()
-            for p in procs.values():
-                if p.poll() is None:
-                    p.kill()
-                    p.wait()
-            for f in logs.values():
-                f.close()
+            _reap(procs, logs)
     errors = {a: (tmp_path / f"{a[0]}-{a[1]}.log").read_text(errors="replace") for a in AGENTS}
     assert codes == dict.fromkeys(AGENTS, 0), errors
     for a in AGENTS:

@@ -240,6 +240,41 @@ def lines_of(text: str, robot: str) -> list[str]:
 # ----------------------------------------------------------------------------- end to end
 
 
+def check_installed(d: Path, rid: str, router: str) -> None:
+    """Robot ``rid``'s directory ``d`` holds what deploy installs, its files private, its venv
+    the one the agent imports from."""
+    for name in ("robot.yaml", "zenoh.json5", "run-agent.sh", "formation-agent.service",
+                 ".deploy-stamp"):
+        assert (d / name).is_file(), name
+    assert os.access(d / "run-agent.sh", os.X_OK)
+    cfg = yaml.safe_load((d / "robot.yaml").read_text())
+    assert cfg["robot_id"] == rid and cfg["zenoh"]["connect"] == [router]
+    check_json5((d / "zenoh.json5").read_text())
+    # each robot logs in as itself, its base's bridge too; the files are private
+    for name in ("zenoh.json5", "zenoh-bridge.json5"):
+        assert zconf.read_auth_file(d / name).auth.user == rid
+        assert (d / name).stat().st_mode & 0o777 == 0o600
+    assert list((d / "wheels").glob("formation_cbf-*.whl"))
+    # the wheel is installed in the venv, which is the one the agent imports from
+    py = d / "venv" / "bin" / "python"
+    env = {"PATH": os.environ.get("PATH", ""), **robot_env()}
+    where = subprocess.run(
+        [str(py), "-c", "import agent.base, deploy; print(agent.base.__file__)"],
+        capture_output=True, text=True, env=env, cwd="/", check=True).stdout.strip()
+    assert where.startswith(str(d / "venv")), where
+    assert (d / "venv" / "pyvenv.cfg").read_text().count("include-system-site-packages = true")
+
+
+def check_secure(secure: Path) -> None:
+    """The camera PC's credentials: one private file per user of the fleet."""
+    assert secure.stat().st_mode & 0o777 == 0o700
+    assert sorted(p.name for p in secure.iterdir()) == [
+        "camera.json5", "manager.json5", "router.json5", "users.txt", "viewer.json5"]
+    assert all(p.stat().st_mode & 0o777 == 0o600 for p in secure.iterdir())
+    assert sorted(ln.split(":")[0] for ln in (secure / "users.txt").read_text().splitlines()) == [
+        "camera", "manager", "r1", "r2", "r3", "viewer"]
+
+
 def test_deploy_status_start_stop_and_redeploy_over_real_ssh(
         fleet: dict, capsys: pytest.CaptureFixture) -> None:
     inv, scen, dirs = fleet["inventory"], fleet["scenario"], fleet["dirs"]
@@ -253,33 +288,9 @@ def test_deploy_status_start_stop_and_redeploy_over_real_ssh(
     assert "deploy: 3 of 3 robots ok" in out
 
     for rid, d in zip(("r1", "r2", "r3"), dirs, strict=True):
-        for name in ("robot.yaml", "zenoh.json5", "run-agent.sh", "formation-agent.service",
-                     ".deploy-stamp"):
-            assert (d / name).is_file(), name
-        assert os.access(d / "run-agent.sh", os.X_OK)
-        cfg = yaml.safe_load((d / "robot.yaml").read_text())
-        assert cfg["robot_id"] == rid and cfg["zenoh"]["connect"] == [fleet["router"]]
-        check_json5((d / "zenoh.json5").read_text())
-        # each robot logs in as itself, its base's bridge too; the files are private
-        for name in ("zenoh.json5", "zenoh-bridge.json5"):
-            assert zconf.read_auth_file(d / name).auth.user == rid
-            assert (d / name).stat().st_mode & 0o777 == 0o600
-        assert list((d / "wheels").glob("formation_cbf-*.whl"))
-        # the wheel is installed in the venv, which is the one the agent imports from
-        py = d / "venv" / "bin" / "python"
-        env = {"PATH": os.environ.get("PATH", ""), **robot_env()}
-        where = subprocess.run(
-            [str(py), "-c", "import agent.base, deploy; print(agent.base.__file__)"],
-            capture_output=True, text=True, env=env, cwd="/", check=True).stdout.strip()
-        assert where.startswith(str(d / "venv")), where
-        assert (d / "venv" / "pyvenv.cfg").read_text().count("include-system-site-packages = true")
+        check_installed(d, rid, fleet["router"])
     secure = fleet["tmp"] / "secure"
-    assert secure.stat().st_mode & 0o777 == 0o700
-    assert sorted(p.name for p in secure.iterdir()) == [
-        "camera.json5", "manager.json5", "router.json5", "users.txt", "viewer.json5"]
-    assert all(p.stat().st_mode & 0o777 == 0o600 for p in secure.iterdir())
-    assert sorted(ln.split(":")[0] for ln in (secure / "users.txt").read_text().splitlines()) == [
-        "camera", "manager", "r1", "r2", "r3", "viewer"]
+    check_secure(secure)
 
     code, out = run_cli(capsys, inv, scen, "--status")
     assert code == 0, out

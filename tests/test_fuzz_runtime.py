@@ -120,44 +120,8 @@ def test_hostile_payloads_on_every_subscribed_key_are_dropped_and_counted_never_
         with zenoh.open(conf) as session:
             world = World(scenario, session, WorldOptions())
             try:
-                targets = {  # key -> class: what r1, r2 and the world subscribe to
-                    keys.pose_key(P, "r1"): keys.POSE, keys.pose_key(P, "r2"): keys.POSE,
-                    keys.state_key(P, "r1"): keys.STATE, keys.state_key(P, "r2"): keys.STATE,
-                    keys.state_key(P, "r3"): keys.STATE, keys.state_key(P, "r4"): keys.STATE,
-                    # r2 leads F1: in real time it hears F2's ellipse only once a valid beacon
-                    # says F2 is near (leader.listen); the beacon, the same EllipseMsg, comes
-                    # through a wildcard
-                    keys.beacon_key(P, "F2"): keys.BEACON,
-                    keys.others_key(P, "F1"): keys.OTHERS,
-                    keys.obstacles_key(P): keys.OBSTACLES,
-                    keys.cmd_key(P, "s1"): keys.CMD, keys.cmd_key(P, "s3"): keys.CMD,
-                }
-                pubs = {k: session.declare_publisher(
-                    k, congestion_control=zenoh.CongestionControl.BLOCK) for k in targets}
-                for k, pub in pubs.items():
-                    if keys.key_class(P, k) != keys.CMD:
-                        wait_for_matching(pub, TIMEOUT_S)  # the agents have subscribed
-                rng = random.Random(20240611)
-                sent: dict[str, int] = {}
-                for k, cls in targets.items():
-                    for data in hostile(cls, rng, PER_KEY):
-                        pubs[k].put(data)
-                        sent[k] = sent.get(k, 0) + 1
-                        time.sleep(0.001)  # the router drops on congestion; stay well below it
-                # still alive and still commanding (zero: no valid pose ever came)
-                t_fuzz = time.monotonic()
-                deadline = t_fuzz + TIMEOUT_S
-                while time.monotonic() < deadline:
-                    latest = dict(world.inbox.latest)
-                    if all(r in latest and latest[r][1] > t_fuzz for r in ("r1", "r2")):
-                        break
-                    time.sleep(0.05)
-                assert all(p.poll() is None for p in procs.values())
-                assert all(latest[r][1] > t_fuzz and latest[r][0].v == 0.0 for r in ("r1", "r2"))
-                deadline = time.monotonic() + TIMEOUT_S
-                while world.inbox.malformed < 2 * PER_KEY and time.monotonic() < deadline:
-                    time.sleep(0.05)
-                assert 0.9 * 2 * PER_KEY <= world.inbox.malformed <= 2 * PER_KEY
+                pubs, sent = _fuzz(session)
+                _check_alive_and_counting(world, procs)
                 time.sleep(2.0)  # the agents' queues drain too (they get SIGTERM next)
                 for pub in pubs.values():
                     pub.undeclare()
@@ -174,6 +138,59 @@ def test_hostile_payloads_on_every_subscribed_key_are_dropped_and_counted_never_
                 p.kill()
                 p.wait()
 
+    _check_counters(tmp_path, sent)
+
+
+def _fuzz(session: zenoh.Session) -> tuple[dict, dict[str, int]]:
+    """Hostile payloads on every key r1, r2 and the world subscribe to; the publishers and how
+    many went out per key."""
+    targets = {  # key -> class: what r1, r2 and the world subscribe to
+        keys.pose_key(P, "r1"): keys.POSE, keys.pose_key(P, "r2"): keys.POSE,
+        keys.state_key(P, "r1"): keys.STATE, keys.state_key(P, "r2"): keys.STATE,
+        keys.state_key(P, "r3"): keys.STATE, keys.state_key(P, "r4"): keys.STATE,
+        # r2 leads F1: in real time it hears F2's ellipse only once a valid beacon
+        # says F2 is near (leader.listen); the beacon, the same EllipseMsg, comes
+        # through a wildcard
+        keys.beacon_key(P, "F2"): keys.BEACON,
+        keys.others_key(P, "F1"): keys.OTHERS,
+        keys.obstacles_key(P): keys.OBSTACLES,
+        keys.cmd_key(P, "s1"): keys.CMD, keys.cmd_key(P, "s3"): keys.CMD,
+    }
+    pubs = {k: session.declare_publisher(
+        k, congestion_control=zenoh.CongestionControl.BLOCK) for k in targets}
+    for k, pub in pubs.items():
+        if keys.key_class(P, k) != keys.CMD:
+            wait_for_matching(pub, TIMEOUT_S)  # the agents have subscribed
+    rng = random.Random(20240611)
+    sent: dict[str, int] = {}
+    for k, cls in targets.items():
+        for data in hostile(cls, rng, PER_KEY):
+            pubs[k].put(data)
+            sent[k] = sent.get(k, 0) + 1
+            time.sleep(0.001)  # the router drops on congestion; stay well below it
+    return pubs, sent
+
+
+def _check_alive_and_counting(world: World, procs: dict[str, subprocess.Popen]) -> None:
+    """After the fuzz: both agents still alive and commanding (zero: no valid pose ever came),
+    and the world counted the malformed commands it was sent."""
+    t_fuzz = time.monotonic()
+    deadline = t_fuzz + TIMEOUT_S
+    while time.monotonic() < deadline:
+        latest = dict(world.inbox.latest)
+        if all(r in latest and latest[r][1] > t_fuzz for r in ("r1", "r2")):
+            break
+        time.sleep(0.05)
+    assert all(p.poll() is None for p in procs.values())
+    assert all(latest[r][1] > t_fuzz and latest[r][0].v == 0.0 for r in ("r1", "r2"))
+    deadline = time.monotonic() + TIMEOUT_S
+    while world.inbox.malformed < 2 * PER_KEY and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert 0.9 * 2 * PER_KEY <= world.inbox.malformed <= 2 * PER_KEY
+
+
+def _check_counters(tmp_path: Path, sent: dict[str, int]) -> None:
+    """Each agent's counters: every payload that reached it dropped as malformed."""
     def expected(rid: str) -> dict[str, int]:
         subs = set(json.loads((tmp_path / f"{rid}.json").read_text())["subscriptions"])
         out: dict[str, int] = {}

@@ -146,6 +146,41 @@ class RealtimeAttacker(Attacker):
     REPLAY_S = 2.0
     FORGE_S = 1.0
 
+    def wait_for_commands(self, session: zenoh.Session) -> None:
+        """Until every robot has commanded once (or the attack is stopped)."""
+        lock = threading.Lock()
+        commanding: set[str] = set()
+
+        def on_cmd(sample: zenoh.Sample) -> None:
+            with lock:
+                commanding.add(str(sample.key_expr).split("/")[-2])
+
+        cmd_sub = session.declare_subscriber(keys.all_robots_key(P, keys.CMD), on_cmd)
+        while not self._stop.is_set():
+            with lock:
+                if commanding.issuperset(self.robots):
+                    break
+            time.sleep(0.02)
+        cmd_sub.undeclare()
+
+    def replay_and_forge(self, pubs: dict, r: str, seen: tuple, forge: bool) -> None:
+        """Robot ``r``'s genuine poses older than REPLAY_S put again, and while ``forge`` a pose
+        far away and a state at an impossible speed; ``seen``: the lock, the genuine poses'
+        history and the latest genuine pose per robot."""
+        lock, history, latest = seen
+        now, mono = time.time(), time.monotonic()
+        with lock:
+            due = []
+            while history[r] and history[r][0][0] <= mono - self.REPLAY_S:
+                due.append(history[r].popleft()[1])
+            last = latest[r]
+        for data in due:
+            self.put(pubs, keys.pose_key(P, r), data, "old_pose")
+        if forge:
+            self.put(pubs, keys.pose_key(P, r), encode(Pose(1e9, 1e9, 0.0, now)), "forged_pose")
+            self.put(pubs, keys.state_key(P, r), encode(State(last.x, last.y, 1e6, 0.0, now)),
+                     "forged_state")
+
     def attack(self, session: zenoh.Session) -> None:
         lock = threading.Lock()
         history: dict[str, deque[tuple[float, bytes]]] = {r: deque() for r in self.robots}
@@ -163,18 +198,9 @@ class RealtimeAttacker(Attacker):
                     history[rid].append((time.monotonic(), data))
                     latest[rid] = pose
 
-        commanding: set[str] = set()
-
-        def on_cmd(sample: zenoh.Sample) -> None:
-            with lock:
-                commanding.add(str(sample.key_expr).split("/")[-2])
-
         # first wait for every agent's commands: a pose subscriber of ours before the agents'
         # would satisfy the world's wait for them (it waits for a match on each pose key)
-        cmd_sub = session.declare_subscriber(keys.all_robots_key(P, keys.CMD), on_cmd)
-        while not self._stop.is_set() and not commanding.issuperset(self.robots):
-            time.sleep(0.02)
-        cmd_sub.undeclare()
+        self.wait_for_commands(session)
         sub = session.declare_subscriber(keys.all_robots_key(P, keys.POSE), on_pose)
         pubs = {keys.obstacles_key(P): session.declare_publisher(keys.obstacles_key(P))}
         for r in self.robots:
@@ -185,21 +211,9 @@ class RealtimeAttacker(Attacker):
         time.sleep(0.5)  # the agents have their first genuine poses
         forge_until = time.monotonic() + self.FORGE_S
         while not self._stop.is_set():
-            now, mono = time.time(), time.monotonic()
-            forge = mono < forge_until
+            forge = time.monotonic() < forge_until
             for r in self.robots:
-                with lock:
-                    due = []
-                    while history[r] and history[r][0][0] <= mono - self.REPLAY_S:
-                        due.append(history[r].popleft()[1])
-                    last = latest[r]
-                for data in due:
-                    self.put(pubs, keys.pose_key(P, r), data, "old_pose")
-                if forge:
-                    self.put(pubs, keys.pose_key(P, r), encode(Pose(1e9, 1e9, 0.0, now)),
-                             "forged_pose")
-                    self.put(pubs, keys.state_key(P, r),
-                             encode(State(last.x, last.y, 1e6, 0.0, now)), "forged_state")
+                self.replay_and_forge(pubs, r, (lock, history, latest), forge)
             # 20 ms ahead (inside the clock tolerance): newer than the world's next list, which
             # then comes stamped before the one kept and disagrees with it (a second source)
             self.put(pubs, keys.obstacles_key(P), encode(Obstacles(time.time() + 0.02, ())),
