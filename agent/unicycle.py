@@ -110,10 +110,6 @@ def turn_error(err: float, turning: float = 0.0) -> float:
     return other if abs(other) <= math.pi + STEER.keep else short
 
 
-def _ahead(wx: float, wy: float, theta: float) -> bool:
-    return wx * math.cos(theta) + wy * math.sin(theta) >= 0.0
-
-
 def integrate(x: float, y: float, theta: float, v: float, omega: float, dt: float):
     """Exact unicycle motion (eq. 6.1) over dt with constant (v, omega): an arc or a line.
 
