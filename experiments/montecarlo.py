@@ -19,7 +19,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import random
-from concurrent.futures import ProcessPoolExecutor
 from functools import partial
 
 from geometry.limits import BURGER_MAX_SPEED, BURGER_RADIUS
@@ -29,6 +28,7 @@ from scenario.load import scenario_from_dict
 from scenario.world import IDEAL
 from simulator.inprocess import SimOptions, simulate
 
+from .cluster import run_sweep
 from .warehouse_draw import warehouse_problem, warehouse_scenario
 
 # Formation shapes sized for loads robots of 0.21 m diameter carry together (a pair under a
@@ -199,19 +199,16 @@ def _model_totals(runs: list[dict]) -> dict:
 
 def run_montecarlo(n: int, seed: int, workers: int = 2, progress=None,
                    world: str | None = None, bounds: str | None = None,
-                   draw: str = CIRCLES, model: str | None = None) -> tuple[dict, list[dict]]:
+                   draw: str = CIRCLES, model: str | None = None,
+                   scheduler: str | None = None) -> tuple[dict, list[dict]]:
     """``n`` runs from ``seed``; ``world``: the world profile of every run (default ideal);
     ``bounds``: every run's controller bounds (``--bounds SPEC``; default none); ``draw``: which
     layouts (one of DRAWS); ``model``: every run's robot model (one of MODELS; default the
-    draw's own)."""
+    draw's own); ``scheduler``: a Dask scheduler's address to run them on (default: ``workers``
+    local processes). The results are the same wherever the runs execute."""
     seeds = [seed * 100000 + k for k in range(n)]
-    results = []
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        for k, r in enumerate(pool.map(partial(run_one, world=world, bounds=bounds, draw=draw,
-                                               model=model), seeds)):
-            results.append(r)
-            if progress:
-                progress(k + 1, n, 0.0)
+    run = partial(run_one, world=world, bounds=bounds, draw=draw, model=model)
+    results = run_sweep(run, seeds, workers, scheduler, progress)
     return summarize(results, seed, world, draw, bounds, model), results
 
 

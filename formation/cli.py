@@ -225,6 +225,10 @@ def build_parser() -> Parser:
     p.add_argument("--seed", type=int, default=11, help="seed of the first scenario's layout")
     p.add_argument("--jobs", type=int, default=2, metavar="J",
                    help="runs at a time, each in its own process (results do not depend on it)")
+    p.add_argument("--scheduler", default=None, metavar="ADDR",
+                   help="run on the Dask distributed cluster whose scheduler is at ADDR (e.g. "
+                        "tcp://host:8786; workers started with `dask worker ADDR` from this "
+                        "project's environment) instead of --jobs local processes; same results")
     p.add_argument("--draw", default="circles", choices=["circles", "warehouse"], metavar="DRAW",
                    help="the layouts: round shelves along two aisles (circles), or halls of shelf "
                         "rows, walls, pillars and forklifts with formations of 2-6 robots carrying "

@@ -1,5 +1,6 @@
-"""``formation montecarlo --n N --seed S [--draw circles|warehouse] [--model M] --out DIR``: see
-:mod:`experiments.montecarlo`."""
+"""``formation montecarlo --n N --seed S [--draw circles|warehouse] [--model M]
+[--jobs J | --scheduler ADDR] --out DIR``: see :mod:`experiments.montecarlo` and, for where the
+runs execute, :mod:`experiments.cluster`."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import json
 
 import yaml
 
+from experiments.cluster import ClusterError, connect
 from experiments.montecarlo import DT, run_montecarlo
 from formation.exits import UsageError
 from formation.outdir import begin_output
@@ -26,11 +28,13 @@ def montecarlo_command(ns: argparse.Namespace) -> int:
     if ns.model == "double_integrator" and ns.world not in (None, IDEAL):
         raise UsageError(f"--model double_integrator: runs in the ideal world only, not with "
                          f"--world {ns.world}")
+    if ns.scheduler is not None:
+        check_scheduler(ns.scheduler)  # unreachable, no workers or another version: exit 2 now
     out = begin_output(ns)
     with Progress(f"montecarlo n={ns.n}", unit="runs") as progress:
         summary, results = run_montecarlo(ns.n, ns.seed, ns.jobs, progress=progress.update,
                                           world=ns.world, bounds=ns.bounds, draw=ns.draw,
-                                          model=ns.model)
+                                          model=ns.model, scheduler=ns.scheduler)
     for r in results:
         if not r["all_reached"] or r["collisions"]:
             (out / f"failure-{r['seed']}.yaml").write_text(yaml.safe_dump(r["scenario"], sort_keys=False))
@@ -48,3 +52,16 @@ def montecarlo_command(ns: argparse.Namespace) -> int:
     print(f"wrote {out / 'montecarlo.json'}"
           + (f"; failed scenarios as {out}/failure-SEED.yaml" if summary["failures"] else ""))
     return 0
+
+
+def check_scheduler(address: str) -> None:
+    """Exit 2 with one line unless the Dask scheduler at ``address`` can run the sweep."""
+    try:
+        client = connect(address)
+    except ClusterError as exc:
+        raise UsageError(str(exc)) from None
+    workers = client.scheduler_info().get("workers", {})
+    threads = sum(w.get("nthreads", 0) for w in workers.values())
+    client.close()
+    print(f"montecarlo: on the Dask cluster at {address} ({len(workers)} workers, "
+          f"{threads} threads)")
