@@ -31,6 +31,10 @@ Koenig et al.'s sequential single-item auctions with an order as the item) and t
 nearest-robots rule (each slot in turn takes the nearest robot left); the exact best
 assignment by enumeration (:func:`brute_force_cost`) for small cases; and the message count of
 one order under this protocol and under the methods it was chosen over (:func:`message_model`).
+
+Lost bids make views differ, so after a round each robot votes for the rosters it computed
+(:func:`votes_of`), and a roster counts only once a majority of the fleet voted for it
+(:func:`committed`): each robot votes once per order, so no order commits two rosters.
 """
 
 from __future__ import annotations
@@ -316,6 +320,35 @@ def brute_force_cost(orders: Sequence[OpenOrder], bids: Iterable[Bid]) -> float:
         if all(r in table[oid] for (oid, _), r in zip(slots, pick, strict=True)):
             best = min(best, math.fsum(table[oid][r][s] for (oid, s), r in zip(slots, pick, strict=True)))
     return best
+
+
+@dataclass(frozen=True)
+class Vote:
+    """A robot's vote after a round closes: the roster it computed for one order."""
+
+    rid: str
+    oid: str
+    round: int
+    roster: tuple[str, ...]
+
+
+def votes_of(rid: str, result: Allocation, round_: int) -> list[Vote]:
+    """The votes a robot puts for the teams of its own allocation of the round."""
+    return [Vote(rid, oid, round_, team.robots) for oid, team in sorted(result.teams.items())]
+
+
+def committed(votes: Iterable[Vote], fleet_size: int, round_: int) -> dict[str, tuple[str, ...]]:
+    """The rosters a majority of the fleet voted for in ``round_`` (more than half of
+    ``fleet_size``), by order; a robot's repeated vote for an order counts once (its first in
+    sorted order), so no two rosters of one order can both have a majority."""
+    first: dict[tuple[str, str], tuple[str, ...]] = {}
+    for vote in sorted(votes, key=lambda v: (v.oid, v.rid, v.roster)):
+        if vote.round == round_:
+            first.setdefault((vote.oid, vote.rid), vote.roster)
+    tally: dict[tuple[str, tuple[str, ...]], int] = {}
+    for (oid, _), roster in first.items():
+        tally[(oid, roster)] = tally.get((oid, roster), 0) + 1
+    return {oid: roster for (oid, roster), n in sorted(tally.items()) if 2 * n > fleet_size}
 
 
 def message_model(idle: int, fleet: int, k: int, repeats: int = 1) -> dict[str, int]:
