@@ -18,7 +18,9 @@ It works in two steps:
    stream of small orders cannot starve a large one.
 2. **Who goes where**: the exact minimum-total-cost assignment of all the taken slots to the
    robots left (the Hungarian method with potentials, Kuhn 1955 and Munkres 1957), so the
-   round's teams are the best possible for the sum of travel, given which orders are served.
+   round's teams are the best possible for the sum of travel, given which orders are served;
+   or (``objective="bottleneck"``) the least total among the assignments whose largest single
+   cost is the smallest possible.
 
 A robot without a bid for an order is not considered for it (a lost or late bid only narrows
 the choice); a malformed bid (unknown order, wrong number of costs, a negative or non-finite
@@ -240,16 +242,39 @@ def _add_row(i: int, cost: Sequence[Sequence[float]], u: list[float], v: list[fl
         j0 = j1
 
 
+def bottleneck(taken: Sequence[OpenOrder], robots: Sequence[str],
+               table: Mapping[str, Mapping[str, tuple[float, ...]]]) -> float:
+    """The smallest cost ``c`` such that every taken slot can get a distinct robot whose bid
+    for it is at most ``c`` (the round's farthest member, made as near as it can be): a binary
+    search over the bid costs, each step one bipartite matching."""
+    slots = [(o.oid, s) for o in taken for s in range(o.k)]
+    levels = sorted({table[oid][r][s] for oid, s in slots for r in robots if r in table[oid]})
+    pool = set(robots)
+    lo, hi = 0, len(levels) - 1
+    while lo < hi:
+        mid = (lo + hi) // 2
+        bidders = [[r for r in robots if r in table[oid] and table[oid][r][s] <= levels[mid]]
+                   for oid, s in slots]
+        owner: dict[str, int] = {}
+        if all(_augment(i, bidders, owner, set(), pool) for i in range(len(slots))):
+            hi = mid
+        else:
+            lo = mid + 1
+    return levels[lo] if levels else 0.0
+
+
 def _assign(taken: Sequence[OpenOrder], robots: Sequence[str],
-            table: Mapping[str, Mapping[str, tuple[float, ...]]]) -> dict[str, Team]:
+            table: Mapping[str, Mapping[str, tuple[float, ...]]], cap: float = math.inf
+            ) -> dict[str, Team]:
     """Step 2: the exact best assignment of the taken orders' slots to ``robots``; a slot's
-    missing bid costs more than any complete assignment that avoids it."""
+    missing bid, or one above ``cap``, costs more than any complete assignment that avoids it."""
     slots = [(order, s) for order in taken for s in range(order.k)]
     if not slots:
         return {}
     finite = [c for order in taken for costs in table[order.oid].values() for c in costs]
     big = (max(finite, default=0.0) + 1.0) * (len(slots) + 1)
-    matrix = [[table[o.oid][r][s] if r in table[o.oid] else big for r in robots] for o, s in slots]
+    matrix = [[table[o.oid][r][s] if r in table[o.oid] and table[o.oid][r][s] <= cap else big
+               for r in robots] for o, s in slots]
     columns = hungarian(matrix)
     teams: dict[str, Team] = {}
     at = 0
@@ -263,11 +288,19 @@ def _assign(taken: Sequence[OpenOrder], robots: Sequence[str],
     return teams
 
 
-def allocate(orders: Sequence[OpenOrder], bids: Iterable[Bid], hold: bool = True) -> Allocation:
-    """The round's teams from the open orders and the bids received (see the module's text)."""
+def allocate(orders: Sequence[OpenOrder], bids: Iterable[Bid], hold: bool = True,
+             objective: str = "sum") -> Allocation:
+    """The round's teams from the open orders and the bids received (see the module's text).
+
+    ``objective`` ``sum``: the least total cost; ``bottleneck``: the least total cost among the
+    assignments whose largest single cost is the smallest possible (:func:`bottleneck`)."""
+    if objective not in ("sum", "bottleneck"):
+        raise ValueError(f"objective: {objective!r} is not sum or bottleneck")
     table, dropped = cost_table(orders, bids)
     taken, pool, reserved = select_orders(orders, table, hold)
-    teams = _assign(taken, sorted(pool), table)
+    robots = sorted(pool)
+    cap = bottleneck(taken, robots, table) if objective == "bottleneck" else math.inf
+    teams = _assign(taken, robots, table, cap)
     waiting = tuple(o.oid for o in sorted(orders, key=precedence) if o.oid not in teams)
     return Allocation(teams, waiting, tuple(sorted(reserved)), dropped)
 

@@ -81,6 +81,7 @@ def test_no_robot_is_in_two_teams_and_every_team_is_complete(case, rnd):
     orders, bids = case
     check_valid(orders, bids, allocate(orders, bids))
     check_valid(orders, bids, allocate(orders, bids, hold=False))
+    check_valid(orders, bids, allocate(orders, bids, objective="bottleneck"))
     check_valid(orders, bids, sequential_auction(orders, bids))
     check_valid(orders, bids, greedy_nearest(orders, bids))
 
@@ -122,6 +123,25 @@ def test_a_round_that_serves_every_order_is_the_best_assignment(case):
     for baseline in (sequential_auction(orders, bids), greedy_nearest(orders, bids)):
         if not baseline.waiting:
             assert baseline.total_cost() >= best - 1e-9
+    # the bottleneck objective: the smallest largest single cost there is
+    narrow = allocate(orders, bids, objective="bottleneck")
+    assert teams(narrow).keys() == teams(result).keys()
+    assert farthest(narrow, bids) == pytest.approx(brute_force_bottleneck(orders, bids), abs=1e-9)
+    assert narrow.total_cost() >= result.total_cost() - 1e-9
+
+
+def farthest(result: Allocation, bids) -> float:
+    costs = {(b.rid, b.oid): b.costs for b in bids}
+    return max((costs[(r, t.oid)][s] for t in result.teams.values() for s, r in enumerate(t.robots)),
+               default=0.0)
+
+
+def brute_force_bottleneck(orders, bids) -> float:
+    costs = {(b.rid, b.oid): b.costs for b in bids}
+    slots = [(o.oid, s) for o in orders for s in range(o.k)]
+    robots = sorted({b.rid for b in bids})
+    return min(max(costs[(r, oid)][s] for (oid, s), r in zip(slots, pick, strict=True))
+               for pick in permutations(robots, len(slots)))
 
 
 @settings(max_examples=200, deadline=None)
@@ -133,6 +153,11 @@ def test_the_hungarian_method_finds_the_cheapest_assignment(rows, extra, data):
     assert len(set(got)) == rows
     best = min(math.fsum(cost[i][c] for i, c in enumerate(p)) for p in permutations(range(cols), rows))
     assert math.fsum(cost[i][c] for i, c in enumerate(got)) == pytest.approx(best, abs=1e-9)
+
+
+def test_an_unknown_objective_is_refused():
+    with pytest.raises(ValueError, match="objective"):
+        allocate([], [], objective="fastest")
 
 
 def test_malformed_bids_are_dropped_and_counted_and_a_repeated_bid_counts_once():
@@ -190,7 +215,8 @@ def measure_gap(n_cases: int = 200, seed: int = 7) -> dict[str, dict[str, float]
     a team's farthest member to its slot (which bounds its gathering time) against this
     allocation's."""
     rng = random.Random(seed)
-    ratios: dict[str, list[float]] = {"allocate": [], "sequential_auction": [], "greedy_nearest": []}
+    ratios: dict[str, list[float]] = {"allocate": [], "allocate_bottleneck": [], "sequential_auction": [],
+                                      "greedy_nearest": []}
     farthest: dict[str, list[float]] = {name: [] for name in ratios}
     while len(ratios["allocate"]) < n_cases:
         robots = {f"r{i}": (rng.uniform(0, 20), rng.uniform(0, 20)) for i in range(rng.randint(3, 8))}
@@ -202,7 +228,8 @@ def measure_gap(n_cases: int = 200, seed: int = 7) -> dict[str, dict[str, float]
         bids = bids_from_positions(orders, robots)
         best = brute_force_cost(orders, bids)
         for name, method in (("allocate", allocate), ("sequential_auction", sequential_auction),
-                             ("greedy_nearest", greedy_nearest)):
+                             ("greedy_nearest", greedy_nearest),
+                             ("allocate_bottleneck", lambda o, b: allocate(o, b, objective="bottleneck"))):
             result = method(orders, bids)
             ratios[name].append(result.total_cost() / best)
             costs = {(b.rid, b.oid): b.costs for b in bids}
