@@ -1,0 +1,282 @@
+"""The payloads and keys of lifelong operation: transport orders, the robots' bids and votes, and
+an order's status (docs/keys.md), in the wire format of :mod:`wire.payloads`, read with its
+defensive reader (:mod:`wire.reader`). Layouts (version 1)::
+
+    ``OrderMsg``        version, oid:str, kind:str, type:str, load:str, source:str, to:str,
+                        priority, stamp
+    ``BidMsg``          version, oid:str, robot:str, round, phase:str, costs:list[f64],
+                        roster:list[str], stamp
+    ``OrderStatusMsg``  version, oid:str, state:str, round, roster:list[str], leader:str,
+                        reason:str, stamp
+
+Keys, under the fleet's prefix::
+
+    {prefix}/order/{oid}              the fleet manager -> every robot (a queryable: the open orders)
+    {prefix}/order/{oid}/bid/{rid}    robot rid -> the other bidders of that order
+    {prefix}/order/{oid}/status       the team's leader -> anyone
+
+A bid's ``robot`` must be the robot its key names (:func:`bid_is_forged`); ``round`` and
+``priority`` are whole numbers carried as f64; ``costs`` holds one cost per slot of the order's
+load type (a bid) and ``roster`` one robot per slot (a vote, or a decline's order of slots).
+Text is bounded: ids at most 64 characters, a reason at most :data:`MAX_REASON`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import zenoh
+from zenoh.ext import UInt8, z_serialize
+
+from wire import keys
+from wire.payloads import check_floats, check_id
+from wire.reader import WIRE_VERSION, Reader, decode_payload
+
+MAX_SLOTS = 16  # most robots one load type's team may have (costs and roster entries)
+MAX_REASON = 200  # longest reason [characters]
+MAX_ROUND = 2**31 - 1  # a round or priority beyond this is implausible
+ORDER_KINDS = ("new", "load", "cancel", "priority")
+BID_PHASES = ("bid", "vote", "decline")
+ORDER_STATES = ("waiting", "assigned", "gathering", "carrying", "delivered", "cancelled", "failed")
+
+
+def _whole(obj: object, name: str, low: int) -> None:
+    """Store the whole-number field ``name`` (carried as f64) as an int in [low, MAX_ROUND]."""
+    v = getattr(obj, name)
+    if isinstance(v, float) and v.is_integer():
+        v = int(v)
+    if type(v) is not int or not low <= v <= MAX_ROUND:
+        raise ValueError(f"{name} must be a whole number in [{low}, {MAX_ROUND}], got {v!r}")
+    object.__setattr__(obj, name, v)
+
+
+def _one_of(value: object, allowed: tuple[str, ...], name: str) -> None:
+    if value not in allowed:
+        raise ValueError(f"{name} must be one of {allowed}, got {value!r}")
+
+
+def _optional_id(value: object, name: str) -> None:
+    if value != "":
+        check_id(value, name)
+
+
+def _roster(obj: object, name: str) -> None:
+    ids = tuple(getattr(obj, name))
+    if len(ids) > MAX_SLOTS:
+        raise ValueError(f"{name} must hold at most {MAX_SLOTS} robots, got {len(ids)}")
+    for k, rid in enumerate(ids):
+        check_id(rid, f"{name}[{k}]")
+    if len(set(ids)) != len(ids):
+        raise ValueError(f"{name} names a robot twice: {ids!r}")
+    object.__setattr__(obj, name, ids)
+
+
+@dataclass(frozen=True, slots=True)
+class OrderMsg:
+    """An order as the fleet manager posts it. ``kind`` ``new``: a new load of ``type`` appears
+    at station ``source`` and goes to ``to``; ``load``: the resting load ``load`` goes to ``to``;
+    ``cancel``: the order ``oid`` is withdrawn; ``priority``: it gets ``priority``. Fields a kind
+    does not use are empty."""
+
+    oid: str
+    kind: str
+    type: str = ""
+    load: str = ""
+    source: str = ""
+    to: str = ""
+    priority: int = 0
+    stamp: float = 0.0
+
+    def __post_init__(self) -> None:
+        check_id(self.oid, "oid")
+        _one_of(self.kind, ORDER_KINDS, "kind")
+        for name in ("type", "load", "source", "to"):
+            _optional_id(getattr(self, name), name)
+        _whole(self, "priority", 0)
+        check_floats(self, ("stamp",))
+        need = {"new": ("type", "source", "to"), "load": ("load", "to")}.get(self.kind, ())
+        for name in need:
+            if not getattr(self, name):
+                raise ValueError(f"a {self.kind!r} order needs {name}")
+
+
+@dataclass(frozen=True, slots=True)
+class BidMsg:
+    """A robot's word on one order in one allocation round: ``bid`` (its cost to each slot),
+    ``vote`` (the roster it computed, one robot per slot) or ``decline`` (it was named by two
+    committed rosters and takes the other)."""
+
+    oid: str
+    robot: str
+    round: int
+    phase: str
+    costs: tuple[float, ...] = ()
+    roster: tuple[str, ...] = ()
+    stamp: float = 0.0
+
+    def __post_init__(self) -> None:
+        check_id(self.oid, "oid")
+        check_id(self.robot, "robot")
+        _whole(self, "round", 0)
+        _one_of(self.phase, BID_PHASES, "phase")
+        costs = tuple(self.costs)
+        if len(costs) > MAX_SLOTS:
+            raise ValueError(f"costs must hold at most {MAX_SLOTS} slots, got {len(costs)}")
+        for k, c in enumerate(costs):
+            if isinstance(c, bool) or not isinstance(c, int | float) or not math.isfinite(c) or c < 0:
+                raise ValueError(f"costs[{k}] must be a finite number >= 0, got {c!r}")
+        object.__setattr__(self, "costs", tuple(float(c) for c in costs))
+        _roster(self, "roster")
+        check_floats(self, ("stamp",))
+        if self.phase == "bid" and not costs:
+            raise ValueError("a bid needs its costs, one per slot")
+        if self.phase == "vote" and not self.roster:
+            raise ValueError("a vote needs its roster, one robot per slot")
+
+
+@dataclass(frozen=True, slots=True)
+class OrderStatusMsg:
+    """An order's state as its team's leader (or, before a team, the fleet manager) reports it:
+    the round that committed ``roster`` (one robot per slot, the first leads), ``leader``, and
+    ``reason`` for ``failed`` or ``cancelled``."""
+
+    oid: str
+    state: str
+    round: int = 0
+    roster: tuple[str, ...] = ()
+    leader: str = ""
+    reason: str = ""
+    stamp: float = 0.0
+
+    def __post_init__(self) -> None:
+        check_id(self.oid, "oid")
+        _one_of(self.state, ORDER_STATES, "state")
+        _whole(self, "round", 0)
+        _roster(self, "roster")
+        _optional_id(self.leader, "leader")
+        if not isinstance(self.reason, str) or len(self.reason) > MAX_REASON:
+            raise ValueError(f"reason must be text of at most {MAX_REASON} characters")
+        check_floats(self, ("stamp",))
+
+
+OrderMessage = OrderMsg | BidMsg | OrderStatusMsg
+_V1 = UInt8(WIRE_VERSION)
+
+
+def encode_order(msg: OrderMessage) -> bytes:
+    """Serialize an order, bid or status (layouts above)."""
+    if isinstance(msg, OrderMsg):
+        t: tuple[Any, ...] = (_V1, msg.oid, msg.kind, msg.type, msg.load, msg.source, msg.to,
+                              float(msg.priority), msg.stamp)
+    elif isinstance(msg, BidMsg):
+        t = (_V1, msg.oid, msg.robot, float(msg.round), msg.phase, list(msg.costs),
+             list(msg.roster), msg.stamp)
+    elif isinstance(msg, OrderStatusMsg):
+        t = (_V1, msg.oid, msg.state, float(msg.round), list(msg.roster), msg.leader, msg.reason,
+             msg.stamp)
+    else:
+        raise ValueError(f"msg must be an OrderMsg, BidMsg or OrderStatusMsg, got {type(msg).__name__}")
+    return z_serialize(t).to_bytes()
+
+
+def _ids(r: Reader, name: str) -> tuple[str, ...]:
+    n = r.count(name, MAX_SLOTS)
+    return tuple(r.string(f"{name}[{k}]") for k in range(n))
+
+
+def _parse_order(r: Reader) -> OrderMsg:
+    oid, kind, type_, load, source, to = (r.string(name) for name in
+                                          ("oid", "kind", "type", "load", "source", "to"))
+    priority, stamp = r.floats(2, "priority, stamp")
+    return OrderMsg(oid, kind, type_, load, source, to, priority, stamp)  # type: ignore[arg-type]
+
+
+def _parse_bid(r: Reader) -> BidMsg:
+    oid, robot = r.string("oid"), r.string("robot")
+    (round_,) = r.floats(1, "round")
+    phase = r.string("phase")
+    n = r.count("costs", MAX_SLOTS)
+    costs = tuple(r.floats(1, f"costs[{k}]")[0] for k in range(n))
+    roster = _ids(r, "roster")
+    (stamp,) = r.floats(1, "stamp")
+    return BidMsg(oid, robot, round_, phase, costs, roster, stamp)  # type: ignore[arg-type]
+
+
+def _parse_status(r: Reader) -> OrderStatusMsg:
+    oid, state = r.string("oid"), r.string("state")
+    (round_,) = r.floats(1, "round")
+    roster = _ids(r, "roster")
+    leader, reason = r.string("leader"), r.string("reason")
+    (stamp,) = r.floats(1, "stamp")
+    return OrderStatusMsg(oid, state, round_, roster, leader, reason, stamp)  # type: ignore[arg-type]
+
+
+def decode_order(payload: bytes | zenoh.ZBytes) -> OrderMsg:
+    """Decode an ``order`` payload; raises only :class:`wire.reader.DecodeError`."""
+    return decode_payload(payload, _parse_order, "order")
+
+
+def decode_bid(payload: bytes | zenoh.ZBytes) -> BidMsg:
+    """Decode a ``bid`` payload; raises only :class:`wire.reader.DecodeError`."""
+    return decode_payload(payload, _parse_bid, "bid")
+
+
+def decode_order_status(payload: bytes | zenoh.ZBytes) -> OrderStatusMsg:
+    """Decode an order ``status`` payload; raises only :class:`wire.reader.DecodeError`."""
+    return decode_payload(payload, _parse_status, "order status")
+
+
+def order_key(prefix: str, oid: str) -> str:
+    """``{prefix}/order/{oid}``."""
+    keys.validate_id(oid, "order id")
+    return f"{prefix}/order/{oid}"
+
+
+def all_orders_key(prefix: str) -> str:
+    """``{prefix}/order/*``: every order (the fleet manager's queryable; a robot's query)."""
+    return f"{prefix}/order/*"
+
+
+def bid_key(prefix: str, oid: str, rid: str) -> str:
+    """``{prefix}/order/{oid}/bid/{rid}``: robot ``rid``'s bids and votes on order ``oid``."""
+    keys.validate_id(rid, "robot id")
+    return f"{order_key(prefix, oid)}/bid/{rid}"
+
+
+def bids_key(prefix: str, oid: str) -> str:
+    """``{prefix}/order/{oid}/bid/*``: every robot's bids on one open order."""
+    return f"{order_key(prefix, oid)}/bid/*"
+
+
+def order_status_key(prefix: str, oid: str) -> str:
+    """``{prefix}/order/{oid}/status``."""
+    return f"{order_key(prefix, oid)}/status"
+
+
+def parse_order_key(key: str, prefix: str) -> tuple[str, str, str] | None:
+    """``(oid, what, rid)`` of an order key under ``prefix`` (``what``: ``order``, ``bid`` or
+    ``status``; ``rid`` only for a bid), or None for any other key (an invalid id included)."""
+    head = f"{prefix}/order/"
+    if not key.startswith(head):
+        return None
+    parts = key[len(head):].split("/")
+    try:
+        for part in parts[::2]:
+            keys.validate_id(part, "id")
+    except ValueError:
+        return None
+    if len(parts) == 1:
+        return parts[0], "order", ""
+    if len(parts) == 2 and parts[1] == "status":
+        return parts[0], "status", ""
+    if len(parts) == 3 and parts[1] == "bid":
+        return parts[0], "bid", parts[2]
+    return None
+
+
+def bid_is_forged(key: str, prefix: str, msg: BidMsg) -> bool:
+    """Whether a bid arrived on a key other than its own (``order/{msg.oid}/bid/{msg.robot}``):
+    a robot may speak only for itself and only about the order its key names."""
+    return parse_order_key(key, prefix) != (msg.oid, "bid", msg.robot)
