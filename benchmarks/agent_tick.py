@@ -33,6 +33,11 @@ from agent.config import build_agent_configs
 from agent.node import AgentNode, NodeOptions
 from experiments.fleet_scenario import fleet_scenario
 from wire import keys
+
+try:
+    from runtime.heap import freeze_startup
+except ImportError:  # older trees keep it in wire
+    from wire.heap import freeze_startup  # type: ignore[no-redef]
 from wire.payloads import ObstacleMsg, Obstacles, Pose, decode_cmd, encode_zbytes
 
 RING = 256  # samples a ring channel keeps (agent.inbox.RING_CAPACITY)
@@ -291,7 +296,7 @@ def run(robots: int, hz: float, seconds: float, slots: int, profile: str | None)
     bus = Bus()
     nodes = open_nodes(configs, Session(bus))
     world = World(scenario, configs, bus, slots)
-    gc.freeze()  # as each node does once open (runtime.heap.freeze_startup)
+    freeze_startup()  # as each node does once open
     gc_time = GcTime()
     gc.callbacks.append(gc_time)
     frames = int(round(seconds * hz))

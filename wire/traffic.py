@@ -97,7 +97,13 @@ class TrafficCounter:
         if type(nbytes) is not int or nbytes < 0:  # the full check only off the usual path
             if isinstance(nbytes, bool) or not isinstance(nbytes, int) or nbytes < 0:
                 raise ValueError(f"nbytes must be an int >= 0, got {nbytes!r}")
-        self.add(self._counts[side][self.key_class(key)], nbytes)
+        cls = self._classes.get(key) if type(key) is str else None  # key_class's cache, inline
+        if cls is None:
+            cls = self.key_class(key)
+        with self._lock:
+            entry = self._counts[side][cls]
+            entry["messages"] += 1
+            entry["bytes"] += nbytes
 
     def entry(self, side: str, key: object) -> dict[str, int]:
         """The counts of ``key``'s class on ``side``, for a caller that counts many messages on
