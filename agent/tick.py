@@ -213,8 +213,9 @@ class Ticker:
     async def _tick(self, t: float | None) -> StepResult | None:
         """The pose part of the tick: which pose, if any, it runs on."""
         clock, inbox = self.clock, self.parts.inbox
-        await clock.start(inbox, [(keys.POSE, self.keys.pose)], t)
-        self.times.skip()  # lock-step: the wait for the frame's pose is no part
+        if clock.lockstep:  # a real-time clock never waits (agent.clock)
+            await clock.start(inbox, [(keys.POSE, self.keys.pose)], t)
+            self.times.skip()  # the wait for the frame's pose is no part
         pose_entry = inbox.latest(keys.POSE, self.keys.pose)
         if pose_entry is None:  # not localised yet (start-up): zero, counted apart from stale
             self.counts.waiting += 1
@@ -251,8 +252,9 @@ class Ticker:
         if leader.leading:
             others_ready = await leader.lead(px, py, stamp, stamp, self.last_u, pose.theta)
             times.lap(LEADER)
-        await clock.wait(self.parts.inbox, self._tick_inputs(), stamp)
-        times.skip()  # lock-step: the wait for the inputs is no part
+        if clock.lockstep:  # a real-time clock never waits (agent.clock)
+            await clock.wait(self.parts.inbox, self._tick_inputs(), stamp)
+            times.skip()  # the wait for the inputs is no part
         fresh = self._fresh_inputs(stamp, others_ready)
         if isinstance(fresh, str):
             return self._zero(t, fresh)
