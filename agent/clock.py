@@ -33,6 +33,7 @@ logger = logging.getLogger(__name__)
 STATS_WINDOW = 10_000  # per-tick timings kept for the medians in the counters (the newest ticks)
 Entry = tuple[Any, float]  # a mailbox's (message, local reception time)
 Inputs = list[tuple[str, str]]  # (mailbox class, key)
+Kin = tuple[float, float, float, float, float]  # a neighbour's x, y, ux, uy, theta at a stamp
 
 
 class Waitable(Protocol):
@@ -50,6 +51,7 @@ class Clock(Protocol):
     time, and only the clock reads it."""
 
     lockstep: bool
+    stale_after: float
     timeouts: int
     pose_age_us: deque[float]
     pose_in_us: deque[float]
@@ -63,7 +65,7 @@ class Clock(Protocol):
     def pose_current(self, entry: Entry, t: float | None) -> bool: ...
     def cmd_stamp(self, t: float | None, last: float) -> float: ...
     def note_pose(self, entry: Entry) -> None: ...
-    def align(self, states: dict[str, State], stamp: float) -> dict[str, State]: ...
+    def align(self, states: dict[str, State], stamp: float) -> dict[str, Kin]: ...
     def gone_stale(self, stamp: float) -> bool: ...
     def state_before(self, send: Callable[[], None]) -> None: ...
     def state_after(self, send: Callable[[], None]) -> None: ...
@@ -169,8 +171,9 @@ class LockstepClock(_Common):
     def note_pose(self, entry: Entry) -> None:
         pass
 
-    def align(self, states: dict[str, State], stamp: float) -> dict[str, State]:
-        return states  # every state is this frame's
+    def align(self, states: dict[str, State], stamp: float) -> dict[str, Kin]:
+        """Every state as it is (each is this frame's)."""
+        return {k: (m.x, m.y, m.ux, m.uy, m.theta) for k, m in states.items()}
 
     def gone_stale(self, stamp: float) -> bool:
         return False
@@ -218,17 +221,19 @@ class RealtimeClock(_Common):
         self.pose_in_us.append((time.time() - (time.monotonic() - entry[1])
                                 - entry[0].stamp) * 1e6)
 
-    def align(self, states: dict[str, State], stamp: float) -> dict[str, State]:
+    def align(self, states: dict[str, State], stamp: float) -> dict[str, Kin]:
         """Every neighbour's state carried from its stamp to ``stamp`` (this tick's pose) under
         its certified command (:func:`agent.inputs.predict_state`), never further than the
         stale limit, never backwards."""
         out = {}
+        limit, offset = self.stale_after, self._offset
         for k, m in states.items():
-            age = min(max(0.0, stamp - m.stamp), self.stale_after)
+            age = min(max(0.0, stamp - m.stamp), limit)
             if age > 0.0:
-                x, y, th = predict_state(m.x, m.y, m.ux, m.uy, m.theta, age, self._offset)
-                m = State(x, y, m.ux, m.uy, stamp, th)
-            out[k] = m
+                x, y, th = predict_state(m.x, m.y, m.ux, m.uy, m.theta, age, offset)
+                out[k] = (x, y, m.ux, m.uy, th)
+            else:
+                out[k] = (m.x, m.y, m.ux, m.uy, m.theta)
         return out
 
     def gone_stale(self, stamp: float) -> bool:

@@ -409,6 +409,8 @@ class Inbox:
         decode = DECODERS[cls]
         faults = self.faults
         faulty = faults.applies_to(cls)
+        if not (faulty or notify):  # polled: straight into the mailbox
+            return box.callback
 
         def on_sample(sample: zenoh.Sample) -> None:
             if faulty and sample.kind != zenoh.SampleKind.DELETE:

@@ -13,7 +13,8 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 
 from geometry.ellipse import Ellipse, within_reach
-from leader.role import VIEW_RANGE
+from leader.role import VIEW_RANGE, msg_to_ellipse
+from wire.payloads import Others
 
 from . import unicycle
 from .barriers import Neighbour, Partner
@@ -115,4 +116,34 @@ def with_waypoint(inputs: StepInput, heading: float | None, arriving: bool = Tru
     member settles on its target there (:attr:`leader.navigation.Follower.arriving`)."""
     if inputs.view is None or (heading is None and arriving):
         return inputs
-    return inputs._replace(view=inputs.view._replace(goal_heading=heading, arriving=arriving))
+    return inputs._replace(view=waypoint_view(inputs.view, heading, arriving))
+
+
+def waypoint_view(view: FormationView | None, heading: float | None,
+                  arriving: bool = True) -> FormationView | None:
+    """The view of :func:`with_waypoint`, for a caller that replaces more fields at once."""
+    if view is None or (heading is None and arriving):
+        return view
+    return view._replace(goal_heading=heading, arriving=arriving)
+
+
+OthersView = tuple[Ellipse | None, tuple[tuple[str, Ellipse], ...]]
+_VIEWS: dict[int, tuple[Others, OthersView]] = {}  # id of an ``others`` message -> its view
+_VIEWS_MAX = 256  # messages remembered (emptied when full)
+
+
+def others_view(msg: Others) -> OthersView:
+    """An ``others`` message in the controller's form: its own ellipse (None: none yet) and the
+    other formations' (name, ellipse), in its order. Remembered for the newest messages of the
+    process: the members of a formation in one agent host hold the same decoded message
+    (:class:`agent.inbox.DecodeMemo`), which is converted once; messages are frozen, so the
+    view of one is the view of it for every reader."""
+    hit = _VIEWS.get(id(msg))
+    if hit is not None and hit[0] is msg:
+        return hit[1]
+    view = (None if msg.own is None else msg_to_ellipse(msg.own),
+            tuple((m.formation, msg_to_ellipse(m)) for m in msg.ellipses))
+    if len(_VIEWS) >= _VIEWS_MAX:
+        _VIEWS.clear()
+    _VIEWS[id(msg)] = (msg, view)
+    return view

@@ -197,13 +197,14 @@ class AgentNode:
         self._stop: asyncio.Event | None = None
 
     def _scheduler(self) -> LockstepLoop | PoseScheduler | ClockLoop:
-        cfg, tick = self.cfg, self.ticker.tick
+        cfg, tick, times = self.cfg, self.ticker.tick, self.ticker.times
         if isinstance(self.clock, LockstepClock):
-            return LockstepLoop(tick, self.clock, self.inbox, (self.keys.pose, self.keys.obstacles))
+            return LockstepLoop(tick, self.clock, self.inbox, (self.keys.pose, self.keys.obstacles),
+                                times)
         if self.options.tick_on_pose:
             return PoseScheduler(tick, self.gate, self.inbox, self.keys.pose, cfg.period,
-                                 cfg.pose_period or cfg.period, cfg.stale_after)
-        return ClockLoop(tick, cfg.period)
+                                 cfg.pose_period or cfg.period, cfg.stale_after, times)
+        return ClockLoop(tick, cfg.period, times)
 
     # --- read-only views ------------------------------------------------------------------------
 
@@ -419,7 +420,8 @@ class AgentNode:
             reacquired=inbox.reacquired,
             relaxed=c.status_counts[STATUS_RELAXED], fallback=c.status_counts[STATUS_FALLBACK],
             failed=c.status_counts[STATUS_FAILED], solve_us_median=_median(c.solve_us),
-            tick_us_median=_median(sc.tick_us), pose_age_us_median=_median(self.clock.pose_age_us),
+            tick_us_median=_median(sc.tick_us), tick_parts_us_median=tk.times.medians(),
+            pose_age_us_median=_median(self.clock.pose_age_us),
             pose_in_us_median=_median(self.clock.pose_in_us), stats_window=STATS_WINDOW,
             min_h={k: _finite_or_none(v) for k, v in c.min_h.items()},
             dropped=boxes["dropped"], rejected=boxes["rejected"], received=boxes["received"],

@@ -25,6 +25,7 @@ import zenoh
 
 from agent.clock import STATS_WINDOW, LockstepClock
 from agent.inbox import Inbox
+from agent.tick_times import INBOX, TickTimes
 from wire import keys
 
 DEADLINE_PERIODS = 1.5  # real time: tick without a new pose after this many periods
@@ -101,17 +102,20 @@ class ClockLoop:
     """Real time on the agent's own clock (``NodeOptions(tick_on_pose=False)``): tick against
     deadlines at 1/period, ``next_t += period``, overruns counted."""
 
-    def __init__(self, tick: Tick, period: float) -> None:
+    def __init__(self, tick: Tick, period: float, times: TickTimes | None = None) -> None:
         self._tick = tick
         self._period = period
         self.counts = ScheduleCounts()
+        self.times = times or TickTimes()  # the tick's parts (agent.tick_times)
 
     async def run(self, stop: asyncio.Event) -> None:
         period = self._period
         next_t = time.monotonic()
         while not stop.is_set():
             started = time.monotonic()
+            self.times.begin()
             await self._tick(None)
+            self.times.end()
             self.counts.tick_us.append((time.monotonic() - started) * 1e6)
             next_t += period
             now = time.monotonic()
@@ -131,7 +135,7 @@ class PoseScheduler:
     deadline when no tick has run for ``DEADLINE_PERIODS`` periods."""
 
     def __init__(self, tick: Tick, gate: TickGate, inbox: Inbox, pose_key: str, period: float,
-                 pose_period: float, stale_after: float) -> None:
+                 pose_period: float, stale_after: float, times: TickTimes | None = None) -> None:
         self._tick = tick
         self.gate = gate
         self._inbox = inbox
@@ -143,6 +147,7 @@ class PoseScheduler:
         self._last_tick = -math.inf  # [s, monotonic] when the last tick of any kind started
         self.queue: Callable[[], None] | None = None  # an agent host's tick thread (agent.host)
         self.counts = ScheduleCounts()
+        self.times = times or TickTimes()  # the tick's parts (agent.tick_times)
 
     def on_sample(self, sample: zenoh.Sample) -> None:
         """Zenoh thread: store the pose and tick on it, or queue it on the host's tick thread."""
@@ -173,8 +178,12 @@ class PoseScheduler:
     def tick_locked(self, now: float) -> None:
         """Under the tick lock: drain the ring channels, tick, time it."""
         self._last_tick = now
+        times = self.times
+        times.begin()
         self._inbox.drain()
+        times.lap(INBOX)
         run_now(self._tick(None))
+        times.end()
         done = time.monotonic()
         self.counts.tick_us.append((done - now) * 1e6)
         if done - now > self._period:
@@ -206,12 +215,13 @@ class LockstepLoop:
     obstacles message to arrive (module docstring of :mod:`agent.node`)."""
 
     def __init__(self, tick: Tick, clock: LockstepClock, inbox: Inbox,
-                 frame_keys: tuple[str, str]) -> None:
+                 frame_keys: tuple[str, str], times: TickTimes | None = None) -> None:
         self._tick = tick
         self._clock = clock
         self._inbox = inbox
         self._frame = [(keys.POSE, frame_keys[0]), (keys.OBSTACLES, frame_keys[1])]
         self.counts = ScheduleCounts()
+        self.times = times or TickTimes()  # the tick's parts (agent.tick_times)
 
     def _newest(self) -> float:
         entries = (self._inbox.latest(cls, k) for cls, k in self._frame)
@@ -227,7 +237,9 @@ class LockstepLoop:
                 last = newest
                 started = time.monotonic()
                 self._clock.begin_frame(last, started)  # the lock-step clock (wire.stamps)
+                self.times.begin()
                 await self._tick(last)
+                self.times.end()
                 self.counts.tick_us.append((time.monotonic() - started) * 1e6)
                 continue
             stop_wait = asyncio.ensure_future(stop.wait())

@@ -63,9 +63,11 @@ class AgentStats:
     failed: int = 0
     solve_us_median: float | None = None
     tick_us_median: float | None = None
+    # the tick's parts (agent.tick_times.TICK_PARTS) -> median [us] over the ticks it ran in
+    tick_parts_us_median: dict[str, float | None] = field(default_factory=dict)
     pose_age_us_median: float | None = None
     pose_in_us_median: float | None = None
-    stats_window: int = 0  # the four medians above are over the newest ticks
+    stats_window: int = 0  # the medians above are over the newest ticks
     min_h: dict[str, float | None] = field(
         default_factory=lambda: {"formation": None, "obstacle": None, "formations": None})
     dropped: dict[str, int] = field(default_factory=dict)

@@ -36,15 +36,15 @@ from agent.config import AgentConfig
 from agent.control import Controller, Stall, StepResult
 from agent.hard_rows import HardRowCounter
 from agent.inbox import Inbox
-from agent.inputs import carry_pose, step_inputs, with_waypoint
+from agent.inputs import carry_pose, others_view, step_inputs, waypoint_view
 from agent.leader_step import LeaderPart
 from agent.margins import carried_age
 from agent.navigation import STALLED_AFTER_S, NavPart
 from agent.plausibility import ObstacleMemory, held_obstacle
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
+from agent.tick_times import COMMAND, INPUTS, LEADER, POSE, RECORD, ROUTE, STATE, STEP, TickTimes
 from agent.transport import CommandOut
 from agent.unicycle import control_point
-from leader.role import msg_to_ellipse
 from wire import keys
 from wire.payloads import Cmd, Obstacles, Others, Pose, State
 from wire.stamps import check_stamp
@@ -58,6 +58,7 @@ POSE_AT_SEND = "pose_at_send"  # stale_why: the pose went stale while the comman
 TRACE_COLUMNS = ("t", "px", "py", "ux", "uy", "v", "omega", "status", "slack",
                  "h_formation", "h_obstacle", "h_formations", "solve_us")
 States = dict[str, State]
+Kins = dict[str, tuple[float, float, float, float, float]]  # key -> x, y, ux, uy, theta (clock.align)
 
 
 @dataclass(frozen=True)
@@ -140,6 +141,7 @@ class Ticker:
         # built once: the config's QP solver (exact by default), the QP timed for solve_us
         self.controller = Controller(cfg.control, make_solver(cfg.solver), time.perf_counter_ns)
         self.after: Callable[[StepResult | None], None] | None = None  # after every tick
+        self.times = TickTimes()  # the tick's parts, timed (begun and ended by the scheduler)
         # the tick's memory
         self.last_u = (0.0, 0.0)
         self.last_stamp = 0.0
@@ -147,6 +149,7 @@ class Ticker:
         self._stall = Stall()  # this member's copy of its formation's jam state
         self._tick_point: tuple[float, float, float, float] | None = None
         self._ahead = 0.0  # [s] this tick's pose carried forward by its measured age (carried)
+        self._inputs_of: dict[bool, list[tuple[str, str]]] = {}  # leading? -> _tick_inputs
 
     async def tick(self, t: float | None) -> StepResult | None:
         """One control tick; ``t`` is the frame's stamp in lock-step, None in real time (only
@@ -159,12 +162,14 @@ class Ticker:
             res = await self._tick(t)
             if self.after is not None:  # viewers' diagnostics: a few a second, not counted
                 self.after(res)
+            self.times.lap(RECORD)
             return res
         except Exception as exc:  # noqa: BLE001 - no message may make an agent raise
             self._tick_failed(t, exc)
             return None
         finally:
             self.clock.state_after(self._send_state)
+            self.times.lap(STATE)
 
     def _tick_failed(self, t: float | None, exc: Exception) -> None:
         """A tick that raised: counted (``tick_errors``), answered with the zero command and
@@ -208,7 +213,9 @@ class Ticker:
     async def _tick(self, t: float | None) -> StepResult | None:
         """The pose part of the tick: which pose, if any, it runs on."""
         clock, inbox = self.clock, self.parts.inbox
-        await clock.start(inbox, [(keys.POSE, self.keys.pose)], t)
+        if clock.lockstep:  # a real-time clock never waits (agent.clock)
+            await clock.start(inbox, [(keys.POSE, self.keys.pose)], t)
+            self.times.skip()  # the wait for the frame's pose is no part
         pose_entry = inbox.latest(keys.POSE, self.keys.pose)
         if pose_entry is None:  # not localised yet (start-up): zero, counted apart from stale
             self.counts.waiting += 1
@@ -232,6 +239,7 @@ class Ticker:
             else (pose.x, pose.y)
         self._tick_point = (px, py, pose.stamp + self._ahead, pose.theta)
         clock.state_before(self._send_state)
+        self.times.lap(POSE)
         return await self._step(t, pose, px, py)
 
     async def _step(self, t: float | None, pose: Pose, px: float, py: float
@@ -239,10 +247,14 @@ class Ticker:
         """The rest of the tick, on the pose stamped ``stamp``: the leader's part, the inputs,
         the control step, the command."""
         clock, stamp, leader, nav = self.clock, pose.stamp, self.parts.leader, self.parts.nav
+        times = self.times
         others_ready = True
         if leader.leading:
             others_ready = await leader.lead(px, py, stamp, stamp, self.last_u, pose.theta)
-        await clock.wait(self.parts.inbox, self._tick_inputs(), stamp)
+            times.lap(LEADER)
+        if clock.lockstep:  # a real-time clock never waits (agent.clock)
+            await clock.wait(self.parts.inbox, self._tick_inputs(), stamp)
+            times.skip()  # the wait for the inputs is no part
         fresh = self._fresh_inputs(stamp, others_ready)
         if isinstance(fresh, str):
             return self._zero(t, fresh)
@@ -251,13 +263,15 @@ class Ticker:
         if self.parts.inbox.take_implausible():  # an input broke physics since the last tick
             return self._zero(t, IMPLAUSIBLE)
         shapes = nav.update_shapes(obstacles.shapes)
-        own = None if others_msg.own is None else msg_to_ellipse(others_msg.own)
+        own, others = others_view(others_msg)
         target, waypoint = nav.follower.goal, self.cfg.formation_goal
         if own is not None:  # walk the route (the leader takes new goals first)
+            times.lap(INPUTS)
             target, waypoint = nav.step(stamp, clock.lockstep, own.cx, own.cy, own,
                                         (obstacles.obstacles, others_msg.ellipses))
+            times.lap(ROUTE)
         return self._control(t, pose, clock.align(states, stamp + self._ahead), obs, shapes, own,
-                             target, waypoint, others_msg)
+                             target, waypoint, others)
 
     def carried(self, pose: Pose, now: float) -> tuple[Pose, float]:
         """The pose carried forward by its measured age ``now - stamp``, at most the declared
@@ -271,35 +285,40 @@ class Ticker:
                               self.cfg.control.offset)
         return Pose(x, y, th, pose.stamp), ahead
 
-    def _control(self, t: float | None, pose: Pose, states: States, obs: list[Obstacle],
-                 shapes: Any, own: Any, target: Any, waypoint: Any, others_msg: Others
+    def _control(self, t: float | None, pose: Pose, states: Kins, obs: list[Obstacle],
+                 shapes: Any, own: Any, target: Any, waypoint: Any, others: Any
                  ) -> StepResult | None:
-        """The control step on the tick's inputs, and its command."""
+        """The control step on the tick's inputs (``states``: the neighbours' at the pose's
+        stamp, :meth:`agent.clock.Clock.align`), and its command."""
         cfg, stamp, k = self.cfg, pose.stamp, self.keys
+        neighbours = []
+        for n, df in k.neighbours.items():
+            x, y, ux, uy, th = states[n]
+            neighbours.append((x, y, ux, uy, df, th))
         inputs = step_inputs(
-            ((states[n].x, states[n].y, states[n].ux, states[n].uy, df, states[n].theta)
-             for n, df in k.neighbours.items()),
-            own, cfg.formation, waypoint,
-            [(m.formation, msg_to_ellipse(m)) for m in others_msg.ellipses],
+            neighbours, own, cfg.formation, waypoint, others,
             self._stall, cfg.period,  # the jam rule's memory
-            [(states[n].x, states[n].y, states[n].ux, states[n].uy, states[n].theta)
-             for n in k.foreign] if k.all_to_all else None,
-            [(states[n].x, states[n].y, states[n].ux, states[n].uy, states[n].theta)
-             for n in k.partners],
+            [states[n] for n in k.foreign] if k.all_to_all else None,
+            [states[n] for n in k.partners],
         )
         self._stall = inputs.stall
-        nav = self.parts.nav
-        inputs = with_waypoint(inputs, nav.follower.heading, nav.follower.arriving)
-        res = self.controller.step(inputs._replace(
+        follower = self.parts.nav.follower
+        inputs = inputs._replace(
+            view=waypoint_view(inputs.view, follower.heading, follower.arriving),
             pose=(pose.x, pose.y, pose.theta), goal=target, obstacles=obs, last_u=self.last_u,
-            shapes=shapes, footprint=cfg.footprint))
+            shapes=shapes, footprint=cfg.footprint)
+        times = self.times
+        times.lap(INPUTS)
+        res = self.controller.step(inputs)
+        times.lap(STEP)
         if self.clock.gone_stale(stamp):
             return self._zero(t, POSE_AT_SEND)  # never send a command from a pose gone stale
         if self.parts.leader.leading:
             stall = self._stall
-            nav.report(stamp, stall.still >= STALLED_AFTER_S, False)
+            self.parts.nav.report(stamp, stall.still >= STALLED_AFTER_S, False)
         accel = (res.ax, res.ay) if cfg.control.double_integrator else (None, None)
         self.parts.out.send_command(Cmd(res.v, res.omega, res.ux, res.uy, stamp, *accel))
+        times.lap(COMMAND)
         self.last_u = (res.ux, res.uy)
         self._record(res, stamp)
         return res
@@ -308,23 +327,25 @@ class Ticker:
                       ) -> tuple[States, Obstacles, Others] | str:
         """Every input of the step if all are fresh (``ts``: the reference stamp, lock-step),
         else the name of the first stale one (the reason counted for the zero command)."""
-        clock, inbox = self.clock, self.parts.inbox
+        clock, latest = self.clock, self.parts.inbox.latest
+        # freshness (agent.clock.Clock.fresh) against one reading of the clock for every input
+        now, limit = clock.at(ts), clock.stale_after + 1e-9
         states: States = {}
         for k in self.keys.states:
-            entry = inbox.latest(keys.STATE, k)
-            if entry is None or not clock.fresh(entry, ts):
+            entry = latest(keys.STATE, k)
+            if entry is None or not now - entry[0].stamp <= limit:
                 return "state"
             states[k] = entry[0]
-        obs_entry = inbox.latest(keys.OBSTACLES, self.keys.obstacles)
-        if obs_entry is None or not clock.fresh(obs_entry, ts):
+        obs_entry = latest(keys.OBSTACLES, self.keys.obstacles)
+        if obs_entry is None or not now - obs_entry[0].stamp <= limit:
             return "obstacles"
         if self.parts.leader.leading:
             own_others = self.parts.leader.own_others
             if not others_ready or own_others is None:
                 return "ellipse"
             return states, obs_entry[0], own_others
-        entry = inbox.latest(keys.OTHERS, self.keys.others)
-        if entry is None or not clock.fresh(entry, ts):
+        entry = latest(keys.OTHERS, self.keys.others)
+        if entry is None or not now - entry[0].stamp <= limit:
             return "others"
         return states, obs_entry[0], entry[0]
 
@@ -359,10 +380,15 @@ class Ticker:
                             res.solve_us))
 
     def _tick_inputs(self) -> list[tuple[str, str]]:
-        inputs = [(keys.STATE, k) for k in self.keys.states]
-        inputs.append((keys.OBSTACLES, self.keys.obstacles))
-        if not self.parts.leader.leading:
-            inputs.append((keys.OTHERS, self.keys.others))
+        """The (class, key) of every input a lock-step tick waits for (made once per role)."""
+        leading = self.parts.leader.leading
+        inputs = self._inputs_of.get(leading)
+        if inputs is None:
+            inputs = [(keys.STATE, k) for k in self.keys.states]
+            inputs.append((keys.OBSTACLES, self.keys.obstacles))
+            if not leading:
+                inputs.append((keys.OTHERS, self.keys.others))
+            self._inputs_of[leading] = inputs
         return inputs
 
     def _zero(self, t: float | None, why: str) -> StepResult | None:

@@ -17,6 +17,7 @@ import zenoh
 
 from agent.config import build_agent_configs
 from agent.stats import AgentStats
+from agent.tick_times import TICK_PARTS
 from experiments.fleet_scenario import fleet_scenario
 from experiments.machine import load_avg, machine_busy_s, percentile, proc_cpu_s, proc_rss_mb
 from runtime.ports import free_tcp_port, tcp_endpoint
@@ -192,6 +193,7 @@ def _agents_entry(n: int, dt: float, result: WorldResult, stats: Sequence[AgentS
         "world_publish_ms_median": (statistics.median(result.publish_ms)
                                     if result.publish_ms else None),
         "solve_us_median": _median(s.solve_us_median for s in stats),
+        "tick_parts_ms_median": tick_parts(stats),
         "cpu_percent_per_agent_median": statistics.median(cpu_pct) if cpu_pct else None,
         "cpu_percent_per_agent_max": max(cpu_pct) if cpu_pct else None,
         "rss_mb_per_agent_median": statistics.median(rss_mb) if rss_mb else None,
@@ -205,6 +207,18 @@ def _agents_entry(n: int, dt: float, result: WorldResult, stats: Sequence[AgentS
         "others_cpu_percent": None if busy is None or wall <= 0 else
         max(0.0, 100.0 * (busy - ours) / wall),
     }
+
+
+def tick_parts(stats: Sequence[AgentStats]) -> dict[str, float | None]:
+    """Per part of the tick (:data:`agent.tick_times.TICK_PARTS`): the median over the agents of
+    each agent's median [ms] (a part an agent never ran, e.g. ``leader`` on a member, is left
+    out of that part's median)."""
+    parts = [s.tick_parts_us_median for s in stats]
+    out: dict[str, float | None] = {}
+    for name in TICK_PARTS:
+        us = _median(p.get(name) for p in parts)
+        out[name] = None if us is None else us / 1e3
+    return out
 
 
 def _median(values: Iterable[float | None]) -> float | None:

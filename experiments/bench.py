@@ -23,8 +23,9 @@ Eight measurements, written to ``bench.json`` and as a table (``bench.txt`` and 
   their own clocks would, so the N agents do not all wake in the same instant on one shared
   machine (on robots each agent has its own CPU), and one fleet runs with agents ticking on
   their own clock (``agents_clock_ticks``). Reported per fleet: achieved command rate, missed ticks, pose ->
-  command latency (p50, p99) and its parts, CPU and memory (RSS) per agent, and the agents'
-  stale ticks (zero commands) by the input that was stale.
+  command latency (p50, p99) and its parts, CPU and memory (RSS) per agent, the agents'
+  stale ticks (zero commands) by the input that was stale, and where the tick goes (its parts,
+  :mod:`agent.tick_times`: inbox, pose, leader, inputs, route, step, command, record, state).
 * **inprocess**: simulation throughput (robot-steps per second) of ``formation sim`` on the
   warehouse scenario.
 * **viewer** (:mod:`experiments.recording`): ``recording``, the same throughput without the time series,
@@ -406,8 +407,32 @@ def format_fleets(result: dict) -> str:
                          f"p50 {_f(c['latency_ms_p50'], '.2f')} ms "
                          f"({_f(c['latency_ms_p50_ratio'], '.2f')}x), p99 "
                          f"{_f(c['latency_ms_p99'], '.2f')} ms ({_f(c['latency_ms_p99_ratio'], '.2f')}x)")
+    lines += format_tick_parts(result["fleets"])
     lines.append(f"machine: {result['machine']['cpus']} CPUs")
     return "\n".join(lines)
+
+
+def format_tick_parts(runs: Sequence[dict]) -> list[str]:
+    """Where the agents' tick goes, one row per run (medians over the agents of each agent's
+    median per part, ms; :mod:`agent.tick_times`); nothing for agents that do not time them."""
+    from agent.tick_times import TICK_PARTS
+
+    timed = [a for a in runs if any(v is not None for v in (a.get("tick_parts_ms_median") or {})
+                                    .values())]
+    if not timed:
+        return []
+    lines = ["the tick's parts [ms] (medians; leader: the leaders' ticks only):",
+             f"{'N':>4}{'Hz':>5}{'zones':>6}{'tick':>7}" + "".join(f"{p:>8}" for p in TICK_PARTS)]
+    for a in timed:
+        parts = a["tick_parts_ms_median"]
+        lines.append(f"{a['robots']:>4}{a['rate_hz_target']:>5.0f}{a.get('pose_zones', 0):>6}"
+                     f"{_f(a['latency_parts_ms_median']['tick'], '.3f'):>7}"
+                     + "".join(f"{_f(parts.get(p), '.3f'):>8}" for p in TICK_PARTS))
+    lines.append("  inbox: samples drained, decoded and checked; pose: the pose checked and carried; "
+                 "leader: ellipse and others put; inputs: freshness, obstacles, neighbours, the "
+                 "step's inputs; route: the route walked; step: the control step (QP included); "
+                 "command, state: encoded and put; record: counters and diagnostics")
+    return lines
 
 
 def _f(v, fmt: str = ".1f", none: str = "-") -> str:

@@ -175,8 +175,11 @@ def test_bench_fleets_runs_each_chosen_fleet_repeatedly_with_its_latency_parts_a
                                                      "pose_in", "cmd_back"}
         assert all(math.isfinite(v) for v in f["latency_parts_ms_median"].values())
         assert f["load_avg_1min"]["before"] is not None
-    rows = [line.split() for line in (out / "bench.txt").read_text().splitlines()]
+    table, parts = (out / "bench.txt").read_text().split("the tick's parts")
+    rows = [line.split() for line in table.splitlines()]
     assert sum(1 for r in rows if r[:2] == ["4", "20"]) == 2  # one table row per run
+    rows = [line.split() for line in parts.splitlines()]
+    assert sum(1 for r in rows if r[:2] == ["4", "20"]) == 2  # and one row of its tick's parts
 
 
 @pytest.mark.parametrize("args", [["--fleets", "32at50"], ["--fleets", "0@20"], ["--fleets", "8@-5"],

@@ -74,9 +74,10 @@ def test_the_lock_step_clock_goes_by_frames_and_the_real_time_one_carries_states
     assert ls.cmd_stamp(4.1, 3.0) == 4.1
     rt = RealtimeClock(0.5, 0.0)
     moving = {"k": State(0.0, 0.0, 1.0, 0.0, 10.0, 0.0)}
-    carried = rt.align(moving, 10.2)["k"]
-    assert carried.stamp == 10.2 and carried.x == pytest.approx(0.2)
-    assert rt.align(moving, 20.0)["k"].x == pytest.approx(0.5)  # never beyond the stale limit
+    x, y, ux, uy, theta = rt.align(moving, 10.2)["k"]  # (x, y, ux, uy, theta) at 10.2
+    assert (x, y, ux, uy, theta) == (pytest.approx(0.2), 0.0, 1.0, 0.0, 0.0)
+    assert rt.align(moving, 20.0)["k"][0] == pytest.approx(0.5)  # never beyond the stale limit
+    assert ls.align(moving, 10.2)["k"] == (0.0, 0.0, 1.0, 0.0, 0.0)  # lock-step: as it came
     assert rt.cmd_stamp(None, 3.0) == 3.0
     sent: list[str] = []
     ls.state_before(lambda: sent.append("ls"))

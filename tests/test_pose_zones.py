@@ -166,11 +166,15 @@ def test_bench_runs_the_pose_paths_side_by_side_in_every_round_with_the_latency_
         parts = f["latency_parts_ms_median"]
         assert parts["pose_in"] > 0 and f["world_publish_ms_median"] > 0
         assert parts["cmd_back"] == pytest.approx(parts["transport_rest"] - parts["pose_in"])
+        ticked = f["tick_parts_ms_median"]  # where the agents' tick goes
+        assert ticked["inbox"] > 0 and ticked["step"] > 0 and ticked["command"] > 0
+        assert ticked["leader"] > 0  # the leader's ticks have their own part
     compared = result["pose_zones_compared"]
     assert [(c["fleet"], c["pose_zones"]) for c in compared] == [("4@20", 0), ("4@20", 1)]
     assert compared[0]["latency_ms_p50_ratio"] == 1.0
     assert compared[1]["latency_ms_p50"] == result["fleets"][1]["latency_ms_p50"]
     assert "pose paths side by side" in (out / "bench.txt").read_text()
+    assert "the tick's parts" in (out / "bench.txt").read_text()
 
 
 def test_bench_refuses_a_bad_pose_zone_list(tmp_path) -> None:

@@ -147,7 +147,25 @@ def check_floats(obj: object, names: Iterable[str]) -> None:
             check_finite(obj, name)
 
 
+def _plain_points(value: object, limit: int) -> bool:
+    """Whether ``value`` is already what :func:`points_field` makes of it: a tuple of at most
+    ``limit`` pairs of plain finite floats (what a leader's own ellipse carries each tick)."""
+    if type(value) is not tuple or len(value) > limit:
+        return False
+    total = 0.0
+    for p in value:
+        if type(p) is not tuple or len(p) != 2:
+            return False
+        x, y = p
+        if type(x) is not float or type(y) is not float:
+            return False
+        total += x + y
+    return _isfinite(total)
+
+
 def points_field(value: object, name: str, limit: int) -> tuple[tuple[float, float], ...]:
+    if _plain_points(value, limit):
+        return value  # type: ignore[return-value]
     pts = tuple(tuple(p) for p in value)  # type: ignore[attr-defined]
     if len(pts) > limit:
         raise ValueError(f"{name} must hold at most {limit} points, got {len(pts)}")
@@ -168,6 +186,8 @@ def _point_headings(value: object, n: int) -> tuple[float, ...]:
     hs: tuple[Any, ...] = tuple(value)  # type: ignore[arg-type]
     if len(hs) != n:
         raise ValueError(f"headings: {len(hs)} headings for {n} points")
+    if _plain_finite(hs):
+        return hs
     for k, h in enumerate(hs):
         if isinstance(h, bool) or not isinstance(h, numbers.Real) or not math.isfinite(h):
             raise ValueError(f"headings[{k}] must be a finite number, got {h!r}")
@@ -514,15 +534,33 @@ def _ellipse_fields_v2(e: EllipseMsg) -> tuple[Any, ...]:
     return (*_ellipse_fields(e), list(e.points), list(e.headings))
 
 
+def _pose_tuple(msg: Pose) -> tuple[Any, ...]:
+    return (_VERSION, msg.x, msg.y, msg.theta, msg.stamp)
+
+
+def _state_tuple(msg: State) -> tuple[Any, ...]:
+    return (_STATE_VERSION, msg.x, msg.y, msg.ux, msg.uy, msg.theta, msg.stamp)
+
+
+def _cmd_tuple(msg: Cmd) -> tuple[Any, ...]:
+    if msg.ax is not None:
+        return (_CMD_ACCEL_VERSION, msg.v, msg.omega, msg.ux, msg.uy, msg.ax, msg.ay, msg.stamp)
+    return (_VERSION, msg.v, msg.omega, msg.ux, msg.uy, msg.stamp)
+
+
+#: the messages sent every tick -> their wire tuple, found by the exact type (the rest, and
+#: subclasses, by :func:`_wire_tuple`'s chain)
+_TICK_TUPLES: dict[type, Callable[[Any], tuple[Any, ...]]] = {
+    Pose: _pose_tuple, State: _state_tuple, Cmd: _cmd_tuple}
+
+
 def _wire_tuple(msg: Message) -> tuple[Any, ...]:
     if isinstance(msg, Pose):
-        return (_VERSION, msg.x, msg.y, msg.theta, msg.stamp)
+        return _pose_tuple(msg)
     if isinstance(msg, State):
-        return (_STATE_VERSION, msg.x, msg.y, msg.ux, msg.uy, msg.theta, msg.stamp)
-    if isinstance(msg, Cmd) and msg.ax is not None:
-        return (_CMD_ACCEL_VERSION, msg.v, msg.omega, msg.ux, msg.uy, msg.ax, msg.ay, msg.stamp)
+        return _state_tuple(msg)
     if isinstance(msg, Cmd):
-        return (_VERSION, msg.v, msg.omega, msg.ux, msg.uy, msg.stamp)
+        return _cmd_tuple(msg)
     if isinstance(msg, EllipseMsg) and msg.points:
         return (_ELLIPSE_POINTS_VERSION, *_ellipse_fields_v2(msg))
     if isinstance(msg, EllipseMsg):
@@ -556,12 +594,13 @@ def _wire_tuple(msg: Message) -> tuple[Any, ...]:
 
 def encode(msg: Message) -> bytes:
     """Serialize ``msg`` (see the module docstring for the layout)."""
-    return z_serialize(_wire_tuple(msg)).to_bytes()
+    return encode_zbytes(msg).to_bytes()
 
 
 def encode_zbytes(msg: Message) -> zenoh.ZBytes:
     """Like :func:`encode`, as the ``zenoh.ZBytes`` a publisher puts without another copy."""
-    return z_serialize(_wire_tuple(msg))
+    by_type = _TICK_TUPLES.get(type(msg))
+    return z_serialize(by_type(msg) if by_type is not None else _wire_tuple(msg))
 
 
 # --- decoding (wire.reader: the defensive cursor) ---------------------------------------------
