@@ -76,6 +76,7 @@ class DITuning:
 
     brake_share: float = 0.5  # max_accel share a barrier asks at its boundary: more brakes later, harder
     nominal_damping: float = 2.0  # a = this kp (u - v); 2 damps at 1/sqrt(2): more follows u faster
+    restore_share: float = 0.4  # max_accel share a row asks beyond brake_share outside its first stage
 
 
 DI_TUNING = DITuning()
@@ -99,7 +100,24 @@ def gain(gamma: float, max_accel: float, closing: float, dt: float,
          share: float = DI_TUNING.brake_share) -> float:
     """[1/s] both poles of a hazard's HOCBF (module docstring, "Braking distance"); ``share``
     the share of max_accel a barrier asks on its boundary."""
-    return min(gamma, share * max_accel / closing, 1.0 / dt)
+    return min(gamma, share * max_accel / closing, 0.5 / dt)
+
+
+def second_pole(k1: float, dt: float) -> float:
+    """[1/s] k2 = 1 / dt - k1, the pole of the second stage psi1' + k2 psi1 >= 0 (module
+    docstring, "Poles")."""
+    return 1.0 / dt - k1
+
+
+def hocbf_bound(h: float, hd: float, k1: float, dt: float, room: float) -> float:
+    """The row's right side less the drift q: (k1 + k2) h' + k1 k2 h = k1 h' + k2 psi1 with
+    psi1 = h' + k1 h and k2 = :func:`second_pole`; outside the first stage (psi1 < 0) k2 is
+    capped so that k2 (-psi1) <= ``room`` (module docstring, "Poles")."""
+    psi1 = hd + k1 * h
+    k2 = second_pole(k1, dt)
+    if psi1 < 0.0:
+        k2 = min(k2, room / -psi1)
+    return k1 * hd + k2 * psi1
 
 
 def twist_gamma(cp: ControlParams) -> float:
@@ -119,10 +137,13 @@ def twist_gamma(cp: ControlParams) -> float:
     return 0.5 * gain(cp.gamma_formations, _accel(cp), 2.0 * cp.max_speed, cp.period)
 
 
-def hocbf_row(h: float, hd: float, q: float, g: tuple[float, float], k1: float, k2: float) -> Row:
+def hocbf_row(h: float, hd: float, q: float, g: tuple[float, float], k1: float, dt: float,
+              amax: float) -> Row:
     """The row (R):  -g . a <= q + (k1 + k2) h' + k1 k2 h,  normalised; ``hd`` = h',
-    ``q`` the drift of h''."""
-    return normalized_row(-g[0], -g[1], q + (k1 + k2) * hd + k1 * k2 * h)
+    ``q`` the drift of h''; outside its first stage the row asks at most restore_share of
+    ``amax`` beyond k1 h' (:func:`hocbf_bound`)."""
+    room = DI_TUNING.restore_share * amax * math.hypot(g[0], g[1])
+    return normalized_row(-g[0], -g[1], q + hocbf_bound(h, hd, k1, dt, room))
 
 
 def circle_terms(p: tuple[float, float], v: tuple[float, float], c: tuple[float, float],
@@ -143,7 +164,7 @@ def obstacle_hocbf(p, v, o: Obstacle, gamma: float, amax: float, vmax: float,
     """A circle (static or moving at constant velocity) of eq. 4.5: (h, row)."""
     h, hd, g = circle_terms(p, v, (o.x, o.y), (o.vx, o.vy), o.ds)
     k = gain(gamma, amax, vmax + math.hypot(o.vx, o.vy), dt)
-    return h, hocbf_row(h, hd, 0.0, g, k, k)
+    return h, hocbf_row(h, hd, 0.0, g, k, dt, amax)
 
 
 def shape_hocbf(p, v, sh: Shape, gamma: float, amax: float, vmax: float,
@@ -153,10 +174,10 @@ def shape_hocbf(p, v, sh: Shape, gamma: float, amax: float, vmax: float,
     d, gx, gy = shape_distance(p[0], p[1], sh)
     h = d - sh.ds
     k = gain(gamma, amax, vmax, dt)
-    return h, hocbf_row(h, gx * v[0] + gy * v[1], 0.0, (gx, gy), k, k)
+    return h, hocbf_row(h, gx * v[0] + gy * v[1], 0.0, (gx, gy), k, dt, amax)
 
 
-def band_hocbf(p, v, n: Neighbour, eps: float, k: float) -> tuple[float, float, Row, Row]:
+def band_hocbf(p, v, n: Neighbour, eps: float, k: float, dt: float, amax: float) -> tuple[float, float, Row, Row]:
     """One formation edge (eq. 4.3, 4.4, soft): with d = p - p_j, r = v - v_j,
     h_g = |d|^2 - (Df - eps)^2:  h_g' = 2 d . r,  h_g'' = 2 d . a + 2 |r|^2;
     h_l = (Df + eps)^2 - |d|^2:  h_l' = -2 d . r, h_l'' = -2 d . a - 2 |r|^2.
@@ -165,8 +186,8 @@ def band_hocbf(p, v, n: Neighbour, eps: float, k: float) -> tuple[float, float, 
     rx, ry = v[0] - n.vx, v[1] - n.vy
     hg, hl = barriers.formation_h(p[0], p[1], n.x, n.y, n.df, eps)
     dr, r2 = 2.0 * (dx * rx + dy * ry), 2.0 * (rx * rx + ry * ry)
-    row_g = hocbf_row(hg, dr, r2, (2.0 * dx, 2.0 * dy), k, k)
-    row_l = hocbf_row(hl, -dr, -r2, (-2.0 * dx, -2.0 * dy), k, k)
+    row_g = hocbf_row(hg, dr, r2, (2.0 * dx, 2.0 * dy), k, dt, amax)
+    row_l = hocbf_row(hl, -dr, -r2, (-2.0 * dx, -2.0 * dy), k, dt, amax)
     return hg, hl, row_g, row_l
 
 
@@ -192,7 +213,7 @@ def ellipse_hocbf(p, v, e: Ellipse, gamma: float, amax: float, vmax: float,
     q = 2.0 * ((d1 * d1 + u1 * w * (q2 + d2)) * ia2 + (d2 * d2 - u2 * w * (q1 + d1)) * ib2)
     g1, g2 = 2.0 * u1 * ia2, 2.0 * u2 * ib2
     k = gain(gamma, amax, vmax + math.hypot(e.vx, e.vy), dt)
-    return h, hocbf_row(h, hd, q, (g1 * c - g2 * s, g1 * s + g2 * c), k, k)
+    return h, hocbf_row(h, hd, q, (g1 * c - g2 * s, g1 * s + g2 * c), k, dt, amax)
 
 
 def separation_hocbf(p, v, q: Partner, dsep: float, gamma: float, amax: float, vmax: float,
@@ -206,7 +227,8 @@ def separation_hocbf(p, v, q: Partner, dsep: float, gamma: float, amax: float, v
     is k s / 2 <= brake_share max_accel for closing speeds s <= 2 max_speed."""
     h, hd, g = circle_terms(p, v, (q.x, q.y), (q.vx, q.vy), dsep)
     k = gain(gamma, 2.0 * amax, 2.0 * vmax, dt)
-    return h, normalized_row(-g[0], -g[1], 0.5 * (2.0 * k * hd + k * k * h))
+    room = DI_TUNING.restore_share * 2.0 * amax
+    return h, normalized_row(-g[0], -g[1], 0.5 * hocbf_bound(h, hd, k, dt, room))
 
 
 def accel_limit_rows(v: tuple[float, float], u_nom: tuple[float, float], a_nom: tuple[float, float],
@@ -281,9 +303,9 @@ def _band_part(cp: ControlParams, p: tuple[float, float], v: tuple[float, float]
     """The formation edges' rows (soft) that can be active, and the smallest h."""
     soft: list[Row] = []
     hf = math.inf
-    kf = min(cp.gamma_formation, 1.0 / cp.period)
+    kf = min(cp.gamma_formation, 0.5 / cp.period)
     for n in neighbours:
-        hg, hl, rg, rl = band_hocbf(p, v, n, cp.epsilon, kf)
+        hg, hl, rg, rl = band_hocbf(p, v, n, cp.epsilon, kf, cp.period, amax)
         hf = min(hf, hg, hl)
         if rg[2] < amax:
             soft.append(rg)
@@ -347,12 +369,12 @@ def load_rows_of(cp: ControlParams, load: load_rows.MemberLoad, obstacles: Seque
     shares of acceleration: member i holds  g_i/|g_i| . a >= -(2 k h' + k^2 h) / S,
     S = sum_k |g_k| (L.2). Returns (the smallest h, the rows)."""
     amax, vmax, dt = _accel(cp), cp.max_speed, cp.period
-    gamma = cp.gamma_obstacle
+    gamma, restore = cp.gamma_obstacle, DI_TUNING.restore_share * amax
     rows: list[Row] = []
 
     def inactive(h: float, hdot: float, s: float, thing: float) -> bool:  # b = x / S >= amax
         k = gain(gamma, amax, vmax + thing, dt)
-        return 2.0 * k * hdot + k * k * h >= amax * s
+        return hocbf_bound(h, hdot, k, dt, restore * s) >= amax * s
 
     hmin, feats = load_rows.features(load, obstacles, shapes, cp.radius, load_rows.LOAD_CLEAR,
                                      inactive)
@@ -363,7 +385,7 @@ def load_rows_of(cp: ControlParams, load: load_rows.MemberLoad, obstacles: Seque
             continue
         kf = gain(gamma, amax, vmax + f.thing_speed, dt)
         s = sum(math.hypot(g[0], g[1]) for g in f.g)
-        rows.append(normalized_row(-gx, -gy, gi * (2.0 * kf * f.hdot + kf * kf * f.h) / s))
+        rows.append(normalized_row(-gx, -gy, gi * hocbf_bound(f.h, f.hdot, kf, dt, restore * s) / s))
     return hmin, rows
 
 
