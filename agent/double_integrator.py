@@ -21,14 +21,33 @@ bounds the closing speed s = -h' by k1 h. The other party (neighbour, obstacle, 
 taken to keep its velocity over the tick (its acceleration is not on the wire; obstacles and
 ellipses move at constant velocity in the scenario), as eq. 4.12's rows take its velocity.
 
-Braking distance. With h a distance (circles, walls and shelves, separation), on psi1 = 0 the
-row (R) asks for a deceleration of at most k1 s <= k1 s_max along g, s_max the largest closing
-speed (max_speed, plus the obstacle's speed, or twice max_speed for a pair sharing it). The gain
-is therefore :func:`gain`: k = min(gamma, brake_share max_accel / s_max, 1 / dt) (:class:`DITuning`), so the
-deceleration a barrier can ask for on its boundary is at most brake_share of what the robot
-has, and from psi1 >= 0 (s <= k h) the stopping distance s^2 / (2 a_b) with a_b = k s_max is at
-most h / 2: a robot inside the set can always still brake before h = 0. Both poles are k
-(k1 = k2 = k: critically damped, no overshoot of the boundary).
+Poles. The first pole k1 sets how fast a hazard may be closed (psi1 >= 0: s <= k1 h, the single
+integrator's linear rate with k1 <= gamma) and, with it, how hard a barrier brakes; the second,
+k2, only how fast the velocity is brought back into that first stage, which a double integrator
+with ample acceleration does within a period. So k2 = 1 / dt - k1 (:func:`second_pole`), and
+(R) reads  -g . a <= q + k1 h' + k2 psi1. Each robot takes its neighbours to keep their
+velocities, so the relative acceleration a row allows about a neighbour at rest relative to it,
+k1 k2 h, bounds the common acceleration of a whole formation; with h small (a band's width, a
+separation gap) and k2 at the pace of k1 (k2 = k1, the critically damped choice) that holds a
+formation to a crawl; at the sampling rate the band and separation rows let it accelerate as one.
+
+Braking distance. With h a distance (circles, walls and shelves, separation), inside the set
+(psi1 >= 0) the row (R) asks for a deceleration along g of at most k1 s - k2 psi1 <= k1 s <=
+k1 s_max, s_max the largest closing speed (max_speed, plus the obstacle's speed, or twice
+max_speed for a pair sharing it). The first pole is therefore :func:`gain`:
+k1 = min(gamma, brake_share max_accel / s_max, 1 / (2 dt)) (:class:`DITuning`), so the braking a
+barrier asks is at most brake_share of what the robot has, and from psi1 >= 0 (s <= k1 h) the
+stopping distance s^2 / (2 a_b) at a_b = k1 s_max <= brake_share max_accel is at most h / 2: a
+robot inside the set can always still brake before h = 0, however large k2. The robot closes on
+a hazard no faster than its braking allows: s <= k1 h <= brake_share max_accel h / s_max.
+
+Outside the first stage (psi1 < 0: a hazard first heard at a closing speed its first stage
+forbids, another formation's ellipse joining the listen set, a neighbour that accelerated
+towards the robot during the period) k2 = 1 / dt - k1 would ask the whole excess back within one
+period, more than the robot has. There k2 is capped so that the second stage asks at most
+restore_share max_accel along g (:func:`hocbf_bound`): with brake_share the row asks at most
+(brake_share + restore_share) max_accel < max_accel cos(pi / 12), the face of the inscribed
+acceleration polygon, so a single row is always feasible, and psi1 returns at that braking.
 
 Sampling (zero-order hold, a constant over the period dt, exact integration; the one-step
 property :func:`step` is tested for). For a distance barrier h(p) = dist(p, C) - D to a convex C
@@ -36,12 +55,14 @@ property :func:`step` is tested for). For a distance barrier h(p) = dist(p, C) -
 d(t) = d + r t + a t^2 / 2 (the other party at constant velocity)
     h(t) >= h + h' t + (g . a) t^2 / 2     (the supporting line of the convex function).
 The rows drop the curvature term of h'' (>= 0 for a convex distance), so (R) gives
-g . a >= -2 k h' - k^2 h and, with h' >= -k h (psi1 >= 0) and k dt <= 1,
-    h(t) >= h (1 - k t + k^2 t^2 / 2) >= 0    for every t in [0, dt]:
-no sampling margin is needed for circles, walls, shelves and body separation. The formation
-edges (soft, relaxed when need be; both poles min(gamma_formation, 1 / dt)) and other
-formations' ellipses (whose pad is their margin) use the thesis's quadratic h (eq. 4.3, 4.4,
-4.6) with the exact h'' at the sample.
+g . a >= -(k1 + k2) h' - k1 k2 h and, with h' >= -k1 h (psi1 >= 0) and (k1 + k2) t <= 2,
+    h(t) >= h (1 - k1 t + k1^2 t^2 / 2) >= 0    for every t in [0, dt]:
+no sampling margin is needed for circles, walls, shelves and body separation. For a barrier
+linear in the relative position (a wall's face) the row met at the sample also keeps the first
+stage at the next: psi1(dt) >= (k1 dt / 2) psi1 + (k1^3 dt^2 / 2) h >= 0, since k1 + k2 = 1 / dt.
+The formation edges (soft, relaxed when need be; first pole min(gamma_formation, 1 / (2 dt))) and
+other formations' ellipses (whose pad is their margin) use the thesis's quadratic h (eq. 4.3,
+4.4, 4.6) with the exact h'' at the sample.
 
 Limits (never relaxed): |a| <= max_accel as a polygon inscribed in the disk, one vertex along the
 nominal acceleration, and the speed after the tick, v + a dt, inside the speed polygon of
@@ -98,8 +119,8 @@ class DIStep(NamedTuple):
 
 def gain(gamma: float, max_accel: float, closing: float, dt: float,
          share: float = DI_TUNING.brake_share) -> float:
-    """[1/s] both poles of a hazard's HOCBF (module docstring, "Braking distance"); ``share``
-    the share of max_accel a barrier asks on its boundary."""
+    """[1/s] k1, the first pole of a hazard's HOCBF (module docstring, "Braking distance");
+    ``share`` the share of max_accel a barrier asks on its boundary."""
     return min(gamma, share * max_accel / closing, 0.5 / dt)
 
 
@@ -125,15 +146,17 @@ def twist_gamma(cp: ControlParams) -> float:
     integrators (linear alpha = k_t h: ``agent.body.BodyParams.linear_ellipses``), so that a
     slot velocity the twist allows asks nothing of its member's own :func:`ellipse_hocbf`.
 
-    That row, -g . a <= q + 2 k h' + k^2 h, is met by a = 0 whenever h' >= -(k / 2) h - q / (2 k),
-    and q >= 0 for an ellipse that does not turn (its drift is 2 (u1'^2 / a^2 + u2'^2 / b^2)).
-    The critically damped row thus keeps a steady closing at half the pace of its first stage
-    psi1 = h' + k h >= 0; k_t = k_min / 2 with k_min the smallest pole any member's ellipse row
-    can have (:func:`gain` with another formation at most max_speed) gives h' >= -k_t h >=
-    -(k / 2) h. With the single integrator's extended class-K (``ellipse_class_k``, k h (1 + h)
-    outside) the twist drove a formation on at full speed towards another two or three
-    semi-axes out while the member nearest it braked alone, and the formation rows gave way
-    (tests/scenarios/di-three-cross.yaml)."""
+    That row, -g . a <= q + k1 h' + k2 psi1 (psi1 = h' + k1 h, k2 = 1 / dt - k1 >= k1), is met
+    by a = 0 whenever h' >= -(k1 / 2) h: then psi1 >= (k1 / 2) h and the right side is at least
+    q + (k1 / 2) (k2 - k1) h >= 0, with q >= 0 for an ellipse that does not turn (its drift is
+    2 (u1'^2 / a^2 + u2'^2 / b^2)). k_t = k_min / 2, k_min the smallest first pole any member's
+    ellipse row can have (:func:`gain` with another formation at most max_speed), gives
+    h' >= -k_t h >= -(k1 / 2) h; and the other formation's twist closing at the same pace, the
+    two together close at most at k1 h: the members' first stage holds (each member takes the
+    other formation's velocity, not its acceleration). With the single integrator's extended
+    class-K (``ellipse_class_k``, k h (1 + h) outside) the twist drove a formation on at full
+    speed towards another two or three semi-axes out while the member nearest it braked alone,
+    and the formation rows gave way (tests/scenarios/di-three-cross.yaml)."""
     return 0.5 * gain(cp.gamma_formations, _accel(cp), 2.0 * cp.max_speed, cp.period)
 
 
@@ -177,10 +200,12 @@ def shape_hocbf(p, v, sh: Shape, gamma: float, amax: float, vmax: float,
     return h, hocbf_row(h, gx * v[0] + gy * v[1], 0.0, (gx, gy), k, dt, amax)
 
 
-def band_hocbf(p, v, n: Neighbour, eps: float, k: float, dt: float, amax: float) -> tuple[float, float, Row, Row]:
+def band_hocbf(p, v, n: Neighbour, eps: float, k: float, dt: float,
+               amax: float) -> tuple[float, float, Row, Row]:
     """One formation edge (eq. 4.3, 4.4, soft): with d = p - p_j, r = v - v_j,
     h_g = |d|^2 - (Df - eps)^2:  h_g' = 2 d . r,  h_g'' = 2 d . a + 2 |r|^2;
-    h_l = (Df + eps)^2 - |d|^2:  h_l' = -2 d . r, h_l'' = -2 d . a - 2 |r|^2.
+    h_l = (Df + eps)^2 - |d|^2:  h_l' = -2 d . r, h_l'' = -2 d . a - 2 |r|^2;
+    ``k`` the first pole (the second :func:`second_pole` of it and ``dt``).
     Returns (h_g, h_l, row_g, row_l)."""
     dx, dy = p[0] - n.x, p[1] - n.y
     rx, ry = v[0] - n.vx, v[1] - n.vy
@@ -219,12 +244,13 @@ def ellipse_hocbf(p, v, e: Ellipse, gamma: float, amax: float, vmax: float,
 def separation_hocbf(p, v, q: Partner, dsep: float, gamma: float, amax: float, vmax: float,
                    dt: float) -> tuple[float, Row]:
     """Two bodies kept dsep apart: h = |p - p_j| - dsep, the pair's condition
-    g . (a - a_j) >= -(2 k h' + k^2 h) (h' = g . (v - v_j)) split in halves: this robot takes
-    g . a >= -(2 k h' + k^2 h) / 2 and its partner, computing the same numbers from the same
-    ``state``s, the mirror row; the two rows add up to the pair's condition for any two
-    accelerations the two QPs return (the reciprocal split of
+    g . (a - a_j) >= -B with B = (k1 + k2) h' + k1 k2 h (h' = g . (v - v_j); :func:`hocbf_bound`)
+    split in halves: this robot takes g . a >= -B / 2 and its partner, computing the same
+    numbers from the same ``state``s, the mirror row; the two rows add up to the pair's
+    condition for any two accelerations the two QPs return (the reciprocal split of
     :func:`agent.barriers.separation_row`, here about a = 0). Each robot's share of the braking
-    is k s / 2 <= brake_share max_accel for closing speeds s <= 2 max_speed."""
+    is k1 s / 2 <= brake_share max_accel for closing speeds s <= 2 max_speed, and outside the
+    first stage at most restore_share max_accel more."""
     h, hd, g = circle_terms(p, v, (q.x, q.y), (q.vx, q.vy), dsep)
     k = gain(gamma, 2.0 * amax, 2.0 * vmax, dt)
     room = DI_TUNING.restore_share * 2.0 * amax
@@ -303,7 +329,7 @@ def _band_part(cp: ControlParams, p: tuple[float, float], v: tuple[float, float]
     """The formation edges' rows (soft) that can be active, and the smallest h."""
     soft: list[Row] = []
     hf = math.inf
-    kf = min(cp.gamma_formation, 0.5 / cp.period)
+    kf = min(cp.gamma_formation, 0.5 / cp.period)  # the first pole (module docstring, "Sampling")
     for n in neighbours:
         hg, hl, rg, rl = band_hocbf(p, v, n, cp.epsilon, kf, cp.period, amax)
         hf = min(hf, hg, hl)
@@ -363,11 +389,11 @@ def _hazard_part(cp: ControlParams, p: tuple[float, float], v: tuple[float, floa
 def load_rows_of(cp: ControlParams, load: load_rows.MemberLoad, obstacles: Sequence[Obstacle],
                  shapes: Sequence[Shape]) -> tuple[float, list[Row]]:
     """The load's rows (:mod:`agent.load_rows`) as HOCBFs: with h' = dh/dq . q' +
-    sum_k g_k . v_k (the members' velocities now: :attr:`agent.load_rows.Feature.hdot`) the condition
-    sum_k g_k . a_k >= -(2 k h' + k^2 h) (the curvature of h'' left out, as for the distances
-    above; k = :func:`gain` for a closing speed of max_speed plus the thing's) is split in equal
-    shares of acceleration: member i holds  g_i/|g_i| . a >= -(2 k h' + k^2 h) / S,
-    S = sum_k |g_k| (L.2). Returns (the smallest h, the rows)."""
+    sum_k g_k . v_k (the members' velocities now: :attr:`agent.load_rows.Feature.hdot`) the
+    condition sum_k g_k . a_k >= -B, B = (k1 + k2) h' + k1 k2 h (:func:`hocbf_bound`; the
+    curvature of h'' left out, as for the distances above; k1 = :func:`gain` for a closing speed
+    of max_speed plus the thing's) is split in equal shares of acceleration: member i holds
+    g_i/|g_i| . a >= -B / S, S = sum_k |g_k| (L.2). Returns (the smallest h, the rows)."""
     amax, vmax, dt = _accel(cp), cp.max_speed, cp.period
     gamma, restore = cp.gamma_obstacle, DI_TUNING.restore_share * amax
     rows: list[Row] = []
