@@ -47,7 +47,13 @@ towards the robot during the period) k2 = 1 / dt - k1 would ask the whole excess
 period, more than the robot has. There k2 is capped so that the second stage asks at most
 restore_share max_accel along g (:func:`hocbf_bound`): with brake_share the row asks at most
 (brake_share + restore_share) max_accel < max_accel cos(pi / 12), the face of the inscribed
-acceleration polygon, so a single row is always feasible, and psi1 returns at that braking.
+acceleration polygon, so a single row is always feasible, and psi1 returns at that braking. For
+a distance that bound follows from the poles; the quadratic h of a turning ellipse changes at a
+rate proportional to h even for a robot at rest (its level sets sweep at the turn rate times the
+distance: |h'| <= |w| (a / b - b / a) (h + 1) from the rotation alone), which neither pole
+bounds, so :func:`hocbf_row` caps what a row asks at that bound (:func:`most_asked`): there the
+row still brakes along g as hard as a row may, where it would otherwise ask more than the robot
+has and leave the tick to the least-risk command.
 
 Sampling (zero-order hold, a constant over the period dt, exact integration; the one-step
 property :func:`step` is tested for). For a distance barrier h(p) = dist(p, C) - D to a convex C
@@ -164,9 +170,17 @@ def hocbf_row(h: float, hd: float, q: float, g: tuple[float, float], k1: float, 
               amax: float) -> Row:
     """The row (R):  -g . a <= q + (k1 + k2) h' + k1 k2 h,  normalised; ``hd`` = h',
     ``q`` the drift of h''; outside its first stage the row asks at most restore_share of
-    ``amax`` beyond k1 h' (:func:`hocbf_bound`)."""
-    room = DI_TUNING.restore_share * amax * math.hypot(g[0], g[1])
-    return normalized_row(-g[0], -g[1], q + hocbf_bound(h, hd, k1, dt, room))
+    ``amax`` beyond k1 h' (:func:`hocbf_bound`), and never more than :func:`most_asked` in all
+    (module docstring, "Outside the first stage")."""
+    t = DI_TUNING
+    room = t.restore_share * amax * math.hypot(g[0], g[1])
+    nx, ny, b = normalized_row(-g[0], -g[1], q + hocbf_bound(h, hd, k1, dt, room))
+    return nx, ny, max(b, -most_asked(amax))
+
+
+def most_asked(amax: float) -> float:
+    """[m/s^2] the most braking one row asks: (brake_share + restore_share) amax."""
+    return (DI_TUNING.brake_share + DI_TUNING.restore_share) * amax
 
 
 def circle_terms(p: tuple[float, float], v: tuple[float, float], c: tuple[float, float],

@@ -149,16 +149,29 @@ def test_two_robots_acting_at_once_keep_their_bodies_apart_over_the_period(
 @given(gap, angle, st.tuples(speed, angle), st.tuples(speed, angle), accel, period, gamma)
 def test_one_circle_row_is_feasible_wherever_the_robot_is_outside_its_first_stage(
         h0, oa, robot_v, obstacle_v, amax, dt, g):
-    """Module docstring, "Poles": outside the first stage the second pole is capped, so a single
-    row asks at most (brake_share + restore_share) max_accel, inside the acceleration polygon."""
+    """Module docstring, "Outside the first stage": there the second pole is capped, so a
+    circle's row asks at most (brake_share + restore_share) max_accel by the poles alone (the
+    cap of :func:`agent.double_integrator.most_asked` never binds) and is feasible."""
     (vs, va), (ws, wa) = robot_v, obstacle_v
     vmax = 0.5
     v, w = _polar(min(vs, vmax), va), _polar(min(ws, vmax), wa)
     ox, oy = _polar(0.3 + h0, oa)
     h, row = di.obstacle_hocbf((0.0, 0.0), v, Obstacle(ox, oy, w[0], w[1], 0.3), g, amax, vmax, dt)
-    assert h >= 0.0
-    assert row[2] >= -(di.DI_TUNING.brake_share + di.DI_TUNING.restore_share) * amax - TOL
+    hd = di.circle_terms((0.0, 0.0), v, (ox, oy), w, 0.3)[1]
+    k = di.gain(g, amax, vmax + math.hypot(*w), dt)
+    b = di.hocbf_bound(h, hd, k, dt, di.DI_TUNING.restore_share * amax)
+    assert h >= -TOL and b >= -di.most_asked(amax) - TOL and row[2] == pytest.approx(b)
     assert _solve((0.0, 0.0), v, vmax, amax, dt, [row]) is not None
+
+
+def test_a_turning_ellipse_far_away_asks_no_more_braking_than_one_row_may():
+    """Module docstring, "Outside the first stage": the level sets of a turning ellipse's h
+    sweep at its turn rate times the distance; a robot at rest 4 m away keeps a feasible row."""
+    amax, dt, vmax = 0.5, 0.05, 0.22
+    e = Ellipse(-1.7, -0.41, 1.3, 0.62, 0.35, 0.002, 0.028, 0.53)
+    h, row = di.ellipse_hocbf((0.54, -4.16), (0.0, 0.0), e, 0.5, amax, vmax, dt)
+    assert h > 0.0 and row[2] == pytest.approx(-di.most_asked(amax))
+    assert _solve((0.0, 0.0), (0.0, 0.0), vmax, amax, dt, [row]) is not None
 
 
 @settings(max_examples=400, deadline=None)
