@@ -21,14 +21,39 @@ bounds the closing speed s = -h' by k1 h. The other party (neighbour, obstacle, 
 taken to keep its velocity over the tick (its acceleration is not on the wire; obstacles and
 ellipses move at constant velocity in the scenario), as eq. 4.12's rows take its velocity.
 
-Braking distance. With h a distance (circles, walls and shelves, separation), on psi1 = 0 the
-row (R) asks for a deceleration of at most k1 s <= k1 s_max along g, s_max the largest closing
-speed (max_speed, plus the obstacle's speed, or twice max_speed for a pair sharing it). The gain
-is therefore :func:`gain`: k = min(gamma, brake_share max_accel / s_max, 1 / dt) (:class:`DITuning`), so the
-deceleration a barrier can ask for on its boundary is at most brake_share of what the robot
-has, and from psi1 >= 0 (s <= k h) the stopping distance s^2 / (2 a_b) with a_b = k s_max is at
-most h / 2: a robot inside the set can always still brake before h = 0. Both poles are k
-(k1 = k2 = k: critically damped, no overshoot of the boundary).
+Poles. The first pole k1 sets how fast a hazard may be closed (psi1 >= 0: s <= k1 h, the single
+integrator's linear rate with k1 <= gamma) and, with it, how hard a barrier brakes; the second,
+k2, only how fast the velocity is brought back into that first stage, which a double integrator
+with ample acceleration does within a period. So k2 = 1 / dt - k1 (:func:`second_pole`), and
+(R) reads  -g . a <= q + k1 h' + k2 psi1. Each robot takes its neighbours to keep their
+velocities, so the relative acceleration a row allows about a neighbour at rest relative to it,
+k1 k2 h, bounds the common acceleration of a whole formation; with h small (a band's width, a
+separation gap) and k2 at the pace of k1 (k2 = k1, the critically damped choice) that holds a
+formation to a crawl; at the sampling rate the band and separation rows let it accelerate as one.
+
+Braking distance. With h a distance (circles, walls and shelves, separation), inside the set
+(psi1 >= 0) the row (R) asks for a deceleration along g of at most k1 s - k2 psi1 <= k1 s <=
+k1 s_max, s_max the largest closing speed (max_speed, plus the obstacle's speed, or twice
+max_speed for a pair sharing it). The first pole is therefore :func:`gain`:
+k1 = min(gamma, brake_share max_accel / s_max, 1 / (2 dt)) (:class:`DITuning`), so the braking a
+barrier asks is at most brake_share of what the robot has, and from psi1 >= 0 (s <= k1 h) the
+stopping distance s^2 / (2 a_b) at a_b = k1 s_max <= brake_share max_accel is at most h / 2: a
+robot inside the set can always still brake before h = 0, however large k2. The robot closes on
+a hazard no faster than its braking allows: s <= k1 h <= brake_share max_accel h / s_max.
+
+Outside the first stage (psi1 < 0: a hazard first heard at a closing speed its first stage
+forbids, another formation's ellipse joining the listen set, a neighbour that accelerated
+towards the robot during the period) k2 = 1 / dt - k1 would ask the whole excess back within one
+period, more than the robot has. There k2 is capped so that the second stage asks at most
+restore_share max_accel along g (:func:`hocbf_bound`): with brake_share the row asks at most
+(brake_share + restore_share) max_accel < max_accel cos(pi / 12), the face of the inscribed
+acceleration polygon, so a single row is always feasible, and psi1 returns at that braking. For
+a distance that bound follows from the poles; the quadratic h of a turning ellipse changes at a
+rate proportional to h even for a robot at rest (its level sets sweep at the turn rate times the
+distance: |h'| <= |w| (a / b - b / a) (h + 1) from the rotation alone), which neither pole
+bounds, so :func:`hocbf_row` caps what a row asks at that bound (:func:`most_asked`): there the
+row still brakes along g as hard as a row may, where it would otherwise ask more than the robot
+has and leave the tick to the least-risk command.
 
 Sampling (zero-order hold, a constant over the period dt, exact integration; the one-step
 property :func:`step` is tested for). For a distance barrier h(p) = dist(p, C) - D to a convex C
@@ -36,12 +61,14 @@ property :func:`step` is tested for). For a distance barrier h(p) = dist(p, C) -
 d(t) = d + r t + a t^2 / 2 (the other party at constant velocity)
     h(t) >= h + h' t + (g . a) t^2 / 2     (the supporting line of the convex function).
 The rows drop the curvature term of h'' (>= 0 for a convex distance), so (R) gives
-g . a >= -2 k h' - k^2 h and, with h' >= -k h (psi1 >= 0) and k dt <= 1,
-    h(t) >= h (1 - k t + k^2 t^2 / 2) >= 0    for every t in [0, dt]:
-no sampling margin is needed for circles, walls, shelves and body separation. The formation
-edges (soft, relaxed when need be; both poles min(gamma_formation, 1 / dt)) and other
-formations' ellipses (whose pad is their margin) use the thesis's quadratic h (eq. 4.3, 4.4,
-4.6) with the exact h'' at the sample.
+g . a >= -(k1 + k2) h' - k1 k2 h and, with h' >= -k1 h (psi1 >= 0) and (k1 + k2) t <= 2,
+    h(t) >= h (1 - k1 t + k1^2 t^2 / 2) >= 0    for every t in [0, dt]:
+no sampling margin is needed for circles, walls, shelves and body separation. For a barrier
+linear in the relative position (a wall's face) the row met at the sample also keeps the first
+stage at the next: psi1(dt) >= (k1 dt / 2) psi1 + (k1^3 dt^2 / 2) h >= 0, since k1 + k2 = 1 / dt.
+The formation edges (soft, relaxed when need be; first pole min(gamma_formation, 1 / (2 dt))) and
+other formations' ellipses (whose pad is their margin) use the thesis's quadratic h (eq. 4.3,
+4.4, 4.6) with the exact h'' at the sample.
 
 Limits (never relaxed): |a| <= max_accel as a polygon inscribed in the disk, one vertex along the
 nominal acceleration, and the speed after the tick, v + a dt, inside the speed polygon of
@@ -76,6 +103,7 @@ class DITuning:
 
     brake_share: float = 0.5  # max_accel share a barrier asks at its boundary: more brakes later, harder
     nominal_damping: float = 2.0  # a = this kp (u - v); 2 damps at 1/sqrt(2): more follows u faster
+    restore_share: float = 0.4  # max_accel share a row asks beyond brake_share outside its first stage
 
 
 DI_TUNING = DITuning()
@@ -97,9 +125,26 @@ class DIStep(NamedTuple):
 
 def gain(gamma: float, max_accel: float, closing: float, dt: float,
          share: float = DI_TUNING.brake_share) -> float:
-    """[1/s] both poles of a hazard's HOCBF (module docstring, "Braking distance"); ``share``
-    the share of max_accel a barrier asks on its boundary."""
-    return min(gamma, share * max_accel / closing, 1.0 / dt)
+    """[1/s] k1, the first pole of a hazard's HOCBF (module docstring, "Braking distance");
+    ``share`` the share of max_accel a barrier asks on its boundary."""
+    return min(gamma, share * max_accel / closing, 0.5 / dt)
+
+
+def second_pole(k1: float, dt: float) -> float:
+    """[1/s] k2 = 1 / dt - k1, the pole of the second stage psi1' + k2 psi1 >= 0 (module
+    docstring, "Poles")."""
+    return 1.0 / dt - k1
+
+
+def hocbf_bound(h: float, hd: float, k1: float, dt: float, room: float) -> float:
+    """The row's right side less the drift q: (k1 + k2) h' + k1 k2 h = k1 h' + k2 psi1 with
+    psi1 = h' + k1 h and k2 = :func:`second_pole`; outside the first stage (psi1 < 0) k2 is
+    capped so that k2 (-psi1) <= ``room`` (module docstring, "Poles")."""
+    psi1 = hd + k1 * h
+    k2 = second_pole(k1, dt)
+    if psi1 < 0.0:
+        k2 = min(k2, room / -psi1)
+    return k1 * hd + k2 * psi1
 
 
 def twist_gamma(cp: ControlParams) -> float:
@@ -107,22 +152,35 @@ def twist_gamma(cp: ControlParams) -> float:
     integrators (linear alpha = k_t h: ``agent.body.BodyParams.linear_ellipses``), so that a
     slot velocity the twist allows asks nothing of its member's own :func:`ellipse_hocbf`.
 
-    That row, -g . a <= q + 2 k h' + k^2 h, is met by a = 0 whenever h' >= -(k / 2) h - q / (2 k),
-    and q >= 0 for an ellipse that does not turn (its drift is 2 (u1'^2 / a^2 + u2'^2 / b^2)).
-    The critically damped row thus keeps a steady closing at half the pace of its first stage
-    psi1 = h' + k h >= 0; k_t = k_min / 2 with k_min the smallest pole any member's ellipse row
-    can have (:func:`gain` with another formation at most max_speed) gives h' >= -k_t h >=
-    -(k / 2) h. With the single integrator's extended class-K (``ellipse_class_k``, k h (1 + h)
-    outside) the twist drove a formation on at full speed towards another two or three
-    semi-axes out while the member nearest it braked alone, and the formation rows gave way
-    (tests/scenarios/di-three-cross.yaml)."""
+    That row, -g . a <= q + k1 h' + k2 psi1 (psi1 = h' + k1 h, k2 = 1 / dt - k1 >= k1), is met
+    by a = 0 whenever h' >= -(k1 / 2) h: then psi1 >= (k1 / 2) h and the right side is at least
+    q + (k1 / 2) (k2 - k1) h >= 0, with q >= 0 for an ellipse that does not turn (its drift is
+    2 (u1'^2 / a^2 + u2'^2 / b^2)). k_t = k_min / 2, k_min the smallest first pole any member's
+    ellipse row can have (:func:`gain` with another formation at most max_speed), gives
+    h' >= -k_t h >= -(k1 / 2) h; and the other formation's twist closing at the same pace, the
+    two together close at most at k1 h: the members' first stage holds (each member takes the
+    other formation's velocity, not its acceleration). With the single integrator's extended
+    class-K (``ellipse_class_k``, k h (1 + h) outside) the twist drove a formation on at full
+    speed towards another two or three semi-axes out while the member nearest it braked alone,
+    and the formation rows gave way (tests/scenarios/di-three-cross.yaml)."""
     return 0.5 * gain(cp.gamma_formations, _accel(cp), 2.0 * cp.max_speed, cp.period)
 
 
-def hocbf_row(h: float, hd: float, q: float, g: tuple[float, float], k1: float, k2: float) -> Row:
+def hocbf_row(h: float, hd: float, q: float, g: tuple[float, float], k1: float, dt: float,
+              amax: float) -> Row:
     """The row (R):  -g . a <= q + (k1 + k2) h' + k1 k2 h,  normalised; ``hd`` = h',
-    ``q`` the drift of h''."""
-    return normalized_row(-g[0], -g[1], q + (k1 + k2) * hd + k1 * k2 * h)
+    ``q`` the drift of h''; outside its first stage the row asks at most restore_share of
+    ``amax`` beyond k1 h' (:func:`hocbf_bound`), and never more than :func:`most_asked` in all
+    (module docstring, "Outside the first stage")."""
+    t = DI_TUNING
+    room = t.restore_share * amax * math.hypot(g[0], g[1])
+    nx, ny, b = normalized_row(-g[0], -g[1], q + hocbf_bound(h, hd, k1, dt, room))
+    return nx, ny, max(b, -most_asked(amax))
+
+
+def most_asked(amax: float) -> float:
+    """[m/s^2] the most braking one row asks: (brake_share + restore_share) amax."""
+    return (DI_TUNING.brake_share + DI_TUNING.restore_share) * amax
 
 
 def circle_terms(p: tuple[float, float], v: tuple[float, float], c: tuple[float, float],
@@ -143,7 +201,7 @@ def obstacle_hocbf(p, v, o: Obstacle, gamma: float, amax: float, vmax: float,
     """A circle (static or moving at constant velocity) of eq. 4.5: (h, row)."""
     h, hd, g = circle_terms(p, v, (o.x, o.y), (o.vx, o.vy), o.ds)
     k = gain(gamma, amax, vmax + math.hypot(o.vx, o.vy), dt)
-    return h, hocbf_row(h, hd, 0.0, g, k, k)
+    return h, hocbf_row(h, hd, 0.0, g, k, dt, amax)
 
 
 def shape_hocbf(p, v, sh: Shape, gamma: float, amax: float, vmax: float,
@@ -153,20 +211,22 @@ def shape_hocbf(p, v, sh: Shape, gamma: float, amax: float, vmax: float,
     d, gx, gy = shape_distance(p[0], p[1], sh)
     h = d - sh.ds
     k = gain(gamma, amax, vmax, dt)
-    return h, hocbf_row(h, gx * v[0] + gy * v[1], 0.0, (gx, gy), k, k)
+    return h, hocbf_row(h, gx * v[0] + gy * v[1], 0.0, (gx, gy), k, dt, amax)
 
 
-def band_hocbf(p, v, n: Neighbour, eps: float, k: float) -> tuple[float, float, Row, Row]:
+def band_hocbf(p, v, n: Neighbour, eps: float, k: float, dt: float,
+               amax: float) -> tuple[float, float, Row, Row]:
     """One formation edge (eq. 4.3, 4.4, soft): with d = p - p_j, r = v - v_j,
     h_g = |d|^2 - (Df - eps)^2:  h_g' = 2 d . r,  h_g'' = 2 d . a + 2 |r|^2;
-    h_l = (Df + eps)^2 - |d|^2:  h_l' = -2 d . r, h_l'' = -2 d . a - 2 |r|^2.
+    h_l = (Df + eps)^2 - |d|^2:  h_l' = -2 d . r, h_l'' = -2 d . a - 2 |r|^2;
+    ``k`` the first pole (the second :func:`second_pole` of it and ``dt``).
     Returns (h_g, h_l, row_g, row_l)."""
     dx, dy = p[0] - n.x, p[1] - n.y
     rx, ry = v[0] - n.vx, v[1] - n.vy
     hg, hl = barriers.formation_h(p[0], p[1], n.x, n.y, n.df, eps)
     dr, r2 = 2.0 * (dx * rx + dy * ry), 2.0 * (rx * rx + ry * ry)
-    row_g = hocbf_row(hg, dr, r2, (2.0 * dx, 2.0 * dy), k, k)
-    row_l = hocbf_row(hl, -dr, -r2, (-2.0 * dx, -2.0 * dy), k, k)
+    row_g = hocbf_row(hg, dr, r2, (2.0 * dx, 2.0 * dy), k, dt, amax)
+    row_l = hocbf_row(hl, -dr, -r2, (-2.0 * dx, -2.0 * dy), k, dt, amax)
     return hg, hl, row_g, row_l
 
 
@@ -192,21 +252,23 @@ def ellipse_hocbf(p, v, e: Ellipse, gamma: float, amax: float, vmax: float,
     q = 2.0 * ((d1 * d1 + u1 * w * (q2 + d2)) * ia2 + (d2 * d2 - u2 * w * (q1 + d1)) * ib2)
     g1, g2 = 2.0 * u1 * ia2, 2.0 * u2 * ib2
     k = gain(gamma, amax, vmax + math.hypot(e.vx, e.vy), dt)
-    return h, hocbf_row(h, hd, q, (g1 * c - g2 * s, g1 * s + g2 * c), k, k)
+    return h, hocbf_row(h, hd, q, (g1 * c - g2 * s, g1 * s + g2 * c), k, dt, amax)
 
 
 def separation_hocbf(p, v, q: Partner, dsep: float, gamma: float, amax: float, vmax: float,
                    dt: float) -> tuple[float, Row]:
     """Two bodies kept dsep apart: h = |p - p_j| - dsep, the pair's condition
-    g . (a - a_j) >= -(2 k h' + k^2 h) (h' = g . (v - v_j)) split in halves: this robot takes
-    g . a >= -(2 k h' + k^2 h) / 2 and its partner, computing the same numbers from the same
-    ``state``s, the mirror row; the two rows add up to the pair's condition for any two
-    accelerations the two QPs return (the reciprocal split of
+    g . (a - a_j) >= -B with B = (k1 + k2) h' + k1 k2 h (h' = g . (v - v_j); :func:`hocbf_bound`)
+    split in halves: this robot takes g . a >= -B / 2 and its partner, computing the same
+    numbers from the same ``state``s, the mirror row; the two rows add up to the pair's
+    condition for any two accelerations the two QPs return (the reciprocal split of
     :func:`agent.barriers.separation_row`, here about a = 0). Each robot's share of the braking
-    is k s / 2 <= brake_share max_accel for closing speeds s <= 2 max_speed."""
+    is k1 s / 2 <= brake_share max_accel for closing speeds s <= 2 max_speed, and outside the
+    first stage at most restore_share max_accel more."""
     h, hd, g = circle_terms(p, v, (q.x, q.y), (q.vx, q.vy), dsep)
     k = gain(gamma, 2.0 * amax, 2.0 * vmax, dt)
-    return h, normalized_row(-g[0], -g[1], 0.5 * (2.0 * k * hd + k * k * h))
+    room = DI_TUNING.restore_share * 2.0 * amax
+    return h, normalized_row(-g[0], -g[1], 0.5 * hocbf_bound(h, hd, k, dt, room))
 
 
 def accel_limit_rows(v: tuple[float, float], u_nom: tuple[float, float], a_nom: tuple[float, float],
@@ -281,9 +343,9 @@ def _band_part(cp: ControlParams, p: tuple[float, float], v: tuple[float, float]
     """The formation edges' rows (soft) that can be active, and the smallest h."""
     soft: list[Row] = []
     hf = math.inf
-    kf = min(cp.gamma_formation, 1.0 / cp.period)
+    kf = min(cp.gamma_formation, 0.5 / cp.period)  # the first pole (module docstring, "Sampling")
     for n in neighbours:
-        hg, hl, rg, rl = band_hocbf(p, v, n, cp.epsilon, kf)
+        hg, hl, rg, rl = band_hocbf(p, v, n, cp.epsilon, kf, cp.period, amax)
         hf = min(hf, hg, hl)
         if rg[2] < amax:
             soft.append(rg)
@@ -341,18 +403,18 @@ def _hazard_part(cp: ControlParams, p: tuple[float, float], v: tuple[float, floa
 def load_rows_of(cp: ControlParams, load: load_rows.MemberLoad, obstacles: Sequence[Obstacle],
                  shapes: Sequence[Shape]) -> tuple[float, list[Row]]:
     """The load's rows (:mod:`agent.load_rows`) as HOCBFs: with h' = dh/dq . q' +
-    sum_k g_k . v_k (the members' velocities now: :attr:`agent.load_rows.Feature.hdot`) the condition
-    sum_k g_k . a_k >= -(2 k h' + k^2 h) (the curvature of h'' left out, as for the distances
-    above; k = :func:`gain` for a closing speed of max_speed plus the thing's) is split in equal
-    shares of acceleration: member i holds  g_i/|g_i| . a >= -(2 k h' + k^2 h) / S,
-    S = sum_k |g_k| (L.2). Returns (the smallest h, the rows)."""
+    sum_k g_k . v_k (the members' velocities now: :attr:`agent.load_rows.Feature.hdot`) the
+    condition sum_k g_k . a_k >= -B, B = (k1 + k2) h' + k1 k2 h (:func:`hocbf_bound`; the
+    curvature of h'' left out, as for the distances above; k1 = :func:`gain` for a closing speed
+    of max_speed plus the thing's) is split in equal shares of acceleration: member i holds
+    g_i/|g_i| . a >= -B / S, S = sum_k |g_k| (L.2). Returns (the smallest h, the rows)."""
     amax, vmax, dt = _accel(cp), cp.max_speed, cp.period
-    gamma = cp.gamma_obstacle
+    gamma, restore = cp.gamma_obstacle, DI_TUNING.restore_share * amax
     rows: list[Row] = []
 
     def inactive(h: float, hdot: float, s: float, thing: float) -> bool:  # b = x / S >= amax
         k = gain(gamma, amax, vmax + thing, dt)
-        return 2.0 * k * hdot + k * k * h >= amax * s
+        return hocbf_bound(h, hdot, k, dt, restore * s) >= amax * s
 
     hmin, feats = load_rows.features(load, obstacles, shapes, cp.radius, load_rows.LOAD_CLEAR,
                                      inactive)
@@ -363,7 +425,7 @@ def load_rows_of(cp: ControlParams, load: load_rows.MemberLoad, obstacles: Seque
             continue
         kf = gain(gamma, amax, vmax + f.thing_speed, dt)
         s = sum(math.hypot(g[0], g[1]) for g in f.g)
-        rows.append(normalized_row(-gx, -gy, gi * (2.0 * kf * f.hdot + kf * kf * f.h) / s))
+        rows.append(normalized_row(-gx, -gy, gi * hocbf_bound(f.h, f.hdot, kf, dt, restore * s) / s))
     return hmin, rows
 
 

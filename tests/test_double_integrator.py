@@ -18,7 +18,7 @@ from zenoh.ext import UInt8, z_deserialize
 
 from agent import double_integrator as di
 from agent.accel_limit import STATUS_ACCEL
-from agent.barriers import Obstacle, Partner, speed_rows
+from agent.barriers import Neighbour, Obstacle, Partner, speed_rows
 from agent.barriers import obstacle_row as obstacle_row_si
 from agent.config import build_agent_configs, load_config, save_config
 from agent.control import Controller, ControlParams, StepInput
@@ -32,6 +32,7 @@ from tests.scenario_runs import summary_of
 from wire.payloads import CMD_ACCEL_VERSION, Cmd, DecodeError, decode_cmd, encode
 
 SCENARIOS = Path(__file__).parent / "scenarios"
+THESIS = Path(__file__).parents[1] / "scenarios"
 DI_SCENARIOS = ["di-thesis-move", "di-circle", "di-shelf", "di-crossing", "di-forklift",
                 "di-three-cross", "di-pushed-to-shelves", "di-shelf-rows-deadlock"]
 TOL = 1e-9
@@ -144,6 +145,73 @@ def test_two_robots_acting_at_once_keep_their_bodies_apart_over_the_period(
         assert math.hypot(a[0] - b[0], a[1] - b[1]) - dsep >= -TOL
 
 
+@settings(max_examples=400, deadline=None)
+@given(gap, angle, st.tuples(speed, angle), st.tuples(speed, angle), accel, period, gamma)
+def test_one_circle_row_is_feasible_wherever_the_robot_is_outside_its_first_stage(
+        h0, oa, robot_v, obstacle_v, amax, dt, g):
+    """Module docstring, "Outside the first stage": there the second pole is capped, so a
+    circle's row asks at most (brake_share + restore_share) max_accel by the poles alone (the
+    cap of :func:`agent.double_integrator.most_asked` never binds) and is feasible."""
+    (vs, va), (ws, wa) = robot_v, obstacle_v
+    vmax = 0.5
+    v, w = _polar(min(vs, vmax), va), _polar(min(ws, vmax), wa)
+    ox, oy = _polar(0.3 + h0, oa)
+    h, row = di.obstacle_hocbf((0.0, 0.0), v, Obstacle(ox, oy, w[0], w[1], 0.3), g, amax, vmax, dt)
+    hd = di.circle_terms((0.0, 0.0), v, (ox, oy), w, 0.3)[1]
+    k = di.gain(g, amax, vmax + math.hypot(*w), dt)
+    b = di.hocbf_bound(h, hd, k, dt, di.DI_TUNING.restore_share * amax)
+    assert h >= -TOL and b >= -di.most_asked(amax) - TOL and row[2] == pytest.approx(b)
+    assert _solve((0.0, 0.0), v, vmax, amax, dt, [row]) is not None
+
+
+def test_a_turning_ellipse_far_away_asks_no_more_braking_than_one_row_may():
+    """Module docstring, "Outside the first stage": the level sets of a turning ellipse's h
+    sweep at its turn rate times the distance; a robot at rest 4 m away keeps a feasible row."""
+    amax, dt, vmax = 0.5, 0.05, 0.22
+    e = Ellipse(-1.7, -0.41, 1.3, 0.62, 0.35, 0.002, 0.028, 0.53)
+    h, row = di.ellipse_hocbf((0.54, -4.16), (0.0, 0.0), e, 0.5, amax, vmax, dt)
+    assert h > 0.0 and row[2] == pytest.approx(-di.most_asked(amax))
+    assert _solve((0.0, 0.0), (0.0, 0.0), vmax, amax, dt, [row]) is not None
+
+
+@settings(max_examples=400, deadline=None)
+@given(gap, st.floats(-0.5, 0.5), st.tuples(speed, angle), accel, period, gamma,
+       st.tuples(speed, angle))
+def test_a_wall_face_row_met_keeps_the_first_stage_at_the_next_sample(
+        h0, shift, robot_v, amax, dt, g, nominal):
+    """Module docstring, "Sampling": for a barrier linear in the position (a long wall's face)
+    a robot inside {h >= 0, psi1 >= 0} that meets the row is inside it again a period later."""
+    (vs, va), (an, aa) = robot_v, nominal
+    vmax, ds = 0.5, 0.15
+    v = _polar(vs, va)
+    wall = segment("w", (ds + h0, shift - 5.0), (ds + h0, shift + 5.0), ds)
+    k = di.gain(g, amax, vmax, dt)
+    h, row = di.shape_hocbf((0.0, 0.0), v, wall, g, amax, vmax, dt)
+    assume(h >= 0.0 and -v[0] + k * h >= 0.0)  # g = (-1, 0): psi1 = -vx + k h
+    a = _solve(_polar(an * amax, aa), v, vmax, amax, dt, [row])
+    assume(a is not None)
+    assert a is not None
+    (x, _), vx = _moved((0.0, 0.0), v, a, dt), v[0] + a[0] * dt
+    h1 = ds + h0 - x - ds
+    assert h1 >= -TOL and -vx + k * h1 >= -TOL
+
+
+def test_a_formation_at_rest_accelerates_as_one_through_its_band_and_separation_rows():
+    """Module docstring, "Poles": two members at rest a band's middle apart (thesis 5.1.2: gamma
+    0.5, epsilon 0.035, edge 0.25 m) may each accelerate along their edge, towards and away from
+    the other, at a third of max_accel under the band and separation rows alone."""
+    amax, dt = 0.5, 0.05
+    cp = ControlParams(gamma_formation=0.5, epsilon=0.035, max_speed=0.22, period=dt,
+                       double_integrator=True, max_accel=amax, radius=0.105)
+    n = Neighbour(0.25, 0.0, 0.0, 0.0, 0.25)
+    _, _, row_g, row_l = di.band_hocbf((0.0, 0.0), (0.0, 0.0), n, cp.epsilon,
+                                      min(cp.gamma_formation, 0.5 / dt), dt, amax)
+    _, sep = di.separation_hocbf((0.0, 0.0), (0.0, 0.0), Partner(0.25, 0.0, 0.0, 0.0),
+                                 cp.separation, cp.gamma_formation, amax, cp.max_speed, dt)
+    for ax in (amax / 3.0, -amax / 3.0):  # towards the other member and away from it
+        assert all(nx * ax <= b for nx, _, b in (row_g, row_l, sep))
+
+
 # --- limits, nominal, braking -----------------------------------------------------------------
 
 
@@ -232,6 +300,23 @@ def test_double_integrator_scenarios_meet_the_bar(name):
     assert summary["collisions"] == 0, summary["collision_log"]
     assert summary["formation_error_max_m"] <= 1.5 * s.controller.epsilon
     assert summary["all_reached"]
+    assert summary["qp"]["hard_row_unmet_ticks"] == 0, summary["qp"]["hard_row_unmet"]
+
+
+@pytest.mark.parametrize("stem", ["5.1.1", "5.1.2", "5.2.1", "5.2.2"])
+def test_double_integrators_with_ample_acceleration_keep_the_single_integrators_pace(stem):
+    """The thesis's scenarios with double integrators of max_accel 0.5 m/s^2 in place of its
+    single integrators: every goal within 1.5 times the single integrators' time, safely."""
+    path = THESIS / f"thesis-{stem}.yaml"
+    single = summary_of(path)
+    s = parse_scenario(path.read_text().replace(
+        "model: single_integrator,", "model: double_integrator, max_accel: 0.5,"))
+    assert s.robot.is_double_integrator and single["all_reached"]
+    summary = simulate(s, SimOptions(record=False)).summary
+    assert summary["all_reached"]
+    assert summary["time_to_goal_s"] <= 1.5 * single["time_to_goal_s"]
+    assert summary["collisions"] == 0, summary["collision_log"]
+    assert summary["formation_error_max_m"] <= 1.5 * s.controller.epsilon
     assert summary["qp"]["hard_row_unmet_ticks"] == 0, summary["qp"]["hard_row_unmet"]
 
 
