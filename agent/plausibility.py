@@ -61,7 +61,7 @@ REACQUIRE_SPAN_S = 0.3  # [s] ... over at least this long (several frames of any
 POINT_REACH = 2.0  # an ellipse's member points lie within this many semi-major axes of it
 POINT_MARGIN_M = 1.0  # [m] ... and this much more
 OBSTACLE_HOLD_S = 2.0  # [s] how long a missing obstacle is kept (its Ds grown meanwhile)
-DS_TOLERANCE_M = 1e-3  # [m] two sightings of one obstacle agree on its Ds within this
+DS_TOLERANCE_M = 1e-3  # [m] a later sighting of an obstacle may not have a Ds smaller by more
 RIVAL_HOLD_S = 1.0  # [s] a rival obstacle list is avoided this long after it came
 MAX_RIVALS = 4  # rival sources tracked at once; more and the robot stops (ObstacleRivals)
 
@@ -194,14 +194,19 @@ class ObstacleMemory:
 def sighting_agrees(a: ObstacleMsg, a_stamp: float, b: ObstacleMsg, b_stamp: float,
                     margin: float = JUMP_MARGIN_M) -> bool:
     """Whether two sightings of one obstacle, ``a`` in the list stamped ``a_stamp`` and ``b`` in
-    the one stamped ``b_stamp``, can be of the same thing: the same Ds, and ``b`` where ``a``
-    moved on by its velocity puts it, within ``margin`` plus what the change of velocity between
-    them can have moved it (``|v_b - v_a| * |dt|``: a forklift that turned meanwhile)."""
-    if abs(a.ds - b.ds) > DS_TOLERANCE_M:
+    the one stamped ``b_stamp``, can be of the same thing: the later one's disc holds the
+    earlier one moved on by its velocity, within ``margin`` plus what the change of velocity
+    between them can have moved it (``|dv| |dt|``: a forklift that turned). The later Ds may
+    have grown (a camera holding an obstacle it lost grows its Ds and keeps its position), and
+    then its centre may be off by that much more; it may not have shrunk."""
+    early, late, t0, t1 = (a, b, a_stamp, b_stamp) if a_stamp <= b_stamp else \
+        (b, a, b_stamp, a_stamp)
+    grown = late.ds - early.ds
+    if grown < -DS_TOLERANCE_M:
         return False
-    dt = b_stamp - a_stamp
-    off = math.hypot(b.x - (a.x + a.vx * dt), b.y - (a.y + a.vy * dt))
-    return off <= margin + math.hypot(b.vx - a.vx, b.vy - a.vy) * abs(dt)
+    dt = t1 - t0
+    off = math.hypot(late.x - (early.x + early.vx * dt), late.y - (early.y + early.vy * dt))
+    return off <= margin + math.hypot(late.vx - early.vx, late.vy - early.vy) * dt + max(0.0, grown)
 
 
 def common_agree(a: Obstacles, b: Obstacles) -> bool:

@@ -148,8 +148,32 @@ def test_an_obstacle_moved_beyond_the_margin_or_shrunk_disagrees(off, angle, dt,
     b = _at(a, dt)
     moved = ObstacleMsg("o", b.x + off * math.cos(angle), b.y + off * math.sin(angle),
                         0.2, 0.0, 0.3)
-    assert not sighting_agrees(a, 0.0, moved, dt)
-    assert not sighting_agrees(a, 0.0, ObstacleMsg("o", b.x, b.y, 0.2, 0.0, shrink), dt)
+    assert not sighting_agrees(a, 0.0, moved, dt) and not sighting_agrees(moved, dt, a, 0.0)
+    later = _at(a, abs(dt))
+    assert not sighting_agrees(a, 0.0, ObstacleMsg("o", later.x, later.y, 0.2, 0.0, shrink),
+                               abs(dt))
+
+
+def test_a_camera_holding_an_obstacle_it_lost_stops_no_robot():
+    # camera_service: an obstacle unseen for a few frames keeps its last position and grows its
+    # Ds by its speed times its age: one source. Re-seen, it is back where it is with its own
+    # Ds: a shrink no forger may make unseen, so the held list stays avoided for the hold
+    clock = [100.0]
+    inbox = _inbox(clock)
+    last = _at(CRATE, 0.45)
+    for k in range(60):
+        t = 100.0 + 0.05 * k
+        seen = _at(CRATE, t - 100.0)
+        if 10 <= k < 20:  # lost: held at its last sighting (k = 9), grown
+            seen = ObstacleMsg("crate", last.x, last.y, CRATE.vx, CRATE.vy,
+                               CRATE.ds + 0.05 * (t - 100.45))
+        _put(inbox, clock, t + 0.01, Obstacles(t, (seen,), (SHELF,)))
+        assert not inbox.contested() and not inbox.take_implausible()
+        if k < 20:
+            assert inbox.implausible == {} and inbox.obstacle_rivals() == ()
+        elif t + 0.01 < 101.01 + RIVAL_HOLD_S:
+            assert len(inbox.obstacle_rivals()) == 1
+    assert inbox.implausible == {keys.OBSTACLES: 1} and inbox.obstacle_rivals() == ()
 
 
 ATTACKS = st.sampled_from(["empty", "moved", "shrunk", "phantom", "no-walls"])
