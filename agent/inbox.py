@@ -4,8 +4,10 @@ It keeps one :class:`wire.traffic.Mailbox` per key class, each behind the one st
 (:func:`wire.stamps.check_stamp`, counted per class and reason; a lock-step agent the world
 went on without catches up, counted ``lockstep_catch_ups``) and plausibility
 (:mod:`agent.plausibility`; an implausible input is refused, counted, and makes the next tick
-command zero), fed by the subscribers it declares on the :class:`agent.transport.Transport`
-(through :class:`agent.fault_inject.FaultInjector` for the faulted classes).
+command zero; an obstacle list of a second source is kept as a rival whose obstacles the tick
+avoids too, :meth:`Inbox.obstacle_rivals`), fed by the subscribers it declares on the
+:class:`agent.transport.Transport` (through :class:`agent.fault_inject.FaultInjector` for the
+faulted classes).
 
 Real time on pose arrival (*polled*): every mailbox is inline, fed under the tick lock by the
 tick that drains the ring channels (:meth:`Inbox.drain`) and by the pose callback, which ticks
