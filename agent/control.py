@@ -447,7 +447,8 @@ def _separation_rows(p: ControlParams, px: float, py: float, theta: float,
     """The smallest separation barrier value and the hard separation rows that can be active."""
     hs = math.inf
     rows: list[Row] = []
-    gamma, off = p.gamma_formation, p.offset
+    gamma = unicycle.separation_gamma(p.gamma_formation) if p.unicycle else p.gamma_formation
+    off = p.offset
     for q in partners:
         dsep = p.separation + p.pair_margin(last_u, (q.vx, q.vy))
         h, gi, gj = barriers.separation_terms((px, py), theta, (q.x, q.y), q.theta, dsep, off)

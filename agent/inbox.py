@@ -4,8 +4,10 @@ It keeps one :class:`wire.traffic.Mailbox` per key class, each behind the one st
 (:func:`wire.stamps.check_stamp`, counted per class and reason; a lock-step agent the world
 went on without catches up, counted ``lockstep_catch_ups``) and plausibility
 (:mod:`agent.plausibility`; an implausible input is refused, counted, and makes the next tick
-command zero), fed by the subscribers it declares on the :class:`agent.transport.Transport`
-(through :class:`agent.fault_inject.FaultInjector` for the faulted classes).
+command zero; an obstacle list of a second source is kept as a rival whose obstacles the tick
+avoids too, :meth:`Inbox.obstacle_rivals`), fed by the subscribers it declares on the
+:class:`agent.transport.Transport` (through :class:`agent.fault_inject.FaultInjector` for the
+faulted classes).
 
 Real time on pose arrival (*polled*): every mailbox is inline, fed under the tick lock by the
 tick that drains the ring channels (:meth:`Inbox.drain`) and by the pose callback, which ticks
@@ -29,15 +31,19 @@ from agent.fault_inject import FaultInjector
 from agent.faults import EPS, LinkFaults
 from agent.plausibility import (
     JUMP_MARGIN_M,
+    ObstacleRivals,
     Reacquire,
+    common_agree,
     ellipse_ok,
     ellipses_ok,
     jump_ok,
+    obstacles_agree,
     velocity_ok,
 )
 from agent.transport import Transport
 from wire import keys
 from wire.payloads import (
+    Obstacles,
     decode_ellipse,
     decode_obstacles,
     decode_others,
@@ -51,7 +57,7 @@ logger = logging.getLogger(__name__)
 
 RING_CAPACITY = 256  # real time: samples kept per key between two ticks (a flood beyond it
 # loses its oldest samples uncounted; about one per tick arrives in normal operation)
-CONTEST_HOLD_S = 1.0  # [s] real time: zero and no state this long after an input's second source
+CONTEST_HOLD_S = 1.0  # [s] real time: zero and no state this long after the pose's second source
 DECODERS: dict[str, Callable[[bytes], Any]] = {  # mailbox class -> payload reader
     keys.POSE: decode_pose, keys.STATE: decode_state, keys.OTHERS: decode_others,
     keys.ELLIPSE: decode_ellipse, keys.OBSTACLES: decode_obstacles, keys.BEACON: decode_ellipse,
@@ -166,9 +172,11 @@ class Inbox:
         self.reacquire = Reacquire(receiver.speed)
         self.reacquired = 0  # poses taken as the new kept pose after a jump
         self._still_since_jump = True
-        # real time: when an input last had a second source (:meth:`_conflicts`); the robot
+        # real time: when the pose last had a second source (:meth:`_conflicts`); the robot
         # commands zero and withholds its state until CONTEST_HOLD_S after it (:meth:`contested`)
         self._contested_at = -math.inf
+        # real time: the obstacle lists of second sources, avoided beside the kept one
+        self.rivals = ObstacleRivals()
         self.arrived = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._transport: Transport | None = None
@@ -198,10 +206,7 @@ class Inbox:
             # stamped ahead of the clock) and disagreeing with it: a second source on the key
             if reason in (None, OLDER) and prev is not None and msg.stamp < prev[0].stamp \
                     and self._conflicts(cls, msg, prev[0]):
-                self._flag(cls, "stamped before the kept one and disagreeing with it")
-                self._contested_at = now  # neither source is trusted until it has gone quiet
-                if cls == keys.POSE:
-                    self.reacquire.reset()  # a second source's poses re-acquire nothing
+                self._second_source(cls, msg, now)
                 return False
             if reason is not None:
                 return False
@@ -214,6 +219,8 @@ class Inbox:
                     self.reacquire.reset()
             elif self._refused(cls, msg):
                 return False
+            if cls == keys.OBSTACLES and ref is not None:
+                self._check_newer_list(msg, ref, now)
             self._used[key] = used_stamp(now, msg.stamp)
             return True
 
@@ -233,32 +240,66 @@ class Inbox:
         self._flag(cls, "refused")
         return True
 
-    def _flag(self, cls: str, what: str) -> None:
-        """Count an implausible input of class ``cls``; the next tick commands zero."""
+    def _flag(self, cls: str, what: str, stop: bool = True) -> None:
+        """Count an implausible input of class ``cls``; with ``stop``, the next tick commands
+        zero."""
         self.implausible[cls] = self.implausible.get(cls, 0) + 1
-        self._implausible_pending.add(cls)
+        if stop:
+            self._implausible_pending.add(cls)
         logger.info("%s: implausible %s %s", self.robot_id, cls, what)
+
+    def _second_source(self, cls: str, msg: Any, now: float) -> None:
+        """A message of a second source on its key (:meth:`_conflicts`), refused and counted. A
+        pose: neither source is trusted until it has gone quiet (:meth:`contested`). An obstacle
+        list: a rival, whose obstacles the robot avoids beside the kept list's
+        (:meth:`obstacle_rivals`) rather than stop in a moving obstacle's way."""
+        if cls == keys.OBSTACLES:
+            self._flag(cls, "stamped before the kept one and disagreeing with it", stop=False)
+            self.rivals.offer(msg, now)
+            return
+        self._flag(cls, "stamped before the kept one and disagreeing with it")
+        self._contested_at = now
+        if cls == keys.POSE:
+            self.reacquire.reset()  # a second source's poses re-acquire nothing
+
+    def _check_newer_list(self, msg: Obstacles, kept: Obstacles, now: float) -> None:
+        """Real time: an obstacle list taken after ``kept`` that moves or drops what ``kept``
+        reports (walls, shelves, an obstacle elsewhere than its velocity takes it) is one of two
+        sources as well, and which one is genuine cannot be told: ``kept`` becomes a rival
+        (counted), so both stay avoided. An obstacle missing from it is held
+        (:class:`agent.plausibility.ObstacleMemory`)."""
+        if not self.lockstep and not common_agree(kept, msg):
+            self._flag(keys.OBSTACLES, "moving or dropping what the kept one reports", stop=False)
+            self.rivals.offer(kept, now)
 
     def _conflicts(self, cls: str, msg: Any, kept: Any) -> bool:
         """Real time: a pose or obstacle list stamped before the kept one that disagrees with it.
         One publisher's messages arrive in order, so this is a second source on the key (a
         faulty camera, a clock step, a forger stamping ahead: docs/faults.md), and neither is
-        to be trusted: the robot stops until CONTEST_HOLD_S after the last (:meth:`contested`)."""
+        to be trusted (:meth:`_second_source`)."""
         if self.lockstep:
             return False
         if cls == keys.POSE:
             return not jump_ok(msg.x, msg.y, msg.stamp, kept.x, kept.y, kept.stamp,
                                self.receiver.speed)
         if cls == keys.OBSTACLES:
-            return {o.id for o in msg.obstacles} != {o.id for o in kept.obstacles}
+            return not obstacles_agree(msg, kept)
         return False
 
     def contested(self) -> bool:
-        """Whether an input of this robot had a second source within :data:`CONTEST_HOLD_S`
-        (real time; :meth:`_conflicts`): then neither source is to be trusted, and the robot
-        commands zero and publishes no state from its pose (its neighbours hold theirs, then
-        stop as its state goes stale) until the input has been one source for that long."""
-        return self.receiver.now() - self._contested_at < CONTEST_HOLD_S
+        """Whether this robot's pose had a second source within :data:`CONTEST_HOLD_S` (real
+        time; :meth:`_conflicts`), or its obstacle list more sources than it tracks
+        (:class:`agent.plausibility.ObstacleRivals`): then the robot commands zero and publishes
+        no state from its pose (its neighbours hold theirs, then stop as its state goes stale)
+        until the input has been one source for that long."""
+        now = self.receiver.now()
+        return now - self._contested_at < CONTEST_HOLD_S or self.rivals.overflowed(now)
+
+    def obstacle_rivals(self) -> tuple[Obstacles, ...]:
+        """The obstacle lists of the sources other than the kept list's, while they come (real
+        time; :class:`agent.plausibility.ObstacleRivals`): the tick avoids their obstacles
+        too."""
+        return self.rivals.current(self.receiver.now())
 
     def note_command(self, moving: bool) -> None:
         """The node sent a command; ``moving``: not the zero command (ends "still since the

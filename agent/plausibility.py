@@ -32,7 +32,15 @@ grown by ``speed * age`` (:func:`held_obstacle`); after that it is dropped and c
 forklift that drove out of the camera's view is gone for good). Static obstacles missing from a
 list are held the same way (they grow by nothing).
 
-Pure functions and a small class over floats; no clock is read here.
+**Two sources on the obstacle list** (:class:`ObstacleRivals`): a list that disagrees with the
+one kept (:func:`obstacles_agree`, :func:`common_agree`) where one publisher's lists cannot is a
+second source, a forger or a faulty camera, and neither can be trusted to be the genuine one.
+While both come the agent avoids every obstacle either reports: the kept list's, and each
+rival's moved on by its velocity to now (:func:`rival_obstacles`), with the walls and shelves
+of both. A forger can at worst make a robot avoid a phantom (or, with more sources than it
+tracks, stop); it cannot take a real obstacle away.
+
+Pure functions and small classes over floats; no clock is read here.
 """
 
 from __future__ import annotations
@@ -41,7 +49,7 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
-from wire.payloads import EllipseMsg, ObstacleMsg, Obstacles
+from wire.payloads import EllipseMsg, ObstacleMsg, Obstacles, ShapeMsg
 
 from .barriers import Obstacle
 from .control import ControlParams
@@ -53,6 +61,9 @@ REACQUIRE_SPAN_S = 0.3  # [s] ... over at least this long (several frames of any
 POINT_REACH = 2.0  # an ellipse's member points lie within this many semi-major axes of it
 POINT_MARGIN_M = 1.0  # [m] ... and this much more
 OBSTACLE_HOLD_S = 2.0  # [s] how long a missing obstacle is kept (its Ds grown meanwhile)
+DS_TOLERANCE_M = 1e-3  # [m] a later sighting of an obstacle may not have a Ds smaller by more
+RIVAL_HOLD_S = 1.0  # [s] a rival obstacle list is avoided this long after it came
+MAX_RIVALS = 4  # rival sources tracked at once; more and the robot stops (ObstacleRivals)
 
 
 def speed_bound(params: ControlParams) -> float:
@@ -153,8 +164,9 @@ class ObstacleMemory:
             raise ValueError(f"hold_s: must be a finite number >= 0, got {self.hold_s!r}")
 
     def update(self, msg: Obstacles) -> None:
-        """Take a new list (one stamped no later than the last taken changes nothing)."""
-        if msg.stamp <= self._stamp:
+        """Take a new list (one stamped before the last taken changes nothing; one stamped the
+        same is taken: two sources can stamp alike, and the agent steps on whichever it kept)."""
+        if msg.stamp < self._stamp:
             return
         self._stamp = msg.stamp
         present = frozenset(o.id for o in msg.obstacles)
@@ -177,3 +189,106 @@ class ObstacleMemory:
             else:
                 out.append((o, age))
         return out
+
+
+def sighting_agrees(a: ObstacleMsg, a_stamp: float, b: ObstacleMsg, b_stamp: float,
+                    margin: float = JUMP_MARGIN_M) -> bool:
+    """Whether two sightings of one obstacle, ``a`` in the list stamped ``a_stamp`` and ``b`` in
+    the one stamped ``b_stamp``, can be of the same thing: the later one's disc holds the
+    earlier one moved on by its velocity, within ``margin`` plus what the change of velocity
+    between them can have moved it (``|dv| |dt|``: a forklift that turned). The later Ds may
+    have grown (a camera holding an obstacle it lost grows its Ds and keeps its position), and
+    then its centre may be off by that much more; it may not have shrunk."""
+    early, late, t0, t1 = (a, b, a_stamp, b_stamp) if a_stamp <= b_stamp else \
+        (b, a, b_stamp, a_stamp)
+    grown = late.ds - early.ds
+    if grown < -DS_TOLERANCE_M:
+        return False
+    dt = t1 - t0
+    off = math.hypot(late.x - (early.x + early.vx * dt), late.y - (early.y + early.vy * dt))
+    return off <= margin + math.hypot(late.vx - early.vx, late.vy - early.vy) * dt + max(0.0, grown)
+
+
+def common_agree(a: Obstacles, b: Obstacles) -> bool:
+    """Whether two obstacle lists agree on what they both report: the same walls and shelves,
+    and every obstacle in both seen where the other puts it (:func:`sighting_agrees`). An
+    obstacle in one list only says nothing here (it came into or left the camera's view)."""
+    if a.shapes is not b.shapes and a.shapes != b.shapes:
+        return False
+    if not a.obstacles or not b.obstacles:
+        return True
+    mine = {o.id: o for o in a.obstacles}
+    for o in b.obstacles:
+        m = mine.get(o.id)
+        if m is not None and not sighting_agrees(m, a.stamp, o, b.stamp):
+            return False
+    return True
+
+
+def obstacles_agree(a: Obstacles, b: Obstacles) -> bool:
+    """Whether two obstacle lists can come from one source at their stamps: the same obstacles
+    (by id) agreeing on each (:func:`common_agree`)."""
+    if {o.id for o in a.obstacles} != {o.id for o in b.obstacles}:
+        return False
+    return common_agree(a, b)
+
+
+def moved_on(o: ObstacleMsg, age: float) -> Obstacle:
+    """The row-ready obstacle ``o`` seen ``age`` seconds ago, moved on by its velocity to now
+    (a list stamped ahead of the clock is not moved back)."""
+    age = max(0.0, age)
+    return Obstacle(o.x + o.vx * age, o.y + o.vy * age, o.vx, o.vy, o.ds)
+
+
+def rival_obstacles(rivals: Iterable[Obstacles], now: float) -> list[Obstacle]:
+    """Every obstacle of the rival lists, each moved on to ``now`` (:func:`moved_on`)."""
+    return [moved_on(o, now - msg.stamp) for msg in rivals for o in msg.obstacles]
+
+
+def shapes_of_all(kept: Obstacles, rivals: Iterable[Obstacles]) -> tuple[ShapeMsg, ...]:
+    """The walls and shelves of the kept list and of every rival, each once."""
+    out = dict.fromkeys(kept.shapes)
+    for msg in rivals:
+        out.update(dict.fromkeys(msg.shapes))
+    return tuple(out)
+
+
+@dataclass
+class ObstacleRivals:
+    """The obstacle lists of the sources other than the kept list's (module docstring), each
+    source the newest of a run of lists that agree with each other (:func:`obstacles_agree`),
+    kept :data:`RIVAL_HOLD_S` after its last list came. :meth:`offer` each list found to
+    disagree with the kept one; :meth:`current` for the tick. More than ``capacity`` sources at
+    once overflow: :meth:`overflowed` until the hold has passed (the robot stops)."""
+
+    hold_s: float = RIVAL_HOLD_S
+    capacity: int = MAX_RIVALS
+    # (the source's newest list, when it came); replaced whole, read by the tick's thread
+    _sources: tuple[tuple[Obstacles, float], ...] = ()
+    _overflow_at: float = -math.inf
+
+    def offer(self, msg: Obstacles, now: float) -> None:
+        """A list of a second source, come at ``now`` (the receiver's clock)."""
+        sources = [s for s in self._sources if now - s[1] < self.hold_s]
+        for i, (kept, _) in enumerate(sources):
+            if obstacles_agree(kept, msg):  # the same source's next list: newest wins
+                sources[i] = (msg, now) if msg.stamp >= kept.stamp else (kept, now)
+                self._sources = tuple(sources)
+                return
+        if len(sources) >= self.capacity:
+            self._overflow_at = now
+            sources.sort(key=lambda s: s[1])
+            sources.pop(0)
+        sources.append((msg, now))
+        self._sources = tuple(sources)
+
+    def current(self, now: float) -> tuple[Obstacles, ...]:
+        """The rival sources' newest lists at ``now`` (none once each has been quiet for the
+        hold)."""
+        if not self._sources:
+            return ()
+        return tuple(msg for msg, came in self._sources if now - came < self.hold_s)
+
+    def overflowed(self, now: float) -> bool:
+        """Whether more sources than ``capacity`` came within the hold before ``now``."""
+        return now - self._overflow_at < self.hold_s

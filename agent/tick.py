@@ -40,20 +40,20 @@ from agent.inputs import carry_pose, others_view, step_inputs, waypoint_view
 from agent.leader_step import LeaderPart
 from agent.margins import carried_age
 from agent.navigation import STALLED_AFTER_S, NavPart
-from agent.plausibility import ObstacleMemory, held_obstacle
+from agent.plausibility import ObstacleMemory, held_obstacle, rival_obstacles, shapes_of_all
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
 from agent.tick_times import COMMAND, INPUTS, LEADER, POSE, RECORD, ROUTE, STATE, STEP, TickTimes
 from agent.transport import CommandOut
 from agent.unicycle import control_point
 from wire import keys
-from wire.payloads import Cmd, Obstacles, Others, Pose, State
+from wire.payloads import Cmd, Obstacles, Others, Pose, ShapeMsg, State
 from wire.stamps import check_stamp
 
 logger = logging.getLogger(__name__)
 
 STATUS_STALE = "stale"  # trace status of a tick that commanded zero for stale inputs
 IMPLAUSIBLE = "implausible"  # stale_why: a tick that commanded zero after an implausible input
-CONTESTED = "contested"  # stale_why: zero, no state: an input had a second source (agent.inbox)
+CONTESTED = "contested"  # stale_why: zero, no state: the pose had a second source (agent.inbox)
 POSE_AT_SEND = "pose_at_send"  # stale_why: the pose went stale while the command was computed
 TRACE_COLUMNS = ("t", "px", "py", "ux", "uy", "v", "omega", "status", "slack",
                  "h_formation", "h_obstacle", "h_formations", "solve_us")
@@ -222,7 +222,7 @@ class Ticker:
             self.parts.out.send_command(Cmd(0.0, 0.0, 0.0, 0.0, clock.cmd_stamp(t, self.last_stamp)))
             return None
         pose: Pose = pose_entry[0]
-        if inbox.contested():  # two sources on an input: neither is trusted (no state sent)
+        if inbox.contested():  # two sources on the pose: neither is trusted (no state sent)
             return self._zero(t, CONTESTED)
         # lock-step: no pose in this frame (camera dropout); the second check cannot fail (the
         # mailbox keeps stamps in order)
@@ -259,10 +259,10 @@ class Ticker:
         if isinstance(fresh, str):
             return self._zero(t, fresh)
         states, obstacles, others_msg = fresh
-        obs = self._obstacles(obstacles, clock.at(stamp), px, py)
+        obs, shape_msgs = self._obstacles(obstacles, clock.at(stamp), px, py)
         if self.parts.inbox.take_implausible():  # an input broke physics since the last tick
             return self._zero(t, IMPLAUSIBLE)
-        shapes = nav.update_shapes(obstacles.shapes)
+        shapes = nav.update_shapes(shape_msgs)
         own, others = others_view(others_msg)
         target, waypoint = nav.follower.goal, self.cfg.formation_goal
         if own is not None:  # walk the route (the leader takes new goals first)
@@ -349,17 +349,24 @@ class Ticker:
             return "others"
         return states, obs_entry[0], entry[0]
 
-    def _obstacles(self, obstacles: Obstacles, now: float, px: float, py: float) -> list[Obstacle]:
-        """The step's obstacles: the newest list's, plus those missing from it but seen within
-        the hold time, grown where they can have gone (agent.plausibility; counted)."""
+    def _obstacles(self, obstacles: Obstacles, now: float, px: float, py: float
+                   ) -> tuple[list[Obstacle], tuple[ShapeMsg, ...]]:
+        """The step's obstacles and walls: the newest list's, plus those missing from it but
+        seen within the hold time, grown where they can have gone, plus, while a second source
+        disagrees with that list, every obstacle (moved on to now) and wall the other source
+        reports (agent.plausibility; both counted as held)."""
         memory = self.obstacle_memory
         memory.update(obstacles)
         obs = [Obstacle(o.x, o.y, o.vx, o.vy, o.ds) for o in obstacles.obstacles]
         held = memory.held(now)
-        if held:
+        rivals = self.parts.inbox.obstacle_rivals()
+        if held or rivals:
             self.counts.obstacle_held_ticks += 1
             obs += [held_obstacle(o, age, px, py) for o, age in held]
-        return obs
+        if rivals:
+            obs += rival_obstacles(rivals, now)
+            return obs, shapes_of_all(obstacles, rivals)
+        return obs, obstacles.shapes
 
     def _record(self, res: StepResult, stamp: float) -> None:
         """Count a solved step: statuses, lowest barrier values, hard rows not met, solve time,

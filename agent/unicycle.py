@@ -15,6 +15,20 @@ from geometry.unicycle import control_point  # noqa: F401  (re-exported)
 
 from .qp import Row
 
+SEPARATION_GAMMA_FLOOR = 1.0  # [1/s] the thesis's unicycle gamma (Tables 6.2-6.4)
+
+
+def separation_gamma(gamma_formation: float) -> float:
+    """The class-K rate of a unicycle member's separation rows (eq. 4.5 on two bodies): the
+    formation's gamma, at least :data:`SEPARATION_GAMMA_FLOOR`. A unicycle's control point moves
+    as asked only inside its drive polygon (:func:`drive_limit_rows`: sideways at most
+    ``lookahead * max_turn_rate``); at a small gamma the rows of two close members let each move
+    towards the other no faster than the other's last velocity allows, which members turning
+    together cannot match, and the QP meets them by relaxing the formation's band. Any positive
+    rate keeps the separation (with ``gamma dt <= 1`` for the sampled rows); the floor leaves
+    the turning members room."""
+    return max(gamma_formation, SEPARATION_GAMMA_FLOOR)
+
 
 def to_unicycle(ux: float, uy: float, theta: float, lookahead: float) -> tuple[float, float]:
     """eq. 6.2: v = (cos, sin) . u, omega = (-sin, cos) . u / l."""
