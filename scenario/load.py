@@ -54,6 +54,7 @@ from .fields import vector as _vector
 from .fields import within as _in
 from .model import (
     DOUBLE_INTEGRATOR,
+    LOCALISATIONS,
     METHODS,
     MODELS,
     SINGLE_INTEGRATOR,
@@ -81,7 +82,8 @@ TIEBREAKS = ("keep_right", "none")
 _TOP_KEYS = {"name", "dt", "duration", "goal_tolerance", "robot", "controller", "formations",
              "obstacles", "world"}
 _ROBOT_KEYS = {"model", "max_speed", "max_turn_rate", "lookahead", "radius", "max_accel"}
-_CONTROLLER_KEYS = {"kp", "gamma", "epsilon", "tiebreak", "d_af", "planner", "method", "bounds"}
+_CONTROLLER_KEYS = {"kp", "gamma", "epsilon", "tiebreak", "d_af", "planner", "method", "bounds",
+                    "localisation"}
 _GAMMA_KEYS = {"formation", "obstacle", "formations"}
 _FORMATION_KEYS = {"name", "leader", "robots", "edges", "ellipse", "waypoints", LOAD_KEY}
 _MEMBER_KEYS = {"start", "goal"}
@@ -223,6 +225,8 @@ def _controller(raw: Any) -> ControllerSpec:
         planner=planner,
         method=_choice(m.get("method", d.method), "controller.method", METHODS),
         bounds=_bounds(m.get("bounds", {})),
+        localisation=_choice(m.get("localisation", d.localisation), "controller.localisation",
+                             LOCALISATIONS),
     )
 
 
