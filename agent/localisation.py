@@ -8,8 +8,9 @@ The state is the body pose (x, y, theta) with its covariance P (3 x 3).
   motion's Jacobian and by a process noise that grows with the distance driven
   (:func:`process_noise`). The odometry's errors are systematic (a tyre's radius, the wheel
   separation): their effect grows with the distance, not with its square root, so the noise per
-  metre is sized for a stretch of :attr:`FilterTuning.stretch` metres: over that stretch one
-  standard deviation equals the bound's whole error, and the 95 % radius holds it 2.4 times.
+  metre is sized for a stretch of :attr:`FilterTuning.stretch` metres: over that stretch the
+  95 % radius of each error alone equals the bound's whole error (shorter stretches are
+  covered more than that, longer ones less: past it the physical bound of the gate still holds).
 * **Camera poses** arrive late: each is fused at its capture stamp (:meth:`Localiser.camera`).
   The filter keeps the last :attr:`FilterTuning.history` odometry steps with the pose and
   covariance after each; a camera pose updates the step it was captured in
@@ -62,7 +63,7 @@ class FilterTuning:
     scale_error: float = 0.01  # relative error of the distance driven (bound)
     heading_drift: float = 0.005  # [rad/m] heading error per metre driven (bound)
     stretch: float = 4.0  # [m] the blind stretch the noise per metre is sized for
-    floor: float = 1e-6  # [m^2, rad^2] process noise per step even at rest
+    floor: float = 1e-10  # [m^2, rad^2] process noise per step even at rest
     camera_sigma: float = 0.005  # [m] standard deviation of a camera position coordinate
     camera_heading_sigma: float = 0.02  # [rad]
     initial_sigma: float = 0.01  # [m] of the first fused pose (and its heading, x 2 rad/m)
@@ -91,12 +92,15 @@ def motion(x: np.ndarray, inc: Increment) -> tuple[np.ndarray, np.ndarray]:
 
 def process_noise(theta: float, inc: Increment, t: FilterTuning = TUNING) -> np.ndarray:
     """The covariance one odometry increment adds (world frame): along the motion
-    scale_error^2 stretch d, across it the same, on the heading heading_drift^2 stretch d plus
-    (scale_error dtheta)^2 for a turn, with d the distance driven and a small floor."""
+    scale_error^2 stretch d / c, across it the same, on the heading heading_drift^2 stretch d / c
+    plus (scale_error dtheta)^2 for a turn, with d the distance driven, c = CONF95_CHI2 (a
+    random walk's 95 % radius over ``stretch`` is then the bound's error over it) and a small
+    floor."""
     dx, dy, dth = inc
     d = math.hypot(dx, dy)
-    q_pos = t.scale_error ** 2 * t.stretch * d + t.floor
-    q_th = t.heading_drift ** 2 * t.stretch * d + (t.scale_error * dth) ** 2 + t.floor
+    q_pos = t.scale_error ** 2 * t.stretch * d / CONF95_CHI2 + t.floor
+    q_th = (t.heading_drift ** 2 * t.stretch * d / CONF95_CHI2 + (t.scale_error * dth) ** 2
+            + t.floor)
     c, s = math.cos(theta), math.sin(theta)
     rot = np.array([[c, -s], [s, c]])
     q = np.zeros((3, 3))

@@ -73,7 +73,7 @@ from .model import (
 from .reader import ScenarioError, excerpt, load_yaml, read_text
 from .shipped import find
 from .spatial import Grid
-from .world import parse_world
+from .world import check_fault_robots, parse_world
 
 ELLIPSE_MARGIN = 0.02  # [m] extra clearance of a derived ellipse beyond bodies and tolerance
 LOAD_TOL = 1e-6  # [m] a load overlapping by less is touching (rounding), not overlapping
@@ -162,6 +162,7 @@ def scenario_from_dict(data: Any) -> Scenario:
     check_model_world(robot, world)
     scenario = Scenario(name, dt, duration, tol, robot, controller, tuple(formations),
                         obstacles, shapes, world)
+    check_fault_robots(world, scenario.robot_ids)
     axes = [formation_axes(scenario, f) for f in scenario.formations]
     _check_bands(scenario)
     _check_start(scenario, axes)

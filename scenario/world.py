@@ -67,6 +67,26 @@ class BlindBox:
         return abs(u) <= 0.5 * self.size[0] and abs(v) <= 0.5 * self.size[1]
 
 
+#: camera faults a scenario may inject: every pose lost (``outage``), a robot's marker read as
+#: another robot's pose (``misread``), a robot's pose forged ``offset`` metres off (``forged``)
+CAMERA_FAULTS = ("outage", "misread", "forged")
+
+
+@dataclass(frozen=True)
+class CameraFault:
+    """One camera fault of ``world.camera_faults`` from ``start`` for ``duration`` seconds."""
+
+    kind: str
+    start: float
+    duration: float
+    robot: str = ""  # misread, forged: the robot whose pose is wrong (outage: every robot)
+    other: str = ""  # misread: the robot whose pose it gets instead
+    offset: tuple[float, float] = (0.0, 0.0)  # forged: [m] added to the true position
+
+    def active(self, t: float) -> bool:
+        return self.start <= t < self.start + self.duration
+
+
 def blind_at(boxes: tuple[BlindBox, ...], x: float, y: float) -> bool:
     """Whether the point (x, y) lies in any of ``boxes`` (the camera sees no robot there)."""
     return any(b.contains(x, y) for b in boxes)
@@ -92,6 +112,7 @@ class WorldSpec:
     seed: int = 0  # of the noise and the drops
     odometry: Odometry = Odometry()  # each robot's wheel odometry errors (exact: none)
     camera_blind: tuple[BlindBox, ...] = ()  # floor the camera does not see
+    camera_faults: tuple[CameraFault, ...] = ()  # injected camera faults
 
     @property
     def ideal(self) -> bool:
@@ -128,8 +149,9 @@ PROFILES: dict[str, WorldSpec] = {
         heading_noise=0.01,
         drop_rate=0.02,
         # labelled estimates for a TurtleBot3's wheel odometry (docs/scenarios.md): its tyres'
-        # radius is known to about 1 %, and its heading drifts about 0.01 rad per metre driven
-        odometry=Odometry(scale_error=0.01, heading_drift_rad_per_m=0.01),
+        # radius is known to about 1 %, and its heading (integrated from its IMU's gyro by the
+        # firmware) drifts about 0.005 rad per metre driven
+        odometry=Odometry(scale_error=0.01, heading_drift_rad_per_m=0.005),
     ),
 }
 
@@ -153,7 +175,9 @@ ODOMETRY_RANGES: dict[str, Range] = {
 BLIND_SIZE = Range(0.0, 1000.0, "m", lo_open=True)
 BLIND_CENTER = Range(-1e6, 1e6, "m")
 BLIND_YAW = Range(-2.0 * math.pi, 2.0 * math.pi, "rad")
-_LOCALISATION_KEYS = {"odometry", "camera_blind"}
+_LOCALISATION_KEYS = {"odometry", "camera_blind", "camera_faults"}
+FAULT_TIME = Range(0.0, 1e6, "s")
+FAULT_OFFSET = Range(-100.0, 100.0, "m")
 _KEYS = {"profile", "seed", *RANGES, *_LOCALISATION_KEYS}
 MAX_SEED = 2**63 - 1
 
@@ -180,7 +204,48 @@ def parse_world(raw: Any, where: str = "world") -> WorldSpec:
         changes["odometry"] = _odometry(raw["odometry"], f"{where}.odometry")
     if "camera_blind" in raw:
         changes["camera_blind"] = _blind(raw["camera_blind"], f"{where}.camera_blind")
+    if "camera_faults" in raw:
+        changes["camera_faults"] = _faults(raw["camera_faults"], f"{where}.camera_faults")
     return dataclasses.replace(spec, **changes)
+
+
+def _faults(raw: Any, where: str) -> tuple[CameraFault, ...]:
+    """``world.camera_faults``: a list of ``{kind, start, duration, robot, other, offset}``
+    (robot names are checked against the formations by :func:`check_fault_robots`)."""
+    if not isinstance(raw, list | tuple) or len(raw) > MAX_BLIND:
+        raise ScenarioError(f"{where}: must be a list of at most {MAX_BLIND} faults")
+    return tuple(_fault(item, f"{where}[{k}]") for k, item in enumerate(raw))
+
+
+def _fault(raw: Any, where: str) -> CameraFault:
+    known = ("kind", "start", "duration", "robot", "other", "offset")
+    if not isinstance(raw, Mapping):
+        raise ScenarioError(f"{where}: must be a mapping ({', '.join(known)})")
+    unknown = sorted(str(k) for k in raw if k not in known)
+    if unknown:
+        raise ScenarioError(f"{where}: unknown key {excerpt(unknown[0])} (known: {', '.join(known)})")
+    kind = raw.get("kind")
+    if kind not in CAMERA_FAULTS:
+        raise ScenarioError(f"{where}.kind: {excerpt(kind)} is not one of {CAMERA_FAULTS}")
+    robot, other = raw.get("robot", ""), raw.get("other", "")
+    if not isinstance(robot, str) or not isinstance(other, str):
+        raise ScenarioError(f"{where}: robot and other must be robot names")
+    if kind != "outage" and not robot:
+        raise ScenarioError(f"{where}.robot: a {kind} fault names the robot it hits")
+    if kind == "misread" and not other:
+        raise ScenarioError(f"{where}.other: a misread fault names the robot whose pose it reads")
+    offset = _pair(raw.get("offset", [0.0, 0.0]), f"{where}.offset", FAULT_OFFSET)
+    return CameraFault(kind, within(raw.get("start"), f"{where}.start", FAULT_TIME),
+                       within(raw.get("duration"), f"{where}.duration", FAULT_TIME),
+                       robot, other, offset)
+
+
+def check_fault_robots(spec: WorldSpec, robots: tuple[str, ...]) -> None:
+    """Every robot a camera fault names is one of ``robots`` (ScenarioError naming it)."""
+    for k, f in enumerate(spec.camera_faults):
+        for key, name in (("robot", f.robot), ("other", f.other)):
+            if name and name not in robots:
+                raise ScenarioError(f"world.camera_faults[{k}].{key}: no robot {excerpt(name)}")
 
 
 def _odometry(raw: Any, where: str) -> Odometry:
@@ -240,8 +305,9 @@ def with_profile(spec: WorldSpec, name: str) -> WorldSpec:
     if chosen.profile == spec.profile:
         return spec
     own = spec.odometry != PROFILES[spec.profile].odometry  # the section's own numbers
-    kept = {"odometry": spec.odometry} if own else {}
-    return dataclasses.replace(chosen, seed=spec.seed, camera_blind=spec.camera_blind, **kept)
+    return dataclasses.replace(chosen, seed=spec.seed, camera_blind=spec.camera_blind,
+                               camera_faults=spec.camera_faults,
+                               odometry=spec.odometry if own else chosen.odometry)
 
 
 def _seed(raw: Any, where: str) -> int:
