@@ -28,7 +28,9 @@ LOCALISATION_COLUMNS = ("est_x", "est_y", "sigma_m")
 
 def robot_columns(scenario: Scenario) -> tuple[str, ...]:
     """robots.csv's columns for a run of ``scenario``."""
-    cols: tuple[str, ...] = ROBOT_COLUMNS + ACCEL_COLUMNS if scenario.robot.is_double_integrator else ROBOT_COLUMNS
+    cols: tuple[str, ...] = ROBOT_COLUMNS
+    if scenario.robot.is_double_integrator:
+        cols += ACCEL_COLUMNS
     if scenario.controller.localisation == "fused":
         cols += LOCALISATION_COLUMNS
     return cols
