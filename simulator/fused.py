@@ -102,8 +102,9 @@ class FleetLocalisation:
         dt = self.scenario.dt
         t = k * dt
         truth = [(s[0], s[1], s[2]) for s in state]
+        wheels = self.lab.wheel_increments() if self.lab is not None else None
         if self.fused and self.truth is not None:
-            for f, inc in zip(self.filters, self.odometer.increments(self.truth, truth),
+            for f, inc in zip(self.filters, self.odometer.increments(self.truth, truth, wheels),
                               strict=True):
                 f.odometry(t, inc, dt)
         self.truth = truth

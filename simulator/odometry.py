@@ -9,6 +9,9 @@ by the world's seed (:func:`odometry_errors`): the same in every process and eve
 
 **Blind floor.** Inside a box of ``world.camera_blind`` the camera reports no pose of the robot
 (:func:`scenario.world.blind_at` on the true position at the frame's capture).
+
+In MuJoCo (:mod:`simulator.physics`) the wheels' own turns are measured instead of the body's
+motion (:func:`wheel_increment`): where a wheel slips, the odometry drifts by the slip too.
 """
 
 from __future__ import annotations
@@ -42,6 +45,16 @@ def body_increment(before: Sequence[float], after: Sequence[float]) -> Increment
     return (c * dx + s * dy, -s * dx + c * dy, dth)
 
 
+def wheel_increment(left: float, right: float, track: float) -> Increment:
+    """The body-frame increment of a differential drive whose wheels rolled ``left`` and
+    ``right`` metres (on an arc): ds = (left + right) / 2, dtheta = (right - left) / track,
+    the chord ds sinc(dtheta / 2) at half the turn."""
+    ds, dth = 0.5 * (left + right), (right - left) / track
+    half = 0.5 * dth
+    chord = ds if abs(half) < 1e-9 else ds * math.sin(half) / half
+    return (chord * math.cos(half), chord * math.sin(half), dth)
+
+
 def measured(inc: Increment, scale: float, drift: float) -> Increment:
     """What a robot's odometry reports for the true increment ``inc``: the distance scaled by
     (1 + scale), the heading turned by drift times the distance driven."""
@@ -56,7 +69,10 @@ class Odometer:
         self.errors = odometry_errors(spec, n)
 
     def increments(self, before: Sequence[Sequence[float]],
-                   after: Sequence[Sequence[float]]) -> list[Increment]:
-        """Each robot's measured increment between two ticks' true poses."""
-        return [measured(body_increment(b, a), *e)
-                for b, a, e in zip(before, after, self.errors, strict=True)]
+                   after: Sequence[Sequence[float]],
+                   wheels: Sequence[Increment] | None = None) -> list[Increment]:
+        """Each robot's measured increment between two ticks' true poses, or of what its
+        wheels measured (``wheels``: physics bodies, whose wheels slip), with its errors."""
+        true = wheels if wheels is not None else [body_increment(b, a)
+                                                  for b, a in zip(before, after, strict=True)]
+        return [measured(inc, *e) for inc, e in zip(true, self.errors, strict=True)]

@@ -48,3 +48,15 @@ def test_a_fused_run_writes_the_estimate_columns(tmp_path):
     assert main(["sim", str(SCENARIOS / "blind-aisle.yaml"), "--out", str(out), "--quiet"]) == 0
     header = (out / "robots.csv").read_text().splitlines()[0].split(",")
     assert header[-3:] == ["est_x", "est_y", "sigma_m"]
+
+
+@pytest.mark.slow
+def test_mujoco_wheels_slip_and_the_filter_still_carries_the_formation_across():
+    pytest.importorskip("mujoco")
+    sc = load_scenario(SCENARIOS / "blind-aisle-unicycle.yaml")
+    s = simulate(sc, SimOptions(record=False, engine="mujoco")).summary
+    loc = s["localisation"]
+    assert s["all_reached"] and s["collisions"] == 0 and s["physics"]["collisions"] == 0
+    assert s["formation_error_max_m"] <= 1.5 * sc.controller.epsilon
+    # the wheels' slip adds to the odometry's own errors; the radius still holds the error
+    assert loc["max_error_m"] <= loc["max_sigma_m"]

@@ -82,3 +82,13 @@ def test_localisation_bounds_cover_the_estimate_margins(own, other):
     assert 2.0 * margins.position_noise(b) >= margins.estimate_margin(own, other) - 1e-12
     assert margins.robot_margin(b, 0.22, 0.0) >= own - 1e-12
     assert margins.position_noise(b) <= 0.5 * (own + max(own, other)) + margins.RADIUS_STEP
+
+
+def test_wheel_increments_straight_and_on_an_arc():
+    from simulator.odometry import wheel_increment
+
+    assert wheel_increment(0.1, 0.1, 0.16) == (0.1, 0.0, 0.0)
+    # a quarter circle of radius 1 m (centre line), wheels 0.08 m either side of it
+    r, q = 1.0, math.pi / 2
+    dx, dy, dth = wheel_increment((r - 0.08) * q, (r + 0.08) * q, 0.16)
+    assert math.isclose(dth, q) and math.isclose(dx, 1.0) and math.isclose(dy, 1.0)
