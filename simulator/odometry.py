@@ -21,7 +21,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from scenario.world import WorldSpec
+from scenario.world import WorldSpec, blind_at
 
 ODOMETRY_STREAM = 2**41  # the generator's stream, apart from the camera's frames (simulator.lab)
 
@@ -76,3 +76,8 @@ class Odometer:
         true = wheels if wheels is not None else [body_increment(b, a)
                                                   for b, a in zip(before, after, strict=True)]
         return [measured(inc, *e) for inc, e in zip(true, self.errors, strict=True)]
+
+
+def seen_by_camera(spec: WorldSpec, captured: Sequence[Sequence[float]]) -> list[bool]:
+    """Whether the camera sees each robot, from its true pose when the frame was captured."""
+    return [not blind_at(spec.camera_blind, c[0], c[1]) for c in captured]

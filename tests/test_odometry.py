@@ -92,3 +92,11 @@ def test_wheel_increments_straight_and_on_an_arc():
     r, q = 1.0, math.pi / 2
     dx, dy, dth = wheel_increment((r - 0.08) * q, (r + 0.08) * q, 0.16)
     assert math.isclose(dth, q) and math.isclose(dx, 1.0) and math.isclose(dy, 1.0)
+
+
+def test_the_world_publishes_no_pose_of_a_robot_on_blind_floor():
+    from simulator.odometry import seen_by_camera
+
+    spec = load_scenario(BLIND).world
+    assert seen_by_camera(spec, [(0.0, 0.0, 0.0), (-3.0, 0.0, 1.0), (1.74, 0.99, 0.0)]) == [
+        False, True, False]
