@@ -69,3 +69,11 @@ def test_a_bad_localisation_is_refused(tmp_path: Path):
     bad.write_text(BLIND.read_text().replace("localisation: fused", "localisation: gps"))
     with pytest.raises(ScenarioError, match="controller.localisation"):
         load_scenario(bad)
+
+
+def test_formation_run_refuses_fused_before_starting_anything(tmp_path, capsys):
+    from formation.cli import main
+
+    assert main(["run", str(BLIND), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "controller.localisation" in err and err.count("\n") == 1
