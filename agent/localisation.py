@@ -22,6 +22,15 @@ The state is the body pose (x, y, theta) with its covariance P (3 x 3).
   (:attr:`Localiser.drift_bound`): after a long blind stretch P is large and the chi-square
   gate alone would let a forged pose 0.5 m off pull the estimate; the physical bound does not.
   A rejected pose is counted.
+* **Disputed** (:attr:`Localiser.disputed`, counted): once the gate has refused every pose for
+  :attr:`FilterTuning.hold_after` seconds, the estimate and the camera disagree (a forger, or
+  odometry worse than assumed). The robot drives on its odometry meanwhile, as when blind, its
+  radius growing with the distance. It takes a pose again when the last
+  :attr:`FilterTuning.agree` refused poses were off the estimate by the same offset (within
+  :attr:`FilterTuning.agree_m`) and this one lies within :attr:`FilterTuning.lost_factor` times
+  the physical bound (odometry up to that much worse than assumed); the covariance grows by the
+  jump first, so the estimate follows (counted, ``relocalised``). A pose beyond even that stays
+  refused: the radius keeps growing until the robot stops at the margins' limit.
 * **No jump** when the camera returns: the filter's own state takes each update whole, but the
   pose it hands the controller moves towards it at most :attr:`FilterTuning.max_correction`
   metres (and :attr:`FilterTuning.max_turn_correction` radians) per second; the remaining
@@ -71,6 +80,10 @@ class FilterTuning:
     max_correction: float = 0.05  # [m/s] the handed pose's correction rate
     max_turn_correction: float = 0.2  # [rad/s]
     history: int = 200  # odometry steps kept for late camera poses
+    hold_after: float = 0.25  # [s] of refused poses before the filter counts itself disputed
+    agree: int = 5  # refused poses whose offsets must agree before one is taken while disputed
+    agree_m: float = 0.05  # [m] how closely their offsets agree
+    lost_factor: float = 3.0  # the physical bound's factor a disputed robot accepts within
 
 
 TUNING = FilterTuning()
@@ -188,6 +201,11 @@ class Localiser:
         self.drift_bound = tuning.error_floor  # [m] the odometry's error since then, at most
         self.rejected = 0  # camera poses the gate refused
         self.fused = 0
+        self.relocalised = 0  # disputed poses taken (see the module docstring)
+        # the refused poses' offsets from the estimate (x, y), in a row
+        self.refused: deque[tuple[float, float]] = deque(maxlen=tuning.agree)
+        self.refused_since: float | None = None  # [s] the first of them's stamp
+        self.last_refused = -math.inf  # [s] the latest one's stamp
 
     # --- inputs -------------------------------------------------------------------------
 
@@ -214,15 +232,29 @@ class Localiser:
         x, p = (self.history[at].x, self.history[at].p) if at >= 0 else (self.x, self.p)
         r = camera_noise(self.t)
         _y, _s, d2 = innovation(x, p, z, r)
-        if not accept(d2, math.hypot(z[0] - x[0], z[1] - x[1]), self.drift_bound):
-            self.rejected += 1
-            return False
+        jump = math.hypot(z[0] - x[0], z[1] - x[1])
+        offset = (z[0] - float(x[0]), z[1] - float(x[1]))
+        if not accept(d2, jump, self.drift_bound):
+            if not self._take_disputed(offset, jump):
+                self._refuse(stamp, offset)
+                return False
+            p = p + np.diag([jump ** 2, jump ** 2, 0.0])  # the estimate follows the camera
+            self.relocalised += 1
+        self.refused.clear()
+        self.refused_since = None
         x, p = update(x, p, z, r)
         self._replay(at, x, p)
         self.fused += 1
         self.travel = 0.0
         self.drift_bound = self.t.error_floor
         return True
+
+    @property
+    def disputed(self) -> bool:
+        """Whether the gate has refused every pose for ``hold_after`` seconds (see the module
+        docstring)."""
+        since = self.refused_since
+        return since is not None and self.last_refused - since >= self.t.hold_after
 
     # --- outputs ------------------------------------------------------------------------
 
@@ -243,6 +275,23 @@ class Localiser:
         self.p = np.diag([sig ** 2, sig ** 2, (2.0 * sig) ** 2])
         self.handed = self.x.copy()
         self.fused += 1
+
+    def _refuse(self, stamp: float, offset: tuple[float, float]) -> None:
+        self.rejected += 1
+        self.refused.append(offset)
+        self.last_refused = stamp
+        if self.refused_since is None:
+            self.refused_since = stamp
+
+    def _take_disputed(self, offset: tuple[float, float], jump: float) -> bool:
+        """While disputed: whether a pose ``offset`` off the estimate is taken (the refused
+        poses were off by the same, and it lies within lost_factor times the physical bound)."""
+        if not self.disputed or len(self.refused) < self.t.agree:
+            return False
+        if jump > self.t.lost_factor * self.drift_bound:
+            return False
+        return all(math.hypot(q[0] - offset[0], q[1] - offset[1]) <= self.t.agree_m
+                   for q in self.refused)
 
     def _index_at(self, stamp: float) -> int:
         """The newest kept step that ended by ``stamp`` (-1: none; the pose is then fused on

@@ -79,7 +79,8 @@ class FleetLocalisation:
         self.last_stamp = [-INF] * n
         self.unseen_since = [0.0] * n  # [s] when each robot's last camera pose was captured
         self.controllers: dict[tuple[float, float], Controller] = {}
-        self.counts = {"held_ticks": 0, "over_limit_ticks": 0, "waiting_ticks": 0}
+        self.counts = {"held_ticks": 0, "over_limit_ticks": 0, "disputed_ticks": 0,
+                       "waiting_ticks": 0}
         self.max_error = 0.0
         self.max_radius = 0.0
         self.blind_s = 0.0
@@ -150,8 +151,10 @@ class FleetLocalisation:
             self.held[i] = True
             return self.pose_or_wait(i)
         self.handed[i], self.radius[i] = est[0], est[1]
-        self.held[i] = est[1] > margins.RADIUS_LIMIT
-        self.counts["over_limit_ticks"] += self.held[i]
+        over = est[1] > margins.RADIUS_LIMIT
+        self.held[i] = over
+        self.counts["over_limit_ticks"] += over
+        self.counts["disputed_ticks"] += self.filters[i].disputed
         self.max_radius = max(self.max_radius, est[1])
         self.max_error = max(self.max_error, math.hypot(est[0][0] - truth[i][0],
                                                         est[0][1] - truth[i][1]))
@@ -226,6 +229,7 @@ class FleetLocalisation:
             "blind_s": round(self.blind_s, 6),
             "rejected": sum(f.rejected for f in self.filters),
             "fused": sum(f.fused for f in self.filters),
+            "relocalised": sum(f.relocalised for f in self.filters),
             "radius_limit_m": margins.RADIUS_LIMIT,
             **self.counts,
             "odometry": dataclasses.asdict(w.odometry),

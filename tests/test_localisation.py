@@ -119,3 +119,35 @@ def test_the_handed_pose_moves_towards_a_correction_at_a_bounded_rate():
 def test_confidence_radius_of_an_isotropic_covariance():
     p = np.diag([0.01 ** 2, 0.01 ** 2, 1.0])
     assert math.isclose(confidence_radius(p), 0.01 * math.sqrt(5.991), rel_tol=1e-9)
+
+
+def feed(loc: Localiser, t: float, offset: tuple[float, float], n: int) -> tuple[float, int]:
+    """``n`` frames 0.05 s apart, each ``offset`` off the robot's estimate, the robot driving
+    on at 0.2 m/s; the frames' stamp and how many were fused."""
+    fused = 0
+    for _ in range(n):
+        t = drive(loc, 1, t0=t)
+        x, y = float(loc.x[0]), float(loc.x[1])
+        fused += loc.camera(t, (x + offset[0], y + offset[1], float(loc.x[2])))
+    return t, fused
+
+
+def test_a_disputed_filter_follows_a_consistent_camera_within_its_lost_bound():
+    """Odometry three times worse than assumed after 4 m blind: the camera is 0.2 m off the
+    estimate, beyond the physical bound (about 0.13 m) but within three times it. The filter
+    refuses, counts itself disputed, then follows."""
+    loc = Localiser()
+    loc.camera(0.0, (0.0, 0.0, 0.0))
+    t = drive(loc, 400)
+    _t, fused = feed(loc, t, (0.2, 0.0), 20)
+    assert loc.rejected >= loc.t.agree and fused > 0 and loc.relocalised == 1
+
+
+@settings(max_examples=30, deadline=None)
+@given(angle=st.floats(0.0, 2 * math.pi), blind=st.integers(0, 400))
+def test_a_forger_holding_half_a_metre_is_never_followed(angle, blind):
+    loc = Localiser()
+    loc.camera(0.0, (0.0, 0.0, 0.0))
+    t = drive(loc, blind)
+    _t, fused = feed(loc, t, (0.5 * math.cos(angle), 0.5 * math.sin(angle)), 80)
+    assert fused == 0 and loc.disputed and loc.relocalised == 0
