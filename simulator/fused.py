@@ -28,6 +28,7 @@ from typing import Any
 from agent import margins, unicycle
 from agent.control import Controller, StepResult
 from agent.localisation import Localiser
+from leader.role import VIEW_RANGE
 from scenario import Scenario
 from scenario.world import CameraFault, blind_at
 
@@ -69,6 +70,7 @@ class FleetLocalisation:
         self.lab = lab
         self.fused = scenario.controller.localisation == "fused"
         self.ids = scenario.robot_ids
+        self.formation_of = tuple(scenario.formation_of(rid).name for rid in self.ids)
         n = len(self.ids)
         self.odometer = Odometer(scenario.world, n)
         self.filters = [Localiser() for _ in range(n)] if self.fused else []
@@ -180,11 +182,12 @@ class FleetLocalisation:
     def controller(self, i: int, base: Controller) -> Controller:
         """The controller robot ``i`` steps with: ``base`` under ``camera``; under ``fused``
         one whose margins hold its own and the others' confidence radii
-        (:func:`agent.margins.localisation_bounds`; one per rounded pair of radii)."""
+        (:func:`agent.margins.localisation_bounds` with :meth:`heard_radius`; one per rounded
+        pair of radii)."""
         if not self.fused:
             return base
         own = self.radius[i]
-        other = max(self.radius)
+        other = self.heard_radius(i)
         key = (round(own / margins.RADIUS_STEP), round(other / margins.RADIUS_STEP))
         got = self.controllers.get(key)
         if got is None:
@@ -194,6 +197,19 @@ class FleetLocalisation:
                              base.tuning)
             self.controllers[key] = got
         return got
+
+    def heard_radius(self, i: int) -> float:
+        """The largest confidence radius robot ``i`` hears: among the members of every
+        formation with a robot within :data:`leader.role.VIEW_RANGE` of it (its own included:
+        their states and ellipses are what its rows keep clear of; a robot farther away has no
+        row that can be active this tick)."""
+        here = self.handed[i]
+        if here is None:
+            return max(self.radius)
+        near = {self.formation_of[j] for j, h in enumerate(self.handed)
+                if h is not None and math.hypot(h[0] - here[0], h[1] - here[1]) <= VIEW_RANGE}
+        near.add(self.formation_of[i])
+        return max(r for j, r in enumerate(self.radius) if self.formation_of[j] in near)
 
     # --- what the run records -----------------------------------------------------------
 

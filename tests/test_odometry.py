@@ -100,3 +100,14 @@ def test_the_world_publishes_no_pose_of_a_robot_on_blind_floor():
     spec = load_scenario(BLIND).world
     assert seen_by_camera(spec, [(0.0, 0.0, 0.0), (-3.0, 0.0, 1.0), (1.74, 0.99, 0.0)]) == [
         False, True, False]
+
+
+def test_a_robot_keeps_the_margins_of_the_radii_it_hears_and_not_of_far_ones():
+    sc = load_scenario(Path(__file__).parent / "scenarios" / "blind-crossing.yaml")
+    loc = FleetLocalisation(sc, None)
+    n = len(loc.ids)
+    loc.handed = [(0.0, 0.0, 0.0)] * 4 + [(20.0, 0.0, 0.0)] * (n - 4)  # formation B far off
+    loc.radius = [0.01, 0.02, 0.01, 0.01] + [0.2] * (n - 4)
+    assert loc.heard_radius(0) == 0.02
+    loc.handed[4] = (3.0, 0.0, 0.0)  # one of B within view: all of B's radii count
+    assert loc.heard_radius(0) == 0.2
