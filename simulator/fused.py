@@ -25,6 +25,8 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
+
 from agent import margins, unicycle
 from agent.control import Controller, StepResult
 from agent.localisation import Localiser
@@ -56,6 +58,23 @@ def fault_pose(f: CameraFault, i: int, ids: Sequence[str], seen: Sequence[Sequen
     return (s[0] + f.offset[0], s[1] + f.offset[1], s[2])
 
 
+def heard_radii(handed: Sequence[Pose | None], radius: Sequence[float],
+                membership: np.ndarray) -> np.ndarray:
+    """Each robot's largest heard confidence radius: among the members of every formation with
+    a robot within :data:`leader.role.VIEW_RANGE` of it, its own formation included (their
+    states and ellipses are what its rows keep clear of; a robot farther away has no row that
+    can be active this tick). A robot with no pose yet hears the whole fleet."""
+    r = np.asarray(radius, dtype=float)
+    known = np.array([h is not None for h in handed])
+    pos = np.array([(h[0], h[1]) if h is not None else (0.0, 0.0) for h in handed])
+    d = np.hypot(pos[:, None, 0] - pos[None, :, 0], pos[:, None, 1] - pos[None, :, 1])
+    near = (d <= VIEW_RANGE) & known[:, None] & known[None, :]
+    hears = ((near.astype(float) @ membership) > 0) | (membership > 0)  # (robots, formations)
+    per_formation = np.max(np.where(membership > 0, r[:, None], 0.0), axis=0)
+    out = np.max(np.where(hears, per_formation[None, :], 0.0), axis=1)
+    return np.where(known, out, r.max() if len(r) else 0.0)
+
+
 def zero_result(pose: Sequence[float], offset: float) -> StepResult:
     """The zero command of a robot held for want of a pose (no QP solved)."""
     px, py = unicycle.control_point(pose[0], pose[1], pose[2], offset)
@@ -70,7 +89,10 @@ class FleetLocalisation:
         self.lab = lab
         self.fused = scenario.controller.localisation == "fused"
         self.ids = scenario.robot_ids
-        self.formation_of = tuple(scenario.formation_of(rid).name for rid in self.ids)
+        names = [f.name for f in scenario.formations]
+        self.membership = np.array([[scenario.formation_of(rid).name == f for f in names]
+                                    for rid in self.ids], dtype=float)  # (robots, formations)
+        self.heard: np.ndarray | None = None  # this tick's heard_radii, computed on first use
         n = len(self.ids)
         self.odometer = Odometer(scenario.world, n)
         self.filters = [Localiser() for _ in range(n)] if self.fused else []
@@ -114,6 +136,7 @@ class FleetLocalisation:
         stamp, captured = self.lab.captured(k) if self.lab is not None else (t, truth)
         poses = self.camera_poses(stamp, captured, seen)
         out = [self.pose_of(i, stamp, z) for i, z in enumerate(poses)]
+        self.heard = None
         self.blind_s = max([self.blind_s] + [t - u for u in self.unseen_since])
         return out
 
@@ -199,17 +222,10 @@ class FleetLocalisation:
         return got
 
     def heard_radius(self, i: int) -> float:
-        """The largest confidence radius robot ``i`` hears: among the members of every
-        formation with a robot within :data:`leader.role.VIEW_RANGE` of it (its own included:
-        their states and ellipses are what its rows keep clear of; a robot farther away has no
-        row that can be active this tick)."""
-        here = self.handed[i]
-        if here is None:
-            return max(self.radius)
-        near = {self.formation_of[j] for j, h in enumerate(self.handed)
-                if h is not None and math.hypot(h[0] - here[0], h[1] - here[1]) <= VIEW_RANGE}
-        near.add(self.formation_of[i])
-        return max(r for j, r in enumerate(self.radius) if self.formation_of[j] in near)
+        """The largest confidence radius robot ``i`` hears (:func:`heard_radii`, this tick's)."""
+        if self.heard is None:
+            self.heard = heard_radii(self.handed, self.radius, self.membership)
+        return float(self.heard[i])
 
     # --- what the run records -----------------------------------------------------------
 

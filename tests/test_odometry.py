@@ -8,6 +8,7 @@ import dataclasses
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from agent import margins
@@ -103,11 +104,13 @@ def test_the_world_publishes_no_pose_of_a_robot_on_blind_floor():
 
 
 def test_a_robot_keeps_the_margins_of_the_radii_it_hears_and_not_of_far_ones():
-    sc = load_scenario(Path(__file__).parent / "scenarios" / "blind-crossing.yaml")
-    loc = FleetLocalisation(sc, None)
-    n = len(loc.ids)
-    loc.handed = [(0.0, 0.0, 0.0)] * 4 + [(20.0, 0.0, 0.0)] * (n - 4)  # formation B far off
-    loc.radius = [0.01, 0.02, 0.01, 0.01] + [0.2] * (n - 4)
-    assert loc.heard_radius(0) == 0.02
-    loc.handed[4] = (3.0, 0.0, 0.0)  # one of B within view: all of B's radii count
-    assert loc.heard_radius(0) == 0.2
+    from simulator.fused import heard_radii
+
+    membership = np.array([[1, 0]] * 4 + [[0, 1]] * 4, dtype=float)  # A: 0-3, B: 4-7
+    handed = [(0.0, 0.0, 0.0)] * 4 + [(20.0, 0.0, 0.0)] * 4  # formation B far off
+    radius = [0.01, 0.02, 0.01, 0.01] + [0.2] * 4
+    assert heard_radii(handed, radius, membership).tolist() == [0.02] * 4 + [0.2] * 4
+    handed[4] = (3.0, 0.0, 0.0)  # one of B within view: all of B's radii count, both ways
+    assert heard_radii(handed, radius, membership).tolist() == [0.2] * 8
+    handed[0] = None  # no pose yet: the whole fleet's
+    assert heard_radii(handed, radius, membership)[0] == 0.2
