@@ -114,3 +114,14 @@ def test_a_robot_keeps_the_margins_of_the_radii_it_hears_and_not_of_far_ones():
     assert heard_radii(handed, radius, membership).tolist() == [0.2] * 8
     handed[0] = None  # no pose yet: the whole fleet's
     assert heard_radii(handed, radius, membership)[0] == 0.2
+
+
+def test_the_synthetic_camera_finds_no_marker_on_blind_floor():
+    pytest.importorskip("cv2")
+    from simulator.synthetic_camera import SyntheticCamera
+
+    cam = SyntheticCamera(load_scenario(BLIND))
+    state = [(-4.5, 0.2, 0.0), (0.0, 0.2, 0.0), (-4.0, -0.2, 0.0), (-4.5, -0.2, 0.0)]
+    seen = cam.poses(state, [], 0.0)
+    assert set(seen) == {"p1", "p3", "p4"}
+    assert math.isclose(seen["p1"][0], -4.5, abs_tol=0.02)
