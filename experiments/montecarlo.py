@@ -251,8 +251,8 @@ def localisation_totals(results: list[dict], blind: Blind) -> dict:
     locs = [r["localisation"] for r in results if "localisation" in r]
     errors = sorted(x["max_error_m"] for x in locs)
 
-    def pick(q: float) -> float | None:
-        return errors[min(len(errors) - 1, int(q * len(errors)))] if errors else None
+    def pick(q: float) -> float | None:  # the nearest-rank quantile
+        return errors[max(0, math.ceil(q * len(errors)) - 1)] if errors else None
 
     return {
         "mode": blind.localisation,

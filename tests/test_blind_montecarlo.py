@@ -30,3 +30,13 @@ def test_a_drawn_layout_with_patches_is_a_valid_fused_scenario():
 def test_a_bad_blind_count_is_refused(tmp_path, capsys):
     assert main(["montecarlo", "--blind", "-1", "--n", "1", "--out", str(tmp_path / "o")]) == 2
     assert "--blind" in capsys.readouterr().err
+
+
+def test_the_error_quantiles_are_nearest_rank():
+    from experiments.montecarlo import localisation_totals
+
+    runs = [{"localisation": {"max_error_m": float(e), "max_sigma_m": 0.0, "rejected": 1,
+                              "over_limit_ticks": 0, "blind_s": 1.0}} for e in range(20, 0, -1)]
+    got = localisation_totals(runs, Blind("fused", 2))
+    assert got["max_error_m"] == {"median": 10.0, "p95": 19.0, "worst": 20.0}
+    assert got["rejected"] == 20
