@@ -122,3 +122,41 @@ def carried_age(age: float, latency: float) -> float:
     pose's stamp) within [0, latency]. A negative age (a clock ahead of the agent's) carries
     nothing; an age beyond the declared latency is not trusted beyond it."""
     return min(max(age, 0.0), latency)
+
+
+# --- localisation: margins from the agent's own estimate (controller.localisation: fused) ---
+
+#: [m] past this confidence radius (the 95 % radius of :func:`agent.localisation.confidence_radius`
+#: plus the correction still to come) a robot stops and counts it, as with stale data
+RADIUS_LIMIT = 0.25
+#: [m] margins from the estimate are rounded up to this step (one controller per step)
+RADIUS_STEP = 0.005
+
+
+def estimate_margin(own: float, other: float) -> float:
+    """[m] How far a barrier on estimates keeps the estimated positions beyond the true ones'
+    need: for a pair, the sum of the two robots' confidence radii (own + other); for a map's
+    obstacle, the robot's own.
+
+    A pair barrier h(p_i, p_j) >= 0 holds for the true positions with the chosen confidence
+    when it holds for the estimates with the distance grown by both ends' confidence radii
+    (triangle inequality: each true position lies within its radius of its estimate): the
+    chance-constrained barrier turned into a deterministic one on the estimates, as in Luo, Sun
+    and Kapoor, "Multi-robot collision avoidance under uncertainty with probabilistic safety
+    barrier certificates", NeurIPS 2020 (arXiv:1912.09957), for localisation errors of bounded
+    support. ``other`` is the largest radius among the robots this one hears (their ``state``)."""
+    return own + other
+
+
+def localisation_bounds(b: Bounds, own: float, other: float) -> Bounds:
+    """The declared bounds ``b`` with the pose noise grown so that every margin the controller
+    keeps (:func:`robot_margin`, :func:`pair_margin`) holds the estimate's too: position_noise
+    grows by m = (own + max(own, other)) / 2, rounded up to RADIUS_STEP. A pair then keeps 2 m
+    >= :func:`estimate_margin` more (both ends' radii), an obstacle m >= own, and a formation
+    edge's band narrows by the pair's (its cap applies: :mod:`agent.control`)."""
+    half = 0.5 * (own + max(own, other))
+    m = math.ceil(half / RADIUS_STEP - 1e-9) * RADIUS_STEP
+    if m <= 0.0:
+        return b
+    return Bounds(pose_noise=b.pose_noise + m / (NOISE_SIGMAS * math.sqrt(2.0)),
+                  heading_noise=b.heading_noise, latency=b.latency, motor_lag=b.motor_lag)

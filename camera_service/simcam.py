@@ -27,6 +27,7 @@ from camera_service.markers import DEFAULT_DICTIONARY, dictionary_size
 from camera_service.node import has_matching_subscribers
 from camera_service.render import render_aruco_frame
 from scenario.model import Scenario
+from scenario.world import blind_at
 from wire.frames import Frame, encode_frame, frame_key
 
 logger = logging.getLogger(__name__)
@@ -64,14 +65,16 @@ class FramePublisher:
         base = len(self.robot_ids)
         self.obstacle_markers = {o.name: base + j for j, o in enumerate(self.moving)}
         self.radius = scenario.robot.radius
+        self.blind = scenario.world.camera_blind  # floor the camera does not see
         self.key = frame_key(prefix)
         self.publisher = None if session is None else session.declare_publisher(self.key)
 
     def publish(self, state: Sequence[tuple[float, float, float]],
                 obstacles: Sequence[tuple[str, float, float, float]], stamp: float) -> None:
-        """Render the robots at ``state`` (scenario order) and ``obstacles`` (name, x, y, ds),
-        publish the frame stamped ``stamp``."""
-        poses = {rid: (s[0], s[1], s[2]) for rid, s in zip(self.robot_ids, state, strict=True)}
+        """Render the robots at ``state`` (scenario order; none on blind floor) and
+        ``obstacles`` (name, x, y, ds), publish the frame stamped ``stamp``."""
+        poses = {rid: (s[0], s[1], s[2]) for rid, s in zip(self.robot_ids, state, strict=True)
+                 if not blind_at(self.blind, s[0], s[1])}
         ids = dict(self.marker_ids)
         for name, x, y, _ds in obstacles:
             if name in self.obstacle_markers:

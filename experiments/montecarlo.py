@@ -20,6 +20,7 @@ import dataclasses
 import math
 import random
 from functools import partial
+from typing import NamedTuple
 
 from geometry.limits import BURGER_MAX_SPEED, BURGER_RADIUS
 from scenario import ScenarioError
@@ -28,6 +29,7 @@ from scenario.load import scenario_from_dict
 from scenario.world import IDEAL
 from simulator.inprocess import SimOptions, simulate
 
+from .blind import draw_patches
 from .cluster import run_sweep
 from .warehouse_draw import warehouse_problem, warehouse_scenario
 
@@ -136,18 +138,41 @@ def with_model(d: dict, model: str | None) -> dict:
     return d
 
 
+class Blind(NamedTuple):
+    """``--localisation`` and ``--blind N``: every run's localisation and its blind patches."""
+
+    localisation: str = "camera"
+    patches: int = 0
+
+
+NO_BLIND = Blind()
+
+
+def with_blind(d: dict, blind: Blind, seed: int) -> dict:
+    """Layout ``d`` with ``blind``'s localisation and patches (none: unchanged), in place."""
+    if blind.localisation != "camera":
+        d["controller"]["localisation"] = blind.localisation
+    if blind.patches:
+        d.setdefault("world", {"seed": seed})["camera_blind"] = draw_patches(d, blind.patches,
+                                                                             seed)
+    return d
+
+
 def valid_scenario(seed: int, world: str | None = None, bounds: str | None = None,
-                   draw: str = CIRCLES, model: str | None = None):
+                   draw: str = CIRCLES, model: str | None = None, blind: Blind = NO_BLIND):
     """The first valid layout from sub-seeds of ``seed``: (mapping, scenario, sub-seed). With
     ``world`` (a profile other than the default), the mapping says so, with the run's seed as
     the world's: its noise is the run's own, and its scenario file replays it exactly. With
     ``bounds`` (``--bounds SPEC``, :mod:`scenario.bounds`), its ``controller.bounds`` too; with
-    ``model`` (``--model``), every robot that model (:func:`with_model`)."""
+    ``model`` (``--model``), every robot that model (:func:`with_model`); with ``blind``
+    (``--localisation``, ``--blind N``), its localisation and N blind patches
+    (:func:`experiments.blind.draw_patches`)."""
     for sub in range(50):
         try:
             d = with_model(draw_layout(seed * 1000 + sub, draw), model)
             if world is not None and world != IDEAL:
                 d["world"] = {"profile": world, "seed": seed}
+            with_blind(d, blind, seed)
             if bounds is not None:
                 d["controller"]["bounds"] = dataclasses.asdict(parse_bounds(bounds, DT))
             return d, _checked(d, draw), seed * 1000 + sub
@@ -157,8 +182,8 @@ def valid_scenario(seed: int, world: str | None = None, bounds: str | None = Non
 
 
 def run_one(seed: int, world: str | None = None, bounds: str | None = None,
-            draw: str = CIRCLES, model: str | None = None) -> dict:
-    d, scenario, sub = valid_scenario(seed, world, bounds, draw, model)
+            draw: str = CIRCLES, model: str | None = None, blind: Blind = NO_BLIND) -> dict:
+    d, scenario, sub = valid_scenario(seed, world, bounds, draw, model, blind)
     s = simulate(scenario, SimOptions(record=False)).summary
     obstacle_clear = s["min_clearance_m"]["obstacle"]
     return {
@@ -177,6 +202,7 @@ def run_one(seed: int, world: str | None = None, bounds: str | None = None,
         "fallback_ticks": s["qp"]["fallback"],
         "relaxed_ticks": s["qp"]["relaxed"],
         "escape_ticks": s["qp"]["escape"],
+        **({"localisation": s["localisation"]} if "localisation" in s else {}),
         "scenario": d,
     }
 
@@ -200,6 +226,7 @@ def _model_totals(runs: list[dict]) -> dict:
 def run_montecarlo(n: int, seed: int, workers: int = 2, progress=None,
                    world: str | None = None, bounds: str | None = None,
                    draw: str = CIRCLES, model: str | None = None,
+                   blind: Blind = NO_BLIND,
                    scheduler: str | None = None) -> tuple[dict, list[dict]]:
     """``n`` runs from ``seed``; ``world``: the world profile of every run (default ideal);
     ``bounds``: every run's controller bounds (``--bounds SPEC``; default none); ``draw``: which
@@ -207,9 +234,32 @@ def run_montecarlo(n: int, seed: int, workers: int = 2, progress=None,
     draw's own); ``scheduler``: a Dask scheduler's address to run them on (default: ``workers``
     local processes). The results are the same wherever the runs execute."""
     seeds = [seed * 100000 + k for k in range(n)]
-    run = partial(run_one, world=world, bounds=bounds, draw=draw, model=model)
+    run = partial(run_one, world=world, bounds=bounds, draw=draw, model=model, blind=blind)
     results = run_sweep(run, seeds, workers, scheduler, progress)
-    return summarize(results, seed, world, draw, bounds, model), results
+    summary = summarize(results, seed, world, draw, bounds, model)
+    if blind != NO_BLIND:
+        summary["localisation"] = localisation_totals(results, blind)
+    return summary, results
+
+
+def localisation_totals(results: list[dict], blind: Blind) -> dict:
+    """What the runs' filters did (``fused``): each run's largest error against the truth
+    (median, p95, worst), its largest confidence radius, refused poses, blind time."""
+    locs = [r["localisation"] for r in results if "localisation" in r]
+    errors = sorted(x["max_error_m"] for x in locs)
+
+    def pick(q: float) -> float | None:  # the nearest-rank quantile
+        return errors[max(0, math.ceil(q * len(errors)) - 1)] if errors else None
+
+    return {
+        "mode": blind.localisation,
+        "blind_patches": blind.patches,
+        "max_error_m": {"median": pick(0.5), "p95": pick(0.95), "worst": pick(1.0)},
+        "max_sigma_m": max((x["max_sigma_m"] for x in locs), default=None),
+        "rejected": sum(x["rejected"] for x in locs),
+        "over_limit_ticks": sum(x["over_limit_ticks"] for x in locs),
+        "blind_s_max": max((x["blind_s"] for x in locs), default=None),
+    }
 
 
 def summarize(results: list[dict], seed: int, world: str | None = None,

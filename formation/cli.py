@@ -237,6 +237,11 @@ def build_parser() -> Parser:
                    choices=["single_integrator", "unicycle", "double_integrator"], metavar="MODEL",
                    help="every drawn formation's robot model: single_integrator, unicycle or "
                         "double_integrator (max_accel 0.5 m/s^2) (default: the draw's own mix)")
+    p.add_argument("--localisation", default="camera", choices=["camera", "fused"],
+                   metavar="MODE", help="every run's controller.localisation: camera (default) "
+                   "or fused (each agent's filter over odometry and camera poses)")
+    p.add_argument("--blind", type=int, default=0, metavar="N",
+                   help="N blind patches of floor (3.5 x 2 m) across formations' ways per run")
     _add_world(p)
     _add_bounds(p)
     _add_out(p)

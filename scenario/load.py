@@ -54,6 +54,7 @@ from .fields import vector as _vector
 from .fields import within as _in
 from .model import (
     DOUBLE_INTEGRATOR,
+    LOCALISATIONS,
     METHODS,
     MODELS,
     SINGLE_INTEGRATOR,
@@ -72,7 +73,7 @@ from .model import (
 from .reader import ScenarioError, excerpt, load_yaml, read_text
 from .shipped import find
 from .spatial import Grid
-from .world import parse_world
+from .world import check_fault_robots, parse_world
 
 ELLIPSE_MARGIN = 0.02  # [m] extra clearance of a derived ellipse beyond bodies and tolerance
 LOAD_TOL = 1e-6  # [m] a load overlapping by less is touching (rounding), not overlapping
@@ -81,7 +82,8 @@ TIEBREAKS = ("keep_right", "none")
 _TOP_KEYS = {"name", "dt", "duration", "goal_tolerance", "robot", "controller", "formations",
              "obstacles", "world"}
 _ROBOT_KEYS = {"model", "max_speed", "max_turn_rate", "lookahead", "radius", "max_accel"}
-_CONTROLLER_KEYS = {"kp", "gamma", "epsilon", "tiebreak", "d_af", "planner", "method", "bounds"}
+_CONTROLLER_KEYS = {"kp", "gamma", "epsilon", "tiebreak", "d_af", "planner", "method", "bounds",
+                    "localisation"}
 _GAMMA_KEYS = {"formation", "obstacle", "formations"}
 _FORMATION_KEYS = {"name", "leader", "robots", "edges", "ellipse", "waypoints", LOAD_KEY}
 _MEMBER_KEYS = {"start", "goal"}
@@ -160,6 +162,7 @@ def scenario_from_dict(data: Any) -> Scenario:
     check_model_world(robot, world)
     scenario = Scenario(name, dt, duration, tol, robot, controller, tuple(formations),
                         obstacles, shapes, world)
+    check_fault_robots(world, scenario.robot_ids)
     axes = [formation_axes(scenario, f) for f in scenario.formations]
     _check_bands(scenario)
     _check_start(scenario, axes)
@@ -223,6 +226,8 @@ def _controller(raw: Any) -> ControllerSpec:
         planner=planner,
         method=_choice(m.get("method", d.method), "controller.method", METHODS),
         bounds=_bounds(m.get("bounds", {})),
+        localisation=_choice(m.get("localisation", d.localisation), "controller.localisation",
+                             LOCALISATIONS),
     )
 
 

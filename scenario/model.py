@@ -84,6 +84,11 @@ class Bounds:
         return any(getattr(self, name) > 0.0 for name in limits.BOUNDS)
 
 
+#: ``controller.localisation``: drive on the camera's poses alone, or on the agent's own
+#: estimate fusing wheel odometry with them (:mod:`agent.localisation`)
+LOCALISATIONS = ("camera", "fused")
+
+
 @dataclass(frozen=True)
 class ControllerSpec:
     kp: float = 2.0  # eq. 4.2
@@ -94,6 +99,7 @@ class ControllerSpec:
     planner: str = "visibility"  # route around walls and boxes, or "none"
     method: str = "rigid"  # how nominal commands are made: one of METHODS (agent.control)
     bounds: Bounds = Bounds()  # the sensing and motor bounds the controller keeps margins for
+    localisation: str = "camera"  # LOCALISATIONS: the camera's poses, or fused with odometry
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,7 @@ from scenario import Scenario, formation_axes
 from scenario.cargo import load_polygon
 from scenario.routes import start_plan
 
+from .fused import FleetLocalisation
 from .lab import LabWorld
 from .motion import motion_fields
 from .physics import world_for
@@ -131,6 +132,7 @@ def simulate(
     control = FleetControl(scenario, options)
     lab = world_for(scenario, options.engine)  # None: the ideal kinematic world
     tick = FleetTick(scenario, lab, options.stop_at_goal, progress)
+    control.localisation = loc = FleetLocalisation.build(scenario, lab)  # None: camera sees all
     state: list[Pose] = [(r.start[0], r.start[1], r.start[2]) for r in scenario.robots]
     tick.start(state)
     dt = scenario.dt
@@ -139,11 +141,17 @@ def simulate(
         t = k * dt
         # what the agents see: the truth, or in a lab world the camera's view (simulator.lab)
         seen, obs = sensed(lab, k, state, obstacles_at(scenario, t))
+        if loc is not None:  # blind floor, camera faults, the agents' own estimates
+            seen = loc.sense(k, state, seen)
         results, ellipses = control.commands(t, seen, obs)
+        if loc is not None:
+            results = loc.true_points(results, state)
         # move every robot with its own command (all computed from the same snapshot)
         before, state = state, tick.move(state, results)
         if options.record:
             record(tick, t, before, results, ellipses, obs)
+            if loc is not None:
+                loc.annotate(tick.series.robots)
         t = (k + 1) * dt
         if tick.check(k, t, state):
             break
@@ -191,6 +199,8 @@ def summarise(scenario: Scenario, options: SimOptions, control: FleetControl, ti
     if any(len(r) > 1 for r in routes.values()):
         summary["routes"] = {name: [list(p) for p in r] for name, r in routes.items()}
     summary.update(control.replans.summary())
+    if control.localisation is not None:
+        summary.update(control.localisation.summary())
     return summary
 
 
@@ -253,6 +263,7 @@ class FleetControl:
         self.vel = [(0.0, 0.0)] * n  # last certified control-point velocity (what `state` carries)
         self.stalls = [Stall()] * n  # each robot's copy of its formation's jam state
         self.stats = QPStats()
+        self.localisation: FleetLocalisation | None = None  # simulator.fused, set by simulate
 
     def commands(self, t: float, seen: Sequence[Sequence[float]], obs: list[Obstacle],
                  ) -> tuple[list[StepResult], dict]:
@@ -292,7 +303,13 @@ class FleetControl:
         self.stalls[i] = inputs.stall
         inputs = with_waypoint(inputs, self.followers[i].heading, self.followers[i].arriving)
         pose = (seen[i][0], seen[i][1], seen[i][2])
-        return self.controller.step(inputs._replace(
+        loc, controller = self.localisation, self.controller
+        if loc is not None:  # no pose: zero, counted; fused: the margins of the estimates
+            held = loc.hold(i, pose, self.params.offset)
+            if held is not None:
+                return held
+            controller = loc.controller(i, controller)
+        return controller.step(inputs._replace(
             pose=pose, goal=target, obstacles=view.obs, last_u=vel[i], shapes=self.scenario.shapes,
             footprint=fleet.footprints[i]))
 

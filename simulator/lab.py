@@ -265,6 +265,21 @@ class LabWorld:
             return [(s[0], s[1], s[2]) for s in state]
         return self.camera.poses(k * self.dt)
 
+    def wheel_increments(self) -> list[tuple[float, float, float]] | None:
+        """Every robot's motion since the last call as its wheels measured it; None where the
+        wheels do not slip (the body's own motion is then what they measure)."""
+        return None
+
+    def captured(self, k: int) -> tuple[float, list[Pose3]]:
+        """When the poses handed at tick ``k`` (after :meth:`sense`) were captured, and every
+        robot's true pose then: what a camera stamping at capture sends, and where blind
+        floor is judged (:mod:`simulator.odometry`)."""
+        t = k * self.dt
+        if not self.spec.senses:
+            return t, self.camera.truth_at(t)
+        stamp = self.camera.latest_frame(t) * self.camera.period
+        return stamp, self.camera.truth_at(stamp)
+
     def summary_fields(self) -> dict[str, Any]:
         """What this world adds to summary.json (the kinematic lab: nothing)."""
         return {}

@@ -41,6 +41,7 @@ from scenario import Scenario
 from scenario.world import PROFILES, TURTLEBOT3_LAB
 
 from .lab import Command, LabWorld, Pose3, command_rates, wheel_targets
+from .odometry import wheel_increment
 from .summary import COLLISION_LOG_MAX
 
 ENGINES = ("kinematic", "mujoco")
@@ -172,6 +173,10 @@ class MujocoWorld(LabWorld):
         self._theta = [r.start[2] for r in scenario.robots]
         self._backwards = [False] * n  # a single integrator's firmware (command_rates)
         self._touching: set[tuple[str, str]] = set()
+        adr, joint = self.model.jnt_qposadr, self.model.joint
+        self._wheels = [(int(adr[joint(f"r{k}_left").id]), int(adr[joint(f"r{k}_right").id]))
+                        for k in range(n)]
+        self._angles = self.wheel_angles()
         self.collisions = 0
         self.collision_log: list[dict[str, Any]] = []
         self.step_wall = 0.0  # [s] spent in mj_step
@@ -212,6 +217,21 @@ class MujocoWorld(LabWorld):
             self.step_wall += time.perf_counter() - t0
             self._count_contacts()
         return self.poses()
+
+    def wheel_angles(self) -> list[tuple[float, float]]:
+        """Every robot's (left, right) wheel angle [rad] (forward is positive)."""
+        q = self.data.qpos
+        return [(float(q[a]), float(q[b])) for a, b in self._wheels]
+
+    def wheel_increments(self) -> list[tuple[float, float, float]]:
+        """Every robot's motion since the last call as its wheels measured it (their turns on
+        the floor, slip included: :func:`simulator.odometry.wheel_increment`)."""
+        now = self.wheel_angles()
+        r, track = PROFILES[TURTLEBOT3_LAB].wheel_radius, PROFILES[TURTLEBOT3_LAB].track
+        out = [wheel_increment(r * (a[0] - b[0]), r * (a[1] - b[1]), track)
+               for a, b in zip(now, self._angles, strict=True)]
+        self._angles = now
+        return out
 
     def poses(self) -> list[Pose3]:
         """The robots' body poses; headings continue the previous ones (no jump at +-pi)."""

@@ -85,6 +85,9 @@ class RunConfig:
         self._check_remote()
         self._check_rmw_base()
         self._check_engine()
+        if self.scenario.controller.localisation != "camera":
+            raise ValueError("controller.localisation: fused runs in process only (formation sim, "
+                             "montecarlo); the agents drive on the camera's poses")
 
     def _check_engine(self) -> None:
         if self.engine not in ENGINES:

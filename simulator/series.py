@@ -21,11 +21,19 @@ ROBOT_COLUMNS = (
 #: robots.csv gains these [m/s^2] (the certified acceleration) only in a run of double
 #: integrators, so every other run's file stays as it was, byte for byte
 ACCEL_COLUMNS = ("ax", "ay")
+#: and these (the agent's own estimate and its 95 % radius) only under
+#: ``controller.localisation: fused`` (:mod:`simulator.fused`)
+LOCALISATION_COLUMNS = ("est_x", "est_y", "sigma_m")
 
 
 def robot_columns(scenario: Scenario) -> tuple[str, ...]:
     """robots.csv's columns for a run of ``scenario``."""
-    return ROBOT_COLUMNS + ACCEL_COLUMNS if scenario.robot.is_double_integrator else ROBOT_COLUMNS
+    cols: tuple[str, ...] = ROBOT_COLUMNS
+    if scenario.robot.is_double_integrator:
+        cols += ACCEL_COLUMNS
+    if scenario.controller.localisation == "fused":
+        cols += LOCALISATION_COLUMNS
+    return cols
 
 
 @dataclass

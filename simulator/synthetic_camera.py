@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from scenario import Scenario
+from scenario.world import blind_at
 
 SYNTH_IMAGE = (1920, 1440)  # [px] the synthetic camera's frame
 SYNTH_TILT = 0.1  # perspective tilt of the synthetic camera (far edge 10 % shorter)
@@ -18,7 +19,8 @@ class SyntheticCamera:
     The camera sees the scenario's floor (every start, goal and static obstacle, plus 1 m) in a
     SYNTH_IMAGE frame with a mild perspective tilt; each robot carries ArUco marker k (its index
     in the scenario), sized to at least SYNTH_MARKER_PX pixels so the camera can resolve it.
-    A marker the detector misses publishes nothing that tick (the agent sees a stale pose)."""
+    A marker the detector misses publishes nothing that tick (the agent sees a stale pose); a
+    robot on blind floor (``world.camera_blind``) is not in the frame at all."""
 
     def __init__(self, scenario: Scenario) -> None:
         from camera_service import CameraConfig, CameraService, synthetic_camera
@@ -37,6 +39,7 @@ class SyntheticCamera:
         self.marker_ids = {rid: k for k, rid in enumerate(scenario.robot_ids)}
         self.radius = scenario.robot.radius
         self.service = CameraService(CameraConfig(self.calibration, marker_ids=self.marker_ids))
+        self.blind = scenario.world.camera_blind
 
     def poses(self, state: Sequence[Sequence[float]],
               obstacles: Sequence[tuple[float, float, float]],
@@ -45,7 +48,8 @@ class SyntheticCamera:
         ``obstacles``: (x, y, safe distance) drawn into the frame."""
         from camera_service import render_aruco_frame
 
-        truth = {rid: (s[0], s[1], s[2]) for rid, s in zip(self.marker_ids, state, strict=True)}
+        truth = {rid: (s[0], s[1], s[2]) for rid, s in zip(self.marker_ids, state, strict=True)
+                 if not blind_at(self.blind, s[0], s[1])}
         frame = render_aruco_frame(truth, self.calibration, self.marker_ids, obstacles,
                                    marker_side=self.marker_side, robot_radius=self.radius)
         return {o.robot_id: (o.x, o.y, o.theta) for o in self.service.process(frame, stamp)}

@@ -72,6 +72,7 @@ from wire.traffic import CountingPublisher, TrafficCounter
 from .bases import RmwBase, RmwBaseReader
 from .cmd_inbox import CmdInbox
 from .lab import LabWorld
+from .odometry import seen_by_camera
 from .pacing import ABORT_EVERY_S, at_most_every, sleep_until
 from .physics import world_for
 from .series import WorldResult
@@ -456,8 +457,15 @@ class World:
         if self._camera is not None:
             seen = self._camera.poses(state, [(m.x, m.y, m.ds) for m in obs], stamp)
         else:
-            poses = state if self.lab is None else self.lab.sense(round(t / self.scenario.dt), state)
+            k = round(t / self.scenario.dt)
+            poses = state if self.lab is None else self.lab.sense(k, state)
             seen = {rid: s for rid, s in zip(self.ids, poses, strict=True)}
+            if self.scenario.world.camera_blind:  # on blind floor the camera sees nothing
+                captured = state if self.lab is None else self.lab.captured(k)[1]
+                for rid, shown in zip(self.ids, seen_by_camera(self.scenario.world, captured),
+                                      strict=True):
+                    if not shown:
+                        del seen[rid]
         for i, rid in enumerate(self.ids):
             p = seen.get(rid)
             if p is not None:  # an undetected marker publishes nothing: the agent sees it stale

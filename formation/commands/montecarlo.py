@@ -10,7 +10,7 @@ import json
 import yaml
 
 from experiments.cluster import ClusterError, connect
-from experiments.montecarlo import DT, run_montecarlo
+from experiments.montecarlo import DT, Blind, run_montecarlo
 from formation.exits import UsageError
 from formation.outdir import begin_output
 from formation.progress import Progress
@@ -23,6 +23,8 @@ def montecarlo_command(ns: argparse.Namespace) -> int:
         raise UsageError(f"--n: must be a positive number of runs, got {ns.n}")
     if ns.jobs <= 0:
         raise UsageError(f"--jobs: must be a positive number of processes, got {ns.jobs}")
+    if not 0 <= ns.blind <= 16:
+        raise UsageError(f"--blind: must be a number of patches from 0 to 16, got {ns.blind}")
     if ns.bounds is not None:
         parse_bounds(ns.bounds, DT)  # a bad --bounds: exit 2 before any run
     if ns.model == "double_integrator" and ns.world not in (None, IDEAL):
@@ -34,7 +36,8 @@ def montecarlo_command(ns: argparse.Namespace) -> int:
     with Progress(f"montecarlo n={ns.n}", unit="runs") as progress:
         summary, results = run_montecarlo(ns.n, ns.seed, ns.jobs, progress=progress.update,
                                           world=ns.world, bounds=ns.bounds, draw=ns.draw,
-                                          model=ns.model, scheduler=ns.scheduler)
+                                          model=ns.model, scheduler=ns.scheduler,
+                                          blind=Blind(ns.localisation, ns.blind))
     for r in results:
         if not r["all_reached"] or r["collisions"]:
             (out / f"failure-{r['seed']}.yaml").write_text(yaml.safe_dump(r["scenario"], sort_keys=False))

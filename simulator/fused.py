@@ -1,0 +1,269 @@
+"""Localisation in the in-process simulator: what each robot's agent is handed when the camera
+cannot see it, and under ``controller.localisation: fused`` its own filter's estimate.
+
+Built only for a scenario with blind floor, camera faults or ``fused`` (:meth:`FleetLocalisation.build`);
+every other run never reaches this module and stays as it was, byte for byte.
+
+Each tick (:meth:`FleetLocalisation.sense`): every robot's wheel odometry since the last tick
+(:class:`simulator.odometry.Odometer`) and the camera's pose of it, unless it stood on blind
+floor when the frame was captured or an injected fault (``world.camera_faults``) hides or
+falsifies it.
+
+* ``camera``: a robot without a pose keeps its last one and commands zero (its pose is stale,
+  as an agent does); one never seen waits.
+* ``fused``: each robot's :class:`agent.localisation.Localiser` takes the odometry and each new
+  camera pose at its capture stamp; the robot drives on the filter's pose (which its ``state``
+  then carries to its neighbours and leader), every barrier keeps the margin its and the
+  others' confidence radii need (:func:`agent.margins.localisation_bounds`), and past
+  :data:`agent.margins.RADIUS_LIMIT` it stops, counted. It waits for its first camera pose.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from agent import margins, unicycle
+from agent.control import Controller, StepResult
+from agent.localisation import Localiser
+from leader.role import VIEW_RANGE
+from scenario import Scenario
+from scenario.world import CameraFault, blind_at
+
+from .lab import LabWorld
+from .odometry import Odometer
+
+HELD = "stale"  # robots.csv status of a tick held at zero for want of a pose
+INF = math.inf
+
+Pose = tuple[float, float, float]
+
+
+def fault_pose(f: CameraFault, i: int, ids: Sequence[str], seen: Sequence[Sequence[float]]
+               ) -> Pose | None | bool:
+    """What fault ``f`` makes of robot ``i``'s camera pose: None (lost), a wrong pose, or True
+    (the fault does not touch it)."""
+    if f.kind == "outage":
+        return None
+    if ids[i] != f.robot:
+        return True
+    if f.kind == "misread":
+        o = seen[ids.index(f.other)]
+        return (o[0], o[1], o[2])
+    s = seen[i]
+    return (s[0] + f.offset[0], s[1] + f.offset[1], s[2])
+
+
+def heard_radii(handed: Sequence[Pose | None], radius: Sequence[float],
+                membership: np.ndarray) -> np.ndarray:
+    """Each robot's largest heard confidence radius: among the members of every formation with
+    a robot within :data:`leader.role.VIEW_RANGE` of it, its own formation included (their
+    states and ellipses are what its rows keep clear of; a robot farther away has no row that
+    can be active this tick). A robot with no pose yet hears the whole fleet."""
+    r = np.asarray(radius, dtype=float)
+    known = np.array([h is not None for h in handed])
+    pos = np.array([(h[0], h[1]) if h is not None else (0.0, 0.0) for h in handed])
+    d = np.hypot(pos[:, None, 0] - pos[None, :, 0], pos[:, None, 1] - pos[None, :, 1])
+    near = (d <= VIEW_RANGE) & known[:, None] & known[None, :]
+    hears = ((near.astype(float) @ membership) > 0) | (membership > 0)  # (robots, formations)
+    per_formation = np.max(np.where(membership > 0, r[:, None], 0.0), axis=0)
+    out = np.max(np.where(hears, per_formation[None, :], 0.0), axis=1)
+    return np.where(known, out, r.max() if len(r) else 0.0)
+
+
+def zero_result(pose: Sequence[float], offset: float) -> StepResult:
+    """The zero command of a robot held for want of a pose (no QP solved)."""
+    px, py = unicycle.control_point(pose[0], pose[1], pose[2], offset)
+    return StepResult(0.0, 0.0, 0.0, 0.0, px, py, HELD, 0.0, INF, INF, INF, 0.0, 0.0, 0.0)
+
+
+class FleetLocalisation:
+    """Every robot's view of its own pose in one in-process run (see the module docstring)."""
+
+    def __init__(self, scenario: Scenario, lab: LabWorld | None) -> None:
+        self.scenario = scenario
+        self.lab = lab
+        self.fused = scenario.controller.localisation == "fused"
+        self.ids = scenario.robot_ids
+        names = [f.name for f in scenario.formations]
+        self.membership = np.array([[scenario.formation_of(rid).name == f for f in names]
+                                    for rid in self.ids], dtype=float)  # (robots, formations)
+        self.heard: np.ndarray | None = None  # this tick's heard_radii, computed on first use
+        n = len(self.ids)
+        self.odometer = Odometer(scenario.world, n)
+        self.filters = [Localiser() for _ in range(n)] if self.fused else []
+        self.truth: list[Pose] | None = None  # the last tick's true poses
+        self.handed: list[Pose | None] = [None] * n  # the pose each agent drives on
+        self.radius = [0.0] * n  # [m] each estimate's confidence radius (fused)
+        self.held = [False] * n  # this tick: zero command (no pose, waiting, over the limit)
+        self.last_stamp = [-INF] * n
+        self.unseen_since = [0.0] * n  # [s] when each robot's last camera pose was captured
+        self.controllers: dict[tuple[float, float], Controller] = {}
+        self.counts = {"held_ticks": 0, "over_limit_ticks": 0, "disputed_ticks": 0,
+                       "waiting_ticks": 0}
+        self.max_error = 0.0
+        self.max_radius = 0.0
+        self.blind_s = 0.0
+
+    @classmethod
+    def build(cls, scenario: Scenario, lab: LabWorld | None) -> FleetLocalisation | None:
+        """The run's localisation; None where nothing differs from the camera seeing all."""
+        w = scenario.world
+        if scenario.controller.localisation == "camera" and not w.camera_blind \
+                and not w.camera_faults:
+            return None
+        return cls(scenario, lab)
+
+    # --- each tick ----------------------------------------------------------------------
+
+    def sense(self, k: int, state: Sequence[Sequence[float]],
+              seen: Sequence[Sequence[float]]) -> list[Pose]:
+        """The poses the agents drive on at tick ``k`` (true poses ``state``, the camera's
+        ``seen``); :attr:`held` says which of them command zero."""
+        dt = self.scenario.dt
+        t = k * dt
+        truth = [(s[0], s[1], s[2]) for s in state]
+        wheels = self.lab.wheel_increments() if self.lab is not None else None
+        if self.fused and self.truth is not None:
+            for f, inc in zip(self.filters, self.odometer.increments(self.truth, truth, wheels),
+                              strict=True):
+                f.odometry(t, inc, dt)
+        self.truth = truth
+        stamp, captured = self.lab.captured(k) if self.lab is not None else (t, truth)
+        poses = self.camera_poses(stamp, captured, seen)
+        out = [self.pose_of(i, stamp, z) for i, z in enumerate(poses)]
+        self.heard = None
+        self.blind_s = max([self.blind_s] + [t - u for u in self.unseen_since])
+        return out
+
+    def camera_poses(self, stamp: float, captured: Sequence[Sequence[float]],
+                     seen: Sequence[Sequence[float]]) -> list[Pose | None]:
+        """What the camera hands each robot for the frame captured at ``stamp``: None on blind
+        floor or in an outage; a wrong pose under a misread or forged fault."""
+        boxes = self.scenario.world.camera_blind
+        out: list[Pose | None] = [
+            None if blind_at(boxes, c[0], c[1]) else (s[0], s[1], s[2])
+            for c, s in zip(captured, seen, strict=True)]
+        for f in self.scenario.world.camera_faults:
+            if not f.active(stamp):
+                continue
+            for i in range(len(out)):
+                got = fault_pose(f, i, self.ids, seen)
+                if got is not True and out[i] is not None:
+                    out[i] = got if isinstance(got, tuple) else None
+        return out
+
+    def pose_of(self, i: int, stamp: float, z: Pose | None) -> Pose:
+        """Robot ``i``'s pose to drive on, from its camera pose ``z`` (None: none)."""
+        truth = self.truth
+        assert truth is not None
+        if z is not None and stamp > self.last_stamp[i]:
+            self.last_stamp[i] = stamp
+            self.unseen_since[i] = stamp
+            if self.fused:
+                self.filters[i].camera(stamp, z)
+        if not self.fused:
+            if z is not None:
+                self.handed[i] = z
+            self.held[i] = z is None
+            return self.pose_or_wait(i)
+        est = self.filters[i].estimate()
+        if est is None:
+            self.held[i] = True
+            return self.pose_or_wait(i)
+        self.handed[i], self.radius[i] = est[0], est[1]
+        over = est[1] > margins.RADIUS_LIMIT
+        self.held[i] = over
+        self.counts["over_limit_ticks"] += over
+        self.counts["disputed_ticks"] += self.filters[i].disputed
+        self.max_radius = max(self.max_radius, est[1])
+        self.max_error = max(self.max_error, math.hypot(est[0][0] - truth[i][0],
+                                                        est[0][1] - truth[i][1]))
+        return est[0]
+
+    def pose_or_wait(self, i: int) -> Pose:
+        """The last pose handed to robot ``i``; before any, it waits where it starts (its
+        neighbours then see its start, where it stands)."""
+        got = self.handed[i]
+        if got is None:
+            self.counts["waiting_ticks"] += 1
+            start = self.scenario.robots[i].start
+            return (start[0], start[1], start[2])
+        return got
+
+    def hold(self, i: int, pose: Sequence[float], offset: float) -> StepResult | None:
+        """Robot ``i``'s zero command when it is held this tick (counted), else None."""
+        if not self.held[i]:
+            return None
+        self.counts["held_ticks"] += 1
+        return zero_result(pose, offset)
+
+    def controller(self, i: int, base: Controller) -> Controller:
+        """The controller robot ``i`` steps with: ``base`` under ``camera``; under ``fused``
+        one whose margins hold its own and the others' confidence radii
+        (:func:`agent.margins.localisation_bounds` with :meth:`heard_radius`; one per rounded
+        pair of radii)."""
+        if not self.fused:
+            return base
+        own = self.radius[i]
+        other = self.heard_radius(i)
+        key = (round(own / margins.RADIUS_STEP), round(other / margins.RADIUS_STEP))
+        got = self.controllers.get(key)
+        if got is None:
+            params = base.params
+            bounds = margins.localisation_bounds(params.bounds, own, other)
+            got = Controller(dataclasses.replace(params, bounds=bounds), base.solve, base.clock,
+                             base.tuning)
+            self.controllers[key] = got
+        return got
+
+    def heard_radius(self, i: int) -> float:
+        """The largest confidence radius robot ``i`` hears (:func:`heard_radii`, this tick's)."""
+        if self.heard is None:
+            self.heard = heard_radii(self.handed, self.radius, self.membership)
+        return float(self.heard[i])
+
+    # --- what the run records -----------------------------------------------------------
+
+    def true_points(self, results: list[StepResult], state: Sequence[Sequence[float]]
+                    ) -> list[StepResult]:
+        """``results`` with each control point the true pose's (robots.csv and the formation
+        error are measured on the truth, as in a lab world)."""
+        off = self.scenario.robot.control_offset
+        out = []
+        for r, s in zip(results, state, strict=True):
+            px, py = unicycle.control_point(s[0], s[1], s[2], off)
+            out.append(r._replace(px=px, py=py))
+        return out
+
+    def annotate(self, rows: list[tuple]) -> None:
+        """The last tick's robots.csv rows gain est_x, est_y, sigma_m (``fused`` only)."""
+        if not self.fused:
+            return
+        n = len(self.ids)
+        for j, (h, r) in enumerate(zip(self.handed, self.radius, strict=True)):
+            pos = len(rows) - n + j
+            x, y = (math.nan, math.nan) if h is None else (h[0], h[1])
+            rows[pos] = rows[pos] + (x, y, r if h is not None else math.nan)
+
+    def summary(self) -> dict[str, Any]:
+        """summary.json's ``localisation`` block (``fused`` only)."""
+        if not self.fused:
+            return {}
+        w = self.scenario.world
+        return {"localisation": {
+            "max_error_m": round(self.max_error, 6),
+            "max_sigma_m": round(self.max_radius, 6),
+            "blind_s": round(self.blind_s, 6),
+            "rejected": sum(f.rejected for f in self.filters),
+            "fused": sum(f.fused for f in self.filters),
+            "relocalised": sum(f.relocalised for f in self.filters),
+            "radius_limit_m": margins.RADIUS_LIMIT,
+            **self.counts,
+            "odometry": dataclasses.asdict(w.odometry),
+            "camera_blind": [dataclasses.asdict(b) for b in w.camera_blind],
+        }}
