@@ -104,6 +104,9 @@ class Narrow:
     pad: float = 0.3  # [m] beyond rho round a tight stretch: its window (more: room to turn, slower)
     max_cells: int = 250_000  # a window of more cells is not searched (its stretch stays shut)
     tries: int = 3  # tight stretches shut in turn before "no way" (more: slower no, other ways tried)
+    # a loose step where the strict flags forbid a move costs this many times its length (more:
+    # shorter tight stretches, so smaller windows; a longer way round to avoid them)
+    tight_cost: float = 1.5
 
 
 GRID = Grid()
@@ -343,6 +346,7 @@ class _Search(NamedTuple):
     turn_cost: float  # [m] the outermost point's arc for one heading step
     to_goal: list[float]  # per coarse cell: its distance to the goal (coarse_distance)
     coarse_ny: int  # the coarse grid's row length
+    dear: bytearray | None = None  # per state: a step into it costs Narrow.tight_cost times more
 
 
 def coarse_distance(lat: Lattice, move: bytearray, goal: Point) -> tuple[list[float], int]:
@@ -454,6 +458,9 @@ def _next(sr: _Search, s: int, n: int, kk: int, steps: Sequence[tuple[int, float
             t = ((k + dk) % kk) * n + cell
             if sr.turn[t]:
                 out.append((t, sr.turn_cost))
+    if sr.dear is not None:
+        dear = sr.dear
+        return [(t, c * NARROW.tight_cost if dear[t] else c) for t, c in out]
     return out
 
 
@@ -639,14 +646,17 @@ def plan_narrow(lat: Lattice, start: Pose3, goal: Pose3, body: Body, shapes: Seq
     keeps (``body.margin`` less PLAN_MARGIN: epsilon and the look-ahead offset), which the
     lattice ``lat`` shuts by its own error (:attr:`Narrow.slack` h a side):
 
-    * a loose search on ``lat`` whose margin is that keep plus the clearance, less the slack: every
-      passage the footprint fits so is open on it;
+    * a loose search on ``lat`` whose margin is that keep plus the clearance, less the slack and
+      less rho pi / headings (the most a footprint point moves as a heading rounds to the
+      lattice's): every passage the footprint fits so, at any heading, is open on it;
     * each stretch of its path that the strict flags (the footprint's own margin) do not allow is
       searched again in a window round it (:attr:`Narrow.pad` beyond rho) on a lattice of
       :attr:`Narrow.spacing`, keeping the keep plus the clearance less that lattice's slack, so
       the route keeps at least what the formation keeps, and finds any passage it fits by the
       clearance at a lattice heading;
-    * the rest of the path is :func:`route_of` on the strict flags.
+    * the rest of the path is :func:`route_of` on the strict flags; the loose search's steps
+      into poses the strict flags forbid cost :attr:`Narrow.tight_cost` times more, so the tight
+      stretches are short (and their windows small).
 
     A window with no way is shut on the loose lattice and the loose search runs again, up to
     :attr:`Narrow.tries` times. Chosen over a whole-scene fine lattice (memory of the order of
@@ -656,7 +666,9 @@ def plan_narrow(lat: Lattice, start: Pose3, goal: Pose3, body: Body, shapes: Seq
     keep = max(0.0, body.margin - PLAN_MARGIN) + NARROW.clearance
     sc = _scored(lat, body, shapes, circles)
     strict = _search_of(lat, sc - np.float32(body.margin), body.rho, (start, goal))
-    loose = _search_of(lat, sc - np.float32(keep - NARROW.slack * lat.h), body.rho, (start, goal))
+    off = body.rho * math.pi / lat.headings  # a point's move as a heading rounds to the lattice's
+    loose = _search_of(lat, sc - np.float32(keep - NARROW.slack * lat.h - off), body.rho, (start, goal))
+    loose = loose._replace(dear=bytearray((~np.frombuffer(strict.move, dtype=bool)).tobytes()))
     n = lat.nx * lat.ny
     s0 = lat.heading(start[2]) * n + _flat(lat, start)
     s1 = lat.heading(goal[2]) * n + _flat(lat, goal)
@@ -685,7 +697,7 @@ def connected(lat: Lattice, move: bytearray, a: tuple[int, int], b: tuple[int, i
     (8-connected; a flood fill by whole-array steps). A path of the search is one such, so "no"
     is a proof of no way, found without the search (whose heuristic's coarser grid joins cells
     across a thin wall that a loose margin leaves open on both sides)."""
-    free = np.frombuffer(move, dtype=bool).reshape(lat.headings, lat.nx, lat.ny).any(axis=0)
+    free = np.asarray(np.frombuffer(move, dtype=bool).reshape(lat.headings, lat.nx, lat.ny).any(axis=0))
     reach = np.zeros_like(free)
     reach[a] = free[a]
     while not reach[b]:
