@@ -29,6 +29,13 @@ less the robot radius), each with :data:`PLAN_MARGIN` to spare.
   old heading and one at the new. Then waypoints that a straight move turning as it goes (as
   the rigid motion does) joins are left out. The last waypoint is the goal pose itself.
 
+* Where the lattice finds no way, the narrow pass (:func:`plan_narrow`): a passage the
+  footprint fits by what the formation keeps (epsilon, the look-ahead offset) plus
+  :attr:`Narrow.clearance` a side is shut on the lattice by its own margins (PLAN_MARGIN and
+  about 2.4 cells); a loose search finds the way, and its tight stretches are searched again on
+  a fine lattice in a window round each, its headings along the passage. A goal no way reaches
+  (a closed room) stays without a route: the loose lattice shuts it too.
+
 theta is the rotation of the footprint from its start frame (:class:`agent.body.Pose`). No
 route: :class:`FootprintPlan` with ``route`` empty and the reason.
 """
@@ -563,7 +570,7 @@ def _same(a: float, b: float, lat: Lattice) -> bool:
 
 def plan_footprint(start: Pose3, goal: Pose3, body: Body, shapes: Sequence[Shape] = (),
                    circles: Sequence[Circle] = (), h: float | None = None, headings: int = GRID.headings,
-                   limit: int = SEARCH.max_expansions) -> FootprintPlan:
+                   limit: int = SEARCH.max_expansions, movable: Sequence[Circle] = ()) -> FootprintPlan:
     """The footprint's route from pose ``start`` to pose ``goal`` around ``shapes`` and
     ``circles`` (module docstring); cells of ``h`` [m], by default :attr:`Grid.fine_spacing` where
     the area holds at most :attr:`Grid.fine_cells` of them (a small scene: narrow slots), else
@@ -571,16 +578,24 @@ def plan_footprint(start: Pose3, goal: Pose3, body: Body, shapes: Sequence[Shape
     at most :attr:`Grid.fallback_cells` of them: a move must score :attr:`Search.move_need` h, so a
     gap the footprint fits by less than about 0.14 m a side is shut on the coarse lattice (a
     hexagon of six robots between two shelves 1.68 m apart, in the warehouse) and open on the fine
-    one."""
+    one. Where that finds no way either, and ``h`` is not given, :func:`plan_narrow` on the fine
+    lattice (the coarse one beyond :attr:`Grid.fallback_cells`). ``movable``: those of
+    ``circles`` that may move out of the way (other formations): where they alone shut the
+    lattice's way there is no route (leader.routing gives way or waits, rather than sending the
+    formation round by a narrow way), and the narrow pass squeezes past none of them."""
     if not shapes and not circles:  # an open floor: the straight move (what the search finds)
         return FootprintPlan((goal,))
     plan = _plan_lattice(start, goal, body, shapes, circles, h, headings, limit)
     if h is not None or plan.reason != NO_WAY:
         return plan
+    moving = set(movable)
+    if moving and _plan_lattice(start, goal, body, shapes, [c for c in circles if c not in moving],
+                                None, headings, limit).route:
+        return plan  # the formations shut a way the lattice has: given way to, not gone round
     fine = lattice_for(start, goal, shapes, circles, body.rho, GRID.fine_spacing, headings)
     loose = fine if fine.nx * fine.ny <= GRID.fallback_cells else \
         lattice_for(start, goal, shapes, circles, body.rho, GRID.spacing, headings)
-    narrow = plan_narrow(loose, start, goal, body, shapes, circles, limit)
+    narrow = plan_narrow(loose, start, goal, body, shapes, circles, limit, movable)
     return narrow._replace(expanded=plan.expanded + narrow.expanded)
 
 
@@ -641,7 +656,8 @@ def _plan_on(lat: Lattice, start: Pose3, goal: Pose3, body: Body, shapes: Sequen
 
 
 def plan_narrow(lat: Lattice, start: Pose3, goal: Pose3, body: Body, shapes: Sequence[Shape],
-                circles: Sequence[Circle], limit: int = SEARCH.max_expansions) -> FootprintPlan:
+                circles: Sequence[Circle], limit: int = SEARCH.max_expansions,
+                movable: Sequence[Circle] = ()) -> FootprintPlan:
     """The route through passages the footprint fits by :attr:`Narrow.clearance` beyond what it
     keeps (``body.margin`` less PLAN_MARGIN: epsilon and the look-ahead offset), which the
     lattice ``lat`` shuts by its own error (:attr:`Narrow.slack` h a side):
@@ -658,8 +674,9 @@ def plan_narrow(lat: Lattice, start: Pose3, goal: Pose3, body: Body, shapes: Seq
       into poses the strict flags forbid cost :attr:`Narrow.tight_cost` times more, so the tight
       stretches are short (and their windows small).
 
-    A window with no way is shut on the loose lattice and the loose search runs again, up to
-    :attr:`Narrow.tries` times. Chosen over a whole-scene fine lattice (memory of the order of
+    A window with no way, or one that a circle of ``movable`` meets (a formation in the way is
+    given way to, leader.routing, not squeezed past), is shut on the loose lattice and the loose
+    search runs again, up to :attr:`Narrow.tries` times. Chosen over a whole-scene fine lattice (memory of the order of
     the scene's area over the fine cell squared, times the headings) and over sampling in SE(2)
     (no proof of "no way", which a closed room needs): the loose search shuts a closed room as
     the lattice does, and the fine lattice covers only the passages."""
@@ -682,7 +699,7 @@ def plan_narrow(lat: Lattice, start: Pose3, goal: Pose3, body: Body, shapes: Seq
         if states is None:
             return FootprintPlan((), NO_WAY if expanded < limit else f"no route found in {limit} poses", done)
         way = _Way(lat, states, start, goal)
-        route, shut, more = _through(strict, way, fine_body, shapes, circles, limit)
+        route, shut, more = _through(strict, way, fine_body, (shapes, circles, movable), limit)
         done += more
         if route:
             return FootprintPlan(route, "", done)
@@ -812,11 +829,14 @@ def _meets(p: tuple[float, float, float, float], q: tuple[float, float, float, f
     return p[0] <= q[2] and q[0] <= p[2] and p[1] <= q[3] and q[1] <= p[3]
 
 
-def _through(strict: _Search, way: _Way, fine_body: Body, shapes: Sequence[Shape],
-             circles: Sequence[Circle], limit: int) -> tuple[tuple[Pose3, ...], tuple[int, int], int]:
+def _through(strict: _Search, way: _Way, fine_body: Body,
+             things: tuple[Sequence[Shape], Sequence[Circle], Sequence[Circle]], limit: int
+             ) -> tuple[tuple[Pose3, ...], tuple[int, int], int]:
     """The route along a loose path: its tight stretches searched again in their windows, the
-    rest on the strict flags; () and the stretch that has no way where one has none; and the
-    poses the windows expanded."""
+    rest on the strict flags; () and the stretch that has no way (or that a movable circle
+    meets) where one has none; and the poses the windows expanded. ``things``: the shapes, the
+    circles and the movable ones among them."""
+    shapes, circles, movable = things
     grow = fine_body.rho + NARROW.pad
     route: list[Pose3] = []
     at, expanded = 0, 0
@@ -824,6 +844,8 @@ def _through(strict: _Search, way: _Way, fine_body: Body, shapes: Sequence[Shape
         if a > at:
             route += route_of(strict, way.states[at:a + 1], way.pose(at), way.pose(a))
         x0, y0, x1, y1 = _box(way, a, b, grow)
+        if any(_meets((x0, y0, x1, y1), (x - r, y - r, x + r, y + r)) for x, y, r in movable):
+            return (), (a, b), expanded
         h = NARROW.spacing
         mid = way.pose((a + b) // 2)
         win = Lattice(x0, y0, h, int(math.ceil((x1 - x0) / h)) + 1, int(math.ceil((y1 - y0) / h)) + 1,
