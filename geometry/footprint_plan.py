@@ -676,10 +676,14 @@ def plan_narrow(lat: Lattice, start: Pose3, goal: Pose3, body: Body, shapes: Seq
 
     A window with no way, or one that a circle of ``movable`` meets (a formation in the way is
     given way to, leader.routing, not squeezed past), is shut on the loose lattice and the loose
-    search runs again, up to :attr:`Narrow.tries` times. Chosen over a whole-scene fine lattice (memory of the order of
-    the scene's area over the fine cell squared, times the headings) and over sampling in SE(2)
-    (no proof of "no way", which a closed room needs): the loose search shuts a closed room as
-    the lattice does, and the fine lattice covers only the passages."""
+    search runs again, up to :attr:`Narrow.tries` times.
+
+    Chosen on the narrow-passage scenarios (tests/scenarios/narrow-*.yaml) and the warehouse
+    draw's planning time (benchmarks/route_plan.py --draw): the pass runs only where the lattice
+    finds no way, so a route the lattice finds, and its time, stay as they were; a whole-scene
+    lattice of :attr:`Narrow.spacing` needs memory of the order of the scene's area over that
+    cell squared, times the headings (gigabytes in a warehouse hall); sampling in SE(2) proves
+    no "no way", which a closed room needs (the loose search shuts it as the lattice does)."""
     keep = max(0.0, body.margin - PLAN_MARGIN) + NARROW.clearance
     sc = _scored(lat, body, shapes, circles)
     strict = _search_of(lat, sc - np.float32(body.margin), body.rho, (start, goal))
