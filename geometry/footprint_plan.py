@@ -121,6 +121,7 @@ SEARCH = Search()
 WAYPOINTS = Waypoints()
 NARROW = Narrow()
 NO_WAY = "no way for the footprint from its start to the goal"
+GOAL_SHUT = "the footprint does not fit at the goal"
 
 
 @dataclass(frozen=True)
@@ -578,7 +579,8 @@ def plan_footprint(start: Pose3, goal: Pose3, body: Body, shapes: Sequence[Shape
     at most :attr:`Grid.fallback_cells` of them: a move must score :attr:`Search.move_need` h, so a
     gap the footprint fits by less than about 0.14 m a side is shut on the coarse lattice (a
     hexagon of six robots between two shelves 1.68 m apart, in the warehouse) and open on the fine
-    one. Where that finds no way either, and ``h`` is not given, :func:`plan_narrow` on the fine
+    one. Where that finds no route either (and the footprint fits at the goal), and ``h`` is not
+    given, :func:`plan_narrow` on the fine
     lattice (the coarse one beyond :attr:`Grid.fallback_cells`). ``movable``: those of
     ``circles`` that may move out of the way (other formations): where they alone shut the
     lattice's way there is no route (leader.routing gives way or waits, rather than sending the
@@ -586,7 +588,7 @@ def plan_footprint(start: Pose3, goal: Pose3, body: Body, shapes: Sequence[Shape
     if not shapes and not circles:  # an open floor: the straight move (what the search finds)
         return FootprintPlan((goal,))
     plan = _plan_lattice(start, goal, body, shapes, circles, h, headings, limit)
-    if h is not None or plan.reason != NO_WAY:
+    if h is not None or plan.route or plan.reason == GOAL_SHUT:
         return plan
     moving = set(movable)
     if moving and _plan_lattice(start, goal, body, shapes, [c for c in circles if c not in moving],
@@ -642,7 +644,7 @@ def _plan_on(lat: Lattice, start: Pose3, goal: Pose3, body: Body, shapes: Sequen
     s0 = lat.heading(start[2]) * n + _flat(lat, start)
     s1 = lat.heading(goal[2]) * n + _flat(lat, goal)
     if not move[s1] and not turn[s1]:
-        return FootprintPlan((), "the footprint does not fit at the goal")
+        return FootprintPlan((), GOAL_SHUT)
     if direct_clear(sr, start, goal):
         return FootprintPlan((goal,))
     states, expanded = _astar(sr, s0, s1, limit)

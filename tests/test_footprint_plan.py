@@ -180,6 +180,27 @@ def test_a_slot_narrower_than_what_the_formation_keeps_has_no_route():
     assert plan_footprint(start, goal, body, shapes).reason == NO_WAY
 
 
+@pytest.mark.slow
+def test_a_formation_alone_in_the_lattice_s_way_is_given_way_to_not_gone_round_by_a_narrow_way():
+    """A wall with a wide door, where another formation stands (a movable circle), and a slot
+    the footprint fits only by the narrow pass: no route (the formation in the door is given way
+    to, leader.routing); the same circle standing still for good (a pillar): the narrow slot."""
+    body = Body(NARROW_SHAPES["triangle"], radius=0.105, margin=PLAN_MARGIN + KEEP)
+    half = 0.3509 / 2 + 0.15 + KEEP + NARROW.clearance  # the slot at y = -2, the door at y = 2
+    cuts = [-3.5, -2.0 - half, -2.0 + half, 1.2, 2.8, 3.5]
+    wall = [segment(f"w{k}", (0.0, cuts[2 * k]), (0.0, cuts[2 * k + 1]), 0.15) for k in range(3)]
+    hall = [segment("n", (-5.0, 3.5), (5.0, 3.5), 0.15), segment("s", (-5.0, -3.5), (5.0, -3.5), 0.15),
+            segment("w", (-5.0, -3.5), (-5.0, 3.5), 0.15), segment("e", (5.0, -3.5), (5.0, 3.5), 0.15)]
+    other = (0.0, 2.0, 0.6)
+    start, goal = (-3.0, 0.0, 0.0), (3.0, 0.0, -math.pi / 2)
+    things = (start, goal, body, wall + hall, [other])
+    assert plan_footprint(*things, limit=100_000, movable=[other]).route == ()
+    plan = plan_footprint(*things, limit=100_000)
+    assert plan.reason == "" and plan.route[-1] == goal
+    assert min(y for _x, y, _th in plan.route) < -1.5  # by the slot
+    assert min(_clearance(body, pose, wall + hall, [other]) for pose in _legs(start, plan.route)) >= KEEP
+
+
 @settings(max_examples=25, deadline=None)
 @given(shelves=st.lists(st.tuples(st.floats(-3.0, 3.0), st.floats(-2.0, 2.0), st.floats(0.2, 1.5),
                                   st.floats(0.2, 1.5), st.floats(-1.6, 1.6)), min_size=1, max_size=5),
