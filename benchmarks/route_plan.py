@@ -2,11 +2,17 @@
 line (1.5 m) in a 40 x 30 m hall with 50 shelves (5 columns x 10 rows, 1.8 m aisles, cross
 aisles between the columns), from one aisle to another; prints each plan's time and the median.
 
-    python benchmarks/route_plan.py [--plans N] [--seed S] [--ticks]
+    python benchmarks/route_plan.py [--plans N] [--seed S] [--ticks] [--draw N]
 
 ``--ticks`` also runs a 20 Hz loop (3 ms of Python work a tick) while the same plans run in a
 worker process (as agent.replan runs them), then in a worker thread, and counts the ticks that
 ended after their period.
+
+``--draw N`` instead plans every formation's start route (:func:`scenario.routes.start_plan`, as
+``formation check`` and the draw's own check do) in the warehouse draw's layouts of sub-seeds
+0 .. N-1 (experiments.warehouse_draw), and prints each plan's CPU time, the median, mean, max and
+total, and the plans with no route. The same file run with another tree first on the path (a copy
+outside this checkout, PYTHONPATH=TREE) times that tree's planner on the same layouts.
 """
 
 from __future__ import annotations
@@ -97,13 +103,42 @@ def _tick_loop(going, period: float, work_s: float) -> dict:
             "tick_end_max_ms": round(1e3 * max(late), 2)}
 
 
+def draw_plans(count: int) -> dict:
+    """Every formation's start plan in the warehouse draw's layouts 0 .. count-1: CPU times."""
+    from experiments.warehouse_draw import warehouse_scenario
+    from scenario import ScenarioError
+    from scenario.load import scenario_from_dict
+    from scenario.routes import start_plan
+
+    cpus, refused = [], []
+    for sub in range(count):
+        try:
+            scenario = scenario_from_dict(warehouse_scenario(sub))
+        except ScenarioError:
+            continue  # a layout the scenario checks refuse (the draw redraws it)
+        for f in scenario.formations:
+            c0 = time.process_time()
+            plan = start_plan(scenario, f)
+            cpus.append(time.process_time() - c0)
+            if plan.reason:
+                refused.append(f"{sub}/{f.name}: {plan.reason}")
+    return {"layouts": count, "plans": len(cpus), "median_cpu_s": round(statistics.median(cpus), 4),
+            "mean_cpu_s": round(statistics.mean(cpus), 4), "max_cpu_s": round(max(cpus), 3),
+            "total_cpu_s": round(sum(cpus), 2), "no_route": len(refused), "refused": refused}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--plans", type=int, default=9)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--ticks", action="store_true",
                         help="also run a 20 Hz loop while the plans run in a worker thread")
+    parser.add_argument("--draw", type=int, default=0, metavar="N",
+                        help="time the start plans of the warehouse draw's first N layouts instead")
     args = parser.parse_args(argv)
+    if args.draw:
+        print(json.dumps(draw_plans(args.draw)))
+        return 0
     shapes, body = hall(), line()
     if args.ticks:
         print(json.dumps({"worker": "none (the machine alone)",

@@ -29,6 +29,13 @@ less the robot radius), each with :data:`PLAN_MARGIN` to spare.
   old heading and one at the new. Then waypoints that a straight move turning as it goes (as
   the rigid motion does) joins are left out. The last waypoint is the goal pose itself.
 
+* Where the lattice finds no way, the narrow pass (:func:`plan_narrow`): a passage the
+  footprint fits by what the formation keeps (epsilon, the look-ahead offset) plus
+  :attr:`Narrow.clearance` a side is shut on the lattice by its own margins (PLAN_MARGIN and
+  about 2.4 cells); a loose search finds the way, and its tight stretches are searched again on
+  a fine lattice in a window round each, its headings along the passage. A goal no way reaches
+  (a closed room) stays without a route: the loose lattice shuts it too.
+
 theta is the rotation of the footprint from its start frame (:class:`agent.body.Pose`). No
 route: :class:`FootprintPlan` with ``route`` empty and the reason.
 """
@@ -39,13 +46,13 @@ import functools
 import heapq
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
 
 from .angles import LEFT_BIAS, wrap_angle, wrap_left
-from .shapes import Shape
+from .shapes import Shape, shape_distance
 
 Point = tuple[float, float]
 Pose3 = tuple[float, float, float]  # (x [m], y [m], theta [rad])
@@ -92,9 +99,29 @@ class Waypoints:
     interior: float = 0.3  # [m] the load's inside points this apart (less: smaller things seen, slower)
 
 
+@dataclass(frozen=True)
+class Narrow:
+    """The narrow-passage search (:func:`plan_narrow`), run where the lattice finds no way."""
+
+    clearance: float = 0.02  # [m] beyond Ds and the formation's own keep: a passage this roomy is found
+    spacing: float = 0.008  # [m] a window's cell (at most clearance / slack: the search's error fits)
+    # [h] a lattice's own error: the nearest cell h / sqrt 2 off a passage's middle, read within
+    # Search.fine_error h, and a move's Search.move_need h
+    slack: float = 2.42
+    pad: float = 0.3  # [m] beyond rho round a tight stretch: its window (more: room to turn, slower)
+    max_cells: int = 250_000  # a window of more cells is not searched (its stretch stays shut)
+    tries: int = 3  # tight stretches shut in turn before "no way" (more: slower no, other ways tried)
+    # a loose step where the strict flags forbid a move costs this many times its length (more:
+    # shorter tight stretches, so smaller windows; a longer way round to avoid them)
+    tight_cost: float = 1.5
+
+
 GRID = Grid()
 SEARCH = Search()
 WAYPOINTS = Waypoints()
+NARROW = Narrow()
+NO_WAY = "no way for the footprint from its start to the goal"
+GOAL_SHUT = "the footprint does not fit at the goal"
 
 
 @dataclass(frozen=True)
@@ -141,6 +168,7 @@ class Lattice:
     nx: int
     ny: int
     headings: int
+    turn0: float = 0.0  # [rad] heading 0's theta (a narrow window's: its passage's axis)
 
     def cell(self, x: float, y: float) -> tuple[int, int]:
         return (min(self.nx - 2, max(1, round((x - self.x0) / self.h))),
@@ -150,9 +178,11 @@ class Lattice:
         return (self.x0 + i * self.h, self.y0 + j * self.h)
 
     def heading(self, theta: float) -> int:
-        return round(theta / (2.0 * math.pi / self.headings)) % self.headings
+        return round((theta - self.turn0) / (2.0 * math.pi / self.headings)) % self.headings
 
     def theta(self, k: int) -> float:
+        if self.turn0:
+            return wrap_angle(self.turn0 + 2.0 * math.pi * k / self.headings)
         a = 2.0 * math.pi * k / self.headings
         return a - 2.0 * math.pi if a > math.pi else a
 
@@ -324,6 +354,7 @@ class _Search(NamedTuple):
     turn_cost: float  # [m] the outermost point's arc for one heading step
     to_goal: list[float]  # per coarse cell: its distance to the goal (coarse_distance)
     coarse_ny: int  # the coarse grid's row length
+    dear: bytearray | None = None  # per state: a step into it costs Narrow.tight_cost times more
 
 
 def coarse_distance(lat: Lattice, move: bytearray, goal: Point) -> tuple[list[float], int]:
@@ -435,6 +466,9 @@ def _next(sr: _Search, s: int, n: int, kk: int, steps: Sequence[tuple[int, float
             t = ((k + dk) % kk) * n + cell
             if sr.turn[t]:
                 out.append((t, sr.turn_cost))
+    if sr.dear is not None:
+        dear = sr.dear
+        return [(t, c * NARROW.tight_cost if dear[t] else c) for t, c in out]
     return out
 
 
@@ -537,7 +571,7 @@ def _same(a: float, b: float, lat: Lattice) -> bool:
 
 def plan_footprint(start: Pose3, goal: Pose3, body: Body, shapes: Sequence[Shape] = (),
                    circles: Sequence[Circle] = (), h: float | None = None, headings: int = GRID.headings,
-                   limit: int = SEARCH.max_expansions) -> FootprintPlan:
+                   limit: int = SEARCH.max_expansions, movable: Sequence[Circle] = ()) -> FootprintPlan:
     """The footprint's route from pose ``start`` to pose ``goal`` around ``shapes`` and
     ``circles`` (module docstring); cells of ``h`` [m], by default :attr:`Grid.fine_spacing` where
     the area holds at most :attr:`Grid.fine_cells` of them (a small scene: narrow slots), else
@@ -545,9 +579,31 @@ def plan_footprint(start: Pose3, goal: Pose3, body: Body, shapes: Sequence[Shape
     at most :attr:`Grid.fallback_cells` of them: a move must score :attr:`Search.move_need` h, so a
     gap the footprint fits by less than about 0.14 m a side is shut on the coarse lattice (a
     hexagon of six robots between two shelves 1.68 m apart, in the warehouse) and open on the fine
-    one."""
+    one. Where that finds no route either (and the footprint fits at the goal), and ``h`` is not
+    given, :func:`plan_narrow` on the fine
+    lattice (the coarse one beyond :attr:`Grid.fallback_cells`). ``movable``: those of
+    ``circles`` that may move out of the way (other formations): where they alone shut the
+    lattice's way there is no route (leader.routing gives way or waits, rather than sending the
+    formation round by a narrow way), and the narrow pass squeezes past none of them."""
     if not shapes and not circles:  # an open floor: the straight move (what the search finds)
         return FootprintPlan((goal,))
+    plan = _plan_lattice(start, goal, body, shapes, circles, h, headings, limit)
+    if h is not None or plan.route or plan.reason == GOAL_SHUT:
+        return plan
+    moving = set(movable)
+    if moving and _plan_lattice(start, goal, body, shapes, [c for c in circles if c not in moving],
+                                None, headings, limit).route:
+        return plan  # the formations shut a way the lattice has: given way to, not gone round
+    fine = lattice_for(start, goal, shapes, circles, body.rho, GRID.fine_spacing, headings)
+    loose = fine if fine.nx * fine.ny <= GRID.fallback_cells else \
+        lattice_for(start, goal, shapes, circles, body.rho, GRID.spacing, headings)
+    narrow = plan_narrow(loose, start, goal, body, shapes, circles, limit, movable)
+    return narrow._replace(expanded=plan.expanded + narrow.expanded)
+
+
+def _plan_lattice(start: Pose3, goal: Pose3, body: Body, shapes: Sequence[Shape],
+                  circles: Sequence[Circle], h: float | None, headings: int, limit: int) -> FootprintPlan:
+    """:func:`plan_footprint` on the lattice alone (fine, else coarse then fine)."""
     fine = lattice_for(start, goal, shapes, circles, body.rho, h or GRID.fine_spacing, headings)
     if h is not None or fine.nx * fine.ny <= GRID.fine_cells:
         return _plan_on(fine, start, goal, body, shapes, circles, limit)
@@ -588,15 +644,229 @@ def _plan_on(lat: Lattice, start: Pose3, goal: Pose3, body: Body, shapes: Sequen
     s0 = lat.heading(start[2]) * n + _flat(lat, start)
     s1 = lat.heading(goal[2]) * n + _flat(lat, goal)
     if not move[s1] and not turn[s1]:
-        return FootprintPlan((), "the footprint does not fit at the goal")
+        return FootprintPlan((), GOAL_SHUT)
     if direct_clear(sr, start, goal):
         return FootprintPlan((goal,))
     states, expanded = _astar(sr, s0, s1, limit)
     if states is None:
-        why = ("no way for the footprint from its start to the goal" if expanded < limit
-               else f"no route found in {limit} poses")
+        why = NO_WAY if expanded < limit else f"no route found in {limit} poses"
         return FootprintPlan((), why, expanded)
     return FootprintPlan(route_of(sr, states, start, goal), "", expanded)
+
+
+# ------------------------------------------------------------------- the narrow passages
+
+
+def plan_narrow(lat: Lattice, start: Pose3, goal: Pose3, body: Body, shapes: Sequence[Shape],
+                circles: Sequence[Circle], limit: int = SEARCH.max_expansions,
+                movable: Sequence[Circle] = ()) -> FootprintPlan:
+    """The route through passages the footprint fits by :attr:`Narrow.clearance` beyond what it
+    keeps (``body.margin`` less PLAN_MARGIN: epsilon and the look-ahead offset), which the
+    lattice ``lat`` shuts by its own error (:attr:`Narrow.slack` h a side):
+
+    * a loose search on ``lat`` whose margin is that keep plus the clearance, less the slack and
+      less rho pi / headings (the most a footprint point moves as a heading rounds to the
+      lattice's): every passage the footprint fits so, at any heading, is open on it;
+    * each stretch of its path that the strict flags (the footprint's own margin) do not allow is
+      searched again in a window round it (:attr:`Narrow.pad` beyond rho) on a lattice of
+      :attr:`Narrow.spacing`, keeping the keep plus the clearance less that lattice's slack, so
+      the route keeps at least what the formation keeps, and finds any passage it fits by the
+      clearance at a lattice heading;
+    * the rest of the path is :func:`route_of` on the strict flags; the loose search's steps
+      into poses the strict flags forbid cost :attr:`Narrow.tight_cost` times more, so the tight
+      stretches are short (and their windows small).
+
+    A window with no way, or one that a circle of ``movable`` meets (a formation in the way is
+    given way to, leader.routing, not squeezed past), is shut on the loose lattice and the loose
+    search runs again, up to :attr:`Narrow.tries` times.
+
+    Chosen on the narrow-passage scenarios (tests/scenarios/narrow-*.yaml) and the warehouse
+    draw's planning time (benchmarks/route_plan.py --draw): the pass runs only where the lattice
+    finds no way, so a route the lattice finds, and its time, stay as they were; a whole-scene
+    lattice of :attr:`Narrow.spacing` needs memory of the order of the scene's area over that
+    cell squared, times the headings (gigabytes in a warehouse hall); sampling in SE(2) proves
+    no "no way", which a closed room needs (the loose search shuts it as the lattice does)."""
+    keep = max(0.0, body.margin - PLAN_MARGIN) + NARROW.clearance
+    sc = _scored(lat, body, shapes, circles)
+    strict = _search_of(lat, sc - np.float32(body.margin), body.rho, (start, goal))
+    off = body.rho * math.pi / lat.headings  # a point's move as a heading rounds to the lattice's
+    loose = _search_of(lat, sc - np.float32(keep - NARROW.slack * lat.h - off), body.rho, (start, goal))
+    loose = loose._replace(dear=bytearray((~np.frombuffer(strict.move, dtype=bool)).tobytes()))
+    n = lat.nx * lat.ny
+    s0 = lat.heading(start[2]) * n + _flat(lat, start)
+    s1 = lat.heading(goal[2]) * n + _flat(lat, goal)
+    fine_body = replace(body, margin=keep - NARROW.slack * NARROW.spacing)
+    if not connected(lat, loose.move, lat.cell(*start[:2]), lat.cell(*goal[:2])):
+        return FootprintPlan((), NO_WAY)
+    done = 0
+    for _ in range(NARROW.tries):
+        states, expanded = _astar(loose, s0, s1, limit)
+        done += expanded
+        if states is None:
+            return FootprintPlan((), NO_WAY if expanded < limit else f"no route found in {limit} poses", done)
+        way = _Way(lat, states, start, goal)
+        route, shut, more = _through(strict, way, fine_body, (shapes, circles, movable), limit)
+        done += more
+        if route:
+            return FootprintPlan(route, "", done)
+        for s in states[shut[0]:shut[1] + 1]:
+            for k in range(lat.headings):
+                loose.move[k * n + s % n] = loose.turn[k * n + s % n] = 0
+    return FootprintPlan((), NO_WAY, done)
+
+
+def connected(lat: Lattice, move: bytearray, a: tuple[int, int], b: tuple[int, int]) -> bool:
+    """Whether cell ``b`` is reached from cell ``a`` through cells that may move at some heading
+    (8-connected; a flood fill by whole-array steps). A path of the search is one such, so "no"
+    is a proof of no way, found without the search (whose heuristic's coarser grid joins cells
+    across a thin wall that a loose margin leaves open on both sides)."""
+    free = np.asarray(np.frombuffer(move, dtype=bool).reshape(lat.headings, lat.nx, lat.ny).any(axis=0))
+    reach = np.zeros_like(free)
+    reach[a] = free[a]
+    while not reach[b]:
+        grown = reach.copy()
+        grown[1:, :] |= reach[:-1, :]
+        grown[:-1, :] |= reach[1:, :]
+        grown[:, 1:] |= grown[:, :-1].copy()
+        grown[:, :-1] |= grown[:, 1:].copy()
+        grown &= free
+        if np.array_equal(grown, reach):
+            return False
+        reach = grown
+    return True
+
+
+class _Way(NamedTuple):
+    """A loose path: its states on ``lat`` and the real start and goal poses."""
+
+    lat: Lattice
+    states: list[int]
+    start: Pose3
+    goal: Pose3
+
+    def pose(self, k: int) -> Pose3:
+        """The path's k-th pose (the real start and goal at its ends)."""
+        if k == 0:
+            return self.start
+        if k == len(self.states) - 1:
+            return self.goal
+        n = self.lat.nx * self.lat.ny
+        s = self.states[k]
+        i, j = divmod(s % n, self.lat.ny)
+        return (*self.lat.point(i, j), self.lat.theta(s // n))
+
+
+def _scored(lat: Lattice, body: Body, shapes: Sequence[Shape], circles: Sequence[Circle]) -> np.ndarray:
+    """:func:`scores` with no margin taken off."""
+    big_f, big_g = fields(lat, shapes, circles, body.radius)
+    cover = min([body.radius] + [sh.ds for sh in shapes])
+    return scores(lat, replace(body, margin=0.0), big_f, big_g, cover)
+
+
+def _search_of(lat: Lattice, sc: np.ndarray, rho: float, ends: Sequence[Pose3]) -> _Search:
+    """The search over scores ``sc`` (the margin taken off), relaxed round ``ends`` (the goal last)."""
+    dth = 2.0 * math.pi / lat.headings
+    move, turn = _allowed(lat, sc, ends, rho, SEARCH.move_need * lat.h,
+                          0.5 * rho * dth + SEARCH.fine_error * lat.h)
+    return _Search(lat, move, turn, rho * dth, *coarse_distance(lat, move, ends[-1][:2]))
+
+
+def _tight(strict: _Search, states: Sequence[int]) -> list[bool]:
+    """Per state of a path: whether a step into or out of it is one the strict flags forbid."""
+    n = strict.lat.nx * strict.lat.ny
+    flags = [False] * len(states)
+    for k in range(len(states) - 1):
+        a, b = states[k], states[k + 1]
+        ok = strict.turn if a % n == b % n else strict.move
+        if not (ok[a] and ok[b]):
+            flags[k] = flags[k + 1] = True
+    return flags
+
+
+def _stretches(way: _Way, tight: Sequence[bool], grow: float) -> list[tuple[int, int]]:
+    """The path's tight stretches as (entry, exit) indices, each a pose before and after it;
+    stretches whose boxes (grown by ``grow``) meet are one."""
+    last = len(tight) - 1
+    out: list[tuple[int, int]] = []
+    k = 0
+    while k <= last:
+        if not tight[k]:
+            k += 1
+            continue
+        j = k
+        while j < last and tight[j + 1]:
+            j += 1
+        a, b = max(0, k - 1), min(last, j + 1)
+        if out and (a <= out[-1][1] or _meets(_box(way, *out[-1], grow), _box(way, a, b, grow))):
+            a = out.pop()[0]
+        out.append((a, b))
+        k = j + 1
+    return out
+
+
+def _box(way: _Way, a: int, b: int, grow: float) -> tuple[float, float, float, float]:
+    xs = [way.pose(k)[0] for k in range(a, b + 1)]
+    ys = [way.pose(k)[1] for k in range(a, b + 1)]
+    return (min(xs) - grow, min(ys) - grow, max(xs) + grow, max(ys) + grow)
+
+
+def aligned_turn(body: Body, shapes: Sequence[Shape], at: Pose3, headings: int) -> float:
+    """[rad] the lattice's heading 0 that holds the poses turning the footprint's narrowest side
+    (the hull edge its width is across) along the axes of the shape nearest ``at``; 0 for none.
+    A passage between shelves runs along their axes: at an unaligned heading a long footprint
+    needs up to its length times sin(pi / headings) more room across it."""
+    hull = _hull(body.slots + body.load)
+    if len(hull) < 2 or not shapes:
+        return 0.0
+    edges = [(hull[k], hull[(k + 1) % len(hull)]) for k in range(len(hull))]
+
+    def width(e: tuple[Point, Point]) -> float:
+        (ax, ay), (bx, by) = e
+        d = math.hypot(bx - ax, by - ay) or 1.0
+        return max(abs((bx - ax) * (py - ay) - (by - ay) * (px - ax)) / d for px, py in hull)
+
+    (ax, ay), (bx, by) = min(edges, key=width)
+    near = min(shapes, key=lambda sh: shape_distance(at[0], at[1], sh)[0])
+    step = 2.0 * math.pi / headings
+    return (near.yaw - math.atan2(by - ay, bx - ax)) % step
+
+
+def _meets(p: tuple[float, float, float, float], q: tuple[float, float, float, float]) -> bool:
+    return p[0] <= q[2] and q[0] <= p[2] and p[1] <= q[3] and q[1] <= p[3]
+
+
+def _through(strict: _Search, way: _Way, fine_body: Body,
+             things: tuple[Sequence[Shape], Sequence[Circle], Sequence[Circle]], limit: int
+             ) -> tuple[tuple[Pose3, ...], tuple[int, int], int]:
+    """The route along a loose path: its tight stretches searched again in their windows, the
+    rest on the strict flags; () and the stretch that has no way (or that a movable circle
+    meets) where one has none; and the poses the windows expanded. ``things``: the shapes, the
+    circles and the movable ones among them."""
+    shapes, circles, movable = things
+    grow = fine_body.rho + NARROW.pad
+    route: list[Pose3] = []
+    at, expanded = 0, 0
+    for a, b in _stretches(way, _tight(strict, way.states), grow):
+        if a > at:
+            route += route_of(strict, way.states[at:a + 1], way.pose(at), way.pose(a))
+        x0, y0, x1, y1 = _box(way, a, b, grow)
+        if any(_meets((x0, y0, x1, y1), (x - r, y - r, x + r, y + r)) for x, y, r in movable):
+            return (), (a, b), expanded
+        h = NARROW.spacing
+        mid = way.pose((a + b) // 2)
+        win = Lattice(x0, y0, h, int(math.ceil((x1 - x0) / h)) + 1, int(math.ceil((y1 - y0) / h)) + 1,
+                      strict.lat.headings, aligned_turn(fine_body, shapes, mid, strict.lat.headings))
+        if win.nx * win.ny > NARROW.max_cells:
+            return (), (a, b), expanded
+        part = _plan_on(win, way.pose(a), way.pose(b), fine_body, shapes, circles, limit)
+        expanded += part.expanded
+        if not part.route:
+            return (), (a, b), expanded
+        route += part.route
+        at = b
+    if at < len(way.states) - 1:
+        route += route_of(strict, way.states[at:], way.pose(at), way.goal)
+    return tuple(route), (0, 0), expanded
 
 
 def plan_aside(start: Pose3, body: Body, shapes: Sequence[Shape], circles: Sequence[Circle],

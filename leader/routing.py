@@ -301,6 +301,7 @@ class PlanJob(NamedTuple):
     formations: tuple[tuple[str, Circle], ...] = ()
     lanes: tuple[Lane, ...] = ()  # moving things (:func:`lanes`): a route head-on into one goes round
     speed: float = math.inf  # [m/s] the formation's top speed (:func:`oncoming`)
+    movable: tuple[Circle, ...] = ()  # other formations among ``circles``: not squeezed past
 
 
 class JobResult(NamedTuple):
@@ -314,18 +315,19 @@ def plan_job(job: PlanJob) -> JobResult:
     """The footprint's route (:func:`plan_footprint`); where there is none and formations are
     parked in the way, the route without them too: the formations it passes are what blocks
     the way (each may be waiting for this one: :meth:`Replanner.give_way`)."""
-    res = plan_footprint(job.start, job.goal, job.body, job.shapes, job.circles)
+    res = plan_footprint(job.start, job.goal, job.body, job.shapes, job.circles, movable=job.movable)
     ahead = [ln for ln in job.lanes
              if res.route and oncoming(job.start, res.route, job.body.rho, ln, job.speed)]
     if ahead:  # round where they drive, if there is a way; else the way, and the barriers wait
-        round_ = plan_footprint(job.start, job.goal, job.body, job.shapes, job.circles + tuple(
-            c for ln in ahead for c in lane_circles(job.start, job.body.rho, ln)))
+        lane = tuple(c for ln in ahead for c in lane_circles(job.start, job.body.rho, ln))
+        round_ = plan_footprint(job.start, job.goal, job.body, job.shapes, job.circles + lane,
+                                movable=job.movable + lane)
         res = round_ if round_.route else res
     if res.route or not job.formations:
         return JobResult(res)
     parked = [c for _n, c in job.formations]
     rest = tuple(c for c in job.circles if c not in parked)
-    through = plan_footprint(job.start, job.goal, job.body, job.shapes, rest)
+    through = plan_footprint(job.start, job.goal, job.body, job.shapes, rest, movable=job.movable)
     if not through.route:
         return JobResult(res)
     way = [job.start[:2]] + [p[:2] for p in through.route]
@@ -561,9 +563,10 @@ class Replanner:
         self.giving_way = ""
         parked = () if extra else tuple((n[len(FORMATION):], c) for n, c in things
                                         if n.startswith(FORMATION))
+        movable = tuple(c for n, c in things if n.startswith(FORMATION)) + tuple(c for _n, c in extra)
         return PlanJob(pose, self.goal, self.body, self.shapes,
                        tuple(c for _n, c in things) + tuple(c for _n, c in extra), parked, moving,
-                       self.speed)
+                       self.speed, movable)
 
     def finish(self, res: FootprintPlan | JobResult, why: Reason) -> Update | None:
         """The route (or the order to hold) from a plan :meth:`begin` started; None: keep the

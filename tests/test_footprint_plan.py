@@ -13,7 +13,16 @@ from hypothesis import strategies as st
 
 from agent.body import motion_of
 from geometry.ellipse import Ellipse
-from geometry.footprint_plan import Body, FootprintPlan, load_outline, plan_aside, plan_footprint
+from geometry.footprint_plan import (
+    NARROW,
+    NO_WAY,
+    PLAN_MARGIN,
+    Body,
+    FootprintPlan,
+    load_outline,
+    plan_aside,
+    plan_footprint,
+)
 from geometry.shapes import box, segment, shape_distance
 from leader.navigation import HEADING_TOLERANCE, SETTLED_SPEED, Follower, heading_tolerance
 from leader.routing import (
@@ -122,6 +131,74 @@ def test_no_route_into_a_closed_room_says_why():
         [((1, -1), (1, 1)), ((1, 1), (3, 1)), ((3, 1), (3, -1)), ((3, -1), (1, -1))])]
     plan = plan_footprint((-3.0, 0.0, 0.0), (2.0, 0.0, 0.0), LINE, room)
     assert plan.route == () and "no way" in plan.reason
+
+
+KEEP = 0.04  # [m] what a formation keeps beyond Ds itself (epsilon)
+NARROW_SHAPES = {  # crosswise to the way east: the footprint must turn by a quarter to pass
+    "line": ((0.0, -0.45), (0.0, 0.0), (0.0, 0.45)),
+    "triangle": ((0.117, -0.3828), (0.117, 0.5172), (-0.2339, -0.1343)),  # edges 0.9, 0.74, 0.43 m
+    "pentagon": tuple((0.4 * math.cos(2 * math.pi * k / 5), 0.4 * math.sin(2 * math.pi * k / 5))
+                      for k in range(5)),  # a robot ahead: 0.76 m across, 0.72 m turned
+}
+
+
+def _narrow_scene(body: Body, side: float, yaw: float):
+    """A 12 x 7 m hall closed but for a slot between two shelf blocks (2 m long) that the
+    footprint, turned a quarter, fits with ``side`` a side beyond Ds; start and goal 3.5 m either
+    side of it; all turned by ``yaw`` about the slot's centre."""
+    turned = [(y, -x) for x, y in body.slots]
+    half = (max(y for _x, y in turned) - min(y for _x, y in turned)) / 2 + 0.15 + side
+    c, s = math.cos(yaw), math.sin(yaw)
+
+    def at(x, y):
+        return (c * x - s * y, s * x + c * y)
+
+    shapes = [box("block-n", at(0.0, (half + 3.5) / 2), (2.0, 3.5 - half), yaw, 0.15),
+              box("block-s", at(0.0, -(half + 3.5) / 2), (2.0, 3.5 - half), yaw, 0.15)]
+    corners = [at(-6.0, -3.5), at(6.0, -3.5), at(6.0, 3.5), at(-6.0, 3.5)]
+    shapes += [segment(f"hall{k}", corners[k], corners[(k + 1) % 4], 0.15) for k in range(4)]
+    return shapes, (*at(-3.5, 0.6), yaw), (*at(3.5, -0.3), yaw - math.pi / 2)
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.3])
+@pytest.mark.parametrize("shape", sorted(NARROW_SHAPES))
+def test_a_slot_the_footprint_fits_by_the_narrow_clearance_is_planned_through(shape, yaw):
+    """A slot the footprint fits turned by what it keeps plus NARROW.clearance a side, which the
+    lattice alone shuts (at any angle to the lattice): planned, and every pose on the way keeps
+    what the formation keeps."""
+    body = Body(NARROW_SHAPES[shape], radius=0.105, margin=PLAN_MARGIN + KEEP)
+    shapes, start, goal = _narrow_scene(body, KEEP + NARROW.clearance, yaw)
+    assert plan_footprint(start, goal, body, shapes, h=0.05).reason == NO_WAY
+    plan = plan_footprint(start, goal, body, shapes)
+    assert plan.reason == "" and plan.route[-1] == goal, plan
+    assert min(_clearance(body, pose, shapes, ()) for pose in _legs(start, plan.route)) >= KEEP
+
+
+def test_a_slot_narrower_than_what_the_formation_keeps_has_no_route():
+    body = Body(NARROW_SHAPES["triangle"], radius=0.105, margin=PLAN_MARGIN + KEEP)
+    shapes, start, goal = _narrow_scene(body, KEEP - 0.01, 0.0)
+    assert plan_footprint(start, goal, body, shapes).reason == NO_WAY
+
+
+@pytest.mark.slow
+def test_a_formation_alone_in_the_lattice_s_way_is_given_way_to_not_gone_round_by_a_narrow_way():
+    """A wall with a wide door, where another formation stands (a movable circle), and a slot
+    the footprint fits only by the narrow pass: no route (the formation in the door is given way
+    to, leader.routing); the same circle standing still for good (a pillar): the narrow slot."""
+    body = Body(NARROW_SHAPES["triangle"], radius=0.105, margin=PLAN_MARGIN + KEEP)
+    half = 0.3509 / 2 + 0.15 + KEEP + NARROW.clearance  # the slot at y = -2, the door at y = 2
+    cuts = [-3.5, -2.0 - half, -2.0 + half, 1.2, 2.8, 3.5]
+    wall = [segment(f"w{k}", (0.0, cuts[2 * k]), (0.0, cuts[2 * k + 1]), 0.15) for k in range(3)]
+    hall = [segment("n", (-5.0, 3.5), (5.0, 3.5), 0.15), segment("s", (-5.0, -3.5), (5.0, -3.5), 0.15),
+            segment("w", (-5.0, -3.5), (-5.0, 3.5), 0.15), segment("e", (5.0, -3.5), (5.0, 3.5), 0.15)]
+    other = (0.0, 2.0, 0.6)
+    start, goal = (-3.0, 0.0, 0.0), (3.0, 0.0, -math.pi / 2)
+    things = (start, goal, body, wall + hall, [other])
+    assert plan_footprint(*things, limit=100_000, movable=[other]).route == ()
+    plan = plan_footprint(*things, limit=100_000)
+    assert plan.reason == "" and plan.route[-1] == goal
+    assert min(y for _x, y, _th in plan.route) < -1.5  # by the slot
+    assert min(_clearance(body, pose, wall + hall, [other]) for pose in _legs(start, plan.route)) >= KEEP
 
 
 @settings(max_examples=25, deadline=None)
