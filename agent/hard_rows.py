@@ -45,8 +45,18 @@ def unmet_hard_rows(status: str | None, barriers: Mapping[str, float | None]) ->
 
 def unmet_of_result(res: Any) -> tuple[str, ...]:
     """:func:`unmet_hard_rows` of an :class:`agent.control.StepResult` (any object with
-    ``status`` and the ``h_*`` fields it has)."""
-    return unmet_hard_rows(res.status, {n: getattr(res, n, None) for n in HARD_BARRIERS})
+    ``status`` and the ``h_*`` fields it has). The common tick, whose QP did not fall back and
+    whose hard barriers are none below -H_TOL (NaN counts as none), is answered without the
+    mapping."""
+    status = res.status
+    if status not in (STATUS_FALLBACK, STATUS_FAILED):
+        for name in HARD_BARRIERS:
+            v = getattr(res, name, None)
+            if v is not None and v < -H_TOL:
+                break
+        else:
+            return ()
+    return unmet_hard_rows(status, {n: getattr(res, n, None) for n in HARD_BARRIERS})
 
 
 @dataclass

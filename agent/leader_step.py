@@ -183,7 +183,9 @@ class LeaderPart:
         ``ts``: the lock-step reference stamp (None in real time; only the clock reads it)."""
         role, clock, t = self.role, self._clock, self._transport
         assert role is not None and t is not None  # only called on the leader, once open
-        await clock.wait(self._inbox, [(keys.STATE, k) for k in self._member_keys.values()], stamp)
+        if clock.lockstep:  # a real-time clock never waits (agent.clock)
+            await clock.wait(self._inbox, [(keys.STATE, k) for k in self._member_keys.values()],
+                             stamp)
         own = role.estimate(self.members_now(px, py, ts, last_u, theta))
         if own is None:
             self.own_others = None
@@ -196,12 +198,13 @@ class LeaderPart:
         if self.realtime and beacon_due(stamp, self.listen.beacon_stamp):
             t.publish(role.beacon_key, msg)
             self.listen.beacon_stamp = stamp
-        await clock.wait(self._inbox, [(keys.ELLIPSE, k) for k in role.other_keys], stamp)
+        if clock.lockstep:
+            await clock.wait(self._inbox, [(keys.ELLIPSE, k) for k in role.other_keys], stamp)
         received, want, complete, inflated = self.collect(role, own, clock.at(ts), ts)
         self.inflated += inflated
         if self.realtime:
             self._ask(frozenset(want))
-        self.own_others = role.others(own, received, stamp)
+        self.own_others = role.others(own, received, stamp, msg)  # the message published above
         if complete:
             t.publish(role.others_key, self.own_others)
         return complete

@@ -123,6 +123,10 @@ class NavPart:
     def __init__(self, cfg: AgentConfig, leader: bool) -> None:
         self.cfg = cfg
         p = cfg.prefix
+        fp = cfg.footprint
+        # the footprint's per-tick constants (alpha0, goal turn, rho), taken once: the config
+        # is frozen
+        self._frame = None if fp is None else (fp.alpha0, fp.goal_turn, fp.rho)
         self.follower = Follower(cfg.robot_id, cfg.goal, cfg.formation_goal, cfg.route,
                                  cfg.route_headings, heading_tolerance(
                                      cfg.control.kp, None if cfg.footprint is None
@@ -286,10 +290,11 @@ class NavPart:
         self._centroid = (cx, cy)
         heading = None
         motion = (0.0, 0.0, 0.0)  # the formation's (Follower.step)
-        if self.cfg.footprint is not None and own is not None:
-            heading = wrap_angle(pose_of(own, self.cfg.footprint.alpha0).theta
-                                 - self.cfg.footprint.goal_turn)
-            motion = motion_of(own, self.cfg.footprint.rho)
+        frame = self._frame
+        if frame is not None and own is not None:
+            alpha0, goal_turn, rho = frame
+            heading = wrap_angle(pose_of(own, alpha0).theta - goal_turn)
+            motion = motion_of(own, rho)
         if nav is not None and self.routes is not None and own is not None:
             self._replan(nav, self.routes, stamp, lockstep, own, heading, seen)
         target, waypoint = self.follower.step(cx, cy, heading, motion)

@@ -71,20 +71,28 @@ class LeaderRole:
     def estimate(self, members: Mapping[str, Kinematic]) -> Ellipse | None:
         """The ellipse from every member's control point and velocity; ``None`` if one is
         missing (the leader's own entry comes from its own state, not from the network)."""
-        if any(m not in members for m in self.members):
-            return None
-        pts = [(members[m][0], members[m][1]) for m in self.members]
-        vel = [(members[m][2], members[m][3]) for m in self.members]
-        return estimate(self.shape, self.axes, pts, vel, [members[m][4] for m in self.members])
+        pts, vel, heads = [], [], []
+        for m in self.members:
+            k = members.get(m)
+            if k is None:
+                return None
+            pts.append((k[0], k[1]))
+            vel.append((k[2], k[3]))
+            heads.append(k[4])
+        return estimate(self.shape, self.axes, pts, vel, heads)
 
-    def others(self, own: Ellipse, received: Mapping[str, EllipseMsg], stamp: float) -> Others:
+    def others(self, own: Ellipse, received: Mapping[str, EllipseMsg], stamp: float,
+               own_msg: EllipseMsg | None = None) -> Others:
         """The ``others`` message: every other formation's latest ellipse within
         :data:`VIEW_RANGE` of ``own`` (``received`` is keyed by ellipse key, as the node's
-        mailbox holds them) and the leader's own."""
+        mailbox holds them) and the leader's own (``own_msg``: its wire form at ``stamp`` when
+        the caller already built it, :func:`ellipse_to_msg`)."""
         ellipses = []
         for key, fid in self.other_keys.items():
             m = received.get(key)
             if m is not None and m.formation == fid and within_reach(own, m.cx, m.cy, m.a,
                                                                       VIEW_RANGE):
                 ellipses.append(m)
-        return Others(self.formation, stamp, tuple(ellipses), ellipse_to_msg(self.formation, own, stamp))
+        if own_msg is None:
+            own_msg = ellipse_to_msg(self.formation, own, stamp)
+        return Others(self.formation, stamp, tuple(ellipses), own_msg)

@@ -84,6 +84,14 @@ def test_others_holds_the_other_leaders_ellipses_and_the_own_one(scenario, role)
     assert msg.stamp == 3.0
 
 
+def test_others_carries_the_own_message_it_is_handed_as_it_is(scenario, role):
+    own = role.estimate(moved_states(scenario))
+    sent = ellipse_to_msg("F1", own, 2.0)  # the leader's published ellipse
+    msg = role.others(own, {}, 2.0, sent)
+    assert msg.own is sent
+    assert msg == role.others(own, {}, 2.0)  # the same message it would build itself
+
+
 def test_others_without_any_received_ellipse_still_carries_the_own_one(scenario, role):
     own = role.estimate(moved_states(scenario))
     msg = role.others(own, {}, 1.0)

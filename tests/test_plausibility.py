@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from agent.barriers import obstacle_h
 from agent.control import ControlParams
-from agent.hard_rows import HardRowCounter, unmet_hard_rows
+from agent.hard_rows import HARD_BARRIERS, HardRowCounter, unmet_hard_rows, unmet_of_result
 from agent.plausibility import (
     JUMP_MARGIN_M,
     SPEED_FACTOR,
@@ -109,6 +109,23 @@ def test_hard_rows_count_fallbacks_failures_and_barriers_below_zero_but_not_rela
     R.status = "fallback"
     c.add(R())
     assert c.ticks == 2 and c.by_reason == {"formations": 2, "fallback": 1}
+
+
+@pytest.mark.parametrize("status", ["ok", "relaxed", "fallback", "failed"])
+@pytest.mark.parametrize("values", [
+    (0.1, 2.0, 0.3), (-1e-3, 2.0, None), (math.nan, -0.005, 0.0), (None, None, -0.01),
+    (-1e-10, 0.0, math.nan), (0.0, 0.0, 0.0),
+])
+def test_a_results_unmet_hard_rows_are_its_barrier_values_ones(status, values):
+    class R:
+        pass
+
+    r = R()
+    r.status = status
+    for name, v in zip(HARD_BARRIERS, values, strict=True):
+        if v is not None:  # a result without the field: none of that kind
+            setattr(r, name, v)
+    assert unmet_of_result(r) == unmet_hard_rows(status, dict(zip(HARD_BARRIERS, values, strict=True)))
 
 
 def test_the_figures_mark_the_ticks_with_a_hard_row_not_met():

@@ -548,10 +548,30 @@ def _cmd_tuple(msg: Cmd) -> tuple[Any, ...]:
     return (_VERSION, msg.v, msg.omega, msg.ux, msg.uy, msg.stamp)
 
 
-#: the messages sent every tick -> their wire tuple, found by the exact type (the rest, and
-#: subclasses, by :func:`_wire_tuple`'s chain)
+def _ellipse_msg_tuple(msg: EllipseMsg) -> tuple[Any, ...]:
+    if msg.points:
+        return (_ELLIPSE_POINTS_VERSION, *_ellipse_fields_v2(msg))
+    return (_VERSION, *_ellipse_fields(msg))
+
+
+def _others_tuple(msg: Others) -> tuple[Any, ...]:
+    v2 = any(e.points for e in msg.ellipses) or (msg.own is not None and bool(msg.own.points))
+    fields_of = _ellipse_fields_v2 if v2 else _ellipse_fields
+    own = [] if msg.own is None else [fields_of(msg.own)]
+    return (
+        _ELLIPSE_POINTS_VERSION if v2 else _VERSION,
+        msg.formation,
+        msg.stamp,
+        [fields_of(e) for e in msg.ellipses],
+        own,
+    )
+
+
+#: the messages sent every tick (a leader's ellipse and others among them) -> their wire
+#: tuple, found by the exact type (the rest, and subclasses, by :func:`_wire_tuple`'s chain)
 _TICK_TUPLES: dict[type, Callable[[Any], tuple[Any, ...]]] = {
-    Pose: _pose_tuple, State: _state_tuple, Cmd: _cmd_tuple}
+    Pose: _pose_tuple, State: _state_tuple, Cmd: _cmd_tuple, EllipseMsg: _ellipse_msg_tuple,
+    Others: _others_tuple}
 
 
 def _wire_tuple(msg: Message) -> tuple[Any, ...]:
@@ -561,21 +581,10 @@ def _wire_tuple(msg: Message) -> tuple[Any, ...]:
         return _state_tuple(msg)
     if isinstance(msg, Cmd):
         return _cmd_tuple(msg)
-    if isinstance(msg, EllipseMsg) and msg.points:
-        return (_ELLIPSE_POINTS_VERSION, *_ellipse_fields_v2(msg))
     if isinstance(msg, EllipseMsg):
-        return (_VERSION, *_ellipse_fields(msg))
+        return _ellipse_msg_tuple(msg)
     if isinstance(msg, Others):
-        v2 = any(e.points for e in msg.ellipses) or (msg.own is not None and bool(msg.own.points))
-        fields_of = _ellipse_fields_v2 if v2 else _ellipse_fields
-        own = [] if msg.own is None else [fields_of(msg.own)]
-        return (
-            _ELLIPSE_POINTS_VERSION if v2 else _VERSION,
-            msg.formation,
-            msg.stamp,
-            [fields_of(e) for e in msg.ellipses],
-            own,
-        )
+        return _others_tuple(msg)
     if isinstance(msg, Obstacles) and msg.shapes:
         return (
             _SHAPES_VERSION,
