@@ -598,11 +598,11 @@ class TwistMemo:
     formation's QP once a tick instead of once a member. A pure cache: equal inputs give the
     very same result; a controller serving one robot pays one comparison a tick for it."""
 
-    __slots__ = ("key", "value")
+    __slots__ = ("last",)
 
     def __init__(self) -> None:
-        self.key: tuple | None = None
-        self.value: tuple[Pose, TwistResult] | None = None
+        # (inputs, result) as one pair: replaced whole, so a reader never pairs them wrongly
+        self.last: tuple[tuple, tuple[Pose, TwistResult]] | None = None
 
     def twist(self, fp: Footprint, own: Ellipse, goal: Point, snap: Snapshot, p: BodyParams,
               push: Point = (0.0, 0.0), intent: Point | None = None,
@@ -612,10 +612,12 @@ class TwistMemo:
         key = (fp.slots, fp.alpha0, fp.goal_turn, fp.load_points, fp.load_edges, own, goal,
                tuple(snap.obstacles), tuple(snap.shapes), tuple(snap.ellipses), p, push, intent,
                turn)
-        if self.value is None or key != self.key:
-            self.value = formation_twist(fp, own, goal, snap, p, push, intent, turn)
-            self.key = key
-        return self.value
+        last = self.last
+        if last is not None and last[0] == key:
+            return last[1]
+        value = formation_twist(fp, own, goal, snap, p, push, intent, turn)
+        self.last = (key, value)
+        return value
 
 
 def pace(want: Twist, pose: Pose, fp: Footprint, headings: Sequence[float]) -> float:
