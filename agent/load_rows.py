@@ -129,6 +129,19 @@ class MemberLoad(NamedTuple):
     declared: bool = True  # a declared load's vertices get rows (the default hull's are the members)
 
 
+class LastPlaced:
+    """The last load :func:`place_load` placed, by its inputs (a pure cache of one entry:
+    (inputs, load) replaced whole)."""
+
+    __slots__ = ("last",)
+
+    def __init__(self) -> None:
+        self.last: tuple[tuple, PlacedLoad | None] | None = None
+
+
+PLACED = LastPlaced()  # :func:`member_load`'s
+
+
 def member_load(fp: Footprint, pose: tuple[float, float, float], last_u: Point,
                 partners: Sequence[Partner], offset: float, unicycle: bool) -> MemberLoad | None:
     """The load placed at the members' bodies now: this robot's ``pose`` and its formation's
@@ -150,7 +163,13 @@ def member_load(fp: Footprint, pose: tuple[float, float, float], last_u: Point,
         bodies.append((q.x - offset * math.cos(q.theta), q.y - offset * math.sin(q.theta)))
         vel.append((q.vx, q.vy))
         heads.append(q.theta)
-    placed = place_load(fp.fit0, fp.outline0, bodies)
+    key = (fp.fit0, fp.outline0, tuple(bodies))
+    last = PLACED.last  # every member places the same load (single integrators: to the bit)
+    if last is not None and last[0] == key:
+        placed = last[1]
+    else:
+        placed = place_load(fp.fit0, fp.outline0, bodies)
+        PLACED.last = (key, placed)
     if placed is None:
         return None
     return MemberLoad(placed, fp.member, vel, heads if unicycle else None, bool(fp.load_points))
@@ -293,6 +312,27 @@ def select(load: MemberLoad, found: Sequence[Candidate], inactive: Inactive,
     return hmin, out
 
 
+def select_linear(load: MemberLoad, found: Sequence[Candidate], gamma: float, floor: float,
+                  gradients_of: Callable[[Candidate], list[Point]]) -> tuple[float, list[Feature]]:
+    """:func:`select` for the test ``gamma h + h' >= S floor`` (:func:`load_rows`'), written
+    out: the same features and smallest h, with no call per test."""
+    hmin = math.inf
+    out: list[Feature] = []
+    tried: tuple | None = None
+    ok = False
+    for c in found:
+        if c.tests is not tried:
+            tried = c.tests
+            ok = not any(gamma * h + hdot >= s * floor for h, hdot, s, _v in tried)
+        if not ok:
+            continue
+        hmin = min(hmin, c.h)
+        if gamma * c.h + c.hdot >= c.s * floor:
+            continue
+        out.append(Feature(c.h, gradients_of(c), c.hdot, c.speed))
+    return hmin, out
+
+
 def features(load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence[Shape],
              radius: float, clear: float, inactive: Inactive) -> tuple[float, list[Feature]]:
     """Every barrier of the module docstring on the member's placed load against ``obstacles``
@@ -363,8 +403,7 @@ def load_rows(load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence[
             g = kept[id(c)] = gradients(load.placed, c.p, c.m, load.headings)
         return g
 
-    hmin, feats = select(load, found, lambda h, hdot, s, _v: gamma * h + hdot >= s * floor,
-                         gradients_of)
+    hmin, feats = select_linear(load, found, gamma, floor, gradients_of)
     for f in feats:
         row = share_row(f.g, v, load.member, f.h, f.hdot, gamma)
         if row is not None and row[2] < reach:
