@@ -104,17 +104,24 @@ def gradients(load: PlacedLoad, p: Point, m: Point,
     return onto_headings([(m[0] / n + k * wx, m[1] / n + k * wy) for wx, wy in load.w], headings)
 
 
+def spread_of(g: Sequence[Point]) -> float:
+    """S = sum_k |g_k| of (L.2)."""
+    return sum(math.hypot(a[0], a[1]) for a in g)
+
+
 def share_row(g: Sequence[Point], v: Point, member: int, h: float, hdot: float,
-              gamma: float) -> Row | None:
+              gamma: float, s: float | None = None) -> Row | None:
     """Member ``member``'s row (L.2) of the condition sum_k g_k . u_k >= -gamma h - dh/dq . q'
     (``hdot``: h' at the members' last commands v_k, sum_k g_k . v_k + dh/dq . q'; ``v`` this
-    member's), normalised; None when its gradient is zero (it cannot change h)."""
+    member's), normalised; None when its gradient is zero (it cannot change h). ``s``:
+    :func:`spread_of` ``g``, where the caller has it already."""
     gx, gy = g[member]
     gi = math.hypot(gx, gy)
     if gi < _TINY:
         return None
     c = gamma * h + hdot
-    s = sum(math.hypot(a[0], a[1]) for a in g)
+    if s is None:
+        s = spread_of(g)
     # g_i . (u - v_i) >= -|g_i| c / S   <=>   -g_i . u <= |g_i| c / S - g_i . v_i
     return normalized_row(-gx, -gy, gi * c / s - (gx * v[0] + gy * v[1]))
 
@@ -360,13 +367,14 @@ class LoadMemo:
 
     def __init__(self) -> None:
         # (inputs, (candidates, their gradients)) as one pair, replaced whole
-        self.last: tuple[tuple, tuple[list[Candidate], dict[int, list[Point]]]] | None = None
+        self.last: tuple[tuple, tuple[list[Candidate], dict[int, tuple[list[Point], float]]]] | None = None
 
     def found(self, load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence[Shape],
               radius: float, clear: float, loose: tuple[float, float],
-              ) -> tuple[list[Candidate], dict[int, list[Point]]]:
+              ) -> tuple[list[Candidate], dict[int, tuple[list[Point], float]]]:
         """The candidates for the test ``gamma h + h' >= S floor`` with ``loose`` = (gamma,
-        the largest floor of any member), and the gradients kept so far (by candidate id)."""
+        the largest floor of any member), and the gradients kept so far with their S (by
+        candidate id)."""
         key = (load.placed, tuple(load.velocities), load.headings and tuple(load.headings),
                load.declared, tuple(obstacles), tuple(shapes), radius, clear, loose)
         last = self.last
@@ -398,14 +406,17 @@ def load_rows(load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence[
     found, kept = (memo or SHARED).found(load, obstacles, shapes, radius, clear, (gamma, loose))
 
     def gradients_of(c: Candidate) -> list[Point]:
-        g = kept.get(id(c))
-        if g is None:
-            g = kept[id(c)] = gradients(load.placed, c.p, c.m, load.headings)
-        return g
+        got = kept.get(id(c))
+        if got is None:
+            g = gradients(load.placed, c.p, c.m, load.headings)
+            got = kept[id(c)] = (g, spread_of(g))
+            spreads[id(g)] = got[1]
+        return got[0]
 
+    spreads: dict[int, float] = {id(g): total for g, total in kept.values()}
     hmin, feats = select_linear(load, found, gamma, floor, gradients_of)
     for f in feats:
-        row = share_row(f.g, v, load.member, f.h, f.hdot, gamma)
+        row = share_row(f.g, v, load.member, f.h, f.hdot, gamma, spreads[id(f.g)])
         if row is not None and row[2] < reach:
             rows.append(row)
     return hmin, rows
