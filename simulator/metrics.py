@@ -16,7 +16,7 @@ from scenario import Scenario
 from scenario.cargo import CONTACT_TOL, LOAD_REACH, load_clearances, load_polygon, loads_now
 
 CONTACT_RELEASE = 1e-3  # [m] a contact ends once the clearance exceeds this (onset hysteresis)
-SHAPE_SLACK = 1e-9  # [m] the bounding-circle test keeps what rounding could put just inside it
+SHAPE_SLACK = 1e-9  # [m] the array filter keeps what rounding could put just inside its bound
 
 
 class SafetyMonitor:
@@ -48,11 +48,10 @@ class SafetyMonitor:
         self.min_clearance_obstacle = math.inf
         self._shapes = scenario.shapes
         self._shape_contact = np.zeros((self._n, len(self._shapes)), dtype=bool)
-        # each shape's bounding circle (centre, radius + Ds): the cheap lower bound of
-        # geometry.shapes.distance_floor, before any robot is measured against it exactly
-        self._shape_centres = np.array([(sh.cx, sh.cy) for sh in self._shapes]).reshape(-1, 2)
-        self._shape_floor = np.array([math.hypot(sh.hx, sh.hy) + sh.ds + SHAPE_SLACK
-                                      for sh in self._shapes])
+        # each shape's frame (centre, axes, half sizes, Ds): every robot's clearance to every
+        # shape in one array pass, a filter before the exact measure of geometry.shapes
+        self._shape_frames = np.array([(sh.cx, sh.cy, math.cos(sh.yaw), math.sin(sh.yaw), sh.hx,
+                                        sh.hy, sh.ds) for sh in self._shapes]).reshape(-1, 7)
         # the log entry of each contact still going on, by key, for its deepest_m
         self._open: dict[tuple, dict] = {}
         self.min_clearance_shape = dict.fromkeys((sh.name for sh in self._shapes), math.inf)
@@ -147,12 +146,11 @@ class SafetyMonitor:
 
     def _shape_pairs(self, pos: np.ndarray) -> list[tuple[int, int]]:
         """(shape, robot) of every pair whose clearance can lower its shape's least clearance
-        or take part in a contact, shape by shape: those whose lower bound (the distance to
-        the shape's bounding circle, :func:`geometry.shapes.distance_floor`, less Ds) is not
-        above both, and every pair in contact. The others cannot change any field, so the
-        fields are those of measuring every pair."""
-        gap = np.hypot(pos[:, 0:1] - self._shape_centres[:, 0],
-                       pos[:, 1:2] - self._shape_centres[:, 1]) - self._shape_floor
+        or take part in a contact, shape by shape: those whose clearance, from
+        :func:`box_clearances` less :data:`SHAPE_SLACK` for its rounding, is not above both,
+        and every pair in contact. The others cannot change any field, so the fields are
+        those of measuring every pair."""
+        gap = box_clearances(pos, self._shape_frames) - SHAPE_SLACK
         least = np.array([max(self.min_clearance_shape[sh.name], CONTACT_RELEASE)
                           for sh in self._shapes])
         need = (gap <= least) | self._shape_contact
@@ -229,6 +227,20 @@ class SafetyMonitor:
                                           for k, v in self.min_clearance_shape.items()}}
                if self._shapes else {}),
         }
+
+
+def box_clearances(pos: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    """(n, S): each point's signed distance to each box less its Ds,
+    :func:`geometry.shapes.box_distance` in arrays (a segment is the box of half width 0);
+    ``frames`` (S, 7): centre, cos and sin of the yaw, half sizes, Ds."""
+    dx = pos[:, 0:1] - frames[:, 0]
+    dy = pos[:, 1:2] - frames[:, 1]
+    c, s = frames[:, 2], frames[:, 3]
+    qu = np.abs(c * dx + s * dy) - frames[:, 4]
+    qv = np.abs(-s * dx + c * dy) - frames[:, 5]
+    outside = np.hypot(np.maximum(qu, 0.0), np.maximum(qv, 0.0))
+    inside = np.maximum(qu, qv)
+    return np.where((qu > 0.0) | (qv > 0.0), outside, inside) - frames[:, 6]
 
 
 def _finite_or_none(v: float) -> float | None:
