@@ -381,8 +381,9 @@ class LoadMemo:
         if last is not None and last[0] == key:
             return last[1]
         gamma, floor = loose
+        kept: dict[int, tuple[list[Point], float]] = {}
         value = (candidates(load, obstacles, shapes, radius, clear,
-                            lambda h, hdot, s, _v: gamma * h + hdot >= s * floor), {})
+                            lambda h, hdot, s, _v: gamma * h + hdot >= s * floor), kept)
         self.last = (key, value)
         return value
 
