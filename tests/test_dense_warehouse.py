@@ -4,6 +4,7 @@ bench warehouses of ``formation bench --inprocess`` are what they say."""
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 import pytest
@@ -62,3 +63,16 @@ def test_inprocess_and_fleets_together_are_refused(tmp_path):
                             method=None)
     with pytest.raises(UsageError, match="one at a time"):
         bench_command(ns)
+
+
+def test_the_inprocess_curve_reports_each_fleet_it_ran(tmp_path):
+    out = tmp_path / "bench"
+    ns = argparse.Namespace(out=str(out), quick=True, inprocess="4,6", fleets=None, method=None)
+    assert bench_command(ns) == 0
+    curve = json.loads((out / "bench.json").read_text(encoding="utf-8"))["inprocess_curve"]
+    assert [f["robots"] for f in curve["fleets"]] == [4, 6]
+    for f in curve["fleets"]:
+        assert f["ticks"] == round(curve["duration_s"] / 0.05)
+        assert f["robot_ticks_per_cpu_s"] > 0 and f["x_real_time"] > 0
+        assert f["collisions"] == 0
+    assert "x real time" in (out / "bench.txt").read_text(encoding="utf-8")
