@@ -591,6 +591,35 @@ def formation_twist(fp: Footprint, own: Ellipse, goal: Point, snap: Snapshot, p:
     return pose, res._replace(goal=seek, aim=aim)
 
 
+class TwistMemo:
+    """The last :func:`formation_twist` worked out, by its inputs. Every member of a formation
+    works out the same twist from the same shared data (its ellipse, goal and snapshot), so a
+    controller that serves every member in turn (the in-process simulator) solves the
+    formation's QP once a tick instead of once a member. A pure cache: equal inputs give the
+    very same result; a controller serving one robot pays one comparison a tick for it."""
+
+    __slots__ = ("last",)
+
+    def __init__(self) -> None:
+        # (inputs, result) as one pair: replaced whole, so a reader never pairs them wrongly
+        self.last: tuple[tuple, tuple[Pose, TwistResult]] | None = None
+
+    def twist(self, fp: Footprint, own: Ellipse, goal: Point, snap: Snapshot, p: BodyParams,
+              push: Point = (0.0, 0.0), intent: Point | None = None,
+              turn: float | None = None) -> tuple[Pose, TwistResult]:
+        """:func:`formation_twist` of these inputs (the member's slot in ``fp`` plays no part)."""
+        # tuples, not the caller's lists: a list changed in place must not match its old self
+        key = (fp.slots, fp.alpha0, fp.goal_turn, fp.load_points, fp.load_edges, own, goal,
+               tuple(snap.obstacles), tuple(snap.shapes), tuple(snap.ellipses), p, push, intent,
+               turn)
+        last = self.last
+        if last is not None and last[0] == key:
+            return last[1]
+        value = formation_twist(fp, own, goal, snap, p, push, intent, turn)
+        self.last = (key, value)
+        return value
+
+
 def pace(want: Twist, pose: Pose, fp: Footprint, headings: Sequence[float]) -> float:
     """The share of its goal twist a formation of unicycles asks for while its members turn to
     face their slots' motion under ``want`` (the twist certified for the full goal): 1 with every

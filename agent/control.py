@@ -546,9 +546,10 @@ class Controller:
     ``tuning`` the formation rules' tuning (:class:`ControlTuning`). Its robot model picks the
     row builder (:class:`RowBuilder`) once: velocity rows, or a double integrator's
     acceleration rows. :meth:`step` holds no state between ticks: one Controller serves every
-    robot with the same parameters."""
+    robot with the same parameters (its one memory, the last formation twist by its inputs, is
+    a pure cache: :class:`agent.body.TwistMemo`)."""
 
-    __slots__ = ("params", "solve", "clock", "tuning", "rows", "body")
+    __slots__ = ("params", "solve", "clock", "tuning", "rows", "body", "twists")
 
     def __init__(self, params: ControlParams, solve: Callable = solve_exact,
                  clock: Callable[[], int] | None = None, tuning: ControlTuning = TUNING) -> None:
@@ -561,6 +562,7 @@ class Controller:
         # the formation QP's numbers, which depend on the parameters alone (method rigid)
         self.body = (body_params(params) if params.method == "rigid" and params.safety
                      else None)
+        self.twists = body.TwistMemo()  # a pure cache: members of one formation share a twist
 
     def step(self, inp: StepInput) -> StepResult:
         """One tick for one robot (:class:`StepInput` says what each input is)."""
@@ -610,7 +612,7 @@ class Controller:
         push = (tiebreak_push(view, hazards, inp.obstacles, p.max_speed, t.tiebreak)
                 if p.tiebreak else (0.0, 0.0))
         u, aim = rigid_nominal(bp, fp, view, body.Snapshot(inp.obstacles, inp.shapes, hazards),
-                               point, inp.pose[:2], inp.goal, push, esc)
+                               point, inp.pose[:2], inp.goal, push, esc, self.twists.twist)
         return u, aim, esc is not None
 
     def _face(self, inp: StepInput, u: body.Point, aim: body.Point | None) -> body.Point:
@@ -679,15 +681,16 @@ def body_params(cp: ControlParams) -> body.BodyParams:
 
 def rigid_nominal(p: body.BodyParams, fp: body.Footprint, view: FormationView, snap: body.Snapshot,
                   point: body.Point, at: body.Point, target: body.Point,
-                  push: body.Point = (0.0, 0.0), intent: body.Point | None = None
+                  push: body.Point = (0.0, 0.0), intent: body.Point | None = None,
+                  twist: Callable[..., tuple[body.Pose, body.TwistResult]] = body.formation_twist,
                   ) -> tuple[body.Point, body.Point | None]:
     """``controller.method: rigid``: a member's nominal from the formation's twist
-    (:func:`agent.body.formation_twist`) and its slot (:func:`agent.body.member_nominal`);
+    (:func:`agent.body.formation_twist`, or ``twist`` with its signature: a
+    :class:`agent.body.TwistMemo`'s) and its slot (:func:`agent.body.member_nominal`);
     ``point`` is its control point, ``at`` its body position; ``p`` the formation QP's numbers
     (:func:`body_params`)."""
     turn = None if view.goal_heading is None else fp.goal_turn + view.goal_heading
-    pose, res = body.formation_twist(fp, view.own, (view.goal_x, view.goal_y), snap, p, push, intent,
-                                     turn)
+    pose, res = twist(fp, view.own, (view.goal_x, view.goal_y), snap, p, push, intent, turn)
     nominal = body.member_nominal(fp, pose, res.twist, point, at, target, p, res.goal,
                                   view.arriving)
     if res.aim is None:

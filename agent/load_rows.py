@@ -104,17 +104,24 @@ def gradients(load: PlacedLoad, p: Point, m: Point,
     return onto_headings([(m[0] / n + k * wx, m[1] / n + k * wy) for wx, wy in load.w], headings)
 
 
+def spread_of(g: Sequence[Point]) -> float:
+    """S = sum_k |g_k| of (L.2)."""
+    return sum(math.hypot(a[0], a[1]) for a in g)
+
+
 def share_row(g: Sequence[Point], v: Point, member: int, h: float, hdot: float,
-              gamma: float) -> Row | None:
+              gamma: float, s: float | None = None) -> Row | None:
     """Member ``member``'s row (L.2) of the condition sum_k g_k . u_k >= -gamma h - dh/dq . q'
     (``hdot``: h' at the members' last commands v_k, sum_k g_k . v_k + dh/dq . q'; ``v`` this
-    member's), normalised; None when its gradient is zero (it cannot change h)."""
+    member's), normalised; None when its gradient is zero (it cannot change h). ``s``:
+    :func:`spread_of` ``g``, where the caller has it already."""
     gx, gy = g[member]
     gi = math.hypot(gx, gy)
     if gi < _TINY:
         return None
     c = gamma * h + hdot
-    s = sum(math.hypot(a[0], a[1]) for a in g)
+    if s is None:
+        s = spread_of(g)
     # g_i . (u - v_i) >= -|g_i| c / S   <=>   -g_i . u <= |g_i| c / S - g_i . v_i
     return normalized_row(-gx, -gy, gi * c / s - (gx * v[0] + gy * v[1]))
 
@@ -127,6 +134,19 @@ class MemberLoad(NamedTuple):
     velocities: list[Point]  # every member's last certified command
     headings: list[float] | None  # unicycles: every member's heading
     declared: bool = True  # a declared load's vertices get rows (the default hull's are the members)
+
+
+class LastPlaced:
+    """The last load :func:`place_load` placed, by its inputs (a pure cache of one entry:
+    (inputs, load) replaced whole)."""
+
+    __slots__ = ("last",)
+
+    def __init__(self) -> None:
+        self.last: tuple[tuple, PlacedLoad | None] | None = None
+
+
+PLACED = LastPlaced()  # :func:`member_load`'s
 
 
 def member_load(fp: Footprint, pose: tuple[float, float, float], last_u: Point,
@@ -150,7 +170,13 @@ def member_load(fp: Footprint, pose: tuple[float, float, float], last_u: Point,
         bodies.append((q.x - offset * math.cos(q.theta), q.y - offset * math.sin(q.theta)))
         vel.append((q.vx, q.vy))
         heads.append(q.theta)
-    placed = place_load(fp.fit0, fp.outline0, bodies)
+    key = (fp.fit0, fp.outline0, tuple(bodies))
+    last = PLACED.last  # every member places the same load (single integrators: to the bit)
+    if last is not None and last[0] == key:
+        placed = last[1]
+    else:
+        placed = place_load(fp.fit0, fp.outline0, bodies)
+        PLACED.last = (key, placed)
     if placed is None:
         return None
     return MemberLoad(placed, fp.member, vel, heads if unicycle else None, bool(fp.load_points))
@@ -180,21 +206,33 @@ def onto_headings(vectors: Sequence[Point], headings: Sequence[float] | None) ->
     return out
 
 
-def features(load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence[Shape],
-             radius: float, clear: float,
-             inactive: Callable[[float, float, float, float], bool]) -> tuple[float, list[Feature]]:
+class Candidate(NamedTuple):
+    """A barrier of :func:`features` before the tests that depend on who asks: the thing it
+    is against passed each of ``tests`` (h, h', S, v: an ``inactive`` call's arguments)
+    before it was measured; then it counts towards the smallest h, and it is a feature unless
+    inactive for its own h, h', S and v."""
+
+    tests: tuple[tuple[float, float, float, float], ...]
+    h: float
+    hdot: float
+    s: float  # the bound of S for this barrier
+    speed: float  # [m/s] the thing's
+    p: Point  # the load point and dh/dP (its gradients are worked out when first kept)
+    m: Point
+
+
+Inactive = Callable[[float, float, float, float], bool]
+
+
+def candidates(load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence[Shape],
+               radius: float, clear: float, inactive: Inactive) -> list[Candidate]:
     """Every barrier of the module docstring on the member's placed load against ``obstacles``
     (Ds for the body; physical radius Ds - ``radius``) and ``shapes``, each kept ``clear`` [m]
-    off, that can be active, and the smallest h of those measured. ``inactive(h, h', S, v)``
-    says a barrier of value at least h, rate at least h' and S = sum_k |g_k| at most S, against
-    a thing moving at v, has no active row. It culls things first by lower bounds over the
-    load's bounding circle (h' >= -(the thing's speed + the fastest load point's),
-    S <= ``spread``), then each barrier by its h and its h' at the members' last commands (L.1
-    with those: m . P'), S <= 1 + |m . J (P - c)| sum_k |w_k|, before its gradients are
-    worked out."""
+    off, whose thing passes the cheap tests of :func:`features` for ``inactive`` (a test at
+    least as strict as the one they will be selected by: any ``inactive`` that says inactive
+    only where this one does selects the same features from them as from all)."""
     placed, headings = load.placed, load.headings
-    out: list[Feature] = []
-    hmin = math.inf
+    out: list[Candidate] = []
     pts = placed.outline
     edges = outline_edges(pts)
     cx, cy, big, spread = placed.cx, placed.cy, placed.radius, placed.spread
@@ -205,55 +243,181 @@ def features(load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence[S
     om = sum(w[0] * v[0] + w[1] * v[1] for w, v in zip(placed.w, vel, strict=True))
     fastest = math.hypot(mvx, mvy) + abs(om) * big
 
-    def add(p: Point, m: Point, h: float, q_term: float, speed: float) -> None:
-        nonlocal hmin
-        hmin = min(hmin, h)
+    def add(tests: tuple, p: Point, m: Point, h: float, q_term: float, speed: float) -> None:
         rx, ry = p[0] - cx, p[1] - cy
         hdot = q_term + m[0] * (mvx - om * ry) + m[1] * (mvy + om * rx)  # + m . P' (L.1)
-        if inactive(h, hdot, 1.0 + abs(m[1] * rx - m[0] * ry) * wsum, speed):
-            return
-        out.append(Feature(h, gradients(placed, p, m, headings), hdot, speed))
+        out.append(Candidate(tests, h, hdot, 1.0 + abs(m[1] * rx - m[0] * ry) * wsum, speed,
+                             p, m))
 
-    things = []
+    things, near_shapes = near_things(placed, fastest, obstacles, shapes, radius, clear, inactive)
+    for q, qv, r, speed, tests in things:  # a corner or circle against each edge
+        for (ax, ay), (bx, by) in edges:
+            d, nx, ny = segment_distance(q[0], q[1], ax, ay, bx, by)  # n: from the edge to q
+            add(tests, (q[0] - d * nx, q[1] - d * ny), (-nx, -ny), d - r,
+                nx * qv[0] + ny * qv[1], speed)
+    for sh, tests in near_shapes if load.declared else ():  # each declared vertex, each shape
+        for v in pts:
+            d, gx, gy = shape_distance(v[0], v[1], sh)
+            add(tests, v, (gx, gy), d - clear, 0.0, 0.0)
+    return out
+
+
+Thing = tuple[Point, Point, float, float, tuple]  # centre, velocity, radius, speed, its tests
+
+
+def near_things(placed: PlacedLoad, fastest: float, obstacles: Sequence[Obstacle],
+                shapes: Sequence[Shape], radius: float, clear: float, inactive: Inactive,
+                ) -> tuple[list[Thing], list[tuple[Shape, tuple]]]:
+    """The circles and shape corners that pass :func:`features`' cheap tests over the load's
+    bounding circle (its points move at most ``fastest``), each with the tests it passed, and
+    the shapes that pass them, with theirs."""
+    cx, cy, big, spread = placed.cx, placed.cy, placed.radius, placed.spread
+    things: list[Thing] = []
     for o in obstacles:
         speed = math.hypot(o.vx, o.vy)
         r = max(0.0, o.ds - radius) + clear
-        if not inactive(math.hypot(o.x - cx, o.y - cy) - big - r, -speed - fastest, spread,
-                        speed):
-            things.append(((o.x, o.y), (o.vx, o.vy), r, speed))
-    near_shapes = [sh for sh in shapes  # first by the shape's own bounding circle (cheap)
-                   if not inactive(distance_floor(cx, cy, sh) - big - clear, -fastest, spread,
-                                   0.0)
-                   and not inactive(shape_distance(cx, cy, sh)[0] - big - clear, -fastest, spread,
-                                    0.0)]
-    things += [(q, (0.0, 0.0), clear, 0.0) for sh in near_shapes for q in sh.corners()
-               if not inactive(math.hypot(q[0] - cx, q[1] - cy) - big - clear, -fastest, spread,
-                               0.0)]
-    for q, qv, r, speed in things:  # a corner or circle against each edge
-        for (ax, ay), (bx, by) in edges:
-            d, nx, ny = segment_distance(q[0], q[1], ax, ay, bx, by)  # n: from the edge to q
-            add((q[0] - d * nx, q[1] - d * ny), (-nx, -ny), d - r, nx * qv[0] + ny * qv[1], speed)
-    for sh in near_shapes if load.declared else ():  # each declared vertex against each shape
-        for v in pts:
-            d, gx, gy = shape_distance(v[0], v[1], sh)
-            add(v, (gx, gy), d - clear, 0.0, 0.0)
+        test = (math.hypot(o.x - cx, o.y - cy) - big - r, -speed - fastest, spread, speed)
+        if not inactive(*test):
+            things.append(((o.x, o.y), (o.vx, o.vy), r, speed, (test,)))
+    near_shapes = []
+    for sh in shapes:  # first by the shape's own bounding circle (cheap)
+        floor = (distance_floor(cx, cy, sh) - big - clear, -fastest, spread, 0.0)
+        if inactive(*floor):
+            continue
+        exact = (shape_distance(cx, cy, sh)[0] - big - clear, -fastest, spread, 0.0)
+        if not inactive(*exact):
+            near_shapes.append((sh, (floor, exact)))
+    for sh, tests in near_shapes:
+        for q in sh.corners():
+            corner = (math.hypot(q[0] - cx, q[1] - cy) - big - clear, -fastest, spread, 0.0)
+            if not inactive(*corner):
+                things.append((q, (0.0, 0.0), clear, 0.0, (*tests, corner)))
+    return things, near_shapes
+
+
+def select(load: MemberLoad, found: Sequence[Candidate], inactive: Inactive,
+           gradients_of: Callable[[Candidate], list[Point]] | None = None,
+           ) -> tuple[float, list[Feature]]:
+    """The features of ``found`` (:func:`candidates`) for ``inactive``, and the smallest h of
+    those measured: a candidate whose thing fails a test for ``inactive`` is not measured.
+    ``gradients_of``: where the candidates' gradients are kept (default: worked out here)."""
+    hmin = math.inf
+    out: list[Feature] = []
+    tried: tuple | None = None  # the tests last tried (one thing's candidates share them)
+    ok = False
+    for c in found:
+        if c.tests is not tried:
+            tried, ok = c.tests, not any(inactive(*t) for t in c.tests)
+        if not ok:
+            continue
+        hmin = min(hmin, c.h)
+        if inactive(c.h, c.hdot, c.s, c.speed):
+            continue
+        g = (gradients(load.placed, c.p, c.m, load.headings) if gradients_of is None
+             else gradients_of(c))
+        out.append(Feature(c.h, g, c.hdot, c.speed))
     return hmin, out
 
 
+def select_linear(load: MemberLoad, found: Sequence[Candidate], gamma: float, floor: float,
+                  gradients_of: Callable[[Candidate], list[Point]]) -> tuple[float, list[Feature]]:
+    """:func:`select` for the test ``gamma h + h' >= S floor`` (:func:`load_rows`'), written
+    out: the same features and smallest h, with no call per test."""
+    hmin = math.inf
+    out: list[Feature] = []
+    tried: tuple | None = None
+    ok = False
+    for c in found:
+        if c.tests is not tried:
+            tried = c.tests
+            ok = not any(gamma * h + hdot >= s * floor for h, hdot, s, _v in tried)
+        if not ok:
+            continue
+        hmin = min(hmin, c.h)
+        if gamma * c.h + c.hdot >= c.s * floor:
+            continue
+        out.append(Feature(c.h, gradients_of(c), c.hdot, c.speed))
+    return hmin, out
+
+
+def features(load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence[Shape],
+             radius: float, clear: float, inactive: Inactive) -> tuple[float, list[Feature]]:
+    """Every barrier of the module docstring on the member's placed load against ``obstacles``
+    (Ds for the body; physical radius Ds - ``radius``) and ``shapes``, each kept ``clear`` [m]
+    off, that can be active, and the smallest h of those measured. ``inactive(h, h', S, v)``
+    says a barrier of value at least h, rate at least h' and S = sum_k |g_k| at most S, against
+    a thing moving at v, has no active row. It culls things first by lower bounds over the
+    load's bounding circle (h' >= -(the thing's speed + the fastest load point's),
+    S <= ``spread``), then each barrier by its h and its h' at the members' last commands (L.1
+    with those: m . P'), S <= 1 + |m . J (P - c)| sum_k |w_k|, before its gradients are
+    worked out (:func:`candidates`, then :func:`select`)."""
+    return select(load, candidates(load, obstacles, shapes, radius, clear, inactive), inactive)
+
+
+class LoadMemo:
+    """The last :func:`candidates` worked out, with their gradients, by their inputs. Every
+    member of a formation places the same load from the same ``state``s (single integrators:
+    to the bit) and differs only in its own speed, which :func:`load_rows`'s test reads; so
+    the candidates are found once with the loosest test any member can ask for (the fastest
+    member's) and each member selects its own from them (:func:`select`: the same features
+    and the same smallest h as finding them itself). A pure cache: a controller that serves
+    every member in turn (the in-process simulator) finds them once a tick."""
+
+    __slots__ = ("last",)
+
+    def __init__(self) -> None:
+        # (inputs, (candidates, their gradients)) as one pair, replaced whole
+        self.last: tuple[tuple, tuple[list[Candidate], dict[int, tuple[list[Point], float]]]] | None = None
+
+    def found(self, load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence[Shape],
+              radius: float, clear: float, loose: tuple[float, float],
+              ) -> tuple[list[Candidate], dict[int, tuple[list[Point], float]]]:
+        """The candidates for the test ``gamma h + h' >= S floor`` with ``loose`` = (gamma,
+        the largest floor of any member), and the gradients kept so far with their S (by
+        candidate id)."""
+        key = (load.placed, tuple(load.velocities), load.headings and tuple(load.headings),
+               load.declared, tuple(obstacles), tuple(shapes), radius, clear, loose)
+        last = self.last
+        if last is not None and last[0] == key:
+            return last[1]
+        gamma, floor = loose
+        kept: dict[int, tuple[list[Point], float]] = {}
+        value = (candidates(load, obstacles, shapes, radius, clear,
+                            lambda h, hdot, s, _v: gamma * h + hdot >= s * floor), kept)
+        self.last = (key, value)
+        return value
+
+
+SHARED = LoadMemo()  # the memo :func:`load_rows` finds its barriers through by default
+
+
 def load_rows(load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence[Shape],
-              radius: float, clear: float, gamma: float, reach: float) -> tuple[float, list[Row]]:
+              radius: float, clear: float, gamma: float, reach: float,
+              memo: LoadMemo | None = None) -> tuple[float, list[Row]]:
     """The member's rows (L.2) of :func:`features`; rows with b >= ``reach`` (the largest
     command the limit rows allow: never active) are left out. Returns (the smallest h, the rows).
 
     A barrier is inactive when, with its slack c = gamma h + h' >= 0 and S at most its bound,
-    b = c / S - g_i . v_i / |g_i| >= c / S - |v_i| >= reach."""
+    b = c / S - g_i . v_i / |g_i| >= c / S - |v_i| >= reach. The barriers are found through
+    ``memo`` (default: :data:`SHARED`), a pure cache."""
     rows: list[Row] = []
     v = load.velocities[load.member]
     floor = reach + math.hypot(v[0], v[1])
-    hmin, feats = features(load, obstacles, shapes, radius, clear,
-                           lambda h, hdot, s, _v: gamma * h + hdot >= s * floor)
+    loose = reach + max(math.hypot(u[0], u[1]) for u in load.velocities)
+    found, kept = (memo or SHARED).found(load, obstacles, shapes, radius, clear, (gamma, loose))
+
+    def gradients_of(c: Candidate) -> list[Point]:
+        got = kept.get(id(c))
+        if got is None:
+            g = gradients(load.placed, c.p, c.m, load.headings)
+            got = kept[id(c)] = (g, spread_of(g))
+            spreads[id(g)] = got[1]
+        return got[0]
+
+    spreads: dict[int, float] = {id(g): total for g, total in kept.values()}
+    hmin, feats = select_linear(load, found, gamma, floor, gradients_of)
     for f in feats:
-        row = share_row(f.g, v, load.member, f.h, f.hdot, gamma)
+        row = share_row(f.g, v, load.member, f.h, f.hdot, gamma, spreads[id(f.g)])
         if row is not None and row[2] < reach:
             rows.append(row)
     return hmin, rows

@@ -118,6 +118,13 @@ def _gap(p: Sequence[Point], q: Sequence[Point], axis: Point) -> float:
     return max(min(sq) - max(sp), min(sp) - max(sq))
 
 
+def separation_floor(p: Sequence[Point], q: Sequence[Point]) -> float:
+    """A lower bound of :func:`polygon_distance` where it is positive: the widest gap between
+    the projections of ``p`` and ``q`` on ``q``'s edge directions and normals (a projection
+    brings no two points closer). Cheaper than the distance when ``q`` has few edges."""
+    return max((_gap(p, q, ax) for ax in _axes(q)), default=-math.inf)
+
+
 def polygon_distance(p: Sequence[Point], q: Sequence[Point]) -> float:
     """Signed distance between two convex polygons (segments and points allowed): the gap
     when apart, minus the separating depth when they overlap (see the module docstring)."""

@@ -18,6 +18,7 @@ Pure functions over floats; the hot path of every robot's tick calls :func:`shap
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -52,14 +53,20 @@ class Shape(NamedTuple):
 
     def corners(self) -> list[tuple[float, float]]:
         """The outline's vertices (2 for a segment, 4 for a box), counter-clockwise."""
-        if self.kind == SEGMENT:
-            return [self.local_to_world(-self.hx, 0.0), self.local_to_world(self.hx, 0.0)]
-        return [self.local_to_world(sx * self.hx, sy * self.hy)
-                for sx, sy in ((1, 1), (-1, 1), (-1, -1), (1, -1))]
+        return list(_corners(self))
 
     def local_to_world(self, u: float, v: float) -> tuple[float, float]:
         c, s = math.cos(self.yaw), math.sin(self.yaw)
         return (self.cx + c * u - s * v, self.cy + s * u + c * v)
+
+
+@functools.lru_cache(maxsize=4096)
+def _corners(sh: Shape) -> tuple[tuple[float, float], ...]:
+    """:meth:`Shape.corners`, worked out once per shape (every robot's tick asks for them)."""
+    if sh.kind == SEGMENT:
+        return (sh.local_to_world(-sh.hx, 0.0), sh.local_to_world(sh.hx, 0.0))
+    return tuple(sh.local_to_world(sx * sh.hx, sy * sh.hy)
+                 for sx, sy in ((1, 1), (-1, 1), (-1, -1), (1, -1)))
 
 
 def segment(name: str, a: tuple[float, float], b: tuple[float, float], ds: float) -> Shape:

@@ -29,9 +29,10 @@ from geometry.polygon import (
     is_convex,
     points_distance,
     polygon_distance,
+    separation_floor,
 )
 from geometry.rigid import rigid_fit
-from geometry.shapes import shape_distance
+from geometry.shapes import distance_floor, shape_distance
 
 from . import limits
 from .fields import mapping, vector, within
@@ -212,9 +213,13 @@ def _shape_contacts(s: Scenario, k: int, poly: Sequence[Point], bound: tuple[Poi
                     reach: float) -> list[LoadContact]:
     out = []
     for sh in s.shapes:
+        if distance_floor(bound[0][0], bound[0][1], sh) - bound[1] > reach:
+            continue  # the shape's bounding circle first: a lower bound of the one below
         if shape_distance(bound[0][0], bound[0][1], sh)[0] - bound[1] > reach:
             continue  # a lower bound of the distance from the load to the shape
         outline = sh.corners()
+        if separation_floor(poly, outline) - NEAR_SLACK > reach:
+            continue  # a lower bound of the distance below
         d = polygon_distance(poly, outline)
         x, y = _mark_point(poly, outline) if d < 0.0 else bound[0]
         out.append(LoadContact(k, sh.name, d, x, y))

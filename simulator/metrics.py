@@ -13,9 +13,10 @@ import numpy as np
 
 from geometry.shapes import shape_distance
 from scenario import Scenario
-from scenario.cargo import CONTACT_TOL, load_clearances, load_polygon, loads_now
+from scenario.cargo import CONTACT_TOL, LOAD_REACH, load_clearances, load_polygon, loads_now
 
 CONTACT_RELEASE = 1e-3  # [m] a contact ends once the clearance exceeds this (onset hysteresis)
+SHAPE_SLACK = 1e-9  # [m] the array filter keeps what rounding could put just inside its bound
 
 
 class SafetyMonitor:
@@ -47,6 +48,10 @@ class SafetyMonitor:
         self.min_clearance_obstacle = math.inf
         self._shapes = scenario.shapes
         self._shape_contact = np.zeros((self._n, len(self._shapes)), dtype=bool)
+        # each shape's frame (centre, axes, half sizes, Ds): every robot's clearance to every
+        # shape in one array pass, a filter before the exact measure of geometry.shapes
+        self._shape_frames = np.array([(sh.cx, sh.cy, math.cos(sh.yaw), math.sin(sh.yaw), sh.hx,
+                                        sh.hy, sh.ds) for sh in self._shapes]).reshape(-1, 7)
         # the log entry of each contact still going on, by key, for its deepest_m
         self._open: dict[tuple, dict] = {}
         self.min_clearance_shape = dict.fromkeys((sh.name for sh in self._shapes), math.inf)
@@ -122,21 +127,35 @@ class SafetyMonitor:
 
     def _update_shapes(self, t: float, pos: np.ndarray) -> None:
         """Walls and shelves: clearance = distance from the shape (signed, negative inside a
-        box) less Ds, per robot and shape; an intrusion counts like a circle's."""
+        box) less Ds, per robot and shape; an intrusion counts like a circle's. Only the pairs
+        that can change a field are measured (:meth:`_shape_pairs`)."""
         ids = self.scenario.robot_ids
-        for j, sh in enumerate(self._shapes):
-            for i in range(self._n):
-                d = shape_distance(float(pos[i, 0]), float(pos[i, 1]), sh)[0] - sh.ds
-                if d < self.min_clearance_shape[sh.name]:
-                    self.min_clearance_shape[sh.name] = d
-                self.min_clearance_obstacle = min(self.min_clearance_obstacle, d)
-                inside = d < -CONTACT_TOL
-                if inside and not self._shape_contact[i, j]:
-                    self.collisions += 1
-                    self._log(("s", i, j), {"t": round(t, 6), "a": ids[i], "b": sh.name,
-                                            "clearance_m": float(d)})
-                self._shape_contact[i, j] = inside or (self._shape_contact[i, j] and d <= CONTACT_RELEASE)
-                self._still(("s", i, j), float(d), bool(self._shape_contact[i, j]))
+        for j, i in self._shape_pairs(pos):
+            sh = self._shapes[j]
+            d = shape_distance(float(pos[i, 0]), float(pos[i, 1]), sh)[0] - sh.ds
+            if d < self.min_clearance_shape[sh.name]:
+                self.min_clearance_shape[sh.name] = d
+            self.min_clearance_obstacle = min(self.min_clearance_obstacle, d)
+            inside = d < -CONTACT_TOL
+            if inside and not self._shape_contact[i, j]:
+                self.collisions += 1
+                self._log(("s", i, j), {"t": round(t, 6), "a": ids[i], "b": sh.name,
+                                        "clearance_m": float(d)})
+            self._shape_contact[i, j] = inside or (self._shape_contact[i, j] and d <= CONTACT_RELEASE)
+            self._still(("s", i, j), float(d), bool(self._shape_contact[i, j]))
+
+    def _shape_pairs(self, pos: np.ndarray) -> list[tuple[int, int]]:
+        """(shape, robot) of every pair whose clearance can lower its shape's least clearance
+        or take part in a contact, shape by shape: those whose clearance, from
+        :func:`box_clearances` less :data:`SHAPE_SLACK` for its rounding, is not above both,
+        and every pair in contact. The others cannot change any field, so the fields are
+        those of measuring every pair."""
+        gap = box_clearances(pos, self._shape_frames) - SHAPE_SLACK
+        least = np.array([max(self.min_clearance_shape[sh.name], CONTACT_RELEASE)
+                          for sh in self._shapes])
+        need = (gap <= least) | self._shape_contact
+        js, iis = np.nonzero(need.T)
+        return list(zip(js.tolist(), iis.tolist(), strict=True))
 
     def _update_loads(self, t: float, pos: np.ndarray,
                       obstacles: Sequence[tuple[float, float]]) -> None:
@@ -146,7 +165,10 @@ class SafetyMonitor:
         logged with ``kind: load``, ``a`` the formation and (x, y) where."""
         loads = loads_now(self.scenario, self._outlines, pos)
         contact: set[tuple[int, str]] = set()
-        for c in load_clearances(self.scenario, loads, pos, list(obstacles)):
+        # what lies beyond both the least clearance yet and a contact's release changes no
+        # field: measured out to there only (never beyond cargo's own reach)
+        reach = min(LOAD_REACH, max(self.min_clearance_load, CONTACT_RELEASE))
+        for c in load_clearances(self.scenario, loads, pos, list(obstacles), reach):
             self.min_clearance_load = min(self.min_clearance_load, c.clearance)
             key = (c.formation, c.other)
             if c.clearance < -CONTACT_TOL and key not in self._load_contact:
@@ -205,6 +227,20 @@ class SafetyMonitor:
                                           for k, v in self.min_clearance_shape.items()}}
                if self._shapes else {}),
         }
+
+
+def box_clearances(pos: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    """(n, S): each point's signed distance to each box less its Ds,
+    :func:`geometry.shapes.box_distance` in arrays (a segment is the box of half width 0);
+    ``frames`` (S, 7): centre, cos and sin of the yaw, half sizes, Ds."""
+    dx = pos[:, 0:1] - frames[:, 0]
+    dy = pos[:, 1:2] - frames[:, 1]
+    c, s = frames[:, 2], frames[:, 3]
+    qu = np.abs(c * dx + s * dy) - frames[:, 4]
+    qv = np.abs(-s * dx + c * dy) - frames[:, 5]
+    outside = np.hypot(np.maximum(qu, 0.0), np.maximum(qv, 0.0))
+    inside = np.maximum(qu, qv)
+    return np.where((qu > 0.0) | (qv > 0.0), outside, inside) - frames[:, 6]
 
 
 def _finite_or_none(v: float) -> float | None:

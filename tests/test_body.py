@@ -470,3 +470,24 @@ def test_a_formation_whose_members_face_back_asks_for_the_floor_and_aims_at_the_
     _pose, holonomic = body.formation_twist(PAIR, own._replace(headings=(0.0, 0.1)), goal, snap,
                                             PARAMS)
     assert holonomic.aim is None and holonomic.twist[0] < -0.2
+
+
+def test_a_twist_memo_shares_one_twist_among_members_and_follows_a_changed_input():
+    """Every member's slot gets the twist formation_twist gives; a thing that moved (even in
+    a list changed in place) is a new twist."""
+    slots = ((-0.25, 0.125), (0.25, 0.125), (0.25, -0.125), (-0.25, -0.125))
+    own = Ellipse(0.0, 0.0, 0.0, 0.5, 0.3)
+    things = [Obstacle(1.0, 0.0, -0.3, 0.0, 0.5)]
+    memo = body.TwistMemo()
+    want = body.formation_twist(body.Footprint(slots, 0.0, 0), own, (5.0, 0.0),
+                                body.Snapshot(things, (), ()), PARAMS)
+    for member in range(4):
+        got = memo.twist(body.Footprint(slots, 0.0, member), own, (5.0, 0.0),
+                         body.Snapshot(things, (), ()), PARAMS)
+        assert got == want
+    things[0] = Obstacle(3.0, 0.0, 0.0, 0.0, 0.5)  # the same list, the circle gone farther
+    moved = memo.twist(body.Footprint(slots, 0.0, 0), own, (5.0, 0.0),
+                       body.Snapshot(things, (), ()), PARAMS)
+    assert moved == body.formation_twist(body.Footprint(slots, 0.0, 0), own, (5.0, 0.0),
+                                         body.Snapshot(things, (), ()), PARAMS)
+    assert moved[1].twist[0] > want[1].twist[0]

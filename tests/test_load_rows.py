@@ -173,3 +173,28 @@ def test_culling_leaves_out_only_rows_that_cannot_be_active(pts, turn, vel, post
             if (r := load_rows.share_row(f.g, vel[0], 0, f.h, f.hdot, 1.0)) is not None
             and r[2] < reach]
     assert sorted(got) == sorted(want)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(coord, coord), min_size=3, max_size=4), st.floats(-3.0, 3.0),
+       st.lists(st.tuples(speed, speed), min_size=4, max_size=4),
+       st.lists(st.tuples(st.floats(-3.0, 3.0), st.floats(-3.0, 3.0)), min_size=1, max_size=4),
+       st.booleans())
+def test_members_sharing_one_memo_get_the_rows_each_finds_alone(pts, turn, vel, posts, unicycle):
+    """LoadMemo finds the load's barriers once with the fastest member's test; every member,
+    each with its own speed, selects exactly the rows and h it finds with a fresh memo."""
+    offs, now = _start_and_now(pts, turn, (0.1, 0.2))
+    assume(min(math.dist(a, b) for i, a in enumerate(offs) for b in offs[i + 1:]) > 0.1)
+    n = len(now)
+    placed = load_rows.place_load(offs, [(-0.8, -0.5), (0.8, -0.5), (0.8, 0.5), (-0.8, 0.5)], now)
+    assume(placed is not None)
+    heads = [0.3 * k for k in range(n)] if unicycle else None
+    shapes = [box(f"s{k}", p, (0.4, 0.3), 0.2 * k, 0.2) for k, p in enumerate(posts)]
+    obstacles = [Obstacle(1.0, -1.0, 0.1, 0.0, 0.3)]
+    shared = load_rows.LoadMemo()
+    for member in range(n):
+        load = load_rows.MemberLoad(placed, member, vel[:n], heads, True)
+        got = load_rows.load_rows(load, obstacles, shapes, 0.1, 0.01, 0.8, 0.22, shared)
+        alone = load_rows.load_rows(load, obstacles, shapes, 0.1, 0.01, 0.8, 0.22,
+                                    load_rows.LoadMemo())
+        assert got == alone

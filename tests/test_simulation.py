@@ -21,7 +21,8 @@ SCENARIOS = sorted((ROOT / "scenarios").glob("*.yaml")) + sorted((ROOT / "tests/
 # FORMATION_SLOW=1 (measured figures in the README's known limitations).
 SLOW = {"meet-6-rectangles", "warehouse-12-formations", "route-give-way",  # these two: their own
         "yield-hexagon-triangle",  # tests (test_route_scenarios, test_rigid_scenarios)
-        "route-parked-twitch-unicycle"}  # 20 robots for 160 s; its rule: test_footprint_plan
+        "route-parked-twitch-unicycle",  # 20 robots for 160 s; its rule: test_footprint_plan
+        "dense-warehouse"}  # 47 robots for 124 s: tests/test_dense_warehouse.py
 NEW = {"meet-5-rectangles", "meet-6-rectangles", "warehouse-12-formations", "forklift-overtakes",
        "forklift-crossing-fast", "unicycle-turn-90", "unicycle-turn-180", "hexagon-turn-pair-cross",
        "roundabout"}

@@ -15,6 +15,12 @@ from experiments.bench import (
     run_bench,
     run_fleets,
 )
+from experiments.inprocess_bench import (
+    INPROCESS_DURATION,
+    bench_inprocess_curve,
+    format_curve,
+    parse_sizes,
+)
 from experiments.method_bench import bench_methods, format_methods, parse_methods
 from formation.exits import UsageError
 from formation.outdir import begin_output
@@ -23,10 +29,14 @@ from formation.outdir import begin_output
 def bench_command(ns: argparse.Namespace) -> int:
     """``formation bench --out DIR [--quick]``, or ``--fleets N@HZ,... [--agents-per-process K]
     [--session-per-agent] [--repeat R] [--duration S]``: only those agent fleets, or
-    ``--method M,... [--quick]``: only the per-member step under those methods."""
+    ``--method M,... [--quick]``: only the per-member step under those methods, or
+    ``--inprocess N,... [--quick]``: only ``formation sim``'s speed on N-robot warehouses."""
     method_arg = getattr(ns, "method", None)
     if method_arg is not None:
         return _methods(ns, method_arg)
+    inprocess_arg = getattr(ns, "inprocess", None)
+    if inprocess_arg is not None:
+        return _inprocess(ns, inprocess_arg)
     fleets_arg = getattr(ns, "fleets", None)
     per_process = getattr(ns, "agents_per_process", 1)
     repeat = getattr(ns, "repeat", 1)
@@ -75,6 +85,20 @@ def _methods(ns: argparse.Namespace, text: str) -> int:
     out = begin_output(ns)
     result = bench_methods(DEFAULT_SCENARIO, methods, 20.0 if ns.quick else None)
     _write(out, result, format_methods(result))
+    return 0
+
+
+def _inprocess(ns: argparse.Namespace, text: str) -> int:
+    """``--inprocess N,...``: :mod:`experiments.inprocess_bench` (``--quick``: 5 s a fleet)."""
+    try:
+        sizes = parse_sizes(text)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if getattr(ns, "fleets", None) is not None:
+        raise UsageError("--inprocess and --fleets: one at a time")
+    out = begin_output(ns)
+    result = bench_inprocess_curve(sizes, 5.0 if ns.quick else INPROCESS_DURATION)
+    _write(out, result, format_curve(result))
     return 0
 
 
