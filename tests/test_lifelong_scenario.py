@@ -307,3 +307,14 @@ def test_the_lifelong_scenarios_cover_every_kind_the_acceptance_names():
         if any(test(s, s.lifelong) for s in tests):
             found.add(kind)
     assert found == {"single_integrator", "unicycle", "double_integrator", *KINDS}
+
+
+def test_the_lifelong_example_in_the_docs_is_a_valid_scenario():
+    import re
+
+    text = (ROOT / "docs" / "scenarios.md").read_text(encoding="utf-8")
+    example = next(block for block in re.findall(r"^```yaml\n(.*?)^```", text, re.M | re.S)
+                   if block.startswith("fleet:"))
+    s = parse_scenario("name: example\n" + example)
+    assert s.lifelong is not None and [o.id for o in s.lifelong.orders] == ["o1", "o2"]
+    assert s.lifelong.load_type("beam").slots == ((0.6, 0.0), (-0.6, 0.0))
