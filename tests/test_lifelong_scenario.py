@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from formation.cli import main
 from scenario import ScenarioError, load_scenario, parse_scenario
@@ -318,3 +320,38 @@ def test_the_lifelong_example_in_the_docs_is_a_valid_scenario():
     s = parse_scenario("name: example\n" + example)
     assert s.lifelong is not None and [o.id for o in s.lifelong.orders] == ["o1", "o2"]
     assert s.lifelong.load_type("beam").slots == ((0.6, 0.0), (-0.6, 0.0))
+
+
+def _paths(node, prefix=()):
+    """Every path into a nested mapping or list (the node itself included)."""
+    yield prefix
+    if isinstance(node, dict):
+        for k, v in node.items():
+            yield from _paths(v, (*prefix, k))
+    elif isinstance(node, list):
+        for k, v in enumerate(node):
+            yield from _paths(v, (*prefix, k))
+
+
+LIFELONG_PATHS = [p for key in ("fleet", "stations", "load_types", "loads", "orders",
+                                "order_stream") for p in _paths(BASE[key], (key,))]
+JUNK = st.one_of(st.none(), st.booleans(), st.integers(-10**6, 10**6),
+                 st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=8),
+                 st.lists(st.floats(-10, 10), max_size=4),
+                 st.dictionaries(st.text(max_size=4), st.integers(), max_size=2))
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.sampled_from(LIFELONG_PATHS), JUNK)
+def test_any_value_anywhere_in_the_lifelong_part_loads_or_is_refused_in_one_line(path, junk):
+    d = yaml.safe_load(yaml.safe_dump(BASE))
+    node = d
+    for k in path[:-1]:
+        node = node[k]
+    node[path[-1]] = junk
+    try:
+        s = parse_scenario(yaml.safe_dump(d))
+    except ScenarioError as exc:
+        assert "\n" not in str(exc) and len(str(exc)) <= 400
+    else:
+        assert s.lifelong is not None
