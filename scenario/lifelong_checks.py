@@ -33,6 +33,7 @@ from geometry.unicycle import control_point
 from .lifelong import SINK, SOURCE, STORE, Lifelong, LoadType, Point, Station, outline_at, slots_at
 from .model import ObstacleSpec, Scenario
 from .reader import ScenarioError
+from .stream import plan
 
 OVERLAP_TOL = 1e-6  # [m] outlines closer than this overlap; touching is allowed
 STREAM_NAME = re.compile(r"^s[0-9]+$")
@@ -238,3 +239,18 @@ def _check_stream(life: Lifelong) -> None:
     if SOURCE not in kinds and SINK not in kinds:
         raise ScenarioError("order_stream: no source and no sink to serve (declare a station "
                             "of kind source or sink)")
+
+
+def lifelong_warnings(s: Scenario) -> list[str]:
+    """What a valid lifelong part allows that the user should know, one line each: an order
+    posted after the run ends, a stream whose orders can never be served in this hall."""
+    life = s.lifelong
+    if life is None:
+        return []
+    out = [f"orders[{k}].t: posted at {o.t:g} s, after the run ends (duration {s.duration:g} s)"
+           for k, o in enumerate(life.orders) if o.t > s.duration]
+    stream = life.stream
+    if stream is not None and stream.rate_per_min > 0.0 and not plan(life, s.duration):
+        out.append("order_stream: posts no order in this run: no free source with a free store, "
+                   "and no full store with a free sink, whenever an order arrives")
+    return out

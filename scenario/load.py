@@ -54,7 +54,7 @@ from .fields import vector as _vector
 from .fields import within as _in
 from .lifelong import KEYS as LIFELONG_KEYS
 from .lifelong import parse_lifelong
-from .lifelong_checks import check_lifelong
+from .lifelong_checks import check_lifelong, lifelong_warnings
 from .model import (
     DOUBLE_INTEGRATOR,
     METHODS,
@@ -717,6 +717,7 @@ def scenario_warnings(s: Scenario) -> list[str]:
     out = [f"formations[{c.formation}]: its load (the hull of its members) overlaps "
            f"{c.other!r} at the start by {-c.clearance:.3f} m"
            for c in start_load_contacts(s) if not s.formations[c.formation].load]
+    out += lifelong_warnings(s)
     drive = model_world_warning(s.robot, s.world)
     if drive is not None:
         out.append(drive)

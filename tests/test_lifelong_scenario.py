@@ -261,8 +261,9 @@ def test_check_says_what_the_lifelong_part_holds(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("path", LIFELONG_FILES, ids=[p.stem for p in LIFELONG_FILES])
-def test_every_lifelong_scenario_passes_check(path, capsys):
-    assert main(["check", str(path)]) == 0, capsys.readouterr().err
+def test_every_lifelong_scenario_passes_check_without_a_warning(path, capsys):
+    assert main(["check", str(path)]) == 0
+    assert "warning" not in capsys.readouterr().err
 
 
 def _chained(s, life):
@@ -355,3 +356,19 @@ def test_any_value_anywhere_in_the_lifelong_part_loads_or_is_refused_in_one_line
         assert "\n" not in str(exc) and len(str(exc)) <= 400
     else:
         assert s.lifelong is not None
+
+
+def test_check_warns_of_orders_after_the_end_and_a_stream_that_serves_nothing(tmp_path, capsys):
+    from scenario.load import scenario_warnings
+
+    assert scenario_warnings(parse_scenario(variant())) == []
+    late = parse_scenario(variant(orders__1__t=900.0))
+    assert scenario_warnings(late) == [
+        "orders[1].t: posted at 900 s, after the run ends (duration 600 s)"]
+    idle = variant(stations={"rack_1": [4.0, 3.0, 1.5708], "out": {
+        "pose": [-4.0, -3.0, 0.0], "kind": "sink"}}, loads=[], orders=[])
+    path = tmp_path / "idle.yaml"
+    path.write_text(idle, encoding="utf-8")
+    assert main(["check", str(path)]) == 0
+    err = capsys.readouterr().err
+    assert "warning: order_stream: posts no order in this run" in err
