@@ -140,7 +140,7 @@ def test_gamma_may_be_split_by_kind():
 @pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
 def test_every_shipped_scenario_is_valid(path):
     s = load_scenario(path)
-    assert s.robots
+    assert s.robots or (s.lifelong is not None and s.lifelong.fleet.robots)  # formations or a fleet
 
 
 def test_check_command_exits_2_with_one_line_and_no_traceback(tmp_path, capsys):
