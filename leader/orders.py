@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
+from typing import Any
 
 WAITING = "waiting"
 ASSIGNED = "assigned"
@@ -127,7 +128,7 @@ def step(order: Order, event: Event) -> Order:
     after = TRANSITIONS.get((order.state, event.kind))
     if after is None:
         raise ValueError(f"order {order.oid}: {event.kind!r} is no transition from {order.state!r}")
-    changes: dict[str, object] = {"state": after}
+    changes: dict[str, Any] = {"state": after}
     stamp = STAMPS.get(event.kind)
     if stamp is not None:
         changes[stamp] = event.t
@@ -140,7 +141,7 @@ def step(order: Order, event: Event) -> Order:
     return replace(order, **changes)
 
 
-def _loss(order: Order, after: str, who: str) -> dict[str, object]:
+def _loss(order: Order, after: str, who: str) -> dict[str, Any]:
     if after == WAITING:  # nothing has moved: back to the queue, roster released
         return {"robots": (), "t_assigned": None, "t_gathered": None}
     return {"reason": f"member lost: {who}"}
