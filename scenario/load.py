@@ -52,6 +52,9 @@ from .fields import string as _string
 from .fields import title as _title
 from .fields import vector as _vector
 from .fields import within as _in
+from .lifelong import KEYS as LIFELONG_KEYS
+from .lifelong import parse_lifelong
+from .lifelong_checks import check_lifelong
 from .model import (
     DOUBLE_INTEGRATOR,
     METHODS,
@@ -79,7 +82,7 @@ LOAD_TOL = 1e-6  # [m] a load overlapping by less is touching (rounding), not ov
 TIEBREAKS = ("keep_right", "none")
 
 _TOP_KEYS = {"name", "dt", "duration", "goal_tolerance", "robot", "controller", "formations",
-             "obstacles", "world"}
+             "obstacles", "world", *LIFELONG_KEYS}
 _ROBOT_KEYS = {"model", "max_speed", "max_turn_rate", "lookahead", "radius", "max_accel"}
 _CONTROLLER_KEYS = {"kp", "gamma", "epsilon", "tiebreak", "d_af", "planner", "method", "bounds"}
 _GAMMA_KEYS = {"formation", "obstacle", "formations"}
@@ -125,21 +128,7 @@ def scenario_from_dict(data: Any) -> Scenario:
     robot = _robot_model(top.get("robot", {}))
     controller = _controller(top.get("controller", {}))
 
-    if "formations" not in top:
-        raise ScenarioError("formations: missing (at least one formation is needed)")
-    raw_formations = top["formations"]
-    if not isinstance(raw_formations, list) or not raw_formations:
-        raise ScenarioError("formations: must be a non-empty list")
-    _count(raw_formations, "formations", limits.MAX_FORMATIONS)
-    seen_robots: dict[str, str] = {}
-    formations = []
-    formation_names: set[str] = set()
-    for k, raw in enumerate(raw_formations):
-        f = _formation(raw, f"formations[{k}]", robot, seen_robots)
-        if f.name in formation_names:
-            raise ScenarioError(f"formations[{k}].name: duplicate formation name {f.name!r}")
-        formation_names.add(f.name)
-        formations.append(f)
+    formations = _formations(top, robot)
 
     raw_obstacles = top.get("obstacles", []) or []
     if not isinstance(raw_obstacles, list):
@@ -158,18 +147,42 @@ def scenario_from_dict(data: Any) -> Scenario:
 
     world = parse_world(top.get("world"))
     check_model_world(robot, world)
-    scenario = Scenario(name, dt, duration, tol, robot, controller, tuple(formations),
-                        obstacles, shapes, world)
+    lifelong = parse_lifelong(top, robot.radius, controller.epsilon)
+    scenario = Scenario(name, dt, duration, tol, robot, controller, formations,
+                        obstacles, shapes, world, lifelong)
     axes = [formation_axes(scenario, f) for f in scenario.formations]
     _check_bands(scenario)
     _check_start(scenario, axes)
     _check_goals(scenario, axes)
     _check_loads(scenario, axes)
     _check_shapes(scenario, [k for k, o in enumerate(parsed) if isinstance(o, Shape)])
+    check_lifelong(scenario)
     return scenario
 
 
 # ---------------------------------------------------------------------------- sections
+
+
+def _formations(top: Mapping[str, Any], robot: RobotModel) -> tuple[FormationSpec, ...]:
+    """``formations``: at least one, unless a ``fleet`` is given (then none is fine)."""
+    fleet_only = top.get("fleet") is not None and top.get("formations") in (None, [])
+    if "formations" not in top and not fleet_only:
+        raise ScenarioError("formations: missing (at least one formation, or a fleet, is "
+                            "needed)")
+    raw_formations = [] if fleet_only else top["formations"]
+    if not isinstance(raw_formations, list) or not (raw_formations or fleet_only):
+        raise ScenarioError("formations: must be a non-empty list")
+    _count(raw_formations, "formations", limits.MAX_FORMATIONS)
+    seen_robots: dict[str, str] = {}
+    formations = []
+    formation_names: set[str] = set()
+    for k, raw in enumerate(raw_formations):
+        f = _formation(raw, f"formations[{k}]", robot, seen_robots)
+        if f.name in formation_names:
+            raise ScenarioError(f"formations[{k}].name: duplicate formation name {f.name!r}")
+        formation_names.add(f.name)
+        formations.append(f)
+    return tuple(formations)
 
 
 def _robot_model(raw: Any) -> RobotModel:
@@ -670,6 +683,8 @@ def _first_intrusion(s: Scenario, ellipses: list[Ellipse],
     ``ellipses[k]`` at ``points[m]``: the smallest k, then the smallest m. Only the robots in the
     grid cells under each ellipse's bounding box are tested."""
     robots = s.robots
+    if not ellipses:
+        return None
     cell = max(2.0 * s.robot.radius, float(np.median([e.a for e in ellipses])))
     grid = Grid(cell)
     for m, (x, y) in enumerate(points):

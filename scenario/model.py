@@ -16,6 +16,7 @@ from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE, BURGER_RADIU
 from geometry.shapes import Shape
 
 from . import limits
+from .lifelong import Lifelong
 from .reader import ScenarioError
 from .world import WorldSpec, with_profile
 
@@ -184,6 +185,8 @@ class Scenario:
     obstacles: tuple[ObstacleSpec, ...]
     shapes: tuple[Shape, ...] = ()  # static walls (segments) and shelves (boxes)
     world: WorldSpec = WorldSpec()  # the simulated robots and camera (scenario.world)
+    # the fleet, stations, loads and orders (scenario.lifelong); None: a file without them
+    lifelong: Lifelong | None = None
 
     # Derived once per instance (the fields are frozen; dataclasses.replace makes a new one):
     # lookups by robot id are dict lookups, not scans of every robot.
