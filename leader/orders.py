@@ -84,7 +84,7 @@ class Order:
     load: str
     src: str
     dst: str
-    priority: int = 0
+    priority: float = 0.0
     fresh: bool = False
     state: str = WAITING
     t_posted: float | None = None
@@ -147,7 +147,7 @@ def _loss(order: Order, after: str, who: str) -> dict[str, Any]:
     return {"reason": f"member lost: {who}"}
 
 
-def precedence(order: Order) -> tuple[int, float, str]:
+def precedence(order: Order) -> tuple[float, float, str]:
     """The order's place in the queue: higher priority first, then posted first, then by id."""
     return (-order.priority, order.t_posted if order.t_posted is not None else 0.0, order.oid)
 

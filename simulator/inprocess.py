@@ -253,6 +253,8 @@ class FleetControl:
         self.vel = [(0.0, 0.0)] * n  # last certified control-point velocity (what `state` carries)
         self.stalls = [Stall()] * n  # each robot's copy of its formation's jam state
         self.stats = QPStats()
+        # the walls and shelves each robot keeps clear of (a lifelong run's resting loads too)
+        self.shapes = [scenario.shapes] * n
 
     def commands(self, t: float, seen: Sequence[Sequence[float]], obs: list[Obstacle],
                  ) -> tuple[list[StepResult], dict]:
@@ -293,7 +295,7 @@ class FleetControl:
         inputs = with_waypoint(inputs, self.followers[i].heading, self.followers[i].arriving)
         pose = (seen[i][0], seen[i][1], seen[i][2])
         return self.controller.step(inputs._replace(
-            pose=pose, goal=target, obstacles=view.obs, last_u=vel[i], shapes=self.scenario.shapes,
+            pose=pose, goal=target, obstacles=view.obs, last_u=vel[i], shapes=self.shapes[i],
             footprint=fleet.footprints[i]))
 
 
