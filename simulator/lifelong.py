@@ -37,6 +37,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -53,6 +54,9 @@ from scenario.model import Edge, FormationSpec, RobotSpec
 from scenario.routes import start_plan
 
 from .inprocess import FleetControl, QPStats, SimOptions, obstacles_at, record, summarise
+from .orders_out import orders_block, write_order_files
+from .output import lost_words, write_run
+from .series import Series
 from .tick import FleetTick, Pose
 
 SET_DOWN_M = 0.05  # [m] a load is set down this near its station
@@ -164,7 +168,8 @@ class LifelongRun:
     """One lifelong run of ``scenario`` (see the module docstring)."""
 
     def __init__(self, scenario: Scenario, options: SimOptions, life_options: LifelongOptions,
-                 progress: Callable[[int, int, float], None] | None = None) -> None:
+                 progress: Callable[[int, int, float], None] | None = None,
+                 tally: Callable[[int, int], None] | None = None) -> None:
         life = scenario.lifelong
         if life is None:
             raise ValueError(f"{scenario.name}: no fleet (not a lifelong scenario)")
@@ -182,6 +187,7 @@ class LifelongRun:
         self.base = replace(scenario, formations=tuple(solo(r, starts[r], starts[r][:2])
                                                        for r in self.ids))
         self.static = scenario.shapes
+        self.tally = tally  # told (delivered, posted) before each progress report
         self.tick = FleetTick(self.base, None, False, progress, stop=self.finished)
         self.state: list[Pose] = [starts[r] for r in self.ids]
         self.ds = scenario.robot.radius + LOAD_MARGIN
@@ -198,6 +204,7 @@ class LifelongRun:
         self.under: dict[str, set[str]] = {r: set() for r in self.ids}  # loads over a robot
         self.load_rows: list[tuple] = []
         self.busy_s = 0.0  # robot-seconds spent in a team
+        self.bounds: dict[str, float] = {}  # order -> its straight-line service bound [s]
         self.checks = Checks()
         self.stats = QPStats()
         self.vel = [(0.0, 0.0)] * len(self.ids)
@@ -228,6 +235,9 @@ class LifelongRun:
                 record(self.tick, t, before, results, ellipses, obs)
             t = (k + 1) * dt
             self.watch(t)
+            if self.tally is not None:
+                self.tally(sum(1 for o in self.orders.values() if o.state == lo.DELIVERED),
+                           len(self.orders))
             if self.tick.check(k, t, self.state):
                 break
         return k + 1, t
@@ -314,8 +324,12 @@ class LifelongRun:
         order = lo.step(lo.step(order, lo.Event(lo.ASSIGN, t, robots)), lo.Event(lo.JOIN, t))
         self.orders[order.oid] = order
         dst = self.life.station(order.dst).pose
+        at = self.positions(robots)
         self.crews[order.oid] = Crew(order.oid, robots, slots, ld.pose, dst, since=t,
-                                     ref=self.positions(robots), ref_t=t)
+                                     ref=at, ref_t=t)
+        # the straight-line bound of the service: the farthest member to its slot, then the carry
+        self.bounds[order.oid] = (max(math.dist(p, q) for p, q in zip(at, slots, strict=True))
+                                  + math.dist(ld.pose[:2], dst[:2])) / self.base.robot.max_speed
         ld.order = order.oid
         self.log_load(t, ld)
         for r, s in zip(robots, slots, strict=True):
@@ -541,6 +555,22 @@ class LifelongRun:
         self.vel = [(r.ux, r.uy) for r in out]
         return out, ellipses, obs
 
+    def summary(self, sim_time: float) -> dict:
+        """summary.json's ``orders`` block (:func:`simulator.orders_out.orders_block`), the
+        stuck orders and the acceptance checks' measures."""
+        c = self.checks
+        block = orders_block(list(self.orders.values()), self.bounds, len(self.ids), sim_time,
+                             self.busy_s)
+        block["stuck"] = len(c.stuck)
+        block["checks"] = {
+            "lift_error_m": round(c.lift_error_m, 6), "set_down_m": round(c.set_down_m, 6),
+            "set_down_deg": round(math.degrees(c.set_down_rad), 6),
+            "carried_min_clearance_m": round(c.carried_clearance_m, 6)
+            if math.isfinite(c.carried_clearance_m) else None,
+            "load_contacts": c.load_contacts, "intrusions": c.intrusions,
+            "stuck_orders": sorted(c.stuck)}
+        return block
+
     # --- after each tick ------------------------------------------------------------------
 
     def watch(self, t: float) -> None:
@@ -612,19 +642,36 @@ class LifelongResult:
     """A lifelong run's summary, series and what its loads and orders did."""
 
     summary: dict
-    series: object
+    series: Series
     scenario: Scenario
     run: LifelongRun
 
 
 def simulate_lifelong(scenario: Scenario, options: SimOptions | None = None,
                       life_options: LifelongOptions | None = None,
-                      progress: Callable[[int, int, float], None] | None = None
-                      ) -> LifelongResult:
-    """Run the lifelong ``scenario`` in process (module docstring)."""
+                      progress: Callable[[int, int, float], None] | None = None,
+                      tally: Callable[[int, int], None] | None = None) -> LifelongResult:
+    """Run the lifelong ``scenario`` in process (module docstring); ``tally(delivered,
+    posted)`` hears the orders' count before each ``progress`` report."""
     options = options or SimOptions()
-    run = LifelongRun(scenario, options, life_options or LifelongOptions(), progress)
+    run = LifelongRun(scenario, options, life_options or LifelongOptions(), progress, tally)
     end = run.run()
     assert run.control is not None
     summary = summarise(run.base, options, run.control, run.tick, end)
+    summary["all_reached"] = bool(run.orders) and all(
+        o.state == lo.DELIVERED for o in run.orders.values()) and not run.due
+    times = [o.t_delivered for o in run.orders.values() if o.t_delivered is not None]
+    summary["time_to_goal_s"] = round(max(times), 6) if summary["all_reached"] else None
+    summary["orders"] = run.summary(end[1])
     return LifelongResult(summary, run.tick.series, run.base, run)
+
+
+def write_lifelong(result: LifelongResult, out: Path, plots: bool = True) -> list[dict[str, str]]:
+    """Every file of a lifelong run: the run's files (:func:`simulator.output.write_run`), then
+    orders.csv, loads.csv and orders.png; the files lost, as ``write_run`` returns them."""
+    lost = write_run(result.summary, result.series, result.scenario, out, plots=plots)
+    try:
+        write_order_files(out, list(result.run.orders.values()), result.run.load_rows, plots)
+    except OSError as exc:
+        lost.append({"file": "orders.csv", "error": lost_words(exc)})
+    return lost
