@@ -41,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
+from agent import double_integrator
 from agent.control import StepResult
 from geometry.shapes import Shape, box, shape_distance
 from leader import allocation
@@ -514,8 +515,24 @@ class LifelongRun:
             if skip & set(boxes):
                 self.own_view(control, e, tuple(self.static) + tuple(
                     sh for n, sh in boxes.items() if n not in skip))
+        self.team_up(control)
         self.control = control
         self.tick.formation_of = tuple(scen.formation_of(r).name for r in self.ids)
+
+    def team_up(self, control: FleetControl) -> None:
+        """The members of a gathering team keep apart by separation rows (as members of one
+        formation do), not by each other's ellipses, so that they can stand at adjacent slots."""
+        ids = control.scenario.robot_ids
+        at = {r: e for e, r in enumerate(ids)}
+        partners = list(control.fleet.partners)
+        for crew in self.crews.values():
+            if crew.plan is not None:
+                continue
+            for r in crew.robots:
+                mates = [m for m in crew.robots if m != r]
+                control.allies[at[r]] = frozenset(mates)
+                partners[at[r]] = tuple(at[m] for m in mates)
+        control.fleet = replace(control.fleet, partners=tuple(partners))
 
     def carried_outline(self, crew: Crew) -> tuple[tuple[float, float], ...]:
         order = self.orders[crew.oid]
@@ -549,8 +566,8 @@ class LifelongRun:
         for e, b in enumerate(self.perm):
             r = res[e]
             if self.held(self.ids[b]):
-                r = r._replace(ux=0.0, uy=0.0, v=0.0, omega=0.0, ax=0.0, ay=0.0)
-                self.control.vel[e] = (0.0, 0.0)
+                r = self.hold(r, b)
+                self.control.vel[e] = (r.ux, r.uy)
             out[b] = r
         self.vel = [(r.ux, r.uy) for r in out]
         return out, ellipses, obs
@@ -570,6 +587,18 @@ class LifelongRun:
             "load_contacts": c.load_contacts, "intrusions": c.intrusions,
             "stuck_orders": sorted(c.stuck)}
         return block
+
+    def hold(self, r: StepResult, b: int) -> StepResult:
+        """Robot ``b``'s command to stand still: zero, or for a double integrator the braking
+        acceleration (:func:`agent.double_integrator.brake`) and the velocity it leaves."""
+        robot = self.base.robot
+        if not robot.is_double_integrator:
+            return r._replace(ux=0.0, uy=0.0, v=0.0, omega=0.0)
+        dt = self.base.dt
+        vx, vy = self.tick.vel[b]
+        ax, ay = double_integrator.brake(vx, vy, robot.max_accel or math.inf, dt)
+        ux, uy = vx + ax * dt, vy + ay * dt
+        return r._replace(ux=ux, uy=uy, v=math.hypot(ux, uy), omega=0.0, ax=ax, ay=ay)
 
     # --- after each tick ------------------------------------------------------------------
 
