@@ -14,7 +14,7 @@ from wire.keys import name_problem
 
 from . import limits
 from .limits import Range
-from .reader import ScenarioError, excerpt
+from .reader import EXCERPT_CHARS, ScenarioError, excerpt
 
 
 def mapping(raw: Any, where: str, allowed: set[str]) -> Mapping[str, Any]:
@@ -24,11 +24,14 @@ def mapping(raw: Any, where: str, allowed: set[str]) -> Mapping[str, Any]:
         raise ScenarioError(f"{where}: must be a mapping, got {type(raw).__name__}")
     for key in raw:
         if key not in allowed:
-            known = ", ".join(sorted(allowed))
+            # a key longer than every known one is no misspelling: the known list would not help
+            longest = max((len(k) for k in allowed), default=0)
+            known = ("longer than any known key" if len(str(key)) > max(longest, EXCERPT_CHARS)
+                     else f"known: {', '.join(sorted(allowed))}")
             raise ScenarioError(
-                f"{where}: unknown key {excerpt(key)} (known: {known})"
+                f"{where}: unknown key {excerpt(key)} ({known})"
                 if where != "scenario"
-                else f"unknown key {excerpt(key)} (known: {known})"
+                else f"unknown key {excerpt(key)} ({known})"
             )
     return raw
 

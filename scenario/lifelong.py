@@ -60,7 +60,7 @@ MAX_SLOTS = 16  # a team's slots (an order's bid carries one cost per slot)
 TEAMS = (2, 4)  # the teams with default slots
 DWELL = Range(0.0, 86_400.0, "s")
 TIME = Range(0.0, 1.0e7, "s")  # order times, the stream's start and until
-RATE = Range(0.0, 600.0, "orders/min")
+RATE = Range(0.0, 120.0, "orders/min")  # two a second: far beyond what a fleet serves
 PRIORITY = Range(-1.0e6, 1.0e6)
 BID_WINDOW = limits.positive(60.0, "s")
 BID_COPIES = (1, 10)
@@ -289,7 +289,7 @@ def _fleet(raw: Any) -> Fleet:
         _points(m.get("parking", []), "fleet.parking"),
         within(m.get("bid_window_s", d.bid_window_s), "fleet.bid_window_s", BID_WINDOW),
         _integer(m.get("bid_copies", d.bid_copies), "fleet.bid_copies", BID_COPIES),
-        within(m.get("lift_s", d.lift_s), "fleet.lift_s", LIFT),
+        non_negative(m.get("lift_s", d.lift_s), "fleet.lift_s", LIFT),
     )
 
 
@@ -311,6 +311,14 @@ def _integer(raw: Any, where: str, bounds: tuple[int, int]) -> int:
         raise ScenarioError(f"{where}: out of range, got {excerpt(raw)} (allowed: from "
                             f"{bounds[0]} to {bounds[1]})")
     return raw
+
+
+def non_negative(raw: Any, where: str, allowed: Range) -> float:
+    """A finite number, not negative, in ``allowed`` (which starts at 0)."""
+    v = number(raw, where)
+    if v < 0.0:
+        raise ScenarioError(f"{where}: must not be negative, got {excerpt(raw)}")
+    return within(v, where, allowed)
 
 
 def _named(raw: Any, where: str, most: int) -> Mapping[str, Any]:
@@ -343,7 +351,7 @@ def _station(name: str, spec: Any, where: str) -> Station:
                             f"{', '.join(repr(k) for k in STATION_KINDS)}")
     if "dwell_s" in m and kind != SINK:
         raise ScenarioError(f"{where}.dwell_s: only a sink has a dwell (this is a {kind})")
-    dwell = within(m.get("dwell_s", 0.0), f"{where}.dwell_s", DWELL)
+    dwell = non_negative(m.get("dwell_s", 0.0), f"{where}.dwell_s", DWELL)
     return Station(name, _pose(m["pose"], f"{where}.pose"), kind, dwell)
 
 
@@ -465,7 +473,7 @@ def _order(spec: Any, where: str, stations: Mapping[str, Station],
         raise ScenarioError(f"{where}: needs exactly one of type (a new load) or load (a "
                             "resting one)")
     oid = identifier(m["id"], f"{where}.id")
-    t = within(m.get("t", 0.0), f"{where}.t", TIME)
+    t = non_negative(m.get("t", 0.0), f"{where}.t", TIME)
     to = _reference(m["to"], f"{where}.to", stations, "station")
     if stations[to].kind == SOURCE:
         raise ScenarioError(f"{where}.to: {to!r} is a source (an order goes to a store or a "
@@ -495,11 +503,7 @@ def _stream(raw: Any, types: Mapping[str, LoadType]) -> OrderStream | None:
     for key in ("rate_per_min", "seed"):
         if key not in m:
             raise ScenarioError(f"order_stream.{key}: missing")
-    rate = number(m["rate_per_min"], "order_stream.rate_per_min")
-    if rate < 0.0:
-        raise ScenarioError(f"order_stream.rate_per_min: must not be negative, got "
-                            f"{excerpt(m['rate_per_min'])}")
-    rate = within(rate, "order_stream.rate_per_min", RATE)
+    rate = non_negative(m["rate_per_min"], "order_stream.rate_per_min", RATE)
     raw_types = m.get("types", list(types))
     if not isinstance(raw_types, list):
         raise ScenarioError("order_stream.types: must be a list of load type names")
@@ -507,8 +511,8 @@ def _stream(raw: Any, types: Mapping[str, LoadType]) -> OrderStream | None:
                   for k, v in enumerate(raw_types))
     if not names:
         raise ScenarioError("order_stream.types: no load type to post (declare load_types)")
-    start = within(m.get("start", 0.0), "order_stream.start", TIME)
-    until = within(m.get("until", TIME.hi), "order_stream.until", TIME)
+    start = non_negative(m.get("start", 0.0), "order_stream.start", TIME)
+    until = non_negative(m.get("until", TIME.hi), "order_stream.until", TIME)
     if until < start:
         raise ScenarioError(f"order_stream.until: {until:g} s is before its start {start:g} s")
     return OrderStream(rate, _integer(m["seed"], "order_stream.seed", SEED), names, until, start)

@@ -99,9 +99,14 @@ def _circles(s: Scenario) -> list[tuple[ObstacleSpec, Point]]:
     return out
 
 
+def by_size(life: Lifelong) -> list[LoadType]:
+    """The load types, the largest (by area) first: a refusal names the largest that fails."""
+    return sorted(life.load_types, key=lambda t: -t.area)
+
+
 def _check_stations(s: Scenario, life: Lifelong) -> None:
     for st in life.stations:
-        for t in life.load_types:
+        for t in by_size(life):
             _check_station_world(s, st, t)
     _check_station_pairs(life)
 
@@ -147,8 +152,8 @@ def _check_station_pairs(life: Lifelong) -> None:
 
 def _check_pair(life: Lifelong, sa: Station, sb: Station) -> None:
     first, second = sorted((sa, sb), key=lambda st: st.name)
-    for ta in life.load_types:
-        for tb in life.load_types:
+    for ta in by_size(life):
+        for tb in by_size(life):
             if polygon_distance(outline_at(ta, first.pose), outline_at(tb, second.pose)) < \
                     -OVERLAP_TOL:
                 raise ScenarioError(f"stations.{first.name}: a {ta.name!r} load resting there "
@@ -175,7 +180,7 @@ def _check_fleet(s: Scenario, life: Lifelong) -> None:
     for k, spot in enumerate(life.fleet.parking):
         _check_point(s, spot, f"fleet.parking[{k}]", 0.0)
         for st in life.stations:
-            for t in life.load_types:
+            for t in by_size(life):
                 if points_distance(np.array([spot]), outline_at(t, st.pose))[0] < r:
                     raise ScenarioError(f"fleet.parking[{k}]: a robot parked there overlaps "
                                         f"a {t.name!r} load at station {st.name!r}")

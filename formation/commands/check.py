@@ -13,7 +13,7 @@ import sys
 
 from formation.commands.run import capacity_problem
 from formation.exits import EXIT_OK
-from scenario import load_scenario
+from scenario import Scenario, load_scenario
 from scenario.load import scenario_warnings
 from scenario.reader import ScenarioError
 from scenario.routes import route_problem
@@ -23,6 +23,18 @@ from scenario.succession import formation_successor
 def plural(n: int, noun: str) -> str:
     """``1 formation``, ``2 formations``."""
     return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
+def lifelong_summary(s: Scenario) -> str:
+    """``; fleet of 12 robots, 9 stations, 2 load types, 3 loads, 4 orders and a stream``, or
+    nothing for a scenario without a lifelong part."""
+    life = s.lifelong
+    if life is None:
+        return ""
+    stream = " and a stream" if life.stream is not None else ""
+    return (f"; fleet of {plural(len(life.fleet.robots), 'robot')}, "
+            f"{plural(len(life.stations), 'station')}, {plural(len(life.load_types), 'load type')}, "
+            f"{plural(len(life.loads), 'load')}, {plural(len(life.orders), 'order')}{stream}")
 
 
 def cmd_check(ns: argparse.Namespace) -> int:
@@ -44,5 +56,5 @@ def cmd_check(ns: argparse.Namespace) -> int:
     print(f"{ns.scenario}: ok ({s.name}: {plural(len(s.formations), 'formation')}, "
           f"{plural(n, 'robot')}, {plural(len(s.obstacles), 'obstacle')}, "
           f"{len(s.shapes)} {'wall or shelf' if len(s.shapes) == 1 else 'walls and shelves'}, "
-          f"{s.robot.model})")
+          f"{s.robot.model}{lifelong_summary(s)})")
     return EXIT_OK
