@@ -43,14 +43,15 @@ import numpy as np
 
 from agent import double_integrator
 from agent.control import StepResult
+from geometry.polygon import polygon_distance
 from geometry.shapes import Shape, box, shape_distance
 from leader import allocation
 from leader import orders as lo
 from leader.navigation import Follower, heading_tolerance
 from leader.team import TeamPlan, load_pose, plan_team, pose_error, slot_points
-from scenario import Scenario
+from scenario import Scenario, stream
 from scenario.cargo import load_clearances
-from scenario.lifelong import SINK, Lifelong, LoadType
+from scenario.lifelong import SINK, Lifelong, LoadType, Order
 from scenario.model import Edge, FormationSpec, RobotSpec
 from scenario.routes import start_plan
 
@@ -194,6 +195,8 @@ class LifelongRun:
         self.ds = scenario.robot.radius + LOAD_MARGIN
         self.orders: dict[str, lo.Order] = {}
         self.due = sorted(life.orders, key=lambda o: (o.t, o.id))
+        self.yard = stream.initial_yard(life)
+        self.streamed = -1.0  # [s] the stream has posted its arrivals up to here
         self.loads = {ld.name: LoadState(ld.name, ld.type, life.station(ld.at).pose, ld.at)
                       for ld in life.loads}
         self.crews: dict[str, Crew] = {}
@@ -245,7 +248,8 @@ class LifelongRun:
 
     def finished(self) -> bool:
         """Every order posted and done, and no load on its way out of a sink."""
-        return (not self.due and all(o.done for o in self.orders.values())
+        live = self.life.stream is not None and self.streamed < self.life.stream.until
+        return (not self.due and not live and all(o.done for o in self.orders.values())
                 and not any(math.isfinite(ld.leaves) and ld.state != "gone"
                             for ld in self.loads.values()))
 
@@ -263,12 +267,37 @@ class LifelongRun:
     # --- orders and loads -----------------------------------------------------------------
 
     def post_due(self, t: float) -> None:
+        """The scenario's orders due by ``t``, then the stream's arrivals since the last tick
+        (:func:`scenario.stream.post`, over the warehouse as it is)."""
         while self.due and self.due[0].t <= t + 1e-9:
-            spec = self.due.pop(0)
+            self.post(self.due.pop(0), t)
+        if self.life.stream is None:
+            return
+        arrived, self.yard = stream.post(self.life, self.streamed, t, self.yard_now())
+        self.streamed = t
+        for spec in arrived:
+            self.post(spec, t)
+
+    def post(self, spec: Order, t: float) -> None:
+        if spec.type is not None:
+            kind = spec.type
+        elif spec.load_name in self.loads:
+            kind = self.loads[spec.load_name].type
+        else:
             kind = self.life.type_of_load(spec.load_name).name
-            order = lo.Order(spec.id, kind, spec.load_name, spec.from_ or "", spec.to,
-                             spec.priority, fresh=spec.type is not None)
-            self.orders[spec.id] = lo.step(order, lo.Event(lo.POST, t))
+        order = lo.Order(spec.id, kind, spec.load_name, spec.from_ or "", spec.to,
+                         spec.priority, fresh=spec.type is not None)
+        self.orders[spec.id] = lo.step(order, lo.Event(lo.POST, t))
+
+    def yard_now(self) -> stream.Yard:
+        """The warehouse as the stream sees it: loads at stations, stations open orders hold
+        (destinations, and the source of a new load until it is lifted), loads they claim."""
+        open_ = [o for o in self.orders.values() if not o.done]
+        held = {o.dst for o in open_} | {
+            o.src for o in open_ if o.fresh and o.src and o.state in (
+                lo.WAITING, lo.ASSIGNED, lo.GATHERING, lo.LIFTING)}
+        return replace(self.yard, resting=self.resting_at(), held=frozenset(held),
+                       claimed=frozenset(o.load for o in open_))
 
     def resting_at(self) -> dict[str, str]:
         """Station -> the load resting there."""
@@ -276,12 +305,31 @@ class LifelongRun:
                 if ld.state == "resting" and ld.station}
 
     def appear(self, t: float) -> None:
+        """New loads appear at their free sources, where no body is in the way (a robot, or
+        a load just lifted there)."""
         for order in sorted(self.orders.values(), key=lo.precedence):
-            if order.load not in self.loads and lo.appears(order, self.resting_at()):
+            if order.load not in self.loads and lo.appears(order, self.resting_at()) \
+                    and self.room(order):
                 pose = self.life.station(order.src).pose
                 self.loads[order.load] = ld = LoadState(order.load, order.type, pose, order.src)
                 self.log_load(t, ld)
                 self.dirty = True
+
+    def room(self, order: lo.Order) -> bool:
+        """True when nothing stands where ``order``'s new load would appear."""
+        kind = self.life.load_type(order.type)
+        pose = self.life.station(order.src).pose
+        sh = load_box(order.load, kind, pose, self.ds)
+        r0 = self.base.robot.radius
+        if any(inside_box(sh, s[0], s[1], r0 + EXIT_GAP) for s in self.state):
+            return False
+        outline = slot_points(pose, kind.outline)
+        return all(polygon_distance(outline, self.outline_of(ld)) > EXIT_GAP
+                   for ld in self.loads.values() if ld.state == "carried")
+
+    def outline_of(self, ld: LoadState) -> tuple[tuple[float, float], ...]:
+        """The load's outline in the world, where it is now."""
+        return slot_points(ld.pose, self.life.load_type(ld.type).outline)
 
     def leave_sinks(self, t: float) -> None:
         for ld in self.loads.values():
