@@ -288,6 +288,7 @@ class LifelongRun:
         order = lo.Order(spec.id, kind, spec.load_name, spec.from_ or "", spec.to,
                          spec.priority, fresh=spec.type is not None)
         self.orders[spec.id] = lo.step(order, lo.Event(lo.POST, t))
+        self.dirty = True  # idle robots keep clear of where its load is due
 
     def yard_now(self) -> stream.Yard:
         """The warehouse as the stream sees it: loads at stations, stations open orders hold
@@ -508,26 +509,43 @@ class LifelongRun:
         return own | self.under[rid]
 
     def idle_goals(self, boxes: dict[str, Shape]) -> None:
-        """Where each idle robot goes: out from under a load, else the nearest free parking
-        spot, else where it stands."""
+        """Where each idle robot goes: out from under a load or from where a load is due
+        (:meth:`keep_clear`), else its parking spot (the nearest free one), else where it
+        stands."""
         r0 = self.base.robot.radius
         taken = {self.goal[r] for r in self.ids if self.role[r] or r in self.dead}
+        due = self.keep_clear()
         for rid in self.ids:
             if self.role[rid] or rid in self.dead:
                 continue
             p = self.positions([rid])[0]
-            over = [sh for n, sh in boxes.items() if n in self.under[rid]]
+            over = [sh for n, sh in boxes.items() if n in self.under[rid]] + [
+                sh for sh in due if inside_box(sh, p[0], p[1], r0 + EXIT_GAP)]
             if over and rid not in self.leaving:
                 self.leaving[rid] = exit_point(over[0], p, self.clear_point, EXIT_GAP + r0)
-            if rid in self.leaving:
-                self.goal[rid] = self.leaving[rid]
-            else:
-                self.goal[rid] = self.park(p, taken)
+            self.goal[rid] = self.leaving.get(rid) or self.park(rid, p, taken)
             taken.add(self.goal[rid])
 
-    def park(self, p: tuple[float, float], taken: set[tuple[float, float]]
+    def keep_clear(self) -> list[Shape]:
+        """Where loads are due: the source of each new load not there yet, the destination of
+        each order a team holds (as the load's box there)."""
+        out = []
+        for o in self.orders.values():
+            kind = self.life.load_type(o.type)
+            if o.fresh and o.state == lo.WAITING and o.load not in self.loads:
+                out.append(load_box(o.oid, kind, self.life.station(o.src).pose, self.ds))
+            elif o.state in lo.TEAMED:
+                out.append(load_box(o.oid, kind, self.life.station(o.dst).pose, self.ds))
+        return out
+
+    def park(self, rid: str, p: tuple[float, float], taken: set[tuple[float, float]]
              ) -> tuple[float, float]:
-        free = [s for s in self.life.fleet.parking if s not in taken]
+        """Robot ``rid``'s parking spot: the one it has, else the nearest free one, else
+        ``p``."""
+        spots = self.life.fleet.parking
+        if self.goal[rid] in spots and self.goal[rid] not in taken:
+            return self.goal[rid]
+        free = [s for s in spots if s not in taken]
         return min(free, key=lambda s: math.dist(s, p)) if free else p
 
     def clear_point(self, x: float, y: float) -> bool:
