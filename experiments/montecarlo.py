@@ -12,6 +12,8 @@ its seed and its scenario file (written next to it) so it can be replayed with `
 That is the ``circles`` draw (the default; its shelves are round). The ``warehouse`` draw
 (:mod:`experiments.warehouse_draw`) has shelf rows as boxes, walls, pillars, parked and moving
 forklifts, and formations of 2 to 6 robots carrying loads under ``controller.method: rigid``.
+The ``lifelong`` draw (:mod:`experiments.lifelong_draw`) has halls with docks, racks, a fleet
+and a seeded stream of servable orders.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from scenario.load import scenario_from_dict
 from scenario.world import IDEAL
 from simulator.inprocess import SimOptions, simulate
 
+from .lifelong_draw import lifelong_problem, lifelong_scenario
 from .warehouse_draw import warehouse_problem, warehouse_scenario
 
 # Formation shapes sized for loads robots of 0.21 m diameter carry together (a pair under a
@@ -108,19 +111,22 @@ def random_scenario(seed: int) -> dict:
     }
 
 
-CIRCLES, WAREHOUSE = "circles", "warehouse"
-DRAWS = (CIRCLES, WAREHOUSE)
+CIRCLES, WAREHOUSE, LIFELONG = "circles", "warehouse", "lifelong"
+DRAWS = (CIRCLES, WAREHOUSE, LIFELONG)
+# each draw's layout (of a sub-seed) and its own checks beyond the scenario's
+LAYOUTS = {CIRCLES: random_scenario, WAREHOUSE: warehouse_scenario, LIFELONG: lifelong_scenario}
+PROBLEMS = {WAREHOUSE: warehouse_problem, LIFELONG: lifelong_problem}
 
 
 def draw_layout(seed: int, draw: str = CIRCLES) -> dict:
     """The layout of sub-seed ``seed`` in draw ``draw`` (one of DRAWS)."""
-    return warehouse_scenario(seed) if draw == WAREHOUSE else random_scenario(seed)
+    return LAYOUTS[draw](seed)
 
 
 def _checked(d: dict, draw: str):
-    """The scenario of mapping ``d`` (the scenario checks, and the warehouse draw's own)."""
+    """The scenario of mapping ``d`` (the scenario checks, and the draw's own)."""
     scenario = scenario_from_dict(d)
-    problem = warehouse_problem(scenario) if draw == WAREHOUSE else None
+    problem = PROBLEMS[draw](scenario) if draw in PROBLEMS else None
     if problem is not None:
         raise ScenarioError(problem)
     return scenario

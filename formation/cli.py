@@ -225,10 +225,12 @@ def build_parser() -> Parser:
     p.add_argument("--seed", type=int, default=11, help="seed of the first scenario's layout")
     p.add_argument("--jobs", type=int, default=2, metavar="J",
                    help="runs at a time, each in its own process (results do not depend on it)")
-    p.add_argument("--draw", default="circles", choices=["circles", "warehouse"], metavar="DRAW",
-                   help="the layouts: round shelves along two aisles (circles), or halls of shelf "
+    p.add_argument("--draw", default="circles", choices=["circles", "warehouse", "lifelong"],
+                   metavar="DRAW",
+                   help="the layouts: round shelves along two aisles (circles), halls of shelf "
                         "rows, walls, pillars and forklifts with formations of 2-6 robots carrying "
-                        "loads under the rigid method (warehouse)")
+                        "loads under the rigid method (warehouse), or halls with docks, racks, a "
+                        "fleet and a seeded stream of orders (lifelong)")
     p.add_argument("--model", default=None,
                    choices=["single_integrator", "unicycle", "double_integrator"], metavar="MODEL",
                    help="every drawn formation's robot model: single_integrator, unicycle or "

@@ -198,7 +198,9 @@ class Lifelong:
         """The type of a resting load or of the new load an order (named ``name``) brings."""
         if name in self.load_by_name:
             return self.load_type(self.load_by_name[name].type)
-        order = next(o for o in self.orders if o.id == name and o.type is not None)
+        order = next((o for o in self.orders if o.id == name and o.type is not None), None)
+        if order is None:
+            raise KeyError(f"no resting load and no order bringing a new load named {name!r}")
         return self.load_type(str(order.type))
 
 

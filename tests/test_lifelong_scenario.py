@@ -9,10 +9,13 @@ from pathlib import Path
 
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from formation.cli import main
-from scenario import ScenarioError, parse_scenario
+from scenario import ScenarioError, load_scenario, parse_scenario
 from scenario.lifelong import SINK, SOURCE, STORE, default_slots, outline_at, slots_at
+from scenario.stream import plan
 
 ROOT = Path(__file__).resolve().parents[1]
 LIFELONG_FILES = sorted((ROOT / "tests/scenarios").glob("lifelong-*.yaml")) + sorted(
@@ -260,3 +263,95 @@ def test_check_says_what_the_lifelong_part_holds(tmp_path, capsys):
 @pytest.mark.parametrize("path", LIFELONG_FILES, ids=[p.stem for p in LIFELONG_FILES])
 def test_every_lifelong_scenario_passes_check(path, capsys):
     assert main(["check", str(path)]) == 0, capsys.readouterr().err
+
+
+def _chained(s, life):
+    ids = {o.id for o in life.orders}
+    return any(o.load in ids for o in life.orders)
+
+
+def _busy_source(s, life):
+    starts = [o.from_ for o in life.orders if o.type is not None]
+    return len(starts) != len(set(starts))
+
+
+def _busy_destination(s, life):
+    resting = {ld.at for ld in life.loads}
+    return any(o.type is not None and o.to in resting for o in life.orders)
+
+
+def _long_stream(s, life):
+    return life.stream is not None and min(life.stream.until, s.duration) >= 1800.0 and bool(
+        plan(life))
+
+
+KINDS = {
+    "chained": _chained,
+    "retrieval to a sink": lambda s, life: any(
+        o.type is None and life.station(o.to).kind == SINK for o in life.orders),
+    "busy source": _busy_source,
+    "busy destination": _busy_destination,
+    "stream of 30 minutes": _long_stream,
+    "parked forklift": lambda s, life: any(
+        o.stop_at is not None and o.velocity != (0.0, 0.0) for o in s.obstacles),
+    "pallets and beams": lambda s, life: {2, 4} <= {
+        life.type_of_load(o.load_name).team for o in life.orders},
+    "more orders than teams": lambda s, life: len(life.orders) > len(life.fleet.robots) // 2,
+    "priority": lambda s, life: len({o.priority for o in life.orders}) > 1,
+}
+
+
+def test_the_lifelong_scenarios_cover_every_kind_the_acceptance_names():
+    tests = [load_scenario(p) for p in LIFELONG_FILES if p.parent.parent.name == "tests"]
+    assert len(tests) >= 12
+    found = {s.robot.model for s in tests}
+    for kind, test in KINDS.items():
+        if any(test(s, s.lifelong) for s in tests):
+            found.add(kind)
+    assert found == {"single_integrator", "unicycle", "double_integrator", *KINDS}
+
+
+def test_the_lifelong_example_in_the_docs_is_a_valid_scenario():
+    import re
+
+    text = (ROOT / "docs" / "scenarios.md").read_text(encoding="utf-8")
+    example = next(block for block in re.findall(r"^```yaml\n(.*?)^```", text, re.M | re.S)
+                   if block.startswith("fleet:"))
+    s = parse_scenario("name: example\n" + example)
+    assert s.lifelong is not None and [o.id for o in s.lifelong.orders] == ["o1", "o2"]
+    assert s.lifelong.load_type("beam").slots == ((0.6, 0.0), (-0.6, 0.0))
+
+
+def _paths(node, prefix=()):
+    """Every path into a nested mapping or list (the node itself included)."""
+    yield prefix
+    if isinstance(node, dict):
+        for k, v in node.items():
+            yield from _paths(v, (*prefix, k))
+    elif isinstance(node, list):
+        for k, v in enumerate(node):
+            yield from _paths(v, (*prefix, k))
+
+
+LIFELONG_PATHS = [p for key in ("fleet", "stations", "load_types", "loads", "orders",
+                                "order_stream") for p in _paths(BASE[key], (key,))]
+JUNK = st.one_of(st.none(), st.booleans(), st.integers(-10**6, 10**6),
+                 st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=8),
+                 st.lists(st.floats(-10, 10), max_size=4),
+                 st.dictionaries(st.text(max_size=4), st.integers(), max_size=2))
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.sampled_from(LIFELONG_PATHS), JUNK)
+def test_any_value_anywhere_in_the_lifelong_part_loads_or_is_refused_in_one_line(path, junk):
+    d = yaml.safe_load(yaml.safe_dump(BASE))
+    node = d
+    for k in path[:-1]:
+        node = node[k]
+    node[path[-1]] = junk
+    try:
+        s = parse_scenario(yaml.safe_dump(d))
+    except ScenarioError as exc:
+        assert "\n" not in str(exc) and len(str(exc)) <= 400
+    else:
+        assert s.lifelong is not None
