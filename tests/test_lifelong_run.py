@@ -17,9 +17,12 @@ from simulator.orders_out import ORDER_COLUMNS, order_rows, orders_block, write_
 from tests.lifelong_checks import check_all_delivered, check_safe
 
 HERE = Path(__file__).resolve().parent / "scenarios"
-QUICK = sorted((HERE / "lifelong").glob("one-*.yaml"))
-LONG = sorted(set((HERE / "lifelong").glob("*.yaml")) - set(QUICK)) + sorted(
-    HERE.glob("lifelong-*.yaml"))
+# the quick ones: a single order each, a few seconds
+QUICK_STEMS = ("lifelong-one-pallet", "lifelong-beam-pair", "lifelong-forklift-cross-aisle",
+               "lifelong-resting-bodies")
+ALL = sorted((HERE / "lifelong").glob("*.yaml")) + sorted(HERE.glob("lifelong-*.yaml"))
+QUICK = [p for p in ALL if p.stem.startswith("one-") or p.stem in QUICK_STEMS]
+LONG = [p for p in ALL if p not in QUICK]
 
 
 @pytest.mark.parametrize("path", QUICK, ids=lambda p: p.stem)
