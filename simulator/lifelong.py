@@ -123,9 +123,11 @@ class Checks:
     stuck: set[str] = field(default_factory=set)
 
 
-def solo(rid: str, pose: Pose, goal: tuple[float, float]) -> FormationSpec:
-    """A robot as a formation of one, named by its id."""
-    return FormationSpec(rid, rid, (RobotSpec(rid, rid, pose, goal),), (), None)
+def solo(rid: str, pose: Pose, goal: tuple[float, float], still: bool = False) -> FormationSpec:
+    """A robot as a formation of one, named by its id; ``still``: one standing at its goal,
+    given the goal as its route (nothing to plan)."""
+    return FormationSpec(rid, rid, (RobotSpec(rid, rid, pose, goal),), (), None,
+                         waypoints=(goal,) if still else ())
 
 
 def team_formation(plan: TeamPlan, poses: dict[str, Pose], outline: Sequence[tuple[float, float]]
@@ -569,7 +571,9 @@ class LifelongRun:
             if crew.plan is not None:
                 forms.append(team_formation(crew.plan, poses, self.carried_outline(crew)))
         teamed = {r for f in forms for r in f.robot_ids}
-        forms += [solo(r, poses[r], self.goal[r]) for r in self.ids if r not in teamed]
+        near = self.base.goal_tolerance
+        forms += [solo(r, poses[r], self.goal[r], math.dist(poses[r][:2], self.goal[r]) <= near)
+                  for r in self.ids if r not in teamed]
         shapes = tuple(self.static) + tuple(boxes.values())
         self.scen = scen = replace(self.base, formations=tuple(forms), shapes=shapes)
         control = FleetControl(scen, self.options)
