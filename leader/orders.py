@@ -94,6 +94,7 @@ class Order:
     t_delivered: float | None = None
     robots: tuple[str, ...] = ()
     reason: str = ""
+    t_done: float | None = None  # when it reached a final state (delivered, cancelled, failed)
 
     @property
     def reported(self) -> str:
@@ -129,6 +130,8 @@ def step(order: Order, event: Event) -> Order:
     if after is None:
         raise ValueError(f"order {order.oid}: {event.kind!r} is no transition from {order.state!r}")
     changes: dict[str, Any] = {"state": after}
+    if after in FINAL:
+        changes["t_done"] = event.t
     stamp = STAMPS.get(event.kind)
     if stamp is not None:
         changes[stamp] = event.t

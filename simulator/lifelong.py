@@ -770,7 +770,8 @@ def write_lifelong(result: LifelongResult, out: Path, plots: bool = True) -> lis
     orders.csv, loads.csv and orders.png; the files lost, as ``write_run`` returns them."""
     lost = write_run(result.summary, result.series, result.scenario, out, plots=plots)
     try:
-        write_order_files(out, list(result.run.orders.values()), result.run.load_rows, plots)
+        write_order_files(out, list(result.run.orders.values()), result.run.load_rows, plots,
+                          result.summary["sim_time_s"])
     except OSError as exc:
         lost.append({"file": "orders.csv", "error": lost_words(exc)})
     return lost

@@ -91,12 +91,13 @@ def orders_block(orders: Sequence[lo.Order], bounds: dict[str, float], fleet: in
 
 
 def write_order_files(out: Path, orders: Sequence[lo.Order], load_rows: Sequence[tuple],
-                      plots: bool = True) -> None:
-    """orders.csv, loads.csv and (``plots``) orders.png into ``out``."""
+                      plots: bool = True, end: float | None = None) -> None:
+    """orders.csv, loads.csv and (``plots``) orders.png into ``out``; ``end``: when the run
+    ended [s]."""
     write_csv_rows(out / "orders.csv", ORDER_COLUMNS, order_rows(orders))
     write_csv_rows(out / "loads.csv", LOAD_COLUMNS, load_rows)
     if plots:
-        plot_orders(orders, out / "orders.png")
+        plot_orders(orders, out / "orders.png", end)
 
 
 # the shades of an order's bar: waiting, gathering (with the lift), carrying (with the set-down)
@@ -104,8 +105,10 @@ PHASE_COLOURS = ("#c6dbef", "#6baed6", "#08519c")
 
 
 def phases(o: lo.Order, end: float) -> list[tuple[float, float, int]]:
-    """(start, length, shade) of each phase the order went through, up to ``end``."""
-    marks = [o.t_posted, o.t_assigned, o.t_lifted, o.t_delivered]
+    """(start, length, shade) of each phase the order went through, up to its end (``end``
+    for an order still open)."""
+    end = end if o.t_done is None else o.t_done
+    marks = [o.t_posted, o.t_assigned, o.t_lifted, o.t_done]
     out = []
     for k in range(3):
         a = marks[k]
@@ -118,9 +121,9 @@ def phases(o: lo.Order, end: float) -> list[tuple[float, float, int]]:
     return out
 
 
-def plot_orders(orders: Sequence[lo.Order], path: Path) -> None:
+def plot_orders(orders: Sequence[lo.Order], path: Path, end: float | None = None) -> None:
     """orders.png: deliveries over time above, one bar per order below (waiting, gathering,
-    carrying in three shades; a red cross where it failed)."""
+    carrying in three shades; a red cross where it failed); ``end``: when the run ended [s]."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -128,8 +131,9 @@ def plot_orders(orders: Sequence[lo.Order], path: Path) -> None:
 
     rows = sorted(orders, key=lambda o: (o.t_posted or 0.0, o.oid))
     times = sorted(o.t_delivered for o in rows if o.t_delivered is not None)
-    end = max([t for o in rows for t in (o.t_posted, o.t_delivered, o.t_lifted) if t is not None],
-              default=1.0)
+    if end is None:
+        end = max([t for o in rows for t in (o.t_posted, o.t_lifted, o.t_done) if t is not None],
+                  default=1.0)
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 3 + 0.25 * len(rows)), sharex=True,
                                       gridspec_kw={"height_ratios": [1, max(1, len(rows) / 6)]})
     top.step([0.0, *times, end], [0, *range(1, len(times) + 1), len(times)], where="post")
@@ -138,11 +142,15 @@ def plot_orders(orders: Sequence[lo.Order], path: Path) -> None:
         for start, length, shade in phases(o, end):
             bottom.barh(y, length, left=start, color=PHASE_COLOURS[shade], height=0.6)
         if o.state == lo.FAILED:
-            bottom.plot([o.t_lifted or o.t_assigned or end], [y], "x", color="red", ms=8)
+            bottom.plot([o.t_done], [y], "x", color="red", ms=8)
     bottom.set_yticks(range(len(rows)), [o.oid for o in rows])
     bottom.invert_yaxis()
     bottom.set_xlabel("t [s]")
-    bottom.set_title("waiting, gathering, carrying", fontsize=9)
+    from matplotlib.patches import Patch
+
+    top.legend(handles=[Patch(color=c, label=n) for c, n in zip(
+        PHASE_COLOURS, ("waiting", "gathering and lifting", "carrying and setting down"),
+        strict=True)], loc="upper left", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

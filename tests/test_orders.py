@@ -45,6 +45,7 @@ def test_a_member_lost_with_the_load_up_fails_the_order_with_its_name():
     o = walk(posted(), [lo.ASSIGN, lo.JOIN, lo.GATHERED, lo.LIFTED])
     o = step(o, Event(lo.LOST, 9.0, who="r2"))
     assert o.state == lo.FAILED and o.reason == "member lost: r2" and o.done
+    assert o.t_done == 9.0
 
 
 @pytest.mark.parametrize("kind", [lo.JOIN, lo.LIFTED, lo.SET_DOWN, lo.LOST])
