@@ -68,6 +68,7 @@ STUCK_S = 120.0  # [s] ... in this long is stuck
 LOAD_MARGIN = 0.045  # [m] a resting load's safe distance beyond the robot's radius
 EXIT_GAP = 0.15  # [m] a robot leaving a load stops this far beyond its outline
 CONTACT_TOL = 1e-3  # [m] a body this far inside another is a contact
+ALLY_REACH = 0.5  # [m] gathering members this near their slots keep apart by separation rows
 ALLOCATORS = {"allocate": allocation.allocate, "greedy": allocation.greedy_nearest}
 
 
@@ -219,6 +220,7 @@ class LifelongRun:
         self.control: FleetControl | None = None
         self.scen = self.base
         self.perm: list[int] = []
+        self.partners: tuple[tuple[int, ...], ...] = ()  # each robot's partners, as built
 
     # --- the run --------------------------------------------------------------------------
 
@@ -585,23 +587,28 @@ class LifelongRun:
             if skip & set(boxes):
                 self.own_view(control, e, tuple(self.static) + tuple(
                     sh for n, sh in boxes.items() if n not in skip))
-        self.team_up(control)
+        self.partners = control.fleet.partners
         self.control = control
         self.tick.formation_of = tuple(scen.formation_of(r).name for r in self.ids)
 
     def team_up(self, control: FleetControl) -> None:
-        """The members of a gathering team keep apart by separation rows (as members of one
-        formation do), not by each other's ellipses, so that they can stand at adjacent slots."""
-        ids = control.scenario.robot_ids
-        at = {r: e for e, r in enumerate(ids)}
-        partners = list(control.fleet.partners)
+        """The members of a gathering team that are near their slots (:data:`ALLY_REACH`) keep
+        apart by separation rows (as members of one formation do), not by each other's
+        ellipses, so that they can stand at adjacent slots; farther out the ellipses keep them
+        apart as any two formations."""
+        at = {r: e for e, r in enumerate(control.scenario.robot_ids)}
+        partners = list(self.partners)
+        allies = [frozenset[str]()] * len(partners)
         for crew in self.crews.values():
             if crew.plan is not None:
                 continue
-            for r in crew.robots:
-                mates = [m for m in crew.robots if m != r]
-                control.allies[at[r]] = frozenset(mates)
+            near = [r for r, s in zip(crew.robots, crew.slots, strict=True)
+                    if math.dist(self.positions([r])[0], s) <= ALLY_REACH]
+            for r in near:
+                mates = [m for m in near if m != r]
+                allies[at[r]] = frozenset(mates)
                 partners[at[r]] = tuple(at[m] for m in mates)
+        control.allies = allies
         control.fleet = replace(control.fleet, partners=tuple(partners))
 
     def carried_outline(self, crew: Crew) -> tuple[tuple[float, float], ...]:
@@ -630,6 +637,7 @@ class LifelongRun:
         """Every robot's command (base order): the formations' controller's, zero where held."""
         assert self.control is not None
         obs = obstacles_at(self.base, t)
+        self.team_up(self.control)
         seen = [self.state[b] for b in self.perm]
         res, ellipses = self.control.commands(t, seen, obs)
         out: list[StepResult] = list(res)
