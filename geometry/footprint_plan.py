@@ -286,6 +286,8 @@ def _hull(pts: Sequence[Point]) -> tuple[Point, ...]:
 def load_samples(outline: Sequence[Point], spacing: float) -> list[Point]:
     """Points along the outline at most ``spacing`` apart, and inside it every WAYPOINTS.interior."""
     n = len(outline)
+    if n == 0:  # a formation of one carries nothing
+        return []
     pts: list[Point] = []
     for k in range(n if n > 2 else 1):
         (ax, ay), (bx, by) = outline[k], outline[(k + 1) % n]

@@ -56,7 +56,7 @@ class OpenOrder:
 
     oid: str
     slots: tuple[Point, ...]
-    priority: int = 0
+    priority: float = 0.0
     t_posted: float = 0.0
 
     @property
@@ -103,7 +103,7 @@ class Allocation:
         return sum(team.cost for team in self.teams.values())
 
 
-def precedence(order: OpenOrder) -> tuple[int, float, str]:
+def precedence(order: OpenOrder) -> tuple[float, float, str]:
     """The order's place in the queue: higher priority first, then posted first, then by id."""
     return (-order.priority, order.t_posted, order.oid)
 

@@ -264,6 +264,11 @@ class FleetControl:
         self.stalls = [Stall()] * n  # each robot's copy of its formation's jam state
         self.stats = QPStats()
         self.localisation: FleetLocalisation | None = None  # simulator.fused, set by simulate
+        # the walls and shelves each robot keeps clear of (a lifelong run's resting loads too)
+        self.shapes = [scenario.shapes] * n
+        # the formations whose ellipses each robot does not keep out of: a lifelong team's members
+        # on their way to its slots, kept apart by separation rows instead (``fleet.partners``)
+        self.allies: list[frozenset[str]] = [frozenset()] * n
 
     def commands(self, t: float, seen: Sequence[Sequence[float]], obs: list[Obstacle],
                  ) -> tuple[list[StepResult], dict]:
@@ -294,7 +299,8 @@ class FleetControl:
             ((ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], df, seen[j][2])
              for j, df in fleet.neighbours[i]),
             own, fname, waypoint,
-            [(name, e) for name, e in view.ellipses.items() if name != fname],
+            [(name, e) for name, e in view.ellipses.items()
+             if name != fname and name not in self.allies[i]],
             self.stalls[i], self.scenario.dt,
             [(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], seen[j][2])
              for j in range(self.n) if fleet.formation_of[j] != fname] if self.all_to_all else None,
@@ -310,7 +316,7 @@ class FleetControl:
                 return held
             controller = loc.controller(i, controller)
         return controller.step(inputs._replace(
-            pose=pose, goal=target, obstacles=view.obs, last_u=vel[i], shapes=self.scenario.shapes,
+            pose=pose, goal=target, obstacles=view.obs, last_u=vel[i], shapes=self.shapes[i],
             footprint=fleet.footprints[i]))
 
 

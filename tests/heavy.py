@@ -52,11 +52,13 @@ def entry_points() -> dict[int, str]:
     from formation.commands.bench import bench_command
     from runtime.testing import RouterProcess
     from simulator.inprocess import simulate
+    from simulator.lifelong import simulate_lifelong
     from tests.scenario_runs import summary_of
     from viewer.server import PageServer, View
 
     named: list[tuple[object, str]] = [
         (simulate, "runs a whole scenario (simulate)"),
+        (simulate_lifelong, "runs a whole scenario (simulate_lifelong)"),
         (summary_of, "runs a whole scenario (summary_of)"),
         (bench_method, "runs a whole scenario (bench_method)"),
         (bench_methods, "runs whole scenarios (bench_methods)"),

@@ -1,0 +1,785 @@
+"""Lifelong operation in process: a fleet serves transport orders, teams forming at run time.
+
+A scenario with a ``fleet`` (:mod:`scenario.lifelong`) has no fixed formations: every robot is a
+formation of one until an order's team takes it. Each tick, before the robots' commands:
+
+1. due orders are posted; a new load appears at its source once the source is free
+   (:func:`leader.orders.appears`); a load delivered to a sink leaves after its dwell;
+2. when a bidding round closes (every ``fleet.bid_window_s``), every idle robot bids for every
+   order open for bids (:func:`leader.orders.biddable`: the load rests, the destination is free
+   and then reserved) and the one allocation function runs over the bids, all delivered at the
+   close (:func:`leader.allocation.allocate`, or the greedy baseline); each team is committed
+   and its members start gathering;
+3. each member of a gathering team is routed to its slot as a formation of one; when all stand at
+   their slots (``goal_tolerance``) the team forms its formation (:func:`leader.team.plan_team`:
+   every pair of slots an edge, slot 0 leads), lifts for ``fleet.lift_s`` standing still, and
+   from then on the load is the formation's ``load``, carried as a rigid body to the
+   destination; within 5 cm and 3 degrees of it the team stands for ``lift_s`` again, the load
+   rests there and the team dissolves: its robots leave the load and park (the nearest free
+   parking spot, else a point clear of the load) or take the next order;
+4. a member killed (:class:`LifelongOptions` ``kills``) stands where it is from then on; a team
+   that has lifted sets the load down where it stands (a resting load off any station) and its
+   order fails with ``member lost: RID``; before the lift the order waits again.
+
+A resting load is a body for every robot and formation: a box among the walls and shelves
+(``shapes``), for the footprint planner and the CBF rows alike, except for its own team on the
+way into its slots and for a robot that stands under it when it comes to rest, until it is out.
+
+The formations change at run time; the controllers do not: whenever the set of formations or a
+robot's goal or view of the loads changes, this module builds the scenario of that moment (the
+fleet's robots grouped into the current formations, starting where they stand) and a fresh
+:class:`simulator.inprocess.FleetControl` for it, and carries each robot's last command over.
+One :class:`simulator.tick.FleetTick` moves, records and checks the whole fleet throughout.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from agent import double_integrator
+from agent.control import StepResult
+from geometry.polygon import polygon_distance
+from geometry.shapes import Shape, box, shape_distance
+from leader import allocation
+from leader import orders as lo
+from leader.navigation import Follower, heading_tolerance
+from leader.team import TeamPlan, load_pose, plan_team, pose_error, slot_points
+from scenario import Scenario, stream
+from scenario.cargo import load_clearances
+from scenario.lifelong import SINK, Lifelong, LoadType, Order
+from scenario.model import Edge, FormationSpec, RobotSpec
+from scenario.routes import start_plan
+
+from .inprocess import FleetControl, QPStats, SimOptions, obstacles_at, record, summarise
+from .orders_out import orders_block, write_order_files
+from .output import lost_words, write_run
+from .series import Series
+from .tick import FleetTick, Pose
+
+SET_DOWN_M = 0.05  # [m] a load is set down this near its station
+SET_DOWN_RAD = math.radians(3.0)  # [rad] and turned this near its heading
+STUCK_M = 0.05  # [m] a team that moves less than this ...
+STUCK_S = 120.0  # [s] ... in this long is stuck
+LOAD_MARGIN = 0.045  # [m] a resting load's safe distance beyond the robot's radius
+EXIT_GAP = 0.15  # [m] a robot leaving a load stops this far beyond its outline
+CONTACT_TOL = 1e-3  # [m] a body this far inside another is a contact
+ALLY_REACH = 0.5  # [m] gathering members this near their slots keep apart by separation rows
+ALLOCATORS = {"allocate": allocation.allocate, "greedy": allocation.greedy_nearest}
+
+
+@dataclass(frozen=True)
+class LifelongOptions:
+    """How a lifelong run is served: ``allocator`` (``allocate`` or the ``greedy`` baseline)
+    and robots to kill (robot id -> time [s])."""
+
+    allocator: str = "allocate"
+    kills: tuple[tuple[str, float], ...] = ()
+
+
+@dataclass
+class LoadState:
+    """Where a load is: its pose, ``state`` (resting, carried, gone), its station ("" off any)
+    and the order moving it ("" none)."""
+
+    name: str
+    type: str
+    pose: Pose
+    station: str
+    state: str = "resting"
+    order: str = ""
+    leaves: float = math.inf  # [s] at a sink: when it goes
+
+
+@dataclass
+class Crew:
+    """An order's team at work: its roster, slots and moves, its formation once formed, and
+    what the stuck rule remembers (the members' positions and when they were last that far)."""
+
+    oid: str
+    robots: tuple[str, ...]
+    slots: tuple[tuple[float, float], ...]
+    src: Pose
+    dst: Pose
+    plan: TeamPlan | None = None
+    since: float = 0.0  # [s] the current phase began
+    ref: list[tuple[float, float]] = field(default_factory=list)
+    ref_t: float = 0.0
+
+
+@dataclass
+class Checks:
+    """What the run measures of its loads for the acceptance checks."""
+
+    lift_error_m: float = 0.0  # the farthest member from its slot at a lift
+    set_down_m: float = 0.0  # the farthest a delivered load rests from its station
+    set_down_rad: float = 0.0
+    carried_clearance_m: float = math.inf  # a carried load's least clearance to any body
+    load_contacts: int = 0  # ticks a carried load touched a body
+    intrusions: int = 0  # robot-ticks inside a resting load it had no business under
+    stuck: set[str] = field(default_factory=set)
+
+
+def solo(rid: str, pose: Pose, goal: tuple[float, float], still: bool = False) -> FormationSpec:
+    """A robot as a formation of one, named by its id; ``still``: one standing at its goal,
+    given the goal as its route (nothing to plan)."""
+    return FormationSpec(rid, rid, (RobotSpec(rid, rid, pose, goal),), (), None,
+                         waypoints=(goal,) if still else ())
+
+
+def team_formation(plan: TeamPlan, poses: dict[str, Pose], outline: Sequence[tuple[float, float]]
+                   ) -> FormationSpec:
+    """The team's formation starting at ``poses``, carrying the load of world ``outline``
+    (placed in the start frame: origin at the members' centroid)."""
+    n = len(plan.robots)
+    cx = sum(poses[r][0] for r in plan.robots) / n
+    cy = sum(poses[r][1] for r in plan.robots) / n
+    robots = tuple(RobotSpec(r, plan.oid, poses[r], g) for r, g in zip(plan.robots, plan.goals,
+                                                                        strict=True))
+    return FormationSpec(plan.oid, plan.leader, robots,
+                         tuple(Edge(i, j, df) for i, j, df in plan.edges), None,
+                         load=tuple((x - cx, y - cy) for x, y in outline))
+
+
+def load_box(name: str, t: LoadType, pose: Pose, ds: float) -> Shape:
+    """A resting load as a box shape (what the planner and the rows keep clear of)."""
+    return box(name, (pose[0], pose[1]), t.size, pose[2], ds)
+
+
+def inside_box(sh: Shape, x: float, y: float, margin: float) -> bool:
+    """True when (x, y) lies within ``margin`` of the box."""
+    return shape_distance(x, y, sh)[0] < margin
+
+
+def exit_point(load: Shape, p: tuple[float, float], clear: Callable[[float, float], bool],
+               gap: float) -> tuple[float, float]:
+    """Where a robot under ``load`` at ``p`` goes to be out: straight away from the load's
+    centre, else turned by steps of 45 degrees, to the first point ``clear`` allows."""
+    base = math.atan2(p[1] - load.cy, p[0] - load.cx)
+    reach = math.hypot(load.hx, load.hy) + gap
+    for k in (0, 1, -1, 2, -2, 3, -3, 4):
+        a = base + k * math.pi / 4
+        q = (load.cx + reach * math.cos(a), load.cy + reach * math.sin(a))
+        if clear(*q):
+            return q
+    return p
+
+
+class LifelongRun:
+    """One lifelong run of ``scenario`` (see the module docstring)."""
+
+    def __init__(self, scenario: Scenario, options: SimOptions, life_options: LifelongOptions,
+                 progress: Callable[[int, int, float], None] | None = None,
+                 tally: Callable[[int, int], None] | None = None) -> None:
+        life = scenario.lifelong
+        if life is None:
+            raise ValueError(f"{scenario.name}: no fleet (not a lifelong scenario)")
+        if scenario.formations:
+            raise ValueError(f"{scenario.name}: formations beside a fleet are not run yet")
+        if life_options.allocator not in ALLOCATORS:
+            raise ValueError(f"allocator: {life_options.allocator!r} is not one of "
+                             f"{tuple(ALLOCATORS)}")
+        self.life: Lifelong = life
+        self.options = options
+        self.allocate = ALLOCATORS[life_options.allocator]
+        self.ids = life.fleet.robot_ids
+        self.index = {r: k for k, r in enumerate(self.ids)}
+        starts = life.fleet.starts
+        self.base = replace(scenario, formations=tuple(solo(r, starts[r], starts[r][:2])
+                                                       for r in self.ids))
+        self.static = scenario.shapes
+        self.tally = tally  # told (delivered, posted) before each progress report
+        self.tick = FleetTick(self.base, None, False, progress, stop=self.finished)
+        self.state: list[Pose] = [starts[r] for r in self.ids]
+        self.ds = scenario.robot.radius + LOAD_MARGIN
+        self.orders: dict[str, lo.Order] = {}
+        self.due = sorted(life.orders, key=lambda o: (o.t, o.id))
+        self.yard = stream.initial_yard(life)
+        self.streamed = -1.0  # [s] the stream has posted its arrivals up to here
+        self.loads = {ld.name: LoadState(ld.name, ld.type, life.station(ld.at).pose, ld.at)
+                      for ld in life.loads}
+        self.crews: dict[str, Crew] = {}
+        self.role = dict.fromkeys(self.ids, "")
+        self.kills = dict(life_options.kills)
+        self.dead: dict[str, float] = {}
+        self.goal = {r: (starts[r][0], starts[r][1]) for r in self.ids}
+        self.leaving: dict[str, tuple[float, float]] = {}  # robot -> the point clear of a load
+        self.under: dict[str, set[str]] = {r: set() for r in self.ids}  # loads over a robot
+        self.load_rows: list[tuple] = []
+        self.busy_s = 0.0  # robot-seconds spent in a team
+        self.bounds: dict[str, float] = {}  # order -> its straight-line service bound [s]
+        self.checks = Checks()
+        self.stats = QPStats()
+        self.vel = [(0.0, 0.0)] * len(self.ids)
+        self.window = max(1, round(life.fleet.bid_window_s / scenario.dt))
+        self.dirty = True
+        self.control: FleetControl | None = None
+        self.scen = self.base
+        self.perm: list[int] = []
+        self.partners: tuple[tuple[int, ...], ...] = ()  # each robot's partners, as built
+
+    # --- the run --------------------------------------------------------------------------
+
+    def run(self) -> tuple[int, float]:
+        """Run to ``duration`` or until every order is done; (ticks, simulated time)."""
+        dt = self.base.dt
+        self.tick.start(self.state)
+        for ld in self.loads.values():
+            self.log_load(0.0, ld)
+        k, t = 0, 0.0
+        for k in range(self.base.steps):
+            t = k * dt
+            self.events(k, t)
+            if self.dirty:
+                self.rebuild()
+            before = self.state
+            results, ellipses, obs = self.commands(t)
+            self.state = self.tick.move(before, results)
+            if self.options.record:
+                record(self.tick, t, before, results, ellipses, obs)
+            t = (k + 1) * dt
+            self.watch(t)
+            if self.tally is not None:
+                self.tally(sum(1 for o in self.orders.values() if o.state == lo.DELIVERED),
+                           len(self.orders))
+            if self.tick.check(k, t, self.state):
+                break
+        return k + 1, t
+
+    def finished(self) -> bool:
+        """Every order posted and done, and no load on its way out of a sink."""
+        live = self.life.stream is not None and self.streamed < self.life.stream.until
+        return (not self.due and not live and all(o.done for o in self.orders.values())
+                and not any(math.isfinite(ld.leaves) and ld.state != "gone"
+                            for ld in self.loads.values()))
+
+    def events(self, k: int, t: float) -> None:
+        """What happens at ``t`` before the commands (module docstring, steps 1 to 4)."""
+        self.kill_due(t)
+        self.post_due(t)
+        self.leave_sinks(t)
+        self.appear(t)
+        if k % self.window == 0:
+            self.round(t)
+        for crew in sorted(self.crews.values(), key=lambda c: c.oid):
+            self.advance(crew, t)
+
+    # --- orders and loads -----------------------------------------------------------------
+
+    def post_due(self, t: float) -> None:
+        """The scenario's orders due by ``t``, then the stream's arrivals since the last tick
+        (:func:`scenario.stream.post`, over the warehouse as it is)."""
+        while self.due and self.due[0].t <= t + 1e-9:
+            self.post(self.due.pop(0), t)
+        if self.life.stream is None:
+            return
+        arrived, self.yard = stream.post(self.life, self.streamed, t, self.yard_now())
+        self.streamed = t
+        for spec in arrived:
+            self.post(spec, t)
+
+    def post(self, spec: Order, t: float) -> None:
+        if spec.type is not None:
+            kind = spec.type
+        elif spec.load_name in self.loads:
+            kind = self.loads[spec.load_name].type
+        else:
+            kind = self.life.type_of_load(spec.load_name).name
+        order = lo.Order(spec.id, kind, spec.load_name, spec.from_ or "", spec.to,
+                         spec.priority, fresh=spec.type is not None)
+        self.orders[spec.id] = lo.step(order, lo.Event(lo.POST, t))
+        self.dirty = True  # idle robots keep clear of where its load is due
+
+    def yard_now(self) -> stream.Yard:
+        """The warehouse as the stream sees it: loads at stations, stations open orders hold
+        (destinations, and the source of a new load until it is lifted), loads they claim."""
+        open_ = [o for o in self.orders.values() if not o.done]
+        held = {o.dst for o in open_} | {
+            o.src for o in open_ if o.fresh and o.src and o.state in (
+                lo.WAITING, lo.ASSIGNED, lo.GATHERING, lo.LIFTING)}
+        return replace(self.yard, resting=self.resting_at(), held=frozenset(held),
+                       claimed=frozenset(o.load for o in open_))
+
+    def resting_at(self) -> dict[str, str]:
+        """Station -> the load resting there."""
+        return {ld.station: ld.name for ld in self.loads.values()
+                if ld.state == "resting" and ld.station}
+
+    def appear(self, t: float) -> None:
+        """New loads appear at their free sources, where no body is in the way (a robot, or
+        a load just lifted there)."""
+        for order in sorted(self.orders.values(), key=lo.precedence):
+            if order.load not in self.loads and lo.appears(order, self.resting_at()) \
+                    and self.room(order):
+                pose = self.life.station(order.src).pose
+                self.loads[order.load] = ld = LoadState(order.load, order.type, pose, order.src)
+                self.log_load(t, ld)
+                self.dirty = True
+
+    def room(self, order: lo.Order) -> bool:
+        """True when nothing stands where ``order``'s new load would appear."""
+        kind = self.life.load_type(order.type)
+        pose = self.life.station(order.src).pose
+        sh = load_box(order.load, kind, pose, self.ds)
+        r0 = self.base.robot.radius
+        if any(inside_box(sh, s[0], s[1], r0 + EXIT_GAP) for s in self.state):
+            return False
+        outline = slot_points(pose, kind.outline)
+        return all(polygon_distance(outline, self.outline_of(ld)) > EXIT_GAP
+                   for ld in self.loads.values() if ld.state == "carried")
+
+    def outline_of(self, ld: LoadState) -> tuple[tuple[float, float], ...]:
+        """The load's outline in the world, where it is now."""
+        return slot_points(ld.pose, self.life.load_type(ld.type).outline)
+
+    def leave_sinks(self, t: float) -> None:
+        for ld in self.loads.values():
+            if ld.state == "resting" and ld.leaves <= t + 1e-9:
+                ld.state, ld.station = "gone", ""
+                self.log_load(t, ld)
+                self.dirty = True
+
+    def log_load(self, t: float, ld: LoadState) -> None:
+        """loads.csv's row of ``ld`` at ``t``."""
+        self.load_rows.append((t, ld.name, ld.type, ld.pose[0], ld.pose[1], ld.pose[2],
+                               ld.state, ld.station, ld.order))
+
+    # --- bidding rounds -------------------------------------------------------------------
+
+    def round(self, t: float) -> None:
+        """A round closes: every idle robot bids for every open order, all bids delivered."""
+        window = self.life.fleet.bid_window_s
+        ripe = [o for o in self.orders.values()
+                if o.state != lo.WAITING or t - (o.t_posted or 0.0) >= window - 1e-9]
+        resting = {n: ld.station for n, ld in self.loads.items() if ld.state == "resting"}
+        open_ = [o for o in lo.biddable(ripe, self.resting_at(), resting)
+                 if o.state == lo.WAITING]
+        idle = {r: (self.state[self.index[r]][0], self.state[self.index[r]][1])
+                for r in self.ids if not self.role[r] and r not in self.dead}
+        if not open_ or not idle:
+            return
+        slots = {o.oid: slot_points(self.loads[o.load].pose,
+                                    self.life.load_type(o.type).slots) for o in open_}
+        bids_for = [allocation.OpenOrder(o.oid, slots[o.oid], o.priority, o.t_posted or 0.0)
+                    for o in open_]
+        result = self.allocate(bids_for, allocation.bids_from_positions(bids_for, idle))
+        for oid in sorted(result.teams):
+            self.assign(t, self.orders[oid], result.teams[oid].robots, slots[oid])
+
+    def assign(self, t: float, order: lo.Order, robots: tuple[str, ...],
+               slots: tuple[tuple[float, float], ...]) -> None:
+        ld = self.loads[order.load]
+        if not order.src:
+            order = replace(order, src=ld.station)
+        order = lo.step(lo.step(order, lo.Event(lo.ASSIGN, t, robots)), lo.Event(lo.JOIN, t))
+        self.orders[order.oid] = order
+        dst = self.life.station(order.dst).pose
+        at = self.positions(robots)
+        self.crews[order.oid] = Crew(order.oid, robots, slots, ld.pose, dst, since=t,
+                                     ref=at, ref_t=t)
+        # the straight-line bound of the service: the farthest member to its slot, then the carry
+        self.bounds[order.oid] = (max(math.dist(p, q) for p, q in zip(at, slots, strict=True))
+                                  + math.dist(ld.pose[:2], dst[:2])) / self.base.robot.max_speed
+        ld.order = order.oid
+        self.log_load(t, ld)
+        for r, s in zip(robots, slots, strict=True):
+            self.role[r] = order.oid
+            self.goal[r] = s
+            self.leaving.pop(r, None)
+        self.dirty = True
+
+    # --- a team's phases ------------------------------------------------------------------
+
+    def advance(self, crew: Crew, t: float) -> None:
+        """The team's next phase, when its condition holds."""
+        state = self.orders[crew.oid].state
+        lift = self.life.fleet.lift_s
+        if state == lo.GATHERING and self.gathered(crew):
+            self.lift(crew, t)
+        elif state == lo.LIFTING and t - crew.since >= lift - 1e-9:
+            self.lifted(crew, t)
+        elif state == lo.CARRYING and self.arrived(crew):
+            self.move_order(crew.oid, lo.Event(lo.ARRIVED, t))
+            crew.since = t
+        elif state == lo.SETTING_DOWN and t - crew.since >= lift - 1e-9:
+            self.set_down(crew, t)
+
+    def positions(self, robots: Sequence[str]) -> list[tuple[float, float]]:
+        return [(self.state[self.index[r]][0], self.state[self.index[r]][1]) for r in robots]
+
+    def gathered(self, crew: Crew) -> bool:
+        tol = self.base.goal_tolerance
+        return all(math.dist(p, s) <= tol
+                   for p, s in zip(self.positions(crew.robots), crew.slots, strict=True))
+
+    def arrived(self, crew: Crew) -> bool:
+        """The load is within the set-down tolerance of its station and every member at its
+        goal (the load as near its station as the members can bring it)."""
+        assert crew.plan is not None
+        d, a = pose_error(self.loads[self.orders[crew.oid].load].pose, crew.dst)
+        tol = self.base.goal_tolerance
+        return d <= SET_DOWN_M and a <= SET_DOWN_RAD and all(
+            math.dist(p, g) <= tol for p, g in zip(self.positions(crew.robots), crew.plan.goals,
+                                                   strict=True))
+
+    def move_order(self, oid: str, event: lo.Event) -> lo.Order:
+        self.orders[oid] = order = lo.step(self.orders[oid], event)
+        return order
+
+    def lift(self, crew: Crew, t: float) -> None:
+        order = self.move_order(crew.oid, lo.Event(lo.GATHERED, t))
+        at = self.positions(crew.robots)
+        kind = self.life.load_type(order.type)
+        crew.plan = plan_team(crew.oid, crew.robots, kind.slots, kind.outline, at,
+                              (crew.src, crew.dst))
+        self.checks.lift_error_m = max(self.checks.lift_error_m,
+                                       *(math.dist(p, s) for p, s in zip(at, crew.slots,
+                                                                         strict=True)))
+        crew.since = t
+        self.dirty = True
+
+    def lifted(self, crew: Crew, t: float) -> None:
+        order = self.move_order(crew.oid, lo.Event(lo.LIFTED, t))
+        ld = self.loads[order.load]
+        ld.state, ld.station = "carried", ""
+        self.log_load(t, ld)
+        crew.since, crew.ref, crew.ref_t = t, self.positions(crew.robots), t
+        self.dirty = True
+
+    def set_down(self, crew: Crew, t: float) -> None:
+        order = self.move_order(crew.oid, lo.Event(lo.SET_DOWN, t))
+        ld = self.loads[order.load]
+        d, a = pose_error(ld.pose, crew.dst)
+        self.checks.set_down_m = max(self.checks.set_down_m, d)
+        self.checks.set_down_rad = max(self.checks.set_down_rad, a)
+        station = self.life.station(order.dst)
+        ld.state, ld.station, ld.order = "resting", station.name, ""
+        if station.kind == SINK:
+            ld.leaves = t + station.dwell_s
+        self.log_load(t, ld)
+        self.dissolve(crew)
+
+    def dissolve(self, crew: Crew) -> None:
+        for r in crew.robots:
+            self.role[r] = ""
+        del self.crews[crew.oid]
+        self.dirty = True
+
+    # --- faults ---------------------------------------------------------------------------
+
+    def kill_due(self, t: float) -> None:
+        for rid, when in sorted(self.kills.items()):
+            if rid not in self.dead and t >= when - 1e-9:
+                self.dead[rid] = t
+                self.goal[rid] = self.positions([rid])[0]
+                self.dirty = True
+                if self.role[rid]:
+                    self.lose(self.crews[self.role[rid]], rid, t)
+
+    def lose(self, crew: Crew, rid: str, t: float) -> None:
+        """A member is lost: before the lift the order waits again; after it the load rests
+        where it stands and the order fails."""
+        order = self.move_order(crew.oid, lo.Event(lo.LOST, t, who=rid))
+        ld = self.loads[order.load]
+        ld.order = ""
+        if ld.state == "carried":
+            ld.state = "resting"
+        self.log_load(t, ld)
+        self.dissolve(crew)
+
+    # --- the formations of the moment -----------------------------------------------------
+
+    def held(self, rid: str) -> bool:
+        """A robot that stands still this tick: dead, or lifting or setting a load down."""
+        oid = self.role[rid]
+        return rid in self.dead or (bool(oid) and self.orders[oid].state in (lo.LIFTING,
+                                                                             lo.SETTING_DOWN))
+
+    def boxes(self) -> dict[str, Shape]:
+        """Every resting load as a box."""
+        return {n: load_box(n, self.life.load_type(ld.type), ld.pose, self.ds)
+                for n, ld in self.loads.items() if ld.state == "resting"}
+
+    def exempt(self, rid: str) -> set[str]:
+        """The resting loads robot ``rid`` may be under: its team's on the way in, and any it
+        stands under."""
+        oid = self.role[rid]
+        own = {self.orders[oid].load} if oid and self.orders[oid].state in (
+            lo.GATHERING, lo.LIFTING) else set()
+        return own | self.under[rid]
+
+    def idle_goals(self, boxes: dict[str, Shape]) -> None:
+        """Where each idle robot goes: out from under a load or from where a load is due
+        (:meth:`keep_clear`), else its parking spot (the nearest free one), else where it
+        stands."""
+        r0 = self.base.robot.radius
+        taken = {self.goal[r] for r in self.ids if self.role[r] or r in self.dead}
+        due = self.keep_clear()
+        for rid in self.ids:
+            if self.role[rid] or rid in self.dead:
+                continue
+            p = self.positions([rid])[0]
+            over = [sh for n, sh in boxes.items() if n in self.under[rid]] + [
+                sh for sh in due if inside_box(sh, p[0], p[1], r0 + EXIT_GAP)]
+            if over and rid not in self.leaving:
+                self.leaving[rid] = exit_point(over[0], p, self.clear_point, EXIT_GAP + r0)
+            self.goal[rid] = self.leaving.get(rid) or self.park(rid, p, taken)
+            taken.add(self.goal[rid])
+
+    def keep_clear(self) -> list[Shape]:
+        """Where loads are due: the source of each new load not there yet, the destination of
+        each order a team holds (as the load's box there)."""
+        out = []
+        for o in self.orders.values():
+            kind = self.life.load_type(o.type)
+            if o.fresh and o.state == lo.WAITING and o.load not in self.loads:
+                out.append(load_box(o.oid, kind, self.life.station(o.src).pose, self.ds))
+            elif o.state in lo.TEAMED:
+                out.append(load_box(o.oid, kind, self.life.station(o.dst).pose, self.ds))
+        return out
+
+    def park(self, rid: str, p: tuple[float, float], taken: set[tuple[float, float]]
+             ) -> tuple[float, float]:
+        """Robot ``rid``'s parking spot: the one it has, else the nearest free one, else
+        ``p``."""
+        spots = self.life.fleet.parking
+        if self.goal[rid] in spots and self.goal[rid] not in taken:
+            return self.goal[rid]
+        free = [s for s in spots if s not in taken]
+        return min(free, key=lambda s: math.dist(s, p)) if free else p
+
+    def clear_point(self, x: float, y: float) -> bool:
+        """True when a robot may stand at (x, y): clear of every wall, shelf and resting load."""
+        r0 = self.base.robot.radius
+        shapes = list(self.static) + list(self.boxes().values())
+        return all(shape_distance(x, y, sh)[0] >= sh.ds + r0 for sh in shapes)
+
+    def rebuild(self) -> None:
+        """The scenario of this moment and a fresh controller for it (module docstring)."""
+        self.dirty = False
+        poses = {r: self.state[self.index[r]] for r in self.ids}
+        boxes = self.boxes()
+        for rid in self.ids:  # the loads each robot stands under now
+            x, y = poses[rid][0], poses[rid][1]
+            self.under[rid] = {n for n in self.under[rid] | set(boxes)
+                               if n in boxes and inside_box(boxes[n], x, y, self.base.robot.radius)}
+        self.idle_goals(boxes)
+        forms: list[FormationSpec] = []
+        for crew in sorted(self.crews.values(), key=lambda c: c.oid):
+            if crew.plan is not None:
+                forms.append(team_formation(crew.plan, poses, self.carried_outline(crew)))
+        teamed = {r for f in forms for r in f.robot_ids}
+        near = self.base.goal_tolerance
+        forms += [solo(r, poses[r], self.goal[r], math.dist(poses[r][:2], self.goal[r]) <= near)
+                  for r in self.ids if r not in teamed]
+        shapes = tuple(self.static) + tuple(boxes.values())
+        self.scen = scen = replace(self.base, formations=tuple(forms), shapes=shapes)
+        control = FleetControl(scen, self.options)
+        control.stats = self.stats
+        self.perm = [self.index[r] for r in scen.robot_ids]
+        control.vel = [self.vel[b] for b in self.perm]
+        for e, rid in enumerate(scen.robot_ids):
+            skip = self.exempt(rid)
+            if skip & set(boxes):
+                self.own_view(control, e, tuple(self.static) + tuple(
+                    sh for n, sh in boxes.items() if n not in skip))
+        self.partners = control.fleet.partners
+        self.control = control
+        self.tick.formation_of = tuple(scen.formation_of(r).name for r in self.ids)
+
+    def team_up(self, control: FleetControl) -> None:
+        """The members of a gathering team that are near their slots (:data:`ALLY_REACH`) keep
+        apart by separation rows (as members of one formation do), not by each other's
+        ellipses, so that they can stand at adjacent slots; farther out the ellipses keep them
+        apart as any two formations."""
+        at = {r: e for e, r in enumerate(control.scenario.robot_ids)}
+        partners = list(self.partners)
+        allies = [frozenset[str]()] * len(partners)
+        for crew in self.crews.values():
+            if crew.plan is not None:
+                continue
+            near = [r for r, s in zip(crew.robots, crew.slots, strict=True)
+                    if math.dist(self.positions([r])[0], s) <= ALLY_REACH]
+            for r in near:
+                mates = [m for m in near if m != r]
+                allies[at[r]] = frozenset(mates)
+                partners[at[r]] = tuple(at[m] for m in mates)
+        control.allies = allies
+        control.fleet = replace(control.fleet, partners=tuple(partners))
+
+    def carried_outline(self, crew: Crew) -> tuple[tuple[float, float], ...]:
+        order = self.orders[crew.oid]
+        return slot_points(self.loads[order.load].pose, self.life.load_type(order.type).outline)
+
+    def own_view(self, control: FleetControl, e: int, view: tuple[Shape, ...]) -> None:
+        """Robot ``e`` (a formation of one) keeps clear of ``view`` instead of every shape:
+        its rows, its start plan and its planner."""
+        control.shapes[e] = view
+        f = control.scenario.formation_of(control.scenario.robot_ids[e])
+        if len(f.robots) != 1:
+            return
+        plan = start_plan(replace(control.scenario, shapes=view), f)
+        control.routes[f.name] = plan.route
+        fp = control.fleet.footprints
+        control.followers[e] = Follower(
+            f.leader, f.robots[0].goal, f.goal_centroid, plan.route, plan.headings,
+            heading_tolerance(control.params.kp, fp[e].rho if fp else None))
+        driver = control.replans.drivers.get(f.name)
+        if driver is not None:
+            driver.replanner.shapes = view
+            driver.replanner.unreachable = plan.reason
+
+    def commands(self, t: float) -> tuple[list[StepResult], dict, list]:
+        """Every robot's command (base order): the formations' controller's, zero where held."""
+        assert self.control is not None
+        obs = obstacles_at(self.base, t)
+        self.team_up(self.control)
+        seen = [self.state[b] for b in self.perm]
+        res, ellipses = self.control.commands(t, seen, obs)
+        out: list[StepResult] = list(res)
+        for e, b in enumerate(self.perm):
+            r = res[e]
+            if self.held(self.ids[b]):
+                r = self.hold(r, b)
+                self.control.vel[e] = (r.ux, r.uy)
+            out[b] = r
+        self.vel = [(r.ux, r.uy) for r in out]
+        return out, ellipses, obs
+
+    def summary(self, sim_time: float) -> dict:
+        """summary.json's ``orders`` block (:func:`simulator.orders_out.orders_block`), the
+        stuck orders and the acceptance checks' measures."""
+        c = self.checks
+        block = orders_block(list(self.orders.values()), self.bounds, len(self.ids), sim_time,
+                             self.busy_s)
+        block["stuck"] = len(c.stuck)
+        block["checks"] = {
+            "lift_error_m": round(c.lift_error_m, 6), "set_down_m": round(c.set_down_m, 6),
+            "set_down_deg": round(math.degrees(c.set_down_rad), 6),
+            "carried_min_clearance_m": round(c.carried_clearance_m, 6)
+            if math.isfinite(c.carried_clearance_m) else None,
+            "load_contacts": c.load_contacts, "intrusions": c.intrusions,
+            "stuck_orders": sorted(c.stuck)}
+        return block
+
+    def hold(self, r: StepResult, b: int) -> StepResult:
+        """Robot ``b``'s command to stand still: zero, or for a double integrator the braking
+        acceleration (:func:`agent.double_integrator.brake`) and the velocity it leaves."""
+        robot = self.base.robot
+        if not robot.is_double_integrator:
+            return r._replace(ux=0.0, uy=0.0, v=0.0, omega=0.0)
+        dt = self.base.dt
+        vx, vy = self.tick.vel[b]
+        ax, ay = double_integrator.brake(vx, vy, robot.max_accel or math.inf, dt)
+        ux, uy = vx + ax * dt, vy + ay * dt
+        return r._replace(ux=ux, uy=uy, v=math.hypot(ux, uy), omega=0.0, ax=ax, ay=ay)
+
+    # --- after each tick ------------------------------------------------------------------
+
+    def watch(self, t: float) -> None:
+        """Carried loads follow their teams; the checks and the stuck rule look."""
+        dt = self.base.dt
+        self.busy_s += dt * sum(1 for r in self.ids if self.role[r])
+        for crew in sorted(self.crews.values(), key=lambda c: c.oid):
+            order = self.orders[crew.oid]
+            if order.state in (lo.CARRYING, lo.SETTING_DOWN) and crew.plan is not None:
+                ld = self.loads[order.load]
+                ld.pose = load_pose(crew.plan.starts, self.positions(crew.robots), crew.src)
+                self.log_load(t, ld)
+            self.stuck(crew, order.state, t)
+        self.look(t)
+
+    def stuck(self, crew: Crew, state: str, t: float) -> None:
+        if state not in (lo.GATHERING, lo.CARRYING):
+            return
+        now = self.positions(crew.robots)
+        if max(math.dist(a, b) for a, b in zip(now, crew.ref, strict=True)) >= STUCK_M:
+            crew.ref, crew.ref_t = now, t
+        elif t - crew.ref_t >= STUCK_S:
+            self.checks.stuck.add(crew.oid)
+
+    def look(self, t: float) -> None:
+        """Bodies against resting loads (a robot under one by no right intrudes; one that has
+        left the load it stood under sees it again) and carried loads against everything."""
+        boxes = self.boxes()
+        r0 = self.base.robot.radius
+        for rid in self.ids:
+            x, y = self.state[self.index[rid]][0], self.state[self.index[rid]][1]
+            allowed = self.exempt(rid)
+            for n, sh in boxes.items():
+                inside = inside_box(sh, x, y, r0 - CONTACT_TOL)
+                if inside and n not in allowed:
+                    self.checks.intrusions += 1
+                elif not inside and n in self.under[rid] and not inside_box(sh, x, y, r0):
+                    self.under[rid].discard(n)
+                    self.dirty = True
+            if rid in self.leaving and math.dist((x, y), self.leaving[rid]) <= \
+                    self.base.goal_tolerance:
+                del self.leaving[rid]
+        self.carried_contacts(t)
+
+    def carried_contacts(self, t: float) -> None:
+        outlines = []
+        carrying = {c.oid for c in self.crews.values()
+                    if self.orders[c.oid].state in (lo.CARRYING, lo.SETTING_DOWN)}
+        for f in self.scen.formations:
+            if f.name in carrying:
+                order = self.orders[f.name]
+                outlines.append(slot_points(self.loads[order.load].pose,
+                                            self.life.load_type(order.type).outline))
+            else:
+                outlines.append(())
+        if not carrying:
+            return
+        bodies = np.array([self.state[b][:2] for b in self.perm])
+        obs = [o.position(t) for o in self.base.obstacles]
+        least = min((c.clearance for c in load_clearances(self.scen, outlines, bodies, obs)),
+                    default=math.inf)
+        self.checks.carried_clearance_m = min(self.checks.carried_clearance_m, least)
+        if least < -CONTACT_TOL:
+            self.checks.load_contacts += 1
+
+
+@dataclass
+class LifelongResult:
+    """A lifelong run's summary, series and what its loads and orders did."""
+
+    summary: dict
+    series: Series
+    scenario: Scenario
+    run: LifelongRun
+
+
+def simulate_lifelong(scenario: Scenario, options: SimOptions | None = None,
+                      life_options: LifelongOptions | None = None,
+                      progress: Callable[[int, int, float], None] | None = None,
+                      tally: Callable[[int, int], None] | None = None) -> LifelongResult:
+    """Run the lifelong ``scenario`` in process (module docstring); ``tally(delivered,
+    posted)`` hears the orders' count before each ``progress`` report."""
+    options = options or SimOptions()
+    run = LifelongRun(scenario, options, life_options or LifelongOptions(), progress, tally)
+    end = run.run()
+    assert run.control is not None
+    summary = summarise(run.base, options, run.control, run.tick, end)
+    summary["all_reached"] = bool(run.orders) and all(
+        o.state == lo.DELIVERED for o in run.orders.values()) and not run.due
+    times = [o.t_delivered for o in run.orders.values() if o.t_delivered is not None]
+    summary["time_to_goal_s"] = round(max(times), 6) if summary["all_reached"] else None
+    summary["orders"] = run.summary(end[1])
+    return LifelongResult(summary, run.tick.series, run.base, run)
+
+
+def write_lifelong(result: LifelongResult, out: Path, plots: bool = True) -> list[dict[str, str]]:
+    """Every file of a lifelong run: the run's files (:func:`simulator.output.write_run`), then
+    orders.csv, loads.csv and orders.png; the files lost, as ``write_run`` returns them."""
+    lost = write_run(result.summary, result.series, result.scenario, out, plots=plots)
+    try:
+        write_order_files(out, list(result.run.orders.values()), result.run.load_rows, plots,
+                          result.summary["sim_time_s"])
+    except OSError as exc:
+        lost.append({"file": "orders.csv", "error": lost_words(exc)})
+    return lost

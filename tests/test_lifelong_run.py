@@ -1,0 +1,94 @@
+"""Lifelong operation in process (simulator.lifelong): each lifelong scenario runs and the load
+really moves (tests/lifelong_checks.py); a member lost while carrying fails its order with the
+load set down where it stands; the outputs' rows."""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import pytest
+
+from leader import orders as lo
+from scenario import load_scenario
+from simulator.lifelong import LifelongOptions, simulate_lifelong
+from simulator.orders_out import ORDER_COLUMNS, order_rows, orders_block, write_order_files
+from tests.lifelong_checks import check_all_delivered, check_safe
+
+HERE = Path(__file__).resolve().parent / "scenarios"
+# the quick ones: a single order each, a few seconds
+QUICK_STEMS = ("lifelong-one-pallet", "lifelong-beam-pair", "lifelong-forklift-cross-aisle",
+               "lifelong-resting-bodies")
+ALL = sorted((HERE / "lifelong").glob("*.yaml")) + sorted(HERE.glob("lifelong-*.yaml"))
+QUICK = [p for p in ALL if p.stem.startswith("one-") or p.stem in QUICK_STEMS]
+LONG = [p for p in ALL if p not in QUICK]
+
+
+@pytest.mark.parametrize("path", QUICK, ids=lambda p: p.stem)
+def test_every_order_is_delivered_safely(path):
+    check_all_delivered(simulate_lifelong(load_scenario(path)))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("path", LONG, ids=lambda p: p.stem)
+def test_every_order_of_a_longer_scenario_is_delivered_safely(path):
+    check_all_delivered(simulate_lifelong(load_scenario(path)))
+
+
+def test_a_member_lost_while_carrying_sets_the_load_down_where_it_stands():
+    scenario = load_scenario(HERE / "lifelong" / "one-pallet-si.yaml")
+    result = simulate_lifelong(scenario, life_options=LifelongOptions(kills=(("r2", 45.0),)))
+    check_safe(result)
+    order = result.run.orders["o1"]
+    assert order.state == lo.FAILED and order.reason == "member lost: r2"
+    assert order.t_lifted is not None and order.t_lifted < 45.0
+    load = result.run.loads["o1"]
+    assert load.state == "resting" and load.station == ""  # off any station, where it stood
+    dock = scenario.lifelong.station("dock").pose
+    assert math.dist(load.pose[:2], dock[:2]) > 0.5  # it had moved
+    assert result.summary["orders"]["failed"] == 1
+
+
+def test_the_greedy_baseline_serves_the_same_order():
+    scenario = load_scenario(HERE / "lifelong" / "one-beam-unicycle.yaml")
+    check_all_delivered(simulate_lifelong(scenario,
+                                          life_options=LifelongOptions(allocator="greedy")))
+
+
+def test_an_unknown_allocator_is_refused():
+    scenario = load_scenario(HERE / "lifelong" / "one-beam-unicycle.yaml")
+    with pytest.raises(ValueError, match="allocator"):
+        simulate_lifelong(scenario, life_options=LifelongOptions(allocator="best"))
+
+
+def delivered(oid: str, t0: float) -> lo.Order:
+    order = lo.step(lo.Order(oid, "pallet", oid, "dock", "rack", fresh=True),
+                    lo.Event(lo.POST, t0))
+    for k, kind in enumerate((lo.ASSIGN, lo.JOIN, lo.GATHERED, lo.LIFTED, lo.ARRIVED,
+                              lo.SET_DOWN)):
+        order = lo.step(order, lo.Event(kind, t0 + 10.0 * (k + 1), ("r1", "r2")))
+    return order
+
+
+def test_orders_csv_rows_are_sorted_with_empty_cells_for_times_not_reached(tmp_path):
+    waiting = lo.step(lo.Order("a", "beam", "a", "dock", "rack", fresh=True),
+                      lo.Event(lo.POST, 5.0))
+    write_order_files(tmp_path, [waiting, delivered("b", 0.0)], [], plots=False)
+    with (tmp_path / "orders.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert list(rows[0]) == list(ORDER_COLUMNS)
+    assert [r["id"] for r in rows] == ["b", "a"]
+    assert rows[0]["robots"] == "r1;r2" and rows[0]["state"] == "delivered"
+    assert rows[1]["t_assigned"] == "" and rows[1]["state"] == "waiting"
+    assert len(order_rows([waiting])) == 1
+
+
+def test_the_orders_block_counts_and_rates():
+    orders = [delivered("a", 0.0), delivered("b", 100.0)]
+    block = orders_block(orders, {"a": 30.0, "b": 30.0}, 4, 3600.0, 3600.0)
+    assert block["delivered"] == 2 and block["open"] == 0
+    assert block["delivered_per_robot_hour"] == pytest.approx(0.5)
+    assert block["latency_s"]["median"] == pytest.approx(60.0)
+    assert block["service_efficiency"]["median"] == pytest.approx(30.0 / 50.0)
+    assert block["idle_fraction"] == pytest.approx(0.75)
