@@ -190,7 +190,10 @@ def valid_scenario(seed: int, world: str | None = None, bounds: str | None = Non
 def run_one(seed: int, world: str | None = None, bounds: str | None = None,
             draw: str = CIRCLES, model: str | None = None, blind: Blind = NO_BLIND) -> dict:
     d, scenario, sub = valid_scenario(seed, world, bounds, draw, model, blind)
-    s = simulate(scenario, SimOptions(record=False)).summary
+    if scenario.lifelong is not None:
+        s, orders = lifelong_summary(scenario)
+    else:
+        s, orders = simulate(scenario, SimOptions(record=False)).summary, {}
     obstacle_clear = s["min_clearance_m"]["obstacle"]
     return {
         "seed": seed,
@@ -200,7 +203,8 @@ def run_one(seed: int, world: str | None = None, bounds: str | None = None,
         "robots": len(scenario.robot_ids),
         "all_reached": s["all_reached"],
         "time_to_goal_s": s["time_to_goal_s"],
-        "collisions": s["collisions"],
+        "collisions": s["collisions"] + orders.get("load_contacts", 0) + orders.get("intrusions", 0),
+        **({"orders": orders} if orders else {}),
         "formation_error_max_m": s["formation_error_max_m"],
         "epsilon": scenario.controller.epsilon,
         "min_clearance_obstacle_m": obstacle_clear,
@@ -211,6 +215,33 @@ def run_one(seed: int, world: str | None = None, bounds: str | None = None,
         **({"localisation": s["localisation"]} if "localisation" in s else {}),
         "scenario": d,
     }
+
+
+def lifelong_summary(scenario) -> tuple[dict, dict]:
+    """A lifelong run's summary, with ``all_reached`` only when every order was delivered and
+    none got stuck (a stuck order, its team not moving 0.05 m in 120 s, counts as a deadlock),
+    and its orders' totals: posted, delivered, failed, open, stuck, and the carried loads'
+    contacts and robots inside resting loads (both counted as collisions)."""
+    from simulator.lifelong import simulate_lifelong
+
+    s = simulate_lifelong(scenario, SimOptions(record=False)).summary
+    block = s["orders"]
+    orders = {k: block[k] for k in ("posted", "delivered", "failed", "open", "stuck")}
+    orders["load_contacts"] = block["checks"]["load_contacts"]
+    orders["intrusions"] = block["checks"]["intrusions"]
+    orders["service_efficiency_median"] = block["service_efficiency"]["median"] \
+        if block["service_efficiency"] else None
+    s["all_reached"] = s["all_reached"] and not block["stuck"]
+    return s, orders
+
+
+def orders_totals(results: list[dict]) -> dict:
+    """The lifelong draw's order totals over its runs."""
+    runs = [r["orders"] for r in results if "orders" in r]
+    totals = {k: sum(o[k] for o in runs) for k in ("posted", "delivered", "failed", "open",
+                                                  "stuck", "load_contacts", "intrusions")}
+    totals["runs_with_stuck_order"] = sum(1 for o in runs if o["stuck"])
+    return totals
 
 
 def _model_totals(runs: list[dict]) -> dict:
@@ -243,6 +274,8 @@ def run_montecarlo(n: int, seed: int, workers: int = 2, progress=None,
     run = partial(run_one, world=world, bounds=bounds, draw=draw, model=model, blind=blind)
     results = run_sweep(run, seeds, workers, scheduler, progress)
     summary = summarize(results, seed, world, draw, bounds, model)
+    if draw == LIFELONG:
+        summary["orders"] = orders_totals(results)
     if blind != NO_BLIND:
         summary["localisation"] = localisation_totals(results, blind)
     return summary, results

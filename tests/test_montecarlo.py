@@ -92,3 +92,19 @@ def test_a_double_integrator_run_records_the_model(tmp_path, capsys):
     assert summary["by_model"]["double_integrator"]["runs"] == 1
     assert summary["by_model"]["unicycle"]["runs"] == summary["by_model"]["single_integrator"]["runs"] == 0
     assert "double_integrator model" in capsys.readouterr().out
+
+
+@pytest.mark.integration
+def test_the_lifelong_draw_runs_its_orders_and_totals_them(tmp_path):
+    out = tmp_path / "mc"
+    assert main(["montecarlo", "--draw", "lifelong", "--n", "1", "--seed", "1", "--jobs", "1",
+                 "--out", str(out)]) == 0
+    summary = json.loads((out / "montecarlo.json").read_text())
+    (run,) = [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines()]
+    orders = run["orders"]
+    assert orders["posted"] > 0 and orders["delivered"] + orders["open"] + orders["failed"] \
+        == orders["posted"]
+    assert summary["orders"]["posted"] == orders["posted"]
+    assert summary["orders"]["stuck"] == orders["stuck"]
+    # every order delivered and none stuck is what "reached" means for a lifelong run
+    assert run["all_reached"] == (orders["delivered"] == orders["posted"] and not orders["stuck"])
