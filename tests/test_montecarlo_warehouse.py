@@ -80,14 +80,16 @@ def test_the_warehouse_draw_is_valid_deterministic_and_has_every_feature_for_50_
     assert all(seen.values()), seen  # every kind of obstacle, and a refused draw redrawn
 
 
-def test_a_layout_whose_goal_no_footprint_reaches_is_redrawn_not_counted_as_a_deadlock():
-    """montecarlo --draw warehouse --seed 2, run 200003 (and 300047 of seed 3): a 6-robot
-    formation with no route for its footprint at the start held for 300 s (`unreachable`, tried
-    again every 5 s): an impossible layout, which `formation check` would refuse, not a deadlock."""
+def test_a_layout_only_the_narrow_pass_routes_is_kept_not_redrawn():
+    """montecarlo --draw warehouse --seed 2, run 200003: a 6-robot formation for whose footprint
+    the lattice finds no way at the start (its passage is narrower than the lattice's margins).
+    The narrow pass (geometry.footprint_plan.plan_narrow) routes it, so the layout is a valid
+    draw and runs as drawn; a layout no footprint can route is still redrawn (the draw test
+    above sees redraws)."""
     s = parse_scenario(yaml.safe_dump(draw_layout(200003000, WAREHOUSE), sort_keys=False))
-    assert "formation 'b': no way for the footprint" in (warehouse_problem(s) or "")
-    _d, fine, sub = valid_scenario(200003, draw=WAREHOUSE)
-    assert sub == 200003001 and warehouse_problem(fine) is None
+    assert warehouse_problem(s) is None
+    _d, _s, sub = valid_scenario(200003, draw=WAREHOUSE)
+    assert sub == 200003000
 
 
 def test_a_unicycle_formation_of_the_warehouse_draw_starts_facing_along_its_aisle():
