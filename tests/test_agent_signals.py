@@ -143,6 +143,12 @@ def _reap(procs: dict, logs: dict) -> None:
         f.close()
 
 
+def _ends_in_zero(cmds, agent, lock) -> bool:
+    with lock:
+        got = cmds[agent]
+        return bool(got) and (got[-1].v, got[-1].omega, got[-1].ux, got[-1].uy) == (0.0,) * 4
+
+
 def test_sigterm_and_sigint_under_a_flood_end_in_zero_and_counters_for_every_agent(
         router, tmp_path):
     scenario = load_scenario(SCENARIO)
@@ -173,7 +179,12 @@ def test_sigterm_and_sigint_under_a_flood_end_in_zero_and_counters_for_every_age
             _start_agents(configs, stats, logs, tmp_path, procs)
             flood = Flood(session, starts)
             codes = _signal_under_the_flood(flood, procs, moving, cmds)
-            time.sleep(0.5)  # the last commands cross the router
+            # the last commands cross the router: wait until each agent's latest is the zero
+            # (a non-zero command put after it would stay the latest and fail below)
+            deadline = time.monotonic() + 15.0
+            while time.monotonic() < deadline and not all(_ends_in_zero(cmds, a, lock)
+                                                          for a in AGENTS):
+                time.sleep(0.05)
             assert flood.sent > 10_000
         finally:
             for sub in subs:
