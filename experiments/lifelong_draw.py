@@ -37,6 +37,8 @@ from geometry.limits import BURGER_MAX_SPEED, BURGER_RADIUS
 from scenario.model import Scenario
 from scenario.stream import plan
 
+from .warehouse_draw import outer_walls
+
 DURATION_S = 720.0  # [s] a run: at least 10 simulated minutes
 STREAM_S = 480.0  # [s] orders arrive until then
 MIN_ORDERS = 2  # a drawn stream posts at least this many orders
@@ -89,10 +91,7 @@ def draw_hall(rng: random.Random) -> Hall:
 
 def structure(hall: Hall) -> list[dict]:
     """The outer walls and each row's two shelves."""
-    w, h = hall.width / 2, hall.height / 2
-    out = [{"name": name, "segment": [[_r(a), _r(b)], [_r(c), _r(d)]], "safe_distance": WALL_DS}
-           for name, a, b, c, d in (("wall-n", -w, h, w, h), ("wall-s", -w, -h, w, -h),
-                                    ("wall-w", -w, -h, -w, h), ("wall-e", w, -h, w, h))]
+    out = outer_walls(hall.width, hall.height, WALL_DS)
     for k, y in enumerate(hall.rows):
         for j, (x0, x1) in enumerate(hall.shelves):
             out.append({"name": f"shelf-{k}{j}", "safe_distance": WALL_DS,

@@ -106,12 +106,18 @@ def _r(x: float) -> float:
     return round(x, 4)
 
 
+def outer_walls(width: float, height: float, safe_distance: float = WALL_DS) -> list[dict]:
+    """The four walls (segments) closing a ``width`` x ``height`` hall centred on the origin."""
+    w, h = width / 2, height / 2
+    return [{"name": name, "segment": [[_r(a), _r(b)], [_r(c), _r(d)]],
+             "safe_distance": safe_distance}
+            for name, a, b, c, d in (("wall-n", -w, h, w, h), ("wall-s", -w, -h, w, -h),
+                                     ("wall-w", -w, -h, -w, h), ("wall-e", w, -h, w, h))]
+
+
 def structure(hall: Hall) -> list[dict]:
     """The outer walls, and each row's shelves (boxes) or wall segments."""
-    w, h = hall.width / 2, hall.height / 2
-    out = [{"name": name, "segment": [[_r(a), _r(b)], [_r(c), _r(d)]], "safe_distance": WALL_DS}
-           for name, a, b, c, d in (("wall-n", -w, h, w, h), ("wall-s", -w, -h, w, -h),
-                                    ("wall-w", -w, -h, -w, h), ("wall-e", w, -h, w, h))]
+    out = outer_walls(hall.width, hall.height)
     for k, y in enumerate(hall.rows):
         for j, (x0, x1) in enumerate(hall.shelves):
             if k == hall.wall_row:
