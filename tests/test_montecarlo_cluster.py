@@ -44,13 +44,13 @@ def cluster(tmp_path: Path) -> Iterator[str]:
             client.wait_for_workers(2, timeout=120)
         yield address
     finally:
-        for p in reversed(procs):
+        for p in reversed(procs):  # the workers first, each closing while the scheduler answers
             p.terminate()
-        for p in procs:
             try:
                 p.wait(timeout=30)
             except subprocess.TimeoutExpired:
                 p.kill()
+                p.wait(timeout=30)
 
 
 def test_a_sweep_on_two_dask_workers_writes_what_a_local_run_writes(cluster, tmp_path, capsys):
