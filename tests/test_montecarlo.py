@@ -105,6 +105,7 @@ def test_the_lifelong_draw_runs_its_orders_and_totals_them(tmp_path):
     assert orders["posted"] > 0 and orders["delivered"] + orders["open"] + orders["failed"] \
         == orders["posted"]
     assert summary["orders"]["posted"] == orders["posted"]
+    assert run["robots"] > 0 and run["formations"] == 0  # a fleet's robots, no fixed formation
     assert summary["orders"]["stuck"] == orders["stuck"]
     # every order delivered and none stuck is what "reached" means for a lifelong run
     assert run["all_reached"] == (orders["delivered"] == orders["posted"] and not orders["stuck"])
