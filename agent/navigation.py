@@ -53,6 +53,8 @@ from wire.traffic import CountingPublisher, TrafficCounter
 
 logger = logging.getLogger(__name__)
 
+PLAN_EPS = 1e-9  # [s] stamps within this are the same tick's
+MAX_PENDING_PLANS = 8  # unhandled plans kept (the newest): a leader puts one a tick at most
 STATUS_PERIOD_S = 1.0  # [s] status publication period (stamp time: simulated in lock-step)
 REPUBLISH_S = 1.0  # [s] the leader puts its plan again this often
 STALLED_AFTER_S = 2.0  # [s] still this long away from the goal (agent.control.update_stall): stalled
@@ -149,7 +151,7 @@ class NavPart:
         self._shape_src: tuple[ShapeMsg, ...] = ()
         self._lock = threading.Lock()
         self._goal: GoalMsg | None = None  # newest unhandled goal (leader)
-        self._plan: PlanMsg | None = None  # newest unhandled plan (member)
+        self._plans: list[PlanMsg] = []  # unhandled plans, in arrival order (member)
         self._reports: dict[str, StatusMsg] = {}  # the other leaders' newest statuses (routes)
         self._sent = Sent()
         self._counter: TrafficCounter | None = None
@@ -232,7 +234,7 @@ class NavPart:
         if plan is not None:
             with self._lock:
                 if plan.formation == self.cfg.formation:
-                    self._plan = plan
+                    self._plans = [*self._plans[1 - MAX_PENDING_PLANS:], plan]
 
     def _on_status(self, sample: zenoh.Sample) -> None:  # Zenoh thread
         status = self._decoded(sample, decode_status, "status")
@@ -242,6 +244,19 @@ class NavPart:
             old = self._reports.get(status.formation)
             if old is None or status.stamp >= old.stamp:
                 self._reports[status.formation] = status
+
+    def _due_plans(self, stamp: float, lockstep: bool) -> list[PlanMsg]:
+        """The plans this tick adopts (under the lock). Real time: the newest. Lock-step: every
+        plan stamped before this tick, in order; one stamped this tick was put while this tick
+        runs and waits for the next, as the in-process simulator hands it, whether or not it has
+        already arrived."""
+        plans = self._plans
+        if not lockstep:
+            self._plans = []
+            return plans[-1:]
+        due = [p for p in plans if p.stamp < stamp - PLAN_EPS]
+        self._plans = [p for p in plans if p.stamp >= stamp - PLAN_EPS]
+        return due
 
     def reports(self, stamp: float, seen: Sequence[EllipseMsg]) -> dict[str, Other]:
         """The other formations in view as their leaders last reported them (statuses at most
@@ -281,12 +296,13 @@ class NavPart:
         other formations' ellipses)."""
         with self._lock:
             goal, self._goal = self._goal, None
-            plan, self._plan = self._plan, None
+            plans = self._due_plans(stamp, lockstep)
         nav = self.navigator
         if nav is not None and goal is not None:
             self._take_goal(nav, goal, stamp, lockstep, (cx, cy))
-        if plan is not None and self.follower.adopt(plan):
-            self.counts.plans += 1
+        for plan in plans:
+            if self.follower.adopt(plan):
+                self.counts.plans += 1
         self._centroid = (cx, cy)
         heading = None
         motion = (0.0, 0.0, 0.0)  # the formation's (Follower.step)
