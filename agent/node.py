@@ -435,6 +435,7 @@ class AgentNode:
             if old_cfg.leader is None and old_cfg.standby is not None:  # the old watch
                 gone.append(t.forget(leader_token_key(old_cfg.prefix, old_cfg.formation)))
             token = old_leader.take_token()
+            old_leader.role = None  # leads no more: a relisten it asked for changes nothing
         self._declare(t, old_nav, token, gone, add)
 
     def _declare(self, t: Transport, old_nav: NavPart, token: Any, gone: list[Any],
