@@ -20,7 +20,8 @@ every bidder of a lock-step run, and of a test's simulated network, agrees on it
   every member among them (a member's vote is its consent), it commits: it puts the roster as
   the order's status (``assigned``) and follows it. With no such majority ``release_after``
   ticks after the close, it releases the roster (status ``waiting`` naming the round and the
-  roster). Both are put again every ``repeat_every`` ticks while the order is in its view.
+  roster). Either is put on ``copies`` ticks in a row, then again every ``repeat_every``
+  ticks while the order is in its view.
 * **Why at most one roster per order, one order per robot.** Two committed rosters of one order
   would need two majorities of the fleet, which share a robot: in one round it votes once per
   order; across rounds it is bound until the release of the roster it voted for, and a
@@ -104,6 +105,7 @@ class Lead:
     voters: set[str] = field(default_factory=set)
     decision: OrderStatusMsg | None = None
     put_at: int = 0  # [tick] the decision was last put
+    decided_at: int = 0  # [tick]
 
 
 class Bidder:
@@ -281,14 +283,15 @@ class Bidder:
 
     def _decide(self, k: int) -> list[Message]:
         """The rosters this robot leads: commit on a majority, release after ``release_after``;
-        a decision put again every ``repeat_every`` ticks."""
+        a decision put on ``copies`` ticks in a row, then every ``repeat_every`` ticks."""
         s = self.settings
         out: list[Message] = []
         for key in sorted(self.leads):
             lead = self.leads[key]
             if lead.decision is None:
                 self._judge(lead, k)
-            if lead.decision is not None and k - lead.put_at >= s.repeat_every:
+            if lead.decision is not None and (k - lead.put_at >= s.repeat_every
+                                              or k - lead.decided_at < s.copies):
                 lead.put_at = k
                 out.append(lead.decision)
         return out
@@ -304,7 +307,7 @@ class Bidder:
         else:
             return
         lead.decision = OrderStatusMsg(lead.oid, state, lead.round, lead.roster, self.rid)
-        lead.put_at = -self.settings.repeat_every
+        lead.put_at, lead.decided_at = -self.settings.repeat_every, k
         if state == ASSIGNED:
             self._committed(lead.decision)
         else:
