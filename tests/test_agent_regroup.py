@@ -21,6 +21,7 @@ from scenario import Scenario, load_scenario
 from scenario.model import Edge, FormationSpec, RobotSpec
 from simulator.lifelong import solo
 from wire import keys, zconf
+from wire.payloads import Pose, encode
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIO = ROOT / "tests" / "scenarios" / "lifelong-beam-pair.yaml"
@@ -146,3 +147,38 @@ def test_over_zenoh_an_agent_goes_from_one_to_a_team_of_two_and_back_its_subscri
     one = {keys.pose_key(P, "f1"), keys.obstacles_key(P), BEACONS}
     assert [len(s) for s in seen] == [3, 4, 3]
     assert seen == [one, one | {keys.state_key(P, "f2")}, one]
+
+
+def test_in_lock_step_the_change_waits_for_the_next_tick(router: RouterProcess) -> None:
+    zs = ZenohSettings(mode="client", connect=(router.endpoint,))
+    cfg = build_agent_configs(alone(), zenoh=zs)["f2"]
+    peer = zenoh.open(zconf.make_config("client", connect=[router.endpoint],
+                                        connect_timeout_s=TIMEOUT_S))
+    pose = peer.declare_publisher(keys.pose_key(P, "f2"))
+    seen: list[set[str]] = []
+
+    async def main() -> None:
+        node = AgentNode(cfg, NodeOptions(lockstep=True, lockstep_timeout=0.1))
+        stop = asyncio.Event()
+        task = asyncio.create_task(node.run(stop))
+        loop = asyncio.get_running_loop()
+        try:
+            await loop.run_in_executor(None, wait_for_matching, pose, TIMEOUT_S)
+            node.regroup(memberships(teamed())["f2"])
+            await asyncio.sleep(0)
+            seen.append(set(node.subscribed_keys))  # no tick yet: as it was
+            pose.put(encode(Pose(0.3, -2.4, 0.0, 0.0)))  # the frame stamped 0
+            await loop.run_in_executor(None, wait_until, lambda: node.ticks >= 1, "a tick")
+            seen.append(set(node.subscribed_keys))
+        finally:
+            stop.set()
+            await asyncio.wait_for(task, TIMEOUT_S)
+
+    try:
+        asyncio.run(main())
+    finally:
+        pose.undeclare()
+        peer.close()
+    assert seen[0] == {keys.pose_key(P, "f2"), keys.obstacles_key(P), keys.ellipse_key(P, "f1")}
+    assert seen[1] == {keys.pose_key(P, "f2"), keys.obstacles_key(P), keys.state_key(P, "f1"),
+                       keys.others_key(P, "o1")}
