@@ -126,7 +126,8 @@ class Bidder:
         self.votes: list[BidMsg] = []  # this round's votes, put again until release_after
         self.leads: dict[tuple[str, int], Lead] = {}
         self.heard_votes: dict[tuple[str, int, tuple[str, ...]], set[str]] = {}
-        self.dropped = 0  # messages that name an unknown order, robot or round: ignored
+        self.now = start  # [tick] the last tick
+        self.dropped = 0  # bids of an unknown order, another round or the wrong size: ignored
         self.declined: list[str] = []
 
     # --- what it hears -------------------------------------------------------------------------
@@ -173,7 +174,8 @@ class Bidder:
 
     def _bid(self, msg: BidMsg) -> None:
         order = self.orders.get(msg.oid)
-        if order is None or len(msg.costs) != order.k:
+        coming = self.settings.next_close(self.now)
+        if order is None or len(msg.costs) != order.k or not coming <= msg.round <= coming + 1:
             self.dropped += 1
             return
         row = self.bids.setdefault(msg.round, {}).setdefault(msg.oid, {})
@@ -235,6 +237,7 @@ class Bidder:
         """Tick ``k``: the close of a round (votes), the leaders' decisions, then the bids for
         the coming round; what to put."""
         s = self.settings
+        self.now = k
         out: list[Message] = []
         if k % s.window == 0 and k // s.window >= self.first_round:
             out += self._close(k, k // s.window)

@@ -177,6 +177,8 @@ def test_a_vote_binds_its_robot_until_its_roster_is_released() -> None:
     b = Bidder("r1", BidderSettings(fleet_size=3, window=WINDOW, tick_s=TICK_S))
     b.order(OpenOrder("a", ((0.0, 0.0),)))
     b.hear(BidMsg("a", "r2", 1, "bid", (0.5,)))
+    b.hear(BidMsg("a", "r3", 5, "bid", (0.1,)))  # a bid of another round: ignored
+    assert b.dropped == 1
     b.tick(WINDOW - 1, (3.0, 0.0))
     votes = b.tick(WINDOW, (3.0, 0.0))  # r2 is nearer: r1 votes (r2,) and is bound to it
     assert [(v.phase, v.roster) for v in votes if isinstance(v, BidMsg)] == [("vote", ("r2",))]
