@@ -221,15 +221,16 @@ def test_a_late_robot_bids_from_the_next_round_and_a_restarted_one_takes_its_slo
     net.bidders["r0"] = late = Bidder("r0", s, start=5)  # joins in round 1's window
     late.order(orders[0])
     assert late.first_round == 2
-    net.run(WINDOW + 2, start=5)
-    assert not [m for m in late.tick(WINDOW + 2, positions[0])]  # it has not bid in round 1
-    net.run(2 * WINDOW + 2, start=WINDOW + 3)
-    ((_, roster),) = net.commits["a"]
-    assert "r0" not in roster or next(iter(net.commits["a"]))[0] == 2
-    restarted = Bidder(roster[0], s, start=2 * WINDOW + 5)
-    status = next(iter(net.bidders[roster[1]].taken.values()))
-    restarted.recall(orders[:1], [status])  # the queryable's answer
+    net.run(WINDOW + 3, start=5)
+    # the nearest robot sat round 1 out: the team is the one the others make without it
+    without = {r: p for r, p in net.positions.items() if r != "r0"}
+    roster = round_teams(orders[:1], without).teams["a"].robots
+    assert round_teams(orders[:1], net.positions).teams["a"].robots[0] == "r0"
+    assert net.commits == {"a": {(1, roster)}} and "r0" not in roster
+    restarted = Bidder(roster[0], s, start=WINDOW + 5)  # its leader restarts, memory lost
+    restarted.recall(orders[:1], [net.bidders[roster[1]].taken["a"]])  # the queryable's answer
     assert restarted.following == "a" and not restarted.idle
+    assert not restarted.tick(2 * WINDOW, positions[0])  # no bid, no vote: it is in a team
 
 
 def test_settings_and_majority_say_what_is_wrong() -> None:
