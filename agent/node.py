@@ -70,6 +70,14 @@ leaders and relays them on ``others``, so the other formations keep avoiding it 
 inflating a stale ellipse; it steps down when the token comes back (``takeovers``,
 ``acting_leader_ticks``).
 
+The formation is a value (:class:`agent.config.Membership`: the formation's name, graph,
+leader, successor, goals, route and footprint), fixed by the configuration at the start and
+replaced at run time by :meth:`AgentNode.regroup` (lifelong operation: a formation of one, a
+team, one again). The keys, the subscriptions, the leader part and the navigation are derived
+from it by the same code at the start and at each change; a change lands between two ticks (in
+lock-step at the start of the next tick), and only the subscriptions that differ are declared
+and undeclared.
+
 Malformed or non-finite payloads are dropped and counted per key class. On stop (SIGINT/SIGTERM
 in ``python -m agent``) the node publishes a zero command, undeclares everything and closes the
 session; :meth:`AgentNode.stats` holds every counter for the launcher.
