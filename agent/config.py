@@ -211,31 +211,56 @@ def _check_leader(where: str, settings: LeaderSettings | None) -> None:
         raise ValueError(f"{where}.{exc}") from None
 
 
-def build_agent_configs(
-    scenario: Scenario,
-    prefix: str = "warehouse",
-    zenoh: ZenohSettings | None = None,
-    topology: str = "reduced",
-    safety: bool = True,
-    base: str = "world",
-    pose_period: float | None = None,
-    clock_tolerance: float = CLOCK_TOLERANCE_S,
-    solver: str = "exact",
-) -> dict[str, AgentConfig]:
-    """One :class:`AgentConfig` per robot of ``scenario``. ``pose_period`` [s] is how often the
-    camera really delivers a pose (None: every ``dt``); the stale limit is
-    :data:`STALE_PERIODS` of the longer of the two, so the margins hold at the camera's rate."""
-    if pose_period is not None:
-        limits.check(pose_period, "pose_period", limits.POSE_PERIOD)
-    zenoh = zenoh or agent_zenoh()
-    params = ControlParams.from_scenario(scenario, safety=safety)
-    if pose_period is not None and pose_period > scenario.dt:
-        # ticks come with the poses: the unicycle's sampling margin is sized for their period
-        params = dataclasses.replace(params, period=pose_period)
+#: The fields of an :class:`AgentConfig` that say which formation the robot is in and what it
+#: does there (:class:`Membership`); every other field is the robot's own and never changes.
+MEMBERSHIP_FIELDS = ("formation", "leader_id", "goal", "formation_goal", "neighbours",
+                     "foreign_robots", "partners", "leader", "standby", "route", "route_headings",
+                     "route_by_hand", "member_goals", "footprint")
+
+
+@dataclass(frozen=True)
+class Membership:
+    """The agent's formation as one value, which the agent replaces at run time
+    (:meth:`agent.node.AgentNode.regroup`): a formation of one, then a team's graph, leader,
+    successor and load, then one again. Its fields are :class:`AgentConfig`'s of the same names
+    (:data:`MEMBERSHIP_FIELDS`); the listen set, the leader role and the successor are derived
+    from it the same way at the start and at every change."""
+
+    formation: str
+    leader_id: str
+    goal: tuple[float, float]
+    formation_goal: tuple[float, float]
+    neighbours: tuple[tuple[str, float], ...]
+    foreign_robots: tuple[str, ...] = ()
+    partners: tuple[str, ...] = ()
+    leader: LeaderSettings | None = None
+    standby: LeaderSettings | None = None
+    route: tuple[tuple[float, float], ...] = ()
+    route_headings: tuple[float | None, ...] = ()
+    route_by_hand: bool = False
+    member_goals: tuple[tuple[str, float, float], ...] = ()
+    footprint: Footprint | None = None
+
+
+def membership_of(cfg: AgentConfig) -> Membership:
+    """The formation part of ``cfg``."""
+    return Membership(**{name: getattr(cfg, name) for name in MEMBERSHIP_FIELDS})
+
+
+def joined(cfg: AgentConfig, membership: Membership) -> AgentConfig:
+    """``cfg`` in the formation ``membership`` (every check of the record runs again)."""
+    return dataclasses.replace(cfg, **{name: getattr(membership, name)
+                                       for name in MEMBERSHIP_FIELDS})
+
+
+def memberships(scenario: Scenario, topology: str = "reduced") -> dict[str, Membership]:
+    """Each robot's :class:`Membership` in the formations of ``scenario``: the leader's settings
+    on the formation's leader, the same settings as ``standby`` on its successor
+    (:func:`scenario.succession.formation_successor`), the route each formation starts with.
+    The agents' configurations at the start (:func:`build_agent_configs`) and the formation a
+    running agent changes to (the scenario of that moment) are both this function's."""
     off = scenario.robot.control_offset
-    box = world_extent(scenario)
-    extent = (box.xmin, box.ymin, box.xmax, box.ymax)
-    out: dict[str, AgentConfig] = {}
+    out: dict[str, Membership] = {}
     for f in scenario.formations:
         first = start_plan(scenario, f)
         route = first.route
@@ -250,38 +275,73 @@ def build_agent_configs(
         foreign = tuple(r for r in scenario.robot_ids if r not in f.robot_ids)
         heir = formation_successor(f)
         for r in f.robots:
-            out[r.id] = AgentConfig(
-                robot_id=r.id,
+            out[r.id] = Membership(
                 formation=f.name,
                 leader_id=f.leader,
                 goal=r.goal,
                 formation_goal=f.goal_centroid,
                 neighbours=f.neighbours(r.id),
+                foreign_robots=foreign if topology == "all-to-all" else (),
+                partners=tuple(m for m in f.robot_ids if m != r.id),
+                leader=leader if r.id == f.leader else None,
+                standby=leader if r.id == heir else None,
+                route=route if len(route) > 1 else (),
+                route_headings=first.headings if len(route) > 1 else (),
+                route_by_hand=bool(f.waypoints),
+                member_goals=(tuple((m.id, *m.goal) for m in f.robots) if r.id == f.leader
+                              else ()),
+                footprint=_footprint(scenario, f, r.id),
+            )
+    return out
+
+
+def build_agent_configs(
+    scenario: Scenario,
+    prefix: str = "warehouse",
+    zenoh: ZenohSettings | None = None,
+    topology: str = "reduced",
+    safety: bool = True,
+    base: str = "world",
+    pose_period: float | None = None,
+    clock_tolerance: float = CLOCK_TOLERANCE_S,
+    solver: str = "exact",
+) -> dict[str, AgentConfig]:
+    """One :class:`AgentConfig` per robot of ``scenario``: the robot's own settings joined with
+    its :class:`Membership` (:func:`memberships`). ``pose_period`` [s] is how often the
+    camera really delivers a pose (None: every ``dt``); the stale limit is
+    :data:`STALE_PERIODS` of the longer of the two, so the margins hold at the camera's rate."""
+    if pose_period is not None:
+        limits.check(pose_period, "pose_period", limits.POSE_PERIOD)
+    zenoh = zenoh or agent_zenoh()
+    params = ControlParams.from_scenario(scenario, safety=safety)
+    if pose_period is not None and pose_period > scenario.dt:
+        # ticks come with the poses: the unicycle's sampling margin is sized for their period
+        params = dataclasses.replace(params, period=pose_period)
+    box = world_extent(scenario)
+    extent = (box.xmin, box.ymin, box.xmax, box.ymax)
+    member = memberships(scenario, topology)
+    out: dict[str, AgentConfig] = {}
+    for f in scenario.formations:
+        for r in f.robots:
+            m = member[r.id]
+            out[r.id] = AgentConfig(
+                robot_id=r.id,
                 control=params,
                 period=scenario.dt,
                 radius=scenario.robot.radius,
                 start=r.start,
                 prefix=prefix,
                 topology=topology,
-                foreign_robots=foreign if topology == "all-to-all" else (),
-                partners=tuple(m for m in f.robot_ids if m != r.id),
-                leader=leader if r.id == f.leader else None,
-                standby=leader if r.id == heir else None,
                 stale_after=STALE_PERIODS * max(scenario.dt, pose_period or scenario.dt),
                 clock_tolerance=clock_tolerance,
                 pose_period=pose_period,
                 base=base,
                 zenoh=zenoh,
                 solver=solver,
-                route=route if len(route) > 1 else (),
-                route_headings=first.headings if len(route) > 1 else (),
-                route_by_hand=bool(f.waypoints),
-                member_goals=(tuple((m.id, *m.goal) for m in f.robots) if r.id == f.leader
-                              else ()),
                 planner=scenario.controller.planner != "none",
                 goal_tolerance=scenario.goal_tolerance,
-                footprint=_footprint(scenario, f, r.id),
                 extent=extent,
+                **{name: getattr(m, name) for name in MEMBERSHIP_FIELDS},
             )
     return out
 

@@ -158,7 +158,7 @@ class LeaderPart:
             except RuntimeError:  # loop closed: shutting down
                 pass
 
-        transport.keep(None, s.liveliness().declare_subscriber(token_key, on_token, history=True))
+        transport.keep(token_key, s.liveliness().declare_subscriber(token_key, on_token, history=True))
 
     def take_token(self) -> Any:
         """The liveliness token, to undeclare first on the way out (None if none)."""

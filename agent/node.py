@@ -70,6 +70,14 @@ leaders and relays them on ``others``, so the other formations keep avoiding it 
 inflating a stale ellipse; it steps down when the token comes back (``takeovers``,
 ``acting_leader_ticks``).
 
+The formation is a value (:class:`agent.config.Membership`: the formation's name, graph,
+leader, successor, goals, route and footprint), fixed by the configuration at the start and
+replaced at run time by :meth:`AgentNode.regroup` (lifelong operation: a formation of one, a
+team, one again). The keys, the subscriptions, the leader part and the navigation are derived
+from it by the same code at the start and at each change; a change lands between two ticks (in
+lock-step at the start of the next tick), and only the subscriptions that differ are declared
+and undeclared.
+
 Malformed or non-finite payloads are dropped and counted per key class. On stop (SIGINT/SIGTERM
 in ``python -m agent``) the node publishes a zero command, undeclares everything and closes the
 session; :meth:`AgentNode.stats` holds every counter for the launcher.
@@ -89,7 +97,7 @@ import zenoh
 
 from agent.base import Base, make_base
 from agent.clock import STATS_WINDOW, Clock, LockstepClock, RealtimeClock
-from agent.config import AgentConfig
+from agent.config import AgentConfig, Membership, joined, membership_of
 from agent.faults import EPS, LinkFaults
 from agent.inbox import RING_CAPACITY, Inbox, Receiver
 from agent.leader_step import LeaderPart
@@ -101,6 +109,7 @@ from agent.schedule import ClockLoop, LockstepLoop, PoseScheduler, TickGate
 from agent.stats import AgentStats
 from agent.tick import TRACE_COLUMNS, Ticker, TickParts, node_keys
 from agent.transport import CommandOut, Transport
+from leader.succession import leader_token_key
 from runtime.heap import freeze_startup
 from runtime.shutdown import STEP_LIMIT_S, undeclare_all, within
 from wire import keys
@@ -195,9 +204,12 @@ class AgentNode:
         self._cpu0 = time.process_time()
         self._wall0 = time.monotonic()
         self._stop: asyncio.Event | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._pending: AgentConfig | None = None  # a formation to change to (regroup)
+        self.regroups = 0  # formation changes made
 
     def _scheduler(self) -> LockstepLoop | PoseScheduler | ClockLoop:
-        cfg, tick, times = self.cfg, self.ticker.tick, self.ticker.times
+        cfg, tick, times = self.cfg, self._tick, self.ticker.times
         if isinstance(self.clock, LockstepClock):
             return LockstepLoop(tick, self.clock, self.inbox, (self.keys.pose, self.keys.obstacles),
                                 times)
@@ -294,6 +306,7 @@ class AgentNode:
     def open(self, loop: asyncio.AbstractEventLoop) -> None:
         """Open the session, declare publishers and the exact subscriptions."""
         self._stop = self._stop or asyncio.Event()
+        self._loop = loop
         if isinstance(self.clock, LockstepClock):
             self.clock.stop = self._stop
         session = self.open_session()
@@ -375,6 +388,92 @@ class AgentNode:
         publish the zero command unless :meth:`close` already did. True once it is sent
         (:meth:`agent.transport.CommandOut.emergency_zero`)."""
         return self.out.emergency_zero(self.last_stamp)
+
+    # --- the formation, a value replaced at run time -------------------------------------------
+
+    @property
+    def membership(self) -> Membership:
+        """The formation this agent is in now (:class:`agent.config.Membership`)."""
+        return membership_of(self.cfg)
+
+    def regroup(self, membership: Membership) -> None:
+        """Change to the formation ``membership`` (a formation of one, a team, one again): the
+        keys, the subscriptions, the leader role, the successor's watch and the navigation are
+        derived from it the same way as at the start. Refused (ValueError) before anything
+        changes when the record is invalid. Not yet open: at once. Lock-step: at the start of
+        the next tick (a lock-step tick waits for its inputs midway, so nothing changes under
+        it). Real time: on the event loop, between ticks (:meth:`apply_regroup`)."""
+        self._pending = joined(self.cfg, membership)
+        if self.out.transport is None:
+            self.apply_regroup()
+        elif not self.options.lockstep and self._loop is not None:
+            self._loop.call_soon_threadsafe(self.apply_regroup)
+
+    async def _tick(self, t: float | None) -> Any:
+        """The tick, after a formation change asked for in lock-step (:meth:`regroup`)."""
+        if self._pending is not None and self.options.lockstep:
+            self.apply_regroup()
+        return await self.ticker.tick(t)
+
+    def apply_regroup(self) -> None:
+        """Apply the formation asked for by :meth:`regroup`, on the loop's thread, as
+        :meth:`agent.leader_step.LeaderPart.relisten` changes subscriptions: what a tick reads is
+        swapped under the tick lock, subscribers and tokens are declared and undeclared outside
+        it (a Zenoh thread waiting to tick never waits on a declaration)."""
+        gate, inbox, t = self.gate, self.inbox, self.out.transport
+        with gate.lock:
+            cfg, self._pending = self._pending, None
+            if cfg is None or gate.closing:
+                return
+            old_cfg, old_leader, old_nav = self.cfg, self.leader, self.nav
+            self.cfg, self.keys = cfg, node_keys(cfg)
+            self.leader = LeaderPart(cfg, self.options.lockstep, self.options.ellipse_hold,
+                                     self.options.trace, inbox, self.clock, self.keys.neighbours)
+            self.leader.ellipse_trace, self.leader.inflated = (old_leader.ellipse_trace,
+                                                               old_leader.inflated)
+            self.nav = NavPart(cfg, leader=self.leader.leading)
+            want = self._subscription_keys()
+            if t is None:  # not open: nothing declared yet
+                self._swap_parts()
+                inbox.subscribed_keys.clear()
+                inbox.subscribed_keys.update(want)
+                return
+            gone = [inbox.forget(k) for k in list(inbox.subscribed_keys) if k not in want]
+            add = [(k, cls) for k, cls in want.items() if k not in inbox.subscribed_keys]
+            if old_cfg.leader is None and old_cfg.standby is not None:  # the old watch
+                gone.append(t.forget(leader_token_key(old_cfg.prefix, old_cfg.formation)))
+            token = old_leader.take_token()
+            old_leader.role = None  # leads no more: a relisten it asked for changes nothing
+        self._declare(t, old_nav, token, gone, add)
+
+    def _declare(self, t: Transport, old_nav: NavPart, token: Any, gone: list[Any],
+                 add: list[tuple[str, str]]) -> None:
+        """Outside the tick lock: undeclare the old formation's subscribers, token and
+        navigation, declare the new one's; then, under the lock, the ticks use them."""
+        rid, inbox, loop = self.cfg.robot_id, self.inbox, self._loop
+        assert loop is not None  # set by open()
+        within(STEP_LIMIT_S, f"{rid}: undeclaring {len(gone)} subscribers of the old formation",
+               lambda: undeclare_all([*([] if token is None else [token]), *gone]))
+        old_nav.close(self.last_stamp)
+        made = [(k, cls, *inbox.make(k, cls)) for k, cls in add]
+        for k in self.leader.publish_keys():
+            t.publisher(k)
+        self.nav.open(t.session, self.counter)
+        if self.nav.routes is not None and not self.options.lockstep:
+            plan_pool()
+        self.leader.open(t, loop, self.gate)
+        with self.gate.lock:
+            for k, cls, sub, take in made:
+                inbox.install(k, cls, sub, take)
+            self._swap_parts()
+        logger.info("%s: now in formation %s, subscribed to %s", rid, self.cfg.formation,
+                    ", ".join(self.subscribed_keys))
+
+    def _swap_parts(self) -> None:
+        """The ticks use this node's keys, leader part and navigation from now on."""
+        self.ticker.parts.leader, self.ticker.parts.nav = self.leader, self.nav
+        self.ticker.regroup(self.cfg, self.keys)
+        self.regroups += 1
 
     # --- life -----------------------------------------------------------------------------------
 

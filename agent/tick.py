@@ -151,6 +151,14 @@ class Ticker:
         self._ahead = 0.0  # [s] this tick's pose carried forward by its measured age (carried)
         self._inputs_of: dict[bool, list[tuple[str, str]]] = {}  # leading? -> _tick_inputs
 
+    def regroup(self, cfg: AgentConfig, node_keys: NodeKeys) -> None:
+        """Between ticks: tick in the formation of ``cfg`` from now on (its keys ``node_keys``);
+        the jam rule's memory starts afresh, the robot's own memory (velocity, stamps) stays."""
+        self.cfg = cfg
+        self.keys = node_keys
+        self._stall = Stall()
+        self._inputs_of.clear()
+
     async def tick(self, t: float | None) -> StepResult | None:
         """One control tick; ``t`` is the frame's stamp in lock-step, None in real time (only
         the clock reads it). The clock decides when ``state`` goes out: lock-step before the

@@ -42,7 +42,7 @@ Lost bids make views differ, so after a round each robot votes for the rosters i
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from itertools import permutations
 
@@ -118,6 +118,24 @@ def bids_from_positions(orders: Iterable[OpenOrder], robots: Mapping[str, Point]
     closing tick when no bid is lost)."""
     return [Bid(rid, order.oid, bid_costs(robots[rid], order.slots))
             for order in orders for rid in sorted(robots)]
+
+
+def joins_round(t_posted: float, close: float, window: float) -> bool:
+    """Whether an order posted at ``t_posted`` [s] is in the round that closes at ``close`` [s]:
+    the first round an order joins closes at least one bid ``window`` [s] after it was posted,
+    so every idle robot has the whole window to bid (docs/lifelong-design.md, section 4)."""
+    return close - t_posted >= window - 1e-9
+
+
+Allocator = Callable[[Sequence[OpenOrder], Iterable[Bid]], "Allocation"]
+
+
+def round_teams(orders: Sequence[OpenOrder], idle: Mapping[str, Point],
+                allocator: Allocator | None = None) -> Allocation:
+    """A round with every idle robot's default bid delivered (``idle``: robot -> where it
+    stands): what the in-process simulator decides at a round's close, and what the agents'
+    bidders commit when no message is lost (:mod:`agent.bidder`)."""
+    return (allocator or allocate)(orders, bids_from_positions(orders, idle))
 
 
 def _valid(bid: Bid, orders: Mapping[str, OpenOrder]) -> bool:

@@ -354,7 +354,7 @@ class LifelongRun:
         """A round closes: every idle robot bids for every open order, all bids delivered."""
         window = self.life.fleet.bid_window_s
         ripe = [o for o in self.orders.values()
-                if o.state != lo.WAITING or t - (o.t_posted or 0.0) >= window - 1e-9]
+                if o.state != lo.WAITING or allocation.joins_round(o.t_posted or 0.0, t, window)]
         resting = {n: ld.station for n, ld in self.loads.items() if ld.state == "resting"}
         open_ = [o for o in lo.biddable(ripe, self.resting_at(), resting)
                  if o.state == lo.WAITING]
@@ -366,7 +366,7 @@ class LifelongRun:
                                     self.life.load_type(o.type).slots) for o in open_}
         bids_for = [allocation.OpenOrder(o.oid, slots[o.oid], o.priority, o.t_posted or 0.0)
                     for o in open_]
-        result = self.allocate(bids_for, allocation.bids_from_positions(bids_for, idle))
+        result = allocation.round_teams(bids_for, idle, self.allocate)
         for oid in sorted(result.teams):
             self.assign(t, self.orders[oid], result.teams[oid].robots, slots[oid])
 
