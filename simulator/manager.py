@@ -17,21 +17,30 @@ Two parts, the math apart from the wire:
   ``order/*`` (clients' orders, cancels, priority changes) and ``order/*/status``, and answers
   the queries ``order/*`` (one reply per order: its message) and ``order/*/status`` (one per
   order: its last status). Malformed and forged samples (:func:`wire.orders.read_order_message`)
-  are dropped and counted.
+  are dropped and counted. ``formation run`` of a scenario with a fleet runs one in the
+  launcher's process, ticked by the world (:func:`run_manager`); ``python -m simulator.manager
+  SCENARIO --run DIR --connect EP [--auth FILE]`` runs one alone on the wall clock
+  (:func:`main`: a fleet of real robots, or a restart).
 
 The **journal** (``orders.journal`` in the run's folder) holds one JSON line per order message
-taken, per status seen and per advance of the stream; a manager started on the same folder
-replays it through the same functions, so a restarted manager loses no order and answers as
-before (docs/lifelong-design.md, "The fleet manager restarts").
+taken, per status seen and per advance of the stream (and, in real time, the clock's start); a
+manager started on the same folder replays it through the same functions, so a restarted
+manager loses no order and answers as before (docs/lifelong-design.md, "The fleet manager
+restarts").
 """
 
 from __future__ import annotations
 
+import argparse
+import contextlib
 import json
 import logging
+import math
+import signal
+import sys
 import threading
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -39,7 +48,7 @@ from typing import Any
 import zenoh
 
 from leader import orders as lo
-from scenario import stream
+from scenario import ScenarioError, load_scenario, stream
 from scenario.lifelong import SINK, SOURCE, STORE, Lifelong, Order
 from wire import keys
 from wire.orders import (
@@ -52,6 +61,7 @@ from wire.orders import (
     read_order_message,
 )
 from wire.reader import DecodeError
+from wire.zconf import ZenohSettings, open_session, read_auth_file
 
 logger = logging.getLogger(__name__)
 
@@ -78,6 +88,7 @@ class Book:
     entries: Mapping[str, Entry] = field(default_factory=dict)
     yard: stream.Yard = field(default_factory=stream.Yard)
     t: float = 0.0
+    start: float | None = None  # [s since the epoch] a real-time manager's t = 0
 
 
 def new_book(life: Lifelong) -> Book:
@@ -234,6 +245,8 @@ def replay(life: Lifelong, lines: Iterable[str]) -> Book:
 def _replay_one(life: Lifelong, book: Book, rec: Mapping[str, Any]) -> Book:
     t = float(rec["t"])
     book = replace(book, t=max(book.t, t))
+    if "start" in rec:
+        return replace(book, start=float(rec["start"]))
     if "order" in rec:
         return take_order(life, book, OrderMsg(**rec["order"]), t)
     if "status" in rec:
@@ -251,12 +264,13 @@ def _replay_one(life: Lifelong, book: Book, rec: Mapping[str, Any]) -> Book:
 class FleetManager:
     """The book on a Zenoh session (see the module docstring). ``folder``: the run's folder,
     where the journal is kept (read back first, so a restart continues it); ``stamp()``: the
-    stamp of what it puts (the run's clock). Call :meth:`tick` with the run's time [s];
+    stamp of what it puts (None: the run's time each :meth:`tick` is given, as in lock-step).
+    Call :meth:`tick` with the run's time [s];
     :meth:`close` undeclares everything (the session stays the caller's)."""
 
     def __init__(self, session: zenoh.Session, life: Lifelong, folder: Path,
                  prefix: str = keys.DEFAULT_PREFIX,
-                 stamp: Callable[[], float] = time.time) -> None:
+                 stamp: Callable[[], float] | None = time.time) -> None:
         self._session = session
         self._life = life
         self._prefix = keys.validate_prefix(prefix)
@@ -280,7 +294,8 @@ class FleetManager:
         """Post the orders due by ``t``; the messages put."""
         with self._lock:
             before = (self.book.yard.arrivals, self.book.yard.posted)
-            msgs, self.book = due(self._life, self.book, t, self._stamp())
+            stamp = t if self._stamp is None else self._stamp()
+            msgs, self.book = due(self._life, self.book, t, stamp)
             if (self.book.yard.arrivals, self.book.yard.posted) != before:
                 self._write(journal_line(t, "stream", {"arrivals": self.book.yard.arrivals,
                                                        "posted": self.book.yard.posted}))
@@ -295,6 +310,29 @@ class FleetManager:
         with self._lock:
             self._take(msg)
         self._session.put(order_key(self._prefix, msg.oid), encode_order(msg))
+
+    def begin(self, now: float) -> float:
+        """The wall-clock time [s since the epoch] of the book's t = 0: the journal's, or
+        ``now`` (journalled) for a new book. A real-time manager's run time is ``time.time() -
+        begin(...)``, so a restarted one goes on where it stopped."""
+        with self._lock:
+            start = self.book.start
+            if start is None:
+                start = now
+                self.book = replace(self.book, start=now)
+                self._write(journal_line(0.0, "start", now))
+            return start
+
+    def on_tick(self, then: Callable[[int, float], None] | None) -> Callable[[int, float], None]:
+        """A world's ``on_tick(k, t)`` that posts the orders due at ``t``, then calls ``then``
+        (another hook, or None)."""
+
+        def tick(k: int, t: float) -> None:
+            self.tick(t)
+            if then is not None:
+                then(k, t)
+
+        return tick
 
     def _take(self, msg: OrderMsg | OrderStatusMsg) -> None:
         """Take ``msg`` into the book (under the lock), journalled when it changed it."""
@@ -353,3 +391,77 @@ class FleetManager:
         self._declared = []
         with self._lock:
             self._journal.close()
+
+
+@contextlib.contextmanager
+def run_manager(life: Lifelong | None, folder: Path, endpoint: str, auth_file: Path | None,
+                realtime: bool) -> Iterator[FleetManager | None]:
+    """The fleet manager of ``formation run`` (None for a scenario without a fleet): on its own
+    client session to the run's router, logged in with the manager's credentials
+    (``auth_file``; None when insecure), its journal in ``folder``, stamping with the wall clock
+    in real time and the run's time in lock-step."""
+    if life is None:
+        yield None
+        return
+    auth = None if auth_file is None else read_auth_file(auth_file).auth
+    conf = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
+                         auth=auth).to_config()
+    with zenoh.open(conf) as session:
+        manager = FleetManager(session, life, folder, stamp=time.time if realtime else None)
+        try:
+            yield manager
+        finally:
+            manager.close()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m simulator.manager SCENARIO --run DIR --connect EP [--auth FILE]``: a fleet
+    manager alone, ticking every ``--period`` on the wall clock until SIGTERM or SIGINT; exit
+    2 with one line for a scenario without a fleet or bad options, 1 when no session opens."""
+    parser = argparse.ArgumentParser(prog="python -m simulator.manager",
+                                     description="the fleet manager of lifelong operation")
+    parser.add_argument("scenario", help="the run's scenario file (with a fleet)")
+    parser.add_argument("--run", required=True, metavar="DIR", help="where its journal is kept")
+    parser.add_argument("--connect", action="append", default=[], metavar="EP",
+                        help="Zenoh endpoint of the fleet's router")
+    parser.add_argument("--auth", default=None, metavar="FILE",
+                        help="the fleet manager's credentials (DIR/secure/manager.json5)")
+    parser.add_argument("--prefix", default=keys.DEFAULT_PREFIX, help="key-space prefix")
+    parser.add_argument("--period", type=float, default=0.1, metavar="S",
+                        help="post due orders this often [s]")
+    ns = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING)
+    try:
+        life = load_scenario(ns.scenario).lifelong
+        if life is None:
+            raise ValueError(f"{ns.scenario}: no fleet (a fleet manager serves lifelong scenarios)")
+        if not (math.isfinite(ns.period) and ns.period > 0):
+            raise ValueError("--period must be a positive number")
+        auth = None if ns.auth is None else read_auth_file(ns.auth).auth
+        settings = ZenohSettings(mode="client", connect=tuple(ns.connect),
+                                 multicast_scouting=False, auth=auth)
+        session = open_session(settings, "")
+    except (ScenarioError, ValueError) as exc:
+        print(f"simulator.manager: {exc}", file=sys.stderr)
+        return 2
+    except ConnectionError as exc:
+        print(f"simulator.manager: cannot open a Zenoh session: {exc}", file=sys.stderr)
+        return 1
+    Path(ns.run).mkdir(parents=True, exist_ok=True)
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda _s, _f: stop.set())
+    with session:
+        manager = FleetManager(session, life, Path(ns.run), ns.prefix)
+        start = manager.begin(time.time())
+        try:
+            while not stop.is_set():
+                manager.tick(time.time() - start)
+                stop.wait(ns.period)
+        finally:
+            manager.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

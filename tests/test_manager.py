@@ -5,7 +5,10 @@ samples, and a manager restarted mid-way answers the same queries."""
 
 from __future__ import annotations
 
+import os
 import queue
+import subprocess
+import sys
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -24,6 +27,7 @@ from simulator.manager import (
     message_fields,
     new_book,
     replay,
+    run_manager,
     take_order,
     take_status,
 )
@@ -222,3 +226,61 @@ def test_a_restarted_manager_answers_the_same_queries(router, tmp_path):
         sub.undeclare()
         leader.close()
         client.close()
+
+
+def test_the_launchers_manager_posts_on_the_worlds_tick_stamped_with_its_time(router, tmp_path):
+    calls: list[tuple[int, float]] = []
+    with run_manager(None, tmp_path, router.endpoint, None, realtime=False) as none:
+        assert none is None  # a scenario without a fleet runs as before
+    with session(router) as client, run_manager(LIFE, tmp_path, router.endpoint, None,
+                                                realtime=False) as manager:
+        assert manager is not None
+        manager.on_tick(lambda k, t: calls.append((k, t)))(200, 10.0)
+        found = ask(client, f"{P}/order/*", decode_order)
+    assert calls == [(200, 10.0)]
+    assert sorted(found) == ["o1", "o2", "o3"] and {m.stamp for m in found.values()} == {10.0}
+
+
+def start_manager(router: RouterProcess, folder: Path) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "simulator.manager", str(TESTS / "scenarios" / "lifelong-chained.yaml"),
+         "--run", str(folder), "--connect", router.endpoint],
+        env=dict(os.environ, PYTHONPATH=str(TESTS.parent)), stdin=subprocess.DEVNULL)
+
+
+def book_when(client: zenoh.Session, ready, limit_s: float = 60.0) -> dict[str, object]:
+    """The book's statuses, asked again (a query nobody answers returns at once) until
+    ``ready(book)`` holds; AssertionError after ``limit_s`` (a process that never came up)."""
+    gave_up = threading.Event()
+    timer = threading.Timer(limit_s, gave_up.set)
+    timer.start()
+    try:
+        while not gave_up.is_set():
+            found = ask(client, f"{P}/order/*/status", decode_order_status)
+            if ready(found):
+                return found
+            gave_up.wait(0.05)
+    finally:
+        timer.cancel()
+    raise AssertionError("the fleet manager's book never got ready")
+
+
+def test_the_manager_process_restarted_mid_way_answers_the_same_book(router, tmp_path):
+    with session(router) as client:
+        proc = start_manager(router, tmp_path)
+        try:
+            book_when(client, lambda b: {"o1", "o2"} <= set(b))
+            client.put(order_key(P, "m1"), encode_order(
+                OrderMsg("m1", "new", type="beam", source="in-2", to="rack-2", stamp=1.0)))
+            before = book_when(client, lambda b: "m1" in b)
+        finally:
+            proc.terminate()
+            assert proc.wait(30) == 0
+        proc = start_manager(router, tmp_path)
+        try:
+            after = book_when(client, lambda b: set(before) <= set(b))
+        finally:
+            proc.terminate()
+            assert proc.wait(30) == 0
+    assert {oid: after[oid] for oid in before} == before
+    assert before["m1"].state == "waiting"
