@@ -5,6 +5,7 @@ an allowed marker on the same session, so once the marker arrives the denied one
 
 from __future__ import annotations
 
+import json
 import os
 import queue
 import subprocess
@@ -143,3 +144,19 @@ def test_robots_and_the_manager_ask_the_book_and_a_viewer_may_not(router):
                 assert (replies == [b"book"]) is answered, user
         finally:
             queryable.undeclare()
+
+
+def test_a_runs_access_setup_gives_a_fleets_robots_their_credentials_and_the_order_rows(tmp_path):
+    from scenario.load import load_scenario
+    from simulator.access import secure_setup
+
+    scenario = load_scenario(ROOT / "tests" / "scenarios" / "lifelong-chained.yaml")
+    creds = secure_setup(scenario, tmp_path / "secure", "tcp/127.0.0.1:7447")
+    assert sorted(creds.files) == ["f1", "f2", "f3", "f4"]
+    conf = json.loads(creds.router_config.read_text(encoding="utf-8"))["access_control"]
+    rules = {r["id"]: r["key_exprs"] for r in conf["rules"]}
+    assert rules["f3-bid"] == [f"{P}/order/*/bid/f3"] and "manager-orders" in rules
+    plain = load_scenario(ROOT / "scenarios" / "warehouse.yaml")
+    conf = json.loads(secure_setup(plain, tmp_path / "plain", "tcp/127.0.0.1:7447")
+                      .router_config.read_text(encoding="utf-8"))["access_control"]
+    assert not any("order" in r["id"] for r in conf["rules"])
