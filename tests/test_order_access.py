@@ -10,14 +10,20 @@ import os
 import queue
 import subprocess
 import sys
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 import zenoh
 
+from formation.cli import main
 from runtime.testing import free_tcp_port, tcp_endpoint, wait_for_tcp_port
+from scenario.load import load_scenario
+from simulator.access import secure_setup
+from simulator.manager import FleetManager
 from wire import acl, keys
+from wire.orders import OrderStatusMsg, decode_order, encode_order, order_status_key
 from wire.zconf import ZenohSettings
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -147,9 +153,6 @@ def test_robots_and_the_manager_ask_the_book_and_a_viewer_may_not(router):
 
 
 def test_a_runs_access_setup_gives_a_fleets_robots_their_credentials_and_the_order_rows(tmp_path):
-    from scenario.load import load_scenario
-    from simulator.access import secure_setup
-
     scenario = load_scenario(ROOT / "tests" / "scenarios" / "lifelong-chained.yaml")
     creds = secure_setup(scenario, tmp_path / "secure", "tcp/127.0.0.1:7447")
     assert sorted(creds.files) == ["f1", "f2", "f3", "f4"]
@@ -160,3 +163,37 @@ def test_a_runs_access_setup_gives_a_fleets_robots_their_credentials_and_the_ord
     conf = json.loads(secure_setup(plain, tmp_path / "plain", "tcp/127.0.0.1:7447")
                       .router_config.read_text(encoding="utf-8"))["access_control"]
     assert not any("order" in r["id"] for r in conf["rules"])
+
+
+def test_formation_order_with_the_managers_credentials_is_taken_under_access_control(
+        router, tmp_path, capsys):
+    endpoint, creds = router
+    life = load_scenario(ROOT / "tests" / "scenarios" / "lifelong-chained.yaml").lifelong
+    assert life is not None
+    auth = tmp_path / "manager.json5"
+    acl.write_client_file(auth, creds[acl.MANAGER_USER], [endpoint])
+    todo: queue.SimpleQueue[str] = queue.SimpleQueue()
+
+    def on_order(sample: zenoh.Sample) -> None:
+        msg = decode_order(sample.payload.to_bytes())
+        if msg.kind == "new":
+            todo.put(msg.oid)
+
+    with open_as(router, acl.MANAGER_USER) as ms, open_as(router, "r1") as leader:
+        manager = FleetManager(ms, life, tmp_path)
+        sub = leader.declare_subscriber(f"{P}/order/*", on_order)
+        done: queue.SimpleQueue[int] = queue.SimpleQueue()
+        client = threading.Thread(target=lambda: done.put(main(
+            ["order", "beam", "in-2", "rack-2", "--connect", endpoint, "--auth", str(auth),
+             "--timeout", "30"])))
+        client.start()
+        try:
+            oid = todo.get(timeout=30)  # the robot heard the client's order
+            leader.put(order_status_key(P, oid), encode_order(
+                OrderStatusMsg(oid, "assigned", 1, ("r1", "r2"), "r1", stamp=1.0)))
+            assert done.get(timeout=60) == 0
+        finally:
+            client.join()
+            sub.undeclare()
+            manager.close()
+    assert capsys.readouterr().out.startswith(f"{oid}: assigned robots r1,r2, new beam at in-2")
