@@ -347,6 +347,8 @@ class FleetManager:
             self._write(journal_line(book.t, what, message_fields(msg)))
 
     def _write(self, line: str) -> None:
+        if self._journal.closed:  # a sample that arrived while closing: the book is done
+            return
         self._journal.write(line)
         self._journal.flush()
 
