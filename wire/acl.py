@@ -51,7 +51,7 @@ import json
 import logging
 import os
 import secrets
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -180,7 +180,8 @@ def fleet_acl(
             "subjects": subjects, "policies": policies}
 
 
-def _order_rules(prefix: str, rule: Any) -> dict[str, list[str]]:
+def _order_rules(prefix: str, rule: Callable[[str, list[str], list[str], list[str]], str]
+                 ) -> dict[str, list[str]]:
     """The rules of the order keys, made with ``rule`` (``fleet_acl``'s), by who holds them:
     ``manager`` (put orders; answer and ask queries on them and on their status) and
     ``robot`` (put an order's status, ask the orders and their status); each robot's own bid
