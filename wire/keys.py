@@ -29,7 +29,7 @@ second) through ``{prefix}/formation/*/beacon`` (:func:`all_formations_key`), to
 formations are near enough to subscribe to their ``ellipse`` (:mod:`leader.listen`).
 The order keys (:mod:`wire.orders` builds them) are the three :data:`ORDER_CLASSES`; a robot
 subscribes to ``{prefix}/order/**`` and the fleet manager answers queries on
-``{prefix}/order/*``.
+``{prefix}/order/*`` and ``{prefix}/order/*/status`` (its order book).
 
 Ids (robot, formation, obstacle) and prefix chunks must be non-empty, at most
 :data:`MAX_ID_LEN` characters, and free of ``/ * $ # ?`` and whitespace; otherwise the builders
@@ -225,11 +225,6 @@ def _order_class(rest: list[str]) -> tuple[str, str | None]:
     if len(rest) == 4 and rest[2] == BID:
         return BID, rest[1]
     return OTHER, None
-
-
-def order_prefix(prefix: str) -> str:
-    """``{prefix}/order``: where every order key lives."""
-    return f"{validate_prefix(prefix)}/order"
 
 
 def key_class(prefix: str, key: object) -> str:
