@@ -316,3 +316,30 @@ def read_order_message(prefix: str, key: str, payload: bytes | zenoh.ZBytes) -> 
     if is_forged(key, prefix, msg):
         raise DecodeError(f"{key}: forged (the message names order {msg.oid!r})")
     return msg
+
+
+def ask_orders(session: zenoh.Session, selector: str,
+               decode: Callable[[bytes | zenoh.ZBytes], Any], timeout: float) -> dict[str, Any]:
+    """Every reply to ``selector`` decoded with ``decode``, by order id (a malformed reply is
+    skipped; of two for one order, the later kept)."""
+    out: dict[str, Any] = {}
+    for reply in session.get(selector, target=zenoh.QueryTarget.ALL,
+                             consolidation=zenoh.ConsolidationMode.NONE, timeout=timeout):
+        if reply.ok is None:
+            continue
+        try:
+            msg = decode(reply.ok.payload.to_bytes())
+        except DecodeError:
+            continue
+        out[msg.oid] = msg
+    return out
+
+
+def order_book(session: zenoh.Session, prefix: str, timeout: float
+               ) -> tuple[dict[str, OrderMsg], dict[str, OrderStatusMsg]]:
+    """The fleet manager's order book, asked on its two queryables: every order (as posted,
+    priority current) and every order's last status, by id. What a robot that starts late or
+    restarts asks first, and what ``formation orders`` prints."""
+    orders = all_orders_key(keys.validate_prefix(prefix))
+    return (ask_orders(session, orders, decode_order, timeout),
+            ask_orders(session, f"{orders}/status", decode_order_status, timeout))

@@ -40,10 +40,11 @@ from wire.orders import (
     MAX_PRIORITY,
     OrderMsg,
     OrderStatusMsg,
-    all_orders_key,
+    ask_orders,
     decode_order,
     decode_order_status,
     encode_order,
+    order_book,
     order_key,
     order_status_key,
 )
@@ -147,29 +148,6 @@ def verdict(msg: OrderMsg, status: OrderStatusMsg | None, order: OrderMsg | None
     return EXIT_FAIL if status.state in (lo.CANCELLED, lo.FAILED) else None
 
 
-def ask(session: zenoh.Session, selector: str, decode, timeout: float) -> dict:
-    """The fleet manager's replies to ``selector``, by order id (malformed ones skipped)."""
-    out: dict = {}
-    for reply in session.get(selector, target=zenoh.QueryTarget.ALL,
-                             consolidation=zenoh.ConsolidationMode.NONE, timeout=timeout):
-        if reply.ok is None:
-            continue
-        try:
-            msg = decode(reply.ok.payload.to_bytes())
-        except DecodeError:
-            continue
-        out[msg.oid] = msg
-    return out
-
-
-def book(session: zenoh.Session, prefix: str, timeout: float
-         ) -> tuple[dict[str, OrderMsg], dict[str, OrderStatusMsg]]:
-    """The fleet manager's book: every order and every order's status, by id."""
-    orders = all_orders_key(keys.validate_prefix(prefix))
-    return (ask(session, orders, decode_order, timeout),
-            ask(session, f"{orders}/status", decode_order_status, timeout))
-
-
 def order_line(order: OrderMsg | None, status: OrderStatusMsg) -> str:
     """One order as ``formation orders`` prints it."""
     robots = ",".join(status.roster) or "-"
@@ -194,7 +172,7 @@ def order_command(ns: argparse.Namespace) -> int:
         print(f"formation order: cannot open a Zenoh session: {exc}", file=sys.stderr)
         return EXIT_FAIL
     try:
-        orders, statuses = book(session, ns.prefix, min(ns.timeout, 2.0))
+        orders, statuses = order_book(session, ns.prefix, min(ns.timeout, 2.0))
         try:
             msg = request(ns, sorted(set(orders) | set(statuses)), time.time())
         except ValueError as exc:
@@ -227,8 +205,9 @@ def _send_and_wait(session: zenoh.Session, ns: argparse.Namespace, msg: OrderMsg
         while time.monotonic() < deadline:
             session.put(order_key(ns.prefix, msg.oid), payload)
             wait = max(0.05, min(RESEND_S, deadline - time.monotonic()))
-            asked = ask(session, order_status_key(ns.prefix, msg.oid), decode_order_status, wait)
-            order = ask(session, order_key(ns.prefix, msg.oid), decode_order, wait).get(msg.oid)
+            asked = ask_orders(session, order_status_key(ns.prefix, msg.oid), decode_order_status,
+                               wait)
+            order = ask_orders(session, order_key(ns.prefix, msg.oid), decode_order, wait).get(msg.oid)
             found = [asked[msg.oid]] if msg.oid in asked else []
             while not seen.empty():
                 found.append(seen.get_nowait())
@@ -266,7 +245,7 @@ def orders_command(ns: argparse.Namespace) -> int:
         print(f"formation orders: cannot open a Zenoh session: {exc}", file=sys.stderr)
         return EXIT_FAIL
     try:
-        orders, statuses = book(session, ns.prefix, ns.timeout)
+        orders, statuses = order_book(session, ns.prefix, ns.timeout)
     finally:
         session.close()
     if not statuses:
