@@ -32,7 +32,10 @@ What is counted
 
     Shared by both topologies and not counted: ``pose`` and ``obstacles`` (world -> agents, N
     each per tick) and ``cmd`` (agent -> world, N per tick, plus one zero command per agent on
-    exit). They are in the CSV as ``shared_per_tick``.
+    exit). They are in the CSV as ``shared_per_tick``. Lifelong operation's orders, bids, votes
+    and order status are counted on their own line, ``orders`` (:func:`wire.traffic.orders_line`:
+    ``orders_per_tick`` and ``orders_bytes_per_tick``, deliveries received), never in the
+    topology's counts; a crossing has none.
 
 Bytes are payload bytes (the Zenoh serialization of :mod:`wire.payloads`), without Zenoh's own
 framing; :func:`analytic_bytes` predicts them exactly by encoding messages with the scenario's
@@ -65,7 +68,7 @@ from scenario.load import scenario_from_dict
 from simulator.launch import launch
 from simulator.output import OutputError, write_run
 from simulator.run_config import RunConfig
-from wire import keys
+from wire import keys, traffic
 from wire.payloads import EllipseMsg, Others, State, encode
 
 logger = logging.getLogger(__name__)
@@ -99,6 +102,7 @@ CSV_COLUMNS = (
     "analytic_state_bytes_per_tick", "analytic_ellipse_bytes_per_tick",
     "analytic_others_bytes_per_tick",
     "raw_messages_per_robot_per_s", "raw_bytes_per_robot_per_s", "shared_per_tick",
+    "orders_per_tick", "orders_bytes_per_tick",
     "formation_error_max_m", "min_clearance_robot_m", "qp_infeasible_ticks", "stale_ticks",
     "lockstep_timeouts", "wall_s",
 )
@@ -314,7 +318,8 @@ def measure_row(scenario: Scenario, summary: dict, topology: str, wall_s: float,
     n = sum(sizes)
     steps, sim_time = summary["steps"], summary["sim_time_s"]
     classes = summary["comm"]["classes"]
-    recv = {c: classes[c]["recv"] for c in keys.KEY_CLASSES}
+    recv = {c: classes[c]["recv"] for c in keys.KEY_CLASSES if c in classes}
+    orders = traffic.orders_line({"recv": recv})["recv"]
     echo = classes[keys.STATE]["put"]["messages"] if topology == "all-to-all" else 0
     echo_bytes = classes[keys.STATE]["put"]["bytes"] if topology == "all-to-all" else 0
     messages = sum(recv[c]["messages"] for c in INTER_ROBOT) - echo
@@ -360,6 +365,8 @@ def measure_row(scenario: Scenario, summary: dict, topology: str, wall_s: float,
         "raw_messages_per_robot_per_s": summary["comm"]["messages_per_robot_per_s"],
         "raw_bytes_per_robot_per_s": summary["comm"]["bytes_per_robot_per_s"],
         "shared_per_tick": per_tick(sum(recv[c]["messages"] for c in SHARED)),
+        "orders_per_tick": per_tick(orders["messages"]),
+        "orders_bytes_per_tick": per_tick(orders["bytes"]),
         "formation_error_max_m": summary["formation_error_max_m"],
         "min_clearance_robot_m": summary["min_clearance_m"]["robot"],
         "qp_infeasible_ticks": summary["qp"]["infeasible"],

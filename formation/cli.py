@@ -18,6 +18,7 @@ from importlib.metadata import PackageNotFoundError, version
 
 from camera_service.cli import add_parsers as add_camera_parsers  # camera, calibrate
 from formation.commands.goal import add_parsers as add_goal_parsers
+from formation.commands.order import add_parsers as add_order_parsers
 from formation.commands.view import add_client_args, add_serve_args
 from formation.outdir import FOLDER_COMMANDS, OutputFolder, check_out
 from scenario import ScenarioError
@@ -303,6 +304,7 @@ def build_parser() -> Parser:
     COMMANDS.update(add_camera_parsers(sub))
 
     add_goal_parsers(sub)
+    add_order_parsers(sub)
     return parser
 
 
@@ -330,6 +332,8 @@ COMMANDS = {
     "replay": _lazy("formation.commands.view", "replay_command"),
     "goal": _lazy("formation.commands.goal", "goal_command"),
     "status": _lazy("formation.commands.goal", "status_command"),
+    "order": _lazy("formation.commands.order", "order_command"),
+    "orders": _lazy("formation.commands.order", "orders_command"),
 }
 
 

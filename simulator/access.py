@@ -67,10 +67,15 @@ def secure_setup(scenario: Scenario, folder: Path, endpoint: str,
     viewer's ``user:password`` line, is kept for older scripts). ``zone_link``: pose zones; the
     router also listens there (a Unix socket in a private folder) for the zone routers, which log
     in as :data:`wire.acl.ZONE_USER`. ``rmw_base``: ``--base rmw_zenoh``, each robot's command
-    goes to its base's rmw_zenoh key, which the world reads (:mod:`simulator.bases`)."""
+    goes to its base's rmw_zenoh key, which the world reads (:mod:`simulator.bases`). A scenario
+    with a fleet (lifelong operation) adds the fleet's robots, each a formation of one that it
+    leads, and the rows of the order keys."""
     _fresh_folder(folder)
     robots = {rid: scenario.formation_of(rid).name for rid in scenario.robot_ids}
     leaders = {f.name: f.leader for f in scenario.formations}
+    life = scenario.lifelong
+    for rid in () if life is None else life.fleet.robot_ids:  # each a formation of one
+        robots[rid] = leaders[rid] = rid
     successors = {f.name: s for f in scenario.formations
                   if (s := formation_successor(f)) is not None}
     services = [acl.CAMERA_USER, acl.MANAGER_USER, acl.VIEWER_USER]
@@ -88,7 +93,8 @@ def secure_setup(scenario: Scenario, folder: Path, endpoint: str,
     bases = {} if rmw_base is None else run_bases(scenario.robot_ids, rmw_base)
     rules = acl.fleet_acl(robots, leaders, keys.DEFAULT_PREFIX, successors=successors,
                           zone_user=acl.ZONE_USER if zone_link else None,
-                          cmd_vel={rid: b.key for rid, b in bases.items()})
+                          cmd_vel={rid: b.key for rid, b in bases.items()},
+                          orders=life is not None)
     if rmw_base is not None:  # --base rmw_zenoh: the agents' ROS graph, the world reads the bases
         acl.add_rmw_zenoh(rules, {rid: robot_settings(rid, rmw_base) for rid in robots},
                           world_user=acl.CAMERA_USER)

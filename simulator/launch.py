@@ -46,12 +46,13 @@ from runtime.ports import free_tcp_port, tcp_endpoint
 from wire import acl, keys
 from wire.zconf import ZenohSettings
 
-from .access import RunCredentials, secure_setup, zone_link
+from .access import MANAGER_FILE, RunCredentials, secure_setup, zone_link
 from .bases import run_bases, with_rmw_bases
 from .counters import agent_stats
 from .faults import FAULT_WORLD_TIMEOUT_S, FaultDriver, fault_summary
 from .fleet import START_TIMEOUT_S, Child, ChildFailed, Fleet, unique_children
 from .goals import goals_sent, judge_by_goals_sent
+from .manager import FleetManager, run_manager
 from .run_config import RunConfig
 from .series import Series
 from .status_board import StatusBoard
@@ -271,7 +272,9 @@ def _run_world(cfg: RunConfig, hooks: _Hooks, fleet: Fleet, endpoint: str,
     conf = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
                          connect_timeout_s=10.0,
                          auth=None if creds is None else creds.world).to_config()
-    with zenoh.open(conf) as session:
+    manager_auth = None if creds is None else creds.folder / MANAGER_FILE
+    with zenoh.open(conf) as session, run_manager(cfg.scenario.lifelong, cfg.out, endpoint,
+                                                  manager_auth, cfg.realtime) as manager:
         world = World(cfg.scenario, session, world_options(cfg),
                       () if zones is None else zones.sessions,
                       None if zones is None else zones.zone_of)
@@ -280,7 +283,7 @@ def _run_world(cfg: RunConfig, hooks: _Hooks, fleet: Fleet, endpoint: str,
         driver = FaultDriver(cfg.faults, fleet, world, agents, cfg.scenario.dt, cfg.realtime,
                              _restart_limit(cfg))
         try:
-            result, stopped = _drive(cfg, hooks, fleet, world, endpoint, driver)
+            result, stopped = _drive(cfg, hooks, fleet, world, endpoint, driver, manager)
         finally:
             if detach is not None:
                 detach()
@@ -292,9 +295,11 @@ def _run_world(cfg: RunConfig, hooks: _Hooks, fleet: Fleet, endpoint: str,
 
 
 def _drive(cfg: RunConfig, hooks: _Hooks, fleet: Fleet, world: World, endpoint: str,
-           driver: FaultDriver) -> tuple[WorldResult, BaseException | None]:
-    """Wait for every agent, announce the fleet, run the world; a run that had started and
-    stopped early keeps what it measured (and says why)."""
+           driver: FaultDriver, manager: FleetManager | None
+           ) -> tuple[WorldResult, BaseException | None]:
+    """Wait for every agent, announce the fleet, run the world (with a fleet, its manager posts
+    the orders due each tick); a run that had started and stopped early keeps what it measured
+    (and says why)."""
     world.wait_for_agents(abort=fleet.check)
 
     def started() -> None:
@@ -314,7 +319,10 @@ def _drive(cfg: RunConfig, hooks: _Hooks, fleet: Fleet, world: World, endpoint: 
             if not driver.recover():  # a crashed agent restarted: the run goes on
                 raise
 
-    on_tick = driver.on_tick if cfg.fault_run or driver.restart_limit else None
+    on_tick: Callable[[int, float], None] | None = (
+        driver.on_tick if cfg.fault_run or driver.restart_limit else None)
+    if manager is not None:
+        on_tick = manager.on_tick(on_tick)
     try:
         return _world_loop(world, hooks, abort, on_tick, started), None
     except (ChildFailed, KeyboardInterrupt, TimeoutError) as exc:

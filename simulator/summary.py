@@ -223,7 +223,8 @@ def comm_summary(snap: dict, topology: str, n: int, sim_time: float) -> dict:
 
     ``messages``/``bytes`` are the deliveries received by agents on the classes the topology
     decides (``state``, ``ellipse``, ``others``), comparable to the in-process model; ``classes``
-    breaks every class down into what was put and what was received.
+    breaks every class down into what was put and what was received; ``orders`` sums the order,
+    bid and order-status classes per side (:func:`wire.traffic.orders_line`).
     """
     recv = snap["recv"]
     messages = sum(recv[c]["messages"] for c in INTER_ROBOT)
@@ -239,6 +240,7 @@ def comm_summary(snap: dict, topology: str, n: int, sim_time: float) -> dict:
         "counted": "deliveries received of " + "+".join(INTER_ROBOT),
         "classes": {cls: {side: snap[side][cls] for side in traffic.SIDES}
                     for cls in keys.KEY_CLASSES},
+        traffic.ORDERS: traffic.orders_line(snap),
     }
 
 

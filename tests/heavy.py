@@ -38,7 +38,7 @@ TESTS = Path(__file__).resolve().parent
 # `formation` commands that run a scenario, start processes or open a Zenoh session (a test that
 # only asks one for --help stays quick)
 HEAVY_COMMANDS = frozenset({"sim", "run", "commcost", "montecarlo", "bench", "view", "record", "replay",
-                            "deploy", "camera", "goal", "status"})
+                            "deploy", "camera", "goal", "status", "order", "orders"})
 
 
 @functools.cache

@@ -9,6 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from zenoh.ext import UInt8, z_deserialize
 
+from wire import decoders, keys, traffic
 from wire.orders import (
     BID_PHASES,
     MAX_SLOTS,
@@ -27,6 +28,7 @@ from wire.orders import (
     order_key,
     order_status_key,
     parse_order_key,
+    read_order_message,
 )
 from wire.reader import DecodeError
 
@@ -91,7 +93,8 @@ def test_a_roster_claiming_a_huge_count_is_refused_before_anything_is_read():
     (lambda: OrderMsg("o1", "load", to="rack-3"), "needs load"),
     (lambda: OrderMsg("o1", "steal"), "kind must be one of"),
     (lambda: OrderMsg("o/1", "cancel"), "oid"),
-    (lambda: OrderMsg("o1", "priority", priority=-1), "priority must be a whole number"),
+    (lambda: OrderMsg("o1", "priority", priority=float("nan")), "priority must be a finite number"),
+    (lambda: OrderMsg("o1", "priority", priority=2e6), "priority must be a finite number"),
     (lambda: BidMsg("o1", "r1", 1, "bid"), "a bid needs its costs"),
     (lambda: BidMsg("o1", "r1", 1, "bid", costs=(float("nan"),)), r"costs\[0\]"),
     (lambda: BidMsg("o1", "r1", 1, "bid", costs=(-1.0,)), r"costs\[0\]"),
@@ -145,3 +148,59 @@ def test_every_phase_and_state_is_named_once():
     assert len(set(BID_PHASES)) == len(BID_PHASES) == 3
     assert ORDER_STATES == ("waiting", "assigned", "gathering", "carrying", "delivered",
                             "cancelled", "failed")
+
+
+def test_a_priority_is_the_scenarios_any_finite_number():
+    msg = OrderMsg("o1", "priority", priority=-2.5, stamp=1.0)
+    assert decode_order(encode_order(msg)).priority == -2.5
+
+
+@pytest.mark.parametrize("key, cls, ident", [
+    ("warehouse/order/o1", keys.ORDER, "o1"),
+    ("warehouse/order/o1/bid/r4", keys.BID, "o1"),
+    ("warehouse/order/o1/status", keys.ORDER_STATUS, "o1"),
+    ("warehouse/order/o1/bid", keys.OTHER, None),
+    ("warehouse/order/o1/goal", keys.OTHER, None),
+    ("warehouse/order", keys.OTHER, None),
+    ("warehouse/order/o 1/status", keys.OTHER, None),
+    ("warehouse/order/o1/bid/r 4", keys.OTHER, None),
+])
+def test_the_order_keys_have_their_own_classes(key, cls, ident):
+    assert keys.parse_key("warehouse", key) == (cls, ident)
+
+
+def test_each_order_class_has_its_decoder_and_the_traffic_its_own_line():
+    assert decoders.DECODERS[keys.ORDER] is decode_order
+    assert decoders.DECODERS[keys.BID] is decode_bid
+    assert decoders.DECODERS[keys.ORDER_STATUS] is decode_order_status
+    counter = traffic.TrafficCounter("warehouse")
+    for key, n in (("warehouse/order/o1", 30), ("warehouse/order/o1/bid/r4", 50),
+                   ("warehouse/order/o1/status", 40), ("warehouse/robot/r4/state", 49)):
+        counter.count_put(key, n)
+        counter.count_recv(key, n)
+    counter.count_recv("warehouse/order/o1/bid/r4", 50)
+    line = traffic.orders_line(counter.snapshot())
+    assert line == {"put": {"messages": 3, "bytes": 120}, "recv": {"messages": 4, "bytes": 170}}
+
+
+@pytest.mark.parametrize("key, msg", [
+    ("warehouse/order/o1", ORDER),
+    ("warehouse/order/o1/bid/r4", BID),
+    ("warehouse/order/o1/status", STATUS),
+])
+def test_read_order_message_decodes_by_the_keys_kind(key, msg):
+    assert read_order_message("warehouse", key, encode_order(msg)) == msg
+
+
+@pytest.mark.parametrize("key, payload, why", [
+    ("warehouse/order/o2", encode_order(ORDER), "forged"),            # o1 on o2's key
+    ("warehouse/order/o2/status", encode_order(STATUS), "forged"),
+    ("warehouse/order/o1/bid/r5", encode_order(BID), "forged"),      # r5 speaking for r4
+    ("warehouse/order/o1/status", encode_order(ORDER), "order status"),  # the wrong layout
+    ("warehouse/order/o1", b"\x01" + b"\xff" * 64, "order"),
+    ("warehouse/order/o1", b"\x01" * (600 * 1024), "order"),        # oversized
+    ("warehouse/robot/r1/state", encode_order(ORDER), "not an order key"),
+])
+def test_read_order_message_refuses_forged_malformed_and_oversized_alike(key, payload, why):
+    with pytest.raises(DecodeError, match=why):
+        read_order_message("warehouse", key, payload)

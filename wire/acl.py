@@ -18,6 +18,12 @@ and filters messages with the ACL of :func:`fleet_acl`, whose subjects are match
 * the fleet manager (:data:`MANAGER_USER`) may publish goals ``{prefix}/formation/*/goal`` and
   query ``status`` and the camera's counters; a viewer (:data:`VIEWER_USER`) may only read and
   query those two;
+* with ``orders`` (a scenario with a fleet: lifelong operation, :mod:`wire.orders`), the fleet
+  manager also puts orders ``{prefix}/order/*``, answers queries on them and on
+  ``{prefix}/order/*/status`` (its order book) and asks them; robot ``r`` puts only its own
+  bids ``{prefix}/order/*/bid/r`` and any order's ``{prefix}/order/*/status`` (the router
+  cannot tell whether ``r`` leads that order's team: a receiver checks the sender against the
+  roster it saw committed), and asks the order book; a viewer only reads them;
 * every fleet user may declare subscribers and liveliness subscribers under ``{prefix}/**`` and be
   sent (``put``, ``delete``, liveliness tokens, replies; egress) what is published there;
 * ``default_permission`` is ``deny``: anything else (another robot's keys, a member's ellipse,
@@ -45,7 +51,7 @@ import json
 import logging
 import os
 import secrets
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -84,6 +90,7 @@ def fleet_acl(
     manager_user: str | None = MANAGER_USER,
     viewer_user: str | None = VIEWER_USER,
     zone_user: str | None = None,
+    orders: bool = False,
 ) -> dict[str, Any]:
     """The ``access_control`` section for a fleet (see the module docstring).
 
@@ -95,7 +102,8 @@ def fleet_acl(
     user, may subscribe to it. ``manager_user`` (goals) and ``viewer_user`` (read only) are
     left out when None. ``zone_user`` (pose zone routers, :func:`zone_router_config`) may relay
     every message under the prefix: a router of the run standing in for this one, whose own ACL
-    checks the robots it serves. ValueError names an invalid id or a leader not in ``robots``.
+    checks the robots it serves. ``orders``: the rows of lifelong operation's order keys (the
+    module docstring). ValueError names an invalid id or a leader not in ``robots``.
     """
     successors = dict(successors or {})
     _check_fleet(robots, leaders, successors, prefix,
@@ -129,10 +137,12 @@ def fleet_acl(
                           # the camera service answers its counters (a queryable)
                           rule("camera-stats", ["declare_queryable", "reply"], ["ingress"], [stats]),
                           rule("camera-stats-asked", ["query"], ["egress"], [stats])])
+    order_rules = _order_rules(prefix, rule) if orders else {}
     if manager_user is not None:
         subject(manager_user, [
             rule("manager-goal", ["put"], ["ingress"], [f"{fp}/*/goal"]),
             rule("manager-query", ["query"], ["ingress"], [f"{fp}/*/status", stats]),
+            *order_rules.get("manager", ()),
         ])
     if zone_user is not None:
         subject(zone_user, [zone_relay_rule(prefix, rules)])
@@ -147,6 +157,9 @@ def fleet_acl(
                      diag_key(prefix, rid), base_key]),
                rule(f"{rid}-base", ["declare_subscriber"], ["ingress", "egress"], [base_key]),
                rule(f"{rid}-base-deliver", ["put"], ["egress"], [base_key])]
+        if orders:
+            own += [*order_rules["robot"],
+                    rule(f"{rid}-bid", ["put"], ["ingress"], [f"{prefix}/order/*/bid/{rid}"])]
         if rid in lead:
             f = lead[rid]
             own += [
@@ -165,6 +178,23 @@ def fleet_acl(
         subject(rid, own)
     return {"enabled": True, "default_permission": "deny", "rules": rules,
             "subjects": subjects, "policies": policies}
+
+
+def _order_rules(prefix: str, rule: Callable[[str, list[str], list[str], list[str]], str]
+                 ) -> dict[str, list[str]]:
+    """The rules of the order keys, made with ``rule`` (``fleet_acl``'s), by who holds them:
+    ``manager`` (put orders; answer and ask queries on them and on their status) and
+    ``robot`` (put an order's status, ask the orders and their status); each robot's own bid
+    key is its own rule."""
+    orders, statuses = f"{prefix}/order/*", f"{prefix}/order/*/status"
+    return {
+        "manager": [rule("manager-orders", ["put"], ["ingress"], [orders]),
+                    rule("manager-order-book", ["declare_queryable", "reply", "query"],
+                         ["ingress"], [orders, statuses]),
+                    rule("manager-order-book-asked", ["query"], ["egress"], [orders, statuses])],
+        "robot": [rule("robot-order-status", ["put"], ["ingress"], [statuses]),
+                  rule("robot-order-query", ["query"], ["ingress"], [orders, statuses])],
+    }
 
 
 def zone_relay_rule(prefix: str, rules: list[dict[str, Any]]) -> str:

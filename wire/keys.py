@@ -3,27 +3,33 @@
 Every key starts with a configurable prefix (default ``warehouse``; it may have several
 ``/``-separated chunks, such as ``lab2/warehouse``):
 
-========================================  ===========  ====================================
-key                                       class        from -> to
-========================================  ===========  ====================================
-``{prefix}/robot/{id}/pose``              ``pose``     camera or world -> that robot's agent
-``{prefix}/robot/{id}/state``             ``state``    agent -> its graph neighbours
-``{prefix}/robot/{id}/cmd``               ``cmd``      agent -> robot base or world
-``{prefix}/formation/{fid}/ellipse``      ``ellipse``  leader -> other leaders
-``{prefix}/formation/{fid}/beacon``       ``beacon``   leader -> every leader, once a second
-``{prefix}/formation/{fid}/others``       ``others``   leader -> own members
-``{prefix}/obstacles``                    ``obstacles`` camera or world -> agents
-``{prefix}/formation/{fid}/goal``         ``goal``     fleet manager -> that formation's leader
-``{prefix}/formation/{fid}/status``       ``status``   leader -> anyone (also a queryable)
-``{prefix}/formation/{fid}/plan``         ``plan``     leader -> its members
+========================================  ==================  ===============================================
+key                                       class               from -> to
+========================================  ==================  ===============================================
+``{prefix}/robot/{id}/pose``              ``pose``            camera or world -> that robot's agent
+``{prefix}/robot/{id}/state``             ``state``           agent -> its graph neighbours
+``{prefix}/robot/{id}/cmd``               ``cmd``             agent -> robot base or world
+``{prefix}/formation/{fid}/ellipse``      ``ellipse``         leader -> other leaders
+``{prefix}/formation/{fid}/beacon``       ``beacon``          leader -> every leader, once a second
+``{prefix}/formation/{fid}/others``       ``others``          leader -> own members
+``{prefix}/obstacles``                    ``obstacles``       camera or world -> agents
+``{prefix}/formation/{fid}/goal``         ``goal``            fleet manager -> that formation's leader
+``{prefix}/formation/{fid}/status``       ``status``          leader -> anyone (also a queryable)
+``{prefix}/formation/{fid}/plan``         ``plan``            leader -> its members
+``{prefix}/order/{oid}``                  ``order``           fleet manager -> every robot (also a queryable)
+``{prefix}/order/{oid}/bid/{rid}``        ``bid``             robot rid -> the other bidders of the order
+``{prefix}/order/{oid}/status``           ``order_status``    the team's leader -> anyone
 anything else                             ``other``
-========================================  ===========  ====================================
+========================================  ==================  ===============================================
 
 Agents subscribe to exact keys, with two wildcards: :func:`all_robots_key` builds the one the
 all-to-all baseline uses (``{prefix}/robot/*/state``), which exists so that baseline can be
 measured, and a leader in real time hears every formation's ``beacon`` (its ellipse once a
 second) through ``{prefix}/formation/*/beacon`` (:func:`all_formations_key`), to know which
 formations are near enough to subscribe to their ``ellipse`` (:mod:`leader.listen`).
+The order keys (:mod:`wire.orders` builds them) are the three :data:`ORDER_CLASSES`; a robot
+subscribes to ``{prefix}/order/**`` and the fleet manager answers queries on
+``{prefix}/order/*`` and ``{prefix}/order/*/status`` (its order book).
 
 Ids (robot, formation, obstacle) and prefix chunks must be non-empty, at most
 :data:`MAX_ID_LEN` characters, and free of ``/ * $ # ?`` and whitespace; otherwise the builders
@@ -51,14 +57,19 @@ OBSTACLES = "obstacles"
 GOAL = "goal"
 STATUS = "status"
 PLAN = "plan"
+ORDER = "order"
+BID = "bid"
+ORDER_STATUS = "order_status"
 OTHER = "other"
 
 #: Every class name :func:`key_class` can return, in a stable order.
 KEY_CLASSES: tuple[str, ...] = (POSE, STATE, CMD, ELLIPSE, OTHERS, OBSTACLES, GOAL, STATUS, PLAN,
-                                 BEACON, OTHER)
+                                 BEACON, ORDER, BID, ORDER_STATUS, OTHER)
 
 ROBOT_CLASSES: tuple[str, ...] = (POSE, STATE, CMD)
 FORMATION_CLASSES: tuple[str, ...] = (ELLIPSE, OTHERS, GOAL, STATUS, PLAN, BEACON)
+#: the classes of lifelong operation's keys: orders, bids and votes, an order's status
+ORDER_CLASSES: tuple[str, ...] = (ORDER, BID, ORDER_STATUS)
 
 _FORBIDDEN = frozenset("/*$#?")
 
@@ -174,7 +185,8 @@ def all_formations_key(prefix: str, kind: str) -> str:
 def parse_key(prefix: str, key: object) -> tuple[str, str | None]:
     """Split a concrete key into ``(class, id)``.
 
-    ``id`` is the robot or formation id, ``None`` for ``obstacles`` and ``other``. Never raises
+    ``id`` is the robot or formation id (the order id for the :data:`ORDER_CLASSES`), ``None``
+    for ``obstacles`` and ``other``. Never raises
     for a valid ``prefix``; ``key`` may be a ``str`` or anything whose ``str()`` is the key
     (such as a ``zenoh.KeyExpr``).
     """
@@ -189,6 +201,8 @@ def _parse_key(prefix: str, key: str) -> tuple[str, str | None]:
     rest = key[len(head):].split("/")
     if rest == [OBSTACLES]:
         return OBSTACLES, None
+    if rest[0] == "order":
+        return _order_class(rest)
     if len(rest) != 3 or id_problem(rest[1]) is not None:
         return OTHER, None
     group, ident, kind = rest
@@ -196,6 +210,20 @@ def _parse_key(prefix: str, key: str) -> tuple[str, str | None]:
         return kind, ident
     if group == "formation" and kind in FORMATION_CLASSES:
         return kind, ident
+    return OTHER, None
+
+
+def _order_class(rest: list[str]) -> tuple[str, str | None]:
+    """``order/{oid}``, ``order/{oid}/bid/{rid}`` or ``order/{oid}/status`` split (``rest``
+    holds the key's chunks after the prefix), every id checked; ``other`` for anything else."""
+    if any(id_problem(part) is not None for part in rest[1::2]):
+        return OTHER, None
+    if len(rest) == 2:
+        return ORDER, rest[1]
+    if len(rest) == 3 and rest[2] == STATUS:
+        return ORDER_STATUS, rest[1]
+    if len(rest) == 4 and rest[2] == BID:
+        return BID, rest[1]
     return OTHER, None
 
 

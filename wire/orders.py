@@ -15,15 +15,19 @@ Keys, under the fleet's prefix::
     {prefix}/order/{oid}/bid/{rid}    robot rid -> the other bidders of that order
     {prefix}/order/{oid}/status       the team's leader -> anyone
 
-A bid's ``robot`` must be the robot its key names (:func:`bid_is_forged`); ``round`` and
-``priority`` are whole numbers carried as f64; ``costs`` holds one cost per slot of the order's
-load type (a bid) and ``roster`` one robot per slot (a vote, or a decline's order of slots).
+A bid's ``robot`` must be the robot its key names (:func:`bid_is_forged`), and every message's
+``oid`` the order its key names (:func:`is_forged`); :func:`read_order_message` decodes a sample
+by its key's class and refuses a forged one as malformed. ``round`` is a whole number carried as
+f64, ``priority`` a finite number of at most :data:`MAX_PRIORITY` either way (the
+scenario's); ``costs`` holds one cost per slot of the order's load type (a bid) and ``roster``
+one robot per slot (a vote, or a decline's order of slots).
 Text is bounded: ids at most 64 characters, a reason at most :data:`MAX_REASON`.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -32,11 +36,12 @@ from zenoh.ext import UInt8, z_serialize
 
 from wire import keys
 from wire.payloads import check_floats, check_id
-from wire.reader import WIRE_VERSION, Reader, decode_payload
+from wire.reader import WIRE_VERSION, DecodeError, Reader, decode_payload
 
 MAX_SLOTS = 16  # most robots one load type's team may have (costs and roster entries)
 MAX_REASON = 200  # longest reason [characters]
-MAX_ROUND = 2**31 - 1  # a round or priority beyond this is implausible
+MAX_ROUND = 2**31 - 1  # a round beyond this is implausible
+MAX_PRIORITY = 1.0e6  # an order's priority lies in [-MAX_PRIORITY, MAX_PRIORITY]
 ORDER_KINDS = ("new", "load", "cancel", "priority")
 BID_PHASES = ("bid", "vote", "decline")
 ORDER_STATES = ("waiting", "assigned", "gathering", "carrying", "delivered", "cancelled", "failed")
@@ -86,7 +91,7 @@ class OrderMsg:
     load: str = ""
     source: str = ""
     to: str = ""
-    priority: int = 0
+    priority: float = 0.0
     stamp: float = 0.0
 
     def __post_init__(self) -> None:
@@ -94,7 +99,12 @@ class OrderMsg:
         _one_of(self.kind, ORDER_KINDS, "kind")
         for name in ("type", "load", "source", "to"):
             _optional_id(getattr(self, name), name)
-        _whole(self, "priority", 0)
+        p = self.priority
+        if (isinstance(p, bool) or not isinstance(p, int | float) or not math.isfinite(p)
+                or abs(p) > MAX_PRIORITY):
+            raise ValueError(f"priority must be a finite number in [-{MAX_PRIORITY:g}, "
+                             f"{MAX_PRIORITY:g}], got {p!r}")
+        object.__setattr__(self, "priority", float(p))
         check_floats(self, ("stamp",))
         need = {"new": ("type", "source", "to"), "load": ("load", "to")}.get(self.kind, ())
         for name in need:
@@ -190,7 +200,7 @@ def _parse_order(r: Reader) -> OrderMsg:
     oid, kind, type_, load, source, to = (r.string(name) for name in
                                           ("oid", "kind", "type", "load", "source", "to"))
     priority, stamp = r.floats(2, "priority, stamp")
-    return OrderMsg(oid, kind, type_, load, source, to, priority, stamp)  # type: ignore[arg-type]
+    return OrderMsg(oid, kind, type_, load, source, to, priority, stamp)
 
 
 def _parse_bid(r: Reader) -> BidMsg:
@@ -280,3 +290,56 @@ def bid_is_forged(key: str, prefix: str, msg: BidMsg) -> bool:
     """Whether a bid arrived on a key other than its own (``order/{msg.oid}/bid/{msg.robot}``):
     a robot may speak only for itself and only about the order its key names."""
     return parse_order_key(key, prefix) != (msg.oid, "bid", msg.robot)
+
+
+def is_forged(key: str, prefix: str, msg: OrderMessage) -> bool:
+    """Whether ``msg`` arrived on a key other than its own: an order or a status on the key of
+    another order (or of another kind), a bid as :func:`bid_is_forged` says."""
+    if isinstance(msg, BidMsg):
+        return bid_is_forged(key, prefix, msg)
+    what = "order" if isinstance(msg, OrderMsg) else "status"
+    return parse_order_key(key, prefix) != (msg.oid, what, "")
+
+
+_BY_WHAT: dict[str, Callable[[bytes | zenoh.ZBytes], OrderMessage]] = {
+    "order": decode_order, "bid": decode_bid, "status": decode_order_status}
+
+
+def read_order_message(prefix: str, key: str, payload: bytes | zenoh.ZBytes) -> OrderMessage:
+    """The order, bid or status of a sample on ``key``, decoded by the key's kind; raises only
+    :class:`wire.reader.DecodeError`, for a key that is no order key, a malformed payload or a
+    forged message (:func:`is_forged`), so a receiver drops and counts all three alike."""
+    parsed = parse_order_key(key, prefix)
+    if parsed is None:
+        raise DecodeError(f"{key}: not an order key")
+    msg: OrderMessage = _BY_WHAT[parsed[1]](payload)
+    if is_forged(key, prefix, msg):
+        raise DecodeError(f"{key}: forged (the message names order {msg.oid!r})")
+    return msg
+
+
+def ask_orders(session: zenoh.Session, selector: str,
+               decode: Callable[[bytes | zenoh.ZBytes], Any], timeout: float) -> dict[str, Any]:
+    """Every reply to ``selector`` decoded with ``decode``, by order id (a malformed reply is
+    skipped; of two for one order, the later kept)."""
+    out: dict[str, Any] = {}
+    for reply in session.get(selector, target=zenoh.QueryTarget.ALL,
+                             consolidation=zenoh.ConsolidationMode.NONE, timeout=timeout):
+        if reply.ok is None:
+            continue
+        try:
+            msg = decode(reply.ok.payload.to_bytes())
+        except DecodeError:
+            continue
+        out[msg.oid] = msg
+    return out
+
+
+def order_book(session: zenoh.Session, prefix: str, timeout: float
+               ) -> tuple[dict[str, OrderMsg], dict[str, OrderStatusMsg]]:
+    """The fleet manager's order book, asked on its two queryables: every order (as posted,
+    priority current) and every order's last status, by id. What a robot that starts late or
+    restarts asks first, and what ``formation orders`` prints."""
+    orders = all_orders_key(keys.validate_prefix(prefix))
+    return (ask_orders(session, orders, decode_order, timeout),
+            ask_orders(session, f"{orders}/status", decode_order_status, timeout))

@@ -8,7 +8,9 @@ A snapshot is plain JSON-ready data::
     {"put":  {"pose": {"messages": 0, "bytes": 0}, "state": {...}, ..., "other": {...}},
      "recv": {...same classes...}}
 
-and :func:`merge` adds snapshots of many processes into one. :func:`totals` sums one side.
+and :func:`merge` adds snapshots of many processes into one. :func:`totals` sums one side;
+:func:`orders_line` sums lifelong operation's order, bid and order-status classes
+(:data:`wire.keys.ORDER_CLASSES`) into their own line, ``orders``, per side.
 
 :class:`CountingPublisher` wraps a ``zenoh.Publisher`` and counts every ``put``.
 
@@ -39,6 +41,7 @@ from wire.payloads import DecodeError, Message, encode_zbytes
 logger = logging.getLogger(__name__)
 
 SIDES: tuple[str, ...] = ("put", "recv")
+ORDERS = "orders"  # the line of the order, bid and order-status classes together
 
 Snapshot = dict[str, dict[str, dict[str, int]]]
 
@@ -172,6 +175,18 @@ def totals(snapshot: Mapping[str, Mapping[str, Mapping[str, int]]], side: str) -
         "messages": sum(entry.get("messages", 0) for entry in per_class.values()),
         "bytes": sum(entry.get("bytes", 0) for entry in per_class.values()),
     }
+
+
+def orders_line(snapshot: Mapping[str, Mapping[str, Mapping[str, int]]]) -> dict[str, dict[str, int]]:
+    """``{side: {"messages": m, "bytes": b}}`` over the order classes
+    (:data:`wire.keys.ORDER_CLASSES`): the traffic of lifelong operation's orders, bids, votes
+    and order status, apart from the formations' own."""
+    out = {}
+    for side in SIDES:
+        per_class = snapshot.get(side, {})
+        out[side] = {field: sum(per_class.get(cls, {}).get(field, 0) for cls in keys.ORDER_CLASSES)
+                     for field in ("messages", "bytes")}
+    return out
 
 
 class _Publisher(Protocol):
