@@ -85,6 +85,9 @@ class RunConfig:
         self._check_remote()
         self._check_rmw_base()
         self._check_engine()
+        if self.scenario.lifelong is not None:
+            raise ValueError("fleet: lifelong operation runs in process only (formation sim, "
+                             "montecarlo --draw lifelong); the agents do not take orders yet")
         if self.scenario.controller.localisation != "camera":
             raise ValueError("controller.localisation: fused runs in process only (formation sim, "
                              "montecarlo); the agents drive on the camera's poses")
