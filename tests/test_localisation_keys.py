@@ -75,6 +75,6 @@ def test_formation_run_refuses_fused_with_pose_slots_before_starting_anything(tm
     from formation.cli import main
 
     assert main(["run", str(BLIND), "--out", str(tmp_path / "o"), "--quiet", "--realtime",
-                 "--pose-slots", "2"]) == 2
+                 "--pose-slots", "2", "--world", "ideal"]) == 2
     err = capsys.readouterr().err
     assert "--pose-slots" in err and "fused" in err and err.count("\n") == 1

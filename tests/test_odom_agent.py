@@ -1,0 +1,136 @@
+"""The agent's side of ``controller.localisation: fused`` (agent.odom_in) and the world's
+odometry out (simulator.odom_out), without Zenoh: the state's confidence radius on the wire,
+the filter fed by odometry and late camera poses, a robot that waits unseen, malformed and
+out-of-order odometry dropped and counted, one controller per margin."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from agent import margins
+from agent.control import Controller, ControlParams
+from agent.odom_in import HELD_SIGMA, HELD_WAITING, MarginControllers, OdomIn
+from agent.qp import make_solver
+from scenario import load_scenario
+from simulator.odom_out import OdomOut, capture_stamp
+from wire.odom import Odom, decode_odom, encode_odom
+from wire.payloads import STATE_SIGMA_VERSION, STATE_VERSION, Pose, State, decode_state, encode
+from wire.reader import DecodeError
+
+BLIND = Path(__file__).parent / "scenarios" / "blind-aisle.yaml"
+START = (-4.5, 0.2, 0.0)
+DT = 0.05
+
+
+def odom(dx: float, since: float, stamp: float) -> bytes:
+    return encode_odom(Odom(dx, 0.0, 0.0, since, stamp))
+
+
+def camera(x: float, y: float, stamp: float) -> bytes:
+    return encode(Pose(x, y, 0.0, stamp))
+
+
+def test_a_state_without_sigma_stays_version_2_byte_for_byte_and_one_with_it_is_version_3():
+    old = encode(State(1.0, 2.0, 0.1, 0.0, 3.0, 0.5))
+    assert old[0] == STATE_VERSION and len(old) == 49
+    new = encode(State(1.0, 2.0, 0.1, 0.0, 3.0, 0.5, 0.02))
+    assert new[0] == STATE_SIGMA_VERSION and new[:1] + new[1:49] != old
+    assert decode_state(new).sigma == 0.02 and decode_state(old).sigma is None
+
+
+@pytest.mark.parametrize("sigma", [-0.1, math.nan, math.inf])
+def test_a_state_with_a_bad_sigma_is_refused(sigma):
+    with pytest.raises(ValueError, match="sigma"):
+        State(1.0, 2.0, 0.1, 0.0, 3.0, 0.5, sigma)
+
+
+def test_a_robot_unseen_waits_at_its_start_and_is_held_until_its_first_camera_pose():
+    loc = OdomIn("p1", "warehouse", START, DT, lockstep=True)
+    pose = loc.on_odom(odom(0.0, 0.0, 0.0))
+    assert pose == Pose(*START, 0.0) and loc.held == HELD_WAITING
+    assert loc.counts["waiting_ticks"] == 1 and loc.trace[-1][1] != loc.trace[-1][1]  # NaN
+    loc.on_camera(camera(-4.49, 0.21, 0.0))
+    pose = loc.on_odom(odom(0.01, 0.0, DT))  # the first pose starts the filter where it is
+    assert loc.held is None and loc.filter.fused == 1
+    assert pose is not None and pose.stamp == DT and pose.x == -4.49
+    pose = loc.on_odom(odom(0.01, DT, 2 * DT))  # then the odometry moves it
+    assert pose is not None and pose.x > -4.49
+    assert 0.0 < loc.radius < margins.RADIUS_LIMIT
+    assert loc.state(0.0, 0.0, (0.0, 0.0), DT, 0.0).sigma == loc.radius
+
+
+def test_a_camera_pose_waits_for_the_odometry_of_its_capture_and_is_fused_once():
+    loc = OdomIn("p1", "warehouse", START, DT, lockstep=True)
+    loc.on_camera(camera(*START[:2], 0.0))
+    loc.on_odom(odom(0.0, 0.0, 0.0))
+    loc.on_camera(camera(-4.49, 0.2, 2 * DT))  # captured after the next odometry
+    loc.on_odom(odom(0.01, 0.0, DT))
+    assert loc.filter.fused == 1 and len(loc.pending) == 1
+    loc.on_camera(camera(-4.49, 0.2, 2 * DT))  # the same frame again
+    loc.on_odom(odom(0.0, DT, 2 * DT))
+    assert loc.filter.fused == 2 and not loc.pending
+
+
+def test_malformed_and_older_odometry_is_dropped_and_counted():
+    loc = OdomIn("p1", "warehouse", START, DT, lockstep=False)
+    assert loc.on_odom(b"\x07garbage") is None
+    loc.on_camera(b"")
+    assert loc.dropped == {"odom": 1, "pose": 1}
+    assert loc.on_odom(odom(0.0, 0.0, 1.0)) is not None
+    assert loc.on_odom(odom(0.0, 0.5, 1.0)) is None and loc.older == 1
+
+
+def test_past_the_radius_limit_the_robot_is_held_and_counted():
+    loc = OdomIn("p1", "warehouse", START, DT, lockstep=True)
+    loc.on_camera(camera(*START[:2], 0.0))
+    loc.on_odom(odom(0.0, 0.0, 0.0))
+    t = 0.0
+    while loc.held is None:  # driving blind: the radius grows with the distance
+        t += DT
+        loc.on_odom(odom(0.2, t - DT, t))
+        assert t < 1000.0
+    assert loc.held == HELD_SIGMA and loc.radius > margins.RADIUS_LIMIT
+    assert loc.counts["over_limit_ticks"] == 1 and loc.stats()["max_sigma_m"] == loc.radius
+
+
+def test_one_controller_per_margin_with_the_bounds_the_estimates_need():
+    params = ControlParams.from_scenario(load_scenario(BLIND))
+    base = Controller(params, make_solver("exact"), lambda: 0)
+    cache = MarginControllers()
+    a = cache.get(base, 0.0101, 0.02)
+    assert a is cache.get(base, 0.0102, 0.0199)  # the same steps: the same bounds
+    assert a.params.bounds == margins.localisation_bounds(params.bounds, 0.0101, 0.02)
+    # radii that round alike but need different margins get different controllers
+    assert cache.get(base, 0.0074, 0.0) is not cache.get(base, 0.0026, 0.0)
+    assert margins.margin_steps(0.0074, 0.0) == 2 and margins.margin_steps(0.0026, 0.0) == 1
+
+
+class Sink:
+    def __init__(self) -> None:
+        self.sent: list[bytes] = []
+
+    def put(self, payload: bytes) -> None:
+        self.sent.append(payload)
+
+
+def test_the_world_publishes_zero_first_then_each_robots_seeded_increment():
+    sc = load_scenario(BLIND)
+    sinks = [Sink() for _ in sc.robots]
+    out = OdomOut(sc, sinks)
+    before = [r.start for r in sc.robots]
+    out.publish(0.0, before, None)
+    after = [(s[0] + 0.01, s[1], s[2]) for s in before]
+    out.publish(DT, after, None)
+    first, second = decode_odom(sinks[0].sent[0]), decode_odom(sinks[0].sent[1])
+    assert (first.dx, first.since, first.stamp) == (0.0, 0.0, 0.0)
+    scale = out.odometer.errors[0][0]
+    assert second.dx == pytest.approx(0.01 * (1.0 + scale)) and second.since == 0.0
+    assert second.stamp == DT and capture_stamp(None, 1, DT, 7.0) == 7.0
+
+
+def test_a_malformed_odometry_payload_is_a_decode_error():
+    with pytest.raises(DecodeError, match="odom"):
+        decode_odom(b"\x01" + b"\x00" * 7)
