@@ -1,11 +1,13 @@
 """The agent's side of ``controller.localisation: fused`` (agent.odom_in) and the world's
 odometry out (simulator.odom_out), without Zenoh: the state's confidence radius on the wire,
 the filter fed by odometry and late camera poses, a robot that waits unseen, malformed and
-out-of-order odometry dropped and counted, one controller per margin."""
+out-of-order odometry dropped and counted, one controller per margin; a ROS 2 base's
+nav_msgs/Odometry decoded from a hand-built CDR payload."""
 
 from __future__ import annotations
 
 import math
+import struct
 from pathlib import Path
 
 import pytest
@@ -19,6 +21,7 @@ from simulator.odom_out import OdomOut, capture_stamp
 from wire.odom import Odom, decode_odom, encode_odom
 from wire.payloads import STATE_SIGMA_VERSION, STATE_VERSION, Pose, State, decode_state, encode
 from wire.reader import DecodeError
+from wire.rmw_zenoh import RmwSettings, decode_odometry, odom_data_key
 
 BLIND = Path(__file__).parent / "scenarios" / "blind-aisle.yaml"
 START = (-4.5, 0.2, 0.0)
@@ -134,3 +137,46 @@ def test_the_world_publishes_zero_first_then_each_robots_seeded_increment():
 def test_a_malformed_odometry_payload_is_a_decode_error():
     with pytest.raises(DecodeError, match="odom"):
         decode_odom(b"\x01" + b"\x00" * 7)
+
+
+def _cdr_string(body: bytearray, text: str) -> None:
+    body += bytes((-len(body)) % 4)
+    raw = text.encode() + b"\x00"
+    body += struct.pack("<I", len(raw)) + raw
+
+
+def hand_built_odometry(x: float, y: float, yaw: float, frame: str = "odom",
+                        child: str = "base_footprint") -> bytes:
+    """A nav_msgs/msg/Odometry CDR payload built by hand from the .msg layout: header (stamp
+    12 s + 0.5 s, frame_id), child_frame_id, pose (position, quaternion, 36 covariances),
+    twist (linear, angular, 36 covariances); doubles aligned to 8 from after the header."""
+    body = bytearray(struct.pack("<iI", 12, 500_000_000))
+    _cdr_string(body, frame)
+    _cdr_string(body, child)
+    body += bytes((-len(body)) % 8)
+    q = (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))
+    body += struct.pack("<3d4d36d", x, y, 0.0, *q, *([0.0] * 36))
+    body += struct.pack("<6d36d", 0.2, 0.0, 0.0, 0.0, 0.0, 0.5, *([0.0] * 36))
+    return b"\x00\x01\x00\x00" + bytes(body)
+
+
+@pytest.mark.parametrize("frame", ["odom", "o", "tb3_0/odom_frame"])  # each string's padding
+def test_a_ros2_base_odometry_payload_decodes(frame):
+    got = decode_odometry(hand_built_odometry(1.5, -0.25, 0.3, frame))
+    assert (got.frame_id, got.child_frame_id) == (frame, "base_footprint")
+    assert (got.x, got.y, got.vx, got.wz) == (1.5, -0.25, 0.2, 0.5)
+    assert got.yaw == pytest.approx(0.3) and got.stamp == pytest.approx(12.5)
+
+
+@pytest.mark.parametrize("cut", [b"\x01\x00\x00\x00", 14, -8])
+def test_a_malformed_ros2_odometry_payload_is_refused(cut):
+    good = hand_built_odometry(0.0, 0.0, 0.0)
+    bad = cut + good[4:] if isinstance(cut, bytes) else good[:cut]
+    with pytest.raises(ValueError, match="Odometry"):
+        decode_odometry(bad)
+
+
+def test_the_odometry_topic_keys_of_a_base():
+    s = RmwSettings(namespace="tb3_1")
+    assert "/tb3_1/odom/nav_msgs::msg::dds_::Odometry_/" in odom_data_key(s, "jazzy")
+    assert odom_data_key(s, "humble").endswith("TypeHashNotSupported")
