@@ -194,7 +194,7 @@ class FusedFeed:
     a clock-driven agent), where the samples are handed over in the order they came."""
 
     def __init__(self, odom_in: OdomIn, inbox: Any, loop: asyncio.AbstractEventLoop,
-                 tick: Callable[[Callable[[], None]], None] | None, lock: Any) -> None:
+                 tick: Callable[[Callable[[], object]], None] | None, lock: Any) -> None:
         self.odom_in = odom_in
         self.inbox = inbox
         self.loop = loop
