@@ -60,6 +60,21 @@ def fault_pose(f: CameraFault, i: int, ids: Sequence[str], seen: Sequence[Sequen
     return (s[0] + f.offset[0], s[1] + f.offset[1], s[2])
 
 
+def apply_faults(faults: Sequence[CameraFault], stamp: float, ids: Sequence[str],
+                 seen: Sequence[Sequence[float]], out: list[Pose | None]) -> list[Pose | None]:
+    """``out`` (each robot's camera pose of the frame captured at ``stamp``, None where the
+    camera sees nothing) under the injected ``faults`` active then (:func:`fault_pose`;
+    ``seen``: every robot's pose as the camera measured it, blind or not)."""
+    for f in faults:
+        if not f.active(stamp):
+            continue
+        for i in range(len(out)):
+            got = fault_pose(f, i, ids, seen)
+            if got is not True and out[i] is not None:
+                out[i] = got if isinstance(got, tuple) else None
+    return out
+
+
 def heard_radii(handed: Sequence[Pose | None], radius: Sequence[float],
                 membership: np.ndarray) -> np.ndarray:
     """Each robot's largest heard confidence radius: among the members of every formation with
@@ -150,14 +165,7 @@ class FleetLocalisation:
         out: list[Pose | None] = [
             None if blind_at(boxes, c[0], c[1]) else (s[0], s[1], s[2])
             for c, s in zip(captured, seen, strict=True)]
-        for f in self.scenario.world.camera_faults:
-            if not f.active(stamp):
-                continue
-            for i in range(len(out)):
-                got = fault_pose(f, i, self.ids, seen)
-                if got is not True and out[i] is not None:
-                    out[i] = got if isinstance(got, tuple) else None
-        return out
+        return apply_faults(self.scenario.world.camera_faults, stamp, self.ids, seen, out)
 
     def pose_of(self, i: int, stamp: float, z: Pose | None) -> Pose:
         """Robot ``i``'s pose to drive on, from its camera pose ``z`` (None: none)."""

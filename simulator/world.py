@@ -72,6 +72,7 @@ from wire.traffic import CountingPublisher, TrafficCounter
 
 from .bases import RmwBase, RmwBaseReader
 from .cmd_inbox import CmdInbox
+from .fused import apply_faults
 from .lab import LabWorld
 from .odom_out import OdomOut, capture_stamp
 from .odometry import seen_by_camera
@@ -483,12 +484,23 @@ class World:
                                       strict=True):
                     if not shown:
                         del seen[rid]
+            if self.scenario.world.camera_faults:  # a misread, forged or lost pose
+                seen = self._faulted(k, t, poses, seen)
             if self.fused:  # the agents' filters fuse each pose when it was captured
                 stamp = capture_stamp(self.lab, k, t, stamp)
         for i, rid in enumerate(self.ids):
             p = seen.get(rid)
             if p is not None:  # an undetected marker publishes nothing: the agent sees it stale
                 self._publish_pose(i, t, stamp, p)
+
+    def _faulted(self, k: int, t: float, poses: Sequence[Sequence[float]],
+                 seen: dict[str, Any]) -> dict[str, Any]:
+        """Tick ``k``'s published poses under ``world.camera_faults``, judged at the frame's
+        capture (:func:`simulator.fused.apply_faults`, as in process)."""
+        at = t if self.lab is None else self.lab.captured(k)[0]
+        out = apply_faults(self.scenario.world.camera_faults, at, self.ids, poses,
+                           [seen.get(rid) for rid in self.ids])
+        return {rid: p for rid, p in zip(self.ids, out, strict=True) if p is not None}
 
     def _record(self, t: float, state: Sequence[BodyPose], cmds: Sequence[Cmd | None]) -> None:
         """robots.csv's rows of the period that began at ``t`` in ``state`` (true poses, the
