@@ -1,9 +1,10 @@
 """``controller.localisation: fused`` over Zenoh: the world publishes every robot's wheel
 odometry, each agent runs its own filter on it and the camera's poses (agent.odom_in).
 
-* a lock-step ``formation run`` through a blind patch writes the robots.csv ``formation sim``
-  writes, byte for byte (the world publishes a frame's poses before its odometry, on one
-  session, and the agent takes both on the Zenoh thread that received them, in that order);
+* a lock-step ``formation run`` through a blind patch (and with a misread marker) writes the
+  robots.csv ``formation sim`` writes, byte for byte (the world publishes a frame's poses
+  before its odometry, on one session, and the agent takes both on the Zenoh thread that
+  received them, in that order);
 * an agent over a real router drops and counts malformed odometry, drives on its estimate and
   puts its confidence radius into its ``state``;
 * in real time with the camera process, the formation crosses the patch (behaviour, not timing).
@@ -44,7 +45,7 @@ def _summary(out: Path) -> dict:
     return json.loads((out / "summary.json").read_text())
 
 
-@pytest.mark.parametrize("stem", ["blind-aisle", "blind-aisle-unicycle"])
+@pytest.mark.parametrize("stem", ["blind-aisle", "blind-aisle-unicycle", "blind-misread"])
 def test_a_lock_step_run_through_a_blind_patch_writes_what_formation_sim_writes(tmp_path, stem):
     scenario = SCENARIOS / f"{stem}.yaml"
     sim, run = tmp_path / "sim", tmp_path / "run"
@@ -54,7 +55,11 @@ def test_a_lock_step_run_through_a_blind_patch_writes_what_formation_sim_writes(
     got = _summary(run)
     assert got["mode"] == "multiprocess" and got["all_reached"] and got["collisions"] == 0
     loc = got["localisation"]
-    assert loc["blind_s"] > 10.0 and loc["fused"] > 0 and loc["over_limit_ticks"] == 0
+    assert loc["fused"] > 0 and loc["over_limit_ticks"] == 0
+    if stem == "blind-misread":  # another robot's pose, refused by the gate
+        assert loc["rejected"] > 0
+    else:  # the patch crossed unseen
+        assert loc["blind_s"] > 10.0 and loc["rejected"] == 0
     header = (run / "robots.csv").read_text().splitlines()[0]
     assert header.endswith("est_x,est_y,sigma_m")
     assert (run / "robots.csv").read_bytes() == (sim / "robots.csv").read_bytes()
