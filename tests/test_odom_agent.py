@@ -16,6 +16,7 @@ from agent import margins
 from agent.control import Controller, ControlParams
 from agent.odom_in import HELD_SIGMA, HELD_WAITING, MarginControllers, OdomIn
 from agent.qp import make_solver
+from experiments.localisation_bench import QUICK_TICKS, bench_localisation, format_localisation
 from scenario import load_scenario
 from simulator.odom_out import OdomOut, capture_stamp
 from wire.odom import Odom, decode_odom, encode_odom
@@ -180,3 +181,10 @@ def test_the_odometry_topic_keys_of_a_base():
     s = RmwSettings(namespace="tb3_1")
     assert "/tb3_1/odom/nav_msgs::msg::dds_::Odometry_/" in odom_data_key(s, "jazzy")
     assert odom_data_key(s, "humble").endswith("TypeHashNotSupported")
+
+
+def test_the_filter_bench_times_a_seen_and_a_blind_tick():
+    r = bench_localisation(quick=True)["localisation"]
+    assert r["ticks"] == QUICK_TICKS and r["blind_us_per_tick"] > 0.0
+    assert r["seen_us_per_tick"] > r["blind_us_per_tick"]  # the late update on top
+    assert "us/tick" in format_localisation({"localisation": r})
