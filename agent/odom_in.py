@@ -11,7 +11,9 @@ robot's pose, so the tick, its clocks and its schedulers run unchanged (lock-ste
 frame ``t`` waits for the estimate stamped ``t``; real time: the estimate's arrival ticks).
 
 * A robot that starts unseen has no estimate: it is handed its start pose and waits (zero
-  command, counted ``waiting_ticks``) until its first camera pose, as in process.
+  command, counted ``waiting_ticks``) until its first camera pose, as in process. An agent that
+  joins a run under way (restarted: its first odometry spans a period, where a run's first is
+  empty) does not know where it stands: it hands no pose, so it sends no state, until then.
 * Past :data:`agent.margins.RADIUS_LIMIT` the robot commands zero, counted ``over_limit_ticks``;
   its state still goes out (its neighbours see where it stands, with its radius).
 * The estimate's confidence radius goes into the robot's ``state`` (``sigma``), and every
@@ -115,6 +117,8 @@ class OdomIn:
         self.last_odom = m.stamp
         if self.unseen_since is None:
             self.unseen_since = m.stamp
+            if m.since != m.stamp:  # joined a run under way (a restart): not at its start
+                self.start = None
         dt = self.period if self.lockstep else m.stamp - m.since
         self.filter.odometry(m.stamp, (m.dx, m.dy, m.dtheta), dt)
         self._fuse_pending(m.stamp)

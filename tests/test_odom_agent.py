@@ -66,6 +66,14 @@ def test_a_robot_unseen_waits_at_its_start_and_is_held_until_its_first_camera_po
     assert loc.state(0.0, 0.0, (0.0, 0.0), DT, 0.0).sigma == loc.radius
 
 
+def test_an_agent_restarted_mid_run_hands_no_pose_until_the_camera_sees_it():
+    loc = OdomIn("p1", "warehouse", START, DT, lockstep=True)
+    assert loc.on_odom(odom(0.01, 4.0, 4.0 + DT)) is None and loc.held == HELD_WAITING
+    loc.on_camera(camera(1.0, 2.0, 4.0 + DT))
+    pose = loc.on_odom(odom(0.01, 4.0 + DT, 4.0 + 2 * DT))
+    assert pose is not None and pose.x == 1.0 and loc.held is None
+
+
 def test_a_camera_pose_waits_for_the_odometry_of_its_capture_and_is_fused_once():
     loc = OdomIn("p1", "warehouse", START, DT, lockstep=True)
     loc.on_camera(camera(*START[:2], 0.0))
@@ -83,7 +91,7 @@ def test_malformed_and_older_odometry_is_dropped_and_counted():
     assert loc.on_odom(b"\x07garbage") is None
     loc.on_camera(b"")
     assert loc.dropped == {"odom": 1, "pose": 1}
-    assert loc.on_odom(odom(0.0, 0.0, 1.0)) is not None
+    assert loc.on_odom(odom(0.0, 1.0, 1.0)) is not None  # the run's first: at its start
     assert loc.on_odom(odom(0.0, 0.5, 1.0)) is None and loc.older == 1
 
 
