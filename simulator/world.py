@@ -40,6 +40,11 @@ Pose zones (:mod:`simulator.zones`, ``formation run --pose-zones Z``): given zon
 each robot's pose is published, and its command taken, on its zone's session (a router its
 agent connects to) instead of the world's; the obstacles stay on the world's session.
 
+Under ``controller.localisation: fused`` the world also publishes every robot's wheel odometry
+on ``robot/{id}/odom`` after each frame (:mod:`simulator.odom_out`) and stamps each pose at the
+frame's capture, where the agents' filters fuse it; ``world.camera_faults`` misread, forge or
+lose poses as in process (:func:`simulator.fused.apply_faults`).
+
 Faults (docs/faults.md): ``camera_dropouts`` stop publishing a robot's pose over a span of
 simulated time, as a camera that loses that robot's marker would; ``run(on_tick=...)`` lets the
 launcher kill and restart agents at given simulated times.
