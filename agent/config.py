@@ -24,7 +24,7 @@ from leader.settings import LeaderSettings
 from scenario import Scenario, formation_axes, limits
 from scenario.cargo import load_polygon
 from scenario.extent import world_extent
-from scenario.model import FormationSpec
+from scenario.model import LOCALISATIONS, FormationSpec
 from scenario.reader import excerpt
 from scenario.routes import start_plan
 from scenario.succession import formation_successor
@@ -104,6 +104,9 @@ class AgentConfig:
     # the world's extent (xmin, ymin, xmax, ymax) [m] (scenario.extent): the leader refuses a
     # goal outside it; None: the scenario's coordinate range
     extent: tuple[float, float, float, float] | None = None
+    # controller.localisation: "camera" (drive on the camera's poses) or "fused" (the agent's
+    # own filter over its wheel odometry and the camera's poses: agent.odom_in)
+    localisation: str = "camera"
 
     def __post_init__(self) -> None:
         _check_names(self)
@@ -111,7 +114,8 @@ class AgentConfig:
         _check_leader("leader", self.leader)
         _check_leader("standby", self.standby)
         for name, value, allowed in (("topology", self.topology, TOPOLOGIES),
-                                     ("base", self.base, BASES)):
+                                     ("base", self.base, BASES),
+                                     ("localisation", self.localisation, LOCALISATIONS)):
             if value not in allowed:
                 raise ValueError(f"{name}: {value!r} is not one of {allowed}")
 
@@ -341,6 +345,7 @@ def build_agent_configs(
                 planner=scenario.controller.planner != "none",
                 goal_tolerance=scenario.goal_tolerance,
                 extent=extent,
+                localisation=scenario.controller.localisation,
                 **{name: getattr(m, name) for name in MEMBERSHIP_FIELDS},
             )
     return out

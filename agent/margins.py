@@ -148,14 +148,22 @@ def estimate_margin(own: float, other: float) -> float:
     return own + other
 
 
+def margin_steps(own: float, other: float) -> int:
+    """The pose-noise growth of :func:`localisation_bounds` in RADIUS_STEPs: (own + max(own,
+    other)) / 2 rounded up. Bounds with the same steps are the same bounds (a cache of
+    controllers is keyed by it)."""
+    half = 0.5 * (own + max(own, other))
+    return max(0, math.ceil(half / RADIUS_STEP - 1e-9))
+
+
 def localisation_bounds(b: Bounds, own: float, other: float) -> Bounds:
     """The declared bounds ``b`` with the pose noise grown so that every margin the controller
     keeps (:func:`robot_margin`, :func:`pair_margin`) holds the estimate's too: position_noise
-    grows by m = (own + max(own, other)) / 2, rounded up to RADIUS_STEP. A pair then keeps 2 m
-    >= :func:`estimate_margin` more (both ends' radii), an obstacle m >= own, and a formation
-    edge's band narrows by the pair's (its cap applies: :mod:`agent.control`)."""
-    half = 0.5 * (own + max(own, other))
-    m = math.ceil(half / RADIUS_STEP - 1e-9) * RADIUS_STEP
+    grows by m = (own + max(own, other)) / 2, rounded up to RADIUS_STEP (:func:`margin_steps`).
+    A pair then keeps 2 m >= :func:`estimate_margin` more (both ends' radii), an obstacle
+    m >= own, and a formation edge's band narrows by the pair's (its cap applies:
+    :mod:`agent.control`)."""
+    m = margin_steps(own, other) * RADIUS_STEP
     if m <= 0.0:
         return b
     return Bounds(pose_noise=b.pose_noise + m / (NOISE_SIGMAS * math.sqrt(2.0)),

@@ -102,6 +102,7 @@ from agent.faults import EPS, LinkFaults
 from agent.inbox import RING_CAPACITY, Inbox, Receiver
 from agent.leader_step import LeaderPart
 from agent.navigation import NavPart
+from agent.odom_in import FusedFeed, OdomIn
 from agent.plausibility import speed_bound
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED
 from agent.replan import plan_pool
@@ -177,6 +178,9 @@ class AgentNode:
         self.options = options
         self.counter = TrafficCounter(cfg.prefix)
         self.keys = node_keys(cfg)
+        # controller.localisation fused: the agent's own filter (agent.odom_in) feeds its pose
+        self.odom_in = (OdomIn(cfg.robot_id, cfg.prefix, cfg.start, cfg.period, options.lockstep)
+                        if cfg.localisation == "fused" else None)
         self.gate = TickGate()  # ticks one at a time whichever thread runs them
         tolerance = (LOCKSTEP_AHEAD_PERIODS * cfg.period if options.lockstep
                      else cfg.clock_tolerance)
@@ -200,6 +204,7 @@ class AgentNode:
         self.ticker = Ticker(cfg, self.keys, TickParts(self.clock, self.inbox, self.leader,
                                                        self.nav, self.out),
                              tolerance, options.trace)
+        self.ticker.loc = self.odom_in
         self.scheduler = self._scheduler()
         self._cpu0 = time.process_time()
         self._wall0 = time.monotonic()
@@ -290,7 +295,8 @@ class AgentNode:
         else:  # real time: every beacon; an ellipse once its formation is near (leader.listen)
             subs[keys.all_formations_key(self.cfg.prefix, keys.BEACON)] = keys.BEACON
         subs[k.obstacles] = keys.OBSTACLES
-        subs[k.pose] = keys.POSE  # last: once the pose is matched, all else is declared
+        if self.odom_in is None:  # fused: the odometry and the camera's pose feed the filter
+            subs[k.pose] = keys.POSE  # last: once the pose is matched, all else is declared
         return subs
 
     def _ring_caps(self) -> dict[str, int]:
@@ -327,6 +333,15 @@ class AgentNode:
                         self._ring_caps())
         for k, cls in list(self.subscribed_keys.items()):
             self.inbox.declare(k, cls)
+        if self.odom_in is not None:  # odometry, then the camera's pose last
+            feed = FusedFeed(self.odom_in, self.inbox, loop,
+                             sched.feed if isinstance(sched, PoseScheduler) else None,
+                             self.gate.lock)
+            # both called right on the Zenoh thread that received them (indirect=False): one
+            # thread per link, so a frame's pose reaches the filter before the odometry after it
+            for key, take in ((self.odom_in.odom_key, feed.odom),
+                              (self.odom_in.pose_key, feed.camera)):
+                t.keep(key, t.declare(key, zenoh.handlers.Callback(take, indirect=False)))
         self.leader.open(t, loop, self.gate)
         logger.info("%s: subscribed to %s", self.cfg.robot_id, ", ".join(self.subscribed_keys))
 
@@ -530,4 +545,5 @@ class AgentNode:
             trace=[[_finite_or_none(v) if isinstance(v, float) else v for v in row]
                    for row in c.trace],
             ellipse_trace=[list(row) for row in ld.ellipse_trace],
+            localisation=None if self.odom_in is None else self.odom_in.stats(),
         )

@@ -151,11 +151,17 @@ class PoseScheduler:
 
     def on_sample(self, sample: zenoh.Sample) -> None:
         """Zenoh thread: store the pose and tick on it, or queue it on the host's tick thread."""
+        self.feed(lambda: self._inbox.mailbox(keys.POSE).callback(sample))
+
+    def feed(self, store: Callable[[], object]) -> None:
+        """Zenoh thread: ``store()`` a pose under the tick lock (the camera's, or the agent's
+        own estimate: :mod:`agent.odom_in`) and tick on it, or queue it on the host's tick
+        thread."""
         queue = self.queue
         with self.gate.lock:
             if self.gate.closing:
                 return
-            self._inbox.mailbox(keys.POSE).callback(sample)
+            store()
             if queue is None:
                 self.pose_tick(time.monotonic())
                 return

@@ -80,6 +80,8 @@ class AgentStats:
     trace_columns: list[str] = field(default_factory=list)
     trace: Trace = field(default_factory=list)
     ellipse_trace: Trace = field(default_factory=list)
+    # controller.localisation fused: the filter's counters and its trace (agent.odom_in)
+    localisation: dict[str, Any] | None = None
     # an agent host's agents (agent.host)
     host_agents: int | None = None
     superseded_poses: int | None = None
@@ -90,7 +92,7 @@ class AgentStats:
     def to_json_dict(self) -> dict[str, Any]:
         """The JSON object an agent writes: every field, host-only ones only when set."""
         out = dataclasses.asdict(self)
-        for name in ("host_agents", "superseded_poses"):
+        for name in ("host_agents", "superseded_poses", "localisation"):
             if out[name] is None:
                 del out[name]
         for name in ("killed", "counters_lost"):

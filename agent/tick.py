@@ -40,6 +40,7 @@ from agent.inputs import carry_pose, others_view, step_inputs, waypoint_view
 from agent.leader_step import LeaderPart
 from agent.margins import carried_age
 from agent.navigation import STALLED_AFTER_S, NavPart
+from agent.odom_in import OdomIn
 from agent.plausibility import ObstacleMemory, held_obstacle, rival_obstacles, shapes_of_all
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
 from agent.tick_times import COMMAND, INPUTS, LEADER, POSE, RECORD, ROUTE, STATE, STEP, TickTimes
@@ -150,6 +151,7 @@ class Ticker:
         self._tick_point: tuple[float, float, float, float] | None = None
         self._ahead = 0.0  # [s] this tick's pose carried forward by its measured age (carried)
         self._inputs_of: dict[bool, list[tuple[str, str]]] = {}  # leading? -> _tick_inputs
+        self.loc: OdomIn | None = None  # controller.localisation fused (set by the node)
 
     def regroup(self, cfg: AgentConfig, node_keys: NodeKeys) -> None:
         """Between ticks: tick in the formation of ``cfg`` from now on (its keys ``node_keys``);
@@ -216,7 +218,9 @@ class Ticker:
         transport = self.parts.out.transport
         if self._tick_point is not None and transport is not None:
             px, py, stamp, th = self._tick_point
-            transport.publish(self.keys.state, State(px, py, *self.last_u, stamp, th))
+            transport.publish(self.keys.state, State(px, py, *self.last_u, stamp, th)
+                              if self.loc is None else self.loc.state(px, py, self.last_u,
+                                                                      stamp, th))
 
     async def _tick(self, t: float | None) -> StepResult | None:
         """The pose part of the tick: which pose, if any, it runs on."""
@@ -317,7 +321,13 @@ class Ticker:
             shapes=shapes, footprint=cfg.footprint)
         times = self.times
         times.lap(INPUTS)
-        res = self.controller.step(inputs)
+        controller, loc = self.controller, self.loc
+        if loc is not None:  # fused: held (zero, counted), else the estimates' margins
+            if loc.held is not None:
+                return self._zero(t, loc.held)
+            latest = self.parts.inbox.latest
+            controller = loc.controller(controller, (latest(keys.STATE, n) for n in k.states))
+        res = controller.step(inputs)
         times.lap(STEP)
         if self.clock.gone_stale(stamp):
             return self._zero(t, POSE_AT_SEND)  # never send a command from a pose gone stale

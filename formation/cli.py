@@ -260,6 +260,9 @@ def build_parser() -> Parser:
     p.add_argument("--inprocess", default=None, metavar="N,...",
                    help="only formation sim's speed on bench warehouses of these many robots, "
                         "e.g. 4,8,16,32,50,100,200 (robot-ticks per CPU second, x real time)")
+    p.add_argument("--localisation", action="store_true",
+                   help="only the agent's own filter (controller.localisation fused): its CPU "
+                        "per tick with a late camera pose and blind")
     p.add_argument("--agents-per-process", type=int, default=1, metavar="K",
                    help="with --fleets: K agents to an agent host (default 1)")
     p.add_argument("--session-per-agent", action="store_true",

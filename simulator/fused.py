@@ -30,6 +30,7 @@ import numpy as np
 from agent import margins, unicycle
 from agent.control import Controller, StepResult
 from agent.localisation import Localiser
+from agent.odom_in import MarginControllers
 from leader.role import VIEW_RANGE
 from scenario import Scenario
 from scenario.world import CameraFault, blind_at
@@ -39,6 +40,7 @@ from .odometry import Odometer
 
 HELD = "stale"  # robots.csv status of a tick held at zero for want of a pose
 INF = math.inf
+NAN = math.nan
 
 Pose = tuple[float, float, float]
 
@@ -56,6 +58,21 @@ def fault_pose(f: CameraFault, i: int, ids: Sequence[str], seen: Sequence[Sequen
         return (o[0], o[1], o[2])
     s = seen[i]
     return (s[0] + f.offset[0], s[1] + f.offset[1], s[2])
+
+
+def apply_faults(faults: Sequence[CameraFault], stamp: float, ids: Sequence[str],
+                 seen: Sequence[Sequence[float]], out: list[Pose | None]) -> list[Pose | None]:
+    """``out`` (each robot's camera pose of the frame captured at ``stamp``, None where the
+    camera sees nothing) under the injected ``faults`` active then (:func:`fault_pose`;
+    ``seen``: every robot's pose as the camera measured it, blind or not)."""
+    for f in faults:
+        if not f.active(stamp):
+            continue
+        for i in range(len(out)):
+            got = fault_pose(f, i, ids, seen)
+            if got is not True and out[i] is not None:
+                out[i] = got if isinstance(got, tuple) else None
+    return out
 
 
 def heard_radii(handed: Sequence[Pose | None], radius: Sequence[float],
@@ -102,7 +119,7 @@ class FleetLocalisation:
         self.held = [False] * n  # this tick: zero command (no pose, waiting, over the limit)
         self.last_stamp = [-INF] * n
         self.unseen_since = [0.0] * n  # [s] when each robot's last camera pose was captured
-        self.controllers: dict[tuple[float, float], Controller] = {}
+        self.controllers = MarginControllers()
         self.counts = {"held_ticks": 0, "over_limit_ticks": 0, "disputed_ticks": 0,
                        "waiting_ticks": 0}
         self.max_error = 0.0
@@ -148,14 +165,7 @@ class FleetLocalisation:
         out: list[Pose | None] = [
             None if blind_at(boxes, c[0], c[1]) else (s[0], s[1], s[2])
             for c, s in zip(captured, seen, strict=True)]
-        for f in self.scenario.world.camera_faults:
-            if not f.active(stamp):
-                continue
-            for i in range(len(out)):
-                got = fault_pose(f, i, self.ids, seen)
-                if got is not True and out[i] is not None:
-                    out[i] = got if isinstance(got, tuple) else None
-        return out
+        return apply_faults(self.scenario.world.camera_faults, stamp, self.ids, seen, out)
 
     def pose_of(self, i: int, stamp: float, z: Pose | None) -> Pose:
         """Robot ``i``'s pose to drive on, from its camera pose ``z`` (None: none)."""
@@ -205,21 +215,11 @@ class FleetLocalisation:
     def controller(self, i: int, base: Controller) -> Controller:
         """The controller robot ``i`` steps with: ``base`` under ``camera``; under ``fused``
         one whose margins hold its own and the others' confidence radii
-        (:func:`agent.margins.localisation_bounds` with :meth:`heard_radius`; one per rounded
-        pair of radii)."""
+        (:func:`agent.margins.localisation_bounds` with :meth:`heard_radius`; one per margin,
+        :class:`agent.odom_in.MarginControllers`)."""
         if not self.fused:
             return base
-        own = self.radius[i]
-        other = self.heard_radius(i)
-        key = (round(own / margins.RADIUS_STEP), round(other / margins.RADIUS_STEP))
-        got = self.controllers.get(key)
-        if got is None:
-            params = base.params
-            bounds = margins.localisation_bounds(params.bounds, own, other)
-            got = Controller(dataclasses.replace(params, bounds=bounds), base.solve, base.clock,
-                             base.tuning)
-            self.controllers[key] = got
-        return got
+        return self.controllers.get(base, self.radius[i], self.heard_radius(i))
 
     def heard_radius(self, i: int) -> float:
         """The largest confidence radius robot ``i`` hears (:func:`heard_radii`, this tick's)."""
@@ -254,16 +254,53 @@ class FleetLocalisation:
         """summary.json's ``localisation`` block (``fused`` only)."""
         if not self.fused:
             return {}
-        w = self.scenario.world
-        return {"localisation": {
-            "max_error_m": round(self.max_error, 6),
-            "max_sigma_m": round(self.max_radius, 6),
-            "blind_s": round(self.blind_s, 6),
-            "rejected": sum(f.rejected for f in self.filters),
-            "fused": sum(f.fused for f in self.filters),
-            "relocalised": sum(f.relocalised for f in self.filters),
-            "radius_limit_m": margins.RADIUS_LIMIT,
-            **self.counts,
-            "odometry": dataclasses.asdict(w.odometry),
-            "camera_blind": [dataclasses.asdict(b) for b in w.camera_blind],
-        }}
+        return localisation_block(
+            self.scenario, (self.max_error, self.max_radius, self.blind_s),
+            {"rejected": sum(f.rejected for f in self.filters),
+             "fused": sum(f.fused for f in self.filters),
+             "relocalised": sum(f.relocalised for f in self.filters)}, self.counts)
+
+
+def localisation_block(scenario: Scenario, maxima: tuple[float, float, float],
+                       filters: dict[str, int], counts: dict[str, int]) -> dict[str, Any]:
+    """summary.json's ``localisation`` block of a ``fused`` run, in process or over Zenoh:
+    ``maxima`` = (largest error of an estimate from the truth [m], largest confidence radius
+    [m], longest stretch unseen [s]), the filters' ``filters`` counts (rejected, fused,
+    relocalised) and the held ``counts``."""
+    w = scenario.world
+    return {"localisation": {
+        "max_error_m": round(maxima[0], 6),
+        "max_sigma_m": round(maxima[1], 6),
+        "blind_s": round(maxima[2], 6),
+        **filters,
+        "radius_limit_m": margins.RADIUS_LIMIT,
+        **counts,
+        "odometry": dataclasses.asdict(w.odometry),
+        "camera_blind": [dataclasses.asdict(b) for b in w.camera_blind],
+    }}
+
+
+def merge_estimates(scenario: Scenario, rows: Sequence[tuple], stats: Sequence[Any],
+                    stamps: Sequence[float]) -> tuple[list[tuple], dict[str, Any]]:
+    """A multi-process ``fused`` run: robots.csv's ``rows`` with est_x, est_y, sigma_m from
+    each agent's localisation trace (keyed by the stamp of the tick's odometry, ``stamps[k]``;
+    NaN where it has none), and summary.json's ``localisation`` block (the error measured on
+    those rows' true poses, the rest from the agents' counters)."""
+    by_key = {(s.robot, row[0]): row for s in stats if s.localisation
+              for row in s.localisation["trace"]}
+    dt = scenario.dt
+    out, worst = [], 0.0
+    for row in rows:
+        k = round(row[0] / dt)
+        got = by_key.get((row[1], stamps[k])) if k < len(stamps) else None
+        est = tuple(NAN if v is None else v for v in got[1:4]) if got is not None else (NAN,) * 3
+        if math.isfinite(est[0]):
+            worst = max(worst, math.hypot(est[0] - row[3], est[1] - row[4]))
+        out.append((*row, *est))
+    locs = [s.localisation for s in stats if s.localisation]
+    counts = {key: sum(x.get(key, 0) for x in locs)
+              for key in ("held_ticks", "over_limit_ticks", "disputed_ticks", "waiting_ticks")}
+    filters = {key: sum(x.get(key, 0) for x in locs) for key in ("rejected", "fused", "relocalised")}
+    maxima = (worst, max((x["max_sigma_m"] for x in locs), default=0.0),
+              max((x["blind_s"] for x in locs), default=0.0))
+    return out, localisation_block(scenario, maxima, filters, counts)

@@ -51,6 +51,7 @@ from .bases import run_bases, with_rmw_bases
 from .counters import agent_stats
 from .faults import FAULT_WORLD_TIMEOUT_S, FaultDriver, fault_summary
 from .fleet import START_TIMEOUT_S, Child, ChildFailed, Fleet, unique_children
+from .fused import merge_estimates
 from .goals import goals_sent, judge_by_goals_sent
 from .manager import FleetManager, run_manager
 from .run_config import RunConfig
@@ -178,6 +179,10 @@ def _launch_fleet(cfg: RunConfig, hooks: _Hooks, endpoint: str,
     judged = judge_by_goals_sent(cfg.scenario, outcome.result, outcome.sent)
     summary, series = build_summary(judged, outcome.result, stats, cfg.topology,
                                     cfg.realtime, cfg.camera, cfg.safety, cfg.solver)
+    if cfg.scenario.controller.localisation == "fused":  # the agents' own estimates
+        series.robots, block = merge_estimates(cfg.scenario, series.robots, stats,
+                                               outcome.result.stamps)
+        summary.update(block)
     if lost:
         summary["lost_files"] = lost  # write_run adds what else does not fit
     if cfg.fault_run:

@@ -88,9 +88,15 @@ class RunConfig:
         if self.scenario.lifelong is not None:
             raise ValueError("fleet: lifelong operation runs in process only (formation sim, "
                              "montecarlo --draw lifelong); the agents do not take orders yet")
-        if self.scenario.controller.localisation != "camera":
-            raise ValueError("controller.localisation: fused runs in process only (formation sim, "
-                             "montecarlo); the agents drive on the camera's poses")
+        self._check_localisation()
+
+    def _check_localisation(self) -> None:
+        """``fused``: the world publishes whole frames and every robot's odometry."""
+        if self.scenario.controller.localisation != "fused":
+            return
+        if self.pose_slots > 1:
+            raise ValueError("--pose-slots: not with controller.localisation fused (the world "
+                             "publishes each robot's odometry with its frame)")
 
     def _check_engine(self) -> None:
         if self.engine not in ENGINES:

@@ -40,6 +40,11 @@ Pose zones (:mod:`simulator.zones`, ``formation run --pose-zones Z``): given zon
 each robot's pose is published, and its command taken, on its zone's session (a router its
 agent connects to) instead of the world's; the obstacles stay on the world's session.
 
+Under ``controller.localisation: fused`` the world also publishes every robot's wheel odometry
+on ``robot/{id}/odom`` after each frame (:mod:`simulator.odom_out`) and stamps each pose at the
+frame's capture, where the agents' filters fuse it; ``world.camera_faults`` misread, forge or
+lose poses as in process (:func:`simulator.fused.apply_faults`).
+
 Faults (docs/faults.md): ``camera_dropouts`` stop publishing a robot's pose over a span of
 simulated time, as a camera that loses that robot's marker would; ``run(on_tick=...)`` lets the
 launcher kill and restart agents at given simulated times.
@@ -64,6 +69,7 @@ from runtime.heap import freeze_startup
 from runtime.shutdown import STEP_LIMIT_S, within
 from scenario import Scenario
 from wire import keys
+from wire.odom import odom_key
 from wire.payloads import Cmd, ObstacleMsg, Obstacles, Pose
 from wire.shapes import shape_to_msg
 from wire.stamps import EPS
@@ -71,7 +77,9 @@ from wire.traffic import CountingPublisher, TrafficCounter
 
 from .bases import RmwBase, RmwBaseReader
 from .cmd_inbox import CmdInbox
+from .fused import apply_faults
 from .lab import LabWorld
+from .odom_out import OdomOut, capture_stamp
 from .odometry import seen_by_camera
 from .pacing import ABORT_EVERY_S, at_most_every, sleep_until
 from .physics import world_for
@@ -194,6 +202,10 @@ class World:
             self.subs = [session.declare_subscriber(
                 keys.all_robots_key(p, keys.CMD),
                 zenoh.handlers.Callback(self.inbox.callback, indirect=False))]
+        # controller.localisation fused: every robot's wheel odometry (simulator.odom_out)
+        self.fused = scenario.controller.localisation == "fused"
+        self.odom = OdomOut(scenario, [CountingPublisher(self._session_of(r).declare_publisher(
+            odom_key(p, r)), self.counter) for r in self.ids]) if self.fused else None
         self._camera: SyntheticCamera | None = None
         for rid, _t0, _t1 in options.camera_dropouts:
             if rid not in self.ids:
@@ -222,6 +234,9 @@ class World:
         self.pose_pubs.clear()
         if self.frames is not None:
             self.frames.undeclare()
+        if self.odom is not None:
+            odom = self.odom
+            within(step_limit, "world: undeclaring the odometry publishers", odom.undeclare)
 
     def wait_for_agents(self, abort: Callable[[], None] = lambda: None,
                         robots: Sequence[str] | None = None, grace: bool = True) -> None:
@@ -449,15 +464,23 @@ class World:
         self.pose_pubs[i].put_message(Pose(p[0], p[1], p[2], stamp))
 
     def _publish(self, t: float, stamp: float, state: Sequence[tuple[float, float, float]]) -> None:
+        """Tick ``t``'s frame (or poses) and obstacles stamped ``stamp``; under ``fused``, the
+        odometry after them (:mod:`simulator.odom_out`)."""
+        self._publish_frame(t, stamp, state)
+        if self.odom is not None:
+            self.odom.publish(stamp, state, self.lab)
+
+    def _publish_frame(self, t: float, stamp: float,
+                       state: Sequence[tuple[float, float, float]]) -> None:
         if self.frames is not None:  # the camera process publishes poses and obstacles
             self.frames.publish(state, [(o.name, *o.position(t), o.safe_distance)
                                         for o in self.scenario.obstacles], stamp)
             return
         obs = self._publish_obstacles(t, stamp)
+        k = round(t / self.scenario.dt)
         if self._camera is not None:
             seen = self._camera.poses(state, [(m.x, m.y, m.ds) for m in obs], stamp)
         else:
-            k = round(t / self.scenario.dt)
             poses = state if self.lab is None else self.lab.sense(k, state)
             seen = {rid: s for rid, s in zip(self.ids, poses, strict=True)}
             if self.scenario.world.camera_blind:  # on blind floor the camera sees nothing
@@ -466,10 +489,23 @@ class World:
                                       strict=True):
                     if not shown:
                         del seen[rid]
+            if self.scenario.world.camera_faults:  # a misread, forged or lost pose
+                seen = self._faulted(k, t, poses, seen)
+            if self.fused:  # the agents' filters fuse each pose when it was captured
+                stamp = capture_stamp(self.lab, k, t, stamp)
         for i, rid in enumerate(self.ids):
             p = seen.get(rid)
             if p is not None:  # an undetected marker publishes nothing: the agent sees it stale
                 self._publish_pose(i, t, stamp, p)
+
+    def _faulted(self, k: int, t: float, poses: Sequence[Sequence[float]],
+                 seen: dict[str, Any]) -> dict[str, Any]:
+        """Tick ``k``'s published poses under ``world.camera_faults``, judged at the frame's
+        capture (:func:`simulator.fused.apply_faults`, as in process)."""
+        at = t if self.lab is None else self.lab.captured(k)[0]
+        out = apply_faults(self.scenario.world.camera_faults, at, self.ids, poses,
+                           [seen.get(rid) for rid in self.ids])
+        return {rid: p for rid, p in zip(self.ids, out, strict=True) if p is not None}
 
     def _record(self, t: float, state: Sequence[BodyPose], cmds: Sequence[Cmd | None]) -> None:
         """robots.csv's rows of the period that began at ``t`` in ``state`` (true poses, the

@@ -141,8 +141,8 @@ def test_the_acl_denies_by_default_and_lets_each_robot_publish_only_its_own_keys
     assert rules["r1-publish"]["flows"] == ["ingress"] and rules["r1-publish"]["messages"] == ["put"]
     assert f"{P}/formation/F1/ellipse" in rules["r2-lead"]["key_exprs"]  # r2 leads F1
     assert "r1-lead" not in rules
-    assert rules[acl.CAMERA_RULE]["key_exprs"] == [f"{P}/robot/*/pose", f"{P}/obstacles",
-                                                   f"{P}/camera/frame"]
+    assert rules[acl.CAMERA_RULE]["key_exprs"] == [f"{P}/robot/*/pose", f"{P}/robot/*/odom",
+                                                   f"{P}/obstacles", f"{P}/camera/frame"]
     subjects = {s["id"]: s["usernames"] for s in a["subjects"]}
     assert subjects == {u: [u] for u in ("camera", "manager", "viewer", *ROBOTS)}
     policy = {p["id"]: p for p in a["policies"]}

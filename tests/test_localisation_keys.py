@@ -71,9 +71,10 @@ def test_a_bad_localisation_is_refused(tmp_path: Path):
         load_scenario(bad)
 
 
-def test_formation_run_refuses_fused_before_starting_anything(tmp_path, capsys):
+def test_formation_run_refuses_fused_with_pose_slots_before_starting_anything(tmp_path, capsys):
     from formation.cli import main
 
-    assert main(["run", str(BLIND), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    assert main(["run", str(BLIND), "--out", str(tmp_path / "o"), "--quiet", "--realtime",
+                 "--pose-slots", "2", "--world", "ideal"]) == 2
     err = capsys.readouterr().err
-    assert "controller.localisation" in err and err.count("\n") == 1
+    assert "--pose-slots" in err and "fused" in err and err.count("\n") == 1

@@ -13,7 +13,8 @@ and filters messages with the ACL of :func:`fleet_acl`, whose subjects are match
   and ``plan``, hold the liveliness token ``{prefix}/formation/f/leader`` and answer
   ``status`` queries;
 * the camera service or simulated world (user :data:`CAMERA_USER`) may publish only the poses
-  ``{prefix}/robot/*/pose``, ``{prefix}/obstacles`` and the frames ``{prefix}/camera/frame``,
+  ``{prefix}/robot/*/pose``, the simulated wheel odometry ``{prefix}/robot/*/odom``,
+  ``{prefix}/obstacles`` and the frames ``{prefix}/camera/frame``,
   and answer queries on its counters ``{prefix}/camera/stats``;
 * the fleet manager (:data:`MANAGER_USER`) may publish goals ``{prefix}/formation/*/goal`` and
   query ``status`` and the camera's counters; a viewer (:data:`VIEWER_USER`) may only read and
@@ -132,7 +133,8 @@ def fleet_acl(
 
     stats = stats_key(prefix)
     subject(camera_user, [rule(CAMERA_RULE, ["put"], ["ingress"],
-                               [f"{prefix}/robot/*/pose", keys.obstacles_key(prefix),
+                               [f"{prefix}/robot/*/pose", f"{prefix}/robot/*/odom",
+                                keys.obstacles_key(prefix),
                                 f"{prefix}/camera/frame"]),
                           # the camera service answers its counters (a queryable)
                           rule("camera-stats", ["declare_queryable", "reply"], ["ingress"], [stats]),

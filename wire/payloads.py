@@ -87,6 +87,10 @@ SHAPE_BOX = 2
 #: ``state`` is at version 2 (it gained the heading); a version-1 decoder refuses it by its
 #: version byte ("unsupported version 2"), and this decoder refuses version-1 states.
 STATE_VERSION = 2
+#: ``state`` version 3 adds the sender's confidence radius ``sigma`` (its own estimate under
+#: ``controller.localisation: fused``); states without one stay version 2, byte for byte, and
+#: both versions decode
+STATE_SIGMA_VERSION = 3
 CMD_ACCEL_VERSION = 2  # Cmd with a double integrator's acceleration (ax, ay)
 #: ``ellipse`` and ``others`` version 2 carry each ellipse's members' control points (
 #: a formation keeps its own ellipse off the other formations' members, :mod:`agent.body`).
@@ -221,7 +225,9 @@ class State:
 
     [m, m, m/s, m/s, s, rad]; neighbours use ``ux, uy`` as the velocity of appendix A.2 and
     of the separation rows, ``theta`` (the body heading, wire version 2: :data:`STATE_VERSION`)
-    to place a unicycle's body behind its look-ahead point ``x, y``.
+    to place a unicycle's body behind its look-ahead point ``x, y``; ``sigma`` [m], the 95 %
+    confidence radius of ``x, y`` when the sender drives on its own estimate (wire version
+    :data:`STATE_SIGMA_VERSION`; None: the camera's pose).
     """
 
     x: float
@@ -230,10 +236,15 @@ class State:
     uy: float
     stamp: float
     theta: float = 0.0
+    sigma: float | None = None
 
     def __post_init__(self) -> None:
         if not _plain_finite((self.x, self.y, self.ux, self.uy, self.stamp, self.theta)):
             check_floats(self, _STATE_FLOATS)
+        if self.sigma is not None:
+            check_floats(self, ("sigma",))
+            if self.sigma < 0.0:
+                raise ValueError(f"sigma: must be >= 0, got {self.sigma!r}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -522,6 +533,7 @@ def _ellipses(items: list[Item], points: list[Points] | None = None) -> tuple[El
 _VERSION = UInt8(WIRE_VERSION)
 _SHAPES_VERSION = UInt8(SHAPES_VERSION)
 _STATE_VERSION = UInt8(STATE_VERSION)
+_STATE_SIGMA_VERSION = UInt8(STATE_SIGMA_VERSION)
 _CMD_ACCEL_VERSION = UInt8(CMD_ACCEL_VERSION)
 _ELLIPSE_POINTS_VERSION = UInt8(ELLIPSE_POINTS_VERSION)
 
@@ -539,6 +551,9 @@ def _pose_tuple(msg: Pose) -> tuple[Any, ...]:
 
 
 def _state_tuple(msg: State) -> tuple[Any, ...]:
+    if msg.sigma is not None:
+        return (_STATE_SIGMA_VERSION, msg.x, msg.y, msg.ux, msg.uy, msg.theta, msg.stamp,
+                msg.sigma)
     return (_STATE_VERSION, msg.x, msg.y, msg.ux, msg.uy, msg.theta, msg.stamp)
 
 
@@ -640,6 +655,15 @@ def _parse_state(r: Reader) -> State:
     return State(x, y, ux, uy, stamp, theta)
 
 
+def _parse_state_sigma(r: Reader) -> State:
+    """Version 3: a state with its sender's confidence radius."""
+    x, y, ux, uy, theta, stamp, sigma = r.floats(7, "state")
+    return State(x, y, ux, uy, stamp, theta, sigma)
+
+
+_STATE_PARSERS = {STATE_VERSION: _parse_state, STATE_SIGMA_VERSION: _parse_state_sigma}
+
+
 def _parse_cmd(r: Reader) -> Cmd:
     return Cmd(*r.floats(5, "cmd"))
 
@@ -724,7 +748,7 @@ def decode_pose(payload: bytes | zenoh.ZBytes) -> Pose:
 
 def decode_state(payload: bytes | zenoh.ZBytes) -> State:
     """Decode a ``state`` payload; raises only :class:`DecodeError`."""
-    return decode_payload(payload, _parse_state, "state", STATE_VERSION)
+    return decode_payload(payload, _parse_state, "state", STATE_VERSION, _STATE_PARSERS)
 
 
 def decode_cmd(payload: bytes | zenoh.ZBytes) -> Cmd:

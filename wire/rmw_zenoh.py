@@ -61,6 +61,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import re
 import struct
 from dataclasses import dataclass
@@ -535,3 +536,72 @@ def graph_key(s: RmwSettings) -> str:
     """Every liveliness token in the robot's namespace and domain (its nodes, publishers,
     subscriptions): ``@ros2_lv/<domain>/<zid>/<nid>/<id>/<kind>/<enclave>/<namespace>/**``."""
     return f"{ADMIN_SPACE}/{check_domain(s.domain)}/*/*/*/*/*/{mangle(namespace_of(s.namespace))}/**"
+
+
+# --- a ROS 2 base's odometry (nav_msgs/msg/Odometry), over the bridge and over rmw_zenoh ---
+
+CDR_LE = b"\x00\x01\x00\x00"  # the payload's encapsulation header: CDR, little endian
+_ODOMETRY_DOUBLES = 3 + 4 + 36 + 6 + 36  # pose, orientation, its covariance, twist, covariance
+
+
+@dataclass(frozen=True)
+class Odometry:
+    """What the agent reads of a ``nav_msgs/msg/Odometry``: the header's stamp [s] and frame,
+    the child frame, the pose in the odometry frame (x, y [m], yaw [rad] from the quaternion)
+    and the body-frame velocity (vx [m/s], wz [rad/s])."""
+
+    stamp: float
+    frame_id: str
+    child_frame_id: str
+    x: float
+    y: float
+    yaw: float
+    vx: float
+    wz: float
+
+
+def _cdr_string(body: bytes, at: int, what: str) -> tuple[str, int]:
+    """A CDR string at ``at`` (aligned to 4): uint32 length with its NUL, then the bytes."""
+    at = (at + 3) // 4 * 4
+    if at + 4 > len(body):
+        raise ValueError(f"Odometry: {what} truncated")
+    (length,) = struct.unpack_from("<I", body, at)
+    end = at + 4 + length
+    if length < 1 or end > len(body) or body[end - 1] != 0:
+        raise ValueError(f"Odometry: {what} is malformed")
+    try:
+        return body[at + 4:end - 1].decode("utf-8"), end
+    except UnicodeDecodeError:
+        raise ValueError(f"Odometry: {what} is not UTF-8") from None
+
+
+def decode_odometry(payload: bytes) -> Odometry:
+    """A ``nav_msgs/msg/Odometry`` payload as zenoh-bridge-ros2dds and rmw_zenoh carry it (its
+    CDR with the encapsulation header; alignment counts from after the header). ValueError on
+    a malformed or non-finite one."""
+    data = bytes(payload)
+    if data[:4] != CDR_LE:
+        raise ValueError(f"Odometry: expected the CDR_LE header 00 01 00 00, got {data[:4].hex(' ')}")
+    body = data[4:]
+    if len(body) < 8:
+        raise ValueError("Odometry: truncated in its header")
+    sec, nanosec = struct.unpack_from("<iI", body, 0)
+    frame_id, at = _cdr_string(body, 8, "frame_id")
+    child, at = _cdr_string(body, at, "child_frame_id")
+    at = (at + 7) // 8 * 8
+    if len(body) != at + 8 * _ODOMETRY_DOUBLES:
+        raise ValueError(f"Odometry: must be {4 + at + 8 * _ODOMETRY_DOUBLES} bytes, got {len(data)}")
+    v = struct.unpack_from(f"<{_ODOMETRY_DOUBLES}d", body, at)
+    if not all(math.isfinite(x) for x in v[:7] + v[43:49]):
+        raise ValueError("Odometry: a non-finite pose or twist")
+    qx, qy, qz, qw = v[3:7]
+    yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+    return Odometry(sec + nanosec * 1e-9, frame_id, child, v[0], v[1], yaw, v[43], v[48])
+
+
+def odom_data_key(s: RmwSettings, distro: str) -> str:
+    """The data key of the base's ``odom`` topic (nav_msgs/msg/Odometry, every distribution)
+    in the robot's namespace, under rmw_zenoh; over zenoh-bridge-ros2dds it is the topic's name
+    in the bridge's namespace (``{namespace}/odom``), carrying the same CDR."""
+    rel, _cmd = resolve(s, distro)
+    return topic_key(s.domain, fully_qualified(s.namespace, "odom"), ODOMETRY, rel)

@@ -21,6 +21,7 @@ from experiments.inprocess_bench import (
     format_curve,
     parse_sizes,
 )
+from experiments.localisation_bench import bench_localisation, format_localisation
 from experiments.method_bench import bench_methods, format_methods, parse_methods
 from formation.exits import UsageError
 from formation.outdir import begin_output
@@ -30,13 +31,11 @@ def bench_command(ns: argparse.Namespace) -> int:
     """``formation bench --out DIR [--quick]``, or ``--fleets N@HZ,... [--agents-per-process K]
     [--session-per-agent] [--repeat R] [--duration S]``: only those agent fleets, or
     ``--method M,... [--quick]``: only the per-member step under those methods, or
-    ``--inprocess N,... [--quick]``: only ``formation sim``'s speed on N-robot warehouses."""
-    method_arg = getattr(ns, "method", None)
-    if method_arg is not None:
-        return _methods(ns, method_arg)
-    inprocess_arg = getattr(ns, "inprocess", None)
-    if inprocess_arg is not None:
-        return _inprocess(ns, inprocess_arg)
+    ``--inprocess N,... [--quick]``: only ``formation sim``'s speed on N-robot warehouses, or
+    ``--localisation [--quick]``: only the agent's own filter's CPU per tick."""
+    only = _only(ns)
+    if only is not None:
+        return only
     fleets_arg = getattr(ns, "fleets", None)
     per_process = getattr(ns, "agents_per_process", 1)
     repeat = getattr(ns, "repeat", 1)
@@ -74,6 +73,20 @@ def bench_command(ns: argparse.Namespace) -> int:
     return 0
 
 
+def _only(ns: argparse.Namespace) -> int | None:
+    """The exit status of a one-benchmark mode (``--method``, ``--localisation``,
+    ``--inprocess``); None when none is asked for."""
+    method_arg = getattr(ns, "method", None)
+    if method_arg is not None:
+        return _methods(ns, method_arg)
+    if getattr(ns, "localisation", False):
+        return _localisation(ns)
+    inprocess_arg = getattr(ns, "inprocess", None)
+    if inprocess_arg is not None:
+        return _inprocess(ns, inprocess_arg)
+    return None
+
+
 def _methods(ns: argparse.Namespace, text: str) -> int:
     """``--method M,...``: :mod:`experiments.method_bench` on the warehouse (``--quick``: 20 s)."""
     try:
@@ -99,6 +112,16 @@ def _inprocess(ns: argparse.Namespace, text: str) -> int:
     out = begin_output(ns)
     result = bench_inprocess_curve(sizes, 5.0 if ns.quick else INPROCESS_DURATION)
     _write(out, result, format_curve(result))
+    return 0
+
+
+def _localisation(ns: argparse.Namespace) -> int:
+    """``--localisation``: :mod:`experiments.localisation_bench` (``--quick``: fewer ticks)."""
+    if getattr(ns, "fleets", None) is not None:
+        raise UsageError("--localisation and --fleets: one at a time")
+    out = begin_output(ns)
+    result = bench_localisation(ns.quick)
+    _write(out, result, format_localisation(result))
     return 0
 
 
