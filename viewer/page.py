@@ -11,8 +11,8 @@ server that served it about ten times a second and draws
   small squares), formation ellipses, each formation's load under its robots (hatched when
   declared, lightly filled with a dashed edge for the members' hull), goals (squares), robots
   (discs in their formation's colour, a heading tick, the control point when it is off the
-  centre), under ``fused`` each robot's own estimate (a ring of its 95 % confidence radius
-  around it, dashed, joined to the true body by a thin line), and a red line for each load
+  centre), under ``fused`` each robot's own estimate over its body (a white dot, a dashed dark
+  ring of its 95 % confidence radius around it, a thin line to the true body's centre), and a red line for each load
   overlap (held for a second of shown time);
 * each robot's smallest barrier value of each kind since the run started (at most the last
   ten minutes, at least a minute wide; three charts, zero marked): the page fetches the
@@ -201,7 +201,6 @@ function drawFloor(frame) {
   }
   const shown = [];
   const rect = floor.getBoundingClientRect(), sx = rect.width / floor.width, sy = rect.height / floor.height;
-  const estimates = drawEstimates(c, frame.robots);
   for (const r of frame.robots) {
     if (!finite(r.x)) continue;
     const [a, b] = px(r.x, r.y), rr = Math.max(rad * view.s, 4), col = colorOf(r.formation);
@@ -222,6 +221,7 @@ function drawFloor(frame) {
     shown.push({ id: r.id, x: r.x, y: r.y, color: col,
                  cx: rect.left + a * sx, cy: rect.top + b * sy, r: rr * sx });
   }
+  const estimates = drawEstimates(c, frame.robots);  // over the bodies: a ring is often smaller than one
   const hits = drawHits(c, frame);
   drawAxes(c, gx0, gx1, gy0, gy1);  // last: on top of shelves and robots
   return { robots: shown, loads: loads, hits: hits, estimates: estimates, blind: blind, cargo: cargo };
@@ -271,7 +271,7 @@ function drawEstimates(c, robots) {
     if (!finite(r.est_x) || !finite(r.sigma_m) || !finite(r.x)) continue;
     const [a, b] = px(r.est_x, r.est_y), [ta, tb] = px(r.x, r.y), col = colorOf(r.formation);
     const rr = Math.max(r.sigma_m * view.s, 2);
-    c.strokeStyle = col; c.lineWidth = 1.5; c.setLineDash([4, 3]);
+    c.strokeStyle = "#111"; c.lineWidth = 1.5; c.setLineDash([4, 3]);
     c.beginPath(); c.arc(a, b, rr, 0, 2 * Math.PI); c.stroke(); c.setLineDash([]);
     c.lineWidth = 1; c.beginPath(); c.moveTo(ta, tb); c.lineTo(a, b); c.stroke();
     c.fillStyle = "#fff"; c.beginPath(); c.arc(a, b, 2.5, 0, 2 * Math.PI); c.fill(); c.stroke();

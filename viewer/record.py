@@ -26,7 +26,8 @@ topic          schema                      what
 =============  ==========================  ======================================================
 
 Under ``controller.localisation: fused`` ``/scene`` also draws each robot's own estimate (a
-small sphere) and a ring of its 95 % confidence radius around it, beside the true body; blind
+small sphere in its formation's colour) and a dark ring of its 95 % confidence radius around it,
+just above the true body; blind
 floor (``world.camera_blind``) is a translucent violet box on the floor. A lifelong run's
 loads on the floor (``cargo``) are boxes: brown while resting, in the team's colour while
 carried, each named.
@@ -91,6 +92,7 @@ LOAD_HEIGHT = 0.02  # [m] where a load is drawn: on the floor, under the robots
 HIT_HEIGHT = 0.25  # [m] a load overlap's red line: above the robots, to be seen
 HIT_LIFETIME = Duration(0, 250_000_000)  # an overlap's line goes once no tick repeats it
 HIT_RGB = (0.85, 0.0, 0.0)
+ESTIMATE_RGB = (0.07, 0.07, 0.07)  # a fused robot's confidence ring
 BLIND_RGB = (0.55, 0.35, 0.75)  # blind floor: violet, translucent
 RESTING_RGB = (0.55, 0.38, 0.2)  # a resting load: brown
 CARGO_HEIGHT = 0.15  # [m] a load's top: above the robots' bodies' middle, under their tops
@@ -291,10 +293,11 @@ def _estimate_entity(r: dict[str, Any], rgb: tuple[float, float, float],
                      stamp: Timestamp) -> SceneEntity:
     """A fused robot's own estimate (a sphere) and the ring of its 95 % confidence radius."""
     x, y, sigma = r["est_x"], r["est_y"], r["sigma_m"]
+    z = BODY_HEIGHT + 0.03  # above the body: a ring is often smaller than one
     ring = LinePrimitive(type=LinePrimitiveLineType.LineLoop, thickness=0.012,
-                         pose=_pose(x, y, 0.01), points=_ring(sigma, sigma), color=_color(rgb))
-    dot = SpherePrimitive(pose=_pose(x, y, 0.02), size=_size(0.05, 0.05, 0.05),
-                          color=_color(rgb, 0.7))
+                         pose=_pose(x, y, z), points=_ring(sigma, sigma), color=_color(ESTIMATE_RGB))
+    dot = SpherePrimitive(pose=_pose(x, y, z), size=_size(0.03, 0.03, 0.03),
+                          color=_color(rgb, 0.9))
     return SceneEntity(timestamp=stamp, frame_id=FRAME_ID, id=f"estimate/{r['id']}",
                        lines=[ring], spheres=[dot])
 
