@@ -102,12 +102,13 @@ function colorOf(formation) {
 function finite(v) { return typeof v === "number" && isFinite(v); }
 
 function fit(frame) {
-  // the box around every robot and ellipse, 1 m of margin, at least 4 m across
+  // the box around every robot, ellipse and lifelong load, with a margin, at least 4 m across
   let x0 = Infinity, y0 = Infinity, x1 = -Infinity, y1 = -Infinity;
   const add = (x, y, r) => { x0 = Math.min(x0, x - r); x1 = Math.max(x1, x + r);
                              y0 = Math.min(y0, y - r); y1 = Math.max(y1, y + r); };
   for (const r of frame.robots) if (finite(r.x)) add(r.x, r.y, 1.0);
   for (const e of frame.ellipses) if (finite(e.cx)) add(e.cx, e.cy, Math.max(e.a, e.b) + 0.5);
+  for (const ld of frame.cargo || []) for (const p of ld.outline) if (finite(p[0])) add(p[0], p[1], 0.5);
   if (!isFinite(x0)) return view;
   const cx = (x0 + x1) / 2, cy = (y0 + y1) / 2;
   const w = Math.max(x1 - x0, 4, (y1 - y0) * floor.width / floor.height);
