@@ -175,3 +175,48 @@ def test_the_page_lists_the_orders_and_draws_resting_loads_brown_and_carried_one
     assert np.linalg.norm(colour_near(cargo["p9"]) - brown) < 25, colour_near(cargo["p9"])
     team = 0.35 * np.array(hex_rgb(cargo["o1"]["color"]), dtype=float) + 0.65 * 255.0
     assert np.linalg.norm(colour_near(cargo["o1"]) - team) < 25, colour_near(cargo["o1"])
+
+
+def fake_watcher():
+    """A live watcher on a session that only records subscriptions, and a ``put(key, bytes)``
+    that hands it a sample as Zenoh would."""
+    from types import SimpleNamespace
+
+    from viewer.live import FleetWatcher
+
+    class Session:
+        def declare_subscriber(self, key, handler):
+            return SimpleNamespace(undeclare=lambda: None)
+
+    w = FleetWatcher(Session())
+
+    def put(key: str, data: bytes) -> None:
+        w.on_sample(SimpleNamespace(key_expr=key, payload=SimpleNamespace(to_bytes=lambda: data)))
+
+    return w, put
+
+
+def test_the_live_watcher_lists_the_orders_posted_and_their_teams_reports():
+    from wire.orders import BidMsg, OrderMsg, OrderStatusMsg, encode_order
+    from wire.payloads import Pose, encode
+
+    w, put = fake_watcher()
+    put("warehouse/robot/f1/pose", encode(Pose(0.0, 0.0, 0.0, 20.0)))
+    assert "orders" not in w.frame()  # a fleet without orders: no orders keys
+    put("warehouse/order/o1", encode_order(OrderMsg("o1", "new", "pallet", "", "in-1", "rack-2",
+                                                    stamp=3.0)))
+    put("warehouse/order/m2", encode_order(OrderMsg("m2", "load", load="p9", to="out-1",
+                                                    stamp=4.0)))
+    put("warehouse/order/o1/bid/f1", encode_order(BidMsg("o1", "f1", 1, "bid", (1.0, 2.0))))
+    put("warehouse/order/o1/status", encode_order(OrderStatusMsg(
+        "o1", "carrying", 1, ("f3", "f1"), "f3", stamp=9.5)))
+    # a status about another order than its key names is not that order's
+    put("warehouse/order/m2/status", encode_order(OrderStatusMsg("o1", "failed", stamp=9.0)))
+    put("warehouse/order/m2/bad", b"\x00")
+    f = w.frame()
+    assert [(o["id"], o["state"], o["since"], o["from"], o["to"], o["robots"]) for o in f["orders"]] \
+        == [("o1", "carrying", 9.5, "in-1", "rack-2", ["f3", "f1"]),
+            ("m2", "waiting", 4.0, "", "out-1", [])]
+    assert f["order_counts"] == {"carrying": 1, "waiting": 1}
+    put("warehouse/order/m2/status", b"\x01garbage")
+    assert w.frame()["orders"][1]["state"] == "waiting" and w.rejected == {"order_status": 1}

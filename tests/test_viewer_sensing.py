@@ -170,3 +170,34 @@ def test_the_page_rings_each_estimate_over_its_robot_and_tints_the_blind_floor()
     y, x = round(box["cy"] + 0.8 * scale), round(box["cx"] - 1.5 * scale)
     r, g, b = (int(v) for v in rgb[y - 2:y + 3, x - 2:x + 3].reshape(-1, 3).mean(axis=0))
     assert b > g + 10 and r > g and (r, g, b) != (255, 255, 255), (r, g, b)
+
+
+def test_the_live_watcher_draws_the_scenarios_blind_floor_and_a_states_estimate():
+    from types import SimpleNamespace
+
+    from viewer.live import FleetWatcher
+    from wire.payloads import Pose, State, encode
+
+    class Session:
+        def declare_subscriber(self, key, handler):
+            return SimpleNamespace(undeclare=lambda: None)
+
+    def put(w, key: str, data: bytes) -> None:
+        w.on_sample(SimpleNamespace(key_expr=key, payload=SimpleNamespace(to_bytes=lambda: data)))
+
+    w = FleetWatcher(Session(), scenario=fused())
+    put(w, "warehouse/robot/p1/pose", encode(Pose(1.0, 0.5, 0.0, 7.0)))
+    put(w, "warehouse/robot/p1/state", encode(State(1.0, 0.5, 0.1, 0.0, 7.0, 0.0)))
+    f = w.frame()
+    assert f["blind"] == next(iter(frames_from_series(series_of(fused()), fused())))["blind"]
+    assert "sigma_m" not in f["robots"][0]  # a state without a radius: the camera's pose
+    bare = FleetWatcher(Session())  # no scenario: no blind floor known
+    put(bare, "warehouse/robot/p1/pose", encode(Pose(1.0, 0.5, 0.0, 7.0)))
+    assert "blind" not in bare.frame()
+    if "sigma" not in getattr(State, "__dataclass_fields__", {}):
+        pytest.skip("this wire's state carries no confidence radius")
+    state = State(1.2, 0.4, 0.1, 0.0, 7.0, 0.0, SIGMA)
+    put(w, "warehouse/robot/p1/state", encode(state))
+    (r,) = w.frame()["robots"]
+    assert (r["est_x"], r["est_y"], r["sigma_m"]) == (1.2, 0.4, SIGMA)  # single integrators
+    assert (r["x"], r["y"]) == (1.0, 0.5)  # the camera's pose stays beside it
