@@ -20,9 +20,10 @@ from scenario.lifelong import outline_at
 from simulator.lifelong import solo
 from simulator.series import Series
 from viewer.frame import frames_from_series
-from viewer.orders import RECENT_S, OrderBoard, OrderTimeline, counts_line
+from viewer.orders import FINAL, RECENT_S, OrderBoard, OrderTimeline, counts_line
 from viewer.record import FLEET_TOPIC, ORDERS_TOPIC, SCENE_TOPIC, write_recording
 from viewer.server import Hub, PageServer
+from wire.orders import ORDER_STATES
 
 ONE_PALLET = Path(__file__).parent / "scenarios" / "lifelong-one-pallet.yaml"
 TEAM = ("f1", "f2", "f3", "f4")
@@ -65,6 +66,11 @@ def load_rows() -> list[tuple]:
             (6.0, "o1", "pallet", *src, "carried", "", "o1"),
             (8.0, "o1", "pallet", *mid, "carried", "", "o1"),
             (11.0, "o1", "pallet", *dst, "resting", "rack-2", "")]
+
+
+def test_the_viewers_states_are_the_contracts():
+    assert FINAL == lo.FINAL
+    assert ORDER_STATES == tuple(s for s in lo.STATES if s not in lo.REPORTED)
 
 
 def test_the_timeline_notes_each_reported_state_when_the_order_entered_it():

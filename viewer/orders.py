@@ -25,11 +25,13 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from leader import orders as lo
 from scenario.lifelong import Lifelong, outline_at
+from wire.orders import ORDER_STATES
 
 RECENT_S = 30.0  # [s] an order that ended is listed this long after
 GONE = "gone"
+WAITING = "waiting"
+FINAL = ("delivered", "cancelled", "failed")  # the states after which nothing happens
 
 
 @dataclass(frozen=True)
@@ -48,11 +50,12 @@ class OrderTimeline:
     """Every order's reported state as the run went (see the module docstring)."""
 
     changes: list[Change] = field(default_factory=list)
-    specs: dict[str, lo.Order] = field(default_factory=dict)  # oid -> the order as first posted
+    specs: dict[str, Any] = field(default_factory=dict)  # oid -> the order as first posted
     _open: dict[str, str] = field(default_factory=dict)  # oid -> last state seen, not done
 
-    def look(self, t: float, orders: Mapping[str, lo.Order]) -> None:
-        """Note the orders whose reported state changed since the last look (at ``t``)."""
+    def look(self, t: float, orders: Mapping[str, Any]) -> None:
+        """Note the orders (:class:`leader.orders.Order`) whose reported state changed since
+        the last look (at ``t``)."""
         if len(orders) != len(self.specs):
             for oid, o in orders.items():
                 if oid not in self.specs and o.t_posted is not None:
@@ -70,14 +73,14 @@ class OrderTimeline:
 
 
 #: the order's own record of when it entered each reported state
-ENTERED = {lo.ASSIGNED: "t_assigned", lo.GATHERING: "t_assigned", lo.CARRYING: "t_lifted",
-           lo.DELIVERED: "t_delivered", lo.CANCELLED: "t_done", lo.FAILED: "t_done"}
+ENTERED = {"assigned": "t_assigned", "gathering": "t_assigned", "carrying": "t_lifted",
+           "delivered": "t_delivered", "cancelled": "t_done", "failed": "t_done"}
 
 
-def entered(o: lo.Order, t: float, first: bool) -> float:
+def entered(o: Any, t: float, first: bool) -> float:
     """When order ``o``, seen at ``t`` in its reported state, entered it: its own stamp of it;
     waiting: its posting when ``first`` seen, else (a lost member sent it back) ``t``."""
-    name = "t_posted" if o.state == lo.WAITING and first else ENTERED.get(o.reported, "")
+    name = "t_posted" if o.reported == WAITING and first else ENTERED.get(o.reported, "")
     stamp = getattr(o, name, None) if name else None
     return t if stamp is None else min(stamp, t)
 
@@ -112,7 +115,7 @@ class OrderBoard:
         for oid in sorted(self._now, key=self._rank.__getitem__):
             ch = self._now[oid]
             counts[ch.state] = counts.get(ch.state, 0) + 1
-            if ch.state not in lo.FINAL or t - ch.t <= RECENT_S:
+            if ch.state not in FINAL or t - ch.t <= RECENT_S:
                 listed.append(self._entry(ch))
         return {"cargo": [self._cargo(r) for r in self._loads.values() if r[6] != GONE],
                 "orders": listed, "order_counts": counts}
@@ -131,8 +134,7 @@ class OrderBoard:
 
 def counts_line(counts: Mapping[str, int]) -> str:
     """``order_counts`` in words, states in the contract's order (``3 delivered, 1 carrying``)."""
-    order = [s for s in lo.STATES if s not in lo.REPORTED]
-    return ", ".join(f"{counts[s]} {s}" for s in order if counts.get(s))
+    return ", ".join(f"{counts[s]} {s}" for s in ORDER_STATES if counts.get(s))
 
 
 def changed(before: Iterable[dict] | None, after: Iterable[dict]) -> bool:
