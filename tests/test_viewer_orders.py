@@ -226,3 +226,24 @@ def test_the_live_watcher_lists_the_orders_posted_and_their_teams_reports():
     assert f["order_counts"] == {"carrying": 1, "waiting": 1}
     put("warehouse/order/m2/status", b"\x01garbage")
     assert w.frame()["orders"][1]["state"] == "waiting" and w.rejected == {"order_status": 1}
+
+
+def test_the_live_watcher_draws_resting_loads_published_among_the_shelves_as_cargo():
+    from geometry.shapes import box
+    from wire.orders import OrderMsg, encode_order
+    from wire.payloads import Obstacles, Pose, encode
+    from wire.shapes import shape_to_msg
+
+    w, put = fake_watcher()
+    put("warehouse/robot/f1/pose", encode(Pose(0.0, 0.0, 0.0, 20.0)))
+    shelf = box("shelf", (0.0, 0.0), (3.0, 0.6), 0.0, 0.15)
+    load = box("o1", (-4.0, 1.5), (0.8, 0.6), 1.5708, 0.15)
+    put("warehouse/obstacles", encode(Obstacles(20.0, (), (shape_to_msg(shelf),
+                                                             shape_to_msg(load)))))
+    assert [sh["name"] for sh in w.frame()["shapes"]] == ["shelf", "o1"]  # no order heard: a shelf
+    put("warehouse/order/o1", encode_order(OrderMsg("o1", "new", "pallet", "", "in-1", "rack-2")))
+    f = w.frame()
+    assert [sh["name"] for sh in f["shapes"]] == ["shelf"]
+    (cargo,) = f["cargo"]
+    assert cargo["name"] == "o1" and cargo["state"] == "resting"
+    assert cargo["outline"] == [[x, y] for x, y in load.corners()]

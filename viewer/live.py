@@ -21,7 +21,8 @@ the body its estimated control point and heading place (the scenario's control o
 without a scenario), beside the pose the camera last saw. Given the scenario, its blind floor
 is drawn (``blind``). A lifelong fleet's orders (each order's ``order/{oid}`` and the
 ``order/{oid}/status`` its team's leader reports) become the frame's ``orders`` and
-``order_counts`` (:mod:`viewer.orders`), once one has been heard.
+``order_counts`` (:mod:`viewer.orders`), once one has been heard; its resting loads, which the
+world publishes among the shelves, its ``cargo``.
 
 It never publishes anything, so it works with any fleet, simulated or real, that the session's
 credentials may read.
@@ -91,6 +92,8 @@ class FleetWatcher:
         self.loads = None if scenario is None else LoadView(scenario)
         self.offset = 0.0 if scenario is None else scenario.robot.control_offset
         boxes = () if scenario is None else scenario.world.camera_blind
+        life = getattr(scenario, "lifelong", None)
+        self.load_names = {ld.name for ld in life.loads} if life is not None else set()
         self.blind = {"blind": blind_entries(boxes)} if boxes else {}
         self.tolerance = tolerance
         self._lock = threading.Lock()
@@ -162,13 +165,25 @@ class FleetWatcher:
         return {"t": heard.t, "t0": self.t0, "radius": self.radius, "robots": out_robots,
                 "ellipses": ellipses,
                 "obstacles": heard.obstacles,
-                "shapes": heard.shapes,
+                **self._shapes(heard),
                 **self._loads(out_robots, heard.obstacles),
                 "routes": [{"formation": f, "points": [[num(x), num(y)] for x, y in plans[f].route]}
                            for f in sorted(plans)],
                 "formations": [leader_report(formation_status(n, out_robots, self.tolerance),
                                              reports.get(n)) for n in names],
                 **self.blind, **order_fields(heard.orders, heard.order_status)}
+
+    def _shapes(self, heard: _Heard) -> dict[str, list]:
+        """The walls and shelves heard; a lifelong fleet's resting loads, published among them
+        by name (an order's new load is named by the order, a resting load by the scenario),
+        are its ``cargo`` instead."""
+        names = set(heard.orders) | self.load_names
+        if not names:
+            return {"shapes": heard.shapes}
+        cargo = [{"name": sh["name"], "type": "", "state": "resting", "station": "", "order": "",
+                  "outline": sh["corners"]} for sh in heard.shapes if sh["name"] in names]
+        return {"shapes": [sh for sh in heard.shapes if sh["name"] not in names],
+                **({"cargo": cargo} if cargo else {})}
 
     def _loads(self, robots: list[dict], obstacles: list[dict]) -> dict[str, list]:
         if self.loads is None:
