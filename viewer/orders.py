@@ -21,7 +21,7 @@ one changes (:mod:`viewer.record`).
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -135,10 +135,3 @@ class OrderBoard:
 def counts_line(counts: Mapping[str, int]) -> str:
     """``order_counts`` in words, states in the contract's order (``3 delivered, 1 carrying``)."""
     return ", ".join(f"{counts[s]} {s}" for s in ORDER_STATES if counts.get(s))
-
-
-def changed(before: Iterable[dict] | None, after: Iterable[dict]) -> bool:
-    """Whether two frames' order lists differ in any order's state or listing."""
-    if before is None:
-        return True
-    return [(o["id"], o["state"]) for o in before] != [(o["id"], o["state"]) for o in after]
