@@ -65,6 +65,7 @@ from wire.shapes import msg_to_shape
 
 from .frame import Frame, blind_entries, formation_status, num, shape_entries
 from .loads import LoadView, hull_entries
+from .orders import ordered_counts
 
 # robot key kind -> (field of a robot's entry, decoder); poses are handled apart (they set the time)
 _ROBOT_KINDS = {keys.STATE: ("state", decode_state), keys.CMD: ("cmd", decode_cmd),
@@ -276,7 +277,7 @@ def order_fields(orders: dict[str, OrderMsg], status: dict[str, OrderStatusMsg]
                        "from": m.source if m is not None else "", "to": m.to if m is not None else "",
                        "robots": list(st.roster) if st is not None else [],
                        "reason": st.reason if st is not None else ""})
-    return {"orders": listed, "order_counts": counts}
+    return {"orders": listed, "order_counts": ordered_counts(counts)}
 
 
 def _posted(m: OrderMsg | None) -> float:

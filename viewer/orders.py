@@ -118,7 +118,7 @@ class OrderBoard:
             if ch.state not in FINAL or t - ch.t <= RECENT_S:
                 listed.append(self._entry(ch))
         return {"cargo": [self._cargo(r) for r in self._loads.values() if r[6] != GONE],
-                "orders": listed, "order_counts": counts}
+                "orders": listed, "order_counts": ordered_counts(counts)}
 
     def _cargo(self, row: tuple) -> dict[str, Any]:
         _t, name, kind, x, y, yaw, state, station, order = row[:9]
@@ -132,6 +132,6 @@ class OrderBoard:
                 "from": o.src, "to": o.dst, "robots": list(ch.robots), "reason": ch.reason}
 
 
-def counts_line(counts: Mapping[str, int]) -> str:
-    """``order_counts`` in words, states in the contract's order (``3 delivered, 1 carrying``)."""
-    return ", ".join(f"{counts[s]} {s}" for s in ORDER_STATES if counts.get(s))
+def ordered_counts(counts: Mapping[str, int]) -> dict[str, int]:
+    """``counts`` in the contract's order of states (``waiting`` first), as the page lists them."""
+    return {s: counts[s] for s in ORDER_STATES if counts.get(s)}
