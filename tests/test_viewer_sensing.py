@@ -149,11 +149,14 @@ def test_the_page_rings_each_estimate_over_its_robot_and_tints_the_blind_floor()
             browser.evaluate("window.viewerFreeze = true")
             browser.painted()
             shown = browser.evaluate("window.viewer")
+            radii = browser.evaluate("Array.from(document.querySelectorAll('#robots td.radius'))"
+                                     ".map(c => c.textContent)")
             _png, rgb = browser.screenshot()
         finally:
             browser.close()
     finally:
         page.close()
+    assert radii == [f"{100 * SIGMA:.1f}"] * 4  # the robots table lists each radius [cm]
     robots = {r["id"]: r for r in shown["robots"]}
     scale = robots["p1"]["r"] / s.robot.radius  # CSS pixels per metre
     for e in shown["estimates"]:

@@ -22,6 +22,7 @@ server that served it about ten times a second and draws
   leader, the goals it refused and why it refused the last one), a lifelong run's orders (the
   count per state, then each open or recently ended order: state, since when, from, to, team,
   why it failed),
+  each robot's QP status, slack and barrier values (and under ``fused`` its 95 % radius),
   the newest log lines, the shown time (simulated seconds; for wall
   time the UTC clock and the seconds since the first frame), the Foxglove WebSocket's port;
 * for a replay: play/pause, speed and a time slider.
@@ -432,9 +433,12 @@ function side(st) {
     (fm.refused ? fm.refused + (fm.refusal ? ", the last: " + esc(fm.refusal) : "") : "") + "</td></tr>";
   document.getElementById("formations").innerHTML = rows;
   sideOrders(f);
-  rows = "<tr><th>robot</th><th>QP</th><th>slack</th><th>h_form</th><th>h_obs</th><th>h_ell</th></tr>";
+  const fused = f.robots.some(r => finite(r.sigma_m));  // its own estimate: the 95 % radius too
+  rows = "<tr><th>robot</th><th>QP</th><th>slack</th><th>h_form</th><th>h_obs</th><th>h_ell</th>" +
+    (fused ? "<th>radius [cm]</th>" : "") + "</tr>";
   for (const r of f.robots) rows += "<tr><td>" + esc(r.id) + "</td><td>" + esc(r.status) + "</td><td>" + fmt(r.slack, 3) +
-    "</td><td>" + fmt(r.h_formation, 3) + "</td><td>" + fmt(r.h_obstacle, 3) + "</td><td>" + fmt(r.h_formations, 3) + "</td></tr>";
+    "</td><td>" + fmt(r.h_formation, 3) + "</td><td>" + fmt(r.h_obstacle, 3) + "</td><td>" + fmt(r.h_formations, 3) +
+    (fused ? "</td><td class='radius'>" + fmt(100 * r.sigma_m, 1) : "") + "</td></tr>";
   document.getElementById("robots").innerHTML = rows;
   document.getElementById("logs").innerHTML = st.logs.slice().reverse().map(e =>
     "<div class='" + esc(e.level) + "'>" + clock(e.t) + " " + esc(e.name) + ": " + esc(e.message) + "</div>").join("");
