@@ -9,7 +9,12 @@ would never come). Drawn from the run's seed: the run's scenario file replays it
 
 from __future__ import annotations
 
+import argparse
+import json
 import math
+import sys
+from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 
@@ -53,3 +58,67 @@ def draw_patches(d: dict, n: int, seed: int) -> list[dict]:
                                     "yaw": round(yaw, 6)}})
                 break
     return out
+
+
+def nearest_rank(values: Sequence[float], q: float) -> float | None:
+    """The nearest-rank ``q`` quantile of ``values`` (None when there are none)."""
+    ordered = sorted(values)
+    return ordered[max(0, math.ceil(q * len(ordered)) - 1)] if ordered else None
+
+
+def spread(values: Sequence[float]) -> dict[str, float | None]:
+    """``{median, p95, worst}`` (nearest rank; the worst is the largest) of ``values``."""
+    return {"median": nearest_rank(values, 0.5), "p95": nearest_rank(values, 0.95),
+            "worst": nearest_rank(values, 1.0)}
+
+
+def time_cost(fused: Sequence[dict], camera: Sequence[dict]) -> dict:
+    """The fused runs' times to their goals against the camera-only runs of the same draws
+    (``runs.jsonl`` rows, paired by ``seed`` where both drew the same layout): per pair the
+    ratio fused / camera and the extra seconds, as :func:`spread`; pairs where either run
+    missed a goal are counted apart (``unreached``), draws found in one folder only as
+    ``unpaired``."""
+    by_seed = {r["seed"]: r for r in camera}
+    ratios: list[float] = []
+    extra: list[float] = []
+    unreached = unpaired = 0
+    for r in fused:
+        c = by_seed.get(r["seed"])
+        if c is None or c.get("layout_seed") != r.get("layout_seed"):
+            unpaired += 1
+            continue
+        a, b = r.get("time_to_goal_s"), c.get("time_to_goal_s")
+        if a is None or b is None or b <= 0.0:
+            unreached += 1
+            continue
+        ratios.append(a / b)
+        extra.append(a - b)
+    return {"pairs": len(ratios), "unreached": unreached, "unpaired": unpaired,
+            "ratio": spread(ratios), "extra_s": spread(extra),
+            "ratio_best": min(ratios, default=None), "extra_s_best": min(extra, default=None)}
+
+
+def read_runs(folder: Path) -> list[dict]:
+    """The ``runs.jsonl`` rows of a ``formation montecarlo`` folder."""
+    lines = (Path(folder) / "runs.jsonl").read_text(encoding="utf-8").splitlines()
+    return [json.loads(line) for line in lines if line.strip()]
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m experiments.blind",
+                                description="time to goal of fused runs with blind patches "
+                                            "against camera-only runs of the same draws")
+    p.add_argument("fused", type=Path, help="formation montecarlo --localisation fused --blind N folder")
+    p.add_argument("camera", type=Path, help="the same draws' camera-only folder (no patches)")
+    ns = p.parse_args(argv)
+    try:
+        fused, camera = read_runs(ns.fused), read_runs(ns.camera)
+    except (OSError, ValueError) as exc:
+        print(f"python -m experiments.blind: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps(time_cost(fused, camera), indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -31,7 +31,7 @@ from scenario.load import scenario_from_dict
 from scenario.world import IDEAL
 from simulator.inprocess import SimOptions, simulate
 
-from .blind import draw_patches
+from .blind import draw_patches, spread
 from .cluster import run_sweep
 from .lifelong_draw import lifelong_problem, lifelong_scenario
 from .warehouse_draw import warehouse_problem, warehouse_scenario
@@ -286,15 +286,10 @@ def localisation_totals(results: list[dict], blind: Blind) -> dict:
     """What the runs' filters did (``fused``): each run's largest error against the truth
     (median, p95, worst), its largest confidence radius, refused poses, blind time."""
     locs = [r["localisation"] for r in results if "localisation" in r]
-    errors = sorted(x["max_error_m"] for x in locs)
-
-    def pick(q: float) -> float | None:  # the nearest-rank quantile
-        return errors[max(0, math.ceil(q * len(errors)) - 1)] if errors else None
-
     return {
         "mode": blind.localisation,
         "blind_patches": blind.patches,
-        "max_error_m": {"median": pick(0.5), "p95": pick(0.95), "worst": pick(1.0)},
+        "max_error_m": spread([x["max_error_m"] for x in locs]),
         "max_sigma_m": max((x["max_sigma_m"] for x in locs), default=None),
         "rejected": sum(x["rejected"] for x in locs),
         "over_limit_ticks": sum(x["over_limit_ticks"] for x in locs),

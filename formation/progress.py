@@ -12,7 +12,9 @@ class Progress:
     ``unit="time"``: the bar runs against the scenario's duration and shows the simulated time.
     A run that ends early (it stops when every goal is reached) is not drawn as full: its last
     line says where and why it ended (``ended early at t=9.60 s of 40.00 s: every goal
-    reached``). ``unit="runs"``: the bar counts finished runs (``12/40 runs``)."""
+    reached``). ``unit="runs"``: the bar counts finished runs (``12/40 runs``). A lifelong run
+    tells :meth:`orders` the orders delivered and posted: the line shows them
+    (``3/5 orders delivered``) and is drawn again as soon as another is delivered."""
 
     def __init__(self, label: str, quiet: bool = False, unit: str = "time",
                  early: str = "every goal reached") -> None:
@@ -27,9 +29,17 @@ class Progress:
         self._time = 0.0
         self._done = 0
         self._total = 0
+        self._orders: tuple[int, int] | None = None  # (delivered, posted) of a lifelong run
 
     def __enter__(self) -> Progress:
         return self
+
+    def orders(self, delivered: int, posted: int) -> None:
+        """A lifelong run's orders delivered and posted so far; a new delivery is drawn at the
+        next :meth:`update`."""
+        if self._orders is not None and delivered != self._orders[0]:
+            self._last = -1
+        self._orders = (delivered, posted)
 
     def update(self, done: int, total: int, sim_time: float) -> None:
         self._time, self._done, self._total = sim_time, done, total
@@ -46,7 +56,10 @@ class Progress:
         if self.unit == "runs":
             return f"{self._done}/{self._total} runs"
         duration = self._time * self._total / self._done if self._done else 0.0
-        return f"t={self._time:7.2f} s of {duration:.2f} s"
+        where = f"t={self._time:7.2f} s of {duration:.2f} s"
+        if self._orders is not None:
+            where += f", {self._orders[0]}/{self._orders[1]} orders delivered"
+        return where
 
     def _draw(self, fraction: float, tail: str) -> None:
         width = 30

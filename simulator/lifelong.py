@@ -54,6 +54,7 @@ from scenario.cargo import load_clearances
 from scenario.lifelong import SINK, Lifelong, LoadType, Order
 from scenario.model import Edge, FormationSpec, RobotSpec
 from scenario.routes import start_plan
+from viewer.orders import OrderBoard, OrderTimeline
 
 from .inprocess import FleetControl, QPStats, SimOptions, obstacles_at, record, summarise
 from .orders_out import orders_block, write_order_files
@@ -210,6 +211,7 @@ class LifelongRun:
         self.leaving: dict[str, tuple[float, float]] = {}  # robot -> the point clear of a load
         self.under: dict[str, set[str]] = {r: set() for r in self.ids}  # loads over a robot
         self.load_rows: list[tuple] = []
+        self.timeline = OrderTimeline()  # the orders' states as they change, for run.mcap
         self.busy_s = 0.0  # robot-seconds spent in a team
         self.bounds: dict[str, float] = {}  # order -> its straight-line service bound [s]
         self.checks = Checks()
@@ -243,6 +245,8 @@ class LifelongRun:
                 record(self.tick, t, before, results, ellipses, obs)
             t = (k + 1) * dt
             self.watch(t)
+            if self.options.record:
+                self.timeline.look(t, self.orders)
             if self.tally is not None:
                 self.tally(sum(1 for o in self.orders.values() if o.state == lo.DELIVERED),
                            len(self.orders))
@@ -776,7 +780,8 @@ def simulate_lifelong(scenario: Scenario, options: SimOptions | None = None,
 def write_lifelong(result: LifelongResult, out: Path, plots: bool = True) -> list[dict[str, str]]:
     """Every file of a lifelong run: the run's files (:func:`simulator.output.write_run`), then
     orders.csv, loads.csv and orders.png; the files lost, as ``write_run`` returns them."""
-    lost = write_run(result.summary, result.series, result.scenario, out, plots=plots)
+    board = OrderBoard(result.run.life, result.run.load_rows, result.run.timeline)
+    lost = write_run(result.summary, result.series, result.scenario, out, plots=plots, board=board)
     try:
         write_order_files(out, list(result.run.orders.values()), result.run.load_rows, plots,
                           result.summary["sim_time_s"])

@@ -29,6 +29,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from scenario import Scenario
+from viewer.orders import OrderBoard
 from viewer.record import write_recording
 
 from .goals import with_goals
@@ -51,7 +52,7 @@ class OutputError(OSError):
 
 
 def write_run(summary: dict, series: Series, scenario: Scenario, out: Path,
-              plots: bool = True) -> list[dict[str, str]]:
+              plots: bool = True, board: OrderBoard | None = None) -> list[dict[str, str]]:
     """Write every file of a run, ``summary.json`` first (small: it is what a run must not
     lose), then each bulk file to a temporary name and renamed whole. The previous run's
     files of these names go first, so none passes for this run's.
@@ -59,7 +60,8 @@ def write_run(summary: dict, series: Series, scenario: Scenario, out: Path,
     A bulk file that cannot be written (a full disk part way) is deleted and the others are
     still tried; ``summary.json`` is then rewritten with ``lost_files`` (``{file, error}`` each,
     after those ``summary`` named already: agents' counters, say; also set in ``summary``) and
-    the whole list is returned ([] when nothing was lost). Only a ``summary.json`` that cannot
+    the whole list is returned ([] when nothing was lost). ``board``: a lifelong run's loads and
+    orders, for ``run.mcap``. Only a ``summary.json`` that cannot
     be written at all raises :class:`OutputError` (``disk full`` for ENOSPC), leaving nothing of
     this run behind."""
     out = Path(out)
@@ -74,7 +76,7 @@ def write_run(summary: dict, series: Series, scenario: Scenario, out: Path,
     lost: list[dict[str, str]] = list(summary.get("lost_files") or [])
     named = len(lost)  # already in the summary as written
     try:
-        for name, write in _bulk_writers(summary, series, scenario, plots):
+        for name, write in _bulk_writers(summary, series, scenario, plots, board):
             problem = _write_one(staging / name, out / name, write)
             if problem is not None:
                 lost.append({"file": name, "error": problem})
@@ -89,8 +91,8 @@ def write_run(summary: dict, series: Series, scenario: Scenario, out: Path,
     return lost
 
 
-def _bulk_writers(summary: dict, series: Series, scenario: Scenario,
-                  plots: bool) -> list[tuple[str, Callable[[Path], None]]]:
+def _bulk_writers(summary: dict, series: Series, scenario: Scenario, plots: bool,
+                  board: OrderBoard | None = None) -> list[tuple[str, Callable[[Path], None]]]:
     """(name, writer of that file at a given path) for each bulk file of the run, in order."""
     writers: list[tuple[str, Callable[[Path], None]]] = [
         ("robots.csv", functools.partial(write_csv_rows, columns=robot_columns(scenario),
@@ -99,7 +101,7 @@ def _bulk_writers(summary: dict, series: Series, scenario: Scenario,
                                            rows=series.ellipses)),
         ("obstacles.csv", functools.partial(write_csv_rows, columns=OBSTACLE_COLUMNS,
                                             rows=series.obstacles)),
-        ("run.mcap", lambda path: _record(summary, series, scenario, path.parent)),
+        ("run.mcap", lambda path: _record(summary, series, scenario, path.parent, board)),
     ]
     if plots and series.robots:
         # here, not at the top: matplotlib loads only for a run that draws its figures
@@ -133,14 +135,15 @@ def lost_words(exc: OSError) -> str:
     return exc.strerror or str(exc) or type(exc).__name__
 
 
-def _record(summary: dict, series: Series, scenario: Scenario, folder: Path) -> None:
+def _record(summary: dict, series: Series, scenario: Scenario, folder: Path,
+            board: OrderBoard | None = None) -> None:
     """``folder/run.mcap``; the MCAP writer reports a full disk as its own error (after a
     warning per message it could not log, here kept quiet): that becomes ENOSPC."""
     quiet = logging.getLogger("foxglove")
     level = quiet.level
     quiet.setLevel(logging.ERROR)
     try:
-        write_recording(summary, series, scenario, folder)
+        write_recording(summary, series, scenario, folder, board)
     except OSError:
         raise
     except Exception:

@@ -5,6 +5,11 @@
 where the obstacle was at that time; collisions are marked where and when they began. The axes
 cover where the robots go (plus a margin), not every obstacle's whole track.
 ``safety.png`` shows the smallest barrier value of each kind per robot over time.
+Under ``controller.localisation: fused`` both show the robots' own estimates beside the truth:
+``trajectories.png`` each robot's estimated path (dotted) beside its true one, and
+``safety.png`` a panel of each robot's filter error against the truth with its 95 % confidence
+radius (the barriers' margin grows with it), the times a robot stood on blind floor shaded.
+Blind floor (``world.camera_blind``) is drawn on ``trajectories.png`` as violet boxes.
 ``motion.png`` shows each robot's commanded speed and the turn of its command from the tick
 before, with the reversals (:mod:`simulator.motion`) marked.
 """
@@ -33,9 +38,11 @@ from matplotlib.ticker import FixedLocator, FormatStrFormatter, NullLocator
 from matplotlib.transforms import Bbox
 
 from agent.hard_rows import unmet_hard_rows
+from geometry.shapes import box
 from scenario import Scenario
 from scenario.cargo import load_polygon, placed_load
 from scenario.routes import start_plan
+from scenario.world import blind_at
 
 from .metrics import SafetyMonitor
 from .motion import REVERSAL_SPEED, is_reversal, robot_ticks, turn_angle
@@ -46,6 +53,7 @@ SNAPSHOTS = 5  # instants at which robots, ellipses and moving obstacles are dra
 MARGIN_M = 0.5  # [m] around the robots' extent (and at least 5 % of the larger span)
 OBSTACLE_REACH_M = 0.5  # [m] more, at most, to show whole a static obstacle at the edge
 COLLISION_GID = "collision"  # gid of the collision markers (tests find them by it)
+BLIND_GID, ESTIMATE_GID = "blind", "estimate"  # and of the blind boxes and estimated paths
 LEGEND_SAFE_DISK = "obstacle: disk of radius Ds (safe distance; robot centres stay outside)"
 LEGEND_MOVING = "moving obstacle at the snapshot times (its Ds disk; darker = later)"
 LEGEND_BODY = "robot body at the snapshot times (radius r)"
@@ -53,6 +61,11 @@ LEGEND_ELLIPSE = "formation ellipse at the snapshot times"
 LEGEND_LOAD = "load at the snapshot times (placed by the members' rigid fit)"
 LEGEND_COLLISION = "collision (where and when it began)"
 LEGEND_OBSTACLE_PATH = "moving obstacle's track"
+LEGEND_BLIND = "blind floor (the camera sees no robot there)"
+LEGEND_ESTIMATE = "robot's own estimate of its path (fused)"
+BLIND_COLOR = (0.55, 0.35, 0.75)
+LOCALISATION_TITLE = ("localisation (fused): filter error against the truth (solid) and its 95 % "
+                      "radius (dashed) [m]; shaded: a robot on blind floor")
 
 
 def _colors(n: int):
@@ -106,6 +119,61 @@ def _nearest(times: Sequence[float], t: float) -> float:
     if k == len(times):
         return times[-1]
     return times[k] if times[k] - t < t - times[k - 1] else times[k - 1]
+
+
+def fused(scenario: Scenario) -> bool:
+    return scenario.controller.localisation == "fused"
+
+
+def estimate_tracks(series: Series) -> dict[str, list[tuple[float, float, float, float, float]]]:
+    """A fused run's estimates per robot, as (t, its distance from the true position,
+    sigma_m, est_x, est_y) for each row that has one (est_x, est_y, sigma_m end each row:
+    :data:`simulator.series.LOCALISATION_COLUMNS`)."""
+    out: dict[str, list[tuple[float, float, float, float, float]]] = defaultdict(list)
+    for row in series.robots:
+        ex, ey, sigma = row[-3:]
+        if all(isinstance(v, float) and math.isfinite(v) for v in (ex, ey, sigma)):
+            err = math.hypot(ex - row[_COL["x"]], ey - row[_COL["y"]])
+            out[row[_COL["robot"]]].append((row[_COL["t"]], err, sigma, ex, ey))
+    return out
+
+
+def blind_spans(series: Series, scenario: Scenario) -> list[tuple[float, float]]:
+    """The time spans during which some robot's true position lay on blind floor."""
+    boxes = scenario.world.camera_blind
+    if not boxes:
+        return []
+    times: dict[float, bool] = {}
+    for row in series.robots:
+        t = row[_COL["t"]]
+        times[t] = times.get(t, False) or blind_at(boxes, row[_COL["x"]], row[_COL["y"]])
+    spans: list[tuple[float, float]] = []
+    start = None
+    ordered = sorted(times)
+    for t in ordered:
+        if times[t] and start is None:
+            start = t
+        elif not times[t] and start is not None:
+            spans.append((start, t))
+            start = None
+    if start is not None:
+        spans.append((start, ordered[-1]))
+    return spans
+
+
+def _draw_blind(ax, scenario: Scenario) -> None:
+    for b in scenario.world.camera_blind:
+        ax.add_patch(Polygon(box("blind", b.center, b.size, b.yaw, 0.0).corners(), closed=True,
+                             fc=(*BLIND_COLOR, 0.12), ec=(*BLIND_COLOR, 0.8), lw=0.8, ls="--",
+                             gid=BLIND_GID))
+
+
+def _draw_estimates(ax, series: Series, scenario: Scenario, fcolor: dict) -> None:
+    """Each fused robot's estimated path, dotted, in its formation's colour."""
+    formation_of = {r: f.name for f in scenario.formations for r in f.robot_ids}
+    for rid, pts in estimate_tracks(series).items():
+        ax.plot([p[3] for p in pts], [p[4] for p in pts], ":", lw=0.9,
+                color=fcolor.get(formation_of.get(rid, ""), "k"), gid=ESTIMATE_GID)
 
 
 def _robot_tracks(series: Series) -> dict[str, list[tuple[float, float, float]]]:
@@ -389,6 +457,10 @@ def _legend_handles(scenario: Scenario, fcolor: dict, collided: bool) -> list:
     if any(o.velocity != (0.0, 0.0) for o in scenario.obstacles):
         handles += [Patch(fc="0.5", ec="0.15", alpha=0.35, label=LEGEND_MOVING),
                     Line2D([], [], ls=":", color="0.3", lw=0.8, label=LEGEND_OBSTACLE_PATH)]
+    if scenario.world.camera_blind:
+        handles.append(Patch(fc=(*BLIND_COLOR, 0.12), ec=BLIND_COLOR, ls="--", label=LEGEND_BLIND))
+    if fused(scenario):
+        handles.append(Line2D([], [], ls=":", color="0.3", lw=0.9, label=LEGEND_ESTIMATE))
     if collided:
         handles.append(Line2D([], [], ls="", marker="X", color="red", ms=9, label=LEGEND_COLLISION))
     return handles
@@ -420,6 +492,9 @@ def trajectory_figure(series: Series, scenario: Scenario) -> Figure:
             ax.plot(pts[0][1], pts[0][2], "o", color=c, ms=4)
             ax.plot(r.goal[0], r.goal[1], "x", color=c, ms=6, mew=1.5)
     _draw_obstacles(ax, series, scenario)
+    _draw_blind(ax, scenario)
+    if fused(scenario):
+        _draw_estimates(ax, series, scenario, fcolor)
     draw_shapes_and_routes(ax, scenario, fcolor)
     labels = _draw_snapshots(ax, series, scenario, fcolor, snaps)
     onsets = collision_onsets(series, scenario)
@@ -513,10 +588,11 @@ def safety_figure(series: Series, scenario: Scenario) -> Figure:
         robot_colour = dict(zip(scenario.robot_ids, _colors(len(scenario.robot_ids)), strict=True))
 
     unmet = hard_row_ticks(series)
-    fig, axes = plt.subplots(len(present), 1, figsize=(10, 2.6 * len(present) + 0.6), sharex=True,
+    panels = len(present) + fused(scenario)
+    fig, axes = plt.subplots(panels, 1, figsize=(10, 2.6 * panels + 0.6), sharex=True,
                              squeeze=False)
     handles: dict[str, Line2D] = {}
-    for ax, (key, label) in zip(axes[:, 0], present, strict=True):
+    for ax, (key, label) in zip(axes[:, 0], present, strict=False):
         values: list[float] = []
         for rid in scenario.robot_ids:
             pts = [(t, v) for t, v in by_robot[rid][key] if isinstance(v, float) and math.isfinite(v)]
@@ -540,6 +616,8 @@ def safety_figure(series: Series, scenario: Scenario) -> Figure:
             ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
             ax.yaxis.set_minor_locator(NullLocator())
         ax.grid(True, lw=0.3)
+    if fused(scenario):
+        _localisation_panel(axes[-1, 0], series, scenario, robot_colour)
     axes[-1, 0].set_xlabel("t [s]")
     total = len({(m[0], m[3]) for m in unmet})
     fig.suptitle(f"{scenario.name}: smallest safety function of each kind per robot "
@@ -550,6 +628,21 @@ def safety_figure(series: Series, scenario: Scenario) -> Figure:
                bbox_to_anchor=(0.845, 0.93), title="robot" if not by_formation else None,
                title_fontsize=7)
     return fig
+
+
+def _localisation_panel(ax, series: Series, scenario: Scenario, robot_colour: dict) -> None:
+    """Each robot's filter error against the truth (solid) and its 95 % radius (dashed)."""
+    for t0, t1 in blind_spans(series, scenario):
+        ax.axvspan(t0, t1, color=BLIND_COLOR, alpha=0.12, lw=0, gid=BLIND_GID)
+    for rid, pts in estimate_tracks(series).items():
+        c = robot_colour.get(rid, "k")
+        ts = [p[0] for p in pts]
+        ax.plot(ts, [p[1] for p in pts], lw=1.0, color=c)
+        ax.plot(ts, [p[2] for p in pts], lw=0.8, ls="--", color=c, gid=ESTIMATE_GID)
+    ax.set_ylim(bottom=0.0)
+    ax.set_ylabel("[m]")
+    ax.set_title(LOCALISATION_TITLE, fontsize=9)
+    ax.grid(True, lw=0.3)
 
 
 def plot_safety(series: Series, scenario: Scenario, path: Path) -> None:

@@ -15,6 +15,15 @@ formation's load is placed from its members' poses and its overlaps are found as
 safety monitor finds them (:class:`viewer.loads.LoadView`); without one (``formation view``)
 the loads are the hulls of the members' body centres, and no overlaps are shown.
 
+A robot whose ``state`` carries a confidence radius (``sigma``: it drives on its own estimate,
+``controller.localisation: fused``) gets ``est_x, est_y, sigma_m`` as in a simulation's frame:
+the body its estimated control point and heading place (the scenario's control offset; none
+without a scenario), beside the pose the camera last saw. Given the scenario, its blind floor
+is drawn (``blind``). A lifelong fleet's orders (each order's ``order/{oid}`` and the
+``order/{oid}/status`` its team's leader reports) become the frame's ``orders`` and
+``order_counts`` (:mod:`viewer.orders`), once one has been heard; its resting loads, which the
+world publishes among the shelves, its ``cargo``.
+
 It never publishes anything, so it works with any fleet, simulated or real, that the session's
 credentials may read.
 """
@@ -22,6 +31,7 @@ credentials may read.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -34,6 +44,14 @@ from geometry.limits import BURGER_RADIUS
 from wire import keys
 from wire.diag import DIAG, all_diag_key, decode_diag
 from wire.navigation import PlanMsg, StatusMsg, decode_plan, decode_status
+from wire.orders import (
+    OrderMsg,
+    OrderStatusMsg,
+    all_orders_key,
+    decode_order,
+    decode_order_status,
+    parse_order_key,
+)
 from wire.payloads import (
     DecodeError,
     Pose,
@@ -45,8 +63,9 @@ from wire.payloads import (
 )
 from wire.shapes import msg_to_shape
 
-from .frame import Frame, formation_status, num, shape_entries
+from .frame import Frame, blind_entries, formation_status, num, shape_entries
 from .loads import LoadView, hull_entries
+from .orders import ordered_counts
 
 # robot key kind -> (field of a robot's entry, decoder); poses are handled apart (they set the time)
 _ROBOT_KINDS = {keys.STATE: ("state", decode_state), keys.CMD: ("cmd", decode_cmd),
@@ -72,6 +91,11 @@ class FleetWatcher:
         self.prefix = keys.validate_prefix(prefix)
         self.radius = radius
         self.loads = None if scenario is None else LoadView(scenario)
+        self.offset = 0.0 if scenario is None else scenario.robot.control_offset
+        boxes = () if scenario is None else scenario.world.camera_blind
+        life = getattr(scenario, "lifelong", None)
+        self.load_names = {ld.name for ld in life.loads} if life is not None else set()
+        self.blind = {"blind": blind_entries(boxes)} if boxes else {}
         self.tolerance = tolerance
         self._lock = threading.Lock()
         self._latest: dict[str, bytes] = {}
@@ -83,7 +107,8 @@ class FleetWatcher:
         exprs = [keys.all_robots_key(p, keys.POSE), keys.all_robots_key(p, keys.STATE),
                  keys.all_robots_key(p, keys.CMD), all_diag_key(p),
                  keys.all_formations_key(p, keys.ELLIPSE), keys.all_formations_key(p, keys.STATUS),
-                 keys.all_formations_key(p, keys.PLAN), keys.obstacles_key(p)]
+                 keys.all_formations_key(p, keys.PLAN), keys.obstacles_key(p),
+                 all_orders_key(p), all_orders_key(p) + "/status"]
         self._subs = [session.declare_subscriber(
             e, zenoh.handlers.Callback(self.on_sample, indirect=False)) for e in exprs]
 
@@ -127,7 +152,8 @@ class FleetWatcher:
             return None
         if self.t0 is None or heard.t < self.t0:
             self.t0 = heard.t
-        out_robots = [_robot_entry(rid, pose, heard.robots[rid]) for rid in sorted(heard.robots)
+        out_robots = [_robot_entry(rid, pose, heard.robots[rid], self.offset)
+                      for rid in sorted(heard.robots)
                       if (pose := heard.robots[rid].get("pose")) is not None]
         told = heard.told
         names = sorted({r["formation"] for r in out_robots})
@@ -140,12 +166,25 @@ class FleetWatcher:
         return {"t": heard.t, "t0": self.t0, "radius": self.radius, "robots": out_robots,
                 "ellipses": ellipses,
                 "obstacles": heard.obstacles,
-                "shapes": heard.shapes,
+                **self._shapes(heard),
                 **self._loads(out_robots, heard.obstacles),
                 "routes": [{"formation": f, "points": [[num(x), num(y)] for x, y in plans[f].route]}
                            for f in sorted(plans)],
                 "formations": [leader_report(formation_status(n, out_robots, self.tolerance),
-                                             reports.get(n)) for n in names]}
+                                             reports.get(n)) for n in names],
+                **self.blind, **order_fields(heard.orders, heard.order_status)}
+
+    def _shapes(self, heard: _Heard) -> dict[str, list]:
+        """The walls and shelves heard; a lifelong fleet's resting loads, published among them
+        by name (an order's new load is named by the order, a resting load by the scenario),
+        are its ``cargo`` instead."""
+        names = set(heard.orders) | self.load_names
+        if not names:
+            return {"shapes": heard.shapes}
+        cargo = [{"name": sh["name"], "type": "", "state": "resting", "station": "", "order": "",
+                  "outline": sh["corners"]} for sh in heard.shapes if sh["name"] in names]
+        return {"shapes": [sh for sh in heard.shapes if sh["name"] not in names],
+                **({"cargo": cargo} if cargo else {})}
 
     def _loads(self, robots: list[dict], obstacles: list[dict]) -> dict[str, list]:
         if self.loads is None:
@@ -155,6 +194,9 @@ class FleetWatcher:
     def _take(self, heard: _Heard, key: str, parts: list[str], data: bytes) -> None:
         """Decode the newest payload ``data`` of ``key`` (``parts``: its path below the prefix)
         into ``heard``; keys a viewer does not draw are left alone."""
+        if parts[:1] == ["order"]:
+            self._take_order(heard, key, data)
+            return
         if parts == [keys.OBSTACLES]:
             msg = self._decode(key, data, decode_obstacles, keys.OBSTACLES)
             if msg is not None:
@@ -171,6 +213,22 @@ class FleetWatcher:
                 heard.told[kind][ident] = msg
         elif group == "robot":
             self._take_robot(heard, key, ident, kind, data)
+
+    def _take_order(self, heard: _Heard, key: str, data: bytes) -> None:
+        """An order as posted, or its status as its team's leader reports it (a status about
+        another order than its key names is not that order's); bids are not drawn."""
+        parsed = parse_order_key(key, self.prefix)
+        if parsed is None or parsed[1] == "bid":
+            return
+        oid, what, _ = parsed
+        if what == "order":
+            msg = self._decode(key, data, decode_order, "order")
+            if msg is not None and msg.oid == oid:
+                heard.orders[oid] = msg
+        else:
+            msg = self._decode(key, data, decode_order_status, "order_status")
+            if msg is not None and msg.oid == oid:
+                heard.order_status[oid] = msg
 
     def _take_robot(self, heard: _Heard, key: str, rid: str, kind: str, data: bytes) -> None:
         r = heard.robots.setdefault(rid, {})
@@ -195,11 +253,55 @@ class _Heard:
     told: dict[str, dict[str, Any]] = dataclass_field(
         default_factory=lambda: {k: {} for k in _FORMATION_KINDS})
     t: float | None = None  # the newest pose stamp
+    orders: dict[str, OrderMsg] = dataclass_field(default_factory=dict)  # oid -> as posted
+    order_status: dict[str, OrderStatusMsg] = dataclass_field(default_factory=dict)
 
 
-def _robot_entry(rid: str, pose: Pose, r: dict[str, Any]) -> dict[str, Any]:
-    """A robot's row of the frame from its newest pose, state, command and diagnostics."""
+def order_fields(orders: dict[str, OrderMsg], status: dict[str, OrderStatusMsg]
+                 ) -> dict[str, Any]:
+    """A frame's ``orders`` and ``order_counts`` from the orders heard (none heard: no keys).
+    An order without a status yet is ``waiting`` since it was posted; a cancel or priority
+    message names an order posted before, so only a new or load order lists one."""
+    posted = {oid: m for oid, m in orders.items() if m.kind in ("new", "load")}
+    if not posted and not status:
+        return {}
+    listed = []
+    counts: dict[str, int] = {}
+    for oid in sorted(set(posted) | set(status), key=lambda o: (_posted(posted.get(o)), o)):
+        m, st = posted.get(oid), status.get(oid)
+        state = st.state if st is not None else "waiting"
+        counts[state] = counts.get(state, 0) + 1
+        listed.append({"id": oid, "state": state,
+                       "since": st.stamp if st is not None else _posted(m),
+                       "type": m.type if m is not None else "", "load": m.load if m is not None else "",
+                       "from": m.source if m is not None else "", "to": m.to if m is not None else "",
+                       "robots": list(st.roster) if st is not None else [],
+                       "reason": st.reason if st is not None else ""})
+    return {"orders": listed, "order_counts": ordered_counts(counts)}
+
+
+def _posted(m: OrderMsg | None) -> float:
+    return m.stamp if m is not None else 0.0
+
+
+def _robot_entry(rid: str, pose: Pose, r: dict[str, Any], offset: float = 0.0) -> dict[str, Any]:
+    """A robot's row of the frame from its newest pose, state, command and diagnostics (and
+    its own estimate, when its state carries a confidence radius: :func:`estimate_of`)."""
     state, cmd, diag = (r.get(k) for k in ("state", "cmd", "diag"))
+    return {**_row(rid, pose, state, cmd, diag), **estimate_of(state, offset)}
+
+
+def estimate_of(state: Any, offset: float) -> dict[str, float]:
+    """``est_x, est_y, sigma_m`` of a state that carries ``sigma``: the body ``offset`` behind
+    the estimated control point along the heading; {} for a state without one."""
+    sigma = getattr(state, "sigma", None)
+    if sigma is None:
+        return {}
+    return {"est_x": state.x - offset * math.cos(state.theta),
+            "est_y": state.y - offset * math.sin(state.theta), "sigma_m": sigma}
+
+
+def _row(rid: str, pose: Pose, state: Any, cmd: Any, diag: Any) -> dict[str, Any]:
     return {
         "id": rid,
         "formation": diag.formation if diag is not None else "?",

@@ -4,25 +4,34 @@
 Nothing to install and nothing fetched from elsewhere (no CDN): the page polls ``/state`` of the
 server that served it about ten times a second and draws
 
-* the floor seen from above, fitted to the fleet and following it: obstacles (grey, with a ring
-  at their safe distance), walls and shelves, each leader's planned route (dotted, waypoints as
+* the floor seen from above, fitted to the fleet and following it: blind floor where the camera
+  sees no robot (violet, translucent), obstacles (grey, with a ring at their safe distance),
+  walls and shelves, a lifelong run's loads on the floor (brown boxes while resting, in the
+  team's colour while carried, each named), each leader's planned route (dotted, waypoints as
   small squares), formation ellipses, each formation's load under its robots (hatched when
   declared, lightly filled with a dashed edge for the members' hull), goals (squares), robots
   (discs in their formation's colour, a heading tick, the control point when it is off the
-  centre), and a red line for each load overlap (held for a second of shown time);
+  centre), under ``fused`` each robot's own estimate over its body (a white dot, a dashed dark
+  ring of its 95 % confidence radius around it, a thin line to the true body's centre), and a red line for each load
+  overlap (held for a second of shown time);
 * each robot's smallest barrier value of each kind since the run started (at most the last
   ten minutes, at least a minute wide; three charts, zero marked): the page fetches the
   server's history (``GET /history``) once when it loads, so a reloaded page plots the run from
   its start, then adds what it polls;
 * each formation's status (as its leader reports it: state and why, distance to go, waypoint,
-  leader, the goals it refused and why it refused the last one),
+  leader, the goals it refused and why it refused the last one), a lifelong run's orders (the
+  count per state, then each open or recently ended order: state, since when, from, to, team,
+  why it failed),
+  each robot's QP status, slack and barrier values (and under ``fused`` its 95 % radius),
   the newest log lines, the shown time (simulated seconds; for wall
   time the UTC clock and the seconds since the first frame), the Foxglove WebSocket's port;
 * for a replay: play/pause, speed and a time slider.
 
 For tests and scripts the page exposes ``window.viewer`` (shown time, sequence number, each
 robot's and load's projected position and each load overlap's line in CSS pixels of the
-viewport, and ``history``: the oldest time and the number of points the barrier charts hold),
+viewport; ``estimates``, ``blind`` and ``cargo``: each estimate's centre and ring radius, each
+blind box's and each lifelong load's centre, likewise; ``orders``: the orders listed; and
+``history``: the oldest time and the number of points the barrier charts hold),
 ``window.chartAxes`` (the charts' time span and where they are in the viewport) and keeps the
 shown time in
 ``document.title`` and in ``#time``; ``window.viewerFreeze = true`` stops redrawing.
@@ -51,6 +60,7 @@ _PAGE = r"""<!doctype html>
  .warning { color: #a60; } .error { color: #c00; }
  #controls { display: none; margin: 6px 0; }
  .sw { display: inline-block; width: 10px; height: 10px; margin-right: 4px; }
+ .order.failed { color: #c00; } .order.delivered { color: #2a7a2a; }
 </style></head>
 <body>
 <div id="wrap">
@@ -67,6 +77,7 @@ _PAGE = r"""<!doctype html>
    <input id="seek" type="range" min="0" max="1000" value="0" style="width: 220px">
   </div>
   <h4>Formations</h4><table id="formations"></table>
+  <div id="orders-box" style="display: none"><h4>Orders</h4><div id="order-counts"></div><table id="orders"></table></div>
   <h4>Robots</h4><table id="robots"></table>
   <h4>Log</h4><div id="logs"></div>
  </div>
@@ -82,7 +93,7 @@ const HIT_HOLD_S = 1.0;
 let view = null, history = {}, lastT = null, lastSeq = -1, colors = {}, state = null, t0 = null;
 let historySpan = 600;  // [s] the server's (GET /history span_s)
 let hatches = {}, recentHits = {};
-window.viewer = { t: null, seq: -1, robots: [], loads: [], hits: [] };
+window.viewer = { t: null, seq: -1, robots: [], loads: [], hits: [], estimates: [], blind: [], cargo: [], orders: [] };
 window.viewerFreeze = false;
 
 function colorOf(formation) {
@@ -92,12 +103,13 @@ function colorOf(formation) {
 function finite(v) { return typeof v === "number" && isFinite(v); }
 
 function fit(frame) {
-  // the box around every robot and ellipse, 1 m of margin, at least 4 m across
+  // the box around every robot, ellipse and lifelong load, with a margin, at least 4 m across
   let x0 = Infinity, y0 = Infinity, x1 = -Infinity, y1 = -Infinity;
   const add = (x, y, r) => { x0 = Math.min(x0, x - r); x1 = Math.max(x1, x + r);
                              y0 = Math.min(y0, y - r); y1 = Math.max(y1, y + r); };
   for (const r of frame.robots) if (finite(r.x)) add(r.x, r.y, 1.0);
   for (const e of frame.ellipses) if (finite(e.cx)) add(e.cx, e.cy, Math.max(e.a, e.b) + 0.5);
+  for (const ld of frame.cargo || []) for (const p of ld.outline) if (finite(p[0])) add(p[0], p[1], 0.5);
   if (!isFinite(x0)) return view;
   const cx = (x0 + x1) / 2, cy = (y0 + y1) / 2;
   const w = Math.max(x1 - x0, 4, (y1 - y0) * floor.width / floor.height);
@@ -150,6 +162,7 @@ function drawFloor(frame) {
   for (let g = gx0; g <= gx1; g++) { const [a] = px(g, 0); c.beginPath(); c.moveTo(a, 0); c.lineTo(a, floor.height); c.stroke(); }
   for (let g = gy0; g <= gy1; g++) { const [, b] = px(0, g); c.beginPath(); c.moveTo(0, b); c.lineTo(floor.width, b); c.stroke(); }
   const rad = frame.radius || 0.105;
+  const blind = drawBlind(c, frame.blind || []);
   for (const o of frame.obstacles) {
     if (!finite(o.x)) continue;
     const [a, b] = px(o.x, o.y);
@@ -165,6 +178,7 @@ function drawFloor(frame) {
     if (s.kind === "box") { c.closePath(); c.fillStyle = "#999"; c.fill(); }
     else { c.strokeStyle = "#555"; c.lineWidth = 3; c.stroke(); c.lineWidth = 1; }
   }
+  const cargo = drawCargo(c, frame.cargo || []);
   for (const rt of frame.routes || []) {  // each leader's planned route, dashed, its goal last
     const pts = rt.points.filter(p => finite(p[0])).map(p => px(p[0], p[1]));
     if (pts.length < 1) continue;
@@ -209,9 +223,64 @@ function drawFloor(frame) {
     shown.push({ id: r.id, x: r.x, y: r.y, color: col,
                  cx: rect.left + a * sx, cy: rect.top + b * sy, r: rr * sx });
   }
+  const estimates = drawEstimates(c, frame.robots);  // over the bodies: a ring is often smaller than one
   const hits = drawHits(c, frame);
   drawAxes(c, gx0, gx1, gy0, gy1);  // last: on top of shelves and robots
-  return { robots: shown, loads: loads, hits: hits };
+  return { robots: shown, loads: loads, hits: hits, estimates: estimates, blind: blind, cargo: cargo };
+}
+
+function centre(pts) {
+  return [pts.reduce((s, p) => s + p[0], 0) / pts.length, pts.reduce((s, p) => s + p[1], 0) / pts.length];
+}
+function outlinePath(c, pts) {
+  c.beginPath(); c.moveTo(pts[0][0], pts[0][1]);
+  for (const p of pts.slice(1)) c.lineTo(p[0], p[1]);
+  c.closePath();
+}
+function drawBlind(c, boxes) {  // floor the camera cannot see: violet, translucent, under everything
+  const out = [];
+  for (const b of boxes) {
+    const pts = b.corners.filter(p => finite(p[0])).map(p => px(p[0], p[1]));
+    if (pts.length < 3) continue;
+    outlinePath(c, pts);
+    c.fillStyle = "rgba(140, 90, 190, 0.16)"; c.fill();
+    c.strokeStyle = "rgba(140, 90, 190, 0.8)"; c.setLineDash([3, 3]); c.stroke(); c.setLineDash([]);
+    const [a, b2] = centre(pts), [sx, sy] = toScreen(a, b2);
+    c.fillStyle = "rgba(110, 60, 160, 0.9)"; c.font = "10px sans-serif"; c.fillText("blind", a - 12, b2 + 3);
+    out.push({ cx: sx, cy: sy });
+  }
+  return out;
+}
+function drawCargo(c, cargo) {  // a lifelong run's loads: brown resting, the team's colour carried
+  const out = [];
+  for (const ld of cargo) {
+    const pts = ld.outline.filter(p => finite(p[0])).map(p => px(p[0], p[1]));
+    if (pts.length < 3) continue;
+    const carried = ld.state === "carried", col = carried ? colorOf(ld.order) : "#8c6239";
+    outlinePath(c, pts);
+    c.globalAlpha = carried ? 0.35 : 0.75; c.fillStyle = col; c.fill(); c.globalAlpha = 1;
+    c.strokeStyle = carried ? col : "#5a3d1e"; c.lineWidth = 2; c.stroke(); c.lineWidth = 1;
+    const [a, b] = centre(pts), [sx, sy] = toScreen(a, b);
+    c.fillStyle = "#222"; c.font = "10px sans-serif"; c.fillText(ld.name, a - 3 * ld.name.length, b + 3);
+    out.push({ name: ld.name, state: ld.state, order: ld.order, color: col, cx: sx, cy: sy });
+  }
+  return out;
+}
+function drawEstimates(c, robots) {
+  // under fused: each robot's own estimate, its 95 % confidence ring (dashed) and a thin line to the true body
+  const out = [];
+  for (const r of robots) {
+    if (!finite(r.est_x) || !finite(r.sigma_m) || !finite(r.x)) continue;
+    const [a, b] = px(r.est_x, r.est_y), [ta, tb] = px(r.x, r.y), col = colorOf(r.formation);
+    const rr = Math.max(r.sigma_m * view.s, 2);
+    c.strokeStyle = "#111"; c.lineWidth = 1.5; c.setLineDash([4, 3]);
+    c.beginPath(); c.arc(a, b, rr, 0, 2 * Math.PI); c.stroke(); c.setLineDash([]);
+    c.lineWidth = 1; c.beginPath(); c.moveTo(ta, tb); c.lineTo(a, b); c.stroke();
+    c.fillStyle = "#fff"; c.beginPath(); c.arc(a, b, 2.5, 0, 2 * Math.PI); c.fill(); c.stroke();
+    const [sx, sy] = toScreen(a, b), rect = floor.getBoundingClientRect();
+    out.push({ id: r.id, color: col, cx: sx, cy: sy, r: rr * rect.width / floor.width, sigma_m: r.sigma_m });
+  }
+  return out;
 }
 
 function hatch(color) {  // diagonal stripes in a formation's colour: a declared load's fill
@@ -363,9 +432,13 @@ function side(st) {
     "</td><td>" + esc(fm.waypoint || "") + "</td><td>" + esc(fm.leader || "") + "</td><td class='refused'>" +
     (fm.refused ? fm.refused + (fm.refusal ? ", the last: " + esc(fm.refusal) : "") : "") + "</td></tr>";
   document.getElementById("formations").innerHTML = rows;
-  rows = "<tr><th>robot</th><th>QP</th><th>slack</th><th>h_form</th><th>h_obs</th><th>h_ell</th></tr>";
+  sideOrders(f);
+  const fused = f.robots.some(r => finite(r.sigma_m));  // its own estimate: the 95 % radius too
+  rows = "<tr><th>robot</th><th>QP</th><th>slack</th><th>h_form</th><th>h_obs</th><th>h_ell</th>" +
+    (fused ? "<th>radius [cm]</th>" : "") + "</tr>";
   for (const r of f.robots) rows += "<tr><td>" + esc(r.id) + "</td><td>" + esc(r.status) + "</td><td>" + fmt(r.slack, 3) +
-    "</td><td>" + fmt(r.h_formation, 3) + "</td><td>" + fmt(r.h_obstacle, 3) + "</td><td>" + fmt(r.h_formations, 3) + "</td></tr>";
+    "</td><td>" + fmt(r.h_formation, 3) + "</td><td>" + fmt(r.h_obstacle, 3) + "</td><td>" + fmt(r.h_formations, 3) +
+    (fused ? "</td><td class='radius'>" + fmt(100 * r.sigma_m, 1) : "") + "</td></tr>";
   document.getElementById("robots").innerHTML = rows;
   document.getElementById("logs").innerHTML = st.logs.slice().reverse().map(e =>
     "<div class='" + esc(e.level) + "'>" + clock(e.t) + " " + esc(e.name) + ": " + esc(e.message) + "</div>").join("");
@@ -379,6 +452,19 @@ function side(st) {
     const span = Math.max(pb.end - pb.start, 1e-9);
     document.getElementById("seek").value = Math.round((pb.time - pb.start) / span * 1000);
   }
+}
+
+function sideOrders(f) {  // a lifelong run's orders: the count per state, then the listed ones
+  const box = document.getElementById("orders-box");
+  if (!f.orders) { box.style.display = "none"; return; }
+  box.style.display = "block";
+  const counts = f.order_counts || {};
+  document.getElementById("order-counts").textContent = Object.keys(counts).map(k => counts[k] + " " + k).join(", ");
+  let rows = "<tr><th>order</th><th>state</th><th>since [s]</th><th>from</th><th>to</th><th>team</th></tr>";
+  for (const o of f.orders) rows += "<tr class='order " + esc(o.state) + "'><td>" + esc(o.id) + "</td><td>" + esc(o.state) +
+    (o.reason ? " (" + esc(o.reason) + ")" : "") + "</td><td>" + fmt(o.since, 1) + "</td><td>" + esc(o.from) +
+    "</td><td>" + esc(o.to) + "</td><td>" + esc(o.robots.join(" ")) + "</td></tr>";
+  document.getElementById("orders").innerHTML = rows;
 }
 
 async function control(req) {
@@ -402,7 +488,9 @@ async function poll() {
         drawChart(st.frame);
         side(st);
         window.viewer = { t: st.frame.t, seq: st.seq, mode: st.mode, robots: drawn.robots,
-                          loads: drawn.loads, hits: drawn.hits, history: historyStats() };
+                          loads: drawn.loads, hits: drawn.hits, estimates: drawn.estimates,
+                          blind: drawn.blind, cargo: drawn.cargo, orders: st.frame.orders || [],
+                          history: historyStats() };
       }
     }
   } catch (err) {

@@ -19,10 +19,21 @@ topic          schema                      what
                                            e.g. ``/fleet.robots[:]{id=="a1"}.h_obstacle``)
 ``/log``       ``foxglove.Log`` (protobuf)  stale inputs, relaxed rows and fallbacks (at onset),
                                            collisions, faults, rejected messages
+``/orders``    JSON, ``jsonschema``        a lifelong run's orders (:mod:`viewer.orders`): each
+                                           open or recently ended order's state, since when, its
+                                           load, stations and team, and the count per state;
+                                           logged whenever an order's state changes
 =============  ==========================  ======================================================
 
-Only those two Foxglove schemas and a JSON-schema channel: Foxglove (2.x) and Lichtblick (1.x)
-render all three (3D, Plot / Raw Messages, Log panels). Message log times are the frame's time
+Under ``controller.localisation: fused`` ``/scene`` also draws each robot's own estimate (a
+small sphere in its formation's colour) and a dark ring of its 95 % confidence radius around it,
+just above the true body; blind
+floor (``world.camera_blind``) is a translucent violet box on the floor. A lifelong run's
+loads on the floor (``cargo``) are boxes: brown while resting, in the team's colour while
+carried, each named.
+
+Only those two Foxglove schemas and JSON-schema channels: Foxglove (2.x) and Lichtblick (1.x)
+render them all (3D, Plot / Raw Messages, Log panels). Message log times are the frame's time
 in nanoseconds: simulated seconds for simulations (the run starts at 0), wall time for fleets.
 
 :func:`write_recording` writes ``run.mcap`` of a finished run from its time series, after the
@@ -68,10 +79,11 @@ from geometry.limits import BURGER_RADIUS
 from scenario.cargo import CONTACT_TOL
 
 from .frame import Frame, frames_from_series
+from .orders import OrderBoard
 
 logger = logging.getLogger(__name__)
 
-SCENE_TOPIC, FLEET_TOPIC, LOG_TOPIC = "/scene", "/fleet", "/log"
+SCENE_TOPIC, FLEET_TOPIC, LOG_TOPIC, ORDERS_TOPIC = "/scene", "/fleet", "/log", "/orders"
 FRAME_ID = "floor"
 RENDERED_SCHEMAS = ("foxglove.SceneUpdate", "foxglove.Log")  # + JSON-schema channels
 ELLIPSE_POINTS = 48
@@ -80,11 +92,22 @@ LOAD_HEIGHT = 0.02  # [m] where a load is drawn: on the floor, under the robots
 HIT_HEIGHT = 0.25  # [m] a load overlap's red line: above the robots, to be seen
 HIT_LIFETIME = Duration(0, 250_000_000)  # an overlap's line goes once no tick repeats it
 HIT_RGB = (0.85, 0.0, 0.0)
+ESTIMATE_RGB = (0.07, 0.07, 0.07)  # a fused robot's confidence ring
+BLIND_RGB = (0.55, 0.35, 0.75)  # blind floor: violet, translucent
+RESTING_RGB = (0.55, 0.38, 0.2)  # a resting load: brown
+CARGO_HEIGHT = 0.15  # [m] a load's top: above the robots' bodies' middle, under their tops
 # formation colours (RGB 0..1), the same order as the page's palette
 PALETTE = ((0.12, 0.47, 0.71), (0.84, 0.15, 0.16), (0.17, 0.63, 0.17), (0.58, 0.40, 0.74),
            (1.00, 0.50, 0.05), (0.55, 0.34, 0.29), (0.89, 0.47, 0.76), (0.09, 0.75, 0.81))
 
 _N = 0.0
+
+# a lifelong run's orders (viewer.orders), in /fleet frames and on /orders
+ORDER_LIST_SCHEMA: dict[str, Any] = {"type": "array", "items": {"type": "object", "properties": {
+    **{k: {"type": "string"} for k in ("id", "state", "type", "load", "from", "to", "reason")},
+    "since": {"type": "number"}, "robots": {"type": "array", "items": {"type": "string"}}}}}
+ORDER_COUNTS_SCHEMA: dict[str, Any] = {"type": "object",
+                                       "additionalProperties": {"type": "integer"}}
 
 FLEET_SCHEMA: dict[str, Any] = {
     "title": "formation.Fleet",
@@ -96,7 +119,8 @@ FLEET_SCHEMA: dict[str, Any] = {
             "id": {"type": "string"}, "formation": {"type": "string"}, "status": {"type": "string"},
             **{k: {"type": ["number", "null"]} for k in (
                 "x", "y", "theta", "px", "py", "ux", "uy", "v", "omega", "slack",
-                "h_formation", "h_obstacle", "h_formations", "gx", "gy")}}}},
+                "h_formation", "h_obstacle", "h_formations", "gx", "gy",
+                "est_x", "est_y", "sigma_m")}}}},
         "ellipses": {"type": "array", "items": {"type": "object", "properties": {
             "formation": {"type": "string"},
             **{k: {"type": ["number", "null"]} for k in ("cx", "cy", "alpha", "a", "b")}}}},
@@ -120,6 +144,23 @@ FLEET_SCHEMA: dict[str, Any] = {
             **{k: {"type": ["number", "null"]} for k in ("gx", "gy", "distance")}}}},
         "routes": {"type": "array", "items": {"type": "object", "properties": {
             "formation": {"type": "string"}, "points": {"type": "array", "items": {"type": "array"}}}}},
+        "blind": {"type": "array", "items": {"type": "object", "properties": {
+            "corners": {"type": "array", "items": {"type": "array"}}}}},
+        "cargo": {"type": "array", "items": {"type": "object", "properties": {
+            **{k: {"type": "string"} for k in ("name", "type", "state", "station", "order")},
+            "outline": {"type": "array", "items": {"type": "array"}}}}},
+        "orders": ORDER_LIST_SCHEMA,
+        "order_counts": ORDER_COUNTS_SCHEMA,
+    },
+}
+
+ORDERS_SCHEMA: dict[str, Any] = {
+    "title": "formation.Orders",
+    "type": "object",
+    "properties": {
+        "t": {"type": "number", "description": "time [s]"},
+        "orders": ORDER_LIST_SCHEMA,
+        "order_counts": ORDER_COUNTS_SCHEMA,
     },
 }
 
@@ -200,7 +241,65 @@ def scene_update(frame: Frame) -> SceneUpdate:
     entities += [_load_entity(ld, colors.get(ld["formation"], PALETTE[0]), stamp)
                  for ld in frame.get("loads", ())]
     entities += [_hit_entity(h, stamp) for h in frame.get("load_hits", ())]
+    entities += [_blind_entity(k, b, stamp) for k, b in enumerate(frame.get("blind", ()))]
+    entities += [_cargo_entity(c, colors.get(c["order"], RESTING_RGB)
+                               if c["state"] == "carried" else RESTING_RGB, stamp)
+                 for c in frame.get("cargo", ())]
+    entities += [_estimate_entity(r, colors[r["formation"]], stamp) for r in frame["robots"]
+                 if None not in (r.get("est_x"), r.get("est_y"), r.get("sigma_m"))]
     return SceneUpdate(entities=entities)
+
+
+def _flat(outline: list, z: float) -> tuple[list[Point3], list[int]]:
+    """A convex outline at height ``z``: its points and a triangle fan's indices."""
+    pts = [Point3(x=x, y=y, z=z) for x, y in outline if x is not None and y is not None]
+    return pts, [i for k in range(1, len(pts) - 1) for i in (0, k, k + 1)]
+
+
+def _blind_entity(k: int, b: dict[str, Any], stamp: Timestamp) -> SceneEntity:
+    """Blind floor: a translucent violet box on the floor, its edge drawn."""
+    pts, fan = _flat(b["corners"], 0.003)
+    return SceneEntity(timestamp=stamp, frame_id=FRAME_ID, id=f"blind/{k}",
+                       triangles=[TriangleListPrimitive(pose=_pose(0.0, 0.0), points=pts,
+                                                        indices=fan,
+                                                        color=_color(BLIND_RGB, 0.18))],
+                       lines=[LinePrimitive(type=LinePrimitiveLineType.LineLoop, thickness=0.02,
+                                            pose=_pose(0.0, 0.0), points=pts,
+                                            color=_color(BLIND_RGB, 0.8))])
+
+
+def _cargo_entity(c: dict[str, Any], rgb: tuple[float, float, float],
+                  stamp: Timestamp) -> SceneEntity:
+    """A lifelong run's load on the floor: its top at :data:`CARGO_HEIGHT` (brown resting, the
+    team's colour carried), its edge and its name."""
+    pts, fan = _flat(c["outline"], CARGO_HEIGHT)
+    carried = c["state"] == "carried"
+    cx = sum(p[0] for p in c["outline"]) / len(c["outline"])
+    cy = sum(p[1] for p in c["outline"]) / len(c["outline"])
+    label = TextPrimitive(pose=_pose(cx, cy, CARGO_HEIGHT + 0.05), billboard=True, font_size=12,
+                          scale_invariant=True, color=_color((0, 0, 0)),
+                          text=c["name"] + (f" ({c['order']})" if c["order"] else ""))
+    return SceneEntity(timestamp=stamp, frame_id=FRAME_ID, id=f"cargo/{c['name']}",
+                       triangles=[TriangleListPrimitive(pose=_pose(0.0, 0.0), points=pts,
+                                                        indices=fan,
+                                                        color=_color(rgb, 0.45 if carried else 0.8))],
+                       lines=[LinePrimitive(type=LinePrimitiveLineType.LineLoop, thickness=0.02,
+                                            pose=_pose(0.0, 0.0), points=pts,
+                                            color=_color(rgb))],
+                       texts=[label])
+
+
+def _estimate_entity(r: dict[str, Any], rgb: tuple[float, float, float],
+                     stamp: Timestamp) -> SceneEntity:
+    """A fused robot's own estimate (a sphere) and the ring of its 95 % confidence radius."""
+    x, y, sigma = r["est_x"], r["est_y"], r["sigma_m"]
+    z = BODY_HEIGHT + 0.03  # above the body: a ring is often smaller than one
+    ring = LinePrimitive(type=LinePrimitiveLineType.LineLoop, thickness=0.012,
+                         pose=_pose(x, y, z), points=_ring(sigma, sigma), color=_color(ESTIMATE_RGB))
+    dot = SpherePrimitive(pose=_pose(x, y, z), size=_size(0.03, 0.03, 0.03),
+                          color=_color(rgb, 0.9))
+    return SceneEntity(timestamp=stamp, frame_id=FRAME_ID, id=f"estimate/{r['id']}",
+                       lines=[ring], spheres=[dot])
 
 
 def _robot_entities(r: dict[str, Any], rgb: tuple[float, float, float], radius: float,
@@ -300,6 +399,8 @@ class Channels:
         self.fleet = foxglove.Channel(FLEET_TOPIC, schema=FLEET_SCHEMA, message_encoding="json",
                                       context=self.context)
         self.logs = LogChannel(LOG_TOPIC, context=self.context)
+        self.orders: Any = None  # the /orders channel, opened by a frame that has orders
+        self._listed: list[tuple[str, str]] | None = None  # the orders last logged
         self._writer: Any = None
         self._server: Any = None
 
@@ -319,8 +420,23 @@ class Channels:
         t = ns(frame["t"])
         self.scene.log(scene_update(frame), log_time=t)
         self.fleet.log(json.dumps(frame, allow_nan=False).encode("utf-8"), log_time=t)
+        if "orders" in frame:
+            self._log_orders(frame, t)
         if self._server is not None:
             self._server.broadcast_time(max(t, 0))
+
+    def _log_orders(self, frame: Frame, t: int) -> None:
+        """``/orders`` when the frame's orders differ from those last logged."""
+        listed = [(o["id"], o["state"]) for o in frame["orders"]]
+        if listed == self._listed:
+            return
+        self._listed = listed
+        if self.orders is None:
+            self.orders = foxglove.Channel(ORDERS_TOPIC, schema=ORDERS_SCHEMA,
+                                           message_encoding="json", context=self.context)
+        msg = {"t": frame["t"], "orders": frame["orders"],
+               "order_counts": frame.get("order_counts", {})}
+        self.orders.log(json.dumps(msg, allow_nan=False).encode("utf-8"), log_time=t)
 
     def log(self, t: float, level: str, name: str, message: str) -> None:
         self.logs.log(Log(timestamp=_stamp(t), level=LEVELS.get(level, LogLevel.Info),
@@ -406,9 +522,11 @@ def route_logs(summary: dict) -> list[tuple[float, str, str, str]]:
     return out
 
 
-def write_recording(summary: dict, series: Any, scenario: Any, out: Path) -> Path:
+def write_recording(summary: dict, series: Any, scenario: Any, out: Path,
+                    board: OrderBoard | None = None) -> Path:
     """``out/run.mcap`` of a finished run: one ``/scene`` and ``/fleet`` message per tick, and
-    the logs of :func:`status_logs`, :func:`summary_logs` and :func:`route_logs`, in time order."""
+    the logs of :func:`status_logs`, :func:`summary_logs` and :func:`route_logs`, in time order;
+    a lifelong run's loads and orders from ``board`` (``/orders`` at each change)."""
     path = Path(out) / "run.mcap"
     ch = Channels()
     ch.open_mcap(path)
@@ -416,7 +534,7 @@ def write_recording(summary: dict, series: Any, scenario: Any, out: Path) -> Pat
         # overlaps are looked for only where the run's safety monitor saw a load overlap
         load = (summary.get("min_clearance_m") or {}).get("load")
         hits = load is not None and load < -CONTACT_TOL
-        frames = list(frames_from_series(series, scenario, load_hits=hits))
+        frames = list(frames_from_series(series, scenario, load_hits=hits, board=board))
         t_end = frames[-1]["t"] if frames else 0.0
         logs = sorted([*status_logs(frames), *summary_logs(summary, t_end), *route_logs(summary)],
                       key=lambda e: e[0])

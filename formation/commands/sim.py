@@ -48,13 +48,10 @@ def cmd_sim(ns: argparse.Namespace) -> int:
 def sim_lifelong(ns: argparse.Namespace, scenario: Scenario, opts: SimOptions, out: Path) -> int:
     """A scenario with a fleet: orders served by teams formed at run time
     (:mod:`simulator.lifelong`); the progress bar counts the orders delivered."""
-    label = f"sim {scenario.name}"
-    with Progress(label, quiet=ns.quiet, early="every order done") as progress:
-        def tally(delivered: int, posted: int) -> None:
-            progress.label = f"{label} ({delivered}/{posted} orders delivered)"
-
+    with Progress(f"sim {scenario.name}", quiet=ns.quiet, early="every order done") as progress:
         try:
-            result = simulate_lifelong(scenario, opts, progress=progress.update, tally=tally)
+            result = simulate_lifelong(scenario, opts, progress=progress.update,
+                                       tally=progress.orders)
         except ValueError as exc:
             raise UsageError(str(exc)) from None
     lost = write_lifelong(result, out, plots=not ns.no_plots)
