@@ -31,6 +31,7 @@ from typing import Any
 
 from agent import double_integrator
 from agent.barriers import Obstacle
+from agent.body import SHARED_TWISTS
 from agent.clock import STATS_WINDOW, Clock
 from agent.config import AgentConfig
 from agent.control import Controller, Stall, StepResult
@@ -138,8 +139,11 @@ class Ticker:
         self.counts = TickCounts()
         self.obstacle_memory = ObstacleMemory()
         self.hard = HardRowCounter()  # ticks on which a hard row was not met
-        # built once: the config's QP solver (exact by default), the QP timed for solve_us
-        self.controller = Controller(cfg.control, make_solver(cfg.solver), time.perf_counter_ns)
+        # built once: the config's QP solver (exact by default), the QP timed for solve_us; the
+        # formation twists the process's agents share (an agent host's members of a formation
+        # solve their formation's QP once a tick: a pure cache, agent.body.TwistMemo)
+        self.controller = Controller(cfg.control, make_solver(cfg.solver), time.perf_counter_ns,
+                                     twists=SHARED_TWISTS)
         self.after: Callable[[StepResult | None], None] | None = None  # after every tick
         self.times = TickTimes()  # the tick's parts, timed (begun and ended by the scheduler)
         # the tick's memory
