@@ -163,7 +163,7 @@ class Footprint:
     fit0: tuple[Point, ...] = ()
     outline0: tuple[Point, ...] = ()
 
-    @property
+    @functools.cached_property
     def rho(self) -> float:
         """[m] the largest slot radius (at least 1 cm: it weighs omega in the QP)."""
         return max([BODY_TUNING.min_rho] + [math.hypot(x, y) for x, y in self.slots])

@@ -41,7 +41,13 @@ from agent.inputs import carry_pose, others_view, step_inputs, waypoint_view
 from agent.leader_step import LeaderPart
 from agent.margins import carried_age
 from agent.navigation import STALLED_AFTER_S, NavPart
-from agent.plausibility import ObstacleMemory, held_obstacle, rival_obstacles, shapes_of_all
+from agent.plausibility import (
+    ObstacleMemory,
+    held_obstacle,
+    listed_obstacles,
+    rival_obstacles,
+    shapes_of_all,
+)
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
 from agent.tick_times import COMMAND, INPUTS, LEADER, POSE, RECORD, ROUTE, STATE, STEP, TickTimes
 from agent.transport import CommandOut
@@ -361,7 +367,7 @@ class Ticker:
         reports (agent.plausibility; both counted as held)."""
         memory = self.obstacle_memory
         memory.update(obstacles)
-        obs = [Obstacle(o.x, o.y, o.vx, o.vy, o.ds) for o in obstacles.obstacles]
+        obs = list(listed_obstacles(obstacles))
         held = memory.held(now)
         rivals = self.parts.inbox.obstacle_rivals()
         if held or rivals:
