@@ -163,7 +163,7 @@ class Footprint:
     fit0: tuple[Point, ...] = ()
     outline0: tuple[Point, ...] = ()
 
-    @property
+    @functools.cached_property
     def rho(self) -> float:
         """[m] the largest slot radius (at least 1 cm: it weighs omega in the QP)."""
         return max([BODY_TUNING.min_rho] + [math.hypot(x, y) for x, y in self.slots])
@@ -592,17 +592,23 @@ def formation_twist(fp: Footprint, own: Ellipse, goal: Point, snap: Snapshot, p:
 
 
 class TwistMemo:
-    """The last :func:`formation_twist` worked out, by its inputs. Every member of a formation
-    works out the same twist from the same shared data (its ellipse, goal and snapshot), so a
-    controller that serves every member in turn (the in-process simulator) solves the
-    formation's QP once a tick instead of once a member. A pure cache: equal inputs give the
-    very same result; a controller serving one robot pays one comparison a tick for it."""
+    """The last :func:`formation_twist` worked out per formation, by its inputs. Every member of a
+    formation works out the same twist from the same shared data (its ellipse, goal and
+    snapshot), so a controller that serves every member in turn (the in-process simulator), or
+    the agents of one agent host sharing one memo (:data:`SHARED_TWISTS`), solve the formation's
+    QP once a tick instead of once a member. A pure cache: equal inputs give the very same
+    result; a controller serving one robot pays one comparison a tick for it. One entry per
+    formation (by its slots and goal: formations of one shape head for different goals), at
+    most ``size`` of them; thread-safe under the GIL (an entry is replaced whole, a lost one
+    costs one more solve)."""
 
-    __slots__ = ("last",)
+    __slots__ = ("last", "size")
 
-    def __init__(self) -> None:
-        # (inputs, result) as one pair: replaced whole, so a reader never pairs them wrongly
-        self.last: tuple[tuple, tuple[Pose, TwistResult]] | None = None
+    def __init__(self, size: int = 64) -> None:
+        # the formation's slots and goal -> (inputs, result) as one pair: replaced whole, so a reader
+        # never pairs them wrongly
+        self.last: dict[tuple, tuple[tuple, tuple[Pose, TwistResult]]] = {}
+        self.size = size
 
     def twist(self, fp: Footprint, own: Ellipse, goal: Point, snap: Snapshot, p: BodyParams,
               push: Point = (0.0, 0.0), intent: Point | None = None,
@@ -612,12 +618,19 @@ class TwistMemo:
         key = (fp.slots, fp.alpha0, fp.goal_turn, fp.load_points, fp.load_edges, own, goal,
                tuple(snap.obstacles), tuple(snap.shapes), tuple(snap.ellipses), p, push, intent,
                turn)
-        last = self.last
+        which = (fp.slots, goal)
+        last = self.last.get(which)
         if last is not None and last[0] == key:
             return last[1]
         value = formation_twist(fp, own, goal, snap, p, push, intent, turn)
-        self.last = (key, value)
+        if len(self.last) >= self.size:
+            self.last.clear()
+        self.last[which] = (key, value)
         return value
+
+
+#: the memo the agents of one process share (an agent host's: :class:`agent.tick.Ticker`)
+SHARED_TWISTS = TwistMemo()
 
 
 def pace(want: Twist, pose: Pose, fp: Footprint, headings: Sequence[float]) -> float:

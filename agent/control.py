@@ -547,12 +547,14 @@ class Controller:
     row builder (:class:`RowBuilder`) once: velocity rows, or a double integrator's
     acceleration rows. :meth:`step` holds no state between ticks: one Controller serves every
     robot with the same parameters (its one memory, the last formation twist by its inputs, is
-    a pure cache: :class:`agent.body.TwistMemo`)."""
+    a pure cache: :class:`agent.body.TwistMemo`, its own or ``twists``: one memo the agents of
+    one process share)."""
 
     __slots__ = ("params", "solve", "clock", "tuning", "rows", "body", "twists")
 
     def __init__(self, params: ControlParams, solve: Callable = solve_exact,
-                 clock: Callable[[], int] | None = None, tuning: ControlTuning = TUNING) -> None:
+                 clock: Callable[[], int] | None = None, tuning: ControlTuning = TUNING,
+                 twists: body.TwistMemo | None = None) -> None:
         self.params = params
         self.solve = solve
         self.clock = clock
@@ -562,7 +564,8 @@ class Controller:
         # the formation QP's numbers, which depend on the parameters alone (method rigid)
         self.body = (body_params(params) if params.method == "rigid" and params.safety
                      else None)
-        self.twists = body.TwistMemo()  # a pure cache: members of one formation share a twist
+        # a pure cache: members of one formation share a twist
+        self.twists = body.TwistMemo() if twists is None else twists
 
     def step(self, inp: StepInput) -> StepResult:
         """One tick for one robot (:class:`StepInput` says what each input is)."""

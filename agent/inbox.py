@@ -91,35 +91,51 @@ class DecodeMemo:
             self._values[payload] = value
         return value
 
+    def stamped(self, payload: bytes) -> Entry:
+        """The value of ``payload`` and the local reception time (taken on the calling thread:
+        Zenoh's, or the tick's that drains a ring channel), in one call."""
+        value = self._values.get(payload) if type(payload) is bytes else None
+        if value is None:
+            value = self(payload)
+        return value, time.monotonic()
+
 
 #: mailbox class -> the process's memo of its decoder (:class:`DecodeMemo`)
 MEMOS: dict[str, DecodeMemo] = {cls: DecodeMemo(decode) for cls, decode in DECODERS.items()}
 
 
-def stamped(decode: Callable[[bytes], Any]) -> Callable[[bytes], Entry]:
-    """A decoder that also keeps the local reception time (taken on Zenoh's thread)."""
+def _pose_ok(msg: Any, prev: Any | None, speed: float) -> bool:
+    return prev is None or jump_ok(prev.x, prev.y, prev.stamp, msg.x, msg.y, msg.stamp,
+                                   speed, JUMP_MARGIN_M)
 
-    def run(payload: bytes) -> Entry:
-        return decode(payload), time.monotonic()
 
-    return run
+def _state_ok(msg: Any, prev: Any | None, speed: float) -> bool:
+    if not velocity_ok(msg.ux, msg.uy, speed):
+        return False
+    return prev is None or jump_ok(prev.x, prev.y, prev.stamp, msg.x, msg.y, msg.stamp,
+                                   speed, JUMP_MARGIN_M)
+
+
+def _ellipse_ok(msg: Any, _prev: Any | None, speed: float) -> bool:
+    return ellipse_ok(msg, speed)
+
+
+def _others_ok(msg: Any, _prev: Any | None, speed: float) -> bool:
+    return ellipses_ok(msg.ellipses, speed) and (msg.own is None or ellipse_ok(msg.own, speed))
+
+
+#: mailbox class -> whether a message of it is physically possible after the kept one
+#: (classes without a check: every message is)
+PLAUSIBLE: dict[str, Callable[[Any, Any | None, float], bool]] = {
+    keys.POSE: _pose_ok, keys.STATE: _state_ok, keys.ELLIPSE: _ellipse_ok,
+    keys.BEACON: _ellipse_ok, keys.OTHERS: _others_ok,
+}
 
 
 def plausible(cls: str, msg: Any, prev: Any | None, speed: float) -> bool:
     """Whether ``msg`` is physically possible after ``prev`` (agent.plausibility)."""
-    if cls == keys.POSE:
-        return prev is None or jump_ok(prev.x, prev.y, prev.stamp, msg.x, msg.y, msg.stamp,
-                                       speed, JUMP_MARGIN_M)
-    if cls == keys.STATE:
-        if not velocity_ok(msg.ux, msg.uy, speed):
-            return False
-        return prev is None or jump_ok(prev.x, prev.y, prev.stamp, msg.x, msg.y, msg.stamp,
-                                       speed, JUMP_MARGIN_M)
-    if cls in (keys.ELLIPSE, keys.BEACON):
-        return ellipse_ok(msg, speed)
-    if cls == keys.OTHERS:
-        return ellipses_ok(msg.ellipses, speed) and (msg.own is None or ellipse_ok(msg.own, speed))
-    return True
+    check = PLAUSIBLE.get(cls)
+    return check is None or check(msg, prev, speed)
 
 
 class Receiver:
@@ -191,10 +207,13 @@ class Inbox:
         the next tick commands zero). Runs where the mailbox stores: the loop's thread, or
         under the tick lock."""
         rx = self.receiver
+        check = PLAUSIBLE.get(cls)  # the class's plausibility check, found once
+        obstacles = cls == keys.OBSTACLES
+        used = self._used
 
         def accept(key: str, value: Entry, prev: Entry | None) -> bool:
             msg = value[0]
-            last = None if prev is None else self._used.get(key, prev[0].stamp)
+            last = None if prev is None else used.get(key, prev[0].stamp)
             now = rx.now()
             reason = check_stamp(now, msg.stamp, last, rx.tolerance, rx.stale_after)
             if reason == FUTURE and rx.starved():
@@ -214,14 +233,14 @@ class Inbox:
             # any more (a robot carried elsewhere, or a forged first pose: it blocks for at most
             # stale_after)
             ref = None if prev is None or now - prev[0].stamp > rx.stale_after else prev[0]
-            if plausible(cls, msg, ref, rx.speed):
+            if check is None or check(msg, ref, rx.speed):
                 if cls == keys.POSE:
                     self.reacquire.reset()
             elif self._refused(cls, msg):
                 return False
-            if cls == keys.OBSTACLES and ref is not None:
+            if obstacles and ref is not None:
                 self._check_newer_list(msg, ref, now)
-            self._used[key] = used_stamp(now, msg.stamp)
+            used[key] = used_stamp(now, msg.stamp)
             return True
 
         return accept
@@ -319,7 +338,7 @@ class Inbox:
         box = self._boxes.get(cls)
         if box is None:
             box = self._boxes[cls] = Mailbox(None if self.polled else self._loop,
-                                             stamped(MEMOS[cls]), counter=self.counter,
+                                             MEMOS[cls].stamped, counter=self.counter,
                                              accept=self.acceptor(cls))
         return box
 

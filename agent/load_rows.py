@@ -89,10 +89,19 @@ def place_load(start: Sequence[Point], outline: Sequence[Point],
         return None
     th = math.atan2(cross, dot)
     c, s = math.cos(th), math.sin(th)
-    placed = tuple((cx + c * x - s * y, cy + s * x + c * y) for x, y in outline)
-    w = tuple(((-dot * ay - cross * ax) / q, (dot * ax - cross * ay) / q) for ax, ay in start)
-    radius = max(math.hypot(x - cx, y - cy) for x, y in placed)
-    return PlacedLoad(placed, cx, cy, w, radius, 1.0 + radius * sum(math.hypot(*a) for a in w))
+    pts: list[Point] = []
+    radius = -math.inf
+    for x, y in outline:
+        px, py = cx + c * x - s * y, cy + s * x + c * y
+        pts.append((px, py))
+        radius = max(radius, math.hypot(px - cx, py - cy))
+    w: list[Point] = []
+    wsum = 0.0  # summed in order, as sum() does
+    for ax, ay in start:
+        wx, wy = (-dot * ay - cross * ax) / q, (dot * ax - cross * ay) / q
+        w.append((wx, wy))
+        wsum += math.hypot(wx, wy)
+    return PlacedLoad(tuple(pts), cx, cy, tuple(w), radius, 1.0 + radius * wsum)
 
 
 def gradients(load: PlacedLoad, p: Point, m: Point,
@@ -158,18 +167,18 @@ def member_load(fp: Footprint, pose: tuple[float, float, float], last_u: Point,
     n = len(fp.fit0)
     if len(fp.outline0) < 2 or len(partners) < n - 1:
         return None
-    mates = iter(partners[:n - 1])
-    bodies, vel, heads = [], [], []
-    for k in range(n):
-        if k == fp.member:
-            bodies.append((pose[0], pose[1]))
-            vel.append(last_u)
-            heads.append(pose[2])
-            continue
-        q = next(mates)
-        bodies.append((q.x - offset * math.cos(q.theta), q.y - offset * math.sin(q.theta)))
-        vel.append((q.vx, q.vy))
-        heads.append(q.theta)
+    mates = partners[:n - 1]
+    me = fp.member
+    # the members' bodies: this robot's pose, the mates' control points ``offset`` behind (a
+    # single integrator's: the point itself)
+    if offset:
+        bodies = [(q.x - offset * math.cos(q.theta), q.y - offset * math.sin(q.theta))
+                  for q in mates]
+    else:
+        bodies = [(q.x, q.y) for q in mates]
+    bodies.insert(me, (pose[0], pose[1]))
+    vel = [(q.vx, q.vy) for q in mates]
+    vel.insert(me, last_u)
     key = (fp.fit0, fp.outline0, tuple(bodies))
     last = PLACED.last  # every member places the same load (single integrators: to the bit)
     if last is not None and last[0] == key:
@@ -179,7 +188,11 @@ def member_load(fp: Footprint, pose: tuple[float, float, float], last_u: Point,
         PLACED.last = (key, placed)
     if placed is None:
         return None
-    return MemberLoad(placed, fp.member, vel, heads if unicycle else None, bool(fp.load_points))
+    heads = None
+    if unicycle:
+        heads = [q.theta for q in mates]
+        heads.insert(me, pose[2])
+    return MemberLoad(placed, me, vel, heads, bool(fp.load_points))
 
 
 class Feature(NamedTuple):
@@ -234,13 +247,17 @@ def candidates(load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence
     placed, headings = load.placed, load.headings
     out: list[Candidate] = []
     pts = placed.outline
-    edges = outline_edges(pts)
     cx, cy, big, spread = placed.cx, placed.cy, placed.radius, placed.spread
     wsum = (spread - 1.0) / big if big > 0.0 else 0.0
-    vel = onto_headings(load.velocities, headings)  # the bodies' velocities
+    vel = onto_headings(load.velocities, headings) if headings is not None \
+        else load.velocities  # the bodies' velocities
     n = len(vel)
-    mvx, mvy = sum(v[0] for v in vel) / n, sum(v[1] for v in vel) / n
-    om = sum(w[0] * v[0] + w[1] * v[1] for w, v in zip(placed.w, vel, strict=True))
+    svx = svy = om = 0.0  # summed in order, as sum() does
+    for (vx, vy), (wx, wy) in zip(vel, placed.w, strict=True):
+        svx += vx
+        svy += vy
+        om += wx * vx + wy * vy
+    mvx, mvy = svx / n, svy / n
     fastest = math.hypot(mvx, mvy) + abs(om) * big
 
     def add(tests: tuple, p: Point, m: Point, h: float, q_term: float, speed: float) -> None:
@@ -250,6 +267,7 @@ def candidates(load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence
                              p, m))
 
     things, near_shapes = near_things(placed, fastest, obstacles, shapes, radius, clear, inactive)
+    edges = outline_edges(pts) if things else ()
     for q, qv, r, speed, tests in things:  # a corner or circle against each edge
         for (ax, ay), (bx, by) in edges:
             d, nx, ny = segment_distance(q[0], q[1], ax, ay, bx, by)  # n: from the edge to q
@@ -403,7 +421,10 @@ def load_rows(load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence[
     rows: list[Row] = []
     v = load.velocities[load.member]
     floor = reach + math.hypot(v[0], v[1])
-    loose = reach + max(math.hypot(u[0], u[1]) for u in load.velocities)
+    fastest = -math.inf
+    for ux, uy in load.velocities:
+        fastest = max(fastest, math.hypot(ux, uy))
+    loose = reach + fastest
     found, kept = (memo or SHARED).found(load, obstacles, shapes, radius, clear, (gamma, loose))
 
     def gradients_of(c: Candidate) -> list[Point]:

@@ -149,9 +149,20 @@ class ControlParams:
     def pair_margin(self, u: tuple[float, float], v: tuple[float, float]) -> float:
         """[m] the margin for the declared bounds between this robot (last velocity ``u``)
         and a robot or formation moving at ``v`` (:func:`agent.margins.pair_margin`; 0.0
-        without bounds)."""
-        return margins.pair_margin(self.bounds, math.hypot(u[0] - v[0], u[1] - v[1]),
-                                   self.offset)
+        without bounds): its fixed part and its part per unit of relative speed, each worked
+        out once (the same numbers: the fixed part plus 0 (latency + motor_lag), and
+        :func:`agent.margins.travel` at 1 m/s is 1 (latency + motor_lag))."""
+        return self._pair_fixed + math.hypot(u[0] - v[0], u[1] - v[1]) * self._pair_rate
+
+    @functools.cached_property
+    def _pair_fixed(self) -> float:
+        """[m] :meth:`pair_margin` of a pair moving together."""
+        return margins.pair_margin(self.bounds, 0.0, self.offset)
+
+    @functools.cached_property
+    def _pair_rate(self) -> float:
+        """[s] :meth:`pair_margin`'s growth per m/s of relative speed (latency + motor_lag)."""
+        return margins.travel(self.bounds, 1.0)
 
     @functools.cached_property
     def sampling_margin(self) -> float:

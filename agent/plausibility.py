@@ -147,6 +147,25 @@ def held_obstacle(o: ObstacleMsg, age: float, px: float, py: float) -> Obstacle:
     return Obstacle(o.x, o.y, vx, vy, grown)
 
 
+_ROWS: dict[int, tuple[Obstacles, tuple[Obstacle, ...]]] = {}  # id of a list -> its rows' form
+_ROWS_MAX = 64  # lists remembered (emptied when full)
+
+
+def listed_obstacles(msg: Obstacles) -> tuple[Obstacle, ...]:
+    """The obstacles of the list ``msg`` in the rows' form (:class:`agent.barriers.Obstacle`),
+    converted once per list in a process: every agent of an agent host holds the same decoded
+    list (:class:`agent.inbox.DecodeMemo`), each tick until the next one comes; lists are
+    frozen, so the form of one is the form of it for every reader."""
+    hit = _ROWS.get(id(msg))
+    if hit is not None and hit[0] is msg:
+        return hit[1]
+    rows = tuple(Obstacle(o.x, o.y, o.vx, o.vy, o.ds) for o in msg.obstacles)
+    if len(_ROWS) >= _ROWS_MAX:
+        _ROWS.clear()
+    _ROWS[id(msg)] = (msg, rows)
+    return rows
+
+
 @dataclass
 class ObstacleMemory:
     """Every obstacle seen, with the stamp of the list it was last in (see the module
@@ -158,6 +177,7 @@ class ObstacleMemory:
     _seen: dict[str, tuple[ObstacleMsg, float]] = field(default_factory=dict)
     _current: frozenset[str] = frozenset()
     _stamp: float = -math.inf
+    _last: Obstacles | None = None  # the list last taken (taking it again changes nothing)
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.hold_s) and self.hold_s >= 0):
@@ -166,8 +186,9 @@ class ObstacleMemory:
     def update(self, msg: Obstacles) -> None:
         """Take a new list (one stamped before the last taken changes nothing; one stamped the
         same is taken: two sources can stamp alike, and the agent steps on whichever it kept)."""
-        if msg.stamp < self._stamp:
+        if msg is self._last or msg.stamp < self._stamp:
             return
+        self._last = msg
         self._stamp = msg.stamp
         present = frozenset(o.id for o in msg.obstacles)
         self.missing += sum(1 for i in self._current if i not in present)

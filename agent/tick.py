@@ -31,6 +31,7 @@ from typing import Any
 
 from agent import double_integrator
 from agent.barriers import Obstacle
+from agent.body import SHARED_TWISTS
 from agent.clock import STATS_WINDOW, Clock
 from agent.config import AgentConfig
 from agent.control import Controller, Stall, StepResult
@@ -41,7 +42,13 @@ from agent.leader_step import LeaderPart
 from agent.margins import carried_age
 from agent.navigation import STALLED_AFTER_S, NavPart
 from agent.odom_in import OdomIn
-from agent.plausibility import ObstacleMemory, held_obstacle, rival_obstacles, shapes_of_all
+from agent.plausibility import (
+    ObstacleMemory,
+    held_obstacle,
+    listed_obstacles,
+    rival_obstacles,
+    shapes_of_all,
+)
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
 from agent.tick_times import COMMAND, INPUTS, LEADER, POSE, RECORD, ROUTE, STATE, STEP, TickTimes
 from agent.transport import CommandOut
@@ -139,8 +146,11 @@ class Ticker:
         self.counts = TickCounts()
         self.obstacle_memory = ObstacleMemory()
         self.hard = HardRowCounter()  # ticks on which a hard row was not met
-        # built once: the config's QP solver (exact by default), the QP timed for solve_us
-        self.controller = Controller(cfg.control, make_solver(cfg.solver), time.perf_counter_ns)
+        # built once: the config's QP solver (exact by default), the QP timed for solve_us; the
+        # formation twists the process's agents share (an agent host's members of a formation
+        # solve their formation's QP once a tick: a pure cache, agent.body.TwistMemo)
+        self.controller = Controller(cfg.control, make_solver(cfg.solver), time.perf_counter_ns,
+                                     twists=SHARED_TWISTS)
         self.after: Callable[[StepResult | None], None] | None = None  # after every tick
         self.times = TickTimes()  # the tick's parts, timed (begun and ended by the scheduler)
         # the tick's memory
@@ -375,7 +385,7 @@ class Ticker:
         reports (agent.plausibility; both counted as held)."""
         memory = self.obstacle_memory
         memory.update(obstacles)
-        obs = [Obstacle(o.x, o.y, o.vx, o.vy, o.ds) for o in obstacles.obstacles]
+        obs = list(listed_obstacles(obstacles))
         held = memory.held(now)
         rivals = self.parts.inbox.obstacle_rivals()
         if held or rivals:

@@ -52,8 +52,11 @@ def fit_sums(offsets: Sequence[Point], now: Sequence[Point]) -> FitSums:
     """:class:`FitSums` of the start points' ``offsets`` about their centroid (a_i') and the
     current points ``now`` (b_i, member order)."""
     n = len(now)
-    bx = sum(p[0] for p in now) / n
-    by = sum(p[1] for p in now) / n
+    sx = sy = 0.0  # summed in order, as sum() does
+    for qx, qy in now:
+        sx += qx
+        sy += qy
+    bx, by = sx / n, sy / n
     cross = dot = 0.0
     for (ux, uy), (qx, qy) in zip(offsets, now, strict=True):
         vx, vy = qx - bx, qy - by

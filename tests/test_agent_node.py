@@ -398,4 +398,9 @@ def test_the_decode_memo_shares_equal_payloads_values_and_never_remembers_a_bad_
     memo(c)  # full at 2: emptied, then c kept
     memo(a)
     assert calls.count(a) == 2
+    before = time.monotonic()
+    value, received = memo.stamped(a)  # the value and the reception time, in one call
+    assert value is memo(a) and calls.count(a) == 2 and before <= received <= time.monotonic()
+    with pytest.raises(DecodeError):
+        memo.stamped(b"\x01bad")
     assert memo(bytearray(a)) == decode_state(a)  # not bytes: decoded, not remembered

@@ -491,3 +491,20 @@ def test_a_twist_memo_shares_one_twist_among_members_and_follows_a_changed_input
     assert moved == body.formation_twist(body.Footprint(slots, 0.0, 0), own, (5.0, 0.0),
                                          body.Snapshot(things, (), ()), PARAMS)
     assert moved[1].twist[0] > want[1].twist[0]
+
+
+def test_a_twist_memo_keeps_one_twist_per_formation_of_one_shape():
+    """Two formations of one shape heading for different goals, served in turn by one memo
+    (an agent host's): each keeps its own twist, handed out again without a new solve."""
+    slots = ((-0.25, 0.125), (0.25, 0.125), (0.25, -0.125), (-0.25, -0.125))
+    memo = body.TwistMemo()
+    snap = body.Snapshot((Obstacle(1.0, 0.0, -0.3, 0.0, 0.5),), (), ())
+    own_a, own_b = Ellipse(0.0, 0.0, 0.0, 0.5, 0.3), Ellipse(0.0, 3.0, 0.0, 0.5, 0.3)
+    first_a = memo.twist(body.Footprint(slots, 0.0, 0), own_a, (5.0, 0.0), snap, PARAMS)
+    first_b = memo.twist(body.Footprint(slots, 0.0, 0), own_b, (5.0, 3.0), snap, PARAMS)
+    again_a = memo.twist(body.Footprint(slots, 0.0, 1), own_a, (5.0, 0.0), snap, PARAMS)
+    again_b = memo.twist(body.Footprint(slots, 0.0, 2), own_b, (5.0, 3.0), snap, PARAMS)
+    assert again_a is first_a and again_b is first_b
+    assert first_a == body.formation_twist(body.Footprint(slots, 0.0, 3), own_a, (5.0, 0.0),
+                                           snap, PARAMS)
+    assert first_a != first_b

@@ -19,6 +19,7 @@ from agent.plausibility import (
     ObstacleMemory,
     held_obstacle,
     jump_ok,
+    listed_obstacles,
     points_ok,
     speed_bound,
     velocity_ok,
@@ -89,6 +90,22 @@ def test_an_obstacle_missing_from_a_new_list_is_held_for_a_bounded_time_then_dro
     assert mem.held(12.2) == [] and mem.missing == 2  # the crate went missing now
     with pytest.raises(ValueError, match="hold_s"):
         ObstacleMemory(hold_s=math.nan)
+
+
+def test_the_same_list_taken_again_counts_nothing_and_is_converted_to_rows_once():
+    fork = ObstacleMsg("forklift", 2.0, 0.0, -0.3, 0.0, 0.5)
+    crate = ObstacleMsg("crate", 0.0, 3.0, 0.0, 0.0, 0.3)
+    first, second = Obstacles(10.0, (fork, crate)), Obstacles(10.05, (crate,))
+    mem = ObstacleMemory(hold_s=2.0)
+    for msg in (first, second, second, second):  # one list object, held by the inbox per tick
+        mem.update(msg)
+    assert mem.missing == 1 and mem.held(10.5) == [(fork, pytest.approx(0.5))]
+    rows = listed_obstacles(first)
+    assert [(o.x, o.y, o.vx, o.vy, o.ds) for o in rows] == [(2.0, 0.0, -0.3, 0.0, 0.5),
+                                                            (0.0, 3.0, 0.0, 0.0, 0.3)]
+    assert listed_obstacles(first) is rows  # once per list
+    assert [o.x for o in listed_obstacles(second)] == [0.0]
+    assert listed_obstacles(Obstacles(10.05, (crate,))) == listed_obstacles(second)
 
 
 def test_hard_rows_count_fallbacks_failures_and_barriers_below_zero_but_not_relaxed_formations():
