@@ -341,13 +341,14 @@ def _band_rows(p: ControlParams, px: float, py: float, theta: float,
     soft: list[Row] = []
     hf = math.inf
     eps = p.epsilon
+    gamma = unicycle.member_gamma(p.gamma_formation) if p.unicycle else p.gamma_formation
     for n in neighbours:
         narrow = 0.0
         if p.unicycle and n.theta is not None:  # the band is meant for the bodies
             narrow = heading_narrowing(theta, n.theta, p.lookahead, eps)
         if p.declared:
             narrow = min(narrow + p.pair_margin(last_u, (n.vx, n.vy)), ROW_TUNING.narrow_cap * eps)
-        hg, hl, rg, rl = barriers.formation_rows(px, py, n, eps, p.gamma_formation, narrow)
+        hg, hl, rg, rl = barriers.formation_rows(px, py, n, eps, gamma, narrow)
         hf = min(hf, hg, hl)
         if rg[2] < reach:
             soft.append(rg)
@@ -447,7 +448,7 @@ def _separation_rows(p: ControlParams, px: float, py: float, theta: float,
     """The smallest separation barrier value and the hard separation rows that can be active."""
     hs = math.inf
     rows: list[Row] = []
-    gamma = unicycle.separation_gamma(p.gamma_formation) if p.unicycle else p.gamma_formation
+    gamma = unicycle.member_gamma(p.gamma_formation) if p.unicycle else p.gamma_formation
     off = p.offset
     for q in partners:
         dsep = p.separation + p.pair_margin(last_u, (q.vx, q.vy))

@@ -15,19 +15,27 @@ from geometry.unicycle import control_point  # noqa: F401  (re-exported)
 
 from .qp import Row
 
-SEPARATION_GAMMA_FLOOR = 1.0  # [1/s] the thesis's unicycle gamma (Tables 6.2-6.4)
+MEMBER_GAMMA_FLOOR = 1.0  # [1/s] the thesis's unicycle gamma (Tables 6.2-6.4)
 
 
-def separation_gamma(gamma_formation: float) -> float:
-    """The class-K rate of a unicycle member's separation rows (eq. 4.5 on two bodies): the
-    formation's gamma, at least :data:`SEPARATION_GAMMA_FLOOR`. A unicycle's control point moves
-    as asked only inside its drive polygon (:func:`drive_limit_rows`: sideways at most
-    ``lookahead * max_turn_rate``); at a small gamma the rows of two close members let each move
-    towards the other no faster than the other's last velocity allows, which members turning
-    together cannot match, and the QP meets them by relaxing the formation's band. Any positive
-    rate keeps the separation (with ``gamma dt <= 1`` for the sampled rows); the floor leaves
-    the turning members room."""
-    return max(gamma_formation, SEPARATION_GAMMA_FLOOR)
+def member_gamma(gamma_formation: float) -> float:
+    """The class-K rate of a unicycle member's rows on its own formation: its band rows (eq. 4.3
+    and 4.4, appendix A.2) and its separation rows (eq. 4.5 on two bodies), the formation's
+    gamma, at least :data:`MEMBER_GAMMA_FLOOR`.
+
+    A unicycle's control point moves as asked only inside its drive polygon
+    (:func:`drive_limit_rows`: sideways at most ``lookahead * max_turn_rate``), and a member turns
+    before it drives. At a small gamma a row inside the band or the separation lets two members
+    close on each other no faster than gamma h beyond the other's last velocity: near the edge
+    each row is all but an equality on that velocity. Members that turn, brake for a door's jamb
+    or start one tick apart cannot all match each other's last velocities, and the QP meets the
+    rows by relaxing the band; outside it a row asks the band back at only gamma |h|, so what
+    one relaxation opens stays open (a line of three turning through a door at gamma 0.05:
+    tests/scenarios/door-gamma-line-unicycle.yaml). Any positive rate keeps each row's set invariant (with
+    ``gamma dt <= 1`` for the sampled rows), so the floor changes how fast members may move
+    within the band, not what the band is; the obstacle and other formations' rows keep the
+    scenario's gamma."""
+    return max(gamma_formation, MEMBER_GAMMA_FLOOR)
 
 
 def to_unicycle(ux: float, uy: float, theta: float, lookahead: float) -> tuple[float, float]:

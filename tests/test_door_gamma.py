@@ -1,0 +1,49 @@
+"""Formations through a door at a small class-K rate (every gamma 0.05 and 0.1, or the
+formation's alone 0.05), lines and rectangles, single integrators and unicycles
+(tests/scenarios/door-gamma*.yaml), in process: the scenario bar of the README (every goal,
+0 collisions with loads counted, the band within 1.5 epsilon, obstacle clearance at least
+-5 mm). A unicycle member's band rows keep the thesis's unicycle rate
+(:func:`agent.unicycle.member_gamma`); the obstacle and other formations' rows keep the
+scenario's gamma."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from agent import unicycle
+from scenario import load_scenario
+from tests.scenario_runs import summary_of
+
+SCENARIOS = Path(__file__).parent / "scenarios"
+FILES = sorted(p.stem for p in SCENARIOS.glob("door-gamma*.yaml"))
+
+
+def test_the_set_has_lines_and_rectangles_of_both_models_at_both_rates():
+    scenarios = [load_scenario(SCENARIOS / f"{name}.yaml") for name in FILES]
+    assert {s.robot.is_unicycle for s in scenarios} == {False, True}
+    assert {len(s.formations[0].robots) for s in scenarios} == {3, 4}
+    assert {s.controller.gamma.formation for s in scenarios} == {0.05, 0.1}
+    gammas = [s.controller.gamma for s in scenarios]
+    assert any(g.obstacle == g.formation == g.formations for g in gammas)  # every gamma small
+    assert any(g.formation < min(g.obstacle, g.formations) for g in gammas)  # the band's alone
+
+
+def test_a_unicycle_member_rows_keep_the_floor_and_a_larger_gamma():
+    assert unicycle.member_gamma(0.05) == unicycle.MEMBER_GAMMA_FLOOR
+    assert unicycle.member_gamma(2.5) == 2.5
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", FILES)
+def test_a_formation_passes_the_door_at_a_small_gamma_within_the_bar(name):
+    s = load_scenario(SCENARIOS / f"{name}.yaml")
+    summary = summary_of(SCENARIOS / f"{name}.yaml")
+    assert summary["all_reached"]
+    assert summary["collisions"] == 0, summary["collision_log"]
+    assert summary["formation_error_max_m"] <= 1.5 * s.controller.epsilon
+    walls = summary["min_clearance_shape_m"]
+    assert walls and min(walls.values()) >= -0.005, walls
+    circles = summary["min_clearance_m"]["obstacle"]
+    assert circles is None or circles >= -0.005
