@@ -223,12 +223,12 @@ class LeaderPart:
         received: dict[str, EllipseMsg] = {}
         want: set[str] = set()  # real time: the formations to hear every tick (leader.listen)
         complete, inflated = True, False
-        for k, fid in role.other_keys.items():
-            q = self.listen.quiet.get(fid)
+        quiet, latest = self.listen.quiet, self._inbox.latest
+        for k, fid, beacon in role.heard_keys:
+            q = quiet.get(fid)
             if q is not None and q - QUIET_MAX_S <= now < q:
                 continue  # far, whatever it did since (leader.listen.quiet_until)
-            entry = newest(fid, self._inbox.latest(keys.ELLIPSE, k),
-                           self._inbox.latest(keys.BEACON, role.beacon_keys[fid]))
+            entry = newest(fid, latest(keys.ELLIPSE, k), latest(keys.BEACON, beacon))
             if entry is None:  # never heard of: it may be anywhere (its beacon will say where)
                 complete = False
                 continue

@@ -63,6 +63,9 @@ class LeaderRole:
         }
         # and their beacon keys (leader.listen), by formation id
         self.beacon_keys = {f: keys.beacon_key(prefix, f) for f in settings.other_formations}
+        # (ellipse key, formation id, beacon key) of each other formation, as a leader looks
+        # them up every tick
+        self.heard_keys = tuple((k, f, self.beacon_keys[f]) for k, f in self.other_keys.items())
 
     @property
     def members(self) -> tuple[str, ...]:
