@@ -209,22 +209,26 @@ class Inbox:
         rx = self.receiver
         check = PLAUSIBLE.get(cls)  # the class's plausibility check, found once
         obstacles = cls == keys.OBSTACLES
+        pose = cls == keys.POSE
         used = self._used
 
         def accept(key: str, value: Entry, prev: Entry | None) -> bool:
             msg = value[0]
-            last = None if prev is None else used.get(key, prev[0].stamp)
+            stamp = msg.stamp
+            kept = None if prev is None else prev[0]
             now = rx.now()
-            reason = check_stamp(now, msg.stamp, last, rx.tolerance, rx.stale_after)
-            if reason == FUTURE and rx.starved():
-                reason = None  # lock-step: the world went on without this agent; catch up
-                self.catch_ups += 1
+            reason = check_stamp(now, stamp, None if kept is None else used.get(key, kept.stamp),
+                                 rx.tolerance, rx.stale_after)
             if reason is not None:
-                self.stamps.count(cls, reason)
+                if reason == FUTURE and rx.starved():
+                    reason = None  # lock-step: the world went on without this agent; catch up
+                    self.catch_ups += 1
+                else:
+                    self.stamps.count(cls, reason)
             # stamped before the kept message (refused as older, or taken past a kept one
             # stamped ahead of the clock) and disagreeing with it: a second source on the key
-            if reason in (None, OLDER) and prev is not None and msg.stamp < prev[0].stamp \
-                    and self._conflicts(cls, msg, prev[0]):
+            if kept is not None and stamp < kept.stamp and reason in (None, OLDER) \
+                    and self._conflicts(cls, msg, kept):
                 self._second_source(cls, msg, now)
                 return False
             if reason is not None:
@@ -232,15 +236,15 @@ class Inbox:
             # plausible after the kept message while that one is fresh; a stale one says nothing
             # any more (a robot carried elsewhere, or a forged first pose: it blocks for at most
             # stale_after)
-            ref = None if prev is None or now - prev[0].stamp > rx.stale_after else prev[0]
+            ref = None if kept is None or now - kept.stamp > rx.stale_after else kept
             if check is None or check(msg, ref, rx.speed):
-                if cls == keys.POSE:
+                if pose:
                     self.reacquire.reset()
             elif self._refused(cls, msg):
                 return False
             if obstacles and ref is not None:
                 self._check_newer_list(msg, ref, now)
-            used[key] = used_stamp(now, msg.stamp)
+            used[key] = used_stamp(now, stamp)
             return True
 
         return accept

@@ -25,7 +25,7 @@ from agent.clock import Clock
 from agent.config import AgentConfig
 from agent.inbox import Entry, Inbox
 from agent.transport import Transport
-from geometry.ellipse import Ellipse
+from geometry.ellipse import Ellipse, Point
 from leader.listen import QUIET_MAX_S, beacon_due, grown_gap, hears, quiet_until
 from leader.role import VIEW_RANGE, LeaderRole, ellipse_to_msg
 from leader.succession import leader_token_key
@@ -34,9 +34,6 @@ from wire import keys
 from wire.payloads import EllipseMsg, Others, State
 
 logger = logging.getLogger(__name__)
-
-Member = tuple[float, float, float, float, float]  # control point x, y, velocity x, y, heading
-
 
 def inflate(m: EllipseMsg, grow: float) -> EllipseMsg:
     """``m`` with both semi-axes grown by ``grow`` [m]: a stale ellipse covering everywhere its
@@ -186,7 +183,8 @@ class LeaderPart:
         if clock.lockstep:  # a real-time clock never waits (agent.clock)
             await clock.wait(self._inbox, [(keys.STATE, k) for k in self._member_keys.values()],
                              stamp)
-        own = role.estimate(self.members_now(px, py, ts, last_u, theta))
+        fit = self.kinematics(px, py, ts, last_u, theta)
+        own = None if fit is None else role.fit(*fit)
         if own is None:
             self.own_others = None
             return False
@@ -225,12 +223,12 @@ class LeaderPart:
         received: dict[str, EllipseMsg] = {}
         want: set[str] = set()  # real time: the formations to hear every tick (leader.listen)
         complete, inflated = True, False
-        for k, fid in role.other_keys.items():
-            q = self.listen.quiet.get(fid)
+        quiet, latest = self.listen.quiet, self._inbox.latest
+        for k, fid, beacon in role.heard_keys:
+            q = quiet.get(fid)
             if q is not None and q - QUIET_MAX_S <= now < q:
                 continue  # far, whatever it did since (leader.listen.quiet_until)
-            entry = newest(fid, self._inbox.latest(keys.ELLIPSE, k),
-                           self._inbox.latest(keys.BEACON, role.beacon_keys[fid]))
+            entry = newest(fid, latest(keys.ELLIPSE, k), latest(keys.BEACON, beacon))
             if entry is None:  # never heard of: it may be anywhere (its beacon will say where)
                 complete = False
                 continue
@@ -264,25 +262,40 @@ class LeaderPart:
             return inflate(m, speed * age), True
         return None, False
 
-    def members_now(self, px: float, py: float, ts: float | None,
-                    last_u: tuple[float, float], theta: float = 0.0) -> dict[str, Member]:
-        """Every member's control point, velocity and heading it has fresh (its own from
-        itself, ``theta`` its body heading). A
-        successor leading for a dead leader (``acting``) also takes the dead robot's last
-        state, and every velocity as zero: the formation stands still."""
-        members: dict[str, Member] = {self.cfg.robot_id: (px, py, *last_u, theta)}
-        for m, k in self._member_keys.items():
-            entry = self._inbox.latest(keys.STATE, k)
-            if entry is not None and (self._clock.fresh(entry, ts) or self.succession.acting):
-                s: State = entry[0]
-                members[m] = (s.x, s.y, s.ux, s.uy, s.theta)
-        if self.succession.acting:  # a standing formation: its ellipse at rest
+    def kinematics(self, px: float, py: float, ts: float | None, last_u: tuple[float, float],
+                   theta: float = 0.0) -> tuple[list[Point], list[Point], list[float]] | None:
+        """Every member's control point, velocity and heading, in the role's member order, as
+        :meth:`leader.role.LeaderRole.fit` takes them (its own from itself, ``theta`` its body
+        heading; the others' from their fresh ``state``); None when one is missing or stale. A
+        successor leading for a dead leader (``acting``) also takes the dead robot's last state,
+        and every velocity as zero: the formation stands still."""
+        role = self.role
+        assert role is not None
+        acting = self.succession.acting
+        if acting:
             self.succession.ticks += 1
             if not self.succession.counted:
                 self.succession.counted = True
                 self.succession.takeovers += 1
-            members = {m: (x, y, 0.0, 0.0, th) for m, (x, y, _, _, th) in members.items()}
-        return members
+        rid, member_keys, inbox, clock = self.cfg.robot_id, self._member_keys, self._inbox, \
+            self._clock
+        pts: list[Point] = []
+        vel: list[Point] = []
+        heads: list[float] = []
+        for m in role.members:
+            if m == rid:
+                pts.append((px, py))
+                vel.append((0.0, 0.0) if acting else (last_u[0], last_u[1]))
+                heads.append(theta)
+                continue
+            entry = inbox.latest(keys.STATE, member_keys[m])
+            if entry is None or not (acting or clock.fresh(entry, ts)):
+                return None
+            s: State = entry[0]
+            pts.append((s.x, s.y))
+            vel.append((0.0, 0.0) if acting else (s.ux, s.uy))
+            heads.append(s.theta)
+        return pts, vel, heads
 
     # --- listening (leader.listen, real time) ---------------------------------------------------
 

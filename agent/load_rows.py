@@ -95,13 +95,59 @@ def place_load(start: Sequence[Point], outline: Sequence[Point],
         px, py = cx + c * x - s * y, cy + s * x + c * y
         pts.append((px, py))
         radius = max(radius, math.hypot(px - cx, py - cy))
+    w, wsum = _weights(start, cross, dot, q)
+    return PlacedLoad(tuple(pts), cx, cy, w, radius, 1.0 + radius * wsum)
+
+
+def _weights(start: Sequence[Point], cross: float, dot: float, q: float
+             ) -> tuple[tuple[Point, ...], float]:
+    """(L.1)'s w_k of the fit with sums ``cross``, ``dot`` (``q = cross^2 + dot^2``), and
+    sum_k |w_k|."""
     w: list[Point] = []
     wsum = 0.0  # summed in order, as sum() does
     for ax, ay in start:
         wx, wy = (-dot * ay - cross * ax) / q, (dot * ax - cross * ay) / q
         w.append((wx, wy))
         wsum += math.hypot(wx, wy)
-    return PlacedLoad(tuple(pts), cx, cy, tuple(w), radius, 1.0 + radius * wsum)
+    return tuple(w), wsum
+
+
+class LoadFit(NamedTuple):
+    """What :func:`place_load` finds before it places the outline: the members' centroid and
+    (L.1)'s w_k, to the bit, with upper bounds of the placed outline's radius and spread."""
+
+    cx: float
+    cy: float
+    w: tuple[Point, ...]
+    radius: float  # [m] at least :attr:`PlacedLoad.radius`
+    spread: float  # at least :attr:`PlacedLoad.spread`
+
+
+# A placed point's distance from the centroid is its outline point's (a rotation keeps lengths)
+# up to the rounding of the placement: a few units in the last place of the coordinates, far
+# below this share of them.
+_ROUNDING = 1e-12
+
+
+def fit_load(start: Sequence[Point], reach: float, bodies: Sequence[Point]) -> LoadFit | None:
+    """:class:`LoadFit` of the load :func:`place_load` places from ``start`` onto ``bodies``,
+    whose outline points lie at most ``reach`` [m] from the start centroid; None where
+    :func:`place_load` gives None."""
+    cx, cy, cross, dot = fit_sums(start, bodies)
+    q = cross * cross + dot * dot
+    if q < _TINY:
+        return None
+    w, wsum = _weights(start, cross, dot, q)
+    big = reach * (1.0 + _ROUNDING) + _ROUNDING * (abs(cx) + abs(cy) + 1.0)
+    return LoadFit(cx, cy, w, big, 1.0 + big * wsum)
+
+
+def outline_reach(outline: Sequence[Point]) -> float:
+    """The largest distance [m] of an outline point from the origin (its centroid frame)."""
+    reach = 0.0
+    for x, y in outline:
+        reach = max(reach, math.hypot(x, y))
+    return reach
 
 
 def gradients(load: PlacedLoad, p: Point, m: Point,
@@ -135,14 +181,48 @@ def share_row(g: Sequence[Point], v: Point, member: int, h: float, hdot: float,
     return normalized_row(-gx, -gy, gi * c / s - (gx * v[0] + gy * v[1]))
 
 
-class MemberLoad(NamedTuple):
-    """A member's formation's load as its QP sees it."""
+class MemberLoad:
+    """A member's formation's load as its QP sees it. Its outline is placed when first asked
+    for (:attr:`placed`): :func:`load_rows` needs only :attr:`fit` to find that no barrier on
+    it can be active, the common case away from shelves."""
 
-    placed: PlacedLoad
-    member: int  # this member's index
-    velocities: list[Point]  # every member's last certified command
-    headings: list[float] | None  # unicycles: every member's heading
-    declared: bool = True  # a declared load's vertices get rows (the default hull's are the members)
+    __slots__ = ("_placed", "_place", "_fit", "member", "velocities", "headings", "declared")
+
+    def __init__(self, placed: PlacedLoad | Callable[[], PlacedLoad], member: int,
+                 velocities: list[Point], headings: list[float] | None, declared: bool = True,
+                 fit: LoadFit | None = None) -> None:
+        """``placed``: the placed load, or what places it (then ``fit`` is its :class:`LoadFit`).
+        ``member``: this member's index; ``velocities``: every member's last certified command;
+        ``headings``: unicycles' every member's heading; ``declared``: a declared load's
+        vertices get rows (the default hull's are the members)."""
+        if isinstance(placed, PlacedLoad):
+            self._placed: PlacedLoad | None = placed
+            self._place: Callable[[], PlacedLoad] | None = None
+        else:
+            self._placed, self._place = None, placed
+            if fit is None:
+                raise ValueError("fit: a load placed later needs its fit")
+        self._fit = fit
+        self.member = member
+        self.velocities = velocities
+        self.headings = headings
+        self.declared = declared
+
+    @property
+    def placed(self) -> PlacedLoad:
+        """The load placed by the rigid fit (placed once, on the first call)."""
+        if self._placed is None:
+            assert self._place is not None
+            self._placed = self._place()
+        return self._placed
+
+    @property
+    def fit(self) -> LoadFit:
+        """The fit's centroid and w_k, with bounds of the placed radius and spread."""
+        if self._fit is None:
+            p = self.placed
+            self._fit = LoadFit(p.cx, p.cy, p.w, p.radius, p.spread)
+        return self._fit
 
 
 class LastPlaced:
@@ -179,20 +259,28 @@ def member_load(fp: Footprint, pose: tuple[float, float, float], last_u: Point,
     bodies.insert(me, (pose[0], pose[1]))
     vel = [(q.vx, q.vy) for q in mates]
     vel.insert(me, last_u)
-    key = (fp.fit0, fp.outline0, tuple(bodies))
-    last = PLACED.last  # every member places the same load (single integrators: to the bit)
-    if last is not None and last[0] == key:
-        placed = last[1]
-    else:
-        placed = place_load(fp.fit0, fp.outline0, bodies)
-        PLACED.last = (key, placed)
-    if placed is None:
+    fit = fit_load(fp.fit0, outline_reach(fp.outline0), bodies)
+    if fit is None:  # and place_load's would be None
         return None
     heads = None
     if unicycle:
         heads = [q.theta for q in mates]
         heads.insert(me, pose[2])
-    return MemberLoad(placed, me, vel, heads, bool(fp.load_points))
+    return MemberLoad(lambda: _placed(fp, bodies), me, vel, heads, bool(fp.load_points), fit)
+
+
+def _placed(fp: Footprint, bodies: list[Point]) -> PlacedLoad:
+    """:func:`place_load` of ``fp``'s load at ``bodies`` (through :data:`PLACED`: every member
+    places the same load, single integrators to the bit), where :func:`fit_load` found one."""
+    key = (fp.fit0, fp.outline0, tuple(bodies))
+    last = PLACED.last
+    if last is not None and last[0] == key:
+        placed = last[1]
+    else:
+        placed = place_load(fp.fit0, fp.outline0, bodies)
+        PLACED.last = (key, placed)
+    assert placed is not None  # the same test as fit_load's
+    return placed
 
 
 class Feature(NamedTuple):
@@ -372,6 +460,41 @@ def features(load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence[S
     return select(load, candidates(load, obstacles, shapes, radius, clear, inactive), inactive)
 
 
+def idle(load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence[Shape],
+         radius: float, clear: float, loose: tuple[float, float]) -> bool:
+    """Whether :func:`candidates` for the test ``gamma h + h' >= S floor`` (``loose`` = (gamma,
+    floor)) finds none, told from :attr:`MemberLoad.fit` alone: :func:`near_things`' tests of
+    each circle and each shape's bounding circle, with the fit's bounds of the radius and spread
+    in place of the placed ones. With gamma and floor not negative each bound only lowers the
+    left side or raises the right (in floats too: every step is monotone), so a thing ruled out
+    here is ruled out there."""
+    gamma, floor = loose
+    if not (gamma >= 0.0 and floor >= 0.0):
+        return False
+    f = load.fit
+    cx, cy, big, spread = f.cx, f.cy, f.radius, f.spread
+    headings = load.headings
+    vel = onto_headings(load.velocities, headings) if headings is not None \
+        else load.velocities
+    n = len(vel)
+    svx = svy = om = 0.0  # as candidates() sums them
+    for (vx, vy), (wx, wy) in zip(vel, f.w, strict=True):
+        svx += vx
+        svy += vy
+        om += wx * vx + wy * vy
+    fastest = math.hypot(svx / n, svy / n) + abs(om) * big
+    right = spread * floor
+    for o in obstacles:
+        speed = math.hypot(o.vx, o.vy)
+        r = max(0.0, o.ds - radius) + clear
+        if not gamma * (math.hypot(o.x - cx, o.y - cy) - big - r) + (-speed - fastest) >= right:
+            return False
+    for sh in shapes:
+        if not gamma * (distance_floor(cx, cy, sh) - big - clear) + -fastest >= right:
+            return False
+    return True
+
+
 class LoadMemo:
     """The last :func:`candidates` worked out, with their gradients, by their inputs. Every
     member of a formation places the same load from the same ``state``s (single integrators:
@@ -417,7 +540,8 @@ def load_rows(load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence[
 
     A barrier is inactive when, with its slack c = gamma h + h' >= 0 and S at most its bound,
     b = c / S - g_i . v_i / |g_i| >= c / S - |v_i| >= reach. The barriers are found through
-    ``memo`` (default: :data:`SHARED`), a pure cache."""
+    ``memo`` (default: :data:`SHARED`), a pure cache, once :func:`idle` cannot rule them all
+    out (without placing the outline)."""
     rows: list[Row] = []
     v = load.velocities[load.member]
     floor = reach + math.hypot(v[0], v[1])
@@ -425,6 +549,8 @@ def load_rows(load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence[
     for ux, uy in load.velocities:
         fastest = max(fastest, math.hypot(ux, uy))
     loose = reach + fastest
+    if idle(load, obstacles, shapes, radius, clear, (gamma, loose)):
+        return math.inf, rows
     found, kept = (memo or SHARED).found(load, obstacles, shapes, radius, clear, (gamma, loose))
 
     def gradients_of(c: Candidate) -> list[Point]:

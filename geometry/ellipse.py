@@ -63,7 +63,7 @@ def centroid(points: Sequence[Point]) -> Point:
     if not points:
         raise ValueError("points: at least one point is needed")
     n = len(points)
-    return (sum(p[0] for p in points) / n, sum(p[1] for p in points) / n)
+    return (sum([p[0] for p in points]) / n, sum([p[1] for p in points]) / n)
 
 
 def reference_shape(points: Sequence[Point]) -> ReferenceShape:

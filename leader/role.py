@@ -10,9 +10,9 @@ no network objects: it turns numbers into :class:`wire.payloads.EllipseMsg` and
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
-from geometry.ellipse import Ellipse, ReferenceShape, estimate, within_reach
+from geometry.ellipse import Ellipse, Point, ReferenceShape, estimate, within_reach
 from wire import keys
 from wire.payloads import EllipseMsg, Others
 
@@ -63,6 +63,9 @@ class LeaderRole:
         }
         # and their beacon keys (leader.listen), by formation id
         self.beacon_keys = {f: keys.beacon_key(prefix, f) for f in settings.other_formations}
+        # (ellipse key, formation id, beacon key) of each other formation, as a leader looks
+        # them up every tick
+        self.heard_keys = tuple((k, f, self.beacon_keys[f]) for k, f in self.other_keys.items())
 
     @property
     def members(self) -> tuple[str, ...]:
@@ -79,7 +82,13 @@ class LeaderRole:
             pts.append((k[0], k[1]))
             vel.append((k[2], k[3]))
             heads.append(k[4])
-        return estimate(self.shape, self.axes, pts, vel, heads)
+        return self.fit(pts, vel, heads)
+
+    def fit(self, points: Sequence[Point], velocities: Sequence[Point],
+            headings: Sequence[float]) -> Ellipse:
+        """The ellipse from every member's control point, velocity and heading, in
+        :attr:`members` order (:func:`geometry.ellipse.estimate`)."""
+        return estimate(self.shape, self.axes, points, velocities, headings)
 
     def others(self, own: Ellipse, received: Mapping[str, EllipseMsg], stamp: float,
                own_msg: EllipseMsg | None = None) -> Others:

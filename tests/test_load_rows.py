@@ -8,6 +8,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
+from agent import double_integrator as di
 from agent import load_rows
 from agent.barriers import Obstacle, Partner
 from agent.body import footprint_of
@@ -198,3 +199,94 @@ def test_members_sharing_one_memo_get_the_rows_each_finds_alone(pts, turn, vel, 
         alone = load_rows.load_rows(load, obstacles, shapes, 0.1, 0.01, 0.8, 0.22,
                                     load_rows.LoadMemo())
         assert got == alone
+
+
+def _unculled(load, obstacles, shapes, radius, clear, gamma, reach):
+    """load_rows worked out without its check by the fit alone (:func:`agent.load_rows.idle`):
+    every candidate found by the loosest member's test, then this member's selected."""
+    v = load.velocities[load.member]
+    floor = reach + math.hypot(v[0], v[1])
+    loose = reach + max(math.hypot(u[0], u[1]) for u in load.velocities)
+    found = load_rows.candidates(load, obstacles, shapes, radius, clear,
+                                 lambda h, hdot, s, _v: gamma * h + hdot >= s * loose)
+    hmin, feats = load_rows.select_linear(
+        load, found, gamma, floor,
+        lambda c: load_rows.gradients(load.placed, c.p, c.m, load.headings))
+    rows = [r for f in feats
+            if (r := load_rows.share_row(f.g, v, load.member, f.h, f.hdot, gamma)) is not None
+            and r[2] < reach]
+    return hmin, rows
+
+
+def _loads(offs, outline, now, member, vel, heads, declared):
+    """The same load placed at once and placed only when asked for (as member_load makes it)."""
+    placed = load_rows.place_load(offs, outline, now)
+    fit = load_rows.fit_load(offs, load_rows.outline_reach(outline), now)
+    assert (placed is None) == (fit is None)
+    if placed is None:
+        return None
+    n = len(now)
+    eager = load_rows.MemberLoad(placed, member, vel[:n], heads, declared)
+    lazy = load_rows.MemberLoad(lambda: load_rows.place_load(offs, outline, now), member,
+                                vel[:n], heads, declared, fit)
+    return eager, lazy
+
+
+far = st.floats(-2000.0, 2000.0)
+near = st.floats(-4.0, 4.0)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.tuples(coord, coord), min_size=2, max_size=4), st.floats(-3.0, 3.0),
+       st.tuples(far, far), st.lists(st.tuples(coord, coord), min_size=3, max_size=5),
+       st.lists(st.tuples(speed, speed), min_size=4, max_size=4),
+       st.lists(st.tuples(near, near), max_size=3),
+       st.lists(st.tuples(near, near, speed, speed, st.floats(0.0, 0.6)), max_size=3),
+       st.tuples(st.integers(0, 3), st.floats(0.0, 3.0), st.floats(0.0, 0.4), st.booleans(),
+                 st.booleans()))
+def test_rows_found_by_the_fit_alone_are_the_rows_of_the_placed_load(
+        pts, turn, shift, outline, vel, posts, circles, knobs):
+    """The check by the fit alone (its bounds of the placed radius and spread) leaves the rows
+    and the smallest h exactly as without it, near shelves and circles and far from them, at
+    any distance from the origin; the load is placed only where the check cannot rule it out,
+    and the double integrators' rows (which place it) are those of the load placed at once."""
+    member, gamma, reach, unicycle, declared = knobs
+    offs, now = _start_and_now(pts, turn, shift)
+    assume(member < len(now))
+    heads = [0.3 * k for k in range(len(now))] if unicycle else None
+    loads = _loads(offs, outline, now, member, vel, heads, declared)
+    assume(loads is not None)
+    eager, lazy = loads
+    cx, cy = now[0]  # the things near the load, wherever it is
+    shapes = [box(f"s{k}", (cx + x, cy + y), (0.4, 0.3), 0.2 * k, 0.2)
+              for k, (x, y) in enumerate(posts)]
+    obstacles = [Obstacle(cx + x, cy + y, vx, vy, ds) for x, y, vx, vy, ds in circles]
+    want = _unculled(eager, obstacles, shapes, 0.1, 0.01, gamma, reach)
+    assert load_rows.load_rows(lazy, obstacles, shapes, 0.1, 0.01, gamma, reach,
+                               load_rows.LoadMemo()) == want
+    assert load_rows.load_rows(eager, obstacles, shapes, 0.1, 0.01, gamma, reach,
+                               load_rows.LoadMemo()) == want
+    cp = ControlParams(max_speed=0.22, period=0.05, double_integrator=True, max_accel=0.5)
+    assert di.load_rows_of(cp, lazy, obstacles, shapes) == di.load_rows_of(cp, eager, obstacles,
+                                                                          shapes)
+
+
+def test_a_load_far_from_everything_is_never_placed():
+    """Away from every shelf and circle load_rows rules every barrier out by the fit alone:
+    no rows, no smallest h, and the outline is not placed."""
+    offs = [(-0.5, 0.0), (0.5, 0.0)]
+    now = [(-0.5, 0.0), (0.5, 0.0)]
+    outline = [(-0.6, -0.2), (0.6, -0.2), (0.6, 0.2), (-0.6, 0.2)]
+    fit = load_rows.fit_load(offs, load_rows.outline_reach(outline), now)
+    assert fit is not None
+
+    def place():
+        raise AssertionError("placed")
+
+    load = load_rows.MemberLoad(place, 0, [(0.1, 0.0), (0.1, 0.0)], None, True, fit)
+    far_box = [box("s", (9.0, 0.0), (0.4, 0.3), 0.0, 0.2)]
+    assert load_rows.load_rows(load, [Obstacle(0.0, 9.0, 0.0, 0.0, 0.3)], far_box, 0.1, 0.01,
+                               1.0, 0.22) == (math.inf, [])
+    with pytest.raises(AssertionError, match="placed"):  # near: it is placed
+        load_rows.load_rows(load, [Obstacle(0.0, 0.5, 0.0, 0.0, 0.3)], far_box, 0.1, 0.01,
+                            1.0, 0.22)
