@@ -45,7 +45,8 @@ def _summary(out: Path) -> dict:
     return json.loads((out / "summary.json").read_text())
 
 
-@pytest.mark.parametrize("stem", ["blind-aisle", "blind-aisle-unicycle", "blind-misread"])
+@pytest.mark.parametrize("stem", ["blind-aisle", "blind-aisle-unicycle", "blind-misread",
+                                  "blind-crossing"])
 def test_a_lock_step_run_through_a_blind_patch_writes_what_formation_sim_writes(tmp_path, stem):
     scenario = SCENARIOS / f"{stem}.yaml"
     sim, run = tmp_path / "sim", tmp_path / "run"
