@@ -24,6 +24,7 @@ import zenoh
 from agent.clock import Clock
 from agent.config import AgentConfig
 from agent.inbox import Entry, Inbox
+from agent.odom_in import OdomIn
 from agent.transport import Transport
 from geometry.ellipse import Ellipse, Point
 from leader.listen import QUIET_MAX_S, beacon_due, grown_gap, hears, quiet_until
@@ -99,6 +100,7 @@ class LeaderPart:
                                  f"{self._not_adjacent(self.role)[0]}")
             self._member_keys = member_keys
         self.own_others: Others | None = None
+        self.loc: OdomIn | None = None  # controller.localisation fused (set by the node)
         self.ellipse_trace: list[tuple] = []  # (stamp, *Ellipse) per tick
         self.inflated = 0  # ticks that used another formation's stale ellipse, inflated
         # leader.listen: the other formations whose ellipse is subscribed to (all in lock-step;
@@ -191,7 +193,10 @@ class LeaderPart:
         if self.trace:
             self.ellipse_trace.append((stamp, *own[:8]))  # not its points
         # both topologies (all-to-all: for the tie-break and the jam rule, not for rows)
-        msg = ellipse_to_msg(role.formation, own, stamp)
+        loc, latest = self.loc, self._inbox.latest  # fused: the formation's radius on it
+        msg = ellipse_to_msg(role.formation, own, stamp, None if loc is None else
+                             loc.formation_radius(latest(keys.STATE, k)
+                                                  for k in self._member_keys.values()))
         t.publish(role.ellipse_key, msg)
         if self.realtime and beacon_due(stamp, self.listen.beacon_stamp):
             t.publish(role.beacon_key, msg)

@@ -25,6 +25,7 @@ keeps both ends' noise and their relative travel (:func:`pair_margin`).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 
 from scenario.model import Bounds
 
@@ -146,6 +147,22 @@ def estimate_margin(own: float, other: float) -> float:
     barrier certificates", NeurIPS 2020 (arXiv:1912.09957), for localisation errors of bounded
     support. ``other`` is the largest radius among the robots this one hears (their ``state``)."""
     return own + other
+
+
+def heard_radius(own: float, members: Iterable[float | None],
+                 formations: Iterable[float | None]) -> float:
+    """[m] The ``other`` radius of :func:`estimate_margin` for a robot of radius ``own``: the
+    largest of its own, its formation's members' (the ``sigma`` of the states it hears) and
+    the formations' (the ``sigma`` on each ellipse of its ``others`` view this tick: its own
+    formation's and those of the other formations in view, :data:`leader.role.VIEW_RANGE`; a
+    formation farther away is in no row). None: a sender on the camera's poses. One rule for the
+    agent (:mod:`agent.odom_in`) and the in-process simulator (:mod:`simulator.fused`), which
+    computes the same radii from the same view."""
+    out = own
+    for r in (*members, *formations):
+        if r is not None and r > out:
+            out = r
+    return out
 
 
 def margin_steps(own: float, other: float) -> int:

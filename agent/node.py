@@ -204,7 +204,7 @@ class AgentNode:
         self.ticker = Ticker(cfg, self.keys, TickParts(self.clock, self.inbox, self.leader,
                                                        self.nav, self.out),
                              tolerance, options.trace)
-        self.ticker.loc = self.odom_in
+        self.ticker.loc = self.leader.loc = self.odom_in
         self.scheduler = self._scheduler()
         self._cpu0 = time.process_time()
         self._wall0 = time.monotonic()

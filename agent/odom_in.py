@@ -16,9 +16,11 @@ frame ``t`` waits for the estimate stamped ``t``; real time: the estimate's arri
   empty) does not know where it stands: it hands no pose, so it sends no state, until then.
 * Past :data:`agent.margins.RADIUS_LIMIT` the robot commands zero, counted ``over_limit_ticks``;
   its state still goes out (its neighbours see where it stands, with its radius).
-* The estimate's confidence radius goes into the robot's ``state`` (``sigma``), and every
-  barrier keeps the margin its own and the heard radii need
-  (:func:`agent.margins.localisation_bounds` through :class:`MarginControllers`).
+* The estimate's confidence radius goes into the robot's ``state`` (``sigma``; a leader puts
+  its formation's largest on its ellipse), and every barrier keeps the margin its own and the
+  heard radii need (:func:`agent.margins.heard_radius` over its members' states and the
+  ellipses of its ``others`` view, :func:`agent.margins.localisation_bounds` through
+  :class:`MarginControllers`).
 * A malformed odometry or camera payload is dropped and counted (``dropped``); an odometry
   message stamped no later than the last one is refused and counted (``older``).
 """
@@ -37,7 +39,7 @@ from agent.control import Controller
 from agent.localisation import Localiser
 from wire import keys
 from wire.odom import decode_odom, odom_key
-from wire.payloads import Pose, State, decode_pose, encode
+from wire.payloads import Others, Pose, State, decode_pose, encode
 from wire.reader import DecodeError
 
 PENDING = 64  # camera poses kept between two odometry messages (a flood keeps the newest)
@@ -83,6 +85,7 @@ class OdomIn:
         self.last_camera = -math.inf  # the newest camera stamp taken to the filter
         self.unseen_since: float | None = None  # [s] that stamp, or the first odometry's
         self.radius = 0.0  # [m] the estimate's confidence radius (0 before the first)
+        self.formation_radii: tuple[float | None, ...] = ()  # on this tick's others' ellipses
         self.held: str | None = None  # why the latest estimate commands zero (None: it does not)
         self.controllers = MarginControllers()
         self.counts = {"held_ticks": 0, "over_limit_ticks": 0, "disputed_ticks": 0,
@@ -164,15 +167,26 @@ class OdomIn:
 
     # --- what the tick reads --------------------------------------------------------------
 
+    def hear(self, others: Others) -> None:
+        """This tick's ``others`` message: the radii on its ellipses (the formations in view
+        and its own) count in :meth:`controller`."""
+        own = () if others.own is None else (others.own.sigma,)
+        self.formation_radii = (*own, *(e.sigma for e in others.ellipses))
+
     def controller(self, base: Controller, heard: Iterable[Any]) -> Controller:
         """The controller of this tick: ``base`` with the margins this robot's radius and the
-        largest radius among the ``heard`` states (and its own) need."""
-        other = self.radius
-        for entry in heard:
-            sigma = None if entry is None else entry[0].sigma
-            if sigma is not None and sigma > other:
-                other = sigma
+        largest it hears need (:func:`agent.margins.heard_radius` over the ``heard`` states'
+        and :meth:`hear`'s ellipses')."""
+        other = margins.heard_radius(
+            self.radius, (None if entry is None else entry[0].sigma for entry in heard),
+            self.formation_radii)
         return self.controllers.get(base, self.radius, other)
+
+    def formation_radius(self, members: Iterable[Any]) -> float:
+        """A leader's formation's largest confidence radius, for its ellipse: its own and its
+        ``members``' latest states' (inbox entries, None: none yet)."""
+        return margins.heard_radius(
+            self.radius, (None if entry is None else entry[0].sigma for entry in members), ())
 
     def state(self, px: float, py: float, u: tuple[float, float], stamp: float,
               theta: float) -> State:

@@ -286,6 +286,8 @@ class Ticker:
             return self._zero(t, IMPLAUSIBLE)
         shapes = nav.update_shapes(shape_msgs)
         own, others = others_view(others_msg)
+        if self.loc is not None:  # fused: the radii on the ellipses in view count
+            self.loc.hear(others_msg)
         target, waypoint = nav.follower.goal, self.cfg.formation_goal
         if own is not None:  # walk the route (the leader takes new goals first)
             times.lap(INPUTS)

@@ -31,10 +31,12 @@ Kinematic = tuple[float, float, float, float, float]
 VIEW_RANGE = 4.0
 
 
-def ellipse_to_msg(formation: str, e: Ellipse, stamp: float) -> EllipseMsg:
-    """The wire form of ``e`` for ``formation``."""
+def ellipse_to_msg(formation: str, e: Ellipse, stamp: float, sigma: float | None = None
+                   ) -> EllipseMsg:
+    """The wire form of ``e`` for ``formation`` (``sigma``: its members' largest confidence
+    radius under ``controller.localisation: fused``; None: the camera's poses)."""
     return EllipseMsg(formation, e.cx, e.cy, e.alpha, e.a, e.b, e.vx, e.vy, e.alpha_rate, stamp,
-                      e.points, e.headings)
+                      e.points, e.headings, sigma)
 
 
 def msg_to_ellipse(m: EllipseMsg) -> Ellipse:

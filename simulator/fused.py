@@ -13,8 +13,10 @@ falsifies it.
   as an agent does); one never seen waits.
 * ``fused``: each robot's :class:`agent.localisation.Localiser` takes the odometry and each new
   camera pose at its capture stamp; the robot drives on the filter's pose (which its ``state``
-  then carries to its neighbours and leader), every barrier keeps the margin its and the
-  others' confidence radii need (:func:`agent.margins.localisation_bounds`), and past
+  then carries to its neighbours and leader, and its leader's ellipse, as its formation's
+  largest radius, to the other formations), every barrier keeps the margin its and the
+  others' confidence radii need (:func:`agent.margins.localisation_bounds` with
+  :func:`agent.margins.heard_radius`, the agents' rule), and past
   :data:`agent.margins.RADIUS_LIMIT` it stops, counted. It waits for its first camera pose.
 """
 
@@ -31,7 +33,6 @@ from agent import margins, unicycle
 from agent.control import Controller, StepResult
 from agent.localisation import Localiser
 from agent.odom_in import MarginControllers
-from leader.role import VIEW_RANGE
 from scenario import Scenario
 from scenario.world import CameraFault, blind_at
 
@@ -75,21 +76,11 @@ def apply_faults(faults: Sequence[CameraFault], stamp: float, ids: Sequence[str]
     return out
 
 
-def heard_radii(handed: Sequence[Pose | None], radius: Sequence[float],
-                membership: np.ndarray) -> np.ndarray:
-    """Each robot's largest heard confidence radius: among the members of every formation with
-    a robot within :data:`leader.role.VIEW_RANGE` of it, its own formation included (their
-    states and ellipses are what its rows keep clear of; a robot farther away has no row that
-    can be active this tick). A robot with no pose yet hears the whole fleet."""
+def formation_radii(radius: Sequence[float], membership: np.ndarray) -> np.ndarray:
+    """Each formation's largest confidence radius among its members (what its leader puts on
+    its ellipse: :func:`leader.role.ellipse_to_msg`)."""
     r = np.asarray(radius, dtype=float)
-    known = np.array([h is not None for h in handed])
-    pos = np.array([(h[0], h[1]) if h is not None else (0.0, 0.0) for h in handed])
-    d = np.hypot(pos[:, None, 0] - pos[None, :, 0], pos[:, None, 1] - pos[None, :, 1])
-    near = (d <= VIEW_RANGE) & known[:, None] & known[None, :]
-    hears = ((near.astype(float) @ membership) > 0) | (membership > 0)  # (robots, formations)
-    per_formation = np.max(np.where(membership > 0, r[:, None], 0.0), axis=0)
-    out = np.max(np.where(hears, per_formation[None, :], 0.0), axis=1)
-    return np.where(known, out, r.max() if len(r) else 0.0)
+    return np.max(np.where(membership > 0, r[:, None], 0.0), axis=0)
 
 
 def zero_result(pose: Sequence[float], offset: float) -> StepResult:
@@ -109,7 +100,9 @@ class FleetLocalisation:
         names = [f.name for f in scenario.formations]
         self.membership = np.array([[scenario.formation_of(rid).name == f for f in names]
                                     for rid in self.ids], dtype=float)  # (robots, formations)
-        self.heard: np.ndarray | None = None  # this tick's heard_radii, computed on first use
+        self.formation_of = [names.index(scenario.formation_of(rid).name) for rid in self.ids]
+        self.column = {f: j for j, f in enumerate(names)}
+        self.per_formation: np.ndarray | None = None  # this tick's formation_radii (first use)
         n = len(self.ids)
         self.odometer = Odometer(scenario.world, n)
         self.filters = [Localiser() for _ in range(n)] if self.fused else []
@@ -153,7 +146,7 @@ class FleetLocalisation:
         stamp, captured = self.lab.captured(k) if self.lab is not None else (t, truth)
         poses = self.camera_poses(stamp, captured, seen)
         out = [self.pose_of(i, stamp, z) for i, z in enumerate(poses)]
-        self.heard = None
+        self.per_formation = None
         self.blind_s = max([self.blind_s] + [t - u for u in self.unseen_since])
         return out
 
@@ -212,20 +205,26 @@ class FleetLocalisation:
         self.counts["held_ticks"] += 1
         return zero_result(pose, offset)
 
-    def controller(self, i: int, base: Controller) -> Controller:
+    def controller(self, i: int, base: Controller, in_view: Sequence[str] = ()) -> Controller:
         """The controller robot ``i`` steps with: ``base`` under ``camera``; under ``fused``
         one whose margins hold its own and the others' confidence radii
         (:func:`agent.margins.localisation_bounds` with :meth:`heard_radius`; one per margin,
-        :class:`agent.odom_in.MarginControllers`)."""
+        :class:`agent.odom_in.MarginControllers`). ``in_view``: the other formations in its
+        ``others`` view this tick."""
         if not self.fused:
             return base
-        return self.controllers.get(base, self.radius[i], self.heard_radius(i))
+        return self.controllers.get(base, self.radius[i], self.heard_radius(i, in_view))
 
-    def heard_radius(self, i: int) -> float:
-        """The largest confidence radius robot ``i`` hears (:func:`heard_radii`, this tick's)."""
-        if self.heard is None:
-            self.heard = heard_radii(self.handed, self.radius, self.membership)
-        return float(self.heard[i])
+    def heard_radius(self, i: int, in_view: Sequence[str]) -> float:
+        """The largest confidence radius robot ``i`` hears (:func:`agent.margins.heard_radius`
+        over its formation's radius and those of the formations ``in_view``, as its agent hears
+        them on the ellipses of its ``others``)."""
+        if self.per_formation is None:
+            self.per_formation = formation_radii(self.radius, self.membership)
+        radii = self.per_formation
+        return margins.heard_radius(
+            self.radius[i], (), [float(radii[self.formation_of[i]])]
+            + [float(radii[self.column[f]]) for f in in_view])
 
     # --- what the run records -----------------------------------------------------------
 

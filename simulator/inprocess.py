@@ -314,7 +314,8 @@ class FleetControl:
             held = loc.hold(i, pose, self.params.offset)
             if held is not None:
                 return held
-            controller = loc.controller(i, controller)
+            controller = loc.controller(i, controller, inputs.view.other_names
+                                        if inputs.view is not None else ())
         return controller.step(inputs._replace(
             pose=pose, goal=target, obstacles=view.obs, last_u=vel[i], shapes=self.shapes[i],
             footprint=fleet.footprints[i]))

@@ -1,8 +1,10 @@
 """``controller.localisation: fused`` over Zenoh: the world publishes every robot's wheel
 odometry, each agent runs its own filter on it and the camera's poses (agent.odom_in).
 
-* a lock-step ``formation run`` through a blind patch (and with a misread marker) writes the
-  robots.csv ``formation sim`` writes, byte for byte (the world publishes a frame's poses
+* a lock-step ``formation run`` through a blind patch (alone, two formations crossing inside
+  one, with a misread marker, a camera outage in a crossing) writes the robots.csv ``formation
+  sim`` writes, byte for byte: the margins against another formation hold the radius its leader
+  puts on its ellipse, as in process (the world publishes a frame's poses
   before its odometry, on one session, and the agent takes both on the Zenoh thread that
   received them, in that order);
 * an agent over a real router drops and counts malformed odometry, drives on its estimate and
@@ -45,7 +47,8 @@ def _summary(out: Path) -> dict:
     return json.loads((out / "summary.json").read_text())
 
 
-@pytest.mark.parametrize("stem", ["blind-aisle", "blind-aisle-unicycle", "blind-misread"])
+@pytest.mark.parametrize("stem", ["blind-aisle", "blind-aisle-unicycle", "blind-misread",
+                                  "blind-crossing", "blind-crossing-unicycle", "blind-outage"])
 def test_a_lock_step_run_through_a_blind_patch_writes_what_formation_sim_writes(tmp_path, stem):
     scenario = SCENARIOS / f"{stem}.yaml"
     sim, run = tmp_path / "sim", tmp_path / "run"
@@ -58,6 +61,8 @@ def test_a_lock_step_run_through_a_blind_patch_writes_what_formation_sim_writes(
     assert loc["fused"] > 0 and loc["over_limit_ticks"] == 0
     if stem == "blind-misread":  # another robot's pose, refused by the gate
         assert loc["rejected"] > 0
+    elif stem == "blind-outage":  # the camera off for 5 s in a crossing
+        assert loc["blind_s"] > 4.5 and loc["rejected"] == 0
     else:  # the patch crossed unseen
         assert loc["blind_s"] > 10.0 and loc["rejected"] == 0
     header = (run / "robots.csv").read_text().splitlines()[0]

@@ -104,16 +104,19 @@ def test_the_world_publishes_no_pose_of_a_robot_on_blind_floor():
 
 
 def test_a_robot_keeps_the_margins_of_the_radii_it_hears_and_not_of_far_ones():
-    from simulator.fused import heard_radii
+    from agent.margins import heard_radius
+    from simulator.fused import formation_radii
 
     membership = np.array([[1, 0]] * 4 + [[0, 1]] * 4, dtype=float)  # A: 0-3, B: 4-7
-    handed = [(0.0, 0.0, 0.0)] * 4 + [(20.0, 0.0, 0.0)] * 4  # formation B far off
     radius = [0.01, 0.02, 0.01, 0.01] + [0.2] * 4
-    assert heard_radii(handed, radius, membership).tolist() == [0.02] * 4 + [0.2] * 4
-    handed[4] = (3.0, 0.0, 0.0)  # one of B within view: all of B's radii count, both ways
-    assert heard_radii(handed, radius, membership).tolist() == [0.2] * 8
-    handed[0] = None  # no pose yet: the whole fleet's
-    assert heard_radii(handed, radius, membership)[0] == 0.2
+    per = formation_radii(radius, membership).tolist()
+    assert per == [0.02, 0.2]  # what each leader puts on its ellipse
+    assert heard_radius(0.01, (), [per[0]]) == 0.02  # B not in A's view: A's radii alone
+    assert heard_radius(0.01, (), [per[0], per[1]]) == 0.2  # B in view: its radius counts
+    assert heard_radius(0.2, (), [per[1], per[0]]) == 0.2  # and the other way round
+    # an agent: its members' states and the ellipses; None from a sender on the camera's poses
+    assert heard_radius(0.01, [None, 0.03], [None, 0.02]) == 0.03
+    assert heard_radius(0.05, [None], [None]) == 0.05
 
 
 def test_the_synthetic_camera_finds_no_marker_on_blind_floor():

@@ -16,8 +16,10 @@ payload        fields in order (``u8`` version, then ``f64`` unless marked ``str
 ``Cmd``        version 2, v, omega, ux, uy, ax, ay, stamp                                57
 ``EllipseMsg`` version, formation:str, cx, cy, alpha, a, b, vx, vy, alpha_rate, stamp   73+n
 ``EllipseMsg`` version 2, the same, then points:list[P], headings:list[f64]           varies
+``EllipseMsg`` version 3, the same as version 2, then sigma                            varies
 ``Others``     version, formation:str, stamp, ellipses:list[E], own:list[E] (0 or 1)  varies
 ``Others``     version 2, the same with every ``E`` followed by its points and headings varies
+``Others``     version 3, as version 2 with every ``E`` then followed by sigma:list[f64] (0 or 1)
 ``Obstacles``  version, stamp, obstacles:list[O]                                         varies
 ``Obstacles``  version 2, stamp, obstacles:list[O], shapes:list[S]                       varies
 =============  =======================================================================  =====
@@ -40,7 +42,9 @@ byte as before); likewise a ``Cmd`` carrying a double integrator's certified acc
 ``ax, ay`` is written as :data:`CMD_ACCEL_VERSION` and every other ``Cmd`` as version 1, and
 :func:`decode_cmd` accepts both; an ``EllipseMsg`` with points, or an ``Others`` any of whose
 ellipses has points, is written as :data:`ELLIPSE_POINTS_VERSION` (without points: version 1,
-byte for byte as before), and their decoders accept both. Units: metres,
+byte for byte as before), and their decoders accept both; an ``EllipseMsg`` with a
+confidence radius ``sigma``, or an ``Others`` any of whose ellipses has one, is written as
+:data:`ELLIPSE_SIGMA_VERSION` (without one: as before, byte for byte). Units: metres,
 radians, seconds, metres per second, radians per second; ``stamp`` is the sender's clock in
 seconds. ``Pose`` and ``State`` carry no id: the key names the robot.
 
@@ -95,6 +99,10 @@ CMD_ACCEL_VERSION = 2  # Cmd with a double integrator's acceleration (ax, ay)
 #: ``ellipse`` and ``others`` version 2 carry each ellipse's members' control points (
 #: a formation keeps its own ellipse off the other formations' members, :mod:`agent.body`).
 ELLIPSE_POINTS_VERSION = 2
+#: ``ellipse`` and ``others`` version 3 add each ellipse's ``sigma``: the largest confidence
+#: radius among its formation's members under ``controller.localisation: fused``, which the
+#: other formations' margins hold (:func:`agent.margins.heard_radius`)
+ELLIPSE_SIGMA_VERSION = 3
 MAX_ITEMS = 256  # most ellipses (or obstacles) one payload may carry
 
 
@@ -136,6 +144,13 @@ def _plain_finite(values: tuple[Any, ...]) -> bool:
         if type(v) is not float:
             return False
     return _isfinite(sum(values))
+
+
+def check_sigma(obj: Any) -> None:
+    """``obj.sigma``, a confidence radius [m], is a finite float >= 0 (ValueError naming it)."""
+    check_floats(obj, ("sigma",))
+    if obj.sigma < 0.0:
+        raise ValueError(f"sigma: must be >= 0, got {obj.sigma!r}")
 
 
 def check_floats(obj: object, names: Iterable[str]) -> None:
@@ -242,9 +257,7 @@ class State:
         if not _plain_finite((self.x, self.y, self.ux, self.uy, self.stamp, self.theta)):
             check_floats(self, _STATE_FLOATS)
         if self.sigma is not None:
-            check_floats(self, ("sigma",))
-            if self.sigma < 0.0:
-                raise ValueError(f"sigma: must be >= 0, got {self.sigma!r}")
+            check_sigma(self)
 
 
 @dataclass(frozen=True, slots=True)
@@ -283,7 +296,9 @@ class EllipseMsg:
     ``points`` [m]: the members' control points it was estimated from (none from a sender that
     predates them; wire version :data:`ELLIPSE_POINTS_VERSION`); ``headings`` [rad]: their body
     headings, none or one per point (a formation of unicycles waits for its members to face its
-    motion: :func:`agent.body.pace`).
+    motion: :func:`agent.body.pace`); ``sigma`` [m]: the largest 95 % confidence radius among
+    the members' estimates it was fitted from (wire version :data:`ELLIPSE_SIGMA_VERSION`;
+    None: the camera's poses).
     """
 
     formation: str
@@ -298,6 +313,7 @@ class EllipseMsg:
     stamp: float
     points: tuple[tuple[float, float], ...] = ()
     headings: tuple[float, ...] = ()
+    sigma: float | None = None
 
     def __post_init__(self) -> None:
         check_id(self.formation, "formation")
@@ -312,6 +328,8 @@ class EllipseMsg:
             object.__setattr__(self, "points", points_field(self.points, "points", MAX_POINTS))
         if self.headings != ():
             object.__setattr__(self, "headings", _point_headings(self.headings, len(self.points)))
+        if self.sigma is not None:
+            check_sigma(self)
 
 
 def _ellipse_tuple(value: object, name: str) -> tuple[EllipseMsg, ...]:
@@ -497,17 +515,33 @@ def _ds_not_negative(values: tuple[float, ...]) -> bool:  # x, y, vx, vy, ds
 
 
 _ELLIPSE_SETTERS = _slot_setters(EllipseMsg)
-_ELLIPSE_V1_SETTERS = _ELLIPSE_SETTERS[:-2]  # every field but points and headings (defaults)
+_ELLIPSE_V1_SETTERS = _ELLIPSE_SETTERS[:-3]  # every field but points, headings, sigma (defaults)
+_PUT_SIGMA = _ELLIPSE_SETTERS[-1]
 _OBSTACLE_SETTERS = _slot_setters(ObstacleMsg)
 _OTHERS_SETTERS = _slot_setters(Others)
 _OBSTACLES_SETTERS = _slot_setters(Obstacles)
 
 
-def _ellipses(items: list[Item], points: list[Points] | None = None) -> tuple[EllipseMsg, ...]:
+def _ellipses(items: list[Item], points: list[Points] | None = None,
+              sigmas: list[float | None] | None = None) -> tuple[EllipseMsg, ...]:
     """The ellipses of decoded items, each with its ``points`` and ``headings`` (version 2;
     read by :meth:`wire.reader.Reader.points`, so already pairs of floats and as many headings as points:
-    only their finiteness is checked)."""
-    put_points, put_headings = _ELLIPSE_SETTERS[-2], _ELLIPSE_SETTERS[-1]
+    only their finiteness is checked) and its ``sigma`` (version 3; checked here)."""
+    built = _ellipses_without_sigma(items, points)
+    if sigmas is None:
+        for msg in built:  # a trusted build leaves the slot unset
+            _PUT_SIGMA(msg, None)
+        return built
+    for msg, sigma in zip(built, sigmas, strict=True):
+        _PUT_SIGMA(msg, sigma)
+        if sigma is not None:
+            check_sigma(msg)
+    return built
+
+
+def _ellipses_without_sigma(items: list[Item], points: list[Points] | None
+                            ) -> tuple[EllipseMsg, ...]:
+    put_points, put_headings = _ELLIPSE_SETTERS[-3], _ELLIPSE_SETTERS[-2]
     built = _build_items(EllipseMsg, _ELLIPSE_V1_SETTERS, items, _axes_positive)
     if points is None:
         for msg in built:  # a trusted build leaves the slots unset
@@ -536,6 +570,7 @@ _STATE_VERSION = UInt8(STATE_VERSION)
 _STATE_SIGMA_VERSION = UInt8(STATE_SIGMA_VERSION)
 _CMD_ACCEL_VERSION = UInt8(CMD_ACCEL_VERSION)
 _ELLIPSE_POINTS_VERSION = UInt8(ELLIPSE_POINTS_VERSION)
+_ELLIPSE_SIGMA_VERSION = UInt8(ELLIPSE_SIGMA_VERSION)
 
 
 def _ellipse_fields(e: EllipseMsg) -> tuple[Any, ...]:
@@ -544,6 +579,11 @@ def _ellipse_fields(e: EllipseMsg) -> tuple[Any, ...]:
 
 def _ellipse_fields_v2(e: EllipseMsg) -> tuple[Any, ...]:
     return (*_ellipse_fields(e), list(e.points), list(e.headings))
+
+
+def _ellipse_fields_v3(e: EllipseMsg) -> tuple[Any, ...]:
+    """Version 3 in an ``others``: version 2, then sigma as a list of 0 or 1."""
+    return (*_ellipse_fields_v2(e), [] if e.sigma is None else [float(e.sigma)])
 
 
 def _pose_tuple(msg: Pose) -> tuple[Any, ...]:
@@ -564,17 +604,23 @@ def _cmd_tuple(msg: Cmd) -> tuple[Any, ...]:
 
 
 def _ellipse_msg_tuple(msg: EllipseMsg) -> tuple[Any, ...]:
+    if msg.sigma is not None:
+        return (_ELLIPSE_SIGMA_VERSION, *_ellipse_fields_v2(msg), float(msg.sigma))
     if msg.points:
         return (_ELLIPSE_POINTS_VERSION, *_ellipse_fields_v2(msg))
     return (_VERSION, *_ellipse_fields(msg))
 
 
 def _others_tuple(msg: Others) -> tuple[Any, ...]:
-    v2 = any(e.points for e in msg.ellipses) or (msg.own is not None and bool(msg.own.points))
-    fields_of = _ellipse_fields_v2 if v2 else _ellipse_fields
+    every = msg.ellipses if msg.own is None else (*msg.ellipses, msg.own)
+    version, fields_of = _VERSION, _ellipse_fields
+    if any(e.sigma is not None for e in every):
+        version, fields_of = _ELLIPSE_SIGMA_VERSION, _ellipse_fields_v3
+    elif any(e.points for e in every):
+        version, fields_of = _ELLIPSE_POINTS_VERSION, _ellipse_fields_v2
     own = [] if msg.own is None else [fields_of(msg.own)]
     return (
-        _ELLIPSE_POINTS_VERSION if v2 else _VERSION,
+        version,
         msg.formation,
         msg.stamp,
         [fields_of(e) for e in msg.ellipses],
@@ -687,25 +733,37 @@ def _parse_ellipse_points(r: Reader) -> EllipseMsg:
     return _ellipses([item], [r.points("ellipse")])[0]
 
 
-_ELLIPSE_PARSERS = {WIRE_VERSION: _parse_ellipse, ELLIPSE_POINTS_VERSION: _parse_ellipse_points}
+def _parse_ellipse_sigma(r: Reader) -> EllipseMsg:
+    """Version 3: the ellipse as in version 2, then its confidence radius."""
+    item = _read_ellipse(r, "ellipse")
+    points = r.points("ellipse")
+    (sigma,) = r.floats(1, "ellipse.sigma")
+    return _ellipses([item], [points], [sigma])[0]
 
 
-def _parse_others(r: Reader, with_points: bool = False) -> Others:
+def _read_sigma(r: Reader, name: str, index: int | None = None) -> float | None:
+    """An ``others`` ellipse's sigma (version 3): a list of 0 or 1 floats."""
+    what = (name if index is None else f"{name}[{index}]") + ".sigma"
+    return r.floats(1, what)[0] if r.count(what, 1) else None
+
+
+_ELLIPSE_PARSERS = {WIRE_VERSION: _parse_ellipse, ELLIPSE_POINTS_VERSION: _parse_ellipse_points,
+                    ELLIPSE_SIGMA_VERSION: _parse_ellipse_sigma}
+
+
+def _parse_others(r: Reader, version: int = WIRE_VERSION) -> Others:
     formation = r.string("formation")
     (stamp,) = r.floats(1, "stamp")
     n = r.count("ellipses", MAX_ITEMS)
     items: list[Item] = []
-    points: list[Points] | None = [] if with_points else None
+    points: list[Points] | None = [] if version >= ELLIPSE_POINTS_VERSION else None
+    sigmas: list[float | None] | None = [] if version >= ELLIPSE_SIGMA_VERSION else None
     for i in range(n):
-        items.append(_read_ellipse(r, "ellipses", i))
-        if points is not None:
-            points.append(r.points("ellipses", i))
+        _read_others_ellipse(r, ("ellipses", i), items, points, sigmas)
     n_own = r.count("own", 1)
     if n_own:
-        items.append(_read_ellipse(r, "own"))
-        if points is not None:
-            points.append(r.points("own"))
-    built = _ellipses(items, points)
+        _read_others_ellipse(r, ("own", None), items, points, sigmas)
+    built = _ellipses(items, points, sigmas)
     ellipses, own = (built[:-1], built[-1]) if n_own else (built, None)
     names = {e.formation for e in ellipses}
     if (formation in _VALID_IDS and _isfinite(stamp) and len(names) == n
@@ -734,10 +792,22 @@ def _parse_obstacles_with_shapes(r: Reader) -> Obstacles:
     return Obstacles(stamp, obstacles, tuple(_read_shape(r, i) for i in range(m)))
 
 
+def _read_others_ellipse(r: Reader, where: tuple[str, int | None], items: list[Item],
+                         points: list[Points] | None, sigmas: list[float | None] | None) -> None:
+    """One ellipse of an ``others`` (``where``: its name and index) into ``items``, with its
+    points (version 2 on) and its sigma (version 3)."""
+    items.append(_read_ellipse(r, *where))
+    if points is not None:
+        points.append(r.points(*where))
+    if sigmas is not None:
+        sigmas.append(_read_sigma(r, *where))
+
+
 _OBSTACLES_PARSERS = {WIRE_VERSION: _parse_obstacles, SHAPES_VERSION: _parse_obstacles_with_shapes}
 _OTHERS_PARSERS: dict[int, Callable[[Reader], Others]] = {
     WIRE_VERSION: _parse_others,
-    ELLIPSE_POINTS_VERSION: functools.partial(_parse_others, with_points=True),
+    ELLIPSE_POINTS_VERSION: functools.partial(_parse_others, version=ELLIPSE_POINTS_VERSION),
+    ELLIPSE_SIGMA_VERSION: functools.partial(_parse_others, version=ELLIPSE_SIGMA_VERSION),
 }
 
 
