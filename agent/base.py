@@ -13,6 +13,11 @@
   bridge; the agent is an rmw_zenoh publisher itself (:class:`RmwZenohBase`: its data key,
   attachment and liveliness tokens as :mod:`wire.rmw_zenoh` documents), see docs/deploy.md.
 
+A ROS 2 base also publishes its wheel odometry (``nav_msgs/msg/Odometry`` on its ``odom``
+topic): :func:`base_odom_key` is where an agent under ``controller.localisation: fused`` hears it
+(the bridge: ``odom`` beside the ``cmd_vel`` key, in the bridge's namespace; rmw_zenoh:
+:func:`wire.rmw_zenoh.odom_data_key`), and :func:`base_limits` how fast the base can move.
+
 CDR layout (OMG CDR version 1, little endian, as ROS 2 rmw implementations write it):
 
 - a 4-byte encapsulation header ``00 01 00 00`` (CDR_LE, options 0);
@@ -394,6 +399,28 @@ def make_base(
         return CdrBase(base, publisher.put, max_speed=max_speed, max_turn_rate=max_turn,
                        undeclare=publisher.undeclare)
     raise ValueError(f"base: {base!r} is not one of {(WORLD, HUMBLE, JAZZY)}")
+
+
+def base_odom_key(config: Any) -> str:
+    """The key of the ``odom`` topic of ``config``'s ROS 2 base: over zenoh-bridge-ros2dds
+    ``{namespace}/odom``, the namespace being the ``cmd_vel`` key's (``a1/cmd_vel`` ->
+    ``a1/odom``; ``cmd_vel`` -> ``odom``); over rmw_zenoh its data key."""
+    base = getattr(config, "base", None)
+    if base not in (HUMBLE, JAZZY):
+        raise ValueError(f"base: {base!r} has no odom topic (one of {(HUMBLE, JAZZY)})")
+    if getattr(config, "rmw", None) is not None:
+        return rmw.odom_data_key(config.rmw, "humble" if base == HUMBLE else "jazzy")
+    key = getattr(config, "cmd_vel_key", None) or DEFAULT_CMD_VEL_KEY
+    namespace, _sep, _topic = key.rpartition("/")
+    return f"{namespace}/odom" if namespace else "odom"
+
+
+def base_limits(config: Any) -> tuple[float, float]:
+    """[m/s], [rad/s] The fastest the base can move and turn: the burger's limits, or the
+    controller's where it allows more (what physics lets the base's odometry report)."""
+    control = getattr(config, "control", None)
+    return (max(BURGER_MAX_SPEED, _limit(control, "max_speed", BURGER_MAX_SPEED)),
+            max(BURGER_MAX_TURN_RATE, _limit(control, "max_turn_rate", BURGER_MAX_TURN_RATE)))
 
 
 def _limit(control: Any, name: str, default: float) -> float:

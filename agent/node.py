@@ -95,7 +95,7 @@ from typing import Any
 
 import zenoh
 
-from agent.base import Base, make_base
+from agent.base import Base, base_limits, base_odom_key, make_base
 from agent.clock import STATS_WINDOW, Clock, LockstepClock, RealtimeClock
 from agent.config import AgentConfig, Membership, joined, membership_of
 from agent.faults import EPS, LinkFaults
@@ -181,6 +181,8 @@ class AgentNode:
         # controller.localisation fused: the agent's own filter (agent.odom_in) feeds its pose
         self.odom_in = (OdomIn(cfg.robot_id, cfg.prefix, cfg.start, cfg.period, options.lockstep)
                         if cfg.localisation == "fused" else None)
+        if self.odom_in is not None and cfg.base != "world":  # a ROS 2 base's own odom topic
+            self.odom_in.use_ros_base(base_odom_key(cfg), *base_limits(cfg))
         self.gate = TickGate()  # ticks one at a time whichever thread runs them
         tolerance = (LOCKSTEP_AHEAD_PERIODS * cfg.period if options.lockstep
                      else cfg.clock_tolerance)

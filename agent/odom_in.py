@@ -23,6 +23,12 @@ frame ``t`` waits for the estimate stamped ``t``; real time: the estimate's arri
   :class:`MarginControllers`).
 * A malformed odometry or camera payload is dropped and counted (``dropped``); an odometry
   message stamped no later than the last one is refused and counted (``older``).
+* Behind a ROS 2 base (:meth:`OdomIn.use_ros_base`) the odometry is the base's own
+  ``nav_msgs/msg/Odometry`` on its ``odom`` topic (:func:`agent.base.base_odom_key`): poses in
+  the odometry frame, which :class:`RosOdom` differences into the same increments, stamped
+  with the message's header stamp. The first is the reference (an empty increment, as a
+  world's first); a step or turn larger than the base can make in the elapsed time (a reset of
+  the odometry, a jump) is dropped, counted (``odom_jumps``) and becomes the new reference.
 """
 
 from __future__ import annotations
@@ -37,15 +43,55 @@ from typing import Any
 from agent import margins
 from agent.control import Controller
 from agent.localisation import Localiser
+from agent.plausibility import JUMP_MARGIN_M, SPEED_FACTOR, jump_ok
 from wire import keys
-from wire.odom import decode_odom, odom_key
+from wire.odom import Odom, body_increment, decode_odom, odom_key
 from wire.payloads import Others, Pose, State, decode_pose, encode
 from wire.reader import DecodeError
+from wire.rmw_zenoh import Odometry, decode_odometry
 
 PENDING = 64  # camera poses kept between two odometry messages (a flood keeps the newest)
 HELD_WAITING = "localising"  # stale_why: waiting for the first camera pose
 HELD_SIGMA = "sigma"  # stale_why: the confidence radius is past the limit
 NAN = math.nan
+JUMP_TURN_MARGIN = 0.05  # [rad] a base's heading may turn this much more (noise, rounding)
+
+
+def ros_increment(ref: Odometry, msg: Odometry, speed: float, turn_rate: float) -> Odom | None:
+    """The odometry increment from the base's pose ``ref`` to ``msg`` (both in its odometry
+    frame, ``msg`` stamped later), or None where the base cannot have moved so far in the
+    elapsed time at ``speed`` [m/s] and ``turn_rate`` [rad/s] (a reset or a jump)."""
+    if not jump_ok(ref.x, ref.y, ref.stamp, msg.x, msg.y, msg.stamp, SPEED_FACTOR * speed,
+                   JUMP_MARGIN_M):
+        return None
+    dx, dy, dth = body_increment((ref.x, ref.y, ref.yaw), (msg.x, msg.y, msg.yaw))
+    if abs(dth) > SPEED_FACTOR * turn_rate * (msg.stamp - ref.stamp) + JUMP_TURN_MARGIN:
+        return None
+    try:
+        return Odom(dx, dy, dth, ref.stamp, msg.stamp)
+    except ValueError:  # beyond what one odometry message carries
+        return None
+
+
+@dataclasses.dataclass
+class RosOdom:
+    """A ROS 2 base's odometry poses into increments (module docstring): ``speed`` [m/s] and
+    ``turn_rate`` [rad/s] are the most the base can do (:func:`agent.base.base_limits`)."""
+
+    speed: float
+    turn_rate: float
+    ref: Odometry | None = None
+    jumps: int = 0
+
+    def step(self, msg: Odometry) -> Odom | None:
+        """The increment since the reference (empty at the first); None: a jump, counted (the
+        caller refuses a message stamped no later than the reference before this)."""
+        ref, self.ref = self.ref, msg
+        if ref is None:
+            return Odom(0.0, 0.0, 0.0, msg.stamp, msg.stamp)
+        inc = ros_increment(ref, msg, self.speed, self.turn_rate)
+        self.jumps += inc is None
+        return inc
 
 
 class MarginControllers:
@@ -92,6 +138,7 @@ class OdomIn:
                        "waiting_ticks": 0}
         self.dropped = {"odom": 0, "pose": 0}
         self.older = 0
+        self.ros: RosOdom | None = None  # a ROS 2 base's odometry (use_ros_base)
         self.max_radius = 0.0
         self.blind_s = 0.0
         self.trace: list[tuple[float, float, float, float]] = []  # stamp, est_x, est_y, sigma
@@ -105,15 +152,41 @@ class OdomIn:
         except DecodeError:
             self.dropped["pose"] += 1
 
+    def use_ros_base(self, key: str, speed: float, turn_rate: float) -> None:
+        """Take the odometry from a ROS 2 base's ``odom`` topic on ``key`` (nav_msgs/Odometry,
+        :class:`RosOdom`) instead of the world's ``odom`` key."""
+        self.odom_key = key
+        self.ros = RosOdom(speed, turn_rate)
+
     def on_odom(self, payload: bytes) -> Pose | None:
         """An odometry payload: the filter predicts over it and fuses the camera poses kept
         since (each at its capture stamp, once, in stamp order); the pose the tick drives on,
         stamped as the odometry (None: dropped, or a robot with no start waiting)."""
+        if self.ros is not None:
+            return self._on_ros_odom(payload, self.ros)
         try:
             m = decode_odom(payload)
         except DecodeError:
             self.dropped["odom"] += 1
             return None
+        return self._take(m)
+
+    def _on_ros_odom(self, payload: bytes, ros: RosOdom) -> Pose | None:
+        """A ROS 2 base's nav_msgs/Odometry payload, differenced (:class:`RosOdom`), then as
+        :meth:`on_odom`."""
+        try:
+            msg = decode_odometry(payload)
+        except ValueError:
+            self.dropped["odom"] += 1
+            return None
+        if ros.ref is not None and msg.stamp <= ros.ref.stamp:
+            self.older += 1
+            return None
+        m = ros.step(msg)
+        return None if m is None else self._take(m)
+
+    def _take(self, m: Odom) -> Pose | None:
+        """One odometry increment into the filter (:meth:`on_odom`)."""
         if m.stamp <= self.last_odom:
             self.older += 1
             return None
@@ -197,9 +270,10 @@ class OdomIn:
         """The agent's ``localisation`` counters (agent.stats; its trace's rows: stamp, est_x,
         est_y, sigma_m, None where the robot had no estimate)."""
         f = self.filter
+        jumps = {} if self.ros is None else {"odom_jumps": self.ros.jumps}
         return {"rejected": f.rejected, "fused": f.fused, "relocalised": f.relocalised,
                 "max_sigma_m": self.max_radius, "blind_s": self.blind_s, **self.counts,
-                "dropped": dict(self.dropped), "older": self.older,
+                "dropped": dict(self.dropped), "older": self.older, **jumps,
                 "trace": [[v if math.isfinite(v) else None for v in row] for row in self.trace]}
 
 

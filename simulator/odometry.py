@@ -22,6 +22,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from scenario.world import WorldSpec, blind_at
+from wire.odom import body_increment
 
 ODOMETRY_STREAM = 2**41  # the generator's stream, apart from the camera's frames (simulator.lab)
 
@@ -34,15 +35,6 @@ def odometry_errors(spec: WorldSpec, n: int) -> list[tuple[float, float]]:
     draws = rng.uniform(-1.0, 1.0, size=(n, 2))
     o = spec.odometry
     return [(float(a) * o.scale_error, float(b) * o.heading_drift_rad_per_m) for a, b in draws]
-
-
-def body_increment(before: Sequence[float], after: Sequence[float]) -> Increment:
-    """The exact motion from pose ``before`` to ``after``: (dx, dy) in ``before``'s body frame
-    and the heading change (wrapped)."""
-    dx, dy = after[0] - before[0], after[1] - before[1]
-    c, s = math.cos(before[2]), math.sin(before[2])
-    dth = math.atan2(math.sin(after[2] - before[2]), math.cos(after[2] - before[2]))
-    return (c * dx + s * dy, -s * dx + c * dy, dth)
 
 
 def wheel_increment(left: float, right: float, track: float) -> Increment:

@@ -16,7 +16,8 @@ from scenario import load_scenario
 from scenario.model import Bounds
 from scenario.world import CameraFault, Odometry, WorldSpec
 from simulator.fused import FleetLocalisation
-from simulator.odometry import Odometer, body_increment, measured, odometry_errors
+from simulator.odometry import Odometer, measured, odometry_errors
+from wire.odom import body_increment
 
 BLIND = Path(__file__).parent / "scenarios" / "blind-aisle.yaml"
 

@@ -1,6 +1,7 @@
 """The ``odom`` payload: a robot's wheel odometry increment, base or world -> its agent, on
-``{prefix}/robot/{id}/odom`` (:func:`odom_key`; from a ROS 2 base, the ``odom`` topic's
-nav_msgs/Odometry differenced by the bridge side).
+``{prefix}/robot/{id}/odom`` (:func:`odom_key`). A ROS 2 base publishes poses instead (its
+``odom`` topic's nav_msgs/Odometry): the agent differences consecutive ones into the same
+increments (:func:`body_increment`, :class:`agent.odom_in.RosOdom`).
 
 Layout (the Zenoh serialization format of :mod:`wire.payloads`): ``u8`` version 1, then
 ``f64`` dx, dy, dtheta, since, stamp (41 bytes): the body's motion from ``since`` to ``stamp``
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import zenoh
@@ -53,6 +55,15 @@ class Odom:
 def odom_key(prefix: str, robot_id: str) -> str:
     """``{prefix}/robot/{robot_id}/odom``: base or world -> that robot's agent."""
     return f"{keys.validate_prefix(prefix)}/robot/{keys.validate_id(robot_id, 'robot_id')}/{ODOM}"
+
+
+def body_increment(before: Sequence[float], after: Sequence[float]) -> tuple[float, float, float]:
+    """The exact motion from pose ``before`` to ``after`` (x, y, theta): (dx, dy) in ``before``'s
+    body frame and the heading change (wrapped), the increment an ``odom`` message carries."""
+    dx, dy = after[0] - before[0], after[1] - before[1]
+    c, s = math.cos(before[2]), math.sin(before[2])
+    dth = math.atan2(math.sin(after[2] - before[2]), math.cos(after[2] - before[2]))
+    return (c * dx + s * dy, -s * dx + c * dy, dth)
 
 
 def encode_odom(msg: Odom) -> bytes:

@@ -599,6 +599,32 @@ def decode_odometry(payload: bytes) -> Odometry:
     return Odometry(sec + nanosec * 1e-9, frame_id, child, v[0], v[1], yaw, v[43], v[48])
 
 
+def _put_cdr_string(body: bytearray, text: str) -> None:
+    body += bytes(-len(body) % 4)
+    raw = text.encode("utf-8") + b"\x00"
+    body += struct.pack("<I", len(raw)) + raw
+
+
+def encode_odometry(stamp: float, pose: tuple[float, float, float],
+                    twist: tuple[float, float] = (0.0, 0.0), frame_id: str = "odom",
+                    child_frame_id: str = "base_footprint") -> bytes:
+    """The ``nav_msgs/msg/Odometry`` payload :func:`decode_odometry` reads: ``stamp`` [s] in the
+    header, ``pose`` (x, y [m], yaw [rad]) as position and a quaternion about z, ``twist`` (vx
+    [m/s], wz [rad/s]); zero covariances. What a base publishes (a test's fake base)."""
+    sec = math.floor(stamp)
+    nanosec = min(999_999_999, round((stamp - sec) * 1e9))
+    body = bytearray(struct.pack("<iI", sec, nanosec))
+    _put_cdr_string(body, frame_id)
+    _put_cdr_string(body, child_frame_id)
+    body += bytes(-len(body) % 8)
+    x, y, yaw = pose
+    quaternion = (0.0, 0.0, math.sin(yaw / 2.0), math.cos(yaw / 2.0))
+    zeros = (0.0,) * 36
+    body += struct.pack("<3d4d36d", x, y, 0.0, *quaternion, *zeros)
+    body += struct.pack("<6d36d", twist[0], 0.0, 0.0, 0.0, 0.0, twist[1], *zeros)
+    return CDR_LE + bytes(body)
+
+
 def odom_data_key(s: RmwSettings, distro: str) -> str:
     """The data key of the base's ``odom`` topic (nav_msgs/msg/Odometry, every distribution)
     in the robot's namespace, under rmw_zenoh; over zenoh-bridge-ros2dds it is the topic's name
