@@ -6,6 +6,7 @@ base's odom key over the bridge and over rmw_zenoh."""
 from __future__ import annotations
 
 import math
+from itertools import pairwise
 from types import SimpleNamespace
 
 import numpy as np
@@ -37,7 +38,7 @@ def ros(stamp: float, x: float, y: float = 0.0, yaw: float = 0.0):
 def test_composing_the_increments_reproduces_every_pose(poses):
     """The filter's motion model over the differenced increments walks the base's own poses."""
     x = np.array(poses[0], dtype=float)
-    for before, after in zip(poses, poses[1:]):
+    for before, after in pairwise(poses):
         x, _f = motion(x, body_increment(before, after))
         assert x[0] == pytest.approx(after[0], abs=1e-9)
         assert x[1] == pytest.approx(after[1], abs=1e-9)

@@ -620,8 +620,8 @@ def encode_odometry(stamp: float, pose: tuple[float, float, float],
     x, y, yaw = pose
     quaternion = (0.0, 0.0, math.sin(yaw / 2.0), math.cos(yaw / 2.0))
     zeros = (0.0,) * 36
-    body += struct.pack("<3d4d36d", x, y, 0.0, *quaternion, *zeros)
-    body += struct.pack("<6d36d", twist[0], 0.0, 0.0, 0.0, 0.0, twist[1], *zeros)
+    body += struct.pack("<43d", x, y, 0.0, *quaternion, *zeros)  # pose, orientation, covariance
+    body += struct.pack("<42d", twist[0], 0.0, 0.0, 0.0, 0.0, twist[1], *zeros)  # twist, covariance
     return CDR_LE + bytes(body)
 
 
