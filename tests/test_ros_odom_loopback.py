@@ -1,5 +1,6 @@
-"""An agent under ``controller.localisation: fused`` behind a ROS 2 base (zenoh-bridge-ros2dds)
-hears the base's ``odom`` topic: a fake base puts nav_msgs/Odometry CDR on ``a1/odom`` and the
+"""An agent under ``controller.localisation: fused`` behind a ROS 2 base (zenoh-bridge-ros2dds,
+or rmw_zenoh) hears the base's ``odom`` topic: a fake base puts nav_msgs/Odometry CDR on
+``a1/odom`` (on rmw_zenoh, the topic's data key) and the
 camera a pose on the agent's pose key, over real Zenoh on loopback (a router on an explicit
 tcp/127.0.0.1 port, scouting off); the agent's filter starts on the pose and moves with the
 odometry, its radius grows, a malformed sample and a jump are dropped and counted."""
@@ -22,7 +23,7 @@ from runtime.testing import RouterProcess, wait_for_matching
 from scenario import load_scenario
 from wire import keys, zconf
 from wire.payloads import Pose, encode
-from wire.rmw_zenoh import encode_odometry
+from wire.rmw_zenoh import RmwSettings, encode_odometry, odom_data_key
 
 ROOT = Path(__file__).resolve().parent.parent
 DT = 0.05
@@ -38,18 +39,22 @@ def wait_until(done: Callable[[], bool], what: str, timeout_s: float = 10.0) -> 
         time.sleep(0.005)
 
 
+RMW = RmwSettings(namespace="a1")
+
+
 @pytest.mark.integration
-def test_the_base_odometry_over_the_bridge_moves_the_fused_estimate(tmp_path):
+@pytest.mark.parametrize("rmw,odom_key", [(None, "a1/odom"), (RMW, odom_data_key(RMW, "jazzy"))])
+def test_the_base_odometry_moves_the_fused_estimate(rmw, odom_key):
     with RouterProcess() as router:
         zs = ZenohSettings(mode="client", connect=(router.endpoint,))
         cfg = build_agent_configs(load_scenario(ROOT / "scenarios/thesis-6.5.yaml"), zenoh=zs)["a1"]
-        cfg = dataclasses.replace(cfg, base="turtlebot3-humble", cmd_vel_key="a1/cmd_vel",
-                                  localisation="fused")
+        cfg = dataclasses.replace(cfg, base="turtlebot3-jazzy", cmd_vel_key="a1/cmd_vel",
+                                  localisation="fused", rmw=rmw)
         node = AgentNode(cfg, NodeOptions())
         loc = node.odom_in
-        assert loc is not None and loc.odom_key == "a1/odom"
+        assert loc is not None and loc.odom_key == odom_key
         peer = zenoh.open(zconf.make_config("client", connect=[router.endpoint]))
-        odom = peer.declare_publisher("a1/odom")
+        odom = peer.declare_publisher(odom_key)
         camera = peer.declare_publisher(keys.pose_key(cfg.prefix, "a1"))
         loop = asyncio.new_event_loop()
         try:
