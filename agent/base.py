@@ -45,6 +45,7 @@ from typing import Any, Protocol
 
 from geometry.limits import BURGER_MAX_SPEED, BURGER_MAX_TURN_RATE
 from wire import rmw_zenoh as rmw
+from wire.acl import bridge_odom_key
 
 logger = logging.getLogger(__name__)
 
@@ -410,9 +411,7 @@ def base_odom_key(config: Any) -> str:
         raise ValueError(f"base: {base!r} has no odom topic (one of {(HUMBLE, JAZZY)})")
     if getattr(config, "rmw", None) is not None:
         return rmw.odom_data_key(config.rmw, "humble" if base == HUMBLE else "jazzy")
-    key = getattr(config, "cmd_vel_key", None) or DEFAULT_CMD_VEL_KEY
-    namespace, _sep, _topic = key.rpartition("/")
-    return f"{namespace}/odom" if namespace else "odom"
+    return bridge_odom_key(getattr(config, "cmd_vel_key", None) or DEFAULT_CMD_VEL_KEY)
 
 
 def base_limits(config: Any) -> tuple[float, float]:

@@ -137,7 +137,7 @@ def test_the_acl_denies_by_default_and_lets_each_robot_publish_only_its_own_keys
     assert a["enabled"] is True and a["default_permission"] == "deny"
     rules = {r["id"]: r for r in a["rules"]}
     assert rules["r1-publish"]["key_exprs"] == [f"{P}/robot/r1/state", f"{P}/robot/r1/cmd",
-                                                f"{P}/robot/r1/diag", "r1/cmd_vel"]
+                                                f"{P}/robot/r1/diag", "r1/cmd_vel", "r1/odom"]
     assert rules["r1-publish"]["flows"] == ["ingress"] and rules["r1-publish"]["messages"] == ["put"]
     assert f"{P}/formation/F1/ellipse" in rules["r2-lead"]["key_exprs"]  # r2 leads F1
     assert "r1-lead" not in rules
@@ -263,6 +263,38 @@ def test_a_robot_drives_its_own_base_and_no_other(router):
         assert bridge.payloads() == [b"r1"] * N
     finally:
         bridge.close()
+
+
+def test_a_robots_base_puts_its_odometry_and_only_that_robots_agent_hears_it(router):
+    """The bridge, logged in as r1, puts the base's odom topic (r1/odom, where a fused agent
+    listens); another robot's user can neither put there nor hear it."""
+    agent = Listener(router, acl.bridge_odom_key("r1/cmd_vel"), user="r1")
+    other = Listener(router, "r1/odom", user="r2")
+    try:
+        publish(router, router.creds["r2"], "r1/odom", b"r2")
+        publish(router, router.creds["r1"], "r1/odom", b"r1")
+        time.sleep(SETTLE_S)
+        assert agent.payloads() == [b"r1"] * N
+        assert other.payloads() == []
+    finally:
+        agent.close()
+        other.close()
+
+
+def test_a_robot_on_rmw_zenoh_may_put_and_hear_its_own_odom_data_key():
+    from wire import rmw_zenoh
+
+    settings = rmw_zenoh.RmwSettings(namespace="/r1", domain=0)
+    got = acl.add_rmw_zenoh(acl.fleet_acl({"r1": "F1", "r2": "F1"}, {"F1": "r1"}),
+                            {"r1": settings})
+    rules = {r["id"]: r for r in got["rules"]}
+    policy = next(p for p in got["policies"] if p["subjects"] == ["r1"])
+    odom = {k for rid in policy["rules"] if "odom" in rid for k in rules[rid]["key_exprs"]}
+    assert rmw_zenoh.odom_data_key(settings, "jazzy") in odom
+    assert rmw_zenoh.odom_data_key(settings, "humble") in odom
+    r2 = next(p for p in got["policies"] if p["subjects"] == ["r2"])
+    assert not any(rmw_zenoh.odom_data_key(settings, "jazzy") in rules[rid]["key_exprs"]
+                   for rid in r2["rules"])
 
 
 def test_the_successor_may_lead_and_a_plain_member_may_not(router):

@@ -7,7 +7,8 @@ and filters messages with the ACL of :func:`fleet_acl`, whose subjects are match
 * robot ``r`` (user ``r``) may publish (``put``, ingress to the router) only on
   ``{prefix}/robot/r/state``, ``.../cmd``, ``.../diag`` and its base's command key (``r/cmd_vel``
   unless told otherwise: ``zenoh-bridge-ros2dds`` with namespace ``r``); the bridge, logged in
-  as ``r``, may subscribe to that key and be sent what is put there. If ``r`` leads formation
+  as ``r``, may subscribe to that key and be sent what is put there, and put the base's wheel
+  odometry (``r/odom``: :func:`bridge_odom_key`), which the agent may hear. If ``r`` leads formation
   ``f``, or is its successor (:mod:`scenario.succession`, the member that takes over when the
   leader dies), also on ``{prefix}/formation/f/ellipse``, ``beacon``, ``others``, ``status``
   and ``plan``, hold the liveliness token ``{prefix}/formation/f/leader`` and answer
@@ -154,11 +155,12 @@ def fleet_acl(
     lead.update({rid: fid for fid, rid in successors.items()})
     for rid in robots:
         base_key = cmd_vel.get(rid) or default_cmd_vel_key(rid)
+        odom = bridge_odom_key(base_key)  # the base's bridge puts it, the agent hears it
         own = [rule(f"{rid}-publish", ["put"], ["ingress"],
                     [keys.state_key(prefix, rid), keys.cmd_key(prefix, rid),
-                     diag_key(prefix, rid), base_key]),
-               rule(f"{rid}-base", ["declare_subscriber"], ["ingress", "egress"], [base_key]),
-               rule(f"{rid}-base-deliver", ["put"], ["egress"], [base_key])]
+                     diag_key(prefix, rid), base_key, odom]),
+               rule(f"{rid}-base", ["declare_subscriber"], ["ingress", "egress"], [base_key, odom]),
+               rule(f"{rid}-base-deliver", ["put"], ["egress"], [base_key, odom])]
         if orders:
             own += [*order_rules["robot"],
                     rule(f"{rid}-bid", ["put"], ["ingress"], [f"{prefix}/order/*/bid/{rid}"])]
@@ -255,6 +257,13 @@ def _check_fleet(robots: Mapping[str, str], leaders: Mapping[str, str],
         for fid, rid in chosen.items():
             if robots.get(rid) != fid:
                 raise ValueError(f"{what}: {rid!r} is not a robot of formation {fid!r}")
+
+
+def bridge_odom_key(cmd_vel_key: str) -> str:
+    """The key zenoh-bridge-ros2dds carries a base's ``odom`` topic on: the namespace of its
+    command key, ``/odom`` (``a1/cmd_vel`` -> ``a1/odom``; ``cmd_vel`` -> ``odom``)."""
+    namespace, _sep, _topic = cmd_vel_key.rpartition("/")
+    return f"{namespace}/odom" if namespace else "odom"
 
 
 def default_cmd_vel_key(robot: str) -> str:
@@ -367,7 +376,15 @@ def add_rmw_zenoh(acl: dict[str, Any], robots: Mapping[str, Any],
     for rid, settings in robots.items():
         own = rule(f"{rid}-rmw-tokens", ["liveliness_token"], ["ingress"],
                    [rmw_zenoh.graph_key(settings)])
-        policies[rid]["rules"] += [read, deliver, own]
+        # the robot's own odom topic: its rmw_zenohd puts it, its agent hears it (every
+        # distribution's type hash unless the release is pinned)
+        distros = ([rmw_zenoh.release(settings.release).distro] if settings.release
+                   else sorted(rmw_zenoh.DEFAULT_RELEASE))
+        odom = sorted({rmw_zenoh.odom_data_key(settings, d) for d in distros})
+        policies[rid]["rules"] += [
+            read, deliver, own,
+            rule(f"{rid}-rmw-odom", ["put"], ["ingress", "egress"], odom),
+            rule(f"{rid}-rmw-odom-read", ["declare_subscriber"], ["ingress", "egress"], odom)]
     data = [f"{d}/**" for d in domains]
     if world_user is not None and world_user in policies:
         policies[world_user]["rules"] += [
