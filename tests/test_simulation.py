@@ -85,8 +85,9 @@ def test_scenario_reaches_every_goal_safely(path):
     assert s["min_clearance_m"]["robot"] is None or s["min_clearance_m"]["robot"] >= 0.0
     assert s["qp"]["failed"] == 0
     # the scenarios from before issue 13 never need the least-risk command (issue 25's and 26's
-    # and the double integrator's have their own test files, each with its whole bar)
-    if path.stem not in NEW and not path.stem.startswith(("rigid-", "route-", "di-")):
+    # and the double integrator's have their own test files, each with its whole bar; so do
+    # the doors at a small gamma: tests/test_door_gamma.py)
+    if path.stem not in NEW and not path.stem.startswith(("rigid-", "route-", "di-", "door-")):
         assert s["qp"]["fallback"] == 0
     assert scenario.controller.epsilon > 0
 
