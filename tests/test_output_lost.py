@@ -66,7 +66,7 @@ def test_a_previous_runs_file_of_a_lost_name_does_not_survive(run, tmp_path, mon
     s, result = run
     (tmp_path / "run.mcap").write_bytes(b"another run's recording")
 
-    def full(summary, series, scenario, folder):
+    def full(summary, series, scenario, folder, board=None):
         (folder / "run.mcap").write_bytes(b"\x89MCAP0\r\n")
         raise _full(folder / "run.mcap")
 
@@ -91,7 +91,7 @@ def test_no_room_for_the_summary_is_one_error_and_leaves_nothing(run, tmp_path, 
 
 
 def test_formation_sim_says_which_files_were_lost_and_exits_1(tmp_path, monkeypatch, capsys):
-    def full(summary, series, scenario, folder):
+    def full(summary, series, scenario, folder, board=None):
         raise _full(folder / "run.mcap")
 
     monkeypatch.setattr(output, "write_recording", full)
