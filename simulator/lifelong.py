@@ -48,7 +48,7 @@ from geometry.shapes import Shape, box, shape_distance
 from leader import allocation
 from leader import orders as lo
 from leader.navigation import Follower, heading_tolerance
-from leader.team import TeamPlan, load_pose, plan_team, pose_error, slot_points
+from leader.team import TeamPlan, axis_turn, load_pose, plan_team, pose_error, slot_points
 from scenario import Scenario, stream
 from scenario.cargo import load_clearances
 from scenario.lifelong import SINK, Lifelong, LoadType, Order
@@ -56,9 +56,11 @@ from scenario.model import Edge, FormationSpec, RobotSpec
 from scenario.routes import start_plan
 
 from .inprocess import FleetControl, QPStats, SimOptions, obstacles_at, record, summarise
+from .metrics import CONTACT_RELEASE
 from .orders_out import orders_block, write_order_files
 from .output import lost_words, write_run
 from .series import Series
+from .summary import COLLISION_LOG_MAX
 from .tick import FleetTick, Pose
 
 SET_DOWN_M = 0.05  # [m] a load is set down this near its station
@@ -116,12 +118,35 @@ class Checks:
     """What the run measures of its loads for the acceptance checks."""
 
     lift_error_m: float = 0.0  # the farthest member from its slot at a lift
+    # [rad] a unicycle member's largest turn from its load's axis at a lift (either end)
+    lift_turn_rad: float = 0.0
     set_down_m: float = 0.0  # the farthest a delivered load rests from its station
     set_down_rad: float = 0.0
     carried_clearance_m: float = math.inf  # a carried load's least clearance to any body
     load_contacts: int = 0  # ticks a carried load touched a body
     intrusions: int = 0  # robot-ticks inside a resting load it had no business under
     stuck: set[str] = field(default_factory=set)
+    # the collisions of loads, as summary.json's collision_log has them: one entry per contact
+    # from its onset until its release (a carried load against a body, ``kind: load``; a robot
+    # inside a resting load, ``kind: resting_load``), and the contacts open now
+    events: list[dict] = field(default_factory=list)
+    touching: dict[tuple[str, str, str], dict] = field(default_factory=dict)
+
+    def contact(self, key: tuple[str, str, str], clearance: float, entry: dict) -> None:
+        """One contact seen this tick: a new collision at its onset, else its entry deepened."""
+        open_ = self.touching.get(key)
+        if open_ is None:
+            entry["deepest_m"] = entry["clearance_m"] = round(clearance, 6)
+            self.events.append(entry)
+            self.touching[key] = entry
+        else:
+            open_["deepest_m"] = min(open_["deepest_m"], round(clearance, 6))
+
+    def release(self, kind: str, still: set[tuple[str, str, str]]) -> None:
+        """The contacts of ``kind`` (a key's first part: ``load`` or ``resting_load``) not in
+        ``still`` have ended."""
+        for key in [k for k in self.touching if k[0] == kind and k not in still]:
+            del self.touching[key]
 
 
 def solo(rid: str, pose: Pose, goal: tuple[float, float], still: bool = False) -> FormationSpec:
@@ -439,6 +464,9 @@ class LifelongRun:
         self.checks.lift_error_m = max(self.checks.lift_error_m,
                                        *(math.dist(p, s) for p, s in zip(at, crew.slots,
                                                                          strict=True)))
+        if self.base.robot.is_unicycle:
+            self.checks.lift_turn_rad = max(self.checks.lift_turn_rad, *(
+                axis_turn(self.state[self.index[r]][2], crew.src[2]) for r in crew.robots))
         crew.since = t
         self.dirty = True
 
@@ -658,7 +686,9 @@ class LifelongRun:
                              self.busy_s)
         block["stuck"] = len(c.stuck)
         block["checks"] = {
-            "lift_error_m": round(c.lift_error_m, 6), "set_down_m": round(c.set_down_m, 6),
+            "lift_error_m": round(c.lift_error_m, 6),
+            "lift_turn_deg": round(math.degrees(c.lift_turn_rad), 6),
+            "set_down_m": round(c.set_down_m, 6),
             "set_down_deg": round(math.degrees(c.set_down_rad), 6),
             "carried_min_clearance_m": round(c.carried_clearance_m, 6)
             if math.isfinite(c.carried_clearance_m) else None,
@@ -707,6 +737,7 @@ class LifelongRun:
         left the load it stood under sees it again) and carried loads against everything."""
         boxes = self.boxes()
         r0 = self.base.robot.radius
+        inside_now: set[tuple[str, str, str]] = set()
         for rid in self.ids:
             x, y = self.state[self.index[rid]][0], self.state[self.index[rid]][1]
             allowed = self.exempt(rid)
@@ -714,13 +745,25 @@ class LifelongRun:
                 inside = inside_box(sh, x, y, r0 - CONTACT_TOL)
                 if inside and n not in allowed:
                     self.checks.intrusions += 1
+                    self.intrusion(t, rid, n, sh, (x, y))
+                    inside_now.add(("resting_load", rid, n))
                 elif not inside and n in self.under[rid] and not inside_box(sh, x, y, r0):
                     self.under[rid].discard(n)
                     self.dirty = True
             if rid in self.leaving and math.dist((x, y), self.leaving[rid]) <= \
                     self.base.goal_tolerance:
                 del self.leaving[rid]
+        self.checks.release("resting_load", inside_now)
         self.carried_contacts(t)
+
+    def intrusion(self, t: float, rid: str, load: str, sh: Shape, p: tuple[float, float]
+                  ) -> None:
+        """Robot ``rid`` inside resting load ``load`` (box ``sh``) by no right: a collision of
+        the load (its clearance: the body's distance to the outline less the radius)."""
+        clearance = shape_distance(p[0], p[1], sh)[0] - self.base.robot.radius
+        self.checks.contact(("resting_load", rid, load), clearance, {
+            "t": round(t, 6), "a": rid, "b": load, "kind": "resting_load",
+            "x": round(p[0], 4), "y": round(p[1], 4)})
 
     def carried_contacts(self, t: float) -> None:
         outlines = []
@@ -734,11 +777,22 @@ class LifelongRun:
             else:
                 outlines.append(())
         if not carrying:
+            self.checks.release("load", set())
             return
         bodies = np.array([self.state[b][:2] for b in self.perm])
         obs = [o.position(t) for o in self.base.obstacles]
-        least = min((c.clearance for c in load_clearances(self.scen, outlines, bodies, obs)),
-                    default=math.inf)
+        least, touching = math.inf, set()
+        for c in load_clearances(self.scen, outlines, bodies, obs):
+            least = min(least, c.clearance)
+            key = ("load", self.scen.formations[c.formation].name, c.other)
+            if c.clearance < -CONTACT_TOL or (key in self.checks.touching
+                                               and c.clearance <= CONTACT_RELEASE):
+                touching.add(key)
+            if c.clearance < -CONTACT_TOL:
+                self.checks.contact(key, c.clearance, {
+                    "t": round(t, 6), "a": key[1], "b": c.other, "kind": "load",
+                    "x": round(c.x, 4), "y": round(c.y, 4)})
+        self.checks.release("load", touching)
         self.checks.carried_clearance_m = min(self.checks.carried_clearance_m, least)
         if least < -CONTACT_TOL:
             self.checks.load_contacts += 1
@@ -770,7 +824,19 @@ def simulate_lifelong(scenario: Scenario, options: SimOptions | None = None,
     times = [o.t_delivered for o in run.orders.values() if o.t_delivered is not None]
     summary["time_to_goal_s"] = round(max(times), 6) if summary["all_reached"] else None
     summary["orders"] = run.summary(end[1])
+    collide(summary, run.checks.events)
     return LifelongResult(summary, run.tick.series, run.base, run)
+
+
+def collide(summary: dict, events: list[dict]) -> None:
+    """The loads' collisions counted in ``summary``'s ``collisions`` (a carried load touching a
+    body and a robot inside a resting load are collisions, as a robot's are) and merged into its
+    ``collision_log`` by time, as long as the log's cap allows."""
+    if not events:
+        return
+    summary["collisions"] += len(events)
+    log = sorted(summary["collision_log"] + events, key=lambda e: e["t"])
+    summary["collision_log"] = log[:COLLISION_LOG_MAX]
 
 
 def write_lifelong(result: LifelongResult, out: Path, plots: bool = True) -> list[dict[str, str]]:
