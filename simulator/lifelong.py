@@ -29,6 +29,9 @@ The formations change at run time; the controllers do not: whenever the set of f
 robot's goal or view of the loads changes, this module builds the scenario of that moment (the
 fleet's robots grouped into the current formations, starting where they stand) and a fresh
 :class:`simulator.inprocess.FleetControl` for it, and carries each robot's last command over.
+A robot that walks alone to the same goal as at the last build walks on along its route (its
+follower and its replanning driver carried over, nothing planned again) unless a body new in
+its view lies across the rest of that route: only the formations that changed are planned.
 One :class:`simulator.tick.FleetTick` moves, records and checks the whole fleet throughout.
 """
 
@@ -48,6 +51,7 @@ from geometry.shapes import Shape, box, shape_distance
 from leader import allocation
 from leader import orders as lo
 from leader.navigation import Follower, heading_tolerance
+from leader.route_driver import RouteDriver
 from leader.team import TeamPlan, axis_turn, load_pose, plan_team, pose_error, slot_points
 from scenario import Scenario, stream
 from scenario.cargo import load_clearances
@@ -170,6 +174,21 @@ def team_formation(plan: TeamPlan, poses: dict[str, Pose], outline: Sequence[tup
                          load=tuple((x - cx, y - cy) for x, y in outline))
 
 
+def route_clear(route: Sequence[tuple[float, float]], shapes: Sequence[Shape], margin: float,
+                step: float = 0.05) -> bool:
+    """True when the polyline ``route`` (points ``step`` apart along each leg) keeps beyond each
+    shape's safe distance plus ``margin``."""
+    if not shapes:
+        return True
+    for (ax, ay), (bx, by) in zip(route, route[1:], strict=False):
+        n = max(1, math.ceil(math.hypot(bx - ax, by - ay) / step))
+        for k in range(n + 1):
+            x, y = ax + (bx - ax) * k / n, ay + (by - ay) * k / n
+            if any(shape_distance(x, y, sh)[0] < sh.ds + margin for sh in shapes):
+                return False
+    return True
+
+
 def load_box(name: str, t: LoadType, pose: Pose, ds: float) -> Shape:
     """A resting load as a box shape (what the planner and the rows keep clear of)."""
     return box(name, (pose[0], pose[1]), t.size, pose[2], ds)
@@ -246,6 +265,8 @@ class LifelongRun:
         self.scen = self.base
         self.perm: list[int] = []
         self.partners: tuple[tuple[int, ...], ...] = ()  # each robot's partners, as built
+        # each robot walking alone at the last build: its goal and what it kept clear of
+        self.walks: dict[str, tuple[tuple[float, float], tuple[Shape, ...]]] = {}
 
     # --- the run --------------------------------------------------------------------------
 
@@ -587,7 +608,8 @@ class LifelongRun:
         return all(shape_distance(x, y, sh)[0] >= sh.ds + r0 for sh in shapes)
 
     def rebuild(self) -> None:
-        """The scenario of this moment and a fresh controller for it (module docstring)."""
+        """The scenario of this moment and a fresh controller for it (module docstring); a
+        robot walking alone to the same goal as before keeps its route (:meth:`kept_walks`)."""
         self.dirty = False
         poses = {r: self.state[self.index[r]] for r in self.ids}
         boxes = self.boxes()
@@ -602,7 +624,12 @@ class LifelongRun:
                 forms.append(team_formation(crew.plan, poses, self.carried_outline(crew)))
         teamed = {r for f in forms for r in f.robot_ids}
         near = self.base.goal_tolerance
-        forms += [solo(r, poses[r], self.goal[r], math.dist(poses[r][:2], self.goal[r]) <= near)
+        walking = [r for r in self.ids if r not in teamed
+                   and math.dist(poses[r][:2], self.goal[r]) > near]
+        views = {r: self.view_of(r, boxes) for r in self.ids}
+        kept = self.kept_walks(walking, views)
+        # a kept walk is built as one standing at its goal (nothing to plan), then handed its walk
+        forms += [solo(r, poses[r], self.goal[r], r not in walking or r in kept)
                   for r in self.ids if r not in teamed]
         shapes = tuple(self.static) + tuple(boxes.values())
         self.scen = scen = replace(self.base, formations=tuple(forms), shapes=shapes)
@@ -611,13 +638,56 @@ class LifelongRun:
         self.perm = [self.index[r] for r in scen.robot_ids]
         control.vel = [self.vel[b] for b in self.perm]
         for e, rid in enumerate(scen.robot_ids):
-            skip = self.exempt(rid)
-            if skip & set(boxes):
-                self.own_view(control, e, tuple(self.static) + tuple(
-                    sh for n, sh in boxes.items() if n not in skip))
+            if rid in kept:
+                self.hand_walk(control, e, kept[rid], views[rid])
+            elif len(views[rid]) < len(shapes):
+                self.own_view(control, e, views[rid])
+        self.walks = {r: (self.goal[r], views[r]) for r in walking}
         self.partners = control.fleet.partners
         self.control = control
         self.tick.formation_of = tuple(scen.formation_of(r).name for r in self.ids)
+
+    def view_of(self, rid: str, boxes: dict[str, Shape]) -> tuple[Shape, ...]:
+        """What robot ``rid`` keeps clear of: the walls and shelves and the resting loads but
+        those it may be under (:meth:`exempt`)."""
+        skip = self.exempt(rid)
+        return tuple(self.static) + tuple(sh for n, sh in boxes.items() if n not in skip)
+
+    def kept_walks(self, walking: list[str], views: dict[str, tuple[Shape, ...]]
+                   ) -> dict[str, tuple[Follower, RouteDriver | None, tuple]]:
+        """The robots of ``walking`` that walk on as before (the route, its follower and its
+        driver of the controller built last): each walked alone to the same goal and every
+        body new in its view lies clear of the rest of its route (:func:`route_clear`)."""
+        old = self.control
+        if old is None:
+            return {}
+        at = {r: e for e, r in enumerate(old.scenario.robot_ids)}
+        out = {}
+        for rid in walking:
+            goal, view = self.walks.get(rid, (None, ()))
+            if goal != self.goal[rid] or rid not in at:
+                continue
+            follower = old.followers[at[rid]]
+            seen = {sh.name for sh in view}
+            new = [sh for sh in views[rid] if sh.name not in seen]
+            rest = (self.positions([rid])[0],) + tuple(follower.route[follower.index:])
+            if route_clear(rest, new, self.base.robot.radius):
+                out[rid] = (follower, old.replans.drivers.get(rid), old.routes[rid])
+        return out
+
+    def hand_walk(self, control: FleetControl, e: int,
+                  walk: tuple[Follower, RouteDriver | None, tuple], view: tuple[Shape, ...]
+                  ) -> None:
+        """Robot ``e`` (a formation of one, named by its id) walks on: its follower, driver and
+        route from the controller built last, keeping clear of ``view``."""
+        follower, driver, route = walk
+        rid = control.scenario.robot_ids[e]
+        control.shapes[e] = view
+        control.followers[e] = follower
+        control.routes[rid] = route
+        if driver is not None:
+            driver.replanner.shapes = view
+            control.replans.drivers[rid] = driver
 
     def team_up(self, control: FleetControl) -> None:
         """The members of a gathering team that are near their slots (:data:`ALLY_REACH`) keep
