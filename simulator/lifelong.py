@@ -23,7 +23,8 @@ formation of one until an order's team takes it. Each tick, before the robots' c
 
 A resting load is a body for every robot and formation: a box among the walls and shelves
 (``shapes``), for the footprint planner and the CBF rows alike, except for its own team on the
-way into its slots and for a robot that stands under it when it comes to rest, until it is out.
+way into its slots and for a robot that stands under it when it comes to rest, until it is out
+of the load's safe distance (sooner, its obstacle row would start below zero).
 
 The formations change at run time; the controllers do not: whenever the set of formations or a
 robot's goal or view of the loads changes, this module builds the scenario of that moment (the
@@ -267,6 +268,9 @@ class LifelongRun:
         self.partners: tuple[tuple[int, ...], ...] = ()  # each robot's partners, as built
         # each robot walking alone at the last build: its goal and what it kept clear of
         self.walks: dict[str, tuple[tuple[float, float], tuple[Shape, ...]]] = {}
+        # each carrying team at the last build: its plan and the bodies it kept clear of
+        self.carries: dict[str, tuple[TeamPlan, tuple[Shape, ...]]] = {}
+        self.now = 0.0  # [s] the tick being run
 
     # --- the run --------------------------------------------------------------------------
 
@@ -278,7 +282,7 @@ class LifelongRun:
             self.log_load(0.0, ld)
         k, t = 0, 0.0
         for k in range(self.base.steps):
-            t = k * dt
+            t = self.now = k * dt
             self.events(k, t)
             if self.dirty:
                 self.rebuild()
@@ -613,15 +617,22 @@ class LifelongRun:
         self.dirty = False
         poses = {r: self.state[self.index[r]] for r in self.ids}
         boxes = self.boxes()
-        for rid in self.ids:  # the loads each robot stands under now
+        r0 = self.base.robot.radius
+        for rid in self.ids:  # the loads each robot stands under now, or is still leaving
             x, y = poses[rid][0], poses[rid][1]
-            self.under[rid] = {n for n in self.under[rid] | set(boxes)
-                               if n in boxes and inside_box(boxes[n], x, y, self.base.robot.radius)}
+            self.under[rid] = {n for n in boxes if inside_box(
+                boxes[n], x, y, self.ds if n in self.under[rid] else r0)}
         self.idle_goals(boxes)
         forms: list[FormationSpec] = []
+        shapes = tuple(self.static) + tuple(boxes.values())
+        carried = self.kept_carries(shapes)
         for crew in sorted(self.crews.values(), key=lambda c: c.oid):
             if crew.plan is not None:
-                forms.append(team_formation(crew.plan, poses, self.carried_outline(crew)))
+                f = team_formation(crew.plan, poses, self.carried_outline(crew))
+                # a kept carry is built with its goal as its route (nothing to plan), then
+                # handed its walk
+                forms.append(replace(f, waypoints=(f.goal_centroid,)) if crew.oid in carried
+                             else f)
         teamed = {r for f in forms for r in f.robot_ids}
         near = self.base.goal_tolerance
         walking = [r for r in self.ids if r not in teamed
@@ -631,21 +642,52 @@ class LifelongRun:
         # a kept walk is built as one standing at its goal (nothing to plan), then handed its walk
         forms += [solo(r, poses[r], self.goal[r], r not in walking or r in kept)
                   for r in self.ids if r not in teamed]
-        shapes = tuple(self.static) + tuple(boxes.values())
         self.scen = scen = replace(self.base, formations=tuple(forms), shapes=shapes)
         control = FleetControl(scen, self.options)
         control.stats = self.stats
         self.perm = [self.index[r] for r in scen.robot_ids]
         control.vel = [self.vel[b] for b in self.perm]
+        for oid, (route, driver) in carried.items():
+            control.routes[oid] = route
+            if driver is not None:
+                control.replans.drivers[oid] = driver
+        before = self.control.followers if self.control is not None else []
+        at = {r: e for e, r in enumerate(self.control.scenario.robot_ids)} \
+            if self.control is not None else {}
         for e, rid in enumerate(scen.robot_ids):
-            if rid in kept:
+            if self.role[rid] in carried:
+                control.followers[e] = before[at[rid]]
+            elif rid in kept:
                 self.hand_walk(control, e, kept[rid], views[rid])
             elif len(views[rid]) < len(shapes):
                 self.own_view(control, e, views[rid])
         self.walks = {r: (self.goal[r], views[r]) for r in walking}
+        self.carries = {c.oid: (c.plan, shapes) for c in self.crews.values()
+                        if c.plan is not None}
         self.partners = control.fleet.partners
         self.control = control
         self.tick.formation_of = tuple(scen.formation_of(r).name for r in self.ids)
+
+    def kept_carries(self, shapes: tuple[Shape, ...]
+                     ) -> dict[str, tuple[tuple, RouteDriver | None]]:
+        """The teams that carry on as before (their route and driver of the controller built
+        last; their members' followers go with them): each carried the same plan then, in the
+        same bodies, and its driver handed its leader no route on the last tick (the members
+        take a route a tick after the leader)."""
+        old = self.control
+        if old is None:
+            return {}
+        names = [sh.name for sh in shapes]
+        last = self.now - self.base.dt - 1e-9
+        fresh = {name for t, name, _why, _k in old.replans.updates if t >= last}
+        out = {}
+        for crew in self.crews.values():
+            then = self.carries.get(crew.oid)
+            if then is None or then[0] is not crew.plan or crew.oid in fresh \
+                    or [sh.name for sh in then[1]] != names:
+                continue
+            out[crew.oid] = (old.routes[crew.oid], old.replans.drivers.get(crew.oid))
+        return out
 
     def view_of(self, rid: str, boxes: dict[str, Shape]) -> tuple[Shape, ...]:
         """What robot ``rid`` keeps clear of: the walls and shelves and the resting loads but
@@ -817,7 +859,7 @@ class LifelongRun:
                     self.checks.intrusions += 1
                     self.intrusion(t, rid, n, sh, (x, y))
                     inside_now.add(("resting_load", rid, n))
-                elif not inside and n in self.under[rid] and not inside_box(sh, x, y, r0):
+                elif not inside and n in self.under[rid] and not inside_box(sh, x, y, self.ds):
                     self.under[rid].discard(n)
                     self.dirty = True
             if rid in self.leaving and math.dist((x, y), self.leaving[rid]) <= \
