@@ -23,8 +23,9 @@ formation of one until an order's team takes it. Each tick, before the robots' c
 
 A resting load is a body for every robot and formation: a box among the walls and shelves
 (``shapes``), for the footprint planner and the CBF rows alike, except for its own team on the
-way into its slots and for a robot that stands under it when it comes to rest, until it is out
-of the load's safe distance (sooner, its obstacle row would start below zero).
+way into its slots and for a robot that stands under it when it comes to rest, until its
+control point is out of the load's safe distance (sooner, its obstacle row would start below
+zero).
 
 The formations change at run time; the controllers do not: whenever the set of formations or a
 robot's goal or view of the loads changes, this module builds the scenario of that moment (the
@@ -241,6 +242,9 @@ class LifelongRun:
         self.tick = FleetTick(self.base, None, False, progress, stop=self.finished)
         self.state: list[Pose] = [starts[r] for r in self.ids]
         self.ds = scenario.robot.radius + LOAD_MARGIN
+        # a robot leaving a load it stood under is out once its control point (where its rows
+        # are measured) is beyond the load's safe distance
+        self.leave = self.ds + scenario.robot.control_offset
         self.orders: dict[str, lo.Order] = {}
         self.due = sorted(life.orders, key=lambda o: (o.t, o.id))
         self.yard = stream.initial_yard(life)
@@ -621,7 +625,7 @@ class LifelongRun:
         for rid in self.ids:  # the loads each robot stands under now, or is still leaving
             x, y = poses[rid][0], poses[rid][1]
             self.under[rid] = {n for n in boxes if inside_box(
-                boxes[n], x, y, self.ds if n in self.under[rid] else r0)}
+                boxes[n], x, y, self.leave if n in self.under[rid] else r0)}
         self.idle_goals(boxes)
         forms: list[FormationSpec] = []
         shapes = tuple(self.static) + tuple(boxes.values())
@@ -859,7 +863,7 @@ class LifelongRun:
                     self.checks.intrusions += 1
                     self.intrusion(t, rid, n, sh, (x, y))
                     inside_now.add(("resting_load", rid, n))
-                elif not inside and n in self.under[rid] and not inside_box(sh, x, y, self.ds):
+                elif not inside and n in self.under[rid] and not inside_box(sh, x, y, self.leave):
                     self.under[rid].discard(n)
                     self.dirty = True
             if rid in self.leaving and math.dist((x, y), self.leaving[rid]) <= \
