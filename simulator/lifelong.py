@@ -31,9 +31,10 @@ The formations change at run time; the controllers do not: whenever the set of f
 robot's goal or view of the loads changes, this module builds the scenario of that moment (the
 fleet's robots grouped into the current formations, starting where they stand) and a fresh
 :class:`simulator.inprocess.FleetControl` for it, and carries each robot's last command over.
-A robot that walks alone to the same goal as at the last build walks on along its route (its
+An idle robot that walks to the same goal as at the last build walks on along its route (its
 follower and its replanning driver carried over, nothing planned again) unless a body new in
-its view lies across the rest of that route: only the formations that changed are planned.
+its view lies across the rest of that route, and a team that carries the same load among the
+same bodies carries on along its route: only the formations that changed are planned.
 One :class:`simulator.tick.FleetTick` moves, records and checks the whole fleet throughout.
 """
 
@@ -617,7 +618,8 @@ class LifelongRun:
 
     def rebuild(self) -> None:
         """The scenario of this moment and a fresh controller for it (module docstring); a
-        robot walking alone to the same goal as before keeps its route (:meth:`kept_walks`)."""
+        idle robot walking to the same goal as before keeps its route (:meth:`kept_walks`), and a
+        carrying team its own (:meth:`kept_carries`)."""
         self.dirty = False
         poses = {r: self.state[self.index[r]] for r in self.ids}
         boxes = self.boxes()
@@ -702,8 +704,8 @@ class LifelongRun:
     def kept_walks(self, walking: list[str], views: dict[str, tuple[Shape, ...]]
                    ) -> dict[str, tuple[Follower, RouteDriver | None, tuple]]:
         """The robots of ``walking`` that walk on as before (the route, its follower and its
-        driver of the controller built last): each walked alone to the same goal and every
-        body new in its view lies clear of the rest of its route (:func:`route_clear`)."""
+        driver of the controller built last): each is idle, walked alone to the same goal and
+        every body new in its view lies clear of the rest of its route (:func:`route_clear`)."""
         old = self.control
         if old is None:
             return {}
@@ -711,7 +713,7 @@ class LifelongRun:
         out = {}
         for rid in walking:
             goal, view = self.walks.get(rid, (None, ()))
-            if goal != self.goal[rid] or rid not in at:
+            if goal != self.goal[rid] or rid not in at or self.role[rid]:
                 continue
             follower = old.followers[at[rid]]
             seen = {sh.name for sh in view}
