@@ -114,6 +114,12 @@ def plan_team(oid: str, robots: Sequence[str], slots: Sequence[Point], outline: 
                     carry_goals(starts, src, dst), tuple((x - cx, y - cy) for x, y in placed))
 
 
+def axis_turn(heading: float, yaw: float) -> float:
+    """[rad] How far ``heading`` is turned from the axis of yaw ``yaw``, either way along it
+    (0 to pi/2): a differential drive under a load faces its axis from either end."""
+    return abs(wrap_angle(2.0 * (heading - yaw))) / 2.0
+
+
 def at_slots(positions: Sequence[Point], headings: Sequence[float | None], slots: Sequence[Point],
              tolerance: float, yaw: float, turn_tolerance: float) -> bool:
     """True when every member is within ``tolerance`` of its slot and, where it has a heading
@@ -122,6 +128,6 @@ def at_slots(positions: Sequence[Point], headings: Sequence[float | None], slots
     for p, th, s in zip(positions, headings, slots, strict=True):
         if math.dist(p, s) > tolerance:
             return False
-        if th is not None and abs(wrap_angle(2.0 * (th - yaw))) > 2.0 * turn_tolerance:
+        if th is not None and axis_turn(th, yaw) > turn_tolerance:
             return False
     return True

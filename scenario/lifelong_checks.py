@@ -6,6 +6,7 @@ file. In order:
 * one namespace: robots (of formations and of the fleet), formations, loads and orders; an
   explicit order may not take a name of the stream's form (``s1``, ``s2``, ...) while a stream
   is declared;
+* no fixed formations beside the fleet (a run serves one or the other);
 * a load type needing more robots than the fleet has;
 * every load type's outline resting at every station clear of walls and shelves (their shapes),
   of standing circles (a circle's safe distance less the robot radius is its body) and of every
@@ -45,6 +46,10 @@ def check_lifelong(s: Scenario) -> None:
     if life is None:
         return
     _check_names(s, life)
+    if s.formations:
+        raise ScenarioError(f"formations: {s.formations[0].name!r} beside a fleet: fixed "
+                            f"formations and a fleet in one scenario are not run yet (give the "
+                            f"formations a scenario of their own)")
     _check_teams(life)
     _check_stations(s, life)
     _check_fleet(s, life)

@@ -23,12 +23,18 @@ formation of one until an order's team takes it. Each tick, before the robots' c
 
 A resting load is a body for every robot and formation: a box among the walls and shelves
 (``shapes``), for the footprint planner and the CBF rows alike, except for its own team on the
-way into its slots and for a robot that stands under it when it comes to rest, until it is out.
+way into its slots and for a robot that stands under it when it comes to rest, until its
+control point is out of the load's safe distance (sooner, its obstacle row would start below
+zero).
 
 The formations change at run time; the controllers do not: whenever the set of formations or a
 robot's goal or view of the loads changes, this module builds the scenario of that moment (the
 fleet's robots grouped into the current formations, starting where they stand) and a fresh
 :class:`simulator.inprocess.FleetControl` for it, and carries each robot's last command over.
+An idle robot that walks to the same goal as at the last build walks on along its route (its
+follower and its replanning driver carried over, nothing planned again) unless a body new in
+its view lies across the rest of that route, and a team that carries the same load among the
+same bodies carries on along its route: only the formations that changed are planned.
 One :class:`simulator.tick.FleetTick` moves, records and checks the whole fleet throughout.
 """
 
@@ -48,7 +54,8 @@ from geometry.shapes import Shape, box, shape_distance
 from leader import allocation
 from leader import orders as lo
 from leader.navigation import Follower, heading_tolerance
-from leader.team import TeamPlan, load_pose, plan_team, pose_error, slot_points
+from leader.route_driver import RouteDriver
+from leader.team import TeamPlan, axis_turn, load_pose, plan_team, pose_error, slot_points
 from scenario import Scenario, stream
 from scenario.cargo import load_clearances
 from scenario.lifelong import SINK, Lifelong, LoadType, Order
@@ -57,9 +64,11 @@ from scenario.routes import start_plan
 from viewer.orders import OrderBoard, OrderTimeline
 
 from .inprocess import FleetControl, QPStats, SimOptions, obstacles_at, record, summarise
+from .metrics import CONTACT_RELEASE
 from .orders_out import orders_block, write_order_files
 from .output import lost_words, write_run
 from .series import Series
+from .summary import COLLISION_LOG_MAX
 from .tick import FleetTick, Pose
 
 SET_DOWN_M = 0.05  # [m] a load is set down this near its station
@@ -117,12 +126,35 @@ class Checks:
     """What the run measures of its loads for the acceptance checks."""
 
     lift_error_m: float = 0.0  # the farthest member from its slot at a lift
+    # [rad] a unicycle member's largest turn from its load's axis at a lift (either end)
+    lift_turn_rad: float = 0.0
     set_down_m: float = 0.0  # the farthest a delivered load rests from its station
     set_down_rad: float = 0.0
     carried_clearance_m: float = math.inf  # a carried load's least clearance to any body
     load_contacts: int = 0  # ticks a carried load touched a body
     intrusions: int = 0  # robot-ticks inside a resting load it had no business under
     stuck: set[str] = field(default_factory=set)
+    # the collisions of loads, as summary.json's collision_log has them: one entry per contact
+    # from its onset until its release (a carried load against a body, ``kind: load``; a robot
+    # inside a resting load, ``kind: resting_load``), and the contacts open now
+    events: list[dict] = field(default_factory=list)
+    touching: dict[tuple[str, str, str], dict] = field(default_factory=dict)
+
+    def contact(self, key: tuple[str, str, str], clearance: float, entry: dict) -> None:
+        """One contact seen this tick: a new collision at its onset, else its entry deepened."""
+        open_ = self.touching.get(key)
+        if open_ is None:
+            entry["deepest_m"] = entry["clearance_m"] = round(clearance, 6)
+            self.events.append(entry)
+            self.touching[key] = entry
+        else:
+            open_["deepest_m"] = min(open_["deepest_m"], round(clearance, 6))
+
+    def release(self, kind: str, still: set[tuple[str, str, str]]) -> None:
+        """The contacts of ``kind`` (a key's first part: ``load`` or ``resting_load``) not in
+        ``still`` have ended."""
+        for key in [k for k in self.touching if k[0] == kind and k not in still]:
+            del self.touching[key]
 
 
 def solo(rid: str, pose: Pose, goal: tuple[float, float], still: bool = False) -> FormationSpec:
@@ -144,6 +176,21 @@ def team_formation(plan: TeamPlan, poses: dict[str, Pose], outline: Sequence[tup
     return FormationSpec(plan.oid, plan.leader, robots,
                          tuple(Edge(i, j, df) for i, j, df in plan.edges), None,
                          load=tuple((x - cx, y - cy) for x, y in outline))
+
+
+def route_clear(route: Sequence[tuple[float, float]], shapes: Sequence[Shape], margin: float,
+                step: float = 0.05) -> bool:
+    """True when the polyline ``route`` (points ``step`` apart along each leg) keeps beyond each
+    shape's safe distance plus ``margin``."""
+    if not shapes:
+        return True
+    for (ax, ay), (bx, by) in zip(route, route[1:], strict=False):
+        n = max(1, math.ceil(math.hypot(bx - ax, by - ay) / step))
+        for k in range(n + 1):
+            x, y = ax + (bx - ax) * k / n, ay + (by - ay) * k / n
+            if any(shape_distance(x, y, sh)[0] < sh.ds + margin for sh in shapes):
+                return False
+    return True
 
 
 def load_box(name: str, t: LoadType, pose: Pose, ds: float) -> Shape:
@@ -197,6 +244,9 @@ class LifelongRun:
         self.tick = FleetTick(self.base, None, False, progress, stop=self.finished)
         self.state: list[Pose] = [starts[r] for r in self.ids]
         self.ds = scenario.robot.radius + LOAD_MARGIN
+        # a robot leaving a load it stood under is out once its control point (where its rows
+        # are measured) is beyond the load's safe distance
+        self.leave = self.ds + scenario.robot.control_offset
         self.orders: dict[str, lo.Order] = {}
         self.due = sorted(life.orders, key=lambda o: (o.t, o.id))
         self.yard = stream.initial_yard(life)
@@ -223,6 +273,11 @@ class LifelongRun:
         self.scen = self.base
         self.perm: list[int] = []
         self.partners: tuple[tuple[int, ...], ...] = ()  # each robot's partners, as built
+        # each robot walking alone at the last build: its goal and what it kept clear of
+        self.walks: dict[str, tuple[tuple[float, float], tuple[Shape, ...]]] = {}
+        # each carrying team at the last build: its plan and the bodies it kept clear of
+        self.carries: dict[str, tuple[TeamPlan, tuple[Shape, ...]]] = {}
+        self.now = 0.0  # [s] the tick being run
 
     # --- the run --------------------------------------------------------------------------
 
@@ -234,7 +289,7 @@ class LifelongRun:
             self.log_load(0.0, ld)
         k, t = 0, 0.0
         for k in range(self.base.steps):
-            t = k * dt
+            t = self.now = k * dt
             self.events(k, t)
             if self.dirty:
                 self.rebuild()
@@ -443,6 +498,9 @@ class LifelongRun:
         self.checks.lift_error_m = max(self.checks.lift_error_m,
                                        *(math.dist(p, s) for p, s in zip(at, crew.slots,
                                                                          strict=True)))
+        if self.base.robot.is_unicycle:
+            self.checks.lift_turn_rad = max(self.checks.lift_turn_rad, *(
+                axis_turn(self.state[self.index[r]][2], crew.src[2]) for r in crew.robots))
         crew.since = t
         self.dirty = True
 
@@ -563,37 +621,125 @@ class LifelongRun:
         return all(shape_distance(x, y, sh)[0] >= sh.ds + r0 for sh in shapes)
 
     def rebuild(self) -> None:
-        """The scenario of this moment and a fresh controller for it (module docstring)."""
+        """The scenario of this moment and a fresh controller for it (module docstring); a
+        idle robot walking to the same goal as before keeps its route (:meth:`kept_walks`), and a
+        carrying team its own (:meth:`kept_carries`)."""
         self.dirty = False
         poses = {r: self.state[self.index[r]] for r in self.ids}
         boxes = self.boxes()
-        for rid in self.ids:  # the loads each robot stands under now
+        r0 = self.base.robot.radius
+        for rid in self.ids:  # the loads each robot stands under now, or is still leaving
             x, y = poses[rid][0], poses[rid][1]
-            self.under[rid] = {n for n in self.under[rid] | set(boxes)
-                               if n in boxes and inside_box(boxes[n], x, y, self.base.robot.radius)}
+            self.under[rid] = {n for n in boxes if inside_box(
+                boxes[n], x, y, self.leave if n in self.under[rid] else r0)}
         self.idle_goals(boxes)
         forms: list[FormationSpec] = []
+        shapes = tuple(self.static) + tuple(boxes.values())
+        carried = self.kept_carries(shapes)
         for crew in sorted(self.crews.values(), key=lambda c: c.oid):
             if crew.plan is not None:
-                forms.append(team_formation(crew.plan, poses, self.carried_outline(crew)))
+                f = team_formation(crew.plan, poses, self.carried_outline(crew))
+                # a kept carry is built with its goal as its route (nothing to plan), then
+                # handed its walk
+                forms.append(replace(f, waypoints=(f.goal_centroid,)) if crew.oid in carried
+                             else f)
         teamed = {r for f in forms for r in f.robot_ids}
         near = self.base.goal_tolerance
-        forms += [solo(r, poses[r], self.goal[r], math.dist(poses[r][:2], self.goal[r]) <= near)
+        walking = [r for r in self.ids if r not in teamed
+                   and math.dist(poses[r][:2], self.goal[r]) > near]
+        views = {r: self.view_of(r, boxes) for r in self.ids}
+        kept = self.kept_walks(walking, views)
+        # a kept walk is built as one standing at its goal (nothing to plan), then handed its walk
+        forms += [solo(r, poses[r], self.goal[r], r not in walking or r in kept)
                   for r in self.ids if r not in teamed]
-        shapes = tuple(self.static) + tuple(boxes.values())
         self.scen = scen = replace(self.base, formations=tuple(forms), shapes=shapes)
         control = FleetControl(scen, self.options)
         control.stats = self.stats
         self.perm = [self.index[r] for r in scen.robot_ids]
         control.vel = [self.vel[b] for b in self.perm]
+        for oid, (route, driver) in carried.items():
+            control.routes[oid] = route
+            if driver is not None:
+                control.replans.drivers[oid] = driver
+        before = self.control.followers if self.control is not None else []
+        at = {r: e for e, r in enumerate(self.control.scenario.robot_ids)} \
+            if self.control is not None else {}
         for e, rid in enumerate(scen.robot_ids):
-            skip = self.exempt(rid)
-            if skip & set(boxes):
-                self.own_view(control, e, tuple(self.static) + tuple(
-                    sh for n, sh in boxes.items() if n not in skip))
+            if self.role[rid] in carried:
+                control.followers[e] = before[at[rid]]
+            elif rid in kept:
+                self.hand_walk(control, e, kept[rid], views[rid])
+            elif len(views[rid]) < len(shapes):
+                self.own_view(control, e, views[rid])
+        self.walks = {r: (self.goal[r], views[r]) for r in walking}
+        self.carries = {c.oid: (c.plan, shapes) for c in self.crews.values()
+                        if c.plan is not None}
         self.partners = control.fleet.partners
         self.control = control
         self.tick.formation_of = tuple(scen.formation_of(r).name for r in self.ids)
+
+    def kept_carries(self, shapes: tuple[Shape, ...]
+                     ) -> dict[str, tuple[tuple, RouteDriver | None]]:
+        """The teams that carry on as before (their route and driver of the controller built
+        last; their members' followers go with them): each carried the same plan then, in the
+        same bodies, and its driver handed its leader no route on the last tick (the members
+        take a route a tick after the leader)."""
+        old = self.control
+        if old is None:
+            return {}
+        names = [sh.name for sh in shapes]
+        last = self.now - self.base.dt - 1e-9
+        fresh = {name for t, name, _why, _k in old.replans.updates if t >= last}
+        out = {}
+        for crew in self.crews.values():
+            then = self.carries.get(crew.oid)
+            if then is None or then[0] is not crew.plan or crew.oid in fresh \
+                    or [sh.name for sh in then[1]] != names:
+                continue
+            out[crew.oid] = (old.routes[crew.oid], old.replans.drivers.get(crew.oid))
+        return out
+
+    def view_of(self, rid: str, boxes: dict[str, Shape]) -> tuple[Shape, ...]:
+        """What robot ``rid`` keeps clear of: the walls and shelves and the resting loads but
+        those it may be under (:meth:`exempt`)."""
+        skip = self.exempt(rid)
+        return tuple(self.static) + tuple(sh for n, sh in boxes.items() if n not in skip)
+
+    def kept_walks(self, walking: list[str], views: dict[str, tuple[Shape, ...]]
+                   ) -> dict[str, tuple[Follower, RouteDriver | None, tuple]]:
+        """The robots of ``walking`` that walk on as before (the route, its follower and its
+        driver of the controller built last): each is idle, walked alone to the same goal and
+        every body new in its view lies clear of the rest of its route (:func:`route_clear`)."""
+        old = self.control
+        if old is None:
+            return {}
+        at = {r: e for e, r in enumerate(old.scenario.robot_ids)}
+        out = {}
+        for rid in walking:
+            goal, view = self.walks.get(rid, (None, ()))
+            if goal != self.goal[rid] or rid not in at or self.role[rid]:
+                continue
+            follower = old.followers[at[rid]]
+            seen = {sh.name for sh in view}
+            new = [sh for sh in views[rid] if sh.name not in seen]
+            rest = (self.positions([rid])[0],) + tuple(follower.route[follower.index:])
+            if route_clear(rest, new, self.base.robot.radius):
+                out[rid] = (follower, old.replans.drivers.get(rid), old.routes[rid])
+        return out
+
+    def hand_walk(self, control: FleetControl, e: int,
+                  walk: tuple[Follower, RouteDriver | None, tuple], view: tuple[Shape, ...]
+                  ) -> None:
+        """Robot ``e`` (a formation of one, named by its id) walks on: its follower, driver and
+        route from the controller built last, keeping clear of ``view``."""
+        follower, driver, route = walk
+        rid = control.scenario.robot_ids[e]
+        control.shapes[e] = view
+        control.followers[e] = follower
+        control.routes[rid] = route
+        if driver is not None:
+            driver.replanner.shapes = view
+            control.replans.drivers[rid] = driver
 
     def team_up(self, control: FleetControl) -> None:
         """The members of a gathering team that are near their slots (:data:`ALLY_REACH`) keep
@@ -662,7 +808,9 @@ class LifelongRun:
                              self.busy_s)
         block["stuck"] = len(c.stuck)
         block["checks"] = {
-            "lift_error_m": round(c.lift_error_m, 6), "set_down_m": round(c.set_down_m, 6),
+            "lift_error_m": round(c.lift_error_m, 6),
+            "lift_turn_deg": round(math.degrees(c.lift_turn_rad), 6),
+            "set_down_m": round(c.set_down_m, 6),
             "set_down_deg": round(math.degrees(c.set_down_rad), 6),
             "carried_min_clearance_m": round(c.carried_clearance_m, 6)
             if math.isfinite(c.carried_clearance_m) else None,
@@ -711,6 +859,7 @@ class LifelongRun:
         left the load it stood under sees it again) and carried loads against everything."""
         boxes = self.boxes()
         r0 = self.base.robot.radius
+        inside_now: set[tuple[str, str, str]] = set()
         for rid in self.ids:
             x, y = self.state[self.index[rid]][0], self.state[self.index[rid]][1]
             allowed = self.exempt(rid)
@@ -718,13 +867,25 @@ class LifelongRun:
                 inside = inside_box(sh, x, y, r0 - CONTACT_TOL)
                 if inside and n not in allowed:
                     self.checks.intrusions += 1
-                elif not inside and n in self.under[rid] and not inside_box(sh, x, y, r0):
+                    self.intrusion(t, rid, n, sh, (x, y))
+                    inside_now.add(("resting_load", rid, n))
+                elif not inside and n in self.under[rid] and not inside_box(sh, x, y, self.leave):
                     self.under[rid].discard(n)
                     self.dirty = True
             if rid in self.leaving and math.dist((x, y), self.leaving[rid]) <= \
                     self.base.goal_tolerance:
                 del self.leaving[rid]
+        self.checks.release("resting_load", inside_now)
         self.carried_contacts(t)
+
+    def intrusion(self, t: float, rid: str, load: str, sh: Shape, p: tuple[float, float]
+                  ) -> None:
+        """Robot ``rid`` inside resting load ``load`` (box ``sh``) by no right: a collision of
+        the load (its clearance: the body's distance to the outline less the radius)."""
+        clearance = shape_distance(p[0], p[1], sh)[0] - self.base.robot.radius
+        self.checks.contact(("resting_load", rid, load), clearance, {
+            "t": round(t, 6), "a": rid, "b": load, "kind": "resting_load",
+            "x": round(p[0], 4), "y": round(p[1], 4)})
 
     def carried_contacts(self, t: float) -> None:
         outlines = []
@@ -738,11 +899,22 @@ class LifelongRun:
             else:
                 outlines.append(())
         if not carrying:
+            self.checks.release("load", set())
             return
         bodies = np.array([self.state[b][:2] for b in self.perm])
         obs = [o.position(t) for o in self.base.obstacles]
-        least = min((c.clearance for c in load_clearances(self.scen, outlines, bodies, obs)),
-                    default=math.inf)
+        least, touching = math.inf, set()
+        for c in load_clearances(self.scen, outlines, bodies, obs):
+            least = min(least, c.clearance)
+            key = ("load", self.scen.formations[c.formation].name, c.other)
+            if c.clearance < -CONTACT_TOL or (key in self.checks.touching
+                                               and c.clearance <= CONTACT_RELEASE):
+                touching.add(key)
+            if c.clearance < -CONTACT_TOL:
+                self.checks.contact(key, c.clearance, {
+                    "t": round(t, 6), "a": key[1], "b": c.other, "kind": "load",
+                    "x": round(c.x, 4), "y": round(c.y, 4)})
+        self.checks.release("load", touching)
         self.checks.carried_clearance_m = min(self.checks.carried_clearance_m, least)
         if least < -CONTACT_TOL:
             self.checks.load_contacts += 1
@@ -774,7 +946,19 @@ def simulate_lifelong(scenario: Scenario, options: SimOptions | None = None,
     times = [o.t_delivered for o in run.orders.values() if o.t_delivered is not None]
     summary["time_to_goal_s"] = round(max(times), 6) if summary["all_reached"] else None
     summary["orders"] = run.summary(end[1])
+    collide(summary, run.checks.events)
     return LifelongResult(summary, run.tick.series, run.base, run)
+
+
+def collide(summary: dict, events: list[dict]) -> None:
+    """The loads' collisions counted in ``summary``'s ``collisions`` (a carried load touching a
+    body and a robot inside a resting load are collisions, as a robot's are) and merged into its
+    ``collision_log`` by time, as long as the log's cap allows."""
+    if not events:
+        return
+    summary["collisions"] += len(events)
+    log = sorted(summary["collision_log"] + events, key=lambda e: e["t"])
+    summary["collision_log"] = log[:COLLISION_LOG_MAX]
 
 
 def write_lifelong(result: LifelongResult, out: Path, plots: bool = True) -> list[dict[str, str]]:

@@ -11,9 +11,11 @@ from pathlib import Path
 
 import pytest
 
+from formation.cli import main
+from geometry.shapes import box
 from leader import orders as lo
 from scenario import load_scenario
-from simulator.lifelong import LifelongOptions, simulate_lifelong
+from simulator.lifelong import Checks, LifelongOptions, collide, route_clear, simulate_lifelong
 from simulator.orders_out import ORDER_COLUMNS, order_rows, orders_block, write_order_files
 from tests.lifelong_checks import check_all_delivered, check_safe
 
@@ -99,3 +101,62 @@ def test_the_orders_block_counts_and_rates():
     assert block["latency_s"]["median"] == pytest.approx(60.0)
     assert block["service_efficiency"]["median"] == pytest.approx(30.0 / 50.0)
     assert block["idle_fraction"] == pytest.approx(0.75)
+
+
+def test_a_member_lost_before_the_lift_returns_the_order_to_the_queue():
+    scenario = load_scenario(HERE / "lifelong" / "beam-spare-si.yaml")
+    result = simulate_lifelong(scenario, life_options=LifelongOptions(kills=(("r1", 3.0),)))
+    check_all_delivered(result)  # the order waits again, and the other two deliver it
+    order = result.run.orders["o1"]
+    assert order.robots == ("r2", "r3") or order.robots == ("r3", "r2")
+    # first assigned at the round of t = 1 s (r1 and r2), again at the loss (r2 and r3)
+    assert order.t_assigned is not None and order.t_assigned >= 3.0
+    assert result.run.loads["o1"].station == "rack"
+    # the dead robot stands where it was killed, far from any slot
+    assert math.dist(result.run.state[result.run.index["r1"]][:2], (0.0, 0.0)) < 0.7
+
+
+def test_check_refuses_fixed_formations_beside_a_fleet_in_one_line(tmp_path, capsys):
+    text = (HERE / "lifelong" / "beam-spare-si.yaml").read_text() + (
+        "formations:\n"
+        "  - name: A\n    leader: a1\n"
+        "    robots: {a1: {start: [0.0, -2.0], goal: [1.0, -2.0]},"
+        " a2: {start: [0.5, -2.0], goal: [1.5, -2.0]}}\n"
+        "    edges: [[a1, a2]]\n")
+    path = tmp_path / "beside.yaml"
+    path.write_text(text)
+    assert main(["check", str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "formations: 'A' beside a fleet" in err[0], err
+
+
+def test_a_load_contact_is_one_collision_from_its_onset_to_its_release():
+    checks = Checks()
+    key = ("load", "o1", "r5")
+    checks.contact(key, -0.01, {"t": 1.0, "a": "o1", "b": "r5", "kind": "load"})
+    checks.contact(key, -0.03, {"t": 1.05, "a": "o1", "b": "r5", "kind": "load"})
+    assert len(checks.events) == 1 and checks.events[0]["deepest_m"] == pytest.approx(-0.03)
+    assert checks.events[0]["clearance_m"] == pytest.approx(-0.01)
+    checks.release("resting_load", set())  # another kind: this contact stays open
+    checks.contact(key, -0.02, {"t": 1.1, "a": "o1", "b": "r5", "kind": "load"})
+    assert len(checks.events) == 1
+    checks.release("load", set())  # apart: the next touch is a new collision
+    checks.contact(key, -0.02, {"t": 2.0, "a": "o1", "b": "r5", "kind": "load"})
+    assert len(checks.events) == 2
+
+
+def test_the_loads_collisions_count_in_the_summary_in_time_order():
+    summary = {"collisions": 1, "collision_log": [{"t": 5.0, "a": "r1", "b": "r2"}]}
+    collide(summary, [{"t": 2.0, "a": "o1", "b": "wall", "kind": "load"},
+                      {"t": 9.0, "a": "r3", "b": "p1", "kind": "resting_load"}])
+    assert summary["collisions"] == 3
+    assert [e["t"] for e in summary["collision_log"]] == [2.0, 5.0, 9.0]
+
+
+def test_a_route_is_clear_of_a_body_only_beyond_its_safe_distance_and_the_margin():
+    crate = box("crate", (1.0, 0.0), (0.4, 0.4), 0.0, 0.15)
+    assert route_clear([(0.0, 1.0), (2.0, 1.0)], [crate], 0.1)  # 0.8 m from the box
+    assert not route_clear([(0.0, 0.0), (2.0, 0.0)], [crate], 0.1)  # straight through it
+    assert not route_clear([(0.0, 0.4), (2.0, 0.4)], [crate], 0.1)  # 0.2 m: inside 0.15 + 0.1
+    assert route_clear([(0.0, 0.5), (2.0, 0.5)], [crate], 0.1)  # 0.3 m: beyond it
+    assert route_clear([(0.0, 0.0)], [crate], 0.1)  # no leg left
