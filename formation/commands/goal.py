@@ -136,6 +136,19 @@ def open_session(ns: argparse.Namespace) -> zenoh.Session:
     return open_zenoh(settings, "")
 
 
+def session_for(ns: argparse.Namespace, command: str) -> zenoh.Session | int:
+    """:func:`open_session`, or the exit code after one line saying why none opened (bad
+    arguments: usage; no router or credentials refused: failure)."""
+    try:
+        return open_session(ns)
+    except ValueError as exc:
+        print(f"formation {command}: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except ConnectionError as exc:
+        print(f"formation {command}: cannot open a Zenoh session: {exc}", file=sys.stderr)
+        return EXIT_FAIL
+
+
 def check_goal(goal: GoalMsg) -> None:
     """ValueError (one line) for a goal no scenario could hold (:func:`scenario.extent.goal_problem`)."""
     problem = goal_problem(goal.x, goal.y, goal.heading, goal.waypoints, ANY_WORLD)
@@ -213,13 +226,12 @@ def goal_command(ns: argparse.Namespace) -> int:
         check_goal(goal)
         if not (math.isfinite(ns.timeout) and ns.timeout > 0):
             raise ValueError("--timeout must be a positive number")
-        session = open_session(ns)
     except ValueError as exc:
         print(f"formation goal: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    except ConnectionError as exc:
-        print(f"formation goal: cannot open a Zenoh session: {exc}", file=sys.stderr)
-        return EXIT_FAIL
+    session = session_for(ns, "goal")
+    if isinstance(session, int):
+        return session
     try:
         unknown = unknown_formation(session, ns.prefix, goal.formation, min(ns.timeout, 2.0))
         if unknown is not None:
@@ -296,14 +308,9 @@ def _send_and_wait(session: zenoh.Session, ns: argparse.Namespace, goal: GoalMsg
 
 
 def status_command(ns: argparse.Namespace) -> int:
-    try:
-        session = open_session(ns)
-    except ValueError as exc:
-        print(f"formation status: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    except ConnectionError as exc:
-        print(f"formation status: cannot open a Zenoh session: {exc}", file=sys.stderr)
-        return EXIT_FAIL
+    session = session_for(ns, "status")
+    if isinstance(session, int):
+        return session
     try:
         found = query_status(session, ns.prefix, timeout=ns.timeout)
     finally:

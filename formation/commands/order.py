@@ -17,7 +17,7 @@ team's leader and answered by the fleet manager's queryable:
 
 An order without ``--id`` is named ``m1, m2, ...``: the first free one after the book's.
 ``formation orders`` prints one line per order of the book (id, state, robots, what it moves).
-Both connect as ``formation goal`` does (:func:`formation.commands.goal.open_session`): the
+Both connect as ``formation goal`` does (:func:`formation.commands.goal.session_for`): the
 ``--run DIR`` folder's endpoint and fleet manager's credentials, or ``--connect EP --auth FILE``.
 """
 
@@ -32,7 +32,7 @@ from collections.abc import Sequence
 
 import zenoh
 
-from formation.commands.goal import DEFAULT_CONNECT, open_session
+from formation.commands.goal import DEFAULT_CONNECT, session_for
 from leader import orders as lo
 from simulator.manager import REFUSED
 from wire import keys
@@ -163,14 +163,9 @@ def order_command(ns: argparse.Namespace) -> int:
     if not (math.isfinite(ns.timeout) and ns.timeout > 0):
         print("formation order: --timeout must be a positive number", file=sys.stderr)
         return EXIT_USAGE
-    try:
-        session = open_session(ns)
-    except ValueError as exc:
-        print(f"formation order: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    except ConnectionError as exc:
-        print(f"formation order: cannot open a Zenoh session: {exc}", file=sys.stderr)
-        return EXIT_FAIL
+    session = session_for(ns, "order")
+    if isinstance(session, int):
+        return session
     try:
         orders, statuses = order_book(session, ns.prefix, min(ns.timeout, 2.0))
         try:
@@ -236,14 +231,9 @@ def _said(code: int, msg: OrderMsg, status: OrderStatusMsg, order: OrderMsg | No
 
 
 def orders_command(ns: argparse.Namespace) -> int:
-    try:
-        session = open_session(ns)
-    except ValueError as exc:
-        print(f"formation orders: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    except ConnectionError as exc:
-        print(f"formation orders: cannot open a Zenoh session: {exc}", file=sys.stderr)
-        return EXIT_FAIL
+    session = session_for(ns, "orders")
+    if isinstance(session, int):
+        return session
     try:
         orders, statuses = order_book(session, ns.prefix, ns.timeout)
     finally:
