@@ -4,7 +4,8 @@ Each patch is a box of ``world.camera_blind`` (:class:`scenario.world.BlindBox`)
 by PATCH_WIDTH metres, laid along one formation's way from its start to its goal (its long side
 along the way), its centre between PATCH_FROM and PATCH_TO of the way: the formation must cross
 it. No patch covers a robot's start (a robot that starts unseen waits for its first pose, which
-would never come). Drawn from the run's seed: the run's scenario file replays it exactly.
+would never come) nor its goal (a robot stopping on blind floor stops where its estimate says,
+its drift away from the goal on the truth: a patch is to be crossed). Drawn from the run's seed: the run's scenario file replays it exactly.
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ def draw_patches(d: dict, n: int, seed: int) -> list[dict]:
     """``n`` patches for the scenario mapping ``d`` (``world.camera_blind`` entries)."""
     rng = np.random.default_rng((seed, BLIND_STREAM))
     formations = d["formations"]
-    starts = [r["start"] for f in formations for r in f["robots"].values()]
+    ends = [r[k] for f in formations for r in f["robots"].values() for k in ("start", "goal")]
     out: list[dict] = []
     for _ in range(n):
         for _try in range(DRAWS):
@@ -52,7 +53,7 @@ def draw_patches(d: dict, n: int, seed: int) -> list[dict]:
             s = float(rng.uniform(PATCH_FROM, PATCH_TO))
             center = (a[0] + s * (b[0] - a[0]), a[1] + s * (b[1] - a[1]))
             yaw = math.atan2(b[1] - a[1], b[0] - a[0])
-            if not any(covers(center, yaw, p[0], p[1]) for p in starts):
+            if not any(covers(center, yaw, p[0], p[1]) for p in ends):
                 out.append({"box": {"center": [round(center[0], 4), round(center[1], 4)],
                                     "size": [PATCH_LENGTH, PATCH_WIDTH],
                                     "yaw": round(yaw, 6)}})

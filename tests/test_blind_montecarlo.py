@@ -1,5 +1,5 @@
 """Monte Carlo's blind patches (experiments.blind): seeded, across a formation's way, never on
-a robot's start; and the command's bad --blind is refused with exit 2."""
+a robot's start or goal; and the command's bad --blind is refused with exit 2."""
 
 from __future__ import annotations
 
@@ -11,14 +11,16 @@ from formation.cli import main
 from scenario.load import scenario_from_dict
 
 
-def test_patches_are_seeded_and_leave_every_start_seen():
+def test_patches_are_seeded_and_leave_every_start_and_goal_seen():
     d = draw_layout(7)
     a, b = draw_patches(d, 2, 7), draw_patches(d, 2, 7)
     assert a == b and len(a) == 2 and draw_patches(d, 2, 8) != a
-    starts = [r["start"] for f in d["formations"] for r in f["robots"].values()]
-    for p in a:
-        box = p["box"]
-        assert not any(covers(tuple(box["center"]), box["yaw"], s[0], s[1]) for s in starts)
+    for seed in range(7, 47):
+        d = draw_layout(seed)
+        ends = [r[k] for f in d["formations"] for r in f["robots"].values() for k in ("start", "goal")]
+        for p in draw_patches(d, 2, seed):
+            box = p["box"]
+            assert not any(covers(tuple(box["center"]), box["yaw"], s[0], s[1]) for s in ends)
 
 
 def test_a_drawn_layout_with_patches_is_a_valid_fused_scenario():
