@@ -5,7 +5,8 @@ by PATCH_WIDTH metres, laid along one formation's way from its start to its goal
 along the way), its centre between PATCH_FROM and PATCH_TO of the way: the formation must cross
 it. No patch covers a robot's start (a robot that starts unseen waits for its first pose, which
 would never come) nor its goal (a robot stopping on blind floor stops where its estimate says,
-its drift away from the goal on the truth: a patch is to be crossed). Drawn from the run's seed: the run's scenario file replays it exactly.
+its drift away from the goal on the truth: a patch is to be crossed). Drawn from the run's
+seed: the run's scenario file replays it exactly.
 """
 
 from __future__ import annotations
