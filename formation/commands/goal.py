@@ -68,14 +68,16 @@ def add_parsers(sub) -> None:
                         "leader plans its own route)")
     p.add_argument("--timeout", type=float, default=30.0, metavar="S",
                    help="give up after this many seconds without the leader's status (default 30)")
-    _common(p)
+    client_args(p)
     p = sub.add_parser("status", help="one line per formation from the leaders' status")
     p.add_argument("--timeout", type=float, default=3.0, metavar="S",
                    help="wait this long for the leaders' answers (default 3)")
-    _common(p)
+    client_args(p)
 
 
-def _common(p: argparse.ArgumentParser) -> None:
+def client_args(p: argparse.ArgumentParser) -> None:
+    """The options of a client of a running fleet (``goal``, ``status``, ``order``, ``orders``):
+    where its router is and the fleet manager's credentials."""
     p.add_argument("--connect", action="append", default=[], metavar="EP",
                    help=f"Zenoh endpoint of the fleet's router (default: the --run folder's, "
                         f"else {DEFAULT_CONNECT})")

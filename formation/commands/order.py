@@ -32,7 +32,7 @@ from collections.abc import Sequence
 
 import zenoh
 
-from formation.commands.goal import DEFAULT_CONNECT, session_for
+from formation.commands.goal import client_args, session_for
 from leader import orders as lo
 from simulator.manager import REFUSED
 from wire import keys
@@ -73,25 +73,11 @@ def add_parsers(sub) -> None:
                    help="higher first (default 0)")
     p.add_argument("--timeout", type=float, default=60.0, metavar="S",
                    help="give up after this many seconds (default 60)")
-    _client_args(p)
+    client_args(p)
     p = sub.add_parser("orders", help="one line per order of the fleet manager's book")
     p.add_argument("--timeout", type=float, default=3.0, metavar="S",
                    help="wait this long for the fleet manager's answer (default 3)")
-    _client_args(p)
-
-
-def _client_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--run", default=None, metavar="DIR",
-                   help="the folder of a running `formation run`: its endpoint (DIR/endpoint) "
-                        "and credentials (DIR/secure/manager.json5)")
-    p.add_argument("--connect", action="append", default=[], metavar="EP",
-                   help=f"Zenoh endpoint of the fleet's router (default: the --run folder's, "
-                        f"else {DEFAULT_CONNECT})")
-    p.add_argument("--auth", default=None, metavar="FILE",
-                   help="the fleet manager's credentials: DIR/secure/manager.json5 of formation "
-                        "run (default: the --run folder's)")
-    p.add_argument("--prefix", default=keys.DEFAULT_PREFIX,
-                   help=f"key-space prefix (default {keys.DEFAULT_PREFIX})")
+    client_args(p)
 
 
 def next_id(taken: Sequence[str]) -> str:
