@@ -36,7 +36,7 @@ from zenoh.ext import UInt8, z_serialize
 
 from wire import keys
 from wire.payloads import check_floats, check_id
-from wire.reader import WIRE_VERSION, DecodeError, Reader, decode_payload
+from wire.reader import WIRE_VERSION, DecodeError, Reader, decode_payload, decoded_replies
 
 MAX_SLOTS = 16  # most robots one load type's team may have (costs and roster entries)
 MAX_REASON = 200  # longest reason [characters]
@@ -322,17 +322,7 @@ def ask_orders(session: zenoh.Session, selector: str,
                decode: Callable[[bytes | zenoh.ZBytes], Any], timeout: float) -> dict[str, Any]:
     """Every reply to ``selector`` decoded with ``decode``, by order id (a malformed reply is
     skipped; of two for one order, the later kept)."""
-    out: dict[str, Any] = {}
-    for reply in session.get(selector, target=zenoh.QueryTarget.ALL,
-                             consolidation=zenoh.ConsolidationMode.NONE, timeout=timeout):
-        if reply.ok is None:
-            continue
-        try:
-            msg = decode(reply.ok.payload.to_bytes())
-        except DecodeError:
-            continue
-        out[msg.oid] = msg
-    return out
+    return {msg.oid: msg for msg in decoded_replies(session, selector, decode, timeout)}
 
 
 def order_book(session: zenoh.Session, prefix: str, timeout: float

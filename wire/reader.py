@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import functools
 import struct
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any, TypeAlias
 
 import zenoh
@@ -208,3 +208,17 @@ def decode_payload(payload: object, parse: Callable[[Reader], Any], kind: str,
         return msg
     except DecodeError as exc:
         raise DecodeError(f"{kind}: {exc}") from None
+
+
+def decoded_replies(session: zenoh.Session, selector: str, decode: Callable[[bytes], Any],
+                    timeout: float) -> Iterator[Any]:
+    """Each reply to ``selector`` from every queryable that answers (not only the best match),
+    decoded with ``decode``; an error reply or a malformed payload is skipped."""
+    for reply in session.get(selector, target=zenoh.QueryTarget.ALL,
+                             consolidation=zenoh.ConsolidationMode.NONE, timeout=timeout):
+        if reply.ok is None:
+            continue
+        try:
+            yield decode(reply.ok.payload.to_bytes())
+        except DecodeError:
+            continue

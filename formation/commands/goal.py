@@ -43,6 +43,7 @@ from scenario.limits import COORDINATE
 from wire import keys
 from wire.navigation import GoalMsg, StatusMsg, decode_status, encode_nav
 from wire.payloads import DecodeError
+from wire.reader import decoded_replies
 from wire.zconf import ZenohSettings, read_auth_file
 from wire.zconf import open_session as open_zenoh
 
@@ -206,15 +207,7 @@ def query_status(session: zenoh.Session, prefix: str, fid: str = "*",
     """Every status the leaders answer for ``{prefix}/formation/{fid}/status``."""
     out: dict[str, StatusMsg] = {}
     selector = f"{keys.validate_prefix(prefix)}/formation/{fid}/status"
-    # every leader's queryable answers (the default target would ask only the best match)
-    for reply in session.get(selector, target=zenoh.QueryTarget.ALL,
-                             consolidation=zenoh.ConsolidationMode.NONE, timeout=timeout):
-        if reply.ok is None:
-            continue
-        try:
-            s = decode_status(reply.ok.payload.to_bytes())
-        except DecodeError:
-            continue
+    for s in decoded_replies(session, selector, decode_status, timeout):  # every leader's
         if s.formation not in out or s.stamp > out[s.formation].stamp:
             out[s.formation] = s
     return [out[k] for k in sorted(out)]
