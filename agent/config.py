@@ -24,6 +24,7 @@ from leader.settings import LeaderSettings
 from scenario import Scenario, formation_axes, limits
 from scenario.cargo import load_polygon
 from scenario.extent import world_extent
+from scenario.lifelong import Lifelong
 from scenario.model import LOCALISATIONS, FormationSpec
 from scenario.reader import excerpt
 from scenario.routes import start_plan
@@ -107,6 +108,10 @@ class AgentConfig:
     # controller.localisation: "camera" (drive on the camera's poses) or "fused" (the agent's
     # own filter over its wheel odometry and the camera's poses: agent.odom_in)
     localisation: str = "camera"
+    # a fleet robot (scenario ``fleet``): the warehouse it serves (stations, load types,
+    # resting loads, parking, bidding), so that it can bid for orders and carry loads; None:
+    # a robot of a fixed formation
+    lifelong: Lifelong | None = None
 
     def __post_init__(self) -> None:
         _check_names(self)
@@ -370,19 +375,16 @@ def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
         raise ValueError(f"zenoh.{extra[0]}: not part of an agent configuration file")
     d = _plain(dataclasses.asdict(cfg))
     d["zenoh"] = {k: d["zenoh"][k] for k in AGENT_ZENOH_FIELDS}
-    if d.get("rmw") is None:
-        d.pop("rmw", None)  # the bridge: files stay as they were before the field existed
-    if d.get("footprint") is None:
-        d.pop("footprint", None)  # method thesis: files stay as they were
+    # unset optional parts (the bridge, method thesis, a fixed formation's robot, no
+    # headings, a planned route) are left out: files stay as they were before the fields
+    for name in ("rmw", "footprint", "lifelong", "route_headings", "route_by_hand"):
+        if not d.get(name):
+            d.pop(name, None)
     for name, default in (("double_integrator", False), ("max_accel", None)):
         if d["control"][name] == default:
             del d["control"][name]  # single integrators and unicycles: likewise
     if not cfg.control.bounds.declared:
         del d["control"]["bounds"]  # no bounds (all 0): likewise
-    if not d.get("route_headings"):
-        d.pop("route_headings", None)  # no headings: likewise
-    if not d.get("route_by_hand"):
-        d.pop("route_by_hand", None)  # planned (or no route): likewise
     if d["solver"] == "exact":
         del d["solver"]  # the default: files stay as they were before the field existed
     d["version"] = CONFIG_VERSION

@@ -235,3 +235,16 @@ def test_the_agent_exits_2_with_one_line_naming_the_file_and_the_field(configs, 
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"agent: {path}: control.epsilon: must be positive")
+
+
+def test_a_fleet_robots_warehouse_round_trips_and_fixed_robots_files_do_not_name_it(configs,
+                                                                                   tmp_path):
+    life = load_scenario(ROOT / "tests/scenarios/lifelong/stream-mixed-si.yaml").lifelong
+    assert life is not None and life.stream is not None
+    cfg = dataclasses.replace(next(iter(configs.values())), lifelong=life)
+    path = tmp_path / "fleet.yaml"
+    save_config(cfg, path)
+    back = load_config(path)
+    assert back.lifelong == life
+    assert back.lifelong.station("out").dwell_s == life.station("out").dwell_s == 10
+    assert "lifelong" not in config_to_dict(next(iter(configs.values())))
