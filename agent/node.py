@@ -109,7 +109,7 @@ from agent.replan import plan_pool
 from agent.schedule import ClockLoop, LockstepLoop, PoseScheduler, TickGate
 from agent.stats import AgentStats
 from agent.tick import TRACE_COLUMNS, Ticker, TickParts, node_keys
-from agent.transport import CommandOut, Transport
+from agent.transport import CommandOut, Transport, formation_scope
 from leader.succession import leader_token_key
 from runtime.heap import freeze_startup
 from runtime.shutdown import STEP_LIMIT_S, undeclare_all, within
@@ -459,6 +459,8 @@ class AgentNode:
             add = [(k, cls) for k, cls in want.items() if k not in inbox.subscribed_keys]
             if old_cfg.leader is None and old_cfg.standby is not None:  # the old watch
                 gone.append(t.forget(leader_token_key(old_cfg.prefix, old_cfg.formation)))
+            gone += t.forget_publishers(formation_scope(old_cfg.prefix, old_cfg.formation),
+                                        self.leader.publish_keys())  # the old formation's puts
             token = old_leader.take_token()
             old_leader.role = None  # leads no more: a relisten it asked for changes nothing
         self._declare(t, old_nav, token, gone, add)

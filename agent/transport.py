@@ -7,17 +7,19 @@ robot, sent to its base, one at a time and none but zero once the way out's zero
 
 The interface is small on purpose: :meth:`Transport.publish` a message on a declared key,
 :meth:`Transport.declare` a subscriber (recorded with :meth:`Transport.keep`),
-:meth:`Transport.forget` one (handed back for the caller to undeclare outside its lock).
+:meth:`Transport.forget` one, and :meth:`Transport.forget_publishers` the publishers a changed
+formation no longer puts on (each handed back for the caller to undeclare outside its lock).
 """
 
 from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from typing import Any
 
 from runtime.shutdown import STEP_LIMIT_S
+from wire import keys
 from wire.payloads import Cmd
 from wire.traffic import CountingPublisher, TrafficCounter
 
@@ -54,6 +56,17 @@ class Transport:
         pub.put_message(msg)
         return True
 
+    def publishing(self) -> list[str]:
+        """The keys with a declared publisher, sorted."""
+        return sorted(self._pubs)
+
+    def forget_publishers(self, scope: str, keep: Collection[str]) -> list[Any]:
+        """Stop recording the publishers on keys under ``scope`` (a key prefix ending in ``/``,
+        e.g. :func:`formation_scope`) that are not in ``keep``; returned for the caller to
+        undeclare (a publish on their keys then sends nothing, :meth:`publish`)."""
+        gone = [k for k in self._pubs if k.startswith(scope) and k not in keep]
+        return [self._pubs.pop(k) for k in gone]
+
     # --- subscribing ----------------------------------------------------------------------------
 
     def declare(self, key: str, handler: Any) -> Any:
@@ -82,6 +95,11 @@ class Transport:
         self._subs.clear()
         self._sub_by_key.clear()
         self._pubs.clear()
+
+
+def formation_scope(prefix: str, formation: str) -> str:
+    """The prefix of every key of formation ``formation`` (``{prefix}/formation/{fid}/``)."""
+    return keys.ellipse_key(prefix, formation).removesuffix(keys.ELLIPSE)
 
 
 class CommandOut:

@@ -48,8 +48,9 @@ from typing import Any
 import zenoh
 
 from leader import orders as lo
-from scenario import ScenarioError, load_scenario, stream
-from scenario.lifelong import SINK, SOURCE, STORE, Lifelong, Order
+from scenario import ScenarioError, load_scenario, servable, stream
+from scenario.lifelong import Lifelong, Order
+from scenario.servable import movable_loads
 from wire import keys
 from wire.orders import (
     OrderMsg,
@@ -111,30 +112,18 @@ def scenario_order(msg: OrderMsg, t: float) -> Order:
                  from_=msg.source or None, priority=msg.priority)
 
 
-def known_loads(life: Lifelong, book: Book) -> set[str]:
+def known_loads(life: Lifelong, book: Book) -> frozenset[str]:
     """The loads an order may move: the scenario's resting loads and every new load an order
-    of the book brings (named by its order)."""
-    return {ld.name for ld in life.loads} | {
-        oid for oid, e in book.entries.items()
-        if e.order.kind == "new" and not e.status.reason.startswith(REFUSED)}
+    of the book brings (named by its order; :func:`scenario.servable.movable_loads`)."""
+    return movable_loads(life, (oid for oid, e in book.entries.items()
+                                if e.order.kind == "new" and not e.status.reason.startswith(REFUSED)))
 
 
 def order_problem(life: Lifelong, book: Book, msg: OrderMsg) -> str | None:
-    """Why the run's scenario cannot serve ``msg`` (a ``new`` or ``load`` order), or None."""
-    stations = life.station_by_name
-    if msg.to not in stations or stations[msg.to].kind not in (STORE, SINK):
-        return f"to: {msg.to!r} is no store or sink of the scenario"
-    if msg.kind == "new":
-        if msg.type not in life.type_by_name:
-            return f"type: unknown load type {msg.type!r}"
-        if msg.source not in stations or stations[msg.source].kind != SOURCE:
-            return f"from: {msg.source!r} is no source of the scenario"
-        return None
-    if msg.load not in known_loads(life, book):
-        return f"load: unknown load {msg.load!r}"
-    if msg.source and msg.source not in stations:
-        return f"from: unknown station {msg.source!r}"
-    return None
+    """Why the run's scenario cannot serve ``msg`` (a ``new`` or ``load`` order), or None: the
+    rule every robot applies too (:func:`scenario.servable.order_problem`), over the loads the
+    book knows."""
+    return servable.order_problem(life, msg, known_loads(life, book))
 
 
 def _same(a: OrderMsg, b: OrderMsg) -> bool:

@@ -25,7 +25,13 @@ and filters messages with the ACL of :func:`fleet_acl`, whose subjects are match
   ``{prefix}/order/*/status`` (its order book) and asks them; robot ``r`` puts only its own
   bids ``{prefix}/order/*/bid/r`` and any order's ``{prefix}/order/*/status`` (the router
   cannot tell whether ``r`` leads that order's team: a receiver checks the sender against the
-  roster it saw committed), and asks the order book; a viewer only reads them;
+  roster it saw committed), and asks the order book; a viewer only reads them. A team's
+  formation is named by its order's id and any robot may come to lead one, so every robot also
+  gets a leader's rights on ``{prefix}/formation/*/...`` (``ellipse``, ``beacon``, ``others``,
+  ``status``, ``plan``, the ``leader`` token, answering ``status``: :func:`_team_rules`), except
+  on another robot's formation of one (``formation/s/...`` names robot ``s``: a deny row);
+  receivers keep a team's leader keys only from its leader or successor
+  (:func:`team_sender_problem`, dropped and counted as :data:`NOT_TEAM_LEADER`);
 * every fleet user may declare subscribers and liveliness subscribers under ``{prefix}/**`` and be
   sent (``put``, ``delete``, liveliness tokens, replies; egress) what is published there;
 * ``default_permission`` is ``deny``: anything else (another robot's keys, a member's ellipse,
@@ -114,8 +120,9 @@ def fleet_acl(
     fp = f"{prefix}/formation"
     rules: list[dict[str, Any]] = []
 
-    def rule(rid: str, messages: list[str], flows: list[str], key_exprs: list[str]) -> str:
-        rules.append({"id": rid, "messages": messages, "flows": flows, "permission": "allow",
+    def rule(rid: str, messages: list[str], flows: list[str], key_exprs: list[str],
+             permission: str = "allow") -> str:
+        rules.append({"id": rid, "messages": messages, "flows": flows, "permission": permission,
                       "key_exprs": key_exprs})
         return rid
 
@@ -141,6 +148,7 @@ def fleet_acl(
                           rule("camera-stats", ["declare_queryable", "reply"], ["ingress"], [stats]),
                           rule("camera-stats-asked", ["query"], ["egress"], [stats])])
     order_rules = _order_rules(prefix, rule) if orders else {}
+    team_rules = _team_rules(prefix, robots, rule) if orders else {}
     if manager_user is not None:
         subject(manager_user, [
             rule("manager-goal", ["put"], ["ingress"], [f"{fp}/*/goal"]),
@@ -163,7 +171,8 @@ def fleet_acl(
                rule(f"{rid}-base-deliver", ["put"], ["egress"], [base_key, odom])]
         if orders:
             own += [*order_rules["robot"],
-                    rule(f"{rid}-bid", ["put"], ["ingress"], [f"{prefix}/order/*/bid/{rid}"])]
+                    rule(f"{rid}-bid", ["put"], ["ingress"], [f"{prefix}/order/*/bid/{rid}"]),
+                    *team_rules["team"], *(r for s in robots if s != rid for r in team_rules[s])]
         if rid in lead:
             f = lead[rid]
             own += [
@@ -199,6 +208,61 @@ def _order_rules(prefix: str, rule: Callable[[str, list[str], list[str], list[st
         "robot": [rule("robot-order-status", ["put"], ["ingress"], [statuses]),
                   rule("robot-order-query", ["query"], ["ingress"], [orders, statuses])],
     }
+
+
+#: what a team's leader (or its successor, once it takes over) puts under ``formation/{fid}/``
+TEAM_LEADER_KINDS = (keys.ELLIPSE, keys.BEACON, keys.OTHERS, keys.STATUS, keys.PLAN)
+TEAM_LEADER_RULE = "team-lead"
+SOLO_RULE = "solo-"  # + a robot id: the keys of that robot's formation of one, denied to others
+
+
+def _team_rules(prefix: str, robots: Mapping[str, str], rule: Callable[..., str]
+                ) -> dict[str, list[str]]:
+    """The rules of lifelong operation's formation keys, made with ``rule`` (``fleet_acl``'s):
+    ``team``, every robot's: the rights a team's leader needs on any formation's keys (a team
+    is named by its order's id, and any robot may come to lead one): put its ellipse, beacon,
+    others, status and plan, hold its leader token, answer and be asked its status. The router
+    cannot say "while r leads that team": a receiver checks the sender against the roster
+    (:func:`team_sender_problem`). A formation of one is named by its robot, so its keys name
+    that robot: under each robot id ``s``, the rule denying them (ingress), which every other
+    robot's policy holds (a deny rule outweighs the allow rules)."""
+    fp = f"{prefix}/formation"
+    out = {"team": [
+        rule(TEAM_LEADER_RULE, ["put"], ["ingress"], [f"{fp}/*/{k}" for k in TEAM_LEADER_KINDS]),
+        rule(f"{TEAM_LEADER_RULE}-token", ["liveliness_token"], ["ingress"], [f"{fp}/*/leader"]),
+        rule(f"{TEAM_LEADER_RULE}-status", ["declare_queryable", "reply"], ["ingress"],
+             [f"{fp}/*/status"]),
+        rule(f"{TEAM_LEADER_RULE}-asked", ["query"], ["egress"], [f"{fp}/*/status"]),
+    ]}
+    for s in robots:
+        out[s] = [rule(f"{SOLO_RULE}{s}", ["put", "liveliness_token", "declare_queryable", "reply"],
+                       ["ingress"], [f"{fp}/{s}/{k}" for k in (*TEAM_LEADER_KINDS, "leader")],
+                       "deny")]
+    return out
+
+
+#: the counter of the messages :func:`team_sender_problem` drops
+NOT_TEAM_LEADER = "not_team_leader"
+#: the key classes only a team's leader (or its successor, once it takes over) puts
+LEADER_ONLY = frozenset({*TEAM_LEADER_KINDS, keys.ORDER_STATUS})
+
+
+def team_sender_problem(prefix: str, key: str, sender: str,
+                        rosters: Mapping[str, Sequence[str]]) -> str | None:
+    """The receiver's half of a team's access rights (:func:`_team_rules`): where the router's
+    static rows let any robot put a team's leader keys, a receiver keeps such a message only
+    from the team's leader or successor. :data:`NOT_TEAM_LEADER` (the counter to count it
+    under; the message is dropped) when ``key`` is a leader-only key (:data:`LEADER_ONLY`:
+    ``formation/{fid}/ellipse``, ``beacon``, ``others``, ``status``, ``plan``, or
+    ``order/{fid}/status``) of a team whose committed roster the receiver knows (``rosters``:
+    team id -> its robots, slot 0 leading, slot 1 succeeding) and ``sender`` is neither of
+    its first two; None otherwise (the keys of a formation of one or a fixed formation are
+    the router's to guard, by its static rows). ``sender``: the robot the receiver knows sent
+    the message (an order status names it as its ``leader``)."""
+    cls, fid = keys.parse_key(prefix, key)
+    if cls not in LEADER_ONLY or fid is None or fid not in rosters:
+        return None
+    return None if sender in tuple(rosters[fid])[:2] else NOT_TEAM_LEADER
 
 
 def zone_relay_rule(prefix: str, rules: list[dict[str, Any]]) -> str:

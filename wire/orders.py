@@ -11,7 +11,7 @@ defensive reader (:mod:`wire.reader`). Layouts (version 1)::
 
 Keys, under the fleet's prefix::
 
-    {prefix}/order/{oid}              the fleet manager -> every robot (a queryable: the open orders)
+    {prefix}/order/{oid}              the fleet manager -> every robot (a queryable: every order it took)
     {prefix}/order/{oid}/bid/{rid}    robot rid -> the other bidders of that order
     {prefix}/order/{oid}/status       the team's leader -> anyone
 
