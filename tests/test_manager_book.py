@@ -103,6 +103,10 @@ def test_every_order_finished_ones_too_is_answered_printed_and_kept_across_a_res
         with session(router) as ms:
             manager = FleetManager(ms, LIFE, tmp_path, stamp=lambda: 4.0)
             try:
+                # the restarted manager's queryable reaches the router a moment after it is
+                # declared: ask until it answers at all, then compare what it says
+                wait_until(lambda: bool(order_book(client, P, 1.0)[0]),
+                           "the restarted manager's answer")
                 again = order_book(client, P, 5.0)
                 printed_again = orders_printed(router.endpoint, capsys)
             finally:
