@@ -232,3 +232,34 @@ def test_over_zenoh_the_world_moves_the_load_with_the_team_its_leader_reports():
     assert middle.x == pytest.approx(src[0] + CARRY_TICKS // 2 * step[0] * dt)
     carried_rows = [r for r in loads.rows if r[6] == "carried"]
     assert len(carried_rows) == 1 + CARRY_TICKS  # at the lift, then one a tick
+
+
+def test_the_live_watcher_draws_the_worlds_loads_outlined_by_their_types():
+    from types import SimpleNamespace
+
+    from scenario.lifelong import outline_at
+    from viewer.live import FleetWatcher
+    from wire.orders import LoadEntry, encode_loads
+    from wire.payloads import Pose, encode
+
+    class Session:
+        def declare_subscriber(self, key, handler):
+            return SimpleNamespace(undeclare=lambda: None)
+
+    scenario = fleet()
+    w = FleetWatcher(Session(), scenario=scenario)
+
+    def put(key: str, data: bytes) -> None:
+        w.on_sample(SimpleNamespace(key_expr=key, payload=SimpleNamespace(to_bytes=lambda: data)))
+
+    put("warehouse/robot/f1/pose", encode(Pose(0.0, 0.0, 0.0, 2.0)))
+    assert "cargo" not in w.frame()
+    put("warehouse/world/loads", encode_loads(LoadsMsg(2.0, (
+        LoadEntry("o1", "pallet", -3.0, 1.0, 0.5, "carried", "", "o1"),
+        LoadEntry("p9", "crate", 0.0, 0.0, 0.0, "resting", "rack-1")))))  # a type it lacks
+    (cargo,) = w.frame()["cargo"]
+    pallet = scenario.lifelong.load_type("pallet")
+    assert (cargo["name"], cargo["state"], cargo["order"]) == ("o1", "carried", "o1")
+    assert cargo["outline"] == [[x, y] for x, y in outline_at(pallet, (-3.0, 1.0, 0.5))]
+    put("warehouse/world/loads", b"\x01junk")
+    assert w.frame()["cargo"][0]["name"] == "o1" and w.rejected == {"loads": 1}
