@@ -49,6 +49,7 @@ from typing import Any
 import zenoh
 
 from agent.config import AgentConfig, build_agent_configs
+from leader import orders as lo
 from runtime.ports import free_tcp_port, tcp_endpoint
 from scenario.lifelong import Lifelong
 from wire import acl, keys
@@ -62,7 +63,7 @@ from .fleet import START_TIMEOUT_S, Child, ChildFailed, Fleet, unique_children
 from .fused import merge_estimates
 from .goals import goals_sent, judge_by_goals_sent
 from .lifelong import judge_orders, write_orders
-from .manager import REFUSED, FleetManager, run_manager
+from .manager import REFUSED, Entry, FleetManager, run_manager
 from .run_config import RunConfig
 from .series import Series
 from .status_board import StatusBoard
@@ -380,15 +381,29 @@ def _order_hook(manager: FleetManager, world: World,
 
     def tick(k: int, t: float) -> None:
         manager.tick(t)
-        known = world.loads.orders if world.loads is not None else {}
-        for oid, entry in sorted(manager.entries().items(), key=lambda kv: (kv[1].t, kv[0])):
-            if oid not in known:
-                reason = entry.status.reason
-                world.post_order(entry.order, t, reason if reason.startswith(REFUSED) else "")
+        loads = world.loads
+        if loads is not None:
+            for entry in sorted(manager.entries().values(), key=lambda e: (e.t, e.order.oid)):
+                sync_order(world, loads, entry, t)
         if then is not None:
             then(k, t)
 
     return tick
+
+
+def sync_order(world: World, loads: WorldLoads, entry: Entry, t: float) -> None:
+    """One order of the fleet manager's book into the world at ``t``: posted once (failed at
+    once when the book refused it), its priority kept current, and a cancel the book took while
+    it waited (no team says so on the wire) heard."""
+    oid = entry.order.oid
+    known = loads.orders.get(oid)
+    if known is None:
+        reason = entry.status.reason
+        world.post_order(entry.order, t, reason if reason.startswith(REFUSED) else "")
+        return
+    loads.reprioritise(oid, entry.order.priority)
+    if entry.status.state == lo.CANCELLED and known.state == lo.WAITING:
+        world.hear(entry.status)
 
 
 def _more_orders(manager: FleetManager, life: Lifelong, hold: bool) -> bool:
