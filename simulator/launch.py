@@ -85,6 +85,7 @@ class _Hooks:
     observer: Observer | None
     announce: Callable[[str], None] | None
     stop_requested: threading.Event
+    keep: Callable[[WorldLoads], None] | None = None
 
 
 @dataclass(frozen=True)
@@ -119,7 +120,8 @@ class RunAborted(RuntimeError):
 
 def launch(config: RunConfig, *, progress_factory: Callable[[], Any] | None = None,
            observer: Observer | None = None,
-           announce: Callable[[str], None] | None = None) -> tuple[dict, Series]:
+           announce: Callable[[str], None] | None = None,
+           keep: Callable[[WorldLoads], None] | None = None) -> tuple[dict, Series]:
     """Run ``config`` as separate processes; returns the summary and the time series.
 
     ``progress_factory()`` makes the progress display (a context manager with ``update``).
@@ -127,8 +129,11 @@ def launch(config: RunConfig, *, progress_factory: Callable[[], Any] | None = No
     viewer subscribes on it) and returns what detaches it after. ``announce(endpoint)`` is called
     once every agent is up (the endpoint is also written to ``out/endpoint``). A held run
     (``config.hold``) ends normally, with its summary, on SIGINT/SIGTERM. A run that had started
-    and stopped early raises :class:`RunAborted` with what it measured."""
-    hooks = _Hooks(progress_factory, observer, announce, threading.Event())
+    and stopped early raises :class:`RunAborted` with what it measured. ``keep(loads)``: a
+    lifelong run's world loads and orders (:class:`simulator.world_loads.WorldLoads`) once the
+    run is over, stopped early or not (their :meth:`~simulator.world_loads.WorldLoads.board` is
+    the recording's)."""
+    hooks = _Hooks(progress_factory, observer, announce, threading.Event(), keep)
     _fresh_folders(config.out)
     previous_int = None
     if config.hold and threading.current_thread() is threading.main_thread():
@@ -208,6 +213,8 @@ def _launch_fleet(cfg: RunConfig, hooks: _Hooks, endpoint: str,
         summary["goals_sent"] = outcome.sent  # the goals the verdict and the figures use
     if outcome.loads is not None:
         _lifelong_outputs(cfg, summary, outcome.loads, outcome.more)
+        if hooks.keep is not None:
+            hooks.keep(outcome.loads)
     if outcome.stopped is not None:
         mark_aborted(summary, stats, outcome.stopped)
         raise RunAborted(summary["aborted"], summary, series, outcome.stopped)

@@ -41,6 +41,7 @@ from leader.team import axis_turn, load_pose, pose_error, slot_points
 from scenario import Scenario
 from scenario.lifelong import SINK, Order
 from scenario.model import FormationSpec, RobotSpec
+from viewer.orders import OrderBoard, OrderTimeline
 from wire.orders import LoadEntry, LoadsMsg, OrderMsg, OrderStatusMsg
 
 from .lifelong import (
@@ -96,6 +97,7 @@ class WorldLoads:
     busy_s: float = 0.0  # robot-seconds spent in teams
     refused: int = 0  # statuses dropped: another roster, or out of turn
     under: dict[str, set[str]] = field(default_factory=dict)  # robot -> loads it stands under
+    timeline: OrderTimeline = field(default_factory=OrderTimeline)  # the orders' states, for run.mcap
     _contact: tuple[tuple, Scenario] | None = None  # the contact scenario and what it was for
 
     def __post_init__(self) -> None:
@@ -347,6 +349,7 @@ class WorldLoads:
             watch_stuck(self.checks, crew, order.state, at, t)
         self._resting_contacts(t, state)
         self._carried_contacts(t, state, obstacles)
+        self.timeline.look(t, self.orders)
 
     def box(self, ld: LoadState) -> Shape:
         return load_box(ld.name, self.life.load_type(ld.type), ld.pose, self.ds)
@@ -422,6 +425,11 @@ class WorldLoads:
         return (not more and bool(self.orders) and all(o.done for o in self.orders.values())
                 and not any(math.isfinite(ld.leaves) and ld.state != "gone"
                             for ld in self.loads.values()))
+
+    def board(self) -> OrderBoard:
+        """The run's loads and orders for its recording (``run.mcap``), as ``formation sim``
+        hands them to :func:`simulator.output.write_run`."""
+        return OrderBoard(self.life, self.rows, self.timeline)
 
     def delivered(self) -> tuple[int, int]:
         """(orders delivered, orders posted)."""

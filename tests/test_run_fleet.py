@@ -10,9 +10,11 @@ import json
 from pathlib import Path
 
 import yaml
+from test_viewer_recording import read_mcap
 
 from formation.cli import main
 from simulator.orders_out import LOAD_COLUMNS, ORDER_COLUMNS
+from viewer.record import FLEET_TOPIC, ORDERS_TOPIC
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -40,3 +42,7 @@ def test_a_fleet_scenario_runs_lock_step_and_writes_the_order_files(tmp_path):
     assert [(r[1], r[6], r[7]) for r in loads[1:]] == [("o1", "resting", "in-1")]
     assert (out / "orders.png").is_file()
     assert (out / "orders.journal").is_file()  # the fleet manager's book
+    messages = read_mcap(out / "run.mcap")  # the recording lists the order and draws its load
+    assert [[o["id"] for o in json.loads(m[4])["orders"]] for m in messages[ORDERS_TOPIC]] == [["o1"]]
+    last = json.loads(messages[FLEET_TOPIC][-1][4])
+    assert [(c["name"], c["state"]) for c in last["cargo"]] == [("o1", "resting")]
