@@ -429,7 +429,8 @@ def _lifelong_outputs(cfg: RunConfig, summary: dict, loads: WorldLoads, more: bo
     and its order files written (:func:`simulator.lifelong.write_orders`)."""
     judge_orders(summary, loads.orders, more)
     summary["orders"] = loads.summary(summary["sim_time_s"])
-    lost = write_orders(cfg.out, summary, loads.orders, loads.rows, loads.checks.events)
+    lost = write_orders(cfg.out, summary, loads.orders, loads.rows, loads.checks.events,
+                        cfg.plots)
     if lost:
         summary.setdefault("lost_files", []).extend(lost)
 

@@ -76,6 +76,7 @@ class RunConfig:
     restart: str = "on-failure"  # a crashed local agent is restarted (as systemd on a robot)
     restart_limit: int = 3  # ... at most this many times per robot; then the run aborts
     engine: str = "kinematic"  # what moves the robots in the world: or "mujoco" (simulator.physics)
+    plots: bool = True  # a lifelong run's orders.png (the launcher writes the order files)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "out", Path(self.out))

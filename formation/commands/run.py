@@ -73,7 +73,8 @@ def run_config(ns: argparse.Namespace) -> RunConfig:
             solver=getattr(ns, "solver", "exact"), hold=bool(getattr(ns, "hold", False)),
             remote=_placement(ns, scenario, per_process), pose_zones=getattr(ns, "pose_zones", 0),
             rmw_base=_rmw_base(ns), restart=getattr(ns, "restart", "on-failure"),
-            restart_limit=getattr(ns, "restart_limit", 3), engine=getattr(ns, "engine", "kinematic"))
+            restart_limit=getattr(ns, "restart_limit", 3), engine=getattr(ns, "engine", "kinematic"),
+            plots=not getattr(ns, "no_plots", False))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
 
