@@ -25,13 +25,14 @@ and filters messages with the ACL of :func:`fleet_acl`, whose subjects are match
   ``{prefix}/order/*/status`` (its order book) and asks them; robot ``r`` puts only its own
   bids ``{prefix}/order/*/bid/r`` and any order's ``{prefix}/order/*/status`` (the router
   cannot tell whether ``r`` leads that order's team: a receiver checks the sender against the
-  roster it saw committed), and asks the order book; a viewer only reads them. A team's
-  formation is named by its order's id and any robot may come to lead one, so every robot also
-  gets a leader's rights on ``{prefix}/formation/*/...`` (``ellipse``, ``beacon``, ``others``,
-  ``status``, ``plan``, the ``leader`` token, answering ``status``: :func:`_team_rules`), except
-  on another robot's formation of one (``formation/s/...`` names robot ``s``: a deny row);
-  receivers keep a team's leader keys only from its leader or successor
-  (:func:`team_sender_problem`, dropped and counted as :data:`NOT_TEAM_LEADER`);
+  roster it saw committed), and asks the order book; a viewer only reads them; the simulated
+  world (the camera user) puts the loads ``{prefix}/world/loads``, which robots and viewers read.
+  A team's formation is named by its order's id and any robot may come to lead one, so every
+  robot also gets a leader's rights on ``{prefix}/formation/*/...`` (``ellipse``, ``beacon``,
+  ``others``, ``status``, ``plan``, the ``leader`` token, answering ``status``:
+  :func:`_team_rules`), except on another robot's formation of one (``formation/s/...`` names
+  robot ``s``: a deny row); receivers keep a team's leader keys only from its leader or
+  successor (:func:`team_sender_problem`, dropped and counted as :data:`NOT_TEAM_LEADER`);
 * every fleet user may declare subscribers and liveliness subscribers under ``{prefix}/**`` and be
   sent (``put``, ``delete``, liveliness tokens, replies; egress) what is published there;
 * ``default_permission`` is ``deny``: anything else (another robot's keys, a member's ellipse,
@@ -140,14 +141,15 @@ def fleet_acl(
         policies.append({"id": f"{user}-policy", "rules": [*common, *own], "subjects": [user]})
 
     stats = stats_key(prefix)
+    order_rules = _order_rules(prefix, rule) if orders else {}
     subject(camera_user, [rule(CAMERA_RULE, ["put"], ["ingress"],
                                [f"{prefix}/robot/*/pose", f"{prefix}/robot/*/odom",
                                 keys.obstacles_key(prefix),
                                 f"{prefix}/camera/frame"]),
                           # the camera service answers its counters (a queryable)
                           rule("camera-stats", ["declare_queryable", "reply"], ["ingress"], [stats]),
-                          rule("camera-stats-asked", ["query"], ["egress"], [stats])])
-    order_rules = _order_rules(prefix, rule) if orders else {}
+                          rule("camera-stats-asked", ["query"], ["egress"], [stats]),
+                          *order_rules.get("world", ())])
     team_rules = _team_rules(prefix, robots, rule) if orders else {}
     if manager_user is not None:
         subject(manager_user, [
@@ -196,11 +198,13 @@ def fleet_acl(
 def _order_rules(prefix: str, rule: Callable[[str, list[str], list[str], list[str]], str]
                  ) -> dict[str, list[str]]:
     """The rules of the order keys, made with ``rule`` (``fleet_acl``'s), by who holds them:
+    ``world`` (the simulated world, as the camera user: put the loads ``{prefix}/world/loads``),
     ``manager`` (put orders; answer and ask queries on them and on their status) and
     ``robot`` (put an order's status, ask the orders and their status); each robot's own bid
     key is its own rule."""
     orders, statuses = f"{prefix}/order/*", f"{prefix}/order/*/status"
     return {
+        "world": [rule("world-loads", ["put"], ["ingress"], [keys.loads_key(prefix)])],
         "manager": [rule("manager-orders", ["put"], ["ingress"], [orders]),
                     rule("manager-order-book", ["declare_queryable", "reply", "query"],
                          ["ingress"], [orders, statuses]),

@@ -35,6 +35,7 @@ from simulator.fleet import RemoteAgents
 from simulator.launch import RunAborted, launch
 from simulator.output import write_run
 from simulator.run_config import RunConfig
+from viewer.orders import OrderBoard
 from wire.rmw_zenoh import RmwSettings
 
 
@@ -72,7 +73,8 @@ def run_config(ns: argparse.Namespace) -> RunConfig:
             solver=getattr(ns, "solver", "exact"), hold=bool(getattr(ns, "hold", False)),
             remote=_placement(ns, scenario, per_process), pose_zones=getattr(ns, "pose_zones", 0),
             rmw_base=_rmw_base(ns), restart=getattr(ns, "restart", "on-failure"),
-            restart_limit=getattr(ns, "restart_limit", 3), engine=getattr(ns, "engine", "kinematic"))
+            restart_limit=getattr(ns, "restart_limit", 3), engine=getattr(ns, "engine", "kinematic"),
+            plots=not getattr(ns, "no_plots", False))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
 
@@ -158,6 +160,7 @@ class LaterInterruptsWait:
 def _run(ns: argparse.Namespace, config: RunConfig, interrupts: LaterInterruptsWait) -> int:
     """The run itself, once every check passed."""
     live, observer = live_observer(ns, config.scenario)  # --live PORT: fed from the world's session
+    boards: list[OrderBoard] = []  # a lifelong run's loads and orders, for run.mcap
     try:
         # the input is valid (a bad --live port included): replace the output
         config = dataclasses.replace(config, out=begin_output(ns))
@@ -165,11 +168,12 @@ def _run(ns: argparse.Namespace, config: RunConfig, interrupts: LaterInterruptsW
             f"run {config.scenario.name}", quiet=ns.quiet,
             early="stopped (Ctrl-C or SIGTERM)" if config.hold else "every goal reached"),
             observer=observer,
-            announce=functools.partial(_announce, config) if config.hold else None)
+            announce=functools.partial(_announce, config) if config.hold else None,
+            keep=lambda loads: boards.append(loads.board()))
     except RunAborted as stop:  # the run started: its summary says why and what it measured
         interrupts.run_over()
         lost = write_run(stop.summary, stop.series, config.scenario, config.out,
-                         plots=not ns.no_plots)
+                         plots=not ns.no_plots, board=boards[0] if boards else None)
         print(f"formation run: aborted: {stop}; wrote {config.out / 'summary.json'} with what "
               f"was measured until then ({stop.summary['steps']} ticks)"
               + (f"; {lost_words(lost)}" if lost else ""), file=sys.stderr)
@@ -178,7 +182,8 @@ def _run(ns: argparse.Namespace, config: RunConfig, interrupts: LaterInterruptsW
         if live is not None:
             live.close()
     interrupts.run_over()
-    lost = write_run(summary, series, config.scenario, config.out, plots=not ns.no_plots)
+    lost = write_run(summary, series, config.scenario, config.out, plots=not ns.no_plots,
+                     board=boards[0] if boards else None)
     print_summary(summary, config.out, plots=not ns.no_plots,
                   epsilon=config.scenario.controller.epsilon)
     return EXIT_ERROR if lost else EXIT_OK  # files lost to a full disk: the summary says which
