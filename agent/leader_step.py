@@ -185,6 +185,9 @@ class LeaderPart:
         if clock.lockstep:  # a real-time clock never waits (agent.clock)
             await clock.wait(self._inbox, [(keys.STATE, k) for k in self._member_keys.values()],
                              stamp)
+            if self.role is not role:  # the leader came back (step_down) while this tick waited
+                self.own_others = None
+                return False
         fit = self.kinematics(px, py, ts, last_u, theta)
         own = None if fit is None else role.fit(*fit)
         if own is None:
@@ -203,6 +206,9 @@ class LeaderPart:
             self.listen.beacon_stamp = stamp
         if clock.lockstep:
             await clock.wait(self._inbox, [(keys.ELLIPSE, k) for k in role.other_keys], stamp)
+            if self.role is not role:  # stepped down while this tick waited: relays nothing
+                self.own_others = None
+                return False
         received, want, complete, inflated = self.collect(role, own, clock.at(ts), ts)
         self.inflated += inflated
         if self.realtime:
