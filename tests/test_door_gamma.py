@@ -8,11 +8,13 @@ scenario's gamma."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import pytest
 
-from agent import unicycle
+from agent import load_rows, unicycle
+from geometry.shapes import box
 from scenario import load_scenario
 from tests.scenario_runs import summary_of
 
@@ -33,6 +35,31 @@ def test_the_set_has_lines_and_rectangles_of_both_models_at_both_rates():
 def test_a_unicycle_member_rows_keep_the_floor_and_a_larger_gamma():
     assert unicycle.member_gamma(0.05) == unicycle.MEMBER_GAMMA_FLOOR
     assert unicycle.member_gamma(2.5) == 2.5
+
+
+def _pair_load_rows(headings, gamma):
+    """The load rows of member 0 of a pair 1 m apart carrying the segment between them, both
+    driving at 0.1 m/s towards a post whose corners stand 7.5 cm beyond the segment's middle
+    (h = 6.5 cm past LOAD_CLEAR)."""
+    start = [(-0.5, 0.0), (0.5, 0.0)]
+    placed = load_rows.place_load(start, start, start)
+    assert placed is not None
+    load = load_rows.MemberLoad(placed, 0, [(0.0, 0.1), (0.0, 0.1)], headings, False)
+    post = box("post", (0.0, 0.1), (0.05, 0.05), 0.0, 0.2)
+    return load_rows.load_rows(load, [], [post], 0.1, 0.01, gamma, 0.22, load_rows.LoadMemo())
+
+
+def test_a_unicycle_member_load_rows_keep_the_floor_and_a_single_integrator_the_scenario_gamma():
+    """At an obstacle gamma of 0.05 a unicycle member's share of its load's rows is the one at
+    the thesis's unicycle rate (it may close on the post at gamma h = 6.5 cm/s, not pinned to
+    its last speed); a single integrator's keeps the scenario's rate and must all but stop."""
+    facing = [0.5 * math.pi, 0.5 * math.pi]
+    h, rows = _pair_load_rows(facing, 0.05)
+    assert rows and rows == _pair_load_rows(facing, unicycle.MEMBER_GAMMA_FLOOR)[1]
+    assert h == pytest.approx(0.065)
+    assert min(b for _ax, _ay, b in rows) == pytest.approx(0.065)
+    _h, point_rows = _pair_load_rows(None, 0.05)
+    assert point_rows and max(b for _ax, _ay, b in point_rows) < 0.01
 
 
 @pytest.mark.slow
