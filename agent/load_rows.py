@@ -43,14 +43,15 @@ as their band and separation rows are: near its edge (c near 0) it asks each mem
 last speed along g_i. A unicycle member moves its body only along its heading (its g_i is
 (g_i . e_i) e_i) and turns before it drives, so members turning at a door's jamb cannot all
 keep their last forward speeds: at an obstacle gamma of 0.05 the row asked a member to keep
-driving at 0.09 m/s against its formation's band, and the QP gave up the band (four unicycle
-rectangles with loads through a doorway, tests/scenarios/door-gamma005-four-unicycle.yaml). So
-a unicycle member's load rows keep at least the thesis's unicycle gamma, as its band and
-separation rows do (:func:`agent.unicycle.member_gamma`; thesis Table 6.3 drives its unicycles
-past obstacles at gamma 1). Any positive rate keeps the load's safe set invariant (with
-gamma dt <= 1 for the sampled rows), so the floor sets how fast the load may close on a thing,
-not how near it comes; the formation's twist still plans the load's approach at the scenario's
-gamma (:mod:`agent.body`).
+driving against its formation's band, and the QP gave up the band or, with the separation rows,
+took the least-risk command (two unicycle rectangles, the members' hull their load, through a
+doorway: tests/scenarios/door-gamma005-pair-unicycle.yaml). So a unicycle member's load rows
+keep at least the thesis's unicycle gamma, as its band and separation rows do
+(:func:`agent.unicycle.member_gamma`; thesis Table 6.3 drives its unicycles past obstacles at
+gamma 1). Any positive rate keeps the load's safe set invariant (with gamma dt <= 1 for the
+sampled rows), so the floor sets how fast the load may close on a thing, not how near it comes;
+the formation's twist still plans the load's approach at the scenario's gamma
+(:mod:`agent.body`).
 
 The features are those of :func:`agent.body._load_rows`: each shape corner and circle centre
 against each load edge (the distance between two convex outlines is reached at a vertex of one of
