@@ -38,6 +38,21 @@ return at the same time; each counts only on the others meeting their own rows. 
 (safe at the current velocities) every member may keep its velocity; the split in speed (not
 |g|^2 as for a pair) gives a member with little effect on the distance no tight row.
 
+The rate. A carried load is one body with its members, and (L.2) is a row the members share,
+as their band and separation rows are: near its edge (c near 0) it asks each member to keep its
+last speed along g_i. A unicycle member moves its body only along its heading (its g_i is
+(g_i . e_i) e_i) and turns before it drives, so members turning at a door's jamb cannot all
+keep their last forward speeds: at an obstacle gamma of 0.05 the row asked a member to keep
+driving against its formation's band, and the QP gave up the band or, with the separation rows,
+took the least-risk command (two unicycle rectangles, the members' hull their load, through a
+doorway: tests/scenarios/door-gamma005-pair-unicycle.yaml). So a unicycle member's load rows
+keep at least the thesis's unicycle gamma, as its band and separation rows do
+(:func:`agent.unicycle.member_gamma`; thesis Table 6.3 drives its unicycles past obstacles at
+gamma 1). Any positive rate keeps the load's safe set invariant (with gamma dt <= 1 for the
+sampled rows), so the floor sets how fast the load may close on a thing, not how near it comes;
+the formation's twist still plans the load's approach at the scenario's gamma
+(:mod:`agent.body`).
+
 The features are those of :func:`agent.body._load_rows`: each shape corner and circle centre
 against each load edge (the distance between two convex outlines is reached at a vertex of one of
 them), and each vertex of a declared load against each shape (the default hull's vertices sit
@@ -60,6 +75,7 @@ from geometry.shapes import Shape, distance_floor, segment_distance, shape_dista
 from .barriers import Obstacle, Partner
 from .body import Footprint, outline_edges
 from .qp import Row, normalized_row
+from .unicycle import member_gamma
 
 Point = tuple[float, float]
 
@@ -541,8 +557,11 @@ def load_rows(load: MemberLoad, obstacles: Sequence[Obstacle], shapes: Sequence[
     A barrier is inactive when, with its slack c = gamma h + h' >= 0 and S at most its bound,
     b = c / S - g_i . v_i / |g_i| >= c / S - |v_i| >= reach. The barriers are found through
     ``memo`` (default: :data:`SHARED`), a pure cache, once :func:`idle` cannot rule them all
-    out (without placing the outline)."""
+    out (without placing the outline). A unicycle member's rows (``load.headings`` given) keep
+    at least the thesis's unicycle gamma (the module docstring's "The rate")."""
     rows: list[Row] = []
+    if load.headings is not None:
+        gamma = member_gamma(gamma)
     v = load.velocities[load.member]
     floor = reach + math.hypot(v[0], v[1])
     fastest = -math.inf

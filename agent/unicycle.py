@@ -19,9 +19,10 @@ MEMBER_GAMMA_FLOOR = 1.0  # [1/s] the thesis's unicycle gamma (Tables 6.2-6.4)
 
 
 def member_gamma(gamma_formation: float) -> float:
-    """The class-K rate of a unicycle member's rows on its own formation: its band rows (eq. 4.3
-    and 4.4, appendix A.2) and its separation rows (eq. 4.5 on two bodies), the formation's
-    gamma, at least :data:`MEMBER_GAMMA_FLOOR`.
+    """The class-K rate of a unicycle member's rows shared with its own formation: its band rows
+    (eq. 4.3 and 4.4, appendix A.2) and its separation rows (eq. 4.5 on two bodies), the
+    formation's gamma, and its share of its carried load's rows (:mod:`agent.load_rows`, the
+    obstacle gamma), each at least :data:`MEMBER_GAMMA_FLOOR`.
 
     A unicycle's control point moves as asked only inside its drive polygon
     (:func:`drive_limit_rows`: sideways at most ``lookahead * max_turn_rate``), and a member turns
@@ -31,7 +32,7 @@ def member_gamma(gamma_formation: float) -> float:
     or start one tick apart cannot all match each other's last velocities, and the QP meets the
     rows by relaxing the band; outside it a row asks the band back at only gamma |h|, so what
     one relaxation opens stays open (a line of three turning through a door at gamma 0.05:
-    tests/scenarios/door-gamma-line-unicycle.yaml). Any positive rate keeps each row's set invariant (with
+    tests/scenarios/door-gamma005-line-unicycle.yaml). Any positive rate keeps each row's set invariant (with
     ``gamma dt <= 1`` for the sampled rows), so the floor changes how fast members may move
     within the band, not what the band is; the obstacle and other formations' rows keep the
     scenario's gamma."""

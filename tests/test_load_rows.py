@@ -9,7 +9,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from agent import double_integrator as di
-from agent import load_rows
+from agent import load_rows, unicycle
 from agent.barriers import Obstacle, Partner
 from agent.body import footprint_of
 from agent.control import Controller, ControlParams, StepInput
@@ -203,7 +203,10 @@ def test_members_sharing_one_memo_get_the_rows_each_finds_alone(pts, turn, vel, 
 
 def _unculled(load, obstacles, shapes, radius, clear, gamma, reach):
     """load_rows worked out without its check by the fit alone (:func:`agent.load_rows.idle`):
-    every candidate found by the loosest member's test, then this member's selected."""
+    every candidate found by the loosest member's test, then this member's selected (a
+    unicycle member's at its floored rate, :func:`agent.unicycle.member_gamma`)."""
+    if load.headings is not None:
+        gamma = unicycle.member_gamma(gamma)
     v = load.velocities[load.member]
     floor = reach + math.hypot(v[0], v[1])
     loose = reach + max(math.hypot(u[0], u[1]) for u in load.velocities)
