@@ -48,9 +48,19 @@ from pathlib import Path
 import numpy as np
 
 from agent import double_integrator
+from agent.config import fleet_scenario, solo, team_formation
 from agent.control import StepResult
+from agent.errand import (
+    EXIT_GAP,
+    LOAD_MARGIN,
+    SET_DOWN_M,
+    SET_DOWN_RAD,
+    exit_point,
+    inside_box,
+    load_box,
+)
 from geometry.polygon import polygon_distance
-from geometry.shapes import Shape, box, shape_distance
+from geometry.shapes import Shape, shape_distance
 from leader import allocation
 from leader import orders as lo
 from leader.navigation import Follower, heading_tolerance
@@ -58,8 +68,8 @@ from leader.route_driver import RouteDriver
 from leader.team import TeamPlan, axis_turn, load_pose, plan_team, pose_error, slot_points
 from scenario import Scenario, stream
 from scenario.cargo import load_clearances
-from scenario.lifelong import SINK, Lifelong, LoadType, Order
-from scenario.model import Edge, FormationSpec, RobotSpec
+from scenario.lifelong import SINK, Lifelong, Order
+from scenario.model import FormationSpec
 from scenario.routes import start_plan
 from viewer.orders import OrderBoard, OrderTimeline
 
@@ -71,12 +81,8 @@ from .series import Series
 from .summary import COLLISION_LOG_MAX
 from .tick import FleetTick, Pose
 
-SET_DOWN_M = 0.05  # [m] a load is set down this near its station
-SET_DOWN_RAD = math.radians(3.0)  # [rad] and turned this near its heading
 STUCK_M = 0.05  # [m] a team that moves less than this ...
 STUCK_S = 120.0  # [s] ... in this long is stuck
-LOAD_MARGIN = 0.045  # [m] a resting load's safe distance beyond the robot's radius
-EXIT_GAP = 0.15  # [m] a robot leaving a load stops this far beyond its outline
 CONTACT_TOL = 1e-3  # [m] a body this far inside another is a contact
 ALLY_REACH = 0.5  # [m] gathering members this near their slots keep apart by separation rows
 ALLOCATORS = {"allocate": allocation.allocate, "greedy": allocation.greedy_nearest}
@@ -157,27 +163,6 @@ class Checks:
             del self.touching[key]
 
 
-def solo(rid: str, pose: Pose, goal: tuple[float, float], still: bool = False) -> FormationSpec:
-    """A robot as a formation of one, named by its id; ``still``: one standing at its goal,
-    given the goal as its route (nothing to plan)."""
-    return FormationSpec(rid, rid, (RobotSpec(rid, rid, pose, goal),), (), None,
-                         waypoints=(goal,) if still else ())
-
-
-def team_formation(plan: TeamPlan, poses: dict[str, Pose], outline: Sequence[tuple[float, float]]
-                   ) -> FormationSpec:
-    """The team's formation starting at ``poses``, carrying the load of world ``outline``
-    (placed in the start frame: origin at the members' centroid)."""
-    n = len(plan.robots)
-    cx = sum(poses[r][0] for r in plan.robots) / n
-    cy = sum(poses[r][1] for r in plan.robots) / n
-    robots = tuple(RobotSpec(r, plan.oid, poses[r], g) for r, g in zip(plan.robots, plan.goals,
-                                                                        strict=True))
-    return FormationSpec(plan.oid, plan.leader, robots,
-                         tuple(Edge(i, j, df) for i, j, df in plan.edges), None,
-                         load=tuple((x - cx, y - cy) for x, y in outline))
-
-
 def route_clear(route: Sequence[tuple[float, float]], shapes: Sequence[Shape], margin: float,
                 step: float = 0.05) -> bool:
     """True when the polyline ``route`` (points ``step`` apart along each leg) keeps beyond each
@@ -191,30 +176,6 @@ def route_clear(route: Sequence[tuple[float, float]], shapes: Sequence[Shape], m
             if any(shape_distance(x, y, sh)[0] < sh.ds + margin for sh in shapes):
                 return False
     return True
-
-
-def load_box(name: str, t: LoadType, pose: Pose, ds: float) -> Shape:
-    """A resting load as a box shape (what the planner and the rows keep clear of)."""
-    return box(name, (pose[0], pose[1]), t.size, pose[2], ds)
-
-
-def inside_box(sh: Shape, x: float, y: float, margin: float) -> bool:
-    """True when (x, y) lies within ``margin`` of the box."""
-    return shape_distance(x, y, sh)[0] < margin
-
-
-def exit_point(load: Shape, p: tuple[float, float], clear: Callable[[float, float], bool],
-               gap: float) -> tuple[float, float]:
-    """Where a robot under ``load`` at ``p`` goes to be out: straight away from the load's
-    centre, else turned by steps of 45 degrees, to the first point ``clear`` allows."""
-    base = math.atan2(p[1] - load.cy, p[0] - load.cx)
-    reach = math.hypot(load.hx, load.hy) + gap
-    for k in (0, 1, -1, 2, -2, 3, -3, 4):
-        a = base + k * math.pi / 4
-        q = (load.cx + reach * math.cos(a), load.cy + reach * math.sin(a))
-        if clear(*q):
-            return q
-    return p
 
 
 class LifelongRun:
@@ -237,8 +198,7 @@ class LifelongRun:
         self.ids = life.fleet.robot_ids
         self.index = {r: k for k, r in enumerate(self.ids)}
         starts = life.fleet.starts
-        self.base = replace(scenario, formations=tuple(solo(r, starts[r], starts[r][:2])
-                                                       for r in self.ids))
+        self.base = fleet_scenario(scenario)
         self.static = scenario.shapes
         self.tally = tally  # told (delivered, posted) before each progress report
         self.tick = FleetTick(self.base, None, False, progress, stop=self.finished)
