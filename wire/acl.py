@@ -25,7 +25,8 @@ and filters messages with the ACL of :func:`fleet_acl`, whose subjects are match
   ``{prefix}/order/*/status`` (its order book) and asks them; robot ``r`` puts only its own
   bids ``{prefix}/order/*/bid/r`` and any order's ``{prefix}/order/*/status`` (the router
   cannot tell whether ``r`` leads that order's team: a receiver checks the sender against the
-  roster it saw committed), and asks the order book; a viewer only reads them;
+  roster it saw committed), and asks the order book; the simulated world (the camera user)
+  puts the loads ``{prefix}/world/loads``, which robots and viewers read;
 * every fleet user may declare subscribers and liveliness subscribers under ``{prefix}/**`` and be
   sent (``put``, ``delete``, liveliness tokens, replies; egress) what is published there;
 * ``default_permission`` is ``deny``: anything else (another robot's keys, a member's ellipse,
@@ -133,14 +134,15 @@ def fleet_acl(
         policies.append({"id": f"{user}-policy", "rules": [*common, *own], "subjects": [user]})
 
     stats = stats_key(prefix)
+    order_rules = _order_rules(prefix, rule) if orders else {}
     subject(camera_user, [rule(CAMERA_RULE, ["put"], ["ingress"],
                                [f"{prefix}/robot/*/pose", f"{prefix}/robot/*/odom",
                                 keys.obstacles_key(prefix),
                                 f"{prefix}/camera/frame"]),
                           # the camera service answers its counters (a queryable)
                           rule("camera-stats", ["declare_queryable", "reply"], ["ingress"], [stats]),
-                          rule("camera-stats-asked", ["query"], ["egress"], [stats])])
-    order_rules = _order_rules(prefix, rule) if orders else {}
+                          rule("camera-stats-asked", ["query"], ["egress"], [stats]),
+                          *order_rules.get("world", ())])
     if manager_user is not None:
         subject(manager_user, [
             rule("manager-goal", ["put"], ["ingress"], [f"{fp}/*/goal"]),
@@ -187,11 +189,13 @@ def fleet_acl(
 def _order_rules(prefix: str, rule: Callable[[str, list[str], list[str], list[str]], str]
                  ) -> dict[str, list[str]]:
     """The rules of the order keys, made with ``rule`` (``fleet_acl``'s), by who holds them:
+    ``world`` (the simulated world, as the camera user: put the loads ``{prefix}/world/loads``),
     ``manager`` (put orders; answer and ask queries on them and on their status) and
     ``robot`` (put an order's status, ask the orders and their status); each robot's own bid
     key is its own rule."""
     orders, statuses = f"{prefix}/order/*", f"{prefix}/order/*/status"
     return {
+        "world": [rule("world-loads", ["put"], ["ingress"], [keys.loads_key(prefix)])],
         "manager": [rule("manager-orders", ["put"], ["ingress"], [orders]),
                     rule("manager-order-book", ["declare_queryable", "reply", "query"],
                          ["ingress"], [orders, statuses]),

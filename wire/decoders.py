@@ -1,6 +1,6 @@
 """The decoder of each key class (see :func:`wire.keys.key_class`): the robots' payloads
 (:mod:`wire.payloads`), the navigation ones (:mod:`wire.navigation`) and lifelong operation's
-orders, bids and order status (:mod:`wire.orders`; a bid must also pass
+orders, bids, order status and the world's loads (:mod:`wire.orders`; a bid must also pass
 :func:`wire.orders.bid_is_forged` against its key)."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import zenoh
 
 from wire import keys
 from wire.navigation import decode_goal, decode_plan, decode_status
-from wire.orders import decode_bid, decode_order, decode_order_status
+from wire.orders import decode_bid, decode_loads, decode_order, decode_order_status
 from wire.payloads import (
     decode_cmd,
     decode_ellipse,
@@ -36,4 +36,5 @@ DECODERS: dict[str, Callable[[bytes | zenoh.ZBytes], Any]] = {
     keys.ORDER: decode_order,
     keys.BID: decode_bid,
     keys.ORDER_STATUS: decode_order_status,
+    keys.LOADS: decode_loads,
 }

@@ -19,6 +19,7 @@ key                                       class               from -> to
 ``{prefix}/order/{oid}``                  ``order``           fleet manager -> every robot (also a queryable)
 ``{prefix}/order/{oid}/bid/{rid}``        ``bid``             robot rid -> the other bidders of the order
 ``{prefix}/order/{oid}/status``           ``order_status``    the team's leader -> anyone
+``{prefix}/world/loads``                  ``loads``           simulated world -> robots and viewers
 anything else                             ``other``
 ========================================  ==================  ===============================================
 
@@ -60,11 +61,12 @@ PLAN = "plan"
 ORDER = "order"
 BID = "bid"
 ORDER_STATUS = "order_status"
+LOADS = "loads"
 OTHER = "other"
 
 #: Every class name :func:`key_class` can return, in a stable order.
 KEY_CLASSES: tuple[str, ...] = (POSE, STATE, CMD, ELLIPSE, OTHERS, OBSTACLES, GOAL, STATUS, PLAN,
-                                 BEACON, ORDER, BID, ORDER_STATUS, OTHER)
+                                 BEACON, ORDER, BID, ORDER_STATUS, LOADS, OTHER)
 
 ROBOT_CLASSES: tuple[str, ...] = (POSE, STATE, CMD)
 FORMATION_CLASSES: tuple[str, ...] = (ELLIPSE, OTHERS, GOAL, STATUS, PLAN, BEACON)
@@ -167,6 +169,12 @@ def obstacles_key(prefix: str) -> str:
     return f"{validate_prefix(prefix)}/{OBSTACLES}"
 
 
+def loads_key(prefix: str) -> str:
+    """``{prefix}/world/loads``: the simulated world -> robots and viewers (lifelong operation's
+    loads, :class:`wire.orders.LoadsMsg`)."""
+    return f"{validate_prefix(prefix)}/world/{LOADS}"
+
+
 def all_robots_key(prefix: str, kind: str) -> str:
     """``{prefix}/robot/*/{kind}``: the wildcard of the all-to-all baseline only."""
     if kind not in ROBOT_CLASSES:
@@ -186,7 +194,7 @@ def parse_key(prefix: str, key: object) -> tuple[str, str | None]:
     """Split a concrete key into ``(class, id)``.
 
     ``id`` is the robot or formation id (the order id for the :data:`ORDER_CLASSES`), ``None``
-    for ``obstacles`` and ``other``. Never raises
+    for ``obstacles``, ``loads`` and ``other``. Never raises
     for a valid ``prefix``; ``key`` may be a ``str`` or anything whose ``str()`` is the key
     (such as a ``zenoh.KeyExpr``).
     """
@@ -201,6 +209,8 @@ def _parse_key(prefix: str, key: str) -> tuple[str, str | None]:
     rest = key[len(head):].split("/")
     if rest == [OBSTACLES]:
         return OBSTACLES, None
+    if rest == ["world", LOADS]:
+        return LOADS, None
     if rest[0] == "order":
         return _order_class(rest)
     if len(rest) != 3 or id_problem(rest[1]) is not None:

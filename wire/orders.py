@@ -8,12 +8,15 @@ defensive reader (:mod:`wire.reader`). Layouts (version 1)::
                         roster:list[str], stamp
     ``OrderStatusMsg``  version, oid:str, state:str, round, roster:list[str], leader:str,
                         reason:str, stamp
+    ``LoadsMsg``        version, stamp, loads:list[(name:str, type:str, x, y, yaw, state:str,
+                        station:str, order:str)]
 
 Keys, under the fleet's prefix::
 
     {prefix}/order/{oid}              the fleet manager -> every robot (a queryable: the open orders)
     {prefix}/order/{oid}/bid/{rid}    robot rid -> the other bidders of that order
     {prefix}/order/{oid}/status       the team's leader -> anyone
+    {prefix}/world/loads              the simulated world -> robots and viewers, every frame
 
 A bid's ``robot`` must be the robot its key names (:func:`bid_is_forged`), and every message's
 ``oid`` the order its key names (:func:`is_forged`); :func:`read_order_message` decodes a sample
@@ -22,6 +25,9 @@ f64, ``priority`` a finite number of at most :data:`MAX_PRIORITY` either way (th
 scenario's); ``costs`` holds one cost per slot of the order's load type (a bid) and ``roster``
 one robot per slot (a vote, or a decline's order of slots).
 Text is bounded: ids at most 64 characters, a reason at most :data:`MAX_REASON`.
+``LoadsMsg`` lists every load that exists (a load gone from a sink is not listed), at most
+:data:`MAX_LOADS`, each named once; ``station`` and ``order`` are empty between stations and
+with no order.
 """
 
 from __future__ import annotations
@@ -45,6 +51,8 @@ MAX_PRIORITY = 1.0e6  # an order's priority lies in [-MAX_PRIORITY, MAX_PRIORITY
 ORDER_KINDS = ("new", "load", "cancel", "priority")
 BID_PHASES = ("bid", "vote", "decline")
 ORDER_STATES = ("waiting", "assigned", "gathering", "carrying", "delivered", "cancelled", "failed")
+LOAD_STATES = ("resting", "carried")  # what a listed load does (a gone load is not listed)
+MAX_LOADS = 256  # most loads one LoadsMsg lists
 
 
 def _whole(obj: object, name: str, low: int) -> None:
@@ -171,6 +179,51 @@ class OrderStatusMsg:
         check_floats(self, ("stamp",))
 
 
+@dataclass(frozen=True, slots=True)
+class LoadEntry:
+    """One load as the world sees it: ``name``, its load ``type``, its pose (x, y [m], yaw
+    [rad]) in the world frame, ``state`` (one of :data:`LOAD_STATES`), the station it rests at
+    ("" between stations) and the order moving it ("" none)."""
+
+    name: str
+    type: str
+    x: float
+    y: float
+    yaw: float
+    state: str
+    station: str = ""
+    order: str = ""
+
+    def __post_init__(self) -> None:
+        check_id(self.name, "name")
+        check_id(self.type, "type")
+        check_floats(self, ("x", "y", "yaw"))
+        _one_of(self.state, LOAD_STATES, "state")
+        _optional_id(self.station, "station")
+        _optional_id(self.order, "order")
+
+
+@dataclass(frozen=True, slots=True)
+class LoadsMsg:
+    """Every load of the warehouse at ``stamp`` [s], as the world puts it after each frame."""
+
+    stamp: float
+    loads: tuple[LoadEntry, ...] = ()
+
+    def __post_init__(self) -> None:
+        check_floats(self, ("stamp",))
+        loads = tuple(self.loads)
+        if len(loads) > MAX_LOADS:
+            raise ValueError(f"loads must hold at most {MAX_LOADS} loads, got {len(loads)}")
+        for k, entry in enumerate(loads):
+            if not isinstance(entry, LoadEntry):
+                raise ValueError(f"loads[{k}] must be a LoadEntry, got {type(entry).__name__}")
+        names = [entry.name for entry in loads]
+        if len(set(names)) != len(names):
+            raise ValueError(f"loads names a load twice: {names!r}")
+        object.__setattr__(self, "loads", loads)
+
+
 OrderMessage = OrderMsg | BidMsg | OrderStatusMsg
 _V1 = UInt8(WIRE_VERSION)
 
@@ -189,6 +242,12 @@ def encode_order(msg: OrderMessage) -> bytes:
     else:
         raise ValueError(f"msg must be an OrderMsg, BidMsg or OrderStatusMsg, got {type(msg).__name__}")
     return z_serialize(t).to_bytes()
+
+
+def encode_loads(msg: LoadsMsg) -> bytes:
+    """Serialize the world's loads (layout above)."""
+    return z_serialize((_V1, msg.stamp, [(e.name, e.type, e.x, e.y, e.yaw, e.state, e.station,
+                                          e.order) for e in msg.loads])).to_bytes()
 
 
 def _ids(r: Reader, name: str) -> tuple[str, ...]:
@@ -221,6 +280,24 @@ def _parse_status(r: Reader) -> OrderStatusMsg:
     leader, reason = r.string("leader"), r.string("reason")
     (stamp,) = r.floats(1, "stamp")
     return OrderStatusMsg(oid, state, round_, roster, leader, reason, stamp)  # type: ignore[arg-type]
+
+
+def _read_load(r: Reader, k: int) -> LoadEntry:
+    name, type_ = r.string(f"loads[{k}].name"), r.string(f"loads[{k}].type")
+    x, y, yaw = r.floats(3, f"loads[{k}].pose")
+    state, station, order = (r.string(f"loads[{k}].{f}") for f in ("state", "station", "order"))
+    return LoadEntry(name, type_, x, y, yaw, state, station, order)
+
+
+def _parse_loads(r: Reader) -> LoadsMsg:
+    (stamp,) = r.floats(1, "stamp")
+    n = r.count("loads", MAX_LOADS)
+    return LoadsMsg(stamp, tuple(_read_load(r, k) for k in range(n)))
+
+
+def decode_loads(payload: bytes | zenoh.ZBytes) -> LoadsMsg:
+    """Decode a ``loads`` payload; raises only :class:`wire.reader.DecodeError`."""
+    return decode_payload(payload, _parse_loads, "loads")
 
 
 def decode_order(payload: bytes | zenoh.ZBytes) -> OrderMsg:
