@@ -30,6 +30,9 @@ every bidder of a lock-step run, and of a test's simulated network, agrees on it
   roster of its own, so no robot is in two. A robot told of a committed roster naming it while
   it follows another (a restart lost its memory) puts a ``decline``; that roster's leader
   releases it and the order waits again.
+* **Open for bids.** ``admits`` (optional) says whether an order may be served now (its load
+  rests where the order expects it, its destination is free: :func:`leader.orders.biddable`
+  over what the robot knows); an order it refuses is in no round until it admits it.
 * **Late and restarted robots.** A bidder made at tick ``k0`` (:class:`Bidder` ``start``) takes
   the query's answer (:meth:`Bidder.recall`: the open orders and the last statuses) and neither
   bids nor votes before the round after the one under way; a roster that names it and is not
@@ -106,6 +109,7 @@ class Lead:
     decision: OrderStatusMsg | None = None
     put_at: int = 0  # [tick] the decision was last put
     decided_at: int = 0  # [tick]
+    hushed: bool = False  # the team speaks for the order now: no repeats after the copies
 
 
 class Bidder:
@@ -113,10 +117,12 @@ class Bidder:
     it stands (default: straight-line distance to each slot)."""
 
     def __init__(self, rid: str, settings: BidderSettings, start: int = 0,
-                 costs: Callable[[Point, OpenOrder], tuple[float, ...]] | None = None) -> None:
+                 costs: Callable[[Point, OpenOrder], tuple[float, ...]] | None = None,
+                 admits: Callable[[str], bool] | None = None) -> None:
         self.rid = rid
         self.settings = settings
         self.costs = costs or (lambda p, o: bid_costs(p, o.slots))
+        self.admits = admits  # whether an order may be served now (its load, its destination)
         self.first_round = settings.next_close(start) + (1 if start else 0)
         self.orders: dict[str, OpenOrder] = {}  # the open orders it knows
         self.taken: dict[str, OrderStatusMsg] = {}  # order -> its committed roster's status
@@ -151,6 +157,13 @@ class Bidder:
         """This robot's team dissolved (its load set down or the order failed): idle again."""
         if self.following is not None:
             self.withdraw(self.following)
+
+    def hush(self, oid: str) -> None:
+        """The team of ``oid`` speaks for it now (its statuses, :mod:`agent.errand`): a commit
+        this robot leads is put its ``copies`` times and not repeated after."""
+        for (o, _m), lead in self.leads.items():
+            if o == oid:
+                lead.hushed = True
 
     def recall(self, orders: Iterable[OpenOrder], statuses: Iterable[OrderStatusMsg]) -> None:
         """The query's answer after a (re)start: the open orders and each one's last status."""
@@ -253,7 +266,8 @@ class Bidder:
         s = self.settings
         return [o for oid, o in sorted(self.orders.items())
                 if oid not in self.taken and joins_round(o.t_posted, close * s.tick_s,
-                                                         s.window * s.tick_s)]
+                                                         s.window * s.tick_s)
+                and (self.admits is None or self.admits(oid))]
 
     def _bids(self, k: int, position: Point) -> list[Message]:
         m = self.settings.next_close(k)
@@ -293,8 +307,9 @@ class Bidder:
             lead = self.leads[key]
             if lead.decision is None:
                 self._judge(lead, k)
-            if lead.decision is not None and (k - lead.put_at >= s.repeat_every
-                                              or k - lead.decided_at < s.copies):
+            if lead.decision is not None and (
+                    (k - lead.put_at >= s.repeat_every and not lead.hushed)
+                    or k - lead.decided_at < s.copies):
                 lead.put_at = k
                 out.append(lead.decision)
         return out

@@ -13,9 +13,10 @@ same ones for the whole fleet):
 * **gathering**: walk to my slot as a formation of one. The *speaker* (the first robot of the
   roster not lost: the leader, else its successor) sees every member within
   ``goal_tolerance`` of its slot; a member that reaches its slot stands there.
-* **lifting**: the team forms (:func:`leader.team.plan_team` over the members' positions) and
-  stands ``lift_ticks`` still.
-* **carrying**: the team carries the load to the destination (the leader routes the formation).
+* **lifting**: every member stands ``lift_ticks`` still.
+* **carrying**: the team forms (:func:`leader.team.plan_team` over the members' positions, which
+  the lift held still) and carries the load to the destination (the leader routes the
+  formation).
   The speaker sees the load (:func:`leader.team.load_pose`) within :data:`SET_DOWN_M` and
   :data:`SET_DOWN_RAD` of the destination and every member at its goal.
 * **setting down**: the team stands ``lift_ticks`` still; then the order is delivered: the team
@@ -31,7 +32,7 @@ speaker: ``gathering`` from the roster's commit through the lift, ``carrying`` f
 end through the set-down, ``delivered`` once set down, ``failed`` (or ``waiting``, a release)
 when a member is lost; each change at once, then again every ``repeat_ticks``. The other members
 follow the statuses they hear: ``carrying`` forms the team (from the positions they heard, the
-same as the speaker's while all stand still), ``delivered``, ``failed`` and a release dissolve it.
+same as the speaker's: all stood still through the lift), ``delivered``, ``failed`` and a release dissolve it.
 """
 
 from __future__ import annotations
@@ -272,9 +273,9 @@ class Errand:
         team: TeamPlan | None = None
         if self.phase == GATHERING and at is not None and all(
                 math.dist(p, q) <= s.goal_tolerance for p, q in zip(at, job.slots, strict=True)):
-            team = self._form(at)
             self.phase, self.since = LIFTING, k
-        elif self.phase == LIFTING and k - self.since >= s.lift_ticks:
+        elif self.phase == LIFTING and at is not None and k - self.since >= s.lift_ticks:
+            team = self._form(at)
             self.phase, self.since = CARRYING, k
         elif self.phase == CARRYING and at is not None and self._arrived(at):
             self.phase, self.since = SETTING_DOWN, k

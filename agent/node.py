@@ -101,6 +101,7 @@ from agent.config import AgentConfig, Membership, joined, membership_of
 from agent.faults import EPS, LinkFaults
 from agent.inbox import RING_CAPACITY, Inbox, Receiver
 from agent.leader_step import LeaderPart
+from agent.lifepart import LifePart, static_shapes
 from agent.navigation import NavPart
 from agent.odom_in import FusedFeed, OdomIn
 from agent.plausibility import speed_bound
@@ -214,6 +215,13 @@ class AgentNode:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._pending: AgentConfig | None = None  # a formation to change to (regroup)
         self.regroups = 0  # formation changes made
+        # a fleet robot: bidding, its errand and the formations they ask for (agent.lifepart)
+        self.life = (LifePart(cfg, self.regroup, self._walls, options.faults)
+                     if cfg.lifelong is not None else None)
+        self._walls_of: tuple[Any, tuple] = (None, ())
+        if self.life is not None:
+            self.ticker.before = self._life_tick
+            self.ticker.extra_shapes = self.life.load_msgs
 
     def _scheduler(self) -> LockstepLoop | PoseScheduler | ClockLoop:
         cfg, tick, times = self.cfg, self._tick, self.ticker.times
@@ -345,6 +353,8 @@ class AgentNode:
                               (self.odom_in.pose_key, feed.camera)):
                 t.keep(key, t.declare(key, zenoh.handlers.Callback(take, indirect=False)))
         self.leader.open(t, loop, self.gate)
+        if self.life is not None:
+            self.life.open(session)
         logger.info("%s: subscribed to %s", self.cfg.robot_id, ", ".join(self.subscribed_keys))
 
     def open_session(self) -> zenoh.Session:
@@ -385,6 +395,8 @@ class AgentNode:
         if t is None:
             return
         within(step_limit, f"{rid}: zero command on exit", lambda: out.zero_on_exit(self.last_stamp))
+        if self.life is not None:
+            within(step_limit, f"{rid}: closing the order link", self.life.close)
         token = self.leader.take_token()
         handles = [*([] if token is None else [token]), *t.handles()]
         within(step_limit, f"{rid}: undeclaring {len(handles)} tokens, subscribers and publishers",
@@ -425,6 +437,21 @@ class AgentNode:
             self.apply_regroup()
         elif not self.options.lockstep and self._loop is not None:
             self._loop.call_soon_threadsafe(self.apply_regroup)
+
+    def _life_tick(self, pose: Any) -> bool:
+        """A fleet robot's lifelong part at this tick's pose (:mod:`agent.lifepart`): True to
+        stand still."""
+        assert self.life is not None
+        k = round(pose.stamp / self.cfg.period)
+        return self.life.tick(k, (pose.x, pose.y, pose.theta))
+
+    def _walls(self) -> tuple:
+        """The walls and shelves of the newest ``obstacles`` message (converted once each)."""
+        entry = self.inbox.latest(keys.OBSTACLES, self.keys.obstacles)
+        msgs = () if entry is None else entry[0].shapes
+        if msgs is not self._walls_of[0]:
+            self._walls_of = (msgs, static_shapes(msgs))
+        return self._walls_of[1]
 
     async def _tick(self, t: float | None) -> Any:
         """The tick, after a formation change asked for in lock-step (:meth:`regroup`)."""

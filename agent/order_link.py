@@ -12,7 +12,8 @@ bids and statuses at this receiver, seeded and counted, as the runtime's ``--dro
 other inter-robot classes; the manager's orders are not dropped (a robot that misses one
 learns it from the queryable). ``resolve`` turns a posted order into its slots in the world
 (the robot's knowledge of the stations and load types); None: not an order this robot can
-serve, ignored. ``on_team`` hears each committed roster this robot follows, once.
+serve, ignored. ``on_team`` hears each committed roster this robot follows, once;
+``on_status`` every status heard from another robot (after the bidder).
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from leader.allocation import OpenOrder
 from wire.orders import (
     BidMsg,
     OrderMsg,
+    OrderStatusMsg,
     bid_is_forged,
     bid_key,
     decode_bid,
@@ -51,12 +53,14 @@ class OrderLink:
     def __init__(self, session: zenoh.Session, prefix: str, bidder: Bidder,
                  resolve: Callable[[OrderMsg], OpenOrder | None],
                  faults: LinkFaults | None = None,
-                 on_team: Callable[[str], None] | None = None) -> None:
+                 on_team: Callable[[str], None] | None = None,
+                 on_status: Callable[[OrderStatusMsg], None] | None = None) -> None:
         self.session = session
         self.prefix = prefix
         self.bidder = bidder
         self.resolve = resolve
         self.on_team = on_team
+        self.on_status = on_status
         faults = faults or LinkFaults()
         self._rng = random.Random(f"order-link/{bidder.rid}/{faults.seed}")
         self._drop = faults.drop
@@ -131,7 +135,10 @@ class OrderLink:
         if forged:  # a robot speaks only for itself, of the order its key names
             self.forged += 1
             return []
-        return self.bidder.hear(msg)
+        out = self.bidder.hear(msg)
+        if isinstance(msg, OrderStatusMsg) and self.on_status is not None:
+            self.on_status(msg)
+        return out
 
     def put(self, msg: Message) -> None:
         """Put a bid, vote, decline or status on its key."""
