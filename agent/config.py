@@ -334,14 +334,14 @@ def team_formation(plan: TeamPlan, poses: Mapping[str, Pose], outline: Sequence[
 
 def fleet_scenario(scenario: Scenario) -> Scenario:
     """``scenario`` with every fleet robot (``scenario.lifelong``) a formation of one standing at
-    its start, after the fixed formations: the lifelong warehouse at t = 0. Unchanged without a
-    fleet."""
+    its start, after the fixed formations: the lifelong warehouse at t = 0 (a fleet robot already
+    in a formation of ``scenario`` stays in it). Unchanged without a fleet."""
     life = scenario.lifelong
     if life is None:
         return scenario
-    starts = life.fleet.starts
+    starts, placed = life.fleet.starts, set(scenario.robot_ids)
     return dataclasses.replace(scenario, formations=scenario.formations + tuple(
-        solo(r, starts[r], starts[r][:2]) for r in life.fleet.robot_ids))
+        solo(r, starts[r], starts[r][:2]) for r in life.fleet.robot_ids if r not in placed))
 
 
 def regrouped(scenario: Scenario, formation: FormationSpec, topology: str = "reduced"

@@ -50,6 +50,7 @@ SET_DOWN_M = 0.05  # [m] a load is set down this near its station
 SET_DOWN_RAD = math.radians(3.0)  # [rad] and turned this near its heading
 LOAD_MARGIN = 0.045  # [m] a resting load's safe distance beyond the robot's radius
 EXIT_GAP = 0.15  # [m] a robot leaving a load stops this far beyond its outline
+ALLY_REACH = 0.5  # [m] gathering members this near their slots keep apart by separation rows
 
 IDLE, GATHERING, LIFTING, CARRYING, SETTING_DOWN = (
     "idle", "gathering", "lifting", "carrying", "setting-down")
@@ -80,6 +81,16 @@ def exit_point(load: Shape, p: Point, clear: Callable[[float, float], bool], gap
         if clear(*q):
             return q
     return p
+
+
+def allies(job: Job, rid: str, at: Mapping[str, Point]) -> tuple[str, ...]:
+    """The teammates ``rid`` keeps apart from by separation rows instead of their ellipses while
+    gathering, so that members can stand at adjacent slots: when ``rid`` is within
+    :data:`ALLY_REACH` of its slot, the others that are (``at``: the members' positions known);
+    farther out the ellipses keep them apart as any two formations."""
+    near = [r for r, s in zip(job.robots, job.slots, strict=True)
+            if r in at and math.dist(at[r], s) <= ALLY_REACH]
+    return tuple(r for r in near if r != rid) if rid in near else ()
 
 
 def parking(robots: Sequence[str], starts: Mapping[str, Pose], spots: Sequence[Point]

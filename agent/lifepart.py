@@ -30,7 +30,7 @@ import logging
 import math
 import threading
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import Any
 
@@ -51,6 +51,7 @@ from agent.errand import (
     Job,
     Move,
     Seen,
+    allies,
     inside_box,
     load_box,
     parking,
@@ -152,7 +153,7 @@ class LifePart:
         self.team: FormationSpec | None = None  # this robot's team, once formed
         self.goal: tuple[float, float] = cfg.goal  # where it walks alone
         self.formations_seen: tuple = ()
-        self.hold = False
+        self.allies: tuple[str, ...] = ()  # gathering: teammates kept apart by separation rows
         self.link: OrderLink | None = None
         self._subs: dict[str, Any] = {}
         self._session: zenoh.Session | None = None
@@ -318,13 +319,23 @@ class LifePart:
         robot stands still this tick (a lift or a set-down)."""
         self._tick = k
         last = self._me or pose
-        self._me = pose
+        first, self._me = self._me is None, pose
+        home = self.errand.home
+        if first and home is not None and self.errand.job is None:
+            self.goal = home  # idle from the start: to its parking spot
+            self._walk()
         assert self.link is not None
         self.link.step(k, (pose[0], pose[1]))
-        move = self.errand.step(k, (last[0], last[1]), self._mates(k))
+        mates = self._mates(k)
+        move = self.errand.step(k, (last[0], last[1]), mates)
         self._apply(move)
-        if self._stale_view:
+        job = self.errand.job
+        near = () if job is None or self.team is not None else allies(
+            job, self.rid, {**{r: (v.x, v.y) for r, v in mates.items()},
+                            self.rid: (last[0], last[1])})
+        if self._stale_view or near != self.allies:
             self._stale_view = False
+            self.allies = near
             self._again()
         return move.hold
 
@@ -388,7 +399,12 @@ class LifePart:
         """Ask the node for ``formation`` in the world of the moment."""
         scenario = view_scenario(self.cfg, self.static() + self.load_shapes(),
                                  self._moment())
-        self.regroup(regrouped(scenario, formation)[self.rid])
+        m = regrouped(scenario, formation)[self.rid]
+        if self.allies and m.leader is not None:  # a gathering robot near its slot
+            others = tuple(f for f in m.leader.other_formations if f not in self.allies)
+            m = replace(m, partners=self.allies,
+                        leader=replace(m.leader, other_formations=others))
+        self.regroup(m)
         self.regroups += 1
 
     def _moment(self) -> tuple[FormationSpec, ...]:

@@ -51,6 +51,7 @@ from agent import double_integrator
 from agent.config import fleet_scenario, solo, team_formation
 from agent.control import StepResult
 from agent.errand import (
+    ALLY_REACH,
     EXIT_GAP,
     LOAD_MARGIN,
     SET_DOWN_M,
@@ -84,7 +85,6 @@ from .tick import FleetTick, Pose
 STUCK_M = 0.05  # [m] a team that moves less than this ...
 STUCK_S = 120.0  # [s] ... in this long is stuck
 CONTACT_TOL = 1e-3  # [m] a body this far inside another is a contact
-ALLY_REACH = 0.5  # [m] gathering members this near their slots keep apart by separation rows
 ALLOCATORS = {"allocate": allocation.allocate, "greedy": allocation.greedy_nearest}
 
 
