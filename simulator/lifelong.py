@@ -41,14 +41,14 @@ One :class:`simulator.tick.FleetTick` moves, records and checks the whole fleet 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from agent import double_integrator
-from agent.config import fleet_scenario, solo, team_formation
+from agent.config import solo, team_formation
 from agent.control import StepResult
 from agent.errand import (
     ALLY_REACH,
@@ -163,6 +163,136 @@ class Checks:
             del self.touching[key]
 
 
+def fleet_base(scenario: Scenario) -> Scenario:
+    """A fleet scenario's robots, each a formation of one standing at its start (the scenario a
+    lifelong run starts from, in process and in ``formation run``)."""
+    life = scenario.lifelong
+    if life is None:
+        raise ValueError(f"{scenario.name}: no fleet (not a lifelong scenario)")
+    starts = life.fleet.starts
+    return replace(scenario, formations=tuple(solo(r, starts[r], starts[r][:2])
+                                              for r in life.fleet.robot_ids))
+
+
+def new_order(life: Lifelong, loads: Mapping[str, LoadState], spec: Order) -> lo.Order:
+    """The order book's form of a posted order (not yet stamped posted): a new load's type is
+    the order's, a resting load's is the load's."""
+    if spec.type is not None:
+        kind = spec.type
+    elif spec.load_name in loads:
+        kind = loads[spec.load_name].type
+    else:
+        kind = life.type_of_load(spec.load_name).name
+    return lo.Order(spec.id, kind, spec.load_name, spec.from_ or "", spec.to, spec.priority,
+                    fresh=spec.type is not None)
+
+
+def resting_at(loads: Mapping[str, LoadState]) -> dict[str, str]:
+    """Station -> the load resting there."""
+    return {ld.station: ld.name for ld in loads.values() if ld.state == "resting" and ld.station}
+
+
+def outline_of(life: Lifelong, ld: LoadState) -> tuple[tuple[float, float], ...]:
+    """The load's outline in the world, where it is now."""
+    return slot_points(ld.pose, life.load_type(ld.type).outline)
+
+
+def room(life: Lifelong, order: lo.Order, loads: Mapping[str, LoadState],
+         bodies: Sequence[Pose], ds: float, radius: float) -> bool:
+    """True when nothing stands where ``order``'s new load would appear: no robot body
+    (``bodies``) within ``EXIT_GAP`` of its box, no carried load that near its outline."""
+    kind = life.load_type(order.type)
+    pose = life.station(order.src).pose
+    sh = load_box(order.load, kind, pose, ds)
+    if any(inside_box(sh, s[0], s[1], radius + EXIT_GAP) for s in bodies):
+        return False
+    outline = slot_points(pose, kind.outline)
+    return all(polygon_distance(outline, outline_of(life, ld)) > EXIT_GAP
+               for ld in loads.values() if ld.state == "carried")
+
+
+def appear(life: Lifelong, orders: Mapping[str, lo.Order], loads: dict[str, LoadState],
+           bodies: Sequence[Pose], ds: float, radius: float) -> list[LoadState]:
+    """New loads appear at their free sources, where no body is in the way (a robot, or a load
+    just lifted there), in the orders' precedence: each is added to ``loads``; the new ones."""
+    out = []
+    for order in sorted(orders.values(), key=lo.precedence):
+        if order.load not in loads and lo.appears(order, resting_at(loads)) \
+                and room(life, order, loads, bodies, ds, radius):
+            pose = life.station(order.src).pose
+            loads[order.load] = ld = LoadState(order.load, order.type, pose, order.src)
+            out.append(ld)
+    return out
+
+
+def service_bound(at: Sequence[tuple[float, float]], slots: Sequence[tuple[float, float]],
+                  src: Pose, dst: Pose, max_speed: float) -> float:
+    """The straight-line bound of an order's service [s]: the farthest member to its slot,
+    then the carry, at ``max_speed``."""
+    return (max(math.dist(p, q) for p, q in zip(at, slots, strict=True))
+            + math.dist(src[:2], dst[:2])) / max_speed
+
+
+def watch_stuck(checks: Checks, crew: Crew, state: str, now: list[tuple[float, float]],
+                t: float) -> None:
+    """The stuck rule: a gathering or carrying team whose members (at ``now``) have not moved
+    ``STUCK_M`` in ``STUCK_S`` makes its order stuck."""
+    if state not in (lo.GATHERING, lo.CARRYING):
+        return
+    if max(math.dist(a, b) for a, b in zip(now, crew.ref, strict=True)) >= STUCK_M:
+        crew.ref, crew.ref_t = now, t
+    elif t - crew.ref_t >= STUCK_S:
+        checks.stuck.add(crew.oid)
+
+
+def intrusion(checks: Checks, t: float, rid: str, load: str, sh: Shape,
+              p: tuple[float, float], radius: float) -> None:
+    """Robot ``rid`` (of ``radius``) inside resting load ``load`` (box ``sh``) by no right: a
+    collision of the load (its clearance: the body's distance to the outline less the
+    radius)."""
+    clearance = shape_distance(p[0], p[1], sh)[0] - radius
+    checks.contact(("resting_load", rid, load), clearance, {
+        "t": round(t, 6), "a": rid, "b": load, "kind": "resting_load",
+        "x": round(p[0], 4), "y": round(p[1], 4)})
+
+
+def carried_touches(checks: Checks, t: float, scen: Scenario,
+                    outlines: Sequence[Sequence[tuple[float, float]]], bodies: np.ndarray,
+                    obs: Sequence[tuple[float, float]]) -> None:
+    """Carried loads (``outlines``: each formation of ``scen``'s, empty for none) against every
+    body (``bodies`` in ``scen``'s robot order, the circles at ``obs``, ``scen``'s shapes and
+    the other loads): each contact a collision of ``kind: load`` from onset to release, the
+    least clearance and the ticks of contact counted in ``checks``."""
+    least, touching = math.inf, set()
+    for c in load_clearances(scen, outlines, bodies, obs):
+        least = min(least, c.clearance)
+        key = ("load", scen.formations[c.formation].name, c.other)
+        if c.clearance < -CONTACT_TOL or (key in checks.touching
+                                           and c.clearance <= CONTACT_RELEASE):
+            touching.add(key)
+        if c.clearance < -CONTACT_TOL:
+            checks.contact(key, c.clearance, {
+                "t": round(t, 6), "a": key[1], "b": c.other, "kind": "load",
+                "x": round(c.x, 4), "y": round(c.y, 4)})
+    checks.release("load", touching)
+    checks.carried_clearance_m = min(checks.carried_clearance_m, least)
+    if least < -CONTACT_TOL:
+        checks.load_contacts += 1
+
+
+def checks_block(c: Checks) -> dict:
+    """summary.json's ``orders.checks``: the acceptance checks' measures."""
+    return {
+        "lift_error_m": round(c.lift_error_m, 6),
+        "lift_turn_deg": round(math.degrees(c.lift_turn_rad), 6),
+        "set_down_m": round(c.set_down_m, 6),
+        "set_down_deg": round(math.degrees(c.set_down_rad), 6),
+        "carried_min_clearance_m": round(c.carried_clearance_m, 6)
+        if math.isfinite(c.carried_clearance_m) else None,
+        "load_contacts": c.load_contacts, "intrusions": c.intrusions,
+        "stuck_orders": sorted(c.stuck)}
+
+
 def route_clear(route: Sequence[tuple[float, float]], shapes: Sequence[Shape], margin: float,
                 step: float = 0.05) -> bool:
     """True when the polyline ``route`` (points ``step`` apart along each leg) keeps beyond each
@@ -198,7 +328,7 @@ class LifelongRun:
         self.ids = life.fleet.robot_ids
         self.index = {r: k for k, r in enumerate(self.ids)}
         starts = life.fleet.starts
-        self.base = fleet_scenario(scenario)
+        self.base = fleet_base(scenario)
         self.static = scenario.shapes
         self.tally = tally  # told (delivered, posted) before each progress report
         self.tick = FleetTick(self.base, None, False, progress, stop=self.finished)
@@ -302,14 +432,7 @@ class LifelongRun:
             self.post(spec, t)
 
     def post(self, spec: Order, t: float) -> None:
-        if spec.type is not None:
-            kind = spec.type
-        elif spec.load_name in self.loads:
-            kind = self.loads[spec.load_name].type
-        else:
-            kind = self.life.type_of_load(spec.load_name).name
-        order = lo.Order(spec.id, kind, spec.load_name, spec.from_ or "", spec.to,
-                         spec.priority, fresh=spec.type is not None)
+        order = new_order(self.life, self.loads, spec)
         self.orders[spec.id] = lo.step(order, lo.Event(lo.POST, t))
         self.dirty = True  # idle robots keep clear of where its load is due
 
@@ -325,35 +448,14 @@ class LifelongRun:
 
     def resting_at(self) -> dict[str, str]:
         """Station -> the load resting there."""
-        return {ld.station: ld.name for ld in self.loads.values()
-                if ld.state == "resting" and ld.station}
+        return resting_at(self.loads)
 
     def appear(self, t: float) -> None:
-        """New loads appear at their free sources, where no body is in the way (a robot, or
-        a load just lifted there)."""
-        for order in sorted(self.orders.values(), key=lo.precedence):
-            if order.load not in self.loads and lo.appears(order, self.resting_at()) \
-                    and self.room(order):
-                pose = self.life.station(order.src).pose
-                self.loads[order.load] = ld = LoadState(order.load, order.type, pose, order.src)
-                self.log_load(t, ld)
-                self.dirty = True
-
-    def room(self, order: lo.Order) -> bool:
-        """True when nothing stands where ``order``'s new load would appear."""
-        kind = self.life.load_type(order.type)
-        pose = self.life.station(order.src).pose
-        sh = load_box(order.load, kind, pose, self.ds)
-        r0 = self.base.robot.radius
-        if any(inside_box(sh, s[0], s[1], r0 + EXIT_GAP) for s in self.state):
-            return False
-        outline = slot_points(pose, kind.outline)
-        return all(polygon_distance(outline, self.outline_of(ld)) > EXIT_GAP
-                   for ld in self.loads.values() if ld.state == "carried")
-
-    def outline_of(self, ld: LoadState) -> tuple[tuple[float, float], ...]:
-        """The load's outline in the world, where it is now."""
-        return slot_points(ld.pose, self.life.load_type(ld.type).outline)
+        """New loads appear at their free sources (:func:`appear`)."""
+        for ld in appear(self.life, self.orders, self.loads, self.state, self.ds,
+                         self.base.robot.radius):
+            self.log_load(t, ld)
+            self.dirty = True
 
     def leave_sinks(self, t: float) -> None:
         for ld in self.loads.values():
@@ -401,8 +503,7 @@ class LifelongRun:
         self.crews[order.oid] = Crew(order.oid, robots, slots, ld.pose, dst, since=t,
                                      ref=at, ref_t=t)
         # the straight-line bound of the service: the farthest member to its slot, then the carry
-        self.bounds[order.oid] = (max(math.dist(p, q) for p, q in zip(at, slots, strict=True))
-                                  + math.dist(ld.pose[:2], dst[:2])) / self.base.robot.max_speed
+        self.bounds[order.oid] = service_bound(at, slots, ld.pose, dst, self.base.robot.max_speed)
         ld.order = order.oid
         self.log_load(t, ld)
         for r, s in zip(robots, slots, strict=True):
@@ -767,15 +868,7 @@ class LifelongRun:
         block = orders_block(list(self.orders.values()), self.bounds, len(self.ids), sim_time,
                              self.busy_s)
         block["stuck"] = len(c.stuck)
-        block["checks"] = {
-            "lift_error_m": round(c.lift_error_m, 6),
-            "lift_turn_deg": round(math.degrees(c.lift_turn_rad), 6),
-            "set_down_m": round(c.set_down_m, 6),
-            "set_down_deg": round(math.degrees(c.set_down_rad), 6),
-            "carried_min_clearance_m": round(c.carried_clearance_m, 6)
-            if math.isfinite(c.carried_clearance_m) else None,
-            "load_contacts": c.load_contacts, "intrusions": c.intrusions,
-            "stuck_orders": sorted(c.stuck)}
+        block["checks"] = checks_block(c)
         return block
 
     def hold(self, r: StepResult, b: int) -> StepResult:
@@ -806,13 +899,7 @@ class LifelongRun:
         self.look(t)
 
     def stuck(self, crew: Crew, state: str, t: float) -> None:
-        if state not in (lo.GATHERING, lo.CARRYING):
-            return
-        now = self.positions(crew.robots)
-        if max(math.dist(a, b) for a, b in zip(now, crew.ref, strict=True)) >= STUCK_M:
-            crew.ref, crew.ref_t = now, t
-        elif t - crew.ref_t >= STUCK_S:
-            self.checks.stuck.add(crew.oid)
+        watch_stuck(self.checks, crew, state, self.positions(crew.robots), t)
 
     def look(self, t: float) -> None:
         """Bodies against resting loads (a robot under one by no right intrudes; one that has
@@ -842,10 +929,7 @@ class LifelongRun:
                   ) -> None:
         """Robot ``rid`` inside resting load ``load`` (box ``sh``) by no right: a collision of
         the load (its clearance: the body's distance to the outline less the radius)."""
-        clearance = shape_distance(p[0], p[1], sh)[0] - self.base.robot.radius
-        self.checks.contact(("resting_load", rid, load), clearance, {
-            "t": round(t, 6), "a": rid, "b": load, "kind": "resting_load",
-            "x": round(p[0], 4), "y": round(p[1], 4)})
+        intrusion(self.checks, t, rid, load, sh, p, self.base.robot.radius)
 
     def carried_contacts(self, t: float) -> None:
         outlines = []
@@ -863,21 +947,7 @@ class LifelongRun:
             return
         bodies = np.array([self.state[b][:2] for b in self.perm])
         obs = [o.position(t) for o in self.base.obstacles]
-        least, touching = math.inf, set()
-        for c in load_clearances(self.scen, outlines, bodies, obs):
-            least = min(least, c.clearance)
-            key = ("load", self.scen.formations[c.formation].name, c.other)
-            if c.clearance < -CONTACT_TOL or (key in self.checks.touching
-                                               and c.clearance <= CONTACT_RELEASE):
-                touching.add(key)
-            if c.clearance < -CONTACT_TOL:
-                self.checks.contact(key, c.clearance, {
-                    "t": round(t, 6), "a": key[1], "b": c.other, "kind": "load",
-                    "x": round(c.x, 4), "y": round(c.y, 4)})
-        self.checks.release("load", touching)
-        self.checks.carried_clearance_m = min(self.checks.carried_clearance_m, least)
-        if least < -CONTACT_TOL:
-            self.checks.load_contacts += 1
+        carried_touches(self.checks, t, self.scen, outlines, bodies, obs)
 
 
 @dataclass
@@ -901,13 +971,40 @@ def simulate_lifelong(scenario: Scenario, options: SimOptions | None = None,
     end = run.run()
     assert run.control is not None
     summary = summarise(run.base, options, run.control, run.tick, end)
-    summary["all_reached"] = bool(run.orders) and all(
-        o.state == lo.DELIVERED for o in run.orders.values()) and not run.due
-    times = [o.t_delivered for o in run.orders.values() if o.t_delivered is not None]
-    summary["time_to_goal_s"] = round(max(times), 6) if summary["all_reached"] else None
+    judge_orders(summary, run.orders, bool(run.due))
     summary["orders"] = run.summary(end[1])
     collide(summary, run.checks.events)
     return LifelongResult(summary, run.tick.series, run.base, run)
+
+
+def judge_orders(summary: dict, orders: Mapping[str, lo.Order], more: bool) -> None:
+    """A lifelong run's verdict in ``summary``: ``all_reached`` when every order was delivered
+    and none was still to come (``more``), ``time_to_goal_s`` the last delivery then."""
+    summary["all_reached"] = bool(orders) and all(
+        o.state == lo.DELIVERED for o in orders.values()) and not more
+    times = [o.t_delivered for o in orders.values() if o.t_delivered is not None]
+    summary["time_to_goal_s"] = round(max(times), 6) if summary["all_reached"] else None
+
+
+def order_files(out: Path, orders: Sequence[lo.Order], load_rows: Sequence[tuple], plots: bool,
+                end: float) -> list[dict[str, str]]:
+    """orders.csv, loads.csv and orders.png (:func:`simulator.orders_out.write_order_files`);
+    the file lost to a full disk, as ``write_run`` reports it, or none."""
+    try:
+        write_order_files(out, orders, load_rows, plots, end)
+    except OSError as exc:
+        return [{"file": "orders.csv", "error": lost_words(exc)}]
+    return []
+
+
+def write_orders(out: Path, summary: dict, orders: Mapping[str, lo.Order],
+                 load_rows: Sequence[tuple], events: list[dict], plots: bool = True
+                 ) -> list[dict[str, str]]:
+    """``formation run``'s part of a lifelong run's outputs: the loads' collisions counted in
+    ``summary`` (:func:`collide`) and the order files written into ``out``
+    (:func:`order_files`); the files lost."""
+    collide(summary, events)
+    return order_files(out, list(orders.values()), load_rows, plots, summary["sim_time_s"])
 
 
 def collide(summary: dict, events: list[dict]) -> None:
@@ -926,9 +1023,5 @@ def write_lifelong(result: LifelongResult, out: Path, plots: bool = True) -> lis
     orders.csv, loads.csv and orders.png; the files lost, as ``write_run`` returns them."""
     board = OrderBoard(result.run.life, result.run.load_rows, result.run.timeline)
     lost = write_run(result.summary, result.series, result.scenario, out, plots=plots, board=board)
-    try:
-        write_order_files(out, list(result.run.orders.values()), result.run.load_rows, plots,
-                          result.summary["sim_time_s"])
-    except OSError as exc:
-        lost.append({"file": "orders.csv", "error": lost_words(exc)})
-    return lost
+    return lost + order_files(out, list(result.run.orders.values()), result.run.load_rows, plots,
+                              result.summary["sim_time_s"])

@@ -45,6 +45,15 @@ on ``robot/{id}/odom`` after each frame (:mod:`simulator.odom_out`) and stamps e
 frame's capture, where the agents' filters fuse it; ``world.camera_faults`` misread, forge or
 lose poses as in process (:func:`simulator.fused.apply_faults`).
 
+A lifelong scenario (a fleet; the world's scenario is its robots as formations of one,
+:func:`simulator.lifelong.fleet_base`) also has the world keep its loads
+(:class:`simulator.world_loads.WorldLoads`): before each frame's poses it lets loads appear and
+leave and puts every load on ``world/loads``; it hears each order's status on its own session
+(the one the commands come on, so in lock-step every status a leader put before its command of
+a tick is taken at that tick); once the robots moved, carried loads follow their teams. The run
+ends when every order is done and the fleet manager has no more to post (``more_orders``), or at
+its duration.
+
 Faults (docs/faults.md): ``camera_dropouts`` stop publishing a robot's pose over a span of
 simulated time, as a camera that loses that robot's marker would; ``run(on_tick=...)`` lets the
 launcher kill and restart agents at given simulated times.
@@ -58,6 +67,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -70,7 +80,9 @@ from runtime.shutdown import STEP_LIMIT_S, within
 from scenario import Scenario
 from wire import keys
 from wire.odom import odom_key
+from wire.orders import OrderMsg, OrderStatusMsg, all_orders_key, encode_loads, read_order_message
 from wire.payloads import Cmd, ObstacleMsg, Obstacles, Pose
+from wire.reader import DecodeError
 from wire.shapes import shape_to_msg
 from wire.stamps import EPS
 from wire.traffic import CountingPublisher, TrafficCounter
@@ -87,6 +99,7 @@ from .series import WorldResult
 from .synthetic_camera import SyntheticCamera
 from .tick import FleetTick
 from .tick import Pose as BodyPose
+from .world_loads import WorldLoads
 
 logger = logging.getLogger(__name__)
 
@@ -218,6 +231,73 @@ class World:
             from camera_service.simcam import FramePublisher
 
             self.frames = FramePublisher(scenario, session, p)
+        self._declare_loads(session)
+
+    def _declare_loads(self, session: zenoh.Session) -> None:
+        """A lifelong scenario's loads (module docstring): ``world/loads`` out, the orders'
+        status in; the launcher sets ``more_orders`` (the fleet manager has orders to post)
+        and ``tally`` (told the orders delivered and posted before each progress report)."""
+        life = self.scenario.lifelong
+        self.loads = WorldLoads(self.scenario) if life is not None else None
+        self.more_orders: Callable[[], bool] = lambda: False
+        self.tally: Callable[[int, int], None] | None = None
+        self.status_dropped = 0  # malformed or forged order statuses
+        self._statuses: list[OrderStatusMsg] = []
+        self._status_lock = threading.Lock()
+        self.loads_pub: CountingPublisher | None = None
+        if self.loads is None:
+            return
+        p = self.options.prefix
+        self.loads_pub = CountingPublisher(
+            session.declare_publisher(keys.loads_key(p)), self.counter)
+        self.subs.append(session.declare_subscriber(
+            all_orders_key(p) + "/status",
+            zenoh.handlers.Callback(self._on_status, indirect=False)))
+
+    def _on_status(self, sample: zenoh.Sample) -> None:
+        """An order's status, kept for the next tick (on Zenoh's thread)."""
+        if sample.kind == zenoh.SampleKind.DELETE:
+            return
+        key = str(sample.key_expr)
+        self.counter.count_recv(key, len(sample.payload))
+        try:
+            msg = read_order_message(self.options.prefix, key, sample.payload.to_bytes())
+        except DecodeError:
+            with self._status_lock:
+                self.status_dropped += 1
+            return
+        if isinstance(msg, OrderStatusMsg):
+            with self._status_lock:
+                self._statuses.append(msg)
+
+    def post_order(self, msg: OrderMsg, t: float, refused: str = "") -> None:
+        """An order the fleet manager posted at ``t`` (``refused``: why it cannot be served)."""
+        if self.loads is not None:
+            self.loads.post(msg, t, refused)
+
+    def _loads_out(self, t: float, stamp: float, state: Sequence[BodyPose]) -> None:
+        """Before tick ``t``'s poses: loads leave and appear, and every load goes out."""
+        if self.loads is None or self.loads_pub is None:
+            return
+        self.loads.events(t, state)
+        self.loads_pub.put(encode_loads(self.loads.message(stamp)))
+
+    def _statuses_in(self, t: float, state: Sequence[BodyPose]) -> None:
+        """The orders' statuses heard by now, taken at tick ``t`` (robots at ``state``)."""
+        if self.loads is None:
+            return
+        with self._status_lock:
+            heard, self._statuses = self._statuses, []
+        for msg in heard:
+            self.loads.take_status(msg, t, state)
+
+    def _loads_after(self, t: float, state: Sequence[BodyPose]) -> None:
+        """Once the robots moved to ``state`` at ``t``: carried loads follow their teams."""
+        if self.loads is None:
+            return
+        self.loads.after(t, state, self.scenario.dt, self.tick.obstacle_positions(t))
+        if self.tally is not None:
+            self.tally(*self.loads.delivered())
 
     def _session_of(self, rid: str) -> zenoh.Session:
         """The session that carries ``rid``'s pose and command (its zone's, else the world's)."""
@@ -228,6 +308,9 @@ class World:
         ``step_limit`` seconds (:func:`runtime.shutdown.within`: a hung step is logged, not waited
         for); the session is its owner's to close."""
         subs, pubs = list(self.subs), [*self.pose_pubs, self.obs_pub]
+        if self.loads is not None and self.loads_pub is not None:
+            pubs.append(self.loads_pub)
+            self.loads_pub = None
         within(step_limit, f"world: undeclaring {len(subs)} subscribers", lambda: _undeclare(subs))
         within(step_limit, f"world: undeclaring {len(pubs)} publishers", lambda: _undeclare(pubs))
         self.subs.clear()
@@ -308,7 +391,14 @@ class World:
         """A run's start: the fleet's tick (:class:`simulator.tick.FleetTick`) with every robot
         at its start, at rest."""
         sc, opts = self.scenario, self.options
-        self.tick = tick = FleetTick(sc, self.lab, opts.stop_at_goal, progress, stop)
+        loads = self.loads
+        if loads is not None:  # a lifelong run: until every order is done, not at the goals
+            def done() -> bool:
+                return stop() or loads.finished(self.more_orders())
+
+            self.tick = tick = FleetTick(sc, self.lab, False, progress, done)
+        else:
+            self.tick = tick = FleetTick(sc, self.lab, opts.stop_at_goal, progress, stop)
         state: list[BodyPose] = [(r.start[0], r.start[1], r.start[2]) for r in sc.robots]
         self.inbox.measure_latency = opts.realtime
         freeze_startup()  # no full collection of start-up's objects mid-run (runtime.heap)
@@ -333,17 +423,20 @@ class World:
         run.stamps.append(stamp)
         if not opts.realtime:
             self.inbox.begin_tick(t)  # before the poses: no command for t exists yet
+        self._loads_out(t, stamp, run.state)
         self._publish(t, stamp, run.state)
         if opts.realtime:
             got = self._realtime_commands(run, stamp, abort)
         else:
             got = self._lockstep_commands(k, t, abort, run.counts)
+        self._statuses_in(t, run.state)
         cmds = [got.get(r) for r in self.ids]
         run.counts.applied(cmds)  # no command (either clock): zero velocity, counted
         before = run.state
         run.state = run.tick.move(before, cmds)
         run.t = (k + 1) * dt
         self._record(t, before, cmds)
+        self._loads_after(run.t, run.state)
         return run.tick.check(k, run.t, run.state)
 
     def _slot_period(self, run: _Run, k: int, abort: Callable[[], None]) -> bool:
