@@ -313,6 +313,7 @@ class LifePart:
 
     _tick = 0
     _stale_view = False
+    _later: Move | None = None  # a move with a status: its changes, applied at the next tick
 
     def tick(self, k: int, pose: tuple[float, float, float]) -> bool:
         """Tick ``k`` at ``pose``: bidding, the errand, the formation changes; True when the
@@ -325,10 +326,19 @@ class LifePart:
             self.goal = home  # idle from the start: to its parking spot
             self._walk()
         assert self.link is not None
+        later, self._later = self._later, None
+        if later is not None:  # what this robot's own status of the last tick changes
+            self._apply(later)
         self.link.step(k, (pose[0], pose[1]))
         mates = self._mates(k)
         move = self.errand.step(k, (last[0], last[1]), mates)
-        self._apply(move)
+        if move.status is not None:
+            # put now; the formations it changes change a tick later here as in every robot
+            # that hears it, so that no leader waits for an ellipse no longer put
+            self.link.put(move.status)
+            self._later = move
+        else:
+            self._apply(move)
         job = self.errand.job
         near = () if job is None or self.team is not None else allies(
             job, self.rid, {**{r: (v.x, v.y) for r, v in mates.items()},
@@ -351,8 +361,7 @@ class LifePart:
         return out
 
     def _apply(self, move: Move) -> None:
-        if move.status is not None and self.link is not None:
-            self.link.put(move.status)
+        if move.status is not None:  # this robot's own status, as the others hear it
             self._on_status(move.status)
         job = self.errand.job
         if job is not None:
