@@ -278,8 +278,13 @@ class LifePart:
         return any(o.oid == oid for o in lo.biddable(orders, resting_at, resting))
 
     def _on_team(self, oid: str) -> None:
-        """A committed roster this robot follows: its errand starts (at the next tick's step)."""
+        """A committed roster this robot follows: its errand starts. One this robot committed
+        itself starts at the next tick, when the other members hear it."""
         taken = self.bidder.taken.get(oid)
+        if taken is not None and taken.leader == self.rid and self._own_commit != oid:
+            self._own_commit = oid
+            return
+        self._own_commit = None
         order = self.orders.get(oid)
         if taken is None or order is None:
             return
@@ -314,6 +319,7 @@ class LifePart:
     _tick = 0
     _stale_view = False
     _later: Move | None = None  # a move with a status: its changes, applied at the next tick
+    _own_commit: str | None = None  # a roster this robot committed: its errand, next tick
 
     def tick(self, k: int, pose: tuple[float, float, float]) -> bool:
         """Tick ``k`` at ``pose``: bidding, the errand, the formation changes; True when the
@@ -329,6 +335,8 @@ class LifePart:
         later, self._later = self._later, None
         if later is not None:  # what this robot's own status of the last tick changes
             self._apply(later)
+        if self._own_commit is not None:
+            self._on_team(self._own_commit)
         self.link.step(k, (pose[0], pose[1]))
         mates = self._mates(k)
         move = self.errand.step(k, (last[0], last[1]), mates)

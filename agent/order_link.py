@@ -13,7 +13,9 @@ other inter-robot classes; the manager's orders are not dropped (a robot that mi
 learns it from the queryable). ``resolve`` turns a posted order into its slots in the world
 (the robot's knowledge of the stations and load types); None: not an order this robot can
 serve, ignored. ``on_team`` hears each committed roster this robot follows, once;
-``on_status`` every status heard from another robot (after the bidder).
+``on_status`` every status heard from another robot (after the bidder). What a robot puts is
+stamped with its tick's time, and a receiver takes it at its first tick after that one, so in
+lock-step every robot hears a message at the same tick.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import logging
 import random
 import threading
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 import zenoh
@@ -45,6 +48,8 @@ from wire.orders import (
 from wire.reader import DecodeError
 
 logger = logging.getLogger(__name__)
+
+STAMP_EPS = 1e-6  # [s] stamps this near are the same tick's
 
 
 class OrderLink:
@@ -73,6 +78,7 @@ class OrderLink:
         self.malformed = 0
         self.forged = 0
         self.puts = 0
+        self.now = 0.0  # [s] the time of the tick under way (its stamp on what is put)
         self.sub = session.declare_subscriber(f"{prefix}/order/**", self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:  # Zenoh thread
@@ -99,11 +105,19 @@ class OrderLink:
     def step(self, k: int, position: Point) -> list[Message]:
         """The robot's tick ``k``: what arrived goes to the bidder, then the bidder's tick; what
         it puts is returned (and put)."""
+        self.now = k * self.bidder.settings.tick_s
         with self._lock:
             arrived, self._queue = self._queue, []
         out: list[Message] = []
+        later = []
         for key, payload in arrived:
-            out += self._take(key, payload)
+            if self._this_tick(key, payload):
+                later.append((key, payload))
+            else:
+                out += self._take(key, payload)
+        if later:  # heard at the next tick, whenever in this one they came
+            with self._lock:
+                self._queue[:0] = later
         out += self.bidder.tick(k, position)
         for msg in out:
             self.put(msg)
@@ -113,6 +127,19 @@ class OrderLink:
             if following is not None and self.on_team is not None:
                 self.on_team(following)
         return out
+
+    def _this_tick(self, key: str, payload: bytes) -> bool:
+        """Whether a robot's bid, vote or status was put at this tick (or later): it is taken
+        at the next tick, so every robot of a lock-step run hears it at the same tick, however
+        the puts of one tick interleave with its receivers' ticks."""
+        kind = parse_order_key(key, self.prefix)
+        if kind is None or kind[1] == "order":
+            return False
+        try:
+            msg = decode_bid(payload) if kind[1] == "bid" else decode_order_status(payload)
+        except DecodeError:
+            return False  # counted where it is taken
+        return msg.stamp > self.now - STAMP_EPS
 
     def _take(self, key: str, payload: bytes) -> list[Message]:
         """One sample to the bidder (malformed and forged ones dropped, counted)."""
@@ -141,7 +168,8 @@ class OrderLink:
         return out
 
     def put(self, msg: Message) -> None:
-        """Put a bid, vote, decline or status on its key."""
+        """Put a bid, vote, decline or status on its key, stamped with this tick's time."""
+        msg = replace(msg, stamp=self.now)
         key = bid_key(self.prefix, msg.oid, self.bidder.rid) if isinstance(msg, BidMsg) \
             else order_status_key(self.prefix, msg.oid)
         pub = self._pubs.get(key)
