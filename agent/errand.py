@@ -218,6 +218,8 @@ class Errand:
         """Tick ``k``, this robot at ``me``, its teammates last seen at ``mates``."""
         if self.job is None:
             return self._idle(me)
+        if self.heard in (DELIVERED, FAILED, RELEASED):  # said by the speaker (or for it)
+            return self._dissolve(me, self._positions(me, mates), self.heard, None)
         self._watch(k, mates)
         if self.lost:
             return self._lose(k, me, mates)
@@ -239,10 +241,8 @@ class Errand:
             if r == self.rid:
                 continue
             seen = mates.get(r)
-            if seen is None:
-                if k - self.since > limit:
-                    self.lost.add(r)
-            elif k - seen.k > limit:
+            last = self.since if seen is None else max(seen.k, self.since)
+            if k - last > limit:
                 self.lost.add(r)
 
     def _positions(self, me: Point, mates: Mapping[str, Seen]) -> list[Point] | None:
@@ -308,8 +308,6 @@ class Errand:
         """A member's tick: the speaker's statuses decide; at its slot it stands."""
         job = self.job
         assert job is not None
-        if self.heard in (DELIVERED, FAILED, RELEASED):
-            return self._dissolve(me, self._positions(me, mates), self.heard, None)
         if self.heard == CARRYING and self.plan is None:
             at = self._positions(me, mates)
             if at is not None:

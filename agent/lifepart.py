@@ -156,6 +156,7 @@ class LifePart:
         self.allies: tuple[str, ...] = ()  # gathering: teammates kept apart by separation rows
         self.link: OrderLink | None = None
         self._subs: dict[str, Any] = {}
+        self._listening: set[str] = set()  # the teammates whose state is subscribed to
         self._session: zenoh.Session | None = None
         self._me: tuple[float, float, float] | None = None  # own pose of the last tick
         self.regroups = 0
@@ -199,6 +200,8 @@ class LifePart:
         x, y = s.x - off * math.cos(s.theta), s.y - off * math.sin(s.theta)  # the body centre
         k = round(s.stamp / self.cfg.period)
         with self.heard.lock:
+            if rid not in self._listening:  # a sample still on its way after the undeclare
+                return
             row = self.heard.states.setdefault(rid, [])
             row.append((x, y, s.theta, k))
             del row[:-2]
@@ -214,8 +217,10 @@ class LifePart:
         for key, r in want.items():
             if key not in self._subs:
                 self._subs[key] = session.declare_subscriber(key, partial(self._on_state, r))
-        with self.heard.lock:
-            self.heard.states = {r: v for r, v in self.heard.states.items() if r in mates}
+        with self.heard.lock:  # a teammate heard afresh starts with no position
+            kept = self._listening & set(mates)
+            self.heard.states = {r: v for r, v in self.heard.states.items() if r in kept}
+            self._listening = set(mates)
 
     # --- orders ---------------------------------------------------------------------------
 
@@ -301,6 +306,11 @@ class LifePart:
         """Any team leader's status: this robot's team's goes to the errand; a team formed or
         gone changes the formations of the moment."""
         self.errand.hear(msg)
+        if msg.state == RELEASED and msg.roster:
+            # a team's speaker (its leader, or a successor for a leader it lost; this robot
+            # itself) released the roster: as if its leader had said so (the bidder hears its
+            # rosters' leaders only, and not its own puts)
+            self.bidder.hear(replace(msg, leader=msg.roster[0]))
         if msg.state == CARRYING and msg.oid not in self.teams:
             self.teams[msg.oid] = msg.roster
             self._stale_view = True
@@ -381,7 +391,8 @@ class LifePart:
             self.goal = move.walk
             self._walk()
         if move.done:
-            self.bidder.finish()
+            if self.errand.finished[-1][1] != RELEASED:  # released: the order waits again
+                self.bidder.finish()
             self._listen_to(())
 
     def _heading(self, rid: str) -> float:

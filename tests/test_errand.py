@@ -257,3 +257,29 @@ def test_the_load_rests_within_the_set_down_tolerance_when_delivered() -> None:
     assert rested and all(how == DELIVERED for how, _, _ in rested)
     d, a = pose_error(rested[0][1], toy.job.dst)
     assert d <= 0.05 and a <= math.radians(3.0)
+
+
+def test_a_teammate_last_seen_before_the_team_was_taken_is_not_lost_at_once() -> None:
+    toy = Toy(lift=5)
+    e = toy.errands["r1"]
+    e.take(toy.job, 100)
+    old = {r: Seen(*toy.at[r], 50) for r in ("r2", "r3", "r4")}  # from an earlier team
+    assert e.step(101, toy.at["r1"], old).status is not None and not e.lost
+    assert e.step(110, toy.at["r1"], old).status is None and not e.lost  # 10 ticks: the limit
+    move = e.step(111, toy.at["r1"], old)
+    assert e.job is None and move.done and move.status is not None
+    assert move.status.state == RELEASED and move.status.reason == "member lost: r2"
+
+
+def test_a_speaker_that_hears_its_team_released_by_a_successor_dissolves() -> None:
+    toy = Toy(lift=5)
+    e = toy.errands["r1"]
+    e.take(toy.job, 0)
+    e.hear(replace_status(toy.job, "r2", RELEASED))
+    move = e.step(1, toy.at["r1"], {})
+    assert move.done and e.job is None and move.status is None
+
+
+def replace_status(job: Job, leader: str, state: str):
+    from wire.orders import OrderStatusMsg
+    return OrderStatusMsg(job.oid, state, job.round, job.robots, leader, "member lost: r1")
