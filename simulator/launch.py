@@ -21,6 +21,13 @@ leader's last status. When every goal is reached (or the duration is over) the a
 SIGTERM, the launcher reads their counters (:mod:`simulator.counters`) and traces, and
 :func:`simulator.summary.build_summary` makes ``summary.json`` (``mode: "multiprocess"``), which
 the caller writes with the time series and the figures (:func:`simulator.output.write_run`).
+A scenario with a fleet (lifelong operation) also runs the fleet manager in the launcher's
+process (:func:`simulator.manager.run_manager`): each tick it posts the orders due, and the
+world takes every order the book holds (:meth:`simulator.world.World.post_order`) and keeps the
+loads (:mod:`simulator.world_loads`). The run ends when every order is done and none is still to
+come (or at the duration; ``--hold`` keeps it up); ``orders.csv``, ``loads.csv`` and
+``orders.png`` are written into the run's folder, and ``summary.json`` gains ``orders`` and the
+loads' collisions, as ``formation sim`` writes them (:func:`simulator.lifelong.write_orders`).
 Every child is stopped (SIGTERM to its process group, SIGKILL after a timeout) on every way out:
 success, Ctrl-C or SIGTERM, a crashed child, an exception. ``DIR/processes.json`` lists the
 children's PIDs; ``DIR/logs/`` holds their output.
@@ -42,7 +49,9 @@ from typing import Any
 import zenoh
 
 from agent.config import AgentConfig, build_agent_configs
+from leader import orders as lo
 from runtime.ports import free_tcp_port, tcp_endpoint
+from scenario.lifelong import Lifelong
 from wire import acl, keys
 from wire.zconf import ZenohSettings
 
@@ -53,12 +62,14 @@ from .faults import FAULT_WORLD_TIMEOUT_S, FaultDriver, fault_summary
 from .fleet import START_TIMEOUT_S, Child, ChildFailed, Fleet, unique_children
 from .fused import merge_estimates
 from .goals import goals_sent, judge_by_goals_sent
-from .manager import FleetManager, run_manager
+from .lifelong import judge_orders, write_orders
+from .manager import REFUSED, Entry, FleetManager, run_manager
 from .run_config import RunConfig
 from .series import Series
 from .status_board import StatusBoard
 from .summary import build_summary, mark_aborted
 from .world import World, WorldOptions, WorldResult
+from .world_loads import WorldLoads
 from .zones import PoseZones
 
 logger = logging.getLogger(__name__)
@@ -87,6 +98,8 @@ class _Outcome:
     events: list[dict]
     restarts: dict[str, int]  # robot -> its crashed agents restarted (--restart on-failure)
     sent: dict[str, dict] = field(default_factory=dict)  # the goals leaders took at run time
+    loads: WorldLoads | None = None  # a lifelong run's loads and orders
+    more: bool = False  # a lifelong run: the fleet manager had orders still to post
 
 
 class RunAborted(RuntimeError):
@@ -193,6 +206,8 @@ def _launch_fleet(cfg: RunConfig, hooks: _Hooks, endpoint: str,
     summary.update(_run_options(cfg, outcome.board))
     if outcome.sent:
         summary["goals_sent"] = outcome.sent  # the goals the verdict and the figures use
+    if outcome.loads is not None:
+        _lifelong_outputs(cfg, summary, outcome.loads, outcome.more)
     if outcome.stopped is not None:
         mark_aborted(summary, stats, outcome.stopped)
         raise RunAborted(summary["aborted"], summary, series, outcome.stopped)
@@ -215,6 +230,10 @@ def _agent_configs(own: ExitStack, cfg: RunConfig, endpoint: str, creds: RunCred
     zs = ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False)
     configs = build_agent_configs(cfg.scenario, zenoh=zs, topology=cfg.topology,
                                   safety=cfg.safety, solver=cfg.solver)
+    life = cfg.scenario.lifelong
+    if life is not None:  # each fleet robot's agent knows the warehouse it serves
+        configs = {rid: c if c.lifelong is not None else dataclasses.replace(c, lifelong=life)
+                   for rid, c in configs.items()}
     if cfg.rmw_base is not None:  # each agent drives its base over rmw_zenoh; the world reads it
         configs = with_rmw_bases(configs, cfg.rmw_base)
     if not cfg.pose_zones:
@@ -296,7 +315,10 @@ def _run_world(cfg: RunConfig, hooks: _Hooks, fleet: Fleet, endpoint: str,
             board = statuses.latest()  # each leader's last status
             sent = goals_sent(cfg.scenario, statuses.goals())
             statuses.close()
-    return _Outcome(result, stopped, board, driver.log, dict(driver.restarts), sent)
+        life = cfg.scenario.lifelong
+        more = manager is not None and life is not None and _more_orders(manager, life, cfg.hold)
+    return _Outcome(result, stopped, board, driver.log, dict(driver.restarts), sent,
+                    world.loads, more)
 
 
 def _drive(cfg: RunConfig, hooks: _Hooks, fleet: Fleet, world: World, endpoint: str,
@@ -326,8 +348,10 @@ def _drive(cfg: RunConfig, hooks: _Hooks, fleet: Fleet, world: World, endpoint: 
 
     on_tick: Callable[[int, float], None] | None = (
         driver.on_tick if cfg.fault_run or driver.restart_limit else None)
-    if manager is not None:
-        on_tick = manager.on_tick(on_tick)
+    life = cfg.scenario.lifelong
+    if manager is not None and life is not None:
+        on_tick = _order_hook(manager, world, on_tick)
+        world.more_orders = lambda: _more_orders(manager, life, cfg.hold)
     try:
         return _world_loop(world, hooks, abort, on_tick, started), None
     except (ChildFailed, KeyboardInterrupt, TimeoutError) as exc:
@@ -343,8 +367,64 @@ def _world_loop(world: World, hooks: _Hooks, abort: Callable[[], None],
     if hooks.progress_factory is None:
         return world.run(abort=abort, on_tick=on_tick, stop=stop, started=started)
     with hooks.progress_factory() as progress:
+        if world.loads is not None:  # the bar counts deliveries
+            world.tally = getattr(progress, "orders", None)
         return world.run(progress=progress.update, abort=abort, on_tick=on_tick, stop=stop,
                          started=started)
+
+
+def _order_hook(manager: FleetManager, world: World,
+                then: Callable[[int, float], None] | None) -> Callable[[int, float], None]:
+    """The world's ``on_tick(k, t)`` of a lifelong run: the fleet manager posts the orders due
+    by ``t``, the world takes every order of the book it does not know yet (a client's too; one
+    the book refused, failed with the book's reason), then ``then`` runs."""
+
+    def tick(k: int, t: float) -> None:
+        manager.tick(t)
+        loads = world.loads
+        if loads is not None:
+            for entry in sorted(manager.entries().values(), key=lambda e: (e.t, e.order.oid)):
+                sync_order(world, loads, entry, t)
+        if then is not None:
+            then(k, t)
+
+    return tick
+
+
+def sync_order(world: World, loads: WorldLoads, entry: Entry, t: float) -> None:
+    """One order of the fleet manager's book into the world at ``t``: posted once (failed at
+    once when the book refused it), its priority kept current, and a cancel the book took while
+    it waited (no team says so on the wire) heard."""
+    oid = entry.order.oid
+    known = loads.orders.get(oid)
+    if known is None:
+        reason = entry.status.reason
+        world.post_order(entry.order, t, reason if reason.startswith(REFUSED) else "")
+        return
+    loads.reprioritise(oid, entry.order.priority)
+    if entry.status.state == lo.CANCELLED and known.state == lo.WAITING:
+        world.hear(entry.status)
+
+
+def _more_orders(manager: FleetManager, life: Lifelong, hold: bool) -> bool:
+    """Whether the fleet manager has orders of ``life`` still to post: a scenario order not yet
+    due, a stream still running, or a held run (clients may post until it is stopped)."""
+    book = manager.book
+    if hold:
+        return True
+    if any(o.id not in book.entries for o in life.orders):
+        return True
+    return life.stream is not None and book.t < life.stream.until
+
+
+def _lifelong_outputs(cfg: RunConfig, summary: dict, loads: WorldLoads, more: bool) -> None:
+    """A lifelong run's verdict and ``orders`` in ``summary``, its loads' collisions counted,
+    and its order files written (:func:`simulator.lifelong.write_orders`)."""
+    judge_orders(summary, loads.orders, more)
+    summary["orders"] = loads.summary(summary["sim_time_s"])
+    lost = write_orders(cfg.out, summary, loads.orders, loads.rows, loads.checks.events)
+    if lost:
+        summary.setdefault("lost_files", []).extend(lost)
 
 
 def _run_options(cfg: RunConfig, board: dict[str, dict]) -> dict:

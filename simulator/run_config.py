@@ -18,6 +18,7 @@ from wire.rmw_zenoh import RmwSettings
 
 from .faults import FaultPlan
 from .fleet import RemoteAgents
+from .lifelong import fleet_base
 from .physics import ENGINES
 from .physics import available as physics_available
 
@@ -48,6 +49,9 @@ class RunConfig:
     hosts (``--hosts``, :mod:`deploy.remote`); the router then listens on ``remote.endpoint``.
     ``rmw_base`` (``--base rmw_zenoh``): every agent drives its robot's base over rmw_zenoh
     (namespace = robot id), which the world plays (:mod:`simulator.bases`).
+    A scenario with a fleet (lifelong operation) is kept as its robots, each a formation of one
+    (:func:`simulator.lifelong.fleet_base`), its ``lifelong`` part beside them: the launcher
+    starts the fleet manager and the world keeps the loads (:mod:`simulator.world_loads`).
     """
 
     scenario: Scenario
@@ -75,6 +79,8 @@ class RunConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "out", Path(self.out))
+        if self.scenario.lifelong is not None and not self.scenario.formations:
+            object.__setattr__(self, "scenario", fleet_base(self.scenario))
         if self.scenario_path is not None:
             object.__setattr__(self, "scenario_path", Path(self.scenario_path))
         self._check_camera()
@@ -85,10 +91,21 @@ class RunConfig:
         self._check_remote()
         self._check_rmw_base()
         self._check_engine()
-        if self.scenario.lifelong is not None:
-            raise ValueError("fleet: lifelong operation runs in process only (formation sim, "
-                             "montecarlo --draw lifelong); the agents do not take orders yet")
+        self._check_fleet()
         self._check_localisation()
+
+    def _check_fleet(self) -> None:
+        """Lifelong operation: the world hears the teams' statuses on the session its commands
+        come on, and frames are whole (its loads go out before them)."""
+        if self.scenario.lifelong is None:
+            return
+        for bad, why in ((self.pose_slots > 1, "--pose-slots"), (self.pose_zones, "--pose-zones"),
+                         (self.rmw_base is not None, "--base rmw_zenoh"),
+                         (self.camera != "truth", f"--camera {self.camera}")):
+            if bad:
+                raise ValueError(f"fleet: {why} is not supported with lifelong operation (the "
+                                 "world takes the teams' statuses with the commands of whole "
+                                 "frames, on true poses)")
 
     def _check_localisation(self) -> None:
         """``fused``: the world publishes whole frames and every robot's odometry."""

@@ -267,8 +267,13 @@ class World:
                 self.status_dropped += 1
             return
         if isinstance(msg, OrderStatusMsg):
-            with self._status_lock:
-                self._statuses.append(msg)
+            self.hear(msg)
+
+    def hear(self, msg: OrderStatusMsg) -> None:
+        """An order's status from elsewhere than the wire (the fleet manager's book cancels a
+        waiting order without a team to say so), taken at the next tick as one heard."""
+        with self._status_lock:
+            self._statuses.append(msg)
 
     def post_order(self, msg: OrderMsg, t: float, refused: str = "") -> None:
         """An order the fleet manager posted at ``t`` (``refused``: why it cannot be served)."""

@@ -137,6 +137,12 @@ class WorldLoads:
             order = replace(order, state=lo.FAILED, reason=refused, t_done=t)
         self.orders[msg.oid] = order
 
+    def reprioritise(self, oid: str, priority: float) -> None:
+        """An open order's priority as the fleet manager's book has it now."""
+        order = self.orders.get(oid)
+        if order is not None and not order.done and order.priority != priority:
+            self.orders[oid] = replace(order, priority=priority)
+
     def events(self, t: float, state: Sequence[Pose]) -> None:
         """Before tick ``t``'s poses: loads leave sinks after their dwell, new loads appear."""
         for ld in self.loads.values():
@@ -157,7 +163,12 @@ class WorldLoads:
     def take_status(self, msg: OrderStatusMsg, t: float, state: Sequence[Pose]) -> None:
         """An order's status heard before tick ``t``'s commands, the robots at ``state``."""
         order = self.orders.get(msg.oid)
-        if order is None or order.done or order.load not in self.loads:
+        if order is None or order.done:
+            return
+        if order.load not in self.loads:  # a new load not there yet: only its end is news
+            if msg.state in (lo.CANCELLED, lo.FAILED) and order.state == lo.WAITING:
+                self.orders[msg.oid] = replace(order, state=msg.state, t_done=t,
+                                               reason=msg.reason or msg.state)
             return
         team = self.teams.get(msg.oid)
         if team is not None and msg.roster and tuple(msg.roster) != team.crew.robots:

@@ -254,10 +254,15 @@ def test_a_member_killed_mid_run_is_restarted_and_the_run_reaches_every_goal(tmp
     assert (out / "logs" / f"{member}#2.log").is_file()
 
 
-def test_a_scenario_with_a_fleet_is_refused_by_run_in_one_line_before_anything_starts(tmp_path, capsys):
+@pytest.mark.parametrize("options, culprit", [
+    (["--realtime", "--pose-slots", "2"], "--pose-slots"),
+    (["--pose-zones", "1"], "--pose-zones"),
+])
+def test_a_fleet_with_options_lifelong_runs_lack_is_refused_in_one_line_before_anything_starts(
+        tmp_path, capsys, options, culprit):
     out = tmp_path / "run"
     path = ROOT / "tests" / "scenarios" / "lifelong-one-pallet.yaml"
-    assert main(["run", str(path), "--out", str(out), "--quiet", "--no-plots"]) == 2
+    assert main(["run", str(path), "--out", str(out), "--quiet", "--no-plots", *options]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "fleet" in err[0] and "formation sim" in err[0]
+    assert len(err) == 1 and "fleet" in err[0] and culprit in err[0]
     assert not (out / "processes.json").exists()

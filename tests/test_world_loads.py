@@ -232,3 +232,77 @@ def test_over_zenoh_the_world_moves_the_load_with_the_team_its_leader_reports():
     assert middle.x == pytest.approx(src[0] + CARRY_TICKS // 2 * step[0] * dt)
     carried_rows = [r for r in loads.rows if r[6] == "carried"]
     assert len(carried_rows) == 1 + CARRY_TICKS  # at the lift, then one a tick
+
+
+def test_the_live_watcher_draws_the_worlds_loads_outlined_by_their_types():
+    from types import SimpleNamespace
+
+    from scenario.lifelong import outline_at
+    from viewer.live import FleetWatcher
+    from wire.orders import LoadEntry, encode_loads
+    from wire.payloads import Pose, encode
+
+    class Session:
+        def declare_subscriber(self, key, handler):
+            return SimpleNamespace(undeclare=lambda: None)
+
+    scenario = fleet()
+    w = FleetWatcher(Session(), scenario=scenario)
+
+    def put(key: str, data: bytes) -> None:
+        w.on_sample(SimpleNamespace(key_expr=key, payload=SimpleNamespace(to_bytes=lambda: data)))
+
+    put("warehouse/robot/f1/pose", encode(Pose(0.0, 0.0, 0.0, 2.0)))
+    assert "cargo" not in w.frame()
+    put("warehouse/world/loads", encode_loads(LoadsMsg(2.0, (
+        LoadEntry("o1", "pallet", -3.0, 1.0, 0.5, "carried", "", "o1"),
+        LoadEntry("p9", "crate", 0.0, 0.0, 0.0, "resting", "rack-1")))))  # a type it lacks
+    (cargo,) = w.frame()["cargo"]
+    pallet = scenario.lifelong.load_type("pallet")
+    assert (cargo["name"], cargo["state"], cargo["order"]) == ("o1", "carried", "o1")
+    assert cargo["outline"] == [[x, y] for x, y in outline_at(pallet, (-3.0, 1.0, 0.5))]
+    put("warehouse/world/loads", b"\x01junk")
+    assert w.frame()["cargo"][0]["name"] == "o1" and w.rejected == {"loads": 1}
+
+
+def test_by_hand_a_cancel_ends_a_waiting_order_whose_load_never_appeared():
+    scenario = fleet()
+    loads = WorldLoads(scenario)
+    src = scenario.lifelong.station("in-1").pose
+    state = [src] + [r.start for r in scenario.robots[1:]]  # a robot on the source: no room
+    loads.post(ORDER, 0.0)
+    loads.events(0.0, state)
+    loads.take_status(OrderStatusMsg("o1", lo.CANCELLED, reason="cancelled"), 0.05, state)
+    assert loads.orders["o1"].state == lo.CANCELLED and loads.finished(more=False)
+    loads.events(0.1, [r.start for r in scenario.robots])
+    assert "o1" not in loads.loads  # a cancelled order's load never comes
+
+
+def test_the_launcher_keeps_the_world_in_step_with_the_fleet_managers_book():
+    from simulator.launch import sync_order
+    from simulator.manager import REFUSED, Entry
+
+    class World:  # what the launcher asks of the world
+        def __init__(self) -> None:
+            self.heard: list[OrderStatusMsg] = []
+
+        def post_order(self, msg, t, refused=""):
+            loads.post(msg, t, refused)
+
+        def hear(self, msg):
+            self.heard.append(msg)
+
+    scenario = fleet()
+    loads, world = WorldLoads(scenario), World()
+    waiting = OrderStatusMsg("o1", lo.WAITING)
+    sync_order(world, loads, Entry(ORDER, waiting, 0.0), 0.0)
+    bad = OrderMsg("m1", "new", type="crate", source="in-1", to="rack-2")
+    sync_order(world, loads, Entry(bad, OrderStatusMsg("m1", lo.FAILED, reason=REFUSED + "type"),
+                                   0.0), 0.0)
+    assert loads.orders["o1"].state == lo.WAITING
+    assert (loads.orders["m1"].state, loads.orders["m1"].reason) == (lo.FAILED, REFUSED + "type")
+    sync_order(world, loads, Entry(dataclasses.replace(ORDER, priority=3.0), waiting, 0.0), 0.5)
+    assert loads.orders["o1"].priority == 3.0 and world.heard == []
+    cancelled = OrderStatusMsg("o1", lo.CANCELLED, reason="cancelled")
+    sync_order(world, loads, Entry(ORDER, cancelled, 0.0), 1.0)
+    assert world.heard == [cancelled]

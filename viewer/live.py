@@ -21,8 +21,9 @@ the body its estimated control point and heading place (the scenario's control o
 without a scenario), beside the pose the camera last saw. Given the scenario, its blind floor
 is drawn (``blind``). A lifelong fleet's orders (each order's ``order/{oid}`` and the
 ``order/{oid}/status`` its team's leader reports) become the frame's ``orders`` and
-``order_counts`` (:mod:`viewer.orders`), once one has been heard; its resting loads, which the
-world publishes among the shelves, its ``cargo``.
+``order_counts`` (:mod:`viewer.orders`), once one has been heard; its loads its ``cargo``: the
+ones ``formation run``'s world puts on ``world/loads`` (resting and carried, each outlined by its
+type, given the scenario), else the resting ones published among the shelves.
 
 It never publishes anything, so it works with any fleet, simulated or real, that the session's
 credentials may read.
@@ -41,13 +42,16 @@ from typing import Any
 import zenoh
 
 from geometry.limits import BURGER_RADIUS
+from scenario.lifelong import outline_at
 from wire import keys
 from wire.diag import DIAG, all_diag_key, decode_diag
 from wire.navigation import PlanMsg, StatusMsg, decode_plan, decode_status
 from wire.orders import (
+    LoadsMsg,
     OrderMsg,
     OrderStatusMsg,
     all_orders_key,
+    decode_loads,
     decode_order,
     decode_order_status,
     parse_order_key,
@@ -95,6 +99,7 @@ class FleetWatcher:
         boxes = () if scenario is None else scenario.world.camera_blind
         life = getattr(scenario, "lifelong", None)
         self.load_names = {ld.name for ld in life.loads} if life is not None else set()
+        self.life = life
         self.blind = {"blind": blind_entries(boxes)} if boxes else {}
         self.tolerance = tolerance
         self._lock = threading.Lock()
@@ -108,7 +113,7 @@ class FleetWatcher:
                  keys.all_robots_key(p, keys.CMD), all_diag_key(p),
                  keys.all_formations_key(p, keys.ELLIPSE), keys.all_formations_key(p, keys.STATUS),
                  keys.all_formations_key(p, keys.PLAN), keys.obstacles_key(p),
-                 all_orders_key(p), all_orders_key(p) + "/status"]
+                 all_orders_key(p), all_orders_key(p) + "/status", keys.loads_key(p)]
         self._subs = [session.declare_subscriber(
             e, zenoh.handlers.Callback(self.on_sample, indirect=False)) for e in exprs]
 
@@ -166,7 +171,7 @@ class FleetWatcher:
         return {"t": heard.t, "t0": self.t0, "radius": self.radius, "robots": out_robots,
                 "ellipses": ellipses,
                 "obstacles": heard.obstacles,
-                **self._shapes(heard),
+                **self._shapes(heard), **self._cargo(heard),
                 **self._loads(out_robots, heard.obstacles),
                 "routes": [{"formation": f, "points": [[num(x), num(y)] for x, y in plans[f].route]}
                            for f in sorted(plans)],
@@ -186,6 +191,17 @@ class FleetWatcher:
         return {"shapes": [sh for sh in heard.shapes if sh["name"] not in names],
                 **({"cargo": cargo} if cargo else {})}
 
+    def _cargo(self, heard: _Heard) -> dict[str, list]:
+        """The loads the world put on ``world/loads``, outlined by their types (none without
+        the scenario, or of a type it does not have)."""
+        if heard.loads is None or self.life is None:
+            return {}
+        types = self.life.type_by_name
+        return {"cargo": [{"name": e.name, "type": e.type, "state": e.state, "station": e.station,
+                           "order": e.order, "outline": [[x, y] for x, y in outline_at(
+                               types[e.type], (e.x, e.y, e.yaw))]}
+                          for e in heard.loads.loads if e.type in types]}
+
     def _loads(self, robots: list[dict], obstacles: list[dict]) -> dict[str, list]:
         if self.loads is None:
             return {"loads": hull_entries(robots), "load_hits": []}
@@ -196,6 +212,9 @@ class FleetWatcher:
         into ``heard``; keys a viewer does not draw are left alone."""
         if parts[:1] == ["order"]:
             self._take_order(heard, key, data)
+            return
+        if parts == ["world", keys.LOADS]:
+            heard.loads = self._decode(key, data, decode_loads, keys.LOADS)
             return
         if parts == [keys.OBSTACLES]:
             msg = self._decode(key, data, decode_obstacles, keys.OBSTACLES)
@@ -255,6 +274,7 @@ class _Heard:
     t: float | None = None  # the newest pose stamp
     orders: dict[str, OrderMsg] = dataclass_field(default_factory=dict)  # oid -> as posted
     order_status: dict[str, OrderStatusMsg] = dataclass_field(default_factory=dict)
+    loads: LoadsMsg | None = None  # the world's loads, as last put
 
 
 def order_fields(orders: dict[str, OrderMsg], status: dict[str, OrderStatusMsg]
