@@ -151,7 +151,8 @@ def test_over_zenoh_an_agent_goes_from_one_to_a_team_of_two_and_back_its_subscri
 
 def test_in_lock_step_the_change_waits_for_the_next_tick(router: RouterProcess) -> None:
     zs = ZenohSettings(mode="client", connect=(router.endpoint,))
-    cfg = build_agent_configs(alone(), zenoh=zs)["f2"]
+    # as a robot of fixed formations (a fleet robot subscribes a tick ahead: agent.lifepart)
+    cfg = replace(build_agent_configs(alone(), zenoh=zs)["f2"], lifelong=None)
     peer = zenoh.open(zconf.make_config("client", connect=[router.endpoint],
                                         connect_timeout_s=TIMEOUT_S))
     pose = peer.declare_publisher(keys.pose_key(P, "f2"))
