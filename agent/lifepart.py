@@ -157,6 +157,7 @@ class LifePart:
         self.link: OrderLink | None = None
         self._subs: dict[str, Any] = {}
         self._listening: set[str] = set()  # the teammates whose state is subscribed to
+        self._listen_since: dict[str, int] = {}  # teammate -> the tick its state was subscribed
         self._session: zenoh.Session | None = None
         self._me: tuple[float, float, float] | None = None  # own pose of the last tick
         self.regroups = 0
@@ -200,7 +201,9 @@ class LifePart:
         x, y = s.x - off * math.cos(s.theta), s.y - off * math.sin(s.theta)  # the body centre
         k = round(s.stamp / self.cfg.period)
         with self.heard.lock:
-            if rid not in self._listening:  # a sample still on its way after the undeclare
+            # a sample still on its way after the undeclare, or one a subscription declared
+            # during its tick may or may not have caught (whether it came is chance)
+            if rid not in self._listening or k <= self._listen_since.get(rid, -1):
                 return
             row = self.heard.states.setdefault(rid, [])
             row.append((x, y, s.theta, k))
@@ -220,6 +223,8 @@ class LifePart:
         with self.heard.lock:  # a teammate heard afresh starts with no position
             kept = self._listening & set(mates)
             self.heard.states = {r: v for r, v in self.heard.states.items() if r in kept}
+            self._listen_since = {r: self._listen_since[r] if r in kept else self._tick
+                                  for r in mates}
             self._listening = set(mates)
 
     # --- orders ---------------------------------------------------------------------------
@@ -330,12 +335,14 @@ class LifePart:
     _stale_view = False
     _later: Move | None = None  # a move with a status: its changes, applied at the next tick
     _own_commit: str | None = None  # a roster this robot committed: its errand, next tick
+    _last: tuple[float, float, float] | None = None  # own pose of the tick before this one
 
     def tick(self, k: int, pose: tuple[float, float, float]) -> bool:
         """Tick ``k`` at ``pose``: bidding, the errand, the formation changes; True when the
         robot stands still this tick (a lift or a set-down)."""
         self._tick = k
         last = self._me or pose
+        self._last = last
         first, self._me = self._me is None, pose
         home = self.errand.home
         if first and home is not None and self.errand.job is None:
@@ -396,11 +403,12 @@ class LifePart:
             self._listen_to(())
 
     def _heading(self, rid: str) -> float:
+        """A member's heading at the tick before this one (as its positions: :meth:`_mates`)."""
         if rid == self.rid:
-            return self._me[2] if self._me is not None else 0.0
+            return self._last[2] if self._last is not None else 0.0
         with self.heard.lock:
-            row = self.heard.states.get(rid)
-        return row[-1][2] if row else 0.0
+            old = [v for v in self.heard.states.get(rid, ()) if v[3] < self._tick]
+        return old[-1][2] if old else 0.0
 
     def _form(self, plan: TeamPlan) -> None:
         """The team's formation, from the positions at the lift (its load placed at its source)."""
