@@ -22,6 +22,9 @@ every bidder of a lock-step run, and of a test's simulated network, agrees on it
   ticks after the close, it releases the roster (status ``waiting`` naming the round and the
   roster). Either is put on ``copies`` ticks in a row, then again every ``repeat_every``
   ticks while the order is in its view.
+* **Orphans.** A robot named at slot 0 by votes for a roster it did not compute (it heard
+  other bids) releases that roster: it can never commit (a commit needs every member's vote,
+  its own too), and without a release its voters would stay bound.
 * **Why at most one roster per order, one order per robot.** Two committed rosters of one order
   would need two majorities of the fleet, which share a robot: in one round it votes once per
   order; across rounds it is bound until the release of the roster it voted for, and a
@@ -135,6 +138,8 @@ class Bidder:
         self.now = start  # [tick] the last tick
         self.dropped = 0  # bids of an unknown order, another round or the wrong size: ignored
         self.declined: list[str] = []
+        self.orphans: dict[OrderStatusMsg, int] = {}  # releases of rosters it did not compute
+        self.maybe_orphans: set[tuple[str, int, tuple[str, ...]]] = set()  # heard, to judge
 
     # --- what it hears -------------------------------------------------------------------------
 
@@ -181,6 +186,7 @@ class Bidder:
             self._bid(msg)
         elif msg.phase == VOTE:
             self.heard_votes.setdefault((msg.oid, msg.round, msg.roster), set()).add(msg.robot)
+            self._orphan(msg)
         else:
             self._decline(msg)
         return []
@@ -226,6 +232,31 @@ class Bidder:
             if self.following == msg.oid:
                 self.following = None
 
+    def _orphan(self, msg: BidMsg) -> None:
+        """A vote for a roster this robot would lead: kept, to be released after this robot's
+        own close of that round if it is not the roster this robot computed (:meth:`_disown`)."""
+        if msg.roster and msg.roster[0] == self.rid:
+            self.maybe_orphans.add((msg.oid, msg.round, msg.roster))
+
+    def _disown(self, k: int) -> list[Message]:
+        """Rosters this robot would lead but did not compute (its view held other bids) can
+        never commit (a commit needs every member's vote, its own too): once its own close of
+        their round has passed, each is released, put on ``copies`` ticks, or its voters would
+        stay bound."""
+        window = self.settings.window
+        for oid, m, roster in sorted(self.maybe_orphans):
+            if k < m * window:
+                continue
+            self.maybe_orphans.discard((oid, m, roster))
+            lead = self.leads.get((oid, m))
+            if oid in self.orders and (lead is None or lead.roster != roster):
+                release = OrderStatusMsg(oid, RELEASED, m, roster, self.rid,
+                                         "not the leader's roster")
+                self.orphans.setdefault(release, self.settings.copies)
+        out: list[Message] = list(self.orphans)
+        self.orphans = {msg: n - 1 for msg, n in self.orphans.items() if n > 1}
+        return out
+
     def _decline(self, msg: BidMsg) -> None:
         """A member named by a roster this robot committed follows another: release it."""
         lead = self.leads.get((msg.oid, msg.round))
@@ -257,6 +288,7 @@ class Bidder:
         elif self.votes and k % s.window < s.release_after:
             out += self.votes  # the votes again until the leaders decide
         out += self._decide(k)
+        out += self._disown(k)
         if s.bid_tick(k) and s.next_close(k) >= self.first_round and self.idle:
             out += self._bids(k, position)
         return out
