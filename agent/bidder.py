@@ -22,6 +22,9 @@ every bidder of a lock-step run, and of a test's simulated network, agrees on it
   ticks after the close, it releases the roster (status ``waiting`` naming the round and the
   roster). Either is put on ``copies`` ticks in a row, then again every ``repeat_every``
   ticks while the order is in its view.
+* **Orphans.** A robot named at slot 0 by votes for a roster it did not compute (it heard
+  other bids) releases that roster: it can never commit (a commit needs every member's vote,
+  its own too), and without a release its voters would stay bound.
 * **Why at most one roster per order, one order per robot.** Two committed rosters of one order
   would need two majorities of the fleet, which share a robot: in one round it votes once per
   order; across rounds it is bound until the release of the roster it voted for, and a
@@ -30,6 +33,9 @@ every bidder of a lock-step run, and of a test's simulated network, agrees on it
   roster of its own, so no robot is in two. A robot told of a committed roster naming it while
   it follows another (a restart lost its memory) puts a ``decline``; that roster's leader
   releases it and the order waits again.
+* **Open for bids.** ``admits`` (optional) says whether an order may be served now (its load
+  rests where the order expects it, its destination is free: :func:`leader.orders.biddable`
+  over what the robot knows); an order it refuses is in no round until it admits it.
 * **Late and restarted robots.** A bidder made at tick ``k0`` (:class:`Bidder` ``start``) takes
   the query's answer (:meth:`Bidder.recall`: the open orders and the last statuses) and neither
   bids nor votes before the round after the one under way; a roster that names it and is not
@@ -106,6 +112,7 @@ class Lead:
     decision: OrderStatusMsg | None = None
     put_at: int = 0  # [tick] the decision was last put
     decided_at: int = 0  # [tick]
+    hushed: bool = False  # the team speaks for the order now: no repeats after the copies
 
 
 class Bidder:
@@ -113,10 +120,12 @@ class Bidder:
     it stands (default: straight-line distance to each slot)."""
 
     def __init__(self, rid: str, settings: BidderSettings, start: int = 0,
-                 costs: Callable[[Point, OpenOrder], tuple[float, ...]] | None = None) -> None:
+                 costs: Callable[[Point, OpenOrder], tuple[float, ...]] | None = None,
+                 admits: Callable[[str], bool] | None = None) -> None:
         self.rid = rid
         self.settings = settings
         self.costs = costs or (lambda p, o: bid_costs(p, o.slots))
+        self.admits = admits  # whether an order may be served now (its load, its destination)
         self.first_round = settings.next_close(start) + (1 if start else 0)
         self.orders: dict[str, OpenOrder] = {}  # the open orders it knows
         self.taken: dict[str, OrderStatusMsg] = {}  # order -> its committed roster's status
@@ -129,6 +138,8 @@ class Bidder:
         self.now = start  # [tick] the last tick
         self.dropped = 0  # bids of an unknown order, another round or the wrong size: ignored
         self.declined: list[str] = []
+        self.orphans: dict[OrderStatusMsg, int] = {}  # releases of rosters it did not compute
+        self.maybe_orphans: set[tuple[str, int, tuple[str, ...]]] = set()  # heard, to judge
 
     # --- what it hears -------------------------------------------------------------------------
 
@@ -152,6 +163,13 @@ class Bidder:
         if self.following is not None:
             self.withdraw(self.following)
 
+    def hush(self, oid: str) -> None:
+        """The team of ``oid`` speaks for it now (its statuses, :mod:`agent.errand`): a commit
+        this robot leads is put its ``copies`` times and not repeated after."""
+        for (o, _m), lead in self.leads.items():
+            if o == oid:
+                lead.hushed = True
+
     def recall(self, orders: Iterable[OpenOrder], statuses: Iterable[OrderStatusMsg]) -> None:
         """The query's answer after a (re)start: the open orders and each one's last status."""
         for o in orders:
@@ -168,6 +186,7 @@ class Bidder:
             self._bid(msg)
         elif msg.phase == VOTE:
             self.heard_votes.setdefault((msg.oid, msg.round, msg.roster), set()).add(msg.robot)
+            self._orphan(msg)
         else:
             self._decline(msg)
         return []
@@ -213,6 +232,31 @@ class Bidder:
             if self.following == msg.oid:
                 self.following = None
 
+    def _orphan(self, msg: BidMsg) -> None:
+        """A vote for a roster this robot would lead: kept, to be released after this robot's
+        own close of that round if it is not the roster this robot computed (:meth:`_disown`)."""
+        if msg.roster and msg.roster[0] == self.rid:
+            self.maybe_orphans.add((msg.oid, msg.round, msg.roster))
+
+    def _disown(self, k: int) -> list[Message]:
+        """Rosters this robot would lead but did not compute (its view held other bids) can
+        never commit (a commit needs every member's vote, its own too): once its own close of
+        their round has passed, each is released, put on ``copies`` ticks, or its voters would
+        stay bound."""
+        window = self.settings.window
+        for oid, m, roster in sorted(self.maybe_orphans):
+            if k < m * window:
+                continue
+            self.maybe_orphans.discard((oid, m, roster))
+            lead = self.leads.get((oid, m))
+            if oid in self.orders and (lead is None or lead.roster != roster):
+                release = OrderStatusMsg(oid, RELEASED, m, roster, self.rid,
+                                         "not the leader's roster")
+                self.orphans.setdefault(release, self.settings.copies)
+        out: list[Message] = list(self.orphans)
+        self.orphans = {msg: n - 1 for msg, n in self.orphans.items() if n > 1}
+        return out
+
     def _decline(self, msg: BidMsg) -> None:
         """A member named by a roster this robot committed follows another: release it."""
         lead = self.leads.get((msg.oid, msg.round))
@@ -244,6 +288,7 @@ class Bidder:
         elif self.votes and k % s.window < s.release_after:
             out += self.votes  # the votes again until the leaders decide
         out += self._decide(k)
+        out += self._disown(k)
         if s.bid_tick(k) and s.next_close(k) >= self.first_round and self.idle:
             out += self._bids(k, position)
         return out
@@ -253,7 +298,8 @@ class Bidder:
         s = self.settings
         return [o for oid, o in sorted(self.orders.items())
                 if oid not in self.taken and joins_round(o.t_posted, close * s.tick_s,
-                                                         s.window * s.tick_s)]
+                                                         s.window * s.tick_s)
+                and (self.admits is None or self.admits(oid))]
 
     def _bids(self, k: int, position: Point) -> list[Message]:
         m = self.settings.next_close(k)
@@ -293,8 +339,9 @@ class Bidder:
             lead = self.leads[key]
             if lead.decision is None:
                 self._judge(lead, k)
-            if lead.decision is not None and (k - lead.put_at >= s.repeat_every
-                                              or k - lead.decided_at < s.copies):
+            if lead.decision is not None and (
+                    (k - lead.put_at >= s.repeat_every and not lead.hushed)
+                    or k - lead.decided_at < s.copies):
                 lead.put_at = k
                 out.append(lead.decision)
         return out

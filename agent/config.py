@@ -9,7 +9,7 @@ shape, ellipse axes, the other formations). It holds nothing about robots it nev
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 from types import NoneType, UnionType
@@ -21,11 +21,12 @@ from geometry.ellipse import reference_shape
 from geometry.limits import BURGER_RADIUS
 from geometry.unicycle import control_point
 from leader.settings import LeaderSettings
+from leader.team import Point, Pose, TeamPlan
 from scenario import Scenario, formation_axes, limits
 from scenario.cargo import load_polygon
 from scenario.extent import world_extent
 from scenario.lifelong import Lifelong
-from scenario.model import LOCALISATIONS, FormationSpec
+from scenario.model import LOCALISATIONS, Edge, FormationSpec, RobotSpec
 from scenario.reader import excerpt
 from scenario.routes import start_plan
 from scenario.succession import formation_successor
@@ -267,41 +268,92 @@ def memberships(scenario: Scenario, topology: str = "reduced") -> dict[str, Memb
     on the formation's leader, the same settings as ``standby`` on its successor
     (:func:`scenario.succession.formation_successor`), the route each formation starts with.
     The agents' configurations at the start (:func:`build_agent_configs`) and the formation a
-    running agent changes to (the scenario of that moment) are both this function's."""
-    off = scenario.robot.control_offset
+    running agent changes to (the scenario of that moment, :func:`regrouped`) are both this
+    function's."""
     out: dict[str, Membership] = {}
     for f in scenario.formations:
-        first = start_plan(scenario, f)
-        route = first.route
-        shape = reference_shape([control_point(*r.start, off) for r in f.robots])
-        leader = LeaderSettings(
-            members=f.robot_ids,
-            offsets=tuple((float(x), float(y)) for x, y in shape.offsets),
-            alpha0=shape.alpha0,
-            axes=formation_axes(scenario, f),
-            other_formations=tuple(g.name for g in scenario.formations if g.name != f.name),
-        )
-        foreign = tuple(r for r in scenario.robot_ids if r not in f.robot_ids)
-        heir = formation_successor(f)
-        for r in f.robots:
-            out[r.id] = Membership(
-                formation=f.name,
-                leader_id=f.leader,
-                goal=r.goal,
-                formation_goal=f.goal_centroid,
-                neighbours=f.neighbours(r.id),
-                foreign_robots=foreign if topology == "all-to-all" else (),
-                partners=tuple(m for m in f.robot_ids if m != r.id),
-                leader=leader if r.id == f.leader else None,
-                standby=leader if r.id == heir else None,
-                route=route if len(route) > 1 else (),
-                route_headings=first.headings if len(route) > 1 else (),
-                route_by_hand=bool(f.waypoints),
-                member_goals=(tuple((m.id, *m.goal) for m in f.robots) if r.id == f.leader
-                              else ()),
-                footprint=_footprint(scenario, f, r.id),
-            )
+        out.update(formation_memberships(scenario, f, topology))
     return out
+
+
+def formation_memberships(scenario: Scenario, f: FormationSpec, topology: str = "reduced"
+                          ) -> dict[str, Membership]:
+    """The :class:`Membership` of each member of ``f``, one of the formations of ``scenario``
+    (:func:`memberships`)."""
+    off = scenario.robot.control_offset
+    first = start_plan(scenario, f)
+    route = first.route
+    shape = reference_shape([control_point(*r.start, off) for r in f.robots])
+    leader = LeaderSettings(
+        members=f.robot_ids,
+        offsets=tuple((float(x), float(y)) for x, y in shape.offsets),
+        alpha0=shape.alpha0,
+        axes=formation_axes(scenario, f),
+        other_formations=tuple(g.name for g in scenario.formations if g.name != f.name),
+    )
+    foreign = tuple(r for r in scenario.robot_ids if r not in f.robot_ids)
+    heir = formation_successor(f)
+    return {r.id: Membership(
+        formation=f.name,
+        leader_id=f.leader,
+        goal=r.goal,
+        formation_goal=f.goal_centroid,
+        neighbours=f.neighbours(r.id),
+        foreign_robots=foreign if topology == "all-to-all" else (),
+        partners=tuple(m for m in f.robot_ids if m != r.id),
+        leader=leader if r.id == f.leader else None,
+        standby=leader if r.id == heir else None,
+        route=route if len(route) > 1 else (),
+        route_headings=first.headings if len(route) > 1 else (),
+        route_by_hand=bool(f.waypoints),
+        member_goals=(tuple((m.id, *m.goal) for m in f.robots) if r.id == f.leader else ()),
+        footprint=_footprint(scenario, f, r.id),
+    ) for r in f.robots}
+
+
+def solo(rid: str, pose: Pose, goal: tuple[float, float], still: bool = False) -> FormationSpec:
+    """A robot as a formation of one, named by its id; ``still``: one standing at its goal,
+    given the goal as its route (nothing to plan)."""
+    return FormationSpec(rid, rid, (RobotSpec(rid, rid, pose, goal),), (), None,
+                         waypoints=(goal,) if still else ())
+
+
+def team_formation(plan: TeamPlan, poses: Mapping[str, Pose], outline: Sequence[Point]
+                   ) -> FormationSpec:
+    """The team's formation starting at ``poses``, carrying the load of world ``outline``
+    (placed in the start frame: origin at the members' centroid)."""
+    n = len(plan.robots)
+    cx = sum(poses[r][0] for r in plan.robots) / n
+    cy = sum(poses[r][1] for r in plan.robots) / n
+    robots = tuple(RobotSpec(r, plan.oid, poses[r], g) for r, g in zip(plan.robots, plan.goals,
+                                                                        strict=True))
+    return FormationSpec(plan.oid, plan.leader, robots,
+                         tuple(Edge(i, j, df) for i, j, df in plan.edges), None,
+                         load=tuple((x - cx, y - cy) for x, y in outline))
+
+
+def fleet_scenario(scenario: Scenario) -> Scenario:
+    """``scenario`` with every fleet robot (``scenario.lifelong``) a formation of one standing at
+    its start, after the fixed formations: the lifelong warehouse at t = 0 (a fleet robot already
+    in a formation of ``scenario`` stays in it). Unchanged without a fleet."""
+    life = scenario.lifelong
+    if life is None:
+        return scenario
+    starts, placed = life.fleet.starts, set(scenario.robot_ids)
+    return dataclasses.replace(scenario, formations=scenario.formations + tuple(
+        solo(r, starts[r], starts[r][:2]) for r in life.fleet.robot_ids if r not in placed))
+
+
+def regrouped(scenario: Scenario, formation: FormationSpec, topology: str = "reduced"
+              ) -> dict[str, Membership]:
+    """Each member's :class:`Membership` when its robots form ``formation`` (a team, or one
+    robot alone again) in the world of ``scenario``: the formations that hold any of its robots
+    give way to it (the scenario of that moment), and :func:`formation_memberships` derives the
+    rest as at the start."""
+    mine = set(formation.robot_ids)
+    others = tuple(f for f in scenario.formations if not mine & set(f.robot_ids))
+    moment = dataclasses.replace(scenario, formations=others + (formation,))
+    return formation_memberships(moment, formation, topology)
 
 
 def build_agent_configs(
@@ -316,7 +368,9 @@ def build_agent_configs(
     solver: str = "exact",
 ) -> dict[str, AgentConfig]:
     """One :class:`AgentConfig` per robot of ``scenario``: the robot's own settings joined with
-    its :class:`Membership` (:func:`memberships`). ``pose_period`` [s] is how often the
+    its :class:`Membership` (:func:`memberships`). A fleet robot (``scenario.lifelong``) starts
+    as a formation of one named by its id, its goal its start (:func:`fleet_scenario`), and
+    carries the warehouse it serves (``lifelong``). ``pose_period`` [s] is how often the
     camera really delivers a pose (None: every ``dt``); the stale limit is
     :data:`STALE_PERIODS` of the longer of the two, so the margins hold at the camera's rate."""
     if pose_period is not None:
@@ -328,6 +382,8 @@ def build_agent_configs(
         params = dataclasses.replace(params, period=pose_period)
     box = world_extent(scenario)
     extent = (box.xmin, box.ymin, box.xmax, box.ymax)
+    scenario = fleet_scenario(scenario)
+    fleet = set(scenario.lifelong.fleet.robot_ids) if scenario.lifelong is not None else set()
     member = memberships(scenario, topology)
     out: dict[str, AgentConfig] = {}
     for f in scenario.formations:
@@ -351,6 +407,7 @@ def build_agent_configs(
                 goal_tolerance=scenario.goal_tolerance,
                 extent=extent,
                 localisation=scenario.controller.localisation,
+                lifelong=scenario.lifelong if r.id in fleet else None,
                 **{name: getattr(m, name) for name in MEMBERSHIP_FIELDS},
             )
     return out

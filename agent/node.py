@@ -101,6 +101,7 @@ from agent.config import AgentConfig, Membership, joined, membership_of
 from agent.faults import EPS, LinkFaults
 from agent.inbox import RING_CAPACITY, Inbox, Receiver
 from agent.leader_step import LeaderPart
+from agent.lifepart import LifePart, static_shapes
 from agent.navigation import NavPart
 from agent.odom_in import FusedFeed, OdomIn
 from agent.plausibility import speed_bound
@@ -108,7 +109,7 @@ from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED
 from agent.replan import plan_pool
 from agent.schedule import ClockLoop, LockstepLoop, PoseScheduler, TickGate
 from agent.stats import AgentStats
-from agent.tick import TRACE_COLUMNS, Ticker, TickParts, node_keys
+from agent.tick import TRACE_COLUMNS, NodeKeys, Ticker, TickParts, node_keys
 from agent.transport import CommandOut, Transport, formation_scope
 from leader.succession import leader_token_key
 from runtime.heap import freeze_startup
@@ -213,7 +214,15 @@ class AgentNode:
         self._stop: asyncio.Event | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._pending: AgentConfig | None = None  # a formation to change to (regroup)
+        self._staged: AgentConfig | None = None  # lock-step, a fleet robot: subscribed ahead
         self.regroups = 0  # formation changes made
+        # a fleet robot: bidding, its errand and the formations they ask for (agent.lifepart)
+        self.life = (LifePart(cfg, self.regroup, self._walls, options.faults)
+                     if cfg.lifelong is not None else None)
+        self._walls_of: tuple[Any, tuple] = (None, ())
+        if self.life is not None:
+            self.ticker.before = self._life_tick
+            self.ticker.extra_shapes = self.life.load_msgs
 
     def _scheduler(self) -> LockstepLoop | PoseScheduler | ClockLoop:
         cfg, tick, times = self.cfg, self._tick, self.ticker.times
@@ -277,9 +286,11 @@ class AgentNode:
 
     # --- wiring ---------------------------------------------------------------------------------
 
-    def _subscription_keys(self) -> dict[str, str]:
-        """Every key this node subscribes to -> the mailbox class that holds it."""
-        k = self.keys
+    def _subscription_keys(self, k: NodeKeys | None = None, role: Any = ...) -> dict[str, str]:
+        """Every key this node subscribes to -> the mailbox class that holds it (of the keys
+        ``k`` and leader role ``role`` given, else this node's own)."""
+        k = self.keys if k is None else k
+        role = self.leader.role if role is ... else role
         subs: dict[str, str] = {}
         if k.all_to_all:
             subs[keys.all_robots_key(self.cfg.prefix, keys.STATE)] = keys.STATE
@@ -288,7 +299,6 @@ class AgentNode:
                 subs[n] = keys.STATE
             for n in k.partners:  # members that are not graph neighbours (separation)
                 subs[n] = keys.STATE
-        role = self.leader.role
         if role is None:
             subs[k.others] = keys.OTHERS
         elif self.options.lockstep:  # both topologies: the tie-break and the jam rule read them
@@ -345,6 +355,8 @@ class AgentNode:
                               (self.odom_in.pose_key, feed.camera)):
                 t.keep(key, t.declare(key, zenoh.handlers.Callback(take, indirect=False)))
         self.leader.open(t, loop, self.gate)
+        if self.life is not None:
+            self.life.open(session)
         logger.info("%s: subscribed to %s", self.cfg.robot_id, ", ".join(self.subscribed_keys))
 
     def open_session(self) -> zenoh.Session:
@@ -385,6 +397,8 @@ class AgentNode:
         if t is None:
             return
         within(step_limit, f"{rid}: zero command on exit", lambda: out.zero_on_exit(self.last_stamp))
+        if self.life is not None:
+            within(step_limit, f"{rid}: closing the order link", self.life.close)
         token = self.leader.take_token()
         handles = [*([] if token is None else [token]), *t.handles()]
         within(step_limit, f"{rid}: undeclaring {len(handles)} tokens, subscribers and publishers",
@@ -426,11 +440,50 @@ class AgentNode:
         elif not self.options.lockstep and self._loop is not None:
             self._loop.call_soon_threadsafe(self.apply_regroup)
 
+    def _life_tick(self, pose: Any) -> bool:
+        """A fleet robot's lifelong part at this tick's pose (:mod:`agent.lifepart`): True to
+        stand still."""
+        assert self.life is not None
+        k = round(pose.stamp / self.cfg.period)
+        return self.life.tick(k, (pose.x, pose.y, pose.theta))
+
+    def _walls(self) -> tuple:
+        """The walls and shelves of the newest ``obstacles`` message (converted once each)."""
+        entry = self.inbox.latest(keys.OBSTACLES, self.keys.obstacles)
+        msgs = () if entry is None else entry[0].shapes
+        if msgs is not self._walls_of[0]:
+            self._walls_of = (msgs, static_shapes(msgs))
+        return self._walls_of[1]
+
     async def _tick(self, t: float | None) -> Any:
-        """The tick, after a formation change asked for in lock-step (:meth:`regroup`)."""
-        if self._pending is not None and self.options.lockstep:
-            self.apply_regroup()
+        """The tick, after a formation change asked for in lock-step (:meth:`regroup`). A fleet
+        robot's change takes two ticks: the first declares the new formation's subscriptions,
+        the second changes (so that no input of its first tick in the formation was put before
+        it was subscribed to: a teammate's state, its leader's ``others``)."""
+        if self.options.lockstep:
+            if self.life is not None:
+                staged, self._staged = self._staged, None
+                if staged is not None and self._pending is None:
+                    self._pending = staged
+                    self.apply_regroup()
+                if self._pending is not None:
+                    self._staged, self._pending = self._pending, None
+                    self._subscribe_ahead(self._staged)
+            elif self._pending is not None:
+                self.apply_regroup()
         return await self.ticker.tick(t)
+
+    def _subscribe_ahead(self, cfg: AgentConfig) -> None:
+        """Lock-step, a fleet robot: declare the subscriptions the formation of ``cfg`` adds, a
+        tick before it changes to it (what the old one does not read stays unread till then)."""
+        inbox = self.inbox
+        if self.out.transport is None:
+            return
+        role = LeaderPart(cfg, True, self.options.ellipse_hold, False, inbox, self.clock,
+                          node_keys(cfg).neighbours).role
+        for k, cls in self._subscription_keys(node_keys(cfg), role).items():
+            if k not in inbox.subscribed_keys:
+                inbox.declare(k, cls)
 
     def apply_regroup(self) -> None:
         """Apply the formation asked for by :meth:`regroup`, on the loop's thread, as

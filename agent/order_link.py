@@ -12,7 +12,10 @@ bids and statuses at this receiver, seeded and counted, as the runtime's ``--dro
 other inter-robot classes; the manager's orders are not dropped (a robot that misses one
 learns it from the queryable). ``resolve`` turns a posted order into its slots in the world
 (the robot's knowledge of the stations and load types); None: not an order this robot can
-serve, ignored. ``on_team`` hears each committed roster this robot follows, once.
+serve, ignored. ``on_team`` hears each committed roster this robot follows, once;
+``on_status`` every status heard from another robot (after the bidder). What a robot puts is
+stamped with its tick's time, and a receiver takes it at its first tick after that one, so in
+lock-step every robot hears a message at the same tick.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import logging
 import random
 import threading
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 import zenoh
@@ -31,6 +35,7 @@ from leader.allocation import OpenOrder
 from wire.orders import (
     BidMsg,
     OrderMsg,
+    OrderStatusMsg,
     bid_is_forged,
     bid_key,
     decode_bid,
@@ -44,6 +49,8 @@ from wire.reader import DecodeError
 
 logger = logging.getLogger(__name__)
 
+STAMP_EPS = 1e-6  # [s] stamps this near are the same tick's
+
 
 class OrderLink:
     """One robot's bidding over Zenoh (module docstring)."""
@@ -51,12 +58,14 @@ class OrderLink:
     def __init__(self, session: zenoh.Session, prefix: str, bidder: Bidder,
                  resolve: Callable[[OrderMsg], OpenOrder | None],
                  faults: LinkFaults | None = None,
-                 on_team: Callable[[str], None] | None = None) -> None:
+                 on_team: Callable[[str], None] | None = None,
+                 on_status: Callable[[OrderStatusMsg], None] | None = None) -> None:
         self.session = session
         self.prefix = prefix
         self.bidder = bidder
         self.resolve = resolve
         self.on_team = on_team
+        self.on_status = on_status
         faults = faults or LinkFaults()
         self._rng = random.Random(f"order-link/{bidder.rid}/{faults.seed}")
         self._drop = faults.drop
@@ -69,6 +78,7 @@ class OrderLink:
         self.malformed = 0
         self.forged = 0
         self.puts = 0
+        self.now = 0.0  # [s] the time of the tick under way (its stamp on what is put)
         self.sub = session.declare_subscriber(f"{prefix}/order/**", self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:  # Zenoh thread
@@ -95,11 +105,19 @@ class OrderLink:
     def step(self, k: int, position: Point) -> list[Message]:
         """The robot's tick ``k``: what arrived goes to the bidder, then the bidder's tick; what
         it puts is returned (and put)."""
+        self.now = k * self.bidder.settings.tick_s
         with self._lock:
             arrived, self._queue = self._queue, []
         out: list[Message] = []
+        later = []
         for key, payload in arrived:
-            out += self._take(key, payload)
+            if self._this_tick(key, payload):
+                later.append((key, payload))
+            else:
+                out += self._take(key, payload)
+        if later:  # heard at the next tick, whenever in this one they came
+            with self._lock:
+                self._queue[:0] = later
         out += self.bidder.tick(k, position)
         for msg in out:
             self.put(msg)
@@ -109,6 +127,19 @@ class OrderLink:
             if following is not None and self.on_team is not None:
                 self.on_team(following)
         return out
+
+    def _this_tick(self, key: str, payload: bytes) -> bool:
+        """Whether a robot's bid, vote or status was put at this tick (or later): it is taken
+        at the next tick, so every robot of a lock-step run hears it at the same tick, however
+        the puts of one tick interleave with its receivers' ticks."""
+        kind = parse_order_key(key, self.prefix)
+        if kind is None or kind[1] == "order":
+            return False
+        try:
+            msg = decode_bid(payload) if kind[1] == "bid" else decode_order_status(payload)
+        except DecodeError:
+            return False  # counted where it is taken
+        return msg.stamp > self.now - STAMP_EPS
 
     def _take(self, key: str, payload: bytes) -> list[Message]:
         """One sample to the bidder (malformed and forged ones dropped, counted)."""
@@ -131,10 +162,14 @@ class OrderLink:
         if forged:  # a robot speaks only for itself, of the order its key names
             self.forged += 1
             return []
-        return self.bidder.hear(msg)
+        out = self.bidder.hear(msg)
+        if isinstance(msg, OrderStatusMsg) and self.on_status is not None:
+            self.on_status(msg)
+        return out
 
     def put(self, msg: Message) -> None:
-        """Put a bid, vote, decline or status on its key."""
+        """Put a bid, vote, decline or status on its key, stamped with this tick's time."""
+        msg = replace(msg, stamp=self.now)
         key = bid_key(self.prefix, msg.oid, self.bidder.rid) if isinstance(msg, BidMsg) \
             else order_status_key(self.prefix, msg.oid)
         pub = self._pubs.get(key)

@@ -162,6 +162,11 @@ class Ticker:
         self._ahead = 0.0  # [s] this tick's pose carried forward by its measured age (carried)
         self._inputs_of: dict[bool, list[tuple[str, str]]] = {}  # leading? -> _tick_inputs
         self.loc: OdomIn | None = None  # controller.localisation fused (set by the node)
+        # a fleet robot (set by the node, agent.lifepart): told each tick's pose before the
+        # step, True to stand still this tick; and the resting loads, added to the walls
+        self.before: Callable[[Pose], bool] | None = None
+        self.extra_shapes: Callable[[], tuple[ShapeMsg, ...]] | None = None
+        self._standing = False
 
     def regroup(self, cfg: AgentConfig, node_keys: NodeKeys) -> None:
         """Between ticks: tick in the formation of ``cfg`` from now on (its keys ``node_keys``);
@@ -261,6 +266,7 @@ class Ticker:
             else (pose.x, pose.y)
         self._tick_point = (px, py, pose.stamp + self._ahead, pose.theta)
         clock.state_before(self._send_state)
+        self._standing = self.before is not None and self.before(pose)
         self.times.lap(POSE)
         return await self._step(t, pose, px, py)
 
@@ -282,6 +288,8 @@ class Ticker:
             return self._zero(t, fresh)
         states, obstacles, others_msg = fresh
         obs, shape_msgs = self._obstacles(obstacles, clock.at(stamp), px, py)
+        if self.extra_shapes is not None:
+            shape_msgs = tuple(shape_msgs) + self.extra_shapes()
         if self.parts.inbox.take_implausible():  # an input broke physics since the last tick
             return self._zero(t, IMPLAUSIBLE)
         shapes = nav.update_shapes(shape_msgs)
@@ -339,6 +347,9 @@ class Ticker:
                 return self._zero(t, loc.held)
             latest = self.parts.inbox.latest
             controller = loc.controller(controller, (latest(keys.STATE, n) for n in k.states))
+        if self._standing:  # a fleet robot lifting or setting a load down
+            self._stand(stamp)
+            return None
         res = controller.step(inputs)
         times.lap(STEP)
         if self.clock.gone_stale(stamp):
@@ -427,6 +438,12 @@ class Ticker:
                 inputs.append((keys.OTHERS, self.keys.others))
             self._inputs_of[leading] = inputs
         return inputs
+
+    def _stand(self, stamp: float) -> None:
+        """Stand still this tick (a fleet robot's lift or set-down): the zero command, not
+        counted as stale."""
+        self.last_u = self._halted()
+        self.parts.out.send_command(Cmd(0.0, 0.0, 0.0, 0.0, stamp))
 
     def _zero(self, t: float | None, why: str) -> StepResult | None:
         """Command zero for a stale input ``why`` (counted); None, the tick's result."""

@@ -48,9 +48,20 @@ from pathlib import Path
 import numpy as np
 
 from agent import double_integrator
+from agent.config import fleet_scenario, solo, team_formation
 from agent.control import StepResult
+from agent.errand import (
+    ALLY_REACH,
+    EXIT_GAP,
+    LOAD_MARGIN,
+    SET_DOWN_M,
+    SET_DOWN_RAD,
+    exit_point,
+    inside_box,
+    load_box,
+)
 from geometry.polygon import polygon_distance
-from geometry.shapes import Shape, box, shape_distance
+from geometry.shapes import Shape, shape_distance
 from leader import allocation
 from leader import orders as lo
 from leader.navigation import Follower, heading_tolerance
@@ -58,8 +69,8 @@ from leader.route_driver import RouteDriver
 from leader.team import TeamPlan, axis_turn, load_pose, plan_team, pose_error, slot_points
 from scenario import Scenario, stream
 from scenario.cargo import load_clearances
-from scenario.lifelong import SINK, Lifelong, LoadType, Order
-from scenario.model import Edge, FormationSpec, RobotSpec
+from scenario.lifelong import SINK, Lifelong, Order
+from scenario.model import FormationSpec
 from scenario.routes import start_plan
 from viewer.orders import OrderBoard, OrderTimeline
 
@@ -71,14 +82,9 @@ from .series import Series
 from .summary import COLLISION_LOG_MAX
 from .tick import FleetTick, Pose
 
-SET_DOWN_M = 0.05  # [m] a load is set down this near its station
-SET_DOWN_RAD = math.radians(3.0)  # [rad] and turned this near its heading
 STUCK_M = 0.05  # [m] a team that moves less than this ...
 STUCK_S = 120.0  # [s] ... in this long is stuck
-LOAD_MARGIN = 0.045  # [m] a resting load's safe distance beyond the robot's radius
-EXIT_GAP = 0.15  # [m] a robot leaving a load stops this far beyond its outline
 CONTACT_TOL = 1e-3  # [m] a body this far inside another is a contact
-ALLY_REACH = 0.5  # [m] gathering members this near their slots keep apart by separation rows
 ALLOCATORS = {"allocate": allocation.allocate, "greedy": allocation.greedy_nearest}
 
 
@@ -157,22 +163,13 @@ class Checks:
             del self.touching[key]
 
 
-def solo(rid: str, pose: Pose, goal: tuple[float, float], still: bool = False) -> FormationSpec:
-    """A robot as a formation of one, named by its id; ``still``: one standing at its goal,
-    given the goal as its route (nothing to plan)."""
-    return FormationSpec(rid, rid, (RobotSpec(rid, rid, pose, goal),), (), None,
-                         waypoints=(goal,) if still else ())
-
-
 def fleet_base(scenario: Scenario) -> Scenario:
     """A fleet scenario's robots, each a formation of one standing at its start (the scenario a
-    lifelong run starts from, in process and in ``formation run``)."""
-    life = scenario.lifelong
-    if life is None:
+    lifelong run starts from, in process and in ``formation run``:
+    :func:`agent.config.fleet_scenario`)."""
+    if scenario.lifelong is None:
         raise ValueError(f"{scenario.name}: no fleet (not a lifelong scenario)")
-    starts = life.fleet.starts
-    return replace(scenario, formations=tuple(solo(r, starts[r], starts[r][:2])
-                                              for r in life.fleet.robot_ids))
+    return fleet_scenario(scenario)
 
 
 def new_order(life: Lifelong, loads: Mapping[str, LoadState], spec: Order) -> lo.Order:
@@ -294,20 +291,6 @@ def checks_block(c: Checks) -> dict:
         "stuck_orders": sorted(c.stuck)}
 
 
-def team_formation(plan: TeamPlan, poses: dict[str, Pose], outline: Sequence[tuple[float, float]]
-                   ) -> FormationSpec:
-    """The team's formation starting at ``poses``, carrying the load of world ``outline``
-    (placed in the start frame: origin at the members' centroid)."""
-    n = len(plan.robots)
-    cx = sum(poses[r][0] for r in plan.robots) / n
-    cy = sum(poses[r][1] for r in plan.robots) / n
-    robots = tuple(RobotSpec(r, plan.oid, poses[r], g) for r, g in zip(plan.robots, plan.goals,
-                                                                        strict=True))
-    return FormationSpec(plan.oid, plan.leader, robots,
-                         tuple(Edge(i, j, df) for i, j, df in plan.edges), None,
-                         load=tuple((x - cx, y - cy) for x, y in outline))
-
-
 def route_clear(route: Sequence[tuple[float, float]], shapes: Sequence[Shape], margin: float,
                 step: float = 0.05) -> bool:
     """True when the polyline ``route`` (points ``step`` apart along each leg) keeps beyond each
@@ -321,30 +304,6 @@ def route_clear(route: Sequence[tuple[float, float]], shapes: Sequence[Shape], m
             if any(shape_distance(x, y, sh)[0] < sh.ds + margin for sh in shapes):
                 return False
     return True
-
-
-def load_box(name: str, t: LoadType, pose: Pose, ds: float) -> Shape:
-    """A resting load as a box shape (what the planner and the rows keep clear of)."""
-    return box(name, (pose[0], pose[1]), t.size, pose[2], ds)
-
-
-def inside_box(sh: Shape, x: float, y: float, margin: float) -> bool:
-    """True when (x, y) lies within ``margin`` of the box."""
-    return shape_distance(x, y, sh)[0] < margin
-
-
-def exit_point(load: Shape, p: tuple[float, float], clear: Callable[[float, float], bool],
-               gap: float) -> tuple[float, float]:
-    """Where a robot under ``load`` at ``p`` goes to be out: straight away from the load's
-    centre, else turned by steps of 45 degrees, to the first point ``clear`` allows."""
-    base = math.atan2(p[1] - load.cy, p[0] - load.cx)
-    reach = math.hypot(load.hx, load.hy) + gap
-    for k in (0, 1, -1, 2, -2, 3, -3, 4):
-        a = base + k * math.pi / 4
-        q = (load.cx + reach * math.cos(a), load.cy + reach * math.sin(a))
-        if clear(*q):
-            return q
-    return p
 
 
 class LifelongRun:

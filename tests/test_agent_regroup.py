@@ -151,7 +151,8 @@ def test_over_zenoh_an_agent_goes_from_one_to_a_team_of_two_and_back_its_subscri
 
 def test_in_lock_step_the_change_waits_for_the_next_tick(router: RouterProcess) -> None:
     zs = ZenohSettings(mode="client", connect=(router.endpoint,))
-    cfg = build_agent_configs(alone(), zenoh=zs)["f2"]
+    # as a robot of fixed formations (a fleet robot subscribes a tick ahead: agent.lifepart)
+    cfg = replace(build_agent_configs(alone(), zenoh=zs)["f2"], lifelong=None)
     peer = zenoh.open(zconf.make_config("client", connect=[router.endpoint],
                                         connect_timeout_s=TIMEOUT_S))
     pose = peer.declare_publisher(keys.pose_key(P, "f2"))
@@ -182,3 +183,44 @@ def test_in_lock_step_the_change_waits_for_the_next_tick(router: RouterProcess) 
     assert seen[0] == {keys.pose_key(P, "f2"), keys.obstacles_key(P), keys.ellipse_key(P, "f1")}
     assert seen[1] == {keys.pose_key(P, "f2"), keys.obstacles_key(P), keys.state_key(P, "f1"),
                        keys.others_key(P, "o1")}
+
+
+def test_in_lock_step_a_fleet_robot_subscribes_a_tick_before_it_changes(
+        router: RouterProcess) -> None:
+    zs = ZenohSettings(mode="client", connect=(router.endpoint,))
+    cfg = build_agent_configs(alone(), zenoh=zs)["f2"]
+    life = cfg.lifelong
+    assert life is not None  # a fleet robot; with no parking spot, it asks for no walk itself
+    cfg = replace(cfg, lifelong=replace(life, fleet=replace(life.fleet, parking=())))
+    peer = zenoh.open(zconf.make_config("client", connect=[router.endpoint],
+                                        connect_timeout_s=TIMEOUT_S))
+    pose = peer.declare_publisher(keys.pose_key(P, "f2"))
+    seen: list[tuple[str, set[str]]] = []
+
+    async def main() -> None:
+        node = AgentNode(cfg, NodeOptions(lockstep=True, lockstep_timeout=0.1))
+        stop = asyncio.Event()
+        task = asyncio.create_task(node.run(stop))
+        loop = asyncio.get_running_loop()
+        try:
+            await loop.run_in_executor(None, wait_for_matching, pose, TIMEOUT_S)
+            node.regroup(memberships(teamed())["f2"])
+            for k in (1, 2):
+                pose.put(encode(Pose(0.3, -2.4, 0.0, 0.05 * (k - 1))))
+                await loop.run_in_executor(None, wait_until, lambda k=k: node.ticks >= k,
+                                           f"tick {k}")
+                seen.append((node.cfg.formation, set(node.subscribed_keys)))
+        finally:
+            stop.set()
+            await asyncio.wait_for(task, TIMEOUT_S)
+
+    try:
+        asyncio.run(main())
+    finally:
+        pose.undeclare()
+        peer.close()
+    old = {keys.pose_key(P, "f2"), keys.obstacles_key(P), keys.ellipse_key(P, "f1")}
+    new = {keys.pose_key(P, "f2"), keys.obstacles_key(P), keys.state_key(P, "f1"),
+           keys.others_key(P, "o1")}
+    assert seen[0] == ("f2", old | new)  # the first tick: still alone, the team's inputs heard
+    assert seen[1] == ("o1", new)  # the second: in the team

@@ -268,3 +268,24 @@ def test_a_round_with_a_fifth_of_the_messages_lost_commits_most_orders_at_once(c
         print(f"\ndrop 0.0: {clean}\ndrop 0.2: {lossy}")
     assert clean["first_round_share"] == 1.0
     assert lossy["first_round_share"] > 0.6 and lossy["committed_share"] > 0.8
+
+
+def test_a_leader_that_computed_no_team_releases_the_roster_others_voted_it_to_lead() -> None:
+    s = BidderSettings(fleet_size=3, window=WINDOW, tick_s=TICK_S)
+    leader, member = Bidder("r0", s), Bidder("r1", s)
+    order = OpenOrder("b", ((0.0, 0.0), (1.0, 0.0)))
+    for b in (leader, member):
+        b.order(order)
+    # the member heard both bids and votes (r0, r1); the leader heard no bid of r1's
+    member.hear(BidMsg("b", "r0", 1, "bid", (0.0, 1.0)))
+    member.tick(0, (1.0, 0.0))
+    leader.tick(0, (0.0, 0.0))
+    votes = [m for m in member.tick(WINDOW, (1.0, 0.0)) if isinstance(m, BidMsg)]
+    assert [(v.phase, v.roster) for v in votes] == [("vote", ("r0", "r1"))] and not member.idle
+    assert not [m for m in leader.tick(WINDOW, (0.0, 0.0)) if isinstance(m, BidMsg)
+                and m.phase == "vote"]  # it computed no team: no vote, no lead
+    leader.hear(votes[0])
+    out = [m for m in leader.tick(WINDOW + 1, (0.0, 0.0)) if isinstance(m, OrderStatusMsg)]
+    assert [(m.state, m.round, m.roster) for m in out] == [("waiting", 1, ("r0", "r1"))]
+    member.hear(out[0])
+    assert member.idle  # free to bid in the next round

@@ -122,8 +122,35 @@ def test_a_forged_bid_and_a_malformed_one_are_dropped_and_counted(router) -> Non
         while link.received < 2:
             assert time.monotonic() < deadline
             time.sleep(0.002)
-        link.step(0, (0.0, 0.0))
+        link.step(1, (0.0, 0.0))  # a message stamped at tick 0 is taken at tick 1
         assert (link.forged, link.malformed) == (1, 1)
+        pub.undeclare()
+    finally:
+        link.close()
+        z.close()
+        other.close()
+
+
+def test_a_message_put_at_this_tick_is_taken_at_the_next_whenever_it_came(router) -> None:
+    s = BidderSettings(fleet_size=2, window=WINDOW)
+    z, other = session(router), session(router)
+    link = OrderLink(z, P, Bidder("r1", s), resolve)
+    try:
+        pub = other.declare_publisher(f"{P}/order/o1/bid/r2")
+        deadline = time.monotonic() + TIMEOUT_S
+        while not pub.matching_status.matching:
+            assert time.monotonic() < deadline
+            time.sleep(0.002)
+        # a forged bid stamped at tick 3 (counted once taken): not at tick 3, at tick 4
+        pub.put(encode_order(BidMsg("o1", "r3", 1, "bid", (1.0, 1.0), stamp=3 * s.tick_s)))
+        deadline = time.monotonic() + TIMEOUT_S
+        while link.received < 1:
+            assert time.monotonic() < deadline
+            time.sleep(0.002)
+        link.step(3, (0.0, 0.0))
+        assert link.forged == 0
+        link.step(4, (0.0, 0.0))
+        assert link.forged == 1
         pub.undeclare()
     finally:
         link.close()

@@ -1,0 +1,354 @@
+"""A fleet robot's errand as a pure state machine: from idle to a team, the load carried, idle again.
+
+No Zenoh here: the agent hands an :class:`Errand` the committed roster it follows
+(:meth:`Errand.take`), the team leader's statuses (:meth:`Errand.hear`) and, each tick, where it
+and its teammates stand (:meth:`Errand.step`); the step says what the agent does
+(:class:`Move`): walk alone to a point, form the team, stand still, put a status, or dissolve.
+Time is counted in ticks, so every member of a lock-step run agrees on it.
+
+The phases (DESIGN.md "Lifelong operation"; the in-process :mod:`simulator.lifelong` runs the
+same ones for the whole fleet):
+
+* **idle**: bid (:mod:`agent.bidder`) and walk to the robot's parking spot (:func:`parking`).
+* **gathering**: walk to my slot as a formation of one. The *speaker* (the first robot of the
+  roster not lost: the leader, else its successor) sees every member within
+  ``goal_tolerance`` of its slot; a member that reaches its slot stands there.
+* **lifting**: every member stands ``lift_ticks`` still.
+* **carrying**: the team forms (:func:`leader.team.plan_team` over the members' positions, which
+  the lift held still) and carries the load to the destination (the leader routes the
+  formation).
+  The speaker sees the load (:func:`leader.team.load_pose`) within :data:`SET_DOWN_M` and
+  :data:`SET_DOWN_RAD` of the destination and every member at its goal.
+* **setting down**: the team stands ``lift_ticks`` still; then the order is delivered: the team
+  dissolves, each robot walks out from under the load (:func:`exit_point`), then to its parking
+  spot, and is idle again.
+
+A member whose position is older than ``lost_ticks`` is lost: before the lift the speaker
+releases the roster (the order waits again, as the simulator's), after it the order fails with
+``member lost: RID`` and the load rests where it stands; either way the team dissolves.
+
+Statuses (:class:`wire.orders.OrderStatusMsg` on ``order/{oid}/status``) go out from the
+speaker: ``gathering`` from the roster's commit through the lift, ``carrying`` from the lift's
+end through the set-down, ``delivered`` once set down, ``failed`` (or ``waiting``, a release)
+when a member is lost; each change at once, then again every ``repeat_ticks``. The other members
+follow the statuses they hear: ``carrying`` forms the team (from the positions they heard, the
+same as the speaker's: all stood still through the lift), ``delivered``, ``failed`` and a release dissolve it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+from geometry.shapes import Shape, box, shape_distance
+from leader.team import Point, Pose, TeamPlan, load_pose, plan_team, pose_error
+from scenario.lifelong import LoadType
+from wire.orders import OrderStatusMsg
+
+SET_DOWN_M = 0.05  # [m] a load is set down this near its station
+SET_DOWN_RAD = math.radians(3.0)  # [rad] and turned this near its heading
+LOAD_MARGIN = 0.045  # [m] a resting load's safe distance beyond the robot's radius
+EXIT_GAP = 0.15  # [m] a robot leaving a load stops this far beyond its outline
+ALLY_REACH = 0.5  # [m] gathering members this near their slots keep apart by separation rows
+
+IDLE, GATHERING, LIFTING, CARRYING, SETTING_DOWN = (
+    "idle", "gathering", "lifting", "carrying", "setting-down")
+#: each phase's state as the status reports it
+REPORTED = {GATHERING: "gathering", LIFTING: "gathering", CARRYING: "carrying",
+            SETTING_DOWN: "carrying"}
+DELIVERED, FAILED, RELEASED = "delivered", "failed", "waiting"
+
+
+def load_box(name: str, t: LoadType, pose: Pose, ds: float) -> Shape:
+    """A resting load as a box shape (what the planner and the rows keep clear of)."""
+    return box(name, (pose[0], pose[1]), t.size, pose[2], ds)
+
+
+def inside_box(sh: Shape, x: float, y: float, margin: float) -> bool:
+    """True when (x, y) lies within ``margin`` of the box."""
+    return shape_distance(x, y, sh)[0] < margin
+
+
+def exit_point(load: Shape, p: Point, clear: Callable[[float, float], bool], gap: float) -> Point:
+    """Where a robot under ``load`` at ``p`` goes to be out: straight away from the load's
+    centre, else turned by steps of 45 degrees, to the first point ``clear`` allows."""
+    base = math.atan2(p[1] - load.cy, p[0] - load.cx)
+    reach = math.hypot(load.hx, load.hy) + gap
+    for k in (0, 1, -1, 2, -2, 3, -3, 4):
+        a = base + k * math.pi / 4
+        q = (load.cx + reach * math.cos(a), load.cy + reach * math.sin(a))
+        if clear(*q):
+            return q
+    return p
+
+
+def allies(job: Job, rid: str, at: Mapping[str, Point]) -> tuple[str, ...]:
+    """The teammates ``rid`` keeps apart from by separation rows instead of their ellipses while
+    gathering, so that members can stand at adjacent slots: when ``rid`` is within
+    :data:`ALLY_REACH` of its slot, the others that are (``at``: the members' positions known);
+    farther out the ellipses keep them apart as any two formations."""
+    near = [r for r, s in zip(job.robots, job.slots, strict=True)
+            if r in at and math.dist(at[r], s) <= ALLY_REACH]
+    return tuple(r for r in near if r != rid) if rid in near else ()
+
+
+def parking(robots: Sequence[str], starts: Mapping[str, Pose], spots: Sequence[Point]
+            ) -> dict[str, Point]:
+    """Each robot's parking spot, the same in every agent: in fleet order, the free spot
+    nearest its start (ties to the first listed); a robot left without one has none."""
+    free = list(spots)
+    out: dict[str, Point] = {}
+    for rid in robots:
+        if not free:
+            break
+        s = starts[rid]
+        best = min(free, key=lambda q: math.dist(q, (s[0], s[1])))
+        out[rid] = best
+        free.remove(best)
+    return out
+
+
+@dataclass(frozen=True)
+class Job:
+    """An order this robot's committed roster serves: the load it moves (its type, its pose
+    at the roster's commit), the roster in slot order, each slot in the world, the destination's
+    pose and name, and the round that committed the roster."""
+
+    oid: str
+    load: str
+    type: LoadType
+    robots: tuple[str, ...]
+    slots: tuple[Point, ...]
+    src: Pose
+    dst: Pose
+    round: int = 0
+
+    def slot_of(self, rid: str) -> Point:
+        return self.slots[self.robots.index(rid)]
+
+
+@dataclass(frozen=True)
+class ErrandSettings:
+    """The machine's numbers, in ticks: a lift or set-down (``fleet.lift_s``), a member lost
+    (its position older than this), statuses put again; the arrival tolerance [m] and the
+    tick [s]."""
+
+    lift_ticks: int
+    lost_ticks: int
+    repeat_ticks: int
+    goal_tolerance: float
+    tick_s: float = 0.05  # [s] one tick (status stamps are in seconds)
+
+    def __post_init__(self) -> None:
+        if min(self.lift_ticks, self.lost_ticks, self.repeat_ticks) < 0 or self.repeat_ticks < 1:
+            raise ValueError("lift_ticks and lost_ticks must be >= 0, repeat_ticks >= 1")
+
+
+@dataclass(frozen=True)
+class Seen:
+    """Where a teammate's body stood at tick ``k`` (as its last state said)."""
+
+    x: float
+    y: float
+    k: int
+
+
+@dataclass(frozen=True)
+class Move:
+    """What the agent does after a step: ``walk`` alone to this point (a new goal as a formation
+    of one; None: as before), ``team`` form this team (None: as before), ``hold`` stand still
+    this tick, ``status`` put this order status, ``done`` the team dissolved (the bidder is told:
+    :meth:`agent.bidder.Bidder.finish`)."""
+
+    walk: Point | None = None
+    team: TeamPlan | None = None
+    hold: bool = False
+    status: OrderStatusMsg | None = None
+    done: bool = False
+
+
+class Errand:
+    """One fleet robot's errand (module docstring). ``home``: its parking spot (None: where it
+    stands when idle); ``clear``: whether a robot may stand at a point (the exit rule)."""
+
+    def __init__(self, rid: str, settings: ErrandSettings, home: Point | None = None,
+                 clear: Callable[[float, float], bool] | None = None, radius: float = 0.105
+                 ) -> None:
+        self.rid = rid
+        self.settings = settings
+        self.home = home
+        self.clear = clear or (lambda x, y: True)
+        self.radius = radius
+        self.phase = IDLE
+        self.job: Job | None = None
+        self.plan: TeamPlan | None = None
+        self.since = 0  # [tick] the phase began
+        self.said: OrderStatusMsg | None = None  # the status this robot last put as speaker
+        self.said_at = -1  # [tick]
+        self.heard: str = ""  # the last state heard from the team's speaker
+        self.leaving: Point | None = None  # out from under the load just set down
+        self.lost: set[str] = set()
+        self.finished: list[tuple[str, str]] = []  # (order, how it ended), as seen here
+
+    # --- what it hears --------------------------------------------------------------------
+
+    def take(self, job: Job, k: int) -> Move:
+        """The committed roster of ``job`` names this robot: walk to its slot."""
+        self.job, self.plan, self.phase, self.since = job, None, GATHERING, k
+        self.heard, self.lost, self.leaving = "", set(), None
+        self.said, self.said_at = None, -1
+        return Move(walk=job.slot_of(self.rid))
+
+    def hear(self, msg: OrderStatusMsg) -> None:
+        """A status of this robot's order from its speaker (kept; :meth:`step` acts on it)."""
+        if self.job is not None and msg.oid == self.job.oid and msg.leader != self.rid:
+            self.heard = msg.state
+
+    @property
+    def speaker(self) -> str | None:
+        """The robot that decides for the team: the first of the roster not lost."""
+        if self.job is None:
+            return None
+        return next((r for r in self.job.robots if r not in self.lost), None)
+
+    # --- each tick ------------------------------------------------------------------------
+
+    def step(self, k: int, me: Point, mates: Mapping[str, Seen]) -> Move:
+        """Tick ``k``, this robot at ``me``, its teammates last seen at ``mates``."""
+        if self.job is None:
+            return self._idle(me)
+        if self.heard in (DELIVERED, FAILED, RELEASED):  # said by the speaker (or for it)
+            return self._dissolve(me, self._positions(me, mates), self.heard, None)
+        self._watch(k, mates)
+        if self.lost:
+            return self._lose(k, me, mates)
+        if self.speaker == self.rid:
+            return self._speak(k, me, mates)
+        return self._follow(k, me, mates)
+
+    def _idle(self, me: Point) -> Move:
+        tol = self.settings.goal_tolerance
+        if self.leaving is not None and math.dist(me, self.leaving) <= tol:
+            self.leaving = None
+            return Move(walk=self.home) if self.home is not None else Move()
+        return Move()
+
+    def _watch(self, k: int, mates: Mapping[str, Seen]) -> None:
+        assert self.job is not None
+        limit = self.settings.lost_ticks
+        for r in self.job.robots:
+            if r == self.rid:
+                continue
+            seen = mates.get(r)
+            last = self.since if seen is None else max(seen.k, self.since)
+            if k - last > limit:
+                self.lost.add(r)
+
+    def _positions(self, me: Point, mates: Mapping[str, Seen]) -> list[Point] | None:
+        assert self.job is not None
+        out = []
+        for r in self.job.robots:
+            if r == self.rid:
+                out.append(me)
+            elif r in mates:
+                out.append((mates[r].x, mates[r].y))
+            else:
+                return None
+        return out
+
+    def _form(self, at: Sequence[Point]) -> TeamPlan:
+        job = self.job
+        assert job is not None
+        self.plan = plan_team(job.oid, job.robots, job.type.slots, job.type.outline, at,
+                              (job.src, job.dst))
+        return self.plan
+
+    def _status(self, k: int, state: str, reason: str = "") -> OrderStatusMsg | None:
+        """The status to put this tick as speaker: a change at once, else every repeat."""
+        job = self.job
+        assert job is not None
+        msg = OrderStatusMsg(job.oid, state, job.round, job.robots, self.rid, reason,
+                             k * self.settings.tick_s)
+        if self.said is None or (self.said.state, self.said.reason) != (state, reason) \
+                or k - self.said_at >= self.settings.repeat_ticks:
+            self.said, self.said_at = msg, k
+            return msg
+        return None
+
+    def _speak(self, k: int, me: Point, mates: Mapping[str, Seen]) -> Move:
+        """The speaker's tick: the phase's condition, then its status."""
+        job, s = self.job, self.settings
+        assert job is not None
+        at = self._positions(me, mates)
+        team: TeamPlan | None = None
+        if self.phase == GATHERING and at is not None and all(
+                math.dist(p, q) <= s.goal_tolerance for p, q in zip(at, job.slots, strict=True)):
+            self.phase, self.since = LIFTING, k
+        elif self.phase == LIFTING and at is not None and k - self.since >= s.lift_ticks:
+            team = self._form(at)
+            self.phase, self.since = CARRYING, k
+        elif self.phase == CARRYING and at is not None and self._arrived(at):
+            self.phase, self.since = SETTING_DOWN, k
+        elif self.phase == SETTING_DOWN and k - self.since >= s.lift_ticks:
+            return self._dissolve(me, at, DELIVERED, self._status(k, DELIVERED))
+        hold = self.phase in (LIFTING, SETTING_DOWN)
+        return Move(team=team, hold=hold, status=self._status(k, REPORTED[self.phase]))
+
+    def _arrived(self, at: Sequence[Point]) -> bool:
+        """The load within the set-down tolerance of its station, every member at its goal."""
+        job, plan = self.job, self.plan
+        assert job is not None and plan is not None
+        d, a = pose_error(load_pose(plan.starts, at, job.src), job.dst)
+        tol = self.settings.goal_tolerance
+        return d <= SET_DOWN_M and a <= SET_DOWN_RAD and all(
+            math.dist(p, g) <= tol for p, g in zip(at, plan.goals, strict=True))
+
+    def _follow(self, k: int, me: Point, mates: Mapping[str, Seen]) -> Move:
+        """A member's tick: the speaker's statuses decide; at its slot it stands."""
+        job = self.job
+        assert job is not None
+        if self.heard == CARRYING and self.plan is None:
+            at = self._positions(me, mates)
+            if at is not None:
+                self.phase, self.since = CARRYING, k
+                return Move(team=self._form(at))
+        if self.plan is None:
+            near = math.dist(me, job.slot_of(self.rid)) <= self.settings.goal_tolerance
+            return Move(hold=near)
+        return Move()
+
+    def _lose(self, k: int, me: Point, mates: Mapping[str, Seen]) -> Move:
+        """A member lost: the speaker fails the order (releases the roster before the lift)."""
+        lost = min(self.lost)
+        state = FAILED if self.plan is not None else RELEASED
+        status = self._status(k, state, f"member lost: {lost}") if self.speaker == self.rid \
+            else None
+        # after a lift the load rests where the members hold it (a lost one where last seen)
+        return self._dissolve(me, self._positions(me, mates), state, status)
+
+    def rests(self, at: Sequence[Point] | None, how: str) -> Pose:
+        """Where the load of the team's order rests once it dissolves ``how``: at the
+        destination when delivered, where the members hold it after a lift (``at``: their
+        positions, None: not all known), else where it was."""
+        job = self.job
+        assert job is not None
+        if how == DELIVERED:
+            return job.dst
+        if self.plan is not None and at is not None:
+            return load_pose(self.plan.starts, at, job.src)
+        return job.src
+
+    def _dissolve(self, me: Point, at: Sequence[Point] | None, how: str,
+                  status: OrderStatusMsg | None) -> Move:
+        """The team dissolves: out from under the load, then to the parking spot."""
+        job = self.job
+        assert job is not None
+        self.finished.append((job.oid, how))
+        walk = self.home
+        sh = load_box(job.load, job.type, self.rests(at, how), self.radius + LOAD_MARGIN)
+        if inside_box(sh, me[0], me[1], self.radius + EXIT_GAP):
+            self.leaving = exit_point(sh, me, self.clear, EXIT_GAP + self.radius)
+            walk = self.leaving
+        self.job, self.plan, self.phase, self.heard = None, None, IDLE, ""
+        return Move(walk=walk if walk is not None else me, status=status, done=True)
