@@ -57,6 +57,7 @@ from agent.errand import (
     parking,
 )
 from agent.faults import LinkFaults
+from agent.order_check import acceptable
 from agent.order_link import OrderLink
 from geometry.shapes import Shape, shape_distance
 from leader import orders as lo
@@ -73,6 +74,7 @@ from scenario.model import (
     RobotSpec,
     Scenario,
 )
+from scenario.servable import movable_loads
 from wire import keys
 from wire.orders import LoadEntry, OrderMsg, OrderStatusMsg, decode_loads
 from wire.payloads import decode_state
@@ -161,6 +163,7 @@ class LifePart:
         self._session: zenoh.Session | None = None
         self._me: tuple[float, float, float] | None = None  # own pose of the last tick
         self.regroups = 0
+        self.refused = 0  # orders this robot's warehouse cannot serve (agent.order_check)
 
     # --- Zenoh ----------------------------------------------------------------------------
 
@@ -239,8 +242,12 @@ class LifePart:
             return None
         known = self.orders.get(msg.oid)
         if known is None:
+            # the manager's own rule, before the manager's verdict can reach this robot
+            if acceptable(self.life, msg, self._movable()) is not None:
+                self.refused += 1
+                return None
             kind = msg.type or self._type_of(msg.load)
-            if kind is None or msg.to not in self.life.station_by_name:
+            if kind is None:
                 return None
             known = lo.Order(msg.oid, kind, msg.load or msg.oid, msg.source, msg.to,
                              msg.priority, fresh=msg.kind == "new", t_posted=msg.stamp)
@@ -250,6 +257,14 @@ class LifePart:
             return None
         slots = slot_points(pose, self.life.load_type(known.type).slots)
         return OpenOrder(known.oid, slots, known.priority, known.t_posted or 0.0)
+
+    def _movable(self) -> frozenset[str]:
+        """The loads an order may move as this robot knows them: the warehouse file's, the new
+        loads of the orders it took, and every load the world lists."""
+        with self.heard.lock:
+            listed = set(self.heard.loads)
+        fresh = (o.oid for o in self.orders.values() if o.fresh)
+        return movable_loads(self.life, fresh) | listed
 
     def _type_of(self, load: str) -> str | None:
         with self.heard.lock:
@@ -486,6 +501,7 @@ class LifePart:
         """The part's counters for the agent's stats."""
         link = self.link
         return {"regroups": self.regroups, "phase": self.errand.phase,
+                "orders_refused": self.refused,
                 "finished": [list(f) for f in self.errand.finished],
                 "loads_malformed": self.heard.malformed,
                 "order_puts": 0 if link is None else link.puts,
