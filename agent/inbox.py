@@ -176,6 +176,22 @@ def plausible(cls: str, msg: Any, prev: Any | None, speed: float) -> bool:
     return check is None or check(msg, prev, speed)
 
 
+def exact_take(key: str, box: Mailbox) -> Take:
+    """The ring channel's take of a subscriber on the exact ``key`` (no wildcards): each PUT
+    sample's payload into ``box`` under ``key``, as ``box.callback`` does, without reading
+    the key back from the sample; a DELETE carries no value and is ignored."""
+    offer = box.offer
+
+    def take(sample: zenoh.Sample) -> None:
+        if sample.kind != _DELETE:
+            offer(key, sample.payload.to_bytes())
+
+    return take
+
+
+_DELETE = zenoh.SampleKind.DELETE
+
+
 class Receiver:
     """The receiver's side of the stamp check: its clock (the frame in lock-step, the wall
     clock in real time) and whether the world went on without it (:mod:`agent.clock`)."""
@@ -464,7 +480,7 @@ class Inbox:
         if self.polled and cls != keys.POSE:
             cap = max(RING_CAPACITY, self._ring_caps.get(cls, 0))
             return (t.declare(key, zenoh.handlers.RingChannel(cap)),
-                    self._handler(cls, box, notify=False))
+                    self._handler(cls, box, notify=False, key=key))
         if self.polled:  # the pose: tick right on the Zenoh thread that received it
             return t.declare(key, zenoh.handlers.Callback(self._on_pose, indirect=False)), None
         return t.declare(key, self._handler(cls, box)), None
@@ -503,16 +519,21 @@ class Inbox:
         self.mailbox(cls).offer(key, payload)
         self.on_arrival(key)
 
-    def _handler(self, cls: str, box: Mailbox, notify: bool = True) -> Take:
+    def _handler(self, cls: str, box: Mailbox, notify: bool = True, key: str | None = None
+                 ) -> Take:
         """A subscriber's callback: the sample to ``box`` (through the link faults for a
-        faulted class) and, with ``notify``, a wake-up of the loop's tick."""
+        faulted class) and, with ``notify``, a wake-up of the loop's tick. ``key``: the
+        subscriber's key; one without wildcards is every sample's key, so it is not read back
+        from each sample."""
         loop = self._loop
         assert loop is not None  # set by open()
         decode = DECODERS[cls]
         faults = self.faults
         faulty = faults.applies_to(cls)
         if not (faulty or notify):  # polled: straight into the mailbox
-            return box.callback
+            if key is None or "*" in key or "$" in key:
+                return box.callback
+            return exact_take(key, box)
 
         def on_sample(sample: zenoh.Sample) -> None:
             if faulty and sample.kind != zenoh.SampleKind.DELETE:

@@ -7,12 +7,13 @@ from __future__ import annotations
 import math
 
 import pytest
+import zenoh
 from zenoh.ext import UInt8, z_serialize
 
 from agent import body
 from agent.barriers import Obstacle
 from agent.control import FormationView, Stall, shared_push, tiebreak_push
-from agent.inbox import PairMemo
+from agent.inbox import PairMemo, exact_take
 from agent.inputs import step_inputs, waypoint_view
 from geometry.ellipse import Ellipse
 from wire.payloads import (
@@ -28,6 +29,7 @@ from wire.payloads import (
     new_pose,
     new_state,
 )
+from wire.traffic import Mailbox
 
 
 @pytest.mark.parametrize(("msg", "fields"), [
@@ -126,3 +128,22 @@ def test_the_step_inputs_made_in_one_go_hold_the_waypoint_and_the_rest(leg):
     assert made.view == waypoint_view(plain.view, *leg)
     assert made._replace(view=plain.view) == plain._replace(pose=(0.1, 0.2, 0.0), goal=(5.0, 0.0),
                                                              last_u=(0.1, 0.0))
+
+
+def test_an_exact_keys_take_stores_put_samples_under_its_key_and_ignores_deletes():
+    """What ``Mailbox.callback`` stores, without reading the key back from each sample."""
+
+    class Sample:
+        def __init__(self, kind, payload):
+            self.kind, self.payload = kind, zenoh.ZBytes(payload)
+            self.key_expr = "fcbf/robot/r1/state"
+
+    state = State(0.1, 0.2, 0.0, 0.0, 1.0)
+    plain, fast = Mailbox(None, decode_state), Mailbox(None, decode_state)
+    take = exact_take("fcbf/robot/r1/state", fast)
+    for sample in (Sample(zenoh.SampleKind.PUT, encode(state)),
+                   Sample(zenoh.SampleKind.DELETE, b"")):
+        plain.callback(sample)
+        take(sample)
+    assert fast.latest("fcbf/robot/r1/state") == plain.latest("fcbf/robot/r1/state") == state
+    assert fast.received == plain.received == 1
