@@ -164,6 +164,13 @@ class Footprint:
     outline0: tuple[Point, ...] = ()
 
     @functools.cached_property
+    def shape(self) -> tuple:
+        """What of the footprint the formation's twist depends on (every member's slot but its
+        own index), one object per distinct shape in the process (:class:`TwistMemo`'s key)."""
+        key = (self.slots, self.alpha0, self.goal_turn, self.load_points, self.load_edges)
+        return _SHAPES.setdefault(key, key)
+
+    @functools.cached_property
     def rho(self) -> float:
         """[m] the largest slot radius (at least 1 cm: it weighs omega in the QP)."""
         return max([BODY_TUNING.min_rho] + [math.hypot(x, y) for x, y in self.slots])
@@ -428,9 +435,9 @@ def solve3(zhat: tuple[float, float, float], rows: Sequence[Row3],
     problem min s^2 + t^2 over the earlier rows (c . e1) s + (c . e2) t <= d - c . p."""
     z = zhat
     for k, (a1, a2, a3, b) in enumerate(rows):
-        a = (a1, a2, a3)
-        if _dot(a, z) <= b + tol:
+        if a1 * z[0] + a2 * z[1] + a3 * z[2] <= b + tol:  # _dot(a, z), inline: the usual case
             continue
+        a = (a1, a2, a3)
         if _dot(a, a) < 1e-24:
             return None  # 0 <= b with b < -tol
         r = _dot(a, zhat) - b
@@ -614,11 +621,13 @@ class TwistMemo:
               push: Point = (0.0, 0.0), intent: Point | None = None,
               turn: float | None = None) -> tuple[Pose, TwistResult]:
         """:func:`formation_twist` of these inputs (the member's slot in ``fp`` plays no part)."""
-        # tuples, not the caller's lists: a list changed in place must not match its old self
-        key = (fp.slots, fp.alpha0, fp.goal_turn, fp.load_points, fp.load_edges, own, goal,
-               tuple(snap.obstacles), tuple(snap.shapes), tuple(snap.ellipses), p, push, intent,
-               turn)
-        which = (fp.slots, goal)
+        # tuples, not the caller's lists: a list changed in place must not match its old self;
+        # the footprint's shape is one object per distinct shape (Footprint.shape), so its
+        # identity stands for it
+        shape = fp.shape
+        key = (own, tuple(snap.obstacles), tuple(snap.shapes), tuple(snap.ellipses), p, push,
+               intent, turn)
+        which = (id(shape), goal)
         last = self.last.get(which)
         if last is not None and last[0] == key:
             return last[1]
@@ -628,6 +637,10 @@ class TwistMemo:
         self.last[which] = (key, value)
         return value
 
+
+#: every distinct footprint shape of the process, once (Footprint.shape): kept, so the identity
+#: of one never stands for another
+_SHAPES: dict[tuple, tuple] = {}
 
 #: the memo the agents of one process share (an agent host's: :class:`agent.tick.Ticker`)
 SHARED_TWISTS = TwistMemo()

@@ -252,6 +252,28 @@ def tiebreak_push(
     return (px * t.gain * vmax, py * t.gain * vmax)
 
 
+def shared_push(view: FormationView, others: Sequence[Ellipse], obstacles: Sequence[Obstacle],
+                vmax: float, t: TiebreakTuning = TUNING.tiebreak) -> tuple[float, float]:
+    """:func:`tiebreak_push`, remembered per formation (by its goal) with its inputs: every
+    member works out the same push from the same shared data (its ellipse and goal, the hazards
+    and obstacles it sees), so the members of one process work it out once a tick. A pure
+    cache: equal inputs give the very same push; thread-safe under the GIL."""
+    key = (view.own, tuple(others), tuple(obstacles), vmax, t)
+    which = (view.goal_x, view.goal_y)
+    last = _PUSHES.get(which)
+    if last is not None and last[0] == key:
+        return last[1]
+    push = tiebreak_push(view, others, obstacles, vmax, t)
+    if len(_PUSHES) >= 64:
+        _PUSHES.clear()
+    _PUSHES[which] = (key, push)
+    return push
+
+
+#: formation goal -> (the inputs of its last push, the push) (:func:`shared_push`)
+_PUSHES: dict[tuple[float, float], tuple[tuple, tuple[float, float]]] = {}
+
+
 def _half_width(e: Ellipse, nx: float, ny: float) -> float:
     """Support of the ellipse along the unit direction (nx, ny): its half-width across it."""
     c, s = math.cos(e.alpha), math.sin(e.alpha)
@@ -472,7 +494,17 @@ def velocity_limit_rows(p: ControlParams, theta: float, view: FormationView | No
         heading = math.atan2(view.goal_y - view.own.cy, view.goal_x - view.own.cx)
     else:
         heading = math.atan2(nominal_u[1], nominal_u[0])
-    return barriers.speed_rows(p.max_speed, heading)
+    key = (p.max_speed, heading)
+    last = _SPEED_ROWS.get(key)
+    if last is None:  # the members of a formation share the heading: made once for them
+        if len(_SPEED_ROWS) >= 64:
+            _SPEED_ROWS.clear()
+        last = _SPEED_ROWS[key] = barriers.speed_rows(p.max_speed, heading)
+    return last
+
+
+#: (max speed, heading) -> the speed polygon's rows (read only: every solver copies its rows)
+_SPEED_ROWS: dict[tuple[float, float], list[Row]] = {}
 
 
 def escape_command(
@@ -613,7 +645,7 @@ class Controller:
         esc = escape_command(p, view, inp.obstacles, t) if p.tiebreak else None  # a faster hazard
         if esc is None and p.tiebreak and view.yielding:  # a jam: the later name backs off
             esc = yield_command(view, hazards, p.max_speed, t.stall)
-        push = (tiebreak_push(view, hazards, inp.obstacles, p.max_speed, t.tiebreak)
+        push = (shared_push(view, hazards, inp.obstacles, p.max_speed, t.tiebreak)
                 if p.tiebreak else (0.0, 0.0))
         u, aim = rigid_nominal(bp, fp, view, body.Snapshot(inp.obstacles, inp.shapes, hazards),
                                point, inp.pose[:2], inp.goal, push, esc, self.twists.twist)

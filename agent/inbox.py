@@ -104,6 +104,31 @@ class DecodeMemo:
 MEMOS: dict[str, DecodeMemo] = {cls: DecodeMemo(decode) for cls, decode in DECODERS.items()}
 
 
+class PairMemo:
+    """A pure check of two messages and a number, remembered by the messages' identity for the
+    newest pairs of the process: the agents of one agent host hold the same decoded messages
+    (:class:`DecodeMemo`), so each checks the same ``others`` message, or the same pair of
+    obstacle lists, that its formation's other members checked a moment before. The pair is
+    held with its verdict (an identity never stands for another message); thread-safe under
+    the GIL (a lost insert costs one more check); emptied when it holds ``size`` pairs."""
+
+    def __init__(self, check: Callable[[Any, Any, float], bool], size: int = 64) -> None:
+        self._check = check
+        self._size = size
+        self._verdicts: dict[tuple[int, int, float], tuple[Any, Any, bool]] = {}
+
+    def __call__(self, a: Any, b: Any, x: float) -> bool:
+        key = (id(a), id(b), x)
+        hit = self._verdicts.get(key)
+        if hit is not None and hit[0] is a and hit[1] is b:
+            return hit[2]
+        verdict = self._check(a, b, x)
+        if len(self._verdicts) >= self._size:
+            self._verdicts.clear()
+        self._verdicts[key] = (a, b, verdict)
+        return verdict
+
+
 def _pose_ok(msg: Any, prev: Any | None, speed: float) -> bool:
     return prev is None or jump_ok(prev.x, prev.y, prev.stamp, msg.x, msg.y, msg.stamp,
                                    speed, JUMP_MARGIN_M)
@@ -116,12 +141,25 @@ def _state_ok(msg: Any, prev: Any | None, speed: float) -> bool:
                                    speed, JUMP_MARGIN_M)
 
 
-def _ellipse_ok(msg: Any, _prev: Any | None, speed: float) -> bool:
+def _ellipse_check(msg: Any, _none: None, speed: float) -> bool:
     return ellipse_ok(msg, speed)
 
 
-def _others_ok(msg: Any, _prev: Any | None, speed: float) -> bool:
+def _others_check(msg: Any, _none: None, speed: float) -> bool:
     return ellipses_ok(msg.ellipses, speed) and (msg.own is None or ellipse_ok(msg.own, speed))
+
+
+_ELLIPSE_VERDICTS = PairMemo(_ellipse_check)  # an ellipse's verdict: of the message alone
+_OTHERS_VERDICTS = PairMemo(_others_check)
+_LISTS_AGREE = PairMemo(lambda kept, msg, _x: common_agree(kept, msg))  # obstacle lists
+
+
+def _ellipse_ok(msg: Any, _prev: Any | None, speed: float) -> bool:
+    return _ELLIPSE_VERDICTS(msg, None, speed)
+
+
+def _others_ok(msg: Any, _prev: Any | None, speed: float) -> bool:
+    return _OTHERS_VERDICTS(msg, None, speed)
 
 
 #: mailbox class -> whether a message of it is physically possible after the kept one
@@ -136,6 +174,22 @@ def plausible(cls: str, msg: Any, prev: Any | None, speed: float) -> bool:
     """Whether ``msg`` is physically possible after ``prev`` (agent.plausibility)."""
     check = PLAUSIBLE.get(cls)
     return check is None or check(msg, prev, speed)
+
+
+def exact_take(key: str, box: Mailbox) -> Take:
+    """The ring channel's take of a subscriber on the exact ``key`` (no wildcards): each PUT
+    sample's payload into ``box`` under ``key``, as ``box.callback`` does, without reading
+    the key back from the sample; a DELETE carries no value and is ignored."""
+    offer = box.offer
+
+    def take(sample: zenoh.Sample) -> None:
+        if sample.kind != _DELETE:
+            offer(key, sample.payload.to_bytes())
+
+    return take
+
+
+_DELETE = zenoh.SampleKind.DELETE
 
 
 class Receiver:
@@ -291,7 +345,7 @@ class Inbox:
         sources as well, and which one is genuine cannot be told: ``kept`` becomes a rival
         (counted), so both stay avoided. An obstacle missing from it is held
         (:class:`agent.plausibility.ObstacleMemory`)."""
-        if not self.lockstep and not common_agree(kept, msg):
+        if not self.lockstep and not _LISTS_AGREE(kept, msg, 0.0):
             self._flag(keys.OBSTACLES, "moving or dropping what the kept one reports", stop=False)
             self.rivals.offer(kept, now)
 
@@ -426,7 +480,7 @@ class Inbox:
         if self.polled and cls != keys.POSE:
             cap = max(RING_CAPACITY, self._ring_caps.get(cls, 0))
             return (t.declare(key, zenoh.handlers.RingChannel(cap)),
-                    self._handler(cls, box, notify=False))
+                    self._handler(cls, box, notify=False, key=key))
         if self.polled:  # the pose: tick right on the Zenoh thread that received it
             return t.declare(key, zenoh.handlers.Callback(self._on_pose, indirect=False)), None
         return t.declare(key, self._handler(cls, box)), None
@@ -465,16 +519,21 @@ class Inbox:
         self.mailbox(cls).offer(key, payload)
         self.on_arrival(key)
 
-    def _handler(self, cls: str, box: Mailbox, notify: bool = True) -> Take:
+    def _handler(self, cls: str, box: Mailbox, notify: bool = True, key: str | None = None
+                 ) -> Take:
         """A subscriber's callback: the sample to ``box`` (through the link faults for a
-        faulted class) and, with ``notify``, a wake-up of the loop's tick."""
+        faulted class) and, with ``notify``, a wake-up of the loop's tick. ``key``: the
+        subscriber's key; one without wildcards is every sample's key, so it is not read back
+        from each sample."""
         loop = self._loop
         assert loop is not None  # set by open()
         decode = DECODERS[cls]
         faults = self.faults
         faulty = faults.applies_to(cls)
         if not (faulty or notify):  # polled: straight into the mailbox
-            return box.callback
+            if key is None or "*" in key or "$" in key:
+                return box.callback
+            return exact_take(key, box)
 
         def on_sample(sample: zenoh.Sample) -> None:
             if faulty and sample.kind != zenoh.SampleKind.DELETE:

@@ -11,6 +11,7 @@ carried from tick to tick.
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from typing import Any
 
 from geometry.ellipse import Ellipse, within_reach
 from leader.role import VIEW_RANGE, msg_to_ellipse
@@ -34,6 +35,9 @@ def step_inputs(
     period: float,
     foreign: Iterable[Heading] | None = None,
     members: Iterable[Heading] = (),
+    *,
+    leg: tuple[float | None, bool] = (None, True),
+    **rest: Any,
 ) -> StepInput:
     """Inputs of one robot's step (its ``stall`` the jam rule's memory after this tick).
 
@@ -47,17 +51,20 @@ def step_inputs(
     each foreign robot, is a partner of a hard separation row; the other formations' ellipses
     stay hazards for the formation's motion (its QP, tie-break) in both topologies. A neighbour
     may carry its heading as a sixth number (from its ``state``): a unicycle formation's band on
-    the look-ahead points narrows by it.
+    the look-ahead points narrows by it. ``leg``: the current waypoint's heading and whether
+    the member settles there, as :func:`waypoint_view` puts them in the view; ``rest``: the
+    StepInput's other fields (the pose, goal, obstacles, ...), so the input is made once.
     """
     nb = [Neighbour(*n) for n in neighbours]
     view = None
     if own is not None:  # the formations in view (the leader's ``others`` holds no more)
         others = [(name, e) for name, e in others
                   if within_reach(own, e.cx, e.cy, e.a, VIEW_RANGE)]
-        view = FormationView(own, *formation_goal)
-        stall = update_stall(stall, view, period)
-        view = view._replace(name=formation, other_names=tuple(name for name, _e in others),
-                             yielding=stall.yielding)
+        gx, gy = formation_goal
+        heading, arriving = leg
+        stall = update_stall(stall, FormationView(own, gx, gy), period)
+        view = FormationView(own, gx, gy, formation, tuple([name for name, _e in others]),
+                             stall.yielding, heading, arriving)
     hazards = [e for _name, e in others]
     partners = [Partner(*m) for m in members]
     if foreign is not None:
@@ -69,7 +76,7 @@ def step_inputs(
         ellipses = hazards
         pair = []
     return StepInput(neighbours=nb, others=ellipses, view=view, pairwise=pair, partners=partners,
-                     hazards=hazards, stall=stall)
+                     hazards=hazards, stall=stall, **rest)
 
 
 def predict_state(x: float, y: float, ux: float, uy: float, theta: float, age: float,

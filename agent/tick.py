@@ -37,7 +37,7 @@ from agent.config import AgentConfig
 from agent.control import Controller, Stall, StepResult
 from agent.hard_rows import HardRowCounter
 from agent.inbox import Inbox
-from agent.inputs import carry_pose, others_view, step_inputs, waypoint_view
+from agent.inputs import carry_pose, others_view, step_inputs
 from agent.leader_step import LeaderPart
 from agent.margins import carried_age
 from agent.navigation import STALLED_AFTER_S, NavPart
@@ -54,7 +54,7 @@ from agent.tick_times import COMMAND, INPUTS, LEADER, POSE, RECORD, ROUTE, STATE
 from agent.transport import CommandOut
 from agent.unicycle import control_point
 from wire import keys
-from wire.payloads import Cmd, Obstacles, Others, Pose, ShapeMsg, State
+from wire.payloads import Cmd, Obstacles, Others, Pose, ShapeMsg, State, new_cmd, new_state
 from wire.stamps import check_stamp
 
 logger = logging.getLogger(__name__)
@@ -233,7 +233,8 @@ class Ticker:
         transport = self.parts.out.transport
         if self._tick_point is not None and transport is not None:
             px, py, stamp, th = self._tick_point
-            transport.publish(self.keys.state, State(px, py, *self.last_u, stamp, th)
+            ux, uy = self.last_u
+            transport.publish(self.keys.state, new_state(px, py, ux, uy, stamp, th)
                               if self.loc is None else self.loc.state(px, py, self.last_u,
                                                                       stamp, th))
 
@@ -327,18 +328,16 @@ class Ticker:
         for n, df in k.neighbours.items():
             x, y, ux, uy, th = states[n]
             neighbours.append((x, y, ux, uy, df, th))
+        follower = self.parts.nav.follower
         inputs = step_inputs(
             neighbours, own, cfg.formation, waypoint, others,
             self._stall, cfg.period,  # the jam rule's memory
             [states[n] for n in k.foreign] if k.all_to_all else None,
             [states[n] for n in k.partners],
-        )
-        self._stall = inputs.stall
-        follower = self.parts.nav.follower
-        inputs = inputs._replace(
-            view=waypoint_view(inputs.view, follower.heading, follower.arriving),
+            leg=(follower.heading, follower.arriving),
             pose=(pose.x, pose.y, pose.theta), goal=target, obstacles=obs, last_u=self.last_u,
             shapes=shapes, footprint=cfg.footprint)
+        self._stall = inputs.stall
         times = self.times
         times.lap(INPUTS)
         controller, loc = self.controller, self.loc
@@ -357,8 +356,9 @@ class Ticker:
         if self.parts.leader.leading:
             stall = self._stall
             self.parts.nav.report(stamp, stall.still >= STALLED_AFTER_S, False)
-        accel = (res.ax, res.ay) if cfg.control.double_integrator else (None, None)
-        self.parts.out.send_command(Cmd(res.v, res.omega, res.ux, res.uy, stamp, *accel))
+        self.parts.out.send_command(
+            Cmd(res.v, res.omega, res.ux, res.uy, stamp, res.ax, res.ay)
+            if cfg.control.double_integrator else new_cmd(res.v, res.omega, res.ux, res.uy, stamp))
         times.lap(COMMAND)
         self.last_u = (res.ux, res.uy)
         self._record(res, stamp)

@@ -32,6 +32,7 @@ from agent.clock import STATS_WINDOW
 
 TICK_PARTS = ("inbox", "pose", "leader", "inputs", "route", "step", "command", "record", "state")
 INBOX, POSE, LEADER, INPUTS, ROUTE, STEP, COMMAND, RECORD, STATE = range(len(TICK_PARTS))
+_ZEROS = (0,) * len(TICK_PARTS)
 
 
 class TickTimes:
@@ -63,10 +64,10 @@ class TickTimes:
     def end(self) -> None:
         """File this tick's parts in their windows and start the next tick from zero."""
         acc = self._acc
-        for i, ns in enumerate(acc):
+        for ns, window in zip(acc, self._windows, strict=True):
             if ns:
-                self._windows[i].append(ns * 1e-3)
-                acc[i] = 0
+                window.append(ns * 1e-3)
+        acc[:] = _ZEROS
 
     def medians(self) -> dict[str, float | None]:
         """Per part: the median [us] over the ticks it ran in (None: it never ran)."""

@@ -1,7 +1,7 @@
 """CPU time of the agents' real-time tick, in one process and without Zenoh, for A/B comparisons.
 
     PYTHONPATH=TREE python benchmarks/agent_tick.py [--robots 32] [--hz 50] [--seconds 10]
-        [--slots 8] [--profile FILE] [--json FILE]
+        [--slots 8] [--profile FILE] [--json FILE] [--opcodes]
 
 The agents of :func:`experiments.fleet_scenario.fleet_scenario` (the fleet ``formation bench
 --fleets`` runs) as real-time agent nodes ticking on pose arrival, as an agent host runs them, on
@@ -12,6 +12,12 @@ the obstacles and every pose on a virtual clock (``time.time`` is replaced by it
 freshness as in real time, the machine's load does not make inputs stale). Each pose put is
 timed with the thread's CPU clock: the pose callback and the tick it runs (drain, tick, puts).
 The code under test is whatever ``PYTHONPATH`` points at, so two trees run the same script.
+
+``--opcodes`` counts instead the Python bytecodes and calls each timed pose put runs
+(``sys.settrace``): a measure of the interpreter's work that other jobs on the machine do not
+move, for comparing trees on a busy machine (work done in C, such as a solver or the
+serializer, is not in it). The tracing slows the wall clock, so the viewers' diagnostics,
+paced by it, are left out in this mode.
 """
 
 from __future__ import annotations
@@ -33,6 +39,7 @@ from agent.config import build_agent_configs
 from agent.node import AgentNode, NodeOptions
 from experiments.fleet_scenario import fleet_scenario
 from wire import keys
+from wire.diag import DiagPublisher
 
 try:
     from runtime.heap import freeze_startup
@@ -239,8 +246,34 @@ class World:
         return out
 
 
+class OpCounter:
+    """Bytecodes and calls run while enabled (a ``cProfile.Profile`` stand-in for :func:`drive`)."""
+
+    def __init__(self) -> None:
+        self.opcodes = 0
+        self.calls = 0
+
+    def _local(self, _frame: Any, event: str, _arg: Any) -> Any:
+        if event == "opcode":
+            self.opcodes += 1
+        return self._local
+
+    def _global(self, frame: Any, event: str, _arg: Any) -> Any:
+        if event != "call":
+            return None
+        self.calls += 1
+        frame.f_trace_opcodes = True
+        return self._local
+
+    def enable(self) -> None:
+        sys.settrace(self._global)
+
+    def disable(self) -> None:
+        sys.settrace(None)
+
+
 def drive(world: World, clock: VirtualClock, frames: int, dt: float, warm: int,
-          prof: cProfile.Profile | None) -> list[int]:
+          prof: cProfile.Profile | OpCounter | None) -> list[int]:
     """Run ``frames`` frames; the CPU time [ns] of each pose put after the first ``warm``
     frames (profiled with ``prof``)."""
     cpu: list[int] = []
@@ -287,7 +320,8 @@ def summary(stats: list[dict], cpu: list[int]) -> dict:
     return out
 
 
-def run(robots: int, hz: float, seconds: float, slots: int, profile: str | None) -> dict:
+def run(robots: int, hz: float, seconds: float, slots: int, profile: str | None,
+        opcodes: bool = False) -> dict:
     dt = 1.0 / hz
     clock = VirtualClock(1.0e9)
     time.time = clock  # type: ignore[assignment]  # stamps and freshness on the virtual clock
@@ -300,19 +334,26 @@ def run(robots: int, hz: float, seconds: float, slots: int, profile: str | None)
     gc_time = GcTime()
     gc.callbacks.append(gc_time)
     frames = int(round(seconds * hz))
-    prof = cProfile.Profile() if profile else None
+    prof: cProfile.Profile | OpCounter | None = cProfile.Profile() if profile else None
+    if opcodes:
+        prof = OpCounter()
+        # paced by the wall clock, which the tracing slows (module docstring)
+        DiagPublisher.tick = lambda *_args: None  # type: ignore[method-assign]
     cpu = drive(world, clock, frames, dt, min(frames // 5, int(hz)), prof)
     gc.callbacks.remove(gc_time)
     stats = [n.stats() for n in nodes]
     for node in nodes:
         node.close()
-    if prof is not None and profile:
+    if isinstance(prof, cProfile.Profile) and profile:
         prof.dump_stats(profile)
     out = {"robots": robots, "hz": hz, "frames": frames,
            **summary([s if isinstance(s, dict) else s.to_json_dict() for s in stats], cpu),
            "gc_ms": gc_time.ms, "gc_collections": gc_time.counts,
            "distance_m": statistics.fmean(world.pos[r][0] - world.start[r][0]
                                           for r in world.ids)}
+    if isinstance(prof, OpCounter):
+        out["opcodes_per_put"] = prof.opcodes / len(cpu)
+        out["calls_per_put"] = prof.calls / len(cpu)
     return out
 
 
@@ -332,8 +373,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--slots", type=int, default=8)
     ap.add_argument("--profile", default=None, help="write a cProfile of the timed pose puts")
     ap.add_argument("--json", default=None, help="write the figures to this file too")
+    ap.add_argument("--opcodes", action="store_true",
+                    help="count the bytecodes and calls of each timed pose put instead")
     ns = ap.parse_args(argv)
-    out = run(ns.robots, ns.hz, ns.seconds, ns.slots, ns.profile)
+    out = run(ns.robots, ns.hz, ns.seconds, ns.slots, ns.profile, ns.opcodes)
     text = json.dumps(out, indent=2)
     print(text)
     if ns.json:

@@ -152,6 +152,9 @@ class Reader:
     def points(self, name: str, index: int | None = None) -> Points:
         """An ellipse's ``points:list[(x, y)]`` and ``headings:list[f64]`` (no headings, or one
         per point; at most :data:`MAX_POINTS`)."""
+        fast = self._points_in_one_go()
+        if fast is not None:
+            return fast
         what = (name if index is None else f"{name}[{index}]") + ".points"
         n = self.count(what, MAX_POINTS)
         pts: tuple[tuple[float, float], ...] = ()
@@ -171,6 +174,31 @@ class Reader:
         self._need(fmt.size, what)
         hs = fmt.unpack_from(self.data, self.pos)
         self.pos += fmt.size
+        return pts, hs
+
+    def _points_in_one_go(self) -> Points | None:
+        """The usual case of :meth:`points`, read in one go: one-byte counts (at most
+        :data:`MAX_POINTS` points, as many headings or none) and every byte present. ``None``
+        (nothing consumed) for anything else, which :meth:`points` then reads step by step, with
+        its checks and messages."""
+        data, pos = self.data, self.pos
+        size = len(data)
+        if pos >= size:
+            return None
+        n = data[pos]
+        heads = pos + 1 + 16 * n  # where the headings' count is
+        if n > MAX_POINTS or heads >= size:  # (a count byte of 0x80 or more exceeds MAX_POINTS)
+            return None
+        k = data[heads]
+        stop = heads + 1 + 8 * k
+        if (k != n and k != 0) or stop > size:
+            return None
+        pts: tuple[tuple[float, float], ...] = ()
+        if n:
+            values = _pairs(n).unpack_from(data, pos + 1)
+            pts = tuple(zip(values[0::2], values[1::2], strict=True))
+        hs = _singles(k).unpack_from(data, heads + 1) if k else ()
+        self.pos = stop
         return pts, hs
 
     def end(self) -> None:
