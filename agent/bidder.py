@@ -25,6 +25,11 @@ every bidder of a lock-step run, and of a test's simulated network, agrees on it
 * **Orphans.** A robot named at slot 0 by votes for a roster it did not compute (it heard
   other bids) releases that roster: it can never commit (a commit needs every member's vote,
   its own too), and without a release its voters would stay bound.
+* **A lost message only delays.** A robot still bound a window after its vote's round closed
+  (it lost every copy of the decision) puts its vote again every ``repeat_every`` ticks; the
+  roster's leader answers a vote of a round it has decided with its decision again, and one
+  for a roster it did not compute with a release. A member that lost every copy of a commit
+  learns it from the team's ``gathering`` status (only a committed roster's speaker puts one).
 * **Why at most one roster per order, one order per robot.** Two committed rosters of one order
   would need two majorities of the fleet, which share a robot: in one round it votes once per
   order; across rounds it is bound until the release of the roster it voted for, and a
@@ -54,6 +59,7 @@ Point = tuple[float, float]
 Message = BidMsg | OrderStatusMsg
 ASSIGNED = "assigned"  # an order status: the roster is committed
 RELEASED = "waiting"  # an order status naming a round and a roster: that roster is released
+GATHERING = "gathering"  # an order status: the committed roster's team gathers
 BID, VOTE, DECLINE = "bid", "vote", "decline"
 
 
@@ -204,7 +210,7 @@ class Bidder:
         if not msg.roster or msg.leader != msg.roster[0]:
             self.dropped += 1
             return []
-        if msg.state == ASSIGNED:
+        if msg.state == ASSIGNED or (msg.state == GATHERING and msg.oid in self.orders):
             return self._committed(msg)
         if msg.state == RELEASED:
             self._released(msg)
@@ -249,7 +255,10 @@ class Bidder:
                 continue
             self.maybe_orphans.discard((oid, m, roster))
             lead = self.leads.get((oid, m))
-            if oid in self.orders and (lead is None or lead.roster != roster):
+            if lead is not None and lead.roster == roster and lead.decision is not None:
+                if k - m * window > window:  # a voter that lost the decision asks again
+                    self.orphans.setdefault(lead.decision, 1)
+            elif oid in self.orders and (lead is None or lead.roster != roster):
                 release = OrderStatusMsg(oid, RELEASED, m, roster, self.rid,
                                          "not the leader's roster")
                 self.orphans.setdefault(release, self.settings.copies)
@@ -289,8 +298,20 @@ class Bidder:
             out += self.votes  # the votes again until the leaders decide
         out += self._decide(k)
         out += self._disown(k)
+        out += self._ask(k)
         if s.bid_tick(k) and s.next_close(k) >= self.first_round and self.idle:
             out += self._bids(k, position)
+        return out
+
+    def _ask(self, k: int) -> list[Message]:
+        """Votes still binding a window after their round closed, put again every
+        ``repeat_every`` ticks: their leader answers with its decision."""
+        s = self.settings
+        out: list[Message] = []
+        for oid, (m, roster) in sorted(self.bound.items()):
+            age = k - m * s.window
+            if age > s.window and age % s.repeat_every == 0:
+                out.append(BidMsg(oid, self.rid, m, VOTE, roster=roster))
         return out
 
     def ripe(self, close: int) -> list[OpenOrder]:

@@ -31,15 +31,24 @@ Statuses (:class:`wire.orders.OrderStatusMsg` on ``order/{oid}/status``) go out 
 speaker: ``gathering`` from the roster's commit through the lift, ``carrying`` from the lift's
 end through the set-down, ``delivered`` once set down, ``failed`` (or ``waiting``, a release)
 when a member is lost; each change at once, then again every ``repeat_ticks``. The other members
-follow the statuses they hear: ``carrying`` forms the team (from the positions they heard, the
-same as the speaker's: all stood still through the lift), ``delivered``, ``failed`` and a release dissolve it.
+follow the statuses they hear: ``carrying`` forms the team, ``delivered``, ``failed`` and a
+release dissolve it.
+
+A lost status only delays. A member that hears ``carrying`` a repeat late forms the team from
+the positions where the whole team last stood still at its slots (:class:`Rest`: every
+member's position reported unchanged over half a lift), the speaker's own positions at the
+lift, not from where the others have carried the load since. The speaker puts the order's
+final status (``delivered`` or ``failed``) again every ``repeat_ticks`` after the team
+dissolved, until it speaks another's, so that a member (or any robot) that lost it still
+learns the order ended. A status of another round than the job's (an old roster of the same
+order) is not this team's.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from geometry.shapes import Shape, box, shape_distance
 from leader.team import Point, Pose, TeamPlan, load_pose, plan_team, pose_error
@@ -154,6 +163,34 @@ class Seen:
     k: int
 
 
+class Rest:
+    """Where a team last stood still at its slots: each member's position and the ticks over
+    which its reports held it unchanged; :meth:`see` each tick, :attr:`at` the positions (slot
+    order) of the last tick at which every member had stood still for ``span`` ticks within
+    ``tolerance`` of its slot (None: not yet)."""
+
+    def __init__(self, slots: Sequence[Point], span: int, tolerance: float) -> None:
+        self.slots = tuple(slots)
+        self.span = span
+        self.tolerance = tolerance
+        self.still: list[tuple[Point, int, int] | None] = [None] * len(self.slots)
+        self.at: tuple[Point, ...] | None = None
+
+    def see(self, reports: Sequence[tuple[Point, int] | None]) -> None:
+        """Each member's newest report (position, tick; None: none yet), in slot order."""
+        for i, rep in enumerate(reports):
+            if rep is None:
+                continue
+            p, k = rep
+            old = self.still[i]
+            self.still[i] = (p, old[1], max(k, old[2])) if old is not None and old[0] == p \
+                else (p, k, k)
+        if all(v is not None and v[2] - v[1] >= self.span
+               and math.dist(v[0], q) <= self.tolerance
+               for v, q in zip(self.still, self.slots, strict=True)):
+            self.at = tuple(v[0] for v in self.still if v is not None)
+
+
 @dataclass(frozen=True)
 class Move:
     """What the agent does after a step: ``walk`` alone to this point (a new goal as a formation
@@ -190,6 +227,9 @@ class Errand:
         self.leaving: Point | None = None  # out from under the load just set down
         self.lost: set[str] = set()
         self.finished: list[tuple[str, str]] = []  # (order, how it ended), as seen here
+        self.rest: Rest | None = None  # where the team last stood still at its slots
+        self.ended: OrderStatusMsg | None = None  # the last final status this robot spoke
+        self.ended_at = -1  # [tick] it was last put
 
     # --- what it hears --------------------------------------------------------------------
 
@@ -198,11 +238,15 @@ class Errand:
         self.job, self.plan, self.phase, self.since = job, None, GATHERING, k
         self.heard, self.lost, self.leaving = "", set(), None
         self.said, self.said_at = None, -1
+        self.rest = Rest(job.slots, max(1, self.settings.lift_ticks // 2),
+                         self.settings.goal_tolerance)
         return Move(walk=job.slot_of(self.rid))
 
     def hear(self, msg: OrderStatusMsg) -> None:
         """A status of this robot's order from its speaker (kept; :meth:`step` acts on it)."""
-        if self.job is not None and msg.oid == self.job.oid and msg.leader != self.rid:
+        job = self.job
+        if job is not None and msg.oid == job.oid and msg.round == job.round \
+                and msg.leader != self.rid:
             self.heard = msg.state
 
     @property
@@ -217,7 +261,9 @@ class Errand:
     def step(self, k: int, me: Point, mates: Mapping[str, Seen]) -> Move:
         """Tick ``k``, this robot at ``me``, its teammates last seen at ``mates``."""
         if self.job is None:
-            return self._idle(me)
+            return self._idle(k, me)
+        if self.plan is None and self.rest is not None:
+            self.rest.see(self._reports(k, me, mates))
         if self.heard in (DELIVERED, FAILED, RELEASED):  # said by the speaker (or for it)
             return self._dissolve(me, self._positions(me, mates), self.heard, None)
         self._watch(k, mates)
@@ -227,12 +273,33 @@ class Errand:
             return self._speak(k, me, mates)
         return self._follow(k, me, mates)
 
-    def _idle(self, me: Point) -> Move:
+    def _idle(self, k: int, me: Point) -> Move:
         tol = self.settings.goal_tolerance
+        again = self._again(k)
         if self.leaving is not None and math.dist(me, self.leaving) <= tol:
             self.leaving = None
-            return Move(walk=self.home) if self.home is not None else Move()
-        return Move()
+            return Move(walk=self.home, status=again) if self.home is not None \
+                else Move(status=again)
+        return Move(status=again)
+
+    def _again(self, k: int) -> OrderStatusMsg | None:
+        """The last final status this robot spoke, due again this tick (every repeat)."""
+        if self.ended is None or k - self.ended_at < self.settings.repeat_ticks:
+            return None
+        self.ended_at = k
+        return replace(self.ended, stamp=k * self.settings.tick_s)
+
+    def _reports(self, k: int, me: Point, mates: Mapping[str, Seen]
+                 ) -> list[tuple[Point, int] | None]:
+        """Each member's newest position and its tick, in slot order (this robot's own: the
+        tick before ``k``)."""
+        assert self.job is not None
+        out: list[tuple[Point, int] | None] = []
+        for r in self.job.robots:
+            seen = mates.get(r)
+            out.append((me, k - 1) if r == self.rid else
+                       None if seen is None else ((seen.x, seen.y), seen.k))
+        return out
 
     def _watch(self, k: int, mates: Mapping[str, Seen]) -> None:
         assert self.job is not None
@@ -258,8 +325,12 @@ class Errand:
         return out
 
     def _form(self, at: Sequence[Point]) -> TeamPlan:
+        """The team's plan from where its members stood still through the lift (``at``, the
+        positions of the moment, until they have)."""
         job = self.job
         assert job is not None
+        if self.rest is not None and self.rest.at is not None:
+            at = self.rest.at
         self.plan = plan_team(job.oid, job.robots, job.type.slots, job.type.outline, at,
                               (job.src, job.dst))
         return self.plan
@@ -345,6 +416,8 @@ class Errand:
         job = self.job
         assert job is not None
         self.finished.append((job.oid, how))
+        if status is not None and how in (DELIVERED, FAILED):
+            self.ended, self.ended_at = status, round(status.stamp / self.settings.tick_s)
         walk = self.home
         sh = load_box(job.load, job.type, self.rests(at, how), self.radius + LOAD_MARGIN)
         if inside_box(sh, me[0], me[1], self.radius + EXIT_GAP):

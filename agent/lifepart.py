@@ -157,6 +157,7 @@ class LifePart:
         self.formations_seen: tuple = ()
         self.allies: tuple[str, ...] = ()  # gathering: teammates kept apart by separation rows
         self.link: OrderLink | None = None
+        self.closed_link: OrderLink | None = None
         self._subs: dict[str, Any] = {}
         self._listening: set[str] = set()  # the teammates whose state is subscribed to
         self._listen_since: dict[str, int] = {}  # teammate -> the tick its state was subscribed
@@ -178,7 +179,7 @@ class LifePart:
     def close(self) -> None:
         if self.link is not None:
             self.link.close()
-            self.link = None
+            self.closed_link, self.link = self.link, None  # its counters stay for the stats
         for sub in self._subs.values():
             sub.undeclare()
         self._subs.clear()
@@ -499,14 +500,16 @@ class LifePart:
 
     def stats(self) -> dict[str, Any]:
         """The part's counters for the agent's stats."""
-        link = self.link
+        link = self.link or self.closed_link
         return {"regroups": self.regroups, "phase": self.errand.phase,
                 "orders_refused": self.refused,
                 "finished": [list(f) for f in self.errand.finished],
                 "loads_malformed": self.heard.malformed,
                 "order_puts": 0 if link is None else link.puts,
                 "order_malformed": 0 if link is None else link.malformed,
-                "order_forged": 0 if link is None else link.forged}
+                "order_forged": 0 if link is None else link.forged,
+                "order_fault_dropped": 0 if link is None else link.fault_dropped,
+                "bids_dropped": self.bidder.dropped, "declined": list(self.bidder.declined)}
 
 
 def static_shapes(shape_msgs: tuple) -> tuple[Shape, ...]:

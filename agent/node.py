@@ -603,4 +603,5 @@ class AgentNode:
                    for row in c.trace],
             ellipse_trace=[list(row) for row in ld.ellipse_trace],
             localisation=None if self.odom_in is None else self.odom_in.stats(),
+            lifelong=None if self.life is None else self.life.stats(),
         )

@@ -8,20 +8,22 @@ handed to the bidder at the start of the robot's next tick (:meth:`OrderLink.ste
 bidder, a pure state machine, is only ever touched by the tick. What the tick returns is put on
 ``order/{oid}/bid/{rid}`` (bids, votes, declines) and ``order/{oid}/status`` (a leader's
 commit or release). Link faults (:class:`agent.faults.LinkFaults` ``drop``) lose the robots'
-bids and statuses at this receiver, seeded and counted, as the runtime's ``--drop`` loses the
-other inter-robot classes; the manager's orders are not dropped (a robot that misses one
-learns it from the queryable). ``resolve`` turns a posted order into its slots in the world
-(the robot's knowledge of the stations and load types); None: not an order this robot can
-serve, ignored. ``on_team`` hears each committed roster this robot follows, once;
-``on_status`` every status heard from another robot (after the bidder). What a robot puts is
-stamped with its tick's time, and a receiver takes it at its first tick after that one, so in
-lock-step every robot hears a message at the same tick.
+bids and statuses at this receiver, counted, as the runtime's ``--drop`` loses the other
+inter-robot classes: each message by the same pure function of the seed, the receiver, the key
+and the payload (:meth:`agent.faults.LinkFaults.dropped`), so a lock-step run with losses loses
+the same messages whatever order Zenoh's threads deliver them in; the manager's orders are
+not dropped (a robot that misses one learns it from the queryable). ``resolve`` turns a
+posted order into its slots in the world (the robot's knowledge of the stations and load
+types); None: not an order this robot can serve, ignored. ``on_team`` hears each committed
+roster this robot follows, once; ``on_status`` every status heard from another robot (after
+the bidder). What a robot puts is stamped with its tick's time, and a receiver takes it at its
+first tick after that one, so in lock-step every robot hears a message at the same tick.
 """
 
 from __future__ import annotations
 
+import hashlib
 import logging
-import random
 import threading
 from collections.abc import Callable
 from dataclasses import replace
@@ -52,6 +54,15 @@ logger = logging.getLogger(__name__)
 STAMP_EPS = 1e-6  # [s] stamps this near are the same tick's
 
 
+def lost(faults: LinkFaults, receiver: str, key: str, payload: bytes) -> bool:
+    """Whether ``receiver`` loses this message: a pure function of the message (its key and
+    payload, whose stamp, round and phase tell apart a robot's puts on one key) and the seed."""
+    if faults.drop <= 0.0:
+        return False
+    digest = hashlib.blake2b(payload, digest_size=8).hexdigest()
+    return faults.dropped(receiver, f"{key}#{digest}", 0.0)
+
+
 class OrderLink:
     """One robot's bidding over Zenoh (module docstring)."""
 
@@ -66,9 +77,7 @@ class OrderLink:
         self.resolve = resolve
         self.on_team = on_team
         self.on_status = on_status
-        faults = faults or LinkFaults()
-        self._rng = random.Random(f"order-link/{bidder.rid}/{faults.seed}")
-        self._drop = faults.drop
+        self._faults = faults or LinkFaults()
         self._lock = threading.Lock()
         self._queue: list[tuple[str, bytes]] = []
         self._pubs: dict[str, Any] = {}
@@ -91,7 +100,7 @@ class OrderLink:
             return  # this robot's own (a session hears its own puts)
         with self._lock:
             self.received += 1
-            if where[1] != "order" and self._drop > 0.0 and self._rng.random() < self._drop:
+            if where[1] != "order" and lost(self._faults, self.bidder.rid, key, payload):
                 self.fault_dropped += 1
                 return
             self._queue.append((key, payload))

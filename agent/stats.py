@@ -82,6 +82,8 @@ class AgentStats:
     ellipse_trace: Trace = field(default_factory=list)
     # controller.localisation fused: the filter's counters and its trace (agent.odom_in)
     localisation: dict[str, Any] | None = None
+    # a fleet robot's lifelong part: its errands and its order traffic (agent.lifepart)
+    lifelong: dict[str, Any] | None = None
     # an agent host's agents (agent.host)
     host_agents: int | None = None
     superseded_poses: int | None = None
@@ -92,7 +94,7 @@ class AgentStats:
     def to_json_dict(self) -> dict[str, Any]:
         """The JSON object an agent writes: every field, host-only ones only when set."""
         out = dataclasses.asdict(self)
-        for name in ("host_agents", "superseded_poses", "localisation"):
+        for name in ("host_agents", "superseded_poses", "localisation", "lifelong"):
             if out[name] is None:
                 del out[name]
         for name in ("killed", "counters_lost"):
