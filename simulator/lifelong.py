@@ -53,14 +53,13 @@ from geometry.polygon import polygon_distance
 from geometry.shapes import Shape, box, shape_distance
 from leader import allocation
 from leader import orders as lo
-from leader.navigation import Follower, heading_tolerance
+from leader.navigation import Follower
 from leader.route_driver import RouteDriver
 from leader.team import TeamPlan, axis_turn, load_pose, plan_team, pose_error, slot_points
 from scenario import Scenario, stream
 from scenario.cargo import load_clearances
 from scenario.lifelong import SINK, Lifelong, LoadType, Order
 from scenario.model import Edge, FormationSpec, RobotSpec
-from scenario.routes import start_plan
 from viewer.orders import OrderBoard, OrderTimeline
 
 from .inprocess import FleetControl, QPStats, SimOptions, obstacles_at, record, summarise
@@ -653,7 +652,10 @@ class LifelongRun:
         forms += [solo(r, poses[r], self.goal[r], r not in walking or r in kept)
                   for r in self.ids if r not in teamed]
         self.scen = scen = replace(self.base, formations=tuple(forms), shapes=shapes)
-        control = FleetControl(scen, self.options)
+        # a robot walking alone that may pass under a load is planned in its own view, once
+        control = FleetControl(scen, self.options, {
+            r: views[r] for r in self.ids
+            if r not in teamed and r not in kept and len(views[r]) < len(shapes)})
         control.stats = self.stats
         self.perm = [self.index[r] for r in scen.robot_ids]
         control.vel = [self.vel[b] for b in self.perm]
@@ -670,7 +672,7 @@ class LifelongRun:
             elif rid in kept:
                 self.hand_walk(control, e, kept[rid], views[rid])
             elif len(views[rid]) < len(shapes):
-                self.own_view(control, e, views[rid])
+                control.shapes[e] = views[rid]
         self.walks = {r: (self.goal[r], views[r]) for r in walking}
         self.carries = {c.oid: (c.plan, shapes) for c in self.crews.values()
                         if c.plan is not None}
@@ -764,24 +766,6 @@ class LifelongRun:
     def carried_outline(self, crew: Crew) -> tuple[tuple[float, float], ...]:
         order = self.orders[crew.oid]
         return slot_points(self.loads[order.load].pose, self.life.load_type(order.type).outline)
-
-    def own_view(self, control: FleetControl, e: int, view: tuple[Shape, ...]) -> None:
-        """Robot ``e`` (a formation of one) keeps clear of ``view`` instead of every shape:
-        its rows, its start plan and its planner."""
-        control.shapes[e] = view
-        f = control.scenario.formation_of(control.scenario.robot_ids[e])
-        if len(f.robots) != 1:
-            return
-        plan = start_plan(replace(control.scenario, shapes=view), f)
-        control.routes[f.name] = plan.route
-        fp = control.fleet.footprints
-        control.followers[e] = Follower(
-            f.leader, f.robots[0].goal, f.goal_centroid, plan.route, plan.headings,
-            heading_tolerance(control.params.kp, fp[e].rho if fp else None))
-        driver = control.replans.drivers.get(f.name)
-        if driver is not None:
-            driver.replanner.shapes = view
-            driver.replanner.unreachable = plan.reason
 
     def commands(self, t: float) -> tuple[list[StepResult], dict, list]:
         """Every robot's command (base order): the formations' controller's, zero where held."""
