@@ -653,10 +653,8 @@ class LifelongRun:
                   for r in self.ids if r not in teamed]
         self.scen = scen = replace(self.base, formations=tuple(forms), shapes=shapes)
         # a robot walking alone that may pass under a load is planned in its own view, once
-        control = FleetControl(scen, self.options, {
-            r: views[r] for r in self.ids
-            if r not in teamed and r not in kept and len(views[r]) < len(shapes)})
-        control.stats = self.stats
+        control = self.fleet_control(scen, {r: views[r] for r in self.ids if r not in teamed
+                                            and r not in kept and len(views[r]) < len(shapes)})
         self.perm = [self.index[r] for r in scen.robot_ids]
         control.vel = [self.vel[b] for b in self.perm]
         for oid, (route, driver) in carried.items():
@@ -679,6 +677,18 @@ class LifelongRun:
         self.partners = control.fleet.partners
         self.control = control
         self.tick.formation_of = tuple(scen.formation_of(r).name for r in self.ids)
+
+    def fleet_control(self, scen: Scenario, views: dict[str, tuple[Shape, ...]]
+                      ) -> FleetControl:
+        """The controller of ``scen`` (formations of one in their ``views``), counting into the
+        run's QP statistics; its planned formations plan again at a change of the still things
+        only where one lies across the rest of their route (a fleet's robots stop and start all
+        the time, mostly far off a route)."""
+        control = FleetControl(scen, self.options, views)
+        control.stats = self.stats
+        for driver in control.replans.drivers.values():
+            driver.replanner.keep_if_clear = True
+        return control
 
     def kept_carries(self, shapes: tuple[Shape, ...]
                      ) -> dict[str, tuple[tuple, RouteDriver | None]]:
