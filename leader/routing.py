@@ -55,7 +55,8 @@ extent, :attr:`geometry.footprint_plan.Body.width`, from the leg it walks), :att
 (the distance to go has not shrunk by :attr:`Progress.progress_m` in
 :attr:`Progress.no_progress_s`, not on the last :attr:`Progress.settle_m` to the goal; the clock
 stops while something moving is near), :attr:`Reason.THINGS_CHANGED` (a round thing planned
-round moved, went or came: :class:`StillThings`).
+round moved, went or came: :class:`StillThings`; for a replanner that keeps a clear route,
+``keep_if_clear``, only one that came or moved across the rest of the route).
 
 Headings: the planner's are the footprint's rotation from its start frame (theta of
 :class:`agent.body.Pose`); a route's are the goal shape's turn (as ``GoalMsg.heading``), theta

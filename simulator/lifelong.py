@@ -34,7 +34,10 @@ fleet's robots grouped into the current formations, starting where they stand) a
 An idle robot that walks to the same goal as at the last build walks on along its route (its
 follower and its replanning driver carried over, nothing planned again) unless a body new in
 its view lies across the rest of that route, and a team that carries the same load among the
-same bodies carries on along its route: only the formations that changed are planned.
+same bodies carries on along its route: only the formations that changed are planned. The
+robots stop and start all the time, mostly far off one another's ways: a planned formation plans
+again for a thing that has come to stand still, or moved, only where it lies across the rest of
+its route (``keep_if_clear`` of :class:`leader.routing.Replanner`).
 One :class:`simulator.tick.FleetTick` moves, records and checks the whole fleet throughout.
 """
 
