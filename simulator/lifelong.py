@@ -53,7 +53,7 @@ import numpy as np
 from agent import double_integrator
 from agent.control import StepResult
 from geometry.polygon import polygon_distance
-from geometry.shapes import Shape, box, shape_distance
+from geometry.shapes import Shape, box, distance_floor, shape_distance
 from leader import allocation
 from leader import orders as lo
 from leader.navigation import Follower
@@ -190,7 +190,8 @@ def route_clear(route: Sequence[tuple[float, float]], shapes: Sequence[Shape], m
         n = max(1, math.ceil(math.hypot(bx - ax, by - ay) / step))
         for k in range(n + 1):
             x, y = ax + (bx - ax) * k / n, ay + (by - ay) * k / n
-            if any(shape_distance(x, y, sh)[0] < sh.ds + margin for sh in shapes):
+            if any(distance_floor(x, y, sh) < sh.ds + margin
+                   and shape_distance(x, y, sh)[0] < sh.ds + margin for sh in shapes):
                 return False
     return True
 
@@ -201,8 +202,8 @@ def load_box(name: str, t: LoadType, pose: Pose, ds: float) -> Shape:
 
 
 def inside_box(sh: Shape, x: float, y: float, margin: float) -> bool:
-    """True when (x, y) lies within ``margin`` of the box."""
-    return shape_distance(x, y, sh)[0] < margin
+    """True when (x, y) lies within ``margin`` of the box (its bounding circle first)."""
+    return distance_floor(x, y, sh) < margin and shape_distance(x, y, sh)[0] < margin
 
 
 def exit_point(load: Shape, p: tuple[float, float], clear: Callable[[float, float], bool],
