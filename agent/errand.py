@@ -50,7 +50,7 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
-from geometry.shapes import Shape, box, shape_distance
+from geometry.shapes import Shape, box, distance_floor, shape_distance
 from leader.team import Point, Pose, TeamPlan, load_pose, plan_team, pose_error
 from scenario.lifelong import LoadType
 from wire.orders import OrderStatusMsg
@@ -75,8 +75,8 @@ def load_box(name: str, t: LoadType, pose: Pose, ds: float) -> Shape:
 
 
 def inside_box(sh: Shape, x: float, y: float, margin: float) -> bool:
-    """True when (x, y) lies within ``margin`` of the box."""
-    return shape_distance(x, y, sh)[0] < margin
+    """True when (x, y) lies within ``margin`` of the box (its bounding circle first)."""
+    return distance_floor(x, y, sh) < margin and shape_distance(x, y, sh)[0] < margin
 
 
 def exit_point(load: Shape, p: Point, clear: Callable[[float, float], bool], gap: float) -> Point:

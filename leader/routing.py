@@ -55,7 +55,8 @@ extent, :attr:`geometry.footprint_plan.Body.width`, from the leg it walks), :att
 (the distance to go has not shrunk by :attr:`Progress.progress_m` in
 :attr:`Progress.no_progress_s`, not on the last :attr:`Progress.settle_m` to the goal; the clock
 stops while something moving is near), :attr:`Reason.THINGS_CHANGED` (a round thing planned
-round moved, went or came: :class:`StillThings`).
+round moved, went or came: :class:`StillThings`; for a replanner that keeps a clear route,
+``keep_if_clear``, only one that came or moved across the rest of the route).
 
 Headings: the planner's are the footprint's rotation from its start frame (theta of
 :class:`agent.body.Pose`); a route's are the goal shape's turn (as ``GoalMsg.heading``), theta
@@ -441,6 +442,9 @@ class Replanner:
         self.giving_way = ""  # the formation this one stands aside for
         self._gave_at = -math.inf
         self.boxed_in = False  # blocked, and no route round the formations in its way
+        # a change of the still things plans again only where one lies across the rest of the
+        # route (a lifelong fleet's robots stop and start all the time, mostly far off its way)
+        self.keep_if_clear = False
 
     def plan(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...], why: Reason,
              extra: tuple[tuple[str, Circle], ...] = (), moving: tuple[Lane, ...] = ()
@@ -614,13 +618,31 @@ class Replanner:
             return Reason.GIVEN_WAY
         if self.give_way(t, others, pose):
             return Reason.GIVE_WAY
-        if changed(things, self.planned):
+        if self._things_changed(pose, route, index, things):
             return Reason.THINGS_CHANGED
         if self.way_clear(seen):
             return Reason.WAY_CLEAR
         if self.unreachable:
             return Reason.RETRY if t - self.last_plan >= PACE.retry_s else None
         return self._off(pose, route, index) or self._stuck(t, pose, route, index, turn, busy)
+
+    def _things_changed(self, pose: Pose3, route: Sequence[tuple[float, float]], index: int,
+                        things: tuple[tuple[str, Circle], ...]) -> bool:
+        """Whether the still things changed (:func:`changed`) so that the route is planned
+        again; with :attr:`keep_if_clear`, only where one new or moved lies across the rest of
+        the route (otherwise they count as planned round from now on)."""
+        if not changed(things, self.planned):
+            return False
+        if not self.keep_if_clear:
+            return True
+        before = dict(self.planned)
+        way = [pose[:2]] + list(route[index:])
+        reach = self.body.rho + self.body.margin
+        if any(way_distance(way, c[0], c[1]) < c[2] + reach for n, c in things
+               if n not in before or math.dist(c[:2], before[n][:2]) > STILL.moved_m):
+            return True
+        self.planned = things
+        return False
 
     def _off(self, pose: Pose3, route: Sequence[tuple[float, float]], index: int) -> Reason | None:
         a = route[index - 1] if index > 0 else (self._leg_start or route[0])

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 from agent import accel_limit, unicycle
@@ -24,6 +24,7 @@ from agent.hard_rows import HardRowCounter
 from agent.inputs import step_inputs, with_waypoint
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
 from geometry.ellipse import ReferenceShape, estimate, reference_shape
+from geometry.shapes import Shape
 from leader.navigation import Follower, heading_tolerance
 from scenario import Scenario, formation_axes
 from scenario.cargo import load_polygon
@@ -242,14 +243,20 @@ class FleetControl:
     """Every robot's agent, in process: each computes its command with
     :meth:`agent.control.Controller.step` from what the distributed system hands it."""
 
-    def __init__(self, scenario: Scenario, options: SimOptions) -> None:
+    def __init__(self, scenario: Scenario, options: SimOptions,
+                 views: Mapping[str, tuple[Shape, ...]] | None = None) -> None:
+        """``views``: the walls and shelves a formation (by name) keeps clear of instead of the
+        scenario's (its start plan, its replanning and its members' rows)."""
+        views = views or {}
         self.scenario = scenario
         self.solve = options.solve_fn or make_solver(options.solver)
         self.fleet = fleet = FleetModel.build(scenario, safety=options.safety)
         self.params = params = fleet.params
         self.controller = Controller(params, self.solve, time.perf_counter_ns)  # one, every robot
         self.n = n = len(scenario.robots)
-        starts = {f.name: start_plan(scenario, f) for f in scenario.formations}
+        starts = {f.name: start_plan(replace(scenario, shapes=views[f.name])
+                                     if f.name in views else scenario, f)
+                  for f in scenario.formations}
         self.routes = {name: sp.route for name, sp in starts.items()}
         # every member walks its formation's route with the ellipse its leader hands it
         members = [(f, r) for f in scenario.formations for r in f.robots]  # robot order
@@ -258,14 +265,14 @@ class FleetControl:
                      heading_tolerance(params.kp, fleet.footprints[i].rho
                                        if fleet.footprints else None))
             for i, (f, r) in enumerate(members)]
-        self.replans = Replans(scenario, starts, fleet.footprints, fleet.members)
+        self.replans = Replans(scenario, starts, fleet.footprints, fleet.members, views)
         self.all_to_all = options.topology == "all-to-all"
         self.vel = [(0.0, 0.0)] * n  # last certified control-point velocity (what `state` carries)
         self.stalls = [Stall()] * n  # each robot's copy of its formation's jam state
         self.stats = QPStats()
         self.localisation: FleetLocalisation | None = None  # simulator.fused, set by simulate
         # the walls and shelves each robot keeps clear of (a lifelong run's resting loads too)
-        self.shapes = [scenario.shapes] * n
+        self.shapes = [views.get(name, scenario.shapes) for name in fleet.formation_of]
         # the formations whose ellipses each robot does not keep out of: a lifelong team's members
         # on their way to its slots, kept apart by separation rows instead (``fleet.partners``)
         self.allies: list[frozenset[str]] = [frozenset()] * n

@@ -34,7 +34,10 @@ fleet's robots grouped into the current formations, starting where they stand) a
 An idle robot that walks to the same goal as at the last build walks on along its route (its
 follower and its replanning driver carried over, nothing planned again) unless a body new in
 its view lies across the rest of that route, and a team that carries the same load among the
-same bodies carries on along its route: only the formations that changed are planned.
+same bodies carries on along its route: only the formations that changed are planned. The
+robots stop and start all the time, mostly far off one another's ways: a planned formation plans
+again for a thing that has come to stand still, or moved, only where it lies across the rest of
+its route (``keep_if_clear`` of :class:`leader.routing.Replanner`).
 One :class:`simulator.tick.FleetTick` moves, records and checks the whole fleet throughout.
 """
 
@@ -61,17 +64,16 @@ from agent.errand import (
     load_box,
 )
 from geometry.polygon import polygon_distance
-from geometry.shapes import Shape, shape_distance
+from geometry.shapes import Shape, distance_floor, shape_distance
 from leader import allocation
 from leader import orders as lo
-from leader.navigation import Follower, heading_tolerance
+from leader.navigation import Follower
 from leader.route_driver import RouteDriver
 from leader.team import TeamPlan, axis_turn, load_pose, plan_team, pose_error, slot_points
 from scenario import Scenario, stream
 from scenario.cargo import load_clearances
 from scenario.lifelong import SINK, Lifelong, Order
 from scenario.model import FormationSpec
-from scenario.routes import start_plan
 from viewer.orders import OrderBoard, OrderTimeline
 
 from .inprocess import FleetControl, QPStats, SimOptions, obstacles_at, record, summarise
@@ -301,7 +303,8 @@ def route_clear(route: Sequence[tuple[float, float]], shapes: Sequence[Shape], m
         n = max(1, math.ceil(math.hypot(bx - ax, by - ay) / step))
         for k in range(n + 1):
             x, y = ax + (bx - ax) * k / n, ay + (by - ay) * k / n
-            if any(shape_distance(x, y, sh)[0] < sh.ds + margin for sh in shapes):
+            if any(distance_floor(x, y, sh) < sh.ds + margin
+                   and shape_distance(x, y, sh)[0] < sh.ds + margin for sh in shapes):
                 return False
     return True
 
@@ -712,8 +715,9 @@ class LifelongRun:
         forms += [solo(r, poses[r], self.goal[r], r not in walking or r in kept)
                   for r in self.ids if r not in teamed]
         self.scen = scen = replace(self.base, formations=tuple(forms), shapes=shapes)
-        control = FleetControl(scen, self.options)
-        control.stats = self.stats
+        # a robot walking alone that may pass under a load is planned in its own view, once
+        control = self.fleet_control(scen, {r: views[r] for r in self.ids if r not in teamed
+                                            and r not in kept and len(views[r]) < len(shapes)})
         self.perm = [self.index[r] for r in scen.robot_ids]
         control.vel = [self.vel[b] for b in self.perm]
         for oid, (route, driver) in carried.items():
@@ -729,13 +733,25 @@ class LifelongRun:
             elif rid in kept:
                 self.hand_walk(control, e, kept[rid], views[rid])
             elif len(views[rid]) < len(shapes):
-                self.own_view(control, e, views[rid])
+                control.shapes[e] = views[rid]
         self.walks = {r: (self.goal[r], views[r]) for r in walking}
         self.carries = {c.oid: (c.plan, shapes) for c in self.crews.values()
                         if c.plan is not None}
         self.partners = control.fleet.partners
         self.control = control
         self.tick.formation_of = tuple(scen.formation_of(r).name for r in self.ids)
+
+    def fleet_control(self, scen: Scenario, views: dict[str, tuple[Shape, ...]]
+                      ) -> FleetControl:
+        """The controller of ``scen`` (formations of one in their ``views``), counting into the
+        run's QP statistics; its planned formations plan again at a change of the still things
+        only where one lies across the rest of their route (a fleet's robots stop and start all
+        the time, mostly far off a route)."""
+        control = FleetControl(scen, self.options, views)
+        control.stats = self.stats
+        for driver in control.replans.drivers.values():
+            driver.replanner.keep_if_clear = True
+        return control
 
     def kept_carries(self, shapes: tuple[Shape, ...]
                      ) -> dict[str, tuple[tuple, RouteDriver | None]]:
@@ -823,24 +839,6 @@ class LifelongRun:
     def carried_outline(self, crew: Crew) -> tuple[tuple[float, float], ...]:
         order = self.orders[crew.oid]
         return slot_points(self.loads[order.load].pose, self.life.load_type(order.type).outline)
-
-    def own_view(self, control: FleetControl, e: int, view: tuple[Shape, ...]) -> None:
-        """Robot ``e`` (a formation of one) keeps clear of ``view`` instead of every shape:
-        its rows, its start plan and its planner."""
-        control.shapes[e] = view
-        f = control.scenario.formation_of(control.scenario.robot_ids[e])
-        if len(f.robots) != 1:
-            return
-        plan = start_plan(replace(control.scenario, shapes=view), f)
-        control.routes[f.name] = plan.route
-        fp = control.fleet.footprints
-        control.followers[e] = Follower(
-            f.leader, f.robots[0].goal, f.goal_centroid, plan.route, plan.headings,
-            heading_tolerance(control.params.kp, fp[e].rho if fp else None))
-        driver = control.replans.drivers.get(f.name)
-        if driver is not None:
-            driver.replanner.shapes = view
-            driver.replanner.unreachable = plan.reason
 
     def commands(self, t: float) -> tuple[list[StepResult], dict, list]:
         """Every robot's command (base order): the formations' controller's, zero where held."""

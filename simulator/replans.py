@@ -7,11 +7,12 @@ other members a tick later (as the agents' ``plan`` message does in lock-step)."
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 from agent.barriers import Obstacle
 from agent.body import Footprint, pose_of
 from geometry.ellipse import Ellipse, wrap_angle
+from geometry.shapes import Shape
 from leader.navigation import Follower
 from leader.route_driver import RouteDriver
 from leader.routing import REACHED, STALLED, UNREACHABLE, Other, Reason, Replanner, Thing, Update
@@ -24,7 +25,11 @@ class Replans:
     things)."""
 
     def __init__(self, scenario: Scenario, starts: dict[str, StartPlan],
-                 footprints: Sequence[Footprint], members: dict[str, tuple[int, ...]]) -> None:
+                 footprints: Sequence[Footprint], members: dict[str, tuple[int, ...]],
+                 views: Mapping[str, tuple[Shape, ...]] | None = None) -> None:
+        """``views``: the walls and shelves a formation (by name) plans round instead of the
+        scenario's."""
+        views = views or {}
         self.scenario = scenario
         self.members = members
         self.footprints = footprints
@@ -45,7 +50,7 @@ class Replans:
                 continue
             body, start, turn = footprint_body(scenario, f)
             gx, gy = f.goal_centroid
-            r = Replanner(body, turn, (gx, gy, turn), scenario.shapes, start,
+            r = Replanner(body, turn, (gx, gy, turn), views.get(f.name, scenario.shapes), start,
                           speed=scenario.robot.max_speed)
             r.name = f.name
             r.unreachable = starts[f.name].reason

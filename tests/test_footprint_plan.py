@@ -259,6 +259,23 @@ def test_the_replanner_plans_again_off_route_and_without_progress_but_not_by_han
     by_hand = Replanner(LINE, 0.0, (5.0, 0.0, 0.0), [], start=(-5.0, 0.0), by_hand=True)
     assert by_hand.check(9.0, (-4.0, 3.0, 0.0), route, 0, ()) is None
 
+def test_keeping_a_clear_route_plans_again_only_for_a_still_thing_across_its_rest():
+    route = ((0.0, 0.0), (0.0, 5.0))  # north-east round a corner: east along y = 0, then north
+    far = ("formation/p", (3.0, 3.0, 0.3))  # 3 m off both legs
+    across = ("formation/q", (0.0, 3.0, 0.3))  # on the second leg, not yet walked
+    behind = ("formation/s", (-4.5, 0.0, 0.3))  # on the first leg, walked past already
+    plain = Replanner(LINE, 0.0, (0.0, 5.0, 0.0), [], start=(-5.0, 0.0))
+    assert plain.check(3.0, (-3.0, 0.0, 0.0), route, 0, (far,)) == Reason.THINGS_CHANGED
+    r = Replanner(LINE, 0.0, (0.0, 5.0, 0.0), [], start=(-5.0, 0.0))
+    r.keep_if_clear = True
+    assert r.check(3.0, (-3.0, 0.0, 0.0), route, 0, (far,)) is None
+    assert r.planned == (far,)  # counted as planned round from now on
+    assert r.check(3.0, (-3.0, 0.0, 0.0), route, 0, (far, behind)) is None
+    assert r.check(3.0, (-3.0, 0.0, 0.0), route, 0, (far, across)) == Reason.THINGS_CHANGED
+    moved_on = ("formation/p", (0.3, 2.0, 0.3))  # the far one moved onto the second leg
+    assert r.check(3.0, (-3.0, 0.0, 0.0), route, 0, (moved_on,)) == Reason.THINGS_CHANGED
+
+
 
 def test_a_formation_that_waits_for_traffic_too_long_plans_round_the_formations_in_its_way():
     """Two formations head-on in a one-lane aisle each creep: each is traffic to the other, which

@@ -17,14 +17,17 @@ from leader import orders as lo
 from scenario import load_scenario
 from simulator.lifelong import Checks, LifelongOptions, collide, route_clear, simulate_lifelong
 from simulator.orders_out import ORDER_COLUMNS, order_rows, orders_block, write_order_files
-from tests.lifelong_checks import check_all_delivered, check_safe
+from tests.lifelong_checks import check_all_delivered, check_safe, delivered_where_asked
 
 HERE = Path(__file__).resolve().parent / "scenarios"
 # the quick ones: a single order each, a few seconds
 QUICK_STEMS = ("lifelong-one-pallet", "lifelong-beam-pair", "lifelong-forklift-cross-aisle",
                "lifelong-resting-bodies")
 SHIPPED = Path(__file__).resolve().parent.parent / "scenarios" / "lifelong-warehouse.yaml"
-ALL = sorted((HERE / "lifelong").glob("*.yaml")) + sorted(HERE.glob("lifelong-*.yaml")) + [SHIPPED]
+# a drawn hall whose stream posts its last order too late to be delivered within the run
+DRAWN_HALL = HERE / "lifelong" / "drawn-hall-unicycle.yaml"
+ALL = [p for p in sorted((HERE / "lifelong").glob("*.yaml")) if p != DRAWN_HALL] + sorted(
+    HERE.glob("lifelong-*.yaml")) + [SHIPPED]
 QUICK = [p for p in ALL if p.stem.startswith("one-") or p.stem in QUICK_STEMS]
 # streams of half an hour and more: minutes of CPU each, run with FORMATION_SLOW=1
 HOURS = {"lifelong-stream-30min", "lifelong-stream-unicycle", "lifelong-warehouse"}
@@ -43,6 +46,19 @@ def test_every_order_is_delivered_safely(path):
 @pytest.mark.parametrize("path", LONG)
 def test_every_order_of_a_longer_scenario_is_delivered_safely(path):
     check_all_delivered(simulate_lifelong(load_scenario(path)))
+
+
+@pytest.mark.slow
+def test_in_a_drawn_hall_of_unicycles_every_order_is_delivered_or_still_open_none_stuck():
+    # a gathering team that keeps its route at a change of teams must not hold on it for good
+    result = simulate_lifelong(load_scenario(DRAWN_HALL))
+    check_safe(result)
+    orders = result.run.orders
+    done = delivered_where_asked(result)
+    still = [o.oid for o in orders.values() if not o.done]
+    assert sorted(done + still) == sorted(orders), {o.oid: o.state for o in orders.values()}
+    assert result.summary["orders"]["open"] == len(still)
+    assert len(done) >= len(orders) - 1, {o.oid: o.state for o in orders.values()}
 
 
 def test_a_member_lost_while_carrying_sets_the_load_down_where_it_stands():
