@@ -183,7 +183,7 @@ class LeaderPart:
         self.deaths = (Deaths(cfg.robot_id, cfg.lifelong.fleet.robot_ids, cfg.prefix)
                        if cfg.lifelong is not None else None)
         self.standing = 0  # ticks that used a dead formation's standing body
-        self._standing_now = False
+        self._standing_now: set[str] = set()  # this tick: the formations used as standing bodies
         self._token: Any = None
         self._transport: Transport | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -295,10 +295,10 @@ class LeaderPart:
             if self.role is not role:  # stepped down while this tick waited: relays nothing
                 self.own_others = None
                 return False
-        self._standing_now = False
+        self._standing_now.clear()
         received, want, complete, inflated = self.collect(role, own, clock.at(ts), ts)
         self.inflated += inflated
-        self.standing += self._standing_now
+        self.standing += bool(self._standing_now)
         if self.realtime:
             self._ask(frozenset(want))
         self.own_others = role.others(own, received, stamp, msg)  # the message published above
@@ -335,7 +335,7 @@ class LeaderPart:
             complete = complete and known
             if use is not None:
                 received[k] = use
-                inflated = inflated or (use is not entry[0] and not self._standing_now)
+                inflated = inflated or (use is not entry[0] and fid not in self._standing_now)
         return received, want, complete, inflated
 
     def _judge(self, fid: str, entry: Entry, own: Ellipse, now: float, ts: float | None,
@@ -358,7 +358,7 @@ class LeaderPart:
         if dead_at is not None:
             if gap > VIEW_RANGE:
                 return None, True
-            self._standing_now = True
+            self._standing_now.add(fid)
             return standing_body(m, grow), True
         if self._clock.fresh(entry, ts):
             return m, True

@@ -123,3 +123,18 @@ def test_a_standing_body_out_of_view_is_left_out_but_known() -> None:
     heard_at(part, inbox, 60.0)
     received, _, complete, _ = part.collect(role, Ellipse(0.0, 0.0, 0.0, 0.2, 0.2), 60.0, 60.0)
     assert complete and key not in received
+
+
+def test_a_silent_formation_beside_a_dead_one_is_still_held_inflated() -> None:
+    part, inbox = leader_of("r2")
+    role = part.role
+    assert role is not None and part.deaths is not None
+    for fid, cx in (("r1", 0.0), ("r3", 1.5)):
+        inbox.box[keys.ellipse_key(part.cfg.prefix, fid)] = (
+            EllipseMsg(fid, cx, 0.6, 0.0, 0.15, 0.15, 0.0, 0.0, 0.0, 3.0), 3.0)
+    part.deaths.hear("r1", alive=False)
+    received, _, complete, inflated = part.collect(role, Ellipse(0.5, 0.0, 0.0, 0.2, 0.2),
+                                                   5.0, 5.0)
+    assert complete and inflated  # r3 is 2 s stale: held, grown by its age
+    r3 = received[keys.ellipse_key(part.cfg.prefix, "r3")]
+    assert r3.a == pytest.approx(0.15 + part.cfg.control.max_speed * 2.0)
