@@ -11,7 +11,7 @@ from typing import Any
 import pytest
 import zenoh
 
-from agent.clock import LockstepClock
+from agent.clock import LockstepClock, RealtimeClock
 from agent.config import build_agent_configs
 from agent.faults import EPS
 from agent.leader_step import Deaths, LeaderPart
@@ -73,12 +73,13 @@ def heard_at(part: LeaderPart, inbox: Inbox, now: float) -> None:
     inbox.box[key] = (EllipseMsg("r3", 20.0, 0.0, 0.0, 0.15, 0.15, 0.0, 0.0, 0.0, now), now)
 
 
-def leader_of(rid: str) -> tuple[LeaderPart, Inbox]:
+def leader_of(rid: str, lockstep: bool = True) -> tuple[LeaderPart, Inbox]:
     cfg = build_agent_configs(load_scenario(SCENARIO))[rid]
     assert cfg.lifelong is not None and cfg.leader is not None  # a formation of one
     inbox = Inbox()
-    clock = LockstepClock(cfg.stale_after, 0.3, 0.0, rid, EPS)
-    return LeaderPart(cfg, True, 10.0, False, inbox, clock, {}), inbox  # type: ignore[arg-type]
+    clock = (LockstepClock(cfg.stale_after, 0.3, 0.0, rid, EPS) if lockstep
+             else RealtimeClock(cfg.stale_after, cfg.control.offset))
+    return LeaderPart(cfg, lockstep, 10.0, False, inbox, clock, {}), inbox  # type: ignore[arg-type]
 
 
 def test_a_dead_robot_stands_grown_at_rest_for_good_and_a_silent_one_still_stops_the_leader() -> None:
@@ -138,3 +139,17 @@ def test_a_silent_formation_beside_a_dead_one_is_still_held_inflated() -> None:
     assert complete and inflated  # r3 is 2 s stale: held, grown by its age
     r3 = received[keys.ellipse_key(part.cfg.prefix, "r3")]
     assert r3.a == pytest.approx(0.15 + part.cfg.control.max_speed * 2.0)
+
+
+def test_in_real_time_the_body_grows_until_the_command_watchdog_stops_the_base() -> None:
+    part, inbox = leader_of("r2", lockstep=False)
+    role = part.role
+    assert role is not None and part.deaths is not None
+    key = keys.ellipse_key(part.cfg.prefix, "r1")
+    inbox.box[key] = (EllipseMsg("r1", 0.0, 0.6, 0.0, 0.15, 0.15, 0.0, 0.0, 0.0, 100.0), 100.0)
+    part.deaths.hear("r1", alive=False)
+    heard_at(part, inbox, 112.0)
+    received, _, complete, _ = part.collect(role, Ellipse(0.5, 0.0, 0.0, 0.2, 0.2), 112.0, None)
+    cfg = part.cfg  # the token went after a 10 s lease: the body covers 12 s and the watchdog
+    lag = cfg.stale_after + cfg.period
+    assert complete and received[key].a == pytest.approx(0.15 + cfg.control.max_speed * (12.0 + lag))
