@@ -4,7 +4,11 @@ leaders' ellipses, a stale one held inflated for up to ``ellipse_hold`` seconds,
 ``others``), which formations it listens to (:mod:`leader.listen`, real time), and fault
 containment (:mod:`leader.succession`): a successor takes the role when the leader's liveliness
 token goes (:meth:`take_over`; it then estimates the standing formation's ellipse) and gives it
-back when the token returns (:meth:`step_down`).
+back when the token returns (:meth:`step_down`). A fleet robot (a formation of one) holds the
+token of its own formation for as long as its agent runs and watches every other fleet robot's
+(:class:`Deaths`): a robot whose token went is a standing body at its last ellipse, grown by
+:func:`leader.succession.standing_grow`, never dropped and never stopped for (counted
+``standing``).
 
 It lives in agent/, not leader/: it reads the agent's inbox and, in lock-step, waits for the
 tick's inputs through the clock (:mod:`agent.clock`); the pure estimation is
@@ -15,6 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import threading
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -29,7 +34,13 @@ from agent.transport import Transport
 from geometry.ellipse import Ellipse, Point
 from leader.listen import QUIET_MAX_S, beacon_due, grown_gap, hears, quiet_until
 from leader.role import VIEW_RANGE, LeaderRole, ellipse_to_msg
-from leader.succession import leader_token_key
+from leader.succession import (
+    LEADER_TOKEN,
+    leader_token_key,
+    standing_grow,
+    stopping_distance,
+    token_formation,
+)
 from runtime.shutdown import STEP_LIMIT_S, undeclare_all, within
 from wire import keys
 from wire.payloads import EllipseMsg, Others, State
@@ -43,6 +54,13 @@ def inflate(m: EllipseMsg, grow: float) -> EllipseMsg:
     ellipse's motion into account as from a formation that sends none, :mod:`agent.body`)."""
     return EllipseMsg(m.formation, m.cx, m.cy, m.alpha, m.a + grow, m.b + grow, m.vx, m.vy,
                       m.alpha_rate, m.stamp)
+
+
+def standing_body(m: EllipseMsg, grow: float) -> EllipseMsg:
+    """A dead formation's last ellipse ``m`` as the body it now is: both semi-axes grown by
+    ``grow`` (:func:`leader.succession.standing_grow`), at rest (its base stopped)."""
+    return EllipseMsg(m.formation, m.cx, m.cy, m.alpha, m.a + grow, m.b + grow, 0.0, 0.0, 0.0,
+                      m.stamp)
 
 
 def newest(fid: str, *entries: tuple[EllipseMsg, float] | None
@@ -65,6 +83,59 @@ class Listening:
     beacon_stamp: float | None = None  # the stamp of the last beacon put
     changes: int = 0  # subscription changes made for leader.listen
     quiet: dict[str, float] = field(default_factory=dict)  # formation -> leader.listen.quiet_until
+
+
+class Deaths:
+    """A fleet robot's knowledge of which other fleet robots' agents are gone (module
+    docstring): each fleet robot's agent holds the liveliness token of the formation named by it
+    from :meth:`open` to its close, whatever formation it is in; a token that goes is a robot
+    known dead until it comes back (a restarted agent). Fed on Zenoh's threads, read by the
+    ticks."""
+
+    def __init__(self, robot_id: str, robots: tuple[str, ...], prefix: str) -> None:
+        self.robot_id, self.prefix = robot_id, prefix
+        self.robots = frozenset(robots) - {robot_id}
+        self._lock = threading.Lock()
+        self._gone: dict[str, float | None] = {}  # robot -> clock at its first use dead
+        self.opened = False
+        self.heard = 0  # deaths heard (tokens gone)
+
+    def open(self, transport: Transport) -> None:
+        """Hold this robot's token and watch the others' (once, for the agent's life)."""
+        if self.opened:
+            return
+        self.opened = True
+        live = transport.session.liveliness()
+        transport.keep(None, live.declare_token(leader_token_key(self.prefix, self.robot_id)))
+        every = f"{keys.validate_prefix(self.prefix)}/formation/*/{LEADER_TOKEN}"
+        transport.keep(None, live.declare_subscriber(every, self.on_token, history=True))
+
+    def on_token(self, sample: zenoh.Sample) -> None:  # Zenoh thread
+        fid = token_formation(self.prefix, str(sample.key_expr))
+        if fid is not None and fid in self.robots:
+            self.hear(fid, sample.kind == zenoh.SampleKind.PUT)
+
+    def hear(self, robot: str, alive: bool) -> None:
+        """The token of ``robot`` came (``alive``) or went."""
+        with self._lock:
+            if alive:
+                self._gone.pop(robot, None)
+            elif robot not in self._gone:
+                self._gone[robot] = None
+                self.heard += 1
+
+    def known_at(self, robot: str, now: float) -> float | None:
+        """When (the receiver's clock) ``robot`` was first used as known dead, ``now`` the
+        first time; None while it is not known dead."""
+        if not self._gone:  # nobody gone: no lock taken
+            return None
+        with self._lock:
+            if robot not in self._gone:
+                return None
+            at = self._gone[robot]
+            if at is None:
+                self._gone[robot] = at = now
+            return at
 
 
 @dataclass
@@ -108,6 +179,11 @@ class LeaderPart:
         self.listen = Listening(frozenset(self.role.other_keys.values())
                                 if self.role is not None and lockstep else frozenset())
         self.succession = Succession()  # fault containment (leader.succession)
+        # a fleet robot: the other fleet robots known dead (carried over a regroup, :meth:`carry`)
+        self.deaths = (Deaths(cfg.robot_id, cfg.lifelong.fleet.robot_ids, cfg.prefix)
+                       if cfg.lifelong is not None else None)
+        self.standing = 0  # ticks that used a dead formation's standing body
+        self._standing_now: set[str] = set()  # this tick: the formations used as standing bodies
         self._token: Any = None
         self._transport: Transport | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -116,6 +192,13 @@ class LeaderPart:
     @property
     def leading(self) -> bool:
         return self.role is not None
+
+    def carry(self, old: LeaderPart) -> None:
+        """A regroup: keep the counters, the trace and the deaths known of ``old``."""
+        self.ellipse_trace, self.inflated, self.standing = (old.ellipse_trace, old.inflated,
+                                                            old.standing)
+        if old.deaths is not None:
+            self.deaths = old.deaths
 
     def _not_adjacent(self, role: LeaderRole) -> list[str]:
         p, rid = self.cfg.prefix, self.cfg.robot_id
@@ -144,8 +227,11 @@ class LeaderPart:
         self._transport, self._loop, self._gate = transport, loop, gate
         s = transport.session
         token_key = leader_token_key(self.cfg.prefix, self.cfg.formation)
+        if self.deaths is not None:
+            self.deaths.open(transport)  # holds this robot's own formation's token for good
         if self.role is not None:
-            self._token = s.liveliness().declare_token(token_key)
+            if self.deaths is None or self.cfg.formation != self.cfg.robot_id:
+                self._token = s.liveliness().declare_token(token_key)
             return
         if self.cfg.standby is None:
             return
@@ -209,8 +295,10 @@ class LeaderPart:
             if self.role is not role:  # stepped down while this tick waited: relays nothing
                 self.own_others = None
                 return False
+        self._standing_now.clear()
         received, want, complete, inflated = self.collect(role, own, clock.at(ts), ts)
         self.inflated += inflated
+        self.standing += bool(self._standing_now)
         if self.realtime:
             self._ask(frozenset(want))
         self.own_others = role.others(own, received, stamp, msg)  # the message published above
@@ -247,24 +335,31 @@ class LeaderPart:
             complete = complete and known
             if use is not None:
                 received[k] = use
-                inflated = inflated or use is not entry[0]
+                inflated = inflated or (use is not entry[0] and fid not in self._standing_now)
         return received, want, complete, inflated
 
     def _judge(self, fid: str, entry: Entry, own: Ellipse, now: float, ts: float | None,
                want: set[str]) -> tuple[EllipseMsg | None, bool]:
         """One other formation's ellipse for ``others`` and whether it is known well enough:
         as it is (fresh), grown (stale, held), none (out of view whatever it did since) or none
-        and not known (stale beyond the hold: incomplete); records whether to hear it every
-        tick."""
+        and not known (stale beyond the hold: incomplete); a formation known dead: its standing
+        body (:meth:`_standing`), always known; records whether to hear it every tick."""
         speed = self.cfg.control.max_speed
         m = entry[0]
         age = max(0.0, now - m.stamp)
-        gap = grown_gap(own, m, speed * age)
+        dead_at = None if self.deaths is None else self.deaths.known_at(fid, now)
+        grow = speed * age if dead_at is None else self._standing(dead_at - m.stamp)
+        gap = grown_gap(own, m, grow)
         if hears(gap, fid in self.listen.heard):
             want.add(fid)
             self.listen.quiet.pop(fid, None)
         else:
             self.listen.quiet[fid] = quiet_until(now, gap, speed)
+        if dead_at is not None:
+            if gap > VIEW_RANGE:
+                return None, True
+            self._standing_now.add(fid)
+            return standing_body(m, grow), True
         if self._clock.fresh(entry, ts):
             return m, True
         if gap > VIEW_RANGE:
@@ -272,6 +367,17 @@ class LeaderPart:
         if age <= self.ellipse_hold:
             return inflate(m, speed * age), True
         return None, False
+
+    def _standing(self, known_age: float) -> float:
+        """The growth of a dead formation's last ellipse, ``known_age`` old when its death was
+        known (:func:`leader.succession.standing_grow`): its base stops a period after its last
+        command in lock-step (the world), by the command's stale limit in real time (the
+        world's; a real base's watchdog is to be no longer)."""
+        cfg, c = self.cfg, self.cfg.control
+        lag = cfg.period if self._clock.lockstep else cfg.stale_after + cfg.period
+        return standing_grow(c.max_speed, known_age, lag,
+                             stopping_distance(c.max_speed, c.max_accel if c.double_integrator
+                                               else None, cfg.period))
 
     def kinematics(self, px: float, py: float, ts: float | None, last_u: tuple[float, float],
                    theta: float = 0.0) -> tuple[list[Point], list[Point], list[float]] | None:

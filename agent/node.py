@@ -499,8 +499,7 @@ class AgentNode:
             self.cfg, self.keys = cfg, node_keys(cfg)
             self.leader = LeaderPart(cfg, self.options.lockstep, self.options.ellipse_hold,
                                      self.options.trace, inbox, self.clock, self.keys.neighbours)
-            self.leader.ellipse_trace, self.leader.inflated = (old_leader.ellipse_trace,
-                                                               old_leader.inflated)
+            self.leader.carry(old_leader)  # counters, trace, deaths known
             self.nav = NavPart(cfg, leader=self.leader.leading)
             want = self._subscription_keys()
             if t is None:  # not open: nothing declared yet
@@ -583,6 +582,7 @@ class AgentNode:
             obstacles_dropped_after_hold=tk.obstacle_memory.dropped,
             obstacle_held_ticks=c.obstacle_held_ticks, hard_row_unmet_ticks=tk.hard.ticks,
             hard_row_unmet=dict(tk.hard.by_reason), inflated=ld.inflated,
+            standing=ld.standing,
             listening=sorted(ld.listen.heard),  # leader.listen: formations heard every tick
             listen_changes=ld.listen.changes, takeovers=ld.succession.takeovers,
             acting_leader_ticks=ld.succession.ticks, nav=self.nav.stats(), goal_refusal=self.nav.refusal,

@@ -47,6 +47,7 @@ class AgentStats:
     hard_row_unmet_ticks: int = 0
     hard_row_unmet: dict[str, int] = field(default_factory=dict)
     inflated: int = 0  # leader ticks that used another formation's stale ellipse, inflated
+    standing: int = 0  # leader ticks that used a dead formation's standing body (leader.succession)
     listening: list[str] = field(default_factory=list)  # formations a leader heard every tick
     listen_changes: int = 0
     takeovers: int = 0

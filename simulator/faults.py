@@ -248,6 +248,7 @@ def fault_summary(plan: FaultPlan, result: WorldResult, stats: Sequence[AgentSta
         "stale_ticks_by_input": sum_counts(s.stale_why for s in stats),
         "stale_ticks_by_robot": {s.robot: s.stale for s in stats},
         "inflated_ellipse_ticks": sum(s.inflated for s in stats),
+        "standing_body_ticks": sum(s.standing for s in stats),
         "leader_takeovers": {s.robot: s.takeovers for s in stats if s.takeovers},
         "acting_leader_ticks": sum(s.acting_leader_ticks for s in stats),
         "counters_lost_with_killed_agents": bool(plan.kills),
