@@ -72,7 +72,7 @@ from leader.route_driver import RouteDriver
 from leader.team import TeamPlan, axis_turn, load_pose, plan_team, pose_error, slot_points
 from scenario import Scenario, stream
 from scenario.cargo import load_clearances
-from scenario.lifelong import SINK, Lifelong, Order
+from scenario.lifelong import SINK, Lifelong, Order, Station
 from scenario.model import FormationSpec
 from viewer.orders import OrderBoard, OrderTimeline
 
@@ -163,6 +163,18 @@ class Checks:
         ``still`` have ended."""
         for key in [k for k in self.touching if k[0] == kind and k not in still]:
             del self.touching[key]
+
+
+def rest_at(ld: LoadState, station: Station, dst: Pose, t: float, checks: Checks) -> None:
+    """``ld`` set down at ``t`` at its destination ``station`` (pose ``dst``): how far from it
+    is checked, and it rests there (leaving a sink after its dwell); in process and in the
+    world of ``formation run`` alike."""
+    d, a = pose_error(ld.pose, dst)
+    checks.set_down_m = max(checks.set_down_m, d)
+    checks.set_down_rad = max(checks.set_down_rad, a)
+    ld.state, ld.station, ld.order = "resting", station.name, ""
+    if station.kind == SINK:
+        ld.leaves = t + station.dwell_s
 
 
 def fleet_base(scenario: Scenario) -> Scenario:
@@ -577,13 +589,7 @@ class LifelongRun:
     def set_down(self, crew: Crew, t: float) -> None:
         order = self.move_order(crew.oid, lo.Event(lo.SET_DOWN, t))
         ld = self.loads[order.load]
-        d, a = pose_error(ld.pose, crew.dst)
-        self.checks.set_down_m = max(self.checks.set_down_m, d)
-        self.checks.set_down_rad = max(self.checks.set_down_rad, a)
-        station = self.life.station(order.dst)
-        ld.state, ld.station, ld.order = "resting", station.name, ""
-        if station.kind == SINK:
-            ld.leaves = t + station.dwell_s
+        rest_at(ld, self.life.station(order.dst), crew.dst, t, self.checks)
         self.log_load(t, ld)
         self.dissolve(crew)
 

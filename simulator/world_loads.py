@@ -37,9 +37,9 @@ import numpy as np
 
 from geometry.shapes import Shape
 from leader import orders as lo
-from leader.team import axis_turn, load_pose, pose_error, slot_points
+from leader.team import axis_turn, load_pose, slot_points
 from scenario import Scenario
-from scenario.lifelong import SINK, Order
+from scenario.lifelong import Order
 from scenario.model import FormationSpec, RobotSpec
 from viewer.orders import OrderBoard, OrderTimeline
 from wire.orders import LoadEntry, LoadsMsg, OrderMsg, OrderStatusMsg
@@ -57,6 +57,7 @@ from .lifelong import (
     intrusion,
     load_box,
     new_order,
+    rest_at,
     service_bound,
     solo,
     watch_stuck,
@@ -256,13 +257,7 @@ class WorldLoads:
         self.orders[order.oid] = order
         team = self.teams.pop(order.oid)
         ld = self.loads[order.load]
-        d, a = pose_error(ld.pose, team.crew.dst)
-        self.checks.set_down_m = max(self.checks.set_down_m, d)
-        self.checks.set_down_rad = max(self.checks.set_down_rad, a)
-        station = self.life.station(order.dst)
-        ld.state, ld.station, ld.order = "resting", station.name, ""
-        if station.kind == SINK:
-            ld.leaves = t + station.dwell_s
+        rest_at(ld, self.life.station(order.dst), team.crew.dst, t, self.checks)
         self.log(t, ld)
         self._set_down(ld, team.crew.robots, state)
         return True
