@@ -149,6 +149,7 @@ def test_the_world_closes_in_bounded_time_when_undeclaring_hangs():
     world.obs_pub = Hangs(release)
     world.frames = None  # no --camera process frame publisher
     world.odom = None  # no odometry publishers (controller.localisation camera)
+    world.loads = world.loads_pub = None  # no fleet: no loads publisher
     try:
         finishes(lambda: world.close(step_limit=LIMIT))  # returns though no undeclare ever ends
         assert world.subs == [] and world.pose_pubs == []
