@@ -11,10 +11,16 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from pathlib import Path
 from types import TracebackType
 
+import zenoh
+
 from runtime.ports import LOOPBACK, free_tcp_port, tcp_endpoint, wait_for_tcp_port
+from wire import acl
+from wire.zconf import UsrPwdAuth, ZenohSettings
 
 __all__ = ["LOOPBACK", "RouterProcess", "free_tcp_port", "has_matching_subscribers", "tcp_endpoint",
            "wait_for_matching", "wait_for_tcp_port"]
@@ -59,7 +65,9 @@ class RouterProcess:
         start_timeout_s: float = 10.0,
         stop_timeout_s: float = 5.0,
         log_level: str = "WARNING",
+        config: Path | None = None,
     ) -> None:
+        self.config = config  # a router configuration file (access control), or none
         self.port = free_tcp_port() if port is None else port
         self.endpoint = tcp_endpoint(self.port)
         self._start_timeout_s = start_timeout_s
@@ -75,7 +83,8 @@ class RouterProcess:
         )
         self._proc = subprocess.Popen(
             [sys.executable, "-m", "runtime.router", "--listen", self.endpoint,
-             "--log-level", self._log_level],
+             "--log-level", self._log_level,
+             *(("--config", str(self.config)) if self.config is not None else ())],
             env=env,
             stdin=subprocess.DEVNULL,
         )
@@ -142,3 +151,27 @@ class RouterProcess:
         tb: TracebackType | None,
     ) -> None:
         self.stop()
+
+
+@contextmanager
+def fleet_acl_router(folder: Path, robots: Mapping[str, str], orders: bool = True
+                     ) -> Iterator[tuple[str, dict[str, UsrPwdAuth]]]:
+    """A router under a fleet's access control (:func:`wire.acl.fleet_acl` of ``robots``, robot
+    id -> formation, with the order keys when ``orders``), its files in ``folder``; yields its
+    endpoint and every user's credentials (the camera, manager, viewer and each robot)."""
+    creds = acl.new_credentials([acl.CAMERA_USER, acl.MANAGER_USER, acl.VIEWER_USER, *robots])
+    acl.write_dictionary(folder / "users.txt", creds)
+    router = RouterProcess(start_timeout_s=15.0, config=folder / "router.json5")
+    assert router.config is not None
+    acl.write_router_config(router.config, acl.router_config(
+        [router.endpoint], acl.fleet_acl(robots, robots, orders=orders),
+        (folder / "users.txt").resolve()))
+    with router:
+        yield router.endpoint, creds
+
+
+def open_as(router: tuple[str, Mapping[str, UsrPwdAuth]], user: str) -> zenoh.Session:
+    """A client session on ``router`` (as :func:`fleet_acl_router` yields it) as ``user``."""
+    endpoint, creds = router
+    return zenoh.open(ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
+                                    connect_timeout_s=5.0, auth=creds[user]).to_config())

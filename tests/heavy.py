@@ -50,7 +50,7 @@ def entry_points() -> dict[int, str]:
     from experiments.engines import run_both
     from experiments.method_bench import bench_method, bench_methods
     from formation.commands.bench import bench_command
-    from runtime.testing import RouterProcess
+    from runtime.testing import RouterProcess, fleet_acl_router, open_as
     from simulator.inprocess import simulate
     from simulator.lifelong import simulate_lifelong
     from tests.scenario_runs import summary_of
@@ -65,6 +65,8 @@ def entry_points() -> dict[int, str]:
         (bench_command, "runs `formation bench`"),
         (run_both, "starts `formation sim` processes (run_both)"),
         (RouterProcess, "starts a Zenoh router process"),
+        (fleet_acl_router, "starts a Zenoh router process (under access control)"),
+        (open_as, "opens a Zenoh session (open_as)"),
         (AgentNode, "builds an agent node (a real-time one starts its plan worker process)"),
         (PageServer, "serves the viewer's page on a socket"),
         (View, "serves the viewer on sockets"),

@@ -6,10 +6,7 @@ an allowed marker on the same session, so once the marker arrives the denied one
 from __future__ import annotations
 
 import json
-import os
 import queue
-import subprocess
-import sys
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -18,13 +15,12 @@ import pytest
 import zenoh
 
 from formation.cli import main
-from runtime.testing import free_tcp_port, tcp_endpoint, wait_for_tcp_port
+from runtime.testing import fleet_acl_router, open_as
 from scenario.load import load_scenario
 from simulator.access import secure_setup
 from simulator.manager import FleetManager
 from wire import acl, keys
 from wire.orders import OrderStatusMsg, decode_order, encode_order, order_status_key
-from wire.zconf import ZenohSettings
 
 ROOT = Path(__file__).resolve().parent.parent
 P = keys.DEFAULT_PREFIX
@@ -45,33 +41,8 @@ def test_the_order_rows_exist_only_with_orders():
 
 @pytest.fixture(scope="module")
 def router(tmp_path_factory) -> Iterator[tuple[str, dict]]:
-    folder = tmp_path_factory.mktemp("orders-acl")
-    port = free_tcp_port()
-    endpoint = tcp_endpoint(port)
-    creds = acl.new_credentials([acl.CAMERA_USER, acl.MANAGER_USER, acl.VIEWER_USER, *ROBOTS])
-    acl.write_dictionary(folder / "users.txt", creds)
-    config = folder / "router.json5"
-    acl.write_router_config(config, acl.router_config(
-        [endpoint], acl.fleet_acl(ROBOTS, ROBOTS, orders=True), (folder / "users.txt").resolve()))
-    proc = subprocess.Popen([sys.executable, "-m", "runtime.router", "--listen", endpoint,
-                             "--config", str(config), "--log-level", "WARNING"],
-                            env=dict(os.environ, PYTHONPATH=str(ROOT)), stdin=subprocess.DEVNULL)
-    try:
-        wait_for_tcp_port(port, timeout_s=15.0)
-        yield endpoint, creds
-    finally:
-        proc.terminate()
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-
-
-def open_as(router: tuple[str, dict], user: str) -> zenoh.Session:
-    endpoint, creds = router
-    return zenoh.open(ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
-                                    connect_timeout_s=5.0, auth=creds[user]).to_config())
+    with fleet_acl_router(tmp_path_factory.mktemp("orders-acl"), ROBOTS) as r:
+        yield r
 
 
 class Listener:

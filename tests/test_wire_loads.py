@@ -4,10 +4,7 @@ access control (a Python router enforcing :func:`wire.acl.fleet_acl` with ``orde
 
 from __future__ import annotations
 
-import os
 import queue
-import subprocess
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -17,11 +14,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from zenoh.ext import UInt8, z_deserialize
 
-from runtime.testing import free_tcp_port, tcp_endpoint, wait_for_tcp_port
+from runtime.testing import fleet_acl_router, open_as
 from wire import acl, decoders, keys, traffic
 from wire.orders import LOAD_STATES, MAX_LOADS, LoadEntry, LoadsMsg, decode_loads, encode_loads
 from wire.reader import MAX_PAYLOAD_BYTES, DecodeError
-from wire.zconf import ZenohSettings
 
 ROOT = Path(__file__).resolve().parent.parent
 P = keys.DEFAULT_PREFIX
@@ -141,33 +137,8 @@ ROBOTS = {"r1": "r1"}
 
 @pytest.fixture(scope="module")
 def router(tmp_path_factory) -> Iterator[tuple[str, dict]]:
-    folder = tmp_path_factory.mktemp("loads-acl")
-    port = free_tcp_port()
-    endpoint = tcp_endpoint(port)
-    creds = acl.new_credentials([acl.CAMERA_USER, acl.MANAGER_USER, acl.VIEWER_USER, *ROBOTS])
-    acl.write_dictionary(folder / "users.txt", creds)
-    config = folder / "router.json5"
-    acl.write_router_config(config, acl.router_config(
-        [endpoint], acl.fleet_acl(ROBOTS, ROBOTS, orders=True), (folder / "users.txt").resolve()))
-    proc = subprocess.Popen([sys.executable, "-m", "runtime.router", "--listen", endpoint,
-                             "--config", str(config), "--log-level", "WARNING"],
-                            env=dict(os.environ, PYTHONPATH=str(ROOT)), stdin=subprocess.DEVNULL)
-    try:
-        wait_for_tcp_port(port, timeout_s=15.0)
-        yield endpoint, creds
-    finally:
-        proc.terminate()
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-
-
-def open_as(router: tuple[str, dict], user: str) -> zenoh.Session:
-    endpoint, creds = router
-    return zenoh.open(ZenohSettings(mode="client", connect=(endpoint,), multicast_scouting=False,
-                                    connect_timeout_s=5.0, auth=creds[user]).to_config())
+    with fleet_acl_router(tmp_path_factory.mktemp("loads-acl"), ROBOTS) as r:
+        yield r
 
 
 MARKERS = {acl.CAMERA_USER: keys.obstacles_key(P), "r1": keys.state_key(P, "r1"),
