@@ -93,6 +93,7 @@ class StallProbe:
         self._tick_thread = threading.get_ident()
         self._gc_in_tick_ms = 0.0
         self._in_tick = True
+        before = parts.last  # a tick that ends swaps it (agent.tick_times.TickTimes.end)
         wall0, cpu0 = time.perf_counter(), time.thread_time()
         try:
             run()
@@ -102,17 +103,18 @@ class StallProbe:
             cpu = (time.thread_time() - cpu0) * 1e3
             self.tick_wall_ms.append(wall)
             self.tick_cpu_ms.append(cpu)
-            self._keep(wall, cpu, robot, parts)
+            self._keep(wall, cpu, robot, parts.last if parts.last is not before else None)
 
-    def _keep(self, wall: float, cpu: float, robot: str, parts: TickTimes) -> None:
-        """Keep the tick if it is among the longest so far (its parts read only then)."""
+    def _keep(self, wall: float, cpu: float, robot: str, parts: list[int] | None) -> None:
+        """Keep the tick if it is among the longest so far; ``parts``: its parts [ns], None
+        when no tick ended in it (a pose not due: :func:`agent.schedule.pose_due`)."""
         if len(self._top) >= self.longest and wall <= self._top[0][0]:
             return
         row = {"wall_ms": round(wall, 3), "cpu_ms": round(cpu, 3), "robot": robot,
                "gc_ms": round(self._gc_in_tick_ms, 3),
                "at_s": round(time.monotonic() - self._t0, 3),
-               "parts_ms": {name: round(ns * 1e-6, 3) for name, ns in zip(TICK_PARTS, parts.last,
-                                                                          strict=True) if ns}}
+               "parts_ms": {name: round(ns * 1e-6, 3)
+                            for name, ns in zip(TICK_PARTS, parts or (), strict=False) if ns}}
         self._seen += 1
         entry = (wall, self._seen, row)
         if len(self._top) < self.longest:
