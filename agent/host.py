@@ -87,11 +87,12 @@ def collect_if_due(young: int = IDLE_YOUNG) -> int | None:
     one at 700 allocations takes a fraction of a millisecond where the automatic one, at the high
     threshold, held the host's tick thread (and every tick queued behind it) for milliseconds.
     An older generation is collected when its own count passes Python's threshold, as Python
-    does (``gc.get_threshold``)."""
+    does (``gc.get_threshold``). A collector switched off (disabled, or threshold 0) stays
+    off."""
     young_count, middle_count, old_count = gc.get_count()
-    _, middle, old = gc.get_threshold()
-    if young <= 0 or young_count < young or not gc.isenabled():
-        return None
+    automatic, middle, old = gc.get_threshold()
+    if young <= 0 or young_count < young or automatic == 0 or not gc.isenabled():
+        return None  # not due, or a collector switched off stays off
     generation = 2 if old_count >= old else 1 if middle_count >= middle else 0
     gc.collect(generation)
     return generation

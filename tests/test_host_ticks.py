@@ -41,15 +41,20 @@ def test_an_older_generation_is_collected_when_its_own_count_passes_its_threshol
 
 
 def test_a_disabled_collector_stays_off() -> None:
-    was = gc.isenabled()
-    gc.disable()
+    was, before = gc.isenabled(), gc.get_threshold()
+    kept = [[] for _ in range(50)]
     try:
-        kept = [[] for _ in range(50)]
+        gc.disable()
         assert collect_if_due(young=10) is None
-        del kept
+        gc.enable()
+        gc.set_threshold(0, 10, 10)  # switched off by its threshold
+        assert collect_if_due(young=10) is None
+        assert gc.get_count()[0] >= 10
     finally:
+        gc.set_threshold(*before)
         if was:
             gc.enable()
+        del kept
 
 
 class FakeNode:
