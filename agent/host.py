@@ -38,12 +38,13 @@ if __name__ == "__main__":
 
 import argparse
 import asyncio
+import gc
 import logging
 import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import zenoh
@@ -53,6 +54,7 @@ from agent.config import AgentConfig, load_config
 from agent.node import AgentNode, NodeOptions, zenoh_config
 from agent.replan import close_plan_pool
 from agent.schedule import PoseScheduler
+from agent.stalls import StallProbe
 from agent.stats import AgentStats
 from runtime.lifeline import watch_parent
 from wire.acl import read_credentials
@@ -74,17 +76,44 @@ class SharedSession:
             self.session.close()
 
 
+IDLE_YOUNG = 700  # tracked allocations after which an idle tick thread collects (Python's default)
+
+
+def collect_if_due(young: int = IDLE_YOUNG) -> int | None:
+    """Between ticks: the collection Python's own rule would have made by now, if any (the
+    generation collected, else None). The collector's automatic threshold stays high
+    (:func:`runtime.heap.freeze_startup`) as a backstop; this makes its collections small and
+    at a moment when no tick waits: a young collection walks every young object still alive, so
+    one at 700 allocations takes a fraction of a millisecond where the automatic one, at the high
+    threshold, held the host's tick thread (and every tick queued behind it) for milliseconds.
+    An older generation is collected when its own count passes Python's threshold, as Python
+    does (``gc.get_threshold``). A collector switched off (disabled, or threshold 0) stays
+    off."""
+    young_count, middle_count, old_count = gc.get_count()
+    automatic, middle, old = gc.get_threshold()
+    if young <= 0 or young_count < young or automatic == 0 or not gc.isenabled():
+        return None  # not due, or a collector switched off stays off
+    generation = 2 if old_count >= old else 1 if middle_count >= middle else 0
+    gc.collect(generation)
+    return generation
+
+
 class TickWorker:
     """Real time: the host's one thread that runs its agents' pose ticks (see the module
     docstring). A pose callback only stores the pose and queues its node (once); the worker
     ticks each queued node on its newest pose, so a host that falls behind skips to the newest
-    pose of each robot instead of working through a backlog of old ones."""
+    pose of each robot instead of working through a backlog of old ones. When no node is queued
+    after a tick, the worker makes the garbage collector's due collection
+    (:func:`collect_if_due`), so the collector runs between ticks, not inside one."""
 
-    def __init__(self) -> None:
+    def __init__(self, idle: Callable[[], object] = collect_if_due,
+                 probe: StallProbe | None = None) -> None:
         self._due: deque[HostedNode] = deque()
         self._queued: set[int] = set()
         self._cond = threading.Condition()
         self._stopped = False
+        self._idle = idle
+        self._probe = probe  # --stalls: every tick timed (agent.stalls)
         self.superseded = 0  # poses stored but never ticked on (a newer one came first)
         self._thread = threading.Thread(target=self._run, name="agent-host-ticks", daemon=True)
         self._thread.start()
@@ -107,7 +136,12 @@ class TickWorker:
                     return
                 node = self._due.popleft()
                 self._queued.discard(id(node))
-            node.tick_queued()
+            if self._probe is None:
+                node.tick_queued()
+            else:
+                self._probe.tick(node.tick_queued, node.cfg.robot_id, node.ticker.times)
+            if not self._due:  # nothing waits (read without the lock: a hint is enough)
+                self._idle()
 
     def stop(self) -> None:
         with self._cond:
@@ -225,11 +259,15 @@ def serve_planned(planned: list[tuple[AgentConfig, NodeOptions, Path]], ns: argp
     status = 0
     nodes: list[HostedNode] = []
     opt0 = planned[0][1]
-    worker = None if (ns.direct_ticks or opt0.lockstep or not opt0.tick_on_pose) else TickWorker()
+    probe = None if ns.stalls is None else StallProbe()
+    worker = None if (ns.direct_ticks or opt0.lockstep or not opt0.tick_on_pose) \
+        else TickWorker(probe=probe)
     try:
         if ns.shared_session:
             shared = SharedSession(zenoh.open(zenoh_config(planned[0][0], opt0.connect_timeout)), k)
         nodes = [HostedNode(cfg, options, shared, k, worker) for cfg, options, _ in planned]
+        if probe is not None:
+            probe.start()
         asyncio.run(serve_all(nodes, watch))
     except Exception as exc:  # a process front end: report and exit 1
         logger.exception("agent host (%s) failed", ", ".join(cfg.robot_id for cfg, _, _ in planned))
@@ -238,10 +276,23 @@ def serve_planned(planned: list[tuple[AgentConfig, NodeOptions, Path]], ns: argp
     finally:
         if worker is not None:
             worker.stop()
+        if probe is not None:  # before the plan worker goes: its CPU time is in the report
+            write_stalls(probe, ns.stalls, planned[0][0].robot_id)
         close_plan_pool()  # as agent.__main__: not left to Python's exit
     for node, (_, _, stats) in zip(nodes, planned, strict=False):
         write_stats(node, stats)
     return status
+
+
+def write_stalls(probe: StallProbe, folder: Path, first: str) -> None:
+    """``--stalls``: the probe's report as ``FOLDER/FIRST.json`` (``first``: the host's first
+    robot); a failure to write is logged, the host's exit status stays its own."""
+    probe.stop()
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        probe.write(folder / f"{first}.json")
+    except OSError as exc:
+        logger.error("agent host: --stalls: %s", exc)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -254,6 +305,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--direct-ticks", action="store_true",
                         help="real time: tick on Zenoh's thread as a process of its own does, "
                              "not on the host's tick thread (for comparison)")
+    parser.add_argument("--stalls", type=Path, default=None, metavar="DIR",
+                        help="record what holds the ticks back (garbage collections, the heap, "
+                             "each tick's CPU, the longest ticks' parts: agent.stalls) and write "
+                             "it to DIR/FIRST_ROBOT.json on the way out")
     ns = parser.parse_args(argv)
     watch = SignalWatch()  # first: before any thread starts (threads inherit the blocked mask)
     logging.basicConfig(level=ns.log_level.upper(),

@@ -331,8 +331,7 @@ class AgentNode:
         t = self.out.transport = Transport(session, self.counter)
         for k in [self.keys.state, self.keys.cmd, *self.leader.publish_keys()]:
             t.publisher(k)
-        diag = DiagPublisher(session, self.cfg.prefix, self.cfg.robot_id, self.cfg.formation,
-                             self.cfg.goal)
+        diag = DiagPublisher(session, self.cfg.prefix, self.cfg.robot_id)
         self.ticker.after = lambda res: diag.tick(self, res)  # viewers' diagnostics
         self.nav.open(session, self.counter)
         if self.cfg.base != "world":

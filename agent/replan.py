@@ -6,8 +6,8 @@ sees into the driver's terms and runs the plan off the control tick.
 Lock-step: the plan is made in the tick that asks for it (simulated time waits; the run stays
 deterministic). Real time: the plan runs in a worker process (one per agent process, its leaders
 share it, started with the node before the ticks, ``spawn``: nothing of the agent's threads or
-sessions is copied into it; at the lowest priority, :data:`PLAN_NICE`, so on a busy machine the
-plan waits, not the ticks) and the tick goes on at once; the route is taken at the first tick
+sessions is copied into it; at the lowest priority, :func:`lower`, so the plan takes only the
+CPU the ticks leave) and the tick goes on at once; the route is taken at the first tick
 after it is done. A thread would not do: the search is Python and holds the GIL, and a 20 Hz
 tick beside it ended late (docs/navigation.md).
 """
@@ -36,7 +36,7 @@ from wire.payloads import EllipseMsg, ObstacleMsg
 
 from .body import Footprint, pose_of
 
-PLAN_NICE = 19  # the worker's niceness: on a busy machine the ticks come first, the plan waits
+PLAN_NICE = 19  # the worker's niceness (also where the idle policy is refused)
 
 
 class LeaderRoutes:
@@ -110,11 +110,28 @@ _POOL: list[ProcessPoolExecutor] = []  # this process's plan worker, once starte
 ORPHAN_POLL_S = 1.0  # [s] how often the plan worker looks whether its agent is still there
 
 
+def lower(pid: int) -> None:
+    """Process ``pid`` (0: this one) at the lowest priority: niceness :data:`PLAN_NICE` and the
+    kernel's idle policy (``SCHED_IDLE``) where it is granted. Niceness 19 alone still gets
+    slices of a CPU that a waking tick then waits behind, and a fleet's leaders all plan at
+    their first ticks, while each worker is still importing its modules: with fewer cores than
+    busy processes, the ticks of a run's first seconds came late. Under the idle policy a
+    waking tick takes the worker's CPU at once, and the kernel counts a CPU that runs only the
+    worker as free when it places a waking thread; the worker still gets a small share of a
+    busy CPU, so a plan is late, never lost."""
+    with contextlib.suppress(OSError):
+        os.setpriority(os.PRIO_PROCESS, pid, PLAN_NICE)
+    idle = getattr(os, "SCHED_IDLE", None)
+    if idle is not None:
+        with contextlib.suppress(OSError):
+            os.sched_setscheduler(pid, idle, os.sched_param(0))
+
+
 def _worker_start(parent: int) -> None:
     """The plan worker's start: the lowest priority, and an exit once the agent that started it
     is gone. A killed agent's worker would otherwise wait on its job queue for ever (it holds
     the queue's write end itself, so it never reads an end of file)."""
-    os.nice(PLAN_NICE)
+    lower(0)
     threading.Thread(target=_exit_with, args=(parent,), name="orphan-watch", daemon=True).start()
 
 
@@ -143,8 +160,7 @@ def plan_pool() -> ProcessPoolExecutor:
         # the agent takes them on its signal thread only (agent.__main__.SignalWatch): block again
         signal.pthread_sigmask(signal.SIG_SETMASK, mask)
         for pid in getattr(pool, "_processes", None) or ():  # the executor's own table
-            with contextlib.suppress(OSError):
-                os.setpriority(os.PRIO_PROCESS, pid, PLAN_NICE)
+            lower(pid)
         atexit.register(pool.shutdown, wait=False, cancel_futures=True)
         _POOL.append(pool)
     return _POOL[0]

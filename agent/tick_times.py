@@ -39,10 +39,11 @@ class TickTimes:
     """The parts of the ticks (module docstring): :meth:`begin`, :meth:`lap` per part,
     :meth:`end`; :meth:`medians` [us] per part over the window."""
 
-    __slots__ = ("_acc", "_last", "_windows")
+    __slots__ = ("_acc", "_last", "_windows", "last")
 
     def __init__(self) -> None:
         self._acc = [0] * len(TICK_PARTS)  # [ns] this tick's time per part so far
+        self.last = [0] * len(TICK_PARTS)  # [ns] the last ended tick's time per part
         self._last = 0
         self._windows: tuple[deque[float], ...] = tuple(
             deque(maxlen=STATS_WINDOW) for _ in TICK_PARTS)
@@ -67,7 +68,8 @@ class TickTimes:
         for ns, window in zip(acc, self._windows, strict=True):
             if ns:
                 window.append(ns * 1e-3)
-        acc[:] = _ZEROS
+        self._acc, self.last = self.last, acc  # the ended tick's parts kept, no new list
+        self._acc[:] = _ZEROS
 
     def medians(self) -> dict[str, float | None]:
         """Per part: the median [us] over the ticks it ran in (None: it never ran)."""

@@ -31,20 +31,36 @@ from wire.zconf import ZenohSettings, use_zenoh_threads
 logger = logging.getLogger(__name__)
 
 
+@dataclass(frozen=True)
+class Hosts:
+    """How a bench fleet's agents run: ``per_process`` K to an agent host (:mod:`agent.host`;
+    1: a process each), one Zenoh session per host (``shared_session``), and with ``stalls``
+    each host records what holds its ticks back (``--stalls``, :mod:`agent.stalls`)."""
+
+    per_process: int = 1
+    shared_session: bool = False
+    stalls: bool = False
+
+
 def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: bool = True,
-                 pose_slots: int = 1, viewer: bool = False, per_process: int = 1,
-                 shared_session: bool = False, pose_zones: int = 0) -> dict:
+                 pose_slots: int = 1, viewer: bool = False, hosting: Hosts = Hosts(),
+                 pose_zones: int = 0) -> dict:
     """Run ``n`` agent processes in real time against the simulated world for ``duration``
     seconds (see the module docstring); every process started here is stopped on every way out.
     ``tick_on_pose=False`` runs the agents with ``--clock-ticks`` (their own clock);
     ``pose_slots`` is the world's (:class:`simulator.world.WorldOptions`); ``viewer`` attaches
     ``formation view --connect`` to the router (the live page and Foxglove WebSocket);
-    ``per_process`` K > 1 runs the agents K to an agent host (:mod:`agent.host`, one Zenoh session
-    per host with ``shared_session``): each agent's CPU and memory are then its host's divided by
-    the agents it runs. ``pose_zones`` Z > 0: the world's poses and the agents' commands go
-    through Z zone routers of the world's process (:mod:`simulator.zones`), each agent connected
-    to its zone's; 0: everything through the one router (the default)."""
+    ``hosting`` (:class:`Hosts`): with K > 1 agents to an agent host, each agent's CPU and
+    memory are its host's divided by the agents it runs, and with ``stalls`` the entry's
+    ``stalls`` sums up the hosts' reports (:func:`stalls_summary`). ``pose_zones`` Z > 0: the
+    world's poses and the agents' commands go through Z zone routers of the world's process
+    (:mod:`simulator.zones`), each agent connected to its zone's; 0: everything through the one
+    router (the default)."""
     use_zenoh_threads("relay")  # as `formation bench` does, for a direct call too
+    per_process, shared_session = hosting.per_process, hosting.shared_session
+    stalls = work / "stalls" if hosting.stalls and per_process > 1 else None
+    extra = ["--no-trace", *([] if tick_on_pose else ["--clock-ticks"]),
+             *([] if stalls is None else ["--stalls", str(stalls)])]
     scenario = fleet_scenario(n, dt, duration)
     for sub in ("configs", "agents", "logs"):
         (work / sub).mkdir(parents=True, exist_ok=True)
@@ -59,8 +75,7 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
             stack.enter_context(zones := PoseZones(scenario, pose_zones, endpoint, per_process))
             configs = {rid: replace(c, zenoh=replace(c.zenoh, connect=(zones.endpoint_of(rid),)))
                        for rid, c in configs.items()}
-        agents = fleet.start_agents(configs, work,
-                                    lambda _rid: ["--no-trace", *([] if tick_on_pose else ["--clock-ticks"])],
+        agents = fleet.start_agents(configs, work, lambda _rid: extra,
                                     per_process=per_process, shared_session=shared_session)
         if viewer:
             fleet.start("viewer", ["-m", "formation", "view", "--connect", endpoint, "--port", "0"])
@@ -107,7 +122,51 @@ def bench_agents(n: int, dt: float, duration: float, work: Path, tick_on_pose: b
     entry["agents_per_process"] = per_process
     entry["shared_session"] = shared_session
     entry["pose_zones"] = pose_zones
+    if stalls is not None:
+        entry["stalls"] = stalls_summary(read_stalls(stalls))
     return entry
+
+
+def read_stalls(folder: Path) -> list[dict]:
+    """Every host's ``--stalls`` report in ``folder`` (one that is missing or unreadable is
+    left out, with a warning)."""
+    reports = []
+    for path in sorted(folder.glob("*.json")) if folder.is_dir() else []:
+        try:
+            reports.append(json.loads(path.read_text(encoding="utf-8")))
+        except (OSError, ValueError) as exc:
+            logger.warning("stalls report %s: %s", path, exc)
+    return reports
+
+
+def stalls_summary(reports: Sequence[dict]) -> dict:
+    """The hosts' ``--stalls`` reports (:mod:`agent.stalls`) in one: per generation the
+    collections a minute per host, their longest pause and how many fell inside a tick; the heap
+    (median over the hosts); the ticks' CPU 99th percentile (median over the hosts) and longest
+    wall time; the three longest ticks of all; the route-plan workers' CPU seconds."""
+    gens: dict[str, dict] = {}
+    for g in ("0", "1", "2"):
+        rows = [r["gc"][g] for r in reports if g in r.get("gc", {})]
+        pauses = [x["wall_ms_max"] for x in rows if x.get("wall_ms_max") is not None]
+        gens[g] = {"per_minute_per_host": _median(x.get("per_minute") for x in rows),
+                   "cpu_ms_median": _median(x.get("cpu_ms_median") for x in rows),
+                   "wall_ms_max": max(pauses) if pauses else None,
+                   "in_ticks": sum(x.get("in_ticks", 0) for x in rows)}
+    ticks = [r.get("ticks", {}) for r in reports]
+    walls = [t["wall_ms_max"] for t in ticks if t.get("wall_ms_max") is not None]
+    longest = sorted((row for r in reports for row in r.get("longest_ticks", [])),
+                     key=lambda row: -row["wall_ms"])[:3]
+    return {
+        "hosts": len(reports), "gc": gens,
+        "heap_objects": _median(r.get("heap_objects") for r in reports),
+        "frozen_objects": _median(r.get("frozen_objects") for r in reports),
+        "modules": _median(r.get("modules") for r in reports),
+        "tick_cpu_ms_p99": _median(t.get("cpu_ms_p99") for t in ticks),
+        "tick_wall_ms_max": max(walls) if walls else None,
+        "longest_ticks": longest,
+        "plan_worker_cpu_s": round(sum(sum(r.get("children_cpu_s", {}).values())
+                                       for r in reports), 3),
+    }
 
 
 @dataclass(frozen=True)

@@ -69,7 +69,7 @@ from pathlib import Path
 from agent.barriers import Neighbour, Obstacle
 from agent.control import Controller, ControlParams, FormationView, StepInput, build_rows
 from agent.qp import Row, qpsolvers_solver, solve_exact
-from experiments.agents import bench_agents
+from experiments.agents import Hosts, bench_agents
 from experiments.central import CENTRAL_BACKENDS, bench_central
 from experiments.machine import load_avg, percentile, timed
 from experiments.recording import bench_recording
@@ -323,13 +323,15 @@ def parse_fleets(text: str) -> list[tuple[int, float]]:
 def run_fleets(fleets: Sequence[tuple[int, float]], per_process: int = 1,
                shared_session: bool = False, repeat: int = 1,
                duration: float = FLEET_DURATION, work: Path | None = None,
-               pose_slots: int = 1, pose_zones: Sequence[int] = (0,)) -> dict:
+               pose_slots: int = 1, pose_zones: Sequence[int] = (0,), stalls: bool = False
+               ) -> dict:
     """Only the **agents** part, for the fleets asked (``formation bench --fleets``): each fleet
     ``repeat`` times in a row, every run with its own load average and latency parts;
     ``pose_slots`` is the world's (capped at one slot per formation). Each of ``pose_zones``
     (0: every pose and command through the one router; Z: Z zone routers,
     :mod:`simulator.zones`) runs in every round, one after the other, so the machine's load
-    hits the pose paths alike."""
+    hits the pose paths alike. ``stalls``: every agent host records what holds its ticks back
+    (:mod:`agent.stalls`), summed up per run."""
     runs = []
     with tempfile.TemporaryDirectory(prefix="bench-fleets-") as tmp:
         base = Path(work) if work is not None else Path(tmp)
@@ -338,7 +340,7 @@ def run_fleets(fleets: Sequence[tuple[int, float]], per_process: int = 1,
                 for z in pose_zones:
                     entry = bench_agents(n, dt, duration,
                                          base / f"fleet-{n}-{round(1 / dt)}-z{z}-{r}",
-                                         per_process=per_process, shared_session=shared_session,
+                                         hosting=Hosts(per_process, shared_session, stalls),
                                          pose_slots=max(1, min(pose_slots, n // 4)),
                                          pose_zones=z)
                     entry["fleet"] = f"{n}@{1 / dt:g}"
@@ -408,8 +410,29 @@ def format_fleets(result: dict) -> str:
                          f"({_f(c['latency_ms_p50_ratio'], '.2f')}x), p99 "
                          f"{_f(c['latency_ms_p99'], '.2f')} ms ({_f(c['latency_ms_p99_ratio'], '.2f')}x)")
     lines += format_tick_parts(result["fleets"])
+    lines += format_stalls(result["fleets"])
     lines.append(f"machine: {result['machine']['cpus']} CPUs")
     return "\n".join(lines)
+
+
+def format_stalls(runs: Sequence[dict]) -> list[str]:
+    """What held the agent hosts' ticks back (``--stalls``), one row per run that recorded it."""
+    rows = [a for a in runs if a.get("stalls")]
+    if not rows:
+        return []
+    lines = ["what holds the ticks back (--stalls; per host: garbage collections a minute by "
+             "generation with the longest pause [ms] and those inside a tick; heap objects "
+             "tracked / frozen; tick CPU p99 [ms], longest tick [ms]; plan workers' CPU [s]):"]
+    for a in rows:
+        st = a["stalls"]
+        gcs = "  ".join(f"g{g} {_f(v['per_minute_per_host'], '.0f')}/min "
+                        f"max {_f(v['wall_ms_max'], '.2f')} in {v['in_ticks']}"
+                        for g, v in st["gc"].items())
+        lines.append(f"  {a['fleet']:>7} zones {a.get('pose_zones', 0):>2}: {gcs}  heap "
+                     f"{_f(st['heap_objects'], '.0f')} / {_f(st['frozen_objects'], '.0f')}  tick p99 "
+                     f"{_f(st['tick_cpu_ms_p99'], '.3f')} max {_f(st['tick_wall_ms_max'], '.2f')}"
+                     f"  plan {_f(st['plan_worker_cpu_s'], '.2f')}")
+    return lines
 
 
 def format_tick_parts(runs: Sequence[dict]) -> list[str]:

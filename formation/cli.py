@@ -278,6 +278,10 @@ def build_parser() -> Parser:
                    help="with --fleets: pose paths to run side by side in every round: 0 = every "
                         "pose and command through the one router, Z = through Z zone routers "
                         "(default 0)")
+    p.add_argument("--stalls", action="store_true",
+                   help="with --fleets and --agents-per-process K > 1: each agent host records "
+                        "what holds its ticks back (garbage collections, heap, tick CPU, the "
+                        "longest ticks' parts, the plan worker's CPU)")
 
     p = add("view", "the live page of a running fleet (read-only)")
     _add_view_args(p, client=True)

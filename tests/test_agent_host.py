@@ -164,7 +164,7 @@ def test_sigterm_to_the_host_makes_every_agent_command_zero_and_write_its_counte
 def test_bench_fleets_runs_each_chosen_fleet_repeatedly_with_its_latency_parts_and_load(tmp_path):
     out = tmp_path / "bench"
     assert main(["bench", "--out", str(out), "--fleets", "4@20", "--agents-per-process", "2",
-                 "--repeat", "2", "--duration", "1.5"]) == 0
+                 "--repeat", "2", "--duration", "1.5", "--stalls"]) == 0
     result = json.loads((out / "bench.json").read_text())
     assert result["agents_per_process"] == 2 and result["shared_session"] is True  # the default
     assert [(f["fleet"], f["round"]) for f in result["fleets"]] == [("4@20", 1), ("4@20", 2)]
@@ -175,16 +175,22 @@ def test_bench_fleets_runs_each_chosen_fleet_repeatedly_with_its_latency_parts_a
                                                      "pose_in", "cmd_back"}
         assert all(math.isfinite(v) for v in f["latency_parts_ms_median"].values())
         assert f["load_avg_1min"]["before"] is not None
+        stalls = f["stalls"]  # --stalls: both hosts' reports summed up
+        assert stalls["hosts"] == 2 and set(stalls["gc"]) == {"0", "1", "2"}
+        assert stalls["heap_objects"] > 0 and stalls["tick_wall_ms_max"] > 0
+        assert stalls["longest_ticks"] and any(r["parts_ms"] for r in stalls["longest_ticks"])
     table, parts = (out / "bench.txt").read_text().split("the tick's parts")
     rows = [line.split() for line in table.splitlines()]
     assert sum(1 for r in rows if r[:2] == ["4", "20"]) == 2  # one table row per run
     rows = [line.split() for line in parts.splitlines()]
     assert sum(1 for r in rows if r[:2] == ["4", "20"]) == 2  # and one row of its tick's parts
+    assert sum(1 for r in rows if r[:1] == ["4@20"]) == 2  # and one of what held its ticks back
 
 
 @pytest.mark.parametrize("args", [["--fleets", "32at50"], ["--fleets", "0@20"], ["--fleets", "8@-5"],
                                   ["--agents-per-process", "2"], ["--session-per-agent"],
-                                  ["--fleets", "8@20", "--repeat", "0"], ["--pose-slots", "2"]])
+                                  ["--fleets", "8@20", "--repeat", "0"], ["--pose-slots", "2"],
+                                  ["--stalls"], ["--fleets", "8@20", "--stalls"]])
 def test_bench_with_a_bad_fleet_option_exits_2_before_running_anything(tmp_path, args):
     assert main(["bench", "--out", str(tmp_path / "b"), *args]) == 2
     assert not (tmp_path / "b" / "bench.json").exists()

@@ -167,13 +167,15 @@ from agent.replan import PLAN_NICE, plan_pool
 pool = plan_pool()
 pool.submit(int).result()
 (pid,) = list(pool._processes)
-print(pid, os.getpriority(os.PRIO_PROCESS, pid) == PLAN_NICE, flush=True)
+idle = os.sched_getscheduler(pid) == os.SCHED_IDLE
+print(pid, os.getpriority(os.PRIO_PROCESS, pid) == PLAN_NICE and idle, flush=True)
 time.sleep(600)
 """
 
 
 def test_the_route_plan_worker_runs_at_the_lowest_priority_and_ends_when_its_agent_is_killed():
-    """agent.replan.plan_pool: the worker is at PLAN_NICE, and a SIGKILLed agent's worker exits
+    """agent.replan.plan_pool: the worker is at PLAN_NICE under the idle policy (a waking tick
+    takes its CPU at once), and a SIGKILLed agent's worker exits
     by itself (it holds its own queue's write end, so no end of file would ever tell it)."""
     import os
     import signal

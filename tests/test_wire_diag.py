@@ -9,7 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from wire import keys
-from wire.diag import Diag, decode_diag, diag_key, encode_diag
+from wire.diag import Diag, DiagPublisher, decode_diag, diag_key, encode_diag
 from wire.payloads import DecodeError
 
 
@@ -44,6 +44,54 @@ def test_truncated_or_trailing_or_non_finite_counters_are_rejected():
         sample(stamp=math.nan)
     with pytest.raises(ValueError):
         sample(status="two words")
+
+
+class FakePublisher:
+    def __init__(self) -> None:
+        self.puts: list[bytes] = []
+
+    def put(self, payload: bytes) -> None:
+        self.puts.append(payload)
+
+
+class FakeSession:
+    def __init__(self) -> None:
+        self.declared: dict[str, FakePublisher] = {}
+
+    def declare_publisher(self, key: str) -> FakePublisher:
+        return self.declared.setdefault(key, FakePublisher())
+
+
+class FakeConfig:
+    def __init__(self, formation: str, goal: tuple[float, float]) -> None:
+        self.formation = formation
+        self.goal = goal
+
+
+class FakeNode:
+    """The agent's parts a diagnostics put reads."""
+
+    def __init__(self, cfg: FakeConfig) -> None:
+        self.cfg = cfg
+        self.stale = 0
+        self.ticks = 1
+        self.status_counts = {"relaxed": 0, "fallback": 0}
+        self.dropped_malformed = 0
+        self.last_stamp = 1.0
+
+
+def test_a_robot_that_regroups_names_its_new_formation_and_goal_in_its_diag():
+    session = FakeSession()
+    pub = DiagPublisher(session, "warehouse", "r1", period=0.0)
+    node = FakeNode(FakeConfig("r1", (1.0, 2.0)))  # a fleet robot: a formation of one
+    pub.tick(node, None)
+    node.cfg = FakeConfig("team-7", (5.0, -3.0))  # regrouped into a team
+    pub.tick(node, None)
+    node.cfg = FakeConfig("r1", (0.5, 0.5))  # back to a formation of one
+    pub.tick(node, None)
+    sent = [decode_diag(p) for p in session.declared["warehouse/robot/r1/diag"].puts]
+    assert [(d.formation, d.goal_x, d.goal_y) for d in sent] == [
+        ("r1", 1.0, 2.0), ("team-7", 5.0, -3.0), ("r1", 0.5, 0.5)]
 
 
 def test_the_diag_key_is_counted_as_other_not_as_control_traffic():

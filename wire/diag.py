@@ -110,18 +110,17 @@ class DiagPublisher:
     """An agent's diagnostics: :meth:`tick` after every control tick, a put at most every
     ``period`` seconds of wall time (uncounted: see the module docstring)."""
 
-    def __init__(self, session: zenoh.Session, prefix: str, robot_id: str, formation: str,
-                 goal: tuple[float, float], period: float = DIAG_PERIOD_S) -> None:
+    def __init__(self, session: zenoh.Session, prefix: str, robot_id: str,
+                 period: float = DIAG_PERIOD_S) -> None:
         self._pub = session.declare_publisher(diag_key(prefix, robot_id))
-        self.formation = formation
-        self.goal = goal
         self.period = period
         self._next = 0.0
         self.sent = 0
 
     def tick(self, node: Any, res: Any) -> None:
-        """``node``: the agent (its counters); ``res``: the tick's ``StepResult`` or ``None``
-        (a zero command: stale inputs, or no pose yet)."""
+        """``node``: the agent (its counters, and its configuration ``cfg``, whose formation and
+        goal each put names: a fleet robot's change with every regroup); ``res``: the tick's
+        ``StepResult`` or ``None`` (a zero command: stale inputs, or no pose yet)."""
         now = time.monotonic()
         if now < self._next:
             return
@@ -135,8 +134,10 @@ class DiagPublisher:
             hf, ho, he = res.h_formation, res.h_obstacle, res.h_formations
         counts = node.status_counts
         dropped = node.dropped_malformed
-        d = Diag(self.formation, status or "ok", node.last_stamp, slack, hf, ho, he,
-                 self.goal[0], self.goal[1], node.ticks, node.stale,
+        cfg = node.cfg
+        goal_x, goal_y = cfg.goal
+        d = Diag(cfg.formation, status or "ok", node.last_stamp, slack, hf, ho, he,
+                 goal_x, goal_y, node.ticks, node.stale,
                  counts.get("relaxed", 0), counts.get("fallback", 0), dropped)
         self._pub.put(encode_diag(d))
         self.sent += 1

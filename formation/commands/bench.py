@@ -61,10 +61,13 @@ def bench_command(ns: argparse.Namespace) -> int:
                            or own or zones != [0]):
         raise UsageError("--agents-per-process, --session-per-agent, --repeat, --duration, "
                          "--pose-slots and --pose-zones go with --fleets")
+    stalls = getattr(ns, "stalls", False)
+    if stalls and (fleets is None or per_process < 2):
+        raise UsageError("--stalls goes with --fleets and --agents-per-process K > 1")
     out = begin_output(ns)
     if fleets is not None:
         result = run_fleets(fleets, per_process, per_process > 1 and not own, repeat,
-                            pose_slots=slots, pose_zones=zones,
+                            pose_slots=slots, pose_zones=zones, stalls=stalls,
                             **({} if duration is None else {"duration": duration}))
         _write(out, result, format_fleets(result))
     else:
