@@ -141,16 +141,21 @@ def yield_command(view: FormationView, others: Sequence[Ellipse], vmax: float,
                   t: StallTuning = TUNING.stall) -> tuple[float, float] | None:
     """A jam (two formations in a doorway, three or more at a crossing: no barrier picks who
     goes first) is broken by priority: a yielding formation backs away from every nearby
-    formation whose name sorts before its own, at ``t.yield_gain`` vmax; None when there is none
-    (it has priority and keeps going). Over its last ``t.yield_ease`` seconds the backing slows
-    to zero (an instant turn back to the goal was a reversal of every member's command).
+    formation whose name sorts before its own, at ``t.yield_gain`` vmax, unless that formation
+    is parked at its goal (``view.parked``); None when there is none (it has priority and keeps
+    going). Over its last ``t.yield_ease`` seconds the backing slows to zero (an instant turn
+    back to the goal was a reversal of every member's command).
 
     Why: a jam's order is not a safety question, so no barrier picks it; a fixed priority by
-    name does, the same on every member. Pinned by tests/scenarios/yield-hexagon-triangle.yaml."""
+    name does, the same on every member. A formation parked at its goal holds there: backing
+    away from it frees no way, and a formation that crawls past it with its rows intact
+    (tests/scenarios/door-gamma005-four-unicycle.yaml) would back off again and again.
+    Pinned by tests/scenarios/yield-hexagon-triangle.yaml."""
     own = view.own
     rx = ry = 0.0
+    parked = view.parked
     for e, name in zip(others, view.other_names, strict=False):
-        if not name or name >= view.name:
+        if not name or name >= view.name or name in parked:
             continue
         dx, dy = own.cx - e.cx, own.cy - e.cy
         d = math.hypot(dx, dy)

@@ -188,6 +188,9 @@ class FormationView(NamedTuple):
     yielding: float = 0.0  # [s] the stall clock says jammed, yield this long still (update_stall)
     goal_heading: float | None = None  # [rad] the current waypoint's heading (the goal shape's turn)
     arriving: bool = True  # the target is where the member settles (not a waypoint passed)
+    # the other formations in view parked at their goals (their ellipses' ``parked``): they
+    # hold where they are and cannot give way, so no jam is broken by yielding to them
+    parked: frozenset[str] = frozenset()
 
 
 class Stall(NamedTuple):
