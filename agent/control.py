@@ -350,12 +350,33 @@ def build_rows(p: ControlParams, point: tuple[float, float], theta: float,
     contact += sep
     if load is not None:
         hl, lrows = load_rows.load_rows(load, inp.obstacles, inp.shapes, p.radius,
-                                        load_rows.LOAD_CLEAR + p.sampling_margin + p.margin,
+                                        load_rows.LOAD_CLEAR + p.load_sampling_margin + p.margin,
                                         p.gamma_obstacle, reach)
         ho = min(ho, hl)
         contact += lrows
     limits = velocity_limit_rows(p, theta, inp.view, nominal_u)
+    if p.turn_capped:
+        limits = near_limit_rows(p, px, py, theta, inp) or limits
     return Rows(limits, hard, soft, hf, ho, he, hs, contact)
+
+
+def near_limit_rows(p: ControlParams, px: float, py: float, theta: float, inp: StepInput
+                    ) -> list[Row] | None:
+    """A unicycle's drive limits with its turn rate capped near things
+    (:func:`agent.unicycle.near_turn_cap`, for :attr:`ControlParams.turn_capped`), or None
+    where the cap does not bind. The clearance is the control point's beyond the obstacles'
+    and shapes' Ds grown as their rows grow it."""
+    grow = p.offset + p.sampling_margin + p.margin
+    obstacles = inp.obstacles
+    if p.declared:  # a moving obstacle is seen through the camera too (its rows' margin)
+        obstacles = [o._replace(ds=o.ds + margins.moving_obstacle_margin(
+            p.bounds, math.hypot(o.vx, o.vy))) for o in obstacles]
+    near = barriers.clearance(px, py, obstacles, inp.shapes, grow)
+    cap = unicycle.near_turn_cap(near, p.sampling_margin, p.lookahead, p.period,
+                                 p.gamma_obstacle, p.max_turn_rate)
+    if cap >= p.max_turn_rate:
+        return None
+    return unicycle.drive_limit_rows(theta, p.lookahead, p.max_speed, cap)
 
 
 def _band_rows(p: ControlParams, px: float, py: float, theta: float,

@@ -111,8 +111,7 @@ ELLIPSE_POINTS_VERSION = 2
 #: other formations' margins hold (:func:`agent.margins.heard_radius`)
 ELLIPSE_SIGMA_VERSION = 3
 #: ``ellipse`` and ``others`` version 4 add each ellipse's ``parked``: its formation stands at
-#: its goal and holds there, so it cannot give way (:func:`agent.control.yield_command` never
-#: backs away from it)
+#: its goal (:func:`agent.control.yield_command` never backs away from it)
 ELLIPSE_PARKED_VERSION = 4
 MAX_ITEMS = 256  # most ellipses (or obstacles) one payload may carry
 
