@@ -37,14 +37,7 @@ from agent.config import AgentConfig
 from agent.control import Controller, Stall, StepResult
 from agent.hard_rows import HardRowCounter
 from agent.inbox import Inbox
-from agent.inputs import (
-    NOT_PARKED,
-    carry_pose,
-    others_view,
-    parked_of,
-    step_inputs,
-    with_parked,
-)
+from agent.inputs import carry_pose, others_view, parked_of, step_inputs, with_parked
 from agent.leader_step import LeaderPart
 from agent.margins import carried_age
 from agent.navigation import STALLED_AFTER_S, NavPart
@@ -165,7 +158,7 @@ class Ticker:
         self.last_stamp = 0.0
         self._last_pose_used: float | None = None
         self._stall = Stall()  # this member's copy of its formation's jam state
-        self._parked = NOT_PARKED  # this tick's other formations parked at their goals
+        self._parked: frozenset[str] = frozenset()  # other formations parked at their goals
         self._tick_point: tuple[float, float, float, float] | None = None
         self._ahead = 0.0  # [s] this tick's pose carried forward by its measured age (carried)
         self._inputs_of: dict[bool, list[tuple[str, str]]] = {}  # leading? -> _tick_inputs
