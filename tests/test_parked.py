@@ -5,6 +5,7 @@ the members of the other formations read it from their ``others`` and never yiel
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 import pytest
@@ -20,7 +21,8 @@ from geometry.ellipse import Ellipse
 from leader.navigation import Follower, at_goal
 from leader.role import ellipse_to_msg
 from scenario import load_scenario
-from simulator.inprocess import FleetControl, SimOptions
+from simulator import inprocess
+from simulator.inprocess import FleetControl, SimOptions, simulate
 from wire.payloads import (
     ELLIPSE_PARKED_VERSION,
     ELLIPSE_SIGMA_VERSION,
@@ -196,3 +198,31 @@ def test_in_process_a_formation_at_its_goal_is_parked_and_one_on_its_way_is_not(
     at = {"E": Ellipse(goal[0] + 0.5 * tol, goal[1], 0.0, 0.6, 0.3),
           "F": Ellipse(0.0, 0.0, 0.0, 0.6, 0.3)}
     assert fc.parked(at) == frozenset({"E"})
+
+
+# --- whole runs -------------------------------------------------------------------------------
+
+CRAWL = SCENARIOS / "door-parked-crawl-unicycle.yaml"
+
+
+def test_a_formation_crawling_beside_one_parked_at_its_goal_reaches_its_own(monkeypatch):
+    s = load_scenario(CRAWL)
+    run = simulate(s, SimOptions()).summary
+    assert run["all_reached"] and run["collisions"] == 0
+    assert run["formation_error_max_m"] <= 1.5 * s.controller.epsilon
+    # members that cannot tell a parked formation back away from it again and again
+    monkeypatch.setattr(inprocess, "with_parked", lambda inputs, parked: inputs)
+    blind = simulate(s, SimOptions()).summary
+    assert not blind["all_reached"] and blind["collisions"] == 0
+
+
+def test_a_lock_step_run_tells_parked_formations_as_the_simulation_does(tmp_path):
+    """The leaders put ``parked`` on their ellipses over Zenoh and the members read it from
+    their ``others``: the same robots.csv as the in-process simulation's."""
+    from formation.cli import main
+
+    assert main(["sim", str(CRAWL), "--out", str(tmp_path / "sim"), "--quiet", "--no-plots"]) == 0
+    assert main(["run", str(CRAWL), "--out", str(tmp_path / "run"), "--quiet", "--no-plots"]) == 0
+    run = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert run["mode"] == "multiprocess" and run["all_reached"] and run["collisions"] == 0
+    assert (tmp_path / "run" / "robots.csv").read_text() == (tmp_path / "sim" / "robots.csv").read_text()
