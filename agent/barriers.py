@@ -10,12 +10,13 @@ centroid and orientation). Pure functions over floats; no numpy on this hot path
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import NamedTuple
 
 from geometry import speed_polygon
 from geometry.circle import circle_h
 from geometry.ellipse import ellipse_terms
-from geometry.shapes import Shape, shape_distance
+from geometry.shapes import Shape, distance_floor, shape_distance
 
 from .qp import Row, normalized_row
 
@@ -93,6 +94,20 @@ def shape_row(px: float, py: float, sh: Shape, gamma: float, grow: float = 0.0) 
     d, gx, gy = shape_distance(px, py, sh)
     h = d - sh.ds - grow
     return h, (-gx, -gy, gamma * h)
+
+
+def clearance(px: float, py: float, obstacles: Sequence[Obstacle], shapes: Sequence[Shape],
+              grow: float, below: float = 0.0) -> float:
+    """[m] How far the point p lies beyond the nearest circle's or shape's Ds grown by ``grow``
+    (negative: inside), as the obstacle and shape rows measure it; distances at or above
+    ``below`` come back as ``below`` (a caller that only acts nearer asks for no more)."""
+    near = below
+    for o in obstacles:
+        near = min(near, math.hypot(px - o.x, py - o.y) - o.ds - grow)
+    for sh in shapes:
+        if distance_floor(px, py, sh) - sh.ds - grow < near:
+            near = min(near, shape_distance(px, py, sh)[0] - sh.ds - grow)
+    return near
 
 
 # ------------------------------------------------------------ other formations, eq. 4.6

@@ -141,16 +141,21 @@ def yield_command(view: FormationView, others: Sequence[Ellipse], vmax: float,
                   t: StallTuning = TUNING.stall) -> tuple[float, float] | None:
     """A jam (two formations in a doorway, three or more at a crossing: no barrier picks who
     goes first) is broken by priority: a yielding formation backs away from every nearby
-    formation whose name sorts before its own, at ``t.yield_gain`` vmax; None when there is none
-    (it has priority and keeps going). Over its last ``t.yield_ease`` seconds the backing slows
-    to zero (an instant turn back to the goal was a reversal of every member's command).
+    formation whose name sorts before its own, at ``t.yield_gain`` vmax, unless that formation
+    is parked at its goal (``view.parked``); None when there is none (it has priority and keeps
+    going). Over its last ``t.yield_ease`` seconds the backing slows to zero (an instant turn
+    back to the goal was a reversal of every member's command).
 
     Why: a jam's order is not a safety question, so no barrier picks it; a fixed priority by
-    name does, the same on every member. Pinned by tests/scenarios/yield-hexagon-triangle.yaml."""
+    name does, the same on every member. A formation parked at its goal holds there: backing
+    away from it frees no way, and a formation that crawls past it with its rows intact
+    (tests/scenarios/door-gamma005-four-unicycle.yaml) would back off again and again.
+    Pinned by tests/scenarios/yield-hexagon-triangle.yaml."""
     own = view.own
     rx = ry = 0.0
+    parked = view.parked
     for e, name in zip(others, view.other_names, strict=False):
-        if not name or name >= view.name:
+        if not name or name >= view.name or name in parked:
             continue
         dx, dy = own.cx - e.cx, own.cy - e.cy
         d = math.hypot(dx, dy)
@@ -345,12 +350,33 @@ def build_rows(p: ControlParams, point: tuple[float, float], theta: float,
     contact += sep
     if load is not None:
         hl, lrows = load_rows.load_rows(load, inp.obstacles, inp.shapes, p.radius,
-                                        load_rows.LOAD_CLEAR + p.sampling_margin + p.margin,
+                                        load_rows.LOAD_CLEAR + p.load_sampling_margin + p.margin,
                                         p.gamma_obstacle, reach)
         ho = min(ho, hl)
         contact += lrows
     limits = velocity_limit_rows(p, theta, inp.view, nominal_u)
+    if p.turn_capped:
+        limits = near_limit_rows(p, px, py, theta, inp) or limits
     return Rows(limits, hard, soft, hf, ho, he, hs, contact)
+
+
+def near_limit_rows(p: ControlParams, px: float, py: float, theta: float, inp: StepInput
+                    ) -> list[Row] | None:
+    """A unicycle's drive limits with its turn rate capped near things
+    (:func:`agent.unicycle.near_turn_cap`, for :attr:`ControlParams.turn_capped`), or None
+    where the cap does not bind. The clearance is the control point's beyond the obstacles'
+    and shapes' Ds grown as their rows grow it."""
+    grow = p.offset + p.sampling_margin + p.margin
+    obstacles = inp.obstacles
+    if p.declared:  # a moving obstacle is seen through the camera too (its rows' margin)
+        obstacles = [o._replace(ds=o.ds + margins.moving_obstacle_margin(
+            p.bounds, math.hypot(o.vx, o.vy))) for o in obstacles]
+    near = barriers.clearance(px, py, obstacles, inp.shapes, grow)
+    cap = unicycle.near_turn_cap(near, p.sampling_margin, p.lookahead, p.period,
+                                 p.gamma_obstacle, p.max_turn_rate)
+    if cap >= p.max_turn_rate:
+        return None
+    return unicycle.drive_limit_rows(theta, p.lookahead, p.max_speed, cap)
 
 
 def _band_rows(p: ControlParams, px: float, py: float, theta: float,

@@ -53,7 +53,8 @@ def step_inputs(
     may carry its heading as a sixth number (from its ``state``): a unicycle formation's band on
     the look-ahead points narrows by it. ``leg``: the current waypoint's heading and whether
     the member settles there, as :func:`waypoint_view` puts them in the view; ``rest``: the
-    StepInput's other fields (the pose, goal, obstacles, ...), so the input is made once.
+    StepInput's other fields (the pose, goal, obstacles, ...), so the input is made once. The
+    formations parked at their goals join the view after (:func:`with_parked`).
     """
     nb = [Neighbour(*n) for n in neighbours]
     view = None
@@ -132,6 +133,25 @@ def waypoint_view(view: FormationView | None, heading: float | None,
     if view is None or (heading is None and arriving):
         return view
     return view._replace(goal_heading=heading, arriving=arriving)
+
+
+NOT_PARKED: frozenset[str] = frozenset()
+
+
+def parked_of(msg: Others) -> frozenset[str]:
+    """The other formations of an ``others`` message parked at their goals (their ellipses'
+    ``parked``, :func:`leader.navigation.at_goal`), for :func:`step_inputs`."""
+    if not any(e.parked for e in msg.ellipses):
+        return NOT_PARKED
+    return frozenset(e.formation for e in msg.ellipses if e.parked)
+
+
+def with_parked(inputs: StepInput, parked: frozenset[str]) -> StepInput:
+    """``inputs`` with the other formations parked at their goals in the view (:func:`parked_of`;
+    no yield backs away from them: :func:`agent.control.yield_command`)."""
+    if not parked or inputs.view is None:
+        return inputs
+    return inputs._replace(view=inputs.view._replace(parked=parked))
 
 
 OthersView = tuple[Ellipse | None, tuple[tuple[str, Ellipse], ...]]

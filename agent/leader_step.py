@@ -33,6 +33,7 @@ from agent.odom_in import OdomIn
 from agent.transport import Transport
 from geometry.ellipse import Ellipse, Point
 from leader.listen import QUIET_MAX_S, beacon_due, grown_gap, hears, quiet_until
+from leader.navigation import Follower, at_goal
 from leader.role import VIEW_RANGE, LeaderRole, ellipse_to_msg
 from leader.succession import (
     LEADER_TOKEN,
@@ -163,6 +164,8 @@ class LeaderPart:
         self._neighbour_keys = neighbour_keys
         self.role = LeaderRole(cfg.formation, cfg.leader, cfg.prefix) if cfg.leader is not None \
             else None
+        # [m] the goal tolerance of the leader's status (agent.navigation's Navigator): parked
+        self.goal_tolerance = cfg.goal_tolerance + cfg.control.offset
         self._member_keys: dict[str, str] = {}  # member -> its state key
         if self.role is not None:
             member_keys = self._adjacent(self.role)
@@ -253,10 +256,13 @@ class LeaderPart:
     # --- the step -------------------------------------------------------------------------------
 
     async def lead(self, px: float, py: float, stamp: float, ts: float | None,
-                   last_u: tuple[float, float], theta: float = 0.0) -> bool:
+                   last_u: tuple[float, float], theta: float = 0.0,
+                   follower: Follower | None = None) -> bool:
         """Leader role for this tick: estimate and publish the ellipse (and, in real time, the
         beacon when due), collect the other leaders' ellipses, publish ``others``. False when an
-        ellipse that may be in view is missing or stale beyond ``ellipse_hold``.
+        ellipse that may be in view is missing or stale beyond ``ellipse_hold``. The ellipse
+        says whether the formation is parked at its goal (:func:`leader.navigation.at_goal` on
+        ``follower``, the leader's walk of the route before this tick's step; None: not parked).
 
         What the leader knows of each other formation is its newest ``ellipse`` or ``beacon``
         (:mod:`leader.listen`). A fresh one is used as it is; a stale one grown by
@@ -285,7 +291,9 @@ class LeaderPart:
         loc, latest = self.loc, self._inbox.latest  # fused: the formation's radius on it
         msg = ellipse_to_msg(role.formation, own, stamp, None if loc is None else
                              loc.formation_radius(latest(keys.STATE, k)
-                                                  for k in self._member_keys.values()))
+                                                  for k in self._member_keys.values()),
+                             follower is not None and at_goal(follower, (own.cx, own.cy),
+                                                              self.goal_tolerance))
         t.publish(role.ellipse_key, msg)
         if self.realtime and beacon_due(stamp, self.listen.beacon_stamp):
             t.publish(role.beacon_key, msg)

@@ -20,7 +20,7 @@ from geometry.shapes import Shape
 from scenario import limits as ranges
 from scenario.model import METHODS, Bounds
 
-from . import margins
+from . import margins, unicycle
 from .barriers import Neighbour, Obstacle, Partner
 from .body import Footprint
 
@@ -171,10 +171,31 @@ class ControlParams:
         Over one period the look-ahead point of a unicycle turning at omega moves off the
         straight line u dt by up to l (omega dt)^2 / 2; the barrier, which assumed s' = u, then
         settles that far divided by gamma dt inside its boundary. Ds grows by that bound at the
-        largest turn rate, so the body still keeps Ds (single integrators move exactly: 0)."""
+        largest turn rate, or by :data:`agent.unicycle.NEAR_MARGIN` where that is less and the
+        turn rate is capped near things (:attr:`turn_capped`), so the body still keeps Ds
+        (single integrators move exactly: 0)."""
         if not self.unicycle:
             return 0.0
-        return 0.5 * self.lookahead * self.max_turn_rate ** 2 * self.period / self.gamma_obstacle
+        return unicycle.sampling_margin(self.lookahead, self.max_turn_rate, self.period,
+                                        self.gamma_obstacle)
+
+    @functools.cached_property
+    def turn_capped(self) -> bool:
+        """Whether this unicycle's turn rate is capped near things
+        (:func:`agent.unicycle.near_turn_cap`): where the full turn rate's sampling margin is
+        more than :data:`agent.unicycle.NEAR_MARGIN`."""
+        return self.unicycle and unicycle.full_sampling_margin(
+            self.lookahead, self.max_turn_rate, self.period, self.gamma_obstacle) > self.sampling_margin
+
+    @functools.cached_property
+    def load_sampling_margin(self) -> float:
+        """[m] the load rows' clearance for sampled control beyond LOAD_CLEAR: the
+        :attr:`sampling_margin`, and where the turn rate is capped near things, what the load's
+        rows need (:func:`agent.unicycle.load_sampling_margin`)."""
+        if not self.turn_capped:
+            return self.sampling_margin
+        return unicycle.load_sampling_margin(self.max_speed, self.max_turn_rate, self.period,
+                                             self.gamma_obstacle)
 
 
 class FormationView(NamedTuple):
@@ -188,6 +209,9 @@ class FormationView(NamedTuple):
     yielding: float = 0.0  # [s] the stall clock says jammed, yield this long still (update_stall)
     goal_heading: float | None = None  # [rad] the current waypoint's heading (the goal shape's turn)
     arriving: bool = True  # the target is where the member settles (not a waypoint passed)
+    # the other formations in view parked at their goals (their ellipses' ``parked``): they
+    # hold where they are and cannot give way, so no jam is broken by yielding to them
+    parked: frozenset[str] = frozenset()
 
 
 class Stall(NamedTuple):

@@ -37,7 +37,7 @@ from agent.config import AgentConfig
 from agent.control import Controller, Stall, StepResult
 from agent.hard_rows import HardRowCounter
 from agent.inbox import Inbox
-from agent.inputs import carry_pose, others_view, step_inputs
+from agent.inputs import carry_pose, others_view, parked_of, step_inputs, with_parked
 from agent.leader_step import LeaderPart
 from agent.margins import carried_age
 from agent.navigation import STALLED_AFTER_S, NavPart
@@ -158,6 +158,7 @@ class Ticker:
         self.last_stamp = 0.0
         self._last_pose_used: float | None = None
         self._stall = Stall()  # this member's copy of its formation's jam state
+        self._parked: frozenset[str] = frozenset()  # other formations parked at their goals
         self._tick_point: tuple[float, float, float, float] | None = None
         self._ahead = 0.0  # [s] this tick's pose carried forward by its measured age (carried)
         self._inputs_of: dict[bool, list[tuple[str, str]]] = {}  # leading? -> _tick_inputs
@@ -279,7 +280,8 @@ class Ticker:
         times = self.times
         others_ready = True
         if leader.leading:
-            others_ready = await leader.lead(px, py, stamp, stamp, self.last_u, pose.theta)
+            others_ready = await leader.lead(px, py, stamp, stamp, self.last_u, pose.theta,
+                                             nav.follower)
             times.lap(LEADER)
         if clock.lockstep:  # a real-time clock never waits (agent.clock)
             await clock.wait(self.parts.inbox, self._tick_inputs(), stamp)
@@ -295,6 +297,7 @@ class Ticker:
             return self._zero(t, IMPLAUSIBLE)
         shapes = nav.update_shapes(shape_msgs)
         own, others = others_view(others_msg)
+        self._parked = parked_of(others_msg)
         if self.loc is not None:  # fused: the radii on the ellipses in view count
             self.loc.hear(others_msg)
         target, waypoint = nav.follower.goal, self.cfg.formation_goal
@@ -337,6 +340,7 @@ class Ticker:
             leg=(follower.heading, follower.arriving),
             pose=(pose.x, pose.y, pose.theta), goal=target, obstacles=obs, last_u=self.last_u,
             shapes=shapes, footprint=cfg.footprint)
+        inputs = with_parked(inputs, self._parked)
         self._stall = inputs.stall
         times = self.times
         times.lap(INPUTS)

@@ -39,6 +39,69 @@ def member_gamma(gamma_formation: float) -> float:
     return max(gamma_formation, MEMBER_GAMMA_FLOOR)
 
 
+#: [m] the most clearance beyond a thing's Ds that a unicycle's look-ahead point keeps for
+#: sampled control (:func:`sampling_margin`): where the full turn rate would need more, the
+#: turn rate is capped near things instead (:func:`near_turn_cap`)
+NEAR_MARGIN = 0.03
+
+
+def point_error(lookahead: float, omega: float, dt: float) -> float:
+    """[m] How far the look-ahead point of a unicycle turning at ``omega`` ends off the
+    straight line ``u dt`` that its rows assumed, over one period ``dt`` with u held (eq. 6.1's
+    arc under eq. 6.2's (v, omega)): the point turns with the body at radius l, which moves
+    it sideways by at most l (omega dt)^2 / 2."""
+    return 0.5 * lookahead * (omega * dt) ** 2
+
+
+def full_sampling_margin(lookahead: float, max_turn_rate: float, dt: float, gamma: float
+                         ) -> float:
+    """[m] Where the point rows at rate ``gamma`` settle at the full turn rate: a row holds
+    h' >= -gamma h over a period only on the straight line, so each period may end
+    :func:`point_error` lower, h+ >= (1 - gamma dt) h - e, whose fixed point is h = -e /
+    (gamma dt) (the sampled-data barrier of Agrawal and Sreenath, RSS 2017, with the model
+    error of Taylor et al., "Safety of sampled-data systems with control barrier functions via
+    approximate discrete time models", CDC 2022: the safe set holds up to the error's margin).
+    Written as l omega^2 dt / (2 gamma), the same number in the same operations as before."""
+    return 0.5 * lookahead * max_turn_rate ** 2 * dt / gamma
+
+
+def sampling_margin(lookahead: float, max_turn_rate: float, dt: float, gamma: float) -> float:
+    """[m] The clearance beyond Ds that a unicycle's obstacle, wall and shelf rows keep for
+    sampled control: :func:`full_sampling_margin`, at most :data:`NEAR_MARGIN` (a turn rate
+    capped near things holds that: :func:`near_turn_cap`). At gamma 0.05 and dt 0.1 the full
+    margin of a TurtleBot is 0.40 m, more than a door's jamb leaves."""
+    return min(full_sampling_margin(lookahead, max_turn_rate, dt, gamma), NEAR_MARGIN)
+
+
+def near_turn_cap(clearance: float, margin: float, lookahead: float, dt: float, gamma: float,
+                  max_turn_rate: float) -> float:
+    """[rad/s] The fastest turn that keeps a look-ahead point, ``clearance`` [m] beyond its
+    rows' boundary (Ds grown by the offset and ``margin``; negative: inside the margin), within
+    ``margin`` of that boundary after one period: h+ >= (1 - gamma dt) h - e >= -margin holds
+    for a :func:`point_error` e up to margin + (1 - gamma dt) h (distances to circles, walls
+    and shelves are convex in the point, so the row's straight-line step ends at least
+    (1 - gamma dt) h beyond, and the point's error moves it by e at most). The room never
+    drops below gamma dt margin, its value at the margin's edge, whose fixed point is the
+    margin itself: a point pushed deeper still turns, and its rows take it back. Far from
+    things the cap is ``max_turn_rate``: it binds only within a few millimetres of the
+    margin's edge (input-to-state safety of the rows, Kolathaya and Ames, IEEE L-CSS 2019:
+    the point's error is a bounded disturbance, and its bound is what the turn rate sets)."""
+    room = max(gamma * dt * margin, margin + (1.0 - gamma * dt) * clearance)
+    return min(max_turn_rate, math.sqrt(2.0 * room / lookahead) / dt)
+
+
+def load_sampling_margin(max_speed: float, max_turn_rate: float, dt: float, gamma: float
+                         ) -> float:
+    """[m] The clearance beyond :data:`agent.load_rows.LOAD_CLEAR` that a unicycle member's load
+    rows keep where its turn rate is capped near things (:func:`near_turn_cap`): at least
+    :data:`NEAR_MARGIN`, and what the rows need at the full turn rate. They hold the members'
+    bodies, which move along their headings (eq. 6.1): a body at speed v turning at omega ends
+    v omega dt^2 / 2 off its straight step, and the rows at :func:`member_gamma` settle that
+    divided by gamma dt further in."""
+    body = 0.5 * max_speed * max_turn_rate * dt * dt
+    return max(NEAR_MARGIN, body / (member_gamma(gamma) * dt))
+
+
 def to_unicycle(ux: float, uy: float, theta: float, lookahead: float) -> tuple[float, float]:
     """eq. 6.2: v = (cos, sin) . u, omega = (-sin, cos) . u / l."""
     c, s = math.cos(theta), math.sin(theta)

@@ -195,6 +195,15 @@ class Follower:
         return wrap_angle(want - heading) * wrap_angle(nxt - heading) < 0.0
 
 
+def at_goal(follower: Follower, centroid: Point, tolerance: float) -> bool:
+    """Whether the formation whose leader walks ``follower`` stands at its goal: on the last leg
+    of its route, its ``centroid`` within ``tolerance`` [m] of the goal centroid (the status
+    ``reached``). Such a formation holds there until a new goal: its leader says so on its
+    ellipse (``parked``), and no formation yields to it (:func:`agent.control.yield_command`)."""
+    return (follower.index >= len(follower.route) - 1
+            and math.dist(centroid, follower.formation_goal) <= tolerance)
+
+
 def settled(motion: tuple[float, float, float]) -> bool:
     """Whether no member can move at SETTLED_SPEED or more (``motion``: the centroid's velocity
     and the outermost member's speed of rotation [m/s], as :meth:`Follower.step` takes it)."""
@@ -320,8 +329,7 @@ class Navigator:
         ``refused`` counts goals refused before they reached the Navigator (at the door)."""
         route, index = follower.route, follower.index
         gx, gy = follower.formation_goal
-        at_goal = index >= len(route) - 1 and math.dist(centroid, (gx, gy)) <= self.tolerance
-        state = ("stopped" if stopped else "reached" if at_goal
+        state = ("stopped" if stopped else "reached" if at_goal(follower, centroid, self.tolerance)
                  else "unreachable" if self.unreachable else "stalled" if stalled else "moving")
         wx, wy = route[index]
         return StatusMsg(self.formation, state, self.leader_id,

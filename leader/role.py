@@ -31,12 +31,13 @@ Kinematic = tuple[float, float, float, float, float]
 VIEW_RANGE = 4.0
 
 
-def ellipse_to_msg(formation: str, e: Ellipse, stamp: float, sigma: float | None = None
-                   ) -> EllipseMsg:
+def ellipse_to_msg(formation: str, e: Ellipse, stamp: float, sigma: float | None = None,
+                   parked: bool = False) -> EllipseMsg:
     """The wire form of ``e`` for ``formation`` (``sigma``: its members' largest confidence
-    radius under ``controller.localisation: fused``; None: the camera's poses)."""
+    radius under ``controller.localisation: fused``; None: the camera's poses; ``parked``: the
+    formation stands at its goal, :func:`leader.navigation.at_goal`)."""
     return EllipseMsg(formation, e.cx, e.cy, e.alpha, e.a, e.b, e.vx, e.vy, e.alpha_rate, stamp,
-                      e.points, e.headings, sigma)
+                      e.points, e.headings, sigma, parked)
 
 
 def msg_to_ellipse(m: EllipseMsg) -> Ellipse:

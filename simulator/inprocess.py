@@ -21,11 +21,11 @@ from agent.barriers import Obstacle
 from agent.body import Footprint, footprint_of, motion_of
 from agent.control import Controller, ControlParams, Stall, StepResult
 from agent.hard_rows import HardRowCounter
-from agent.inputs import step_inputs, with_waypoint
+from agent.inputs import step_inputs, with_parked, with_waypoint
 from agent.qp import STATUS_FAILED, STATUS_FALLBACK, STATUS_RELAXED, make_solver
-from geometry.ellipse import ReferenceShape, estimate, reference_shape
+from geometry.ellipse import Ellipse, ReferenceShape, estimate, reference_shape
 from geometry.shapes import Shape
-from leader.navigation import Follower, heading_tolerance
+from leader.navigation import Follower, at_goal, heading_tolerance
 from scenario import Scenario, formation_axes
 from scenario.cargo import load_polygon
 from scenario.routes import start_plan
@@ -284,14 +284,24 @@ class FleetControl:
         off = self.params.offset
         ctrl = [unicycle.control_point(s[0], s[1], s[2], off) for s in seen]
         ellipses = self.fleet.ellipses(ctrl, self.vel, [s[2] for s in seen])
+        parked = self.parked(ellipses)  # as each leader's ellipse says, before its route step
         self.replans.tick(t, ellipses, obs, self.followers)
         headings = {name: self.replans.heading(name, e) for name, e in ellipses.items()}
-        results = [self.command(i, View(seen, ctrl, ellipses, headings, obs))
+        results = [self.command(i, View(seen, ctrl, ellipses, headings, obs, parked))
                    for i in range(self.n)]
         for res in results:
             self.stats.add(res)
         self.vel = [(res.ux, res.uy) for res in results]
         return results, ellipses
+
+    def parked(self, ellipses: Mapping[str, Ellipse]) -> frozenset[str]:
+        """The formations parked at their goals, as their leaders put it on their ellipses
+        (:func:`leader.navigation.at_goal` on the leader's follower, the goal tolerance of its
+        status)."""
+        tol = self.scenario.goal_tolerance + self.scenario.robot.control_offset
+        lead, followers = self.replans.leader, self.followers
+        return frozenset(name for name, e in ellipses.items()
+                         if name in lead and at_goal(followers[lead[name]], (e.cx, e.cy), tol))
 
     def command(self, i: int, view: View) -> StepResult:
         """Robot ``i``'s command. Every other member of its formation (graph neighbour or not:
@@ -314,7 +324,8 @@ class FleetControl:
             [(ctrl[j][0], ctrl[j][1], vel[j][0], vel[j][1], seen[j][2]) for j in fleet.partners[i]],
         )
         self.stalls[i] = inputs.stall
-        inputs = with_waypoint(inputs, self.followers[i].heading, self.followers[i].arriving)
+        inputs = with_parked(with_waypoint(inputs, self.followers[i].heading,
+                                           self.followers[i].arriving), view.parked)
         pose = (seen[i][0], seen[i][1], seen[i][2])
         loc, controller = self.localisation, self.controller
         if loc is not None:  # no pose: zero, counted; fused: the margins of the estimates
@@ -337,6 +348,7 @@ class View(NamedTuple):
     ellipses: dict
     headings: dict[str, float | None]
     obs: list[Obstacle]
+    parked: frozenset[str] = frozenset()  # formations parked at their goals (FleetControl.parked)
 
 
 def sensed(lab: LabWorld | None, k: int, state: Sequence[Pose], obs: list[Obstacle],

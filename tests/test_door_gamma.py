@@ -22,13 +22,7 @@ SCENARIOS = Path(__file__).parent / "scenarios"
 FILES = sorted(p.stem for p in SCENARIOS.glob("door-gamma*.yaml"))
 
 #: The door files short of the bar yet, and why (strict expected failures: a fix shows).
-SHORT: dict[str, str] = {
-    "door-gamma005-four-unicycle": (
-        "F, held to a crawl beside E parked at its goal by E's ellipse rows at gamma 0.05, "
-        "counts as jammed (agent.control.update_stall) and backs away from E "
-        "(agent.control.yield_command) again and again: a yield to a formation parked at its "
-        "goal frees no way, and the members do not know which formations are parked"),
-}
+SHORT: dict[str, str] = {}
 
 
 def _expected(names):

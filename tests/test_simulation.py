@@ -36,9 +36,7 @@ FORMATION_GAPS: dict[str, str] = {}
 # goals meant to have no route: tests/test_route_scenarios.py shows they hold, unreachable
 UNREACHABLE = {"route-closed-room", "route-closed-room-unicycle"}
 # where a goal is meant to be reached and is not yet (safety holds there)
-NOT_THROUGH: dict[str, str] = {  # the door files short of the bar: tests/test_door_gamma.py
-    "door-gamma005-four-unicycle": "a formation yields to one parked at its goal, again and again",
-}  # (rigid-shelves-eight-unicycle was, until the replanner's
+NOT_THROUGH: dict[str, str] = {}  # (rigid-shelves-eight-unicycle was, until the replanner's
 # blocked rule planned its pair round the other; rigid-doorway-four-unicycle, 0.057 m short
 # beside X, until a member arriving kept its own pull whole: agent.body.member_nominal)
 

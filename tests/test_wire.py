@@ -236,7 +236,7 @@ def _with_points(msg: object) -> bool:
 
 def _ellipse_fields(e: EllipseMsg, v2: bool) -> tuple[object, ...]:
     base = tuple(getattr(e, f) for f in EllipseMsg.__dataclass_fields__
-                 if f not in ("points", "headings", "sigma"))
+                 if f not in ("points", "headings", "sigma", "parked"))
     return (*base, list(e.points), list(e.headings)) if v2 else base
 
 

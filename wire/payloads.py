@@ -20,6 +20,8 @@ payload        fields in order (``u8`` version, then ``f64`` unless marked ``str
 ``Others``     version, formation:str, stamp, ellipses:list[E], own:list[E] (0 or 1)  varies
 ``Others``     version 2, the same with every ``E`` followed by its points and headings varies
 ``Others``     version 3, as version 2 with every ``E`` then followed by sigma:list[f64] (0 or 1)
+``EllipseMsg`` version 4, formation:str, ..., stamp, points, headings, sigma:list, parked:u8 varies
+``Others``     version 4, as version 3 with every ``E`` then followed by parked:u8              varies
 ``Obstacles``  version, stamp, obstacles:list[O]                                         varies
 ``Obstacles``  version 2, stamp, obstacles:list[O], shapes:list[S]                       varies
 =============  =======================================================================  =====
@@ -44,7 +46,11 @@ byte as before); likewise a ``Cmd`` carrying a double integrator's certified acc
 ellipses has points, is written as :data:`ELLIPSE_POINTS_VERSION` (without points: version 1,
 byte for byte as before), and their decoders accept both; an ``EllipseMsg`` with a
 confidence radius ``sigma``, or an ``Others`` any of whose ellipses has one, is written as
-:data:`ELLIPSE_SIGMA_VERSION` (without one: as before, byte for byte). Units: metres,
+:data:`ELLIPSE_SIGMA_VERSION` (without one: as before, byte for byte); an ``EllipseMsg`` of a
+formation parked at its goal, or an ``Others`` any of whose ellipses is, is written as
+:data:`ELLIPSE_PARKED_VERSION`: every ellipse as an ``Others`` version 3 writes it (its sigma a
+list of 0 or 1), then ``parked`` as a ``u8`` (1 parked, 0 not; any other byte is malformed);
+without a parked ellipse: as before, byte for byte. Units: metres,
 radians, seconds, metres per second, radians per second; ``stamp`` is the sender's clock in
 seconds. ``Pose`` and ``State`` carry no id: the key names the robot.
 
@@ -104,6 +110,9 @@ ELLIPSE_POINTS_VERSION = 2
 #: radius among its formation's members under ``controller.localisation: fused``, which the
 #: other formations' margins hold (:func:`agent.margins.heard_radius`)
 ELLIPSE_SIGMA_VERSION = 3
+#: ``ellipse`` and ``others`` version 4 add each ellipse's ``parked``: its formation stands at
+#: its goal (:func:`agent.control.yield_command` never backs away from it)
+ELLIPSE_PARKED_VERSION = 4
 MAX_ITEMS = 256  # most ellipses (or obstacles) one payload may carry
 
 
@@ -299,7 +308,8 @@ class EllipseMsg:
     headings, none or one per point (a formation of unicycles waits for its members to face its
     motion: :func:`agent.body.pace`); ``sigma`` [m]: the largest 95 % confidence radius among
     the members' estimates it was fitted from (wire version :data:`ELLIPSE_SIGMA_VERSION`;
-    None: the camera's poses).
+    None: the camera's poses); ``parked``: the formation stands at its goal, holding (its
+    leader's :func:`leader.navigation.at_goal`; wire version :data:`ELLIPSE_PARKED_VERSION`).
     """
 
     formation: str
@@ -315,9 +325,12 @@ class EllipseMsg:
     points: tuple[tuple[float, float], ...] = ()
     headings: tuple[float, ...] = ()
     sigma: float | None = None
+    parked: bool = False
 
     def __post_init__(self) -> None:
         check_id(self.formation, "formation")
+        if type(self.parked) is not bool:
+            raise ValueError(f"parked must be a bool, got {type(self.parked).__name__}")
         if not _plain_finite((self.cx, self.cy, self.alpha, self.a, self.b, self.vx, self.vy,
                               self.alpha_rate, self.stamp)):
             check_floats(self, _ELLIPSE_FLOATS)
@@ -516,8 +529,9 @@ def _ds_not_negative(values: tuple[float, ...]) -> bool:  # x, y, vx, vy, ds
 
 
 _ELLIPSE_SETTERS = _slot_setters(EllipseMsg)
-_ELLIPSE_V1_SETTERS = _ELLIPSE_SETTERS[:-3]  # every field but points, headings, sigma (defaults)
-_PUT_SIGMA = _ELLIPSE_SETTERS[-1]
+_ELLIPSE_V1_SETTERS = _ELLIPSE_SETTERS[:10]  # formation to stamp: the version-1 fields
+# the later versions' fields, which a trusted build sets itself
+_PUT_POINTS, _PUT_HEADINGS, _PUT_SIGMA, _PUT_PARKED = _ELLIPSE_SETTERS[10:]
 _OBSTACLE_SETTERS = _slot_setters(ObstacleMsg)
 _OTHERS_SETTERS = _slot_setters(Others)
 _OBSTACLES_SETTERS = _slot_setters(Obstacles)
@@ -585,25 +599,30 @@ def new_cmd(v: float, omega: float, ux: float, uy: float, stamp: float) -> Cmd:
 
 
 def _ellipses(items: list[Item], points: list[Points] | None = None,
-              sigmas: list[float | None] | None = None) -> tuple[EllipseMsg, ...]:
+              sigmas: list[float | None] | None = None,
+              parked: list[bool] | None = None) -> tuple[EllipseMsg, ...]:
     """The ellipses of decoded items, each with its ``points`` and ``headings`` (version 2;
     read by :meth:`wire.reader.Reader.points`, so already pairs of floats and as many headings as points:
-    only their finiteness is checked) and its ``sigma`` (version 3; checked here)."""
+    only their finiteness is checked), its ``sigma`` (version 3; checked here) and whether it
+    is ``parked`` (version 4; read by :func:`_read_parked`, so already a bool)."""
     built = _ellipses_without_sigma(items, points)
     if sigmas is None:
-        for msg in built:  # a trusted build leaves the slot unset
+        for msg in built:  # a trusted build leaves the slots unset
             _PUT_SIGMA(msg, None)
+            _PUT_PARKED(msg, False)
         return built
     for msg, sigma in zip(built, sigmas, strict=True):
         _PUT_SIGMA(msg, sigma)
         if sigma is not None:
             check_sigma(msg)
+    for msg, flag in zip(built, parked or [False] * len(built), strict=True):
+        _PUT_PARKED(msg, flag)
     return built
 
 
 def _ellipses_without_sigma(items: list[Item], points: list[Points] | None
                             ) -> tuple[EllipseMsg, ...]:
-    put_points, put_headings = _ELLIPSE_SETTERS[-3], _ELLIPSE_SETTERS[-2]
+    put_points, put_headings = _PUT_POINTS, _PUT_HEADINGS
     built = _build_items(EllipseMsg, _ELLIPSE_V1_SETTERS, items, _axes_positive)
     if points is None:
         for msg in built:  # a trusted build leaves the slots unset
@@ -633,6 +652,8 @@ _STATE_SIGMA_VERSION = UInt8(STATE_SIGMA_VERSION)
 _CMD_ACCEL_VERSION = UInt8(CMD_ACCEL_VERSION)
 _ELLIPSE_POINTS_VERSION = UInt8(ELLIPSE_POINTS_VERSION)
 _ELLIPSE_SIGMA_VERSION = UInt8(ELLIPSE_SIGMA_VERSION)
+_ELLIPSE_PARKED_VERSION = UInt8(ELLIPSE_PARKED_VERSION)
+_PARKED = (UInt8(0), UInt8(1))  # parked:u8 by the flag
 
 
 def _ellipse_fields(e: EllipseMsg) -> tuple[Any, ...]:
@@ -646,6 +667,12 @@ def _ellipse_fields_v2(e: EllipseMsg) -> tuple[Any, ...]:
 def _ellipse_fields_v3(e: EllipseMsg) -> tuple[Any, ...]:
     """Version 3 in an ``others``: version 2, then sigma as a list of 0 or 1."""
     return (*_ellipse_fields_v2(e), [] if e.sigma is None else [float(e.sigma)])
+
+
+def _ellipse_fields_v4(e: EllipseMsg) -> tuple[Any, ...]:
+    """Version 4 (an ``ellipse`` and an ``others``): version 3 as an ``others`` writes it, then
+    parked."""
+    return (*_ellipse_fields_v3(e), _PARKED[e.parked])
 
 
 def _pose_tuple(msg: Pose) -> tuple[Any, ...]:
@@ -666,6 +693,8 @@ def _cmd_tuple(msg: Cmd) -> tuple[Any, ...]:
 
 
 def _ellipse_msg_tuple(msg: EllipseMsg) -> tuple[Any, ...]:
+    if msg.parked:
+        return (_ELLIPSE_PARKED_VERSION, *_ellipse_fields_v4(msg))
     if msg.sigma is not None:
         return (_ELLIPSE_SIGMA_VERSION, *_ellipse_fields_v2(msg), float(msg.sigma))
     if msg.points:
@@ -676,7 +705,9 @@ def _ellipse_msg_tuple(msg: EllipseMsg) -> tuple[Any, ...]:
 def _others_tuple(msg: Others) -> tuple[Any, ...]:
     every = msg.ellipses if msg.own is None else (*msg.ellipses, msg.own)
     version, fields_of = _VERSION, _ellipse_fields
-    if any(e.sigma is not None for e in every):
+    if any(e.parked for e in every):
+        version, fields_of = _ELLIPSE_PARKED_VERSION, _ellipse_fields_v4
+    elif any(e.sigma is not None for e in every):
         version, fields_of = _ELLIPSE_SIGMA_VERSION, _ellipse_fields_v3
     elif any(e.points for e in every):
         version, fields_of = _ELLIPSE_POINTS_VERSION, _ellipse_fields_v2
@@ -847,8 +878,26 @@ def _read_sigma(r: Reader, name: str, index: int | None = None) -> float | None:
     return r.floats(1, what)[0] if r.count(what, 1) else None
 
 
+def _read_parked(r: Reader, name: str, index: int | None = None) -> bool:
+    """An ellipse's parked flag (version 4): the byte 0 or 1, anything else malformed."""
+    what = (name if index is None else f"{name}[{index}]") + ".parked"
+    flag = r.u8(what)
+    if flag > 1:
+        raise DecodeError(f"{what} must be 0 or 1, got {flag}")
+    return flag == 1
+
+
+def _parse_ellipse_parked(r: Reader) -> EllipseMsg:
+    """Version 4: the ellipse as an ``others`` version 3 holds it, then parked."""
+    item = _read_ellipse(r, "ellipse")
+    points = r.points("ellipse")
+    sigma = _read_sigma(r, "ellipse")
+    return _ellipses([item], [points], [sigma], [_read_parked(r, "ellipse")])[0]
+
+
 _ELLIPSE_PARSERS = {WIRE_VERSION: _parse_ellipse, ELLIPSE_POINTS_VERSION: _parse_ellipse_points,
-                    ELLIPSE_SIGMA_VERSION: _parse_ellipse_sigma}
+                    ELLIPSE_SIGMA_VERSION: _parse_ellipse_sigma,
+                    ELLIPSE_PARKED_VERSION: _parse_ellipse_parked}
 
 
 def _parse_others(r: Reader, version: int = WIRE_VERSION) -> Others:
@@ -858,12 +907,13 @@ def _parse_others(r: Reader, version: int = WIRE_VERSION) -> Others:
     items: list[Item] = []
     points: list[Points] | None = [] if version >= ELLIPSE_POINTS_VERSION else None
     sigmas: list[float | None] | None = [] if version >= ELLIPSE_SIGMA_VERSION else None
+    parked: list[bool] | None = [] if version >= ELLIPSE_PARKED_VERSION else None
     for i in range(n):
-        _read_others_ellipse(r, ("ellipses", i), items, points, sigmas)
+        _read_others_ellipse(r, ("ellipses", i), items, points, (sigmas, parked))
     n_own = r.count("own", 1)
     if n_own:
-        _read_others_ellipse(r, ("own", None), items, points, sigmas)
-    built = _ellipses(items, points, sigmas)
+        _read_others_ellipse(r, ("own", None), items, points, (sigmas, parked))
+    built = _ellipses(items, points, sigmas, parked)
     ellipses, own = (built[:-1], built[-1]) if n_own else (built, None)
     names = {e.formation for e in ellipses}
     if (formation in _VALID_IDS and _isfinite(stamp) and len(names) == n
@@ -893,14 +943,19 @@ def _parse_obstacles_with_shapes(r: Reader) -> Obstacles:
 
 
 def _read_others_ellipse(r: Reader, where: tuple[str, int | None], items: list[Item],
-                         points: list[Points] | None, sigmas: list[float | None] | None) -> None:
+                         points: list[Points] | None,
+                         later: tuple[list[float | None] | None, list[bool] | None]) -> None:
     """One ellipse of an ``others`` (``where``: its name and index) into ``items``, with its
-    points (version 2 on) and its sigma (version 3)."""
+    points (version 2 on), its sigma (version 3 on) and its parked flag (version 4): ``later``
+    holds the lists of those two, None before their version."""
     items.append(_read_ellipse(r, *where))
     if points is not None:
         points.append(r.points(*where))
+    sigmas, parked = later
     if sigmas is not None:
         sigmas.append(_read_sigma(r, *where))
+    if parked is not None:
+        parked.append(_read_parked(r, *where))
 
 
 _OBSTACLES_PARSERS = {WIRE_VERSION: _parse_obstacles, SHAPES_VERSION: _parse_obstacles_with_shapes}
@@ -908,6 +963,7 @@ _OTHERS_PARSERS: dict[int, Callable[[Reader], Others]] = {
     WIRE_VERSION: _parse_others,
     ELLIPSE_POINTS_VERSION: functools.partial(_parse_others, version=ELLIPSE_POINTS_VERSION),
     ELLIPSE_SIGMA_VERSION: functools.partial(_parse_others, version=ELLIPSE_SIGMA_VERSION),
+    ELLIPSE_PARKED_VERSION: functools.partial(_parse_others, version=ELLIPSE_PARKED_VERSION),
 }
 
 
