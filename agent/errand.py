@@ -94,12 +94,36 @@ def exit_point(load: Shape, p: Point, clear: Callable[[float, float], bool], gap
 
 def allies(job: Job, rid: str, at: Mapping[str, Point]) -> tuple[str, ...]:
     """The teammates ``rid`` keeps apart from by separation rows instead of their ellipses while
+    gathering (:func:`allies_at` over the job's roster and slots)."""
+    return allies_at(job.robots, job.slots, rid, at)
+
+
+def allies_at(robots: Sequence[str], slots: Sequence[Point], rid: str, at: Mapping[str, Point]
+              ) -> tuple[str, ...]:
+    """The teammates ``rid`` keeps apart from by separation rows instead of their ellipses while
     gathering, so that members can stand at adjacent slots: when ``rid`` is within
     :data:`ALLY_REACH` of its slot, the others that are (``at``: the members' positions known);
     farther out the ellipses keep them apart as any two formations."""
-    near = [r for r, s in zip(job.robots, job.slots, strict=True)
+    near = [r for r, s in zip(robots, slots, strict=True)
             if r in at and math.dist(at[r], s) <= ALLY_REACH]
     return tuple(r for r in near if r != rid) if rid in near else ()
+
+
+def way_out(load: Shape, me: Point, clear: Callable[[float, float], bool], radius: float
+            ) -> Point | None:
+    """Where a robot of ``radius`` at ``me`` goes when its team sets ``load`` (its box) down:
+    out from under it (:func:`exit_point`) when it stands within :data:`EXIT_GAP` of it, else
+    nowhere (None)."""
+    if inside_box(load, me[0], me[1], radius + EXIT_GAP):
+        return exit_point(load, me, clear, EXIT_GAP + radius)
+    return None
+
+
+def sees_load(load: Shape, me: Point, offset: float) -> bool:
+    """Whether a robot whose body centre is at ``me`` (its control point ``offset`` ahead) keeps
+    clear of the resting ``load``: not while it stands under it (within the load's safe
+    distance of its control point's reach), so that it can walk out."""
+    return not inside_box(load, me[0], me[1], load.ds + offset)
 
 
 def parking(robots: Sequence[str], starts: Mapping[str, Pose], spots: Sequence[Point]
@@ -420,8 +444,8 @@ class Errand:
             self.ended, self.ended_at = status, round(status.stamp / self.settings.tick_s)
         walk = self.home
         sh = load_box(job.load, job.type, self.rests(at, how), self.radius + LOAD_MARGIN)
-        if inside_box(sh, me[0], me[1], self.radius + EXIT_GAP):
-            self.leaving = exit_point(sh, me, self.clear, EXIT_GAP + self.radius)
-            walk = self.leaving
+        out = way_out(sh, me, self.clear, self.radius)
+        if out is not None:
+            self.leaving = walk = out
         self.job, self.plan, self.phase, self.heard = None, None, IDLE, ""
         return Move(walk=walk if walk is not None else me, status=status, done=True)

@@ -36,7 +36,7 @@ from typing import Any
 
 import zenoh
 
-from agent.bidder import Bidder, BidderSettings
+from agent.bidder import RELEASE_TICKS, REPEAT_S, Bidder, BidderSettings
 from agent.config import AgentConfig, Membership, regrouped, solo, team_formation
 from agent.errand import (
     CARRYING,
@@ -52,9 +52,9 @@ from agent.errand import (
     Move,
     Seen,
     allies,
-    inside_box,
     load_box,
     parking,
+    sees_load,
 )
 from agent.faults import LinkFaults
 from agent.order_check import acceptable
@@ -84,8 +84,6 @@ from wire.shapes import msg_to_shape, shape_to_msg
 logger = logging.getLogger(__name__)
 
 LOST_S = 1.0  # [s] a teammate whose position is older than this is lost
-REPEAT_S = 1.0  # [s] a leader's decision or status is put again this often
-RELEASE_TICKS = 2  # a roster without a majority this many ticks after the close is released
 ENDED = (DELIVERED, FAILED, RELEASED, "cancelled")
 
 
@@ -483,7 +481,7 @@ class LifePart:
             if e.state != "resting" or e.name == own:
                 continue
             sh = load_box(e.name, self.life.load_type(e.type), (e.x, e.y, e.yaw), ds)
-            if me is not None and inside_box(sh, me[0], me[1], ds + self.cfg.control.offset):
+            if me is not None and not sees_load(sh, (me[0], me[1]), self.cfg.control.offset):
                 continue
             out.append(sh)
         return tuple(out)
