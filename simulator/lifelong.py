@@ -70,6 +70,7 @@ from geometry.polygon import polygon_distance
 from geometry.shapes import Shape, distance_floor, shape_distance
 from leader import allocation
 from leader import orders as lo
+from leader.routing import Reason
 from leader.team import TeamPlan, axis_turn, load_pose, plan_team, pose_error, slot_points
 from scenario import Scenario, stream
 from scenario.cargo import load_clearances
@@ -387,6 +388,7 @@ class LifelongRun:
         self.homes = parking(self.ids, starts, life.fleet.parking)
         self.leaving: dict[str, tuple[float, float]] = {}  # robot -> the point clear of a load
         self.under: dict[str, set[str]] = {r: set() for r in self.ids}  # loads over a robot
+        self.set_k: dict[str, int] = {}  # load -> the tick it was last set down
         self.load_rows: list[tuple] = []
         self.timeline = OrderTimeline()  # the orders' states as they change, for run.mcap
         self.busy_s = 0.0  # robot-seconds spent in a team
@@ -695,6 +697,7 @@ class LifelongRun:
         order = self.move_order(crew.oid, lo.Event(lo.SET_DOWN, t))
         ld = self.loads[order.load]
         rest_at(ld, self.life.station(order.dst), crew.dst, t, self.checks)
+        self.set_k[ld.name] = k
         self.log_load(t, ld)
         self.stand_under(ld, crew.robots)
         del self.crews[crew.oid]
@@ -796,6 +799,12 @@ class LifelongRun:
         return {n: load_box(n, self.life.load_type(ld.type), ld.pose, self.ds)
                 for n, ld in self.loads.items() if ld.state == "resting"}
 
+    def seen_boxes(self) -> dict[str, Shape]:
+        """The resting loads as the agents hear of them this tick: a load set down now is
+        carried still in the ``world/loads`` of this tick (the world sets it down when it
+        hears the team, after the tick's commands)."""
+        return {n: sh for n, sh in self.boxes().items() if self.set_k.get(n) != self.k}
+
     def exempt(self, rid: str) -> set[str]:
         """The resting loads robot ``rid`` may be under: its team's on the way in, and any it
         stands under."""
@@ -821,7 +830,7 @@ class LifelongRun:
         load in its view."""
         r0 = self.base.robot.radius
         return all(shape_distance(x, y, sh)[0] >= sh.ds + r0
-                   for sh in self.view_of(rid, self.boxes()))
+                   for sh in self.view_of(rid, self.seen_boxes()))
 
     def allies_now(self, rid: str) -> tuple[str, ...]:
         """The gathering teammates ``rid`` keeps apart from by separation rows, on the poses of
@@ -836,7 +845,7 @@ class LifelongRun:
         """Each robot whose agent asks for its formation this tick (a new goal, its team, the
         formations of the moment changed, its allies changed): the formation of the moment
         from where it stands, landing :data:`LANDS` ticks later."""
-        boxes = self.boxes()
+        boxes = self.seen_boxes()
         for rid in self.ids:
             if rid in self.dead:
                 continue
@@ -880,6 +889,10 @@ class LifelongRun:
         control = self.fleet_control(scen, views)
         self.perm = [self.index[r] for r in scen.robot_ids]
         control.vel = [self.vel[b] for b in self.perm]
+        for f in forms:  # a formation that lands plans at its first tick, as its leader's does
+            driver = control.replans.drivers.get(f.name)
+            if driver is not None and f.name in views:
+                driver.replanner.due = Reason.START
         self.carry_over(control, fresh)
         self.allied(control)
         self.control = control
@@ -939,7 +952,7 @@ class LifelongRun:
         each robot keeps clear of the resting loads in its view of this tick."""
         assert self.control is not None
         obs = obstacles_at(self.base, t)
-        boxes = self.boxes()
+        boxes = self.seen_boxes()
         for e, b in enumerate(self.perm):
             self.control.shapes[e] = self.view_of(self.ids[b], boxes)
         seen = [self.state[b] for b in self.perm]
