@@ -958,13 +958,15 @@ class LifelongRun:
         seen = [self.state[b] for b in self.perm]
         res, ellipses = self.control.commands(t, seen, obs)
         out: list[StepResult] = list(res)
+        vel = list(self.vel)
         for e, b in enumerate(self.perm):
             r = res[e]
+            vel[b] = (r.ux, r.uy)
             if self.held(self.ids[b]):
-                r = self.hold(r, b)
-                self.control.vel[e] = (r.ux, r.uy)
+                r, vel[b] = self.hold(r, b)
+                self.control.vel[e] = vel[b]
             out[b] = r
-        self.vel = [(r.ux, r.uy) for r in out]
+        self.vel = vel
         return out, ellipses, obs
 
     def summary(self, sim_time: float) -> dict:
@@ -977,20 +979,22 @@ class LifelongRun:
         block["checks"] = checks_block(c)
         return block
 
-    def hold(self, r: StepResult, b: int) -> StepResult:
-        """Robot ``b``'s command to stand still: zero, or for a double integrator the braking
-        acceleration (:func:`agent.double_integrator.brake`) and the velocity it leaves."""
+    def hold(self, r: StepResult, b: int) -> tuple[StepResult, tuple[float, float]]:
+        """Robot ``b``'s command to stand still, as an agent's standing tick puts it: zero (the
+        row has no QP outcome), which the world brakes a double integrator on
+        (:func:`agent.double_integrator.brake`); and the velocity it leaves (what the robot's
+        next ``state`` carries)."""
         robot = self.base.robot
-        # no control step runs: the row has no QP outcome, as an agent's standing tick
-        r = r._replace(status="", slack=math.nan, h_formation=math.nan, h_obstacle=math.nan,
+        r = r._replace(ux=0.0, uy=0.0, v=0.0, omega=0.0, ax=0.0, ay=0.0, status="",
+                       slack=math.nan, h_formation=math.nan, h_obstacle=math.nan,
                        h_formations=math.nan)
         if not robot.is_double_integrator:
-            return r._replace(ux=0.0, uy=0.0, v=0.0, omega=0.0)
+            return r, (0.0, 0.0)
         dt = self.base.dt
         vx, vy = self.tick.vel[b]
         ax, ay = double_integrator.brake(vx, vy, robot.max_accel or math.inf, dt)
-        ux, uy = vx + ax * dt, vy + ay * dt
-        return r._replace(ux=ux, uy=uy, v=math.hypot(ux, uy), omega=0.0, ax=ax, ay=ay)
+        _, _, vx, vy = double_integrator.integrate(0.0, 0.0, vx, vy, ax, ay, dt, robot.max_speed)
+        return r._replace(ax=ax, ay=ay), (vx, vy)
 
     # --- after each tick ------------------------------------------------------------------
 
