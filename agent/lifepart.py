@@ -61,7 +61,7 @@ from agent.order_check import acceptable
 from agent.order_link import OrderLink
 from geometry.shapes import Shape, shape_distance
 from leader import orders as lo
-from leader.allocation import OpenOrder
+from leader.allocation import OpenOrder, bid_costs
 from leader.team import Pose, TeamPlan, slot_points
 from scenario.model import (
     DOUBLE_INTEGRATOR,
@@ -142,7 +142,7 @@ class LifePart:
         window = max(RELEASE_TICKS + 1, round(fleet.bid_window_s / dt))
         self.bidder = Bidder(self.rid, BidderSettings(
             len(fleet.robot_ids), window, fleet.bid_copies, RELEASE_TICKS, repeat, dt),
-            admits=self.admits)
+            costs=self.bid_costs, admits=self.admits)
         homes = parking(fleet.robot_ids, fleet.starts, fleet.parking)
         self.errand = Errand(self.rid, ErrandSettings(
             round(fleet.lift_s / dt), max(1, round(LOST_S / dt)), repeat, cfg.goal_tolerance, dt),
@@ -286,6 +286,16 @@ class LifePart:
             return self.life.station(order.src).pose
         spec = self.life.load_by_name.get(order.load)
         return None if spec is None else self.life.station(spec.at).pose
+
+    def bid_costs(self, position: tuple[float, float], order: OpenOrder) -> tuple[float, ...]:
+        """This robot's bid for ``order`` from ``position``: its distance to each slot where the
+        order's load rests now (it may have moved since the order was posted: a chained
+        order's load is delivered first)."""
+        known = self.orders.get(order.oid)
+        pose = None if known is None else self._load_pose(known)
+        slots = order.slots if pose is None or known is None else slot_points(
+            pose, self.life.load_type(known.type).slots)
+        return bid_costs(position, slots)
 
     def admits(self, oid: str) -> bool:
         """Whether an order is open for bids now (:func:`leader.orders.biddable` over what this

@@ -702,8 +702,8 @@ class LifelongRun:
         self.stand_under(ld, crew.robots)
         del self.crews[crew.oid]
         speaker = crew.robots[0]
-        out = self.way_out(speaker, ld, self.prev)
-        self.later(k + HEARD, lambda kk: self.dissolve(crew, {speaker: out}))
+        out = self.way_out(speaker, ld, crew.dst, self.prev)
+        self.later(k + HEARD, lambda kk: self.dissolve(crew, crew.dst, {speaker: out}))
 
     def stand_under(self, ld: LoadState, robots: Sequence[str]) -> None:
         """A load came to rest over ``robots``: each one inside it stands under it until out."""
@@ -714,24 +714,26 @@ class LifelongRun:
             if inside_box(sh, x, y, r0):
                 self.under[r].add(ld.name)
 
-    def way_out(self, rid: str, ld: LoadState, poses: Sequence[Pose]
+    def way_out(self, rid: str, ld: LoadState, at: Pose, poses: Sequence[Pose]
                 ) -> tuple[float, float] | None:
-        """Where ``rid`` (at ``poses``) walks out from under ``ld`` resting where it is
-        (:func:`agent.errand.way_out`), or None."""
-        sh = load_box(ld.name, self.life.load_type(ld.type), ld.pose, self.ds)
+        """Where ``rid`` (at ``poses``) walks out from under ``ld`` resting at ``at`` as its
+        team reckons it (:func:`agent.errand.way_out`), or None."""
+        sh = load_box(ld.name, self.life.load_type(ld.type), at, self.ds)
         return way_out(sh, self.positions([rid], poses)[0],
                        lambda x, y: self.clear_point(rid, x, y), self.base.robot.radius)
 
-    def dissolve(self, crew: Crew, out: dict[str, tuple[float, float] | None]) -> None:
-        """The team dissolved (its members heard it): each robot idle again, out from under the
-        load, then to its parking spot; every robot's formation again."""
+    def dissolve(self, crew: Crew, at: Pose, out: dict[str, tuple[float, float] | None]
+                 ) -> None:
+        """The team dissolved (its members heard it), its load resting at ``at`` as the team
+        reckons it: each robot idle again, out from under the load, then to its parking spot;
+        every robot's formation again."""
         ld = self.loads[self.orders[crew.oid].load]
         for r in crew.robots:
             if r in self.dead:
                 continue
             self.role[r] = ""
             self.team.pop(r, None)
-            leaving = out[r] if r in out else self.way_out(r, ld, self.prev)
+            leaving = out[r] if r in out else self.way_out(r, ld, at, self.prev)
             if leaving is not None:
                 self.leaving[r] = self.goal[r] = leaving
             elif r in self.homes:
@@ -772,7 +774,7 @@ class LifelongRun:
             self.stand_under(ld, crew.robots)
         self.log_load(t, ld)
         del self.crews[crew.oid]
-        self.later(self.k + HEARD, lambda kk: self.dissolve(crew, {}))
+        self.later(self.k + HEARD, lambda kk: self.dissolve(crew, ld.pose, {}))
 
     # --- the formations of the moment -----------------------------------------------------
 
