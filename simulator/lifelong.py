@@ -1,44 +1,48 @@
 """Lifelong operation in process: a fleet serves transport orders, teams forming at run time.
 
 A scenario with a ``fleet`` (:mod:`scenario.lifelong`) has no fixed formations: every robot is a
-formation of one until an order's team takes it. Each tick, before the robots' commands:
+formation of one until an order's team takes it. The run follows the agents of a lock-step
+``formation run`` tick for tick (:mod:`agent.lifepart`, :mod:`agent.errand`, :mod:`agent.bidder`),
+every message delivered, so that both write the same ``orders.csv`` and ``robots.csv``. Each
+tick, before the robots' commands:
 
 1. due orders are posted; a new load appears at its source once the source is free
    (:func:`leader.orders.appears`); a load delivered to a sink leaves after its dwell;
-2. when a bidding round closes (every ``fleet.bid_window_s``), every idle robot bids for every
-   order open for bids (:func:`leader.orders.biddable`: the load rests, the destination is free
-   and then reserved) and the one allocation function runs over the bids, all delivered at the
-   close (:func:`leader.allocation.allocate`, or the greedy baseline); each team is committed
-   and its members start gathering;
-3. each member of a gathering team is routed to its slot as a formation of one; when all stand at
-   their slots (``goal_tolerance``) the team forms its formation (:func:`leader.team.plan_team`:
-   every pair of slots an edge, slot 0 leads), lifts for ``fleet.lift_s`` standing still, and
-   from then on the load is the formation's ``load``, carried as a rigid body to the
-   destination; within 5 cm and 3 degrees of it the team stands for ``lift_s`` again, the load
-   rests there and the team dissolves: its robots leave the load and park (the nearest free
-   parking spot, else a point clear of the load) or take the next order;
-4. a member killed (:class:`LifelongOptions` ``kills``) stands where it is from then on; a team
+2. at each bid tick of a round (:meth:`agent.bidder.BidderSettings.bid_tick`) every idle robot
+   bids its distance to the slots of every order open for bids (:func:`leader.orders.biddable`);
+   when the round closes (every ``fleet.bid_window_s``) the one allocation function runs over
+   the round's last bids (:func:`leader.allocation.allocate`, or the greedy baseline) and the
+   members are bound; the roster is committed a tick later (:data:`HEARD`: the leader hears
+   the votes then), and the members take it a tick after that and walk to their slots;
+3. a robot's new formation (a goal, its team, the formations of the moment changed, its
+   gathering allies changed) is the one its agent asks for with its pose and view of that
+   tick, and lands :data:`LANDS` ticks later (:meth:`agent.node.AgentNode.regroup`), planned
+   afresh; every other formation walks on along its route;
+4. the team has gathered when all stand at their slots (``goal_tolerance``); its speaker (slot
+   0) sees it a tick later and stands still for ``fleet.lift_s``, the others standing at their
+   slots as they reach them; then the load is carried (the team's plan,
+   :func:`leader.team.plan_team`, from where they stood), and the members form the team's
+   formation (every pair of slots an edge, slot 0 leads) when they hear it; within 5 cm and 3
+   degrees of the destination (on the speaker's poses of the tick before) the speaker stands
+   for ``lift_s`` again, the load rests there and the team dissolves when its members hear it:
+   each robot walks out from under the load (:func:`agent.errand.way_out`), then to its parking
+   spot (:func:`agent.errand.parking`: fixed, the same in every agent), and is idle again;
+5. a member killed (:class:`LifelongOptions` ``kills``) stands where it is from then on; a team
    that has lifted sets the load down where it stands (a resting load off any station) and its
    order fails with ``member lost: RID``; before the lift the order waits again.
 
-A resting load is a body for every robot and formation: a box among the walls and shelves
-(``shapes``), for the footprint planner and the CBF rows alike, except for its own team on the
-way into its slots and for a robot that stands under it when it comes to rest, until its
-control point is out of the load's safe distance (sooner, its obstacle row would start below
-zero).
+A resting load is a body for every robot and formation: a box among the walls and shelves, for
+the footprint planner and the CBF rows alike, except for its own team on the way into its slots
+and for a robot that stands under it (:func:`agent.errand.sees_load`); a load set down is in the
+robots' view from the tick after (as ``world/loads`` has it).
 
-The formations change at run time; the controllers do not: whenever the set of formations or a
-robot's goal or view of the loads changes, this module builds the scenario of that moment (the
-fleet's robots grouped into the current formations, starting where they stand) and a fresh
-:class:`simulator.inprocess.FleetControl` for it, and carries each robot's last command over.
-An idle robot that walks to the same goal as at the last build walks on along its route (its
-follower and its replanning driver carried over, nothing planned again) unless a body new in
-its view lies across the rest of that route, and a team that carries the same load among the
-same bodies carries on along its route: only the formations that changed are planned. The
-robots stop and start all the time, mostly far off one another's ways: a planned formation plans
-again for a thing that has come to stand still, or moved, only where it lies across the rest of
-its route (``keep_if_clear`` of :class:`leader.routing.Replanner`).
-One :class:`simulator.tick.FleetTick` moves, records and checks the whole fleet throughout.
+The formations change at run time; the controllers do not: whenever a formation lands, this
+module builds the scenario of that moment (the fleet's robots grouped into the current
+formations) and a fresh :class:`simulator.inprocess.FleetControl` for it; the formations that
+landed are planned from the poses of their ask in the views of their ask and plan again at their
+first tick (as a new leader does), every other one keeps its route, follower, driver and jam
+memory. One :class:`simulator.tick.FleetTick` moves, records and checks the whole fleet
+throughout; ``robots.csv`` names each robot's own formation of one, as the world's does.
 """
 
 from __future__ import annotations
@@ -67,7 +71,7 @@ from agent.errand import (
     way_out,
 )
 from geometry.polygon import polygon_distance
-from geometry.shapes import Shape, distance_floor, shape_distance
+from geometry.shapes import Shape, shape_distance
 from leader import allocation
 from leader import orders as lo
 from leader.routing import Reason
@@ -313,22 +317,6 @@ def checks_block(c: Checks) -> dict:
         if math.isfinite(c.carried_clearance_m) else None,
         "load_contacts": c.load_contacts, "intrusions": c.intrusions,
         "stuck_orders": sorted(c.stuck)}
-
-
-def route_clear(route: Sequence[tuple[float, float]], shapes: Sequence[Shape], margin: float,
-                step: float = 0.05) -> bool:
-    """True when the polyline ``route`` (points ``step`` apart along each leg) keeps beyond each
-    shape's safe distance plus ``margin``."""
-    if not shapes:
-        return True
-    for (ax, ay), (bx, by) in zip(route, route[1:], strict=False):
-        n = max(1, math.ceil(math.hypot(bx - ax, by - ay) / step))
-        for k in range(n + 1):
-            x, y = ax + (bx - ax) * k / n, ay + (by - ay) * k / n
-            if any(distance_floor(x, y, sh) < sh.ds + margin
-                   and shape_distance(x, y, sh)[0] < sh.ds + margin for sh in shapes):
-                return False
-    return True
 
 
 @dataclass(frozen=True)
@@ -945,10 +933,6 @@ class LifelongRun:
         control.stats = self.stats
         return control
 
-    def carried_outline(self, crew: Crew) -> tuple[tuple[float, float], ...]:
-        order = self.orders[crew.oid]
-        return slot_points(self.loads[order.load].pose, self.life.load_type(order.type).outline)
-
     def commands(self, t: float) -> tuple[list[StepResult], dict, list]:
         """Every robot's command (base order): the formations' controller's, zero where held;
         each robot keeps clear of the resting loads in its view of this tick."""
@@ -957,6 +941,8 @@ class LifelongRun:
         boxes = self.seen_boxes()
         for e, b in enumerate(self.perm):
             self.control.shapes[e] = self.view_of(self.ids[b], boxes)
+        for name, driver in self.control.replans.drivers.items():  # as a leader's routes take them
+            driver.replanner.shapes = self.control.shapes[self.control.replans.leader[name]]
         seen = [self.state[b] for b in self.perm]
         res, ellipses = self.control.commands(t, seen, obs)
         out: list[StepResult] = list(res)
