@@ -126,6 +126,17 @@ def sees_load(load: Shape, me: Point, offset: float) -> bool:
     return not inside_box(load, me[0], me[1], load.ds + offset)
 
 
+def arrived(plan: TeamPlan, at: Sequence[Point], src: Pose, dst: Pose, reach: float) -> bool:
+    """Whether a team whose members' bodies stand at ``at`` has brought its load (lifted at
+    ``src``) to its station ``dst``: the load within :data:`SET_DOWN_M` and
+    :data:`SET_DOWN_RAD` of it, every member within ``reach`` of its goal (the goal tolerance
+    and the control point's offset: a unicycle's rows hold its control point, its body turns
+    about it)."""
+    d, a = pose_error(load_pose(plan.starts, at, src), dst)
+    return d <= SET_DOWN_M and a <= SET_DOWN_RAD and all(
+        math.dist(p, g) <= reach for p, g in zip(at, plan.goals, strict=True))
+
+
 def parking(robots: Sequence[str], starts: Mapping[str, Pose], spots: Sequence[Point]
             ) -> dict[str, Point]:
     """Each robot's parking spot, the same in every agent: in fleet order, the free spot
@@ -164,14 +175,15 @@ class Job:
 @dataclass(frozen=True)
 class ErrandSettings:
     """The machine's numbers, in ticks: a lift or set-down (``fleet.lift_s``), a member lost
-    (its position older than this), statuses put again; the arrival tolerance [m] and the
-    tick [s]."""
+    (its position older than this), statuses put again; the arrival tolerance [m], the tick [s]
+    and the control point's offset [m]."""
 
     lift_ticks: int
     lost_ticks: int
     repeat_ticks: int
     goal_tolerance: float
     tick_s: float = 0.05  # [s] one tick (status stamps are in seconds)
+    offset: float = 0.0  # [m] the control point's offset ahead of the body (unicycles)
 
     def __post_init__(self) -> None:
         if min(self.lift_ticks, self.lost_ticks, self.repeat_ticks) < 0 or self.repeat_ticks < 1:
@@ -391,13 +403,11 @@ class Errand:
         return Move(team=team, hold=hold, status=self._status(k, REPORTED[self.phase]))
 
     def _arrived(self, at: Sequence[Point]) -> bool:
-        """The load within the set-down tolerance of its station, every member at its goal."""
+        """The team has brought the load to its station (:func:`arrived`)."""
         job, plan = self.job, self.plan
         assert job is not None and plan is not None
-        d, a = pose_error(load_pose(plan.starts, at, job.src), job.dst)
-        tol = self.settings.goal_tolerance
-        return d <= SET_DOWN_M and a <= SET_DOWN_RAD and all(
-            math.dist(p, g) <= tol for p, g in zip(at, plan.goals, strict=True))
+        s = self.settings
+        return arrived(plan, at, job.src, job.dst, s.goal_tolerance + s.offset)
 
     def _follow(self, k: int, me: Point, mates: Mapping[str, Seen]) -> Move:
         """A member's tick: the speaker's statuses decide; at its slot it stands."""

@@ -61,9 +61,8 @@ from agent.control import StepResult
 from agent.errand import (
     EXIT_GAP,
     LOAD_MARGIN,
-    SET_DOWN_M,
-    SET_DOWN_RAD,
     allies_at,
+    arrived,
     inside_box,
     load_box,
     parking,
@@ -632,11 +631,8 @@ class LifelongRun:
         """The load within the set-down tolerance of its station and every member at its goal,
         on the poses of the tick before (the speaker's view)."""
         assert crew.plan is not None
-        at = self.positions(crew.robots, self.prev)
-        d, a = pose_error(load_pose(crew.plan.starts, at, crew.src), crew.dst)
-        tol = self.base.goal_tolerance
-        return d <= SET_DOWN_M and a <= SET_DOWN_RAD and all(
-            math.dist(p, g) <= tol for p, g in zip(at, crew.plan.goals, strict=True))
+        return arrived(crew.plan, self.positions(crew.robots, self.prev), crew.src, crew.dst,
+                       self.base.goal_tolerance + self.base.robot.control_offset)
 
     def move_order(self, oid: str, event: lo.Event) -> lo.Order:
         self.orders[oid] = order = lo.step(self.orders[oid], event)
