@@ -63,6 +63,10 @@ GATHERING = "gathering"  # an order status: the committed roster's team gathers
 BID, VOTE, DECLINE = "bid", "vote", "decline"
 
 
+REPEAT_S = 1.0  # [s] a leader's decision or status is put again this often
+RELEASE_TICKS = 2  # a roster without a majority this many ticks after the close is released
+
+
 @dataclass(frozen=True)
 class BidderSettings:
     """The protocol's numbers: the fleet's size as written (majorities are of it), the round

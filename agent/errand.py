@@ -94,12 +94,47 @@ def exit_point(load: Shape, p: Point, clear: Callable[[float, float], bool], gap
 
 def allies(job: Job, rid: str, at: Mapping[str, Point]) -> tuple[str, ...]:
     """The teammates ``rid`` keeps apart from by separation rows instead of their ellipses while
+    gathering (:func:`allies_at` over the job's roster and slots)."""
+    return allies_at(job.robots, job.slots, rid, at)
+
+
+def allies_at(robots: Sequence[str], slots: Sequence[Point], rid: str, at: Mapping[str, Point]
+              ) -> tuple[str, ...]:
+    """The teammates ``rid`` keeps apart from by separation rows instead of their ellipses while
     gathering, so that members can stand at adjacent slots: when ``rid`` is within
     :data:`ALLY_REACH` of its slot, the others that are (``at``: the members' positions known);
     farther out the ellipses keep them apart as any two formations."""
-    near = [r for r, s in zip(job.robots, job.slots, strict=True)
+    near = [r for r, s in zip(robots, slots, strict=True)
             if r in at and math.dist(at[r], s) <= ALLY_REACH]
     return tuple(r for r in near if r != rid) if rid in near else ()
+
+
+def way_out(load: Shape, me: Point, clear: Callable[[float, float], bool], radius: float
+            ) -> Point | None:
+    """Where a robot of ``radius`` at ``me`` goes when its team sets ``load`` (its box) down:
+    out from under it (:func:`exit_point`) when it stands within :data:`EXIT_GAP` of it, else
+    nowhere (None)."""
+    if inside_box(load, me[0], me[1], radius + EXIT_GAP):
+        return exit_point(load, me, clear, EXIT_GAP + radius)
+    return None
+
+
+def sees_load(load: Shape, me: Point, offset: float) -> bool:
+    """Whether a robot whose body centre is at ``me`` (its control point ``offset`` ahead) keeps
+    clear of the resting ``load``: not while it stands under it (within the load's safe
+    distance of its control point's reach), so that it can walk out."""
+    return not inside_box(load, me[0], me[1], load.ds + offset)
+
+
+def arrived(plan: TeamPlan, at: Sequence[Point], src: Pose, dst: Pose, reach: float) -> bool:
+    """Whether a team whose members' bodies stand at ``at`` has brought its load (lifted at
+    ``src``) to its station ``dst``: the load within :data:`SET_DOWN_M` and
+    :data:`SET_DOWN_RAD` of it, every member within ``reach`` of its goal (the goal tolerance
+    and the control point's offset: a unicycle's rows hold its control point, its body turns
+    about it)."""
+    d, a = pose_error(load_pose(plan.starts, at, src), dst)
+    return d <= SET_DOWN_M and a <= SET_DOWN_RAD and all(
+        math.dist(p, g) <= reach for p, g in zip(at, plan.goals, strict=True))
 
 
 def parking(robots: Sequence[str], starts: Mapping[str, Pose], spots: Sequence[Point]
@@ -140,14 +175,15 @@ class Job:
 @dataclass(frozen=True)
 class ErrandSettings:
     """The machine's numbers, in ticks: a lift or set-down (``fleet.lift_s``), a member lost
-    (its position older than this), statuses put again; the arrival tolerance [m] and the
-    tick [s]."""
+    (its position older than this), statuses put again; the arrival tolerance [m], the tick [s]
+    and the control point's offset [m]."""
 
     lift_ticks: int
     lost_ticks: int
     repeat_ticks: int
     goal_tolerance: float
     tick_s: float = 0.05  # [s] one tick (status stamps are in seconds)
+    offset: float = 0.0  # [m] the control point's offset ahead of the body (unicycles)
 
     def __post_init__(self) -> None:
         if min(self.lift_ticks, self.lost_ticks, self.repeat_ticks) < 0 or self.repeat_ticks < 1:
@@ -367,13 +403,11 @@ class Errand:
         return Move(team=team, hold=hold, status=self._status(k, REPORTED[self.phase]))
 
     def _arrived(self, at: Sequence[Point]) -> bool:
-        """The load within the set-down tolerance of its station, every member at its goal."""
+        """The team has brought the load to its station (:func:`arrived`)."""
         job, plan = self.job, self.plan
         assert job is not None and plan is not None
-        d, a = pose_error(load_pose(plan.starts, at, job.src), job.dst)
-        tol = self.settings.goal_tolerance
-        return d <= SET_DOWN_M and a <= SET_DOWN_RAD and all(
-            math.dist(p, g) <= tol for p, g in zip(at, plan.goals, strict=True))
+        s = self.settings
+        return arrived(plan, at, job.src, job.dst, s.goal_tolerance + s.offset)
 
     def _follow(self, k: int, me: Point, mates: Mapping[str, Seen]) -> Move:
         """A member's tick: the speaker's statuses decide; at its slot it stands."""
@@ -420,8 +454,8 @@ class Errand:
             self.ended, self.ended_at = status, round(status.stamp / self.settings.tick_s)
         walk = self.home
         sh = load_box(job.load, job.type, self.rests(at, how), self.radius + LOAD_MARGIN)
-        if inside_box(sh, me[0], me[1], self.radius + EXIT_GAP):
-            self.leaving = exit_point(sh, me, self.clear, EXIT_GAP + self.radius)
-            walk = self.leaving
+        out = way_out(sh, me, self.clear, self.radius)
+        if out is not None:
+            self.leaving = walk = out
         self.job, self.plan, self.phase, self.heard = None, None, IDLE, ""
         return Move(walk=walk if walk is not None else me, status=status, done=True)

@@ -36,7 +36,7 @@ from typing import Any
 
 import zenoh
 
-from agent.bidder import Bidder, BidderSettings
+from agent.bidder import RELEASE_TICKS, REPEAT_S, Bidder, BidderSettings
 from agent.config import AgentConfig, Membership, regrouped, solo, team_formation
 from agent.errand import (
     CARRYING,
@@ -52,16 +52,16 @@ from agent.errand import (
     Move,
     Seen,
     allies,
-    inside_box,
     load_box,
     parking,
+    sees_load,
 )
 from agent.faults import LinkFaults
 from agent.order_check import acceptable
 from agent.order_link import OrderLink
 from geometry.shapes import Shape, shape_distance
 from leader import orders as lo
-from leader.allocation import OpenOrder
+from leader.allocation import OpenOrder, bid_costs
 from leader.team import Pose, TeamPlan, slot_points
 from scenario.model import (
     DOUBLE_INTEGRATOR,
@@ -84,8 +84,6 @@ from wire.shapes import msg_to_shape, shape_to_msg
 logger = logging.getLogger(__name__)
 
 LOST_S = 1.0  # [s] a teammate whose position is older than this is lost
-REPEAT_S = 1.0  # [s] a leader's decision or status is put again this often
-RELEASE_TICKS = 2  # a roster without a majority this many ticks after the close is released
 ENDED = (DELIVERED, FAILED, RELEASED, "cancelled")
 
 
@@ -144,10 +142,11 @@ class LifePart:
         window = max(RELEASE_TICKS + 1, round(fleet.bid_window_s / dt))
         self.bidder = Bidder(self.rid, BidderSettings(
             len(fleet.robot_ids), window, fleet.bid_copies, RELEASE_TICKS, repeat, dt),
-            admits=self.admits)
+            costs=self.bid_costs, admits=self.admits)
         homes = parking(fleet.robot_ids, fleet.starts, fleet.parking)
         self.errand = Errand(self.rid, ErrandSettings(
-            round(fleet.lift_s / dt), max(1, round(LOST_S / dt)), repeat, cfg.goal_tolerance, dt),
+            round(fleet.lift_s / dt), max(1, round(LOST_S / dt)), repeat, cfg.goal_tolerance, dt,
+            cfg.control.offset),
             home=homes.get(self.rid), clear=self.clear_point, radius=cfg.radius)
         self.heard = Heard()
         self.orders: dict[str, lo.Order] = {}  # every order posted, as this robot knows it
@@ -288,6 +287,16 @@ class LifePart:
             return self.life.station(order.src).pose
         spec = self.life.load_by_name.get(order.load)
         return None if spec is None else self.life.station(spec.at).pose
+
+    def bid_costs(self, position: tuple[float, float], order: OpenOrder) -> tuple[float, ...]:
+        """This robot's bid for ``order`` from ``position``: its distance to each slot where the
+        order's load rests now (it may have moved since the order was posted: a chained
+        order's load is delivered first)."""
+        known = self.orders.get(order.oid)
+        pose = None if known is None else self._load_pose(known)
+        slots = order.slots if pose is None or known is None else slot_points(
+            pose, self.life.load_type(known.type).slots)
+        return bid_costs(position, slots)
 
     def admits(self, oid: str) -> bool:
         """Whether an order is open for bids now (:func:`leader.orders.biddable` over what this
@@ -483,7 +492,7 @@ class LifePart:
             if e.state != "resting" or e.name == own:
                 continue
             sh = load_box(e.name, self.life.load_type(e.type), (e.x, e.y, e.yaw), ds)
-            if me is not None and inside_box(sh, me[0], me[1], ds + self.cfg.control.offset):
+            if me is not None and not sees_load(sh, (me[0], me[1]), self.cfg.control.offset):
                 continue
             out.append(sh)
         return tuple(out)

@@ -1,44 +1,48 @@
 """Lifelong operation in process: a fleet serves transport orders, teams forming at run time.
 
 A scenario with a ``fleet`` (:mod:`scenario.lifelong`) has no fixed formations: every robot is a
-formation of one until an order's team takes it. Each tick, before the robots' commands:
+formation of one until an order's team takes it. The run follows the agents of a lock-step
+``formation run`` tick for tick (:mod:`agent.lifepart`, :mod:`agent.errand`, :mod:`agent.bidder`),
+every message delivered, so that both write the same ``orders.csv`` and ``robots.csv``. Each
+tick, before the robots' commands:
 
 1. due orders are posted; a new load appears at its source once the source is free
    (:func:`leader.orders.appears`); a load delivered to a sink leaves after its dwell;
-2. when a bidding round closes (every ``fleet.bid_window_s``), every idle robot bids for every
-   order open for bids (:func:`leader.orders.biddable`: the load rests, the destination is free
-   and then reserved) and the one allocation function runs over the bids, all delivered at the
-   close (:func:`leader.allocation.allocate`, or the greedy baseline); each team is committed
-   and its members start gathering;
-3. each member of a gathering team is routed to its slot as a formation of one; when all stand at
-   their slots (``goal_tolerance``) the team forms its formation (:func:`leader.team.plan_team`:
-   every pair of slots an edge, slot 0 leads), lifts for ``fleet.lift_s`` standing still, and
-   from then on the load is the formation's ``load``, carried as a rigid body to the
-   destination; within 5 cm and 3 degrees of it the team stands for ``lift_s`` again, the load
-   rests there and the team dissolves: its robots leave the load and park (the nearest free
-   parking spot, else a point clear of the load) or take the next order;
-4. a member killed (:class:`LifelongOptions` ``kills``) stands where it is from then on; a team
+2. at each bid tick of a round (:meth:`agent.bidder.BidderSettings.bid_tick`) every idle robot
+   bids its distance to the slots of every order open for bids (:func:`leader.orders.biddable`);
+   when the round closes (every ``fleet.bid_window_s``) the one allocation function runs over
+   the round's last bids (:func:`leader.allocation.allocate`, or the greedy baseline) and the
+   members are bound; the roster is committed a tick later (:data:`HEARD`: the leader hears
+   the votes then), and the members take it a tick after that and walk to their slots;
+3. a robot's new formation (a goal, its team, the formations of the moment changed, its
+   gathering allies changed) is the one its agent asks for with its pose and view of that
+   tick, and lands :data:`LANDS` ticks later (:meth:`agent.node.AgentNode.regroup`), planned
+   afresh; every other formation walks on along its route;
+4. the team has gathered when all stand at their slots (``goal_tolerance``); its speaker (slot
+   0) sees it a tick later and stands still for ``fleet.lift_s``, the others standing at their
+   slots as they reach them; then the load is carried (the team's plan,
+   :func:`leader.team.plan_team`, from where they stood), and the members form the team's
+   formation (every pair of slots an edge, slot 0 leads) when they hear it; within 5 cm and 3
+   degrees of the destination (on the speaker's poses of the tick before) the speaker stands
+   for ``lift_s`` again, the load rests there and the team dissolves when its members hear it:
+   each robot walks out from under the load (:func:`agent.errand.way_out`), then to its parking
+   spot (:func:`agent.errand.parking`: fixed, the same in every agent), and is idle again;
+5. a member killed (:class:`LifelongOptions` ``kills``) stands where it is from then on; a team
    that has lifted sets the load down where it stands (a resting load off any station) and its
    order fails with ``member lost: RID``; before the lift the order waits again.
 
-A resting load is a body for every robot and formation: a box among the walls and shelves
-(``shapes``), for the footprint planner and the CBF rows alike, except for its own team on the
-way into its slots and for a robot that stands under it when it comes to rest, until its
-control point is out of the load's safe distance (sooner, its obstacle row would start below
-zero).
+A resting load is a body for every robot and formation: a box among the walls and shelves, for
+the footprint planner and the CBF rows alike, except for its own team on the way into its slots
+and for a robot that stands under it (:func:`agent.errand.sees_load`); a load set down is in the
+robots' view from the tick after (as ``world/loads`` has it).
 
-The formations change at run time; the controllers do not: whenever the set of formations or a
-robot's goal or view of the loads changes, this module builds the scenario of that moment (the
-fleet's robots grouped into the current formations, starting where they stand) and a fresh
-:class:`simulator.inprocess.FleetControl` for it, and carries each robot's last command over.
-An idle robot that walks to the same goal as at the last build walks on along its route (its
-follower and its replanning driver carried over, nothing planned again) unless a body new in
-its view lies across the rest of that route, and a team that carries the same load among the
-same bodies carries on along its route: only the formations that changed are planned. The
-robots stop and start all the time, mostly far off one another's ways: a planned formation plans
-again for a thing that has come to stand still, or moved, only where it lies across the rest of
-its route (``keep_if_clear`` of :class:`leader.routing.Replanner`).
-One :class:`simulator.tick.FleetTick` moves, records and checks the whole fleet throughout.
+The formations change at run time; the controllers do not: whenever a formation lands, this
+module builds the scenario of that moment (the fleet's robots grouped into the current
+formations) and a fresh :class:`simulator.inprocess.FleetControl` for it; the formations that
+landed are planned from the poses of their ask in the views of their ask and plan again at their
+first tick (as a new leader does), every other one keeps its route, follower, driver and jam
+memory. One :class:`simulator.tick.FleetTick` moves, records and checks the whole fleet
+throughout; ``robots.csv`` names each robot's own formation of one, as the world's does.
 """
 
 from __future__ import annotations
@@ -51,24 +55,25 @@ from pathlib import Path
 import numpy as np
 
 from agent import double_integrator
+from agent.bidder import RELEASE_TICKS, REPEAT_S, BidderSettings
 from agent.config import fleet_scenario, solo, team_formation
 from agent.control import StepResult
 from agent.errand import (
-    ALLY_REACH,
     EXIT_GAP,
     LOAD_MARGIN,
-    SET_DOWN_M,
-    SET_DOWN_RAD,
-    exit_point,
+    allies_at,
+    arrived,
     inside_box,
     load_box,
+    parking,
+    sees_load,
+    way_out,
 )
 from geometry.polygon import polygon_distance
-from geometry.shapes import Shape, distance_floor, shape_distance
+from geometry.shapes import Shape, shape_distance
 from leader import allocation
 from leader import orders as lo
-from leader.navigation import Follower
-from leader.route_driver import RouteDriver
+from leader.routing import Reason
 from leader.team import TeamPlan, axis_turn, load_pose, plan_team, pose_error, slot_points
 from scenario import Scenario, stream
 from scenario.cargo import load_clearances
@@ -88,6 +93,8 @@ STUCK_M = 0.05  # [m] a team that moves less than this ...
 STUCK_S = 120.0  # [s] ... in this long is stuck
 CONTACT_TOL = 1e-3  # [m] a body this far inside another is a contact
 ALLOCATORS = {"allocate": allocation.allocate, "greedy": allocation.greedy_nearest}
+HEARD = 1  # [ticks] lock-step: what an agent puts at tick k the others take at tick k + 1
+LANDS = 2  # [ticks] lock-step: a formation an agent asks for at tick k is its own at k + 2
 
 
 @dataclass(frozen=True)
@@ -127,6 +134,12 @@ class Crew:
     since: float = 0.0  # [s] the current phase began
     ref: list[tuple[float, float]] = field(default_factory=list)
     ref_t: float = 0.0
+    # [tick] the agents' timeline (-1: not yet): the members took the roster, the speaker's
+    # lift began, the lift ended, the speaker's set-down began
+    start_k: int = -1
+    lift_k: int = -1
+    lifted_k: int = -1
+    down_k: int = -1
 
 
 @dataclass
@@ -305,20 +318,17 @@ def checks_block(c: Checks) -> dict:
         "stuck_orders": sorted(c.stuck)}
 
 
-def route_clear(route: Sequence[tuple[float, float]], shapes: Sequence[Shape], margin: float,
-                step: float = 0.05) -> bool:
-    """True when the polyline ``route`` (points ``step`` apart along each leg) keeps beyond each
-    shape's safe distance plus ``margin``."""
-    if not shapes:
-        return True
-    for (ax, ay), (bx, by) in zip(route, route[1:], strict=False):
-        n = max(1, math.ceil(math.hypot(bx - ax, by - ay) / step))
-        for k in range(n + 1):
-            x, y = ax + (bx - ax) * k / n, ay + (by - ay) * k / n
-            if any(distance_floor(x, y, sh) < sh.ds + margin
-                   and shape_distance(x, y, sh)[0] < sh.ds + margin for sh in shapes):
-                return False
-    return True
+@dataclass(frozen=True)
+class Ask:
+    """A robot's change of formation as its agent asks for it: it lands at tick ``land``
+    (:data:`LANDS` after the ask); ``spec`` the formation (a formation of one, or its team's,
+    with the poses of the ask), ``view`` the bodies it plans round, ``allies`` the gathering
+    teammates it keeps apart from by separation rows."""
+
+    land: int
+    spec: FormationSpec
+    view: tuple[Shape, ...]
+    allies: tuple[str, ...] = ()
 
 
 class LifelongRun:
@@ -346,6 +356,7 @@ class LifelongRun:
         self.tally = tally  # told (delivered, posted) before each progress report
         self.tick = FleetTick(self.base, None, False, progress, stop=self.finished)
         self.state: list[Pose] = [starts[r] for r in self.ids]
+        self.prev: list[Pose] = list(self.state)  # the poses of the tick before
         self.ds = scenario.robot.radius + LOAD_MARGIN
         # a robot leaving a load it stood under is out once its control point (where its rows
         # are measured) is beyond the load's safe distance
@@ -357,12 +368,14 @@ class LifelongRun:
         self.loads = {ld.name: LoadState(ld.name, ld.type, life.station(ld.at).pose, ld.at)
                       for ld in life.loads}
         self.crews: dict[str, Crew] = {}
-        self.role = dict.fromkeys(self.ids, "")
+        self.role = dict.fromkeys(self.ids, "")  # the order a robot is bound to ("" idle)
         self.kills = dict(life_options.kills)
         self.dead: dict[str, float] = {}
         self.goal = {r: (starts[r][0], starts[r][1]) for r in self.ids}
+        self.homes = parking(self.ids, starts, life.fleet.parking)
         self.leaving: dict[str, tuple[float, float]] = {}  # robot -> the point clear of a load
         self.under: dict[str, set[str]] = {r: set() for r in self.ids}  # loads over a robot
+        self.set_k: dict[str, int] = {}  # load -> the tick it was last set down
         self.load_rows: list[tuple] = []
         self.timeline = OrderTimeline()  # the orders' states as they change, for run.mcap
         self.busy_s = 0.0  # robot-seconds spent in a team
@@ -370,16 +383,27 @@ class LifelongRun:
         self.checks = Checks()
         self.stats = QPStats()
         self.vel = [(0.0, 0.0)] * len(self.ids)
-        self.window = max(1, round(life.fleet.bid_window_s / scenario.dt))
-        self.dirty = True
+        dt = scenario.dt
+        fleet = life.fleet
+        self.window = max(RELEASE_TICKS + 1, round(fleet.bid_window_s / dt))
+        self.bidding = BidderSettings(len(self.ids), self.window, fleet.bid_copies,
+                                      RELEASE_TICKS, max(1, round(REPEAT_S / dt)), dt)
+        self.lift_ticks = round(fleet.lift_s / dt)
+        self.bids: dict[int, dict[str, dict[str, tuple[float, ...]]]] = {}  # round, order, robot
+        self.commits: dict[int, list[tuple[str, tuple[str, ...]]]] = {}  # tick -> rosters
+        self.todo: dict[int, list[Callable[[int], None]]] = {}  # tick -> what the agents do then
+        # each robot's formation as its agent asked for it: on its way, and landed
+        self.asks: dict[str, Ask] = {}
+        self.now_in: dict[str, Ask] = {r: Ask(0, solo(r, starts[r], starts[r][:2]),
+                                              tuple(self.static)) for r in self.ids}
+        self.team: dict[str, FormationSpec] = {}  # robot -> its team's formation, once formed
+        self.near: dict[str, tuple[str, ...]] = dict.fromkeys(self.ids, ())  # allies asked
+        self.again: set[str] = set()  # robots whose agents ask for their formation again
+        self.fresh: set[str] = set(self.ids)  # robots whose asked formation landed this tick
         self.control: FleetControl | None = None
         self.scen = self.base
         self.perm: list[int] = []
-        self.partners: tuple[tuple[int, ...], ...] = ()  # each robot's partners, as built
-        # each robot walking alone at the last build: its goal and what it kept clear of
-        self.walks: dict[str, tuple[tuple[float, float], tuple[Shape, ...]]] = {}
-        # each carrying team at the last build: its plan and the bodies it kept clear of
-        self.carries: dict[str, tuple[TeamPlan, tuple[Shape, ...]]] = {}
+        self.k = 0  # the tick being run
         self.now = 0.0  # [s] the tick being run
 
     # --- the run --------------------------------------------------------------------------
@@ -390,15 +414,19 @@ class LifelongRun:
         self.tick.start(self.state)
         for ld in self.loads.values():
             self.log_load(0.0, ld)
+        for rid, home in sorted(self.homes.items()):  # idle from the start: to its spot
+            self.goal[rid] = home
+            self.again.add(rid)
         k, t = 0, 0.0
         for k in range(self.base.steps):
+            self.k = k
             t = self.now = k * dt
             self.events(k, t)
-            if self.dirty:
+            if self.fresh:
                 self.rebuild()
             before = self.state
             results, ellipses, obs = self.commands(t)
-            self.state = self.tick.move(before, results)
+            self.prev, self.state = before, self.tick.move(before, results)
             if self.options.record:
                 record(self.tick, t, before, results, ellipses, obs)
             t = (k + 1) * dt
@@ -420,15 +448,29 @@ class LifelongRun:
                             for ld in self.loads.values()))
 
     def events(self, k: int, t: float) -> None:
-        """What happens at ``t`` before the commands (module docstring, steps 1 to 4)."""
+        """What happens at tick ``k`` before the commands (module docstring, steps 1 to 4), at
+        the ticks the agents of a lock-step ``formation run`` do it."""
         self.kill_due(t)
         self.post_due(t)
         self.leave_sinks(t)
         self.appear(t)
-        if k % self.window == 0:
-            self.round(t)
+        if self.bidding.bid_tick(k) and self.bidding.next_close(k) >= 1:
+            self.bid(k)
+        if k % self.window == 0 and k:
+            self.round(k, t)
+        for oid, robots in self.commits.pop(k, []):
+            self.assign(k, t, self.orders[oid], robots)
+        for act in self.todo.pop(k, []):
+            act(k)
         for crew in sorted(self.crews.values(), key=lambda c: c.oid):
-            self.advance(crew, t)
+            self.advance(crew, k, t)
+        self.walk_home(k)
+        self.ask(k)
+        self.land(k)
+
+    def later(self, k: int, act: Callable[[int], None]) -> None:
+        """``act`` at tick ``k``."""
+        self.todo.setdefault(k, []).append(act)
 
     # --- orders and loads -----------------------------------------------------------------
 
@@ -447,7 +489,6 @@ class LifelongRun:
     def post(self, spec: Order, t: float) -> None:
         order = new_order(self.life, self.loads, spec)
         self.orders[spec.id] = lo.step(order, lo.Event(lo.POST, t))
-        self.dirty = True  # idle robots keep clear of where its load is due
 
     def yard_now(self) -> stream.Yard:
         """The warehouse as the stream sees it: loads at stations, stations open orders hold
@@ -468,14 +509,12 @@ class LifelongRun:
         for ld in appear(self.life, self.orders, self.loads, self.state, self.ds,
                          self.base.robot.radius):
             self.log_load(t, ld)
-            self.dirty = True
 
     def leave_sinks(self, t: float) -> None:
         for ld in self.loads.values():
             if ld.state == "resting" and ld.leaves <= t + 1e-9:
                 ld.state, ld.station = "gone", ""
                 self.log_load(t, ld)
-                self.dirty = True
 
     def log_load(self, t: float, ld: LoadState) -> None:
         """loads.csv's row of ``ld`` at ``t``."""
@@ -484,65 +523,104 @@ class LifelongRun:
 
     # --- bidding rounds -------------------------------------------------------------------
 
-    def round(self, t: float) -> None:
-        """A round closes: every idle robot bids for every open order, all bids delivered."""
+    def open_orders(self, close: int) -> list[allocation.OpenOrder]:
+        """The orders open for bids in the round that closes at tick ``close``, as they stand
+        now (:func:`leader.orders.biddable`, :func:`leader.allocation.joins_round`)."""
         window = self.life.fleet.bid_window_s
+        t_close = close * self.base.dt
         ripe = [o for o in self.orders.values()
-                if o.state != lo.WAITING or allocation.joins_round(o.t_posted or 0.0, t, window)]
+                if o.state != lo.WAITING or allocation.joins_round(o.t_posted or 0.0, t_close,
+                                                                   window)]
         resting = {n: ld.station for n, ld in self.loads.items() if ld.state == "resting"}
-        open_ = [o for o in lo.biddable(ripe, self.resting_at(), resting)
-                 if o.state == lo.WAITING]
-        idle = {r: (self.state[self.index[r]][0], self.state[self.index[r]][1])
-                for r in self.ids if not self.role[r] and r not in self.dead}
-        if not open_ or not idle:
-            return
-        slots = {o.oid: slot_points(self.loads[o.load].pose,
-                                    self.life.load_type(o.type).slots) for o in open_}
-        bids_for = [allocation.OpenOrder(o.oid, slots[o.oid], o.priority, o.t_posted or 0.0)
-                    for o in open_]
-        result = allocation.round_teams(bids_for, idle, self.allocate)
-        for oid in sorted(result.teams):
-            self.assign(t, self.orders[oid], result.teams[oid].robots, slots[oid])
+        return [allocation.OpenOrder(o.oid, slot_points(self.loads[o.load].pose,
+                                                        self.life.load_type(o.type).slots),
+                                     o.priority, o.t_posted or 0.0)
+                for o in lo.biddable(ripe, self.resting_at(), resting) if o.state == lo.WAITING]
 
-    def assign(self, t: float, order: lo.Order, robots: tuple[str, ...],
-               slots: tuple[tuple[float, float], ...]) -> None:
+    def bid(self, k: int) -> None:
+        """A bid tick (:meth:`agent.bidder.BidderSettings.bid_tick`): every idle robot bids for
+        every order open for the coming round from where it stands; a later copy replaces an
+        earlier one, as in the agents."""
+        m = self.bidding.next_close(k)
+        row = self.bids.setdefault(m, {})
+        for o in self.open_orders(m * self.window):
+            for rid in self.ids:
+                if not self.role[rid] and rid not in self.dead:
+                    at = self.positions([rid])[0]
+                    row.setdefault(o.oid, {})[rid] = allocation.bid_costs(at, o.slots)
+
+    def round(self, k: int, t: float) -> None:
+        """A round closes: the one allocation function over the bids of the round, all
+        delivered; every robot of a team is bound from now, and the rosters are committed a
+        tick later (the leader hears the votes then)."""
+        heard = self.bids.pop(k // self.window, {})
+        self.bids = {m: b for m, b in self.bids.items() if m > k // self.window}
+        open_ = self.open_orders(k)
+        bids = [allocation.Bid(rid, oid, costs) for oid, row in sorted(heard.items())
+                for rid, costs in sorted(row.items()) if not self.role[rid]]
+        if not open_ or not bids:
+            return
+        result = self.allocate(open_, bids)
+        for oid in sorted(result.teams):
+            robots = result.teams[oid].robots
+            for r in robots:
+                self.role[r] = oid
+            self.commits.setdefault(k + HEARD, []).append((oid, robots))
+
+    def assign(self, k: int, t: float, order: lo.Order, robots: tuple[str, ...]) -> None:
+        """The roster committed at ``t``: the order is assigned, its load bound; its members
+        take it a tick later and walk to their slots."""
         ld = self.loads[order.load]
         if not order.src:
             order = replace(order, src=ld.station)
         order = lo.step(lo.step(order, lo.Event(lo.ASSIGN, t, robots)), lo.Event(lo.JOIN, t))
         self.orders[order.oid] = order
+        slots = slot_points(ld.pose, self.life.load_type(order.type).slots)
         dst = self.life.station(order.dst).pose
         at = self.positions(robots)
-        self.crews[order.oid] = Crew(order.oid, robots, slots, ld.pose, dst, since=t,
-                                     ref=at, ref_t=t)
+        crew = Crew(order.oid, robots, slots, ld.pose, dst, since=t, ref=at, ref_t=t)
+        self.crews[order.oid] = crew
         # the straight-line bound of the service: the farthest member to its slot, then the carry
         self.bounds[order.oid] = service_bound(at, slots, ld.pose, dst, self.base.robot.max_speed)
         ld.order = order.oid
         self.log_load(t, ld)
-        for r, s in zip(robots, slots, strict=True):
-            self.role[r] = order.oid
+        self.later(k + HEARD, lambda kk: self.take(crew, kk))
+
+    def take(self, crew: Crew, k: int) -> None:
+        """The members follow the committed roster: each walks to its slot."""
+        if self.crews.get(crew.oid) is not crew:
+            return
+        crew.start_k = k
+        for r, s in zip(crew.robots, crew.slots, strict=True):
             self.goal[r] = s
             self.leaving.pop(r, None)
-        self.dirty = True
+            self.again.add(r)
 
     # --- a team's phases ------------------------------------------------------------------
 
-    def advance(self, crew: Crew, t: float) -> None:
-        """The team's next phase, when its condition holds."""
+    def advance(self, crew: Crew, k: int, t: float) -> None:
+        """The team's next phase, when its condition holds: gathered on the poses of now (the
+        world's record), the rest as the team's speaker judges on the poses of the tick
+        before."""
         state = self.orders[crew.oid].state
-        lift = self.life.fleet.lift_s
-        if state == lo.GATHERING and self.gathered(crew):
-            self.lift(crew, t)
-        elif state == lo.LIFTING and t - crew.since >= lift - 1e-9:
-            self.lifted(crew, t)
-        elif state == lo.CARRYING and self.arrived(crew):
+        lift = self.lift_ticks
+        if state == lo.GATHERING and crew.start_k >= 0 and self.gathered(crew):
+            self.move_order(crew.oid, lo.Event(lo.GATHERED, t))
+            crew.lift_k = k + HEARD
+            self.lift_checks(crew)
+        elif state == lo.LIFTING and k >= crew.lift_k + lift:
+            self.lifted(crew, k, t)
+        elif state == lo.CARRYING and crew.down_k < 0 and k > crew.lifted_k \
+                and self.arrived(crew):
             self.move_order(crew.oid, lo.Event(lo.ARRIVED, t))
-            crew.since = t
-        elif state == lo.SETTING_DOWN and t - crew.since >= lift - 1e-9:
-            self.set_down(crew, t)
+            crew.down_k = k
+        elif state == lo.SETTING_DOWN and k >= crew.down_k + lift:
+            self.set_down(crew, k, t)
 
-    def positions(self, robots: Sequence[str]) -> list[tuple[float, float]]:
-        return [(self.state[self.index[r]][0], self.state[self.index[r]][1]) for r in robots]
+    def positions(self, robots: Sequence[str], poses: Sequence[Pose] | None = None
+                  ) -> list[tuple[float, float]]:
+        s = self.state if poses is None else poses
+        return [(s[self.index[r]][0], s[self.index[r]][1]) for r in robots]
 
     def gathered(self, crew: Crew) -> bool:
         tol = self.base.goal_tolerance
@@ -550,54 +628,113 @@ class LifelongRun:
                    for p, s in zip(self.positions(crew.robots), crew.slots, strict=True))
 
     def arrived(self, crew: Crew) -> bool:
-        """The load is within the set-down tolerance of its station and every member at its
-        goal (the load as near its station as the members can bring it)."""
+        """The load within the set-down tolerance of its station and every member at its goal,
+        on the poses of the tick before (the speaker's view)."""
         assert crew.plan is not None
-        d, a = pose_error(self.loads[self.orders[crew.oid].load].pose, crew.dst)
-        tol = self.base.goal_tolerance
-        return d <= SET_DOWN_M and a <= SET_DOWN_RAD and all(
-            math.dist(p, g) <= tol for p, g in zip(self.positions(crew.robots), crew.plan.goals,
-                                                   strict=True))
+        return arrived(crew.plan, self.positions(crew.robots, self.prev), crew.src, crew.dst,
+                       self.base.goal_tolerance + self.base.robot.control_offset)
 
     def move_order(self, oid: str, event: lo.Event) -> lo.Order:
         self.orders[oid] = order = lo.step(self.orders[oid], event)
         return order
 
-    def lift(self, crew: Crew, t: float) -> None:
-        order = self.move_order(crew.oid, lo.Event(lo.GATHERED, t))
+    def lift_checks(self, crew: Crew) -> None:
+        """The lift's measures, where the team stands when it has gathered."""
         at = self.positions(crew.robots)
-        kind = self.life.load_type(order.type)
-        crew.plan = plan_team(crew.oid, crew.robots, kind.slots, kind.outline, at,
-                              (crew.src, crew.dst))
         self.checks.lift_error_m = max(self.checks.lift_error_m,
                                        *(math.dist(p, s) for p, s in zip(at, crew.slots,
                                                                          strict=True)))
         if self.base.robot.is_unicycle:
             self.checks.lift_turn_rad = max(self.checks.lift_turn_rad, *(
                 axis_turn(self.state[self.index[r]][2], crew.src[2]) for r in crew.robots))
-        crew.since = t
-        self.dirty = True
 
-    def lifted(self, crew: Crew, t: float) -> None:
+    def lifted(self, crew: Crew, k: int, t: float) -> None:
+        """The lift done: the team's plan from where its members stand, the load carried; the
+        members form the team a tick later (when they hear it)."""
         order = self.move_order(crew.oid, lo.Event(lo.LIFTED, t))
+        kind = self.life.load_type(order.type)
+        at = self.positions(crew.robots)
+        crew.plan = plan_team(crew.oid, crew.robots, kind.slots, kind.outline, at,
+                              (crew.src, crew.dst))
+        crew.lifted_k = k
         ld = self.loads[order.load]
         ld.state, ld.station = "carried", ""
         self.log_load(t, ld)
-        crew.since, crew.ref, crew.ref_t = t, self.positions(crew.robots), t
-        self.dirty = True
+        crew.since, crew.ref, crew.ref_t = t, at, t
+        self.later(k + HEARD, lambda kk: self.form(crew))
 
-    def set_down(self, crew: Crew, t: float) -> None:
+    def form(self, crew: Crew) -> None:
+        """The members form the team (its formation from where they stood through the lift,
+        the load at its source); every robot's formation again."""
+        if self.crews.get(crew.oid) is not crew or crew.plan is None:
+            return
+        poses = {r: (p[0], p[1], self.prev[self.index[r]][2])
+                 for r, p in zip(crew.plan.robots, crew.plan.starts, strict=True)}
+        outline = slot_points(crew.src, self.life.load_type(
+            self.orders[crew.oid].type).outline)
+        f = team_formation(crew.plan, poses, outline)
+        for r in crew.robots:
+            self.team[r] = f
+        self.again.update(r for r in self.ids if r not in self.dead)
+
+    def set_down(self, crew: Crew, k: int, t: float) -> None:
         order = self.move_order(crew.oid, lo.Event(lo.SET_DOWN, t))
         ld = self.loads[order.load]
         rest_at(ld, self.life.station(order.dst), crew.dst, t, self.checks)
+        self.set_k[ld.name] = k
         self.log_load(t, ld)
-        self.dissolve(crew)
-
-    def dissolve(self, crew: Crew) -> None:
-        for r in crew.robots:
-            self.role[r] = ""
+        self.stand_under(ld, crew.robots)
         del self.crews[crew.oid]
-        self.dirty = True
+        speaker = crew.robots[0]
+        out = self.way_out(speaker, ld, crew.dst, self.prev)
+        self.later(k + HEARD, lambda kk: self.dissolve(crew, crew.dst, {speaker: out}))
+
+    def stand_under(self, ld: LoadState, robots: Sequence[str]) -> None:
+        """A load came to rest over ``robots``: each one inside it stands under it until out."""
+        sh = load_box(ld.name, self.life.load_type(ld.type), ld.pose, self.ds)
+        r0 = self.base.robot.radius
+        for r in robots:
+            x, y = self.positions([r])[0]
+            if inside_box(sh, x, y, r0):
+                self.under[r].add(ld.name)
+
+    def way_out(self, rid: str, ld: LoadState, at: Pose, poses: Sequence[Pose]
+                ) -> tuple[float, float] | None:
+        """Where ``rid`` (at ``poses``) walks out from under ``ld`` resting at ``at`` as its
+        team reckons it (:func:`agent.errand.way_out`), or None."""
+        sh = load_box(ld.name, self.life.load_type(ld.type), at, self.ds)
+        return way_out(sh, self.positions([rid], poses)[0],
+                       lambda x, y: self.clear_point(rid, x, y), self.base.robot.radius)
+
+    def dissolve(self, crew: Crew, at: Pose, out: dict[str, tuple[float, float] | None]
+                 ) -> None:
+        """The team dissolved (its members heard it), its load resting at ``at`` as the team
+        reckons it: each robot idle again, out from under the load, then to its parking spot;
+        every robot's formation again."""
+        ld = self.loads[self.orders[crew.oid].load]
+        for r in crew.robots:
+            if r in self.dead:
+                continue
+            self.role[r] = ""
+            self.team.pop(r, None)
+            leaving = out[r] if r in out else self.way_out(r, ld, at, self.prev)
+            if leaving is not None:
+                self.leaving[r] = self.goal[r] = leaving
+            elif r in self.homes:
+                self.goal[r] = self.homes[r]
+            else:
+                self.goal[r] = self.positions([r], self.prev)[0]
+        self.again.update(r for r in self.ids if r not in self.dead)
+
+    def walk_home(self, k: int) -> None:
+        """A robot out from under a load (on the poses of the tick before) walks to its spot."""
+        tol = self.base.goal_tolerance
+        for rid in sorted(self.leaving):
+            if math.dist(self.positions([rid], self.prev)[0], self.leaving[rid]) <= tol:
+                del self.leaving[rid]
+                if rid in self.homes and not self.role[rid]:
+                    self.goal[rid] = self.homes[rid]
+                    self.again.add(rid)
 
     # --- faults ---------------------------------------------------------------------------
 
@@ -606,9 +743,9 @@ class LifelongRun:
             if rid not in self.dead and t >= when - 1e-9:
                 self.dead[rid] = t
                 self.goal[rid] = self.positions([rid])[0]
-                self.dirty = True
-                if self.role[rid]:
+                if self.role[rid] in self.crews:
                     self.lose(self.crews[self.role[rid]], rid, t)
+                self.role[rid] = ""
 
     def lose(self, crew: Crew, rid: str, t: float) -> None:
         """A member is lost: before the lift the order waits again; after it the load rests
@@ -618,249 +755,202 @@ class LifelongRun:
         ld.order = ""
         if ld.state == "carried":
             ld.state = "resting"
+            self.stand_under(ld, crew.robots)
         self.log_load(t, ld)
-        self.dissolve(crew)
+        del self.crews[crew.oid]
+        self.later(self.k + HEARD, lambda kk: self.dissolve(crew, ld.pose, {}))
 
     # --- the formations of the moment -----------------------------------------------------
 
     def held(self, rid: str) -> bool:
-        """A robot that stands still this tick: dead, or lifting or setting a load down."""
-        oid = self.role[rid]
-        return rid in self.dead or (bool(oid) and self.orders[oid].state in (lo.LIFTING,
-                                                                             lo.SETTING_DOWN))
+        """A robot that stands still this tick: dead; the team's speaker through a lift or a
+        set-down; a member at its slot (on the pose of the tick before) until it hears the lift
+        is done."""
+        if rid in self.dead:
+            return True
+        crew = self.crews.get(self.role[rid])
+        if crew is None or crew.start_k < 0:
+            return False
+        k, lift = self.k, self.lift_ticks
+        if rid == crew.robots[0]:
+            return (0 <= crew.lift_k <= k < crew.lift_k + lift) or (
+                0 <= crew.down_k <= k < crew.down_k + lift)
+        if 0 <= crew.lifted_k < k:
+            return False
+        slot = crew.slots[crew.robots.index(rid)]
+        return math.dist(self.positions([rid], self.prev)[0], slot) <= self.base.goal_tolerance
 
     def boxes(self) -> dict[str, Shape]:
         """Every resting load as a box."""
         return {n: load_box(n, self.life.load_type(ld.type), ld.pose, self.ds)
                 for n, ld in self.loads.items() if ld.state == "resting"}
 
+    def seen_boxes(self) -> dict[str, Shape]:
+        """The resting loads as the agents hear of them this tick: a load set down now is
+        carried still in the ``world/loads`` of this tick (the world sets it down when it
+        hears the team, after the tick's commands)."""
+        return {n: sh for n, sh in self.boxes().items() if self.set_k.get(n) != self.k}
+
     def exempt(self, rid: str) -> set[str]:
         """The resting loads robot ``rid`` may be under: its team's on the way in, and any it
         stands under."""
         oid = self.role[rid]
-        own = {self.orders[oid].load} if oid and self.orders[oid].state in (
+        own = {self.orders[oid].load} if oid in self.crews and self.orders[oid].state in (
             lo.GATHERING, lo.LIFTING) else set()
         return own | self.under[rid]
 
-    def idle_goals(self, boxes: dict[str, Shape]) -> None:
-        """Where each idle robot goes: out from under a load or from where a load is due
-        (:meth:`keep_clear`), else its parking spot (the nearest free one), else where it
-        stands."""
+    def view_of(self, rid: str, boxes: dict[str, Shape]) -> tuple[Shape, ...]:
+        """What robot ``rid`` keeps clear of, as its agent does: the walls and shelves and the
+        resting loads but its team's on the way in and any it stands under
+        (:func:`agent.errand.sees_load`)."""
+        crew = self.crews.get(self.role[rid])
+        own = self.orders[crew.oid].load if crew is not None and crew.start_k >= 0 \
+            and crew.lifted_k < 0 else None
+        me = self.positions([rid])[0]
+        off = self.base.robot.control_offset
+        return tuple(self.static) + tuple(sh for n, sh in boxes.items()
+                                          if n != own and sees_load(sh, me, off))
+
+    def clear_point(self, rid: str, x: float, y: float) -> bool:
+        """True when robot ``rid`` may stand at (x, y): clear of every wall, shelf and resting
+        load in its view."""
         r0 = self.base.robot.radius
-        taken = {self.goal[r] for r in self.ids if self.role[r] or r in self.dead}
-        due = self.keep_clear()
+        return all(shape_distance(x, y, sh)[0] >= sh.ds + r0
+                   for sh in self.view_of(rid, self.seen_boxes()))
+
+    def allies_now(self, rid: str) -> tuple[str, ...]:
+        """The gathering teammates ``rid`` keeps apart from by separation rows, on the poses of
+        the tick before (:func:`agent.errand.allies_at`); none once its team has formed."""
+        crew = self.crews.get(self.role[rid])
+        if crew is None or crew.start_k < 0 or rid in self.team:
+            return ()
+        at = dict(zip(crew.robots, self.positions(crew.robots, self.prev), strict=True))
+        return allies_at(crew.robots, crew.slots, rid, at)
+
+    def ask(self, k: int) -> None:
+        """Each robot whose agent asks for its formation this tick (a new goal, its team, the
+        formations of the moment changed, its allies changed): the formation of the moment
+        from where it stands, landing :data:`LANDS` ticks later."""
+        boxes = self.seen_boxes()
         for rid in self.ids:
-            if self.role[rid] or rid in self.dead:
+            if rid in self.dead:
                 continue
-            p = self.positions([rid])[0]
-            over = [sh for n, sh in boxes.items() if n in self.under[rid]] + [
-                sh for sh in due if inside_box(sh, p[0], p[1], r0 + EXIT_GAP)]
-            if over and rid not in self.leaving:
-                self.leaving[rid] = exit_point(over[0], p, self.clear_point, EXIT_GAP + r0)
-            self.goal[rid] = self.leaving.get(rid) or self.park(rid, p, taken)
-            taken.add(self.goal[rid])
+            near = self.allies_now(rid)
+            if near != self.near[rid]:
+                self.near[rid] = near
+                self.again.add(rid)
+        for rid in sorted(self.again):
+            if rid in self.dead:
+                continue
+            spec = self.team.get(rid) or solo(rid, self.state[self.index[rid]], self.goal[rid])
+            self.asks[rid] = Ask(k + LANDS, spec, self.view_of(rid, boxes), self.near[rid])
+        self.again.clear()
 
-    def keep_clear(self) -> list[Shape]:
-        """Where loads are due: the source of each new load not there yet, the destination of
-        each order a team holds (as the load's box there)."""
-        out = []
-        for o in self.orders.values():
-            kind = self.life.load_type(o.type)
-            if o.fresh and o.state == lo.WAITING and o.load not in self.loads:
-                out.append(load_box(o.oid, kind, self.life.station(o.src).pose, self.ds))
-            elif o.state in lo.TEAMED:
-                out.append(load_box(o.oid, kind, self.life.station(o.dst).pose, self.ds))
-        return out
-
-    def park(self, rid: str, p: tuple[float, float], taken: set[tuple[float, float]]
-             ) -> tuple[float, float]:
-        """Robot ``rid``'s parking spot: the one it has, else the nearest free one, else
-        ``p``."""
-        spots = self.life.fleet.parking
-        if self.goal[rid] in spots and self.goal[rid] not in taken:
-            return self.goal[rid]
-        free = [s for s in spots if s not in taken]
-        return min(free, key=lambda s: math.dist(s, p)) if free else p
-
-    def clear_point(self, x: float, y: float) -> bool:
-        """True when a robot may stand at (x, y): clear of every wall, shelf and resting load."""
-        r0 = self.base.robot.radius
-        shapes = list(self.static) + list(self.boxes().values())
-        return all(shape_distance(x, y, sh)[0] >= sh.ds + r0 for sh in shapes)
+    def land(self, k: int) -> None:
+        """The formations asked for :data:`LANDS` ticks ago are the robots' now."""
+        for rid in [r for r, a in self.asks.items() if a.land <= k]:
+            self.now_in[rid] = self.asks.pop(rid)
+            self.fresh.add(rid)
 
     def rebuild(self) -> None:
-        """The scenario of this moment and a fresh controller for it (module docstring); a
-        idle robot walking to the same goal as before keeps its route (:meth:`kept_walks`), and a
-        carrying team its own (:meth:`kept_carries`)."""
-        self.dirty = False
-        poses = {r: self.state[self.index[r]] for r in self.ids}
-        boxes = self.boxes()
-        r0 = self.base.robot.radius
-        for rid in self.ids:  # the loads each robot stands under now, or is still leaving
-            x, y = poses[rid][0], poses[rid][1]
-            self.under[rid] = {n for n in boxes if inside_box(
-                boxes[n], x, y, self.leave if n in self.under[rid] else r0)}
-        self.idle_goals(boxes)
+        """The scenario of this moment and a fresh controller for it: the formations that
+        landed this tick are planned afresh in the views their agents asked with; every other
+        one walks on as before (its route, follower, driver and jam memory carried over)."""
+        fresh, self.fresh = self.fresh, set()
+        teams: dict[str, FormationSpec] = {}
+        for rid in self.ids:
+            f = self.now_in[rid].spec
+            if f.name != rid:
+                teams[f.name] = f
         forms: list[FormationSpec] = []
-        shapes = tuple(self.static) + tuple(boxes.values())
-        carried = self.kept_carries(shapes)
-        for crew in sorted(self.crews.values(), key=lambda c: c.oid):
-            if crew.plan is not None:
-                f = team_formation(crew.plan, poses, self.carried_outline(crew))
-                # a kept carry is built with its goal as its route (nothing to plan), then
-                # handed its walk
-                forms.append(replace(f, waypoints=(f.goal_centroid,)) if crew.oid in carried
-                             else f)
-        teamed = {r for f in forms for r in f.robot_ids}
-        near = self.base.goal_tolerance
-        walking = [r for r in self.ids if r not in teamed
-                   and math.dist(poses[r][:2], self.goal[r]) > near]
-        views = {r: self.view_of(r, boxes) for r in self.ids}
-        kept = self.kept_walks(walking, views)
-        # a kept walk is built as one standing at its goal (nothing to plan), then handed its walk
-        forms += [solo(r, poses[r], self.goal[r], r not in walking or r in kept)
-                  for r in self.ids if r not in teamed]
-        self.scen = scen = replace(self.base, formations=tuple(forms), shapes=shapes)
-        # a robot walking alone that may pass under a load is planned in its own view, once
-        control = self.fleet_control(scen, {r: views[r] for r in self.ids if r not in teamed
-                                            and r not in kept and len(views[r]) < len(shapes)})
+        views: dict[str, tuple[Shape, ...]] = {}
+        for f in [teams[n] for n in sorted(teams)] + [
+                self.now_in[r].spec for r in self.ids if self.now_in[r].spec.name == r]:
+            if any(r.id in fresh for r in f.robots):
+                forms.append(f)
+                views[f.name] = self.now_in[f.leader].view
+            else:
+                forms.append(replace(f, waypoints=(f.goal_centroid,)))
+        self.scen = scen = replace(self.base, formations=tuple(forms))
+        control = self.fleet_control(scen, views)
         self.perm = [self.index[r] for r in scen.robot_ids]
         control.vel = [self.vel[b] for b in self.perm]
-        for oid, (route, driver) in carried.items():
-            control.routes[oid] = route
-            if driver is not None:
-                control.replans.drivers[oid] = driver
-        before = self.control.followers if self.control is not None else []
-        at = {r: e for e, r in enumerate(self.control.scenario.robot_ids)} \
-            if self.control is not None else {}
-        for e, rid in enumerate(scen.robot_ids):
-            if self.role[rid] in carried:
-                control.followers[e] = before[at[rid]]
-            elif rid in kept:
-                self.hand_walk(control, e, kept[rid], views[rid])
-            elif len(views[rid]) < len(shapes):
-                control.shapes[e] = views[rid]
-        self.walks = {r: (self.goal[r], views[r]) for r in walking}
-        self.carries = {c.oid: (c.plan, shapes) for c in self.crews.values()
-                        if c.plan is not None}
-        self.partners = control.fleet.partners
+        for f in forms:  # a formation that lands plans at its first tick, as its leader's does
+            driver = control.replans.drivers.get(f.name)
+            if driver is not None and f.name in views:
+                driver.replanner.due = Reason.START
+        self.carry_over(control, fresh)
+        self.allied(control)
         self.control = control
-        self.tick.formation_of = tuple(scen.formation_of(r).name for r in self.ids)
 
-    def fleet_control(self, scen: Scenario, views: dict[str, tuple[Shape, ...]]
-                      ) -> FleetControl:
-        """The controller of ``scen`` (formations of one in their ``views``), counting into the
-        run's QP statistics; its planned formations plan again at a change of the still things
-        only where one lies across the rest of their route (a fleet's robots stop and start all
-        the time, mostly far off a route)."""
-        control = FleetControl(scen, self.options, views)
-        control.stats = self.stats
-        for driver in control.replans.drivers.values():
-            driver.replanner.keep_if_clear = True
-        return control
-
-    def kept_carries(self, shapes: tuple[Shape, ...]
-                     ) -> dict[str, tuple[tuple, RouteDriver | None]]:
-        """The teams that carry on as before (their route and driver of the controller built
-        last; their members' followers go with them): each carried the same plan then, in the
-        same bodies, and its driver handed its leader no route on the last tick (the members
-        take a route a tick after the leader)."""
+    def carry_over(self, control: FleetControl, fresh: set[str]) -> None:
+        """The formations with no robot fresh walk on: their routes, drivers, followers and
+        jam memory from the controller built last."""
         old = self.control
         if old is None:
-            return {}
-        names = [sh.name for sh in shapes]
-        last = self.now - self.base.dt - 1e-9
-        fresh = {name for t, name, _why, _k in old.replans.updates if t >= last}
-        out = {}
-        for crew in self.crews.values():
-            then = self.carries.get(crew.oid)
-            if then is None or then[0] is not crew.plan or crew.oid in fresh \
-                    or [sh.name for sh in then[1]] != names:
-                continue
-            out[crew.oid] = (old.routes[crew.oid], old.replans.drivers.get(crew.oid))
-        return out
-
-    def view_of(self, rid: str, boxes: dict[str, Shape]) -> tuple[Shape, ...]:
-        """What robot ``rid`` keeps clear of: the walls and shelves and the resting loads but
-        those it may be under (:meth:`exempt`)."""
-        skip = self.exempt(rid)
-        return tuple(self.static) + tuple(sh for n, sh in boxes.items() if n not in skip)
-
-    def kept_walks(self, walking: list[str], views: dict[str, tuple[Shape, ...]]
-                   ) -> dict[str, tuple[Follower, RouteDriver | None, tuple]]:
-        """The robots of ``walking`` that walk on as before (the route, its follower and its
-        driver of the controller built last): each is idle, walked alone to the same goal and
-        every body new in its view lies clear of the rest of its route (:func:`route_clear`)."""
-        old = self.control
-        if old is None:
-            return {}
+            return
         at = {r: e for e, r in enumerate(old.scenario.robot_ids)}
-        out = {}
-        for rid in walking:
-            goal, view = self.walks.get(rid, (None, ()))
-            if goal != self.goal[rid] or rid not in at or self.role[rid]:
+        for f in control.scenario.formations:
+            if any(r.id in fresh for r in f.robots) or f.name not in old.routes:
                 continue
-            follower = old.followers[at[rid]]
-            seen = {sh.name for sh in view}
-            new = [sh for sh in views[rid] if sh.name not in seen]
-            rest = (self.positions([rid])[0],) + tuple(follower.route[follower.index:])
-            if route_clear(rest, new, self.base.robot.radius):
-                out[rid] = (follower, old.replans.drivers.get(rid), old.routes[rid])
-        return out
+            control.routes[f.name] = old.routes[f.name]
+            driver = old.replans.drivers.get(f.name)
+            if driver is not None:
+                control.replans.drivers[f.name] = driver
+        for e, rid in enumerate(control.scenario.robot_ids):
+            name = control.scenario.formation_of(rid).name
+            if rid in fresh or name not in old.routes or \
+                    old.scenario.formation_of(rid).name != name:
+                continue
+            control.followers[e] = old.followers[at[rid]]
+            control.stalls[e] = old.stalls[at[rid]]
 
-    def hand_walk(self, control: FleetControl, e: int,
-                  walk: tuple[Follower, RouteDriver | None, tuple], view: tuple[Shape, ...]
-                  ) -> None:
-        """Robot ``e`` (a formation of one, named by its id) walks on: its follower, driver and
-        route from the controller built last, keeping clear of ``view``."""
-        follower, driver, route = walk
-        rid = control.scenario.robot_ids[e]
-        control.shapes[e] = view
-        control.followers[e] = follower
-        control.routes[rid] = route
-        if driver is not None:
-            driver.replanner.shapes = view
-            control.replans.drivers[rid] = driver
-
-    def team_up(self, control: FleetControl) -> None:
-        """The members of a gathering team that are near their slots (:data:`ALLY_REACH`) keep
-        apart by separation rows (as members of one formation do), not by each other's
-        ellipses, so that they can stand at adjacent slots; farther out the ellipses keep them
-        apart as any two formations."""
+    def allied(self, control: FleetControl) -> None:
+        """The gathering members near their slots keep apart by separation rows (as members of
+        one formation do), not by each other's ellipses, as their agents asked."""
         at = {r: e for e, r in enumerate(control.scenario.robot_ids)}
-        partners = list(self.partners)
+        partners = list(control.fleet.partners)
         allies = [frozenset[str]()] * len(partners)
-        for crew in self.crews.values():
-            if crew.plan is not None:
-                continue
-            near = [r for r, s in zip(crew.robots, crew.slots, strict=True)
-                    if math.dist(self.positions([r])[0], s) <= ALLY_REACH]
-            for r in near:
-                mates = [m for m in near if m != r]
-                allies[at[r]] = frozenset(mates)
-                partners[at[r]] = tuple(at[m] for m in mates)
+        for rid in self.ids:
+            mates = self.now_in[rid].allies
+            if mates:
+                allies[at[rid]] = frozenset(mates)
+                partners[at[rid]] = tuple(at[m] for m in mates)
         control.allies = allies
         control.fleet = replace(control.fleet, partners=tuple(partners))
 
-    def carried_outline(self, crew: Crew) -> tuple[tuple[float, float], ...]:
-        order = self.orders[crew.oid]
-        return slot_points(self.loads[order.load].pose, self.life.load_type(order.type).outline)
+    def fleet_control(self, scen: Scenario, views: dict[str, tuple[Shape, ...]]
+                      ) -> FleetControl:
+        """The controller of ``scen`` (its fresh formations planned in their ``views``),
+        counting into the run's QP statistics; its planned formations plan again at a change
+        of the still things only where one lies across the rest of their route (a fleet's
+        robots stop and start all the time, mostly far off a route)."""
+        control = FleetControl(scen, self.options, views)
+        control.stats = self.stats
+        return control
 
     def commands(self, t: float) -> tuple[list[StepResult], dict, list]:
-        """Every robot's command (base order): the formations' controller's, zero where held."""
+        """Every robot's command (base order): the formations' controller's, zero where held;
+        each robot keeps clear of the resting loads in its view of this tick."""
         assert self.control is not None
         obs = obstacles_at(self.base, t)
-        self.team_up(self.control)
+        boxes = self.seen_boxes()
+        for e, b in enumerate(self.perm):
+            self.control.shapes[e] = self.view_of(self.ids[b], boxes)
+        for name, driver in self.control.replans.drivers.items():  # as a leader's routes take them
+            driver.replanner.shapes = self.control.shapes[self.control.replans.leader[name]]
         seen = [self.state[b] for b in self.perm]
         res, ellipses = self.control.commands(t, seen, obs)
         out: list[StepResult] = list(res)
+        vel = list(self.vel)
         for e, b in enumerate(self.perm):
             r = res[e]
+            vel[b] = (r.ux, r.uy)
             if self.held(self.ids[b]):
-                r = self.hold(r, b)
-                self.control.vel[e] = (r.ux, r.uy)
+                r, vel[b] = self.hold(r, b)
+                self.control.vel[e] = vel[b]
             out[b] = r
-        self.vel = [(r.ux, r.uy) for r in out]
+        self.vel = vel
         return out, ellipses, obs
 
     def summary(self, sim_time: float) -> dict:
@@ -873,24 +963,29 @@ class LifelongRun:
         block["checks"] = checks_block(c)
         return block
 
-    def hold(self, r: StepResult, b: int) -> StepResult:
-        """Robot ``b``'s command to stand still: zero, or for a double integrator the braking
-        acceleration (:func:`agent.double_integrator.brake`) and the velocity it leaves."""
+    def hold(self, r: StepResult, b: int) -> tuple[StepResult, tuple[float, float]]:
+        """Robot ``b``'s command to stand still, as an agent's standing tick puts it: zero (the
+        row has no QP outcome), which the world brakes a double integrator on
+        (:func:`agent.double_integrator.brake`); and the velocity it leaves (what the robot's
+        next ``state`` carries)."""
         robot = self.base.robot
+        r = r._replace(ux=0.0, uy=0.0, v=0.0, omega=0.0, ax=0.0, ay=0.0, status="",
+                       slack=math.nan, h_formation=math.nan, h_obstacle=math.nan,
+                       h_formations=math.nan)
         if not robot.is_double_integrator:
-            return r._replace(ux=0.0, uy=0.0, v=0.0, omega=0.0)
+            return r, (0.0, 0.0)
         dt = self.base.dt
         vx, vy = self.tick.vel[b]
         ax, ay = double_integrator.brake(vx, vy, robot.max_accel or math.inf, dt)
-        ux, uy = vx + ax * dt, vy + ay * dt
-        return r._replace(ux=ux, uy=uy, v=math.hypot(ux, uy), omega=0.0, ax=ax, ay=ay)
+        _, _, vx, vy = double_integrator.integrate(0.0, 0.0, vx, vy, ax, ay, dt, robot.max_speed)
+        return r._replace(ax=ax, ay=ay), (vx, vy)
 
     # --- after each tick ------------------------------------------------------------------
 
     def watch(self, t: float) -> None:
         """Carried loads follow their teams; the checks and the stuck rule look."""
         dt = self.base.dt
-        self.busy_s += dt * sum(1 for r in self.ids if self.role[r])
+        self.busy_s += dt * sum(len(c.robots) for c in self.crews.values())
         for crew in sorted(self.crews.values(), key=lambda c: c.oid):
             order = self.orders[crew.oid]
             if order.state in (lo.CARRYING, lo.SETTING_DOWN) and crew.plan is not None:
@@ -920,10 +1015,6 @@ class LifelongRun:
                     inside_now.add(("resting_load", rid, n))
                 elif not inside and n in self.under[rid] and not inside_box(sh, x, y, self.leave):
                     self.under[rid].discard(n)
-                    self.dirty = True
-            if rid in self.leaving and math.dist((x, y), self.leaving[rid]) <= \
-                    self.base.goal_tolerance:
-                del self.leaving[rid]
         self.checks.release("resting_load", inside_now)
         self.carried_contacts(t)
 

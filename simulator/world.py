@@ -253,6 +253,14 @@ class World:
         self.subs.append(session.declare_subscriber(
             all_orders_key(p) + "/status",
             zenoh.handlers.Callback(self._on_status, indirect=False)))
+        # the keys fleet robots start to put or hear at run time (a team's formation keys, a
+        # teammate's state) have a subscriber here from the start: a publisher that knows of no
+        # subscriber sends nothing, so without one the first puts of a new leader could miss
+        # the subscriptions its listeners declared a tick before (lock-step waits them out)
+        for key in [keys.all_formations_key(p, kind) for kind in keys.FORMATION_CLASSES] + [
+                keys.all_robots_key(p, keys.STATE)]:
+            self.subs.append(session.declare_subscriber(
+                key, zenoh.handlers.Callback(_ignore, indirect=False)))
 
     def _on_status(self, sample: zenoh.Sample) -> None:
         """An order's status, kept for the next tick (on Zenoh's thread)."""
@@ -611,6 +619,10 @@ class World:
         if self.options.record:
             self.tick.record_robots(t, state, cmds)
             self.tick.record_obstacles(t, self.tick.obstacle_positions(t))
+
+
+def _ignore(sample: zenoh.Sample) -> None:
+    """A subscriber that keeps nothing (:meth:`World._declare_loads`)."""
 
 
 def lab_world(scenario: Scenario, options: WorldOptions) -> LabWorld | None:

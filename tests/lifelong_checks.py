@@ -7,8 +7,9 @@ from __future__ import annotations
 
 import math
 
+from agent.errand import SET_DOWN_M, SET_DOWN_RAD
 from leader.orders import DELIVERED
-from simulator.lifelong import SET_DOWN_M, SET_DOWN_RAD, LifelongResult
+from simulator.lifelong import LifelongResult
 
 CONTACT = 1e-3  # [m] a clearance below minus this is a contact
 

@@ -12,10 +12,9 @@ from pathlib import Path
 import pytest
 
 from formation.cli import main
-from geometry.shapes import box
 from leader import orders as lo
 from scenario import load_scenario
-from simulator.lifelong import Checks, LifelongOptions, collide, route_clear, simulate_lifelong
+from simulator.lifelong import Checks, LifelongOptions, collide, simulate_lifelong
 from simulator.orders_out import ORDER_COLUMNS, order_rows, orders_block, write_order_files
 from tests.lifelong_checks import check_all_delivered, check_safe, delivered_where_asked
 
@@ -167,12 +166,3 @@ def test_the_loads_collisions_count_in_the_summary_in_time_order():
                       {"t": 9.0, "a": "r3", "b": "p1", "kind": "resting_load"}])
     assert summary["collisions"] == 3
     assert [e["t"] for e in summary["collision_log"]] == [2.0, 5.0, 9.0]
-
-
-def test_a_route_is_clear_of_a_body_only_beyond_its_safe_distance_and_the_margin():
-    crate = box("crate", (1.0, 0.0), (0.4, 0.4), 0.0, 0.15)
-    assert route_clear([(0.0, 1.0), (2.0, 1.0)], [crate], 0.1)  # 0.8 m from the box
-    assert not route_clear([(0.0, 0.0), (2.0, 0.0)], [crate], 0.1)  # straight through it
-    assert not route_clear([(0.0, 0.4), (2.0, 0.4)], [crate], 0.1)  # 0.2 m: inside 0.15 + 0.1
-    assert route_clear([(0.0, 0.5), (2.0, 0.5)], [crate], 0.1)  # 0.3 m: beyond it
-    assert route_clear([(0.0, 0.0)], [crate], 0.1)  # no leg left
