@@ -20,6 +20,14 @@ from scenario import Scenario
 from scenario.routes import RIGID, StartPlan, footprint_body
 
 
+def mate_reach(radius: float) -> float:
+    """[m] How far a robot's centre keeps from a teammate's standing near its slot, as the
+    route planner sees it: two bodies' radii (what their separation row keeps). The teammate's
+    ellipse (the reach of a formation of one) would shut off a slot beside it, between it and a
+    shelf, that the members reach by separation rows (:data:`agent.errand.ALLY_REACH`)."""
+    return 2.0 * radius
+
+
 class Replans:
     """Per formation: its :class:`RouteDriver` (its :class:`Replanner` and its view of still
     things)."""
@@ -35,6 +43,10 @@ class Replans:
         self.footprints = footprints
         self.drivers: dict[str, RouteDriver] = {}
         self.updates: list[tuple[float, str, Reason, int]] = []  # (t, formation, why, waypoints)
+        # per formation, the formations it plans round as robots rather than as formations:
+        # a lifelong team's members standing near their slots, to a member on its way to its own
+        # (:func:`mate_reach`)
+        self.mates: Mapping[str, frozenset[str]] = {}
 
         # a new route reaches the leader's own follower at once and the other members a tick
         # later, as the agents' ``plan`` message does in lock-step: (formation, update, heading)
@@ -129,7 +141,9 @@ class Replans:
                      spec.velocity == (0.0, 0.0), o.vx, o.vy)
                for o, spec in zip(obstacles, self.scenario.obstacles, strict=True)]
         radius = self.scenario.robot.radius
-        out += [Thing(f"formation/{other}", e.cx, e.cy, math.hypot(e.vx, e.vy), e.a + radius)
+        mates = self.mates.get(name, frozenset())
+        out += [Thing(f"formation/{other}", e.cx, e.cy, math.hypot(e.vx, e.vy),
+                      mate_reach(radius) if other in mates else e.a + radius)
                 for other, e in ellipses.items() if other != name]
         return out
 
