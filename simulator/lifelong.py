@@ -830,6 +830,7 @@ class LifelongRun:
         at = {r: e for e, r in enumerate(control.scenario.robot_ids)}
         partners = list(self.partners)
         allies = [frozenset[str]()] * len(partners)
+        planned: dict[str, frozenset[str]] = {}
         for crew in self.crews.values():
             if crew.plan is not None:
                 continue
@@ -839,8 +840,11 @@ class LifelongRun:
                 mates = [m for m in near if m != r]
                 allies[at[r]] = frozenset(mates)
                 partners[at[r]] = tuple(at[m] for m in mates)
+            for r in crew.robots:  # routes to a slot go round the mates at theirs as robots
+                planned[r] = frozenset(m for m in near if m != r)
         control.allies = allies
         control.fleet = replace(control.fleet, partners=tuple(partners))
+        control.replans.mates = planned
 
     def carried_outline(self, crew: Crew) -> tuple[tuple[float, float], ...]:
         order = self.orders[crew.oid]
