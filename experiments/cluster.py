@@ -14,7 +14,7 @@ imports it only when a scheduler is named.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any, TypeVar
 
 T = TypeVar("T")
@@ -42,13 +42,16 @@ def project_version() -> str:
 
 def run_local(fn: Callable[[T], R], items: Sequence[T], jobs: int,
               progress: Progress | None = None) -> list[R]:
-    """``fn`` over ``items`` in ``jobs`` processes of this machine, results in input order."""
-    results: list[R] = []
+    """``fn`` over ``items`` in ``jobs`` processes of this machine, results in input order; the
+    progress callback counts runs as they finish, in any order (one long run does not hold the
+    count of those after it back). A run that raises re-raises here."""
+    results: list[Any] = [None] * len(items)
     with ProcessPoolExecutor(max_workers=jobs) as pool:
-        for k, r in enumerate(pool.map(fn, items)):
-            results.append(r)
+        index = {pool.submit(fn, item): k for k, item in enumerate(items)}
+        for done, future in enumerate(as_completed(index), start=1):
+            results[index[future]] = future.result()
             if progress:
-                progress(k + 1, len(items), 0.0)
+                progress(done, len(items), 0.0)
     return results
 
 

@@ -16,9 +16,11 @@ rows and between the outer rows and the walls, side aisles at both ends join the
 * with probability 1/2 a pillar (a static circle) at a side aisle's corner, and with
   probability 1/3 a forklift that drives from a main aisle into the cross aisle and parks there
   for good (a moving circle with ``stop_at``);
-* a seeded order stream of 0.4 to 1.2 orders a minute for :data:`STREAM_S` s, in a run of
-  :data:`DURATION_S` s (the rest is time to finish the orders posted last); one robot model
-  for the run, single integrator or unicycle.
+* a seeded order stream of 0.4 to 1.2 orders a minute, at most :data:`RATE_PER_TEAM` for each
+  team the fleet can field at once, for :data:`STREAM_S` s (ten minutes of operation: no run
+  ends before), in a run of at most :data:`DURATION_S` s (the rest is time to finish the orders
+  posted last; the run ends once every order is done); one robot model for the run, single
+  integrator or unicycle.
 
 :func:`lifelong_scenario` is the pure draw (a scenario-file mapping); :func:`lifelong_problem`
 is what the draw asks beyond the scenario checks: a stream that posts at least
@@ -39,8 +41,12 @@ from scenario.stream import plan
 
 from .warehouse_draw import outer_walls
 
-DURATION_S = 720.0  # [s] a run: at least 10 simulated minutes
-STREAM_S = 480.0  # [s] orders arrive until then
+DURATION_S = 1200.0  # [s] a run at most: the stream's ten minutes, then its last orders served
+STREAM_S = 600.0  # [s] orders arrive until then: every run lasts at least 10 simulated minutes
+# [orders/min] the stream's rate at most, per team the fleet fields at once: what a team of
+# unicycles serves (gathering, lifting, carrying across a hall, setting down: three minutes
+# and more an order), so that the orders posted last are served within the run
+RATE_PER_TEAM = 0.3
 MIN_ORDERS = 2  # a drawn stream posts at least this many orders
 WALL_DS = 0.15  # [m] safe distance of walls and shelves
 RACK_GAP = 0.15  # [m] between a shelf's face and the outline of a load resting at its rack
@@ -178,6 +184,11 @@ def lifelong_scenario(seed: int) -> dict:
              for n, name in enumerate(sorted(stores)) if rng.random() < 1.0 / 3.0]
     model = rng.choice(("single_integrator", "unicycle"))
     robot: dict[str, Any] = {"model": model, "max_speed": BURGER_MAX_SPEED, "radius": BURGER_RADIUS}
+    team = max(int(t["team"]) for t in types.values())
+    robots = fleet(rng, hall, team)
+    rate = min(rng.uniform(0.4, 1.2), RATE_PER_TEAM * (len(robots["robots"]) // team))
+    stream = {"rate_per_min": _r(rate), "seed": rng.randrange(2**31), "types": list(kinds),
+              "until": STREAM_S}
     return {
         "name": f"lifelong-{seed}",
         "dt": 0.05,
@@ -185,19 +196,19 @@ def lifelong_scenario(seed: int) -> dict:
         "goal_tolerance": 0.05,
         "robot": robot,
         "controller": dict(CONTROLLER),
-        "fleet": fleet(rng, hall, max(int(t["team"]) for t in types.values())),
+        "fleet": robots,
         "stations": stations,
         "load_types": types,
         "loads": loads,
-        "order_stream": {"rate_per_min": _r(rng.uniform(0.4, 1.2)), "seed": rng.randrange(2**31),
-                         "types": list(kinds), "until": STREAM_S},
+        "order_stream": stream,
         "obstacles": structure(hall) + obstacles(rng, hall),
     }
 
 
 def lifelong_problem(s: Scenario) -> str | None:
     """What the draw asks beyond the scenario checks (None: nothing): a lifelong part whose
-    stream posts at least :data:`MIN_ORDERS` servable orders, in a run of at least 10 minutes."""
+    stream posts at least :data:`MIN_ORDERS` servable orders for at least 10 minutes, in a run
+    of at least 10 minutes."""
     if s.lifelong is None:
         return "no lifelong part"
     n = len(plan(s.lifelong))
@@ -205,4 +216,6 @@ def lifelong_problem(s: Scenario) -> str | None:
         return f"the stream posts {n} servable orders, fewer than {MIN_ORDERS}"
     if s.duration < 600.0:
         return f"a run of {s.duration:g} s, shorter than 10 minutes"
+    if s.lifelong.stream is not None and s.lifelong.stream.until < 600.0:
+        return f"a stream of {s.lifelong.stream.until:g} s, shorter than 10 minutes"
     return None

@@ -3,6 +3,8 @@
     python -m experiments.results                 # render docs/results.md from the stored files
     python -m experiments.results --check         # exit 1 when docs/results.md is out of date
     python -m experiments.results --rerun demo    # run a result's commands again, store, render
+    python -m experiments.results --take NAME OUT --command CMD --label L --machine M
+                                                  # store a row run elsewhere (OUT: its output)
 
 A result file holds one table. ``title`` and ``about`` say what it measures, ``columns`` name its
 columns (label, key in a row's ``values``, optional format), and each row carries its own
@@ -174,8 +176,9 @@ def from_summary(summary: dict, epsilon: float) -> dict[str, Any]:
 
 
 def from_montecarlo(report: dict) -> dict[str, Any]:
-    """A ``montecarlo`` row's figures from ``montecarlo.json``."""
-    return {
+    """A ``montecarlo`` row's figures from ``montecarlo.json`` (a lifelong draw's: its orders'
+    too, :func:`orders_figures`)."""
+    figures = {
         "runs": report["runs"],
         "reached": round(report["reached_rate"] * report["runs"]),
         "collisions": f"{report['collisions']} ({report['runs_with_collision']})",
@@ -184,6 +187,22 @@ def from_montecarlo(report: dict) -> dict[str, Any]:
         "over_band": report["runs_over_1_5_epsilon"],
         "fallback_ticks": report["fallback_ticks"],
         "clearance_mm": scaled(report["min_obstacle_clearance_m"], 1000, 1),
+    }
+    if "orders" in report:
+        figures.update(orders_figures(report["orders"]))
+    return figures
+
+
+def orders_figures(orders: dict) -> dict[str, Any]:
+    """A lifelong draw's order figures from ``montecarlo.json``'s ``orders``: delivered of
+    posted, failed, still open at the end, stuck (and in how many runs), and the contacts of
+    carried loads with anything and of robots with resting loads."""
+    return {
+        "delivered": f"{orders['delivered']} of {orders['posted']}",
+        "failed": orders["failed"],
+        "open": orders["open"],
+        "stuck": f"{orders['stuck']} ({orders['runs_with_stuck_order']})",
+        "load_contacts": orders["load_contacts"] + orders["intrusions"],
     }
 
 
@@ -271,16 +290,44 @@ def rerun_row(kind: str, row: Result) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "out"
         done = run_command(row["command"], out)
-        if kind == "sim":
-            from scenario import load_scenario
+        return read_back(kind, row["command"], out, done.stdout)
 
-            scenario_arg = shlex.split(row["command"])[2]
-            epsilon = load_scenario(ROOT / scenario_arg).controller.epsilon
-            summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
-            return from_summary(summary, epsilon)
-        if kind == "montecarlo":
-            return from_montecarlo(json.loads((out / "montecarlo.json").read_text(encoding="utf-8")))
-        return from_scenario_bar(done.stdout.splitlines())
+
+def read_back(kind: str, command: str, out: Path, stdout: str = "") -> dict[str, Any]:
+    """A row's figures from what its ``command`` wrote into ``out`` and printed (``stdout``)."""
+    if kind == "sim":
+        from scenario import load_scenario
+
+        epsilon = load_scenario(ROOT / shlex.split(command)[2]).controller.epsilon
+        return from_summary(json.loads((out / "summary.json").read_text(encoding="utf-8")), epsilon)
+    if kind == "montecarlo":
+        return from_montecarlo(json.loads((out / "montecarlo.json").read_text(encoding="utf-8")))
+    return from_scenario_bar(stdout.splitlines())
+
+
+def take(name: str, out: Path, row: Result, results_dir: Path = RESULTS_DIR) -> Result:
+    """Store a row of result ``name`` measured elsewhere (a machine this one hands a command to):
+    ``row`` names its ``command``, its ``values``' ``label`` and its ``machine``; its figures are
+    read from the command's output folder ``out`` as a re-run reads its own, its commit and date
+    are this checkout's and today's. It replaces the row of the same label (keeping the values
+    the output has not), or comes last."""
+    path = results_dir / f"{name}.json"
+    result = json.loads(path.read_text(encoding="utf-8"))
+    if result["kind"] not in ("sim", "montecarlo"):
+        raise ValueError(f"{name}: a {result['kind']} result; --take reads the output folder of "
+                         f"a sim or montecarlo command")
+    rows = result["rows"]
+    at = [k for k, r in enumerate(rows) if r["values"].get("label") == row["values"]["label"]]
+    kept = rows[at[0]]["values"] if at else {}
+    new = {**this_machine(), **row, "values": {
+        **kept, **row["values"], **read_back(result["kind"], row["command"], out)}}
+    if at:
+        rows[at[0]] = new
+    else:
+        rows.append(new)
+    check_result(result, path.name)
+    path.write_text(json.dumps(result, indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
+    return result
 
 
 def rerun(name: str, results_dir: Path = RESULTS_DIR,
@@ -301,17 +348,36 @@ def rerun(name: str, results_dir: Path = RESULTS_DIR,
     return result
 
 
+def take_from(ns: argparse.Namespace) -> None:
+    """``--take NAME OUT --command CMD --label L --machine M``: :func:`take`."""
+    missing = [f"--{k}" for k in ("command", "label", "machine") if getattr(ns, k) is None]
+    if missing:
+        raise ValueError(f"--take needs {', '.join(missing)}")
+    name, out = ns.take
+    take(name, Path(out), {"command": ns.command, "machine": ns.machine,
+                           "values": {"label": ns.label}}, ns.dir)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--check", action="store_true", help="exit 1 when the page is out of date")
     ap.add_argument("--rerun", nargs="+", default=[], metavar="NAME",
                     help="run these results' commands again (file stems of docs/results/)")
+    ap.add_argument("--take", nargs=2, default=None, metavar=("NAME", "OUT"),
+                    help="store a row of result NAME from OUT, the output folder of --command "
+                         "run on another machine (with --label and --machine)")
+    ap.add_argument("--command", default=None, help="--take: the command that wrote OUT")
+    ap.add_argument("--label", default=None, help="--take: the row's label (a row of the same "
+                    "label is replaced)")
+    ap.add_argument("--machine", default=None, help="--take: the machine it ran on")
     ap.add_argument("--dir", type=Path, default=RESULTS_DIR, help="the result files")
     ap.add_argument("--page", type=Path, default=PAGE, help="the page to write")
     ns = ap.parse_args(argv)
     try:
         for name in ns.rerun:
             rerun(name, ns.dir)
+        if ns.take is not None:
+            take_from(ns)
         text = render(load_results(ns.dir))
     except (ValueError, OSError, subprocess.CalledProcessError) as exc:
         print(f"results: {exc}", file=sys.stderr)

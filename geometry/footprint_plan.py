@@ -20,6 +20,8 @@ less the robot radius), each with :data:`PLAN_MARGIN` to spare.
   margin), or one heading step in place (at least rho dtheta / 2 + :attr:`Search.fine_error` h,
   rho the largest radius of the footprint). Cost: the distance moved, and the outermost point's
   arc for a turn; heuristic: the octile distance and that arc, times :attr:`Search.greedy`.
+* A footprint that looks the same at every heading (a robot alone) is planned on one heading:
+  turning changes nothing for it.
 * Near the start and the goal a pose no worse than the end's own is allowed (a formation may
   start or park closer to a wall than the margin).
 * A straight way to the goal, turning as it goes (as the rigid motion does), that scores
@@ -137,6 +139,16 @@ class Body:
     def rho(self) -> float:
         """[m] the largest distance of a footprint point from the centroid."""
         return max([0.01] + [math.hypot(x, y) for x, y in self.slots + self.load])
+
+    @property
+    def turn_free(self) -> bool:
+        """Whether the footprint looks the same at every heading (one point at the centroid,
+        no load: a robot alone): turning changes nothing, so it is planned on one heading."""
+        return not self.load and all(x == 0.0 and y == 0.0 for x, y in self.slots)
+
+    def headings(self, wanted: int) -> int:
+        """The lattice's headings for this footprint: ``wanted``, one where it is round."""
+        return 1 if self.turn_free else wanted
 
     @functools.cached_property
     def width(self) -> float:
@@ -589,6 +601,7 @@ def plan_footprint(start: Pose3, goal: Pose3, body: Body, shapes: Sequence[Shape
     formation round by a narrow way), and the narrow pass squeezes past none of them."""
     if not shapes and not circles:  # an open floor: the straight move (what the search finds)
         return FootprintPlan((goal,))
+    headings = body.headings(headings)
     plan = _plan_lattice(start, goal, body, shapes, circles, h, headings, limit)
     if h is not None or plan.route or plan.reason == GOAL_SHUT:
         return plan
@@ -880,9 +893,10 @@ def plan_aside(start: Pose3, body: Body, shapes: Sequence[Shape], circles: Seque
     in a small scene, else GRID.spacing), over the things, the start and the way."""
     pts = [(x, y, 0.0) for x, y in way]
     extent = list(circles) + pts
-    lat = lattice_for(start, start, shapes, extent, body.rho, GRID.fine_spacing)
+    headings = body.headings(GRID.headings)
+    lat = lattice_for(start, start, shapes, extent, body.rho, GRID.fine_spacing, headings)
     if lat.nx * lat.ny > GRID.fine_cells:
-        lat = lattice_for(start, start, shapes, extent, body.rho, GRID.spacing)
+        lat = lattice_for(start, start, shapes, extent, body.rho, GRID.spacing, headings)
     move, turn, turn_cost = _flags(lat, body, shapes, circles, (start,))
     sr = _Search(lat, move, turn, turn_cost, [], 1)  # no heuristic: the nearest place wins
     away = _away(lat, way, clear)

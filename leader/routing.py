@@ -373,8 +373,7 @@ def give_way_job(job: GiveWayJob) -> FootprintPlan:
     is GIVING.margin beyond both radii off it (:func:`plan_aside`); no route where the other
     has no way either, or this formation is not in it."""
     o = job.other
-    disc = Body(tuple((0.01 * math.cos(k * 2.1), 0.01 * math.sin(k * 2.1)) for k in range(3)),
-                radius=job.radius)  # a robot's body, its centre on the way
+    disc = Body(((0.0, 0.0),), radius=job.radius)  # a robot's body, its centre on the way
     way = plan_footprint((o.x, o.y, 0.0), (o.gx, o.gy, 0.0), disc, job.shapes, job.other_circles)
     if not way.route:
         return FootprintPlan((), "the other formation has no way either")

@@ -17,6 +17,7 @@ from geometry.footprint_plan import (
     NARROW,
     NO_WAY,
     PLAN_MARGIN,
+    SEARCH,
     Body,
     FootprintPlan,
     load_outline,
@@ -646,3 +647,23 @@ def test_a_lane_is_circles_along_the_next_lane_s_less_those_the_start_reaches():
     near = lane_circles((1.0, 0.0, 0.0), 0.5, lane)
     assert near and all(math.dist((1.0, 0.0), c[:2]) > 0.4 + 0.5 for c in near)
     assert len(near) < len(far)
+
+
+def test_a_robot_alone_is_planned_on_one_heading_and_its_no_is_quick():
+    alone = Body(((0.0, 0.0),), radius=0.105)
+    pair = Body(((0.0, 0.3), (0.0, -0.3)), radius=0.105)
+    assert alone.turn_free and alone.headings(32) == 1
+    assert not pair.turn_free and pair.headings(32) == 32
+    assert not Body(((0.0, 0.0),), load=((0.4, 0.3), (-0.4, 0.3), (-0.4, -0.3)),
+                    radius=0.105).turn_free
+    # round a shelf: a route that keeps the margin, on the one heading it starts with
+    shelf = box("shelf", (0.0, 0.0), (2.0, 0.8), 0.0, 0.15)
+    plan = plan_footprint((-2.0, 0.0, 0.0), (2.0, 0.0, 0.0), alone, [shelf])
+    assert plan.route and plan.route[-1] == (2.0, 0.0, 0.0)
+    assert all(th == 0.0 for _x, _y, th in plan.route)
+    # a goal walled in: "no way" once the few poses it can reach are spent, not at the limit
+    room = [segment(f"w{k}", a, b, 0.15) for k, (a, b) in enumerate(
+        [((1.5, -0.5), (2.5, -0.5)), ((2.5, -0.5), (2.5, 0.5)), ((2.5, 0.5), (1.5, 0.5)),
+         ((1.5, 0.5), (1.5, -0.5))])]
+    shut = plan_footprint((-2.0, 0.0, 0.0), (2.0, 0.0, 0.0), alone, [shelf, *room])
+    assert not shut.route and shut.expanded < SEARCH.max_expansions

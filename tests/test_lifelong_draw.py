@@ -11,6 +11,8 @@ import yaml
 from experiments.lifelong_draw import (
     DURATION_S,
     MIN_ORDERS,
+    RATE_PER_TEAM,
+    STREAM_S,
     lifelong_problem,
     lifelong_scenario,
 )
@@ -65,6 +67,20 @@ def test_the_draw_refuses_a_stream_that_serves_too_little_or_a_short_run():
     quiet = parse_scenario(yaml.safe_dump(d))
     assert lifelong_problem(quiet) == f"the stream posts 0 servable orders, fewer than {MIN_ORDERS}"
     assert lifelong_problem(dataclasses.replace(s, lifelong=None)) == "no lifelong part"
+    brief = dataclasses.replace(s.lifelong, stream=dataclasses.replace(s.lifelong.stream,
+                                                                       until=300.0))
+    assert lifelong_problem(dataclasses.replace(s, lifelong=brief)) == (
+        "a stream of 300 s, shorter than 10 minutes")
+
+
+def test_the_stream_runs_ten_minutes_at_a_rate_the_fleet_serves():
+    for seed in SEEDS:
+        d = lifelong_scenario(seed)
+        team = max(t["team"] for t in d["load_types"].values())
+        teams = len(d["fleet"]["robots"]) // team
+        stream = d["order_stream"]
+        assert stream["until"] == STREAM_S >= 600.0
+        assert 0.0 < stream["rate_per_min"] <= min(1.2, RATE_PER_TEAM * teams) + 1e-4
 
 
 def test_montecarlo_offers_the_lifelong_draw():

@@ -126,3 +126,60 @@ def test_the_engines_rows_are_read_back_by_scenario():
                                     "eps": "0.09 / 1.13", "sides": "same", "bar": "pass"}
     assert figures["rigid-cross-aisle-four"]["sides"] == "12 of 80 pairs flipped"
     assert figures["rigid-cross-aisle-four"]["bar"] == "fail"
+
+
+def test_a_lifelong_montecarlo_reports_its_orders_beside_the_usual_figures():
+    report = {"runs": 50, "reached_rate": 1.0, "collisions": 0, "runs_with_collision": 0,
+              "deadlocks": 0, "worst_formation_error_over_epsilon": 0.0,
+              "runs_over_1_5_epsilon": 0, "fallback_ticks": 0, "min_obstacle_clearance_m": 0.0697,
+              "orders": {"posted": 331, "delivered": 329, "failed": 1, "open": 1, "stuck": 1,
+                         "load_contacts": 2, "intrusions": 1, "runs_with_stuck_order": 1}}
+    figures = results.from_montecarlo(report)
+    assert figures["reached"] == 50 and figures["clearance_mm"] == 69.7
+    assert {k: figures[k] for k in ("delivered", "failed", "open", "stuck", "load_contacts")} == {
+        "delivered": "329 of 331", "failed": 1, "open": 1, "stuck": "1 (1)", "load_contacts": 3}
+
+
+LIFELONG_MC = {
+    "title": "Lifelong Monte Carlo", "order": 21, "kind": "montecarlo", "about": "drawn halls",
+    "columns": [["draw", "label"], ["runs", "runs"], ["every order delivered", "reached"],
+                ["orders delivered", "delivered"], ["stuck (runs)", "stuck"],
+                ["collisions (runs)", "collisions"]],
+    "rows": []}
+
+
+def test_a_row_measured_elsewhere_is_taken_from_its_output_folder(tmp_path: Path, monkeypatch):
+    (tmp_path / "mc.json").write_text(json.dumps(LIFELONG_MC), encoding="utf-8")
+    monkeypatch.setattr(results, "this_machine", lambda: {
+        "commit": "abc1234", "machine": "this one", "date": "2026-01-02"})
+    out = tmp_path / "out"
+    out.mkdir()
+    report = {"runs": 50, "reached_rate": 0.98, "collisions": 0, "runs_with_collision": 0,
+              "deadlocks": 1, "worst_formation_error_over_epsilon": 0.0,
+              "runs_over_1_5_epsilon": 0, "fallback_ticks": 3, "min_obstacle_clearance_m": None,
+              "orders": {"posted": 331, "delivered": 330, "failed": 0, "open": 1, "stuck": 1,
+                         "load_contacts": 0, "intrusions": 0, "runs_with_stuck_order": 1}}
+    (out / "montecarlo.json").write_text(json.dumps(report), encoding="utf-8")
+    argv = ["--dir", str(tmp_path), "--page", str(tmp_path / "results.md"),
+            "--take", "mc", str(out), "--command", "formation montecarlo --n 50",
+            "--label", "`--n 50`", "--machine", "16 cores elsewhere"]
+    assert results.main(argv) == 0
+    (row,) = json.loads((tmp_path / "mc.json").read_text(encoding="utf-8"))["rows"]
+    assert row["machine"] == "16 cores elsewhere" and row["commit"] == "abc1234"
+    assert row["command"] == "formation montecarlo --n 50"
+    assert row["values"]["reached"] == 49 and row["values"]["delivered"] == "330 of 331"
+    assert "| `--n 50` | 50 | 49 | 330 of 331 | 1 (1) | 0 (0) |" in (
+        tmp_path / "results.md").read_text(encoding="utf-8")
+    # the same label again replaces that row, another label comes after it
+    assert results.main(argv) == 0
+    assert results.main([*argv[:-3], "`--seed 2`", *argv[-2:]]) == 0
+    rows = json.loads((tmp_path / "mc.json").read_text(encoding="utf-8"))["rows"]
+    assert [r["values"]["label"] for r in rows] == ["`--n 50`", "`--seed 2`"]
+    assert results.main(argv[:7] + ["--label", "x"]) == 2  # no --machine
+
+
+def test_only_a_sim_or_montecarlo_output_is_taken(tmp_path: Path):
+    shutil.copy(results.RESULTS_DIR / "physics-rtf.json", tmp_path / "physics-rtf.json")
+    with pytest.raises(ValueError, match="physics-rtf: a table result"):
+        results.take("physics-rtf", tmp_path, {"command": "x", "machine": "m",
+                                                "values": {"label": "y"}}, tmp_path)
