@@ -6,9 +6,10 @@ containment (:mod:`leader.succession`): a successor takes the role when the lead
 token goes (:meth:`take_over`; it then estimates the standing formation's ellipse) and gives it
 back when the token returns (:meth:`step_down`). A fleet robot (a formation of one) holds the
 token of its own formation for as long as its agent runs and watches every other fleet robot's
-(:class:`Deaths`): a robot whose token went is a standing body at its last ellipse, grown by
-:func:`leader.succession.standing_grow`, never dropped and never stopped for (counted
-``standing``).
+(:class:`Deaths`): a robot whose token went is a standing body at its last ellipse, or at the
+camera's newer pose of it as a formation of one (a robot that died in a team, once the team
+dissolved), grown by :func:`leader.succession.standing_grow`, never dropped and never stopped
+for (counted ``standing``); a lock-step leader does not wait for its ellipse.
 
 It lives in agent/, not leader/: it reads the agent's inbox and, in lock-step, waits for the
 tick's inputs through the clock (:mod:`agent.clock`); the pure estimation is
@@ -197,6 +198,10 @@ class Deaths:
             pose = decode_pose(sample.payload.to_bytes())
         except DecodeError:
             return
+        self.see_pose(robot, pose)
+
+    def see_pose(self, robot: str, pose: Pose) -> None:
+        """A pose of ``robot``: kept while it is known dead and newer than the one kept."""
         with self._lock:
             old = self._poses.get(robot)
             if robot in self._gone and (old is None or pose.stamp > old.stamp):
