@@ -50,6 +50,7 @@ from wire.zconf import UsrPwdAuth, use_zenoh_threads  # noqa: E402
 logger = logging.getLogger("agent")
 
 SHUTDOWN_S = 3.0  # [s] longest normal shutdown after a signal before the emergency way out
+WRITING_S = 10.0  # [s] then, the longest wait for the main path already writing the counters
 
 
 class SignalWatch:
@@ -132,6 +133,8 @@ def _emergency_exit(node: AgentNode, stats: Path | None, done: threading.Event,
             write_stats(node, stats)
         except Exception:  # last resort
             logger.exception("agent %s: writing counters failed", node.cfg.robot_id)
+    elif stats is not None and done.wait(WRITING_S):
+        return  # the main path was writing the counters (a long run's are megabytes): done
     logging.shutdown()
     os._exit(0)
 

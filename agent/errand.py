@@ -23,9 +23,14 @@ same ones for the whole fleet):
   dissolves, each robot walks out from under the load (:func:`exit_point`), then to its parking
   spot, and is idle again.
 
-A member whose position is older than ``lost_ticks`` is lost: before the lift the speaker
-releases the roster (the order waits again, as the simulator's), after it the order fails with
-``member lost: RID`` and the load rests where it stands; either way the team dissolves.
+A member is lost on positive knowledge of its death (``dead``: its agent's liveliness token
+went, :class:`agent.leader_step.Deaths`) from the first tick without its state of the tick
+before, or when its position is older than ``lost_ticks`` (:data:`SILENT_S`: a frozen agent whose
+token stays); before the lift the speaker releases the roster (the order waits again, as the
+simulator's), after it the order fails with ``member lost: RID`` and the load rests where it
+stands; either way the team dissolves. A member merely late (a starved machine, a lock-step agent
+catching up frames) is waited for: while its state is stale its teammates command zero and its
+own robot stops by its base's command watchdog, so the wait costs time, never safety.
 
 Statuses (:class:`wire.orders.OrderStatusMsg` on ``order/{oid}/status``) go out from the
 speaker: ``gathering`` from the roster's commit through the lift, ``carrying`` from the lift's
@@ -55,6 +60,10 @@ from leader.team import Point, Pose, TeamPlan, load_pose, plan_team, pose_error
 from scenario.lifelong import LoadType
 from wire.orders import OrderStatusMsg
 
+#: [s] a teammate silent this long while its liveliness token stays is lost (a frozen agent):
+#: Zenoh's default transport lease, after which the token of an agent on a lost link goes
+#: anyway, so no shorter silence can be told from a late message
+SILENT_S = 10.0
 SET_DOWN_M = 0.05  # [m] a load is set down this near its station
 SET_DOWN_RAD = math.radians(3.0)  # [rad] and turned this near its heading
 LOAD_MARGIN = 0.045  # [m] a resting load's safe distance beyond the robot's radius
@@ -137,6 +146,16 @@ def arrived(plan: TeamPlan, at: Sequence[Point], src: Pose, dst: Pose, reach: fl
         math.dist(p, g) <= reach for p, g in zip(at, plan.goals, strict=True))
 
 
+def lost(k: int, seen: Seen | None, since: int, limit: int, dead: bool) -> bool:
+    """Whether a teammate last ``seen`` (None: not since the team was taken at tick ``since``)
+    is lost at tick ``k``: known ``dead`` and without its state of the tick before (a dead
+    robot's last state is its last: every member of a lock-step run decides at the same tick
+    whenever it heard the token go, by the next frame), or silent for more than ``limit``
+    ticks."""
+    last = since if seen is None else max(seen.k, since)
+    return (dead and (seen is None or seen.k < k - 1)) or k - last > limit
+
+
 def parking(robots: Sequence[str], starts: Mapping[str, Pose], spots: Sequence[Point]
             ) -> dict[str, Point]:
     """Each robot's parking spot, the same in every agent: in fleet order, the free spot
@@ -175,8 +194,8 @@ class Job:
 @dataclass(frozen=True)
 class ErrandSettings:
     """The machine's numbers, in ticks: a lift or set-down (``fleet.lift_s``), a member lost
-    (its position older than this), statuses put again; the arrival tolerance [m], the tick [s]
-    and the control point's offset [m]."""
+    by silence (its position older than this, :data:`SILENT_S`), statuses put again; the
+    arrival tolerance [m], the tick [s] and the control point's offset [m]."""
 
     lift_ticks: int
     lost_ticks: int
@@ -243,15 +262,17 @@ class Move:
 
 class Errand:
     """One fleet robot's errand (module docstring). ``home``: its parking spot (None: where it
-    stands when idle); ``clear``: whether a robot may stand at a point (the exit rule)."""
+    stands when idle); ``clear``: whether a robot may stand at a point (the exit rule);
+    ``dead``: whether a robot is known dead (its liveliness token gone; None: never known)."""
 
     def __init__(self, rid: str, settings: ErrandSettings, home: Point | None = None,
-                 clear: Callable[[float, float], bool] | None = None, radius: float = 0.105
-                 ) -> None:
+                 clear: Callable[[float, float], bool] | None = None, radius: float = 0.105,
+                 dead: Callable[[str], bool] | None = None) -> None:
         self.rid = rid
         self.settings = settings
         self.home = home
         self.clear = clear or (lambda x, y: True)
+        self.dead = dead or (lambda r: False)
         self.radius = radius
         self.phase = IDLE
         self.job: Job | None = None
@@ -339,13 +360,9 @@ class Errand:
 
     def _watch(self, k: int, mates: Mapping[str, Seen]) -> None:
         assert self.job is not None
-        limit = self.settings.lost_ticks
         for r in self.job.robots:
-            if r == self.rid:
-                continue
-            seen = mates.get(r)
-            last = self.since if seen is None else max(seen.k, self.since)
-            if k - last > limit:
+            if r != self.rid and lost(k, mates.get(r), self.since, self.settings.lost_ticks,
+                                      self.dead(r)):
                 self.lost.add(r)
 
     def _positions(self, me: Point, mates: Mapping[str, Seen]) -> list[Point] | None:

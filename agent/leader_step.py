@@ -6,9 +6,10 @@ containment (:mod:`leader.succession`): a successor takes the role when the lead
 token goes (:meth:`take_over`; it then estimates the standing formation's ellipse) and gives it
 back when the token returns (:meth:`step_down`). A fleet robot (a formation of one) holds the
 token of its own formation for as long as its agent runs and watches every other fleet robot's
-(:class:`Deaths`): a robot whose token went is a standing body at its last ellipse, grown by
-:func:`leader.succession.standing_grow`, never dropped and never stopped for (counted
-``standing``).
+(:class:`Deaths`): a robot whose token went is a standing body at its last ellipse, or at the
+camera's newer pose of it as a formation of one (a robot that died in a team, once the team
+dissolved), grown by :func:`leader.succession.standing_grow`, never dropped and never stopped
+for (counted ``standing``); a lock-step leader does not wait for its ellipse.
 
 It lives in agent/, not leader/: it reads the agent's inbox and, in lock-step, waits for the
 tick's inputs through the clock (:mod:`agent.clock`); the pure estimation is
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import threading
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -44,7 +46,8 @@ from leader.succession import (
 )
 from runtime.shutdown import STEP_LIMIT_S, undeclare_all, within
 from wire import keys
-from wire.payloads import EllipseMsg, Others, State
+from wire.payloads import EllipseMsg, Others, Pose, State, decode_pose
+from wire.reader import DecodeError
 
 logger = logging.getLogger(__name__)
 
@@ -75,6 +78,15 @@ def newest(fid: str, *entries: tuple[EllipseMsg, float] | None
     return best
 
 
+def solo_axes(cfg: AgentConfig) -> tuple[float, float, float] | None:
+    """The ellipse (a, b, alpha0) of the formation of one that ``cfg`` leads (None: ``cfg`` is
+    not a robot alone): a fleet's robots are of one model, so every other's is the same."""
+    s = cfg.leader
+    if s is None or cfg.formation != cfg.robot_id or len(s.members) != 1:
+        return None
+    return (s.axes[0], s.axes[1], s.alpha0)
+
+
 @dataclass
 class Listening:
     """Real time: which other formations the leader hears every tick (:mod:`leader.listen`)."""
@@ -91,25 +103,48 @@ class Deaths:
     docstring): each fleet robot's agent holds the liveliness token of the formation named by it
     from :meth:`open` to its close, whatever formation it is in; a token that goes is a robot
     known dead until it comes back (a restarted agent). Fed on Zenoh's threads, read by the
-    ticks."""
+    ticks.
 
-    def __init__(self, robot_id: str, robots: tuple[str, ...], prefix: str) -> None:
+    Where a dead robot stands: its last ellipse as a formation of one, or, newer, the camera's
+    pose of it (subscribed to from the death's news to its return, on the event loop,
+    :meth:`follow`): a robot that died in a team, whose formation of one nobody has heard since
+    the team formed, is a standing body too once the team dissolves (:meth:`body`, the ellipse
+    of a formation of one, ``axes``, at rest at that pose)."""
+
+    def __init__(self, robot_id: str, robots: tuple[str, ...], prefix: str,
+                 axes: tuple[float, float, float] | None = None, offset: float = 0.0) -> None:
         self.robot_id, self.prefix = robot_id, prefix
         self.robots = frozenset(robots) - {robot_id}
+        self.axes = axes  # a formation of one's (a, b, alpha0); None: no bodies from poses
+        self.offset = offset  # [m] the control point ahead of the body centre
         self._lock = threading.Lock()
         self._gone: dict[str, float | None] = {}  # robot -> clock at its first use dead
+        self._poses: dict[str, Pose] = {}  # robot known dead -> the newest pose of it
+        self._watch: set[str] = set()  # robots whose pose is subscribed to (on the loop thread)
+        self._transport: Transport | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._gate: Any = None  # the tick lock and closing flag (agent.schedule.TickGate)
         self.opened = False
         self.heard = 0  # deaths heard (tokens gone)
 
-    def open(self, transport: Transport) -> None:
-        """Hold this robot's token and watch the others' (once, for the agent's life)."""
+    def open(self, transport: Transport, loop: asyncio.AbstractEventLoop | None = None,
+             gate: Any = None) -> None:
+        """Hold this robot's token and watch the others' (once, for the agent's life); with
+        ``loop`` and ``gate`` (the tick lock and closing flag), also the poses of the robots
+        known dead (:meth:`follow`)."""
         if self.opened:
             return
         self.opened = True
+        self._transport, self._loop, self._gate = transport, loop, gate
         live = transport.session.liveliness()
         transport.keep(None, live.declare_token(leader_token_key(self.prefix, self.robot_id)))
+        transport.keep(None, self.watch(transport.session))
+
+    def watch(self, session: zenoh.Session) -> Any:
+        """Watch the other fleet robots' tokens on ``session`` (their present tokens first):
+        the liveliness subscriber, for the caller to undeclare."""
         every = f"{keys.validate_prefix(self.prefix)}/formation/*/{LEADER_TOKEN}"
-        transport.keep(None, live.declare_subscriber(every, self.on_token, history=True))
+        return session.liveliness().declare_subscriber(every, self.on_token, history=True)
 
     def on_token(self, sample: zenoh.Sample) -> None:  # Zenoh thread
         fid = token_formation(self.prefix, str(sample.key_expr))
@@ -121,9 +156,78 @@ class Deaths:
         with self._lock:
             if alive:
                 self._gone.pop(robot, None)
+                self._poses.pop(robot, None)
             elif robot not in self._gone:
                 self._gone[robot] = None
                 self.heard += 1
+        if self._gate is not None and self.axes is not None and (not alive
+                                                                  or robot in self._watch):
+            try:
+                self._loop.call_soon_threadsafe(self.follow, robot)  # type: ignore[union-attr]
+            except RuntimeError:  # loop closed: shutting down
+                pass
+
+    def follow(self, robot: str) -> None:
+        """Loop thread: hear the camera's poses of ``robot`` while it is known dead, and no
+        longer once it is back (declared outside any tick, as :meth:`LeaderPart.relisten`)."""
+        t, gate = self._transport, self._gate
+        with self._lock:
+            dead = robot in self._gone
+        if t is None or gate is None or gate.closing:
+            return
+        key = keys.pose_key(self.prefix, robot)
+        if dead and robot not in self._watch:
+            self._watch.add(robot)
+            sub = t.declare(key, lambda sample: self.on_pose(robot, sample))
+            with gate.lock:
+                if not gate.closing:
+                    t.keep(key, sub)
+                    return
+            within(STEP_LIMIT_S, f"{self.robot_id}: undeclaring the pose of {robot}",
+                   lambda: undeclare_all([sub]))
+        elif not dead and robot in self._watch:
+            self._watch.discard(robot)
+            with gate.lock:
+                if gate.closing:
+                    return
+                gone = t.forget(key)
+            within(STEP_LIMIT_S, f"{self.robot_id}: undeclaring the pose of {robot}",
+                   lambda: undeclare_all([gone]))
+
+    def on_pose(self, robot: str, sample: zenoh.Sample) -> None:  # Zenoh thread
+        try:
+            pose = decode_pose(sample.payload.to_bytes())
+        except DecodeError:
+            return
+        self.see_pose(robot, pose)
+
+    def see_pose(self, robot: str, pose: Pose) -> None:
+        """A pose of ``robot``: kept while it is known dead and newer than the one kept."""
+        with self._lock:
+            old = self._poses.get(robot)
+            if robot in self._gone and (old is None or pose.stamp > old.stamp):
+                self._poses[robot] = pose
+
+    def body(self, robot: str) -> EllipseMsg | None:
+        """``robot`` known dead as a formation of one at rest at the newest pose of it (None:
+        no pose heard, or no formation-of-one axes known); stamped with the pose."""
+        if self.axes is None or not self._poses:
+            return None
+        with self._lock:
+            p = self._poses.get(robot)
+        if p is None:
+            return None
+        a, b, alpha = self.axes
+        off = self.offset
+        return EllipseMsg(robot, p.x + off * math.cos(p.theta), p.y + off * math.sin(p.theta),
+                          alpha, a, b, 0.0, 0.0, 0.0, p.stamp)
+
+    def gone(self, robot: str) -> bool:
+        """Whether ``robot`` is known dead (its token went and has not come back)."""
+        if not self._gone:  # nobody gone: no lock taken
+            return False
+        with self._lock:
+            return robot in self._gone
 
     def known_at(self, robot: str, now: float) -> float | None:
         """When (the receiver's clock) ``robot`` was first used as known dead, ``now`` the
@@ -183,7 +287,8 @@ class LeaderPart:
                                 if self.role is not None and lockstep else frozenset())
         self.succession = Succession()  # fault containment (leader.succession)
         # a fleet robot: the other fleet robots known dead (carried over a regroup, :meth:`carry`)
-        self.deaths = (Deaths(cfg.robot_id, cfg.lifelong.fleet.robot_ids, cfg.prefix)
+        self.deaths = (Deaths(cfg.robot_id, cfg.lifelong.fleet.robot_ids, cfg.prefix,
+                              solo_axes(cfg), cfg.control.offset)
                        if cfg.lifelong is not None else None)
         self.standing = 0  # ticks that used a dead formation's standing body
         self._standing_now: set[str] = set()  # this tick: the formations used as standing bodies
@@ -230,8 +335,8 @@ class LeaderPart:
         self._transport, self._loop, self._gate = transport, loop, gate
         s = transport.session
         token_key = leader_token_key(self.cfg.prefix, self.cfg.formation)
-        if self.deaths is not None:
-            self.deaths.open(transport)  # holds this robot's own formation's token for good
+        if self.deaths is not None:  # holds this robot's own formation's token for good
+            self.deaths.open(transport, loop, gate)
         if self.role is not None:
             if self.deaths is None or self.cfg.formation != self.cfg.robot_id:
                 self._token = s.liveliness().declare_token(token_key)
@@ -299,7 +404,9 @@ class LeaderPart:
             t.publish(role.beacon_key, msg)
             self.listen.beacon_stamp = stamp
         if clock.lockstep:
-            await clock.wait(self._inbox, [(keys.ELLIPSE, k) for k in role.other_keys], stamp)
+            deaths = self.deaths  # a robot known dead puts no ellipse: not waited for
+            await clock.wait(self._inbox, [(keys.ELLIPSE, k) for k, fid in role.other_keys.items()
+                                           if deaths is None or not deaths.gone(fid)], stamp)
             if self.role is not role:  # stepped down while this tick waited: relays nothing
                 self.own_others = None
                 return False
@@ -335,7 +442,8 @@ class LeaderPart:
             q = quiet.get(fid)
             if q is not None and q - QUIET_MAX_S <= now < q:
                 continue  # far, whatever it did since (leader.listen.quiet_until)
-            entry = newest(fid, latest(keys.ELLIPSE, k), latest(keys.BEACON, beacon))
+            entry = newest(fid, latest(keys.ELLIPSE, k), latest(keys.BEACON, beacon)) \
+                or self._seen_dead(fid, now)
             if entry is None:  # never heard of: it may be anywhere (its beacon will say where)
                 complete = False
                 continue
@@ -354,8 +462,11 @@ class LeaderPart:
         body (:meth:`_standing`), always known; records whether to hear it every tick."""
         speed = self.cfg.control.max_speed
         m = entry[0]
-        age = max(0.0, now - m.stamp)
         dead_at = None if self.deaths is None else self.deaths.known_at(fid, now)
+        if dead_at is not None:  # the newer of its last ellipse and the camera's pose of it
+            seen = self._seen_dead(fid, now)
+            m = seen[0] if seen is not None and seen[0].stamp > m.stamp else m
+        age = max(0.0, now - m.stamp)
         grow = speed * age if dead_at is None else self._standing(dead_at - m.stamp)
         gap = grown_gap(own, m, grow)
         if hears(gap, fid in self.listen.heard):
@@ -375,6 +486,15 @@ class LeaderPart:
         if age <= self.ellipse_hold:
             return inflate(m, speed * age), True
         return None, False
+
+    def _seen_dead(self, fid: str, now: float) -> tuple[EllipseMsg, float] | None:
+        """A robot known dead as the camera last saw it, alone at rest (:meth:`Deaths.body`),
+        as an inbox entry (None: not known dead, or not seen)."""
+        deaths = self.deaths
+        if deaths is None or deaths.known_at(fid, now) is None:
+            return None
+        body = deaths.body(fid)
+        return None if body is None else (body, body.stamp)
 
     def _standing(self, known_age: float) -> float:
         """The growth of a dead formation's last ellipse, ``known_age`` old when its death was

@@ -46,6 +46,7 @@ from agent.errand import (
     LIFTING,
     LOAD_MARGIN,
     RELEASED,
+    SILENT_S,
     Errand,
     ErrandSettings,
     Job,
@@ -57,6 +58,7 @@ from agent.errand import (
     sees_load,
 )
 from agent.faults import LinkFaults
+from agent.leader_step import Deaths
 from agent.order_check import acceptable
 from agent.order_link import OrderLink
 from geometry.shapes import Shape, shape_distance
@@ -83,7 +85,6 @@ from wire.shapes import msg_to_shape, shape_to_msg
 
 logger = logging.getLogger(__name__)
 
-LOST_S = 1.0  # [s] a teammate whose position is older than this is lost
 ENDED = (DELIVERED, FAILED, RELEASED, "cancelled")
 
 
@@ -144,10 +145,11 @@ class LifePart:
             len(fleet.robot_ids), window, fleet.bid_copies, RELEASE_TICKS, repeat, dt),
             costs=self.bid_costs, admits=self.admits)
         homes = parking(fleet.robot_ids, fleet.starts, fleet.parking)
+        self.deaths = Deaths(self.rid, fleet.robot_ids, cfg.prefix)  # teammates known dead
         self.errand = Errand(self.rid, ErrandSettings(
-            round(fleet.lift_s / dt), max(1, round(LOST_S / dt)), repeat, cfg.goal_tolerance, dt,
-            cfg.control.offset),
-            home=homes.get(self.rid), clear=self.clear_point, radius=cfg.radius)
+            round(fleet.lift_s / dt), max(1, round(SILENT_S / dt)), repeat, cfg.goal_tolerance,
+            dt, cfg.control.offset), home=homes.get(self.rid), clear=self.clear_point,
+            radius=cfg.radius, dead=self.deaths.gone)
         self.heard = Heard()
         self.orders: dict[str, lo.Order] = {}  # every order posted, as this robot knows it
         self.teams: dict[str, tuple[str, ...]] = {}  # formed teams: order -> roster
@@ -161,6 +163,7 @@ class LifePart:
         self._listening: set[str] = set()  # the teammates whose state is subscribed to
         self._listen_since: dict[str, int] = {}  # teammate -> the tick its state was subscribed
         self._session: zenoh.Session | None = None
+        self._deaths_sub: Any = None  # the teammates' liveliness (self.deaths)
         self._me: tuple[float, float, float] | None = None  # own pose of the last tick
         self.regroups = 0
         self.refused = 0  # orders this robot's warehouse cannot serve (agent.order_check)
@@ -174,6 +177,7 @@ class LifePart:
                               on_team=self._on_team, on_status=self._on_status)
         self._subs["loads"] = session.declare_subscriber(keys.loads_key(self.cfg.prefix),
                                                          self._on_loads)
+        self._deaths_sub = self.deaths.watch(session)
 
     def close(self) -> None:
         if self.link is not None:
@@ -182,6 +186,9 @@ class LifePart:
         for sub in self._subs.values():
             sub.undeclare()
         self._subs.clear()
+        if self._deaths_sub is not None:
+            self._deaths_sub.undeclare()
+            self._deaths_sub = None
 
     def _on_loads(self, sample: zenoh.Sample) -> None:  # Zenoh thread
         try:

@@ -12,8 +12,10 @@ down.
 
 A formation with no successor whose every member is known dead (a fleet robot, a formation of one:
 its agent holds the token of the formation named by it for as long as it runs, in a team or not)
-is a body standing near its last ellipse: a robot whose agent is gone gets no command, and its
-base stops (the world's, or a real base's, command watchdog). The other leaders keep that ellipse
+is a body standing near its last ellipse, or near the camera's newer pose of the robot (a robot
+that died in a team, whose formation of one nobody heard since the team formed): a robot whose
+agent is gone gets no command, and its base stops (the world's, or a real base's, command
+watchdog). The other leaders keep that ellipse
 grown by :func:`standing_grow` for the rest of the run instead of stopping once ``ellipse_hold``
 runs out. Only the token's going says so (positive knowledge); a formation merely silent stays
 stale, held inflated, then stopped for.
@@ -56,10 +58,10 @@ def stopping_distance(speed: float, max_accel: float | None, dt: float) -> float
 
 
 def standing_grow(speed: float, known_age: float, lag: float, stop: float) -> float:
-    """How far [m] (both semi-axes) a formation known dead can stand from its last ellipse:
-    ``speed`` (top speed) over the ellipse's age when the death was known (``known_age``: it may
-    have moved on with ellipses not received), over ``lag`` more (until its base stops: one
-    period of its last command in lock-step, the command watchdog in real time), plus its
-    stopping distance ``stop`` (:func:`stopping_distance`). Fixed from then on: it moves no
-    more."""
+    """How far [m] (both semi-axes) a formation known dead can stand from its last ellipse (or
+    the last pose of it): ``speed`` (top speed) over that message's age when the death was
+    known (``known_age``: it may have moved on with messages not received), over ``lag`` more
+    (until its base stops: one period of its last command in lock-step, the command watchdog
+    in real time), plus its stopping distance ``stop`` (:func:`stopping_distance`). Fixed from
+    then on: it moves no more."""
     return speed * (max(0.0, known_age) + lag) + stop
