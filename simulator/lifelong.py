@@ -69,7 +69,15 @@ from leader import allocation
 from leader import orders as lo
 from leader.navigation import Follower
 from leader.route_driver import RouteDriver
-from leader.team import TeamPlan, axis_turn, load_pose, plan_team, pose_error, slot_points
+from leader.team import (
+    TeamPlan,
+    axis_turn,
+    carry_reach,
+    load_pose,
+    plan_team,
+    pose_error,
+    slot_points,
+)
 from scenario import Scenario, stream
 from scenario.cargo import load_clearances
 from scenario.lifelong import SINK, Lifelong, Order, Station
@@ -551,10 +559,11 @@ class LifelongRun:
 
     def arrived(self, crew: Crew) -> bool:
         """The load is within the set-down tolerance of its station and every member at its
-        goal (the load as near its station as the members can bring it)."""
+        goal (the load as near its station as the members can bring it), within its reach
+        (:func:`leader.team.carry_reach`)."""
         assert crew.plan is not None
         d, a = pose_error(self.loads[self.orders[crew.oid].load].pose, crew.dst)
-        tol = self.base.goal_tolerance
+        tol = carry_reach(self.base.goal_tolerance, self.base.robot.control_offset)
         return d <= SET_DOWN_M and a <= SET_DOWN_RAD and all(
             math.dist(p, g) <= tol for p, g in zip(self.positions(crew.robots), crew.plan.goals,
                                                    strict=True))
