@@ -51,7 +51,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 from geometry.shapes import Shape, box, distance_floor, shape_distance
-from leader.team import Point, Pose, TeamPlan, load_pose, plan_team, pose_error
+from leader.team import Point, Pose, TeamPlan, carry_reach, load_pose, plan_team, pose_error
 from scenario.lifelong import LoadType
 from wire.orders import OrderStatusMsg
 
@@ -140,14 +140,16 @@ class Job:
 @dataclass(frozen=True)
 class ErrandSettings:
     """The machine's numbers, in ticks: a lift or set-down (``fleet.lift_s``), a member lost
-    (its position older than this), statuses put again; the arrival tolerance [m] and the
-    tick [s]."""
+    (its position older than this), statuses put again; the arrival tolerance [m], the
+    tick [s] and the control point's offset from the body [m] (a unicycle's look-ahead, which
+    widens a member's reach of its carry goal: :func:`leader.team.carry_reach`)."""
 
     lift_ticks: int
     lost_ticks: int
     repeat_ticks: int
     goal_tolerance: float
     tick_s: float = 0.05  # [s] one tick (status stamps are in seconds)
+    offset: float = 0.0  # [m] 0 for a holonomic robot
 
     def __post_init__(self) -> None:
         if min(self.lift_ticks, self.lost_ticks, self.repeat_ticks) < 0 or self.repeat_ticks < 1:
@@ -367,11 +369,12 @@ class Errand:
         return Move(team=team, hold=hold, status=self._status(k, REPORTED[self.phase]))
 
     def _arrived(self, at: Sequence[Point]) -> bool:
-        """The load within the set-down tolerance of its station, every member at its goal."""
+        """The load within the set-down tolerance of its station, every member at its goal
+        within its reach (:func:`leader.team.carry_reach`)."""
         job, plan = self.job, self.plan
         assert job is not None and plan is not None
         d, a = pose_error(load_pose(plan.starts, at, job.src), job.dst)
-        tol = self.settings.goal_tolerance
+        tol = carry_reach(self.settings.goal_tolerance, self.settings.offset)
         return d <= SET_DOWN_M and a <= SET_DOWN_RAD and all(
             math.dist(p, g) <= tol for p, g in zip(at, plan.goals, strict=True))
 

@@ -147,7 +147,8 @@ class LifePart:
             admits=self.admits)
         homes = parking(fleet.robot_ids, fleet.starts, fleet.parking)
         self.errand = Errand(self.rid, ErrandSettings(
-            round(fleet.lift_s / dt), max(1, round(LOST_S / dt)), repeat, cfg.goal_tolerance, dt),
+            round(fleet.lift_s / dt), max(1, round(LOST_S / dt)), repeat, cfg.goal_tolerance, dt,
+            cfg.control.offset),
             home=homes.get(self.rid), clear=self.clear_point, radius=cfg.radius)
         self.heard = Heard()
         self.orders: dict[str, lo.Order] = {}  # every order posted, as this robot knows it
