@@ -16,9 +16,11 @@ rows and between the outer rows and the walls, side aisles at both ends join the
 * with probability 1/2 a pillar (a static circle) at a side aisle's corner, and with
   probability 1/3 a forklift that drives from a main aisle into the cross aisle and parks there
   for good (a moving circle with ``stop_at``);
-* a seeded order stream of 0.4 to 1.2 orders a minute for :data:`STREAM_S` s, in a run of
-  :data:`DURATION_S` s (the rest is time to finish the orders posted last); one robot model
-  for the run, single integrator or unicycle.
+* a seeded order stream of 0.4 to 1.2 orders a minute for :data:`STREAM_S` s, in a run of at
+  most :data:`DURATION_S` s: a run ends once every order posted is done, and the rest is time
+  to serve the orders posted last, which may wait for a team behind the orders before them (a
+  fleet of five serves one pallet at a time); one robot model for the run, single integrator
+  or unicycle.
 
 :func:`lifelong_scenario` is the pure draw (a scenario-file mapping); :func:`lifelong_problem`
 is what the draw asks beyond the scenario checks: a stream that posts at least
@@ -39,7 +41,7 @@ from scenario.stream import plan
 
 from .warehouse_draw import outer_walls
 
-DURATION_S = 720.0  # [s] a run: at least 10 simulated minutes
+DURATION_S = 1200.0  # [s] a run at most: at least 10 simulated minutes, and time to drain
 STREAM_S = 480.0  # [s] orders arrive until then
 MIN_ORDERS = 2  # a drawn stream posts at least this many orders
 WALL_DS = 0.15  # [m] safe distance of walls and shelves
