@@ -56,7 +56,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 from geometry.shapes import Shape, box, distance_floor, shape_distance
-from leader.team import Point, Pose, TeamPlan, load_pose, plan_team, pose_error
+from leader.team import Point, Pose, TeamPlan, carry_reach, load_pose, plan_team, pose_error
 from scenario.lifelong import LoadType
 from wire.orders import OrderStatusMsg
 
@@ -138,9 +138,9 @@ def sees_load(load: Shape, me: Point, offset: float) -> bool:
 def arrived(plan: TeamPlan, at: Sequence[Point], src: Pose, dst: Pose, reach: float) -> bool:
     """Whether a team whose members' bodies stand at ``at`` has brought its load (lifted at
     ``src``) to its station ``dst``: the load within :data:`SET_DOWN_M` and
-    :data:`SET_DOWN_RAD` of it, every member within ``reach`` of its goal (the goal tolerance
-    and the control point's offset: a unicycle's rows hold its control point, its body turns
-    about it)."""
+    :data:`SET_DOWN_RAD` of it, every member within ``reach`` of its goal
+    (:func:`leader.team.carry_reach`: a unicycle's rows hold its control point, its body sits
+    the look-ahead behind it, on whatever heading it ends)."""
     d, a = pose_error(load_pose(plan.starts, at, src), dst)
     return d <= SET_DOWN_M and a <= SET_DOWN_RAD and all(
         math.dist(p, g) <= reach for p, g in zip(at, plan.goals, strict=True))
@@ -424,7 +424,7 @@ class Errand:
         job, plan = self.job, self.plan
         assert job is not None and plan is not None
         s = self.settings
-        return arrived(plan, at, job.src, job.dst, s.goal_tolerance + s.offset)
+        return arrived(plan, at, job.src, job.dst, carry_reach(s.goal_tolerance, s.offset))
 
     def _follow(self, k: int, me: Point, mates: Mapping[str, Seen]) -> Move:
         """A member's tick: the speaker's statuses decide; at its slot it stands."""

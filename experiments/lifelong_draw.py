@@ -49,7 +49,9 @@ STREAM_S = 600.0  # [s] orders arrive until then: every run lasts at least 10 si
 RATE_PER_TEAM = 0.3
 MIN_ORDERS = 2  # a drawn stream posts at least this many orders
 WALL_DS = 0.15  # [m] safe distance of walls and shelves
-RACK_GAP = 0.15  # [m] between a shelf's face and the outline of a load resting at its rack
+RACK_GAP = 0.25  # [m] between a shelf's face and the outline of a load resting at its rack: a
+# slot on the shelf side keeps 10 cm beyond the shelf's safe distance (at 0.15, exactly none, and a
+# planner that needs a stated clearance found no way into it)
 RACK_PITCH = 1.8  # [m] between racks along a shelf: a beam's length and a gap
 DOCK_INSET = 0.9  # [m] from the side wall to a dock's centre
 PARK_INSET = 0.5  # [m] from the north wall to the parked row

@@ -65,6 +65,22 @@ def load_pose(starts: Sequence[Point], now: Sequence[Point], src: Pose) -> Pose:
     return (x, y, wrap_angle(src[2] + m.theta))
 
 
+def carry_reach(goal_tolerance: float, offset: float) -> float:
+    """[m] How near its carry goal each member's body stands for its team to set the load down:
+    ``goal_tolerance`` plus twice the control point's ``offset`` from the body (a unicycle's
+    look-ahead, thesis section 6.2; 0 for a holonomic robot, whose reach is the goal tolerance).
+
+    Why: the team's rows and its rigid motion hold the members' control points, in the shape
+    those points had when the team's formation was built, while each goal is a body position (the
+    rigid carry of where the bodies stood at the lift). A unicycle's body sits ``offset`` behind
+    its control point on its heading, so a member that ends facing otherwise than when the shape
+    was taken stands up to twice that off its goal with its control point where the formation
+    puts it, and a team held to the goal tolerance stood short of the set-down for good with its
+    load within the set-down tolerance of its station. The load itself is judged at that
+    tolerance whatever the robot."""
+    return goal_tolerance + 2.0 * offset
+
+
 def pose_error(a: Pose, b: Pose) -> tuple[float, float]:
     """The distance [m] and the absolute heading difference [rad] between two poses."""
     return math.hypot(a[0] - b[0], a[1] - b[1]), abs(wrap_angle(a[2] - b[2]))

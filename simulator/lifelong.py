@@ -74,7 +74,15 @@ from geometry.shapes import Shape, shape_distance
 from leader import allocation
 from leader import orders as lo
 from leader.routing import Reason
-from leader.team import TeamPlan, axis_turn, load_pose, plan_team, pose_error, slot_points
+from leader.team import (
+    TeamPlan,
+    axis_turn,
+    carry_reach,
+    load_pose,
+    plan_team,
+    pose_error,
+    slot_points,
+)
 from scenario import Scenario, stream
 from scenario.cargo import load_clearances
 from scenario.lifelong import SINK, Lifelong, Order, Station
@@ -632,7 +640,7 @@ class LifelongRun:
         on the poses of the tick before (the speaker's view)."""
         assert crew.plan is not None
         return arrived(crew.plan, self.positions(crew.robots, self.prev), crew.src, crew.dst,
-                       self.base.goal_tolerance + self.base.robot.control_offset)
+                       carry_reach(self.base.goal_tolerance, self.base.robot.control_offset))
 
     def move_order(self, oid: str, event: lo.Event) -> lo.Order:
         self.orders[oid] = order = lo.step(self.orders[oid], event)

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import math
 
+import pytest
 from numpy.testing import assert_allclose
 
 from leader.team import (
     at_slots,
     carry_goals,
+    carry_reach,
     load_pose,
     plan_team,
     pose_error,
@@ -65,3 +67,23 @@ def test_members_are_at_their_slots_only_within_tolerance_and_facing():
                         0.0, 0.05)
     assert at_slots(slots, [math.pi, 0.01], slots, 0.05, 0.0, 0.05)  # either end
     assert not at_slots(slots, [0.5, 0.0], slots, 0.05, 0.0, 0.05)
+
+
+def test_a_unicycle_member_turned_since_its_shape_was_taken_is_within_reach_of_its_goal():
+    # the formation holds control points in the shape they had facing east; at the end each
+    # member faces another way, its control point where the rigid carry puts it
+    lookahead, tol = 0.05, 0.05
+    plan = plan_team("o1", ("a", "b", "c", "d"), SLOTS, rectangle((0.8, 0.4)),
+                     slot_points((0.0, 0.0, 0.0), SLOTS), ((0.0, 0.0, 0.0), (3.0, 1.0, 0.0)))
+    reach = carry_reach(tol, lookahead)
+    for heading in (math.pi / 2, math.pi, -2.0):
+        bodies = [(gx + lookahead * (1.0 - math.cos(heading)), gy - lookahead * math.sin(heading))
+                  for gx, gy in plan.goals]
+        off = [math.dist(b, g) for b, g in zip(bodies, plan.goals, strict=True)]
+        assert max(off) > tol  # the goal tolerance alone would keep the team short for good
+        assert max(off) <= reach
+
+
+def test_a_holonomic_member_reaches_its_goal_within_the_goal_tolerance_alone():
+    assert carry_reach(0.05, 0.0) == 0.05  # exactly: holonomic teams set down as before
+    assert carry_reach(0.05, 0.05) == pytest.approx(0.15)
