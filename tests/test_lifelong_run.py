@@ -34,7 +34,7 @@ HOURS = {"lifelong-stream-30min", "lifelong-stream-unicycle", "lifelong-warehous
 # one), so a slot between a shelf and two teammates already at theirs has no way in: the order
 # stands stuck until both planners (agents and simulator alike) see teammates at their slots as
 # robots
-STUCK_BY_MATES = {"mc-stuck-unicycle-a"}
+STUCK_BY_MATES = {"mc-stuck-unicycle-a", "mc-late-order-si"}
 LONG = [pytest.param(p, id=p.stem, marks=[pytest.mark.skipif(
             p.stem in HOURS and not os.environ.get("FORMATION_SLOW"),
             reason="a stream of half an hour or more: set FORMATION_SLOW=1")] + (
