@@ -721,7 +721,10 @@ class LifelongRun:
         every robot's formation again."""
         ld = self.loads[self.orders[crew.oid].load]
         for r in crew.robots:
-            if r in self.dead:
+            if r in self.dead:  # a formation of one again, standing where it died
+                self.team.pop(r, None)
+                self.asks[r] = Ask(self.k + LANDS, solo(r, self.state[self.index[r]], self.goal[r]),
+                                   self.view_of(r, self.seen_boxes()), ())
                 continue
             self.role[r] = ""
             self.team.pop(r, None)
