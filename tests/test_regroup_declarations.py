@@ -130,6 +130,10 @@ def test_a_regroup_undeclares_the_old_formations_publishers_and_subscribers(
             await loop.run_in_executor(None, wait_for_matching, pose, TIMEOUT_S)
             counted, t = node.counted, node.transport
             assert counted is not None and t is not None
+            # the pose is subscribed before the lifelong part's keys: wait for its last one
+            loads = ("sub", keys.loads_key(P))
+            await loop.run_in_executor(None, wait_until, lambda: node.life is None
+                                       or loads in counted.held(), "the loads subscribed")
             seen.append(counted.held())
             published.append(t.publishing())
             node.regroup(memberships(teamed())["f1"])  # the team of o1, f1 leading
