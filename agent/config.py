@@ -77,6 +77,9 @@ class AgentConfig:
     topology: str = "reduced"
     foreign_robots: tuple[str, ...] = ()  # all-to-all only: robots of other formations
     partners: tuple[str, ...] = ()  # every other member of the formation: separation rows
+    # leader, lifelong: the formations of one its routes go round as robots (two radii), not
+    # as formations: a team's members standing near their slots (agent.errand.mates_at)
+    mates: tuple[str, ...] = ()
     leader: LeaderSettings | None = None  # set on the leader robot only
     # set on the member that takes the leader role when the leader dies (leader.succession)
     standby: LeaderSettings | None = None
@@ -158,6 +161,7 @@ LEADER_RANGES: dict[str, limits.Range | tuple[limits.Range, ...]] = {
 CONFIG_COUNTS = {
     "neighbours": limits.MAX_FORMATION_ROBOTS - 1,
     "partners": limits.MAX_FORMATION_ROBOTS - 1,
+    "mates": limits.MAX_FORMATION_ROBOTS - 1,
     "member_goals": limits.MAX_FORMATION_ROBOTS,
     "route": limits.MAX_WAYPOINTS + 1,
     "route_headings": limits.MAX_WAYPOINTS + 1,
@@ -173,7 +177,7 @@ def _check_names(cfg: AgentConfig) -> None:
              ("leader_id", cfg.leader_id)]
     names += [(f"neighbours[{k}]", n) for k, (n, _) in enumerate(cfg.neighbours)]
     names += [(f"member_goals[{k}]", m) for k, (m, _, _) in enumerate(cfg.member_goals)]
-    names += [(f"{name}[{k}]", n) for name in ("partners", "foreign_robots")
+    names += [(f"{name}[{k}]", n) for name in ("partners", "mates", "foreign_robots")
               for k, n in enumerate(getattr(cfg, name))]
     for where, name in names:
         problem = name_problem(name)
@@ -224,8 +228,8 @@ def _check_leader(where: str, settings: LeaderSettings | None) -> None:
 #: The fields of an :class:`AgentConfig` that say which formation the robot is in and what it
 #: does there (:class:`Membership`); every other field is the robot's own and never changes.
 MEMBERSHIP_FIELDS = ("formation", "leader_id", "goal", "formation_goal", "neighbours",
-                     "foreign_robots", "partners", "leader", "standby", "route", "route_headings",
-                     "route_by_hand", "member_goals", "footprint")
+                     "foreign_robots", "partners", "mates", "leader", "standby", "route",
+                     "route_headings", "route_by_hand", "member_goals", "footprint")
 
 
 @dataclass(frozen=True)
@@ -243,6 +247,7 @@ class Membership:
     neighbours: tuple[tuple[str, float], ...]
     foreign_robots: tuple[str, ...] = ()
     partners: tuple[str, ...] = ()
+    mates: tuple[str, ...] = ()
     leader: LeaderSettings | None = None
     standby: LeaderSettings | None = None
     route: tuple[tuple[float, float], ...] = ()
@@ -434,7 +439,7 @@ def config_to_dict(cfg: AgentConfig) -> dict[str, Any]:
     d["zenoh"] = {k: d["zenoh"][k] for k in AGENT_ZENOH_FIELDS}
     # unset optional parts (the bridge, method thesis, a fixed formation's robot, no
     # headings, a planned route) are left out: files stay as they were before the fields
-    for name in ("rmw", "footprint", "lifelong", "route_headings", "route_by_hand"):
+    for name in ("rmw", "footprint", "lifelong", "route_headings", "route_by_hand", "mates"):
         if not d.get(name):
             d.pop(name, None)
     for name, default in (("double_integrator", False), ("max_accel", None)):

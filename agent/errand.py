@@ -118,6 +118,23 @@ def allies_at(robots: Sequence[str], slots: Sequence[Point], rid: str, at: Mappi
     return tuple(r for r in near if r != rid) if rid in near else ()
 
 
+def mates_at(robots: Sequence[str], slots: Sequence[Point], rid: str, at: Mapping[str, Point]
+             ) -> tuple[str, ...]:
+    """The teammates of ``rid`` standing within :data:`ALLY_REACH` of their slots, wherever
+    ``rid`` is (``at``: the members' positions known): its route to its own slot goes round
+    them as robots (:func:`mate_reach`), not as formations of one."""
+    return tuple(r for r, s in zip(robots, slots, strict=True)
+                 if r != rid and r in at and math.dist(at[r], s) <= ALLY_REACH)
+
+
+def mate_reach(radius: float) -> float:
+    """[m] How far the route planner keeps a robot's centre from a teammate's standing near its
+    slot (:func:`mates_at`): two bodies' radii, what their separation row keeps once both are
+    near their slots (:func:`allies_at`). The teammate's ellipse (the reach of a formation of
+    one, plus a radius) would shut off a slot between it and a shelf that the members reach."""
+    return 2.0 * radius
+
+
 def way_out(load: Shape, me: Point, clear: Callable[[float, float], bool], radius: float
             ) -> Point | None:
     """Where a robot of ``radius`` at ``me`` goes when its team sets ``load`` (its box) down:

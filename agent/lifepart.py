@@ -54,6 +54,7 @@ from agent.errand import (
     Seen,
     allies,
     load_box,
+    mates_at,
     parking,
     sees_load,
 )
@@ -157,6 +158,9 @@ class LifePart:
         self.goal: tuple[float, float] = cfg.goal  # where it walks alone
         self.formations_seen: tuple = ()
         self.allies: tuple[str, ...] = ()  # gathering: teammates kept apart by separation rows
+        # gathering: the teammates near their slots (but its allies) that its routes go round as
+        # robots (agent.errand.mates_at)
+        self.mates: tuple[str, ...] = ()
         self.link: OrderLink | None = None
         self.closed_link: OrderLink | None = None
         self._subs: dict[str, Any] = {}
@@ -397,12 +401,16 @@ class LifePart:
         else:
             self._apply(move)
         job = self.errand.job
-        near = () if job is None or self.team is not None else allies(
-            job, self.rid, {**{r: (v.x, v.y) for r, v in mates.items()},
-                            self.rid: (last[0], last[1])})
-        if self._stale_view or near != self.allies:
+        near: tuple[str, ...] = ()
+        standing: tuple[str, ...] = ()
+        if job is not None and self.team is None:
+            at = {**{r: (v.x, v.y) for r, v in mates.items()}, self.rid: (last[0], last[1])}
+            near = allies(job, self.rid, at)
+            standing = tuple(m for m in mates_at(job.robots, job.slots, self.rid, at)
+                             if m not in near)
+        if self._stale_view or near != self.allies or standing != self.mates:
             self._stale_view = False
-            self.allies = near
+            self.allies, self.mates = near, standing
             self._again()
         return move.hold
 
@@ -472,6 +480,8 @@ class LifePart:
             others = tuple(f for f in m.leader.other_formations if f not in self.allies)
             m = replace(m, partners=self.allies,
                         leader=replace(m.leader, other_formations=others))
+        if self.mates and m.leader is not None:  # a gathering robot's way to its slot
+            m = replace(m, mates=self.mates)
         self.regroup(m)
         self.regroups += 1
 

@@ -70,7 +70,8 @@ def leader_routes(cfg: AgentConfig) -> LeaderRoutes | None:
     if fp is None or not cfg.planner:
         return None
     return LeaderRoutes(fp, cfg.radius, cfg.control.epsilon + cfg.control.offset, cfg.formation_goal,
-                        None, cfg.route_by_hand, cfg.formation, cfg.control.max_speed)
+                        None, cfg.route_by_hand, cfg.formation, cfg.control.max_speed,
+                        frozenset(cfg.mates))
 
 
 def config_extent(cfg: AgentConfig) -> Extent:

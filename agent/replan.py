@@ -35,6 +35,7 @@ from leader.routing import Other, Reason, Replanner, Thing, Update
 from wire.payloads import EllipseMsg, ObstacleMsg
 
 from .body import Footprint, pose_of
+from .errand import mate_reach
 
 PLAN_NICE = 19  # the worker's niceness (also where the idle policy is refused)
 
@@ -44,8 +45,11 @@ class LeaderRoutes:
 
     def __init__(self, fp: Footprint, radius: float, margin: float, goal: tuple[float, float],
                  start: tuple[float, float] | None, by_hand: bool, name: str = "",
-                 speed: float = math.inf) -> None:
+                 speed: float = math.inf, mates: frozenset[str] = frozenset()) -> None:
         self.fp = fp
+        # the formations of one it plans round as robots rather than as formations: a lifelong
+        # team's members standing near their slots, to a member on its way to its own
+        self.mates = mates
         self.speed = speed  # [m/s] the formation's top speed (a robot's)
         self.name = name  # the formation's
         self.body = Body(fp.slots, fp.load_points, radius, PLAN_MARGIN + margin)
@@ -97,7 +101,8 @@ class LeaderRoutes:
         out = [Thing(f"obstacle/{o.id}", o.x, o.y, math.hypot(o.vx, o.vy), o.ds, o.id in self._static,
                      o.vx, o.vy) for o in obstacles]
         out += [Thing(f"formation/{e.formation}", e.cx, e.cy, math.hypot(e.vx, e.vy),
-                      e.a + self.radius) for e in others
+                      mate_reach(self.radius) if e.formation in self.mates
+                      else e.a + self.radius) for e in others
                 if math.dist((e.cx, e.cy), (own.cx, own.cy)) > 1e-9]
         return out
 

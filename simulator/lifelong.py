@@ -65,6 +65,7 @@ from agent.errand import (
     arrived,
     inside_box,
     load_box,
+    mates_at,
     parking,
     sees_load,
     way_out,
@@ -331,12 +332,14 @@ class Ask:
     """A robot's change of formation as its agent asks for it: it lands at tick ``land``
     (:data:`LANDS` after the ask); ``spec`` the formation (a formation of one, or its team's,
     with the poses of the ask), ``view`` the bodies it plans round, ``allies`` the gathering
-    teammates it keeps apart from by separation rows."""
+    teammates it keeps apart from by separation rows, ``mates`` those its routes go round as
+    robots (:func:`agent.errand.mates_at`)."""
 
     land: int
     spec: FormationSpec
     view: tuple[Shape, ...]
     allies: tuple[str, ...] = ()
+    mates: tuple[str, ...] = ()
 
 
 class LifelongRun:
@@ -406,6 +409,7 @@ class LifelongRun:
                                               tuple(self.static)) for r in self.ids}
         self.team: dict[str, FormationSpec] = {}  # robot -> its team's formation, once formed
         self.near: dict[str, tuple[str, ...]] = dict.fromkeys(self.ids, ())  # allies asked
+        self.mates: dict[str, tuple[str, ...]] = dict.fromkeys(self.ids, ())  # mates asked
         self.again: set[str] = set()  # robots whose agents ask for their formation again
         self.fresh: set[str] = set(self.ids)  # robots whose asked formation landed this tick
         self.control: FleetControl | None = None
@@ -838,6 +842,17 @@ class LifelongRun:
         at = dict(zip(crew.robots, self.positions(crew.robots, self.prev), strict=True))
         return allies_at(crew.robots, crew.slots, rid, at)
 
+    def mates_now(self, rid: str) -> tuple[str, ...]:
+        """The gathering teammates whose routes ``rid``'s go round as robots, on the poses of
+        the tick before (:func:`agent.errand.mates_at`), but its allies; none once its team
+        has formed."""
+        crew = self.crews.get(self.role[rid])
+        if crew is None or crew.start_k < 0 or rid in self.team:
+            return ()
+        at = dict(zip(crew.robots, self.positions(crew.robots, self.prev), strict=True))
+        return tuple(m for m in mates_at(crew.robots, crew.slots, rid, at)
+                     if m not in self.near[rid])
+
     def ask(self, k: int) -> None:
         """Each robot whose agent asks for its formation this tick (a new goal, its team, the
         formations of the moment changed, its allies changed): the formation of the moment
@@ -850,11 +865,16 @@ class LifelongRun:
             if near != self.near[rid]:
                 self.near[rid] = near
                 self.again.add(rid)
+            standing = self.mates_now(rid)
+            if standing != self.mates[rid]:
+                self.mates[rid] = standing
+                self.again.add(rid)
         for rid in sorted(self.again):
             if rid in self.dead:
                 continue
             spec = self.team.get(rid) or solo(rid, self.state[self.index[rid]], self.goal[rid])
-            self.asks[rid] = Ask(k + LANDS, spec, self.view_of(rid, boxes), self.near[rid])
+            self.asks[rid] = Ask(k + LANDS, spec, self.view_of(rid, boxes), self.near[rid],
+                                 self.mates[rid])
         self.again.clear()
 
     def land(self, k: int) -> None:
@@ -929,6 +949,11 @@ class LifelongRun:
                 partners[at[rid]] = tuple(at[m] for m in mates)
         control.allies = allies
         control.fleet = replace(control.fleet, partners=tuple(partners))
+        # a gathering robot's routes: its allies out of view, its mates round as robots
+        control.replans.unseen = {r: frozenset(self.now_in[r].allies) for r in self.ids
+                                  if self.now_in[r].allies}
+        control.replans.mates = {r: frozenset(self.now_in[r].mates) for r in self.ids
+                                 if self.now_in[r].mates}
 
     def fleet_control(self, scen: Scenario, views: dict[str, tuple[Shape, ...]]
                       ) -> FleetControl:

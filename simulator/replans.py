@@ -11,6 +11,7 @@ from collections.abc import Mapping, Sequence
 
 from agent.barriers import Obstacle
 from agent.body import Footprint, pose_of
+from agent.errand import mate_reach
 from geometry.ellipse import Ellipse, wrap_angle
 from geometry.shapes import Shape
 from leader.navigation import Follower
@@ -35,6 +36,11 @@ class Replans:
         self.footprints = footprints
         self.drivers: dict[str, RouteDriver] = {}
         self.updates: list[tuple[float, str, Reason, int]] = []  # (t, formation, why, waypoints)
+        # per formation of a lifelong run's gathering robot: the formations of one its leader
+        # does not see (its allies, kept apart by separation rows) and those it plans round as
+        # robots, not as formations (its mates: agent.errand.mates_at)
+        self.unseen: Mapping[str, frozenset[str]] = {}
+        self.mates: Mapping[str, frozenset[str]] = {}
 
         # a new route reaches the leader's own follower at once and the other members a tick
         # later, as the agents' ``plan`` message does in lock-step: (formation, update, heading)
@@ -129,8 +135,10 @@ class Replans:
                      spec.velocity == (0.0, 0.0), o.vx, o.vy)
                for o, spec in zip(obstacles, self.scenario.obstacles, strict=True)]
         radius = self.scenario.robot.radius
-        out += [Thing(f"formation/{other}", e.cx, e.cy, math.hypot(e.vx, e.vy), e.a + radius)
-                for other, e in ellipses.items() if other != name]
+        mates, unseen = self.mates.get(name, frozenset()), self.unseen.get(name, frozenset())
+        out += [Thing(f"formation/{other}", e.cx, e.cy, math.hypot(e.vx, e.vy),
+                      mate_reach(radius) if other in mates else e.a + radius)
+                for other, e in ellipses.items() if other != name and other not in unseen]
         return out
 
     def summary(self) -> dict:
