@@ -42,7 +42,7 @@ from pathlib import Path  # noqa: E402
 from agent.config import load_config  # noqa: E402
 from agent.faults import LinkFaults  # noqa: E402
 from agent.node import AgentNode, NodeOptions  # noqa: E402
-from agent.replan import close_plan_pool  # noqa: E402
+from agent.replan import close_plan_pool, start_plan_pool  # noqa: E402
 from runtime.lifeline import watch_parent  # noqa: E402
 from wire.acl import read_credentials  # noqa: E402
 from wire.zconf import UsrPwdAuth, use_zenoh_threads  # noqa: E402
@@ -209,6 +209,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         target=_emergency_exit, args=(node, ns.stats, done, written), name="shutdown-limit",
         daemon=True).start())
     try:
+        start_plan_pool([cfg], options.lockstep)
         asyncio.run(serve(node, watch))
     except Exception as exc:  # a process front end: report and exit 1
         logger.exception("agent %s failed", cfg.robot_id)

@@ -52,7 +52,7 @@ import zenoh
 from agent.__main__ import SignalWatch, build_parser, node_options, stop_event, write_stats
 from agent.config import AgentConfig, load_config
 from agent.node import AgentNode, NodeOptions, zenoh_config
-from agent.replan import close_plan_pool
+from agent.replan import close_plan_pool, start_plan_pool
 from agent.schedule import PoseScheduler
 from agent.stalls import StallProbe
 from agent.stats import AgentStats
@@ -266,6 +266,7 @@ def serve_planned(planned: list[tuple[AgentConfig, NodeOptions, Path]], ns: argp
         if ns.shared_session:
             shared = SharedSession(zenoh.open(zenoh_config(planned[0][0], opt0.connect_timeout)), k)
         nodes = [HostedNode(cfg, options, shared, k, worker) for cfg, options, _ in planned]
+        start_plan_pool([cfg for cfg, _, _ in planned], opt0.lockstep)
         if probe is not None:
             probe.start()
         asyncio.run(serve_all(nodes, watch))

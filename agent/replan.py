@@ -22,9 +22,9 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor, wait
 from multiprocessing import get_context
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from geometry.ellipse import Ellipse, wrap_angle
 from geometry.footprint_plan import PLAN_MARGIN, Body
@@ -37,7 +37,11 @@ from wire.payloads import EllipseMsg, ObstacleMsg
 from .body import Footprint, pose_of
 from .errand import mate_reach
 
+if TYPE_CHECKING:
+    from .config import AgentConfig
+
 PLAN_NICE = 19  # the worker's niceness (also where the idle policy is refused)
+WARM_S = 30.0  # [s] longest wait for a new plan worker's first job (start_plan_pool)
 
 
 class LeaderRoutes:
@@ -169,6 +173,23 @@ def plan_pool() -> ProcessPoolExecutor:
         atexit.register(pool.shutdown, wait=False, cancel_futures=True)
         _POOL.append(pool)
     return _POOL[0]
+
+
+def may_plan(cfg: AgentConfig) -> bool:
+    """Whether the agent of ``cfg`` may plan routes: a leader, its standby or a fleet robot
+    (each leads a formation of one) of method rigid with the planner on."""
+    return cfg.planner and cfg.footprint is not None and (
+        cfg.leader is not None or cfg.standby is not None or cfg.lifelong is not None)
+
+
+def start_plan_pool(cfgs: Sequence[AgentConfig], lockstep: bool) -> None:
+    """Start the process's plan worker before its agents tick, where one of them may plan in
+    real time (:func:`may_plan`; lock-step plans on the tick's thread), and wait up to
+    :data:`WARM_S` for it to have run a first job: its interpreter and imports, and
+    multiprocessing's resource tracker, are then behind the agents, not inside a fleet's
+    first ticks as when the worker is born at a leader's first plan."""
+    if not lockstep and any(may_plan(c) for c in cfgs):
+        wait([plan_pool().submit(int)], timeout=WARM_S)
 
 
 def close_plan_pool() -> None:
