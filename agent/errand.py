@@ -113,9 +113,10 @@ def allies_at(robots: Sequence[str], slots: Sequence[Point], rid: str, at: Mappi
     gathering, so that members can stand at adjacent slots: when ``rid`` is within
     :data:`ALLY_REACH` of its slot, the others that are (``at``: the members' positions known);
     farther out the ellipses keep them apart as any two formations."""
-    near = [r for r, s in zip(robots, slots, strict=True)
-            if r in at and math.dist(at[r], s) <= ALLY_REACH]
-    return tuple(r for r in near if r != rid) if rid in near else ()
+    mine = slots[robots.index(rid)]
+    if rid not in at or math.dist(at[rid], mine) > ALLY_REACH:
+        return ()
+    return mates_at(robots, slots, rid, at)
 
 
 def mates_at(robots: Sequence[str], slots: Sequence[Point], rid: str, at: Mapping[str, Point]

@@ -21,6 +21,7 @@ from agent.config import (
     team_formation,
 )
 from agent.errand import (
+    ALLY_REACH,
     CARRYING,
     DELIVERED,
     FAILED,
@@ -31,6 +32,8 @@ from agent.errand import (
     ErrandSettings,
     Job,
     Seen,
+    allies_at,
+    mates_at,
     parking,
 )
 from leader.team import TeamPlan, plan_team, pose_error, slot_points
@@ -304,3 +307,22 @@ def test_a_speaker_that_hears_its_team_released_by_a_successor_dissolves() -> No
 def replace_status(job: Job, leader: str, state: str):
     from wire.orders import OrderStatusMsg
     return OrderStatusMsg(job.oid, state, job.round, job.robots, leader, "member lost: r1")
+
+
+POINTS = st.tuples(st.floats(-3.0, 3.0), st.floats(-3.0, 3.0))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(POINTS, POINTS), min_size=2, max_size=5), st.data())
+def test_mates_stand_near_their_slots_and_allies_are_the_mates_of_one_near_its_own(pairs, data):
+    robots = tuple(f"r{i}" for i in range(len(pairs)))
+    slots = [s for s, _ in pairs]
+    at = {r: p for r, (_, p) in zip(robots, pairs, strict=True) if data.draw(st.booleans())}
+    rid = data.draw(st.sampled_from(robots))
+    mates = mates_at(robots, slots, rid, at)
+    assert rid not in mates
+    assert set(mates) == {r for r, s in zip(robots, slots, strict=True)
+                          if r != rid and r in at and math.dist(at[r], s) <= ALLY_REACH}
+    near = rid in at and math.dist(at[rid], slots[robots.index(rid)]) <= ALLY_REACH
+    assert allies_at(robots, slots, rid, at) == (mates if near else ())
+
