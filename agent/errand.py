@@ -18,7 +18,8 @@ same ones for the whole fleet):
   the lift held still) and carries the load to the destination (the leader routes the
   formation).
   The speaker sees the load (:func:`leader.team.load_pose`) within :data:`SET_DOWN_M` and
-  :data:`SET_DOWN_RAD` of the destination and every member at its goal.
+  :data:`SET_DOWN_RAD` of the destination, both where it is and where it comes to rest as the
+  members move on through the set-down (:func:`arrived`), and every member at its goal.
 * **setting down**: the team stands ``lift_ticks`` still; then the order is delivered: the team
   dissolves, each robot walks out from under the load (:func:`exit_point`), then to its parking
   spot, and is idle again.
@@ -152,15 +153,50 @@ def sees_load(load: Shape, me: Point, offset: float) -> bool:
     return not inside_box(load, me[0], me[1], load.ds + offset)
 
 
-def arrived(plan: TeamPlan, at: Sequence[Point], src: Pose, dst: Pose, reach: float) -> bool:
-    """Whether a team whose members' bodies stand at ``at`` has brought its load (lifted at
-    ``src``) to its station ``dst``: the load within :data:`SET_DOWN_M` and
-    :data:`SET_DOWN_RAD` of it, every member within ``reach`` of its goal
-    (:func:`leader.team.carry_reach`: a unicycle's rows hold its control point, its body sits
-    the look-ahead behind it, on whatever heading it ends)."""
-    d, a = pose_error(load_pose(plan.starts, at, src), dst)
-    return d <= SET_DOWN_M and a <= SET_DOWN_RAD and all(
-        math.dist(p, g) <= reach for p, g in zip(at, plan.goals, strict=True))
+def per_tick(now: Point, then: Point, ticks: int) -> Point:
+    """[m/tick] A robot's motion from ``then`` to ``now``, ``ticks`` apart (none: standing)."""
+    if ticks <= 0:
+        return (0.0, 0.0)
+    return ((now[0] - then[0]) / ticks, (now[1] - then[1]) / ticks)
+
+
+def rest_points(at: Sequence[Point], steps: Sequence[Point], lift_ticks: int) -> list[Point]:
+    """Where the members of a team judged arrived on ``at`` (their positions of the tick before
+    the judgement, in slot order, the speaker first) stand when its load comes to rest, each
+    keeping its motion of its last tick (``steps``, [m/tick]).
+
+    The speaker stands still from the tick it judges on, so it moves one tick more. The others
+    stand still at no point of the set-down: they move that tick and the ``lift_ticks`` of the
+    set-down, to the tick the speaker puts ``delivered``, whose positions the load rests on (the
+    simulator sets it down then; the world takes the status at that tick, before it moves the
+    robots). A member slowing down goes no farther than this; one standing still stays."""
+    ahead = [1] + [lift_ticks + 1] * (len(at) - 1)
+    return [(p[0] + n * s[0], p[1] + n * s[1]) for p, s, n in zip(at, steps, ahead, strict=True)]
+
+
+def set_down_within(pose: Pose, dst: Pose) -> bool:
+    """Whether a load at ``pose`` is within :data:`SET_DOWN_M` and :data:`SET_DOWN_RAD` of its
+    station's ``dst``."""
+    d, a = pose_error(pose, dst)
+    return d <= SET_DOWN_M and a <= SET_DOWN_RAD
+
+
+def arrived(plan: TeamPlan, at: Sequence[Point], steps: Sequence[Point], src: Pose, dst: Pose,
+            reach: float, lift_ticks: int) -> bool:
+    """Whether a team whose members' bodies stand at ``at`` (moving by ``steps`` a tick) has
+    brought its load (lifted at ``src``) to its station ``dst``: every member within ``reach``
+    of its goal (:func:`leader.team.carry_reach`: a unicycle's rows hold its control point, its
+    body sits the look-ahead behind it, on whatever heading it ends), and the load within the
+    set-down tolerance of it (:func:`set_down_within`) both where it is and where it comes to
+    rest once the speaker stands still and the others move on through the set-down
+    (:func:`rest_points`). A team judged on where it is alone would set down a load that its
+    members, still moving (a unicycle turning), carry past the tolerance; a still team is judged
+    on where it stands, so a team converging on its goals arrives as it slows."""
+    if not all(math.dist(p, g) <= reach for p, g in zip(at, plan.goals, strict=True)):
+        return False
+    rest = rest_points(at, steps, lift_ticks)
+    return set_down_within(load_pose(plan.starts, at, src), dst) and set_down_within(
+        load_pose(plan.starts, rest, src), dst)
 
 
 def lost(k: int, seen: Seen | None, since: int, limit: int, dead: bool) -> bool:
@@ -228,11 +264,19 @@ class ErrandSettings:
 
 @dataclass(frozen=True)
 class Seen:
-    """Where a teammate's body stood at tick ``k`` (as its last state said)."""
+    """Where a teammate's body stood at tick ``k`` (as its last state said), and ``was``: where
+    it stood at the tick of the state before (x, y, tick; None: not known)."""
 
     x: float
     y: float
     k: int
+    was: tuple[float, float, int] | None = None
+
+    def motion(self) -> Point:
+        """[m/tick] Its motion between the two (:func:`per_tick`; not known: standing)."""
+        if self.was is None:
+            return (0.0, 0.0)
+        return per_tick((self.x, self.y), (self.was[0], self.was[1]), self.k - self.was[2])
 
 
 class Rest:
@@ -304,6 +348,8 @@ class Errand:
         self.rest: Rest | None = None  # where the team last stood still at its slots
         self.ended: OrderStatusMsg | None = None  # the last final status this robot spoke
         self.ended_at = -1  # [tick] it was last put
+        self.was: tuple[Point, int] | None = None  # this robot's position of its last step, tick
+        self.moved: Point = (0.0, 0.0)  # [m/tick] its motion from there to this step's
 
     # --- what it hears --------------------------------------------------------------------
 
@@ -333,7 +379,11 @@ class Errand:
     # --- each tick ------------------------------------------------------------------------
 
     def step(self, k: int, me: Point, mates: Mapping[str, Seen]) -> Move:
-        """Tick ``k``, this robot at ``me``, its teammates last seen at ``mates``."""
+        """Tick ``k``, this robot at ``me`` (its position of the tick before), its teammates last
+        seen at ``mates``."""
+        self.moved = (0.0, 0.0) if self.was is None else per_tick(me, self.was[0],
+                                                                  k - 1 - self.was[1])
+        self.was = (me, k - 1)
         if self.job is None:
             return self._idle(k, me)
         if self.plan is None and self.rest is not None:
@@ -429,19 +479,22 @@ class Errand:
         elif self.phase == LIFTING and at is not None and k - self.since >= s.lift_ticks:
             team = self._form(at)
             self.phase, self.since = CARRYING, k
-        elif self.phase == CARRYING and at is not None and self._arrived(at):
+        elif self.phase == CARRYING and at is not None and self._arrived(at, mates):
             self.phase, self.since = SETTING_DOWN, k
         elif self.phase == SETTING_DOWN and k - self.since >= s.lift_ticks:
             return self._dissolve(me, at, DELIVERED, self._status(k, DELIVERED))
         hold = self.phase in (LIFTING, SETTING_DOWN)
         return Move(team=team, hold=hold, status=self._status(k, REPORTED[self.phase]))
 
-    def _arrived(self, at: Sequence[Point]) -> bool:
-        """The team has brought the load to its station (:func:`arrived`)."""
+    def _arrived(self, at: Sequence[Point], mates: Mapping[str, Seen]) -> bool:
+        """The team has brought the load to its station (:func:`arrived`, each member moving as
+        over its last two reports, this robot as over its last two steps)."""
         job, plan = self.job, self.plan
         assert job is not None and plan is not None
         s = self.settings
-        return arrived(plan, at, job.src, job.dst, carry_reach(s.goal_tolerance, s.offset))
+        steps = [self.moved if r == self.rid else mates[r].motion() for r in job.robots]
+        return arrived(plan, at, steps, job.src, job.dst, carry_reach(s.goal_tolerance, s.offset),
+                       s.lift_ticks)
 
     def _follow(self, k: int, me: Point, mates: Mapping[str, Seen]) -> Move:
         """A member's tick: the speaker's statuses decide; at its slot it stands."""
