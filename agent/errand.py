@@ -18,8 +18,9 @@ same ones for the whole fleet):
   the lift held still) and carries the load to the destination (the leader routes the
   formation).
   The speaker sees the load (:func:`leader.team.load_pose`) within :data:`SET_DOWN_M` and
-  :data:`SET_DOWN_RAD` of the destination, both where it is and where it comes to rest as the
-  members move on through the set-down (:func:`arrived`), and every member at its goal.
+  :data:`SET_DOWN_RAD` of the destination, both where it is and wherever it may come to rest
+  as the members stop or move on through the set-down (:func:`arrived`), and every member at
+  its goal.
 * **setting down**: the team stands ``lift_ticks`` still; then the order is delivered: the team
   dissolves, each robot walks out from under the load (:func:`exit_point`), then to its parking
   spot, and is idle again.
@@ -53,8 +54,9 @@ order) is not this team's.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
+from itertools import product
 
 from geometry.shapes import Shape, box, distance_floor, shape_distance
 from leader.team import Point, Pose, TeamPlan, carry_reach, load_pose, plan_team, pose_error
@@ -160,18 +162,24 @@ def per_tick(now: Point, then: Point, ticks: int) -> Point:
     return ((now[0] - then[0]) / ticks, (now[1] - then[1]) / ticks)
 
 
-def rest_points(at: Sequence[Point], steps: Sequence[Point], lift_ticks: int) -> list[Point]:
+def rest_points(at: Sequence[Point], steps: Sequence[Point], lift_ticks: int
+                ) -> Iterator[list[Point]]:
     """Where the members of a team judged arrived on ``at`` (their positions of the tick before
-    the judgement, in slot order, the speaker first) stand when its load comes to rest, each
-    keeping its motion of its last tick (``steps``, [m/tick]).
+    the judgement, in slot order, the speaker first) may stand when its load comes to rest, each
+    moving at most as over its last tick (``steps``, [m/tick]): every corner of that reach.
 
     The speaker stands still from the tick it judges on, so it moves one tick more. The others
-    stand still at no point of the set-down: they move that tick and the ``lift_ticks`` of the
-    set-down, to the tick the speaker puts ``delivered``, whose positions the load rests on (the
-    simulator sets it down then; the world takes the status at that tick, before it moves the
-    robots). A member slowing down goes no farther than this; one standing still stays."""
-    ahead = [1] + [lift_ticks + 1] * (len(at) - 1)
-    return [(p[0] + n * s[0], p[1] + n * s[1]) for p, s, n in zip(at, steps, ahead, strict=True)]
+    stand still at no point of the set-down, to the tick the speaker puts ``delivered``, whose
+    positions the load rests on (the simulator sets it down then; the world takes the status at
+    that tick, before it moves the robots): each either stops after that one tick too (held back
+    by its rows to the standing speaker) or goes on through the ``lift_ticks`` of the set-down,
+    or anything between. The load's turn is the angle of sums linear in the members' positions
+    (:func:`geometry.rigid.rigid_fit`), so over all the members' places between stopping and
+    going on it is at its extremes where each member does one or the other: the corners
+    yielded here. A team standing still has its every corner where it stands."""
+    for going in product((False, True), repeat=max(0, len(at) - 1)):
+        ahead = (1, *(lift_ticks + 1 if g else 1 for g in going))
+        yield [(p[0] + n * d[0], p[1] + n * d[1]) for p, d, n in zip(at, steps, ahead, strict=True)]
 
 
 def set_down_within(pose: Pose, dst: Pose) -> bool:
@@ -187,16 +195,16 @@ def arrived(plan: TeamPlan, at: Sequence[Point], steps: Sequence[Point], src: Po
     brought its load (lifted at ``src``) to its station ``dst``: every member within ``reach``
     of its goal (:func:`leader.team.carry_reach`: a unicycle's rows hold its control point, its
     body sits the look-ahead behind it, on whatever heading it ends), and the load within the
-    set-down tolerance of it (:func:`set_down_within`) both where it is and where it comes to
-    rest once the speaker stands still and the others move on through the set-down
+    set-down tolerance of it (:func:`set_down_within`) both where it is and wherever it may come
+    to rest once the speaker stands still and the others stop or move on through the set-down
     (:func:`rest_points`). A team judged on where it is alone would set down a load that its
     members, still moving (a unicycle turning), carry past the tolerance; a still team is judged
     on where it stands, so a team converging on its goals arrives as it slows."""
     if not all(math.dist(p, g) <= reach for p, g in zip(at, plan.goals, strict=True)):
         return False
-    rest = rest_points(at, steps, lift_ticks)
-    return set_down_within(load_pose(plan.starts, at, src), dst) and set_down_within(
-        load_pose(plan.starts, rest, src), dst)
+    return set_down_within(load_pose(plan.starts, at, src), dst) and all(
+        set_down_within(load_pose(plan.starts, rest, src), dst)
+        for rest in rest_points(at, steps, lift_ticks))
 
 
 def lost(k: int, seen: Seen | None, since: int, limit: int, dead: bool) -> bool:

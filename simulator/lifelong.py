@@ -24,7 +24,7 @@ tick, before the robots' commands:
    :func:`leader.team.plan_team`, from where they stood), and the members form the team's
    formation (every pair of slots an edge, slot 0 leads) when they hear it; within 5 cm and 3
    degrees of the destination (on the speaker's poses of the tick before, both where the load
-   is and where the members' motion of that tick carries it through the set-down:
+   is and wherever the members' motion of that tick may carry it through the set-down:
    :func:`agent.errand.arrived`) the speaker stands for ``lift_s`` again, the load rests there
    and the team dissolves when its members hear it: each robot walks out from under the load
    (:func:`agent.errand.way_out`), then to its parking spot (:func:`agent.errand.parking`:
