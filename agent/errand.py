@@ -18,7 +18,9 @@ same ones for the whole fleet):
   the lift held still) and carries the load to the destination (the leader routes the
   formation).
   The speaker sees the load (:func:`leader.team.load_pose`) within :data:`SET_DOWN_M` and
-  :data:`SET_DOWN_RAD` of the destination and every member at its goal.
+  :data:`SET_DOWN_RAD` of the destination, both where it is and wherever it may come to rest
+  as the members stop or move on through the set-down (:func:`arrived`), and every member at
+  its goal.
 * **setting down**: the team stands ``lift_ticks`` still; then the order is delivered: the team
   dissolves, each robot walks out from under the load (:func:`exit_point`), then to its parking
   spot, and is idle again.
@@ -52,8 +54,9 @@ order) is not this team's.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
+from itertools import product
 
 from geometry.shapes import Shape, box, distance_floor, shape_distance
 from leader.team import Point, Pose, TeamPlan, carry_reach, load_pose, plan_team, pose_error
@@ -153,15 +156,56 @@ def sees_load(load: Shape, me: Point, offset: float) -> bool:
     return not inside_box(load, me[0], me[1], load.ds + offset)
 
 
-def arrived(plan: TeamPlan, at: Sequence[Point], src: Pose, dst: Pose, reach: float) -> bool:
-    """Whether a team whose members' bodies stand at ``at`` has brought its load (lifted at
-    ``src``) to its station ``dst``: the load within :data:`SET_DOWN_M` and
-    :data:`SET_DOWN_RAD` of it, every member within ``reach`` of its goal
-    (:func:`leader.team.carry_reach`: a unicycle's rows hold its control point, its body sits
-    the look-ahead behind it, on whatever heading it ends)."""
-    d, a = pose_error(load_pose(plan.starts, at, src), dst)
-    return d <= SET_DOWN_M and a <= SET_DOWN_RAD and all(
-        math.dist(p, g) <= reach for p, g in zip(at, plan.goals, strict=True))
+def per_tick(now: Point, then: Point, ticks: int) -> Point:
+    """[m/tick] A robot's motion from ``then`` to ``now``, ``ticks`` apart (none: standing)."""
+    if ticks <= 0:
+        return (0.0, 0.0)
+    return ((now[0] - then[0]) / ticks, (now[1] - then[1]) / ticks)
+
+
+def rest_points(at: Sequence[Point], steps: Sequence[Point], lift_ticks: int
+                ) -> Iterator[list[Point]]:
+    """Where the members of a team judged arrived on ``at`` (their positions of the tick before
+    the judgement, in slot order, the speaker first) may stand when its load comes to rest, each
+    moving at most as over its last tick (``steps``, [m/tick]): every corner of that reach.
+
+    The speaker stands still from the tick it judges on, so it moves one tick more. The others
+    stand still at no point of the set-down, to the tick the speaker puts ``delivered``, whose
+    positions the load rests on (the simulator sets it down then; the world takes the status at
+    that tick, before it moves the robots): each either stops after that one tick too (held back
+    by its rows to the standing speaker) or goes on through the ``lift_ticks`` of the set-down,
+    or anything between. The load's turn is the angle of sums linear in the members' positions
+    (:func:`geometry.rigid.rigid_fit`), so over all the members' places between stopping and
+    going on it is at its extremes where each member does one or the other: the corners
+    yielded here. A team standing still has its every corner where it stands."""
+    for going in product((False, True), repeat=max(0, len(at) - 1)):
+        ahead = (1, *(lift_ticks + 1 if g else 1 for g in going))
+        yield [(p[0] + n * d[0], p[1] + n * d[1]) for p, d, n in zip(at, steps, ahead, strict=True)]
+
+
+def set_down_within(pose: Pose, dst: Pose) -> bool:
+    """Whether a load at ``pose`` is within :data:`SET_DOWN_M` and :data:`SET_DOWN_RAD` of its
+    station's ``dst``."""
+    d, a = pose_error(pose, dst)
+    return d <= SET_DOWN_M and a <= SET_DOWN_RAD
+
+
+def arrived(plan: TeamPlan, at: Sequence[Point], steps: Sequence[Point], src: Pose, dst: Pose,
+            reach: float, lift_ticks: int) -> bool:
+    """Whether a team whose members' bodies stand at ``at`` (moving by ``steps`` a tick) has
+    brought its load (lifted at ``src``) to its station ``dst``: every member within ``reach``
+    of its goal (:func:`leader.team.carry_reach`: a unicycle's rows hold its control point, its
+    body sits the look-ahead behind it, on whatever heading it ends), and the load within the
+    set-down tolerance of it (:func:`set_down_within`) both where it is and wherever it may come
+    to rest once the speaker stands still and the others stop or move on through the set-down
+    (:func:`rest_points`). A team judged on where it is alone would set down a load that its
+    members, still moving (a unicycle turning), carry past the tolerance; a still team is judged
+    on where it stands, so a team converging on its goals arrives as it slows."""
+    if not all(math.dist(p, g) <= reach for p, g in zip(at, plan.goals, strict=True)):
+        return False
+    return set_down_within(load_pose(plan.starts, at, src), dst) and all(
+        set_down_within(load_pose(plan.starts, rest, src), dst)
+        for rest in rest_points(at, steps, lift_ticks))
 
 
 def lost(k: int, seen: Seen | None, since: int, limit: int, dead: bool) -> bool:
@@ -229,11 +273,19 @@ class ErrandSettings:
 
 @dataclass(frozen=True)
 class Seen:
-    """Where a teammate's body stood at tick ``k`` (as its last state said)."""
+    """Where a teammate's body stood at tick ``k`` (as its last state said), and ``was``: where
+    it stood at the tick of the state before (x, y, tick; None: not known)."""
 
     x: float
     y: float
     k: int
+    was: tuple[float, float, int] | None = None
+
+    def motion(self) -> Point:
+        """[m/tick] Its motion between the two (:func:`per_tick`; not known: standing)."""
+        if self.was is None:
+            return (0.0, 0.0)
+        return per_tick((self.x, self.y), (self.was[0], self.was[1]), self.k - self.was[2])
 
 
 class Rest:
@@ -305,6 +357,8 @@ class Errand:
         self.rest: Rest | None = None  # where the team last stood still at its slots
         self.ended: OrderStatusMsg | None = None  # the last final status this robot spoke
         self.ended_at = -1  # [tick] it was last put
+        self.was: tuple[Point, int] | None = None  # this robot's position of its last step, tick
+        self.moved: Point = (0.0, 0.0)  # [m/tick] its motion from there to this step's
 
     # --- what it hears --------------------------------------------------------------------
 
@@ -334,7 +388,11 @@ class Errand:
     # --- each tick ------------------------------------------------------------------------
 
     def step(self, k: int, me: Point, mates: Mapping[str, Seen]) -> Move:
-        """Tick ``k``, this robot at ``me``, its teammates last seen at ``mates``."""
+        """Tick ``k``, this robot at ``me`` (its position of the tick before), its teammates last
+        seen at ``mates``."""
+        self.moved = (0.0, 0.0) if self.was is None else per_tick(me, self.was[0],
+                                                                  k - 1 - self.was[1])
+        self.was = (me, k - 1)
         if self.job is None:
             return self._idle(k, me)
         if self.plan is None and self.rest is not None:
@@ -430,19 +488,22 @@ class Errand:
         elif self.phase == LIFTING and at is not None and k - self.since >= s.lift_ticks:
             team = self._form(at)
             self.phase, self.since = CARRYING, k
-        elif self.phase == CARRYING and at is not None and self._arrived(at):
+        elif self.phase == CARRYING and at is not None and self._arrived(at, mates):
             self.phase, self.since = SETTING_DOWN, k
         elif self.phase == SETTING_DOWN and k - self.since >= s.lift_ticks:
             return self._dissolve(me, at, DELIVERED, self._status(k, DELIVERED))
         hold = self.phase in (LIFTING, SETTING_DOWN)
         return Move(team=team, hold=hold, status=self._status(k, REPORTED[self.phase]))
 
-    def _arrived(self, at: Sequence[Point]) -> bool:
-        """The team has brought the load to its station (:func:`arrived`)."""
+    def _arrived(self, at: Sequence[Point], mates: Mapping[str, Seen]) -> bool:
+        """The team has brought the load to its station (:func:`arrived`, each member moving as
+        over its last two reports, this robot as over its last two steps)."""
         job, plan = self.job, self.plan
         assert job is not None and plan is not None
         s = self.settings
-        return arrived(plan, at, job.src, job.dst, carry_reach(s.goal_tolerance, s.offset))
+        steps = [self.moved if r == self.rid else mates[r].motion() for r in job.robots]
+        return arrived(plan, at, steps, job.src, job.dst, carry_reach(s.goal_tolerance, s.offset),
+                       s.lift_ticks)
 
     def _follow(self, k: int, me: Point, mates: Mapping[str, Seen]) -> Move:
         """A member's tick: the speaker's statuses decide; at its slot it stands."""

@@ -87,6 +87,9 @@ from wire.shapes import msg_to_shape, shape_to_msg
 logger = logging.getLogger(__name__)
 
 ENDED = (DELIVERED, FAILED, RELEASED, "cancelled")
+#: a teammate's newest states kept: that of the tick being run may be among them, and a tick
+#: reads the two before it (its position and its motion)
+KEPT_STATES = 3
 
 
 def view_scenario(cfg: AgentConfig, shapes: tuple[Shape, ...],
@@ -118,7 +121,8 @@ class Heard:
 
     lock: threading.Lock = field(default_factory=threading.Lock)
     loads: dict[str, LoadEntry] = field(default_factory=dict)
-    # teammate -> its last two positions (newest last): a tick reads the one of the tick before
+    # teammate -> its last three positions (newest last): a tick reads the one of the tick
+    # before, and the one before that (its motion, as the set-down's judgement needs it)
     states: dict[str, list[tuple[float, float, float, int]]] = field(default_factory=dict)
     malformed: int = 0
 
@@ -221,7 +225,7 @@ class LifePart:
                 return
             row = self.heard.states.setdefault(rid, [])
             row.append((x, y, s.theta, k))
-            del row[:-2]
+            del row[:-KEPT_STATES]
 
     def _listen_to(self, mates: tuple[str, ...]) -> None:
         """Subscribe to exactly these teammates' ``state``."""
@@ -415,14 +419,16 @@ class LifePart:
         return move.hold
 
     def _mates(self, k: int) -> dict[str, Seen]:
-        """Each teammate's position of a tick before ``k`` (the newest such)."""
+        """Each teammate's position of a tick before ``k`` (the newest such), with the one it
+        reported before that."""
         out = {}
         with self.heard.lock:
             for r, row in self.heard.states.items():
                 old = [v for v in row if v[3] < k]
                 if old:
                     x, y, _th, kk = old[-1]
-                    out[r] = Seen(x, y, kk)
+                    was = (old[-2][0], old[-2][1], old[-2][3]) if len(old) > 1 else None
+                    out[r] = Seen(x, y, kk, was)
         return out
 
     def _apply(self, move: Move) -> None:

@@ -23,10 +23,12 @@ tick, before the robots' commands:
    slots as they reach them; then the load is carried (the team's plan,
    :func:`leader.team.plan_team`, from where they stood), and the members form the team's
    formation (every pair of slots an edge, slot 0 leads) when they hear it; within 5 cm and 3
-   degrees of the destination (on the speaker's poses of the tick before) the speaker stands
-   for ``lift_s`` again, the load rests there and the team dissolves when its members hear it:
-   each robot walks out from under the load (:func:`agent.errand.way_out`), then to its parking
-   spot (:func:`agent.errand.parking`: fixed, the same in every agent), and is idle again;
+   degrees of the destination (on the speaker's poses of the tick before, both where the load
+   is and wherever the members' motion of that tick may carry it through the set-down:
+   :func:`agent.errand.arrived`) the speaker stands for ``lift_s`` again, the load rests there
+   and the team dissolves when its members hear it: each robot walks out from under the load
+   (:func:`agent.errand.way_out`), then to its parking spot (:func:`agent.errand.parking`:
+   fixed, the same in every agent), and is idle again;
 5. a member killed (:class:`LifelongOptions` ``kills``) stands where it is from then on; a team
    that has lifted sets the load down where it stands (a resting load off any station) and its
    order fails with ``member lost: RID``; before the lift the order waits again.
@@ -67,6 +69,7 @@ from agent.errand import (
     load_box,
     mates_at,
     parking,
+    per_tick,
     sees_load,
     way_out,
 )
@@ -368,6 +371,7 @@ class LifelongRun:
         self.tick = FleetTick(self.base, None, False, progress, stop=self.finished)
         self.state: list[Pose] = [starts[r] for r in self.ids]
         self.prev: list[Pose] = list(self.state)  # the poses of the tick before
+        self.prev2: list[Pose] = list(self.state)  # and of the tick before that
         self.ds = scenario.robot.radius + LOAD_MARGIN
         # a robot leaving a load it stood under is out once its control point (where its rows
         # are measured) is beyond the load's safe distance
@@ -438,7 +442,8 @@ class LifelongRun:
                 self.rebuild()
             before = self.state
             results, ellipses, obs = self.commands(t)
-            self.prev, self.state = before, self.tick.move(before, results)
+            self.prev2, self.prev = self.prev, before
+            self.state = self.tick.move(before, results)
             if self.options.record:
                 record(self.tick, t, before, results, ellipses, obs)
             t = (k + 1) * dt
@@ -640,11 +645,16 @@ class LifelongRun:
                    for p, s in zip(self.positions(crew.robots), crew.slots, strict=True))
 
     def arrived(self, crew: Crew) -> bool:
-        """The load within the set-down tolerance of its station and every member at its goal,
-        on the poses of the tick before (the speaker's view)."""
+        """The load within the set-down tolerance of its station where it is and where it comes
+        to rest, and every member at its goal, on the poses of the tick before and their motion
+        from the tick before that (the speaker's view, :func:`agent.errand.arrived`)."""
         assert crew.plan is not None
-        return arrived(crew.plan, self.positions(crew.robots, self.prev), crew.src, crew.dst,
-                       carry_reach(self.base.goal_tolerance, self.base.robot.control_offset))
+        at = self.positions(crew.robots, self.prev)
+        steps = [per_tick(p, q, 1) for p, q in
+                 zip(at, self.positions(crew.robots, self.prev2), strict=True)]
+        return arrived(crew.plan, at, steps, crew.src, crew.dst,
+                       carry_reach(self.base.goal_tolerance, self.base.robot.control_offset),
+                       self.lift_ticks)
 
     def move_order(self, oid: str, event: lo.Event) -> lo.Order:
         self.orders[oid] = order = lo.step(self.orders[oid], event)

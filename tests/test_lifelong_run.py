@@ -32,15 +32,11 @@ QUICK = [p for p in ALL if p.stem.startswith("one-") or p.stem in QUICK_STEMS]
 HOURS = {"lifelong-stream-30min", "lifelong-stream-unicycle", "lifelong-warehouse"}
 # an order that still stands stuck: a gathering unicycle finds no way into its slot
 STUCK = {"mc-stuck-unicycle-a"}
-# a turning unicycle team judged arrived a tick before it stops rests its load past 3 degrees
-TURNED = {"drawn-pocket-slot-unicycle"}
 LONG = [pytest.param(p, id=p.stem, marks=[pytest.mark.skipif(
             p.stem in HOURS and not os.environ.get("FORMATION_SLOW"),
             reason="a stream of half an hour or more: set FORMATION_SLOW=1")] + (
             [pytest.mark.xfail(strict=True, reason="a gathering unicycle finds no way in")]
-            if p.stem in STUCK else []) + (
-            [pytest.mark.xfail(reason="a turning unicycle team rests its load 3.4 degrees off")]
-            if p.stem in TURNED else []))
+            if p.stem in STUCK else []))
         for p in ALL if p not in QUICK]
 
 
@@ -56,9 +52,6 @@ def test_every_order_of_a_longer_scenario_is_delivered_safely(path):
 
 
 @pytest.mark.slow
-# a team judges its arrival on the poses of the tick before, and one still turning rests its load
-# a tick later, past the set-down's 3 degrees (3.2 here): not strict, a tenth of a degree decides
-@pytest.mark.xfail(reason="a turning unicycle team sets its load down a tick late, 3.2 degrees off")
 def test_in_a_drawn_hall_of_unicycles_every_order_is_delivered_or_still_open_none_stuck():
     # a gathering team that keeps its route at a change of teams must not hold on it for good
     result = simulate_lifelong(load_scenario(DRAWN_HALL))
