@@ -31,15 +31,15 @@ QUICK = [p for p in ALL if p.stem.startswith("one-") or p.stem in QUICK_STEMS]
 # streams of half an hour and more: minutes of CPU each, run with FORMATION_SLOW=1
 HOURS = {"lifelong-stream-30min", "lifelong-stream-unicycle", "lifelong-warehouse"}
 # an order that still stands stuck: a gathering unicycle finds no way into its slot
-STUCK = {"mc-stuck-unicycle-a"}
+STUCK: set[str] = set()
 # a turning unicycle team judged arrived a tick before it stops rests its load past 3 degrees
-TURNED = {"drawn-pocket-slot-unicycle"}
+TURNED = {"drawn-pocket-slot-unicycle", "mc-stuck-unicycle-a"}
 LONG = [pytest.param(p, id=p.stem, marks=[pytest.mark.skipif(
             p.stem in HOURS and not os.environ.get("FORMATION_SLOW"),
             reason="a stream of half an hour or more: set FORMATION_SLOW=1")] + (
             [pytest.mark.xfail(strict=True, reason="a gathering unicycle finds no way in")]
             if p.stem in STUCK else []) + (
-            [pytest.mark.xfail(reason="a turning unicycle team rests its load 3.4 degrees off")]
+            [pytest.mark.xfail(reason="a turning unicycle team rests its load 3.4 to 4.2 degrees off")]
             if p.stem in TURNED else []))
         for p in ALL if p not in QUICK]
 
@@ -53,6 +53,17 @@ def test_every_order_is_delivered_safely(path):
 @pytest.mark.parametrize("path", LONG)
 def test_every_order_of_a_longer_scenario_is_delivered_safely(path):
     check_all_delivered(simulate_lifelong(load_scenario(path)))
+
+
+@pytest.mark.slow
+def test_a_last_member_reaches_its_slot_by_a_shelf_past_its_teammates_at_theirs():
+    # its one way in is tight all the way (the narrow pass), past teammates standing at their
+    # slots; the set-down's 3 degrees are the turning team's (TURNED), not judged here
+    result = simulate_lifelong(load_scenario(HERE / "lifelong" / "mc-stuck-unicycle-a.yaml"))
+    check_safe(result)
+    assert all(o.state == lo.DELIVERED for o in result.run.orders.values()), \
+        {o.oid: o.state for o in result.run.orders.values()}
+    assert not result.summary.get("unreachable")
 
 
 @pytest.mark.slow
