@@ -66,6 +66,7 @@ from agent.errand import (
     inside_box,
     load_box,
     mates_at,
+    out_from_under,
     parking,
     sees_load,
     way_out,
@@ -743,9 +744,9 @@ class LifelongRun:
 
     def walk_home(self, k: int) -> None:
         """A robot out from under a load (on the poses of the tick before) walks to its spot."""
-        tol = self.base.goal_tolerance
+        tol, offset = self.base.goal_tolerance, self.base.robot.control_offset
         for rid in sorted(self.leaving):
-            if math.dist(self.positions([rid], self.prev)[0], self.leaving[rid]) <= tol:
+            if out_from_under(self.positions([rid], self.prev)[0], self.leaving[rid], tol, offset):
                 del self.leaving[rid]
                 if rid in self.homes and not self.role[rid]:
                     self.goal[rid] = self.homes[rid]

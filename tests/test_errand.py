@@ -31,6 +31,7 @@ from agent.errand import (
     ErrandSettings,
     Job,
     Seen,
+    out_from_under,
     parking,
 )
 from leader.team import TeamPlan, plan_team, pose_error, slot_points
@@ -304,3 +305,13 @@ def test_a_speaker_that_hears_its_team_released_by_a_successor_dissolves() -> No
 def replace_status(job: Job, leader: str, state: str):
     from wire.orders import OrderStatusMsg
     return OrderStatusMsg(job.oid, state, job.round, job.robots, leader, "member lost: r1")
+
+
+def test_a_robot_is_out_from_under_a_load_with_its_body_where_its_control_point_stops() -> None:
+    # a holonomic robot: its body is its control point, held to the goal tolerance
+    assert out_from_under((0.0, 0.049), (0.0, 0.0), 0.05, 0.0)
+    assert not out_from_under((0.0, 0.06), (0.0, 0.0), 0.05, 0.0)
+    # a unicycle's body sits its look-ahead behind its control point, whichever way it faces:
+    # one that stopped with its control point short of the way out, its body 0.12 m off, is out
+    assert out_from_under((0.0, 0.12), (0.0, 0.0), 0.05, 0.05)
+    assert not out_from_under((0.0, 0.16), (0.0, 0.0), 0.05, 0.05)
