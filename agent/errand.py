@@ -145,6 +145,17 @@ def way_out(load: Shape, me: Point, clear: Callable[[float, float], bool], radiu
     return None
 
 
+def clear_spot(x: float, y: float, shapes: Sequence[Shape],
+               circles: Sequence[tuple[float, float, float]], radius: float) -> bool:
+    """True when a robot of ``radius`` may stand with its body at (x, y): its safe distance
+    plus the radius off every wall, shelf and resting load (``shapes``) and every circle
+    standing still (``circles``: centre and Ds). A way out (:func:`way_out`) inside a pillar's
+    safe distance held its robot between the pillar and the load for good, by a sink, in the
+    way of the next team there."""
+    return all(shape_distance(x, y, sh)[0] >= sh.ds + radius for sh in shapes) and all(
+        math.dist((x, y), (cx, cy)) >= ds + radius for cx, cy, ds in circles)
+
+
 def out_from_under(me: Point, leaving: Point, tolerance: float, offset: float) -> bool:
     """Whether a robot whose body stands at ``me`` is out from under the load its team set
     down, at its way out ``leaving`` (:func:`way_out`): within

@@ -31,8 +31,11 @@ from agent.errand import (
     ErrandSettings,
     Job,
     Seen,
+    clear_spot,
+    load_box,
     out_from_under,
     parking,
+    way_out,
 )
 from leader.team import TeamPlan, plan_team, pose_error, slot_points
 from scenario import load_scenario
@@ -315,3 +318,19 @@ def test_a_robot_is_out_from_under_a_load_with_its_body_where_its_control_point_
     # one that stopped with its control point short of the way out, its body 0.12 m off, is out
     assert out_from_under((0.0, 0.12), (0.0, 0.0), 0.05, 0.05)
     assert not out_from_under((0.0, 0.16), (0.0, 0.0), 0.05, 0.05)
+
+
+def test_a_way_out_from_under_a_load_keeps_off_a_pillar_standing_by_it() -> None:
+    # a pallet at a sink, turned a quarter, a pillar (Ds 0.35) off its north-east corner, as in
+    # a drawn hall: the robot under that corner walks out clear of the pillar as of the load
+    sc = load_scenario(PALLET)
+    assert sc.lifelong is not None
+    pallet = sc.lifelong.load_type("pallet")
+    sh = load_box("p", pallet, (8.2775, 3.7358, math.pi / 2), 0.15)
+    pillar = (8.6775, 4.6521, 0.35)
+    me = (8.43, 4.0)
+    alone = way_out(sh, me, lambda x, y: clear_spot(x, y, (sh,), (), 0.105), 0.105)
+    assert alone is not None and math.dist(alone, pillar[:2]) < pillar[2] + 0.105
+    out = way_out(sh, me, lambda x, y: clear_spot(x, y, (sh,), (pillar,), 0.105), 0.105)
+    assert out is not None and math.dist(out, pillar[:2]) >= pillar[2] + 0.105
+    assert clear_spot(*out, (sh,), (pillar,), 0.105)
