@@ -149,6 +149,28 @@ def way_out(load: Shape, me: Point, clear: Callable[[float, float], bool], radiu
     return None
 
 
+def clear_spot(x: float, y: float, shapes: Sequence[Shape],
+               circles: Sequence[tuple[float, float, float]], radius: float) -> bool:
+    """True when a robot of ``radius`` may stand with its body at (x, y): its safe distance
+    plus the radius off every wall, shelf and resting load (``shapes``) and every circle
+    standing still (``circles``: centre and Ds). A way out (:func:`way_out`) inside a pillar's
+    safe distance held its robot between the pillar and the load for good, by a sink, in the
+    way of the next team there."""
+    return all(shape_distance(x, y, sh)[0] >= sh.ds + radius for sh in shapes) and all(
+        math.dist((x, y), (cx, cy)) >= ds + radius for cx, cy, ds in circles)
+
+
+def out_from_under(me: Point, leaving: Point, tolerance: float, offset: float) -> bool:
+    """Whether a robot whose body stands at ``me`` is out from under the load its team set
+    down, at its way out ``leaving`` (:func:`way_out`): within
+    :func:`leader.team.carry_reach` of it (``tolerance`` the goal tolerance, ``offset`` the
+    control point's). A unicycle's rows hold its control point, its body sits the look-ahead
+    behind on whatever heading: one whose control point stood short of the way out (a body
+    position) on the load's barrier, its body 0.12 m off it, counted as never out and never
+    walked to its parking spot, standing by a dock in the way of the next team there."""
+    return math.dist(me, leaving) <= carry_reach(tolerance, offset)
+
+
 def sees_load(load: Shape, me: Point, offset: float) -> bool:
     """Whether a robot whose body centre is at ``me`` (its control point ``offset`` ahead) keeps
     clear of the resting ``load``: not while it stands under it (within the load's safe
@@ -407,9 +429,9 @@ class Errand:
         return self._follow(k, me, mates)
 
     def _idle(self, k: int, me: Point) -> Move:
-        tol = self.settings.goal_tolerance
         again = self._again(k)
-        if self.leaving is not None and math.dist(me, self.leaving) <= tol:
+        if self.leaving is not None and out_from_under(
+                me, self.leaving, self.settings.goal_tolerance, self.settings.offset):
             self.leaving = None
             return Move(walk=self.home, status=again) if self.home is not None \
                 else Move(status=again)

@@ -53,6 +53,7 @@ from agent.errand import (
     Move,
     Seen,
     allies,
+    clear_spot,
     load_box,
     mates_at,
     parking,
@@ -62,7 +63,7 @@ from agent.faults import LinkFaults
 from agent.leader_step import Deaths
 from agent.order_check import acceptable
 from agent.order_link import OrderLink
-from geometry.shapes import Shape, shape_distance
+from geometry.shapes import Shape
 from leader import orders as lo
 from leader.allocation import OpenOrder, bid_costs
 from leader.team import Pose, TeamPlan, slot_points
@@ -129,11 +130,12 @@ class Heard:
 
 class LifePart:
     """One fleet robot's lifelong part (module docstring). ``regroup``: the node's
-    :meth:`agent.node.AgentNode.regroup`; ``static``: the walls and shelves heard last."""
+    :meth:`agent.node.AgentNode.regroup`; ``static``: the walls and shelves heard last;
+    ``still``: the circles standing still heard last (centre and Ds)."""
 
     def __init__(self, cfg: AgentConfig, regroup: Callable[[Membership], None],
-                 static: Callable[[], tuple[Shape, ...]], faults: LinkFaults | None = None
-                 ) -> None:
+                 static: Callable[[], tuple[Shape, ...]], faults: LinkFaults | None = None,
+                 still: Callable[[], tuple[tuple[float, float, float], ...]] = tuple) -> None:
         life = cfg.lifelong
         if life is None:
             raise ValueError(f"{cfg.robot_id}: not a fleet robot (no lifelong part)")
@@ -141,6 +143,7 @@ class LifePart:
         self.rid = cfg.robot_id
         self.regroup = regroup
         self.static = static
+        self.still = still
         self.faults = faults
         dt = cfg.period
         fleet = life.fleet
@@ -525,10 +528,9 @@ class LifePart:
         return tuple(shape_to_msg(sh) for sh in self.load_shapes())
 
     def clear_point(self, x: float, y: float) -> bool:
-        """True when a robot may stand at (x, y): clear of every wall, shelf and resting load."""
-        r0 = self.cfg.radius
-        return all(shape_distance(x, y, sh)[0] >= sh.ds + r0
-                   for sh in self.static() + self.load_shapes())
+        """True when a robot may stand at (x, y): clear of every wall, shelf, resting load and
+        circle standing still (:func:`agent.errand.clear_spot`)."""
+        return clear_spot(x, y, self.static() + self.load_shapes(), self.still(), self.cfg.radius)
 
     def stats(self) -> dict[str, Any]:
         """The part's counters for the agent's stats."""

@@ -217,7 +217,7 @@ class AgentNode:
         self._staged: AgentConfig | None = None  # lock-step, a fleet robot: subscribed ahead
         self.regroups = 0  # formation changes made
         # a fleet robot: bidding, its errand and the formations they ask for (agent.lifepart)
-        self.life = (LifePart(cfg, self.regroup, self._walls, options.faults)
+        self.life = (LifePart(cfg, self.regroup, self._walls, options.faults, self._still)
                      if cfg.lifelong is not None else None)
         self._walls_of: tuple[Any, tuple] = (None, ())
         if self.life is not None:
@@ -453,6 +453,12 @@ class AgentNode:
         if msgs is not self._walls_of[0]:
             self._walls_of = (msgs, static_shapes(msgs))
         return self._walls_of[1]
+
+    def _still(self) -> tuple[tuple[float, float, float], ...]:
+        """The circles of the newest ``obstacles`` message that stand still (centre and Ds)."""
+        entry = self.inbox.latest(keys.OBSTACLES, self.keys.obstacles)
+        return () if entry is None else tuple(
+            (o.x, o.y, o.ds) for o in entry[0].obstacles if o.vx == 0.0 and o.vy == 0.0)
 
     async def _tick(self, t: float | None) -> Any:
         """The tick, after a formation change asked for in lock-step (:meth:`regroup`). A fleet

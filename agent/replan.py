@@ -62,6 +62,7 @@ class LeaderRoutes:
                               start, by_hand, speed)
         replanner.last_plan = 0.0
         replanner.name = name
+        replanner.mates = mates
         replanner.due = None if by_hand else Reason.START  # the first tick plans (and may find none)
         self.driver = RouteDriver(replanner, fp.goal_turn, radius)
         self._static: set[str] = set()
@@ -83,6 +84,7 @@ class LeaderRoutes:
         replanner = Replanner(self.body, self.fp.goal_turn, (goal[0], goal[1], turn), shapes,
                               start, by_hand, self.speed)
         replanner.name = self.name
+        replanner.mates = self.mates
         replanner.due = None if by_hand else Reason.NEW_GOAL
         self.driver.replanner = replanner
 

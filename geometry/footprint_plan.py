@@ -692,8 +692,9 @@ def plan_narrow(lat: Lattice, start: Pose3, goal: Pose3, body: Body, shapes: Seq
       stretches are short (and their windows small).
 
     A window with no way, or one that a circle of ``movable`` meets (a formation in the way is
-    given way to, leader.routing, not squeezed past), is shut on the loose lattice and the loose
-    search runs again, up to :attr:`Narrow.tries` times.
+    given way to, leader.routing, not squeezed past), is shut on the loose lattice (all but its
+    start and goal cells: a tight last stretch into a slot, shut with the slot, left no other
+    way to it) and the loose search runs again, up to :attr:`Narrow.tries` times.
 
     Chosen on the narrow-passage scenarios (tests/scenarios/narrow-*.yaml) and the warehouse
     draw's planning time (benchmarks/route_plan.py --draw): the pass runs only where the lattice
@@ -724,7 +725,7 @@ def plan_narrow(lat: Lattice, start: Pose3, goal: Pose3, body: Body, shapes: Seq
         done += more
         if route:
             return FootprintPlan(route, "", done)
-        for s in states[shut[0]:shut[1] + 1]:
+        for s in states[max(shut[0], 1):min(shut[1] + 1, len(states) - 1)]:
             for k in range(lat.headings):
                 loose.move[k * n + s % n] = loose.turn[k * n + s % n] = 0
     return FootprintPlan((), NO_WAY, done)

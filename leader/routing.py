@@ -444,6 +444,10 @@ class Replanner:
         # a change of the still things plans again only where one lies across the rest of the
         # route (a lifelong fleet's robots stop and start all the time, mostly far off its way)
         self.keep_if_clear = False
+        # the formations that stand where they are until this one has arrived (a lifelong
+        # team's members at their slots, to a member on its way to its own: they wait for it):
+        # bodies it goes round, by a narrow way if need be, never ones to wait for or give way to
+        self.mates: frozenset[str] = frozenset()
 
     def plan(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...], why: Reason,
              extra: tuple[tuple[str, Circle], ...] = (), moving: tuple[Lane, ...] = ()
@@ -564,9 +568,10 @@ class Replanner:
         self._detour.left = self._detour.way if extra else ()
         self._leg_start = (pose[0], pose[1])
         self.giving_way = ""
-        parked = () if extra else tuple((n[len(FORMATION):], c) for n, c in things
-                                        if n.startswith(FORMATION))
-        movable = tuple(c for n, c in things if n.startswith(FORMATION)) + tuple(c for _n, c in extra)
+        others = tuple((n[len(FORMATION):], c) for n, c in things if n.startswith(FORMATION)
+                       and n[len(FORMATION):] not in self.mates)
+        parked = () if extra else others
+        movable = tuple(c for _n, c in others) + tuple(c for _n, c in extra)
         return PlanJob(pose, self.goal, self.body, self.shapes,
                        tuple(c for _n, c in things) + tuple(c for _n, c in extra), parked, moving,
                        self.speed, movable)

@@ -65,9 +65,11 @@ from agent.errand import (
     LOAD_MARGIN,
     allies_at,
     arrived,
+    clear_spot,
     inside_box,
     load_box,
     mates_at,
+    out_from_under,
     parking,
     per_tick,
     sees_load,
@@ -753,9 +755,9 @@ class LifelongRun:
 
     def walk_home(self, k: int) -> None:
         """A robot out from under a load (on the poses of the tick before) walks to its spot."""
-        tol = self.base.goal_tolerance
+        tol, offset = self.base.goal_tolerance, self.base.robot.control_offset
         for rid in sorted(self.leaving):
-            if math.dist(self.positions([rid], self.prev)[0], self.leaving[rid]) <= tol:
+            if out_from_under(self.positions([rid], self.prev)[0], self.leaving[rid], tol, offset):
                 del self.leaving[rid]
                 if rid in self.homes and not self.role[rid]:
                     self.goal[rid] = self.homes[rid]
@@ -839,9 +841,10 @@ class LifelongRun:
     def clear_point(self, rid: str, x: float, y: float) -> bool:
         """True when robot ``rid`` may stand at (x, y): clear of every wall, shelf and resting
         load in its view."""
-        r0 = self.base.robot.radius
-        return all(shape_distance(x, y, sh)[0] >= sh.ds + r0
-                   for sh in self.view_of(rid, self.seen_boxes()))
+        still = tuple((o.x, o.y, o.ds) for o in obstacles_at(self.base, self.now)
+                      if o.vx == 0.0 and o.vy == 0.0)
+        return clear_spot(x, y, self.view_of(rid, self.seen_boxes()), still,
+                          self.base.robot.radius)
 
     def allies_now(self, rid: str) -> tuple[str, ...]:
         """The gathering teammates ``rid`` keeps apart from by separation rows, on the poses of

@@ -91,6 +91,7 @@ class Replans:
             fp = self.footprints[self.members[name][0]]
             pose = pose_of(own, fp.alpha0)
             seen = self._things(name, ellipses, obstacles)
+            driver.replanner.mates = self.mates.get(name, frozenset())
             if t == 0.0 and driver.replanner.unreachable:  # no route at the start: hold from
                 hold = Update((), (), Reason.START, driver.replanner.unreachable)  # the first tick
                 self._hand(hold, name, own, followers)

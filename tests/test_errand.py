@@ -33,8 +33,12 @@ from agent.errand import (
     Job,
     Seen,
     allies_at,
+    clear_spot,
+    load_box,
     mates_at,
+    out_from_under,
     parking,
+    way_out,
 )
 from leader.team import TeamPlan, plan_team, pose_error, slot_points
 from scenario import load_scenario
@@ -326,3 +330,27 @@ def test_mates_stand_near_their_slots_and_allies_are_the_mates_of_one_near_its_o
     near = rid in at and math.dist(at[rid], slots[robots.index(rid)]) <= ALLY_REACH
     assert allies_at(robots, slots, rid, at) == (mates if near else ())
 
+def test_a_robot_is_out_from_under_a_load_with_its_body_where_its_control_point_stops() -> None:
+    # a holonomic robot: its body is its control point, held to the goal tolerance
+    assert out_from_under((0.0, 0.049), (0.0, 0.0), 0.05, 0.0)
+    assert not out_from_under((0.0, 0.06), (0.0, 0.0), 0.05, 0.0)
+    # a unicycle's body sits its look-ahead behind its control point, whichever way it faces:
+    # one that stopped with its control point short of the way out, its body 0.12 m off, is out
+    assert out_from_under((0.0, 0.12), (0.0, 0.0), 0.05, 0.05)
+    assert not out_from_under((0.0, 0.16), (0.0, 0.0), 0.05, 0.05)
+
+
+def test_a_way_out_from_under_a_load_keeps_off_a_pillar_standing_by_it() -> None:
+    # a pallet at a sink, turned a quarter, a pillar (Ds 0.35) off its north-east corner, as in
+    # a drawn hall: the robot under that corner walks out clear of the pillar as of the load
+    sc = load_scenario(PALLET)
+    assert sc.lifelong is not None
+    pallet = sc.lifelong.load_type("pallet")
+    sh = load_box("p", pallet, (8.2775, 3.7358, math.pi / 2), 0.15)
+    pillar = (8.6775, 4.6521, 0.35)
+    me = (8.43, 4.0)
+    alone = way_out(sh, me, lambda x, y: clear_spot(x, y, (sh,), (), 0.105), 0.105)
+    assert alone is not None and math.dist(alone, pillar[:2]) < pillar[2] + 0.105
+    out = way_out(sh, me, lambda x, y: clear_spot(x, y, (sh,), (pillar,), 0.105), 0.105)
+    assert out is not None and math.dist(out, pillar[:2]) >= pillar[2] + 0.105
+    assert clear_spot(*out, (sh,), (pillar,), 0.105)

@@ -202,6 +202,49 @@ def test_a_formation_alone_in_the_lattice_s_way_is_given_way_to_not_gone_round_b
     assert min(_clearance(body, pose, wall + hall, [other]) for pose in _legs(start, plan.route)) >= KEEP
 
 
+def _slot_by_mates():
+    """A pallet's last free slot, by a shelf: a robot (radius 0.105, keeping 0.1 as a unicycle
+    formation of one does) to its slot past three teammates standing at theirs (circles of two
+    radii), a resting beam either side of the pallet's rack (a drawn hall of the lifelong Monte
+    Carlo). Its one way in runs round the east teammate and along the shelf, tight all the way;
+    the loose search first tries between the teammates, up to the slot itself."""
+    shapes = [box("shelf", (3.7779, 0.0), (5.3319, 0.8512), 0.0, 0.15),
+              box("beam-w", (1.9779, -0.9756), (1.4, 0.3), 0.0, 0.15),
+              box("beam-e", (5.5779, -0.9756), (1.4, 0.3), 0.0, 0.15)]
+    mates = [(3.4858, -1.1693, 0.21), (4.0777, -1.1694, 0.21), (3.4932, -0.7711, 0.21)]
+    body = Body(((0.0, 0.0),), radius=0.105, margin=PLAN_MARGIN + 0.1)
+    return body, shapes, mates, (2.931, -1.322, 0.0), (4.0729, -0.7806, 0.0)
+
+
+def test_a_slot_whose_last_stretch_is_tight_is_reached_by_another_way_where_the_first_is_shut():
+    """The narrow pass shuts a loose way whose tight stretch has no way, and searches again:
+    never the start or the goal themselves, or no later way could reach them."""
+    body, shapes, mates, start, goal = _slot_by_mates()
+    plan = plan_footprint(start, goal, body, shapes, mates)
+    assert plan.reason == "" and plan.route[-1] == goal, plan
+    assert max(x for x, _y, _th in plan.route) > 4.3  # round the east teammate
+    assert min(_clearance(body, pose, shapes, mates) for pose in _legs(start, plan.route)) >= 0.1
+    # teammates that may move out of the way are waited for, never squeezed past
+    assert plan_footprint(start, goal, body, shapes, mates, movable=mates).route == ()
+
+
+def test_teammates_standing_at_their_slots_are_bodies_to_go_round_not_formations_to_wait_for():
+    """A gathering robot's plan (:attr:`Replanner.mates`): its teammates at their slots are
+    neither parked formations (no give-way for them) nor movable (the narrow pass goes past
+    them); any other formation still is both."""
+    body, shapes, mates, start, goal = _slot_by_mates()
+    r = Replanner(body, 0.0, goal, shapes)
+    r.mates = frozenset({"r2", "r3", "r4"})
+    things = tuple((f"formation/r{k}", c) for k, c in zip((2, 4, 3), mates, strict=True)) + (
+        ("formation/r9", (0.0, -2.5, 0.485)),)
+    job = r.begin(0.0, start, things)
+    assert job.formations == (("r9", (0.0, -2.5, 0.485)),)
+    assert job.movable == ((0.0, -2.5, 0.485),)
+    assert job.circles == tuple(c for _n, c in things)
+    res = plan_job(job)
+    assert res.plan.route[-1] == goal and res.blocked_by == ()
+
+
 @settings(max_examples=25, deadline=None)
 @given(shelves=st.lists(st.tuples(st.floats(-3.0, 3.0), st.floats(-2.0, 2.0), st.floats(0.2, 1.5),
                                   st.floats(0.2, 1.5), st.floats(-1.6, 1.6)), min_size=1, max_size=5),

@@ -30,13 +30,9 @@ ALL = [p for p in sorted((HERE / "lifelong").glob("*.yaml")) if p != DRAWN_HALL]
 QUICK = [p for p in ALL if p.stem.startswith("one-") or p.stem in QUICK_STEMS]
 # streams of half an hour and more: minutes of CPU each, run with FORMATION_SLOW=1
 HOURS = {"lifelong-stream-30min", "lifelong-stream-unicycle", "lifelong-warehouse"}
-# an order that still stands stuck: a gathering unicycle finds no way into its slot
-STUCK = {"mc-stuck-unicycle-a"}
-LONG = [pytest.param(p, id=p.stem, marks=[pytest.mark.skipif(
+LONG = [pytest.param(p, id=p.stem, marks=pytest.mark.skipif(
             p.stem in HOURS and not os.environ.get("FORMATION_SLOW"),
-            reason="a stream of half an hour or more: set FORMATION_SLOW=1")] + (
-            [pytest.mark.xfail(strict=True, reason="a gathering unicycle finds no way in")]
-            if p.stem in STUCK else []))
+            reason="a stream of half an hour or more: set FORMATION_SLOW=1"))
         for p in ALL if p not in QUICK]
 
 
