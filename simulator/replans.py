@@ -90,7 +90,7 @@ class Replans:
             own = ellipses[name]
             fp = self.footprints[self.members[name][0]]
             pose = pose_of(own, fp.alpha0)
-            seen = self._things(name, ellipses, obstacles)
+            seen = self._things(name, driver, ellipses, obstacles)
             if t == 0.0 and driver.replanner.unreachable:  # no route at the start: hold from
                 hold = Update((), (), Reason.START, driver.replanner.unreachable)  # the first tick
                 self._hand(hold, name, own, followers)
@@ -129,11 +129,16 @@ class Replans:
                 continue
             followers[i].take(upd.route, upd.headings, own.cx, own.cy, heading)
 
-    def _things(self, name: str, ellipses: dict[str, Ellipse], obstacles: Sequence[Obstacle]
-                ) -> list[Thing]:
+    def _things(self, name: str, driver: RouteDriver, ellipses: dict[str, Ellipse],
+                obstacles: Sequence[Obstacle]) -> list[Thing]:
+        """What the leader of ``name`` sees, as the agent's leader has it
+        (:meth:`agent.replan.LeaderRoutes.tick`): the circles (static where still at the
+        driver's first look) and the other formations' ellipses in its view."""
+        specs = self.scenario.obstacles
+        static = driver.look((s.name, o.vx, o.vy) for o, s in zip(obstacles, specs, strict=True))
         out = [Thing(f"obstacle/{spec.name}", o.x, o.y, math.hypot(o.vx, o.vy), o.ds,
-                     spec.velocity == (0.0, 0.0), o.vx, o.vy)
-               for o, spec in zip(obstacles, self.scenario.obstacles, strict=True)]
+                     spec.name in static, o.vx, o.vy)
+               for o, spec in zip(obstacles, specs, strict=True)]
         radius = self.scenario.robot.radius
         mates, unseen = self.mates.get(name, frozenset()), self.unseen.get(name, frozenset())
         out += [Thing(f"formation/{other}", e.cx, e.cy, math.hypot(e.vx, e.vy),
