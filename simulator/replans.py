@@ -12,9 +12,10 @@ from collections.abc import Mapping, Sequence
 from agent.barriers import Obstacle
 from agent.body import Footprint, pose_of
 from agent.errand import mate_reach
-from geometry.ellipse import Ellipse, wrap_angle
+from geometry.ellipse import Ellipse, within_reach, wrap_angle
 from geometry.shapes import Shape
 from leader.navigation import Follower
+from leader.role import VIEW_RANGE
 from leader.route_driver import RouteDriver
 from leader.routing import REACHED, STALLED, UNREACHABLE, Other, Reason, Replanner, Thing, Update
 from scenario import Scenario
@@ -133,17 +134,20 @@ class Replans:
                 obstacles: Sequence[Obstacle]) -> list[Thing]:
         """What the leader of ``name`` sees, as the agent's leader has it
         (:meth:`agent.replan.LeaderRoutes.tick`): the circles (static where still at the
-        driver's first look) and the other formations' ellipses in its view."""
+        driver's first look) and the other formations' ellipses in its view: within
+        :data:`leader.role.VIEW_RANGE` of its own, as its ``others`` holds them
+        (:meth:`leader.role.LeaderRole.others`), but its allies."""
         specs = self.scenario.obstacles
         static = driver.look((s.name, o.vx, o.vy) for o, s in zip(obstacles, specs, strict=True))
         out = [Thing(f"obstacle/{spec.name}", o.x, o.y, math.hypot(o.vx, o.vy), o.ds,
                      spec.name in static, o.vx, o.vy)
                for o, spec in zip(obstacles, specs, strict=True)]
-        radius = self.scenario.robot.radius
+        radius, own = self.scenario.robot.radius, ellipses[name]
         mates, unseen = self.mates.get(name, frozenset()), self.unseen.get(name, frozenset())
         out += [Thing(f"formation/{other}", e.cx, e.cy, math.hypot(e.vx, e.vy),
                       mate_reach(radius) if other in mates else e.a + radius)
-                for other, e in ellipses.items() if other != name and other not in unseen]
+                for other, e in ellipses.items() if other != name and other not in unseen
+                and within_reach(own, e.cx, e.cy, e.a, VIEW_RANGE)]
         return out
 
     def summary(self) -> dict:
