@@ -387,6 +387,7 @@ class LifelongRun:
         self.leaving: dict[str, tuple[float, float]] = {}  # robot -> the point clear of a load
         self.under: dict[str, set[str]] = {r: set() for r in self.ids}  # loads over a robot
         self.set_k: dict[str, int] = {}  # load -> the tick it was last set down
+        self.lift_k: dict[str, int] = {}  # load -> the tick it was last lifted
         self.load_rows: list[tuple] = []
         self.timeline = OrderTimeline()  # the orders' states as they change, for run.mcap
         self.busy_s = 0.0  # robot-seconds spent in a team
@@ -671,6 +672,7 @@ class LifelongRun:
         crew.lifted_k = k
         ld = self.loads[order.load]
         ld.state, ld.station = "carried", ""
+        self.lift_k[ld.name] = k
         self.log_load(t, ld)
         crew.since, crew.ref, crew.ref_t = t, at, t
         self.later(k + HEARD, lambda kk: self.form(crew))
@@ -802,9 +804,13 @@ class LifelongRun:
 
     def seen_boxes(self) -> dict[str, Shape]:
         """The resting loads as the agents hear of them this tick: a load set down now is
-        carried still in the ``world/loads`` of this tick (the world sets it down when it
-        hears the team, after the tick's commands)."""
-        return {n: sh for n, sh in self.boxes().items() if self.set_k.get(n) != self.k}
+        carried still, and one lifted now rests still, in the ``world/loads`` of this tick (the
+        world sets it down or takes it up when it hears the team, after the tick's
+        commands)."""
+        k = self.k
+        return {n: load_box(n, self.life.load_type(ld.type), ld.pose, self.ds)
+                for n, ld in self.loads.items()
+                if (ld.state == "resting" and self.set_k.get(n) != k) or self.lift_k.get(n) == k}
 
     def exempt(self, rid: str) -> set[str]:
         """The resting loads robot ``rid`` may be under: its team's on the way in, and any it
