@@ -50,6 +50,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -388,6 +389,11 @@ class LifelongRun:
         self.under: dict[str, set[str]] = {r: set() for r in self.ids}  # loads over a robot
         self.set_k: dict[str, int] = {}  # load -> the tick it was last set down
         self.lift_k: dict[str, int] = {}  # load -> the tick it was last lifted
+        # a robot's errand between teams (agent.errand.Errand): the tick it last put a final
+        # status as its team's speaker (put again every repeat while it is idle), and the first
+        # tick it is idle (none while in a team)
+        self.spoke: dict[str, int] = {}
+        self.idle_k: dict[str, float] = dict.fromkeys(self.ids, 0)
         self.load_rows: list[tuple] = []
         self.timeline = OrderTimeline()  # the orders' states as they change, for run.mcap
         self.busy_s = 0.0  # robot-seconds spent in a team
@@ -605,6 +611,7 @@ class LifelongRun:
             return
         crew.start_k = k
         for r, s in zip(crew.robots, crew.slots, strict=True):
+            self.idle_k[r] = math.inf
             self.goal[r] = s
             self.leaving.pop(r, None)
             self.again.add(r)
@@ -700,6 +707,7 @@ class LifelongRun:
         self.stand_under(ld, crew.robots)
         del self.crews[crew.oid]
         speaker = crew.robots[0]
+        self.spoke[speaker] = k
         out = self.way_out(speaker, ld, crew.dst, self.prev)
         self.later(k + HEARD, lambda kk: self.dissolve(crew, crew.dst, {speaker: out}))
 
@@ -726,7 +734,10 @@ class LifelongRun:
         reckons it: each robot idle again, out from under the load, then to its parking spot;
         every robot's formation again."""
         ld = self.loads[self.orders[crew.oid].load]
+        speaker = next((r for r in crew.robots if r not in self.dead), "")
         for r in crew.robots:
+            # the speaker left its errand a tick ago (it put the status), the others now
+            self.idle_k[r] = self.k if r == speaker else self.k + 1
             if r in self.dead:  # a formation of one again, standing where it died
                 self.team.pop(r, None)
                 self.asks[r] = Ask(self.k + LANDS, solo(r, self.state[self.index[r]], self.goal[r]),
@@ -744,14 +755,37 @@ class LifelongRun:
         self.again.update(r for r in self.ids if r not in self.dead)
 
     def walk_home(self, k: int) -> None:
-        """A robot out from under a load (on the poses of the tick before) walks to its spot."""
+        """A robot out from under a load (on the poses of the tick before) walks to its spot:
+        at once, or a tick later where its agent puts its last final status again this tick
+        (a move with a status changes the formations a tick later: agent.lifepart)."""
         tol = self.base.goal_tolerance
+        saying = self.repeat_final(k)
         for rid in sorted(self.leaving):
             if math.dist(self.positions([rid], self.prev)[0], self.leaving[rid]) <= tol:
                 del self.leaving[rid]
                 if rid in self.homes and not self.role[rid]:
-                    self.goal[rid] = self.homes[rid]
-                    self.again.add(rid)
+                    if rid in saying:
+                        self.later(k + HEARD, partial(self.go_home, rid))
+                    else:
+                        self.go_home(rid)
+
+    def go_home(self, rid: str, _k: int = 0) -> None:
+        """``rid`` walks to its parking spot (unless its team's roster took it meanwhile)."""
+        crew = self.crews.get(self.role[rid])
+        if crew is None or crew.start_k < 0:
+            self.goal[rid] = self.homes[rid]
+            self.again.add(rid)
+
+    def repeat_final(self, k: int) -> set[str]:
+        """The idle robots whose agents put their last final status again at tick ``k``
+        (:meth:`agent.errand.Errand.step`: every repeat while idle)."""
+        every = self.bidding.repeat_every
+        out = set()
+        for rid, said in self.spoke.items():
+            if self.idle_k[rid] <= k and k - said >= every:
+                self.spoke[rid] = k
+                out.add(rid)
+        return out
 
     # --- faults ---------------------------------------------------------------------------
 
@@ -770,9 +804,12 @@ class LifelongRun:
         order = self.move_order(crew.oid, lo.Event(lo.LOST, t, who=rid))
         ld = self.loads[order.load]
         ld.order = ""
-        if ld.state == "carried":
+        if ld.state == "carried":  # the order fails: its speaker says so
             ld.state = "resting"
             self.stand_under(ld, crew.robots)
+            speaker = next((r for r in crew.robots if r not in self.dead), None)
+            if speaker is not None:
+                self.spoke[speaker] = self.k
         self.log_load(t, ld)
         del self.crews[crew.oid]
         self.later(self.k + HEARD, lambda kk: self.dissolve(crew, ld.pose, {}))
