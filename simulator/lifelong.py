@@ -473,14 +473,14 @@ class LifelongRun:
         self.post_due(t)
         self.leave_sinks(t)
         self.appear(t)
+        for act in self.todo.pop(k, []):  # what the agents heard, before their bidders' ticks
+            act(k)
         if self.bidding.bid_tick(k) and self.bidding.next_close(k) >= 1:
             self.bid(k)
         if k % self.window == 0 and k:
             self.round(k, t)
         for oid, robots in self.commits.pop(k, []):
             self.assign(k, t, self.orders[oid], robots)
-        for act in self.todo.pop(k, []):
-            act(k)
         for crew in sorted(self.crews.values(), key=lambda c: c.oid):
             self.advance(crew, k, t)
         self.walk_home(k)
