@@ -75,6 +75,7 @@ from geometry.polygon import polygon_distance
 from geometry.shapes import Shape, shape_distance
 from leader import allocation
 from leader import orders as lo
+from leader.role import VIEW_RANGE
 from leader.routing import Reason
 from leader.team import (
     TeamPlan,
@@ -1006,6 +1007,7 @@ class LifelongRun:
         robots stop and start all the time, mostly far off a route)."""
         control = FleetControl(scen, self.options, views)
         control.stats = self.stats
+        control.replans.reach = VIEW_RANGE  # a leader plans round the formations in its others
         return control
 
     def commands(self, t: float) -> tuple[list[StepResult], dict, list]:

@@ -15,7 +15,6 @@ from agent.errand import mate_reach
 from geometry.ellipse import Ellipse, within_reach, wrap_angle
 from geometry.shapes import Shape
 from leader.navigation import Follower
-from leader.role import VIEW_RANGE
 from leader.route_driver import RouteDriver
 from leader.routing import REACHED, STALLED, UNREACHABLE, Other, Reason, Replanner, Thing, Update
 from scenario import Scenario
@@ -42,6 +41,10 @@ class Replans:
         # robots, not as formations (its mates: agent.errand.mates_at)
         self.unseen: Mapping[str, frozenset[str]] = {}
         self.mates: Mapping[str, frozenset[str]] = {}
+        # [m] how far beyond its own ellipse a leader sees the other formations: a lifelong run
+        # takes the agents' (leader.role.VIEW_RANGE, as a leader's ``others`` holds them);
+        # fixed formations plan round every formation
+        self.reach = math.inf
 
         # a new route reaches the leader's own follower at once and the other members a tick
         # later, as the agents' ``plan`` message does in lock-step: (formation, update, heading)
@@ -134,9 +137,8 @@ class Replans:
                 obstacles: Sequence[Obstacle]) -> list[Thing]:
         """What the leader of ``name`` sees, as the agent's leader has it
         (:meth:`agent.replan.LeaderRoutes.tick`): the circles (static where still at the
-        driver's first look) and the other formations' ellipses in its view: within
-        :data:`leader.role.VIEW_RANGE` of its own, as its ``others`` holds them
-        (:meth:`leader.role.LeaderRole.others`), but its allies."""
+        driver's first look) and the other formations' ellipses in its view (within
+        :attr:`reach` of its own, but its allies)."""
         specs = self.scenario.obstacles
         static = driver.look((s.name, o.vx, o.vy) for o, s in zip(obstacles, specs, strict=True))
         out = [Thing(f"obstacle/{spec.name}", o.x, o.y, math.hypot(o.vx, o.vy), o.ds,
@@ -147,7 +149,7 @@ class Replans:
         out += [Thing(f"formation/{other}", e.cx, e.cy, math.hypot(e.vx, e.vy),
                       mate_reach(radius) if other in mates else e.a + radius)
                 for other, e in ellipses.items() if other != name and other not in unseen
-                and within_reach(own, e.cx, e.cy, e.a, VIEW_RANGE)]
+                and within_reach(own, e.cx, e.cy, e.a, self.reach)]
         return out
 
     def summary(self) -> dict:
