@@ -65,7 +65,6 @@ class LeaderRoutes:
         replanner.mates = mates
         replanner.due = None if by_hand else Reason.START  # the first tick plans (and may find none)
         self.driver = RouteDriver(replanner, fp.goal_turn, radius)
-        self._static: set[str] = set()
 
     @property
     def replanner(self) -> Replanner:
@@ -102,9 +101,8 @@ class LeaderRoutes:
 
     def _things(self, obstacles: Sequence[ObstacleMsg], others: Sequence[EllipseMsg],
                 own: Ellipse) -> list[Thing]:
-        if self.driver.first:  # a circle still when the leader first looks is planned round at once
-            self._static = {o.id for o in obstacles if o.vx == 0.0 and o.vy == 0.0}
-        out = [Thing(f"obstacle/{o.id}", o.x, o.y, math.hypot(o.vx, o.vy), o.ds, o.id in self._static,
+        static = self.driver.look((o.id, o.vx, o.vy) for o in obstacles)
+        out = [Thing(f"obstacle/{o.id}", o.x, o.y, math.hypot(o.vx, o.vy), o.ds, o.id in static,
                      o.vx, o.vy) for o in obstacles]
         out += [Thing(f"formation/{e.formation}", e.cx, e.cy, math.hypot(e.vx, e.vy),
                       mate_reach(self.radius) if e.formation in self.mates

@@ -12,7 +12,7 @@ first tick after it is done. Pure: no clock, no network, no process of its own.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import Future
 from typing import Any
 
@@ -37,6 +37,15 @@ logger = logging.getLogger(__name__)
 Submit = Callable[[Callable[[Any], Any], Any], "Future[Any]"]  # runs fn(arg) elsewhere
 
 
+def still_circles(circles: Iterable[tuple[str, float, float]]) -> frozenset[str]:
+    """The names of the circles (name, vx, vy) that stand still: at a leader's first look these
+    are its static ones (:attr:`leader.routing.Thing.static`, planned round at once). A robot
+    knows only what it sees: a forklift parked before the formation exists is as still as a
+    post, and one that drives at that moment counts as still only once it has stood for
+    :attr:`leader.routing.Stillness.still_s` (:class:`leader.routing.StillThings`)."""
+    return frozenset(name for name, vx, vy in circles if vx == 0.0 and vy == 0.0)
+
+
 class RouteDriver:
     """One formation's replanning, tick by tick (module docstring)."""
 
@@ -46,9 +55,19 @@ class RouteDriver:
         self.radius = radius  # [m] a robot's: how far a formation standing aside keeps off
         self.still = StillThings()
         self.first = True  # no tick yet: the first one's still things count as planned round
+        self.static: frozenset[str] = frozenset()  # the circles still at the first look
         self._job: Future[Any] | None = None
         self._why = Reason.START  # what the plan in progress is for
         self._keeper = ""  # or the formation it stands aside for
+
+    def look(self, circles: Iterable[tuple[str, float, float]]) -> frozenset[str]:
+        """The static circles among ``circles`` (name, vx, vy) as this tick sees them: those
+        still at the formation's first look (:func:`still_circles`), kept for its life; call it
+        before :meth:`tick`. Each formation has its own: one that comes into being later looks
+        first then."""
+        if self.first:
+            self.static = still_circles(circles)
+        return self.static
 
     def tick(self, t: float, pose: Pose3, follower: Follower, seen: Sequence[Thing],
              reports: Mapping[str, Other], submit: Submit | None = None) -> Update | None:

@@ -52,6 +52,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -79,6 +80,7 @@ from geometry.polygon import polygon_distance
 from geometry.shapes import Shape, shape_distance
 from leader import allocation
 from leader import orders as lo
+from leader.role import VIEW_RANGE
 from leader.routing import Reason
 from leader.team import (
     TeamPlan,
@@ -393,6 +395,12 @@ class LifelongRun:
         self.leaving: dict[str, tuple[float, float]] = {}  # robot -> the point clear of a load
         self.under: dict[str, set[str]] = {r: set() for r in self.ids}  # loads over a robot
         self.set_k: dict[str, int] = {}  # load -> the tick it was last set down
+        self.lift_k: dict[str, int] = {}  # load -> the tick it was last lifted
+        # a robot's errand between teams (agent.errand.Errand): the tick it last put a final
+        # status as its team's speaker (put again every repeat while it is idle), and the first
+        # tick it is idle (none while in a team)
+        self.spoke: dict[str, int] = {}
+        self.idle_k: dict[str, float] = dict.fromkeys(self.ids, 0)
         self.load_rows: list[tuple] = []
         self.timeline = OrderTimeline()  # the orders' states as they change, for run.mcap
         self.busy_s = 0.0  # robot-seconds spent in a team
@@ -473,14 +481,14 @@ class LifelongRun:
         self.post_due(t)
         self.leave_sinks(t)
         self.appear(t)
+        for act in self.todo.pop(k, []):  # what the agents heard, before their bidders' ticks
+            act(k)
         if self.bidding.bid_tick(k) and self.bidding.next_close(k) >= 1:
             self.bid(k)
         if k % self.window == 0 and k:
             self.round(k, t)
         for oid, robots in self.commits.pop(k, []):
             self.assign(k, t, self.orders[oid], robots)
-        for act in self.todo.pop(k, []):
-            act(k)
         for crew in sorted(self.crews.values(), key=lambda c: c.oid):
             self.advance(crew, k, t)
         self.walk_home(k)
@@ -611,6 +619,7 @@ class LifelongRun:
             return
         crew.start_k = k
         for r, s in zip(crew.robots, crew.slots, strict=True):
+            self.idle_k[r] = math.inf
             self.goal[r] = s
             self.leaving.pop(r, None)
             self.again.add(r)
@@ -683,6 +692,7 @@ class LifelongRun:
         crew.lifted_k = k
         ld = self.loads[order.load]
         ld.state, ld.station = "carried", ""
+        self.lift_k[ld.name] = k
         self.log_load(t, ld)
         crew.since, crew.ref, crew.ref_t = t, at, t
         self.later(k + HEARD, lambda kk: self.form(crew))
@@ -710,6 +720,7 @@ class LifelongRun:
         self.stand_under(ld, crew.robots)
         del self.crews[crew.oid]
         speaker = crew.robots[0]
+        self.spoke[speaker] = k
         out = self.way_out(speaker, ld, crew.dst, self.prev)
         self.later(k + HEARD, lambda kk: self.dissolve(crew, crew.dst, {speaker: out}))
 
@@ -736,7 +747,10 @@ class LifelongRun:
         reckons it: each robot idle again, out from under the load, then to its parking spot;
         every robot's formation again."""
         ld = self.loads[self.orders[crew.oid].load]
+        speaker = next((r for r in crew.robots if r not in self.dead), "")
         for r in crew.robots:
+            # the speaker left its errand a tick ago (it put the status), the others now
+            self.idle_k[r] = self.k if r == speaker else self.k + 1
             if r in self.dead:  # a formation of one again, standing where it died
                 self.team.pop(r, None)
                 self.asks[r] = Ask(self.k + LANDS, solo(r, self.state[self.index[r]], self.goal[r]),
@@ -754,14 +768,37 @@ class LifelongRun:
         self.again.update(r for r in self.ids if r not in self.dead)
 
     def walk_home(self, k: int) -> None:
-        """A robot out from under a load (on the poses of the tick before) walks to its spot."""
+        """A robot out from under a load (on the poses of the tick before) walks to its spot:
+        at once, or a tick later where its agent puts its last final status again this tick
+        (a move with a status changes the formations a tick later: agent.lifepart)."""
         tol, offset = self.base.goal_tolerance, self.base.robot.control_offset
+        saying = self.repeat_final(k)
         for rid in sorted(self.leaving):
             if out_from_under(self.positions([rid], self.prev)[0], self.leaving[rid], tol, offset):
                 del self.leaving[rid]
                 if rid in self.homes and not self.role[rid]:
-                    self.goal[rid] = self.homes[rid]
-                    self.again.add(rid)
+                    if rid in saying:
+                        self.later(k + HEARD, partial(self.go_home, rid))
+                    else:
+                        self.go_home(rid)
+
+    def go_home(self, rid: str, _k: int = 0) -> None:
+        """``rid`` walks to its parking spot (unless its team's roster took it meanwhile)."""
+        crew = self.crews.get(self.role[rid])
+        if crew is None or crew.start_k < 0:
+            self.goal[rid] = self.homes[rid]
+            self.again.add(rid)
+
+    def repeat_final(self, k: int) -> set[str]:
+        """The idle robots whose agents put their last final status again at tick ``k``
+        (:meth:`agent.errand.Errand.step`: every repeat while idle)."""
+        every = self.bidding.repeat_every
+        out = set()
+        for rid, said in self.spoke.items():
+            if self.idle_k[rid] <= k and k - said >= every:
+                self.spoke[rid] = k
+                out.add(rid)
+        return out
 
     # --- faults ---------------------------------------------------------------------------
 
@@ -780,9 +817,12 @@ class LifelongRun:
         order = self.move_order(crew.oid, lo.Event(lo.LOST, t, who=rid))
         ld = self.loads[order.load]
         ld.order = ""
-        if ld.state == "carried":
+        if ld.state == "carried":  # the order fails: its speaker says so
             ld.state = "resting"
             self.stand_under(ld, crew.robots)
+            speaker = next((r for r in crew.robots if r not in self.dead), None)
+            if speaker is not None:
+                self.spoke[speaker] = self.k
         self.log_load(t, ld)
         del self.crews[crew.oid]
         self.later(self.k + HEARD, lambda kk: self.dissolve(crew, ld.pose, {}))
@@ -814,9 +854,13 @@ class LifelongRun:
 
     def seen_boxes(self) -> dict[str, Shape]:
         """The resting loads as the agents hear of them this tick: a load set down now is
-        carried still in the ``world/loads`` of this tick (the world sets it down when it
-        hears the team, after the tick's commands)."""
-        return {n: sh for n, sh in self.boxes().items() if self.set_k.get(n) != self.k}
+        carried still, and one lifted now rests still, in the ``world/loads`` of this tick (the
+        world sets it down or takes it up when it hears the team, after the tick's
+        commands)."""
+        k = self.k
+        return {n: load_box(n, self.life.load_type(ld.type), ld.pose, self.ds)
+                for n, ld in self.loads.items()
+                if (ld.state == "resting" and self.set_k.get(n) != k) or self.lift_k.get(n) == k}
 
     def exempt(self, rid: str) -> set[str]:
         """The resting loads robot ``rid`` may be under: its team's on the way in, and any it
@@ -976,6 +1020,7 @@ class LifelongRun:
         robots stop and start all the time, mostly far off a route)."""
         control = FleetControl(scen, self.options, views)
         control.stats = self.stats
+        control.replans.reach = VIEW_RANGE  # a leader plans round the formations in its others
         return control
 
     def commands(self, t: float) -> tuple[list[StepResult], dict, list]:

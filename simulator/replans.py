@@ -12,7 +12,7 @@ from collections.abc import Mapping, Sequence
 from agent.barriers import Obstacle
 from agent.body import Footprint, pose_of
 from agent.errand import mate_reach
-from geometry.ellipse import Ellipse, wrap_angle
+from geometry.ellipse import Ellipse, within_reach, wrap_angle
 from geometry.shapes import Shape
 from leader.navigation import Follower
 from leader.route_driver import RouteDriver
@@ -41,6 +41,10 @@ class Replans:
         # robots, not as formations (its mates: agent.errand.mates_at)
         self.unseen: Mapping[str, frozenset[str]] = {}
         self.mates: Mapping[str, frozenset[str]] = {}
+        # [m] how far beyond its own ellipse a leader sees the other formations: a lifelong run
+        # takes the agents' (leader.role.VIEW_RANGE, as a leader's ``others`` holds them);
+        # fixed formations plan round every formation
+        self.reach = math.inf
 
         # a new route reaches the leader's own follower at once and the other members a tick
         # later, as the agents' ``plan`` message does in lock-step: (formation, update, heading)
@@ -90,7 +94,7 @@ class Replans:
             own = ellipses[name]
             fp = self.footprints[self.members[name][0]]
             pose = pose_of(own, fp.alpha0)
-            seen = self._things(name, ellipses, obstacles)
+            seen = self._things(name, driver, ellipses, obstacles)
             driver.replanner.mates = self.mates.get(name, frozenset())
             if t == 0.0 and driver.replanner.unreachable:  # no route at the start: hold from
                 hold = Update((), (), Reason.START, driver.replanner.unreachable)  # the first tick
@@ -130,16 +134,23 @@ class Replans:
                 continue
             followers[i].take(upd.route, upd.headings, own.cx, own.cy, heading)
 
-    def _things(self, name: str, ellipses: dict[str, Ellipse], obstacles: Sequence[Obstacle]
-                ) -> list[Thing]:
+    def _things(self, name: str, driver: RouteDriver, ellipses: dict[str, Ellipse],
+                obstacles: Sequence[Obstacle]) -> list[Thing]:
+        """What the leader of ``name`` sees, as the agent's leader has it
+        (:meth:`agent.replan.LeaderRoutes.tick`): the circles (static where still at the
+        driver's first look) and the other formations' ellipses in its view (within
+        :attr:`reach` of its own, but its allies)."""
+        specs = self.scenario.obstacles
+        static = driver.look((s.name, o.vx, o.vy) for o, s in zip(obstacles, specs, strict=True))
         out = [Thing(f"obstacle/{spec.name}", o.x, o.y, math.hypot(o.vx, o.vy), o.ds,
-                     spec.velocity == (0.0, 0.0), o.vx, o.vy)
-               for o, spec in zip(obstacles, self.scenario.obstacles, strict=True)]
-        radius = self.scenario.robot.radius
+                     spec.name in static, o.vx, o.vy)
+               for o, spec in zip(obstacles, specs, strict=True)]
+        radius, own = self.scenario.robot.radius, ellipses[name]
         mates, unseen = self.mates.get(name, frozenset()), self.unseen.get(name, frozenset())
         out += [Thing(f"formation/{other}", e.cx, e.cy, math.hypot(e.vx, e.vy),
                       mate_reach(radius) if other in mates else e.a + radius)
-                for other, e in ellipses.items() if other != name and other not in unseen]
+                for other, e in ellipses.items() if other != name and other not in unseen
+                and within_reach(own, e.cx, e.cy, e.a, self.reach)]
         return out
 
     def summary(self) -> dict:
