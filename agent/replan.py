@@ -95,11 +95,11 @@ class LeaderRoutes:
         other formations' statuses where they are seen (:class:`leader.routing.Other`)."""
         self.replanner.shapes = tuple(shapes)
         pose = pose_of(own, self.fp.alpha0)
-        seen = self._things(obstacles, others, own)
+        seen = self.things(obstacles, others, own)
         return self.driver.tick(stamp, (pose.cx, pose.cy, pose.theta), follower, seen,
                                 reports or {}, None if lockstep else submit_plan)
 
-    def _things(self, obstacles: Sequence[ObstacleMsg], others: Sequence[EllipseMsg],
+    def things(self, obstacles: Sequence[ObstacleMsg], others: Sequence[EllipseMsg],
                 own: Ellipse) -> list[Thing]:
         static = self.driver.look((o.id, o.vx, o.vy) for o in obstacles)
         out = [Thing(f"obstacle/{o.id}", o.x, o.y, math.hypot(o.vx, o.vy), o.ds, o.id in static,

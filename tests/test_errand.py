@@ -35,13 +35,17 @@ from agent.errand import (
     allies_at,
     clear_spot,
     load_box,
+    mate_reach,
     mates_at,
     out_from_under,
     parking,
     way_out,
 )
+from agent.navigation import leader_routes
+from geometry.ellipse import Ellipse
 from leader.team import TeamPlan, plan_team, pose_error, slot_points
 from scenario import load_scenario
+from wire.payloads import EllipseMsg
 
 ROOT = Path(__file__).resolve().parent.parent
 PALLET = ROOT / "tests" / "scenarios" / "lifelong" / "one-pallet-si.yaml"
@@ -354,3 +358,18 @@ def test_a_way_out_from_under_a_load_keeps_off_a_pillar_standing_by_it() -> None
     out = way_out(sh, me, lambda x, y: clear_spot(x, y, (sh,), (pillar,), 0.105), 0.105)
     assert out is not None and math.dist(out, pillar[:2]) >= pillar[2] + 0.105
     assert clear_spot(*out, (sh,), (pillar,), 0.105)
+
+
+def test_a_robot_far_from_its_slot_plans_round_teammates_at_theirs_as_robots() -> None:
+    """The leader of a formation of one on its way to its slot sees a teammate standing at its
+    own slot as a robot (two radii), any other formation by its ellipse plus a radius."""
+    cfg = build_agent_configs(load_scenario(PALLET))
+    lead = next(c for c in cfg.values() if c.leader is not None and c.footprint is not None)
+    routes = leader_routes(replace(lead, mates=("r2",)))
+    assert routes is not None
+    mate = EllipseMsg("r2", 2.0, 0.0, 0.0, 0.4, 0.4, 0.0, 0.0, 0.0, 1.0)
+    other = replace(mate, formation="r3", cy=2.0)
+    own = Ellipse(0.0, 0.0, 0.0, 0.3, 0.3)
+    seen = {t.name: t.ds for t in routes.things((), (mate, other), own)}
+    assert seen["formation/r2"] == mate_reach(lead.radius) == 2.0 * lead.radius
+    assert seen["formation/r3"] == other.a + lead.radius
