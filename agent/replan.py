@@ -41,7 +41,10 @@ if TYPE_CHECKING:
     from .config import AgentConfig
 
 PLAN_NICE = 19  # the worker's niceness (also where the idle policy is refused)
-WARM_S = 30.0  # [s] longest wait for a new plan worker's first job (start_plan_pool)
+# [s] longest wait for a new plan worker's first job (start_plan_pool): about four times what
+# its imports take on a quiet core; on a busy machine, where the worker at the idle policy may
+# get no CPU for long, the agent goes on without it and subscribes (a peer waits for that)
+WARM_S = 2.0
 
 
 class LeaderRoutes:
@@ -186,8 +189,8 @@ def start_plan_pool(cfgs: Sequence[AgentConfig], lockstep: bool) -> None:
     """Start the process's plan worker before its agents tick, where one of them may plan in
     real time (:func:`may_plan`; lock-step plans on the tick's thread), and wait up to
     :data:`WARM_S` for it to have run a first job: its interpreter and imports, and
-    multiprocessing's resource tracker, are then behind the agents, not inside a fleet's
-    first ticks as when the worker is born at a leader's first plan."""
+    multiprocessing's resource tracker, are then behind the agents on a quiet machine, not
+    inside a fleet's first ticks as when the worker is born at a leader's first plan."""
     if not lockstep and any(may_plan(c) for c in cfgs):
         wait([plan_pool().submit(int)], timeout=WARM_S)
 
