@@ -131,6 +131,14 @@ def mates_at(robots: Sequence[str], slots: Sequence[Point], rid: str, at: Mappin
                  if r != rid and r in at and math.dist(at[r], s) <= ALLY_REACH)
 
 
+def route_mates(robots: Sequence[str], slots: Sequence[Point], rid: str,
+                at: Mapping[str, Point]) -> tuple[str, ...]:
+    """The teammates that ``rid``'s routes go round as robots (:func:`mates_at`) while it is
+    farther than :data:`ALLY_REACH` from its own slot; near it they are its allies
+    (:func:`allies_at`), out of its planner's view and kept off by separation rows."""
+    return mates_at(robots, slots, rid, at) if not allies_at(robots, slots, rid, at) else ()
+
+
 def mate_reach(radius: float) -> float:
     """[m] How far the route planner keeps a robot's centre from a teammate's standing near its
     slot (:func:`mates_at`): two bodies' radii, what their separation row keeps once both are

@@ -55,8 +55,8 @@ from agent.errand import (
     allies,
     clear_spot,
     load_box,
-    mates_at,
     parking,
+    route_mates,
     sees_load,
 )
 from agent.faults import LinkFaults
@@ -413,8 +413,7 @@ class LifePart:
         if job is not None and self.team is None:
             at = {**{r: (v.x, v.y) for r, v in mates.items()}, self.rid: (last[0], last[1])}
             near = allies(job, self.rid, at)
-            standing = tuple(m for m in mates_at(job.robots, job.slots, self.rid, at)
-                             if m not in near)
+            standing = route_mates(job.robots, job.slots, self.rid, at)
         if self._stale_view or near != self.allies or standing != self.mates:
             self._stale_view = False
             self.allies, self.mates = near, standing

@@ -69,10 +69,10 @@ from agent.errand import (
     clear_spot,
     inside_box,
     load_box,
-    mates_at,
     out_from_under,
     parking,
     per_tick,
+    route_mates,
     sees_load,
     way_out,
 )
@@ -901,14 +901,12 @@ class LifelongRun:
 
     def mates_now(self, rid: str) -> tuple[str, ...]:
         """The gathering teammates whose routes ``rid``'s go round as robots, on the poses of
-        the tick before (:func:`agent.errand.mates_at`), but its allies; none once its team
-        has formed."""
+        the tick before (:func:`agent.errand.route_mates`); none once its team has formed."""
         crew = self.crews.get(self.role[rid])
         if crew is None or crew.start_k < 0 or rid in self.team:
             return ()
         at = dict(zip(crew.robots, self.positions(crew.robots, self.prev), strict=True))
-        return tuple(m for m in mates_at(crew.robots, crew.slots, rid, at)
-                     if m not in self.near[rid])
+        return route_mates(crew.robots, crew.slots, rid, at)
 
     def ask(self, k: int) -> None:
         """Each robot whose agent asks for its formation this tick (a new goal, its team, the

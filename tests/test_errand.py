@@ -39,6 +39,7 @@ from agent.errand import (
     mates_at,
     out_from_under,
     parking,
+    route_mates,
     way_out,
 )
 from agent.navigation import leader_routes
@@ -333,6 +334,7 @@ def test_mates_stand_near_their_slots_and_allies_are_the_mates_of_one_near_its_o
                           if r != rid and r in at and math.dist(at[r], s) <= ALLY_REACH}
     near = rid in at and math.dist(at[rid], slots[robots.index(rid)]) <= ALLY_REACH
     assert allies_at(robots, slots, rid, at) == (mates if near else ())
+    assert route_mates(robots, slots, rid, at) == (() if near else mates)
 
 def test_a_robot_is_out_from_under_a_load_with_its_body_where_its_control_point_stops() -> None:
     # a holonomic robot: its body is its control point, held to the goal tolerance
