@@ -54,9 +54,10 @@ order) is not this team's.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
 from itertools import product
+from typing import Any
 
 from geometry.shapes import Shape, box, distance_floor, shape_distance
 from leader.team import Point, Pose, TeamPlan, carry_reach, load_pose, plan_team, pose_error
@@ -166,6 +167,12 @@ def clear_spot(x: float, y: float, shapes: Sequence[Shape],
     way of the next team there."""
     return all(shape_distance(x, y, sh)[0] >= sh.ds + radius for sh in shapes) and all(
         math.dist((x, y), (cx, cy)) >= ds + radius for cx, cy, ds in circles)
+
+
+def standing_circles(obstacles: Iterable[Any]) -> tuple[tuple[float, float, float], ...]:
+    """The circles among ``obstacles`` (each with ``x``, ``y``, ``ds``, ``vx``, ``vy``) that
+    stand still, as centre and Ds: what a way out keeps off (:func:`clear_spot`)."""
+    return tuple((o.x, o.y, o.ds) for o in obstacles if o.vx == 0.0 and o.vy == 0.0)
 
 
 def out_from_under(me: Point, leaving: Point, tolerance: float, offset: float) -> bool:

@@ -98,6 +98,7 @@ import zenoh
 from agent.base import Base, base_limits, base_odom_key, make_base
 from agent.clock import STATS_WINDOW, Clock, LockstepClock, RealtimeClock
 from agent.config import AgentConfig, Membership, joined, membership_of
+from agent.errand import standing_circles
 from agent.faults import EPS, LinkFaults
 from agent.inbox import RING_CAPACITY, Inbox, Receiver
 from agent.leader_step import LeaderPart
@@ -457,8 +458,7 @@ class AgentNode:
     def _still(self) -> tuple[tuple[float, float, float], ...]:
         """The circles of the newest ``obstacles`` message that stand still (centre and Ds)."""
         entry = self.inbox.latest(keys.OBSTACLES, self.keys.obstacles)
-        return () if entry is None else tuple(
-            (o.x, o.y, o.ds) for o in entry[0].obstacles if o.vx == 0.0 and o.vy == 0.0)
+        return () if entry is None else standing_circles(entry[0].obstacles)
 
     async def _tick(self, t: float | None) -> Any:
         """The tick, after a formation change asked for in lock-step (:meth:`regroup`). A fleet

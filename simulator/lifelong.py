@@ -74,6 +74,7 @@ from agent.errand import (
     per_tick,
     route_mates,
     sees_load,
+    standing_circles,
     way_out,
 )
 from geometry.polygon import polygon_distance
@@ -885,28 +886,21 @@ class LifelongRun:
     def clear_point(self, rid: str, x: float, y: float) -> bool:
         """True when robot ``rid`` may stand at (x, y): clear of every wall, shelf and resting
         load in its view."""
-        still = tuple((o.x, o.y, o.ds) for o in obstacles_at(self.base, self.now)
-                      if o.vx == 0.0 and o.vy == 0.0)
-        return clear_spot(x, y, self.view_of(rid, self.seen_boxes()), still,
+        return clear_spot(x, y, self.view_of(rid, self.seen_boxes()),
+                          standing_circles(obstacles_at(self.base, self.now)),
                           self.base.robot.radius)
 
-    def allies_now(self, rid: str) -> tuple[str, ...]:
-        """The gathering teammates ``rid`` keeps apart from by separation rows, on the poses of
-        the tick before (:func:`agent.errand.allies_at`); none once its team has formed."""
+    def gathering_view(self, rid: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        """The gathering teammates ``rid`` keeps apart from by separation rows
+        (:func:`agent.errand.allies_at`) and those its routes go round as robots
+        (:func:`agent.errand.route_mates`), on the poses of the tick before; none once its
+        team has formed."""
         crew = self.crews.get(self.role[rid])
         if crew is None or crew.start_k < 0 or rid in self.team:
-            return ()
+            return (), ()
         at = dict(zip(crew.robots, self.positions(crew.robots, self.prev), strict=True))
-        return allies_at(crew.robots, crew.slots, rid, at)
-
-    def mates_now(self, rid: str) -> tuple[str, ...]:
-        """The gathering teammates whose routes ``rid``'s go round as robots, on the poses of
-        the tick before (:func:`agent.errand.route_mates`); none once its team has formed."""
-        crew = self.crews.get(self.role[rid])
-        if crew is None or crew.start_k < 0 or rid in self.team:
-            return ()
-        at = dict(zip(crew.robots, self.positions(crew.robots, self.prev), strict=True))
-        return route_mates(crew.robots, crew.slots, rid, at)
+        return (allies_at(crew.robots, crew.slots, rid, at),
+                route_mates(crew.robots, crew.slots, rid, at))
 
     def ask(self, k: int) -> None:
         """Each robot whose agent asks for its formation this tick (a new goal, its team, the
@@ -916,13 +910,9 @@ class LifelongRun:
         for rid in self.ids:
             if rid in self.dead:
                 continue
-            near = self.allies_now(rid)
-            if near != self.near[rid]:
-                self.near[rid] = near
-                self.again.add(rid)
-            standing = self.mates_now(rid)
-            if standing != self.mates[rid]:
-                self.mates[rid] = standing
+            near, standing = self.gathering_view(rid)
+            if near != self.near[rid] or standing != self.mates[rid]:
+                self.near[rid], self.mates[rid] = near, standing
                 self.again.add(rid)
         for rid in sorted(self.again):
             if rid in self.dead:
