@@ -45,6 +45,7 @@ from agent.node import AgentNode, NodeOptions  # noqa: E402
 from agent.replan import close_plan_pool, start_plan_pool  # noqa: E402
 from runtime.lifeline import watch_parent  # noqa: E402
 from wire.acl import read_credentials  # noqa: E402
+from wire.stamps import LOCKSTEP_WAIT_S  # noqa: E402
 from wire.zconf import UsrPwdAuth, use_zenoh_threads  # noqa: E402
 
 logger = logging.getLogger("agent")
@@ -150,8 +151,8 @@ def build_parser(prog: str = "python -m agent", description: str = "",
                         else "the robot's agent configuration (YAML)")
     parser.add_argument("--lockstep", action="store_true",
                         help="tick on pose arrival (simulated world) instead of the own clock")
-    parser.add_argument("--lockstep-timeout", type=float, default=2.0, metavar="SECONDS",
-                        help="longest wait for one tick's inputs in lock-step (default 2)")
+    parser.add_argument("--lockstep-timeout", type=float, default=LOCKSTEP_WAIT_S, metavar="SECONDS",
+                        help=f"longest wait for one tick's inputs in lock-step (default {LOCKSTEP_WAIT_S:g})")
     parser.add_argument("--drop", type=float, default=0.0, metavar="P",
                         help="lose each received state/ellipse/others message with probability P")
     parser.add_argument("--delay-ms", type=float, default=0.0, metavar="MS",

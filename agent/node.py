@@ -118,7 +118,7 @@ from runtime.shutdown import STEP_LIMIT_S, undeclare_all, within
 from wire import keys
 from wire.diag import DiagPublisher
 from wire.payloads import Cmd
-from wire.stamps import LOCKSTEP_AHEAD_PERIODS, validate_window
+from wire.stamps import LOCKSTEP_AHEAD_PERIODS, LOCKSTEP_WAIT_S, validate_window
 from wire.traffic import TrafficCounter
 from wire.zconf import UsrPwdAuth, ZenohSettings, explain_open_failure, read_auth_file
 
@@ -128,7 +128,7 @@ logger = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class NodeOptions:
     lockstep: bool = False  # tick on pose arrival (simulated world) instead of the own clock
-    lockstep_timeout: float = 2.0  # [s] longest wait for one phase's inputs in lock-step
+    lockstep_timeout: float = LOCKSTEP_WAIT_S  # [s] longest wait for one phase's inputs in lock-step
     trace: bool = True  # keep one row per tick (TRACE_COLUMNS) for the launcher's time series
     # (unbounded: about 400 bytes a tick; ``python -m agent --no-trace`` for long runs)
     connect_timeout: float = 10.0  # [s] keep retrying the router this long when opening

@@ -84,7 +84,7 @@ from wire.orders import OrderMsg, OrderStatusMsg, all_orders_key, encode_loads, 
 from wire.payloads import Cmd, ObstacleMsg, Obstacles, Pose
 from wire.reader import DecodeError
 from wire.shapes import shape_to_msg
-from wire.stamps import EPS
+from wire.stamps import EPS, LOCKSTEP_WAIT_S
 from wire.traffic import CountingPublisher, TrafficCounter
 
 from .bases import RmwBase, RmwBaseReader
@@ -115,7 +115,7 @@ class WorldOptions:
     realtime: bool = False
     camera: str = "truth"
     prefix: str = keys.DEFAULT_PREFIX
-    cmd_timeout: float = 5.0  # [s] lock-step: longest wait for a tick's commands
+    cmd_timeout: float = LOCKSTEP_WAIT_S  # [s] lock-step: longest wait for a tick's commands
     start_timeout: float = 60.0  # [s] longest wait for every agent to subscribe to its pose
     start_grace: float = 0.5  # [s] after every pose is matched, for the rest to propagate
     stale_after: float = 0.25  # [s] real time: an older command counts as zero
