@@ -120,6 +120,37 @@ class Sent:
     plan_at: float = -math.inf
 
 
+class StatusBook:
+    """The other leaders' statuses, each formation's newest with the one before it."""
+
+    def __init__(self) -> None:
+        self._got: dict[str, tuple[StatusMsg, StatusMsg | None]] = {}
+
+    def hear(self, status: StatusMsg) -> None:
+        """Keep ``status`` if it is one of its formation's two newest by stamp (one of a stamp
+        already kept replaces it: the same tick's again, a queryable's answer)."""
+        newest, before = self._got.get(status.formation, (None, None))
+        if newest is None or status.stamp >= newest.stamp:
+            keep = before if newest is None or status.stamp == newest.stamp else newest
+            self._got[status.formation] = (status, keep)
+        elif before is None or status.stamp >= before.stamp:
+            self._got[status.formation] = (newest, status)
+
+    def view(self, stamp: float, seen: Sequence[EllipseMsg], lockstep: bool) -> dict[str, Other]:
+        """The formations of ``seen`` as last reported (statuses at most REPORT_MAX_AGE_S old),
+        where their ellipses are now. Lock-step: as reported before the tick stamped ``stamp``;
+        a leader puts its status at the end of its tick, before its command, so every status of
+        an earlier stamp has come, and one of this tick may or may not have."""
+        out = {}
+        for e in seen:
+            st, before = self._got.get(e.formation, (None, None))
+            if lockstep and st is not None and st.stamp >= stamp - PLAN_EPS:
+                st = before
+            if st is not None and abs(stamp - st.stamp) <= REPORT_MAX_AGE_S:
+                out[e.formation] = Other(st.state, e.cx, e.cy, st.gx, st.gy, e.a)
+        return out
+
+
 class NavPart:
     """One agent's navigation state and its Zenoh endpoints (see the module docstring)."""
 
@@ -153,7 +184,7 @@ class NavPart:
         self._lock = threading.Lock()
         self._goal: GoalMsg | None = None  # newest unhandled goal (leader)
         self._plans: list[PlanMsg] = []  # unhandled plans, in arrival order (member)
-        self._reports: dict[str, StatusMsg] = {}  # the other leaders' newest statuses (routes)
+        self._reports = StatusBook()  # the other leaders' statuses (routes)
         self._sent = Sent()
         self._counter: TrafficCounter | None = None
         self._pubs: dict[str, CountingPublisher] = {}
@@ -242,9 +273,7 @@ class NavPart:
         if status is None or status.formation == self.cfg.formation:
             return
         with self._lock:
-            old = self._reports.get(status.formation)
-            if old is None or status.stamp >= old.stamp:
-                self._reports[status.formation] = status
+            self._reports.hear(status)
 
     def _due_plans(self, stamp: float, lockstep: bool) -> list[PlanMsg]:
         """The plans this tick adopts (under the lock). Real time: the newest. Lock-step: every
@@ -259,17 +288,11 @@ class NavPart:
         self._plans = [p for p in plans if p.stamp >= stamp - PLAN_EPS]
         return due
 
-    def reports(self, stamp: float, seen: Sequence[EllipseMsg]) -> dict[str, Other]:
-        """The other formations in view as their leaders last reported them (statuses at most
-        REPORT_MAX_AGE_S old), where their ellipses are now."""
+    def reports(self, stamp: float, seen: Sequence[EllipseMsg], lockstep: bool = False
+                ) -> dict[str, Other]:
+        """The other formations in view as their leaders reported them (:class:`StatusBook`)."""
         with self._lock:
-            got = dict(self._reports)
-        out = {}
-        for e in seen:
-            st = got.get(e.formation)
-            if st is not None and abs(stamp - st.stamp) <= REPORT_MAX_AGE_S:
-                out[e.formation] = Other(st.state, e.cx, e.cy, st.gx, st.gy, e.a)
-        return out
+            return self._reports.view(stamp, seen, lockstep)
 
     def _on_query(self, query: zenoh.Query) -> None:  # Zenoh thread
         data = self._sent.status_bytes
@@ -333,7 +356,7 @@ class NavPart:
                 seen: tuple[Sequence[ObstacleMsg], Sequence[EllipseMsg]]) -> None:
         """Leader, method rigid: take a new route (or hold) when one is ready; publish it."""
         r = routes.replanner  # the others' reports matter only to one with no route, aside,
-        reports = self.reports(stamp, seen[1]) if r.unreachable or r.giving_way or r.parked(
+        reports = self.reports(stamp, seen[1], lockstep) if r.unreachable or r.giving_way or r.parked(
             (own.cx, own.cy, 0.0)) or r.stuck(stamp) else {}  # parked or stuck (in one's way)
         upd = routes.tick(stamp, lockstep, own, self.follower, self.shapes, seen[0], seen[1], reports)
         if upd is None:
