@@ -39,7 +39,10 @@ from wire.zconf import UsrPwdAuth
 logger = logging.getLogger(__name__)
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
-STOP_TIMEOUT_S = 5.0  # [s] SIGTERM -> SIGKILL
+# [s] SIGTERM -> SIGKILL, for all the children together: longer than an agent's way out
+# (agent.__main__: SHUTDOWN_S, then up to WRITING_S for a long run's counters, megabytes that a
+# busy machine writes slowly), so no agent is killed while it writes them
+STOP_TIMEOUT_S = 15.0
 KILL_WAIT_S = 5.0  # [s] the longest wait for a SIGKILLed child to be reaped
 START_TIMEOUT_S = 60.0  # [s] router listening, agents subscribed
 
