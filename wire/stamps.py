@@ -55,9 +55,11 @@ CLOCK_TOLERANCE_S = 0.1  # [s] default: how far ahead of ours another clock's st
 LOCKSTEP_AHEAD_PERIODS = 2.0  # lock-step: stamps up to this many periods past the current frame
 EPS = 1e-9  # [s] stamps in lock-step are multiples of dt computed in floating point
 # [s] lock-step: the longest the world waits for a tick's commands and an agent for a phase's
-# inputs; a busy machine may starve a process for seconds, and a wait cut short makes a run
-# differ from the in-process simulation, so only a dead or stopped process should outlast it
-LOCKSTEP_WAIT_S = 5.0
+# inputs. A tick that plans a route takes a second of CPU at worst, several seconds of wall time
+# on a loaded machine, and a wait cut short makes a run differ from the in-process simulation,
+# so only a dead or stopped process should outlast it (a fault run waits far less:
+# simulator.faults)
+LOCKSTEP_WAIT_S = 20.0
 
 
 def check_stamp(now: float, stamp: float, last: float | None, tolerance: float,
