@@ -35,7 +35,6 @@ from leader.routing import Other, Reason, Replanner, Thing, Update
 from wire.payloads import EllipseMsg, ObstacleMsg
 
 from .body import Footprint, pose_of
-from .errand import mate_reach
 
 if TYPE_CHECKING:
     from .config import AgentConfig
@@ -108,8 +107,7 @@ class LeaderRoutes:
         out = [Thing(f"obstacle/{o.id}", o.x, o.y, math.hypot(o.vx, o.vy), o.ds, o.id in static,
                      o.vx, o.vy) for o in obstacles]
         out += [Thing(f"formation/{e.formation}", e.cx, e.cy, math.hypot(e.vx, e.vy),
-                      mate_reach(self.radius) if e.formation in self.mates
-                      else e.a + self.radius) for e in others
+                      e.a + self.radius) for e in others
                 if math.dist((e.cx, e.cy), (own.cx, own.cy)) > 1e-9]
         return out
 
