@@ -53,8 +53,9 @@ class LeaderRoutes:
                  start: tuple[float, float] | None, by_hand: bool, name: str = "",
                  speed: float = math.inf, mates: frozenset[str] = frozenset()) -> None:
         self.fp = fp
-        # the formations of one it plans round as robots rather than as formations: a lifelong
-        # team's members standing near their slots, to a member on its way to its own
+        # the formations of one it plans past as robots where no way keeps off their ellipses
+        # (leader.routing.round_mates): a lifelong team's members standing near their slots, to
+        # a member on its way to its own
         self.mates = mates
         self.speed = speed  # [m/s] the formation's top speed (a robot's)
         self.name = name  # the formation's

@@ -475,7 +475,8 @@ class Replanner:
         self.keep_if_clear = False
         # the formations that stand where they are until this one has arrived (a lifelong
         # team's members at their slots, to a member on its way to its own: they wait for it):
-        # bodies it goes round, by a narrow way if need be, never ones to wait for or give way to
+        # bodies it goes round (as formations where a way does, else as robots: round_mates), by
+        # a narrow way if need be, never ones to wait for or give way to
         self.mates: frozenset[str] = frozenset()
 
     def plan(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...], why: Reason,

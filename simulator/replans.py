@@ -37,7 +37,8 @@ class Replans:
         self.updates: list[tuple[float, str, Reason, int]] = []  # (t, formation, why, waypoints)
         # per formation of a lifelong run's gathering robot: the formations of one its leader
         # does not see (its allies, kept apart by separation rows) and those it plans round as
-        # robots, not as formations (its mates: agent.errand.mates_at)
+        # formations where a way does, else as robots (its mates: agent.errand.mates_at,
+        # leader.routing.round_mates)
         self.unseen: Mapping[str, frozenset[str]] = {}
         self.mates: Mapping[str, frozenset[str]] = {}
         # [m] how far beyond its own ellipse a leader sees the other formations: a lifelong run
