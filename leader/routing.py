@@ -317,10 +317,10 @@ class JobResult(NamedTuple):
 
 def mate_reach(radius: float) -> float:
     """[m] How far a route past a teammate standing near its slot keeps a robot's centre from
-    the teammate's (:func:`plan_job`'s second try): two bodies' radii, what their separation row
-    keeps once both are near their slots (:func:`agent.errand.allies_at`). The teammate's
-    ellipse (the reach of a formation of one, plus a radius) would shut off a slot between it
-    and a shelf that the members reach."""
+    the teammate's where no way keeps off the teammate's ellipse (:func:`round_mates`): two
+    bodies' radii, what their separation row keeps once both are near their slots
+    (:func:`agent.errand.allies_at`). The ellipse (the reach of a formation of one, plus a
+    radius) can shut off a slot between the teammate and a shelf that the members reach."""
     return 2.0 * radius
 
 
