@@ -77,8 +77,9 @@ class AgentConfig:
     topology: str = "reduced"
     foreign_robots: tuple[str, ...] = ()  # all-to-all only: robots of other formations
     partners: tuple[str, ...] = ()  # every other member of the formation: separation rows
-    # leader, lifelong: the formations of one its routes go round as robots (two radii), not
-    # as formations: a team's members standing near their slots (agent.errand.mates_at)
+    # leader, lifelong: the formations of one its routes go round as robots (two radii) where
+    # no way keeps off their ellipses: a team's members standing near their slots
+    # (agent.errand.mates_at, leader.routing.round_mates)
     mates: tuple[str, ...] = ()
     leader: LeaderSettings | None = None  # set on the leader robot only
     # set on the member that takes the leader role when the leader dies (leader.succession)

@@ -127,7 +127,8 @@ def mates_at(robots: Sequence[str], slots: Sequence[Point], rid: str, at: Mappin
              ) -> tuple[str, ...]:
     """The teammates of ``rid`` standing within :data:`ALLY_REACH` of their slots, wherever
     ``rid`` is (``at``: the members' positions known): its route to its own slot goes round
-    them as robots (:func:`mate_reach`), not as formations of one."""
+    them as the formations of one its rows keep it off, else past them as robots
+    (:func:`leader.routing.round_mates`)."""
     return tuple(r for r, s in zip(robots, slots, strict=True)
                  if r != rid and r in at and math.dist(at[r], s) <= ALLY_REACH)
 
@@ -138,14 +139,6 @@ def route_mates(robots: Sequence[str], slots: Sequence[Point], rid: str,
     farther than :data:`ALLY_REACH` from its own slot; near it they are its allies
     (:func:`allies_at`), out of its planner's view and kept off by separation rows."""
     return mates_at(robots, slots, rid, at) if not allies_at(robots, slots, rid, at) else ()
-
-
-def mate_reach(radius: float) -> float:
-    """[m] How far the route planner keeps a robot's centre from a teammate's standing near its
-    slot (:func:`mates_at`): two bodies' radii, what their separation row keeps once both are
-    near their slots (:func:`allies_at`). The teammate's ellipse (the reach of a formation of
-    one, plus a radius) would shut off a slot between it and a shelf that the members reach."""
-    return 2.0 * radius
 
 
 def way_out(load: Shape, me: Point, clear: Callable[[float, float], bool], radius: float

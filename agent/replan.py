@@ -35,7 +35,6 @@ from leader.routing import Other, Reason, Replanner, Thing, Update
 from wire.payloads import EllipseMsg, ObstacleMsg
 
 from .body import Footprint, pose_of
-from .errand import mate_reach
 
 if TYPE_CHECKING:
     from .config import AgentConfig
@@ -54,8 +53,9 @@ class LeaderRoutes:
                  start: tuple[float, float] | None, by_hand: bool, name: str = "",
                  speed: float = math.inf, mates: frozenset[str] = frozenset()) -> None:
         self.fp = fp
-        # the formations of one it plans round as robots rather than as formations: a lifelong
-        # team's members standing near their slots, to a member on its way to its own
+        # the formations of one it plans past as robots where no way keeps off their ellipses
+        # (leader.routing.round_mates): a lifelong team's members standing near their slots, to
+        # a member on its way to its own
         self.mates = mates
         self.speed = speed  # [m/s] the formation's top speed (a robot's)
         self.name = name  # the formation's
@@ -108,8 +108,7 @@ class LeaderRoutes:
         out = [Thing(f"obstacle/{o.id}", o.x, o.y, math.hypot(o.vx, o.vy), o.ds, o.id in static,
                      o.vx, o.vy) for o in obstacles]
         out += [Thing(f"formation/{e.formation}", e.cx, e.cy, math.hypot(e.vx, e.vy),
-                      mate_reach(self.radius) if e.formation in self.mates
-                      else e.a + self.radius) for e in others
+                      e.a + self.radius) for e in others
                 if math.dist((e.cx, e.cy), (own.cx, own.cy)) > 1e-9]
         return out
 

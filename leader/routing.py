@@ -303,6 +303,9 @@ class PlanJob(NamedTuple):
     lanes: tuple[Lane, ...] = ()  # moving things (:func:`lanes`): a route head-on into one goes round
     speed: float = math.inf  # [m/s] the formation's top speed (:func:`oncoming`)
     movable: tuple[Circle, ...] = ()  # other formations among ``circles``: not squeezed past
+    # teammates among ``circles`` (as formations of one), each with its circle as a robot
+    # (:func:`mate_reach`): where no route keeps off their ellipses, the route goes past them so
+    mates: tuple[tuple[Circle, Circle], ...] = ()
 
 
 class JobResult(NamedTuple):
@@ -312,11 +315,37 @@ class JobResult(NamedTuple):
     blocked_by: tuple[str, ...] = ()
 
 
+def mate_reach(radius: float) -> float:
+    """[m] How far a route past a teammate standing near its slot keeps a robot's centre from
+    the teammate's where no way keeps off the teammate's ellipse (:func:`round_mates`): two
+    bodies' radii, what their separation row keeps once both are near their slots
+    (:func:`agent.errand.allies_at`). The ellipse (the reach of a formation of one, plus a
+    radius) can shut off a slot between the teammate and a shelf that the members reach."""
+    return 2.0 * radius
+
+
+def round_mates(job: PlanJob) -> tuple[FootprintPlan, tuple[Circle, ...]]:
+    """The footprint's route round the circles, the teammates among them as the formations of
+    one that their rows keep it off while it is far from its slot; where there is none, past
+    the teammates as robots (``job.mates``); and the circles of the route. A route past them as
+    robots alone went between two teammates standing 0.74 m apart, whose ellipses its rows kept
+    it off: it stood there for good, in the way of a third teammate's slot, while a way round
+    the far side of one of them led to its own slot."""
+    res = plan_footprint(job.start, job.goal, job.body, job.shapes, job.circles, movable=job.movable)
+    if res.route or not job.mates:
+        return res, job.circles
+    near = dict(job.mates)
+    circles = tuple(near.get(c, c) for c in job.circles)
+    past = plan_footprint(job.start, job.goal, job.body, job.shapes, circles, movable=job.movable)
+    return past._replace(expanded=res.expanded + past.expanded), circles
+
+
 def plan_job(job: PlanJob) -> JobResult:
-    """The footprint's route (:func:`plan_footprint`); where there is none and formations are
+    """The footprint's route (:func:`round_mates`); where there is none and formations are
     parked in the way, the route without them too: the formations it passes are what blocks
     the way (each may be waiting for this one: :meth:`Replanner.give_way`)."""
-    res = plan_footprint(job.start, job.goal, job.body, job.shapes, job.circles, movable=job.movable)
+    res, circles = round_mates(job)
+    job = job._replace(circles=circles)
     ahead = [ln for ln in job.lanes
              if res.route and oncoming(job.start, res.route, job.body.rho, ln, job.speed)]
     if ahead:  # round where they drive, if there is a way; else the way, and the barriers wait
@@ -446,7 +475,8 @@ class Replanner:
         self.keep_if_clear = False
         # the formations that stand where they are until this one has arrived (a lifelong
         # team's members at their slots, to a member on its way to its own: they wait for it):
-        # bodies it goes round, by a narrow way if need be, never ones to wait for or give way to
+        # bodies it goes round (as formations where a way does, else as robots: round_mates), by
+        # a narrow way if need be, never ones to wait for or give way to
         self.mates: frozenset[str] = frozenset()
 
     def plan(self, t: float, pose: Pose3, things: tuple[tuple[str, Circle], ...], why: Reason,
@@ -572,9 +602,12 @@ class Replanner:
                        and n[len(FORMATION):] not in self.mates)
         parked = () if extra else others
         movable = tuple(c for _n, c in others) + tuple(c for _n, c in extra)
+        near = mate_reach(self.body.radius)
+        mates = tuple((c, (c[0], c[1], min(c[2], near))) for n, c in things
+                      if n.startswith(FORMATION) and n[len(FORMATION):] in self.mates)
         return PlanJob(pose, self.goal, self.body, self.shapes,
                        tuple(c for _n, c in things) + tuple(c for _n, c in extra), parked, moving,
-                       self.speed, movable)
+                       self.speed, movable, mates)
 
     def finish(self, res: FootprintPlan | JobResult, why: Reason) -> Update | None:
         """The route (or the order to hold) from a plan :meth:`begin` started; None: keep the

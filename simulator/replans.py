@@ -11,7 +11,6 @@ from collections.abc import Mapping, Sequence
 
 from agent.barriers import Obstacle
 from agent.body import Footprint, pose_of
-from agent.errand import mate_reach
 from geometry.ellipse import Ellipse, within_reach, wrap_angle
 from geometry.shapes import Shape
 from leader.navigation import Follower
@@ -38,7 +37,8 @@ class Replans:
         self.updates: list[tuple[float, str, Reason, int]] = []  # (t, formation, why, waypoints)
         # per formation of a lifelong run's gathering robot: the formations of one its leader
         # does not see (its allies, kept apart by separation rows) and those it plans round as
-        # robots, not as formations (its mates: agent.errand.mates_at)
+        # formations where a way does, else as robots (its mates: agent.errand.mates_at,
+        # leader.routing.round_mates)
         self.unseen: Mapping[str, frozenset[str]] = {}
         self.mates: Mapping[str, frozenset[str]] = {}
         # [m] how far beyond its own ellipse a leader sees the other formations: a lifelong run
@@ -146,9 +146,8 @@ class Replans:
                      spec.name in static, o.vx, o.vy)
                for o, spec in zip(obstacles, specs, strict=True)]
         radius, own = self.scenario.robot.radius, ellipses[name]
-        mates, unseen = self.mates.get(name, frozenset()), self.unseen.get(name, frozenset())
-        out += [Thing(f"formation/{other}", e.cx, e.cy, math.hypot(e.vx, e.vy),
-                      mate_reach(radius) if other in mates else e.a + radius)
+        unseen = self.unseen.get(name, frozenset())
+        out += [Thing(f"formation/{other}", e.cx, e.cy, math.hypot(e.vx, e.vy), e.a + radius)
                 for other, e in ellipses.items() if other != name and other not in unseen
                 and within_reach(own, e.cx, e.cy, e.a, self.reach)]
         return out

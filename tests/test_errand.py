@@ -35,7 +35,6 @@ from agent.errand import (
     allies_at,
     clear_spot,
     load_box,
-    mate_reach,
     mates_at,
     out_from_under,
     parking,
@@ -362,9 +361,12 @@ def test_a_way_out_from_under_a_load_keeps_off_a_pillar_standing_by_it() -> None
     assert clear_spot(*out, (sh,), (pillar,), 0.105)
 
 
-def test_a_robot_far_from_its_slot_plans_round_teammates_at_theirs_as_robots() -> None:
+def test_a_robot_far_from_its_slot_plans_round_teammates_at_theirs_else_past_them_as_robots(
+        ) -> None:
     """The leader of a formation of one on its way to its slot sees a teammate standing at its
-    own slot as a robot (two radii), any other formation by its ellipse plus a radius."""
+    own slot, as any other formation, by its ellipse plus a radius (what its rows keep while it
+    is far from its slot); its plan goes past the teammate as a robot (two radii) only where no
+    route keeps off that ellipse (leader.routing.round_mates), the other formation never."""
     cfg = build_agent_configs(load_scenario(PALLET))
     lead = next(c for c in cfg.values() if c.leader is not None and c.footprint is not None)
     routes = leader_routes(replace(lead, mates=("r2",)))
@@ -373,5 +375,8 @@ def test_a_robot_far_from_its_slot_plans_round_teammates_at_theirs_as_robots() -
     other = replace(mate, formation="r3", cy=2.0)
     own = Ellipse(0.0, 0.0, 0.0, 0.3, 0.3)
     seen = {t.name: t.ds for t in routes.things((), (mate, other), own)}
-    assert seen["formation/r2"] == mate_reach(lead.radius) == 2.0 * lead.radius
+    assert seen["formation/r2"] == mate.a + lead.radius
     assert seen["formation/r3"] == other.a + lead.radius
+    things = tuple((n, (x, 0.0, seen[n])) for n, x in (("formation/r2", 2.0), ("formation/r3", 4.0)))
+    job = routes.replanner.begin(0.0, (0.0, 0.0, 0.0), things)
+    assert job.mates == (((2.0, 0.0, seen["formation/r2"]), (2.0, 0.0, 2.0 * lead.radius)),)

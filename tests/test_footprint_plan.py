@@ -241,8 +241,38 @@ def test_teammates_standing_at_their_slots_are_bodies_to_go_round_not_formations
     assert job.formations == (("r9", (0.0, -2.5, 0.485)),)
     assert job.movable == ((0.0, -2.5, 0.485),)
     assert job.circles == tuple(c for _n, c in things)
+    assert job.mates == tuple((c, c) for _n, c in things[:3])  # two radii already
     res = plan_job(job)
     assert res.plan.route[-1] == goal and res.blocked_by == ()
+    # as formations of one (their ellipses' reach) the teammates shut the slot by the shelf: the
+    # route goes past them as robots
+    wide = tuple((n, (c[0], c[1], 0.485)) for n, c in things[:3]) + things[3:]
+    job = r.begin(0.0, start, wide)
+    assert job.mates == tuple(((c[0], c[1], 0.485), c) for c in mates)
+    res = plan_job(job)
+    assert res.plan.route[-1] == goal and res.blocked_by == ()
+
+
+def test_a_gathering_robot_goes_round_its_teammates_ellipses_where_a_way_does_not_between():
+    """Teammates standing at three corners of a pallet (a drawn unicycle hall of the lifelong
+    Monte Carlo), their ellipses 0.74 m apart, and a robot north of the pallet bound for the
+    fourth corner, by the shelf: past the teammates as robots its way runs between two of them,
+    where its rows keep it off their ellipses (it stood there for good); planned round their
+    ellipses first (:func:`leader.routing.round_mates`), it goes round the east one, the way in
+    that its rows allow."""
+    shapes = [box("shelf", (3.5364, 0.0), (5.2361, 0.9975), 0.0, 0.15)]
+    reach = 0.380232 + 0.105  # a formation of one's ellipse plus a radius
+    mates = {"r11": (3.879, 1.230, reach), "r8": (3.247, 0.853, reach), "r9": (3.010, 1.062, reach)}
+    body = Body(((0.0, 0.0),), radius=0.105, margin=PLAN_MARGIN + 0.1)
+    start, goal = (3.405, 1.308, 0.0), (3.8314, 0.8537, 0.0)
+    r = Replanner(body, 0.0, goal, shapes)
+    r.mates = frozenset(mates)
+    job = r.begin(0.0, start, tuple(sorted((f"formation/{n}", c) for n, c in mates.items())))
+    plan = plan_job(job).plan
+    assert plan.reason == "" and plan.route[-1] == goal
+    assert max(x for x, _y, _th in plan.route) > 4.2  # round the east teammate
+    robots = plan_job(job._replace(circles=tuple(near for _c, near in job.mates))).plan
+    assert robots.route[-1] == goal and max(x for x, _y, _th in robots.route) < 4.0  # between
 
 
 @settings(max_examples=25, deadline=None)
