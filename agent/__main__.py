@@ -12,9 +12,10 @@ starts and taken by one thread waiting in ``sigwait``, which only sets the node'
 never go through asyncio's wakeup fd: under a flood of messages that fd (the loop's self-pipe,
 which every ``call_soon_threadsafe`` also writes to) is full, the signal's byte is lost
 ("Exception ignored when trying to write to the signal wakeup fd: BlockingIOError") and the agent
-never stopped. The way out has a time limit (:data:`SHUTDOWN_S`): if the normal shutdown (zero
-command, undeclare, close, counters) has not finished by then, the signal thread publishes the
-zero command itself if it was not sent yet, writes the counters and ends the process.
+never stopped. The way out has a time limit (:data:`runtime.shutdown.SHUTDOWN_S`): if the
+normal shutdown (zero command, undeclare, close, counters) has not finished by then, the signal
+thread publishes the zero command itself if it was not sent yet, writes the counters and ends
+the process.
 """
 
 from __future__ import annotations
@@ -44,14 +45,13 @@ from agent.faults import LinkFaults  # noqa: E402
 from agent.node import AgentNode, NodeOptions  # noqa: E402
 from agent.replan import close_plan_pool, start_plan_pool  # noqa: E402
 from runtime.lifeline import watch_parent  # noqa: E402
+from runtime.shutdown import SHUTDOWN_S, WRITING_S  # noqa: E402
 from wire.acl import read_credentials  # noqa: E402
 from wire.stamps import LOCKSTEP_WAIT_S  # noqa: E402
 from wire.zconf import UsrPwdAuth, use_zenoh_threads  # noqa: E402
 
 logger = logging.getLogger("agent")
 
-SHUTDOWN_S = 3.0  # [s] longest normal shutdown after a signal before the emergency way out
-WRITING_S = 10.0  # [s] then, the longest wait for the main path already writing the counters
 
 
 class SignalWatch:

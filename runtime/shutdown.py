@@ -15,6 +15,10 @@ logger = logging.getLogger(__name__)
 
 #: [s] the default limit of one shutdown step (a healthy undeclare or close takes milliseconds)
 STEP_LIMIT_S = 2.0
+#: [s] an agent process's longest normal shutdown after a signal before its emergency way out
+SHUTDOWN_S = 3.0
+#: [s] then, the longest it waits for its main path already writing the counters
+WRITING_S = 10.0
 
 
 def undeclare_all(handles: Iterable[Any]) -> None:

@@ -34,15 +34,16 @@ from typing import IO, Any, Protocol
 from agent.config import AgentConfig, save_config
 from runtime import lifeline
 from runtime.router import IN_USE, RouterClash, new_router_id, wait_for_router
+from runtime.shutdown import SHUTDOWN_S, WRITING_S
 from wire.zconf import UsrPwdAuth
 
 logger = logging.getLogger(__name__)
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 # [s] SIGTERM -> SIGKILL, for all the children together: longer than an agent's way out
-# (agent.__main__: SHUTDOWN_S, then up to WRITING_S for a long run's counters, megabytes that a
-# busy machine writes slowly), so no agent is killed while it writes them
-STOP_TIMEOUT_S = 15.0
+# (SHUTDOWN_S, then up to WRITING_S for a long run's counters, megabytes that a busy machine
+# writes slowly), so no agent is killed while it writes them
+STOP_TIMEOUT_S = SHUTDOWN_S + WRITING_S + 2.0
 KILL_WAIT_S = 5.0  # [s] the longest wait for a SIGKILLed child to be reaped
 START_TIMEOUT_S = 60.0  # [s] router listening, agents subscribed
 
