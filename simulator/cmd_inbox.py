@@ -35,6 +35,9 @@ class CmdInbox:
         # came (wire.stamps.used_stamp): one command stamped ahead cannot hide the later ones
         self._used: dict[str, float] = {}
         self.late: set[str] = set()  # lock-step: robots whose last command timed out
+        # lock-step: robots not waited for at the tick under way only (an agent restarted during
+        # it never saw its poses); cleared when the next tick starts
+        self.excused: set[str] = set()
         self.malformed = 0
         self.latency_ms: list[float] = []
         self.measure_latency = False
@@ -86,11 +89,26 @@ class CmdInbox:
         with self._cond:
             self.late.discard(rid)
 
+    def excuse(self, rid: str) -> None:
+        """Lock-step: do not wait for ``rid``'s command of the tick under way (its agent was
+        restarted after the tick's poses went out, so none will come), but from the next tick
+        on, as for any robot: neither late nor waited for to the timeout."""
+        with self._cond:
+            self.late.discard(rid)
+            self.excused.add(rid)
+            self._cond.notify_all()
+
+    def waited_for(self, rid: str) -> bool:
+        """Lock-step: whether this tick's step waits for ``rid``'s command (call under the
+        lock, as :meth:`wait`'s ``ready`` is)."""
+        return rid not in self.late and rid not in self.excused
+
     def begin_tick(self, t: float) -> None:
         """Lock-step: the tick at simulated time ``t`` starts (before its poses go out): the
         stamp check's clock for the commands that arrive from now on."""
         with self._cond:
             self.now_t = t
+            self.excused.clear()
 
     def fresh(self, now: float, max_age: float, robots: Sequence[str] | None = None) -> dict[str, Cmd]:
         """The latest command of each robot (of ``robots``; default every one heard) whose
@@ -108,7 +126,7 @@ class CmdInbox:
         late)."""
         with self._cond:
             got = {r: c for r, (c, _rx) in self.latest.items() if abs(c.stamp - t) <= EPS}
-            late = [r for r in robots if r not in got and r not in self.late]
+            late = [r for r in robots if r not in got and self.waited_for(r)]
             self.late.update(late)
         return got, late
 

@@ -185,7 +185,7 @@ class FaultDriver:
                            rid, code, self.t, self.restarts[rid], self.restart_limit)
             self.log.append({"event": "crash", "robot": rid, "t_s": round(self.t, 6),
                              "status": code})
-            self.restart(rid, self.t)
+            self.restart(rid, self.t, missed_frame=True)
         return True
 
     def on_tick(self, k: int, t: float) -> None:
@@ -208,7 +208,11 @@ class FaultDriver:
         logger.info("killed agent %s at t=%.2f s (router saw it go: %s)", rid, t, gone)
         self.log.append({"event": "kill", "robot": rid, "t_s": round(t, 6)})
 
-    def restart(self, rid: str, t: float) -> None:
+    def restart(self, rid: str, t: float, missed_frame: bool = False) -> None:
+        """Start ``rid``'s agent again at simulated time ``t``. ``missed_frame``: the world's
+        wait for this tick's commands is under way (a crash found while waiting), so the new
+        agent never saw this tick's poses: the world does not wait for its command of this tick,
+        only from the next one (the neighbours that waited for it give up first)."""
         if rid in self.agents:
             logger.warning("restart %s at t=%.2f s: its agent is still running", rid, t)
             return
@@ -218,7 +222,10 @@ class FaultDriver:
         self.agents[rid] = self.fleet.start(restart_log_name(rid, self.incarnation[rid]), argv)
         if not self.realtime:  # lock-step: the restart takes no simulated time
             self.world.wait_for_agents(abort=self.fleet.check, robots=[rid], grace=False)
-            self.world.inbox.expect(rid)  # and waits for its commands from the first tick
+            if missed_frame:
+                self.world.inbox.excuse(rid)
+            else:
+                self.world.inbox.expect(rid)  # and waits for its commands from the first tick
         self.log.append({"event": "restart", "robot": rid, "t_s": round(t, 6),
                          "start_wall_s": round(time.monotonic() - wall0, 3)})
 

@@ -22,7 +22,10 @@ Two clocks:
   can make the world step early or wait longer than ``cmd_timeout``. Deterministic and
   as fast as the agents answer. Agents run with ``--lockstep`` and tick on pose arrival. A robot
   whose command timed out is *late*: later ticks do not wait for it until a command of its
-  arrives again (a killed agent costs one timeout, then its robot just gets zero each tick).
+  arrives again (a killed agent costs one timeout, then its robot just gets zero each tick; one
+  restarted while the world waits is not waited for at that tick, whose poses it never saw).
+  The world waits longer than an agent's phases in a row (:data:`wire.stamps.LOCKSTEP_WORLD_WAIT_S`),
+  so around a dead agent its neighbours give up and command first.
 * **real time**: integrate on the wall clock at 1/dt with the latest command of each robot (zero
   if none arrived within ``stale_after``); poses are stamped with ``time.time()``, so the delay
   from a pose's publication to the command computed from it (which carries the same stamp) is the
@@ -84,7 +87,7 @@ from wire.orders import OrderMsg, OrderStatusMsg, all_orders_key, encode_loads, 
 from wire.payloads import Cmd, ObstacleMsg, Obstacles, Pose
 from wire.reader import DecodeError
 from wire.shapes import shape_to_msg
-from wire.stamps import EPS, LOCKSTEP_WAIT_S
+from wire.stamps import EPS, LOCKSTEP_WORLD_WAIT_S
 from wire.traffic import CountingPublisher, TrafficCounter
 
 from .bases import RmwBase, RmwBaseReader
@@ -115,7 +118,7 @@ class WorldOptions:
     realtime: bool = False
     camera: str = "truth"
     prefix: str = keys.DEFAULT_PREFIX
-    cmd_timeout: float = LOCKSTEP_WAIT_S  # [s] lock-step: longest wait for a tick's commands
+    cmd_timeout: float = LOCKSTEP_WORLD_WAIT_S  # [s] lock-step: longest wait for a tick's commands
     start_timeout: float = 60.0  # [s] longest wait for every agent to subscribe to its pose
     start_grace: float = 0.5  # [s] after every pose is matched, for the rest to propagate
     stale_after: float = 0.25  # [s] real time: an older command counts as zero
@@ -508,7 +511,7 @@ class World:
 
         def ready() -> bool:
             return all(r in inbox.latest and abs(inbox.latest[r][0].stamp - t) <= EPS
-                       for r in self.ids if r not in inbox.late)
+                       for r in self.ids if inbox.waited_for(r))
 
         if not inbox.wait(ready, self.options.cmd_timeout, abort):
             counts.timeouts += 1

@@ -54,12 +54,17 @@ REASONS: tuple[str, ...] = (FUTURE, STALE, OLDER)  # checked in this order
 CLOCK_TOLERANCE_S = 0.1  # [s] default: how far ahead of ours another clock's stamp may be
 LOCKSTEP_AHEAD_PERIODS = 2.0  # lock-step: stamps up to this many periods past the current frame
 EPS = 1e-9  # [s] stamps in lock-step are multiples of dt computed in floating point
-# [s] lock-step: the longest the world waits for a tick's commands and an agent for a phase's
-# inputs. A tick that plans a route takes a second of CPU at worst, several seconds of wall time
-# on a loaded machine, and a wait cut short makes a run differ from the in-process simulation,
-# so only a dead or stopped process should outlast it (a fault run waits far less:
-# simulator.faults)
+# [s] lock-step: the longest an agent waits for one phase's inputs. A tick that plans a route
+# takes a second of CPU at worst, several seconds of wall time on a loaded machine, and a wait
+# cut short makes a run differ from the in-process simulation, so only a dead or stopped process
+# should outlast it (a fault run waits far less: simulator.faults)
 LOCKSTEP_WAIT_S = 20.0
+# [s] lock-step: the longest the world waits for a tick's commands. Longer than an agent's
+# phases in a row (a leader waits for its members' states, then the other leaders' ellipses,
+# then its tick's inputs): around a dead agent its neighbours give up first and command, so the
+# world waits only for the dead robot. Were the world to give up first, every robot would be
+# late at once and the world would run ahead of all of them.
+LOCKSTEP_WORLD_WAIT_S = 3 * LOCKSTEP_WAIT_S
 
 
 def check_stamp(now: float, stamp: float, last: float | None, tolerance: float,
