@@ -82,7 +82,6 @@ from geometry.shapes import Shape, shape_distance
 from leader import allocation
 from leader import orders as lo
 from leader.role import VIEW_RANGE
-from leader.routing import Reason
 from leader.team import (
     TeamPlan,
     axis_turn,
@@ -951,10 +950,6 @@ class LifelongRun:
         control = self.fleet_control(scen, views)
         self.perm = [self.index[r] for r in scen.robot_ids]
         control.vel = [self.vel[b] for b in self.perm]
-        for f in forms:  # a formation that lands plans at its first tick, as its leader's does
-            driver = control.replans.drivers.get(f.name)
-            if driver is not None and f.name in views:
-                driver.replanner.due = Reason.START
         self.carry_over(control, fresh)
         self.allied(control)
         self.control = control

@@ -65,6 +65,9 @@ class Replans:
             r.name = f.name
             r.unreachable = starts[f.name].reason
             r.last_plan = 0.0
+            # the first tick plans with what the leader sees then (a moving thing's lane, the
+            # other formations), as the agent's leader does (agent.replan.LeaderRoutes)
+            r.due = Reason.START
             fp = footprints[members[f.name][0]]
             self.drivers[f.name] = RouteDriver(r, fp.goal_turn, scenario.robot.radius)
 
