@@ -91,8 +91,8 @@ class CmdInbox:
 
     def excuse(self, rid: str) -> None:
         """Lock-step: do not wait for ``rid``'s command of the tick under way (its agent was
-        restarted after the tick's poses went out, so none will come), but from the next tick
-        on, as for any robot: neither late nor waited for to the timeout."""
+        restarted after the tick's poses went out, so none will come); from the next tick on it
+        is waited for again, not late."""
         with self._cond:
             self.late.discard(rid)
             self.excused.add(rid)
@@ -102,6 +102,13 @@ class CmdInbox:
         """Lock-step: whether this tick's step waits for ``rid``'s command (call under the
         lock, as :meth:`wait`'s ``ready`` is)."""
         return rid not in self.late and rid not in self.excused
+
+    def all_in(self, t: float, robots: Sequence[str]) -> bool:
+        """Lock-step: the step barrier of the tick stamped ``t``: every robot of ``robots``
+        waited for has a command stamped ``t`` (call under the lock, as :meth:`wait`'s
+        ``ready``)."""
+        return all(r in self.latest and abs(self.latest[r][0].stamp - t) <= EPS
+                   for r in robots if self.waited_for(r))
 
     def begin_tick(self, t: float) -> None:
         """Lock-step: the tick at simulated time ``t`` starts (before its poses go out): the

@@ -87,7 +87,7 @@ from wire.orders import OrderMsg, OrderStatusMsg, all_orders_key, encode_loads, 
 from wire.payloads import Cmd, ObstacleMsg, Obstacles, Pose
 from wire.reader import DecodeError
 from wire.shapes import shape_to_msg
-from wire.stamps import EPS, LOCKSTEP_WORLD_WAIT_S
+from wire.stamps import LOCKSTEP_WORLD_WAIT_S
 from wire.traffic import CountingPublisher, TrafficCounter
 
 from .bases import RmwBase, RmwBaseReader
@@ -508,12 +508,7 @@ class World:
         """Lock-step: wait (up to ``cmd_timeout``) for every robot's command of tick ``k``
         stamped ``t`` (robots late since a timeout not waited for); the commands that came."""
         inbox = self.inbox
-
-        def ready() -> bool:
-            return all(r in inbox.latest and abs(inbox.latest[r][0].stamp - t) <= EPS
-                       for r in self.ids if inbox.waited_for(r))
-
-        if not inbox.wait(ready, self.options.cmd_timeout, abort):
+        if not inbox.wait(lambda: inbox.all_in(t, self.ids), self.options.cmd_timeout, abort):
             counts.timeouts += 1
         got, late = inbox.take_since(t, self.ids)
         if late:

@@ -22,9 +22,8 @@ def command(box: CmdInbox, rid: str, t: float) -> None:
 
 
 def ready_at(box: CmdInbox, t: float):
-    """The world's barrier: every robot waited for has a command stamped ``t``."""
-    return lambda: all(r in box.latest and abs(box.latest[r][0].stamp - t) < 1e-9
-                       for r in ROBOTS if box.waited_for(r))
+    """The world's step barrier for the tick stamped ``t``."""
+    return lambda: box.all_in(t, ROBOTS)
 
 
 def test_a_robot_whose_command_timed_out_is_late_until_one_arrives():
