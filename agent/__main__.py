@@ -53,7 +53,6 @@ from wire.zconf import UsrPwdAuth, use_zenoh_threads  # noqa: E402
 logger = logging.getLogger("agent")
 
 
-
 class SignalWatch:
     """SIGINT/SIGTERM taken by a dedicated thread (module docstring). Construct it before any
     other thread starts (threads inherit the blocked mask); :meth:`on_signal` adds what a signal
