@@ -84,6 +84,7 @@ from wire.orders import LoadEntry, OrderMsg, OrderStatusMsg, decode_loads
 from wire.payloads import decode_state
 from wire.reader import DecodeError
 from wire.shapes import msg_to_shape, shape_to_msg
+from wire.traffic import in_order
 
 logger = logging.getLogger(__name__)
 
@@ -187,7 +188,7 @@ class LifePart:
         self.link = OrderLink(session, self.cfg.prefix, self.bidder, self.resolve, self.faults,
                               on_team=self._on_team, on_status=self._on_status)
         self._subs["loads"] = session.declare_subscriber(keys.loads_key(self.cfg.prefix),
-                                                         self._on_loads)
+                                                         in_order(self._on_loads))
         self._deaths_sub = self.deaths.watch(session)
 
     def close(self) -> None:
@@ -240,7 +241,8 @@ class LifePart:
             return
         for key, r in want.items():
             if key not in self._subs:
-                self._subs[key] = session.declare_subscriber(key, partial(self._on_state, r))
+                self._subs[key] = session.declare_subscriber(key,
+                                                             in_order(partial(self._on_state, r)))
         with self.heard.lock:  # a teammate heard afresh starts with no position
             kept = self._listening & set(mates)
             self.heard.states = {r: v for r, v in self.heard.states.items() if r in kept}

@@ -49,7 +49,7 @@ from wire.navigation import (
 from wire.payloads import DecodeError, EllipseMsg, ObstacleMsg, ShapeMsg
 from wire.shapes import msg_to_shape
 from wire.stamps import FUTURE, check_stamp
-from wire.traffic import CountingPublisher, TrafficCounter
+from wire.traffic import CountingPublisher, TrafficCounter, in_order
 
 logger = logging.getLogger(__name__)
 
@@ -208,15 +208,15 @@ class NavPart:
     def open(self, session: zenoh.Session, counter: TrafficCounter) -> None:
         self._counter = counter
         if self.navigator is None:
-            self._decls.append(session.declare_subscriber(self.keys.plan, self._on_plan))
+            self._decls.append(session.declare_subscriber(self.keys.plan, in_order(self._on_plan)))
             return
         for k in (self.keys.plan, self.keys.status):
             self._pubs[k] = CountingPublisher(session.declare_publisher(k), counter)
-        self._decls.append(session.declare_subscriber(self.keys.goal, self._on_goal))
+        self._decls.append(session.declare_subscriber(self.keys.goal, in_order(self._on_goal)))
         self._decls.append(session.declare_queryable(self.keys.status, self._on_query))
         if self.routes is not None:  # who is waiting for whom (leader.routing: giving way)
             self._decls.append(session.declare_subscriber(
-                keys.all_formations_key(self.cfg.prefix, keys.STATUS), self._on_status))
+                keys.all_formations_key(self.cfg.prefix, keys.STATUS), in_order(self._on_status)))
 
     def close(self, stamp: float) -> None:
         """Leader: a last ``stopped`` status; then undeclare everything."""

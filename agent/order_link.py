@@ -48,6 +48,7 @@ from wire.orders import (
     parse_order_key,
 )
 from wire.reader import DecodeError
+from wire.traffic import in_order
 
 logger = logging.getLogger(__name__)
 
@@ -88,7 +89,7 @@ class OrderLink:
         self.forged = 0
         self.puts = 0
         self.now = 0.0  # [s] the time of the tick under way (its stamp on what is put)
-        self.sub = session.declare_subscriber(f"{prefix}/order/**", self._on_sample)
+        self.sub = session.declare_subscriber(f"{prefix}/order/**", in_order(self._on_sample))
 
     def _on_sample(self, sample: zenoh.Sample) -> None:  # Zenoh thread
         key = str(sample.key_expr)

@@ -23,6 +23,9 @@ payload costs the control loop nothing, then hands the result to the loop with
 locks; the counters lag the network by one loop iteration. The decoder is injected (any
 ``bytes -> value`` callable that raises on bad input), so the mailbox is testable without zenoh
 through :meth:`Mailbox.offer`.
+
+:func:`in_order` makes a subscriber's callback run on the Zenoh thread that received the sample,
+so samples that came over one link are taken in the order they came.
 """
 
 from __future__ import annotations
@@ -48,6 +51,18 @@ Snapshot = dict[str, dict[str, dict[str, int]]]
 T = TypeVar("T")
 
 _DELETE = zenoh.SampleKind.DELETE
+
+
+def in_order(callback: Callable[[zenoh.Sample], Any]) -> zenoh.handlers.Callback:
+    """A subscriber handler calling ``callback`` right on the Zenoh thread that received the
+    sample (``indirect=False``). zenoh-python's default hands each subscriber's samples to a
+    Python thread of its own, so samples on two keys may be taken in either order whatever order
+    the link brought them in. A lock-step agent reads what its teammates, its leader and the
+    world put before their commands of tick ``k - 1`` (statuses, bids, plans, states, loads)
+    when the pose of tick ``k`` arrives, and that pose reaches it through the same router link
+    after them: taken in order, every one of them is in before the tick reads it. ``callback``
+    must be short (it holds up the link while it runs)."""
+    return zenoh.handlers.Callback(callback, indirect=False)
 CLASS_CACHE_SIZE = 4096  # keys whose class a TrafficCounter remembers (cleared when full)
 
 
