@@ -309,6 +309,8 @@ def _run_world(cfg: RunConfig, hooks: _Hooks, fleet: Fleet, endpoint: str,
         world = World(cfg.scenario, session, world_options(cfg),
                       () if zones is None else zones.sessions,
                       None if zones is None else zones.zone_of)
+        if manager is not None:  # the book's yard as the world's loads: a status at its tick
+            world.passed_on = manager.hear
         statuses = StatusBoard(session, keys.DEFAULT_PREFIX)
         detach = hooks.observer(session) if hooks.observer is not None else None
         driver = FaultDriver(cfg.faults, fleet, world, agents, cfg.scenario.dt, cfg.realtime,

@@ -355,6 +355,12 @@ class FleetManager:
             with self._lock:
                 self._take(msg)
 
+    def hear(self, msg: OrderStatusMsg) -> None:
+        """An order's status another part of this process heard (the world of ``formation
+        run``, which takes each one at a known tick); one heard twice changes the book once."""
+        with self._lock:
+            self._take(msg)
+
     def entries(self) -> dict[str, Entry]:
         """A copy of the book's entries."""
         with self._lock:

@@ -238,12 +238,15 @@ class World:
 
     def _declare_loads(self, session: zenoh.Session) -> None:
         """A lifelong scenario's loads (module docstring): ``world/loads`` out, the orders'
-        status in; the launcher sets ``more_orders`` (the fleet manager has orders to post)
-        and ``tally`` (told the orders delivered and posted before each progress report)."""
+        status in; the launcher sets ``more_orders`` (the fleet manager has orders to post),
+        ``tally`` (told the orders delivered and posted before each progress report) and
+        ``passed_on`` (told each status as the world takes it: the fleet manager's book then
+        holds, at tick ``k``, every status the world took by then, as ``formation sim``'s)."""
         life = self.scenario.lifelong
         self.loads = WorldLoads(self.scenario) if life is not None else None
         self.more_orders: Callable[[], bool] = lambda: False
         self.tally: Callable[[int, int], None] | None = None
+        self.passed_on: Callable[[OrderStatusMsg], None] | None = None
         self.status_dropped = 0  # malformed or forged order statuses
         self._statuses: list[OrderStatusMsg] = []
         self._status_lock = threading.Lock()
@@ -306,6 +309,8 @@ class World:
             heard, self._statuses = self._statuses, []
         for msg in heard:
             self.loads.take_status(msg, t, state)
+            if self.passed_on is not None:
+                self.passed_on(msg)
 
     def _loads_after(self, t: float, state: Sequence[BodyPose]) -> None:
         """Once the robots moved to ``state`` at ``t``: carried loads follow their teams."""

@@ -123,3 +123,27 @@ def test_every_order_finished_ones_too_is_answered_printed_and_kept_across_a_res
     assert by_id["m2"].startswith("m2: failed (member lost: f2) robots f1,f2")
     # a robot that asks keeps the open ones
     assert sorted(open_in_book(orders, statuses)) == ["m3", "m4"]
+
+
+def test_a_status_passed_on_by_the_world_is_in_the_book_at_once_and_taken_once(
+        router, tmp_path) -> None:
+    """``formation run``'s world hands the manager each status at the tick it takes it
+    (:meth:`FleetManager.hear`): the book and its yard have it before the next orders fall due,
+    whenever the manager's own subscription hears it; heard twice, it is journalled once."""
+    with session(router) as ms:
+        manager = FleetManager(ms, LIFE, tmp_path, stamp=lambda: 1.0)
+        try:
+            assert [m.oid for m in manager.tick(0.0)] == ["o1", "o2"]
+            assert {"in-1", "rack-1"} <= manager.book.yard.held
+            for state in ("assigned", "carrying", "delivered"):
+                msg = OrderStatusMsg("o1", state, 1, TEAM, TEAM[0], stamp=3.0)
+                manager.hear(msg)
+                manager.hear(msg)
+            entry = manager.entries()["o1"]
+            yard = manager.book.yard
+        finally:
+            manager.close()
+    assert entry.status.state == "delivered" and entry.status.roster == TEAM
+    assert not {"in-1", "rack-1"} & yard.held and yard.resting["rack-1"] == "o1"
+    journal = (tmp_path / JOURNAL).read_text(encoding="utf-8").splitlines()
+    assert sum('"status"' in line for line in journal) == 3
