@@ -22,6 +22,7 @@ from leader.ellipse import Ellipse
 from leader.role import ellipse_to_msg
 from runtime.testing import RouterProcess, wait_for_matching
 from scenario import load_scenario
+from tests.same_files import assert_same
 from wire import keys, zconf
 from wire.payloads import Cmd, ObstacleMsg, Obstacles, Others, Pose, State, decode_cmd, encode
 
@@ -58,7 +59,7 @@ def test_a_lockstep_run_with_agent_hosts_writes_the_same_robots_csv_as_the_in_pr
     for rid in robots:  # every hosted agent wrote its own counters
         stats = json.loads((tmp_path / "run" / "agents" / f"{rid}.json").read_text())
         assert stats["robot"] == rid and stats["ticks"] > 0 and stats["host_agents"] >= 1
-    assert (tmp_path / "run" / "robots.csv").read_bytes() == (tmp_path / "sim" / "robots.csv").read_bytes()
+    assert_same(tmp_path / "sim" / "robots.csv", tmp_path / "run" / "robots.csv")
 
 
 def test_kills_and_a_bad_agents_per_process_exit_2_before_starting_anything(tmp_path):

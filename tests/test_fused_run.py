@@ -31,6 +31,7 @@ from leader.ellipse import Ellipse
 from leader.role import ellipse_to_msg
 from runtime.testing import RouterProcess, wait_for_matching
 from scenario import load_scenario
+from tests.same_files import assert_same
 from wire import keys, zconf
 from wire.odom import Odom, encode_odom, odom_key
 from wire.payloads import ObstacleMsg, Obstacles, Others, Pose, State, decode_cmd, decode_state, encode
@@ -67,7 +68,7 @@ def test_a_lock_step_run_through_a_blind_patch_writes_what_formation_sim_writes(
         assert loc["blind_s"] > 10.0 and loc["rejected"] == 0
     header = (run / "robots.csv").read_text().splitlines()[0]
     assert header.endswith("est_x,est_y,sigma_m")
-    assert (run / "robots.csv").read_bytes() == (sim / "robots.csv").read_bytes()
+    assert_same(sim / "robots.csv", run / "robots.csv")
 
 
 # --- one agent over a real router ---------------------------------------------------------------

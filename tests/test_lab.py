@@ -23,6 +23,7 @@ from scenario.model import ObstacleSpec, with_world
 from scenario.world import IDEAL, PROFILES, TURTLEBOT3_LAB, WorldSpec, parse_world
 from simulator.inprocess import SimOptions, simulate
 from simulator.lab import REVERSE_ENTER, REVERSE_LEAVE, Camera, LabWorld, command_rates, drive, wheel_step
+from tests.same_files import assert_same
 
 ROOT = Path(__file__).resolve().parent.parent
 TWO_SMALL = ROOT / "tests" / "scenarios" / "two-small.yaml"
@@ -268,7 +269,7 @@ def test_an_ideal_world_section_changes_nothing(tmp_path):
     ideal = _with_world(TWO_SMALL, tmp_path, {"profile": "ideal", "seed": 5})
     assert main(["sim", str(TWO_SMALL), "--out", str(tmp_path / "a"), "--quiet", "--no-plots"]) == 0
     assert main(["sim", str(ideal), "--out", str(tmp_path / "b"), "--quiet", "--no-plots"]) == 0
-    assert (tmp_path / "a" / "robots.csv").read_bytes() == (tmp_path / "b" / "robots.csv").read_bytes()
+    assert_same(tmp_path / "a" / "robots.csv", tmp_path / "b" / "robots.csv")
 
 
 def test_the_lab_world_changes_the_run_and_the_summary_says_which_world_it_was(tmp_path):
@@ -291,8 +292,7 @@ def test_a_lockstep_run_equals_the_simulation_in_the_lab_world(tmp_path):
                  "--insecure"]) == 0
     run = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert run["world_profile"]["profile"] == TURTLEBOT3_LAB and run["world_profile"]["seed"] == 7
-    assert (tmp_path / "run" / "robots.csv").read_bytes() == \
-        (tmp_path / "sim" / "robots.csv").read_bytes()
+    assert_same(tmp_path / "sim" / "robots.csv", tmp_path / "run" / "robots.csv")
 
 
 def test_a_montecarlo_run_in_the_lab_world_replays_from_its_scenario_file():

@@ -20,21 +20,12 @@ from pathlib import Path
 import pytest
 
 from formation.cli import main
+from tests.same_files import assert_same
 
 SCENARIOS = Path(__file__).resolve().parent / "scenarios"
 SAME = ("lifelong/one-beam-unicycle", "lifelong/one-pallet-di", "lifelong/chain-busy-si",
         "lifelong-forklift-cross-aisle", "lifelong/stream-mixed-si",
         "lifelong/mc-gather-standstill-unicycle")
-
-
-def first_difference(a: Path, b: Path) -> str:
-    """The first line where two files differ, for the failure message ("" when none)."""
-    la = a.read_text(encoding="utf-8").splitlines()
-    lb = b.read_text(encoding="utf-8").splitlines()
-    for n, (x, y) in enumerate(zip(la, lb, strict=False), start=1):
-        if x != y:
-            return f"line {n}:\n  sim {x}\n  run {y}"
-    return f"{len(la)} lines against {len(lb)}" if len(la) != len(lb) else ""
 
 
 @pytest.mark.slow
@@ -45,7 +36,6 @@ def test_a_lock_step_run_writes_what_the_simulator_writes(tmp_path: Path, stem: 
     assert main(["sim", path, "--out", str(sim), "--no-plots", "--quiet"]) == 0
     assert main(["run", path, "--out", str(run), "--no-plots", "--quiet"]) == 0
     for name in ("orders.csv", "robots.csv"):
-        a, b = sim / name, run / name
-        assert a.read_bytes() == b.read_bytes(), f"{stem} {name}: {first_difference(a, b)}"
+        assert_same(sim / name, run / name, f"{stem} {name}")
     rows = (sim / "orders.csv").read_text(encoding="utf-8").splitlines()[1:]
     assert rows and all(",delivered," in row for row in rows)

@@ -23,6 +23,7 @@ from scenario import Bounds, ScenarioError, load_scenario
 from scenario.bounds import matching, parse, with_bounds
 from scenario.load import scenario_from_dict
 from scenario.world import PROFILES, TURTLEBOT3_LAB
+from tests.same_files import assert_same
 
 ROOT = Path(__file__).resolve().parents[1]
 TWO_SMALL = ROOT / "tests" / "scenarios" / "two-small.yaml"
@@ -235,8 +236,7 @@ def test_a_lockstep_run_with_bounds_equals_the_simulation_in_the_lab_world(tmp_p
                  *common]) == 0
     sim = json.loads((tmp_path / "sim" / "summary.json").read_text())
     assert sim["all_reached"] and sim["collisions"] == 0
-    assert (tmp_path / "run" / "robots.csv").read_bytes() == \
-        (tmp_path / "sim" / "robots.csv").read_bytes()
+    assert_same(tmp_path / "sim" / "robots.csv", tmp_path / "run" / "robots.csv")
     # the bounds changed what the robots did: the same run without them differs
     assert main(["sim", str(TWO_SMALL), "--out", str(tmp_path / "plain"), *common[:2],
                  *common[4:]]) == 0

@@ -15,6 +15,7 @@ from scenario.world import PROFILES, TURTLEBOT3_LAB
 mujoco = pytest.importorskip("mujoco")  # the physics extra (make test installs it)
 
 from simulator.physics import MOTOR_LAG, XL430_SPEED, MujocoWorld, world_for  # noqa: E402
+from tests.same_files import assert_same  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 TWO_SMALL = ROOT / "tests" / "scenarios" / "two-small.yaml"
@@ -135,8 +136,7 @@ def test_a_lockstep_run_with_mujoco_equals_the_simulation(tmp_path):
     run = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert run["mode"] == "multiprocess" and run["physics"]["engine"] == "mujoco"
     assert run["physics"]["collisions"] == 0 and run["all_reached"]
-    assert (tmp_path / "run" / "robots.csv").read_bytes() == \
-        (tmp_path / "sim" / "robots.csv").read_bytes()
+    assert_same(tmp_path / "sim" / "robots.csv", tmp_path / "run" / "robots.csv")
 
 
 def test_a_run_takes_the_engine_into_its_world():

@@ -31,6 +31,7 @@ from deploy.inventory import RobotHost
 from deploy.remote import package_digest, parse_stats, remote_script
 from formation.cli import main as formation_main
 from simulator.fleet import ChildFailed, Fleet
+from tests.same_files import assert_same
 from wire import keys, zconf
 from wire.payloads import decode_cmd
 
@@ -109,7 +110,7 @@ def test_a_lockstep_run_with_agents_on_other_hosts_writes_the_same_robots_csv_as
     logs = (run / "logs" / "agent-r1.log").read_text()
     assert "Traceback" not in logs
     assert run_folders(hosts["dirs"]) == []  # each host's run folder (credentials) is gone
-    assert (run / "robots.csv").read_bytes() == (tmp_path / "sim" / "robots.csv").read_bytes()
+    assert_same(tmp_path / "sim" / "robots.csv", run / "robots.csv")
 
 
 class CmdWatcher:
