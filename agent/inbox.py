@@ -51,7 +51,7 @@ from wire.payloads import (
     decode_state,
 )
 from wire.stamps import FUTURE, OLDER, StampCounter, check_stamp, used_stamp
-from wire.traffic import Mailbox, TrafficCounter
+from wire.traffic import Mailbox, TrafficCounter, in_order
 
 logger = logging.getLogger(__name__)
 
@@ -482,7 +482,7 @@ class Inbox:
             return (t.declare(key, zenoh.handlers.RingChannel(cap)),
                     self._handler(cls, box, notify=False, key=key))
         if self.polled:  # the pose: tick right on the Zenoh thread that received it
-            return t.declare(key, zenoh.handlers.Callback(self._on_pose, indirect=False)), None
+            return t.declare(key, in_order(self._on_pose)), None
         return t.declare(key, self._handler(cls, box)), None
 
     def install(self, key: str, cls: str, sub: Any, take: Take | None) -> None:

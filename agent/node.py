@@ -119,7 +119,7 @@ from wire import keys
 from wire.diag import DiagPublisher
 from wire.payloads import Cmd
 from wire.stamps import LOCKSTEP_AHEAD_PERIODS, LOCKSTEP_WAIT_S, validate_window
-from wire.traffic import TrafficCounter
+from wire.traffic import TrafficCounter, in_order
 from wire.zconf import UsrPwdAuth, ZenohSettings, explain_open_failure, read_auth_file
 
 logger = logging.getLogger(__name__)
@@ -353,7 +353,7 @@ class AgentNode:
             # thread per link, so a frame's pose reaches the filter before the odometry after it
             for key, take in ((self.odom_in.odom_key, feed.odom),
                               (self.odom_in.pose_key, feed.camera)):
-                t.keep(key, t.declare(key, zenoh.handlers.Callback(take, indirect=False)))
+                t.keep(key, t.declare(key, in_order(take)))
         self.leader.open(t, loop, self.gate)
         if self.life is not None:
             self.life.open(session)

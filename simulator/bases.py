@@ -26,6 +26,7 @@ import zenoh
 from agent.base import decode_cmd
 from wire import rmw_zenoh as rmw
 from wire.payloads import Cmd
+from wire.traffic import in_order
 
 logger = logging.getLogger(__name__)
 
@@ -105,7 +106,7 @@ class RmwBaseReader:
     def declare(self, session_of: Callable[[str], Any]) -> list[Any]:
         """One subscriber per robot, on the session ``session_of(robot)`` gives."""
         self._subs = [session_of(b.robot).declare_subscriber(
-            b.key, zenoh.handlers.Callback(self.callback, indirect=False))
+            b.key, in_order(self.callback))
             for b in self._bases.values()]
         return self._subs
 

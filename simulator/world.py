@@ -88,7 +88,7 @@ from wire.payloads import Cmd, ObstacleMsg, Obstacles, Pose
 from wire.reader import DecodeError
 from wire.shapes import shape_to_msg
 from wire.stamps import LOCKSTEP_WORLD_WAIT_S
-from wire.traffic import CountingPublisher, TrafficCounter
+from wire.traffic import CountingPublisher, TrafficCounter, in_order
 
 from .bases import RmwBase, RmwBaseReader
 from .cmd_inbox import CmdInbox
@@ -212,12 +212,12 @@ class World:
                                       self.inbox.count_malformed).declare(self._session_of)
         elif self.zones:
             self.subs = [self._session_of(r).declare_subscriber(
-                keys.cmd_key(p, r), zenoh.handlers.Callback(self.inbox.callback, indirect=False))
+                keys.cmd_key(p, r), in_order(self.inbox.callback))
                 for r in self.ids]
         else:
             self.subs = [session.declare_subscriber(
                 keys.all_robots_key(p, keys.CMD),
-                zenoh.handlers.Callback(self.inbox.callback, indirect=False))]
+                in_order(self.inbox.callback))]
         # controller.localisation fused: every robot's wheel odometry (simulator.odom_out)
         self.fused = scenario.controller.localisation == "fused"
         self.odom = OdomOut(scenario, [CountingPublisher(self._session_of(r).declare_publisher(
@@ -258,7 +258,7 @@ class World:
             session.declare_publisher(keys.loads_key(p)), self.counter)
         self.subs.append(session.declare_subscriber(
             all_orders_key(p) + "/status",
-            zenoh.handlers.Callback(self._on_status, indirect=False)))
+            in_order(self._on_status)))
         # the keys fleet robots start to put or hear at run time (a team's formation keys, a
         # teammate's state) have a subscriber here from the start: a publisher that knows of no
         # subscriber sends nothing, so without one the first puts of a new leader could miss
@@ -266,7 +266,7 @@ class World:
         for key in [keys.all_formations_key(p, kind) for kind in keys.FORMATION_CLASSES] + [
                 keys.all_robots_key(p, keys.STATE)]:
             self.subs.append(session.declare_subscriber(
-                key, zenoh.handlers.Callback(_ignore, indirect=False)))
+                key, in_order(_ignore)))
 
     def _on_status(self, sample: zenoh.Sample) -> None:
         """An order's status, kept for the next tick (on Zenoh's thread)."""

@@ -66,6 +66,7 @@ from wire.payloads import (
     decode_state,
 )
 from wire.shapes import msg_to_shape
+from wire.traffic import in_order
 
 from .frame import Frame, blind_entries, formation_status, num, shape_entries
 from .loads import LoadView, hull_entries
@@ -115,7 +116,7 @@ class FleetWatcher:
                  keys.all_formations_key(p, keys.PLAN), keys.obstacles_key(p),
                  all_orders_key(p), all_orders_key(p) + "/status", keys.loads_key(p)]
         self._subs = [session.declare_subscriber(
-            e, zenoh.handlers.Callback(self.on_sample, indirect=False)) for e in exprs]
+            e, in_order(self.on_sample)) for e in exprs]
 
     def on_sample(self, sample: zenoh.Sample) -> None:
         data = sample.payload.to_bytes()

@@ -52,18 +52,19 @@ T = TypeVar("T")
 
 _DELETE = zenoh.SampleKind.DELETE
 
+CLASS_CACHE_SIZE = 4096  # keys whose class a TrafficCounter remembers (cleared when full)
+
 
 def in_order(callback: Callable[[zenoh.Sample], Any]) -> zenoh.handlers.Callback:
     """A subscriber handler calling ``callback`` right on the Zenoh thread that received the
-    sample (``indirect=False``). zenoh-python's default hands each subscriber's samples to a
-    Python thread of its own, so samples on two keys may be taken in either order whatever order
-    the link brought them in. A lock-step agent reads what its teammates, its leader and the
-    world put before their commands of tick ``k - 1`` (statuses, bids, plans, states, loads)
-    when the pose of tick ``k`` arrives, and that pose reaches it through the same router link
-    after them: taken in order, every one of them is in before the tick reads it. ``callback``
-    must be short (it holds up the link while it runs)."""
+    sample (``indirect=False``), with no Python thread woken for it. zenoh-python's default
+    hands each subscriber's samples to a Python thread of its own, so samples on two keys may be
+    taken in either order whatever order the link brought them in. A lock-step agent reads what
+    its teammates, its leader and the world put before their commands of tick ``k - 1``
+    (statuses, bids, plans, states, loads) when the pose of tick ``k`` arrives, and that pose
+    reaches it through the same router link after them: taken in order, every one of them is in
+    before the tick reads it. ``callback`` must be short (it holds up the link while it runs)."""
     return zenoh.handlers.Callback(callback, indirect=False)
-CLASS_CACHE_SIZE = 4096  # keys whose class a TrafficCounter remembers (cleared when full)
 
 
 def empty_snapshot() -> Snapshot:
