@@ -352,12 +352,12 @@ class FleetManager:
             logger.debug("dropped: %s", exc)
             return
         if isinstance(msg, OrderMsg | OrderStatusMsg):  # a bid is no business of the book
-            with self._lock:
-                self._take(msg)
+            self.hear(msg)
 
-    def hear(self, msg: OrderStatusMsg) -> None:
-        """An order's status another part of this process heard (the world of ``formation
-        run``, which takes each one at a known tick); one heard twice changes the book once."""
+    def hear(self, msg: OrderMsg | OrderStatusMsg) -> None:
+        """An order or an order's status heard: on this manager's own subscriptions, or by
+        another part of its process (the world of ``formation run`` passes on each status at the
+        tick it takes it); one heard twice changes the book once."""
         with self._lock:
             self._take(msg)
 
